@@ -1,0 +1,1 @@
+"""Inverse problems with the thin-shell energy as a physics prior."""
