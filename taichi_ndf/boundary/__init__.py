@@ -1,0 +1,25 @@
+"""Boundary conditions enforced exactly by construction: u_c = φ_c N_c + g_c."""
+
+from taichi_ndf.boundary.conditions import BoundaryConditions
+from taichi_ndf.boundary.constraints import (
+    EDGES,
+    ClampedEdge,
+    Constraint,
+    Handle,
+    HingedEdge,
+    InteriorLine,
+    PinnedPoint,
+    RimRotation,
+)
+
+__all__ = [
+    "BoundaryConditions",
+    "Constraint",
+    "EDGES",
+    "ClampedEdge",
+    "HingedEdge",
+    "PinnedPoint",
+    "Handle",
+    "InteriorLine",
+    "RimRotation",
+]

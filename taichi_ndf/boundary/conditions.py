@@ -1,0 +1,477 @@
+"""Boundary conditions that hold exactly by construction: u_c = φ_c N_c + g_c.
+
+N is the raw network output, c = x, y, z. For each component, φ_c is the product of the
+vanishing factors of the constraints acting on c (`taichi_ndf.boundary.vanishing`), so any N
+satisfies the homogeneous conditions; g_c carries the prescribed displacements (handles,
+moved edges, rotating rims). With several constraints on c, g_c blends the prescribed values
+with weights that are 1 on one constraint's set and 0 on every other one:
+
+    g_c = Σ_i g_i W_i / Σ_k W_k,    W_k = Π_{m ≠ k} Φ_m,
+
+where the groups Φ are each prescribing constraint's factor and (if any) the product of the
+factors of the constraints that hold their set at zero (linearly vanishing factors enter
+squared, so every weight is positive off the sets). Because quadratically vanishing factors
+also have zero gradient on their sets, g inherits the slope of each prescription there (a
+rotating rim gets exactly the rigid rotation of its tangent plane). The blend is singular
+only where the sets of two groups meet, so a prescribing constraint touching any other
+constraint on the same component is refused as contradictory.
+
+Length scale. Every factor rises from 0 on its set to exactly 1 at distance ℓ and is 1 beyond,
+with ℓ measured in normalised coordinates η = (ξ − lo)/(hi − lo) ∈ [0, 1]² (so a plate and a
+cylinder's angle get comparable bands). The default ℓ = 0.1 is chosen because
+- outside the band the field is not damped at all; the original Gaussian masks
+  1 − exp(−d²/0.01) are below 0.98 up to 0.2 of the domain;
+- inside the band N must follow u/φ, which varies on the scale ℓ: 0.1 of the extent is about
+  one period of the first SIREN layer (ω₀ = 30 on inputs in [−1, 1]), so it is resolvable,
+  while a smaller ℓ would make φ'' ~ 6/ℓ² amplify network noise in the bending strain;
+- a pinned point or handle also holds the slope, over a patch of radius ℓ; 0.1 keeps that
+  patch small. Pass `length` (globally or per constraint) to change it, in (0, 0.5).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.boundary import vanishing
+from taichi_ndf.boundary.constraints import (
+    COMPONENTS,
+    ClampedEdge,
+    Constraint,
+    Handle,
+    HingedEdge,
+    InteriorLine,
+    PinnedPoint,
+    RimRotation,
+)
+from taichi_ndf.geometry import ParameterDomain, ReferenceSurface
+
+# Distance (in η) below which two constraint sets count as touching.
+_TOUCH_TOL = 1e-9
+# Points tested along a segment to decide that it lies inside a masked domain.
+_SEGMENT_PROBES = 65
+
+_EDGE_SETS = {
+    "xi1_min": ((0.0, 0.0), (0.0, 1.0)),
+    "xi1_max": ((1.0, 0.0), (1.0, 1.0)),
+    "xi2_min": ((0.0, 0.0), (1.0, 0.0)),
+    "xi2_max": ((0.0, 1.0), (1.0, 1.0)),
+}
+
+Segment = tuple[tuple[float, float], tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class _Term:
+    """A constraint resolved against the domain."""
+
+    constraint: Constraint
+    length: float
+    where: tuple[Segment, ...]  # the constrained set in η, points as zero-length segments
+    prescribes: frozenset[int]  # components (0, 1, 2) with a non-zero prescribed displacement
+
+    @property
+    def linear(self) -> bool:
+        """Whether the factor vanishes linearly (odd, changes sign across the set)."""
+        con = self.constraint
+        return isinstance(con, HingedEdge) or (isinstance(con, InteriorLine) and con.hinged)
+
+    @property
+    def components(self) -> frozenset[int]:
+        return frozenset(COMPONENTS.index(c) for c in self.constraint.components)
+
+
+class BoundaryConditions:
+    """Exact boundary conditions on a parameter domain.
+
+    constraints: `ClampedEdge`, `HingedEdge`, `PinnedPoint`, `Handle`, `InteriorLine`,
+        `RimRotation` (see `taichi_ndf.boundary.constraints`); several may act on one
+        component (their factors multiply).
+    domain: the reference surface's parameter domain; periodic coordinates need no condition
+        (the field is periodic by construction) and have no edges.
+    surface: the reference surface; needed by `RimRotation` (positions r on the rim).
+    length: default band width ℓ of the vanishing factors, a fraction of the domain extent in
+        (0, 0.5) (see the module docstring for the choice of 0.1).
+
+    Raises ValueError naming the problem for a constraint outside the domain, an edge on a
+    periodic coordinate, or a prescribed displacement whose set touches another constraint's
+    set on the same component.
+    """
+
+    def __init__(
+        self,
+        constraints: Sequence[Constraint],
+        domain: ParameterDomain,
+        *,
+        surface: ReferenceSurface | None = None,
+        length: float = 0.1,
+    ):
+        if not (isinstance(length, (int, float)) and math.isfinite(length) and 0 < length < 0.5):
+            raise ValueError(
+                f"length is a fraction of the domain extent in (0, 0.5), got {length!r}"
+            )
+        if surface is not None and (
+            surface.domain.bounds != domain.bounds or surface.domain.periodic != domain.periodic
+        ):
+            raise ValueError(
+                "surface.domain does not match domain (bounds or periodic flags differ)"
+            )
+        self.constraints = tuple(constraints)
+        self.domain = domain
+        self.surface = surface
+        self.length = float(length)
+        self._terms = tuple(self._resolve(c) for c in self.constraints)
+        self._check_contradictions()
+
+    # ---- composition -------------------------------------------------------------------
+
+    def compose(self, xi: torch.Tensor, raw_jets: torch.Tensor, t: float = 1.0) -> torch.Tensor:
+        """Displacement jets u = φ N + g, shape (N, 6, 3) [m], from the raw network jets
+        N (N, 6, 3) at ξ (N, 2); t is the pseudo-time / load factor of prescribed motions."""
+        xi = xi.to(raw_jets.dtype)
+        factors = self._factors(xi)
+        phi = self._vanishing(xi, factors)
+        return jets.product(phi, raw_jets) + self._prescribed(xi, factors, t)
+
+    def compose_adjoint(
+        self, xi: torch.Tensor, grad_u_jets: torch.Tensor, t: float = 1.0
+    ) -> torch.Tensor:
+        """Gradient with respect to the raw jets N (N, 6, 3) of a scalar whose gradient with
+        respect to u = compose(ξ, N, t) is grad_u_jets; g does not depend on N, so t is unused."""
+        xi = xi.to(grad_u_jets.dtype)
+        return jets.product_adjoint(self._vanishing(xi, self._factors(xi)), grad_u_jets)
+
+    def vanishing_factor(self, xi: torch.Tensor) -> torch.Tensor:
+        """Jets of φ_c at ξ (N, 2), shape (N, 6, 3): 0 on each constrained set of component c,
+        1 outside the bands of its constraints."""
+        return self._vanishing(xi, self._factors(xi))
+
+    def prescribed_displacement(self, xi: torch.Tensor, t: float = 1.0) -> torch.Tensor:
+        """Jets of g_c at ξ (N, 2), shape (N, 6, 3) [m]: the prescribed displacement at
+        pseudo-time t on each prescribing constraint's set, 0 on the other sets."""
+        return self._prescribed(xi, self._factors(xi), t)
+
+    def _factors(self, xi: torch.Tensor) -> list[torch.Tensor]:
+        return [self._factor(term, xi) for term in self._terms]
+
+    def _vanishing(self, xi: torch.Tensor, factors: list[torch.Tensor]) -> torch.Tensor:
+        # Components held by the same constraints (the usual "xyz") share one product.
+        products: dict[tuple[int, ...], torch.Tensor] = {}
+        per_component = []
+        for c in range(3):
+            key = tuple(i for i, term in enumerate(self._terms) if c in term.components)
+            if key not in products:
+                products[key] = _product([factors[i] for i in key], xi)
+            per_component.append(products[key])
+        return torch.cat(per_component, dim=2)
+
+    def _prescribed(self, xi: torch.Tensor, factors: list[torch.Tensor], t: float) -> torch.Tensor:
+        t = float(t)
+        if not math.isfinite(t):
+            raise ValueError(f"pseudo-time t must be a finite number, got {t!r}")
+        zero = xi.new_zeros(xi.shape[0], jets.CHANNELS, 1)
+        if not any(term.prescribes for term in self._terms):
+            return torch.cat([zero] * 3, dim=2)
+        # Blend weights need factors that are positive off their sets: square the odd ones.
+        factors = [
+            vanishing.square(f) if term.linear else f
+            for term, f in zip(self._terms, factors, strict=True)
+        ]
+        motions = [self._motion(term, xi, t) if term.prescribes else None for term in self._terms]
+        blends: dict[tuple, list[torch.Tensor]] = {}
+        per_component = []
+        for c in range(3):
+            prescribing = tuple(i for i, term in enumerate(self._terms) if c in term.prescribes)
+            holding = tuple(
+                i
+                for i, term in enumerate(self._terms)
+                if c in term.components and c not in term.prescribes
+            )
+            if (prescribing, holding) not in blends:
+                blends[prescribing, holding] = self._blend(xi, factors, prescribing, holding)
+            g = zero
+            for blend, i in zip(blends[prescribing, holding], prescribing, strict=True):
+                g = g + jets.product(blend, motions[i][..., c : c + 1])
+            per_component.append(g)
+        return torch.cat(per_component, dim=2)
+
+    @staticmethod
+    def _blend(xi, factors, prescribing, holding) -> list[torch.Tensor]:
+        """Weights W_i / Σ_k W_k (jets (N, 6, 1)) of the prescribing constraints."""
+        if not prescribing:
+            return []
+        groups = [factors[i] for i in prescribing]
+        if holding:
+            groups.append(_product([factors[i] for i in holding], xi))
+        weights = [_product(groups[:k] + groups[k + 1 :], xi) for k in range(len(groups))]
+        inverse_total = vanishing.reciprocal(sum(weights))
+        return [jets.product(w, inverse_total) for w in weights[: len(prescribing)]]
+
+    # ---- per-constraint pieces ---------------------------------------------------------
+
+    def _eta(self, xi: torch.Tensor) -> tuple[torch.Tensor, tuple[float, float]]:
+        """Normalised coordinates η (N, 2) and dη/dξ per coordinate."""
+        (lo1, _), (lo2, _) = self.domain.bounds
+        l1, l2 = self.domain.lengths
+        eta = torch.stack(((xi[:, 0] - lo1) / l1, (xi[:, 1] - lo2) / l2), dim=1)
+        return eta, (1.0 / l1, 1.0 / l2)
+
+    def _wrap(self, delta: torch.Tensor) -> torch.Tensor:
+        """Differences in η (N, 2) taken to the nearest periodic image."""
+        delta = delta.clone()
+        for k in range(2):
+            if self.domain.periodic[k]:
+                delta[:, k] -= torch.round(delta[:, k])
+        return delta
+
+    def _factor(self, term: _Term, xi: torch.Tensor) -> torch.Tensor:
+        """Jets (N, 6, 1) of the vanishing factor of one constraint."""
+        con, ell = term.constraint, term.length
+        eta, scale = self._eta(xi)
+        if isinstance(con, (ClampedEdge, HingedEdge, RimRotation)):
+            k = 0 if con.edge.startswith("xi1") else 1
+            sign = 1.0 if con.edge.endswith("min") else -1.0
+            value = eta[:, k] if sign > 0 else 1.0 - eta[:, k]
+            d = (sign * scale[0] / ell, 0.0) if k == 0 else (0.0, sign * scale[1] / ell)
+            s = vanishing.affine(value / ell, *d)
+            if isinstance(con, HingedEdge):
+                return vanishing.linear_vanishing(s)
+            return vanishing.quadratic_vanishing(vanishing.square(s))
+        if isinstance(con, (PinnedPoint, Handle)):
+            p = torch.tensor(self._to_eta(con.xi), dtype=xi.dtype, device=xi.device)
+            delta = self._wrap(eta - p)
+            d1 = vanishing.affine(delta[:, 0], scale[0], 0.0)
+            d2 = vanishing.affine(delta[:, 1], 0.0, scale[1])
+            return vanishing.quadratic_vanishing(
+                (vanishing.square(d1) + vanishing.square(d2)) / ell**2
+            )
+        if isinstance(con, InteriorLine):
+            a, b = self._to_eta(con.start), self._to_eta(con.end)
+            if con.extend:
+                norm = math.hypot(b[0] - a[0], b[1] - a[1])
+                n = (-(b[1] - a[1]) / norm, (b[0] - a[0]) / norm)
+                delta = self._wrap(eta - torch.tensor(a, dtype=xi.dtype, device=xi.device))
+                f = vanishing.affine(
+                    (n[0] * delta[:, 0] + n[1] * delta[:, 1]) / ell,
+                    n[0] * scale[0] / ell,
+                    n[1] * scale[1] / ell,
+                )
+                if con.hinged:
+                    return vanishing.linear_vanishing(f)
+                return vanishing.quadratic_vanishing(vanishing.square(f))
+            mid = torch.tensor(
+                ((a[0] + b[0]) / 2, (a[1] + b[1]) / 2), dtype=xi.dtype, device=xi.device
+            )
+            local = mid + self._wrap(eta - mid)
+            return vanishing.quadratic_vanishing(
+                vanishing.segment_level(local, a, b, scale) / ell**2
+            )
+        raise TypeError(f"unknown constraint type {type(con).__name__}")
+
+    def _motion(self, term: _Term, xi: torch.Tensor, t: float) -> torch.Tensor:
+        """Jets (N, 6, 3) [m] of the displacement a prescribing constraint imposes on its set."""
+        con = term.constraint
+        if isinstance(con, RimRotation):
+            m = torch.tensor(
+                _rotation(con.axis, t * con.angle) - np.eye(3), dtype=xi.dtype, device=xi.device
+            )
+            r = self.surface.jets(xi).to(xi.dtype)
+            motion = r @ m.T
+            p = torch.tensor(con.axis_point, dtype=xi.dtype, device=xi.device)
+            motion[:, jets.VALUE] -= m @ p
+            return motion
+        d = torch.tensor(con.displacement, dtype=xi.dtype, device=xi.device)
+        return jets.constant((t * d).expand(xi.shape[0], 3))
+
+    # ---- validation --------------------------------------------------------------------
+
+    def _to_eta(self, xi: tuple[float, float]) -> tuple[float, float]:
+        (lo1, _), (lo2, _) = self.domain.bounds
+        l1, l2 = self.domain.lengths
+        return ((xi[0] - lo1) / l1, (xi[1] - lo2) / l2)
+
+    def _inside(self, points: list[tuple[float, float]]) -> torch.Tensor:
+        return self.domain.contains(torch.tensor(points, dtype=torch.float64))
+
+    def _resolve(self, con: Constraint) -> _Term:
+        name = type(con).__name__
+        ell = self.length if con.length is None else float(con.length)
+        prescribes: frozenset[int] = frozenset()
+        if isinstance(con, (ClampedEdge, HingedEdge, RimRotation)):
+            k = 0 if con.edge.startswith("xi1") else 1
+            if self.domain.periodic[k]:
+                raise ValueError(
+                    f"{name} on edge {con.edge!r}: ξ{k + 1} is periodic, so the domain has no "
+                    "such edge (a periodic direction needs no boundary condition)"
+                )
+            where = (_EDGE_SETS[con.edge],)
+        elif isinstance(con, (PinnedPoint, Handle)):
+            if not bool(self._inside([con.xi])[0]):
+                raise ValueError(f"{name} at ξ={con.xi} lies outside the parameter domain")
+            p = self._to_eta(con.xi)
+            where = ((p, p),)
+        elif isinstance(con, InteriorLine):
+            where = (self._resolve_line(con, ell),)
+        else:
+            raise TypeError(f"unknown constraint type {type(con).__name__}")
+
+        if isinstance(con, RimRotation):
+            if self.surface is None:
+                raise ValueError("RimRotation needs the reference surface: pass surface=...")
+            if con.angle != 0.0:
+                axis = np.asarray(con.axis) / np.linalg.norm(con.axis)
+                # The row c of R − I vanishes for every angle only if the axis is along c.
+                prescribes = frozenset(
+                    COMPONENTS.index(c)
+                    for c in con.components
+                    if abs(abs(axis[COMPONENTS.index(c)]) - 1.0) > 1e-14
+                )
+        elif isinstance(con, (ClampedEdge, HingedEdge, Handle)):
+            prescribes = frozenset(
+                COMPONENTS.index(c)
+                for c in con.components
+                if con.displacement[COMPONENTS.index(c)] != 0.0
+            )
+        return _Term(constraint=con, length=ell, where=where, prescribes=prescribes)
+
+    def _resolve_line(self, con: InteriorLine, ell: float) -> Segment:
+        a, b = self._to_eta(con.start), self._to_eta(con.end)
+        periodic = self.domain.periodic
+        if con.extend:
+            axis_parallel = a[0] == b[0] or a[1] == b[1]
+            if any(periodic) and not axis_parallel:
+                raise ValueError(
+                    f"InteriorLine through {con.start} and {con.end}: on a domain with a periodic "
+                    "coordinate a whole line must be parallel to a coordinate axis"
+                )
+            for k in range(2):
+                # The line crosses the periodic coordinate k when it is normal to it.
+                if periodic[k] and a[k] == b[k] and con.hinged:
+                    raise ValueError(
+                        f"InteriorLine through {con.start} and {con.end}: a hinged line across "
+                        f"the periodic coordinate ξ{k + 1} is impossible (a smooth periodic φ "
+                        "changes sign an even number of times); use hinged=False"
+                    )
+            clipped = _clip_to_unit_square(a, b)
+            if clipped is None:
+                raise ValueError(
+                    f"InteriorLine through {con.start} and {con.end} misses the domain"
+                )
+            if self.domain.inside is not None:
+                probes = _points_along(self._from_eta(clipped[0]), self._from_eta(clipped[1]))
+                if not bool(self._inside(probes).any()):
+                    raise ValueError(
+                        f"InteriorLine through {con.start} and {con.end} misses the domain's mask"
+                    )
+            return clipped
+        probes = _points_along(con.start, con.end)
+        if not bool(self._inside(probes).all()):
+            raise ValueError(
+                f"InteriorLine from {con.start} to {con.end} leaves the parameter domain"
+            )
+        for k in range(2):
+            if periodic[k] and abs(b[k] - a[k]) + 2 * ell >= 1.0:
+                raise ValueError(
+                    f"InteriorLine from {con.start} to {con.end}: with its band (length {ell}) it "
+                    f"spans the whole period of ξ{k + 1}; use extend=True for a closed line"
+                )
+        return (a, b)
+
+    def _from_eta(self, eta: tuple[float, float]) -> tuple[float, float]:
+        (lo1, _), (lo2, _) = self.domain.bounds
+        l1, l2 = self.domain.lengths
+        return (lo1 + l1 * eta[0], lo2 + l2 * eta[1])
+
+    def _check_contradictions(self) -> None:
+        for i, first in enumerate(self._terms):
+            for second in self._terms[i + 1 :]:
+                shared = first.components & second.components
+                if not shared & (first.prescribes | second.prescribes):
+                    continue
+                if self._distance(first.where, second.where) <= _TOUCH_TOL:
+                    comps = "".join(COMPONENTS[c] for c in sorted(shared))
+                    raise ValueError(
+                        f"contradictory constraints on component(s) {comps!r}: "
+                        f"{first.constraint} and {second.constraint} meet, and at least one "
+                        "prescribes a displacement there"
+                    )
+
+    def _distance(self, first: tuple[Segment, ...], second: tuple[Segment, ...]) -> float:
+        shifts = [
+            (s1, s2)
+            for s1 in ((-1, 0, 1) if self.domain.periodic[0] else (0,))
+            for s2 in ((-1, 0, 1) if self.domain.periodic[1] else (0,))
+        ]
+        best = math.inf
+        for p, q in first:
+            for r, s in second:
+                for d1, d2 in shifts:
+                    shifted = ((r[0] + d1, r[1] + d2), (s[0] + d1, s[1] + d2))
+                    best = min(best, _segment_distance((p, q), shifted))
+        return best
+
+
+def _product(factors: list[torch.Tensor], xi: torch.Tensor) -> torch.Tensor:
+    """Jet (N, 6, 1) of the product of scalar jets; 1 for an empty list."""
+    out = jets.constant(xi.new_ones(xi.shape[0], 1))
+    for f in factors:
+        out = jets.product(out, f)
+    return out
+
+
+def _rotation(axis: tuple[float, float, float], angle: float) -> np.ndarray:
+    """Rotation matrix (3, 3) by `angle` [rad] about `axis` (Rodrigues)."""
+    k = np.asarray(axis, dtype=np.float64)
+    k = k / np.linalg.norm(k)
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * cross + (1.0 - math.cos(angle)) * cross @ cross
+
+
+def _points_along(start, end) -> list[tuple[float, float]]:
+    s = np.linspace(0.0, 1.0, _SEGMENT_PROBES)
+    return [(start[0] + u * (end[0] - start[0]), start[1] + u * (end[1] - start[1])) for u in s]
+
+
+def _clip_to_unit_square(a, b) -> Segment | None:
+    """The part of the infinite line through a and b inside [0, 1]² (Liang–Barsky)."""
+    d = (b[0] - a[0], b[1] - a[1])
+    lo, hi = -math.inf, math.inf
+    for k in range(2):
+        if d[k] == 0.0:
+            if not 0.0 <= a[k] <= 1.0:
+                return None
+            continue
+        t0, t1 = (0.0 - a[k]) / d[k], (1.0 - a[k]) / d[k]
+        lo, hi = max(lo, min(t0, t1)), min(hi, max(t0, t1))
+    if lo > hi:
+        return None
+    return ((a[0] + lo * d[0], a[1] + lo * d[1]), (a[0] + hi * d[0], a[1] + hi * d[1]))
+
+
+def _point_segment_distance(p, a, b) -> float:
+    d = (b[0] - a[0], b[1] - a[1])
+    dd = d[0] ** 2 + d[1] ** 2
+    u = 0.0 if dd == 0.0 else min(1.0, max(0.0, ((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / dd))
+    return math.hypot(p[0] - a[0] - u * d[0], p[1] - a[1] - u * d[1])
+
+
+def _segment_distance(first: Segment, second: Segment) -> float:
+    (p, q), (r, s) = first, second
+
+    def orient(a, b, c):
+        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+
+    o1, o2, o3, o4 = orient(p, q, r), orient(p, q, s), orient(r, s, p), orient(r, s, q)
+    if o1 * o2 < 0 and o3 * o4 < 0:
+        return 0.0
+    return min(
+        _point_segment_distance(p, r, s),
+        _point_segment_distance(q, r, s),
+        _point_segment_distance(r, p, q),
+        _point_segment_distance(s, p, q),
+    )

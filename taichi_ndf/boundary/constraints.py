@@ -1,0 +1,195 @@
+"""Boundary constraints: what is held, where, and which displacement components it acts on.
+
+These are plain, validated data. Positions ξ are surface coordinates of the reference
+surface's parameter domain; displacements are Cartesian [m]. Whether a constraint fits its
+domain (inside it, not on a periodic "edge", not contradicting another constraint) is checked
+by `BoundaryConditions`, which knows the domain.
+
+Every constraint has an optional `length`: the width of the band around its set in which the
+vanishing factor φ rises from 0 to 1, as a fraction of the domain's extent (see
+`taichi_ndf.boundary.conditions`). None means the `BoundaryConditions` default.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+EDGES = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")
+COMPONENTS = "xyz"
+
+
+def _check_components(owner: str, components: str) -> str:
+    if (
+        not isinstance(components, str)
+        or not components
+        or any(c not in COMPONENTS for c in components)
+        or len(set(components)) != len(components)
+    ):
+        raise ValueError(
+            f"{owner}: components must be a non-empty selection of distinct letters from "
+            f"'xyz', got {components!r}"
+        )
+    return "".join(c for c in COMPONENTS if c in components)
+
+
+def _check_vector(owner: str, name: str, value, size: int) -> tuple[float, ...]:
+    try:
+        vector = tuple(float(v) for v in value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{owner}: {name} must be {size} numbers, got {value!r}") from err
+    if len(vector) != size or not all(math.isfinite(v) for v in vector):
+        raise ValueError(f"{owner}: {name} must be {size} finite numbers, got {value!r}")
+    return vector
+
+
+def _check_edge(owner: str, edge: str) -> None:
+    if edge not in EDGES:
+        raise ValueError(f"{owner}: edge must be one of {EDGES}, got {edge!r}")
+
+
+def _check_length(owner: str, length: float | None) -> None:
+    if length is not None and not (
+        isinstance(length, (int, float)) and math.isfinite(length) and 0 < length < 0.5
+    ):
+        raise ValueError(
+            f"{owner}: length is a fraction of the domain extent in (0, 0.5), got {length!r}"
+        )
+
+
+def _set(obj, name: str, value) -> None:
+    object.__setattr__(obj, name, value)
+
+
+@dataclass(frozen=True)
+class ClampedEdge:
+    """An edge of the parameter rectangle held in position and rotation (φ vanishes
+    quadratically), optionally moved rigidly by `displacement` [m] at t = 1 (linear in t)."""
+
+    edge: str
+    components: str = "xyz"
+    displacement: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    length: float | None = None
+
+    def __post_init__(self):
+        _check_edge("ClampedEdge", self.edge)
+        _set(self, "components", _check_components("ClampedEdge", self.components))
+        _set(
+            self, "displacement", _check_vector("ClampedEdge", "displacement", self.displacement, 3)
+        )
+        _check_length("ClampedEdge", self.length)
+
+
+@dataclass(frozen=True)
+class HingedEdge:
+    """A simply supported edge: position held, rotation free (φ vanishes linearly), optionally
+    moved rigidly by `displacement` [m] at t = 1 (linear in t)."""
+
+    edge: str
+    components: str = "xyz"
+    displacement: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    length: float | None = None
+
+    def __post_init__(self):
+        _check_edge("HingedEdge", self.edge)
+        _set(self, "components", _check_components("HingedEdge", self.components))
+        _set(
+            self, "displacement", _check_vector("HingedEdge", "displacement", self.displacement, 3)
+        )
+        _check_length("HingedEdge", self.length)
+
+
+@dataclass(frozen=True)
+class PinnedPoint:
+    """A point ξ (on the boundary or in the interior) held in place. A smooth φ must vanish
+    quadratically at a point, so the surface's slope is held there too, over a patch of the
+    size of `length`."""
+
+    xi: tuple[float, float]
+    components: str = "xyz"
+    length: float | None = None
+
+    def __post_init__(self):
+        _set(self, "xi", _check_vector("PinnedPoint", "xi", self.xi, 2))
+        _set(self, "components", _check_components("PinnedPoint", self.components))
+        _check_length("PinnedPoint", self.length)
+
+
+@dataclass(frozen=True)
+class Handle:
+    """A point ξ moved by `displacement` [m] at t = 1 (linearly in t), slope held like a
+    pinned point: a grabbed or driven spot of the surface."""
+
+    xi: tuple[float, float]
+    displacement: tuple[float, float, float]
+    components: str = "xyz"
+    length: float | None = None
+
+    def __post_init__(self):
+        _set(self, "xi", _check_vector("Handle", "xi", self.xi, 2))
+        _set(self, "displacement", _check_vector("Handle", "displacement", self.displacement, 3))
+        _set(self, "components", _check_components("Handle", self.components))
+        _check_length("Handle", self.length)
+
+
+@dataclass(frozen=True)
+class InteriorLine:
+    """A straight line in ξ held in place: the segment from `start` to `end`, or with
+    `extend=True` the whole line through them across the domain.
+
+    By default φ vanishes quadratically (position and the slope across the line held). A
+    whole line may instead be `hinged` (φ vanishes linearly, rotation about the line free); a
+    segment cannot, because a smooth function cannot change sign across a segment and still
+    be non-zero around its ends.
+    """
+
+    start: tuple[float, float]
+    end: tuple[float, float]
+    components: str = "xyz"
+    extend: bool = False
+    hinged: bool = False
+    length: float | None = None
+
+    def __post_init__(self):
+        _set(self, "start", _check_vector("InteriorLine", "start", self.start, 2))
+        _set(self, "end", _check_vector("InteriorLine", "end", self.end, 2))
+        if self.start == self.end:
+            raise ValueError(f"InteriorLine: start and end coincide at {self.start}")
+        _set(self, "components", _check_components("InteriorLine", self.components))
+        if self.hinged and not self.extend:
+            raise ValueError(
+                "InteriorLine: hinged=True needs extend=True (a segment can only be held "
+                "with quadratic vanishing)"
+            )
+        _check_length("InteriorLine", self.length)
+
+
+@dataclass(frozen=True)
+class RimRotation:
+    """An edge (rim) clamped to a rigid cuff that rotates by `angle` [rad] at t = 1 (θ = t·angle)
+    about the axis through `axis_point` [m] with direction `axis`: on the rim the displacement
+    is exactly R(θ)(r − p) + p − r. Needs the reference surface for r."""
+
+    edge: str
+    axis_point: tuple[float, float, float]
+    axis: tuple[float, float, float]
+    angle: float
+    components: str = "xyz"
+    length: float | None = None
+
+    def __post_init__(self):
+        _check_edge("RimRotation", self.edge)
+        _set(self, "axis_point", _check_vector("RimRotation", "axis_point", self.axis_point, 3))
+        axis = _check_vector("RimRotation", "axis", self.axis, 3)
+        if math.hypot(*axis) == 0.0:
+            raise ValueError("RimRotation: axis must be a non-zero vector")
+        _set(self, "axis", axis)
+        if not (isinstance(self.angle, (int, float)) and math.isfinite(self.angle)):
+            raise ValueError(
+                f"RimRotation: angle must be a finite number [rad], got {self.angle!r}"
+            )
+        _set(self, "components", _check_components("RimRotation", self.components))
+        _check_length("RimRotation", self.length)
+
+
+Constraint = ClampedEdge | HingedEdge | PinnedPoint | Handle | InteriorLine | RimRotation
