@@ -1,0 +1,141 @@
+"""Analytic reference surfaces with exact jets: plane, cylinder, cone, cylindrical roof.
+
+All are defined in local axes and placed in the world by `origin` and `frame`
+(see `PlacedSurface`). Jets are exact closed forms, differentiable in torch with respect to ξ.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from taichi_ndf.geometry.domain import Bounds, ParameterDomain
+from taichi_ndf.geometry.surface import PlacedSurface, require_positive
+
+
+def _stack(*channels: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
+    """Six (x, y, z) channel triples of broadcastable tensors -> jets (N, 6, 3)."""
+    n = max(c.shape[0] for channel in channels for c in channel if c.dim() > 0)
+    rows = [torch.stack([c.expand(n) for c in channel], dim=1) for channel in channels]
+    return torch.stack(rows, dim=1)
+
+
+@dataclass(frozen=True)
+class Plane(PlacedSurface):
+    """Flat rectangle r(ξ) = (ξ¹, ξ², 0) in local axes.
+
+    bounds: ((x_min, x_max), (y_min, y_max)) [m]; ξ¹ and ξ² are arclengths [m] along the local
+    x and y axes. Normal a₃ = local +z.
+    """
+
+    bounds: Bounds = ((0.0, 1.0), (0.0, 1.0))
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "bounds", ParameterDomain(self.bounds).bounds)
+
+    @property
+    def domain(self) -> ParameterDomain:
+        return ParameterDomain(self.bounds)
+
+    def local_jets(self, xi: torch.Tensor) -> torch.Tensor:
+        x, y = xi[:, 0], xi[:, 1]
+        zero, one = torch.zeros_like(x), torch.ones_like(x)
+        return _stack((x, y, zero), (one, zero, zero), (zero, one, zero),
+                      (zero, zero, zero), (zero, zero, zero), (zero, zero, zero))
+
+
+@dataclass(frozen=True)
+class Cylinder(PlacedSurface):
+    """Closed circular cylinder about the local z axis.
+
+    r(θ, z) = (R cos θ, R sin θ, z): ξ¹ = θ ∈ [0, 2π) is the angle [rad], periodic; ξ² = z ∈
+    [0, length] is the axial position [m]. radius R [m], length [m]. Normal a₃ points outwards.
+    """
+
+    radius: float = 1.0
+    length: float = 1.0
+
+    def __post_init__(self):
+        super().__post_init__()
+        require_positive(self, "radius", "m")
+        require_positive(self, "length", "m")
+
+    @property
+    def domain(self) -> ParameterDomain:
+        return ParameterDomain(((0.0, 2 * math.pi), (0.0, self.length)), periodic=(True, False))
+
+    def local_jets(self, xi: torch.Tensor) -> torch.Tensor:
+        c, s = torch.cos(xi[:, 0]), torch.sin(xi[:, 0])
+        zero, one, rad = torch.zeros_like(c), torch.ones_like(c), self.radius
+        return _stack((rad * c, rad * s, xi[:, 1]), (-rad * s, rad * c, zero), (zero, zero, one),
+                      (-rad * c, -rad * s, zero), (zero, zero, zero), (zero, zero, zero))
+
+
+@dataclass(frozen=True)
+class Cone(PlacedSurface):
+    """Truncated cone (frustum) about the local z axis.
+
+    r(θ, z) = (ρ(z) cos θ, ρ(z) sin θ, z) with ρ(z) = bottom_radius + (top_radius −
+    bottom_radius) z / height: ξ¹ = θ ∈ [0, 2π) [rad], periodic; ξ² = z ∈ [0, height] is the
+    axial height [m] (not the slant length). Radii [m] must be positive (the apex is a singular
+    point of the surface and is refused). Normal a₃ points away from the axis.
+    """
+
+    bottom_radius: float = 1.0
+    top_radius: float = 0.5
+    height: float = 1.0
+
+    def __post_init__(self):
+        super().__post_init__()
+        require_positive(self, "bottom_radius", "m")
+        require_positive(self, "top_radius", "m")
+        require_positive(self, "height", "m")
+
+    @property
+    def domain(self) -> ParameterDomain:
+        return ParameterDomain(((0.0, 2 * math.pi), (0.0, self.height)), periodic=(True, False))
+
+    def local_jets(self, xi: torch.Tensor) -> torch.Tensor:
+        c, s = torch.cos(xi[:, 0]), torch.sin(xi[:, 0])
+        slope = (self.top_radius - self.bottom_radius) / self.height
+        rho = self.bottom_radius + slope * xi[:, 1]
+        zero, one = torch.zeros_like(c), torch.ones_like(c)
+        return _stack((rho * c, rho * s, xi[:, 1]), (-rho * s, rho * c, zero),
+                      (slope * c, slope * s, one), (-rho * c, -rho * s, zero),
+                      (-slope * s, slope * c, zero), (zero, zero, zero))
+
+
+@dataclass(frozen=True)
+class CylindricalRoof(PlacedSurface):
+    """Open cylindrical shell segment (e.g. the Scordelis–Lo roof), axis along local y.
+
+    r(φ, y) = (R sin φ, y, R cos φ): ξ¹ = φ ∈ [−half_angle, half_angle] is the angle from the
+    crown [rad] (not periodic); ξ² = y ∈ [0, length] is the axial position [m]. The crown is at
+    local z = R, the axis of the cylinder is the local y axis. Normal a₃ points outwards (up at
+    the crown). radius [m], length [m], half_angle [rad] in (0, π).
+    """
+
+    radius: float = 25.0
+    length: float = 50.0
+    half_angle: float = math.radians(40.0)
+
+    def __post_init__(self):
+        super().__post_init__()
+        require_positive(self, "radius", "m")
+        require_positive(self, "length", "m")
+        half = require_positive(self, "half_angle", "rad")
+        if half >= math.pi:
+            raise ValueError(f"half_angle must be < π (use Cylinder for a closed tube), got {half}")
+
+    @property
+    def domain(self) -> ParameterDomain:
+        return ParameterDomain(((-self.half_angle, self.half_angle), (0.0, self.length)))
+
+    def local_jets(self, xi: torch.Tensor) -> torch.Tensor:
+        c, s = torch.cos(xi[:, 0]), torch.sin(xi[:, 0])
+        zero, one, rad = torch.zeros_like(c), torch.ones_like(c), self.radius
+        return _stack((rad * s, xi[:, 1], rad * c), (rad * c, zero, -rad * s), (zero, one, zero),
+                      (-rad * s, zero, -rad * c), (zero, zero, zero), (zero, zero, zero))

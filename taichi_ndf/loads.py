@@ -1,0 +1,99 @@
+"""External loads on the shell (physics.md §4).
+
+The distributed load per unit reference area is f = ρ_A g + b + p a₃ [N/m²]: gravity g through
+the material's areal density ρ_A, a uniform body force b, and a uniform pressure p along the
+normal a₃ of the *reference* surface (a dead load: its direction does not follow the
+deformation; positive p pushes along a₃, i.e. outwards on the closed analytic surfaces).
+Point loads P_k [N] act at surface coordinates ξ_k. All loads are conservative:
+Π_ext = −∫ f·u √a dξ − Σ_k P_k·u(ξ_k).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from taichi_ndf.geometry import ParameterDomain
+
+Vector3 = tuple[float, float, float]
+
+
+def _vector(name: str, value, size: int, unit: str) -> tuple[float, ...]:
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name} must be {size} numbers [{unit}], got {value!r}") from err
+    if len(out) != size or not all(math.isfinite(v) for v in out):
+        raise ValueError(f"{name} must be {size} finite numbers [{unit}], got {value!r}")
+    return out
+
+
+@dataclass(frozen=True)
+class PointLoad:
+    """Concentrated force [N] at surface coordinates xi = (ξ¹, ξ²)."""
+
+    xi: tuple[float, float]
+    force: Vector3
+
+    def __post_init__(self):
+        object.__setattr__(self, "xi", _vector("point load xi", self.xi, 2, "units of ξ"))
+        object.__setattr__(self, "force", _vector("point load force", self.force, 3, "N"))
+
+
+@dataclass(frozen=True)
+class Loads:
+    """Loads of a scene.
+
+    gravity: acceleration g [m/s²], e.g. (0, 0, −9.81); acts through the material's areal
+        density.
+    body_force: uniform force per unit reference area [N/m²] (wind, etc.).
+    pressure: uniform pressure [Pa] along the reference normal a₃ (dead load).
+    point_loads: concentrated forces; `PointLoad` or (xi, force) pairs.
+    """
+
+    gravity: Vector3 = (0.0, 0.0, 0.0)
+    body_force: Vector3 = (0.0, 0.0, 0.0)
+    pressure: float = 0.0
+    point_loads: tuple[PointLoad, ...] = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "gravity", _vector("gravity", self.gravity, 3, "m/s²"))
+        object.__setattr__(self, "body_force", _vector("body_force", self.body_force, 3, "N/m²"))
+        pressure = float(self.pressure)
+        if not math.isfinite(pressure):
+            raise ValueError(f"pressure must be a finite number [Pa], got {self.pressure!r}")
+        object.__setattr__(self, "pressure", pressure)
+        points = tuple(p if isinstance(p, PointLoad) else PointLoad(*p) for p in self.point_loads)
+        object.__setattr__(self, "point_loads", points)
+
+    def distributed_force(self, areal_density: float) -> Vector3:
+        """Uniform part ρ_A g + b of the load per unit reference area [N/m²] (pressure, which
+        follows the reference normal, not included)."""
+        return tuple(areal_density * g + b for g, b in zip(self.gravity, self.body_force,
+                                                            strict=True))
+
+    def scaled(self, factor: float) -> Loads:
+        """All loads multiplied by `factor` (load stepping)."""
+        factor = float(factor)
+        if not math.isfinite(factor):
+            raise ValueError(f"load factor must be finite, got {factor}")
+        return Loads(
+            gravity=tuple(factor * v for v in self.gravity),
+            body_force=tuple(factor * v for v in self.body_force),
+            pressure=factor * self.pressure,
+            point_loads=tuple(PointLoad(p.xi, tuple(factor * v for v in p.force))
+                              for p in self.point_loads),
+        )
+
+    def check_domain(self, domain: ParameterDomain) -> None:
+        """Raise ValueError if a point load lies outside the parameter domain."""
+        if not self.point_loads:
+            return
+        xi = torch.tensor([p.xi for p in self.point_loads], dtype=torch.float64)
+        inside = domain.contains(xi)
+        for p, ok in zip(self.point_loads, inside.tolist(), strict=True):
+            if not ok:
+                raise ValueError(f"point load at ξ = {p.xi} lies outside the parameter domain "
+                                 f"{domain.bounds}")

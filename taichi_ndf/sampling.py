@@ -1,0 +1,74 @@
+"""Quadrature samples of a reference surface for the Monte-Carlo energy estimate.
+
+Π ≈ Σ_i w_i √a_i (Ψ_i − f·u_i) − Σ_k P_k·u(ξ_k): area samples are stratified and jittered in
+the parameter domain with equal weights w = |Ω| / M (M area samples), so the sum estimates the
+integral in joules; the energy multiplies by √a itself, so the weights never contain it
+(uniform in parameter space, weighted by √a once). Each point load adds one sample of weight 0
+that carries its force.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from taichi_ndf.geometry import ReferenceSurface
+from taichi_ndf.loads import Loads
+from taichi_ndf.runtime import current
+
+
+@dataclass
+class SurfaceSamples:
+    """Sample points of a surface with their quadrature data.
+
+    xi: surface coordinates, shape (N, 2).
+    r_jets: reference surface jets, shape (N, 6, 3) [m].
+    weight: parameter-area quadrature weight, shape (N,): |Ω|/M for the M area samples, 0 for
+        point-load samples.
+    point_force: concentrated force [N], shape (N, 3): P_k at point-load samples, 0 elsewhere.
+    """
+
+    xi: torch.Tensor
+    r_jets: torch.Tensor
+    weight: torch.Tensor
+    point_force: torch.Tensor
+
+    def __len__(self) -> int:
+        return self.xi.shape[0]
+
+    def to(self, *, dtype: torch.dtype | None = None,
+           device: torch.device | str | None = None) -> SurfaceSamples:
+        """The same samples with tensors converted to `dtype` / moved to `device`."""
+        return SurfaceSamples(*(t.to(dtype=dtype, device=device) for t in
+                                (self.xi, self.r_jets, self.weight, self.point_force)))
+
+
+def sample_surface(surface: ReferenceSurface, n: int, loads: Loads | None = None,
+                   generator: torch.Generator | None = None, *,
+                   dtype: torch.dtype | None = None,
+                   device: torch.device | str | None = None) -> SurfaceSamples:
+    """n stratified jittered area samples of the surface's domain (fewer with a masked domain:
+    the candidates outside the mask are dropped), plus one zero-weight sample per point load.
+
+    dtype/device default to the runtime's (`taichi_ndf.current()`).
+    """
+    if dtype is None or device is None:
+        runtime = current()
+        dtype = dtype or runtime.dtype
+        device = device or runtime.device
+    domain = surface.domain
+    xi = domain.sample(n, generator, dtype=dtype, device=device)
+    # |Ω| / M rather than |rectangle| / n: with a mask, the number M of samples kept
+    # fluctuates, and dividing by it removes that noise from the estimate.
+    weight = torch.full((xi.shape[0],), domain.area / xi.shape[0], dtype=dtype, device=device)
+    force = torch.zeros(xi.shape[0], 3, dtype=dtype, device=device)
+    if loads is not None and loads.point_loads:
+        loads.check_domain(domain)
+        point_xi = torch.tensor([p.xi for p in loads.point_loads], dtype=dtype, device=device)
+        point_force = torch.tensor([p.force for p in loads.point_loads], dtype=dtype,
+                                   device=device)
+        xi = torch.cat((xi, point_xi))
+        weight = torch.cat((weight, weight.new_zeros(point_xi.shape[0])))
+        force = torch.cat((force, point_force))
+    return SurfaceSamples(xi=xi, r_jets=surface.jets(xi), weight=weight, point_force=force)

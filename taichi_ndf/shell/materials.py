@@ -1,0 +1,440 @@
+"""Constitutive laws of the shell (physics.md §3): energy density Ψ per unit reference area
+[J/m²] as a function of the membrane strain ε_αβ and bending strain κ_αβ.
+
+Each material is a frozen, validated dataclass. Ψ is linear in the material's stiffness
+parameters (`stiffness_names`, `stiffness`, `with_stiffness`, `scaled`), which the inverse
+package estimates. The Taichi side of each law is a `ti.func` returning the four *stiffness
+terms* T_k with Ψ = Σ_k S_k T_k for the law's kernel stiffness S (see `law_stiffness`).
+
+Laws:
+- `LinearIsotropic` (Koiter / St. Venant–Kirchhoff shell): Ψ = ½ D ε:H:ε + ½ B κ:H:κ with
+  H^{αβγδ} = ν a^{αβ} a^{γδ} + ½ (1 − ν)(a^{αγ} a^{βδ} + a^{αδ} a^{βγ}).
+- `OrthotropicStVK`: membrane law Ψ_m = ½ a11 E₁₁² + a12 E₁₁E₂₂ + ½ a22 E₂₂² + G12 E₁₂² in the
+  material frame of the reference surface (warp d₁ = a₁/|a₁|, weft d₂ = a₃ × d₁), integrated
+  through the thickness with E(ζ) = ε + ζ κ by Simpson's rule, which is exact here: bending
+  stiffness = membrane stiffness × h²/12.
+- `ClydeFabric` (Clyde et al. 2017): the same with η_k series, Ψ_m = ½ a11 η₁(E₁₁²) +
+  a12 η₂(E₁₁E₂₂) + ½ a22 η₃(E₂₂²) + G12 η₄(E₁₂²), extended beyond the measured strain range by
+  its second-order Taylor expansion (C¹, finite energy), Simpson (Ψ(−h/2) + 4Ψ(0) + Ψ(h/2))/6.
+
+Note the convention of G12: it multiplies E₁₂² (tensor shear strain), so the isotropic law is
+a11 = a22 = D, a12 = ν D, G12 = (1 − ν) D.
+"""
+
+# No `from __future__ import annotations`: ti.func needs real annotation objects.
+
+import dataclasses
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import taichi as ti
+import torch
+
+from taichi_ndf.shell.kinematics import contravariant_metric, mat2, vec3
+
+vec4 = ti.math.vec4
+
+# Series terms per η_k in the kernel (shorter series are padded with μ = 0, α = 1).
+MAX_SERIES_TERMS = 3
+KERNEL_STIFFNESS = 4  # width of the per-sample stiffness array the kernels read
+
+
+def _finite(name: str, value) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value}")
+    return value
+
+
+def _positive(name: str, value, unit: str) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a finite positive number [{unit}], got {value}")
+    return value
+
+
+def _poisson(value) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and -1.0 < value < 0.5):
+        raise ValueError(f"poisson_ratio must be in (-1, 0.5), got {value}")
+    return value
+
+
+class Material(ABC):
+    """Common interface of the constitutive laws (see module docstring)."""
+
+    stiffness_names: ClassVar[tuple[str, ...]]
+    law: ClassVar[str]  # name of the Taichi law ("linear_isotropic", "orthotropic", "clyde")
+    areal_density: float
+
+    @property
+    def stiffness(self) -> tuple[float, ...]:
+        """Current stiffness values, in the order of `stiffness_names`."""
+        return tuple(getattr(self, name) for name in self.stiffness_names)
+
+    def with_stiffness(self, **values: float):
+        """A copy with some stiffness parameters replaced (names from `stiffness_names`)."""
+        unknown = set(values) - set(self.stiffness_names)
+        if unknown:
+            raise ValueError(f"unknown stiffness parameter(s) {sorted(unknown)} for "
+                             f"{type(self).__name__}; choose from {self.stiffness_names}")
+        return dataclasses.replace(self, **values)
+
+    def scaled(self, factor: float):
+        """A copy with every stiffness multiplied by `factor` (> 0): Ψ scales by `factor`."""
+        factor = _positive("factor", factor, "1")
+        return self.with_stiffness(**{n: factor * getattr(self, n) for n in self.stiffness_names})
+
+    @abstractmethod
+    def law_parameters(self) -> list[float]:
+        """Non-stiffness parameters of the Taichi law, packed in the order the law reads them."""
+
+    @abstractmethod
+    def law_stiffness(self, stiffness: torch.Tensor) -> torch.Tensor:
+        """Per-sample kernel stiffness (N, 4) from per-sample stiffness values (N, K) in the
+        order of `stiffness_names`."""
+
+
+@dataclass(frozen=True)
+class LinearIsotropic(Material):
+    """Linear isotropic Koiter shell.
+
+    membrane_stiffness D = E h / (1 − ν²) [N/m]; bending_stiffness B = E h³ / (12 (1 − ν²))
+    [N·m]; poisson_ratio ν in (−1, 0.5); areal_density ρ_A [kg/m²].
+    """
+
+    membrane_stiffness: float
+    bending_stiffness: float
+    poisson_ratio: float
+    areal_density: float
+
+    stiffness_names: ClassVar[tuple[str, ...]] = ("membrane_stiffness", "bending_stiffness")
+    law: ClassVar[str] = "linear_isotropic"
+
+    def __post_init__(self):
+        object.__setattr__(self, "membrane_stiffness",
+                           _positive("membrane_stiffness", self.membrane_stiffness, "N/m"))
+        object.__setattr__(self, "bending_stiffness",
+                           _positive("bending_stiffness", self.bending_stiffness, "N·m"))
+        object.__setattr__(self, "poisson_ratio", _poisson(self.poisson_ratio))
+        object.__setattr__(self, "areal_density",
+                           _positive("areal_density", self.areal_density, "kg/m²"))
+
+    @classmethod
+    def from_young(cls, young_modulus: float, poisson_ratio: float, thickness: float,
+                   areal_density: float) -> "LinearIsotropic":
+        """From Young's modulus E [Pa], Poisson's ratio ν, thickness h [m] and areal density
+        ρ_A [kg/m²]."""
+        e = _positive("young_modulus", young_modulus, "Pa")
+        nu = _poisson(poisson_ratio)
+        h = _positive("thickness", thickness, "m")
+        d = e * h / (1 - nu * nu)
+        return cls(membrane_stiffness=d, bending_stiffness=d * h * h / 12,
+                   poisson_ratio=nu, areal_density=areal_density)
+
+    @property
+    def thickness(self) -> float:
+        """Equivalent thickness h = √(12 B / D) [m]."""
+        return math.sqrt(12 * self.bending_stiffness / self.membrane_stiffness)
+
+    @property
+    def young_modulus(self) -> float:
+        """Equivalent Young's modulus E = D (1 − ν²) / h [Pa]."""
+        return self.membrane_stiffness * (1 - self.poisson_ratio**2) / self.thickness
+
+    def law_parameters(self) -> list[float]:
+        return [self.poisson_ratio]
+
+    def law_stiffness(self, stiffness: torch.Tensor) -> torch.Tensor:
+        return torch.nn.functional.pad(stiffness, (0, KERNEL_STIFFNESS - 2))
+
+
+@dataclass(frozen=True)
+class OrthotropicStVK(Material):
+    """Orthotropic St. Venant–Kirchhoff membrane law in the warp/weft frame, bending by
+    through-thickness integration.
+
+    a11, a22: warp and weft stretch stiffness [N/m] (> 0); a12: coupling [N/m] with
+    a12² < a11 a22; G12: shear stiffness [N/m] multiplying E₁₂² (> 0); thickness h [m];
+    areal_density ρ_A [kg/m²].
+    """
+
+    a11: float
+    a12: float
+    a22: float
+    G12: float
+    thickness: float
+    areal_density: float
+
+    stiffness_names: ClassVar[tuple[str, ...]] = ("a11", "a12", "a22", "G12")
+    law: ClassVar[str] = "orthotropic"
+
+    def __post_init__(self):
+        _check_woven_stiffness(self)
+        object.__setattr__(self, "thickness", _positive("thickness", self.thickness, "m"))
+        object.__setattr__(self, "areal_density",
+                           _positive("areal_density", self.areal_density, "kg/m²"))
+
+    @classmethod
+    def isotropic(cls, membrane_stiffness: float, poisson_ratio: float, thickness: float,
+                  areal_density: float) -> "OrthotropicStVK":
+        """The isotropic special case: a11 = a22 = D, a12 = ν D, G12 = (1 − ν) D."""
+        d = _positive("membrane_stiffness", membrane_stiffness, "N/m")
+        nu = _poisson(poisson_ratio)
+        return cls(a11=d, a12=nu * d, a22=d, G12=(1 - nu) * d, thickness=thickness,
+                   areal_density=areal_density)
+
+    def law_parameters(self) -> list[float]:
+        return [self.thickness]
+
+    def law_stiffness(self, stiffness: torch.Tensor) -> torch.Tensor:
+        return stiffness
+
+
+Series = tuple[tuple[float, ...], tuple[float, ...]]  # (μ_j, α_j) of one η_k
+
+
+@dataclass(frozen=True)
+class ClydeFabric(Material):
+    """Nonlinear anisotropic woven-fabric law of Clyde et al. 2017.
+
+    a11, a12, a22, G12: small-strain stiffness [N/m] as in `OrthotropicStVK`;
+    eta: four series (μ, α), η_k(x) = Σ_j (μ_j/α_j)((x + 1)^{α_j} − 1) with Σ_j μ_j = 1
+        (so η_k′(0) = 1), at most 3 terms each, α_j ≠ 0;
+    strain_limits: measured range (E₁₁max, E₂₂max, |E₁₂|max); the law is used for
+        E₁₁ ∈ [0, E₁₁max], E₂₂ ∈ [0, E₂₂max], E₁₂ ∈ [−|E₁₂|max, |E₁₂|max] (tension only was
+        measured) and continued outside by its second-order Taylor expansion at the nearest
+        point of that box, which is C¹ and equals the small-strain law in compression;
+    thickness h [m]; areal_density ρ_A [kg/m²];
+    stiffness_scale: global factor on a11, a12, a22, G12 (the estimated stiffness).
+    """
+
+    a11: float
+    a12: float
+    a22: float
+    G12: float
+    eta: tuple[Series, Series, Series, Series]
+    strain_limits: tuple[float, float, float]
+    thickness: float
+    areal_density: float
+    stiffness_scale: float = 1.0
+
+    stiffness_names: ClassVar[tuple[str, ...]] = ("stiffness_scale",)
+    law: ClassVar[str] = "clyde"
+
+    def __post_init__(self):
+        _check_woven_stiffness(self)
+        object.__setattr__(self, "thickness", _positive("thickness", self.thickness, "m"))
+        object.__setattr__(self, "areal_density",
+                           _positive("areal_density", self.areal_density, "kg/m²"))
+        object.__setattr__(self, "stiffness_scale",
+                           _positive("stiffness_scale", self.stiffness_scale, "1"))
+        if len(self.strain_limits) != 3:
+            raise ValueError(f"strain_limits must be (E11max, E22max, E12max), "
+                             f"got {self.strain_limits!r}")
+        limits = tuple(_positive(f"strain_limits[{k}]", v, "1")
+                       for k, v in enumerate(self.strain_limits))
+        object.__setattr__(self, "strain_limits", limits)
+        if len(self.eta) != 4:
+            raise ValueError(f"eta must hold 4 series (η₁ … η₄), got {len(self.eta)}")
+        object.__setattr__(self, "eta", tuple(_check_series(k, s) for k, s in enumerate(self.eta)))
+
+    def small_strain(self) -> OrthotropicStVK:
+        """The orthotropic StVK law this one reduces to at small strain."""
+        s = self.stiffness_scale
+        return OrthotropicStVK(a11=s * self.a11, a12=s * self.a12, a22=s * self.a22,
+                               G12=s * self.G12, thickness=self.thickness,
+                               areal_density=self.areal_density)
+
+    def law_parameters(self) -> list[float]:
+        mu, alpha = [], []
+        for m, a in self.eta:
+            pad = MAX_SERIES_TERMS - len(m)
+            mu += list(m) + [0.0] * pad
+            alpha += list(a) + [1.0] * pad
+        return [self.thickness, *self.strain_limits, *mu, *alpha]
+
+    def law_stiffness(self, stiffness: torch.Tensor) -> torch.Tensor:
+        base = stiffness.new_tensor([self.a11, self.a12, self.a22, self.G12])
+        return stiffness[:, :1] * base
+
+
+def _check_woven_stiffness(material) -> None:
+    for name in ("a11", "a22", "G12"):
+        object.__setattr__(material, name, _positive(name, getattr(material, name), "N/m"))
+    a12 = _finite("a12", material.a12)
+    if a12 * a12 >= material.a11 * material.a22:
+        raise ValueError(f"a12 must satisfy a12² < a11·a22 (positive-definite law), got a12 = "
+                         f"{a12} with a11 = {material.a11}, a22 = {material.a22}")
+    object.__setattr__(material, "a12", a12)
+
+
+def _check_series(k: int, series) -> Series:
+    try:
+        mu, alpha = series
+        mu = tuple(_finite(f"eta[{k}] mu", v) for v in mu)
+        alpha = tuple(_finite(f"eta[{k}] alpha", v) for v in alpha)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"eta[{k}] must be (mu values, alpha values): {err}") from err
+    if not 1 <= len(mu) <= MAX_SERIES_TERMS or len(mu) != len(alpha):
+        raise ValueError(f"eta[{k}] needs 1 to {MAX_SERIES_TERMS} terms with as many mu as "
+                         f"alpha values, got {len(mu)} and {len(alpha)}")
+    if any(a == 0 for a in alpha):
+        raise ValueError(f"eta[{k}] alpha values must be non-zero, got {alpha}")
+    if abs(sum(mu) - 1) > 1e-6:
+        raise ValueError(f"eta[{k}] mu values must sum to 1 (so that η′(0) = 1), "
+                         f"got sum {sum(mu)}")
+    return mu, alpha
+
+
+# Published data (Clyde et al. 2017 as used by NeuralClothSim), physics.md §3.
+_FABRICS = {
+    "canvas": dict(
+        areal_density=0.294, thickness=3.7e-4, a11=5.366, a12=2.683, a22=19.804, G12=2.009,
+        strain_limits=(0.11, 0.067, 0.059),
+        eta=(((1881.386, -1880.386), (22.619, 22.082)), ((1.0,), (1.0,)),
+             ((-27.627, 70.532, -41.905), (212.682, 149.080, 69.532)),
+             ((19.484, -1.805, -16.679), (2.1, 0.869, 1.132)))),
+    "cotton": dict(
+        areal_density=0.1036, thickness=2.53e-4, a11=15.557, a12=7.779, a22=25.004, G12=1.076,
+        strain_limits=(0.14, 0.14, 0.063),
+        eta=(((-352.871, 4.952, 348.919), (-63.206, -550.784, -54.525)), ((1.0,), (1.0,)),
+             ((-2587.08, -285.733, 2873.813), (109.194, 102.720, 108.583)),
+             ((8.362, -7.362), (5.973, 3.496)))),
+    "silk": dict(
+        areal_density=0.083, thickness=2.39e-4, a11=4.3, a12=4.971, a22=9.942, G12=0.57,
+        strain_limits=(0.41, 0.34, 0.11),
+        eta=(((61.769, -60.769), (-2.23, -115.578)), ((1.0,), (1.0,)),
+             ((13.46, -12.46), (-2.612, -195.533)),
+             ((3213.226, -3503.817, 291.591), (-2.926, -3.205, -6.401)))),
+}
+PRESETS = ("cloth", *_FABRICS)
+
+
+def preset(name: str) -> Material:
+    """A named material: "cloth" (linear isotropic, E = 5000 Pa, ν = 0.25, h = 1.2 mm,
+    ρ_A = 0.144 kg/m²) or the Clyde fabrics "canvas", "cotton", "silk"."""
+    if name == "cloth":
+        return LinearIsotropic.from_young(5000.0, 0.25, 1.2e-3, 0.144)
+    if name in _FABRICS:
+        return ClydeFabric(**_FABRICS[name])
+    raise ValueError(f"unknown material preset {name!r}; choose one of {PRESETS}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Taichi side: stiffness terms T_k of each law (Ψ = Σ_k S_k T_k). Each law takes the strains
+# and the reference basis a₁, a₂, unit normal a₃ and metric a_αβ at the sample.
+
+
+@ti.func
+def _isotropic_quadratic(strain: mat2, ainv: mat2, nu) -> float:
+    """e:H:e = ν (a^{αβ} e_αβ)² + (1 − ν) a^{αγ} a^{βδ} e_αβ e_γδ for symmetric e."""
+    mixed = ainv @ strain
+    trace = mixed[0, 0] + mixed[1, 1]
+    square = mixed @ mixed
+    return nu * trace * trace + (1.0 - nu) * (square[0, 0] + square[1, 1])
+
+
+@ti.func
+def linear_isotropic_terms(eps: mat2, kappa: mat2, a1: vec3, a2: vec3, a3: vec3, metric: mat2,
+                           params: ti.template()) -> vec4:
+    """(½ ε:H:ε, ½ κ:H:κ, 0, 0): Ψ = D T₀ + B T₁. params: [ν]."""
+    ainv = contravariant_metric(metric)
+    nu = params[0]
+    return vec4(0.5 * _isotropic_quadratic(eps, ainv, nu),
+                0.5 * _isotropic_quadratic(kappa, ainv, nu), 0.0, 0.0)
+
+
+@ti.func
+def material_frame_transform(a1: vec3, a2: vec3, a3: vec3, metric: mat2) -> mat2:
+    """T with T_iα = d_i · a^α (warp d₁ = a₁/|a₁|, weft d₂ = a₃ × d₁, contravariant basis
+    a^α = a^{αβ} a_β), so that the material-frame strain components are T e Tᵀ."""
+    ainv = contravariant_metric(metric)
+    up1 = ainv[0, 0] * a1 + ainv[0, 1] * a2
+    up2 = ainv[1, 0] * a1 + ainv[1, 1] * a2
+    d1 = a1.normalized()
+    d2 = a3.cross(d1)
+    return mat2([[d1.dot(up1), d1.dot(up2)], [d2.dot(up1), d2.dot(up2)]])
+
+
+@ti.func
+def _eta(params: ti.template(), k: ti.template(), x):
+    """η_k(x), η_k′(x), η_k″(x) of series k from the packed Clyde parameters."""
+    value = 0.0
+    first = 0.0
+    second = 0.0
+    for j in ti.static(range(MAX_SERIES_TERMS)):
+        mu = params[4 + k * MAX_SERIES_TERMS + j]
+        alpha = params[4 + (4 + k) * MAX_SERIES_TERMS + j]
+        p = ti.pow(x + 1.0, alpha - 2.0)
+        second += mu * (alpha - 1.0) * p
+        first += mu * p * (x + 1.0)
+        value += mu / alpha * (p * (x + 1.0) * (x + 1.0) - 1.0)
+    return value, first, second
+
+
+@ti.func
+def _fabric_terms(e11, e22, e12, params: ti.template(), nonlinear: ti.template()) -> vec4:
+    """Membrane terms (½η₁(E₁₁²), η₂(E₁₁E₂₂), ½η₃(E₂₂²), η₄(E₁₂²)) per unit stiffness."""
+    terms = vec4(0.5 * e11 * e11, e11 * e22, 0.5 * e22 * e22, e12 * e12)
+    if ti.static(nonlinear):
+        # Second-order Taylor expansion at the nearest point c of the measured box.
+        c11 = ti.min(ti.max(e11, 0.0), params[1])
+        c22 = ti.min(ti.max(e22, 0.0), params[2])
+        c12 = ti.min(ti.max(e12, -params[3]), params[3])
+        d11 = e11 - c11
+        d22 = e22 - c22
+        d12 = e12 - c12
+        v1, f1, s1 = _eta(params, 0, c11 * c11)
+        v2, f2, s2 = _eta(params, 1, c11 * c22)
+        v3, f3, s3 = _eta(params, 2, c22 * c22)
+        v4, f4, s4 = _eta(params, 3, c12 * c12)
+        t1 = 0.5 * v1 + c11 * f1 * d11 + 0.5 * (f1 + 2.0 * c11 * c11 * s1) * d11 * d11
+        t2 = (v2 + c22 * f2 * d11 + c11 * f2 * d22
+              + 0.5 * (c22 * c22 * s2 * d11 * d11 + c11 * c11 * s2 * d22 * d22)
+              + (f2 + c11 * c22 * s2) * d11 * d22)
+        t3 = 0.5 * v3 + c22 * f3 * d22 + 0.5 * (f3 + 2.0 * c22 * c22 * s3) * d22 * d22
+        t4 = v4 + 2.0 * c12 * f4 * d12 + (f4 + 2.0 * c12 * c12 * s4) * d12 * d12
+        terms = vec4(t1, t2, t3, t4)
+    return terms
+
+
+@ti.func
+def _woven_terms(eps: mat2, kappa: mat2, a1: vec3, a2: vec3, a3: vec3, metric: mat2,
+                 params: ti.template(), nonlinear: ti.template()) -> vec4:
+    """Simpson's rule through the thickness: (T(−h/2) + 4 T(0) + T(+h/2)) / 6.
+
+    Unrolled on purpose: a runtime loop over the three points compiles faster but gave wrong
+    reverse-mode gradients (measured, Taichi 1.7.4).
+    """
+    t = material_frame_transform(a1, a2, a3, metric)
+    h = params[0]
+    lower = t @ (eps - 0.5 * h * kappa) @ t.transpose()
+    middle = t @ eps @ t.transpose()
+    upper = t @ (eps + 0.5 * h * kappa) @ t.transpose()
+    return (_fabric_terms(lower[0, 0], lower[1, 1], lower[0, 1], params, nonlinear)
+            + 4.0 * _fabric_terms(middle[0, 0], middle[1, 1], middle[0, 1], params, nonlinear)
+            + _fabric_terms(upper[0, 0], upper[1, 1], upper[0, 1], params, nonlinear)) / 6.0
+
+
+@ti.func
+def orthotropic_terms(eps: mat2, kappa: mat2, a1: vec3, a2: vec3, a3: vec3, metric: mat2,
+                      params: ti.template()) -> vec4:
+    """Orthotropic StVK terms; params: [h]."""
+    return _woven_terms(eps, kappa, a1, a2, a3, metric, params, False)
+
+
+@ti.func
+def clyde_terms(eps: mat2, kappa: mat2, a1: vec3, a2: vec3, a3: vec3, metric: mat2,
+                params: ti.template()) -> vec4:
+    """Clyde terms; params: [h, E11max, E22max, E12max, μ (4×3), α (4×3)]."""
+    return _woven_terms(eps, kappa, a1, a2, a3, metric, params, True)
+
+
+LAW_TERMS = {
+    "linear_isotropic": linear_isotropic_terms,
+    "orthotropic": orthotropic_terms,
+    "clyde": clyde_terms,
+}
