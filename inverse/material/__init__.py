@@ -1,0 +1,17 @@
+"""Material and force estimation from observed equilibrium shapes (inverse.md §1)."""
+
+from inverse.material.identifiability import Identifiability
+from inverse.material.observations import Observation, read_observation, template_xi
+from inverse.material.residual import (
+    Estimate,
+    ResidualConfig,
+    bending_length,
+    equilibrium_system,
+    residual_estimate,
+)
+from inverse.material.shape_fit import FittedShape, fit_shape
+from inverse.material.unknowns import Unknown, apply, parse_unknowns
+
+__all__ = ["Observation", "read_observation", "template_xi", "FittedShape", "fit_shape",
+           "Unknown", "parse_unknowns", "apply", "ResidualConfig", "Estimate",
+           "residual_estimate", "equilibrium_system", "bending_length", "Identifiability"]
