@@ -59,7 +59,8 @@ def cache_dir() -> Path:
     return Path(os.environ.get("TAICHI_NDF_CACHE", default))
 
 
-def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *, debug: bool = False) -> Runtime:
+def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *,
+         debug: bool = False) -> Runtime:
     """Initialise Taichi for this process and seed torch, numpy and Python's RNG.
 
     arch: "cpu" (Taichi's x64 backend), "cuda", "vulkan", "metal", "opengl" or "gpu".
@@ -117,7 +118,8 @@ def reset() -> None:
 def current() -> Runtime:
     """The active runtime; raises if ``init`` has not been called."""
     if _current is None:
-        raise RuntimeError("taichi_ndf is not initialised: call taichi_ndf.init(arch=..., precision=...) first")
+        raise RuntimeError(
+            "taichi_ndf is not initialised: call taichi_ndf.init(arch=..., precision=...) first")
     return _current
 
 

@@ -1,0 +1,1 @@
+"""Command-line entry points (`ndf-sim`, `ndf-export`, `ndf-validate`)."""

@@ -1,0 +1,76 @@
+"""`ndf-validate [CASE ...] [--quick] --out DIR`: run the published shell benchmarks and write
+the results table (results.md, results.json) and one convergence plot per case."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from taichi_ndf.cli.common import start
+from taichi_ndf.io import OutputDir
+from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.solver import DivergenceError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from taichi_ndf.validation import CASES, SCENES_DIR
+
+    p = argparse.ArgumentParser(prog="ndf-validate", description=__doc__.split("\n")[0])
+    p.add_argument("cases", nargs="*", metavar="CASE",
+                   help=f"cases to run (default: all): {', '.join(CASES)}")
+    p.add_argument("--out", type=Path, required=True, help="output directory (new or empty "
+                   "unless --overwrite)")
+    p.add_argument("--quick", action="store_true",
+                   help="short runs with each scene's [training.quick] settings (smoke test)")
+    p.add_argument("--iters", type=int,
+                   help="Adam iterations per load step (overrides the scenes)")
+    p.add_argument("--scenes", type=Path, default=SCENES_DIR,
+                   help=f"folder of the case scene files (default: {SCENES_DIR})")
+    p.add_argument("--overwrite", action="store_true",
+                   help="allow writing into a non-empty output directory")
+    p.add_argument("--arch", default="cpu", choices=("cpu", "cuda", "vulkan", "metal", "gpu"),
+                   help="Taichi backend (default: cpu)")
+    p.add_argument("--precision", default="f64", choices=("f32", "f64"),
+                   help="floating-point precision (default: f64, the one the table uses)")
+    p.add_argument("--seed", type=int, help="random seed (default: each scene's)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from taichi_ndf.validation import CASES, run_case, write_report
+
+    args = build_parser().parse_args(argv)
+    unknown = [c for c in args.cases if c not in CASES]
+    if unknown:
+        print(f"ndf-validate: error: unknown case(s) {', '.join(unknown)}; choose from "
+              f"{', '.join(CASES)}", file=sys.stderr)
+        return 2
+    names = args.cases or list(CASES)
+    try:
+        out = OutputDir(args.out, overwrite=args.overwrite)
+        start(argparse.Namespace(arch=args.arch, precision=args.precision,
+                                 seed=args.seed or 0, verbose=args.verbose))
+        results = []
+        for name in names:
+            result = run_case(CASES[name], quick=args.quick, iterations=args.iters,
+                              scenes_dir=args.scenes,
+                              seed=args.seed)
+            results.append(result)
+            for row in result.rows:
+                value = "not run" if row.computed is None else f"{row.computed:.5g}"
+                error = ("" if row.relative_error is None
+                         else f" ({100 * row.relative_error:.2f} % off)")
+                print(f"{name} {row.quantity} @ {row.level:g}: {value} vs {row.reference:.5g}"
+                      f"{error}", flush=True)
+            write_report(results, out, quick=args.quick)
+    except (SceneError, DivergenceError, FileExistsError, ValueError) as err:
+        print(f"ndf-validate: error: {err}", file=sys.stderr)
+        return 2
+    print(f"table in {out.path / 'results.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

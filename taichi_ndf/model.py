@@ -1,0 +1,74 @@
+"""The shell model: what is simulated, independent of how it is solved.
+
+A model is immutable: reference surface, material, loads, boundary conditions and named probe
+points. The solver's state (field weights, optimiser moments) lives elsewhere, so inverse
+problems can swap materials or loads and reuse the same pieces.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.geometry import ReferenceSurface
+from taichi_ndf.loads import Loads
+
+
+@dataclass(frozen=True)
+class Probe:
+    """A named surface point at which the displacement is reported.
+
+    xi: surface coordinates (ξ¹, ξ²) in the reference surface's parameter domain.
+    """
+
+    name: str
+    xi: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class ShellModel:
+    """Reference surface + material + loads + boundary conditions (+ probes)."""
+
+    surface: ReferenceSurface
+    material: object
+    loads: Loads
+    boundary: BoundaryConditions
+    probes: tuple[Probe, ...] = field(default_factory=tuple)
+
+    def __post_init__(self):
+        names = [p.name for p in self.probes]
+        if len(set(names)) != len(names):
+            raise ValueError(f"probe names must be unique, got {names}")
+        for p in self.probes:
+            xi = torch.tensor([p.xi], dtype=torch.float64)
+            if not bool(self.surface.domain.contains(xi)[0]):
+                raise ValueError(f"probe {p.name!r} at ξ={p.xi} lies outside the parameter domain")
+
+    def with_material(self, material) -> ShellModel:
+        return replace(self, material=material)
+
+    def with_loads(self, loads: Loads) -> ShellModel:
+        return replace(self, loads=loads)
+
+    def displacement_jets(self, field, xi: torch.Tensor, *, t: float = 1.0, conditioning=None):
+        """Displacement jets u (N, 6, 3) [m] of a field at ξ, boundary conditions applied."""
+        raw = field.jets(xi, conditioning)
+        return self.boundary.compose(xi, raw, t=t)
+
+    def displacement(self, field, xi: torch.Tensor, *, t: float = 1.0, conditioning=None):
+        """Displacement u (N, 3) [m] at ξ (no tape kept: for outputs and probes)."""
+        values = field.evaluate(xi, conditioning)
+        raw = jets.constant(values)
+        return self.boundary.compose(xi, raw, t=t)[:, jets.VALUE]
+
+    def characteristic_length(self) -> float:
+        """√(surface area) [m], estimated from the reference surface."""
+        gen = torch.Generator().manual_seed(0)
+        xi = self.surface.domain.sample(4096, gen)
+        r = self.surface.jets(xi.to(torch.float64))
+        sqrt_a = torch.linalg.cross(r[:, jets.D1], r[:, jets.D2], dim=-1).norm(dim=-1)
+        return math.sqrt(float(sqrt_a.mean()) * self.surface.domain.area)

@@ -1,0 +1,150 @@
+"""What a run leaves behind: deformed meshes with strain and energy, renders, plots, JSON.
+
+The field is continuous, so the exported mesh is an evaluation on any grid of surface
+coordinates (or on a template mesh's own vertices); memory stays bounded by evaluating in
+chunks.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.io import grid_mesh, write_obj, write_ply
+from taichi_ndf.io.output_dir import OutputDir
+from taichi_ndf.model import ShellModel
+from taichi_ndf.render import plot_curves, render_shaded, save_png, write_video
+from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.shell.kinematics import strains
+
+log = logging.getLogger(__name__)
+
+CHUNK = 8192  # samples per jets evaluation when exporting (bounds the field's tape memory)
+
+
+@dataclass
+class DeformedMesh:
+    """A triangle mesh of the deformed surface.
+
+    xi: surface coordinates of the vertices (V, 2); reference, deformed: positions [m] (V, 3);
+    faces (F, 3); uv: texture coordinates (V, 2); per-vertex scalars: membrane_strain (norm of
+    ε in the reference metric, dimensionless), bending_strain (norm of κ, [1/m]),
+    energy_density Ψ [J/m²].
+    """
+
+    xi: np.ndarray
+    reference: np.ndarray
+    deformed: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    membrane_strain: np.ndarray
+    bending_strain: np.ndarray
+    energy_density: np.ndarray
+
+    def scalars(self) -> dict[str, np.ndarray]:
+        return {"membrane_strain": self.membrane_strain, "bending_strain": self.bending_strain,
+                "energy_density": self.energy_density}
+
+
+def export_grid(model: ShellModel, resolution: tuple[int, int]):
+    """Surface coordinates, faces and UVs to export a model on: the template mesh's own
+    vertices for a mesh surface, else a regular grid (faces outside a masked chart dropped)."""
+    surface = model.surface
+    if hasattr(surface, "uv") and hasattr(surface, "faces"):
+        uv = np.asarray(surface.uv, dtype=np.float64)
+        return uv, np.asarray(surface.faces, dtype=np.int64), uv
+    domain = surface.domain
+    grid = grid_mesh(domain.bounds, resolution, periodic=domain.periodic)
+    xi, faces, uv = grid.xi, grid.faces, grid.uv
+    if domain.inside is not None:
+        inside = domain.contains(torch.from_numpy(xi)).numpy()
+        faces = faces[inside[faces].all(axis=1)]
+        used = np.unique(faces)
+        remap = -np.ones(len(xi), dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        xi, uv, faces = xi[used], uv[used], remap[faces]
+    return xi, faces, uv
+
+
+def _strain_norm(strain: torch.Tensor, r_jets: torch.Tensor) -> torch.Tensor:
+    """√(ε_αβ a^{αγ} a^{βδ} ε_γδ): the norm of a covariant surface tensor in the metric of r."""
+    a1, a2 = r_jets[:, jets.D1], r_jets[:, jets.D2]
+    metric = torch.stack((torch.stack(((a1 * a1).sum(-1), (a1 * a2).sum(-1)), -1),
+                          torch.stack(((a1 * a2).sum(-1), (a2 * a2).sum(-1)), -1)), -2)
+    mixed = torch.linalg.solve(metric, strain)  # a^{αγ} ε_γβ
+    return torch.sqrt(torch.clamp((mixed * mixed.transpose(-1, -2)).sum((-1, -2)), min=0))
+
+
+def deformed_mesh(model: ShellModel, field, resolution: tuple[int, int] = (64, 64), *,
+                  load_factor: float = 1.0) -> DeformedMesh:
+    """Evaluate the field (boundary conditions applied) on the export grid."""
+    xi_np, faces, uv = export_grid(model, resolution)
+    dtype = field.parameters[0].dtype
+    energy = ShellEnergy(model.material, model.loads.scaled(load_factor))
+    parts = {k: [] for k in ("r", "u", "eps", "kappa", "psi")}
+    for start in range(0, len(xi_np), CHUNK):
+        xi = torch.from_numpy(xi_np[start:start + CHUNK]).to(dtype)
+        r = model.surface.jets(xi)
+        u = model.displacement_jets(field, xi, t=load_factor)
+        samples = SurfaceSamples(xi=xi, r_jets=r, weight=torch.ones_like(xi[:, 0]),
+                                 point_force=torch.zeros_like(r[:, 0]))
+        eps, kappa, _ = strains(r, u)
+        parts["r"].append(r[:, jets.VALUE])
+        parts["u"].append(u[:, jets.VALUE])
+        parts["eps"].append(_strain_norm(eps, r))
+        parts["kappa"].append(_strain_norm(kappa, r))
+        parts["psi"].append(energy.evaluate(samples, u, grad=False).density)
+    cat = {k: torch.cat(v).double().numpy() for k, v in parts.items()}
+    return DeformedMesh(xi=xi_np, reference=cat["r"], deformed=cat["r"] + cat["u"], faces=faces,
+                        uv=uv, membrane_strain=cat["eps"], bending_strain=cat["kappa"],
+                        energy_density=cat["psi"])
+
+
+def write_mesh_files(out: OutputDir, stem: str, mesh: DeformedMesh) -> None:
+    """`stem`.obj (positions, UVs) and `stem`.ply (UVs, strains, energy density)."""
+    write_obj(out.file(f"{stem}.obj"), mesh.deformed, mesh.faces, uvs=mesh.uv)
+    write_ply(out.file(f"{stem}.ply"), mesh.deformed, mesh.faces, uvs=mesh.uv,
+              vertex_scalars=mesh.scalars())
+
+
+def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, camera=None) -> None:
+    """Shaded render of the deformed surface coloured by bending strain."""
+    image = render_shaded(mesh.deformed, mesh.faces, scalars=mesh.bending_strain,
+                          scalar_label="|kappa| [1/m]", camera=camera)
+    save_png(out.file(name), image)
+
+
+def write_energy_plot(out: OutputDir, name: str, history) -> None:
+    """Π over iterations (and, when Π changes sign, |Π − Π_final| on a log axis)."""
+    if not history:
+        return
+    it = np.array([h.iteration for h in history], dtype=np.float64)
+    energy = np.array([h.energy for h in history], dtype=np.float64)
+    gap = np.abs(energy - energy[-1]) / max(abs(energy[-1]), 1e-300)
+    top = plot_curves({"potential energy": (it, energy)}, title="Total potential energy",
+                      xlabel="iteration", ylabel="Pi [J]", height=400)
+    bottom = plot_curves({"|Pi - Pi_final| / |Pi_final|": (it[:-1], gap[:-1])},
+                         title="Relative distance to the final energy", xlabel="iteration",
+                         ylabel="relative gap", log_y=True, height=400)
+    save_png(out.file(name), np.concatenate((top, bottom), axis=0))
+
+
+def write_trajectory(out: OutputDir, meshes: list[tuple[float, DeformedMesh]], *,
+                     fps: float = 4.0) -> None:
+    """One mesh per load step under trajectory/ and an MP4 of their renders (fixed camera)."""
+    from taichi_ndf.render import frame_mesh
+
+    everything = np.concatenate([m.deformed for _, m in meshes])
+    camera = frame_mesh(everything, width=800, height=600)
+    frames = []
+    for k, (factor, mesh) in enumerate(meshes):
+        write_obj(out.file(f"trajectory/step_{k:03d}.obj"), mesh.deformed, mesh.faces,
+                  uvs=mesh.uv)
+        frames.append(render_shaded(mesh.deformed, mesh.faces, camera=camera))
+        log.info("trajectory frame %d: load factor %.4g", k, factor)
+    write_video(out.file("trajectory.mp4"), frames, fps)

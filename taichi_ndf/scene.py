@@ -1,0 +1,301 @@
+"""Scene files (TOML): geometry, material, loads, boundary conditions, field, training, probes.
+
+`docs/scenes.md` documents every key. Unknown keys and wrong types raise `SceneError` naming
+the key; physical validation errors of the model (a point outside the domain, an invalid
+material) are re-raised as `SceneError` with the section they come from.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from taichi_ndf.boundary import (
+    BoundaryConditions,
+    ClampedEdge,
+    Handle,
+    HingedEdge,
+    InteriorLine,
+    PinnedPoint,
+    RimRotation,
+)
+from taichi_ndf.field import FieldConfig
+from taichi_ndf.geometry import Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
+from taichi_ndf.loads import Loads, PointLoad
+from taichi_ndf.model import Probe, ShellModel
+from taichi_ndf.optim import AdamConfig
+from taichi_ndf.scene_schema import SceneError, Table
+from taichi_ndf.shell.materials import (
+    PRESETS,
+    ClydeFabric,
+    LinearIsotropic,
+    OrthotropicStVK,
+    preset,
+)
+from taichi_ndf.solver import SolverConfig
+
+GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "mesh")
+CONSTRAINTS = ("clamped_edge", "hinged_edge", "pinned_point", "handle", "interior_line",
+               "rim_rotation")
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """resolution: grid cells per surface coordinate of the exported mesh (ignored for a
+    mesh template, which is exported on its own vertices)."""
+
+    resolution: tuple[int, int] = (64, 64)
+
+
+@dataclass(frozen=True)
+class Scene:
+    name: str
+    description: str
+    model: ShellModel
+    field: FieldConfig
+    solver: SolverConfig
+    quick_solver: SolverConfig
+    output: OutputConfig
+    path: Path
+    document: dict  # the parsed TOML, for result.json
+
+
+def load_scene(path: str | Path, *, material: str | None = None) -> Scene:
+    """Read and validate a scene file; relative paths inside it are relative to the file.
+
+    material: a preset name that replaces the scene's [material] table.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"scene file not found: {path}")
+    try:
+        document = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"{path}: not valid TOML: {err}") from err
+    if material is not None:
+        document["material"] = {"preset": material}
+    return parse_scene(document, base_dir=path.parent, path=path)
+
+
+def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> Scene:
+    top = Table(document, "")
+    name = top.string("name")
+    description = top.string("description", "")
+    surface = _section(top.table("geometry"), _geometry, base_dir)
+    material = _section(top.table("material"), _material)
+    loads = _section(top.table("loads", optional=True), _loads)
+    _check(lambda: loads.check_domain(surface.domain), "loads")
+    boundary = _section(top.table("boundary", optional=True), _boundary, surface)
+    probes = tuple(Probe(t.string("name"), t.vector("xi", 2)) for t in top.tables("probes"))
+    model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
+    field = _section(top.table("field", optional=True), _field, model, loads)
+    solver, quick = _section(top.table("training", optional=True), _training)
+    output = _section(top.table("output", optional=True), _output)
+    top.close()
+    return Scene(name=name, description=description, model=model, field=field, solver=solver,
+                 quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
+                 document=document)
+
+
+def _section(table: Table, build, *args):
+    result = _check(lambda: build(table, *args), table.path)
+    table.close()
+    return result
+
+
+def _check(build, where: str):
+    try:
+        return build()
+    except SceneError:
+        raise
+    except (ValueError, TypeError, FileNotFoundError) as err:
+        raise SceneError(f"{where}: {err}") from err
+
+
+def _placement(t: Table) -> dict:
+    out = {}
+    if t.has("origin"):
+        out["origin"] = t.vector("origin", 3)
+    if t.has("frame"):
+        frame = t._get("frame", None)
+        if not (isinstance(frame, list) and len(frame) == 3):
+            raise SceneError(f"{t.key('frame')}: expected three 3-vectors [e_x, e_y, e_z]")
+        out["frame"] = tuple(tuple(float(v) for v in row) for row in frame)
+    return out
+
+
+def _geometry(t: Table, base_dir: Path):
+    kind = t.string("type", choices=GEOMETRIES)
+    if kind == "mesh":
+        from taichi_ndf.geometry.mesh_surface import MeshSurface
+
+        mesh_path = Path(t.string("path"))
+        if not mesh_path.is_absolute():
+            mesh_path = base_dir / mesh_path
+        if not mesh_path.is_file():
+            raise SceneError(f"{t.key('path')}: template mesh not found: {mesh_path}")
+        return MeshSurface.from_file(mesh_path)
+    placement = _placement(t)
+    if kind == "plane":
+        b = t._get("bounds", [[0.0, 1.0], [0.0, 1.0]])
+        if not (isinstance(b, list) and len(b) == 2 and all(len(p) == 2 for p in b)):
+            raise SceneError(f"{t.key('bounds')}: expected [[x_min, x_max], [y_min, y_max]] [m]")
+        return Plane(bounds=tuple(tuple(float(v) for v in p) for p in b), **placement)
+    if kind == "cylinder":
+        return Cylinder(radius=t.number("radius", positive=True),
+                        length=t.number("length", positive=True), **placement)
+    if kind == "cone":
+        return Cone(bottom_radius=t.number("bottom_radius", positive=True),
+                    top_radius=t.number("top_radius", positive=True),
+                    height=t.number("height", positive=True), **placement)
+    if kind == "roof":
+        return CylindricalRoof(radius=t.number("radius", positive=True),
+                               length=t.number("length", positive=True),
+                               half_angle=math.radians(t.number("half_angle_deg", positive=True)),
+                               **placement)
+    return Hemisphere(radius=t.number("radius", positive=True),
+                      hole_half_angle=math.radians(t.number("hole_half_angle_deg", 0.0)),
+                      rim_angle=math.radians(t.number("rim_angle_deg", 90.0)), **placement)
+
+
+def _material(t: Table):
+    if t.has("preset"):
+        material = preset(t.string("preset", choices=PRESETS))
+        if t.has("stiffness_scale"):
+            material = material.scaled(t.number("stiffness_scale", positive=True))
+        return material
+    kind = t.string("type", choices=("linear", "orthotropic", "clyde"))
+    density = t.number("areal_density", positive=True)
+    if kind == "linear":
+        nu = t.number("poisson_ratio")
+        if t.has("young_modulus"):
+            return LinearIsotropic.from_young(t.number("young_modulus", positive=True), nu,
+                                              t.number("thickness", positive=True), density)
+        return LinearIsotropic(membrane_stiffness=t.number("membrane_stiffness", positive=True),
+                               bending_stiffness=t.number("bending_stiffness", positive=True),
+                               poisson_ratio=nu, areal_density=density)
+    stiffness = {k: t.number(k) for k in ("a11", "a12", "a22", "G12")}
+    thickness = t.number("thickness", positive=True)
+    if kind == "orthotropic":
+        return OrthotropicStVK(**stiffness, thickness=thickness, areal_density=density)
+    eta = t._get("eta", None)
+    limits = t.vector("strain_limits", 3)
+    return ClydeFabric(**stiffness, eta=eta, strain_limits=limits, thickness=thickness,
+                       areal_density=density)
+
+
+def _loads(t: Table) -> Loads:
+    points = []
+    for p in t.tables("point"):
+        points.append(PointLoad(p.vector("xi", 2), p.vector("force", 3)))
+        p.close()
+    return Loads(gravity=t.vector("gravity", 3, (0.0, 0.0, 0.0)),
+                 body_force=t.vector("body_force", 3, (0.0, 0.0, 0.0)),
+                 pressure=t.number("pressure", 0.0), point_loads=tuple(points))
+
+
+def _constraint(c: Table):
+    kind = c.string("type", choices=CONSTRAINTS)
+    common = {"components": c.string("components", "xyz")}
+    if c.has("length"):
+        common["length"] = c.number("length", positive=True)
+    if kind in ("clamped_edge", "hinged_edge"):
+        cls = ClampedEdge if kind == "clamped_edge" else HingedEdge
+        return cls(edge=c.string("edge"), displacement=c.vector("displacement", 3, (0, 0, 0)),
+                   **common)
+    if kind == "pinned_point":
+        return PinnedPoint(xi=c.vector("xi", 2), **common)
+    if kind == "handle":
+        return Handle(xi=c.vector("xi", 2), displacement=c.vector("displacement", 3), **common)
+    if kind == "interior_line":
+        return InteriorLine(start=c.vector("start", 2), end=c.vector("end", 2),
+                            extend=c.boolean("extend", False), hinged=c.boolean("hinged", False),
+                            **common)
+    return RimRotation(edge=c.string("edge"), axis_point=c.vector("axis_point", 3),
+                       axis=c.vector("axis", 3), angle=math.radians(c.number("angle_deg")),
+                       **common)
+
+
+def _boundary(t: Table, surface) -> BoundaryConditions:
+    constraints = []
+    for c in t.tables("constraint"):
+        constraints.append(_check(lambda c=c: _constraint(c), c.path))
+        c.close()
+    kwargs = {"length": t.number("length")} if t.has("length") else {}
+    return BoundaryConditions(constraints, surface.domain, surface=surface, **kwargs)
+
+
+def _field(t: Table, model: ShellModel, loads: Loads) -> FieldConfig:
+    scale = t._get("output_scale", "auto")
+    if scale == "auto":
+        from taichi_ndf.scaling import characteristic_displacement
+
+        scale = characteristic_displacement(model)
+    elif isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
+        raise SceneError(f"{t.key('output_scale')}: expected \"auto\" or a positive number "
+                         f"[m], got {scale!r}")
+    domain = model.surface.domain
+    return FieldConfig(width=t.integer("width", 128, minimum=1),
+                       hidden_layers=t.integer("hidden_layers", 3, minimum=1),
+                       omega0=t.number("omega0", 30.0, positive=True),
+                       domain=domain.bounds, periodic=domain.periodic,
+                       output_scale=float(scale))
+
+
+def _adam(t: Table) -> dict:
+    lr = t.number("learning_rate", 1e-3, positive=True)
+    return {"lr": lr,
+            "schedule": t.string("schedule", "exponential",
+                                 choices=("constant", "exponential", "cosine")),
+            "final_ratio": t.number("final_learning_rate_ratio", 0.1, positive=True),
+            "grad_clip": t.number("grad_clip", None)}
+
+
+def adam_config(lr: float, schedule: str, final_ratio: float, grad_clip: float | None,
+                total_steps: int) -> AdamConfig:
+    """Adam whose learning rate falls from `lr` to `final_ratio`·lr over `total_steps`
+    (exponentially or along a cosine), or stays constant."""
+    total_steps = max(int(total_steps), 1)
+    return AdamConfig(lr=lr, schedule=schedule, decay_rate=min(final_ratio, 1.0),
+                      decay_steps=total_steps, total_steps=total_steps,
+                      min_lr=min(final_ratio, 1.0) * lr, grad_clip=grad_clip)
+
+
+def _solver(t: Table, adam: dict, defaults: SolverConfig | None = None) -> SolverConfig:
+    d = defaults or SolverConfig()
+    steps = t.numbers("load_steps", d.load_steps)
+    iterations = t.integer("iterations", d.iterations, minimum=0)
+    return SolverConfig(
+        iterations=iterations,
+        samples=t.integer("samples", d.samples, minimum=16),
+        adam=adam_config(**adam, total_steps=iterations * len(steps)),
+        load_steps=steps,
+        monitor_every=t.integer("monitor_every", d.monitor_every, minimum=1),
+        monitor_samples=t.integer("monitor_samples", d.monitor_samples, minimum=16),
+        checkpoint_every=t.integer("checkpoint_every", d.checkpoint_every, minimum=0),
+        lbfgs_iterations=t.integer("lbfgs_iterations", d.lbfgs_iterations, minimum=0),
+        seed=t.integer("seed", d.seed),
+    )
+
+
+def _training(t: Table) -> tuple[SolverConfig, SolverConfig]:
+    adam = _adam(t)
+    quick_table = t.table("quick", optional=True)
+    solver = _solver(t, adam)
+    quick_defaults = replace(solver, iterations=min(solver.iterations, 30),
+                             samples=min(solver.samples, 512), monitor_every=10,
+                             monitor_samples=min(solver.monitor_samples, 2048),
+                             lbfgs_iterations=0, checkpoint_every=0)
+    quick = _check(lambda: _solver(quick_table, adam, quick_defaults), quick_table.path)
+    quick_table.close()
+    return solver, quick
+
+
+def _output(t: Table) -> OutputConfig:
+    res = t._get("resolution", [64, 64])
+    if (not isinstance(res, list) or len(res) != 2
+            or any(isinstance(v, bool) or not isinstance(v, int) or v < 2 for v in res)):
+        raise SceneError(f"{t.key('resolution')}: expected two integers >= 2, got {res!r}")
+    return OutputConfig(resolution=(res[0], res[1]))

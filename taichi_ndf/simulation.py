@@ -1,0 +1,86 @@
+"""Run a scene end to end: build the field, solve, write every output into a run directory."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+
+from taichi_ndf.field import NeuralField
+from taichi_ndf.io import OutputDir
+from taichi_ndf.outputs import (
+    deformed_mesh,
+    write_energy_plot,
+    write_mesh_files,
+    write_render,
+    write_trajectory,
+)
+from taichi_ndf.scene import Scene
+from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
+
+log = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+
+
+class SimulationError(RuntimeError):
+    """A run could not produce a trustworthy result; the message says why."""
+
+
+def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None,
+             resume: bool = False, machine: dict | None = None, seed: int | None = None) -> dict:
+    """Solve `scene` and write mesh.obj/.ply, render.png, energy.png, checkpoint.pt,
+    result.json (and trajectory/ + trajectory.mp4 with several load steps) into `out`.
+    Returns the result dictionary also written to result.json."""
+    config = solver or scene.solver
+    field = NeuralField(scene.field, seed=config.seed if seed is None else seed)
+    meshes = []
+
+    def on_load_step(load_factor: float) -> None:
+        if len(config.load_steps) > 1:
+            meshes.append((load_factor, deformed_mesh(scene.model, field, scene.output.resolution,
+                                                      load_factor=load_factor)))
+
+    run = Solver(scene.model, field, config, checkpoint_path=out.file("checkpoint.pt"),
+                 checkpoint_extra={"scene": scene.document, "scene_dir": str(scene.path.parent)})
+    try:
+        result = run.run(resume=resume, on_load_step=on_load_step)
+    except DivergenceError as err:
+        raise SimulationError(str(err)) from err
+
+    mesh = deformed_mesh(scene.model, field, scene.output.resolution)
+    for name, values in mesh.scalars().items():
+        if not all(math.isfinite(float(v)) for v in values):
+            raise SimulationError(f"non-finite {name} in the exported mesh")
+    write_mesh_files(out, "mesh", mesh)
+    write_render(out, "render.png", mesh)
+    write_energy_plot(out, "energy.png", result.history)
+    if meshes:
+        write_trajectory(out, meshes)
+    summary = {
+        "format_version": FORMAT_VERSION,
+        "scene": scene.name,
+        "energy": result.energy,
+        "iterations": result.iterations,
+        "wall_time": result.wall_time,
+        "probes": result.probes,
+        "resolved": {
+            "field": scene.field.to_dict(),
+            "solver": _plain(dataclasses.asdict(config)),
+            "output": dataclasses.asdict(scene.output),
+            "scene_file": scene.document,
+        },
+        "machine": machine or {},
+        "history": [dataclasses.asdict(h) for h in result.history],
+    }
+    out.write_json("result.json", summary)
+    log.info("wrote outputs of %s to %s", scene.name, out.path)
+    return summary
+
+
+def _plain(value):
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value

@@ -1,0 +1,264 @@
+"""Quasistatic solver: minimise the total potential energy Π over the field's weights.
+
+Each iteration draws fresh stratified jittered samples, evaluates the field's jets, applies the
+boundary conditions, evaluates Π and its gradient (Taichi autodiff), chains it back into the
+weights (the field's hand-written adjoint) and takes an Adam step. Loads may be applied in
+increments (continuation): each load factor is solved in turn, warm-started from the previous.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
+from taichi_ndf.field import NeuralField
+from taichi_ndf.model import ShellModel
+from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.sampling import sample_surface
+from taichi_ndf.shell.energy import ShellEnergy
+
+log = logging.getLogger(__name__)
+
+
+class DivergenceError(RuntimeError):
+    """Training produced a non-finite energy or gradient; the last good state was kept."""
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """How Π is minimised.
+
+    iterations: Adam iterations per load step.
+    samples: area samples per iteration (stratified, jittered, resampled every iteration).
+    load_steps: load factors solved in turn (continuation); loads and prescribed displacements
+        are scaled by the factor. The last must be 1.
+    monitor_every: iterations between evaluations of Π on a fixed monitor sample set.
+    checkpoint_every: iterations between checkpoints (0: only at the end).
+    lbfgs_iterations: L-BFGS polish iterations on a fixed sample set after each load step.
+    """
+
+    iterations: int = 1500
+    samples: int = 4096
+    adam: AdamConfig = field(default_factory=AdamConfig)
+    load_steps: tuple[float, ...] = (1.0,)
+    monitor_every: int = 50
+    monitor_samples: int = 16384
+    checkpoint_every: int = 500
+    lbfgs_iterations: int = 0
+    seed: int = 0
+    progress: bool = True
+
+    def __post_init__(self):
+        if self.iterations < 0:
+            raise ValueError(f"iterations must be >= 0, got {self.iterations}")
+        if self.samples < 16:
+            raise ValueError(f"samples must be >= 16, got {self.samples}")
+        if not self.load_steps or any(not 0 < s <= 1 for s in self.load_steps):
+            raise ValueError(f"load_steps must be load factors in (0, 1], got {self.load_steps}")
+        if abs(self.load_steps[-1] - 1.0) > 1e-12:
+            raise ValueError(f"the last load step must be 1.0, got {self.load_steps[-1]}")
+        if list(self.load_steps) != sorted(self.load_steps):
+            raise ValueError(f"load_steps must increase, got {self.load_steps}")
+        if self.monitor_every < 1:
+            raise ValueError(f"monitor_every must be >= 1, got {self.monitor_every}")
+        if self.checkpoint_every < 0 or self.lbfgs_iterations < 0:
+            raise ValueError("checkpoint_every and lbfgs_iterations must be >= 0")
+
+    def with_iterations(self, iterations: int) -> SolverConfig:
+        """The same run with another iteration count; the learning-rate schedule is stretched
+        to the new length."""
+        total = max(iterations * len(self.load_steps), 1)
+        adam = replace(self.adam, decay_steps=total, total_steps=total)
+        return replace(self, iterations=iterations, adam=adam)
+
+
+@dataclass
+class MonitorRecord:
+    """One row of the convergence history."""
+
+    iteration: int  # counted over all load steps
+    load_factor: float
+    energy: float  # Π on the monitor samples [J]
+    grad_norm: float  # ‖∂Π/∂weights‖ of the last training step
+    learning_rate: float
+    probes: dict[str, list[float]]  # displacement [m] at each probe
+    wall_time: float  # seconds since the start of this run
+
+
+@dataclass
+class SolveResult:
+    energy: float
+    iterations: int
+    wall_time: float
+    history: list[MonitorRecord]
+    probes: dict[str, list[float]]
+
+
+class Solver:
+    """Minimises Π of a model over a field's weights; checkpoints, resumes, guards NaNs."""
+
+    def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
+                 checkpoint_path: str | Path | None = None, checkpoint_extra: dict | None = None):
+        self.model = model
+        self.checkpoint_extra = checkpoint_extra or {}
+        self.field = field
+        self.config = config
+        self.checkpoint_path = Path(checkpoint_path) if checkpoint_path else None
+        self.optimiser = Adam(field.parameters, field.gradients, config=config.adam)
+        self.generator = torch.Generator().manual_seed(config.seed)
+        self.iteration = 0
+        self.history: list[MonitorRecord] = []
+        self._good_state = field.get_flat().clone()
+        self._monitor = {}
+
+    # -- energy -------------------------------------------------------------------------------
+    def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True):
+        """Π [J] of the current field on given samples; fills the field's gradients."""
+        xi = samples.xi
+        raw = self.field.jets(xi)
+        u = self.model.boundary.compose(xi, raw, t=load_factor)
+        energy = ShellEnergy(self.model.material, self.model.loads.scaled(load_factor))
+        result = energy.evaluate(samples, u, grad=grad)
+        if grad:
+            g_raw = self.model.boundary.compose_adjoint(xi, result.grad_u_jets, t=load_factor)
+            self.field.backward(g_raw)
+        return result
+
+    def _samples(self, n: int, load_factor: float, generator: torch.Generator):
+        rt_dtype = self.field.parameters[0].dtype
+        s = sample_surface(self.model.surface, n, self.model.loads.scaled(load_factor), generator)
+        return s.to(dtype=rt_dtype, device=self.field.parameters[0].device)
+
+    def monitor_samples(self, load_factor: float):
+        if load_factor not in self._monitor:
+            gen = torch.Generator().manual_seed(self.config.seed + 7919)
+            self._monitor[load_factor] = self._samples(self.config.monitor_samples, load_factor,
+                                                       gen)
+        return self._monitor[load_factor]
+
+    def probe_displacements(self, load_factor: float) -> dict[str, list[float]]:
+        if not self.model.probes:
+            return {}
+        dtype = self.field.parameters[0].dtype
+        xi = torch.tensor([p.xi for p in self.model.probes], dtype=dtype)
+        u = self.model.displacement(self.field, xi, t=load_factor)
+        return {p.name: [float(v) for v in u[k]] for k, p in enumerate(self.model.probes)}
+
+    def _grad_norm(self) -> float:
+        return math.sqrt(sum(float((g.double() ** 2).sum()) for g in self.field.gradients))
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def save(self, load_step: int) -> None:
+        if self.checkpoint_path is None:
+            return
+        save_checkpoint(
+            self.checkpoint_path, self.field, self.optimiser,
+            extra={**self.checkpoint_extra, "iteration": self.iteration,
+                   "load_step": load_step, "history": [asdict(h) for h in self.history]},
+        )
+
+    def resume(self) -> int:
+        """Load the checkpoint; returns the load step to continue from."""
+        if self.checkpoint_path is None or not self.checkpoint_path.exists():
+            raise FileNotFoundError(f"no checkpoint to resume from at {self.checkpoint_path}")
+        extra = load_checkpoint(self.checkpoint_path, self.field, optimiser=self.optimiser).extra
+        self.iteration = int(extra["iteration"])
+        self.history = [MonitorRecord(**h) for h in extra["history"]]
+        self._good_state = self.field.get_flat().clone()
+        log.info("resumed from %s at iteration %d", self.checkpoint_path, self.iteration)
+        # A finished run stores one past its last step; resumed (with more iterations) it goes
+        # on in its last step.
+        return min(int(extra["load_step"]), len(self.config.load_steps) - 1)
+
+    # -- main loop ------------------------------------------------------------------------------
+    def run(self, *, resume: bool = False, on_load_step=None) -> SolveResult:
+        """Minimise Π for every load step; `on_load_step(load_factor)` is called after each."""
+        cfg = self.config
+        start_step = self.resume() if resume else 0
+        t0 = time.perf_counter()
+        total = cfg.iterations * len(cfg.load_steps)
+        show = cfg.progress and sys.stderr.isatty()
+        bar = tqdm(total=total, initial=min(self.iteration, total), disable=not show,
+                   desc="Π minimisation", dynamic_ncols=True)
+        energy = float("nan")
+        for step in range(start_step, len(cfg.load_steps)):
+            lam = cfg.load_steps[step]
+            done_in_step = self.iteration - step * cfg.iterations
+            for _ in range(max(done_in_step, 0), cfg.iterations):
+                samples = self._samples(cfg.samples, lam, self.generator)
+                res = self.energy_and_gradient(samples, lam)
+                gnorm = self._grad_norm()
+                if not (math.isfinite(res.total) and math.isfinite(gnorm)):
+                    self._diverged(res.total, gnorm, step)
+                self.optimiser.step()
+                self.iteration += 1
+                bar.update(1)
+                if self.iteration % cfg.monitor_every == 0:
+                    energy = self._record(lam, gnorm, t0, step)
+                    bar.set_postfix(energy=f"{energy:.5g}", grad=f"{gnorm:.3g}")
+                if cfg.checkpoint_every and self.iteration % cfg.checkpoint_every == 0:
+                    self.save(step)
+            if cfg.lbfgs_iterations:
+                self._lbfgs(lam, step)
+            recorded = self.history and self.history[-1].iteration == self.iteration
+            if cfg.lbfgs_iterations or not recorded:
+                self._record(lam, self._grad_norm(), t0, step)
+            energy = self.history[-1].energy
+            log.info("load factor %.4g: Π = %.8g J after %d iterations", lam, energy,
+                     self.iteration)
+            if on_load_step is not None:
+                on_load_step(lam)
+        bar.close()
+        self.save(len(cfg.load_steps))
+        return SolveResult(energy=energy, iterations=self.iteration,
+                           wall_time=time.perf_counter() - t0, history=self.history,
+                           probes=self.probe_displacements(cfg.load_steps[-1]))
+
+    def _record(self, lam: float, gnorm: float, t0: float, step: int) -> float:
+        energy = self.energy_and_gradient(self.monitor_samples(lam), lam, grad=False).total
+        if not math.isfinite(energy):
+            self._diverged(energy, gnorm, step)
+        self._good_state = self.field.get_flat().clone()
+        self.history.append(MonitorRecord(
+            iteration=self.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
+            learning_rate=self.optimiser.learning_rate, probes=self.probe_displacements(lam),
+            wall_time=time.perf_counter() - t0))
+        return energy
+
+    def _diverged(self, energy: float, gnorm: float, step: int):
+        self.field.set_flat(self._good_state)
+        where = f" (checkpoint {self.checkpoint_path})" if self.checkpoint_path else ""
+        last = self.history[-1].iteration if self.history else 0
+        raise DivergenceError(
+            f"training diverged at iteration {self.iteration}: Π = {energy}, "
+            f"‖∇Π‖ = {gnorm}; the field was reset to its last good state from iteration "
+            f"{last}{where}. Lower the learning rate or the load step.")
+
+    def _lbfgs(self, lam: float, step: int) -> None:
+        """Deterministic L-BFGS polish on a fixed, large sample set."""
+        samples = self.monitor_samples(lam)
+        flat = torch.nn.Parameter(self.field.get_flat().clone())
+        opt = torch.optim.LBFGS([flat], lr=1.0, max_iter=self.config.lbfgs_iterations,
+                                history_size=20, line_search_fn="strong_wolfe")
+
+        def closure():
+            self.field.set_flat(flat.detach())
+            res = self.energy_and_gradient(samples, lam)
+            flat.grad = self.field.get_flat_gradient().clone()
+            return torch.tensor(res.total, dtype=flat.dtype)
+
+        before = self.energy_and_gradient(samples, lam, grad=False).total
+        opt.step(closure)
+        self.field.set_flat(flat.detach())
+        after = self.energy_and_gradient(samples, lam, grad=False).total
+        if not math.isfinite(after):
+            self._diverged(after, float("nan"), step)
+        log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)

@@ -1,0 +1,220 @@
+"""`ndf-sim` and the demos, in-process: resume, NaN guard, invalid scenes, output protection,
+`ndf-export`."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from taichi_ndf.checkpoint import load_checkpoint
+from taichi_ndf.cli import export, sim
+from taichi_ndf.solver import Solver
+
+ROOT = Path(__file__).resolve().parents[1]
+RUNTIME = ["--precision", "f64"]  # the test session's runtime (tests/conftest.py)
+
+# A small napkin: pinned corner, gravity, a 16-wide field, checkpoints every 5 iterations.
+SMALL_NAPKIN = """
+name = "small_napkin"
+[geometry]
+type = "plane"
+bounds = [[0.0, 1.0], [0.0, 1.0]]
+[material]
+preset = "cloth"
+[loads]
+gravity = [0.0, 0.0, -9.81]
+[[boundary.constraint]]
+type = "pinned_point"
+xi = [0.0, 0.0]
+[field]
+width = 16
+[training]
+iterations = 10
+samples = 256
+learning_rate = {lr}
+monitor_every = 5
+monitor_samples = 512
+checkpoint_every = 5
+[[probes]]
+name = "free_corner"
+xi = [1.0, 1.0]
+[output]
+resolution = [16, 16]
+"""
+
+
+def write_scene(tmp_path: Path, text: str, name: str = "scene.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def small_napkin(tmp_path: Path, *, lr: float = 1e-3, name: str = "scene.toml") -> Path:
+    return write_scene(tmp_path, SMALL_NAPKIN.format(lr=lr), name)
+
+
+def run_sim(*args) -> int:
+    return sim.main([str(a) for a in args] + RUNTIME)
+
+
+def load_demo(name: str):
+    spec = importlib.util.spec_from_file_location(f"demo_{name}", ROOT / "demos" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_napkin_demo_quick(tmp_path, capsys):
+    out = tmp_path / "napkin"
+    assert load_demo("napkin").main(["--quick", "--out", str(out), "--iters", "3", *RUNTIME]) == 0
+    printed = capsys.readouterr().out
+    assert str(out) in printed and "render.png" in printed
+    result = json.loads((out / "result.json").read_text())
+    assert result["scene"] == "napkin" and result["iterations"] == 3
+    for name in ("mesh.obj", "mesh.ply", "render.png", "energy.png", "checkpoint.pt"):
+        assert (out / name).is_file()
+
+
+def test_run_scene_demo_lists_and_runs_with_a_fabric(tmp_path, capsys):
+    demo = load_demo("run_scene")
+    assert demo.main(["--list"]) == 0
+    assert "sleeve_twist" in capsys.readouterr().out.split()
+    out = tmp_path / "run"
+    status = demo.main([str(small_napkin(tmp_path)), "--quick", "--material", "silk", "--iters",
+                        "2", "--out", str(out), *RUNTIME])
+    assert status == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["iterations"] == 2
+    assert result["resolved"]["scene_file"]["material"] == {"preset": "silk"}
+
+
+def test_resume_continues_an_interrupted_run(tmp_path, monkeypatch):
+    scene = small_napkin(tmp_path)
+    assert run_sim(scene, "--out", tmp_path / "whole") == 0
+    whole = json.loads((tmp_path / "whole" / "result.json").read_text())
+
+    save = Solver.save
+
+    def save_then_crash(self, load_step):
+        save(self, load_step)
+        if self.iteration == 5:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Solver, "save", save_then_crash)
+    with pytest.raises(KeyboardInterrupt):
+        run_sim(scene, "--out", tmp_path / "cut")
+    monkeypatch.undo()
+    assert not (tmp_path / "cut" / "result.json").exists()
+    assert load_checkpoint(tmp_path / "cut" / "checkpoint.pt").extra["iteration"] == 5
+
+    assert run_sim(scene, "--out", tmp_path / "cut", "--resume") == 0
+    resumed = json.loads((tmp_path / "cut" / "result.json").read_text())
+    assert resumed["iterations"] == whole["iterations"] == 10
+    # The first five iterations are the interrupted run's own, kept in the checkpoint.
+    assert resumed["history"][0] == {**whole["history"][0], "wall_time":
+                                     resumed["history"][0]["wall_time"]}
+    assert [h["iteration"] for h in resumed["history"]] == [5, 10]
+    assert resumed["energy"] == pytest.approx(whole["energy"], rel=0.05)
+
+    # Resuming with more iterations goes on from the end of the previous run.
+    assert run_sim(scene, "--out", tmp_path / "cut", "--resume", "--iters", "15") == 0
+    longer = json.loads((tmp_path / "cut" / "result.json").read_text())
+    assert [h["iteration"] for h in longer["history"]] == [5, 10, 15]
+
+
+def test_resume_needs_a_checkpoint(tmp_path, capsys):
+    assert run_sim(small_napkin(tmp_path), "--out", tmp_path / "none", "--resume") == 2
+    assert "no checkpoint" in capsys.readouterr().err
+
+
+def test_nan_guard_stops_with_a_clear_message(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert run_sim(small_napkin(tmp_path, lr=1e30), "--out", out) == 2
+    err = capsys.readouterr().err
+    assert "diverged at iteration 1" in err and "Lower the learning rate" in err
+    assert not (out / "result.json").exists()
+
+
+def test_nan_guard_keeps_the_last_good_checkpoint(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert run_sim(small_napkin(tmp_path), "--out", out) == 0
+    good = (out / "checkpoint.pt").read_bytes()
+    result = (out / "result.json").read_bytes()
+    # The same scene with an absurd learning rate, resumed from the good run, blows up.
+    bad = small_napkin(tmp_path, lr=1e30, name="bad.toml")
+    assert run_sim(bad, "--out", out, "--resume", "--iters", "20") == 2
+    err = capsys.readouterr().err
+    assert "diverged at iteration 11" in err and str(out / "checkpoint.pt") in err
+    assert (out / "checkpoint.pt").read_bytes() == good
+    assert (out / "result.json").read_bytes() == result
+    weights = load_checkpoint(out / "checkpoint.pt").field.get_flat()
+    assert torch.isfinite(weights).all()
+
+
+@pytest.mark.parametrize(
+    ("edit", "key"),
+    [
+        (("[material]\npreset = \"cloth\"", "[material]\npreset = \"cloth\"\ncolour = \"red\""),
+         "material: unknown key(s) 'colour'"),
+        (("iterations = 10", "iterations = \"many\""),
+         "training.iterations: expected an integer"),
+        (("xi = [0.0, 0.0]", "xi = [2.0, 0.5]"), "boundary"),
+        (("xi = [1.0, 1.0]", "xi = [1.0, 1.5]"), "probes"),
+        (("preset = \"cloth\"", "preset = \"velvet\""), "material.preset: must be one of"),
+        (("width = 16", "width = 16.5"), "field.width: expected an integer"),
+    ],
+    ids=["unknown-key", "wrong-type", "pin-outside", "probe-outside", "bad-preset", "float-width"],
+)
+def test_invalid_scene_errors_name_the_key(tmp_path, capsys, edit, key):
+    text = SMALL_NAPKIN.format(lr=1e-3)
+    assert edit[0] in text
+    scene = write_scene(tmp_path, text.replace(edit[0], edit[1], 1))
+    assert run_sim(scene, "--out", tmp_path / "run") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ndf-sim: error: ") and key in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_bad_material_option_names_the_preset(tmp_path, capsys):
+    assert run_sim(small_napkin(tmp_path), "--out", tmp_path / "run", "--material", "tweed") == 2
+    err = capsys.readouterr().err
+    assert "material.preset" in err and "tweed" in err
+
+
+def test_non_empty_output_directory_is_refused(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    notes = out / "notes.txt"
+    notes.write_text("keep me")
+    before = notes.stat().st_mtime_ns
+    assert run_sim(small_napkin(tmp_path), "--out", out) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    assert notes.read_text() == "keep me" and notes.stat().st_mtime_ns == before
+
+    assert run_sim(small_napkin(tmp_path), "--out", out, "--overwrite") == 0
+    assert notes.read_text() == "keep me" and (out / "result.json").is_file()
+
+
+def test_export_reproduces_the_run_mesh_at_any_resolution(tmp_path):
+    out = tmp_path / "run"
+    assert run_sim(small_napkin(tmp_path), "--out", out) == 0
+    same = tmp_path / "same.obj"
+    assert export.main([str(out / "checkpoint.pt"), "--resolution", "16", "--out", str(same),
+                        *RUNTIME]) == 0
+    run_mesh = np.loadtxt([ln for ln in (out / "mesh.obj").read_text().splitlines()
+                           if ln.startswith("v ")], usecols=(1, 2, 3))
+    exported = np.loadtxt([ln for ln in same.read_text().splitlines() if ln.startswith("v ")],
+                          usecols=(1, 2, 3))
+    np.testing.assert_allclose(exported, run_mesh, rtol=0, atol=1e-9)
+    fine = tmp_path / "fine.ply"
+    assert export.main([str(out / "checkpoint.pt"), "--resolution", "64", "--out", str(fine),
+                        *RUNTIME]) == 0
+    assert fine.read_bytes().startswith(b"ply")
+    assert export.main([str(out / "checkpoint.pt"), "--resolution", "64", "--out", str(fine),
+                        *RUNTIME]) == 2  # exists, no --overwrite
