@@ -1,0 +1,136 @@
+"""Validation cases: definitions, the end-moment formulation, and quick benchmark runs.
+
+The full benchmark set is marked slow: `pytest -m slow tests/test_validation.py` (or
+`ndf-validate --out DIR`, which also writes the table).
+"""
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from taichi_ndf.cli.validate import main as validate_main
+from taichi_ndf.geometry import Plane
+from taichi_ndf.loads import Loads
+from taichi_ndf.sampling import sample_surface
+from taichi_ndf.shell.energy import ShellEnergy, function_jets
+from taichi_ndf.shell.materials import LinearIsotropic
+from taichi_ndf.validation import (
+    CASES,
+    Case,
+    EndMoment,
+    Quantity,
+    _component,
+    _roll_up_references,
+    load_case_scene,
+    run_case,
+)
+
+
+def test_every_case_scene_loads_and_reads_existing_probes():
+    for case in CASES.values():
+        scene, model, _ = load_case_scene(case)
+        names = {p.name for p in model.probes}
+        zero = {n: np.zeros(3) for n in names}
+        for q in case.quantities:
+            assert q.read(zero, zero) == 0.0  # every probe it reads exists
+        assert set(q.level for q in case.quantities) <= set(scene.solver.load_steps)
+
+
+def test_roll_up_references_match_the_published_numbers():
+    minus_u, w = _roll_up_references(0.5)
+    assert minus_u == pytest.approx(12.0)
+    assert w == pytest.approx(7.639, abs=5e-4)
+    minus_u, w = _roll_up_references(1.0)
+    assert minus_u == pytest.approx(12.0) and w == pytest.approx(0.0, abs=1e-12)
+
+
+def _arc(curvature: float):
+    """Strip along x rolled about the y axis towards +z with the given curvature."""
+    def displacement(xi):
+        s, y = xi[:, 0], xi[:, 1]
+        rho = 1.0 / curvature
+        x = torch.stack((rho * torch.sin(s / rho), y, rho * (1 - torch.cos(s / rho))), dim=1)
+        return x - torch.stack((s, y, torch.zeros_like(s)), dim=1)
+    return displacement
+
+
+@pytest.mark.parametrize("level", [0.25, 1.0, 1.3])
+def test_end_moment_measures_rotation_past_a_full_turn(level):
+    strip = Plane(bounds=((0.0, 12.0), (0.0, 1.0)))
+    samples = sample_surface(strip, 4096, generator=torch.Generator().manual_seed(0))
+    angle = 2 * math.pi * level
+    u = function_jets(_arc(angle / 12.0), samples.xi)
+    assert EndMoment(1.0, 1.0).end_rotation(samples, u) == pytest.approx(angle, rel=1e-9)
+
+
+def test_rolled_arc_is_the_stationary_point_of_shell_plus_end_moment():
+    """Π(κ) = ½ B L κ² − M L κ along exact arcs: minimal at κ = M / B, a full circle."""
+    strip = Plane(bounds=((0.0, 12.0), (0.0, 1.0)))
+    material = LinearIsotropic.from_young(1.2e6, 0.0, 0.1, 1.0)
+    samples = sample_surface(strip, 4096, generator=torch.Generator().manual_seed(1))
+    moment = 2 * math.pi * material.bending_stiffness / 12.0
+    end_moment = EndMoment(moment, 1.0)
+
+    def total(curvature):
+        u = function_jets(_arc(curvature), samples.xi)
+        shell = ShellEnergy(material, Loads()).evaluate(samples, u, grad=False).total
+        return shell + end_moment.potential(samples, u, 1.0, grad=False)[0]
+
+    best = moment / material.bending_stiffness
+    assert total(best) == pytest.approx(-0.5 * moment**2 / material.bending_stiffness * 12,
+                                        rel=1e-6)
+    assert total(best) < min(total(0.98 * best), total(1.02 * best))
+
+
+def _quick(case: Case, iterations: int, **changes):
+    scene, _, _ = load_case_scene(case)
+    config = dataclasses.replace(scene.quick_solver, monitor_every=25, **changes)
+    return run_case(case, solver=config.with_iterations(iterations))
+
+
+# The quick cases keep B and thin the membrane stiffness 100 × (`Case.membrane_scale`): the
+# references hold (Kirchhoff plate, inextensible elastica) and the optimisation is better
+# conditioned. They are marked slow because the current solver does not reach 5 % in a short
+# run (measured on 2 shared cores, 150 iterations: plate 55 % off in 49 s, cantilever 99 % off
+# in 34 s; see docs/validation.md); move them to the default suite once it does.
+QUICK_TOLERANCE = 0.05
+
+
+@pytest.mark.slow
+def test_quick_square_plate():
+    full = CASES["square_plate"]
+    case = dataclasses.replace(full, name="square_plate_quick", membrane_scale=0.01)
+    (row,) = _quick(case, 150).rows
+    assert row.relative_error < QUICK_TOLERANCE, row
+
+
+@pytest.mark.slow
+def test_quick_coarse_cantilever():
+    """End shear at P/Pmax = 0.1 in one step (elastica tip deflection 1.309)."""
+    full = CASES["cantilever_shear"]
+    case = Case("cantilever_shear_0.1", full.scene,
+                (Quantity("W", "tip deflection", 1.309, 0.05, _component("tip", 2)),),
+                load_scale=0.1, membrane_scale=0.01)
+    (row,) = _quick(case, 150, load_steps=(1.0,)).rows
+    assert row.relative_error < QUICK_TOLERANCE, row
+
+
+def test_validate_command_writes_tables_and_plot(tmp_path):
+    args = ["square_plate", "--quick", "--iters", "10", "--out", str(tmp_path / "v")]
+    assert validate_main(args) == 0
+    table = json.loads((tmp_path / "v" / "results.json").read_text())
+    assert [r["case"] for r in table["rows"]] == ["square_plate"]
+    assert "| square_plate | w_centre |" in (tmp_path / "v" / "results.md").read_text()
+    assert (tmp_path / "v" / "square_plate_convergence.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(CASES))
+def test_full_case_meets_its_target(name):
+    result = run_case(CASES[name])
+    failed = [r for r in result.rows if not r.passed]
+    assert not failed, failed
