@@ -28,6 +28,9 @@ from taichi_ndf.shell.energy import ShellEnergy
 log = logging.getLogger(__name__)
 
 
+BLOW_UP_FACTOR = 1e3
+
+
 class DivergenceError(RuntimeError):
     """Training produced a non-finite energy or gradient; the last good state was kept."""
 
@@ -224,7 +227,7 @@ class Solver:
 
     def _record(self, lam: float, gnorm: float, t0: float, step: int) -> float:
         energy = self.energy_and_gradient(self.monitor_samples(lam), lam, grad=False).total
-        if not math.isfinite(energy):
+        if not math.isfinite(energy) or self._blown_up(energy, lam):
             self._diverged(energy, gnorm, step)
         self._good_state = self.field.get_flat().clone()
         self.history.append(MonitorRecord(
@@ -232,6 +235,14 @@ class Solver:
             learning_rate=self.optimiser.learning_rate, probes=self.probe_displacements(lam),
             wall_time=time.perf_counter() - t0))
         return energy
+
+    def _blown_up(self, energy: float, lam: float) -> bool:
+        """Π far above anything seen at this load factor: a minimiser must not climb by
+        orders of magnitude (1000× the largest magnitude recorded so far)."""
+        seen = [h.energy for h in self.history if h.load_factor == lam]
+        if not seen:
+            return False
+        return energy > seen[0] + BLOW_UP_FACTOR * max(abs(e) for e in seen)
 
     def _diverged(self, energy: float, gnorm: float, step: int):
         self.field.set_flat(self._good_state)
