@@ -1,5 +1,7 @@
 """Material and force estimation from observed equilibrium shapes (inverse.md §1)."""
 
+from inverse.material.bilevel import BilevelConfig, BilevelResult, bilevel_estimate
+from inverse.material.conditioned import ConditionedConfig, ConditionedEquilibrium
 from inverse.material.identifiability import Identifiability
 from inverse.material.observations import Observation, read_observation, template_xi
 from inverse.material.residual import (
@@ -14,4 +16,6 @@ from inverse.material.unknowns import Unknown, apply, parse_unknowns
 
 __all__ = ["Observation", "read_observation", "template_xi", "FittedShape", "fit_shape",
            "Unknown", "parse_unknowns", "apply", "ResidualConfig", "Estimate",
-           "residual_estimate", "equilibrium_system", "bending_length", "Identifiability"]
+           "residual_estimate", "equilibrium_system", "bending_length", "Identifiability",
+           "ConditionedConfig", "ConditionedEquilibrium", "BilevelConfig", "BilevelResult",
+           "bilevel_estimate"]

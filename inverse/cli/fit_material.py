@@ -1,0 +1,173 @@
+"""`ndf-fit-material`: estimate material parameters and loads from observed equilibrium shapes.
+
+    ndf-fit-material --scene S.toml --observed OBS.obj [OBS2.ply ...] --estimate bending \
+        [--method residual|bilevel] --out DIR
+
+The scene gives everything known (geometry, boundary conditions, known loads) and start values
+of the unknowns. An observation whose vertex count equals the scene's exported template grid
+([output] resolution) is taken in template vertex order (correspondence); with
+`--point-cloud` the points are fitted without correspondence (point-to-surface distance).
+Writes DIR/estimate.json and DIR/overlay.png (observed points over the fitted shape).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from inverse.material import (
+    Observation,
+    ResidualConfig,
+    parse_unknowns,
+    residual_estimate,
+    template_xi,
+)
+from inverse.material.bilevel import BilevelConfig, bilevel_estimate
+from inverse.material.conditioned import ConditionedConfig
+from inverse.material.report import estimate_document, overlay_image
+from taichi_ndf.cli.common import add_runtime_options, machine_description, start
+from taichi_ndf.io import read_mesh
+from taichi_ndf.io.grid import grid_mesh
+from taichi_ndf.io.output_dir import OutputDir
+from taichi_ndf.render import save_png
+from taichi_ndf.scene import SceneError, load_scene
+
+log = logging.getLogger(__name__)
+
+
+class InputError(ValueError):
+    """Bad command-line input, reported without a traceback."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="ndf-fit-material", description=__doc__.split("\n\n")[0])
+    p.add_argument("--scene", required=True, help="scene TOML: known conditions, start values")
+    p.add_argument("--observed", required=True, nargs="+",
+                   help="observed shape(s), OBJ or PLY, all under the scene's conditions")
+    p.add_argument("--estimate", required=True, action="append",
+                   help="unknowns, comma separated or repeated: bending, stretch, scale, "
+                        "density, gravity, body_force, pressure, point_load:NAME, or a "
+                        "stiffness name of the scene's material")
+    p.add_argument("--method", default="bilevel", choices=("residual", "bilevel"),
+                   help="bilevel: fit equilibria of a material-conditioned field (robust to "
+                        "noise, stiffness only); residual: equilibrium-residual least squares "
+                        "(fast, also loads; needs clean data). Default: bilevel")
+    p.add_argument("--out", required=True, help="output directory (must be new or empty)")
+    p.add_argument("--point-cloud", action="store_true",
+                   help="treat observations as point clouds without correspondence")
+    p.add_argument("--decades", type=float, default=1.3,
+                   help="bilevel search box: decades either side of the start (default 1.3)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="Adam iterations of the material-conditioned field, followed by as "
+                        "many L-BFGS iterations (default 1000; 300 with --quick)")
+    p.add_argument("--quick", action="store_true", help="short training, for smoke tests")
+    add_runtime_options(p)
+    p.set_defaults(precision="f64")
+    return p
+
+
+def _observations(paths, model, resolution, point_cloud: bool) -> list[Observation]:
+    xi = template_xi(model, resolution)
+    out = []
+    for path in paths:
+        try:
+            mesh = read_mesh(path)
+        except FileNotFoundError as err:
+            raise InputError(str(err)) from None
+        except Exception as err:  # trimesh raises many kinds on a malformed file
+            raise InputError(f"cannot read observation {path}: {err}") from None
+        points = torch.from_numpy(np.asarray(mesh.vertices, dtype=np.float64))
+        if point_cloud:
+            out.append(Observation(model, points, None))
+            continue
+        if len(points) != len(xi):
+            raise InputError(
+                f"observation {path} has {len(points)} vertices but the template grid of the "
+                f"scene ([output] resolution {list(resolution)}) has {len(xi)}: give meshes in "
+                f"template vertex order, or pass --point-cloud")
+        out.append(Observation(model, points, xi))
+    return out
+
+
+def run(args, runtime) -> dict:
+    try:
+        scene = load_scene(args.scene)
+    except SceneError as err:
+        raise InputError(str(err)) from None
+    try:
+        model, unknowns = parse_unknowns(",".join(args.estimate), scene.model)
+    except ValueError as err:
+        raise InputError(str(err)) from None
+    if args.iterations is not None and args.iterations < 1:
+        raise InputError(f"--iterations must be >= 1, got {args.iterations}")
+    out = OutputDir(args.out)  # refuses a non-empty directory before any work
+    observations = _observations(args.observed, model, scene.output.resolution,
+                                 args.point_cloud)
+    resolution = scene.output.resolution
+    grid = grid_mesh(model.surface.domain.bounds, resolution,
+                     periodic=model.surface.domain.periodic)
+    grid_xi = torch.from_numpy(grid.xi)
+    if args.method == "residual":
+        estimate = residual_estimate(observations, unknowns, ResidualConfig(samples=16384))
+        document = estimate_document(estimate, model)
+        fitted = estimate.shapes[0].positions(grid_xi).numpy()
+    else:
+        iterations = args.iterations or (300 if args.quick else 1000)
+        field = ConditionedConfig(
+            width=scene.field.width, hidden_layers=scene.field.hidden_layers,
+            omega0=scene.field.omega0, output_scale=scene.field.output_scale,
+            iterations=iterations, samples=512 if args.quick else 1024,
+            lbfgs_iterations=iterations, lbfgs_samples=2048 if args.quick else 4096,
+            seed=args.seed)
+        try:
+            config = BilevelConfig(decades=args.decades, field=field)
+        except ValueError as err:
+            raise InputError(str(err)) from None
+        try:
+            result = bilevel_estimate(observations, unknowns, config)
+        except ValueError as err:
+            raise InputError(str(err)) from None
+        estimate = result.estimate
+        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
+        document["search_box"] = {u.name: [float(np.exp(lo)), float(np.exp(hi))]
+                                  for u, (lo, hi) in zip(unknowns, result.log_ranges,
+                                                         strict=True)}
+        fitted = result.fitted_positions(0, grid_xi).numpy()
+    document["scene"] = str(scene.path)
+    document["observed"] = [str(p) for p in args.observed]
+    document["start"] = {u.name: u.value(model) for u in unknowns}
+    document["machine"] = machine_description(runtime)
+    out.file("estimate.json").write_text(json.dumps(document, indent=2))
+    save_png(out.file("overlay.png"),
+             overlay_image(fitted, grid.faces, observations[0].points.numpy()))
+    return document
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    runtime = start(args)
+    try:
+        document = run(args, runtime)
+    except (InputError, FileExistsError) as err:
+        print(f"ndf-fit-material: error: {err}", file=sys.stderr)
+        return 2
+    for name, entry in document["parameters"].items():
+        if entry["determined"]:
+            print(f"{name} = {entry['value']:.6g} ± {entry['standard_error']:.2g} "
+                  f"{entry['unit']}")
+        else:
+            print(f"{name}: not determined by the data (no value reported)")
+    for note in document.get("notes", []):
+        print(f"note: {note}")
+    print(f"wrote {Path(args.out) / 'estimate.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,229 @@
+"""Material-conditioned equilibrium: one field u(ξ, z) trained over a box of log-parameters z.
+
+The field takes z = log θ of the estimated stiffness unknowns as extra inputs. Every training
+sample draws its own z (stratified uniform in the box) and its energy uses the stiffness of
+that z (`ShellEnergy.evaluate(..., stiffness=...)`). Π is a sum over samples, so the training
+objective is the mean over z of Π(u(·, z); z), whose minimiser is the equilibrium u*(·, z) for
+every z in the box: after one training, x*(θ) is a cheap, smooth function of θ for the outer
+(misfit) problem. The training loop is the solver's (`taichi_ndf.solver.Solver`): jets,
+boundary conditions, energy gradient, boundary adjoint, field adjoint, Adam; it differs only
+in the conditioning inputs and per-sample stiffness, so it is written here rather than as a
+hook in the solver.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import torch
+
+from inverse.material.unknowns import Unknown, apply
+from taichi_ndf import jets
+from taichi_ndf.field import FieldConfig, NeuralField
+from taichi_ndf.model import ShellModel
+from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.sampling import sample_surface
+from taichi_ndf.scaling import characteristic_displacement
+from taichi_ndf.shell.energy import ShellEnergy
+
+log = logging.getLogger(__name__)
+
+CONDITIONABLE = ("stiffness", "scale")
+
+
+@dataclass(frozen=True)
+class ConditionedConfig:
+    """Training of a material-conditioned field.
+
+    width, hidden_layers, omega0: field architecture (`FieldConfig`); equilibria of sheets
+        are smooth, and a low SIREN frequency conditions the training better.
+    output_scale: metres per network unit; None: the dimensional estimate of the softest
+        material in the box (`characteristic_displacement`).
+    iterations, samples: Adam iterations and area samples per iteration.
+    lbfgs_iterations, lbfgs_samples: deterministic L-BFGS polish on one fixed set of (ξ, z)
+        samples afterwards (as the solver's polish): Adam alone creeps towards the
+        equilibrium of slender, bending-dominated sheets.
+    learning_rate, final_learning_rate_ratio: exponential decay from the first to the last.
+    seed: field initialisation and sampling.
+    """
+
+    width: int = 64
+    hidden_layers: int = 3
+    omega0: float = 3.0
+    output_scale: float | None = None
+    iterations: int = 3000
+    samples: int = 1024
+    lbfgs_iterations: int = 500
+    lbfgs_samples: int = 4096
+    learning_rate: float = 3e-3
+    final_learning_rate_ratio: float = 0.02
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.lbfgs_iterations < 0:
+            raise ValueError(f"lbfgs_iterations must be >= 0, got {self.lbfgs_iterations!r}")
+        for name in ("width", "hidden_layers", "iterations", "samples", "lbfgs_samples"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if self.output_scale is not None and not self.output_scale > 0:
+            raise ValueError(f"output_scale must be positive or None, got {self.output_scale!r}")
+        for name in ("omega0", "learning_rate"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+        if not 0 < self.final_learning_rate_ratio <= 1:
+            raise ValueError(f"final_learning_rate_ratio must be in (0, 1], got "
+                             f"{self.final_learning_rate_ratio!r}")
+
+
+class ConditionedEquilibrium:
+    """Equilibria x*(ξ; θ) of `model` for every θ of the estimated stiffness unknowns in the
+    box exp(log_ranges).
+
+    unknowns: stiffness or scale unknowns (positive); log_ranges: (lo, hi) of ln θ per unknown.
+    """
+
+    def __init__(self, model: ShellModel, unknowns: list[Unknown],
+                 log_ranges: list[tuple[float, float]],
+                 config: ConditionedConfig = ConditionedConfig()):
+        bad = [u.name for u in unknowns if u.kind not in CONDITIONABLE]
+        if bad:
+            raise ValueError(f"the material-conditioned field takes stiffness unknowns only, "
+                             f"not {bad}: estimate loads with the residual method")
+        if len(log_ranges) != len(unknowns):
+            raise ValueError(f"need one log range per unknown, got {len(log_ranges)} for "
+                             f"{len(unknowns)}")
+        self.model = model
+        self.unknowns = list(unknowns)
+        self.log_ranges = [(float(lo), float(hi)) for lo, hi in log_ranges]
+        self.config = config
+        softest = apply(model, unknowns, [math.exp(lo) for lo, _ in self.log_ranges])
+        scale = config.output_scale or characteristic_displacement(softest)
+        domain = model.surface.domain
+        field_config = FieldConfig(width=config.width, hidden_layers=config.hidden_layers,
+                                   omega0=config.omega0, domain=domain.bounds,
+                                   periodic=domain.periodic,
+                                   conditioning=tuple(self.log_ranges), output_scale=scale)
+        self.field = NeuralField(field_config, seed=config.seed)
+        self.history: list[tuple[int, float]] = []
+        self.training_time = 0.0
+
+    # -- per-sample stiffness -------------------------------------------------------------------
+    def stiffness(self, z: torch.Tensor) -> torch.Tensor:
+        """Per-sample stiffness (N, K) in the order of `material.stiffness_names` for
+        log-parameters z (N, p)."""
+        material = self.model.material
+        base = torch.tensor(material.stiffness, dtype=z.dtype, device=z.device)
+        out = base.expand(len(z), -1).clone()
+        for j, u in enumerate(self.unknowns):
+            if u.kind == "scale":
+                out = out * torch.exp(z[:, j:j + 1])
+            else:
+                out[:, material.stiffness_names.index(u.key)] = torch.exp(z[:, j])
+        return out
+
+    def _draw(self, n: int, generator: torch.Generator, dtype) -> torch.Tensor:
+        """Stratified uniform log-parameters (n, p): each coordinate's n values cover its
+        range in n equal strata, shuffled independently."""
+        cols = []
+        for lo, hi in self.log_ranges:
+            strata = torch.randperm(n, generator=generator).to(dtype)
+            jitter = torch.rand(n, generator=generator, dtype=dtype)
+            cols.append(lo + (strata + jitter) / n * (hi - lo))
+        return torch.stack(cols, dim=1)
+
+    # -- training -------------------------------------------------------------------------------
+    def train(self) -> ConditionedEquilibrium:
+        """Minimise the mean over the box of Π(u(·, z); z) (module docstring)."""
+        cfg = self.config
+        model, field = self.model, self.field
+        dtype = field.parameters[0].dtype
+        adam = Adam(field.parameters, field.gradients, config=AdamConfig(
+            lr=cfg.learning_rate, schedule="exponential",
+            decay_rate=cfg.final_learning_rate_ratio, decay_steps=cfg.iterations,
+            total_steps=cfg.iterations))
+        generator = torch.Generator().manual_seed(cfg.seed)
+        energy = ShellEnergy(model.material, model.loads)
+        start = time.perf_counter()
+        for it in range(cfg.iterations):
+            samples = sample_surface(model.surface, cfg.samples, model.loads, generator,
+                                     dtype=dtype, device=field.parameters[0].device)
+            z = self._draw(len(samples), generator, dtype)
+            total = self._energy_and_gradient(energy, samples, z)
+            adam.step()
+            if (it + 1) % max(cfg.iterations // 10, 1) == 0:
+                self.history.append((it + 1, total))
+                log.debug("conditioned training %d/%d: mean Π %.6g J", it + 1, cfg.iterations,
+                          total)
+        if cfg.lbfgs_iterations:
+            self._lbfgs(energy, generator)
+        self.training_time = time.perf_counter() - start
+        log.info("material-conditioned field trained: %d + %d L-BFGS iterations in %.1f s",
+                 cfg.iterations, cfg.lbfgs_iterations, self.training_time)
+        return self
+
+    def _energy_and_gradient(self, energy: ShellEnergy, samples, z, *, grad: bool = True):
+        """Mean-over-z of w(z) Π [J] on given samples; fills the field's gradients.
+
+        w(z) = θ_centre / θ(z) of the first unknown: the Hessian of Π grows with the stiffness,
+        so without it the stiff end of the box dominates and the soft end hardly trains. A
+        positive weight per z leaves every z's minimiser unchanged."""
+        lo, hi = self.log_ranges[0]
+        w = torch.exp(0.5 * (lo + hi) - z[:, 0])
+        samples = dataclasses.replace(samples, weight=samples.weight * w,
+                                      point_force=samples.point_force * w[:, None])
+        raw = self.field.jets(samples.xi, z)
+        u = self.model.boundary.compose(samples.xi, raw)
+        result = energy.evaluate(samples, u, stiffness=self.stiffness(z), grad=grad)
+        if not math.isfinite(result.total):
+            raise RuntimeError(f"conditioned training diverged: Π = {result.total}; lower the "
+                               f"learning rate")
+        if grad:
+            self.field.backward(self.model.boundary.compose_adjoint(samples.xi,
+                                                                    result.grad_u_jets))
+        return result.total
+
+    def _lbfgs(self, energy: ShellEnergy, generator: torch.Generator) -> None:
+        field = self.field
+        dtype = field.parameters[0].dtype
+        samples = sample_surface(self.model.surface, self.config.lbfgs_samples,
+                                 self.model.loads, generator, dtype=dtype,
+                                 device=field.parameters[0].device)
+        z = self._draw(len(samples), generator, dtype)
+        flat = torch.nn.Parameter(field.get_flat().clone())
+        opt = torch.optim.LBFGS([flat], lr=1.0, max_iter=self.config.lbfgs_iterations,
+                                history_size=30, line_search_fn="strong_wolfe",
+                                tolerance_grad=0.0, tolerance_change=0.0)
+
+        def closure():
+            field.set_flat(flat.detach())
+            total = self._energy_and_gradient(energy, samples, z)
+            flat.grad = field.get_flat_gradient().clone()
+            return torch.tensor(total, dtype=flat.dtype)
+
+        before = self._energy_and_gradient(energy, samples, z, grad=False)
+        opt.step(closure)
+        field.set_flat(flat.detach())
+        after = self._energy_and_gradient(energy, samples, z, grad=False)
+        log.info("conditioned L-BFGS polish: mean Π %.8g -> %.8g J", before, after)
+
+    # -- evaluation -----------------------------------------------------------------------------
+    def _conditioning(self, xi: torch.Tensor, z) -> torch.Tensor:
+        z = torch.as_tensor(z, dtype=xi.dtype).reshape(1, -1)
+        return z.expand(len(xi), -1)
+
+    def positions(self, xi: torch.Tensor, z) -> torch.Tensor:
+        """Equilibrium positions x*(ξ; θ) (N, 3) [m] at ξ (N, 2) for log-parameters z (p,)."""
+        xi = xi.to(self.field.parameters[0].dtype)
+        r = self.model.surface.jets(xi)[:, jets.VALUE]
+        return r + self.model.displacement(self.field, xi, conditioning=self._conditioning(xi, z))
+
+    def position_jets(self, xi: torch.Tensor, z) -> torch.Tensor:
+        """Jets (N, 6, 3) of x*(ξ; θ) [m] (for projections onto the surface)."""
+        xi = xi.to(self.field.parameters[0].dtype)
+        u = self.model.displacement_jets(self.field, xi, conditioning=self._conditioning(xi, z))
+        return self.model.surface.jets(xi) + u

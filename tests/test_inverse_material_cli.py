@@ -1,0 +1,77 @@
+"""`ndf-fit-material` refuses bad input with a clear message, before any training."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from inverse.cli.fit_material import main
+from taichi_ndf.io import write_obj
+
+SCENE = str(Path(__file__).parents[1] / "scenes" / "inverse" / "cantilever_strip.toml")
+
+
+def _mesh(path, vertices):
+    write_obj(path, np.asarray(vertices, dtype=float), np.array([[0, 1, 2]]))
+    return str(path)
+
+
+def _run(capsys, *argv):
+    code = main(["--scene", SCENE, *argv])
+    return code, capsys.readouterr().err
+
+
+def test_unknown_parameter_name(tmp_path, capsys):
+    obs = _mesh(tmp_path / "o.obj", np.eye(3))
+    code, err = _run(capsys, "--observed", obs, "--estimate", "bendy", "--out",
+                     str(tmp_path / "out"))
+    assert code == 2 and "unknown parameter 'bendy'" in err
+
+
+def test_vertex_count_differs_from_the_template(tmp_path, capsys):
+    obs = _mesh(tmp_path / "o.obj", np.eye(3))
+    code, err = _run(capsys, "--observed", obs, "--estimate", "bending", "--out",
+                     str(tmp_path / "out"))
+    assert code == 2 and "has 3 vertices" in err and "--point-cloud" in err
+
+
+def test_unreadable_observation(tmp_path, capsys):
+    bad = tmp_path / "o.ply"
+    bad.write_text("not a mesh")
+    code, err = _run(capsys, "--observed", str(bad), "--estimate", "bending", "--out",
+                     str(tmp_path / "out"))
+    assert code == 2 and "cannot read observation" in err
+    code, err = _run(capsys, "--observed", str(tmp_path / "missing.obj"), "--estimate",
+                     "bending", "--out", str(tmp_path / "out2"))
+    assert code == 2 and "not found" in err
+
+
+def test_existing_non_empty_output_directory(tmp_path, capsys):
+    obs = _mesh(tmp_path / "o.obj", np.eye(3))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "x").write_text("")
+    code, err = _run(capsys, "--observed", obs, "--estimate", "bending", "--out", str(out))
+    assert code == 2 and "not empty" in err
+
+
+def test_bilevel_refuses_load_unknowns(tmp_path, capsys):
+    obs = _mesh(tmp_path / "o.obj", np.eye(3))
+    code, err = _run(capsys, "--observed", obs, "--point-cloud", "--estimate", "gravity",
+                     "--out", str(tmp_path / "out"))
+    assert code == 2 and "residual method" in err
+
+
+@pytest.mark.slow
+def test_end_to_end_writes_estimate_and_overlay(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    demo = Path(__file__).parents[1] / "demos" / "fit_material.py"
+    subprocess.run([sys.executable, str(demo), "--quick", "--out", str(tmp_path / "run")],
+                   check=True, capture_output=True)
+    document = json.loads((tmp_path / "run" / "estimate" / "estimate.json").read_text())
+    value = document["parameters"]["bending_stiffness"]["value"]
+    assert abs(value / (0.2 * 9.81 * 0.2**3) - 1) < 0.1
+    assert (tmp_path / "run" / "estimate" / "overlay.png").stat().st_size > 0
