@@ -1,0 +1,106 @@
+"""``ndf-sft-eval``: accuracy of reconstructed meshes against ground-truth meshes.
+
+    ndf-sft-eval --pred DIR --gt DIR [--camera C.json] [--json OUT]
+
+Both folders hold one mesh per frame (OBJ or PLY) with matching file names (``000000.obj`` …);
+the prediction must keep the ground truth's vertex order. Prints the means over frames and the
+evaluation protocol; ``--json`` also writes per-frame values. Meshes are in camera coordinates
+(world coordinates when the camera JSON has extrinsics); the camera adds the reprojection error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from inverse.sft.inputs import InputError, load_camera
+from inverse.sft.metrics import evaluate_sequence
+from taichi_ndf.io import read_mesh
+
+MESH_SUFFIXES = (".obj", ".ply")
+
+
+def mesh_files(folder: Path) -> dict[str, Path]:
+    """Mesh files of a folder by file stem."""
+    if not folder.is_dir():
+        raise InputError(f"{folder}: missing folder")
+    files = {p.stem: p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES}
+    if not files:
+        raise InputError(f"{folder}: contains no meshes {MESH_SUFFIXES}")
+    return files
+
+
+def paired_meshes(pred_dir: Path, gt_dir: Path) -> list[tuple[str, Path, Path]]:
+    """(name, prediction, ground truth) for every frame, in sorted name order."""
+    pred, gt = mesh_files(pred_dir), mesh_files(gt_dir)
+    missing = sorted(gt.keys() - pred.keys())
+    extra = sorted(pred.keys() - gt.keys())
+    if missing or extra:
+        raise InputError(
+            f"mesh names differ: missing predictions {missing[:5]}{'…' if len(missing) > 5 else ''}"
+            f", predictions without ground truth {extra[:5]}{'…' if len(extra) > 5 else ''}"
+        )
+    return [(name, pred[name], gt[name]) for name in sorted(gt)]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ndf-sft-eval",
+        description="Shape-from-template accuracy: e3D, chamfer, normal and reprojection error.",
+    )
+    parser.add_argument("--pred", required=True, type=Path, help="folder of predicted meshes")
+    parser.add_argument("--gt", required=True, type=Path, help="folder of ground-truth meshes")
+    parser.add_argument("--camera", type=Path, help="camera JSON (adds reprojection error)")
+    parser.add_argument("--json", type=Path, help="write summary and per-frame values here")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        camera = load_camera(args.camera) if args.camera else None
+        pairs = paired_meshes(args.pred, args.gt)
+        pred, gt = [], []
+        faces = gt_faces = None
+        to_camera = camera.to_camera if camera is not None else np.asarray
+        for name, pred_path, gt_path in pairs:
+            p, g = read_mesh(pred_path), read_mesh(gt_path)
+            faces = p.faces if faces is None else faces
+            gt_faces = g.faces if gt_faces is None else gt_faces
+            if not np.array_equal(p.faces, faces) or not np.array_equal(g.faces, gt_faces):
+                raise InputError(f"{name}: connectivity differs from the first frame's")
+            if p.vertices.shape != g.vertices.shape:
+                raise InputError(
+                    f"{name}: prediction has {len(p.vertices)} vertices, ground truth "
+                    f"{len(g.vertices)}; the prediction must keep the template's vertex order"
+                )
+            pred.append(to_camera(p.vertices))
+            gt.append(to_camera(g.vertices))
+    except (InputError, ValueError, OSError) as err:
+        print(f"ndf-sft-eval: error: {err}", file=sys.stderr)
+        return 2
+    metrics = evaluate_sequence(pred, gt, faces, camera=camera, gt_faces=gt_faces)
+    summary = metrics.summary()
+    for key in ("frames", "e3d", "e3d_procrustes", "chamfer_x1e4", "normal_deg",
+                "reprojection_px"):
+        value = summary[key]
+        if value is not None:
+            print(f"{key:>16}: {value:.6g}" if isinstance(value, float) else f"{key:>16}: {value}")
+    print(f"protocol: {summary['protocol']}")
+    if args.json:
+        report = {"summary": summary, "per_frame": metrics.per_frame(),
+                  "frames": [name for name, _, _ in pairs]}
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

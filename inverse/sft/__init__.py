@@ -1,0 +1,10 @@
+"""Monocular shape-from-template: recover a deforming sheet's 3D surface in every video frame.
+
+Modules, in pipeline order (conventions and the evaluation protocol: ``docs/sft.md``):
+``inputs`` (input contract, loading, validation), ``surface`` (template surface points as
+(face, barycentric)), ``tracking`` (texture registration and Lucas–Kanade tracks),
+``baseline`` (per-frame reprojection + inextensibility + smoothness least squares),
+``reconstruct`` (the physics-regularised reconstruction), ``metrics`` (e3D, chamfer, normal
+and reprojection errors); synthetic data with ground truth: ``texture``, ``deformations``,
+``degradations``, ``synth``.
+"""

@@ -1,0 +1,320 @@
+"""Physics-regularised shape-from-template: a neural deformation field fitted frame by frame.
+
+Each frame's surface is x(ξ) = X(ξ) + u(ξ) on the template's reference surface (ξ = the
+template's UVs; X the template itself, piecewise linear for data and output, its C² spline fit
+``MeshSurface`` for the energy), with u a SIREN ``NeuralField``. Frame 0 is the template (the
+input contract gives it). Frame t > 0 starts from frame t − 1's weights (warm start; optionally
+first fitted to an initial guess such as the baseline's mesh) and minimises, with Adam,
+
+    L(u) = Σ_i c_i ρ(‖π(x(ξ_i)) − p_i‖) / Σ_i c_i                 robust reprojection [px²]
+         + w_sil · mean_v D(π(x(ξ_v)))²                            silhouette [px²] (with masks)
+         + w_phys · Π_int(u) / E_ref                                 Kirchhoff–Love prior
+         + w_temp · mean_v ‖x_t(ξ_v) − 2 x_{t−1}(ξ_v) + x_{t−2}(ξ_v)‖² / h²   smooth motion
+
+with (ξ_i, p_i, c_i) the tracked surface points, pixels and confidences, π the pinhole
+projection, ρ the Huber penalty (quadratic up to ``huber_px``), ξ_v the template vertices' UVs,
+D the distance [px] to the mask (0 inside), Π_int the internal energy of a fixed linear
+isotropic material (Monte-Carlo samples redrawn every step), h the template's mean edge length.
+
+Choice of λ = w_phys / E_ref: E_ref = B / 2 is the bending energy of the template bent to uniform
+curvature 1/√A (A its area, B the bending stiffness), so Π_int / E_ref is dimensionless and does
+not depend on the stiffness scale: the prior is fixed by ν, the thickness h (D / B = 12 / h²) and
+the one number w_phys, chosen once on a tuning sequence and never per sequence.
+
+Sequential warm starts rather than one field over (ξ, t): each step then costs as much as one
+frame, the cost per frame does not grow with the sequence, and a frame is done before the next
+one is read. Pinned vertices are exact: u = φ N with ``PinnedPoint`` conditions at their UVs.
+Gradients: the data terms by torch autograd with respect to u at their points, the energy by
+``ShellEnergy``; both enter the field's ``backward`` in one batch of jets.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import torch
+
+from inverse.sft.inputs import Camera, Template
+from inverse.sft.tracking import FrameCorrespondences
+from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.boundary.constraints import PinnedPoint
+from taichi_ndf.field import FieldConfig, NeuralField
+from taichi_ndf.geometry import MeshSurface
+from taichi_ndf.loads import Loads
+from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.sampling import sample_surface
+from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.shell.materials import LinearIsotropic, preset
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ReconstructionConfig:
+    """Weights and solver settings of the physics-regularised reconstruction.
+
+    physics_weight: w_phys (0 switches the prior off); material: preset name of a linear
+    isotropic material (its ν and thickness set the prior's shape, see the module docstring);
+    silhouette_weight: w_sil [px² per px²]; temporal_weight: w_temp; huber_px: reprojection
+    error [px] beyond which the penalty grows linearly; width, hidden_layers, omega0: the SIREN;
+    output_scale: field output per network unit, as a fraction of √A; energy_samples: Monte-Carlo
+    samples of Π_int per step; steps: Adam steps per frame; lr, min_lr: cosine learning-rate
+    schedule per frame; init_steps: steps fitting the field to the initial guess of each frame
+    (when one is given); seed: field initialisation and energy samples.
+    """
+
+    physics_weight: float = 1e-2
+    material: str = "cloth"
+    silhouette_weight: float = 1.0
+    temporal_weight: float = 1.0
+    huber_px: float = 2.0
+    width: int = 64
+    hidden_layers: int = 3
+    omega0: float = 10.0
+    output_scale: float = 0.1
+    energy_samples: int = 512
+    steps: int = 100
+    lr: float = 5e-4
+    min_lr: float = 5e-5
+    init_steps: int = 100
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("physics_weight", "silhouette_weight", "temporal_weight", "init_steps"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("huber_px", "omega0", "output_scale", "lr", "energy_samples", "steps",
+                     "width", "hidden_layers"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0 <= self.min_lr <= self.lr:
+            raise ValueError(f"min_lr must be in [0, lr], got {self.min_lr}")
+        if not isinstance(preset(self.material), LinearIsotropic):
+            raise ValueError(
+                f"material {self.material!r} is not linear isotropic; the prior uses a fixed "
+                "linear material (e.g. 'cloth')"
+            )
+
+
+@dataclass
+class ReconstructionResult:
+    """Vertices per frame [m] (n, 3), template order; seconds per frame; final loss terms."""
+
+    vertices: list[np.ndarray]
+    seconds: list[float]
+    losses: list[dict[str, float]] = field(default_factory=list)
+
+
+class FieldReconstructor:
+    """Holds the field, the reference surface, the prior and the per-frame optimisation."""
+
+    def __init__(
+        self,
+        template: Template,
+        camera: Camera,
+        *,
+        pinned: np.ndarray | None = None,
+        config: ReconstructionConfig | None = None,
+    ):
+        self.config = cfg = config or ReconstructionConfig()
+        self.template = template
+        self.camera = camera
+        self.surface = MeshSurface(template.vertices, template.faces, template.uvs,
+                                   name="template")
+        tri = template.vertices[template.faces]
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        self.area = float(area.sum())
+        edges = np.concatenate([template.faces[:, [0, 1]], template.faces[:, [1, 2]],
+                                template.faces[:, [2, 0]]])
+        self.mean_edge = float(np.linalg.norm(
+            template.vertices[edges[:, 0]] - template.vertices[edges[:, 1]], axis=1).mean())
+        self.field = NeuralField(
+            FieldConfig(width=cfg.width, hidden_layers=cfg.hidden_layers, omega0=cfg.omega0,
+                        domain=self.surface.domain.bounds,
+                        output_scale=cfg.output_scale * math.sqrt(self.area)),
+            seed=cfg.seed,
+        )
+        # A zero output layer makes u ≡ 0 (the template) before the first frame is fitted.
+        self.field.parameters[-2].zero_()
+        self.field.parameters[-1].zero_()
+        self.ftype = self.field.dtype
+        material = preset(cfg.material)
+        self.energy = ShellEnergy(material, Loads())
+        self.energy_reference = 0.5 * material.bending_stiffness
+        self.conditions = None
+        if pinned is not None and len(pinned):
+            points = [PinnedPoint(xi=tuple(float(c) for c in template.uvs[i])) for i in pinned]
+            self.conditions = BoundaryConditions(points, self.surface.domain)
+        self.vertex_xi = torch.from_numpy(template.uvs).to(self.ftype)
+        self.rest = torch.from_numpy(template.vertices)
+        self.K = torch.from_numpy(camera.K)
+        self.generator = torch.Generator().manual_seed(cfg.seed)
+
+    # -- field evaluation ------------------------------------------------------------------
+
+    def _jets(self, xi: torch.Tensor) -> torch.Tensor:
+        raw = self.field.jets(xi)
+        return raw if self.conditions is None else self.conditions.compose(xi, raw)
+
+    def _backward(self, xi: torch.Tensor, grad: torch.Tensor) -> None:
+        if self.conditions is not None:
+            grad = self.conditions.compose_adjoint(xi, grad)
+        self.field.backward(grad.to(self.ftype))
+
+    def vertices(self) -> np.ndarray:
+        """Current surface at the template vertices [m], shape (n, 3), template order."""
+        u = self._jets(self.vertex_xi)[:, jets.VALUE].double()
+        return (self.rest + u).numpy()
+
+    # -- one frame ---------------------------------------------------------------------------
+
+    def fit_frame(
+        self,
+        correspondences: FrameCorrespondences,
+        history: Sequence[np.ndarray],
+        *,
+        mask: np.ndarray | None = None,
+        initial: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, dict[str, float]]:
+        """Vertices [m] (n, 3) of one frame and its final loss terms.
+
+        history: the previous one or two frames' vertices (latest last), for the motion term;
+        initial: an initial guess of this frame's vertices (e.g. the baseline's), or None.
+        """
+        cfg = self.config
+        if initial is not None and cfg.init_steps:
+            self._fit_to(initial)
+        faces = self.template.faces[correspondences.face]
+        bary = torch.from_numpy(correspondences.bary)
+        track_xi = (bary[:, :, None] * torch.from_numpy(self.template.uvs[faces])).sum(1)
+        track_rest = (bary[:, :, None] * self.rest[torch.from_numpy(faces)]).sum(1)
+        target = torch.from_numpy(correspondences.xy)
+        weight = torch.from_numpy(correspondences.confidence)
+        weight = weight / weight.sum().clamp_min(1e-300)
+        distance = None if mask is None else torch.from_numpy(_outside_distance(mask))
+        previous = torch.from_numpy(history[-1])
+        before = torch.from_numpy(history[-2]) if len(history) > 1 else previous
+        predicted = 2.0 * previous - before
+        lam = cfg.physics_weight / self.energy_reference
+
+        optimiser = Adam(self.field.parameters, self.field.gradients, config=AdamConfig(
+            lr=cfg.lr, schedule="cosine", total_steps=cfg.steps, min_lr=cfg.min_lr))
+        n_tracks = len(track_xi)
+        terms: dict[str, float] = {}
+        for _ in range(cfg.steps):
+            samples = sample_surface(self.surface, cfg.energy_samples, generator=self.generator,
+                                     dtype=self.ftype)
+            n_energy = len(samples)
+            xi = torch.cat([samples.xi, track_xi.to(self.ftype), self.vertex_xi])
+            u_jets = self._jets(xi)
+            grad = torch.zeros_like(u_jets, dtype=torch.float64)
+
+            u = u_jets[n_energy:, jets.VALUE].double().requires_grad_(True)
+            x_tracks = track_rest + u[:n_tracks]
+            x_vertices = self.rest + u[n_tracks:]
+            residual = _project(self.K, x_tracks) - target
+            reprojection = (weight * _huber(residual, cfg.huber_px)).sum()
+            motion = ((x_vertices - predicted) ** 2).sum(1).mean() / self.mean_edge**2
+            loss = reprojection + cfg.temporal_weight * motion
+            terms = {"reprojection": reprojection.item(), "motion": motion.item()}
+            if distance is not None and cfg.silhouette_weight > 0:
+                silhouette = (_bilinear(distance, _project(self.K, x_vertices)) ** 2).mean()
+                loss = loss + cfg.silhouette_weight * silhouette
+                terms["silhouette"] = silhouette.item()
+            (grad_u,) = torch.autograd.grad(loss, u)
+            grad[n_energy:, jets.VALUE] = grad_u
+
+            if lam > 0:
+                result = self.energy.evaluate(samples, u_jets[:n_energy])
+                grad[:n_energy] = lam * result.grad_u_jets.double()
+                terms["energy"] = result.internal / self.energy_reference
+            self._backward(xi, grad)
+            optimiser.step()
+        return self.vertices(), terms
+
+    def _fit_to(self, target: np.ndarray) -> None:
+        """Fit u at the template vertices to target − template (least squares, Adam)."""
+        cfg = self.config
+        goal = torch.from_numpy(np.asarray(target) - self.template.vertices)
+        optimiser = Adam(self.field.parameters, self.field.gradients, config=AdamConfig(
+            lr=cfg.lr, schedule="cosine", total_steps=cfg.init_steps, min_lr=cfg.min_lr))
+        for _ in range(cfg.init_steps):
+            u_jets = self._jets(self.vertex_xi)
+            grad = torch.zeros_like(u_jets, dtype=torch.float64)
+            difference = u_jets[:, jets.VALUE].double() - goal
+            grad[:, jets.VALUE] = 2.0 * difference / (len(goal) * self.mean_edge**2)
+            self._backward(self.vertex_xi, grad)
+            optimiser.step()
+
+
+def reconstruct(
+    template: Template,
+    camera: Camera,
+    correspondences: Sequence[FrameCorrespondences],
+    *,
+    masks: Sequence[np.ndarray] | None = None,
+    pinned: np.ndarray | None = None,
+    initial: Sequence[np.ndarray] | None = None,
+    config: ReconstructionConfig | None = None,
+) -> ReconstructionResult:
+    """Vertices for every frame (frame 0 = template), fitted frame by frame with warm starts.
+
+    masks: per-frame silhouettes (bool (h, w)) or None; pinned: vertex indices held at their
+    template positions; initial: per-frame initial guesses (e.g. the baseline's vertices).
+    """
+    solver = FieldReconstructor(template, camera, pinned=pinned, config=config)
+    vertices = [template.vertices.copy()]
+    seconds, losses = [0.0], [{}]
+    for i in range(1, len(correspondences)):
+        start = time.perf_counter()
+        fitted, terms = solver.fit_frame(
+            correspondences[i], vertices[-2:],
+            mask=None if masks is None else masks[i],
+            initial=None if initial is None else initial[i],
+        )
+        seconds.append(time.perf_counter() - start)
+        vertices.append(fitted)
+        losses.append(terms)
+        log.debug("frame %d: %.2f s, %s", i, seconds[-1], terms)
+    log.info("reconstruction: %d frames, %.2f s per frame", len(vertices),
+             np.mean(seconds[1:]) if len(seconds) > 1 else 0.0)
+    return ReconstructionResult(vertices=vertices, seconds=seconds, losses=losses)
+
+
+def _project(K: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Pixels (n, 2) of camera-frame points (n, 3) [m]."""
+    # Points behind the camera (a bad step) must not divide by ~0.
+    z = points[:, 2].clamp_min(1e-6)
+    return torch.stack([K[0, 0] * points[:, 0] / z + K[0, 2],
+                        K[1, 1] * points[:, 1] / z + K[1, 2]], dim=1)
+
+
+def _huber(residual: torch.Tensor, delta: float) -> torch.Tensor:
+    r = torch.sqrt((residual**2).sum(dim=1) + 1e-24)
+    return torch.where(r <= delta, r**2, 2.0 * delta * r - delta**2)
+
+
+def _outside_distance(mask: np.ndarray) -> np.ndarray:
+    """Distance [px] of every pixel to the mask (0 on it), float64 (h, w)."""
+    outside = (~mask).astype(np.uint8)
+    return cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64)
+
+
+def _bilinear(image: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples (n,) of an (h, w) image at pixels xy (n, 2), clamped to the image;
+    differentiable in xy."""
+    h, w = image.shape
+    x = xy[:, 0].clamp(0, w - 1.001)
+    y = xy[:, 1].clamp(0, h - 1.001)
+    x0, y0 = x.detach().floor().long(), y.detach().floor().long()
+    fx, fy = x - x0, y - y0
+    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx
+    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bottom * fy

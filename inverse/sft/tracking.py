@@ -1,0 +1,589 @@
+"""Correspondences between template surface points and image pixels, frame by frame.
+
+Pipeline (all OpenCV, pixel centres at integer coordinates):
+1. Frame 0. SIFT features of the texture are matched to frame 0 (Lowe ratio test); each texture
+   keypoint is a template surface point through the UV chart. Because the template is given in
+   camera coordinates for frame 0, its projection predicts where each match must be: matches
+   farther than ``match_tolerance`` from the prediction are rejected (a geometric check that
+   holds for curved templates, where a single homography would not). Shi–Tomasi corners inside
+   the template's silhouette are added, their surface points read from the projected template.
+2. Every next frame. Pyramidal Lucas–Kanade forward and backward; tracks whose forward–backward
+   error exceeds ``fb_threshold`` or that leave the image (or the mask) are dropped.
+3. Every ``rematch_every`` frames the frame is matched to the texture again: fresh matches are
+   checked against where the current tracks say they should be (local affine map from texture
+   to image), existing tracks that disagree with the fresh matches by more than
+   ``drift_tolerance`` are dropped as drifted, agreeing ones are marked verified, and fresh
+   matches are added as new tracks.
+4. When fewer than ``min_tracks`` remain, new corners are seeded: each gets its texture
+   position from a local affine fit to neighbouring tracks (image → texture), and is kept only
+   if its image patch agrees with the texture there (normalised cross-correlation), which
+   rejects corners on the back side of the sheet or on the background.
+
+Per-track confidence in (0, 1]: the track's base (1 for texture matches and template-located
+corners, ``seed_confidence`` for seeded corners until a re-match verifies them) times
+exp(-(fb / fb_threshold)²) with fb the current frame's forward–backward error [px].
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from inverse.sft.inputs import Camera, Template
+from inverse.sft.surface import surface_positions, uv_locator, view_locator
+from taichi_ndf.render import uv_to_texture_pixels
+
+log = logging.getLogger(__name__)
+
+# Window [px] of the local contrast normalisation of the images Lucas–Kanade sees.
+CONTRAST_SIGMA = 8.0
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Tracking parameters (pixels are image pixels unless stated).
+
+    max_tracks / min_tracks: corners are seeded up to max_tracks when fewer than min_tracks
+    remain; min_distance: minimum spacing of tracks [px]; corner_quality: Shi–Tomasi quality
+    level; lk_window, lk_levels: Lucas–Kanade window [px] and pyramid levels; fb_threshold:
+    forward–backward error limit [px]; rematch_every: frames between texture re-matches (0:
+    never); match_ratio: Lowe ratio test; match_tolerance: texture match vs predicted position
+    [px]; drift_tolerance: track vs fresh matches [px]; outlier_tolerance: track vs the local
+    map of its neighbours [px]; neighbours: tracks in a local affine fit;
+    neighbour_radius: farthest neighbour allowed [px]; patch_radius: half size of the NCC patch
+    [px]; min_ncc: NCC a seeded corner needs; seed_confidence: base confidence of seeds;
+    mask_margin: distance kept from the mask or silhouette boundary [px].
+    """
+
+    max_tracks: int = 800
+    min_tracks: int = 500
+    min_distance: float = 7.0
+    corner_quality: float = 0.01
+    lk_window: int = 21
+    lk_levels: int = 3
+    fb_threshold: float = 0.5
+    rematch_every: int = 5
+    match_ratio: float = 0.75
+    match_tolerance: float = 3.0
+    drift_tolerance: float = 1.5
+    outlier_tolerance: float = 2.0
+    neighbours: int = 8
+    neighbour_radius: float = 45.0
+    patch_radius: int = 6
+    min_ncc: float = 0.8
+    seed_confidence: float = 0.5
+    mask_margin: int = 4
+
+    def __post_init__(self):
+        if not 0 < self.min_tracks <= self.max_tracks:
+            raise ValueError(
+                f"need 0 < min_tracks <= max_tracks, got {self.min_tracks}, {self.max_tracks}"
+            )
+        for name in ("min_distance", "fb_threshold", "match_tolerance", "drift_tolerance",
+                     "outlier_tolerance", "neighbour_radius"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.rematch_every < 0:
+            raise ValueError(f"rematch_every must be >= 0, got {self.rematch_every}")
+        if not 0 < self.match_ratio < 1:
+            raise ValueError(f"match_ratio must be in (0, 1), got {self.match_ratio}")
+        if self.neighbours < 3:
+            raise ValueError(f"neighbours must be >= 3 for an affine fit, got {self.neighbours}")
+        if not 0 < self.seed_confidence <= 1:
+            raise ValueError(f"seed_confidence must be in (0, 1], got {self.seed_confidence}")
+
+
+@dataclass(frozen=True)
+class FrameCorrespondences:
+    """Template surface points seen at image pixels in one frame.
+
+    face: template triangle, shape (n,), int64; bary: barycentrics in that triangle, (n, 3);
+    xy: pixel position (x right, y down, pixel centres at integers), (n, 2); confidence: (n,)
+    in (0, 1]; track_id: identity of the track across frames, (n,), int64.
+    """
+
+    face: np.ndarray
+    bary: np.ndarray
+    xy: np.ndarray
+    confidence: np.ndarray
+    track_id: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.face)
+
+
+@dataclass
+class TrackingTimings:
+    """Wall time [s] per frame of the tracker's stages."""
+
+    per_frame: list[float] = field(default_factory=list)
+    matching: float = 0.0
+    flow: float = 0.0
+    seeding: float = 0.0
+
+
+class TextureMatcher:
+    """SIFT features of the texture and their template surface points."""
+
+    def __init__(self, template: Template, texture: np.ndarray, *, ratio: float):
+        self.ratio = ratio
+        self.sift = cv2.SIFT_create()
+        self.matcher = cv2.BFMatcher(cv2.NORM_L2)
+        h, w = texture.shape[:2]
+        self.chart = uv_locator(template, w, h)
+        keypoints, descriptors = self.sift.detectAndCompute(_gray(texture), None)
+        xy = np.array([k.pt for k in keypoints], dtype=np.float64).reshape(-1, 2)
+        face, bary = self.chart.locate(xy)
+        on_sheet = face >= 0
+        self.texture_xy = xy[on_sheet]
+        self.face, self.bary = face[on_sheet], bary[on_sheet]
+        self.descriptors = descriptors[on_sheet] if descriptors is not None else None
+        log.info("texture: %d SIFT features on the template's UV chart", len(self.face))
+
+    def match(self, gray: np.ndarray, region: np.ndarray | None) -> tuple[np.ndarray, ...]:
+        """Ratio-test matches of an image to the texture.
+
+        Returns image xy (k, 2), texture xy (k, 2), face (k,), bary (k, 3) of matched features.
+        """
+        empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 3)))
+        if self.descriptors is None or len(self.descriptors) < 2:
+            return empty
+        mask = None if region is None else region.astype(np.uint8) * 255
+        keypoints, descriptors = self.sift.detectAndCompute(gray, mask)
+        if descriptors is None or len(keypoints) == 0:
+            return empty
+        pairs = self.matcher.knnMatch(descriptors, self.descriptors, k=2)
+        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.ratio * p[1].distance]
+        if not good:
+            return empty
+        query = np.array([m.queryIdx for m in good])
+        train = np.array([m.trainIdx for m in good])
+        image_xy = np.array([keypoints[i].pt for i in query], dtype=np.float64)
+        return image_xy, self.texture_xy[train], self.face[train], self.bary[train]
+
+
+class Tracker:
+    """Stateful tracker: ``start`` on frame 0, then ``step`` on each next frame.
+
+    template: frame-0 mesh in camera coordinates with UVs; texture: BGR uint8; camera: pinhole.
+    """
+
+    def __init__(
+        self,
+        template: Template,
+        texture: np.ndarray,
+        camera: Camera,
+        *,
+        config: TrackerConfig | None = None,
+    ):
+        self.template = template
+        self.camera = camera
+        self.config = config or TrackerConfig()
+        self.matcher = TextureMatcher(template, texture, ratio=self.config.match_ratio)
+        h, w = texture.shape[:2]
+        self.texture_corners = uv_to_texture_pixels(template.uvs, w, h)
+        self.texture_gray = self._prefiltered_texture(texture)
+        self.timings = TrackingTimings()
+        self._next_id = 0
+        self._frame_index = -1
+        self._flow_image: np.ndarray | None = None
+        self._reset_tracks()
+
+    def start(self, frame: np.ndarray, mask: np.ndarray | None = None) -> FrameCorrespondences:
+        """Correspondences in frame 0 (texture registration plus template-located corners)."""
+        start = time.perf_counter()
+        self._reset_tracks()
+        self._frame_index = 0
+        gray = _gray(frame)
+        view = view_locator(self.template.vertices, self.template.faces, self.camera)
+        silhouette = view.face_image >= 0
+        region = self._region(silhouette if mask is None else mask & silhouette)
+
+        # Corners located on the projected template are exact when the template is; they come
+        # first, texture matches fill the gaps.
+        t0 = time.perf_counter()
+        corners = self._new_corners(gray, region, self.config.max_tracks)
+        face, bary = view.locate(corners)
+        found = face >= 0
+        self._add(face[found], bary[found], corners[found], base=1.0)
+        self.timings.seeding += time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        image_xy, _, face, bary = self.matcher.match(gray, region)
+        predicted = self.camera.project(
+            surface_positions(self.template.vertices, self.template.faces, face, bary)
+        )
+        error = np.linalg.norm(predicted - image_xy, axis=1)
+        good = error < self.config.match_tolerance
+        if good.sum() < 10:
+            raise RuntimeError(
+                f"frame 0: only {int(good.sum())} of {len(error)} texture matches agree with the "
+                f"projected template within {self.config.match_tolerance} px; is the template in "
+                "camera coordinates of frame 0 and the texture the right one?"
+            )
+        log.info(
+            "frame 0: %d of %d texture matches within %.1f px of the projected template "
+            "(median %.2f px)", good.sum(), len(error), self.config.match_tolerance,
+            np.median(error[good]),
+        )
+        fresh = good & self._far_from_tracks(image_xy)
+        self._add(face[fresh], bary[fresh], image_xy[fresh], base=1.0)
+        self.timings.matching += time.perf_counter() - t0
+
+        self._flow_image = _contrast_normalised(gray)
+        self.timings.per_frame.append(time.perf_counter() - start)
+        return self.correspondences()
+
+    def step(self, frame: np.ndarray, mask: np.ndarray | None = None) -> FrameCorrespondences:
+        """Track into the next frame, re-match and re-seed as configured."""
+        if self._flow_image is None:
+            raise RuntimeError("call start() on frame 0 before step()")
+        start = time.perf_counter()
+        self._frame_index += 1
+        gray = _gray(frame)
+        cfg = self.config
+
+        t0 = time.perf_counter()
+        flow_image = _contrast_normalised(gray)
+        self._flow(self._flow_image, flow_image, mask)
+        self.timings.flow += time.perf_counter() - t0
+
+        region = self._region(mask if mask is not None else self._track_hull(gray.shape))
+        if cfg.rematch_every and self._frame_index % cfg.rematch_every == 0:
+            t0 = time.perf_counter()
+            self._rematch(gray, region)
+            self.timings.matching += time.perf_counter() - t0
+        if len(self.face) < cfg.min_tracks:
+            t0 = time.perf_counter()
+            self._seed(gray, region)
+            self.timings.seeding += time.perf_counter() - t0
+
+        self._flow_image = flow_image
+        self.timings.per_frame.append(time.perf_counter() - start)
+        return self.correspondences()
+
+    def correspondences(self) -> FrameCorrespondences:
+        """The current tracks as correspondences (copies)."""
+        return FrameCorrespondences(
+            face=self.face.copy(), bary=self.bary.copy(), xy=self.xy.copy(),
+            confidence=self.base * np.exp(-((self.fb / self.config.fb_threshold) ** 2)),
+            track_id=self.track_id.copy(),
+        )
+
+    # -- stages ----------------------------------------------------------------------------
+
+    def _flow(self, previous: np.ndarray, current: np.ndarray, mask: np.ndarray | None) -> None:
+        if len(self.face) == 0:
+            return
+        cfg = self.config
+        params = dict(
+            winSize=(cfg.lk_window, cfg.lk_window), maxLevel=cfg.lk_levels,
+            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+        )
+        p0 = self.xy.astype(np.float32).reshape(-1, 1, 2)
+        p1, ok_forward, _ = cv2.calcOpticalFlowPyrLK(previous, current, p0, None, **params)
+        p0_back, ok_backward, _ = cv2.calcOpticalFlowPyrLK(current, previous, p1, None, **params)
+        p1 = p1.reshape(-1, 2).astype(np.float64)
+        fb = np.linalg.norm(p0_back.reshape(-1, 2) - self.xy, axis=1)
+        keep = (ok_forward.ravel() == 1) & (ok_backward.ravel() == 1) & (fb < cfg.fb_threshold)
+        keep &= _inside(p1, current.shape, margin=cfg.lk_window / 2)
+        if mask is not None:
+            keep &= _sample_mask(self._region(mask), p1)
+        self.xy = p1
+        self.fb = fb
+        self._keep(keep)
+        self._keep(self._separate())
+        self._keep(self._consistent())
+
+    def _separate(self) -> np.ndarray:
+        """Drop the younger of two tracks that converged to within min_distance / 4.
+
+        Tracks pile up where the sheet turns away from the camera; piled-up tracks carry no
+        extra information and often one of them has slid.
+        """
+        d = np.linalg.norm(self.xy[:, None, :] - self.xy[None, :, :], axis=2)
+        younger = self.track_id[:, None] > self.track_id[None, :]
+        return ~np.any((d < self.config.min_distance / 4) & younger, axis=1)
+
+    def _consistent(self) -> np.ndarray:
+        """Tracks whose texture position agrees with their image neighbours' (leave one out).
+
+        A track that slid onto an occluding part of the sheet, or off it, still passes the
+        forward–backward check but sits among neighbours showing other texture.
+        """
+        cfg = self.config
+        n = len(self.xy)
+        if n <= cfg.neighbours:
+            return np.ones(n, bool)
+        texture_xy = self._texture_xy()
+        predicted, ok, jacobian = _local_affine(
+            self.xy, texture_xy, self.xy, cfg.neighbours, cfg.neighbour_radius,
+            with_jacobian=True, exclude_self=True,
+        )
+        # Texture residual mapped back to image pixels through the local map.
+        det = np.linalg.det(jacobian)
+        ok &= np.abs(det) > 1e-9
+        jacobian[~ok] = np.eye(2)
+        residual = np.linalg.solve(jacobian, (texture_xy - predicted)[..., None])[..., 0]
+        bad = ok & (np.linalg.norm(residual, axis=1) > cfg.outlier_tolerance)
+        return ~bad
+
+    def _rematch(self, gray: np.ndarray, region: np.ndarray) -> None:
+        cfg = self.config
+        image_xy, texture_xy, face, bary = self.matcher.match(gray, region)
+        if len(image_xy) == 0 or len(self.face) < cfg.neighbours:
+            return
+        # Fresh matches must agree with where the current tracks put that texture point.
+        predicted, ok = _local_affine(
+            self._texture_xy(), self.xy, texture_xy, cfg.neighbours,
+            cfg.neighbour_radius * self._texture_scale(),
+        )
+        agree = ok & (np.linalg.norm(predicted - image_xy, axis=1) < cfg.match_tolerance)
+        image_xy, texture_xy = image_xy[agree], texture_xy[agree]
+        face, bary = face[agree], bary[agree]
+        if len(image_xy) < cfg.neighbours:
+            return
+        # Existing tracks must agree with the fresh matches around them: else they drifted.
+        check, ok = _local_affine(
+            texture_xy, image_xy, self._texture_xy(), cfg.neighbours,
+            cfg.neighbour_radius * self._texture_scale(),
+        )
+        distance = np.linalg.norm(check - self.xy, axis=1)
+        drifted = ok & (distance > cfg.drift_tolerance)
+        self.base = np.where(ok & ~drifted, 1.0, self.base)
+        self._keep(~drifted)
+        # Fresh matches away from existing tracks become new tracks.
+        fresh = self._far_from_tracks(image_xy)
+        self._add(face[fresh], bary[fresh], image_xy[fresh], base=1.0)
+        log.debug(
+            "frame %d: %d texture matches agree, %d drifted tracks dropped, %d added",
+            self._frame_index, len(image_xy), int(drifted.sum()), int(fresh.sum()),
+        )
+
+    def _seed(self, gray: np.ndarray, region: np.ndarray) -> None:
+        cfg = self.config
+        if len(self.face) < cfg.neighbours:
+            return
+        corners = self._new_corners(gray, region, cfg.max_tracks - len(self.face))
+        if len(corners) == 0:
+            return
+        texture_xy, ok, jacobian = _local_affine(
+            self.xy, self._texture_xy(), corners, cfg.neighbours, cfg.neighbour_radius,
+            with_jacobian=True,
+        )
+        ok &= self._patch_ncc(gray, corners, texture_xy, jacobian) >= cfg.min_ncc
+        face, bary = self.matcher.chart.locate(texture_xy[ok])
+        on_sheet = face >= 0
+        self._add(face[on_sheet], bary[on_sheet], corners[ok][on_sheet], base=cfg.seed_confidence)
+        log.debug("frame %d: seeded %d of %d corners", self._frame_index, on_sheet.sum(),
+                  len(corners))
+
+    # -- helpers ---------------------------------------------------------------------------
+
+    def _reset_tracks(self) -> None:
+        self.face = np.zeros(0, np.int64)
+        self.bary = np.zeros((0, 3))
+        self.xy = np.zeros((0, 2))
+        self.base = np.zeros(0)
+        self.fb = np.zeros(0)
+        self.track_id = np.zeros(0, np.int64)
+
+    def _add(self, face, bary, xy, *, base: float) -> None:
+        n = len(face)
+        self.face = np.concatenate([self.face, face])
+        self.bary = np.concatenate([self.bary, bary])
+        self.xy = np.concatenate([self.xy, xy])
+        self.base = np.concatenate([self.base, np.full(n, base)])
+        self.fb = np.concatenate([self.fb, np.zeros(n)])
+        self.track_id = np.concatenate([self.track_id, self._next_id + np.arange(n)])
+        self._next_id += n
+
+    def _keep(self, keep: np.ndarray) -> None:
+        for name in ("face", "bary", "xy", "base", "fb", "track_id"):
+            setattr(self, name, getattr(self, name)[keep])
+
+    def _texture_xy(self) -> np.ndarray:
+        """Texture pixel position of every track's surface point, shape (n, 2)."""
+        corners = self.texture_corners[self.template.faces[self.face]]
+        return np.einsum("nk,nkd->nd", self.bary, corners)
+
+    def _texture_scale(self) -> float:
+        """Texture pixels per image pixel, estimated from the current tracks."""
+        tex, img = self._texture_xy(), self.xy
+        if len(tex) < 3:
+            return 1.0
+        spread = np.sqrt(np.linalg.det(np.cov(tex.T)) / max(np.linalg.det(np.cov(img.T)), 1e-12))
+        return float(np.sqrt(spread))
+
+    def _region(self, mask: np.ndarray) -> np.ndarray:
+        """Mask shrunk by mask_margin so corners and tracks keep off its boundary."""
+        margin = self.config.mask_margin
+        if margin <= 0:
+            return mask.astype(bool)
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+        return cv2.erode(mask.astype(np.uint8), kernel) > 0
+
+    def _track_hull(self, shape: tuple[int, int]) -> np.ndarray:
+        hull = np.zeros(shape, np.uint8)
+        if len(self.xy) >= 3:
+            points = cv2.convexHull(np.round(self.xy).astype(np.int32))
+            cv2.fillConvexPoly(hull, points, 1)
+        return hull > 0
+
+    def _new_corners(self, gray: np.ndarray, region: np.ndarray, count: int) -> np.ndarray:
+        """Shi–Tomasi corners (subpixel) in region, at least min_distance from existing tracks."""
+        if count <= 0:
+            return np.zeros((0, 2))
+        free = region.astype(np.uint8)
+        radius = int(np.ceil(self.config.min_distance))
+        for x, y in np.round(self.xy).astype(int):
+            cv2.circle(free, (int(x), int(y)), radius, 0, -1)
+        corners = cv2.goodFeaturesToTrack(
+            gray, maxCorners=count, qualityLevel=self.config.corner_quality,
+            minDistance=self.config.min_distance, mask=free,
+        )
+        if corners is None:
+            return np.zeros((0, 2))
+        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), criteria)
+        return corners.reshape(-1, 2).astype(np.float64)
+
+    def _far_from_tracks(self, xy: np.ndarray) -> np.ndarray:
+        if len(self.xy) == 0:
+            return np.ones(len(xy), bool)
+        d = np.linalg.norm(xy[:, None, :] - self.xy[None, :, :], axis=2).min(axis=1)
+        return d >= self.config.min_distance
+
+    def _prefiltered_texture(self, texture: np.ndarray) -> np.ndarray:
+        """Grey texture blurred to roughly the image's resolution (for patch comparison)."""
+        h, w = texture.shape[:2]
+        projected = self.camera.project(self.template.vertices)
+        tri_img = projected[self.template.faces]
+        tri_tex = self.texture_corners[self.template.faces]
+        area_img = np.abs(_signed_area(tri_img)).sum()
+        area_tex = np.abs(_signed_area(tri_tex)).sum()
+        scale = np.sqrt(area_tex / max(area_img, 1e-12))
+        sigma = max(0.5 * scale, 0.5)
+        return cv2.GaussianBlur(_gray(texture).astype(np.float32), (0, 0), sigma)
+
+    def _patch_ncc(self, gray, image_xy, texture_xy, jacobian) -> np.ndarray:
+        """NCC between image patches and texture patches mapped by the local affine maps."""
+        r = self.config.patch_radius
+        offsets = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), -1)
+        offsets = offsets.reshape(-1, 2).astype(np.float64)
+        img_pts = image_xy[:, None, :] + offsets[None]
+        tex_pts = texture_xy[:, None, :] + np.einsum("nij,kj->nki", jacobian, offsets)
+        a = _bilinear(gray.astype(np.float32), img_pts)
+        b = _bilinear(self.texture_gray, tex_pts)
+        a = a - a.mean(axis=1, keepdims=True)
+        b = b - b.mean(axis=1, keepdims=True)
+        den = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
+        return np.where(den > 0, (a * b).sum(axis=1) / np.maximum(den, 1e-12), -1.0)
+
+
+def track_sequence(
+    frames: Sequence[np.ndarray],
+    template: Template,
+    texture: np.ndarray,
+    camera: Camera,
+    *,
+    masks: Sequence[np.ndarray] | None = None,
+    config: TrackerConfig | None = None,
+) -> tuple[list[FrameCorrespondences], TrackingTimings]:
+    """Correspondences for every frame, and the tracker's timings."""
+    tracker = Tracker(template, texture, camera, config=config)
+    out = []
+    for i, frame in enumerate(frames):
+        mask = None if masks is None else masks[i]
+        out.append(tracker.start(frame, mask) if i == 0 else tracker.step(frame, mask))
+    log.info(
+        "tracked %d frames: %.0f correspondences per frame on average, %.3f s per frame",
+        len(out), np.mean([len(c) for c in out]), np.mean(tracker.timings.per_frame),
+    )
+    return out, tracker.timings
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+
+
+def _contrast_normalised(gray: np.ndarray) -> np.ndarray:
+    """Local contrast normalisation (8-bit): removes slowly varying gain and offset.
+
+    Lucas–Kanade assumes constant brightness; under illumination drift it is biased by a
+    fraction of a pixel per frame, which accumulates along a track.
+    """
+    g = gray.astype(np.float32)
+    detail = g - cv2.GaussianBlur(g, (0, 0), CONTRAST_SIGMA)
+    spread = np.sqrt(cv2.GaussianBlur(detail * detail, (0, 0), CONTRAST_SIGMA)) + 1.0
+    return np.clip(128.0 + 40.0 * detail / spread, 0, 255).astype(np.uint8)
+
+
+def _inside(xy: np.ndarray, shape: tuple[int, ...], *, margin: float) -> np.ndarray:
+    h, w = shape[:2]
+    return (
+        (xy[:, 0] >= margin) & (xy[:, 0] <= w - 1 - margin)
+        & (xy[:, 1] >= margin) & (xy[:, 1] <= h - 1 - margin)
+    )
+
+
+def _sample_mask(mask: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    h, w = mask.shape
+    col = np.clip(np.rint(xy[:, 0]).astype(int), 0, w - 1)
+    row = np.clip(np.rint(xy[:, 1]).astype(int), 0, h - 1)
+    return mask[row, col]
+
+
+def _signed_area(tri: np.ndarray) -> np.ndarray:
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac = b - a, c - a
+    return 0.5 * (ab[:, 0] * ac[:, 1] - ac[:, 0] * ab[:, 1])
+
+
+def _bilinear(image: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a float32 image at points (n, k, 2) [px], shape (n, k)."""
+    n, k, _ = points.shape
+    coords = points.reshape(1, -1, 2).astype(np.float32)
+    samples = cv2.remap(image, coords[..., 0], coords[..., 1], cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)
+    return samples.reshape(n, k)
+
+
+def _local_affine(
+    source, target, query, neighbours, radius, *, with_jacobian=False, exclude_self=False
+):
+    """Predict target positions of query points by affine fits to their nearest source points.
+
+    source, target: matched 2D points (n, 2); query: (m, 2) in source space. Each query uses its
+    ``neighbours`` nearest source points, all within ``radius``; with exclude_self the queries
+    are the source points themselves and each leaves itself out. Returns predictions (m, 2), a
+    validity mask (m,) and, if asked, the affine maps' linear parts (m, 2, 2) (d target / d source).
+    """
+    m = len(query)
+    d = np.linalg.norm(query[:, None, :] - source[None, :, :], axis=2)
+    if exclude_self:
+        np.fill_diagonal(d, np.inf)
+    k = min(neighbours, len(source) - int(exclude_self))
+    nearest = np.argsort(d, axis=1)[:, :k] if k < 3 else np.argpartition(d, k - 1, axis=1)[:, :k]
+    within = np.take_along_axis(d, nearest, axis=1).max(axis=1) <= radius
+    x = source[nearest] - query[:, None, :]
+    design = np.concatenate([x, np.ones((m, k, 1))], axis=2)
+    normal = np.einsum("mki,mkj->mij", design, design)
+    rhs = np.einsum("mki,mkj->mij", design, target[nearest])
+    # Collinear neighbours leave the affine map undetermined: compare the smallest eigenvalue
+    # of the neighbours' spread with its largest.
+    spread = np.linalg.eigvalsh(np.einsum("mki,mkj->mij", x - x.mean(1, keepdims=True),
+                                          x - x.mean(1, keepdims=True)))
+    well_posed = (k >= 3) & (spread[:, 0] > 1e-3 * np.maximum(spread[:, 1], 1e-300))
+    normal[~well_posed] = np.eye(3)
+    coef = np.linalg.solve(normal, rhs)  # (m, 3, 2): rows d/dx, d/dy, value at the query
+    prediction = coef[:, 2, :]
+    ok = within & well_posed
+    if with_jacobian:
+        return prediction, ok, np.transpose(coef[:, :2, :], (0, 2, 1))
+    return prediction, ok
