@@ -569,7 +569,7 @@ def _local_affine(
     if exclude_self:
         np.fill_diagonal(d, np.inf)
     k = min(neighbours, len(source) - int(exclude_self))
-    nearest = np.argsort(d, axis=1)[:, :k] if k < 3 else np.argpartition(d, k - 1, axis=1)[:, :k]
+    nearest = np.argpartition(d, k - 1, axis=1)[:, :k]
     within = np.take_along_axis(d, nearest, axis=1).max(axis=1) <= radius
     x = source[nearest] - query[:, None, :]
     design = np.concatenate([x, np.ones((m, k, 1))], axis=2)
