@@ -276,6 +276,9 @@ def _solver(t: Table, adam: dict, defaults: SolverConfig | None = None) -> Solve
         monitor_samples=t.integer("monitor_samples", d.monitor_samples, minimum=16),
         checkpoint_every=t.integer("checkpoint_every", d.checkpoint_every, minimum=0),
         lbfgs_iterations=t.integer("lbfgs_iterations", d.lbfgs_iterations, minimum=0),
+        newton_iterations=t.integer("newton_iterations", d.newton_iterations, minimum=0),
+        newton_every=t.integer("newton_every", d.newton_every, minimum=0),
+        newton_samples=t.integer("newton_samples", d.newton_samples, minimum=16),
         seed=t.integer("seed", d.seed),
     )
 

@@ -4,6 +4,11 @@ Each iteration draws fresh stratified jittered samples, evaluates the field's je
 boundary conditions, evaluates Π and its gradient (Taichi autodiff), chains it back into the
 weights (the field's hand-written adjoint) and takes an Adam step. Loads may be applied in
 increments (continuation): each load factor is solved in turn, warm-started from the previous.
+
+Optionally, last-layer Newton phases (`taichi_ndf.newton`) solve the output layer exactly on a
+fixed sample set: at the start of each load step, every `newton_every` Adam iterations and at
+the end of the step. Adam improves the features (hidden layers), Newton the combination of
+them — first-order steps alone crawl on stiff shells.
 """
 
 from __future__ import annotations
@@ -21,9 +26,10 @@ from tqdm import tqdm
 from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
 from taichi_ndf.field import NeuralField
 from taichi_ndf.model import ShellModel
+from taichi_ndf.newton import NewtonConfig, solve_last_layer
 from taichi_ndf.optim import Adam, AdamConfig
 from taichi_ndf.sampling import sample_surface
-from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +52,10 @@ class SolverConfig:
     monitor_every: iterations between evaluations of Π on a fixed monitor sample set.
     checkpoint_every: iterations between checkpoints (0: only at the end).
     lbfgs_iterations: L-BFGS polish iterations on a fixed sample set after each load step.
+    newton_iterations: most last-layer Newton steps per Newton phase (0: no Newton phases).
+    newton_every: Adam iterations between Newton phases inside a load step (0: Newton only at
+        the start and the end of each load step).
+    newton_samples: area samples of the fixed Newton sample set (point-load samples added).
     """
 
     iterations: int = 1500
@@ -56,6 +66,9 @@ class SolverConfig:
     monitor_samples: int = 16384
     checkpoint_every: int = 500
     lbfgs_iterations: int = 0
+    newton_iterations: int = 0
+    newton_every: int = 0
+    newton_samples: int = 16384
     seed: int = 0
     progress: bool = True
 
@@ -74,6 +87,11 @@ class SolverConfig:
             raise ValueError(f"monitor_every must be >= 1, got {self.monitor_every}")
         if self.checkpoint_every < 0 or self.lbfgs_iterations < 0:
             raise ValueError("checkpoint_every and lbfgs_iterations must be >= 0")
+        if self.newton_iterations < 0 or self.newton_every < 0:
+            raise ValueError(f"newton_iterations and newton_every must be >= 0, got "
+                             f"{self.newton_iterations}, {self.newton_every}")
+        if self.newton_samples < 16:
+            raise ValueError(f"newton_samples must be >= 16, got {self.newton_samples}")
 
     def with_iterations(self, iterations: int) -> SolverConfig:
         """The same run with another iteration count; the learning-rate schedule is stretched
@@ -103,6 +121,7 @@ class SolveResult:
     wall_time: float
     history: list[MonitorRecord]
     probes: dict[str, list[float]]
+    newton_steps: int = 0
 
 
 class Solver:
@@ -118,18 +137,26 @@ class Solver:
         self.optimiser = Adam(field.parameters, field.gradients, config=config.adam)
         self.generator = torch.Generator().manual_seed(config.seed)
         self.iteration = 0
+        self.newton_steps = 0
         self.history: list[MonitorRecord] = []
         self._good_state = field.get_flat().clone()
         self._monitor = {}
+        self._newton_samples = {}
 
     # -- energy -------------------------------------------------------------------------------
+    def potential(self, samples, u_jets: torch.Tensor, load_factor: float, *,
+                  grad: bool = True) -> EnergyResult:
+        """Π [J] of displacement jets u_jets (N, 6, 3) [m] at the samples, with dΠ/du_jets if
+        `grad`. The one place the potential is defined: subclasses add energy terms here."""
+        energy = ShellEnergy(self.model.material, self.model.loads.scaled(load_factor))
+        return energy.evaluate(samples, u_jets, grad=grad)
+
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True):
         """Π [J] of the current field on given samples; fills the field's gradients."""
         xi = samples.xi
         raw = self.field.jets(xi)
         u = self.model.boundary.compose(xi, raw, t=load_factor)
-        energy = ShellEnergy(self.model.material, self.model.loads.scaled(load_factor))
-        result = energy.evaluate(samples, u, grad=grad)
+        result = self.potential(samples, u, load_factor, grad=grad)
         if grad:
             g_raw = self.model.boundary.compose_adjoint(xi, result.grad_u_jets, t=load_factor)
             self.field.backward(g_raw)
@@ -146,6 +173,25 @@ class Solver:
             self._monitor[load_factor] = self._samples(self.config.monitor_samples, load_factor,
                                                        gen)
         return self._monitor[load_factor]
+
+    def newton_samples(self, load_factor: float):
+        if load_factor not in self._newton_samples:
+            gen = torch.Generator().manual_seed(self.config.seed + 104729)
+            self._newton_samples[load_factor] = self._samples(self.config.newton_samples,
+                                                              load_factor, gen)
+        return self._newton_samples[load_factor]
+
+    def newton(self, load_factor: float) -> None:
+        """A last-layer Newton phase on the fixed Newton samples of this load factor."""
+        samples = self.newton_samples(load_factor)
+
+        def potential(s, u, grad):
+            return self.potential(s, u, load_factor, grad=grad)
+
+        result = solve_last_layer(self.field, self.model.boundary, potential, samples,
+                                  load_factor,
+                                  NewtonConfig(iterations=self.config.newton_iterations))
+        self.newton_steps += result.steps
 
     def probe_displacements(self, load_factor: float) -> dict[str, list[float]]:
         if not self.model.probes:
@@ -194,8 +240,11 @@ class Solver:
         energy = float("nan")
         for step in range(start_step, len(cfg.load_steps)):
             lam = cfg.load_steps[step]
-            done_in_step = self.iteration - step * cfg.iterations
-            for _ in range(max(done_in_step, 0), cfg.iterations):
+            done_in_step = max(self.iteration - step * cfg.iterations, 0)
+            newton = cfg.newton_iterations > 0
+            if newton and done_in_step == 0:
+                self.newton(lam)
+            for _ in range(done_in_step, cfg.iterations):
                 samples = self._samples(cfg.samples, lam, self.generator)
                 res = self.energy_and_gradient(samples, lam)
                 gnorm = self._grad_norm()
@@ -209,10 +258,16 @@ class Solver:
                     bar.set_postfix(energy=f"{energy:.5g}", grad=f"{gnorm:.3g}")
                 if cfg.checkpoint_every and self.iteration % cfg.checkpoint_every == 0:
                     self.save(step)
+                in_step = self.iteration - step * cfg.iterations
+                if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
+                        and in_step < cfg.iterations:
+                    self.newton(lam)
+            if newton and cfg.iterations > 0:
+                self.newton(lam)
             if cfg.lbfgs_iterations:
                 self._lbfgs(lam, step)
             recorded = self.history and self.history[-1].iteration == self.iteration
-            if cfg.lbfgs_iterations or not recorded:
+            if cfg.lbfgs_iterations or newton or not recorded:
                 self._record(lam, self._grad_norm(), t0, step)
             energy = self.history[-1].energy
             log.info("load factor %.4g: Π = %.8g J after %d iterations", lam, energy,
@@ -223,7 +278,8 @@ class Solver:
         self.save(len(cfg.load_steps))
         return SolveResult(energy=energy, iterations=self.iteration,
                            wall_time=time.perf_counter() - t0, history=self.history,
-                           probes=self.probe_displacements(cfg.load_steps[-1]))
+                           probes=self.probe_displacements(cfg.load_steps[-1]),
+                           newton_steps=self.newton_steps)
 
     def _record(self, lam: float, gnorm: float, t0: float, step: int) -> float:
         energy = self.energy_and_gradient(self.monitor_samples(lam), lam, grad=False).total
@@ -257,8 +313,11 @@ class Solver:
         """Deterministic L-BFGS polish on a fixed, large sample set."""
         samples = self.monitor_samples(lam)
         flat = torch.nn.Parameter(self.field.get_flat().clone())
+        # torch's default tolerances are absolute (1e-7 on the gradient, 1e-9 on Π) and stop at
+        # once when Π is small; run the requested iterations instead.
         opt = torch.optim.LBFGS([flat], lr=1.0, max_iter=self.config.lbfgs_iterations,
-                                history_size=20, line_search_fn="strong_wolfe")
+                                history_size=20, line_search_fn="strong_wolfe",
+                                tolerance_grad=0.0, tolerance_change=0.0)
 
         def closure():
             self.field.set_flat(flat.detach())

@@ -43,7 +43,6 @@ from taichi_ndf.io import OutputDir
 from taichi_ndf.model import ShellModel
 from taichi_ndf.render import plot_curves, save_png
 from taichi_ndf.scene import Scene, load_scene
-from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.solver import Solver, SolverConfig
 
 log = logging.getLogger(__name__)
@@ -156,19 +155,13 @@ class MomentSolver(Solver):
         super().__init__(model, field, config, **kwargs)
         self.end_moment = end_moment
 
-    def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True):
-        xi = samples.xi
-        u = self.model.boundary.compose(xi, self.field.jets(xi), t=load_factor)
-        energy = ShellEnergy(self.model.material, self.model.loads.scaled(load_factor))
-        result = energy.evaluate(samples, u, grad=grad)
-        work, work_grad = self.end_moment.potential(samples, u, load_factor, grad=grad)
+    def potential(self, samples, u_jets, load_factor: float, *, grad: bool = True):
+        result = super().potential(samples, u_jets, load_factor, grad=grad)
+        work, work_grad = self.end_moment.potential(samples, u_jets, load_factor, grad=grad)
         result.total += work
         result.external += work
         if grad:
-            total_grad = result.grad_u_jets + work_grad
-            result.grad_u_jets = total_grad
-            self.field.backward(self.model.boundary.compose_adjoint(xi, total_grad,
-                                                                    t=load_factor))
+            result.grad_u_jets = result.grad_u_jets + work_grad
         return result
 
 
@@ -273,9 +266,11 @@ class Row:
     relative_error: float | None
     tolerance: float
     passed: bool | None
-    iterations: int
+    iterations: int  # Adam iterations, all load steps
     wall_time: float  # [s] of the whole case
-    samples: int
+    samples: int  # per Adam iteration
+    newton_steps: int = 0  # last-layer Newton steps, all phases
+    newton_samples: int = 0  # fixed samples of the Newton phases (0: no Newton)
 
 
 @dataclass
@@ -355,7 +350,9 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
                         level=q.level, computed=computed, reference=q.reference,
                         relative_error=error, tolerance=q.tolerance,
                         passed=None if error is None else error <= q.tolerance,
-                        iterations=result.iterations, wall_time=wall, samples=config.samples))
+                        iterations=result.iterations, wall_time=wall, samples=config.samples,
+                        newton_steps=result.newton_steps,
+                        newton_samples=config.newton_samples if config.newton_iterations else 0))
         if key is not None:
             records = [h for h in result.history if h.load_factor == key]
             convergence[f"{q.name} @ {q.level:g}"] = (
@@ -367,6 +364,9 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
                               "samples": config.samples,
                               "load_steps": list(config.load_steps),
                               "lbfgs_iterations": config.lbfgs_iterations,
+                              "newton_iterations": config.newton_iterations,
+                              "newton_every": config.newton_every,
+                              "newton_samples": config.newton_samples,
                               "learning_rate": config.adam.lr,
                               "field": field_config.to_dict(),
                               "load_scale": case.load_scale})
@@ -385,8 +385,8 @@ def _level_key(level: float, load_steps: tuple[float, ...]) -> float | None:
 def markdown_table(rows: list[Row]) -> str:
     """The results as a Markdown table."""
     lines = ["| case | quantity | load | computed | reference | rel. error | target | "
-             "iterations | wall time [s] | samples |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "Adam iterations | Newton steps | wall time [s] | samples (Adam / Newton) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         computed = "not run" if r.computed is None else f"{r.computed:.5g}"
         if r.relative_error is None:
@@ -394,8 +394,8 @@ def markdown_table(rows: list[Row]) -> str:
         else:
             error = f"{100 * r.relative_error:.2f} %" + ("" if r.passed else " ✗")
         lines.append(f"| {r.case} | {r.quantity} | {r.level:g} | {computed} | {r.reference:.5g} "
-                     f"| {error} | {100 * r.tolerance:g} % | {r.iterations} | "
-                     f"{r.wall_time:.0f} | {r.samples} |")
+                     f"| {error} | {100 * r.tolerance:g} % | {r.iterations} | {r.newton_steps} | "
+                     f"{r.wall_time:.0f} | {r.samples} / {r.newton_samples} |")
     return "\n".join(lines) + "\n"
 
 
