@@ -166,11 +166,11 @@ def test_activation_adjoint_matches_taichi_autodiff():
     sin = torch.sin(pre.detach()[:m]).requires_grad_(True)
     cos = torch.cos(pre.detach()[:m]).requires_grad_(True)
     post = torch.zeros(channels * m, dtype=F64, requires_grad=True)
-    _sine_jets(pre, sin, cos, post, 2)
+    _sine_jets(pre, sin, cos, post)
     upstream = torch.randn(channels * m, generator=g, dtype=F64)
     pre.grad, sin.grad, cos.grad = (torch.zeros_like(t) for t in (pre, sin, cos))
     post.grad = upstream.clone()
-    _sine_jets.grad(pre, sin, cos, post, 2)
+    _sine_jets.grad(pre, sin, cos, post)
     # The kernel sees sin and cos as inputs; chain them to a₀ (post[0] = sin is set by torch).
     expected = pre.grad.clone()
     expected[:m] += (upstream[:m] + sin.grad) * cos.detach() - cos.grad * sin.detach()

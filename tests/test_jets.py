@@ -8,7 +8,8 @@ def _poly_jet(coeffs, xi):
     x, y = xi[:, 0], xi[:, 1]
     c = coeffs
     s, co = torch.sin(x + 2 * y), torch.cos(x + 2 * y)
-    f = c[0] + c[1] * x + c[2] * y + c[3] * x**2 + c[4] * x * y + c[5] * y**2 + c[6] * x**2 * y + c[7] * s
+    f = (c[0] + c[1] * x + c[2] * y + c[3] * x**2 + c[4] * x * y + c[5] * y**2
+         + c[6] * x**2 * y + c[7] * s)
     fx = c[1] + 2 * c[3] * x + c[4] * y + 2 * c[6] * x * y + c[7] * co
     fy = c[2] + c[4] * x + 2 * c[5] * y + c[6] * x**2 + 2 * c[7] * co
     fxx = 2 * c[3] + 2 * c[6] * y - c[7] * s
