@@ -201,9 +201,6 @@ class Solver:
         u = self.model.displacement(self.field, xi, t=load_factor)
         return {p.name: [float(v) for v in u[k]] for k, p in enumerate(self.model.probes)}
 
-    def _grad_norm(self) -> float:
-        return math.sqrt(sum(float((g.double() ** 2).sum()) for g in self.field.gradients))
-
     # -- checkpoints ----------------------------------------------------------------------------
     def save(self, load_step: int) -> None:
         if self.checkpoint_path is None:
@@ -247,7 +244,7 @@ class Solver:
             for _ in range(done_in_step, cfg.iterations):
                 samples = self._samples(cfg.samples, lam, self.generator)
                 res = self.energy_and_gradient(samples, lam)
-                gnorm = self._grad_norm()
+                gnorm = self.optimiser.gradient_norm()
                 if not (math.isfinite(res.total) and math.isfinite(gnorm)):
                     self._diverged(res.total, gnorm, step)
                 self.optimiser.step()
@@ -268,7 +265,7 @@ class Solver:
                 self._lbfgs(lam, step)
             recorded = self.history and self.history[-1].iteration == self.iteration
             if cfg.lbfgs_iterations or newton or not recorded:
-                self._record(lam, self._grad_norm(), t0, step)
+                self._record(lam, self.optimiser.gradient_norm(), t0, step)
             energy = self.history[-1].energy
             log.info("load factor %.4g: Π = %.8g J after %d iterations", lam, energy,
                      self.iteration)
