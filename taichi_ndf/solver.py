@@ -208,7 +208,8 @@ class Solver:
         save_checkpoint(
             self.checkpoint_path, self.field, self.optimiser,
             extra={**self.checkpoint_extra, "iteration": self.iteration,
-                   "load_step": load_step, "history": [asdict(h) for h in self.history]},
+                   "load_step": load_step, "history": [asdict(h) for h in self.history],
+                   "sampling_rng": self.generator.get_state()},
         )
 
     def resume(self) -> int:
@@ -218,6 +219,8 @@ class Solver:
         extra = load_checkpoint(self.checkpoint_path, self.field, optimiser=self.optimiser).extra
         self.iteration = int(extra["iteration"])
         self.history = [MonitorRecord(**h) for h in extra["history"]]
+        if "sampling_rng" in extra:  # absent in checkpoints written before it was kept
+            self.generator.set_state(extra["sampling_rng"])
         self._good_state = self.field.get_flat().clone()
         log.info("resumed from %s at iteration %d", self.checkpoint_path, self.iteration)
         # A finished run stores one past its last step; resumed (with more iterations) it goes

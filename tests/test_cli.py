@@ -119,7 +119,9 @@ def test_resume_continues_an_interrupted_run(tmp_path, monkeypatch):
     assert resumed["history"][0] == {**whole["history"][0], "wall_time":
                                      resumed["history"][0]["wall_time"]}
     assert [h["iteration"] for h in resumed["history"]] == [5, 10]
-    assert resumed["energy"] == pytest.approx(whole["energy"], rel=0.05)
+    # Adam's moments and the sampling generator are in the checkpoint: the resumed run draws
+    # the same samples and ends where the uninterrupted one did.
+    assert resumed["energy"] == pytest.approx(whole["energy"], rel=1e-9)
 
     # Resuming with more iterations goes on from the end of the previous run.
     assert run_sim(scene, "--out", tmp_path / "cut", "--resume", "--iters", "15") == 0
