@@ -15,19 +15,10 @@ from dataclasses import dataclass
 
 import torch
 
+from taichi_ndf.checks import finite_vector
 from taichi_ndf.geometry import ParameterDomain
 
 Vector3 = tuple[float, float, float]
-
-
-def _vector(name: str, value, size: int, unit: str) -> tuple[float, ...]:
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be {size} numbers [{unit}], got {value!r}") from err
-    if len(out) != size or not all(math.isfinite(v) for v in out):
-        raise ValueError(f"{name} must be {size} finite numbers [{unit}], got {value!r}")
-    return out
 
 
 @dataclass(frozen=True)
@@ -38,8 +29,8 @@ class PointLoad:
     force: Vector3
 
     def __post_init__(self):
-        object.__setattr__(self, "xi", _vector("point load xi", self.xi, 2, "units of ξ"))
-        object.__setattr__(self, "force", _vector("point load force", self.force, 3, "N"))
+        object.__setattr__(self, "xi", finite_vector("point load xi", self.xi, 2, "units of ξ"))
+        object.__setattr__(self, "force", finite_vector("point load force", self.force, 3, "N"))
 
 
 @dataclass(frozen=True)
@@ -59,8 +50,9 @@ class Loads:
     point_loads: tuple[PointLoad, ...] = ()
 
     def __post_init__(self):
-        object.__setattr__(self, "gravity", _vector("gravity", self.gravity, 3, "m/s²"))
-        object.__setattr__(self, "body_force", _vector("body_force", self.body_force, 3, "N/m²"))
+        object.__setattr__(self, "gravity", finite_vector("gravity", self.gravity, 3, "m/s²"))
+        body_force = finite_vector("body_force", self.body_force, 3, "N/m²")
+        object.__setattr__(self, "body_force", body_force)
         pressure = float(self.pressure)
         if not math.isfinite(pressure):
             raise ValueError(f"pressure must be a finite number [Pa], got {self.pressure!r}")

@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from taichi_ndf.checks import finite_vector
+
 EDGES = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")
 COMPONENTS = "xyz"
 
@@ -31,16 +33,6 @@ def _check_components(owner: str, components: str) -> str:
             f"'xyz', got {components!r}"
         )
     return "".join(c for c in COMPONENTS if c in components)
-
-
-def _check_vector(owner: str, name: str, value, size: int) -> tuple[float, ...]:
-    try:
-        vector = tuple(float(v) for v in value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{owner}: {name} must be {size} numbers, got {value!r}") from err
-    if len(vector) != size or not all(math.isfinite(v) for v in vector):
-        raise ValueError(f"{owner}: {name} must be {size} finite numbers, got {value!r}")
-    return vector
 
 
 def _check_edge(owner: str, edge: str) -> None:
@@ -75,7 +67,9 @@ class ClampedEdge:
         _check_edge("ClampedEdge", self.edge)
         _set(self, "components", _check_components("ClampedEdge", self.components))
         _set(
-            self, "displacement", _check_vector("ClampedEdge", "displacement", self.displacement, 3)
+            self,
+            "displacement",
+            finite_vector("ClampedEdge: displacement", self.displacement, 3, "m"),
         )
         _check_length("ClampedEdge", self.length)
 
@@ -94,7 +88,9 @@ class HingedEdge:
         _check_edge("HingedEdge", self.edge)
         _set(self, "components", _check_components("HingedEdge", self.components))
         _set(
-            self, "displacement", _check_vector("HingedEdge", "displacement", self.displacement, 3)
+            self,
+            "displacement",
+            finite_vector("HingedEdge: displacement", self.displacement, 3, "m"),
         )
         _check_length("HingedEdge", self.length)
 
@@ -110,7 +106,7 @@ class PinnedPoint:
     length: float | None = None
 
     def __post_init__(self):
-        _set(self, "xi", _check_vector("PinnedPoint", "xi", self.xi, 2))
+        _set(self, "xi", finite_vector("PinnedPoint: xi", self.xi, 2))
         _set(self, "components", _check_components("PinnedPoint", self.components))
         _check_length("PinnedPoint", self.length)
 
@@ -126,8 +122,8 @@ class Handle:
     length: float | None = None
 
     def __post_init__(self):
-        _set(self, "xi", _check_vector("Handle", "xi", self.xi, 2))
-        _set(self, "displacement", _check_vector("Handle", "displacement", self.displacement, 3))
+        _set(self, "xi", finite_vector("Handle: xi", self.xi, 2))
+        _set(self, "displacement", finite_vector("Handle: displacement", self.displacement, 3, "m"))
         _set(self, "components", _check_components("Handle", self.components))
         _check_length("Handle", self.length)
 
@@ -151,8 +147,8 @@ class InteriorLine:
     length: float | None = None
 
     def __post_init__(self):
-        _set(self, "start", _check_vector("InteriorLine", "start", self.start, 2))
-        _set(self, "end", _check_vector("InteriorLine", "end", self.end, 2))
+        _set(self, "start", finite_vector("InteriorLine: start", self.start, 2))
+        _set(self, "end", finite_vector("InteriorLine: end", self.end, 2))
         if self.start == self.end:
             raise ValueError(f"InteriorLine: start and end coincide at {self.start}")
         _set(self, "components", _check_components("InteriorLine", self.components))
@@ -179,8 +175,8 @@ class RimRotation:
 
     def __post_init__(self):
         _check_edge("RimRotation", self.edge)
-        _set(self, "axis_point", _check_vector("RimRotation", "axis_point", self.axis_point, 3))
-        axis = _check_vector("RimRotation", "axis", self.axis, 3)
+        _set(self, "axis_point", finite_vector("RimRotation: axis_point", self.axis_point, 3))
+        axis = finite_vector("RimRotation: axis", self.axis, 3)
         if math.hypot(*axis) == 0.0:
             raise ValueError("RimRotation: axis must be a non-zero vector")
         _set(self, "axis", axis)
