@@ -220,3 +220,15 @@ def test_export_reproduces_the_run_mesh_at_any_resolution(tmp_path):
     assert fine.read_bytes().startswith(b"ply")
     assert export.main([str(out / "checkpoint.pt"), "--resolution", "64", "--out", str(fine),
                         *RUNTIME]) == 2  # exists, no --overwrite
+
+
+def test_threads_option_sets_torch_threads_and_refuses_zero(tmp_path, capsys):
+    scene = small_napkin(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        run_sim(scene, "--out", tmp_path / "zero", "--threads", "0")
+    assert stop.value.code == 2 and "--threads: must be >= 1" in capsys.readouterr().err
+    try:
+        assert run_sim(scene, "--out", tmp_path / "two", "--iters", "1", "--threads", "2") == 0
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(1)  # the test session's setting (tests/conftest.py)

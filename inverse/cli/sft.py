@@ -22,7 +22,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
 
 from inverse.sft.baseline import mesh_edges, reconstruct_baseline
 from inverse.sft.inputs import Camera, InputError, load_inputs
@@ -58,9 +57,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="initial guess of each frame: the baseline's mesh or the previous "
                    "frame (default: %(default)s)")
     p.add_argument("--fps", type=float, default=30.0, help="overlay video frame rate")
-    p.add_argument("--threads", type=int, default=1,
-                   help="torch CPU threads (default 1: the per-step batches are small, and on a "
-                   "shared CPU more threads were measured 10x slower)")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
     add_runtime_options(p)
@@ -87,9 +83,6 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args: argparse.Namespace) -> dict:
     """The whole pipeline; returns the summary written to result.json."""
-    if args.threads < 1:
-        raise ValueError(f"--threads must be >= 1, got {args.threads}")
-    torch.set_num_threads(args.threads)
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
     inputs = load_inputs(frames=args.frames, camera=args.camera, template=args.template,

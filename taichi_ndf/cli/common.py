@@ -9,19 +9,38 @@ import platform
 import taichi_ndf
 
 
-def add_runtime_options(parser: argparse.ArgumentParser) -> None:
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def add_runtime_options(parser: argparse.ArgumentParser, *, precision: str = "f32",
+                        seed: int | None = 0, seed_help: str = "random seed (default: 0)") -> None:
+    """--arch, --precision, --seed, --threads and --verbose, with the tool's defaults."""
     parser.add_argument("--arch", default="cpu", choices=("cpu", "cuda", "vulkan", "metal", "gpu"),
                         help="Taichi backend (default: cpu)")
-    parser.add_argument("--precision", default="f32", choices=("f32", "f64"),
-                        help="floating-point precision of fields and kernels (default: f32)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    parser.add_argument("--precision", default=precision, choices=("f32", "f64"),
+                        help=f"floating-point precision of fields and kernels (default: "
+                        f"{precision})")
+    parser.add_argument("--seed", type=int, default=seed, help=seed_help)
+    parser.add_argument("--threads", type=_positive_int, default=1,
+                        help="torch CPU threads (default 1: Taichi's kernels run on their own "
+                        "pool of all cores, and torch's spinning OpenMP threads competing with it "
+                        "were measured 5-20x slower on a 2-core CPU)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
 
 
 def start(args: argparse.Namespace) -> taichi_ndf.runtime.Runtime:
+    """Logging, torch's thread count and the Taichi runtime from the runtime options."""
+    import torch
+
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    return taichi_ndf.init(arch=args.arch, precision=args.precision, seed=args.seed)
+    torch.set_num_threads(args.threads)
+    return taichi_ndf.init(arch=args.arch, precision=args.precision,
+                           seed=0 if args.seed is None else args.seed)
 
 
 def machine_description(runtime) -> dict:

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import start
+from taichi_ndf.cli.common import add_runtime_options, start
 from taichi_ndf.io import OutputDir
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import DivergenceError
@@ -29,12 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"folder of the case scene files (default: {SCENES_DIR})")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
-    p.add_argument("--arch", default="cpu", choices=("cpu", "cuda", "vulkan", "metal", "gpu"),
-                   help="Taichi backend (default: cpu)")
-    p.add_argument("--precision", default="f64", choices=("f32", "f64"),
-                   help="floating-point precision (default: f64, the one the table uses)")
-    p.add_argument("--seed", type=int, help="random seed (default: each scene's)")
-    p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    add_runtime_options(p, precision="f64", seed=None,
+                        seed_help="random seed (default: each scene's)")
     return p
 
 
@@ -50,8 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     names = args.cases or list(CASES)
     try:
         out = OutputDir(args.out, overwrite=args.overwrite)
-        start(argparse.Namespace(arch=args.arch, precision=args.precision,
-                                 seed=args.seed or 0, verbose=args.verbose))
+        start(args)
         results = []
         for name in names:
             result = run_case(CASES[name], quick=args.quick, iterations=args.iters,
