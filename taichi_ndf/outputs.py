@@ -17,6 +17,7 @@ from taichi_ndf import jets
 from taichi_ndf.io import grid_mesh, write_obj, write_ply
 from taichi_ndf.io.output_dir import OutputDir
 from taichi_ndf.model import ShellModel
+from taichi_ndf.pseudo_time import conditioning
 from taichi_ndf.render import plot_curves, render_shaded, save_png, write_video
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import ShellEnergy
@@ -81,8 +82,9 @@ def _strain_norm(strain: torch.Tensor, r_jets: torch.Tensor) -> torch.Tensor:
 
 
 def deformed_mesh(model: ShellModel, field, resolution: tuple[int, int] = (64, 64), *,
-                  load_factor: float = 1.0) -> DeformedMesh:
-    """Evaluate the field (boundary conditions applied) on the export grid."""
+                  load_factor: float = 1.0, pseudo_time: bool = False) -> DeformedMesh:
+    """Evaluate the field (boundary conditions applied) on the export grid at a load factor;
+    with `pseudo_time` the field's pseudo-time input is that load factor too."""
     xi_np, faces, uv = export_grid(model, resolution)
     dtype = field.parameters[0].dtype
     energy = ShellEnergy(model.material, model.loads.scaled(load_factor))
@@ -90,7 +92,8 @@ def deformed_mesh(model: ShellModel, field, resolution: tuple[int, int] = (64, 6
     for start in range(0, len(xi_np), CHUNK):
         xi = torch.from_numpy(xi_np[start:start + CHUNK]).to(dtype)
         r = model.surface.jets(xi)
-        u = model.displacement_jets(field, xi, t=load_factor)
+        cond = conditioning(load_factor, len(xi), dtype=dtype) if pseudo_time else None
+        u = model.displacement_jets(field, xi, t=load_factor, conditioning=cond)
         samples = SurfaceSamples(xi=xi, r_jets=r, weight=torch.ones_like(xi[:, 0]),
                                  point_force=torch.zeros_like(r[:, 0]))
         eps, kappa, _ = strains(r, u)
@@ -136,7 +139,8 @@ def write_energy_plot(out: OutputDir, name: str, history) -> None:
 
 def write_trajectory(out: OutputDir, meshes: list[tuple[float, DeformedMesh]], *,
                      fps: float = 4.0) -> None:
-    """One mesh per load step under trajectory/ and an MP4 of their renders (fixed camera)."""
+    """One mesh per load step (or per frame of a pseudo-time field) under trajectory/ and an
+    MP4 of their renders (fixed camera)."""
     from taichi_ndf.render import frame_mesh
 
     everything = np.concatenate([m.deformed for _, m in meshes])

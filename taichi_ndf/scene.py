@@ -26,6 +26,7 @@ from taichi_ndf.geometry import Cone, Cylinder, CylindricalRoof, Hemisphere, Pla
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.optim import AdamConfig
+from taichi_ndf.pseudo_time import TIME_RANGE
 from taichi_ndf.scene_schema import SceneError, Table
 from taichi_ndf.shell.materials import (
     PRESETS,
@@ -37,6 +38,7 @@ from taichi_ndf.shell.materials import (
 from taichi_ndf.solver import SolverConfig
 
 GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "mesh")
+DEFAULT_FRAMES = 16  # trajectory frames of a pseudo-time field
 CONSTRAINTS = ("clamped_edge", "hinged_edge", "pinned_point", "handle", "interior_line",
                "rim_rotation")
 
@@ -47,6 +49,7 @@ class OutputConfig:
     mesh template, which is exported on its own vertices)."""
 
     resolution: tuple[int, int] = (64, 64)
+    frames: int | None = None  # trajectory frames of a pseudo-time field (None: not one)
 
 
 @dataclass(frozen=True)
@@ -92,7 +95,9 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
     field = _section(top.table("field", optional=True), _field, model, loads)
     solver, quick = _section(top.table("training", optional=True), _training)
-    output = _section(top.table("output", optional=True), _output)
+    output = _section(top.table("output", optional=True), _output, solver.pseudo_time)
+    if solver.pseudo_time:
+        field = replace(field, conditioning=(TIME_RANGE,))
     top.close()
     return Scene(name=name, description=description, model=model, field=field, solver=solver,
                  quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
@@ -287,18 +292,36 @@ def _training(t: Table) -> tuple[SolverConfig, SolverConfig]:
     adam = _adam(t)
     quick_table = t.table("quick", optional=True)
     solver = _solver(t, adam)
+    # The pseudo-time keys shape the field (an extra input), so [training.quick] has none.
+    pseudo_time = t.boolean("pseudo_time", False)
+    start = t.number("pseudo_time_start", 0.0, nonnegative=True)
+    if t.has("pseudo_time_start") and not pseudo_time:
+        raise SceneError(f"{t.key('pseudo_time_start')}: needs pseudo_time = true")
+    if start >= solver.load_steps[0]:
+        raise SceneError(f"{t.key('pseudo_time_start')}: must be below the first load step "
+                         f"{solver.load_steps[0]}, got {start}")
+    if pseudo_time and solver.newton_iterations:
+        raise SceneError(f"{t.key('pseudo_time')}: not available with newton_iterations > 0 "
+                         f"(the last-layer Newton solver has no pseudo-time input)")
+    solver = replace(solver, pseudo_time=pseudo_time, pseudo_time_start=start)
     quick_defaults = replace(solver, iterations=min(solver.iterations, 30),
                              samples=min(solver.samples, 512), monitor_every=10,
                              monitor_samples=min(solver.monitor_samples, 2048),
                              lbfgs_iterations=0, checkpoint_every=0)
-    quick = _check(lambda: _solver(quick_table, adam, quick_defaults), quick_table.path)
+    quick = _check(lambda: replace(_solver(quick_table, adam, quick_defaults),
+                                   pseudo_time=pseudo_time, pseudo_time_start=start),
+                   quick_table.path)
     quick_table.close()
     return solver, quick
 
 
-def _output(t: Table) -> OutputConfig:
+def _output(t: Table, pseudo_time: bool) -> OutputConfig:
     res = t._get("resolution", [64, 64])
     if (not isinstance(res, list) or len(res) != 2
             or any(isinstance(v, bool) or not isinstance(v, int) or v < 2 for v in res)):
         raise SceneError(f"{t.key('resolution')}: expected two integers >= 2, got {res!r}")
-    return OutputConfig(resolution=(res[0], res[1]))
+    if t.has("frames") and not pseudo_time:
+        raise SceneError(f"{t.key('frames')}: needs [training] pseudo_time = true (a "
+                         f"load-step trajectory has one frame per load step)")
+    frames = t.integer("frames", DEFAULT_FRAMES, minimum=2) if pseudo_time else None
+    return OutputConfig(resolution=(res[0], res[1]), frames=frames)

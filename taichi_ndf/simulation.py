@@ -15,6 +15,7 @@ from taichi_ndf.outputs import (
     write_render,
     write_trajectory,
 )
+from taichi_ndf.pseudo_time import frame_times
 from taichi_ndf.scene import Scene
 from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
 
@@ -30,16 +31,22 @@ class SimulationError(RuntimeError):
 def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None,
              resume: bool = False, machine: dict | None = None, seed: int | None = None) -> dict:
     """Solve `scene` and write mesh.obj/.ply, render.png, energy.png, checkpoint.pt,
-    result.json (and trajectory/ + trajectory.mp4 with several load steps) into `out`.
+    result.json (and trajectory/ + trajectory.mp4 with several load steps, or with a
+    pseudo-time field at `output.frames` pseudo-times) into `out`.
     Returns the result dictionary also written to result.json."""
     config = solver or scene.solver
+    if config.pseudo_time != scene.solver.pseudo_time:
+        raise ValueError("the solver configuration and the scene disagree on pseudo_time (the "
+                         "scene's field has a pseudo-time input only with it)")
     field = NeuralField(scene.field, seed=config.seed if seed is None else seed)
     meshes = []
+    frame_energy = []
 
     def on_load_step(load_factor: float) -> None:
-        if len(config.load_steps) > 1:
+        if len(config.load_steps) > 1 and not config.pseudo_time:
             meshes.append((load_factor, deformed_mesh(scene.model, field, scene.output.resolution,
                                                       load_factor=load_factor)))
+            frame_energy.append(run.history[-1].energy)
 
     run = Solver(scene.model, field, config, checkpoint_path=out.file("checkpoint.pt"),
                  checkpoint_extra={"scene": scene.document, "scene_dir": str(scene.path.parent)})
@@ -48,7 +55,14 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     except DivergenceError as err:
         raise SimulationError(str(err)) from err
 
-    mesh = deformed_mesh(scene.model, field, scene.output.resolution)
+    if config.pseudo_time:  # the whole path from the one field, at any number of frames
+        for t in frame_times(config.pseudo_time_start, scene.output.frames):
+            meshes.append((t, deformed_mesh(scene.model, field, scene.output.resolution,
+                                            load_factor=t, pseudo_time=True)))
+            frame_energy.append(run.energy_and_gradient(run.monitor_samples(t), t,
+                                                        grad=False).total)
+    mesh = deformed_mesh(scene.model, field, scene.output.resolution,
+                         pseudo_time=config.pseudo_time)
     for name, values in mesh.scalars().items():
         if not all(math.isfinite(float(v)) for v in values):
             raise SimulationError(f"non-finite {name} in the exported mesh")
@@ -64,6 +78,9 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         "iterations": result.iterations,
         "wall_time": result.wall_time,
         "probes": result.probes,
+        "trajectory": ({"source": "pseudo_time" if config.pseudo_time else "load_steps",
+                        "load_factors": [t for t, _ in meshes], "energy": frame_energy}
+                       if meshes else None),
         "resolved": {
             "field": scene.field.to_dict(),
             "solver": _plain(dataclasses.asdict(config)),

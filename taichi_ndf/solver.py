@@ -9,6 +9,11 @@ Optionally, last-layer Newton phases (`taichi_ndf.newton`) solve the output laye
 fixed sample set: at the start of each load step, every `newton_every` Adam iterations and at
 the end of the step. Adam improves the features (hidden layers), Newton the combination of
 them — first-order steps alone crawl on stiff shells.
+
+With `pseudo_time` the field takes the load factor t as an extra input and is trained over all
+t at once (`taichi_ndf.pseudo_time`): every area sample draws its own t in
+[pseudo_time_start, λ] for the current load step λ, so several load steps act as a curriculum
+that widens the range of t. The monitor reports Π at t = λ.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from taichi_ndf.field import NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import NewtonConfig, solve_last_layer
 from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.pseudo_time import TIME_RANGE, conditioning, samples_over_time
 from taichi_ndf.sampling import sample_surface
 from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
 
@@ -56,6 +62,9 @@ class SolverConfig:
     newton_every: Adam iterations between Newton phases inside a load step (0: Newton only at
         the start and the end of each load step).
     newton_samples: area samples of the fixed Newton sample set (point-load samples added).
+    pseudo_time: train a field whose one conditioning input is the load factor t over all t in
+        [pseudo_time_start, λ] at once (module docstring); λ is the current load step.
+    pseudo_time_start: the smallest t trained, in [0, first load step).
     """
 
     iterations: int = 1500
@@ -71,6 +80,8 @@ class SolverConfig:
     newton_samples: int = 16384
     seed: int = 0
     progress: bool = True
+    pseudo_time: bool = False
+    pseudo_time_start: float = 0.0
 
     def __post_init__(self):
         if self.iterations < 0:
@@ -92,6 +103,12 @@ class SolverConfig:
                              f"{self.newton_iterations}, {self.newton_every}")
         if self.newton_samples < 16:
             raise ValueError(f"newton_samples must be >= 16, got {self.newton_samples}")
+        if not 0.0 <= self.pseudo_time_start < self.load_steps[0]:
+            raise ValueError(f"pseudo_time_start must be in [0, {self.load_steps[0]}) (the "
+                             f"first load step), got {self.pseudo_time_start}")
+        if self.pseudo_time and self.newton_iterations:
+            raise ValueError("newton_iterations must be 0 with pseudo_time: the last-layer "
+                             "Newton solver does not take a pseudo-time input")
 
     def with_iterations(self, iterations: int) -> SolverConfig:
         """The same run with another iteration count; the learning-rate schedule is stretched
@@ -129,6 +146,9 @@ class Solver:
 
     def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
                  checkpoint_path: str | Path | None = None, checkpoint_extra: dict | None = None):
+        if config.pseudo_time and field.config.conditioning != (TIME_RANGE,):
+            raise ValueError(f"a pseudo-time solve needs a field with the one conditioning "
+                             f"input range {TIME_RANGE}, got {field.config.conditioning}")
         self.model = model
         self.checkpoint_extra = checkpoint_extra or {}
         self.field = field
@@ -144,35 +164,67 @@ class Solver:
         self._newton_samples = {}
 
     # -- energy -------------------------------------------------------------------------------
-    def potential(self, samples, u_jets: torch.Tensor, load_factor: float, *,
+    def potential(self, samples, u_jets: torch.Tensor, load_factor: float | torch.Tensor, *,
                   grad: bool = True) -> EnergyResult:
         """Π [J] of displacement jets u_jets (N, 6, 3) [m] at the samples, with dΠ/du_jets if
-        `grad`. The one place the potential is defined: subclasses add energy terms here."""
+        `grad`. The one place the potential is defined: subclasses add energy terms here.
+
+        load_factor: a number (the samples' point forces are already scaled by it), or one per
+            sample (N,) for a pseudo-time field (the samples carry the unscaled point forces)."""
+        if isinstance(load_factor, torch.Tensor):
+            energy = ShellEnergy(self.model.material, self.model.loads)
+            return energy.evaluate(samples, u_jets, grad=grad, load_factor=load_factor)
         energy = ShellEnergy(self.model.material, self.model.loads.scaled(load_factor))
         return energy.evaluate(samples, u_jets, grad=grad)
 
-    def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True):
-        """Π [J] of the current field on given samples; fills the field's gradients."""
+    def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
+                            times: torch.Tensor | None = None):
+        """Π [J] of the current field on given samples; fills the field's gradients.
+
+        times: the pseudo-time of each sample (N,) of a pseudo-time solve; default: t =
+            load_factor at every sample (Π of the field's state at that load factor)."""
         xi = samples.xi
-        raw = self.field.jets(xi)
-        u = self.model.boundary.compose(xi, raw, t=load_factor)
-        result = self.potential(samples, u, load_factor, grad=grad)
+        if self.config.pseudo_time:
+            t = times if times is not None else torch.full_like(xi[:, 0], float(load_factor))
+            raw = self.field.jets(xi, conditioning(t, len(xi), dtype=xi.dtype, device=xi.device))
+        else:
+            if times is not None:
+                raise ValueError("per-sample times need a pseudo-time solve")
+            t = load_factor
+            raw = self.field.jets(xi)
+        u = self.model.boundary.compose(xi, raw, t=t)
+        result = self.potential(samples, u, t, grad=grad)
         if grad:
-            g_raw = self.model.boundary.compose_adjoint(xi, result.grad_u_jets, t=load_factor)
+            g_raw = self.model.boundary.compose_adjoint(xi, result.grad_u_jets, t=t)
             self.field.backward(g_raw)
         return result
 
     def _samples(self, n: int, load_factor: float, generator: torch.Generator):
+        """n area samples (and the point-load samples) with their point forces scaled by the
+        load factor; unscaled in a pseudo-time solve, where the energy scales them per
+        sample."""
         rt_dtype = self.field.parameters[0].dtype
-        s = sample_surface(self.model.surface, n, self.model.loads.scaled(load_factor), generator)
+        factor = 1.0 if self.config.pseudo_time else load_factor
+        s = sample_surface(self.model.surface, n, self.model.loads.scaled(factor), generator)
         return s.to(dtype=rt_dtype, device=self.field.parameters[0].device)
 
+    def training_samples(self, n: int, load_factor: float, generator: torch.Generator):
+        """Samples of one iteration (or of the L-BFGS polish) and their pseudo-times: in a
+        pseudo-time solve each draws its t in [pseudo_time_start, load_factor], else None."""
+        samples = self._samples(n, load_factor, generator)
+        if not self.config.pseudo_time:
+            return samples, None
+        return samples_over_time(samples, self.config.pseudo_time_start, load_factor,
+                                 generator)
+
     def monitor_samples(self, load_factor: float):
-        if load_factor not in self._monitor:
+        """Fixed samples on which Π is monitored (the same at every t of a pseudo-time
+        solve, whose samples do not depend on the load factor)."""
+        key = 1.0 if self.config.pseudo_time else load_factor
+        if key not in self._monitor:
             gen = torch.Generator().manual_seed(self.config.seed + 7919)
-            self._monitor[load_factor] = self._samples(self.config.monitor_samples, load_factor,
-                                                       gen)
-        return self._monitor[load_factor]
+            self._monitor[key] = self._samples(self.config.monitor_samples, key, gen)
+        return self._monitor[key]
 
     def newton_samples(self, load_factor: float):
         if load_factor not in self._newton_samples:
@@ -198,7 +250,10 @@ class Solver:
             return {}
         dtype = self.field.parameters[0].dtype
         xi = torch.tensor([p.xi for p in self.model.probes], dtype=dtype)
-        u = self.model.displacement(self.field, xi, t=load_factor)
+        cond = None
+        if self.config.pseudo_time:
+            cond = conditioning(load_factor, len(xi), dtype=dtype)
+        u = self.model.displacement(self.field, xi, t=load_factor, conditioning=cond)
         return {p.name: [float(v) for v in u[k]] for k, p in enumerate(self.model.probes)}
 
     # -- checkpoints ----------------------------------------------------------------------------
@@ -245,8 +300,8 @@ class Solver:
             if newton and done_in_step == 0:
                 self.newton(lam)
             for _ in range(done_in_step, cfg.iterations):
-                samples = self._samples(cfg.samples, lam, self.generator)
-                res = self.energy_and_gradient(samples, lam)
+                samples, times = self.training_samples(cfg.samples, lam, self.generator)
+                res = self.energy_and_gradient(samples, lam, times=times)
                 gnorm = self.optimiser.gradient_norm()
                 if not (math.isfinite(res.total) and math.isfinite(gnorm)):
                     self._diverged(res.total, gnorm, step)
@@ -310,8 +365,13 @@ class Solver:
             f"{last}{where}. Lower the learning rate or the load step.")
 
     def _lbfgs(self, lam: float, step: int) -> None:
-        """Deterministic L-BFGS polish on a fixed, large sample set."""
-        samples = self.monitor_samples(lam)
+        """Deterministic L-BFGS polish on a fixed, large sample set (of (ξ, t) in a
+        pseudo-time solve)."""
+        if self.config.pseudo_time:
+            gen = torch.Generator().manual_seed(self.config.seed + 7919)
+            samples, times = self.training_samples(self.config.monitor_samples, lam, gen)
+        else:
+            samples, times = self.monitor_samples(lam), None
         flat = torch.nn.Parameter(self.field.get_flat().clone())
         # torch's default tolerances are absolute (1e-7 on the gradient, 1e-9 on Π) and stop at
         # once when Π is small; run the requested iterations instead.
@@ -321,14 +381,14 @@ class Solver:
 
         def closure():
             self.field.set_flat(flat.detach())
-            res = self.energy_and_gradient(samples, lam)
+            res = self.energy_and_gradient(samples, lam, times=times)
             flat.grad = self.field.get_flat_gradient().clone()
             return torch.tensor(res.total, dtype=flat.dtype)
 
-        before = self.energy_and_gradient(samples, lam, grad=False).total
+        before = self.energy_and_gradient(samples, lam, grad=False, times=times).total
         opt.step(closure)
         self.field.set_flat(flat.detach())
-        after = self.energy_and_gradient(samples, lam, grad=False).total
+        after = self.energy_and_gradient(samples, lam, grad=False, times=times).total
         if not math.isfinite(after):
             self._diverged(after, float("nan"), step)
         log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)

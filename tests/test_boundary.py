@@ -339,3 +339,60 @@ def test_pseudo_time_must_be_finite():
     bc = BoundaryConditions([Handle((1.0, 0.0), (0.1, 0, 0))], PLATE)
     with pytest.raises(ValueError, match="pseudo-time"):
         bc.compose(torch.zeros(1, 2, dtype=torch.float64), random_jets(1), t=math.nan)
+
+
+def test_per_sample_pseudo_time_equals_one_time_per_sample():
+    # Handles, a moved clamped edge and a rotating rim: compose with one t per sample gives,
+    # row by row, the composition at that sample's t (per-sample rotation matrices included).
+    surface = Cylinder()
+    cases = [
+        (BoundaryConditions(MIXED, PLATE), PLATE, None),
+        (BoundaryConditions([ClampedEdge("xi1_min", displacement=(0.1, -0.2, 0.05)),
+                             HingedEdge("xi1_max")], PLATE), PLATE, None),
+        (BoundaryConditions([ClampedEdge("xi2_min"),
+                             RimRotation("xi2_max", axis_point=(0.0, 0.0, 0.6),
+                                         axis=(1.0, 0.0, 1.0), angle=2.0)],
+                            surface.domain, surface=surface), surface.domain, surface),
+    ]
+    gen = torch.Generator().manual_seed(3)
+    for bc, domain, _ in cases:
+        xi = domain.sample(40, gen).double()
+        raw = random_jets(len(xi), seed=9)
+        t = torch.rand(len(xi), generator=gen, dtype=torch.float64)
+        together = bc.compose(xi, raw, t=t)
+        one_by_one = torch.cat([bc.compose(xi[i:i + 1], raw[i:i + 1], t=float(t[i]))
+                                for i in range(len(xi))])
+        torch.testing.assert_close(together, one_by_one, rtol=1e-13, atol=1e-14)
+        torch.testing.assert_close(bc.prescribed_displacement(xi, t),
+                                   torch.cat([bc.prescribed_displacement(xi[i:i + 1], float(t[i]))
+                                              for i in range(len(xi))]), rtol=1e-13, atol=1e-14)
+        torch.testing.assert_close(bc.compose_adjoint(xi, raw, t=t), bc.compose_adjoint(xi, raw))
+
+
+def test_per_sample_rim_rotation_is_an_exact_rigid_motion():
+    surface = Cylinder()
+    axis, point, angle = (1.0, 0.0, 1.0), (0.0, 0.0, 0.6), 2.0
+    bc = BoundaryConditions(
+        [ClampedEdge("xi2_min"), RimRotation("xi2_max", axis_point=point, axis=axis, angle=angle)],
+        surface.domain, surface=surface)
+    theta = torch.linspace(0, 2 * math.pi, 13, dtype=torch.float64)
+    rim = torch.stack((theta, torch.full_like(theta, HEIGHT)), 1)
+    t = torch.linspace(0.0, 1.0, 13, dtype=torch.float64)
+    r = surface.jets(rim)
+    x = r + bc.compose(rim, random_jets(13, seed=6), t=t)
+    p = torch.tensor(point, dtype=torch.float64)
+    for i in range(13):
+        rot = rotation(axis, float(t[i]) * angle)
+        torch.testing.assert_close(x[i, jets.VALUE], (r[i, jets.VALUE] - p) @ rot.T + p,
+                                   rtol=0, atol=1e-14)
+        torch.testing.assert_close(x[i, jets.D1:jets.D2 + 1], r[i, jets.D1:jets.D2 + 1] @ rot.T,
+                                   rtol=0, atol=1e-14)
+
+
+def test_per_sample_pseudo_time_is_checked():
+    bc = BoundaryConditions([Handle((1.0, 0.0), (0.1, 0, 0))], PLATE)
+    xi = torch.zeros(2, 2, dtype=torch.float64)
+    with pytest.raises(ValueError, match="shape"):
+        bc.compose(xi, random_jets(2), t=torch.ones(3, dtype=torch.float64))
+    with pytest.raises(ValueError, match="finite"):
+        bc.compose(xi, random_jets(2), t=torch.tensor([0.5, math.inf], dtype=torch.float64))

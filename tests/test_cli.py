@@ -232,3 +232,34 @@ def test_threads_option_sets_torch_threads_and_refuses_zero(tmp_path, capsys):
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(1)  # the test session's setting (tests/conftest.py)
+
+
+def test_export_evaluates_a_pseudo_time_field_at_any_time(tmp_path, capsys):
+    text = SMALL_NAPKIN.format(lr=1e-3).replace(
+        "checkpoint_every = 5", "checkpoint_every = 5\npseudo_time = true").replace(
+        "resolution = [16, 16]", "resolution = [16, 16]\nframes = 3")
+    out = tmp_path / "run"
+    assert run_sim(write_scene(tmp_path, text), "--out", out) == 0
+    frames = sorted((out / "trajectory").glob("step_*.obj"))
+    assert len(frames) == 3 and (out / "trajectory.mp4").stat().st_size > 0
+
+    def vertices(path):
+        return np.loadtxt([ln for ln in path.read_text().splitlines() if ln.startswith("v ")],
+                          usecols=(1, 2, 3))
+
+    for time, frame in (("1", out / "mesh.obj"), ("0.5", frames[1])):
+        mesh = tmp_path / f"t{time}.obj"
+        assert export.main([str(out / "checkpoint.pt"), "--resolution", "16", "--out",
+                            str(mesh), "--time", time, *RUNTIME]) == 0
+        np.testing.assert_allclose(vertices(mesh), vertices(frame), rtol=0, atol=1e-9)
+    assert export.main([str(out / "checkpoint.pt"), "--resolution", "16", "--out",
+                        str(tmp_path / "bad.obj"), "--time", "1.5", *RUNTIME]) == 2
+    assert "--time must be in [0, 1]" in capsys.readouterr().err
+
+
+def test_export_refuses_a_time_for_an_ordinary_field(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert run_sim(small_napkin(tmp_path), "--out", out, "--iters", "1") == 0
+    assert export.main([str(out / "checkpoint.pt"), "--resolution", "16", "--out",
+                        str(tmp_path / "t.obj"), "--time", "0.5", *RUNTIME]) == 2
+    assert "--time needs a checkpoint of a pseudo-time field" in capsys.readouterr().err

@@ -214,3 +214,54 @@ def test_empty_sample_set():
     result = ShellEnergy(CLOTH, Loads()).evaluate(empty, torch.zeros(0, 6, 3,
                                                                      dtype=torch.float64))
     assert result.total == 0.0 and result.grad_u_jets.shape == (0, 6, 3)
+
+
+def test_per_sample_load_factor_scales_the_external_work_of_each_sample():
+    cone = Cone(bottom_radius=1.0, top_radius=0.6, height=1.5)
+    samples = _samples(cone, 48, loads=LOADS)
+    generator = torch.Generator().manual_seed(11)
+    u = 0.05 * torch.randn(len(samples), 6, 3, generator=generator, dtype=torch.float64)
+    energy = ShellEnergy(MATERIALS["linear"], LOADS)
+    plain = energy.evaluate(samples, u)
+    ones = energy.evaluate(samples, u, load_factor=torch.ones(len(samples), dtype=torch.float64))
+    assert ones.total == plain.total
+    assert torch.equal(ones.grad_u_jets, plain.grad_u_jets)
+    # A uniform factor is the scaled loads (point forces travel with the samples).
+    scaled_samples = _samples(cone, 48, loads=LOADS.scaled(0.3))
+    scaled = ShellEnergy(MATERIALS["linear"], LOADS.scaled(0.3)).evaluate(scaled_samples, u)
+    uniform = energy.evaluate(samples, u, load_factor=torch.full((len(samples),), 0.3,
+                                                                 dtype=torch.float64))
+    assert uniform.external == pytest.approx(scaled.external, rel=1e-12)
+    assert uniform.internal == plain.internal
+    torch.testing.assert_close(uniform.grad_u_jets, scaled.grad_u_jets, rtol=1e-12, atol=1e-15)
+    # Per sample: each sample's external work is its own factor times its work at factor 1.
+    lam = torch.rand(len(samples), generator=generator, dtype=torch.float64)
+    mixed = energy.evaluate(samples, u, load_factor=lam)
+    per_sample = torch.tensor([energy.evaluate(_one(samples, i), u[i:i + 1], grad=False).external
+                               for i in range(len(samples))], dtype=torch.float64)
+    assert mixed.external == pytest.approx(float((lam * per_sample).sum()), rel=1e-12)
+    with pytest.raises(ValueError, match="load_factor must have shape"):
+        energy.evaluate(samples, u, load_factor=torch.ones(3, dtype=torch.float64))
+
+
+def _one(samples, i):
+    return SurfaceSamples(xi=samples.xi[i:i + 1], r_jets=samples.r_jets[i:i + 1],
+                          weight=samples.weight[i:i + 1], point_force=samples.point_force[i:i + 1])
+
+
+@pytest.mark.parametrize("name", MATERIALS)
+def test_gradient_with_per_sample_load_factor_matches_central_differences(name):
+    cone = Cone(bottom_radius=1.0, top_radius=0.6, height=1.5)
+    generator = torch.Generator().manual_seed(13)
+    samples = _samples(cone, 48, loads=LOADS)
+    u = 0.05 * torch.randn(len(samples), 6, 3, generator=generator, dtype=torch.float64)
+    lam = torch.rand(len(samples), generator=generator, dtype=torch.float64)
+    energy = ShellEnergy(MATERIALS[name], LOADS)
+    grad = energy.evaluate(samples, u, load_factor=lam).grad_u_jets
+    h = 1e-6
+    for _ in range(3):
+        direction = torch.randn(u.shape, generator=generator, dtype=torch.float64)
+        plus = energy.evaluate(samples, u + h * direction, grad=False, load_factor=lam).total
+        minus = energy.evaluate(samples, u - h * direction, grad=False, load_factor=lam).total
+        fd = (plus - minus) / (2 * h)
+        assert float((grad * direction).sum()) == pytest.approx(fd, rel=1e-6, abs=1e-9)

@@ -16,6 +16,7 @@ import torch
 from taichi_ndf.checkpoint import load_checkpoint
 from taichi_ndf.field import NeuralField
 from taichi_ndf.io import OutputDir
+from taichi_ndf.pseudo_time import conditioning, frame_times
 from taichi_ndf.scene import Scene, load_scene
 from taichi_ndf.simulation import simulate
 from taichi_ndf.solver import Solver
@@ -40,6 +41,9 @@ PRESCRIBED = {
                            "top_rim_opposite": (0.0, 0.0, -0.1)},
     "sleeve_twist": {"bottom_rim": (0.0, 0.0, 0.0), "top_rim": (-0.1, 0.1, 0.0),
                      "top_rim_quarter": (-0.1, -0.1, 0.0)},
+    # A pseudo-time field: probes report t = 1.
+    "sleeve_twist_path": {"bottom_rim": (0.0, 0.0, 0.0), "top_rim": (-0.1, 0.1, 0.0),
+                          "top_rim_quarter": (-0.1, -0.1, 0.0)},
 }
 # Held points without a probe in the scene file, checked on the field read from the checkpoint.
 HELD_POINTS = {"napkin": [(0.0, 0.0)]}
@@ -80,10 +84,24 @@ def test_scene_runs_quick_with_finite_outputs(path, tmp_path):
     assert math.isfinite(written["energy"]) and written["energy"] == result["energy"]
     assert set(written["probes"]) == {p.name for p in scene.model.probes}
     assert np.isfinite(np.array(list(written["probes"].values()))).all()
-    if len(solver.load_steps) > 1:
+    if solver.pseudo_time:  # the trajectory comes from the one field, at output.frames
+        assert (out / "trajectory.mp4").stat().st_size > 0
+        steps = sorted((out / "trajectory").glob("step_*.obj"))
+        frames = frame_times(solver.pseudo_time_start, scene.output.frames)
+        assert len(steps) == len(frames)
+        assert written["trajectory"]["source"] == "pseudo_time"
+        assert written["trajectory"]["load_factors"] == frames
+        assert np.isfinite(written["trajectory"]["energy"]).all()
+        first, last = obj_vertices(steps[0]), obj_vertices(steps[-1])
+        assert np.abs(first - last).max() > 0  # the frames differ along the path
+        np.testing.assert_allclose(last, vertices, rtol=0, atol=1e-6)  # t = 1 is the mesh
+    elif len(solver.load_steps) > 1:
         assert (out / "trajectory.mp4").stat().st_size > 0
         steps = sorted((out / "trajectory").glob("step_*.obj"))
         assert len(steps) == len(solver.load_steps)
+        assert written["trajectory"]["load_factors"] == list(solver.load_steps)
+    else:
+        assert written["trajectory"] is None
 
     for name, expected in PRESCRIBED.get(path.stem, {}).items():
         np.testing.assert_allclose(written["probes"][name], expected, rtol=0, atol=1e-12,
@@ -91,12 +109,14 @@ def test_scene_runs_quick_with_finite_outputs(path, tmp_path):
 
     # The checkpoint holds the final field: it reproduces the probes and the held points.
     field = load_checkpoint(out / "checkpoint.pt").field
+    cond = conditioning(1.0, 1, dtype=torch.float64) if solver.pseudo_time else None
     for probe in scene.model.probes:
         xi = torch.tensor([probe.xi], dtype=torch.float64)
-        u = scene.model.displacement(field, xi)[0].numpy()
+        u = scene.model.displacement(field, xi, conditioning=cond)[0].numpy()
         np.testing.assert_allclose(u, written["probes"][probe.name], rtol=1e-9, atol=1e-12)
     for xi in HELD_POINTS.get(path.stem, []):
-        u = scene.model.displacement(field, torch.tensor([xi], dtype=torch.float64))[0]
+        u = scene.model.displacement(field, torch.tensor([xi], dtype=torch.float64),
+                                     conditioning=cond)[0]
         assert float(u.abs().max()) < 1e-12, f"{path.stem}: held point {xi} moved by {u}"
 
 

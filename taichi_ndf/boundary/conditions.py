@@ -130,16 +130,18 @@ class BoundaryConditions:
 
     # ---- composition -------------------------------------------------------------------
 
-    def compose(self, xi: torch.Tensor, raw_jets: torch.Tensor, t: float = 1.0) -> torch.Tensor:
+    def compose(self, xi: torch.Tensor, raw_jets: torch.Tensor,
+                t: float | torch.Tensor = 1.0) -> torch.Tensor:
         """Displacement jets u = φ N + g, shape (N, 6, 3) [m], from the raw network jets
-        N (N, 6, 3) at ξ (N, 2); t is the pseudo-time / load factor of prescribed motions."""
+        N (N, 6, 3) at ξ (N, 2); t is the pseudo-time / load factor of prescribed motions:
+        one number, or one per sample (tensor (N,), for a pseudo-time field)."""
         xi = xi.to(raw_jets.dtype)
         factors = self._factors(xi)
         phi = self._vanishing(xi, factors)
         return jets.product(phi, raw_jets) + self._prescribed(xi, factors, t)
 
     def compose_adjoint(
-        self, xi: torch.Tensor, grad_u_jets: torch.Tensor, t: float = 1.0
+        self, xi: torch.Tensor, grad_u_jets: torch.Tensor, t: float | torch.Tensor = 1.0
     ) -> torch.Tensor:
         """Gradient with respect to the raw jets N (N, 6, 3) of a scalar whose gradient with
         respect to u = compose(ξ, N, t) is grad_u_jets; g does not depend on N, so t is unused."""
@@ -151,9 +153,11 @@ class BoundaryConditions:
         1 outside the bands of its constraints."""
         return self._vanishing(xi, self._factors(xi))
 
-    def prescribed_displacement(self, xi: torch.Tensor, t: float = 1.0) -> torch.Tensor:
+    def prescribed_displacement(self, xi: torch.Tensor,
+                                t: float | torch.Tensor = 1.0) -> torch.Tensor:
         """Jets of g_c at ξ (N, 2), shape (N, 6, 3) [m]: the prescribed displacement at
-        pseudo-time t on each prescribing constraint's set, 0 on the other sets."""
+        pseudo-time t (a number, or one per sample (N,)) on each prescribing constraint's set,
+        0 on the other sets."""
         return self._prescribed(xi, self._factors(xi), t)
 
     def _factors(self, xi: torch.Tensor) -> list[torch.Tensor]:
@@ -170,10 +174,9 @@ class BoundaryConditions:
             per_component.append(products[key])
         return torch.cat(per_component, dim=2)
 
-    def _prescribed(self, xi: torch.Tensor, factors: list[torch.Tensor], t: float) -> torch.Tensor:
-        t = float(t)
-        if not math.isfinite(t):
-            raise ValueError(f"pseudo-time t must be a finite number, got {t!r}")
+    def _prescribed(self, xi: torch.Tensor, factors: list[torch.Tensor],
+                    t: float | torch.Tensor) -> torch.Tensor:
+        t = _pseudo_time(t, xi)
         zero = xi.new_zeros(xi.shape[0], jets.CHANNELS, 1)
         if not any(term.prescribes for term in self._terms):
             return torch.cat([zero] * 3, dim=2)
@@ -273,19 +276,28 @@ class BoundaryConditions:
             )
         raise TypeError(f"unknown constraint type {type(con).__name__}")
 
-    def _motion(self, term: _Term, xi: torch.Tensor, t: float) -> torch.Tensor:
-        """Jets (N, 6, 3) [m] of the displacement a prescribing constraint imposes on its set."""
+    def _motion(self, term: _Term, xi: torch.Tensor, t: float | torch.Tensor) -> torch.Tensor:
+        """Jets (N, 6, 3) [m] of the displacement a prescribing constraint imposes on its set
+        at pseudo-time t (a float, or a tensor (N,) of one t per sample)."""
         con = term.constraint
         if isinstance(con, RimRotation):
+            p = torch.tensor(con.axis_point, dtype=xi.dtype, device=xi.device)
+            r = self.surface.jets(xi).to(xi.dtype)
+            if isinstance(t, torch.Tensor):  # one rotation per sample: M_i = R(t_i θ) − I
+                m = _rotations(con.axis, t * con.angle) - torch.eye(3, dtype=xi.dtype,
+                                                                    device=xi.device)
+                motion = torch.einsum("nkj,nij->nki", r, m)
+                motion[:, jets.VALUE] -= m @ p
+                return motion
             m = torch.tensor(
                 _rotation(con.axis, t * con.angle) - np.eye(3), dtype=xi.dtype, device=xi.device
             )
-            r = self.surface.jets(xi).to(xi.dtype)
             motion = r @ m.T
-            p = torch.tensor(con.axis_point, dtype=xi.dtype, device=xi.device)
             motion[:, jets.VALUE] -= m @ p
             return motion
         d = torch.tensor(con.displacement, dtype=xi.dtype, device=xi.device)
+        if isinstance(t, torch.Tensor):
+            return jets.constant(t[:, None] * d)
         return jets.constant((t * d).expand(xi.shape[0], 3))
 
     # ---- validation --------------------------------------------------------------------
@@ -422,6 +434,32 @@ def _product(factors: list[torch.Tensor], xi: torch.Tensor) -> torch.Tensor:
     for f in factors:
         out = jets.product(out, f)
     return out
+
+
+def _pseudo_time(t: float | torch.Tensor, xi: torch.Tensor) -> float | torch.Tensor:
+    """t checked: a finite float, or a finite tensor (N,) of xi's dtype (one t per sample)."""
+    if isinstance(t, torch.Tensor):
+        if t.shape != (xi.shape[0],):
+            raise ValueError(f"pseudo-time t per sample must have shape ({xi.shape[0]},), got "
+                             f"{tuple(t.shape)}")
+        if not bool(torch.isfinite(t).all()):
+            raise ValueError("pseudo-time t must be finite at every sample")
+        return t.detach().to(dtype=xi.dtype, device=xi.device)
+    t = float(t)
+    if not math.isfinite(t):
+        raise ValueError(f"pseudo-time t must be a finite number, got {t!r}")
+    return t
+
+
+def _rotations(axis: tuple[float, float, float], angles: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (N, 3, 3) by `angles` (N,) [rad] about `axis` (Rodrigues)."""
+    k = np.asarray(axis, dtype=np.float64)
+    k = k / np.linalg.norm(k)
+    cross = torch.tensor([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]],
+                         dtype=angles.dtype, device=angles.device)
+    eye = torch.eye(3, dtype=angles.dtype, device=angles.device)
+    return (eye + torch.sin(angles)[:, None, None] * cross
+            + (1.0 - torch.cos(angles))[:, None, None] * (cross @ cross))
 
 
 def _rotation(axis: tuple[float, float, float], angle: float) -> np.ndarray:

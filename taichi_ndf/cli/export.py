@@ -21,6 +21,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True,
                    help="output mesh file (.obj or .ply); refused if it exists without --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.add_argument("--time", type=float, default=1.0,
+                   help="load factor t in [0, 1] of a pseudo-time field's path (default 1)")
     add_runtime_options(p)
     p.set_defaults(precision="f64")
     return p
@@ -37,6 +39,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--resolution takes one or two positive integers, got "
                              f"{args.resolution}")
         res = tuple(args.resolution) * (2 if len(args.resolution) == 1 else 1)
+        if not 0.0 <= args.time <= 1.0:
+            raise ValueError(f"--time must be in [0, 1], got {args.time}")
         start(args)
         from taichi_ndf.checkpoint import load_checkpoint
         from taichi_ndf.io import write_obj, write_ply
@@ -49,7 +53,11 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"{args.checkpoint} holds no scene; it was not written by ndf-sim")
         scene = parse_scene(extra["scene"], base_dir=Path(extra["scene_dir"]))
         field = checkpoint.field
-        mesh = deformed_mesh(scene.model, field, res)
+        if args.time != 1.0 and not scene.solver.pseudo_time:
+            raise ValueError("--time needs a checkpoint of a pseudo-time field "
+                             "([training] pseudo_time = true)")
+        mesh = deformed_mesh(scene.model, field, res, load_factor=args.time,
+                             pseudo_time=scene.solver.pseudo_time)
         if args.out.suffix.lower() == ".obj":
             write_obj(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv)
         else:

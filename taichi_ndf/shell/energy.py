@@ -1,9 +1,10 @@
 """Total potential energy Π of the shell and its gradient (physics.md §4).
 
-    Π = Σ_i w_i √a_i (Ψ_i − f_i·u_i) − Σ_i P_i·u_i,     f_i = ρ_A g + b + p a₃(ξ_i)
+    Π = Σ_i w_i √a_i (Ψ_i − λ_i f_i·u_i) − Σ_i λ_i P_i·u_i,     f_i = ρ_A g + b + p a₃(ξ_i)
 
 over the samples of a `SurfaceSamples` set (area samples with weight w, point-load samples with
-weight 0 and force P). One Taichi kernel per constitutive law computes the per-sample terms;
+weight 0 and force P); λ_i is a per-sample load factor, 1 unless given (a pseudo-time field
+draws one per sample). One Taichi kernel per constitutive law computes the per-sample terms;
 Taichi reverse-mode autodiff of that kernel gives dΠ/du_jets.
 """
 
@@ -41,12 +42,14 @@ def _energy_kernel(law: str):
     def energy(r: ti.types.ndarray(), u: ti.types.ndarray(), weight: ti.types.ndarray(),
                point_force: ti.types.ndarray(), stiffness: ti.types.ndarray(),
                params: ti.types.ndarray(), load: ti.types.ndarray(),
-               internal: ti.types.ndarray(), external: ti.types.ndarray(),
+               load_factor: ti.types.ndarray(), internal: ti.types.ndarray(),
+               external: ti.types.ndarray(),
                density: ti.types.ndarray(), sqrt_a: ti.types.ndarray(),
                terms: ti.types.ndarray()):
         for i in range(r.shape[0]):
             u0 = jet_channel(u, i, jets.VALUE)
-            work = u0.dot(vec3(point_force[i, 0], point_force[i, 1], point_force[i, 2]))
+            lam = load_factor[i]
+            work = lam * u0.dot(vec3(point_force[i, 0], point_force[i, 1], point_force[i, 2]))
             w = weight[i]
             # Point-load samples (w = 0) may sit where √a = 0: never evaluate Ψ there.
             if w != 0.0:
@@ -57,7 +60,7 @@ def _energy_kernel(law: str):
                               a1, a2, a3, metric, params)
                 psi = (stiffness[i, 0] * t[0] + stiffness[i, 1] * t[1]
                        + stiffness[i, 2] * t[2] + stiffness[i, 3] * t[3])
-                f = vec3(load[0], load[1], load[2]) + load[3] * a3
+                f = lam * (vec3(load[0], load[1], load[2]) + load[3] * a3)
                 area = w * area_element
                 internal[i] = area * psi
                 work += area * f.dot(u0)
@@ -103,13 +106,17 @@ class ShellEnergy:
         self.loads = loads
 
     def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor, *, grad: bool = True,
-                 stiffness: torch.Tensor | None = None) -> EnergyResult:
+                 stiffness: torch.Tensor | None = None,
+                 load_factor: torch.Tensor | None = None) -> EnergyResult:
         """Π of the displacement jets u_jets (N, 6, 3) [m] at the samples.
 
         grad: also compute dΠ/du_jets (Taichi reverse-mode autodiff).
         stiffness: optional per-sample stiffness (N, K) in the order of
             `material.stiffness_names` (e.g. for a material-conditioned field); default: the
             material's values at every sample.
+        load_factor: optional per-sample factor (N,) on the external work of that sample (its
+            distributed load and its point force), e.g. the pseudo-time t of a sample of a
+            pseudo-time field; default: 1 at every sample (the loads as given).
         """
         n = len(samples)
         if u_jets.shape != (n, jets.CHANNELS, 3):
@@ -122,6 +129,12 @@ class ShellEnergy:
         elif stiffness.shape != (n, len(material.stiffness_names)):
             raise ValueError(f"stiffness must have shape ({n}, {len(material.stiffness_names)}) "
                              f"for {material.stiffness_names}, got {tuple(stiffness.shape)}")
+        if load_factor is None:
+            load_factor = torch.ones(n, dtype=dtype, device=device)
+        elif load_factor.shape != (n,):
+            raise ValueError(f"load_factor must have shape ({n},), got "
+                             f"{tuple(load_factor.shape)}")
+        load_factor = load_factor.detach().to(dtype=dtype, device=device).contiguous()
         kernel_stiffness = material.law_stiffness(stiffness.to(dtype)).contiguous()
         params = torch.tensor(material.law_parameters(), dtype=dtype, device=device)
         load = torch.tensor([*self.loads.distributed_force(material.areal_density),
@@ -137,7 +150,8 @@ class ShellEnergy:
         sqrt_a = torch.zeros(n, dtype=dtype, device=device)
         terms = torch.zeros(n, KERNEL_STIFFNESS, dtype=dtype, device=device)
         args = (r, u, samples.weight.contiguous(), samples.point_force.contiguous(),
-                kernel_stiffness, params, load, internal, external, density, sqrt_a, terms)
+                kernel_stiffness, params, load, load_factor, internal, external, density, sqrt_a,
+                terms)
         kernel = _energy_kernel(material.law)
         if n:
             kernel(*args)
