@@ -65,6 +65,24 @@ def test_end_moment_measures_rotation_past_a_full_turn(level):
     assert EndMoment(1.0, 1.0).end_rotation(samples, u) == pytest.approx(angle, rel=1e-9)
 
 
+def test_end_moment_gains_no_work_from_tilting_the_strip_out_of_its_plane():
+    """Centre line a helix about the y axis: unit tangent at angle α to y turning at rate k
+    about it. Its curvature is k sin α; the measured rotation rate must not exceed it (it is
+    k sin² α; the projection's winding rate k would reward the tilt)."""
+    strip = Plane(bounds=((0.0, 12.0), (0.0, 1.0)))
+    samples = sample_surface(strip, 1024, generator=torch.Generator().manual_seed(2))
+    alpha, k = 0.3, 0.5
+
+    def helix(xi):
+        s, y = xi[:, 0], xi[:, 1]
+        x = torch.stack((math.sin(alpha) * torch.sin(k * s) / k, y + math.cos(alpha) * s,
+                         math.sin(alpha) * (1 - torch.cos(k * s)) / k), dim=1)
+        return x - torch.stack((s, y, torch.zeros_like(s)), dim=1)
+
+    rotation = EndMoment(1.0, 1.0).end_rotation(samples, function_jets(helix, samples.xi))
+    assert rotation == pytest.approx(k * math.sin(alpha) ** 2 * 12.0, rel=1e-9)
+
+
 def test_rolled_arc_is_the_stationary_point_of_shell_plus_end_moment():
     """Π(κ) = ½ B L κ² − M L κ along exact arcs: minimal at κ = M / B, a full circle."""
     strip = Plane(bounds=((0.0, 12.0), (0.0, 1.0)))
