@@ -170,6 +170,21 @@ def test_field_is_untouched_outside_the_bands():
     assert torch.equal(phi, jets.constant(torch.ones(3, 3, dtype=torch.float64)))
 
 
+def test_an_edge_band_wider_than_the_domain_is_one_polynomial():
+    """Clamped edge, band ℓ = 2: φ = 1 − (1 − (η/ℓ)²)³ over the whole domain (no cutoff)."""
+    bc = BoundaryConditions([ClampedEdge("xi1_min", length=2.0)], PLATE)
+    x = torch.linspace(0.0, 2.0, 9, dtype=torch.float64)
+    xi = torch.stack((x, torch.zeros_like(x)), 1)
+    phi = bc.vanishing_factor(xi)[:, :, 0]
+    q = (x / 2.0 / 2.0) ** 2  # η = x / 2 on PLATE, ℓ = 2
+    dq, d2q = 2 * (x / 4.0) / 4.0, 2 / 16.0
+    assert torch.allclose(phi[:, jets.VALUE], 1 - (1 - q) ** 3, rtol=0, atol=1e-15)
+    assert torch.allclose(phi[:, jets.D1], 3 * (1 - q) ** 2 * dq, rtol=0, atol=1e-15)
+    assert torch.allclose(phi[:, jets.D11], -6 * (1 - q) * dq**2 + 3 * (1 - q) ** 2 * d2q,
+                          rtol=0, atol=1e-15)
+    assert float(phi[-1, jets.VALUE]) < 0.6  # still rising at the far edge
+
+
 def test_interior_point_segment_and_line_hold():
     bc = BoundaryConditions(MIXED, PLATE)
     raw = random_jets(9, seed=4)
@@ -326,7 +341,9 @@ def test_invalid_constraints_are_refused(constraints, domain, message):
         (lambda: InteriorLine((0.0, 0.0), (1.0, 0.0), hinged=True), "needs extend=True"),
         (lambda: RimRotation("xi2_max", (0, 0, 0), (0, 0, 0), 1.0), "axis must be a non-zero"),
         (lambda: RimRotation("xi2_max", (0, 0, 0), (0, 0, 1), math.inf), "angle"),
-        (lambda: ClampedEdge("xi1_min", length=0.7), "length"),
+        (lambda: ClampedEdge("xi1_min", length=-1.0), "length"),
+        (lambda: PinnedPoint((0.5, 0.5), length=0.7), "length"),
+        (lambda: BoundaryConditions([PinnedPoint((0.5, 0.5))], PLATE, length=0.7), "below 0.5"),
         (lambda: BoundaryConditions([], PLATE, length=0.0), "length"),
     ],
 )

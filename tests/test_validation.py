@@ -22,8 +22,6 @@ from taichi_ndf.validation import (
     CASES,
     Case,
     EndMoment,
-    Quantity,
-    _component,
     _roll_up_references,
     load_case_scene,
     run_case,
@@ -67,6 +65,24 @@ def test_end_moment_measures_rotation_past_a_full_turn(level):
     assert EndMoment(1.0, 1.0).end_rotation(samples, u) == pytest.approx(angle, rel=1e-9)
 
 
+def test_end_moment_gains_no_work_from_tilting_the_strip_out_of_its_plane():
+    """Centre line a helix about the y axis: unit tangent at angle α to y turning at rate k
+    about it. Its curvature is k sin α; the measured rotation rate must not exceed it (it is
+    k sin² α; the projection's winding rate k would reward the tilt)."""
+    strip = Plane(bounds=((0.0, 12.0), (0.0, 1.0)))
+    samples = sample_surface(strip, 1024, generator=torch.Generator().manual_seed(2))
+    alpha, k = 0.3, 0.5
+
+    def helix(xi):
+        s, y = xi[:, 0], xi[:, 1]
+        x = torch.stack((math.sin(alpha) * torch.sin(k * s) / k, y + math.cos(alpha) * s,
+                         math.sin(alpha) * (1 - torch.cos(k * s)) / k), dim=1)
+        return x - torch.stack((s, y, torch.zeros_like(s)), dim=1)
+
+    rotation = EndMoment(1.0, 1.0).end_rotation(samples, function_jets(helix, samples.xi))
+    assert rotation == pytest.approx(k * math.sin(alpha) ** 2 * 12.0, rel=1e-9)
+
+
 def test_rolled_arc_is_the_stationary_point_of_shell_plus_end_moment():
     """Π(κ) = ½ B L κ² − M L κ along exact arcs: minimal at κ = M / B, a full circle."""
     strip = Plane(bounds=((0.0, 12.0), (0.0, 1.0)))
@@ -86,17 +102,19 @@ def test_rolled_arc_is_the_stationary_point_of_shell_plus_end_moment():
     assert total(best) < min(total(0.98 * best), total(1.02 * best))
 
 
-def _quick(case: Case, **changes):
+def _quick(case: Case, newton_samples: int = 4096, **changes):
     """The case with its scene's Newton-only settings on fewer samples."""
     scene, _, _ = load_case_scene(case)
-    config = dataclasses.replace(scene.solver, newton_samples=4096, monitor_samples=2048,
-                                 **changes)
+    config = dataclasses.replace(scene.solver, newton_samples=newton_samples,
+                                 monitor_samples=2048, **changes)
     return run_case(case, solver=config)
 
 
-# The quick cases are the scenes' last-layer Newton solves (no Adam) on 4096 samples. The plate
-# reaches 0.1 % in ~3 s. The coarse cantilever stays slow: its Galerkin optimum over the
-# 128-wide random features is 5.4 % low (13 s; docs/validation.md), just outside 5 %.
+# The quick cases are the scenes' last-layer Newton solves (no Adam) on few samples. The plate
+# reaches 0.1 % in ~3 s; the cantilever at P/Pmax = 0.1 0.2 % (W) and 0.7 % (-U) on 1024
+# samples in ~5 s (5.4 % / 9.6 % before its clamped edge's band spanned the whole strip).
+# Seeds 1-3 gave W within 0.7 % and -U within 1.6 %: the small -U (second order in W) feels
+# the quadrature of 1024 samples most, so it is held to the looser quick tolerance.
 QUICK_TOLERANCE = 0.05
 
 
@@ -105,16 +123,18 @@ def test_quick_square_plate():
     assert row.relative_error < QUICK_TOLERANCE, row
 
 
-@pytest.mark.slow
 def test_quick_coarse_cantilever():
-    """End shear at P/Pmax = 0.1 in one step (elastica tip deflection 1.309), full membrane
-    stiffness: exact kinematics."""
+    """End shear at P/Pmax = 0.1 in one step (elastica tip W / -U 1.309 / 0.103), full
+    membrane stiffness, exact kinematics: W within the benchmark's 2 %, -U within 5 %."""
     full = CASES["cantilever_shear"]
     case = Case("cantilever_shear_0.1", full.scene,
-                (Quantity("W", "tip deflection", 1.309, 0.05, _component("tip", 2)),),
+                tuple(dataclasses.replace(q, level=1.0) for q in full.quantities
+                      if q.level == 0.1),
                 load_scale=0.1)
-    (row,) = _quick(case, load_steps=(1.0,)).rows
-    assert row.relative_error < QUICK_TOLERANCE, row
+    rows = _quick(case, newton_samples=1024, load_steps=(1.0,)).rows
+    assert [r.quantity for r in rows] == ["W", "-U"]
+    assert rows[0].relative_error < 0.02, rows[0]
+    assert rows[1].relative_error < QUICK_TOLERANCE, rows[1]
 
 
 def test_validate_command_writes_tables_and_plot(tmp_path):

@@ -25,7 +25,11 @@ cylinder's angle get comparable bands). The default ℓ = 0.1 is chosen because
   one period of the first SIREN layer (ω₀ = 30 on inputs in [−1, 1]), so it is resolvable,
   while a smaller ℓ would make φ'' ~ 6/ℓ² amplify network noise in the bending strain;
 - a pinned point or handle also holds the slope, over a patch of radius ℓ; 0.1 keeps that
-  patch small. Pass `length` (globally or per constraint) to change it, in (0, 0.5).
+  patch small. Pass `length` (globally or per constraint) to change it. Points and lines
+  take ℓ in (0, 0.5) (their distance wraps on periodic domains); edges take any ℓ > 0, and
+  ℓ ≥ 1 makes an edge's φ one polynomial over the whole domain, which suits solutions that
+  vary on the domain's scale: the cutoff at distance ℓ leaves u/φ with a jump in its third
+  derivative that smooth features fit poorly (docs/validation.md).
 """
 
 from __future__ import annotations
@@ -95,8 +99,9 @@ class BoundaryConditions:
     domain: the reference surface's parameter domain; periodic coordinates need no condition
         (the field is periodic by construction) and have no edges.
     surface: the reference surface; needed by `RimRotation` (positions r on the rim).
-    length: default band width ℓ of the vanishing factors, a fraction of the domain extent in
-        (0, 0.5) (see the module docstring for the choice of 0.1).
+    length: default band width ℓ of the vanishing factors, a fraction of the domain extent,
+        positive; below 0.5 for points and lines (see the module docstring for the choice of
+        0.1).
 
     Raises ValueError naming the problem for a constraint outside the domain, an edge on a
     periodic coordinate, or a prescribed displacement whose set touches another constraint's
@@ -111,9 +116,9 @@ class BoundaryConditions:
         surface: ReferenceSurface | None = None,
         length: float = 0.1,
     ):
-        if not (isinstance(length, (int, float)) and math.isfinite(length) and 0 < length < 0.5):
+        if not (isinstance(length, (int, float)) and math.isfinite(length) and length > 0):
             raise ValueError(
-                f"length is a fraction of the domain extent in (0, 0.5), got {length!r}"
+                f"length is a fraction of the domain extent, positive, got {length!r}"
             )
         if surface is not None and (
             surface.domain.bounds != domain.bounds or surface.domain.periodic != domain.periodic
@@ -322,6 +327,11 @@ class BoundaryConditions:
                     "such edge (a periodic direction needs no boundary condition)"
                 )
             where = (_EDGE_SETS[con.edge],)
+        elif ell >= 0.5:
+            raise ValueError(
+                f"{name}: band length {ell} must be below 0.5 for a point or line (its distance "
+                "is taken to the nearest periodic image); only edges take wider bands"
+            )
         elif isinstance(con, (PinnedPoint, Handle)):
             if not bool(self._inside([con.xi])[0]):
                 raise ValueError(f"{name} at ξ={con.xi} lies outside the parameter domain")

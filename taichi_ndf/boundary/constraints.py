@@ -40,12 +40,17 @@ def _check_edge(owner: str, edge: str) -> None:
         raise ValueError(f"{owner}: edge must be one of {EDGES}, got {edge!r}")
 
 
-def _check_length(owner: str, length: float | None) -> None:
+def _check_length(owner: str, length: float | None, *, edge: bool = False) -> None:
+    """Edge bands may be as wide as wanted (ℓ ≥ 1 makes φ one polynomial over the whole
+    domain); point and line bands stay below 0.5, since their distance is taken to the nearest
+    periodic image, which is not smooth half a period away."""
+    limit = math.inf if edge else 0.5
     if length is not None and not (
-        isinstance(length, (int, float)) and math.isfinite(length) and 0 < length < 0.5
+        isinstance(length, (int, float)) and math.isfinite(length) and 0 < length < limit
     ):
+        bound = "positive" if edge else "in (0, 0.5)"
         raise ValueError(
-            f"{owner}: length is a fraction of the domain extent in (0, 0.5), got {length!r}"
+            f"{owner}: length is a fraction of the domain extent, {bound}, got {length!r}"
         )
 
 
@@ -71,7 +76,7 @@ class ClampedEdge:
             "displacement",
             finite_vector("ClampedEdge: displacement", self.displacement, 3, "m"),
         )
-        _check_length("ClampedEdge", self.length)
+        _check_length("ClampedEdge", self.length, edge=True)
 
 
 @dataclass(frozen=True)
@@ -92,7 +97,7 @@ class HingedEdge:
             "displacement",
             finite_vector("HingedEdge: displacement", self.displacement, 3, "m"),
         )
-        _check_length("HingedEdge", self.length)
+        _check_length("HingedEdge", self.length, edge=True)
 
 
 @dataclass(frozen=True)
@@ -185,7 +190,7 @@ class RimRotation:
                 f"RimRotation: angle must be a finite number [rad], got {self.angle!r}"
             )
         _set(self, "components", _check_components("RimRotation", self.components))
-        _check_length("RimRotation", self.length)
+        _check_length("RimRotation", self.length, edge=True)
 
 
 Constraint = ClampedEdge | HingedEdge | PinnedPoint | Handle | InteriorLine | RimRotation
