@@ -107,3 +107,34 @@ def test_one_newton_step_reaches_the_minimum_over_the_last_layer(plate):
     decrement = float(gradient.reshape(-1) @ torch.linalg.lstsq(
         hessian, gradient.reshape(-1, 1)).solution[:, 0])
     assert math.isfinite(decrement) and abs(decrement) < 1e-5 * abs(first.energy_after)
+
+
+def test_newton_optimum_with_point_loads_obeys_the_work_theorem():
+    """Point loads reach the Newton solve with their sign: at the Galerkin optimum of a linear
+    problem the strain energy is half the load work Σ P·u(ξ_k) > 0 and Π = −½ Σ P·u(ξ_k)
+    (Clapeyron). A load missing from the sample set gives no work; a flipped one, negative work."""
+    surface = Plane(bounds=((0.0, 1.0), (0.0, 1.0)))
+    boundary = BoundaryConditions(
+        [HingedEdge(edge=e) for e in ("xi1_min", "xi1_max", "xi2_min", "xi2_max")],
+        domain=surface.domain, surface=surface)
+    # w ≈ 1e-4 h: linear to ~1e-8.
+    loads = Loads(point_loads=(((0.5, 0.5), (0.0, 0.0, -0.01)), ((0.3, 0.6), (0.0, 0.0, 0.005))))
+    material = LinearIsotropic.from_young(1e9, 0.3, 0.01, 1.0)
+    field = NeuralField(FieldConfig(width=16, hidden_layers=2, omega0=3.0, output_scale=1e-4,
+                                    domain=surface.domain.bounds), seed=3, dtype=torch.float64)
+    samples = sample_surface(surface, 512, loads, torch.Generator().manual_seed(0),
+                             dtype=torch.float64)
+    assert int((samples.point_force.abs().sum(dim=1) > 0).sum()) == 2
+    energy = ShellEnergy(material, loads)
+
+    def potential(s, u, grad):
+        return energy.evaluate(s, u, grad=grad)
+
+    result = solve_last_layer(field, boundary, potential, samples, LOAD_FACTOR,
+                              NewtonConfig(iterations=3))
+    u = boundary.compose(samples.xi, field.jets(samples.xi), t=LOAD_FACTOR)
+    work = float((samples.point_force * u[:, 0]).sum())
+    internal = potential(samples, u, False).internal
+    assert work > 0
+    assert internal == pytest.approx(0.5 * work, rel=1e-6)
+    assert result.energy_after == pytest.approx(-0.5 * work, rel=1e-6)

@@ -16,12 +16,17 @@ from taichi_ndf.cli.validate import main as validate_main
 from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads
 from taichi_ndf.sampling import sample_surface
+from taichi_ndf.scene import load_scene
 from taichi_ndf.shell.energy import ShellEnergy, function_jets
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.validation import (
     CASES,
+    LINEARISATION,
+    SCENES_DIR,
     Case,
     EndMoment,
+    Quantity,
+    _component,
     _roll_up_references,
     load_case_scene,
     run_case,
@@ -121,6 +126,56 @@ QUICK_TOLERANCE = 0.05
 def test_quick_square_plate():
     (row,) = _quick(CASES["square_plate"]).rows
     assert row.relative_error < QUICK_TOLERANCE, row
+
+
+def _navier_point_load_deflection(force: float, side: float, bending_stiffness: float) -> float:
+    """Centre deflection of a simply supported square Kirchhoff plate under a central point
+    load: w = 4 P a² / (π⁴ B) Σ_{m, n odd} 1 / (m² + n²)² (Navier series)."""
+    odd = np.arange(1, 4001, 2, dtype=np.float64)
+    series = float((1.0 / (odd[:, None] ** 2 + odd[None, :] ** 2) ** 2).sum())
+    return 4 * force * side**2 / (math.pi**4 * bending_stiffness) * series
+
+
+def test_quick_plate_under_a_point_load_matches_kirchhoff(tmp_path):
+    """The point-load path of the linear cases (load sample, linear-regime scaling, Newton,
+    reading) on a case with a known answer: the hinged plate of `square_plate` under a central
+    point load instead of the pressure. Measured 1.0 % low in ~5 s (0.990 on 8192 samples)."""
+    scene = (SCENES_DIR / "square_plate.toml").read_text()
+    assert "pressure = 1.0" in scene
+    scene = scene.replace("pressure = 1.0", "[[loads.point]]\nxi = [50.0, 50.0]\n"
+                          "force = [0.0, 0.0, 1.0]")
+    (tmp_path / "plate_point.toml").write_text(scene)
+    _, model, _ = load_case_scene(CASES["square_plate"])
+    stiffness = model.material.bending_stiffness * LINEARISATION**2  # the scene's B
+    reference = _navier_point_load_deflection(1.0, 100.0, stiffness)
+    case = Case("plate_point_load", "plate_point.toml",
+                (Quantity("w_centre", "deflection under the load", reference, 0.05,
+                          _component("centre", 2)),), linear=True)
+    scene_config = load_scene(tmp_path / "plate_point.toml").solver
+    config = dataclasses.replace(scene_config, newton_samples=4096, newton_iterations=3,
+                                 monitor_samples=2048)
+    (row,) = run_case(case, solver=config, scenes_dir=tmp_path).rows
+    assert row.relative_error < QUICK_TOLERANCE, row
+
+
+def test_hemisphere_loads_do_work_on_an_exact_rigid_rotation():
+    """Why the hemisphere scene pins a point: its self-equilibrated dead loads do no work on
+    translations but second-order work on exact rigid rotations (zero strain), lowering Π for
+    a rotation about x: Π = −Σ P_k·(R − I) r_k = −2 P R (1 − cos α) from the two in-loads on the
+    y axis."""
+    _, model, _ = load_case_scene(CASES["pinched_hemisphere"])
+    samples = sample_surface(model.surface, 256, model.loads, torch.Generator().manual_seed(0),
+                             dtype=torch.float64)
+    energy = ShellEnergy(model.material, model.loads)
+    angle = 1e-2
+    rotation = torch.tensor([[1.0, 0.0, 0.0], [0.0, math.cos(angle), -math.sin(angle)],
+                             [0.0, math.sin(angle), math.cos(angle)]], dtype=torch.float64)
+    moved = torch.einsum("ij,ncj->nci", rotation - torch.eye(3, dtype=torch.float64),
+                         samples.r_jets)
+    result = energy.evaluate(samples, moved, grad=False)
+    force = abs(model.loads.point_loads[0].force[0])
+    assert abs(result.internal) < 1e-12 * force * 10.0
+    assert result.total == pytest.approx(-2 * force * 10.0 * (1 - math.cos(angle)), rel=1e-9)
 
 
 def test_quick_coarse_cantilever():
