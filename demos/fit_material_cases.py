@@ -93,6 +93,8 @@ def main():
     parser.add_argument("--start", type=float, nargs="+", default=None,
                         help="start values (default: the scene's)")
     parser.add_argument("--decades", type=float, default=1.3, help="stiffness box half-width")
+    parser.add_argument("--load-box", type=float, default=1.0,
+                        help="point-load box half-width in units of |start force|")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(1)
@@ -108,7 +110,7 @@ def main():
                               lbfgs_iterations=args.train_lbfgs,
                               lbfgs_samples=args.lbfgs_samples,
                               output_scale=scene.field.output_scale)
-    config = BilevelConfig(field=field, decades=args.decades,
+    config = BilevelConfig(field=field, decades=args.decades, load_box=args.load_box,
                            centre_on_residual=args.box_centre == "residual")
     start = time.perf_counter()
     result = bilevel_estimate([observation], unknowns, config, start=args.start)
@@ -121,7 +123,8 @@ def main():
         values = estimate.values
         error = np.linalg.norm(values - true_values) / np.linalg.norm(true_values)
         line = (f"noise {noise:.3f}: {np.array2string(values, precision=5)} ± "
-                f"{np.array2string(estimate.standard_errors, precision=2)}, error "
+                f"{np.array2string(estimate.standard_errors, formatter={'float': '{:.2e}'.format})}"
+                f", error "
                 f"{100 * error:.2f} %, determined {estimate.identifiability.determined}, "
                 f"fit {estimate.time:.2f} s")
         if len(values) == 3:
