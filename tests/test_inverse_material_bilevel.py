@@ -15,7 +15,7 @@ import torch
 from test_inverse_material_elastica import cantilever
 
 from inverse.material import Observation, parse_unknowns
-from inverse.material.bilevel import BilevelConfig, bilevel_estimate
+from inverse.material.bilevel import BilevelConfig, bilevel_estimate, search_box
 from inverse.material.conditioned import ConditionedConfig
 from taichi_ndf.scene import load_scene
 
@@ -36,8 +36,29 @@ def case():
     points = torch.tensor(np.stack([xz[:, 0], y.ravel(), xz[:, 1]], axis=1))
     xi = torch.tensor(np.stack([s.ravel(), y.ravel()], axis=1))
     observation = Observation(model, points, xi)
-    result = bilevel_estimate([observation], unknowns, BilevelConfig(field=QUICK))
+    # The box is centred on the start (10x too stiff), not on the residual estimate, to show
+    # convergence from a wrong start; `test_search_box_*` cover the centring.
+    result = bilevel_estimate([observation], unknowns,
+                              BilevelConfig(field=QUICK, centre_on_residual=False))
     return model, unknowns, observation, result
+
+
+def test_search_box_centred_on_the_residual_estimate_of_clean_data(case):
+    """Noise-free: the residual estimate determines B, so the box is ±0.3 decades around it
+    (and contains the truth); with 2 % noise it does not, and the box is ±1.3 decades
+    around the start."""
+    model, unknowns, observation, result = case
+    config = BilevelConfig(field=QUICK)
+    start = np.array([model.material.bending_stiffness])
+    ((lo, hi),), centre, _ = search_box([observation], unknowns, config, start)
+    assert centre == "residual estimate"
+    assert abs(math.exp(0.5 * (lo + hi)) / B_TRUE - 1) < 0.1
+    assert 0.3 * math.log(10) - 1e-9 <= 0.5 * (hi - lo) < 0.4 * math.log(10)
+    noisy = observation.with_noise(0.02, seed=1)
+    ((lo, hi),), centre, notes = search_box([noisy], unknowns, config, start)
+    assert centre == "start values" and notes
+    assert math.isclose(math.exp(0.5 * (lo + hi)), start[0])
+    assert math.isclose(0.5 * (hi - lo), 1.3 * math.log(10))
 
 
 def test_conditioned_field_is_in_equilibrium_across_the_box(case):

@@ -29,7 +29,7 @@ from inverse.material import (
     template_xi,
 )
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
-from inverse.material.conditioned import ConditionedConfig
+from inverse.material.conditioned import ConditionedConfig, to_values
 from inverse.material.report import estimate_document, overlay_image
 from taichi_ndf.cli.common import add_runtime_options, machine_description, start
 from taichi_ndf.io import read_mesh
@@ -55,14 +55,19 @@ def build_parser() -> argparse.ArgumentParser:
                         "density, gravity, body_force, pressure, point_load:NAME, or a "
                         "stiffness name of the scene's material")
     p.add_argument("--method", default="bilevel", choices=("residual", "bilevel"),
-                   help="bilevel: fit equilibria of a material-conditioned field (robust to "
-                        "noise, stiffness only); residual: equilibrium-residual least squares "
-                        "(fast, also loads; needs clean data). Default: bilevel")
+                   help="bilevel: fit equilibria of a material-conditioned field (robust "
+                        "to noise; stiffness and point loads); residual: equilibrium-residual "
+                        "least squares (fast, also distributed loads; needs clean data). "
+                        "Default: bilevel")
     p.add_argument("--out", required=True, help="output directory (must be new or empty)")
     p.add_argument("--point-cloud", action="store_true",
                    help="treat observations as point clouds without correspondence")
     p.add_argument("--decades", type=float, default=1.3,
                    help="bilevel search box: decades either side of the start (default 1.3)")
+    p.add_argument("--box-centre", default="residual", choices=("residual", "start"),
+                   help="bilevel search box centre: the equilibrium-residual estimate when it "
+                        "determines every unknown (box ±0.3 decades, the start otherwise), "
+                        "or always the start (default: residual)")
     p.add_argument("--iterations", type=int, default=None,
                    help="Adam iterations of the material-conditioned field, followed by as "
                         "many L-BFGS iterations (default 1000; 300 with --quick)")
@@ -126,7 +131,8 @@ def run(args, runtime) -> dict:
             lbfgs_iterations=iterations, lbfgs_samples=2048 if args.quick else 4096,
             seed=args.seed)
         try:
-            config = BilevelConfig(decades=args.decades, field=field)
+            config = BilevelConfig(decades=args.decades, field=field,
+                                   centre_on_residual=args.box_centre == "residual")
         except ValueError as err:
             raise InputError(str(err)) from None
         try:
@@ -135,9 +141,14 @@ def run(args, runtime) -> dict:
             raise InputError(str(err)) from None
         estimate = result.estimate
         document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
-        document["search_box"] = {u.name: [float(np.exp(lo)), float(np.exp(hi))]
-                                  for u, (lo, hi) in zip(unknowns, result.log_ranges,
-                                                         strict=True)}
+        lower = to_values(unknowns, [lo for lo, _ in result.ranges])
+        upper = to_values(unknowns, [hi for _, hi in result.ranges])
+        document["search_box"] = {u.name: [lo, hi]
+                                  for u, lo, hi in zip(unknowns, lower, upper, strict=True)}
+        document["search_box_centre"] = {
+            "source": result.box_centre,
+            "values": {u.name: v for u, v in zip(unknowns, result.box_centre_values,
+                                                 strict=True)}}
         fitted = result.fitted_positions(0, grid_xi).numpy()
     document["scene"] = str(scene.path)
     document["observed"] = [str(p) for p in args.observed]

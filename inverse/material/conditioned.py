@@ -9,6 +9,12 @@ every z in the box: after one training, x*(θ) is a cheap, smooth function of θ
 boundary conditions, energy gradient, boundary adjoint, field adjoint, Adam; it differs only
 in the conditioning inputs and per-sample stiffness, so it is written here rather than as a
 hook in the solver.
+
+Point-load components can be conditioning inputs too (signed, so in linear coordinates: the
+input is the force component itself [N]). A point load acts at one ξ, so it gets
+`point_load_copies` zero-weight samples of its own, each with its own z and a 1/copies share
+of the force of that z: their sum estimates the mean over z of the load potential −P(z)·u(ξ_P, z)
+as the area samples estimate the mean of the strain energy.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import torch
 from inverse.material.unknowns import Unknown, apply
 from taichi_ndf import jets
 from taichi_ndf.field import FieldConfig, NeuralField
+from taichi_ndf.loads import Loads
 from taichi_ndf.model import ShellModel
 from taichi_ndf.optim import Adam, AdamConfig
 from taichi_ndf.sampling import sample_surface
@@ -32,7 +39,7 @@ from taichi_ndf.shell.energy import ShellEnergy
 
 log = logging.getLogger(__name__)
 
-CONDITIONABLE = ("stiffness", "scale")
+CONDITIONABLE = ("stiffness", "scale", "point_load")
 
 
 @dataclass(frozen=True)
@@ -44,6 +51,7 @@ class ConditionedConfig:
     output_scale: metres per network unit; None: the dimensional estimate of the softest
         material in the box (`characteristic_displacement`).
     iterations, samples: Adam iterations and area samples per iteration.
+    point_load_copies: samples per point load of the model (module docstring).
     lbfgs_iterations, lbfgs_samples: deterministic L-BFGS polish on one fixed set of (ξ, z)
         samples afterwards (as the solver's polish): Adam alone creeps towards the
         equilibrium of slender, bending-dominated sheets.
@@ -59,6 +67,7 @@ class ConditionedConfig:
     samples: int = 1024
     lbfgs_iterations: int = 500
     lbfgs_samples: int = 4096
+    point_load_copies: int = 64
     learning_rate: float = 3e-3
     final_learning_rate_ratio: float = 0.02
     seed: int = 0
@@ -66,7 +75,8 @@ class ConditionedConfig:
     def __post_init__(self):
         if self.lbfgs_iterations < 0:
             raise ValueError(f"lbfgs_iterations must be >= 0, got {self.lbfgs_iterations!r}")
-        for name in ("width", "hidden_layers", "iterations", "samples", "lbfgs_samples"):
+        for name in ("width", "hidden_layers", "iterations", "samples", "lbfgs_samples",
+                     "point_load_copies"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -80,34 +90,49 @@ class ConditionedConfig:
                              f"{self.final_learning_rate_ratio!r}")
 
 
-class ConditionedEquilibrium:
-    """Equilibria x*(ξ; θ) of `model` for every θ of the estimated stiffness unknowns in the
-    box exp(log_ranges).
+def to_values(unknowns: list[Unknown], z) -> list[float]:
+    """Parameter values θ from coordinates z: exp for positive unknowns, z itself for signed."""
+    return [math.exp(float(c)) if u.positive else float(c)
+            for u, c in zip(unknowns, z, strict=True)]
 
-    unknowns: stiffness or scale unknowns (positive); log_ranges: (lo, hi) of ln θ per unknown.
+
+def to_coordinates(unknowns: list[Unknown], values) -> list[float]:
+    """Coordinates z of parameter values θ (inverse of `to_values`)."""
+    return [math.log(float(v)) if u.positive else float(v)
+            for u, v in zip(unknowns, values, strict=True)]
+
+
+class ConditionedEquilibrium:
+    """Equilibria x*(ξ; θ) of `model` for every θ of the estimated unknowns in a box.
+
+    unknowns: stiffness, scale (positive) or point-load (signed) unknowns; ranges: (lo, hi) of
+    the coordinate z per unknown: ln θ for positive unknowns, θ [N] for point-load components.
     """
 
     def __init__(self, model: ShellModel, unknowns: list[Unknown],
-                 log_ranges: list[tuple[float, float]],
+                 ranges: list[tuple[float, float]],
                  config: ConditionedConfig = ConditionedConfig()):
         bad = [u.name for u in unknowns if u.kind not in CONDITIONABLE]
         if bad:
-            raise ValueError(f"the material-conditioned field takes stiffness unknowns only, "
-                             f"not {bad}: estimate loads with the residual method")
-        if len(log_ranges) != len(unknowns):
-            raise ValueError(f"need one log range per unknown, got {len(log_ranges)} for "
+            raise ValueError(f"the material-conditioned field takes stiffness and point-load "
+                             f"unknowns only, not {bad}: estimate these with the residual method")
+        if len(ranges) != len(unknowns):
+            raise ValueError(f"need one coordinate range per unknown, got {len(ranges)} for "
                              f"{len(unknowns)}")
         self.model = model
         self.unknowns = list(unknowns)
-        self.log_ranges = [(float(lo), float(hi)) for lo, hi in log_ranges]
+        self.ranges = [(float(lo), float(hi)) for lo, hi in ranges]
         self.config = config
-        softest = apply(model, unknowns, [math.exp(lo) for lo, _ in self.log_ranges])
+        # The output scale is estimated for the softest material and the largest loads of the box.
+        softest = apply(model, unknowns, [
+            math.exp(lo) if u.positive else (lo if abs(lo) > abs(hi) else hi)
+            for u, (lo, hi) in zip(unknowns, self.ranges, strict=True)])
         scale = config.output_scale or characteristic_displacement(softest)
         domain = model.surface.domain
         field_config = FieldConfig(width=config.width, hidden_layers=config.hidden_layers,
                                    omega0=config.omega0, domain=domain.bounds,
                                    periodic=domain.periodic,
-                                   conditioning=tuple(self.log_ranges), output_scale=scale)
+                                   conditioning=tuple(self.ranges), output_scale=scale)
         self.field = NeuralField(field_config, seed=config.seed)
         self.history: list[tuple[int, float]] = []
         self.training_time = 0.0
@@ -115,22 +140,48 @@ class ConditionedEquilibrium:
     # -- per-sample stiffness -------------------------------------------------------------------
     def stiffness(self, z: torch.Tensor) -> torch.Tensor:
         """Per-sample stiffness (N, K) in the order of `material.stiffness_names` for
-        log-parameters z (N, p)."""
+        coordinates z (N, p)."""
         material = self.model.material
         base = torch.tensor(material.stiffness, dtype=z.dtype, device=z.device)
         out = base.expand(len(z), -1).clone()
         for j, u in enumerate(self.unknowns):
             if u.kind == "scale":
                 out = out * torch.exp(z[:, j:j + 1])
-            else:
+            elif u.kind == "stiffness":
                 out[:, material.stiffness_names.index(u.key)] = torch.exp(z[:, j])
         return out
 
+    def point_forces(self, index: int, z: torch.Tensor) -> torch.Tensor:
+        """Force (N, 3) [N] of the model's point load `index` for coordinates z (N, p): the
+        scene's force with the estimated components taken from z."""
+        force = torch.tensor(self.model.loads.point_loads[index].force, dtype=z.dtype,
+                             device=z.device).expand(len(z), -1).clone()
+        for j, u in enumerate(self.unknowns):
+            if u.kind == "point_load" and u.key == index:
+                force[:, u.axis] = z[:, j]
+        return force
+
+    def samples(self, n: int, generator: torch.Generator, dtype, device):
+        """n area samples with their z, plus `point_load_copies` samples per point load,
+        each with its own z and a 1/copies share of that z's force (module docstring)."""
+        points = self.model.loads.point_loads
+        copies = self.config.point_load_copies
+        repeated = Loads(point_loads=tuple(p for p in points for _ in range(copies)))
+        samples = sample_surface(self.model.surface, n, repeated, generator, dtype=dtype,
+                                 device=device)
+        z = self._draw(len(samples), generator, dtype)
+        if points:
+            area = len(samples) - copies * len(points)
+            forces = [self.point_forces(k, z[area + k * copies: area + (k + 1) * copies])
+                      for k in range(len(points))]
+            samples.point_force[area:] = torch.cat(forces) / copies
+        return samples, z
+
     def _draw(self, n: int, generator: torch.Generator, dtype) -> torch.Tensor:
-        """Stratified uniform log-parameters (n, p): each coordinate's n values cover its
+        """Stratified uniform coordinates (n, p): each coordinate's n values cover its
         range in n equal strata, shuffled independently."""
         cols = []
-        for lo, hi in self.log_ranges:
+        for lo, hi in self.ranges:
             strata = torch.randperm(n, generator=generator).to(dtype)
             jitter = torch.rand(n, generator=generator, dtype=dtype)
             cols.append(lo + (strata + jitter) / n * (hi - lo))
@@ -150,9 +201,7 @@ class ConditionedEquilibrium:
         energy = ShellEnergy(model.material, model.loads)
         start = time.perf_counter()
         for it in range(cfg.iterations):
-            samples = sample_surface(model.surface, cfg.samples, model.loads, generator,
-                                     dtype=dtype, device=field.parameters[0].device)
-            z = self._draw(len(samples), generator, dtype)
+            samples, z = self.samples(cfg.samples, generator, dtype, field.parameters[0].device)
             total = self._energy_and_gradient(energy, samples, z)
             adam.step()
             if (it + 1) % max(cfg.iterations // 10, 1) == 0:
@@ -169,11 +218,15 @@ class ConditionedEquilibrium:
     def _energy_and_gradient(self, energy: ShellEnergy, samples, z, *, grad: bool = True):
         """Mean-over-z of w(z) Π [J] on given samples; fills the field's gradients.
 
-        w(z) = θ_centre / θ(z) of the first unknown: the Hessian of Π grows with the stiffness,
-        so without it the stiff end of the box dominates and the soft end hardly trains. A
-        positive weight per z leaves every z's minimiser unchanged."""
-        lo, hi = self.log_ranges[0]
-        w = torch.exp(0.5 * (lo + hi) - z[:, 0])
+        w(z) = θ_centre / θ(z) of the first positive unknown (1 without one): the Hessian of Π
+        grows with the stiffness, so without it the stiff end of the box dominates and the soft
+        end hardly trains. A positive weight per z leaves every z's minimiser unchanged."""
+        first = next((j for j, u in enumerate(self.unknowns) if u.positive), None)
+        if first is None:
+            w = torch.ones(len(z), dtype=z.dtype, device=z.device)
+        else:
+            lo, hi = self.ranges[first]
+            w = torch.exp(0.5 * (lo + hi) - z[:, first])
         samples = dataclasses.replace(samples, weight=samples.weight * w,
                                       point_force=samples.point_force * w[:, None])
         raw = self.field.jets(samples.xi, z)
@@ -190,10 +243,8 @@ class ConditionedEquilibrium:
     def _lbfgs(self, energy: ShellEnergy, generator: torch.Generator) -> None:
         field = self.field
         dtype = field.parameters[0].dtype
-        samples = sample_surface(self.model.surface, self.config.lbfgs_samples,
-                                 self.model.loads, generator, dtype=dtype,
-                                 device=field.parameters[0].device)
-        z = self._draw(len(samples), generator, dtype)
+        samples, z = self.samples(self.config.lbfgs_samples, generator, dtype,
+                                  field.parameters[0].device)
         flat = torch.nn.Parameter(field.get_flat().clone())
         opt = torch.optim.LBFGS([flat], lr=1.0, max_iter=self.config.lbfgs_iterations,
                                 history_size=30, line_search_fn="strong_wolfe",
@@ -217,7 +268,7 @@ class ConditionedEquilibrium:
         return z.expand(len(xi), -1)
 
     def positions(self, xi: torch.Tensor, z) -> torch.Tensor:
-        """Equilibrium positions x*(ξ; θ) (N, 3) [m] at ξ (N, 2) for log-parameters z (p,)."""
+        """Equilibrium positions x*(ξ; θ) (N, 3) [m] at ξ (N, 2) for coordinates z (p,)."""
         xi = xi.to(self.field.parameters[0].dtype)
         r = self.model.surface.jets(xi)[:, jets.VALUE]
         return r + self.model.displacement(self.field, xi, conditioning=self._conditioning(xi, z))
