@@ -89,7 +89,7 @@ def main():
     parser.add_argument("--train-lbfgs", type=int, default=600, help="conditioned L-BFGS")
     parser.add_argument("--lbfgs-samples", type=int, default=2048,
                         help="samples of the conditioned L-BFGS polish")
-    parser.add_argument("--box-centre", default="residual", choices=("residual", "start"))
+    parser.add_argument("--box-centre", default="start", choices=("residual", "start"))
     parser.add_argument("--start", type=float, nargs="+", default=None,
                         help="start values (default: the scene's)")
     parser.add_argument("--decades", type=float, default=1.3, help="stiffness box half-width")

@@ -48,7 +48,7 @@ def test_search_box_centred_on_the_residual_estimate_of_clean_data(case):
     (and contains the truth); with 2 % noise it does not, and the box is ±1.3 decades
     around the start."""
     model, unknowns, observation, result = case
-    config = BilevelConfig(field=QUICK)
+    config = BilevelConfig(field=QUICK, centre_on_residual=True)
     start = np.array([model.material.bending_stiffness])
     ((lo, hi),), centre, _ = search_box([observation], unknowns, config, start)
     assert centre == "residual estimate"

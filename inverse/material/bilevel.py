@@ -55,7 +55,9 @@ class BilevelConfig:
     """decades: half-width of the box of each unknown, in decades around its start value;
     centre_on_residual: first run the equilibrium-residual estimate (`residual`) and, when it
         determines every unknown, centre the box on it with half-width `residual_decades`
-        (widened to 4 of its relative standard deviations) instead of the start values;
+        (widened to 4 of its relative standard deviations) instead of the start values (off by
+        default: on the cantilever strip the narrower box gave −4.9 % against −0.5 % for the
+        wide box around the start, the conditioned field's own error dominating);
     load_box: half-width of the box of a point-load component (signed, linear coordinates)
         around its start, in units of the magnitude of the start force vector; around a
         determined residual estimate, half of that;
@@ -65,7 +67,7 @@ class BilevelConfig:
     field: training of the material-conditioned field."""
 
     decades: float = 1.3
-    centre_on_residual: bool = True
+    centre_on_residual: bool = False
     residual_decades: float = 0.3
     residual: ResidualConfig = ResidualConfig(samples=16384)
     load_box: float = 1.0
