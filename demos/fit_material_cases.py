@@ -22,8 +22,11 @@ estimate where that is determined (`--box-centre`), and fitted to the observatio
 
     python demos/fit_material_cases.py flap --out runs/flap --solve 1000 --solve-lbfgs 1000 \
         --train 300 --train-lbfgs 600 --start 0.115 --decades 0.3 --box-centre start
-    python demos/fit_material_cases.py point_load --out runs/pl --solve-newton 40 \
-        --train 300 --train-lbfgs 0 --newton 30
+    python demos/fit_material_cases.py flap --out runs/flap_newton --solve-newton 40 \
+        --train 300 --train-lbfgs 0 --newton 30 --width 256 --hidden-layers 2
+    python demos/fit_material_cases.py point_load --out runs/pl_newton --solve-newton 40 \
+        --train 1000 --train-lbfgs 0 --newton 30 --newton-samples 16384 --width 256 \
+        --hidden-layers 2
 """
 
 import argparse

@@ -77,7 +77,7 @@ def test_newton_phase_puts_the_conditioned_strip_in_equilibrium():
 def test_flap_scale_from_a_newton_converged_observation():
     """The orthotropic flap (docs/inverse_material.md): observation solved by last-layer
     Newton with this project's solver (stiffness scale 0.1), conditioned field by Adam +
-    Newton, start 10× too stiff, box ±1.3 decades. About 2–3 minutes on the 2-core CPU."""
+    Newton, start 10× too stiff, box ±1.3 decades. About 1.5 minutes on the 2-core CPU."""
     scene = load_scene(SCENES / "orthotropic_flap.toml")
     model, unknowns = parse_unknowns("scale", scene.model)
     b = model.boundary

@@ -18,10 +18,11 @@ as the area samples estimate the mean of the strain energy.
 
 Optionally a last-layer Newton (Galerkin) phase follows Adam (`taichi_ndf.newton`): on one
 fixed set of (ξ, z) samples the output layer, which combines features of ξ and z, is solved
-exactly for the mean over z of the weighted Π. Adam alone (and the
-L-BFGS polish) leaves the field short of equilibrium on these slender, membrane-stiff sheets;
-the Newton phase does not (docs/inverse_material.md). A Newton basis wants a wide field, a low
-ω₀ and a wide boundary band (`boundary_length`, docs/validation.md).
+exactly for the mean over z of the weighted Π. Adam alone (and the L-BFGS polish) leaves
+the field short of equilibrium on these slender, membrane-stiff sheets; after the Newton
+phase what remains is the error of the basis and of the quadrature of its sample set
+(docs/inverse_material.md). A Newton basis wants a wide field, a low ω₀ and a wide boundary
+band (`boundary_length`, docs/validation.md).
 """
 
 from __future__ import annotations
