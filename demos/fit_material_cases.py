@@ -8,15 +8,25 @@ Two cases (docs/inverse_material.md, "Results"):
   bending stiffness and a point load F = (4, 3, -10) mN at the middle of the free end;
   estimates the load's 3-vector by the bilevel method from the start (0, 0, -20) mN.
 
-The observation is solved once with `taichi_ndf.solver.Solver` (`--solve` Adam +
-`--solve-lbfgs` L-BFGS iterations on `--monitor-samples` samples) and cached in the output
-folder; the conditioned field is trained once (`--train` Adam + `--train-lbfgs` L-BFGS
-iterations on `--lbfgs-samples` samples) in a box `--decades` around `--start` (flap) or
-±|start| (point load), or around the residual estimate where that is determined
-(`--box-centre`), and fitted to the observation with noise 0, 0.5 % and 2 %.
+The observation is solved once with `taichi_ndf.solver.Solver` and cached in the output
+folder: either with the scene's field (`--solve` Adam + `--solve-lbfgs` L-BFGS iterations on
+`--monitor-samples` samples) or, with `--solve-newton N`, by last-layer Newton alone (at most N
+steps per load step of `--load-steps`, on `--solve-newton-samples` samples; field
+`--obs-width` × 2 sine layers, ω₀ = 3, boundary band `--band`). The conditioned field
+(`--width` × `--hidden-layers`, band `--band` when `--newton` is given, else the scene's) is
+trained once (`--train` Adam + `--train-lbfgs` L-BFGS iterations on `--lbfgs-samples` samples
++ at most `--newton` last-layer Newton steps on `--newton-samples` samples) in a box `--decades`
+around `--start` (flap) or ±`--load-box` |start| (point load), or around the residual
+estimate where that is determined (`--box-centre`), and fitted to the observation with noise
+0, 0.5 % and 2 %.
 
     python demos/fit_material_cases.py flap --out runs/flap --solve 1000 --solve-lbfgs 1000 \
         --train 300 --train-lbfgs 600 --start 0.115 --decades 0.3 --box-centre start
+    python demos/fit_material_cases.py flap --out runs/flap_newton --solve-newton 40 \
+        --train 300 --train-lbfgs 0 --newton 30 --width 256 --hidden-layers 2
+    python demos/fit_material_cases.py point_load --out runs/pl_newton --solve-newton 40 \
+        --train 1000 --train-lbfgs 0 --newton 30 --newton-samples 16384 --width 256 \
+        --hidden-layers 2
 """
 
 import argparse
@@ -33,6 +43,7 @@ import taichi_ndf
 from inverse.material import Observation, apply, parse_unknowns, template_xi
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig
+from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import NeuralField
 from taichi_ndf.loads import PointLoad
 from taichi_ndf.scene import load_scene
@@ -60,13 +71,30 @@ def case(name: str):
         np.array(FORCE)
 
 
+def with_band(model, length: float):
+    """The model with the boundary conditions' band width `length` (fraction of the domain)."""
+    b = model.boundary
+    return dataclasses.replace(model, boundary=BoundaryConditions(
+        b.constraints, b.domain, surface=b.surface, length=length))
+
+
 def observe(scene, truth, args, path: Path):
     if path.exists():
         return torch.load(path)
-    field = NeuralField(scene.field, seed=1)
-    config = dataclasses.replace(scene.solver.with_iterations(args.solve), progress=False,
-                                 checkpoint_every=0, monitor_samples=args.monitor_samples,
-                                 lbfgs_iterations=args.solve_lbfgs)
+    if args.solve_newton:
+        truth = with_band(truth, args.band)
+        field = NeuralField(dataclasses.replace(scene.field, width=args.obs_width,
+                                                hidden_layers=2, omega0=3.0), seed=1)
+        config = dataclasses.replace(scene.solver, iterations=0, progress=False,
+                                     checkpoint_every=0, monitor_samples=args.monitor_samples,
+                                     lbfgs_iterations=0, newton_iterations=args.solve_newton,
+                                     newton_samples=args.solve_newton_samples,
+                                     load_steps=tuple(args.load_steps))
+    else:
+        field = NeuralField(scene.field, seed=1)
+        config = dataclasses.replace(scene.solver.with_iterations(args.solve), progress=False,
+                                     checkpoint_every=0, monitor_samples=args.monitor_samples,
+                                     lbfgs_iterations=args.solve_lbfgs)
     start = time.perf_counter()
     result = Solver(truth, field, config).run()
     logging.info("observation solved in %.1f s, probes %s", time.perf_counter() - start,
@@ -85,10 +113,26 @@ def main():
     parser.add_argument("--solve-lbfgs", type=int, default=1000, help="forward-solve L-BFGS")
     parser.add_argument("--monitor-samples", type=int, default=2048,
                         help="samples of the forward solve's L-BFGS polish")
+    parser.add_argument("--solve-newton", type=int, default=0,
+                        help="forward solve by last-layer Newton alone, at most this many "
+                             "steps per load step (0: Adam + L-BFGS)")
+    parser.add_argument("--solve-newton-samples", type=int, default=8192)
+    parser.add_argument("--obs-width", type=int, default=128,
+                        help="width of the Newton forward solve's field (2 sine layers)")
+    parser.add_argument("--load-steps", type=float, nargs="+", default=[0.5, 1.0],
+                        help="load steps of the Newton forward solve")
+    parser.add_argument("--band", type=float, default=2.0,
+                        help="boundary band of the Newton solves (fraction of the domain)")
     parser.add_argument("--train", type=int, default=300, help="conditioned Adam iterations")
     parser.add_argument("--train-lbfgs", type=int, default=600, help="conditioned L-BFGS")
     parser.add_argument("--lbfgs-samples", type=int, default=2048,
                         help="samples of the conditioned L-BFGS polish")
+    parser.add_argument("--newton", type=int, default=0,
+                        help="last-layer Newton steps of the conditioned field (0: none)")
+    parser.add_argument("--newton-samples", type=int, default=8192)
+    parser.add_argument("--width", type=int, default=64, help="conditioned field width")
+    parser.add_argument("--hidden-layers", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0, help="conditioned field seed")
     parser.add_argument("--box-centre", default="start", choices=("residual", "start"))
     parser.add_argument("--start", type=float, nargs="+", default=None,
                         help="start values (default: the scene's)")
@@ -102,13 +146,19 @@ def main():
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     scene, truth, start_model, spec, true_values = case(args.case)
-    xi, points = observe(scene, truth, args,
-                         out / f"observation_{args.solve}_{args.solve_lbfgs}.pt")
+    name = (f"observation_newton_{args.solve_newton}_{args.solve_newton_samples}_"
+            f"{args.obs_width}_{args.band}_{'_'.join(map(str, args.load_steps))}.pt"
+            if args.solve_newton else f"observation_{args.solve}_{args.solve_lbfgs}.pt")
+    xi, points = observe(scene, truth, args, out / name)
     model, unknowns = parse_unknowns(spec, start_model)
     observation = Observation(model, points, xi)
     field = ConditionedConfig(iterations=args.train, samples=512,
                               lbfgs_iterations=args.train_lbfgs,
                               lbfgs_samples=args.lbfgs_samples,
+                              newton_iterations=args.newton,
+                              newton_samples=args.newton_samples, width=args.width,
+                              hidden_layers=args.hidden_layers, seed=args.seed,
+                              boundary_length=args.band if args.newton else None,
                               output_scale=scene.field.output_scale)
     config = BilevelConfig(field=field, decades=args.decades, load_box=args.load_box,
                            centre_on_residual=args.box_centre == "residual")

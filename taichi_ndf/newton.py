@@ -11,6 +11,12 @@ line search on Π minimises over θ with the hidden layers (the features) held f
 linear regime one step reaches the Galerkin optimum over the span of the features; nonlinear
 problems take a few.
 
+A conditioned field u(ξ, c) (material parameters, load components as extra inputs) is solved
+the same way: pass the per-sample conditioning c (N, k) of the fixed samples; the features
+depend on it and the output layer is still linear, and the potential must evaluate each sample
+with its own stiffness / load (the caller's closure: e.g. `ShellEnergy.evaluate(...,
+stiffness=...)` and the samples' own point forces).
+
 Why: Π is extremely ill-conditioned for thin shells (membrane stiffness ~10⁵ × bending/L²), so
 first-order optimisers crawl; a second-order solve over the output layer does not care.
 """
@@ -74,11 +80,13 @@ class NewtonResult:
 
 
 def output_jacobian(field: NeuralField, boundary: BoundaryConditions, xi: torch.Tensor,
-                    load_factor: float) -> tuple[torch.Tensor, torch.Tensor]:
+                    load_factor: float, conditioning: torch.Tensor | None = None
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
     """Displacement jets u (N, 6, 3) [m] of the current field and their Jacobian with respect
     to the output layer, shape (3, N, 6, width + 1): J[k, :, :, a] = ∂u_k/∂θ_k[a] with
-    θ_k = (W_out[k, :], b_out[k]); u_k does not depend on θ_l for l ≠ k."""
-    raw = field.jets(xi)
+    θ_k = (W_out[k, :], b_out[k]); u_k does not depend on θ_l for l ≠ k.
+    conditioning: the field's extra inputs per sample (N, k), for a conditioned field."""
+    raw = field.jets(xi, conditioning)
     features = field.last_features()  # (6, N, width)
     n, width = xi.shape[0], features.shape[2]
     basis = features.new_zeros(n, jets.CHANNELS, width + 1)
@@ -169,12 +177,15 @@ def _channel_steps(u_jets: torch.Tensor, jacobian: torch.Tensor, theta: torch.Te
 
 def solve_last_layer(field: NeuralField, boundary: BoundaryConditions, potential: Potential,
                      samples: SurfaceSamples, load_factor: float,
-                     config: NewtonConfig | None = None) -> NewtonResult:
+                     config: NewtonConfig | None = None, *,
+                     conditioning: torch.Tensor | None = None) -> NewtonResult:
     """Minimise Π over the field's output layer on fixed samples (damped Newton with a
-    backtracking line search); updates W_out and b_out in place."""
+    backtracking line search); updates W_out and b_out in place.
+
+    conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring)."""
     config = config or NewtonConfig()
     weight, bias = field.parameters[-2], field.parameters[-1]
-    u, jacobian = output_jacobian(field, boundary, samples.xi, load_factor)
+    u, jacobian = output_jacobian(field, boundary, samples.xi, load_factor, conditioning)
     theta = torch.cat((weight, bias[:, None]), dim=1)
     shape = theta.shape
     delta = torch.zeros_like(theta)  # θ − θ₀, with u(θ) = u + J·(θ − θ₀)

@@ -15,6 +15,14 @@ input is the force component itself [N]). A point load acts at one ξ, so it get
 `point_load_copies` zero-weight samples of its own, each with its own z and a 1/copies share
 of the force of that z: their sum estimates the mean over z of the load potential −P(z)·u(ξ_P, z)
 as the area samples estimate the mean of the strain energy.
+
+Optionally a last-layer Newton (Galerkin) phase follows Adam (`taichi_ndf.newton`): on one
+fixed set of (ξ, z) samples the output layer, which combines features of ξ and z, is solved
+exactly for the mean over z of the weighted Π. Adam alone (and the L-BFGS polish) leaves
+the field short of equilibrium on these slender, membrane-stiff sheets; after the Newton
+phase what remains is the error of the basis and of the quadrature of its sample set
+(docs/inverse_material.md). A Newton basis wants a wide field, a low ω₀ and a wide boundary
+band (`boundary_length`, docs/validation.md).
 """
 
 from __future__ import annotations
@@ -29,11 +37,13 @@ import torch
 
 from inverse.material.unknowns import Unknown, apply
 from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.loads import Loads
 from taichi_ndf.model import ShellModel
+from taichi_ndf.newton import NewtonConfig, solve_last_layer
 from taichi_ndf.optim import Adam, AdamConfig
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.sampling import SurfaceSamples, sample_surface
 from taichi_ndf.scaling import characteristic_displacement
 from taichi_ndf.shell.energy import ShellEnergy
 
@@ -55,6 +65,12 @@ class ConditionedConfig:
     lbfgs_iterations, lbfgs_samples: deterministic L-BFGS polish on one fixed set of (ξ, z)
         samples afterwards (as the solver's polish): Adam alone creeps towards the
         equilibrium of slender, bending-dominated sheets.
+    newton_iterations, newton_samples, newton_point_load_copies: a last-layer Newton phase
+        after Adam and the L-BFGS polish (0: none), at most that many steps on one fixed set
+        of `newton_samples` area samples and `newton_point_load_copies` samples per point load.
+    boundary_length: band width of the boundary conditions' vanishing factors for this
+        field (None: the model's); edges accept bands wider than the domain (a Newton basis
+        needs a wide band).
     learning_rate, final_learning_rate_ratio: exponential decay from the first to the last.
     seed: field initialisation and sampling.
     """
@@ -68,15 +84,23 @@ class ConditionedConfig:
     lbfgs_iterations: int = 500
     lbfgs_samples: int = 4096
     point_load_copies: int = 64
+    newton_iterations: int = 0
+    newton_samples: int = 8192
+    newton_point_load_copies: int = 1024
+    boundary_length: float | None = None
     learning_rate: float = 3e-3
     final_learning_rate_ratio: float = 0.02
     seed: int = 0
 
     def __post_init__(self):
-        if self.lbfgs_iterations < 0:
-            raise ValueError(f"lbfgs_iterations must be >= 0, got {self.lbfgs_iterations!r}")
+        for name in ("lbfgs_iterations", "newton_iterations"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if self.boundary_length is not None and not self.boundary_length > 0:
+            raise ValueError(f"boundary_length must be positive or None, got "
+                             f"{self.boundary_length!r}")
         for name in ("width", "hidden_layers", "iterations", "samples", "lbfgs_samples",
-                     "point_load_copies"):
+                     "point_load_copies", "newton_samples", "newton_point_load_copies"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -119,6 +143,10 @@ class ConditionedEquilibrium:
         if len(ranges) != len(unknowns):
             raise ValueError(f"need one coordinate range per unknown, got {len(ranges)} for "
                              f"{len(unknowns)}")
+        if config.boundary_length is not None:
+            b = model.boundary
+            model = dataclasses.replace(model, boundary=BoundaryConditions(
+                b.constraints, b.domain, surface=b.surface, length=config.boundary_length))
         self.model = model
         self.unknowns = list(unknowns)
         self.ranges = [(float(lo), float(hi)) for lo, hi in ranges]
@@ -136,6 +164,7 @@ class ConditionedEquilibrium:
         self.field = NeuralField(field_config, seed=config.seed)
         self.history: list[tuple[int, float]] = []
         self.training_time = 0.0
+        self.newton_result = None  # NewtonResult of the Newton phase, if any
 
     # -- per-sample stiffness -------------------------------------------------------------------
     def stiffness(self, z: torch.Tensor) -> torch.Tensor:
@@ -161,11 +190,13 @@ class ConditionedEquilibrium:
                 force[:, u.axis] = z[:, j]
         return force
 
-    def samples(self, n: int, generator: torch.Generator, dtype, device):
-        """n area samples with their z, plus `point_load_copies` samples per point load,
-        each with its own z and a 1/copies share of that z's force (module docstring)."""
+    def samples(self, n: int, generator: torch.Generator, dtype, device,
+                copies: int | None = None):
+        """n area samples with their z, plus `copies` (default `point_load_copies`) samples
+        per point load, each with its own z and a 1/copies share of that z's force (module
+        docstring)."""
         points = self.model.loads.point_loads
-        copies = self.config.point_load_copies
+        copies = copies or self.config.point_load_copies
         repeated = Loads(point_loads=tuple(p for p in points for _ in range(copies)))
         samples = sample_surface(self.model.surface, n, repeated, generator, dtype=dtype,
                                  device=device)
@@ -176,6 +207,40 @@ class ConditionedEquilibrium:
                       for k in range(len(points))]
             samples.point_force[area:] = torch.cat(forces) / copies
         return samples, z
+
+    def quasi_samples(self, n: int, generator: torch.Generator, dtype, device,
+                      copies: int) -> tuple[SurfaceSamples, torch.Tensor]:
+        """Like `samples`, from scrambled Sobol sequences: n points of the unit (2 + p)-cube
+        mapped to the domain's rectangle and the box jointly (points outside a mask dropped),
+        plus `copies` samples per point load with z from a p-dimensional sequence. Used for
+        the Newton phase, which solves exactly on its fixed sample set: on the point-load
+        strip, 8192 Sobol samples gave the in-plane tip deflection of 32768 random ones
+        (docs/inverse_material.md)."""
+        domain = self.model.surface.domain
+        lo = torch.tensor([r[0] for r in self.ranges], dtype=dtype)
+        hi = torch.tensor([r[1] for r in self.ranges], dtype=dtype)
+
+        def sobol(dim: int, m: int) -> torch.Tensor:
+            seed = int(torch.randint(2**31 - 1, (1,), generator=generator))
+            return torch.quasirandom.SobolEngine(dim, scramble=True, seed=seed).draw(m).to(dtype)
+
+        u = sobol(2 + len(self.ranges), n)
+        (lo1, hi1), (lo2, hi2) = domain.bounds
+        xi = torch.stack((lo1 + (hi1 - lo1) * u[:, 0], lo2 + (hi2 - lo2) * u[:, 1]), dim=1)
+        inside = domain.contains(xi)
+        xi, z = xi[inside], lo + (hi - lo) * u[inside, 2:]
+        weight = torch.full((len(xi),), domain.area / len(xi), dtype=dtype)
+        force = torch.zeros(len(xi), 3, dtype=dtype)
+        points = self.model.loads.point_loads
+        for k, point in enumerate(points):
+            z_k = lo + (hi - lo) * sobol(len(self.ranges), copies)
+            xi = torch.cat((xi, torch.tensor(point.xi, dtype=dtype).expand(copies, 2)))
+            z = torch.cat((z, z_k))
+            weight = torch.cat((weight, weight.new_zeros(copies)))
+            force = torch.cat((force, self.point_forces(k, z_k) / copies))
+        samples = SurfaceSamples(xi=xi, r_jets=self.model.surface.jets(xi), weight=weight,
+                                 point_force=force)
+        return samples.to(dtype=dtype, device=device), z.to(device)
 
     def _draw(self, n: int, generator: torch.Generator, dtype) -> torch.Tensor:
         """Stratified uniform coordinates (n, p): each coordinate's n values cover its
@@ -210,25 +275,31 @@ class ConditionedEquilibrium:
                           total)
         if cfg.lbfgs_iterations:
             self._lbfgs(energy, generator)
+        if cfg.newton_iterations:
+            self.newton_result = self._newton(energy, generator)
         self.training_time = time.perf_counter() - start
-        log.info("material-conditioned field trained: %d + %d L-BFGS iterations in %.1f s",
-                 cfg.iterations, cfg.lbfgs_iterations, self.training_time)
+        log.info("material-conditioned field trained: %d + %d L-BFGS iterations + %d Newton "
+                 "steps at most in %.1f s", cfg.iterations, cfg.lbfgs_iterations,
+                 cfg.newton_iterations, self.training_time)
         return self
 
-    def _energy_and_gradient(self, energy: ShellEnergy, samples, z, *, grad: bool = True):
-        """Mean-over-z of w(z) Π [J] on given samples; fills the field's gradients.
-
-        w(z) = θ_centre / θ(z) of the first positive unknown (1 without one): the Hessian of Π
-        grows with the stiffness, so without it the stiff end of the box dominates and the soft
-        end hardly trains. A positive weight per z leaves every z's minimiser unchanged."""
+    def _weighted(self, samples, z):
+        """The samples with their energy weighted by w(z) = θ_centre / θ(z) of the first
+        positive unknown (unchanged without one): the Hessian of Π grows with the stiffness,
+        so without it the stiff end of the box dominates and the soft end hardly trains. A
+        positive weight per z leaves every z's minimiser unchanged."""
         first = next((j for j, u in enumerate(self.unknowns) if u.positive), None)
         if first is None:
-            w = torch.ones(len(z), dtype=z.dtype, device=z.device)
-        else:
-            lo, hi = self.ranges[first]
-            w = torch.exp(0.5 * (lo + hi) - z[:, first])
-        samples = dataclasses.replace(samples, weight=samples.weight * w,
-                                      point_force=samples.point_force * w[:, None])
+            return samples
+        lo, hi = self.ranges[first]
+        w = torch.exp(0.5 * (lo + hi) - z[:, first])
+        return dataclasses.replace(samples, weight=samples.weight * w,
+                                   point_force=samples.point_force * w[:, None])
+
+    def _energy_and_gradient(self, energy: ShellEnergy, samples, z, *, grad: bool = True):
+        """Mean-over-z of w(z) Π [J] on given samples (`_weighted`); fills the field's
+        gradients."""
+        samples = self._weighted(samples, z)
         raw = self.field.jets(samples.xi, z)
         u = self.model.boundary.compose(samples.xi, raw)
         result = energy.evaluate(samples, u, stiffness=self.stiffness(z), grad=grad)
@@ -261,6 +332,24 @@ class ConditionedEquilibrium:
         field.set_flat(flat.detach())
         after = self._energy_and_gradient(energy, samples, z, grad=False)
         log.info("conditioned L-BFGS polish: mean Π %.8g -> %.8g J", before, after)
+
+    def _newton(self, energy: ShellEnergy, generator: torch.Generator):
+        """Last-layer Newton phase on one fixed set of (ξ, z) Sobol samples
+        (`quasi_samples`): each sample's energy
+        with its own stiffness and force, weighted as in training (`_weighted`)."""
+        cfg = self.config
+        dtype, device = self.field.parameters[0].dtype, self.field.parameters[0].device
+        samples, z = self.quasi_samples(cfg.newton_samples, generator, dtype, device,
+                                        cfg.newton_point_load_copies)
+        samples = self._weighted(samples, z)
+        stiffness = self.stiffness(z)
+
+        def potential(s, u, grad):
+            return energy.evaluate(s, u, grad=grad, stiffness=stiffness)
+
+        return solve_last_layer(self.field, self.model.boundary, potential, samples, 1.0,
+                                NewtonConfig(iterations=cfg.newton_iterations),
+                                conditioning=z)
 
     # -- evaluation -----------------------------------------------------------------------------
     def _conditioning(self, xi: torch.Tensor, z) -> torch.Tensor:
