@@ -62,6 +62,14 @@ def test_bilevel_refuses_load_unknowns(tmp_path, capsys):
     assert code == 2 and "residual method" in err
 
 
+def test_negative_newton_steps_and_band(tmp_path, capsys):
+    obs = _mesh(tmp_path / "o.obj", np.eye(3))
+    for option, value in (("--newton", "-1"), ("--band", "0")):
+        code, err = _run(capsys, "--observed", obs, "--point-cloud", "--estimate", "bending",
+                         "--out", str(tmp_path / f"out{option}"), option, value)
+        assert code == 2 and f"{option} must be" in err, err
+
+
 @pytest.mark.slow
 def test_end_to_end_writes_estimate_and_overlay(tmp_path):
     import json
