@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.sampling import SurfaceSamples, stratified_uniform
 
 # Range of the pseudo-time input: the network sees 2t − 1 ∈ [−1, 1].
 TIME_RANGE = (0.0, 1.0)
@@ -35,15 +35,6 @@ def conditioning(t: float | torch.Tensor, n: int, *, dtype: torch.dtype,
     return torch.full((n, 1), float(t), dtype=dtype, device=device)
 
 
-def draw_times(n: int, start: float, end: float, generator: torch.Generator, *,
-               dtype: torch.dtype, device: torch.device | str | None = None) -> torch.Tensor:
-    """n stratified jittered pseudo-times in [start, end] (one per stratum of width
-    (end − start)/n), in random order so they are independent of the spatial strata."""
-    strata = torch.randperm(n, generator=generator).to(dtype)
-    jitter = torch.rand(n, generator=generator, dtype=dtype)
-    return (start + (strata + jitter) / n * (end - start)).to(device)
-
-
 def samples_over_time(samples: SurfaceSamples, start: float, end: float,
                       generator: torch.Generator) -> tuple[SurfaceSamples, torch.Tensor]:
     """Samples of (ξ, t): the area samples each get a t in [start, end]; each point-load
@@ -53,12 +44,13 @@ def samples_over_time(samples: SurfaceSamples, start: float, end: float,
     area = samples.weight != 0
     points = ~area
     n_area, n_points = int(area.sum()), int(points.sum())
-    t_area = draw_times(n_area, start, end, generator, dtype=dtype, device=device)
+    t_area = stratified_uniform(n_area, start, end, generator, dtype=dtype, device=device)
     if n_points == 0:
         return samples, t_area
     r = POINT_REPEATS
-    t_points = torch.stack([draw_times(r, start, end, generator, dtype=dtype, device=device)
-                            for _ in range(n_points)]).reshape(-1)
+    t_points = torch.stack([
+        stratified_uniform(r, start, end, generator, dtype=dtype, device=device)
+        for _ in range(n_points)]).reshape(-1)
 
     def expand(a: torch.Tensor) -> torch.Tensor:
         return torch.cat((a[area], a[points].repeat_interleave(r, dim=0)))

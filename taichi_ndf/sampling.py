@@ -44,6 +44,17 @@ class SurfaceSamples:
                                 (self.xi, self.r_jets, self.weight, self.point_force)))
 
 
+def stratified_uniform(n: int, low: float, high: float, generator: torch.Generator, *,
+                       dtype: torch.dtype,
+                       device: torch.device | str | None = None) -> torch.Tensor:
+    """n stratified jittered values in [low, high] (one per stratum of width (high − low)/n),
+    in random order, so that several such draws are independent of each other and of the
+    spatial strata."""
+    strata = torch.randperm(n, generator=generator).to(dtype)
+    jitter = torch.rand(n, generator=generator, dtype=dtype)
+    return (low + (strata + jitter) / n * (high - low)).to(device)
+
+
 def sample_surface(surface: ReferenceSurface, n: int, loads: Loads | None = None,
                    generator: torch.Generator | None = None, *,
                    dtype: torch.dtype | None = None,

@@ -17,11 +17,10 @@ from taichi_ndf.loads import Loads
 from taichi_ndf.pseudo_time import (
     POINT_REPEATS,
     conditioning,
-    draw_times,
     frame_times,
     samples_over_time,
 )
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.sampling import sample_surface, stratified_uniform
 from taichi_ndf.scene import load_scene, parse_scene
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import Solver
@@ -113,7 +112,7 @@ def test_samples_over_time_are_stratified_and_average_point_loads():
         rows = slice(64 + k * POINT_REPEATS, 64 + (k + 1) * POINT_REPEATS)
         torch.testing.assert_close(spread.point_force[rows].sum(0), samples.point_force[64 + k])
         assert float(t[rows].min()) >= 0.2 and float(t[rows].max()) <= 0.6
-    assert draw_times(5, 0.0, 1.0, gen, dtype=torch.float64).shape == (5,)
+    assert stratified_uniform(5, 0.0, 1.0, gen, dtype=torch.float64).shape == (5,)
     assert frame_times(0.25, 4) == [0.25, 0.5, 0.75, 1.0]
     with pytest.raises(ValueError, match="2 frames"):
         frame_times(0.0, 1)

@@ -43,7 +43,7 @@ from taichi_ndf.loads import Loads
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import NewtonConfig, solve_last_layer
 from taichi_ndf.optim import Adam, AdamConfig
-from taichi_ndf.sampling import SurfaceSamples, sample_surface
+from taichi_ndf.sampling import SurfaceSamples, sample_surface, stratified_uniform
 from taichi_ndf.scaling import characteristic_displacement
 from taichi_ndf.shell.energy import ShellEnergy
 
@@ -245,12 +245,8 @@ class ConditionedEquilibrium:
     def _draw(self, n: int, generator: torch.Generator, dtype) -> torch.Tensor:
         """Stratified uniform coordinates (n, p): each coordinate's n values cover its
         range in n equal strata, shuffled independently."""
-        cols = []
-        for lo, hi in self.ranges:
-            strata = torch.randperm(n, generator=generator).to(dtype)
-            jitter = torch.rand(n, generator=generator, dtype=dtype)
-            cols.append(lo + (strata + jitter) / n * (hi - lo))
-        return torch.stack(cols, dim=1)
+        return torch.stack([stratified_uniform(n, lo, hi, generator, dtype=dtype)
+                            for lo, hi in self.ranges], dim=1)
 
     # -- training -------------------------------------------------------------------------------
     def train(self) -> ConditionedEquilibrium:
