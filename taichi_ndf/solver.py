@@ -41,6 +41,9 @@ log = logging.getLogger(__name__)
 
 
 BLOW_UP_FACTOR = 1e3
+# Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
+MONITOR_SEED_OFFSET = 7919
+NEWTON_SEED_OFFSET = 104729
 
 
 class DivergenceError(RuntimeError):
@@ -222,13 +225,13 @@ class Solver:
         solve, whose samples do not depend on the load factor)."""
         key = 1.0 if self.config.pseudo_time else load_factor
         if key not in self._monitor:
-            gen = torch.Generator().manual_seed(self.config.seed + 7919)
+            gen = torch.Generator().manual_seed(self.config.seed + MONITOR_SEED_OFFSET)
             self._monitor[key] = self._samples(self.config.monitor_samples, key, gen)
         return self._monitor[key]
 
     def newton_samples(self, load_factor: float):
         if load_factor not in self._newton_samples:
-            gen = torch.Generator().manual_seed(self.config.seed + 104729)
+            gen = torch.Generator().manual_seed(self.config.seed + NEWTON_SEED_OFFSET)
             self._newton_samples[load_factor] = self._samples(self.config.newton_samples,
                                                               load_factor, gen)
         return self._newton_samples[load_factor]
@@ -368,7 +371,7 @@ class Solver:
         """Deterministic L-BFGS polish on a fixed, large sample set (of (ξ, t) in a
         pseudo-time solve)."""
         if self.config.pseudo_time:
-            gen = torch.Generator().manual_seed(self.config.seed + 7919)
+            gen = torch.Generator().manual_seed(self.config.seed + MONITOR_SEED_OFFSET)
             samples, times = self.training_samples(self.config.monitor_samples, lam, gen)
         else:
             samples, times = self.monitor_samples(lam), None
