@@ -137,18 +137,23 @@ def write_energy_plot(out: OutputDir, name: str, history) -> None:
     save_png(out.file(name), np.concatenate((top, bottom), axis=0))
 
 
-def write_trajectory(out: OutputDir, meshes: list[tuple[float, DeformedMesh]], *,
-                     fps: float = 4.0) -> None:
-    """One mesh per load step (or per frame of a pseudo-time field) under trajectory/ and an
-    MP4 of their renders (fixed camera)."""
+def trajectory_mesh_name(index: int) -> str:
+    """File of trajectory frame `index` (a load step's index, or a pseudo-time frame's)."""
+    return f"trajectory/step_{index:03d}.obj"
+
+
+def write_trajectory_mesh(out: OutputDir, index: int, mesh: DeformedMesh) -> None:
+    """Frame `index` of the trajectory as an OBJ with UVs; written as soon as the frame exists,
+    so that a resumed run finds the frames of the load steps finished before the interruption."""
+    write_obj(out.file(trajectory_mesh_name(index)), mesh.deformed, mesh.faces, uvs=mesh.uv)
+
+
+def write_trajectory_video(out: OutputDir, frames: list[tuple[np.ndarray, np.ndarray]], *,
+                           fps: float = 4.0) -> None:
+    """trajectory.mp4: renders of the deformed frames (vertices [m] (V, 3), faces (F, 3)), in
+    order, all from one camera that frames every one of them."""
     from taichi_ndf.render import frame_mesh
 
-    everything = np.concatenate([m.deformed for _, m in meshes])
-    camera = frame_mesh(everything, width=800, height=600)
-    frames = []
-    for k, (factor, mesh) in enumerate(meshes):
-        write_obj(out.file(f"trajectory/step_{k:03d}.obj"), mesh.deformed, mesh.faces,
-                  uvs=mesh.uv)
-        frames.append(render_shaded(mesh.deformed, mesh.faces, camera=camera))
-        log.info("trajectory frame %d: load factor %.4g", k, factor)
-    write_video(out.file("trajectory.mp4"), frames, fps)
+    camera = frame_mesh(np.concatenate([v for v, _ in frames]), width=800, height=600)
+    write_video(out.file("trajectory.mp4"),
+                [render_shaded(v, f, camera=camera) for v, f in frames], fps)

@@ -7,13 +7,16 @@ import logging
 import math
 
 from taichi_ndf.field import NeuralField
-from taichi_ndf.io import OutputDir
+from taichi_ndf.io import OutputDir, read_mesh
 from taichi_ndf.outputs import (
+    DeformedMesh,
     deformed_mesh,
+    trajectory_mesh_name,
     write_energy_plot,
     write_mesh_files,
     write_render,
-    write_trajectory,
+    write_trajectory_mesh,
+    write_trajectory_video,
 )
 from taichi_ndf.pseudo_time import frame_times
 from taichi_ndf.scene import Scene
@@ -39,14 +42,15 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         raise ValueError("the solver configuration and the scene disagree on pseudo_time (the "
                          "scene's field has a pseudo-time input only with it)")
     field = NeuralField(scene.field, seed=config.seed if seed is None else seed)
-    meshes = []
-    frame_energy = []
+    step_frames = len(config.load_steps) > 1 and not config.pseudo_time
+    frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
 
     def on_load_step(load_factor: float) -> None:
-        if len(config.load_steps) > 1 and not config.pseudo_time:
-            meshes.append((load_factor, deformed_mesh(scene.model, field, scene.output.resolution,
-                                                      load_factor=load_factor)))
-            frame_energy.append(run.history[-1].energy)
+        if step_frames:  # written at once: a resumed run reads the finished steps back
+            index = config.load_steps.index(load_factor)
+            frames[index] = deformed_mesh(scene.model, field, scene.output.resolution,
+                                          load_factor=load_factor)
+            write_trajectory_mesh(out, index, frames[index])
 
     run = Solver(scene.model, field, config, checkpoint_path=out.file("checkpoint.pt"),
                  checkpoint_extra={"scene": scene.document, "scene_dir": str(scene.path.parent)})
@@ -55,12 +59,20 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     except DivergenceError as err:
         raise SimulationError(str(err)) from err
 
+    trajectory = None
+    if step_frames:
+        trajectory = _load_step_trajectory(out, config.load_steps, frames, result.history)
     if config.pseudo_time:  # the whole path from the one field, at any number of frames
-        for t in frame_times(config.pseudo_time_start, scene.output.frames):
-            meshes.append((t, deformed_mesh(scene.model, field, scene.output.resolution,
-                                            load_factor=t, pseudo_time=True)))
-            frame_energy.append(run.energy_and_gradient(run.monitor_samples(t), t,
-                                                        grad=False).total)
+        times = frame_times(config.pseudo_time_start, scene.output.frames)
+        energy, pictures = [], []
+        for index, t in enumerate(times):
+            mesh = deformed_mesh(scene.model, field, scene.output.resolution, load_factor=t,
+                                 pseudo_time=True)
+            write_trajectory_mesh(out, index, mesh)
+            pictures.append((mesh.deformed, mesh.faces))
+            energy.append(run.energy_and_gradient(run.monitor_samples(t), t, grad=False).total)
+        write_trajectory_video(out, pictures)
+        trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy}
     mesh = deformed_mesh(scene.model, field, scene.output.resolution,
                          pseudo_time=config.pseudo_time)
     for name, values in mesh.scalars().items():
@@ -69,8 +81,6 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     write_mesh_files(out, "mesh", mesh)
     write_render(out, "render.png", mesh)
     write_energy_plot(out, "energy.png", result.history)
-    if meshes:
-        write_trajectory(out, meshes)
     summary = {
         "format_version": FORMAT_VERSION,
         "scene": scene.name,
@@ -78,9 +88,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         "iterations": result.iterations,
         "wall_time": result.wall_time,
         "probes": result.probes,
-        "trajectory": ({"source": "pseudo_time" if config.pseudo_time else "load_steps",
-                        "load_factors": [t for t, _ in meshes], "energy": frame_energy}
-                       if meshes else None),
+        "trajectory": trajectory,
         "resolved": {
             "field": scene.field.to_dict(),
             "solver": _plain(dataclasses.asdict(config)),
@@ -93,6 +101,31 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     out.write_json("result.json", summary)
     log.info("wrote outputs of %s to %s", scene.name, out.path)
     return summary
+
+
+def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],
+                          frames: dict[int, DeformedMesh], history) -> dict:
+    """trajectory.mp4 of every finished load step and its summary for result.json. Steps that
+    finished before a resume are read back from their OBJ files; the energy of each step is
+    the last monitor record at its load factor (the checkpoint keeps the history)."""
+    pictures, factors, energy = [], [], []
+    for index, load_factor in enumerate(load_steps):
+        if index in frames:
+            mesh = frames[index]
+            pictures.append((mesh.deformed, mesh.faces))
+        else:
+            path = out.file(trajectory_mesh_name(index))
+            if not path.exists():
+                log.warning("trajectory frame of load step %d (load factor %g) is missing "
+                            "(%s); the trajectory leaves it out", index, load_factor, path)
+                continue
+            saved = read_mesh(path)
+            pictures.append((saved.vertices, saved.faces))
+        factors.append(load_factor)
+        energy.append(next(h.energy for h in reversed(history)
+                           if h.load_factor == load_factor))
+    write_trajectory_video(out, pictures)
+    return {"source": "load_steps", "load_factors": factors, "energy": energy}
 
 
 def _plain(value):

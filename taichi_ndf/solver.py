@@ -95,8 +95,8 @@ class SolverConfig:
             raise ValueError(f"load_steps must be load factors in (0, 1], got {self.load_steps}")
         if abs(self.load_steps[-1] - 1.0) > 1e-12:
             raise ValueError(f"the last load step must be 1.0, got {self.load_steps[-1]}")
-        if list(self.load_steps) != sorted(self.load_steps):
-            raise ValueError(f"load_steps must increase, got {self.load_steps}")
+        if any(b <= a for a, b in zip(self.load_steps, self.load_steps[1:])):
+            raise ValueError(f"load_steps must increase strictly, got {self.load_steps}")
         if self.monitor_every < 1:
             raise ValueError(f"monitor_every must be >= 1, got {self.monitor_every}")
         if self.checkpoint_every < 0 or self.lbfgs_iterations < 0:

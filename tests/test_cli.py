@@ -222,6 +222,39 @@ def test_export_reproduces_the_run_mesh_at_any_resolution(tmp_path):
                         *RUNTIME]) == 2  # exists, no --overwrite
 
 
+def test_resume_keeps_the_trajectory_of_load_steps_finished_before_the_interruption(
+        tmp_path, monkeypatch):
+    text = SMALL_NAPKIN.format(lr=1e-3).replace("checkpoint_every = 5",
+                                                 "checkpoint_every = 5\nload_steps = [0.5, 1.0]")
+    scene = write_scene(tmp_path, text)
+    assert run_sim(scene, "--out", tmp_path / "whole") == 0
+    whole = json.loads((tmp_path / "whole" / "result.json").read_text())
+    assert whole["trajectory"]["load_factors"] == [0.5, 1.0]
+
+    save = Solver.save
+
+    def save_then_crash(self, load_step):
+        save(self, load_step)
+        if self.iteration == 15:  # in the second load step
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Solver, "save", save_then_crash)
+    with pytest.raises(KeyboardInterrupt):
+        run_sim(scene, "--out", tmp_path / "cut")
+    monkeypatch.undo()
+    first = tmp_path / "cut" / "trajectory" / "step_000.obj"
+    written_before = first.read_bytes()  # the first step's frame is on disk at once
+
+    assert run_sim(scene, "--out", tmp_path / "cut", "--resume") == 0
+    resumed = json.loads((tmp_path / "cut" / "result.json").read_text())
+    assert resumed["trajectory"]["load_factors"] == [0.5, 1.0]
+    assert resumed["trajectory"]["energy"] == pytest.approx(whole["trajectory"]["energy"],
+                                                            rel=1e-9)
+    assert first.read_bytes() == written_before
+    assert first.read_bytes() == (tmp_path / "whole" / "trajectory" / "step_000.obj").read_bytes()
+    assert (tmp_path / "cut" / "trajectory.mp4").stat().st_size > 0
+
+
 def test_threads_option_sets_torch_threads_and_refuses_zero(tmp_path, capsys):
     scene = small_napkin(tmp_path)
     with pytest.raises(SystemExit) as stop:
