@@ -175,7 +175,7 @@ class ConditionedEquilibrium:
         out = base.expand(len(z), -1).clone()
         for j, u in enumerate(self.unknowns):
             if u.kind == "scale":
-                out = out * torch.exp(z[:, j:j + 1])
+                out = out * torch.exp(z[:, j:j + 1]) / u.reference
             elif u.kind == "stiffness":
                 out[:, material.stiffness_names.index(u.key)] = torch.exp(z[:, j])
         return out

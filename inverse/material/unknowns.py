@@ -10,6 +10,8 @@ Names accepted by `parse_unknowns` (comma separated):
   `a11`, `a12`, `a22`, `G12`, `stiffness_scale`) and the aliases `stretch`
   (membrane_stiffness), `bending` (bending_stiffness);
 - `scale`: one factor on all stiffness values of the scene's material (e.g. a Clyde preset);
+- `young_modulus` (alias `E`), linear isotropic material only: Young's modulus E [Pa] at the
+  scene's thickness and Poisson's ratio (D and B both ∝ E): the `scale` unknown expressed in Pa;
 - `density`: areal density ρ_A [kg/m²] (acts through gravity);
 - `gravity`: the gravity vector g [m/s²] (3 unknowns); `body_force` [N/m²] (3 unknowns);
 - `pressure` [Pa];
@@ -29,8 +31,9 @@ from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import ShellModel
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.shell.materials import LinearIsotropic
 
-ALIASES = {"stretch": "membrane_stiffness", "bending": "bending_stiffness"}
+ALIASES = {"stretch": "membrane_stiffness", "bending": "bending_stiffness", "E": "young_modulus"}
 AXES = "xyz"
 
 
@@ -44,6 +47,8 @@ class Unknown:
     axis: vector component 0..2 for vector unknowns.
     positive: estimated in log space (stiffness, scale, density).
     unit: physical unit, for reports.
+    reference: kind "scale": the value that means the scene's stiffness unchanged (1 for a
+        plain factor, the scene's E [Pa] for `young_modulus`); the factor is value / reference.
     """
 
     name: str
@@ -52,6 +57,7 @@ class Unknown:
     axis: int | None = None
     positive: bool = True
     unit: str = ""
+    reference: float = 1.0
 
     def value(self, model: ShellModel) -> float:
         """The unknown's value in `model` (the scene's value: a start or a ground truth)."""
@@ -59,7 +65,7 @@ class Unknown:
         if self.kind == "stiffness":
             return float(getattr(material, self.key))
         if self.kind == "scale":
-            return 1.0
+            return self.reference
         if self.kind == "density":
             return material.areal_density
         if self.kind == "pressure":
@@ -86,6 +92,12 @@ def parse_unknowns(spec: str | list[str], model: ShellModel) -> tuple[ShellModel
             unknowns.append(Unknown(name, "stiffness", key=name, unit=unit))
         elif name == "scale":
             unknowns.append(Unknown("stiffness_scale_factor", "scale", unit="1"))
+        elif name == "young_modulus":
+            if not isinstance(material, LinearIsotropic):
+                raise ValueError(f"young_modulus needs the linear isotropic material, the scene "
+                                 f"has {type(material).__name__}; estimate 'scale' instead")
+            unknowns.append(Unknown("young_modulus", "scale", unit="Pa",
+                                    reference=material.young_modulus))
         elif name == "density":
             unknowns.append(Unknown("areal_density", "density", unit="kg/m²"))
         elif name in ("gravity", "body_force"):
@@ -102,14 +114,18 @@ def parse_unknowns(spec: str | list[str], model: ShellModel) -> tuple[ShellModel
         else:
             raise ValueError(
                 f"unknown parameter {item!r} to estimate for {type(material).__name__}; choose "
-                f"from {', '.join([*material.stiffness_names, *ALIASES])}, scale, density, "
-                f"gravity, body_force, pressure, point_load:NAME")
+                f"from {', '.join([*material.stiffness_names, *ALIASES])}, scale, "
+                f"young_modulus (linear isotropic), density, gravity, body_force, pressure, "
+                f"point_load:NAME")
     names = [u.name for u in unknowns]
     if len(set(names)) != len(names):
         raise ValueError(f"an unknown is listed twice: {names}")
     kinds = {u.kind for u in unknowns}
     if "scale" in kinds and "stiffness" in kinds:
-        raise ValueError("estimate either 'scale' or individual stiffness values, not both")
+        raise ValueError("estimate either 'scale' (or young_modulus) or individual stiffness "
+                         "values, not both")
+    if sum(u.kind == "scale" for u in unknowns) > 1:
+        raise ValueError("'scale' and young_modulus are the same unknown: estimate one")
     if "density" in kinds and "gravity" in kinds:
         raise ValueError("areal density and gravity enter only as their product: estimate one")
     return model, unknowns
@@ -142,7 +158,7 @@ def apply(model: ShellModel, unknowns: list[Unknown], values) -> ShellModel:
         if u.kind == "stiffness":
             material = material.with_stiffness(**{u.key: v})
         elif u.kind == "scale":
-            material = material.scaled(v)
+            material = material.scaled(v / u.reference)
         elif u.kind == "density":
             material = dataclasses.replace(material, areal_density=v)
         elif u.kind == "gravity":
@@ -228,7 +244,8 @@ def term_gradients(model: ShellModel, unknowns: list[Unknown], samples: SurfaceS
             unit_stiffness = no_stiffness.clone()
             unit_stiffness[:, k] = 1.0
         elif u.kind == "scale":
-            unit_stiffness = torch.tensor(material.stiffness, dtype=dtype).expand(n, -1)
+            unit_stiffness = torch.tensor(material.stiffness, dtype=dtype).expand(n, -1) \
+                / u.reference
         elif u.kind == "density":
             unit_loads = Loads(body_force=loads.gravity)
         elif u.kind == "gravity":
