@@ -65,6 +65,9 @@ from taichi_ndf.shell.energy import ShellEnergy
 
 log = logging.getLogger(__name__)
 
+# Levenberg–Marquardt trials per outer iteration (damping × 10 after each rejected one).
+LM_ATTEMPTS = 6
+
 
 @dataclass(frozen=True)
 class ImplicitConfig:
@@ -393,7 +396,7 @@ def fit_basis(equilibria: list[ImplicitEquilibrium], observations: list[Observat
         a, g = js.T @ js, js.T @ r
         states = [eq.state() for eq in equilibria]
         accepted = False
-        for _attempt in range(10):
+        for _attempt in range(LM_ATTEMPTS):
             damped = a + mu * np.diag(np.maximum(np.diag(a), 1e-30 * np.trace(a) + 1e-300))
             step = -np.linalg.solve(damped, g)
             largest = float(np.abs(step).max())
