@@ -56,7 +56,6 @@ from inverse.material import Observation, apply, parse_unknowns, template_xi
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig
 from inverse.material.implicit import ImplicitConfig, implicit_estimate
-from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import NeuralField
 from taichi_ndf.loads import PointLoad
 from taichi_ndf.scene import load_scene
@@ -87,13 +86,6 @@ def case(name: str):
         np.array(FORCE)
 
 
-def with_band(model, length: float):
-    """The model with the boundary conditions' band width `length` (fraction of the domain)."""
-    b = model.boundary
-    return dataclasses.replace(model, boundary=BoundaryConditions(
-        b.constraints, b.domain, surface=b.surface, length=length))
-
-
 def observe_elastica(model, bending: float):
     """The heavy elastica of the strip (independent reference, scipy BVP), 21 × 5 points."""
     sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
@@ -115,7 +107,7 @@ def observe(scene, truth, args, path: Path):
     if path.exists():
         return torch.load(path)
     if args.solve_newton:
-        truth = with_band(truth, args.band)
+        truth = truth.with_boundary_length(args.band)
         field = NeuralField(dataclasses.replace(scene.field, width=args.obs_width,
                                                 hidden_layers=2, omega0=3.0), seed=1)
         config = dataclasses.replace(scene.solver, iterations=0, progress=False,

@@ -49,7 +49,6 @@ from inverse.material.observations import Observation
 from inverse.material.residual import Estimate, _groups
 from inverse.material.unknowns import Unknown, apply, term_gradients
 from taichi_ndf import jets
-from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import (
@@ -180,9 +179,7 @@ class ImplicitEquilibrium:
     def __init__(self, model: ShellModel, unknowns: list[Unknown], config: ImplicitConfig,
                  seed: int, width: int | None = None):
         if config.boundary_length is not None:
-            b = model.boundary
-            model = dataclasses.replace(model, boundary=BoundaryConditions(
-                b.constraints, b.domain, surface=b.surface, length=config.boundary_length))
+            model = model.with_boundary_length(config.boundary_length)
         self.model = model
         self.unknowns = list(unknowns)
         self.config = config
