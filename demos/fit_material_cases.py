@@ -34,7 +34,9 @@ layer by last-layer Newton on `--newton-samples` Sobol samples, Levenberg–Marq
 fit from the start for every noise level; no box, no training. A third case, `elastica`, is
 the cantilever strip observed as the heavy elastica (scipy BVP of
 tests/test_inverse_material_elastica.py, not this project's solver; 21 × 5 points), bending
-stiffness estimated from the scene's 10.2× start:
+stiffness estimated from the scene's 10.2× start. A fourth, `gravity`, is the strip with the true
+bending stiffness under gravity 20° off vertical (tilted towards +x, away from the clamp),
+observed by the forward solver; the gravity vector is estimated from vertical:
 
     python demos/fit_material_cases.py point_load --out runs/pl_newton --solve-newton 40 \
         --method implicit --width 256 --seeds 2 3
@@ -71,6 +73,14 @@ def case(name: str):
     if name == "elastica":
         scene = load_scene(SCENES / "cantilever_strip.toml")
         return scene, None, scene.model, "bending", np.array([0.2 * 9.81 * 0.2**3])
+    if name == "gravity":
+        scene = load_scene(SCENES / "cantilever_strip.toml")
+        model = apply(scene.model, parse_unknowns("bending", scene.model)[1],
+                      [0.2 * 9.81 * 0.2**3])
+        model, unknowns = parse_unknowns("gravity", model)
+        tilt = math.radians(20.0)
+        truth = (9.81 * math.sin(tilt), 0.0, -9.81 * math.cos(tilt))
+        return scene, apply(model, unknowns, truth), model, "gravity", np.array(truth)
     if name == "flap":
         scene = load_scene(SCENES / "orthotropic_flap.toml")
         model, unknowns = parse_unknowns("scale", scene.model)
@@ -132,7 +142,7 @@ def observe(scene, truth, args, path: Path):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("case", choices=("flap", "point_load", "elastica"))
+    parser.add_argument("case", choices=("flap", "point_load", "elastica", "gravity"))
     parser.add_argument("--out", required=True, help="folder (the observation is cached there)")
     parser.add_argument("--solve", type=int, default=1000, help="forward-solve Adam iterations")
     parser.add_argument("--solve-lbfgs", type=int, default=1000, help="forward-solve L-BFGS")
