@@ -66,7 +66,7 @@ def test_point_load_recovered_from_a_wrong_start_on_another_basis():
     features 64 × 2, seeds 2 and 3, 2048 other samples; start (0, 0, −20) mN. Measured:
     (3.75, 2.90, −9.99) mN, error 2.4 % (F_x 6 % low; Fisher s.e. of F_x 0.09 mN, spread
     between the bases 0.02 mN: these small bases are biased alike), 4 outer iterations per
-    basis, 12 s. The 5 % tolerance fails a wrong gradient or an outer loop that does not
+    basis, 5–12 s. The 5 % tolerance fails a wrong gradient or an outer loop that does not
     move from the start (error 100 %)."""
     _, truth = strip_with_load(FORCE)
     truth, unknowns = parse_unknowns("point_load:0", truth)
@@ -102,7 +102,7 @@ def test_cli_implicit_writes_estimate_with_the_feature_spread(tmp_path):
     """`--method implicit --quick` on the heavy elastica (scipy BVP) from the scene's 10.2×
     start: estimate.json has the bending stiffness with a standard error that includes the
     spread over the two feature seeds. Measured: 1.5695e-2 for 1.5696e-2 N·m (64 × 2
-    features, 2048 samples), 16 s."""
+    features, 2048 samples), 7–16 s."""
     scene = load_scene(SCENE)
     obs = _elastica_mesh(tmp_path / "obs.obj", scene.model, scene.output.resolution)
     out = tmp_path / "out"

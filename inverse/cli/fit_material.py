@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="implicit: width of the 2 fixed sine layers (default 256; 64 with "
                         "--quick)")
     p.add_argument("--samples", type=int, default=None,
-                   help="implicit: Newton samples (default 8192; 2048 with --quick)")
+                   help="implicit: Newton samples (default 4096; 2048 with --quick)")
     p.add_argument("--out", required=True, help="output directory (must be new or empty)")
     p.add_argument("--point-cloud", action="store_true",
                    help="treat observations as point clouds without correspondence")
@@ -126,8 +126,8 @@ def _finite(x: float):
 
 def _implicit(args, observations, unknowns):
     """The implicit-function estimate with the command line's settings."""
-    width = args.width or (64 if args.quick else 256)
-    samples = args.samples or (2048 if args.quick else 8192)
+    width = args.width or (64 if args.quick else ImplicitConfig.width)
+    samples = args.samples or (2048 if args.quick else ImplicitConfig.samples)
     try:
         config = ImplicitConfig(width=width, samples=samples,
                                 seeds=tuple(args.seeds or (2, 3)),
