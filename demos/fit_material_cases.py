@@ -179,6 +179,8 @@ def main():
                              "function gradients of Newton equilibria")
     parser.add_argument("--seeds", type=int, nargs="+", default=[2, 3],
                         help="implicit: feature seeds (the spread enters the standard error)")
+    parser.add_argument("--widths", type=int, nargs="*", default=[],
+                        help="implicit: feature width per seed (default: --width for all)")
     parser.add_argument("--implicit-samples", type=int, default=4096,
                         help="implicit: Newton samples (Sobol)")
     parser.add_argument("--max-step", type=float, default=1.0,
@@ -239,6 +241,7 @@ def fit_implicit(args, observation, unknowns, true_values):
     """The implicit-function estimate for every noise level, from the start each time; the
     forward models (and their start solution) are shared between the noise levels."""
     config = ImplicitConfig(width=args.width, hidden_layers=2, seeds=tuple(args.seeds),
+                            widths=tuple(args.widths),
                             boundary_length=args.band, samples=args.implicit_samples,
                             max_step=args.max_step)
     equilibria = None
