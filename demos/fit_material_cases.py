@@ -27,12 +27,26 @@ estimate where that is determined (`--box-centre`), and fitted to the observatio
     python demos/fit_material_cases.py point_load --out runs/pl_newton --solve-newton 40 \
         --train 1000 --train-lbfgs 0 --newton 30 --newton-samples 16384 --width 256 \
         --hidden-layers 2
+
+With `--method implicit` the estimate is the implicit-function bilevel method
+(`inverse.material.implicit`): fixed SIREN features `--width` × 2 (seeds `--seeds`), output
+layer by last-layer Newton on `--newton-samples` Sobol samples, Levenberg–Marquardt outer
+fit from the start for every noise level; no box, no training. A third case, `elastica`, is
+the cantilever strip observed as the heavy elastica (scipy BVP of
+tests/test_inverse_material_elastica.py, not this project's solver; 21 × 5 points), bending
+stiffness estimated from the scene's 10.2× start. A fourth, `gravity`, is the strip with the true
+bending stiffness under gravity 20° off vertical (tilted towards +x, away from the clamp),
+observed by the forward solver; the gravity vector is estimated from vertical:
+
+    python demos/fit_material_cases.py point_load --out runs/pl_newton --solve-newton 40 \
+        --method implicit --width 256 --seeds 2 3
 """
 
 import argparse
 import dataclasses
 import logging
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -43,7 +57,7 @@ import taichi_ndf
 from inverse.material import Observation, apply, parse_unknowns, template_xi
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig
-from taichi_ndf.boundary import BoundaryConditions
+from inverse.material.implicit import ImplicitConfig, implicit_estimate
 from taichi_ndf.field import NeuralField
 from taichi_ndf.loads import PointLoad
 from taichi_ndf.scene import load_scene
@@ -56,6 +70,17 @@ TIP = (0.2, 0.02)
 
 def case(name: str):
     """(scene, truth model, start model, unknowns spec, truth values)."""
+    if name == "elastica":
+        scene = load_scene(SCENES / "cantilever_strip.toml")
+        return scene, None, scene.model, "bending", np.array([0.2 * 9.81 * 0.2**3])
+    if name == "gravity":
+        scene = load_scene(SCENES / "cantilever_strip.toml")
+        model = apply(scene.model, parse_unknowns("bending", scene.model)[1],
+                      [0.2 * 9.81 * 0.2**3])
+        model, unknowns = parse_unknowns("gravity", model)
+        tilt = math.radians(20.0)
+        truth = (9.81 * math.sin(tilt), 0.0, -9.81 * math.cos(tilt))
+        return scene, apply(model, unknowns, truth), model, "gravity", np.array(truth)
     if name == "flap":
         scene = load_scene(SCENES / "orthotropic_flap.toml")
         model, unknowns = parse_unknowns("scale", scene.model)
@@ -71,18 +96,28 @@ def case(name: str):
         np.array(FORCE)
 
 
-def with_band(model, length: float):
-    """The model with the boundary conditions' band width `length` (fraction of the domain)."""
-    b = model.boundary
-    return dataclasses.replace(model, boundary=BoundaryConditions(
-        b.constraints, b.domain, surface=b.surface, length=length))
+def observe_elastica(model, bending: float):
+    """The heavy elastica of the strip (independent reference, scipy BVP), 21 × 5 points."""
+    sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
+    from test_inverse_material_elastica import cantilever
+
+    (lo1, length), (lo2, width) = model.surface.domain.bounds
+    g = -model.loads.gravity[2]
+    positions, _ = cantilever(length, bending, model.material.membrane_stiffness,
+                              (0.0, -model.material.areal_density * g))
+    s, y = np.meshgrid(np.linspace(lo1, length, 21), np.linspace(lo2, width, 5))
+    xz = positions(s.ravel())
+    points = torch.tensor(np.stack([xz[:, 0], y.ravel(), xz[:, 1]], axis=1))
+    return torch.tensor(np.stack([s.ravel(), y.ravel()], axis=1)), points
 
 
 def observe(scene, truth, args, path: Path):
+    if truth is None:
+        return observe_elastica(scene.model, 0.2 * 9.81 * 0.2**3)
     if path.exists():
         return torch.load(path)
     if args.solve_newton:
-        truth = with_band(truth, args.band)
+        truth = truth.with_boundary_length(args.band)
         field = NeuralField(dataclasses.replace(scene.field, width=args.obs_width,
                                                 hidden_layers=2, omega0=3.0), seed=1)
         config = dataclasses.replace(scene.solver, iterations=0, progress=False,
@@ -107,7 +142,7 @@ def observe(scene, truth, args, path: Path):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("case", choices=("flap", "point_load"))
+    parser.add_argument("case", choices=("flap", "point_load", "elastica", "gravity"))
     parser.add_argument("--out", required=True, help="folder (the observation is cached there)")
     parser.add_argument("--solve", type=int, default=1000, help="forward-solve Adam iterations")
     parser.add_argument("--solve-lbfgs", type=int, default=1000, help="forward-solve L-BFGS")
@@ -139,6 +174,18 @@ def main():
     parser.add_argument("--decades", type=float, default=1.3, help="stiffness box half-width")
     parser.add_argument("--load-box", type=float, default=1.0,
                         help="point-load box half-width in units of |start force|")
+    parser.add_argument("--method", default="conditioned", choices=("conditioned", "implicit"),
+                        help="bilevel with a material-conditioned field, or with implicit-"
+                             "function gradients of Newton equilibria")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[2, 3],
+                        help="implicit: feature seeds (the spread enters the standard error)")
+    parser.add_argument("--widths", type=int, nargs="*", default=[],
+                        help="implicit: feature width per seed (default: --width for all)")
+    parser.add_argument("--implicit-samples", type=int, default=4096,
+                        help="implicit: Newton samples (Sobol)")
+    parser.add_argument("--max-step", type=float, default=1.0,
+                        help="implicit: largest outer step in normalised coordinates")
+    parser.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.005, 0.02])
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(1)
@@ -152,6 +199,9 @@ def main():
     xi, points = observe(scene, truth, args, out / name)
     model, unknowns = parse_unknowns(spec, start_model)
     observation = Observation(model, points, xi)
+    if args.method == "implicit":
+        fit_implicit(args, observation, unknowns, true_values)
+        return
     field = ConditionedConfig(iterations=args.train, samples=512,
                               lbfgs_iterations=args.train_lbfgs,
                               lbfgs_samples=args.lbfgs_samples,
@@ -166,21 +216,49 @@ def main():
     result = bilevel_estimate([observation], unknowns, config, start=args.start)
     print(f"box centred on the {result.box_centre}: {result.ranges}; training "
           f"{result.equilibria[0].training_time:.1f} s, total {time.perf_counter() - start:.1f} s")
-    for noise in (0.0, 0.005, 0.02):
+    for noise in args.noise:
         noisy = observation.with_noise(noise, seed=1) if noise else observation
         estimate = bilevel_estimate([noisy], unknowns, config,
                                     equilibria=result.equilibria).estimate
-        values = estimate.values
-        error = np.linalg.norm(values - true_values) / np.linalg.norm(true_values)
-        line = (f"noise {noise:.3f}: {np.array2string(values, precision=5)} ± "
-                f"{np.array2string(estimate.standard_errors, formatter={'float': '{:.2e}'.format})}"
-                f", error "
-                f"{100 * error:.2f} %, determined {estimate.identifiability.determined}, "
-                f"fit {estimate.time:.2f} s")
-        if len(values) == 3:
-            cosine = values @ true_values / np.linalg.norm(values) / np.linalg.norm(true_values)
-            line += f", angle {math.degrees(math.acos(min(cosine, 1.0))):.2f}°"
-        print(line)
+        print(f"noise {noise:.3f}: {summary(estimate, true_values)}")
+
+
+def summary(estimate, true_values) -> str:
+    """Values ± standard errors, error against the truth, determined flags, fit time."""
+    values = estimate.values
+    error = np.linalg.norm(values - true_values) / np.linalg.norm(true_values)
+    line = (f"{np.array2string(values, formatter={'float': '{:.6g}'.format})} ± "
+            f"{np.array2string(estimate.standard_errors, formatter={'float': '{:.2e}'.format})}"
+            f", error {100 * error:.2f} %, determined {estimate.identifiability.determined}, "
+            f"fit {estimate.time:.2f} s")
+    if len(values) == 3:
+        cosine = values @ true_values / np.linalg.norm(values) / np.linalg.norm(true_values)
+        line += f", angle {math.degrees(math.acos(min(cosine, 1.0))):.2f}°"
+    return line
+
+
+def fit_implicit(args, observation, unknowns, true_values):
+    """The implicit-function estimate for every noise level, from the start each time; the
+    forward models (and their start solution) are shared between the noise levels."""
+    config = ImplicitConfig(width=args.width, hidden_layers=2, seeds=tuple(args.seeds),
+                            widths=tuple(args.widths),
+                            boundary_length=args.band, samples=args.implicit_samples,
+                            max_step=args.max_step)
+    equilibria = None
+    for noise in args.noise:
+        noisy = observation.with_noise(noise, seed=1) if noise else observation
+        result = implicit_estimate([noisy], unknowns, config, start=args.start,
+                                   equilibria=equilibria)
+        equilibria = result.equilibria
+        bases = "; ".join(
+            f"seed {f.seed} width {f.width}: "
+            f"{np.array2string(f.values, formatter={'float': '{:.6g}'.format})} "
+            f"({f.iterations} outer it., {f.newton_steps} Newton steps, {f.time:.1f} s)"
+            for f in result.fits)
+        print(f"noise {noise:.3f}: {summary(result.estimate, true_values)}; Fisher s.e. "
+              f"{np.array2string(result.fisher_errors, formatter={'float': '{:.2e}'.format})}"
+              f", spread {np.array2string(result.spread, formatter={'float': '{:.2e}'.format})}"
+              f"; {bases}", flush=True)
 
 
 if __name__ == "__main__":

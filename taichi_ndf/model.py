@@ -54,6 +54,13 @@ class ShellModel:
     def with_loads(self, loads: Loads) -> ShellModel:
         return replace(self, loads=loads)
 
+    def with_boundary_length(self, length: float) -> ShellModel:
+        """The model with the band width `length` of its boundary conditions' vanishing
+        factors (a fraction of the domain; edges accept > 1, e.g. for a Newton basis)."""
+        b = self.boundary
+        return replace(self, boundary=BoundaryConditions(b.constraints, b.domain,
+                                                         surface=b.surface, length=length))
+
     def displacement_jets(self, field, xi: torch.Tensor, *, t: float = 1.0, conditioning=None):
         """Displacement jets u (N, 6, 3) [m] of a field at ξ, boundary conditions applied."""
         raw = field.jets(xi, conditioning)

@@ -130,19 +130,19 @@ def parameter_hessian(jacobian: torch.Tensor, hessians: torch.Tensor) -> torch.T
     """d²Π/dθ², shape (3 (width + 1), 3 (width + 1)), from the per-sample blocks: exact, since
     u is affine in θ."""
     _, n, channels, p = jacobian.shape
-    rows = []
+    blocks = {}
     for k in range(COMPONENTS):
         flat_k = jacobian[k].reshape(n * channels, p)
-        row = []
-        for m in range(COMPONENTS):
+        for m in range(k, COMPONENTS):  # the blocks below the diagonal are transposes
             block = hessians[:, :, k, :, m]  # (N, 6, 6)
             # Σ_d h[n, c, d] J[n, d, a] as six broadcast products: batched 6 × 6 GEMMs are
             # ~50 × slower on the CPU.
             weighted = sum(block[:, :, d, None] * jacobian[m][:, d, None, :]
                            for d in range(channels))
-            row.append(flat_k.t() @ weighted.reshape(n * channels, p))
-        rows.append(torch.cat(row, dim=1))
-    return torch.cat(rows, dim=0)
+            blocks[k, m] = flat_k.t() @ weighted.reshape(n * channels, p)
+            blocks[m, k] = blocks[k, m].t()
+    return torch.cat([torch.cat([blocks[k, m] for m in range(COMPONENTS)], dim=1)
+                      for k in range(COMPONENTS)], dim=0)
 
 
 def damped_step(hessian: torch.Tensor, gradient: torch.Tensor, damping: float) -> torch.Tensor:
@@ -173,6 +173,25 @@ def _channel_steps(u_jets: torch.Tensor, jacobian: torch.Tensor, theta: torch.Te
     rms_j = jacobian.pow(2).mean(dim=(0, 1, 3)).sqrt()
     scale = torch.maximum(rms_u, rms_j * rms_theta)
     return relative * torch.where(scale > 0, scale, torch.ones_like(scale))
+
+
+def output_hessian(field: NeuralField, boundary: BoundaryConditions, potential: Potential,
+                   samples: SurfaceSamples, load_factor: float,
+                   config: NewtonConfig | None = None, *,
+                   conditioning: torch.Tensor | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Displacement jets u (N, 6, 3) [m] of the current field at the samples, their Jacobian
+    J (3, N, 6, width + 1) with respect to the output layer (`output_jacobian`) and the
+    output-layer Hessian H = d²Π/dθ² (3 (width + 1), 3 (width + 1)) (`parameter_hessian`,
+    blocks by central differences with `config.fd_step`). At a converged solve (∇_θ Π = 0)
+    this is what the implicit-function theorem needs: dθ*/dp = −H⁻¹ ∂(∇_θ Π)/∂p for any
+    parameter p of the potential, with ∂(∇_θ Π)/∂p = Jᵀ ∂(dΠ/du)/∂p."""
+    config = config or NewtonConfig()
+    u, jacobian = output_jacobian(field, boundary, samples.xi, load_factor, conditioning)
+    theta = torch.cat((field.parameters[-2], field.parameters[-1][:, None]), dim=1)
+    hessians = sample_hessians(potential, samples, u, steps=_channel_steps(
+        u, jacobian, theta, config.fd_step))
+    return u, jacobian, parameter_hessian(jacobian, hessians)
 
 
 def solve_last_layer(field: NeuralField, boundary: BoundaryConditions, potential: Potential,

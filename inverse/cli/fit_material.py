@@ -1,7 +1,7 @@
 """`ndf-fit-material`: estimate material parameters and loads from observed equilibrium shapes.
 
     ndf-fit-material --scene S.toml --observed OBS.obj [OBS2.ply ...] --estimate bending \
-        [--method residual|bilevel] --out DIR
+        [--method residual|bilevel|implicit] --out DIR
 
 The scene gives everything known (geometry, boundary conditions, known loads) and start values
 of the unknowns. An observation whose vertex count equals the scene's exported template grid
@@ -30,6 +30,7 @@ from inverse.material import (
 )
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig, to_values
+from inverse.material.implicit import ImplicitConfig, implicit_estimate
 from inverse.material.report import estimate_document, overlay_image
 from taichi_ndf.cli.common import add_runtime_options, machine_description, start
 from taichi_ndf.io import read_mesh
@@ -54,11 +55,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="unknowns, comma separated or repeated: bending, stretch, scale, "
                         "density, gravity, body_force, pressure, point_load:NAME, or a "
                         "stiffness name of the scene's material")
-    p.add_argument("--method", default="bilevel", choices=("residual", "bilevel"),
+    p.add_argument("--method", default="bilevel", choices=("residual", "bilevel", "implicit"),
                    help="bilevel: fit equilibria of a material-conditioned field (robust "
-                        "to noise; stiffness and point loads); residual: equilibrium-residual "
-                        "least squares (fast, also distributed loads; needs clean data). "
-                        "Default: bilevel")
+                        "to noise; stiffness and point loads); implicit: fit last-layer Newton "
+                        "equilibria on fixed features with implicit-function gradients (every "
+                        "unknown; the spread over feature seeds enters the standard error); "
+                        "residual: equilibrium-residual least squares (fast, also distributed "
+                        "loads; needs clean data). Default: bilevel")
+    p.add_argument("--seeds", type=int, nargs="+", default=None,
+                   help="implicit: feature seeds, one estimate each (default 2 3)")
+    p.add_argument("--width", type=int, default=None,
+                   help="implicit: width of the 2 fixed sine layers (default 256; 64 with "
+                        "--quick)")
+    p.add_argument("--samples", type=int, default=None,
+                   help="implicit: Newton samples (default 4096; 2048 with --quick)")
     p.add_argument("--out", required=True, help="output directory (must be new or empty)")
     p.add_argument("--point-cloud", action="store_true",
                    help="treat observations as point clouds without correspondence")
@@ -110,6 +120,23 @@ def _observations(paths, model, resolution, point_cloud: bool) -> list[Observati
     return out
 
 
+def _finite(x: float):
+    return float(x) if np.isfinite(x) else None
+
+
+def _implicit(args, observations, unknowns):
+    """The implicit-function estimate with the command line's settings."""
+    width = args.width or (64 if args.quick else ImplicitConfig.width)
+    samples = args.samples or (2048 if args.quick else ImplicitConfig.samples)
+    try:
+        config = ImplicitConfig(width=width, samples=samples,
+                                seeds=tuple(args.seeds or (2, 3)),
+                                boundary_length=2.0 if args.band is None else args.band)
+        return implicit_estimate(observations, unknowns, config)
+    except ValueError as err:
+        raise InputError(str(err)) from None
+
+
 def run(args, runtime) -> dict:
     try:
         scene = load_scene(args.scene)
@@ -121,6 +148,11 @@ def run(args, runtime) -> dict:
         raise InputError(str(err)) from None
     if args.iterations is not None and args.iterations < 1:
         raise InputError(f"--iterations must be >= 1, got {args.iterations}")
+    if args.band is not None and not args.band > 0:
+        raise InputError(f"--band must be positive, got {args.band}")
+    for name in ("width", "samples"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise InputError(f"--{name} must be >= 1, got {getattr(args, name)}")
     out = OutputDir(args.out)  # refuses a non-empty directory before any work
     observations = _observations(args.observed, model, scene.output.resolution,
                                  args.point_cloud)
@@ -132,12 +164,22 @@ def run(args, runtime) -> dict:
         estimate = residual_estimate(observations, unknowns, ResidualConfig(samples=16384))
         document = estimate_document(estimate, model)
         fitted = estimate.shapes[0].positions(grid_xi).numpy()
+    elif args.method == "implicit":
+        result = _implicit(args, observations, unknowns)
+        estimate = result.estimate
+        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
+        document["standard_error_parts"] = {
+            u.name: {"fisher": _finite(f), "feature_spread": _finite(s)}
+            for u, f, s in zip(unknowns, result.fisher_errors, result.spread, strict=True)}
+        document["feature_bases"] = [
+            {"seed": f.seed, "width": f.width, "values": f.values.tolist(),
+             "outer_iterations": f.iterations, "newton_steps": f.newton_steps,
+             "converged": f.converged, "time_s": f.time} for f in result.fits]
+        fitted = result.fitted_positions(0, grid_xi).numpy()
     else:
         iterations = args.iterations or (300 if args.quick else 1000)
         if args.newton < 0:
             raise InputError(f"--newton must be >= 0, got {args.newton}")
-        if args.band is not None and not args.band > 0:
-            raise InputError(f"--band must be positive, got {args.band}")
         field = ConditionedConfig(
             width=scene.field.width, hidden_layers=scene.field.hidden_layers,
             omega0=scene.field.omega0, output_scale=scene.field.output_scale,

@@ -3,6 +3,7 @@
 from inverse.material.bilevel import BilevelConfig, BilevelResult, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig, ConditionedEquilibrium
 from inverse.material.identifiability import Identifiability
+from inverse.material.implicit import ImplicitConfig, ImplicitResult, implicit_estimate
 from inverse.material.observations import Observation, read_observation, template_xi
 from inverse.material.residual import (
     Estimate,
@@ -18,4 +19,4 @@ __all__ = ["Observation", "read_observation", "template_xi", "FittedShape", "fit
            "Unknown", "parse_unknowns", "apply", "ResidualConfig", "Estimate",
            "residual_estimate", "equilibrium_system", "bending_length", "Identifiability",
            "ConditionedConfig", "ConditionedEquilibrium", "BilevelConfig", "BilevelResult",
-           "bilevel_estimate"]
+           "bilevel_estimate", "ImplicitConfig", "ImplicitResult", "implicit_estimate"]

@@ -119,6 +119,22 @@ def gravity_only(model) -> bool:
             and any(loads.gravity))
 
 
+def gravity_ratios(observations: list[Observation], unknowns: list[Unknown], values,
+                   ident) -> tuple[dict[str, tuple[float, float]], list[str]]:
+    """Under gravity alone: the determined stiffness values over ρ_A g (value, relative
+    standard error) and a note that absolute values rest on the scene's areal density;
+    otherwise nothing."""
+    if not all(gravity_only(obs.model) for obs in observations):
+        return {}, []
+    model0 = observations[0].model
+    rho_g = model0.material.areal_density * math.dist(model0.loads.gravity, (0, 0, 0))
+    ratios = {f"{u.key}/(areal_density*g)": (values[j] / rho_g, float(ident.std[j]))
+              for j, u in enumerate(unknowns) if u.kind == "stiffness" and ident.determined[j]}
+    return ratios, [f"gravity is the only load: the shape determines stiffness only relative "
+                    f"to the weight ρ_A g; absolute values assume the scene's areal density "
+                    f"ρ_A = {model0.material.areal_density:g} kg/m²"]
+
+
 def _project(equilibrium: ConditionedEquilibrium, z, points: torch.Tensor,
              grid: int) -> torch.Tensor:
     """Closest points ξ (M, 2) of the surface x*(·; θ) to `points`: nearest grid seed, then
@@ -292,16 +308,9 @@ def bilevel_estimate(observations: list[Observation], unknowns: list[Unknown],
                         elapsed, "bilevel_conditioned_field")
     result = BilevelResult(estimate, equilibria, ranges, box_centre=centre,
                            box_centre_values=centre_values, notes=notes)
-    if all(gravity_only(obs.model) for obs in observations):
-        rho_g = model0.material.areal_density * math.dist(model0.loads.gravity, (0, 0, 0))
-        for j, u in enumerate(unknowns):
-            if u.kind == "stiffness" and ident.determined[j]:
-                result.ratios[f"{u.key}/(areal_density*g)"] = (values[j] / rho_g,
-                                                               float(ident.std[j]))
-        result.notes.append(
-            f"gravity is the only load: the shape determines stiffness only relative to the "
-            f"weight ρ_A g; absolute values assume the scene's areal density "
-            f"ρ_A = {model0.material.areal_density:g} kg/m²")
+    ratios, note = gravity_ratios(observations, unknowns, values, ident)
+    result.ratios.update(ratios)
+    result.notes += note
     log.info("bilevel estimate: %s (rms misfit %.3g m, %d Jacobians, %.1f s)",
              dict(zip(names, values.tolist(), strict=True)), rms, estimate.iterations, elapsed)
     return result

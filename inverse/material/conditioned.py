@@ -37,7 +37,6 @@ import torch
 
 from inverse.material.unknowns import Unknown, apply
 from taichi_ndf import jets
-from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.loads import Loads
 from taichi_ndf.model import ShellModel
@@ -144,9 +143,7 @@ class ConditionedEquilibrium:
             raise ValueError(f"need one coordinate range per unknown, got {len(ranges)} for "
                              f"{len(unknowns)}")
         if config.boundary_length is not None:
-            b = model.boundary
-            model = dataclasses.replace(model, boundary=BoundaryConditions(
-                b.constraints, b.domain, surface=b.surface, length=config.boundary_length))
+            model = model.with_boundary_length(config.boundary_length)
         self.model = model
         self.unknowns = list(unknowns)
         self.ranges = [(float(lo), float(hi)) for lo, hi in ranges]
