@@ -1,6 +1,8 @@
 """A pinned point with rotation="free": u = N(ξ) − N(ξ₀), through training, Newton, probes and
 the scene schema."""
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -11,25 +13,13 @@ from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads
 from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.newton import output_jacobian, solve_last_layer
-from taichi_ndf.sampling import sample_surface
-from taichi_ndf.scene import load_scene
+from taichi_ndf.scene import parse_scene
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.shell.materials import preset
 from taichi_ndf.solver import Solver, SolverConfig
 
 PIN = (0.0, 0.0)
 SURFACE = Plane(bounds=((0.0, 1.0), (0.0, 1.0)))
-SCENE = """
-name = "hanging"
-[geometry]
-type = "plane"
-bounds = [[0.0, 1.0], [0.0, 1.0]]
-[material]
-preset = "cloth"
-[[boundary.constraint]]
-type = "pinned_point"
-xi = [0.0, 0.0]
-"""
 
 
 def free_pin(components="xyz"):
@@ -159,16 +149,19 @@ def test_free_pin_refuses_conditioned_fields(hanging):
         Solver(model, field, SolverConfig(pseudo_time=True, progress=False))
 
 
-def test_scene_schema_reads_and_checks_the_rotation(tmp_path):
-    path = tmp_path / "scene.toml"
+def scene_with_pin(**pin):
+    document = {"name": "hanging", "material": {"preset": "cloth"},
+                "geometry": {"type": "plane", "bounds": [[0.0, 1.0], [0.0, 1.0]]},
+                "boundary": {"constraint": [{"type": "pinned_point", "xi": [0.0, 0.0], **pin}]}}
+    return parse_scene(document, base_dir=Path("."))
+
+
+def test_scene_schema_reads_and_checks_the_rotation():
     for rotation in ("free", "held"):
-        path.write_text(SCENE + f'rotation = "{rotation}"\n')
-        assert load_scene(path).model.boundary.constraints[0].rotation == rotation
-    path.write_text(SCENE)
-    assert load_scene(path).model.boundary.free_pin is None  # the default holds the slope
-    path.write_text(SCENE + 'rotation = "spinning"\n')
+        pin = scene_with_pin(rotation=rotation).model.boundary.constraints[0]
+        assert pin.rotation == rotation
+    assert scene_with_pin().model.boundary.free_pin is None  # the default holds the slope
     with pytest.raises(SceneError, match="rotation"):
-        load_scene(path)
-    path.write_text(SCENE + 'rotation = "free"\nlength = 0.2\n')
+        scene_with_pin(rotation="spinning")
     with pytest.raises(SceneError, match="length does not apply"):
-        load_scene(path)
+        scene_with_pin(rotation="free", length=0.2)
