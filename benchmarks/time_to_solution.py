@@ -3,11 +3,13 @@ value, and peak memory, for the napkin (scenes/napkin.toml: pinned corner, gravi
 cloth) and the sleeve (scenes/sleeve_compression.toml).
 
     python benchmarks/time_to_solution.py [--cases napkin sleeve] [--reference-factor 3]
+                                          [--threads 2]
 
 "Converged" is a reference run of the same scene with `reference-factor` times as many
 iterations per load step. Both runs monitor Π on the same fixed sample set (the solver seeds
 it from the scene's seed), so their energies are comparable. Each run is a fresh subprocess,
-so the peak resident memory (getrusage) is that run's own. Prints a Markdown table.
+so the peak resident memory (getrusage) is that run's own; `--threads` sets its torch CPU
+threads (the scene run and the reference alike). Prints a Markdown table.
 """
 
 from __future__ import annotations
@@ -29,9 +31,15 @@ CASES = {
 TOLERANCE = 0.01  # relative distance to the converged Π
 
 
-def solve(scene_path: Path, iteration_factor: float, precision: str, monitor_every: int) -> dict:
-    """One run in this process; returns its monitor history and peak memory."""
+def solve(scene_path: Path, iteration_factor: float, precision: str, monitor_every: int,
+          threads: int) -> dict:
+    """One run in this process with `threads` torch threads; returns its monitor history and
+    peak memory."""
+    import torch
+
     import taichi_ndf
+
+    torch.set_num_threads(threads)
 
     taichi_ndf.init(arch="cpu", precision=precision, seed=0)
     from taichi_ndf.field import NeuralField
@@ -54,7 +62,8 @@ def solve(scene_path: Path, iteration_factor: float, precision: str, monitor_eve
     }
 
 
-def run_subprocess(case: str, factor: float, precision: str, monitor_every: int) -> dict:
+def run_subprocess(case: str, factor: float, precision: str, monitor_every: int,
+                   threads: int) -> dict:
     command = [
         sys.executable,
         __file__,
@@ -66,6 +75,8 @@ def run_subprocess(case: str, factor: float, precision: str, monitor_every: int)
         precision,
         "--monitor-every",
         str(monitor_every),
+        "--threads",
+        str(threads),
     ]
     out = subprocess.run(command, check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -94,18 +105,19 @@ def main(argv=None) -> int:
     )
     p.add_argument("--precision", default="f32", choices=("f32", "f64"))
     p.add_argument("--monitor-every", type=int, default=25)
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch CPU threads of each run (default 1)")
     p.add_argument("--one", choices=list(CASES), help=argparse.SUPPRESS)
     p.add_argument("--factor", type=float, default=1.0, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.one:
-        print(json.dumps(solve(CASES[args.one], args.factor, args.precision, args.monitor_every)))
+        print(json.dumps(solve(CASES[args.one], args.factor, args.precision, args.monitor_every,
+                               args.threads)))
         return 0
-
-    import torch
 
     print(
         f"machine: {platform.processor() or platform.machine()}, "
-        f"{torch.get_num_threads()} torch threads, precision {args.precision}"
+        f"{args.threads} torch thread(s), precision {args.precision}"
     )
     print(
         "| scene | iterations (scene) | Π converged [J] | Π at end of scene run [J] | "
@@ -113,8 +125,9 @@ def main(argv=None) -> int:
     )
     print("|---|---|---|---|---|---|---|")
     for case in args.cases:
-        run = run_subprocess(case, 1.0, args.precision, args.monitor_every)
-        reference = run_subprocess(case, args.reference_factor, args.precision, args.monitor_every)
+        run = run_subprocess(case, 1.0, args.precision, args.monitor_every, args.threads)
+        reference = run_subprocess(case, args.reference_factor, args.precision,
+                                   args.monitor_every, args.threads)
         wall, iteration = time_to_tolerance(run["history"], reference["energy"])
         reached = f"{wall:.1f} (iteration {iteration})" if wall is not None else "not reached"
         print(

@@ -63,14 +63,21 @@ class ShellModel:
 
     def displacement_jets(self, field, xi: torch.Tensor, *, t: float = 1.0, conditioning=None):
         """Displacement jets u (N, 6, 3) [m] of a field at ξ, boundary conditions applied."""
-        raw = field.jets(xi, conditioning)
+        raw = field.jets(self.boundary.evaluation_points(xi), self._conditioning(conditioning))
         return self.boundary.compose(xi, raw, t=t)
 
     def displacement(self, field, xi: torch.Tensor, *, t: float = 1.0, conditioning=None):
         """Displacement u (N, 3) [m] at ξ (no tape kept: for outputs and probes)."""
-        values = field.evaluate(xi, conditioning)
+        values = field.evaluate(self.boundary.evaluation_points(xi),
+                                self._conditioning(conditioning))
         raw = jets.constant(values)
         return self.boundary.compose(xi, raw, t=t)[:, jets.VALUE]
+
+    def _conditioning(self, conditioning):
+        if conditioning is not None and self.boundary.free_pin is not None:
+            raise ValueError("a free pin (pinned point, rotation='free') does not support a "
+                             "conditioned field (pseudo-time or material inputs)")
+        return conditioning
 
     def characteristic_length(self) -> float:
         """√(surface area) [m], estimated from the reference surface."""

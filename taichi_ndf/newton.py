@@ -1,8 +1,9 @@
 """Last-layer Newton (Galerkin) solve: minimise Π exactly over the field's output layer.
 
 The raw field output is linear in the output layer θ_k = (W_out[k], b_out[k]) of each component
-k, and the boundary conditions compose affinely (u_k = φ_k·raw_k + g_k, Leibniz rule on jets),
-so the displacement jets are affine in θ: u = u(θ₀) + J (θ − θ₀) with J in closed form. Π is a
+k, and the boundary conditions compose affinely (u_k = φ_k·raw_k + g_k, Leibniz rule on jets;
+minus raw_k(ξ₀) with a free pin: `BoundaryConditions.compose_jacobian`), so the displacement
+jets are affine in θ: u = u(θ₀) + J (θ − θ₀) with J in closed form. Π is a
 sum of per-sample terms, so its Hessian with respect to the jets is block diagonal, one 18 × 18
 block (6 channels × 3 components) per sample; those blocks come from central differences of
 the exact gradient dΠ/du_jets, perturbing one (channel, component) of all samples at once.
@@ -86,18 +87,18 @@ def output_jacobian(field: NeuralField, boundary: BoundaryConditions, xi: torch.
     to the output layer, shape (3, N, 6, width + 1): J[k, :, :, a] = ∂u_k/∂θ_k[a] with
     θ_k = (W_out[k, :], b_out[k]); u_k does not depend on θ_l for l ≠ k.
     conditioning: the field's extra inputs per sample (N, k), for a conditioned field."""
-    raw = field.jets(xi, conditioning)
-    features = field.last_features()  # (6, N, width)
-    n, width = xi.shape[0], features.shape[2]
+    if conditioning is not None and boundary.free_pin is not None:
+        raise ValueError("last-layer Newton does not support a free pin (pinned point, "
+                         "rotation='free') with a conditioned field")
+    raw = field.jets(boundary.evaluation_points(xi), conditioning)
+    features = field.last_features()  # (6, N (+ 1 for a free pin), width)
+    n, width = features.shape[1], features.shape[2]
     basis = features.new_zeros(n, jets.CHANNELS, width + 1)
     basis[:, :, :width] = features.permute(1, 0, 2)
     basis[:, jets.VALUE, width] = 1.0  # the bias enters the value channel only
     basis *= field.config.output_scale
     xi = xi.to(raw.dtype)
-    phi = boundary.vanishing_factor(xi)
-    jacobian = torch.stack([jets.product(phi[:, :, k : k + 1], basis)
-                            for k in range(COMPONENTS)])
-    return boundary.compose(xi, raw, t=load_factor), jacobian
+    return boundary.compose(xi, raw, t=load_factor), boundary.compose_jacobian(xi, basis)
 
 
 def parameter_gradient(jacobian: torch.Tensor, grad_u_jets: torch.Tensor) -> torch.Tensor:

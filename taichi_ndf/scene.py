@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from taichi_ndf.boundary import (
+    PIN_ROTATIONS,
     BoundaryConditions,
     ClampedEdge,
     Handle,
@@ -211,7 +212,8 @@ def _constraint(c: Table):
         return cls(edge=c.string("edge"), displacement=c.vector("displacement", 3, (0, 0, 0)),
                    **common)
     if kind == "pinned_point":
-        return PinnedPoint(xi=c.vector("xi", 2), **common)
+        return PinnedPoint(xi=c.vector("xi", 2),
+                           rotation=c.string("rotation", "held", choices=PIN_ROTATIONS), **common)
     if kind == "handle":
         return Handle(xi=c.vector("xi", 2), displacement=c.vector("displacement", 3), **common)
     if kind == "interior_line":

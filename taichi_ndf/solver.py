@@ -149,6 +149,9 @@ class Solver:
 
     def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
                  checkpoint_path: str | Path | None = None, checkpoint_extra: dict | None = None):
+        if config.pseudo_time and model.boundary.free_pin is not None:
+            raise ValueError("pseudo_time does not support a free pin (pinned point, "
+                             "rotation='free'): the pin's value would differ per sample time")
         if config.pseudo_time and field.config.conditioning != (TIME_RANGE,):
             raise ValueError(f"a pseudo-time solve needs a field with the one conditioning "
                              f"input range {TIME_RANGE}, got {field.config.conditioning}")
@@ -194,7 +197,7 @@ class Solver:
             if times is not None:
                 raise ValueError("per-sample times need a pseudo-time solve")
             t = load_factor
-            raw = self.field.jets(xi)
+            raw = self.field.jets(self.model.boundary.evaluation_points(xi))
         u = self.model.boundary.compose(xi, raw, t=t)
         result = self.potential(samples, u, t, grad=grad)
         if grad:

@@ -136,6 +136,7 @@ def test_point_loads_and_lbfgs_in_a_pseudo_time_solve():
     doc["training"] = {"pseudo_time": True, "iterations": 3, "samples": 64,
                        "monitor_samples": 256, "lbfgs_iterations": 2, "checkpoint_every": 0}
     doc.setdefault("loads", {})["point"] = [{"xi": [0.5, 0.5], "force": [0.0, 0.0, -0.1]}]
+    doc["boundary"]["constraint"][0]["rotation"] = "held"  # a free pin refuses pseudo_time
     scene = parse_scene(doc, base_dir=SCENES)
     field = NeuralField(dataclasses.replace(scene.field, width=8), seed=0)
     solver = Solver(scene.model, field, dataclasses.replace(scene.solver, progress=False))

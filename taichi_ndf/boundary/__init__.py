@@ -3,6 +3,7 @@
 from taichi_ndf.boundary.conditions import BoundaryConditions
 from taichi_ndf.boundary.constraints import (
     EDGES,
+    PIN_ROTATIONS,
     ClampedEdge,
     Constraint,
     Handle,
@@ -16,6 +17,7 @@ __all__ = [
     "BoundaryConditions",
     "Constraint",
     "EDGES",
+    "PIN_ROTATIONS",
     "ClampedEdge",
     "HingedEdge",
     "PinnedPoint",

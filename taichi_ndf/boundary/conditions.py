@@ -16,6 +16,15 @@ rotating rim gets exactly the rigid rotation of its tangent plane). The blend is
 only where the sets of two groups meet, so a prescribing constraint touching any other
 constraint on the same component is refused as contradictory.
 
+Free pin. A `PinnedPoint` with rotation="free" holds the position of one point ξ₀ but not the
+slope there: u_c = N_c(ξ) − N_c(ξ₀) for its components (φ_c = 1, no band). A sheet hanging
+from one point turns about it; with the slope held (φ ~ d², the default) the field can only
+approach that rotation with an ever sharper layer around the pin (a point condition on the
+slope is not a bounded functional on H² in 2-D, so it does not change the infimum of Π). The
+field is then evaluated at the pin too: `evaluation_points(ξ)` appends ξ₀ to ξ, `compose`
+takes the raw jets at those N + 1 points and `compose_adjoint` returns gradients for all of
+them (the pin's row collects −Σ_i ∂/∂u_i). A free pin must be the only constraint.
+
 Length scale. Every factor rises from 0 on its set to exactly 1 at distance ℓ and is 1 beyond,
 with ℓ measured in normalised coordinates η = (ξ − lo)/(hi − lo) ∈ [0, 1]² (so a plate and a
 cylinder's angle get comparable bands). The default ℓ = 0.1 is chosen because
@@ -130,28 +139,95 @@ class BoundaryConditions:
         self.domain = domain
         self.surface = surface
         self.length = float(length)
-        self._terms = tuple(self._resolve(c) for c in self.constraints)
+        free = [c for c in self.constraints
+                if isinstance(c, PinnedPoint) and c.rotation == "free"]
+        if free and len(self.constraints) > 1:
+            raise ValueError(
+                "a pinned point with rotation='free' must be the only constraint, got "
+                f"{len(self.constraints)} constraints ({len(free)} free pin(s)); several free "
+                "pins or a free pin with other constraints are not supported"
+            )
+        self.free_pin: PinnedPoint | None = free[0] if free else None
+        # A free pin has no vanishing factor: it is resolved (checked) but not a term.
+        self._terms = tuple(
+            term for term in (self._resolve(c) for c in self.constraints)
+            if term.constraint is not self.free_pin
+        )
         self._check_contradictions()
 
     # ---- composition -------------------------------------------------------------------
 
+    def evaluation_points(self, xi: torch.Tensor) -> torch.Tensor:
+        """Where the raw field is needed for `compose` at ξ (N, 2): ξ itself, or with a free
+        pin ξ followed by the pin ξ₀, shape (N + 1, 2)."""
+        if self.free_pin is None:
+            return xi
+        pin = torch.tensor([self.free_pin.xi], dtype=xi.dtype, device=xi.device)
+        return torch.cat((xi, pin))
+
     def compose(self, xi: torch.Tensor, raw_jets: torch.Tensor,
                 t: float | torch.Tensor = 1.0) -> torch.Tensor:
         """Displacement jets u = φ N + g, shape (N, 6, 3) [m], from the raw network jets
-        N (N, 6, 3) at ξ (N, 2); t is the pseudo-time / load factor of prescribed motions:
-        one number, or one per sample (tensor (N,), for a pseudo-time field)."""
+        at `evaluation_points(ξ)` (N, or N + 1 with a free pin, × 6 × 3) for ξ (N, 2); t is
+        the pseudo-time / load factor of prescribed motions: one number, or one per sample
+        (tensor (N,), for a pseudo-time field). With a free pin u = N(ξ) − N(ξ₀)."""
         xi = xi.to(raw_jets.dtype)
+        raw_jets, pin_jets = self._split(xi, raw_jets)
         factors = self._factors(xi)
         phi = self._vanishing(xi, factors)
-        return jets.product(phi, raw_jets) + self._prescribed(xi, factors, t)
+        u = jets.product(phi, raw_jets) + self._prescribed(xi, factors, t)
+        if pin_jets is not None:
+            held = self._free_components()
+            u[:, jets.VALUE, held] -= pin_jets[jets.VALUE, held]
+        return u
 
     def compose_adjoint(
         self, xi: torch.Tensor, grad_u_jets: torch.Tensor, t: float | torch.Tensor = 1.0
     ) -> torch.Tensor:
-        """Gradient with respect to the raw jets N (N, 6, 3) of a scalar whose gradient with
-        respect to u = compose(ξ, N, t) is grad_u_jets; g does not depend on N, so t is unused."""
+        """Gradient with respect to the raw jets N at `evaluation_points(ξ)` (N, or N + 1 with
+        a free pin, × 6 × 3) of a scalar whose gradient with respect to u = compose(ξ, N, t)
+        is grad_u_jets (N, 6, 3); g does not depend on N, so t is unused."""
         xi = xi.to(grad_u_jets.dtype)
-        return jets.product_adjoint(self._vanishing(xi, self._factors(xi)), grad_u_jets)
+        grad = jets.product_adjoint(self._vanishing(xi, self._factors(xi)), grad_u_jets)
+        if self.free_pin is None:
+            return grad
+        pin = torch.zeros_like(grad[:1])
+        held = self._free_components()
+        pin[0, jets.VALUE, held] = -grad_u_jets[:, jets.VALUE, held].sum(dim=0)
+        return torch.cat((grad, pin))
+
+    def compose_jacobian(self, xi: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
+        """Jacobian of u = compose(ξ, N) with respect to θ_k when each raw component is
+        N_k = basis · θ_k: basis are the jets (N or N + 1, 6, p) of the p functions at
+        `evaluation_points(ξ)`; returns (3, N, 6, p), J[k] = ∂u_k/∂θ_k (u is affine in N)."""
+        xi = xi.to(basis.dtype)
+        basis, pin_basis = self._split(xi, basis)
+        phi = self.vanishing_factor(xi)
+        jacobian = torch.stack([jets.product(phi[:, :, k : k + 1], basis) for k in range(3)])
+        if pin_basis is not None:
+            for k in self._free_components():
+                jacobian[k, :, jets.VALUE] -= pin_basis[jets.VALUE]
+        return jacobian
+
+    def _free_components(self) -> list[int]:
+        return [COMPONENTS.index(c) for c in self.free_pin.components]
+
+    def _split(self, xi: torch.Tensor, raw: torch.Tensor
+               ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Raw jets at the samples (N, 6, k) and, with a free pin, at the pin (6, k)."""
+        n = xi.shape[0]
+        extra = 0 if self.free_pin is None else 1
+        if raw.shape[0] != n + extra:
+            if self.free_pin is None:
+                raise ValueError(f"raw jets have {raw.shape[0]} rows for {n} points")
+            raise ValueError(
+                f"raw jets have {raw.shape[0]} rows for {n} points: with a free pin "
+                "(pinned point, rotation='free') evaluate the field at "
+                "evaluation_points(ξ), the points and the pin (N + 1 rows)"
+            )
+        if not extra:
+            return raw, None
+        return raw[:n], raw[n]
 
     def vanishing_factor(self, xi: torch.Tensor) -> torch.Tensor:
         """Jets of φ_c at ξ (N, 2), shape (N, 6, 3): 0 on each constrained set of component c,

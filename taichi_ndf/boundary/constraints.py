@@ -19,6 +19,7 @@ from taichi_ndf.checks import finite_vector
 
 EDGES = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")
 COMPONENTS = "xyz"
+PIN_ROTATIONS = ("held", "free")
 
 
 def _check_components(owner: str, components: str) -> str:
@@ -102,18 +103,30 @@ class HingedEdge:
 
 @dataclass(frozen=True)
 class PinnedPoint:
-    """A point ξ (on the boundary or in the interior) held in place. A smooth φ must vanish
-    quadratically at a point, so the surface's slope is held there too, over a patch of the
-    size of `length`."""
+    """A point ξ (on the boundary or in the interior) held in place.
+
+    rotation: "held" (default): u = φ N with a smooth φ, which must vanish quadratically at a
+        point, so the surface's slope is held there too, over a patch of the size of `length`.
+        "free": u = N(ξ) − N(ξ₀), the pin holds the position only and the surface turns
+        freely about it (a hanging sheet); `length` does not apply. A free pin must be the
+        only constraint (`BoundaryConditions` refuses anything else).
+    """
 
     xi: tuple[float, float]
     components: str = "xyz"
     length: float | None = None
+    rotation: str = "held"
 
     def __post_init__(self):
         _set(self, "xi", finite_vector("PinnedPoint: xi", self.xi, 2))
         _set(self, "components", _check_components("PinnedPoint", self.components))
         _check_length("PinnedPoint", self.length)
+        if self.rotation not in PIN_ROTATIONS:
+            raise ValueError(f"PinnedPoint: rotation must be one of {PIN_ROTATIONS}, got "
+                             f"{self.rotation!r}")
+        if self.rotation == "free" and self.length is not None:
+            raise ValueError("PinnedPoint: length does not apply with rotation='free' (no "
+                             "vanishing factor); leave it out")
 
 
 @dataclass(frozen=True)
