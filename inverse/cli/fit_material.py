@@ -53,8 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="observed shape(s), OBJ or PLY, all under the scene's conditions")
     p.add_argument("--estimate", required=True, action="append",
                    help="unknowns, comma separated or repeated: bending, stretch, scale, "
-                        "density, gravity, body_force, pressure, point_load:NAME, or a "
-                        "stiffness name of the scene's material")
+                        "young_modulus (E; linear isotropic), density, gravity, body_force, "
+                        "pressure, point_load:NAME, or a stiffness name of the scene's "
+                        "material")
     p.add_argument("--method", default="bilevel", choices=("residual", "bilevel", "implicit"),
                    help="bilevel: fit equilibria of a material-conditioned field (robust "
                         "to noise; stiffness and point loads); implicit: fit last-layer Newton "
