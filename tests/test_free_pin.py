@@ -165,3 +165,22 @@ def test_scene_schema_reads_and_checks_the_rotation():
         scene_with_pin(rotation="spinning")
     with pytest.raises(SceneError, match="length does not apply"):
         scene_with_pin(rotation="free", length=0.2)
+
+
+def test_inverse_methods_without_free_pin_support_refuse_it_clearly():
+    from inverse.material import Observation, parse_unknowns, residual_estimate
+    from inverse.material.conditioned import ConditionedEquilibrium
+    from taichi_ndf.shell.materials import LinearIsotropic
+
+    surface = Plane(bounds=((0.0, 1.0), (0.0, 1.0)))
+    model = ShellModel(surface, LinearIsotropic(6.4, 7.68e-7, 0.25, 0.144),
+                       Loads(gravity=(0.0, 0.0, -9.81)),
+                       BoundaryConditions([PinnedPoint((0.0, 0.0), rotation="free")],
+                                          surface.domain))
+    model, unknowns = parse_unknowns("bending", model)
+    xi = torch.rand(20, 2, dtype=torch.float64)
+    points = torch.cat((xi, torch.zeros(20, 1, dtype=torch.float64)), dim=1)
+    with pytest.raises(ValueError, match="residual method does not support a free pin"):
+        residual_estimate([Observation(model, points, xi)], unknowns)
+    with pytest.raises(ValueError, match="conditioned field does not support a free pin"):
+        ConditionedEquilibrium(model, unknowns, [(-1.0, 1.0)])

@@ -139,6 +139,10 @@ class ConditionedEquilibrium:
         if bad:
             raise ValueError(f"the material-conditioned field takes stiffness and point-load "
                              f"unknowns only, not {bad}: estimate these with the residual method")
+        if model.boundary.free_pin is not None:
+            raise ValueError("the material-conditioned field does not support a free pin "
+                             "(pinned point, rotation = 'free'); use --method implicit or "
+                             "rotation = 'held'")
         if len(ranges) != len(unknowns):
             raise ValueError(f"need one coordinate range per unknown, got {len(ranges)} for "
                              f"{len(unknowns)}")

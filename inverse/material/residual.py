@@ -116,6 +116,11 @@ def _groups(unknowns: list[Unknown], values: np.ndarray) -> np.ndarray:
 def residual_estimate(observations: list[Observation], unknowns: list[Unknown],
                       config: ResidualConfig = ResidualConfig()) -> Estimate:
     """Estimate the unknowns from observed equilibrium shapes (see module docstring)."""
+    for obs in observations:
+        if obs.model.boundary.free_pin is not None:
+            raise ValueError("the residual method does not support a free pin (pinned point, "
+                             "rotation = 'free'): its virtual displacements are not made to "
+                             "vanish there; use --method implicit or rotation = 'held'")
     start = time.perf_counter()
     shapes, blocks_a, blocks_b = [], [], []
     for obs in observations:
