@@ -18,6 +18,7 @@ that widens the range of t. The monitor reports Π at t = λ.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import sys
@@ -95,7 +96,7 @@ class SolverConfig:
             raise ValueError(f"load_steps must be load factors in (0, 1], got {self.load_steps}")
         if abs(self.load_steps[-1] - 1.0) > 1e-12:
             raise ValueError(f"the last load step must be 1.0, got {self.load_steps[-1]}")
-        if any(b <= a for a, b in zip(self.load_steps, self.load_steps[1:])):
+        if any(b <= a for a, b in itertools.pairwise(self.load_steps)):
             raise ValueError(f"load_steps must increase strictly, got {self.load_steps}")
         if self.monitor_every < 1:
             raise ValueError(f"monitor_every must be >= 1, got {self.monitor_every}")
