@@ -176,6 +176,15 @@ def _channel_steps(u_jets: torch.Tensor, jacobian: torch.Tensor, theta: torch.Te
     return relative * torch.where(scale > 0, scale, torch.ones_like(scale))
 
 
+def _hessian_at(potential: Potential, samples: SurfaceSamples, u_jets: torch.Tensor,
+                jacobian: torch.Tensor, theta: torch.Tensor, fd_step: float) -> torch.Tensor:
+    """d²Π/dθ² at displacement jets u_jets (output layer θ): per-sample blocks by central
+    differences with steps `fd_step` × each channel's scale, assembled through J."""
+    hessians = sample_hessians(potential, samples, u_jets,
+                               steps=_channel_steps(u_jets, jacobian, theta, fd_step))
+    return parameter_hessian(jacobian, hessians)
+
+
 def output_hessian(field: NeuralField, boundary: BoundaryConditions, potential: Potential,
                    samples: SurfaceSamples, load_factor: float,
                    config: NewtonConfig | None = None, *,
@@ -190,9 +199,7 @@ def output_hessian(field: NeuralField, boundary: BoundaryConditions, potential: 
     config = config or NewtonConfig()
     u, jacobian = output_jacobian(field, boundary, samples.xi, load_factor, conditioning)
     theta = torch.cat((field.parameters[-2], field.parameters[-1][:, None]), dim=1)
-    hessians = sample_hessians(potential, samples, u, steps=_channel_steps(
-        u, jacobian, theta, config.fd_step))
-    return u, jacobian, parameter_hessian(jacobian, hessians)
+    return u, jacobian, _hessian_at(potential, samples, u, jacobian, theta, config.fd_step)
 
 
 def solve_last_layer(field: NeuralField, boundary: BoundaryConditions, potential: Potential,
@@ -219,9 +226,8 @@ def solve_last_layer(field: NeuralField, boundary: BoundaryConditions, potential
     for _ in range(config.iterations):
         gradient = parameter_gradient(jacobian, current.grad_u_jets).reshape(-1)
         u_now = displacement(delta)
-        hessians = sample_hessians(potential, samples, u_now, steps=_channel_steps(
-            u_now, jacobian, theta + delta, config.fd_step))
-        hessian = parameter_hessian(jacobian, hessians)
+        hessian = _hessian_at(potential, samples, u_now, jacobian, theta + delta,
+                              config.fd_step)
         accepted = False
         for _attempt in range(4):
             step = damped_step(hessian, gradient, damping).reshape(shape)

@@ -73,12 +73,21 @@ def sample_surface(surface: ReferenceSurface, n: int, loads: Loads | None = None
     # |Ω| / M rather than |rectangle| / n: with a mask, the number M of samples kept
     # fluctuates, and dividing by it removes that noise from the estimate.
     weight = torch.full((xi.shape[0],), domain.area / xi.shape[0], dtype=dtype, device=device)
-    force = torch.zeros(xi.shape[0], 3, dtype=dtype, device=device)
     if loads is not None and loads.point_loads:
         loads.check_domain(domain)
-        point_xi = torch.tensor([p.xi for p in loads.point_loads], dtype=dtype, device=device)
-        point_force = torch.tensor([p.force for p in loads.point_loads], dtype=dtype,
-                                   device=device)
+    return with_point_loads(surface, xi, weight, loads)
+
+
+def with_point_loads(surface: ReferenceSurface, xi: torch.Tensor, weight: torch.Tensor,
+                     loads: Loads | None) -> SurfaceSamples:
+    """Area samples ξ (N, 2) with quadrature weights (N,) [m² of parameter domain], followed by
+    one zero-weight sample per point load of `loads` (in their order) carrying its force."""
+    force = torch.zeros(xi.shape[0], 3, dtype=xi.dtype, device=xi.device)
+    if loads is not None and loads.point_loads:
+        point_xi = torch.tensor([p.xi for p in loads.point_loads], dtype=xi.dtype,
+                                device=xi.device)
+        point_force = torch.tensor([p.force for p in loads.point_loads], dtype=xi.dtype,
+                                   device=xi.device)
         xi = torch.cat((xi, point_xi))
         weight = torch.cat((weight, weight.new_zeros(point_xi.shape[0])))
         force = torch.cat((force, point_force))

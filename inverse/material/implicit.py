@@ -59,7 +59,7 @@ from taichi_ndf.newton import (
     parameter_gradient,
     solve_last_layer,
 )
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.shell.energy import ShellEnergy
 
 log = logging.getLogger(__name__)
@@ -159,14 +159,7 @@ def sobol_samples(model: ShellModel, n: int, seed: int, dtype=torch.float64) -> 
     xi = torch.stack((lo1 + (hi1 - lo1) * unit[:, 0], lo2 + (hi2 - lo2) * unit[:, 1]), dim=1)
     xi = xi[domain.contains(xi)]
     weight = torch.full((len(xi),), domain.area / len(xi), dtype=dtype)
-    force = torch.zeros(len(xi), 3, dtype=dtype)
-    points = model.loads.point_loads
-    if points:
-        xi = torch.cat((xi, torch.tensor([p.xi for p in points], dtype=dtype)))
-        weight = torch.cat((weight, weight.new_zeros(len(points))))
-        force = torch.cat((force, torch.tensor([p.force for p in points], dtype=dtype)))
-    return SurfaceSamples(xi=xi, r_jets=model.surface.jets(xi), weight=weight,
-                          point_force=force)
+    return with_point_loads(model.surface, xi, weight, model.loads)
 
 
 class ImplicitEquilibrium:

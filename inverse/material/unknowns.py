@@ -29,7 +29,7 @@ import torch
 
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import ShellModel
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.materials import LinearIsotropic
 
@@ -190,17 +190,7 @@ def residual_samples(model: ShellModel, n: int) -> SurfaceSamples:
     xi = torch.from_numpy(np.stack(np.meshgrid(x1, x2, indexing="ij"), -1).reshape(-1, 2))
     weight = torch.from_numpy(w)
     inside = model.surface.domain.contains(xi)
-    xi, weight = xi[inside], weight[inside]
-    force = torch.zeros(len(xi), 3, dtype=torch.float64)
-    if model.loads.point_loads:
-        point_xi = torch.tensor([p.xi for p in model.loads.point_loads], dtype=torch.float64)
-        point_force = torch.tensor([p.force for p in model.loads.point_loads],
-                                   dtype=torch.float64)
-        xi = torch.cat((xi, point_xi))
-        weight = torch.cat((weight, weight.new_zeros(len(point_xi))))
-        force = torch.cat((force, point_force))
-    return SurfaceSamples(xi=xi, r_jets=model.surface.jets(xi), weight=weight,
-                          point_force=force)
+    return with_point_loads(model.surface, xi[inside], weight[inside], model.loads)
 
 
 def _gradient(model: ShellModel, samples: SurfaceSamples, u_jets: torch.Tensor,
