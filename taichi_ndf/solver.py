@@ -18,7 +18,6 @@ that widens the range of t. The monitor reports Π at t = λ.
 
 from __future__ import annotations
 
-import itertools
 import logging
 import math
 import sys
@@ -29,6 +28,7 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from taichi_ndf import checks
 from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
 from taichi_ndf.field import NeuralField
 from taichi_ndf.model import ShellModel
@@ -92,12 +92,7 @@ class SolverConfig:
             raise ValueError(f"iterations must be >= 0, got {self.iterations}")
         if self.samples < 16:
             raise ValueError(f"samples must be >= 16, got {self.samples}")
-        if not self.load_steps or any(not 0 < s <= 1 for s in self.load_steps):
-            raise ValueError(f"load_steps must be load factors in (0, 1], got {self.load_steps}")
-        if abs(self.load_steps[-1] - 1.0) > 1e-12:
-            raise ValueError(f"the last load step must be 1.0, got {self.load_steps[-1]}")
-        if any(b <= a for a, b in itertools.pairwise(self.load_steps)):
-            raise ValueError(f"load_steps must increase strictly, got {self.load_steps}")
+        checks.load_steps(self.load_steps)
         if self.monitor_every < 1:
             raise ValueError(f"monitor_every must be >= 1, got {self.monitor_every}")
         if self.checkpoint_every < 0 or self.lbfgs_iterations < 0:

@@ -48,7 +48,7 @@ from inverse.material.identifiability import UNDETERMINED_STD, Identifiability, 
 from inverse.material.observations import Observation
 from inverse.material.residual import Estimate, _groups
 from inverse.material.unknowns import Unknown, apply, term_gradients
-from taichi_ndf import jets
+from taichi_ndf import checks, jets
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import (
@@ -128,11 +128,7 @@ class ImplicitConfig:
                              f"seeds {self.seeds}")
         if any(int(w) < 1 for w in self.widths):
             raise ValueError(f"widths must be positive, got {self.widths}")
-        if not self.load_steps or any(not 0 < s <= 1 for s in self.load_steps) or \
-                abs(self.load_steps[-1] - 1.0) > 1e-12 or \
-                list(self.load_steps) != sorted(self.load_steps):
-            raise ValueError(f"load_steps must increase in (0, 1] and end at 1, got "
-                             f"{self.load_steps}")
+        checks.load_steps(self.load_steps)
         for name in ("omega0", "output_scale", "tolerance", "max_step"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
