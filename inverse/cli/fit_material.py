@@ -30,6 +30,7 @@ from inverse.material import (
 )
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig, to_values
+from inverse.material.identifiability import finite_or_none
 from inverse.material.implicit import ImplicitConfig, implicit_estimate
 from inverse.material.report import estimate_document, overlay_image
 from taichi_ndf.cli.common import add_runtime_options, machine_description, start
@@ -121,10 +122,6 @@ def _observations(paths, model, resolution, point_cloud: bool) -> list[Observati
     return out
 
 
-def _finite(x: float):
-    return float(x) if np.isfinite(x) else None
-
-
 def _implicit(args, observations, unknowns):
     """The implicit-function estimate with the command line's settings."""
     width = args.width or (64 if args.quick else ImplicitConfig.width)
@@ -170,7 +167,7 @@ def run(args, runtime) -> dict:
         estimate = result.estimate
         document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
         document["standard_error_parts"] = {
-            u.name: {"fisher": _finite(f), "feature_spread": _finite(s)}
+            u.name: {"fisher": finite_or_none(f), "feature_spread": finite_or_none(s)}
             for u, f, s in zip(unknowns, result.fisher_errors, result.spread, strict=True)}
         document["feature_bases"] = [
             {"seed": f.seed, "width": f.width, "values": f.values.tolist(),

@@ -34,13 +34,14 @@ class Identifiability:
     def to_dict(self) -> dict:
         return {"fisher_eigenvalues": self.eigenvalues.tolist(),
                 "fisher_eigenvectors": self.eigenvectors.T.tolist(),
-                "relative_std": [_finite(s) for s in self.std],
+                "relative_std": [finite_or_none(s) for s in self.std],
                 "determined": self.determined,
                 "combinations": self.combinations,
                 "threshold_relative_std": UNDETERMINED_STD}
 
 
-def _finite(x: float):
+def finite_or_none(x: float) -> float | None:
+    """x as a float for a JSON document, None when it is not finite (JSON has no inf/nan)."""
     return float(x) if math.isfinite(x) else None
 
 
@@ -59,7 +60,7 @@ def analyse(jacobian: np.ndarray, sigma2: float, names: list[str],
     for value, vector in zip(eigenvalues, eigenvectors.T, strict=True):
         direction_std = 1.0 / math.sqrt(value) if value > tiny else math.inf
         combinations.append({"combination": _describe(vector, names, positive),
-                             "relative_std": _finite(direction_std),
+                             "relative_std": finite_or_none(direction_std),
                              "determined": bool(direction_std < UNDETERMINED_STD)})
     return Identifiability(fisher, eigenvalues, eigenvectors, std,
                            [bool(s < UNDETERMINED_STD) for s in std], combinations)

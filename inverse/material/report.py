@@ -2,19 +2,14 @@
 
 from __future__ import annotations
 
-import math
-
 import cv2
 import numpy as np
 
+from inverse.material.identifiability import finite_or_none
 from inverse.material.residual import Estimate, bending_length
 from taichi_ndf.render import frame_mesh, render_shaded
 
 OBSERVED_BGR = (40, 40, 220)
-
-
-def _number(x: float):
-    return float(x) if math.isfinite(x) else None
 
 
 def estimate_document(estimate: Estimate, model, *, ratios: dict | None = None,
@@ -24,10 +19,10 @@ def estimate_document(estimate: Estimate, model, *, ratios: dict | None = None,
     for j, u in enumerate(estimate.unknowns):
         determined = bool(estimate.identifiability.determined[j])
         entry = {"unit": u.unit, "determined": determined,
-                 "relative_std": _number(float(estimate.identifiability.std[j]))}
+                 "relative_std": finite_or_none(float(estimate.identifiability.std[j]))}
         if determined:
             entry["value"] = float(estimate.values[j])
-            entry["standard_error"] = _number(float(estimate.standard_errors[j]))
+            entry["standard_error"] = finite_or_none(float(estimate.standard_errors[j]))
         parameters[u.name] = entry
     document = {"method": estimate.method, "parameters": parameters,
                 "identifiability": estimate.identifiability.to_dict(),
