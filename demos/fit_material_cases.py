@@ -66,17 +66,19 @@ from taichi_ndf.solver import Solver
 SCENES = Path(__file__).parents[1] / "scenes" / "inverse"
 FORCE = (0.004, 0.003, -0.010)
 TIP = (0.2, 0.02)
+# True bending stiffness of the strip [N·m]: ρ_A g c³ with ρ_A = 0.2 kg/m², bending length 0.2 m.
+STRIP_BENDING = 0.2 * 9.81 * 0.2**3
 
 
 def case(name: str):
     """(scene, truth model, start model, unknowns spec, truth values)."""
     if name == "elastica":
         scene = load_scene(SCENES / "cantilever_strip.toml")
-        return scene, None, scene.model, "bending", np.array([0.2 * 9.81 * 0.2**3])
+        return scene, None, scene.model, "bending", np.array([STRIP_BENDING])
     if name == "gravity":
         scene = load_scene(SCENES / "cantilever_strip.toml")
         model = apply(scene.model, parse_unknowns("bending", scene.model)[1],
-                      [0.2 * 9.81 * 0.2**3])
+                      [STRIP_BENDING])
         model, unknowns = parse_unknowns("gravity", model)
         tilt = math.radians(20.0)
         truth = (9.81 * math.sin(tilt), 0.0, -9.81 * math.cos(tilt))
@@ -86,7 +88,7 @@ def case(name: str):
         model, unknowns = parse_unknowns("scale", scene.model)
         return scene, apply(model, unknowns, [0.1]), scene.model, "scale", np.array([0.1])
     scene = load_scene(SCENES / "cantilever_strip.toml")
-    model = apply(scene.model, parse_unknowns("bending", scene.model)[1], [0.2 * 9.81 * 0.2**3])
+    model = apply(scene.model, parse_unknowns("bending", scene.model)[1], [STRIP_BENDING])
 
     def with_force(force):
         loads = dataclasses.replace(model.loads, point_loads=(PointLoad(TIP, force),))
@@ -113,7 +115,7 @@ def observe_elastica(model, bending: float):
 
 def observe(scene, truth, args, path: Path):
     if truth is None:
-        return observe_elastica(scene.model, 0.2 * 9.81 * 0.2**3)
+        return observe_elastica(scene.model, STRIP_BENDING)
     if path.exists():
         return torch.load(path)
     if args.solve_newton:
