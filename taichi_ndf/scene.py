@@ -51,6 +51,7 @@ class OutputConfig:
 
     resolution: tuple[int, int] = (64, 64)
     frames: int | None = None  # trajectory frames of a pseudo-time field (None: not one)
+    usd: bool = False  # also write result.usdc (needs the [usd] extra)
 
 
 @dataclass(frozen=True)
@@ -326,4 +327,4 @@ def _output(t: Table, pseudo_time: bool) -> OutputConfig:
         raise SceneError(f"{t.key('frames')}: needs [training] pseudo_time = true (a "
                          f"load-step trajectory has one frame per load step)")
     frames = t.integer("frames", DEFAULT_FRAMES, minimum=2) if pseudo_time else None
-    return OutputConfig(resolution=(res[0], res[1]), frames=frames)
+    return OutputConfig(resolution=(res[0], res[1]), frames=frames, usd=t.boolean("usd", False))
