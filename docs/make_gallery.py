@@ -87,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
                     f"{'' if args.full else ' --quick'}`: {result['iterations']} iterations, "
                     f"{result['wall_time']:.0f} s\n\n![{name}](gallery/{name}.png)\n")
     save_png(pictures_dir / "overview.png", overview(images, names))
-    training = "full training" if args.full else "`--quick` runs (the scenes' `[training.quick]` settings: short, not converged; the full runs take minutes to hours on a CPU)"
+    training = ("full training" if args.full else "`--quick` runs (the scenes' "
+                "`[training.quick]` settings: short smoke runs, not converged results)")
     page = ["# Gallery", "",
             f"Every shipped scene (`scenes/*.toml`), from {training}, rendered by `ndf-render`'s "
             f"renderer: three-quarter view, coloured by {QUANTITIES[COLOUR]} (bending strain "

@@ -15,11 +15,13 @@ from taichi_ndf.render.shaded import (
     SURFACE_BGR,
     colormap,
     colour_bar,
+    colour_range,
     lambert_intensity,
+    vertex_scalars,
     welded_normals,
 )
 
-__all__ = ["VIEWS", "Obstacle", "render_figure", "shadow_points"]
+__all__ = ["VIEWS", "RANGE_PERCENTILES", "Obstacle", "render_figure", "shadow_points"]
 
 # Named views: (elevation above the ground [deg], azimuth around up [deg]) for `frame_mesh`
 # (azimuth 0 looks from the world axis least aligned with up; with z up that is +x).
@@ -93,13 +95,8 @@ def render_figure(
         raise ValueError(f"views must be some of {', '.join(VIEWS)}, got {list(views)}")
     bar = None
     if scalars is not None:
-        scalars = np.asarray(scalars, dtype=np.float64)
-        if scalars.shape != (len(vertices),):
-            raise ValueError(f"scalars must have shape ({len(vertices)},), got {scalars.shape}")
-        if scalar_range is None:
-            finite = scalars[np.isfinite(scalars)]
-            scalar_range = (tuple(np.percentile(finite, RANGE_PERCENTILES)) if len(finite)
-                            else (0.0, 1.0))
+        scalars = vertex_scalars(scalars, len(vertices))
+        scalar_range = scalar_range or colour_range(scalars, RANGE_PERCENTILES)
         bar = colour_bar(scalar_range, scalar_label, height)
     view_width = (width - (0 if bar is None else bar.shape[1])) // len(views)
     if view_width < 16 or height < 16:

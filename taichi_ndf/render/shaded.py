@@ -7,7 +7,8 @@ from taichi_ndf.io.normals import vertex_normals
 from taichi_ndf.render.camera import Camera, frame_mesh
 from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
 
-__all__ = ["render_shaded", "colormap", "colour_bar", "lambert_intensity", "welded_normals",
+__all__ = ["render_shaded", "colormap", "colour_bar", "colour_range", "vertex_scalars",
+           "lambert_intensity", "welded_normals",
            "BACKGROUND_BGR", "SURFACE_BGR"]
 
 BACKGROUND_BGR = (235, 235, 235)
@@ -52,12 +53,8 @@ def render_shaded(
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     if scalars is not None:
-        scalars = np.asarray(scalars, dtype=np.float64)
-        if scalars.shape != (len(vertices),):
-            raise ValueError(f"scalars must have shape ({len(vertices)},), got {scalars.shape}")
-        if scalar_range is None:
-            finite = scalars[np.isfinite(scalars)]
-            scalar_range = (finite.min(), finite.max()) if len(finite) else (0.0, 1.0)
+        scalars = vertex_scalars(scalars, len(vertices))
+        scalar_range = scalar_range or colour_range(scalars)
         bar = colour_bar(scalar_range, scalar_label, height)
         view_width = width - bar.shape[1]
         if view_width < 16:
@@ -90,6 +87,24 @@ def render_shaded(
     if scalars is not None:
         image = np.concatenate([image, bar], axis=1)
     return image
+
+
+def vertex_scalars(scalars, count: int) -> np.ndarray:
+    """Per-vertex values as float64 (count,), checked."""
+    scalars = np.asarray(scalars, dtype=np.float64)
+    if scalars.shape != (count,):
+        raise ValueError(f"scalars must have shape ({count},), got {scalars.shape}")
+    return scalars
+
+
+def colour_range(values: np.ndarray, percentiles=(0.0, 100.0)) -> tuple[float, float]:
+    """The values at the ends of the colour map: these percentiles of the finite values (their
+    minimum and maximum by default), (0, 1) when there is none."""
+    finite = values[np.isfinite(values)]
+    if not len(finite):
+        return 0.0, 1.0
+    lo, hi = np.percentile(finite, percentiles)
+    return float(lo), float(hi)
 
 
 def welded_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -16,7 +16,8 @@ from taichi_ndf.extras import require
 from taichi_ndf.io.run_files import QUANTITIES, RunFiles
 from taichi_ndf.render import plot_curves
 from taichi_ndf.render.camera import frame_mesh
-from taichi_ndf.render.shaded import SURFACE_BGR, colormap, colour_bar
+from taichi_ndf.render.figure import RANGE_PERCENTILES
+from taichi_ndf.render.shaded import SURFACE_BGR, colormap, colour_bar, colour_range
 
 __all__ = ["require_viewer", "RunViewer"]
 
@@ -114,8 +115,7 @@ class RunViewer:
             rgb = np.broadcast_to(SURFACE_BGR[::-1], (len(vertices), 3))
             bar = np.zeros((8, 8, 3), np.uint8)
         else:
-            finite = values[np.isfinite(values)]
-            value_range = tuple(np.percentile(finite, (1.0, 99.0))) if len(finite) else (0, 1)
+            value_range = colour_range(values, RANGE_PERCENTILES)
             rgb = colormap(values, value_range)[:, ::-1]
             bar = colour_bar(value_range, QUANTITIES[self.colour.value], 320)[:, :, ::-1]
         # glTF vertex colours are linear; three.js encodes the lit result to sRGB.
