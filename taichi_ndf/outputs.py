@@ -135,11 +135,13 @@ def write_probe_points(out: OutputDir, model: ShellModel, displacements: dict) -
         for k, p in enumerate(model.probes)})
 
 
-def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0, 1.0)) -> None:
-    """Three-quarter view of the deformed surface coloured by bending strain, with its ground
-    shadow and a colour bar."""
+def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0, 1.0),
+                 views: tuple[str, ...] = ("iso",)) -> None:
+    """The deformed surface coloured by bending strain from `views` side by side (default a
+    three-quarter view), with its ground shadow and a colour bar; 640 x 600 pixels per view."""
     image = render_figure(mesh.deformed, mesh.faces, scalars=mesh.bending_strain,
-                          scalar_label=QUANTITIES["bending_strain"], up=up)
+                          scalar_label=QUANTITIES["bending_strain"], up=up, views=views,
+                          width=160 + 640 * len(views), height=600)
     save_png(out.file(name), image)
 
 

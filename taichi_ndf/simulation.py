@@ -92,7 +92,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     write_mesh_files(out, "mesh", mesh)
     write_reference_mesh(out, mesh)
     write_probe_points(out, scene.model, result.probes)
-    write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity))
+    write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
+                 views=scene.output.views)
     write_energy_plot(out, "energy.png", result.history)
     summary = {
         "format_version": FORMAT_VERSION,

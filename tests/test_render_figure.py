@@ -4,6 +4,7 @@ bar, bad input."""
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import cv2
@@ -100,6 +101,22 @@ def test_read_run_and_quantities(tmp_path):
                                "energy_density"]
     with pytest.raises(ValueError, match="unknown quantity"):
         run.quantity("stress")
+
+
+def test_scene_views_option_is_checked(tmp_path):
+    from test_cli import SMALL_NAPKIN
+
+    from taichi_ndf.scene import parse_scene
+    from taichi_ndf.scene_schema import SceneError
+
+    def views(text):
+        document = tomllib.loads(SMALL_NAPKIN.format(lr=1e-3).replace(
+            "resolution = [16, 16]", f"resolution = [16, 16]\nviews = {text}"))
+        return parse_scene(document, base_dir=tmp_path).output.views
+
+    assert views('["front", "top"]') == ("front", "top")
+    with pytest.raises(SceneError, match="output.views"):
+        views('["oblique"]')
 
 
 def test_render_cli(tmp_path, capsys):

@@ -15,10 +15,12 @@ from taichi_ndf.cli import export
 pxr = pytest.importorskip("pxr", reason="usd-core (pip install 'taichi-ndf[usd]') is missing")
 from pxr import Usd, UsdGeom  # noqa: E402
 
-# The small napkin in two load steps (a trajectory of two frames), writing result.usdc.
+# The small napkin in two load steps (a trajectory of two frames), writing result.usdc and a
+# render.png of two views.
 SCENE = (SMALL_NAPKIN.format(lr=1e-3)
          .replace("checkpoint_every = 5", "checkpoint_every = 5\nload_steps = [0.5, 1.0]")
-         .replace("resolution = [16, 16]", "resolution = [16, 16]\nusd = true"))
+         .replace("resolution = [16, 16]",
+                  'resolution = [16, 16]\nusd = true\nviews = ["iso", "top"]'))
 
 
 def obj_rows(path: Path, tag: str, columns) -> np.ndarray:
@@ -74,6 +76,12 @@ def test_stage_holds_the_run_obj_files_exactly(run):
     assert reference.GetPurposeAttr().Get() == UsdGeom.Tokens.guide
     normals = np.array(mesh.GetNormalsAttr().Get(Usd.TimeCode(1)))
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, rtol=1e-6)
+
+
+def test_render_png_has_the_scene_views(run):
+    import cv2
+
+    assert cv2.imread(str(run / "render.png")).shape == (600, 160 + 2 * 640, 3)
 
 
 def test_strain_primvars_equal_the_ply_values(run):
