@@ -93,7 +93,9 @@ def main(argv: list[str] | None = None) -> int:
             f"Every shipped scene (`scenes/*.toml`), from {training}, rendered by `ndf-render`'s "
             f"renderer: three-quarter view, coloured by {QUANTITIES[COLOUR]} (bending strain "
             "where a run has no reference mesh), ground shadow. Made by `python "
-            "docs/make_gallery.py`; the wall times are of that run on a shared 2-core CPU.", "",
+            "docs/make_gallery.py`; the wall times are of that run on a shared 2-core CPU. "
+            "The scenes in `scenes/inverse/` are start points of the material estimator "
+            "(`ndf-fit-material`, docs/inverse_material.md), not shown here.", "",
             "![all scenes](gallery/overview.png)", ""] + rows
     (ROOT / "docs" / "gallery.md").write_text("\n".join(page))
     print(f"wrote docs/gallery.md and {len(images) + 1} pictures in {pictures_dir}")
