@@ -16,9 +16,11 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.io import grid_mesh, write_obj, write_ply
 from taichi_ndf.io.output_dir import OutputDir
+from taichi_ndf.io.run_files import QUANTITIES
 from taichi_ndf.model import ShellModel
 from taichi_ndf.pseudo_time import conditioning
 from taichi_ndf.render import plot_curves, render_shaded, save_png, write_video
+from taichi_ndf.render.figure import render_figure
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.kinematics import strains
@@ -115,10 +117,31 @@ def write_mesh_files(out: OutputDir, stem: str, mesh: DeformedMesh) -> None:
               vertex_scalars=mesh.scalars())
 
 
-def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, camera=None) -> None:
-    """Shaded render of the deformed surface coloured by bending strain."""
-    image = render_shaded(mesh.deformed, mesh.faces, scalars=mesh.bending_strain,
-                          scalar_label="|kappa| [1/m]", camera=camera)
+def write_reference_mesh(out: OutputDir, mesh: DeformedMesh) -> None:
+    """reference.obj: the undeformed surface on the vertices and faces of mesh.obj."""
+    write_obj(out.file("reference.obj"), mesh.reference, mesh.faces, uvs=mesh.uv)
+
+
+def write_probe_points(out: OutputDir, model: ShellModel, displacements: dict) -> None:
+    """probes.json: per probe its ξ, reference position [m] and displacement [m] (the viewer
+    and the USD export label the probes with it)."""
+    if not model.probes:
+        return
+    xi = torch.tensor([p.xi for p in model.probes], dtype=torch.float64)
+    reference = model.surface.jets(xi)[:, jets.VALUE].double().numpy()
+    out.write_json("probes.json", {
+        p.name: {"xi": list(p.xi), "reference": [float(v) for v in reference[k]],
+                 "displacement": [float(v) for v in displacements[p.name]]}
+        for k, p in enumerate(model.probes)})
+
+
+def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0, 1.0),
+                 views: tuple[str, ...] = ("iso",)) -> None:
+    """The deformed surface coloured by bending strain from `views` side by side (default a
+    three-quarter view), with its ground shadow and a colour bar; 640 x 600 pixels per view."""
+    image = render_figure(mesh.deformed, mesh.faces, scalars=mesh.bending_strain,
+                          scalar_label=QUANTITIES["bending_strain"], up=up, views=views,
+                          width=160 + 640 * len(views), height=600)
     save_png(out.file(name), image)
 
 

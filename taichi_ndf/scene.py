@@ -28,6 +28,7 @@ from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.optim import AdamConfig
 from taichi_ndf.pseudo_time import TIME_RANGE
+from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.scene_schema import SceneError, Table
 from taichi_ndf.shell.materials import (
     PRESETS,
@@ -51,6 +52,8 @@ class OutputConfig:
 
     resolution: tuple[int, int] = (64, 64)
     frames: int | None = None  # trajectory frames of a pseudo-time field (None: not one)
+    usd: bool = False  # also write result.usdc (needs the [usd] extra)
+    views: tuple[str, ...] = ("iso",)  # views side by side in render.png (render.figure.VIEWS)
 
 
 @dataclass(frozen=True)
@@ -326,4 +329,10 @@ def _output(t: Table, pseudo_time: bool) -> OutputConfig:
         raise SceneError(f"{t.key('frames')}: needs [training] pseudo_time = true (a "
                          f"load-step trajectory has one frame per load step)")
     frames = t.integer("frames", DEFAULT_FRAMES, minimum=2) if pseudo_time else None
-    return OutputConfig(resolution=(res[0], res[1]), frames=frames)
+    views = t._get("views", ["iso"])
+    if (not isinstance(views, list) or not 1 <= len(views) <= 4
+            or any(v not in VIEWS for v in views)):
+        raise SceneError(f"{t.key('views')}: expected a list of one to four of "
+                         f"{', '.join(VIEWS)}, got {views!r}")
+    return OutputConfig(resolution=(res[0], res[1]), frames=frames, usd=t.boolean("usd", False),
+                        views=tuple(views))

@@ -6,14 +6,19 @@ import dataclasses
 import logging
 import math
 
+from taichi_ndf.export.usd import require_usd, write_run_usd
+from taichi_ndf.extras import MissingExtra
 from taichi_ndf.field import NeuralField
 from taichi_ndf.io import OutputDir, read_mesh
+from taichi_ndf.io.run_files import read_run, up_direction
 from taichi_ndf.outputs import (
     DeformedMesh,
     deformed_mesh,
     trajectory_mesh_name,
     write_energy_plot,
     write_mesh_files,
+    write_probe_points,
+    write_reference_mesh,
     write_render,
     write_trajectory_mesh,
     write_trajectory_video,
@@ -33,11 +38,17 @@ class SimulationError(RuntimeError):
 
 def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None,
              resume: bool = False, machine: dict | None = None, seed: int | None = None) -> dict:
-    """Solve `scene` and write mesh.obj/.ply, render.png, energy.png, checkpoint.pt,
-    result.json (and trajectory/ + trajectory.mp4 with several load steps, or with a
-    pseudo-time field at `output.frames` pseudo-times) into `out`.
+    """Solve `scene` and write mesh.obj/.ply, reference.obj, probes.json, render.png,
+    energy.png, checkpoint.pt, result.json (result.usdc with `[output] usd`; and trajectory/ +
+    trajectory.mp4 with several load steps, or with a pseudo-time field at `output.frames`
+    pseudo-times) into `out`.
     Returns the result dictionary also written to result.json."""
     config = solver or scene.solver
+    if scene.output.usd:  # before the solve, not after it
+        try:
+            require_usd()
+        except MissingExtra as err:
+            raise SimulationError(f"[output] usd = true: {err}") from err
     if config.pseudo_time != scene.solver.pseudo_time:
         raise ValueError("the solver configuration and the scene disagree on pseudo_time (the "
                          "scene's field has a pseudo-time input only with it)")
@@ -79,7 +90,10 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         if not all(math.isfinite(float(v)) for v in values):
             raise SimulationError(f"non-finite {name} in the exported mesh")
     write_mesh_files(out, "mesh", mesh)
-    write_render(out, "render.png", mesh)
+    write_reference_mesh(out, mesh)
+    write_probe_points(out, scene.model, result.probes)
+    write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
+                 views=scene.output.views)
     write_energy_plot(out, "energy.png", result.history)
     summary = {
         "format_version": FORMAT_VERSION,
@@ -99,6 +113,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         "history": [dataclasses.asdict(h) for h in result.history],
     }
     out.write_json("result.json", summary)
+    if scene.output.usd:
+        write_run_usd(read_run(out.path), out.file("result.usdc"))
     log.info("wrote outputs of %s to %s", scene.name, out.path)
     return summary
 

@@ -2,6 +2,8 @@
 
 The checkpoint carries its scene, so the boundary conditions and reference surface are rebuilt
 exactly; the field is continuous, so any resolution can be exported.
+`ndf-export RUN_DIR --format usd [--out FILE.usdc]` converts a finished run (its meshes, strains,
+trajectory, probes) into one USD stage (needs the [usd] extra).
 """
 
 from __future__ import annotations
@@ -15,11 +17,15 @@ from taichi_ndf.cli.common import add_runtime_options, start
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="ndf-export", description=__doc__.split("\n")[0].strip("`"))
-    p.add_argument("checkpoint", type=Path, help="checkpoint.pt written by ndf-sim")
+    p.add_argument("checkpoint", type=Path, help="checkpoint.pt written by ndf-sim (with --format "
+                   "usd: the run directory, or its checkpoint.pt)")
+    p.add_argument("--format", choices=("obj", "ply", "usd"),
+                   help="output format (default: from the --out suffix)")
     p.add_argument("--resolution", type=int, nargs="+", default=[128],
                    help="grid cells per surface coordinate: R or R1 R2 (default 128)")
-    p.add_argument("--out", type=Path, required=True,
-                   help="output mesh file (.obj or .ply); refused if it exists without --overwrite")
+    p.add_argument("--out", type=Path,
+                   help="output mesh file (.obj or .ply, or .usdc/.usda/.usd with --format usd: "
+                   "default RUN_DIR/result.usdc); refused if it exists without --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--time", type=float, default=1.0,
                    help="load factor t in [0, 1] of a pseudo-time field's path (default 1)")
@@ -30,7 +36,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.format == "usd":
+        return _export_usd(args)
     try:
+        if args.out is None:
+            raise ValueError("--out is required (a .obj or .ply file)")
+        if args.format is not None and args.out.suffix.lower() != f".{args.format}":
+            raise ValueError(f"--format {args.format} needs --out ending in .{args.format}, "
+                             f"got {args.out}")
         if args.out.suffix.lower() not in (".obj", ".ply"):
             raise ValueError(f"--out must end in .obj or .ply, got {args.out}")
         if args.out.exists() and not args.overwrite:
@@ -67,6 +80,30 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ndf-export: error: {err}", file=sys.stderr)
         return 2
     print(f"wrote {args.out}: {len(mesh.deformed)} vertices, {len(mesh.faces)} faces")
+    return 0
+
+
+def _export_usd(args) -> int:
+    """The run directory (no field evaluation: the run's own files) as one USD stage."""
+    from taichi_ndf.export.usd import require_usd, write_run_usd
+    from taichi_ndf.extras import MissingExtra
+    from taichi_ndf.io.run_files import read_run
+
+    run_dir = args.checkpoint.parent if args.checkpoint.is_file() else args.checkpoint
+    out = args.out if args.out is not None else run_dir / "result.usdc"
+    try:
+        require_usd()
+        if out.suffix not in (".usdc", ".usda", ".usd"):
+            raise ValueError(f"--out must end in .usdc, .usda or .usd with --format usd, got {out}")
+        if out.exists() and not args.overwrite:
+            raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
+        run = read_run(run_dir)
+        write_run_usd(run, out)
+    except (MissingExtra, ValueError, FileExistsError, FileNotFoundError) as err:
+        print(f"ndf-export: error: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {out}: {len(run.deformed)} vertices, {len(run.faces)} faces, "
+          f"{len(run.frames)} trajectory frames")
     return 0
 
 

@@ -7,10 +7,12 @@ from taichi_ndf.io.normals import vertex_normals
 from taichi_ndf.render.camera import Camera, frame_mesh
 from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
 
-__all__ = ["render_shaded", "colormap", "BACKGROUND_BGR"]
+__all__ = ["render_shaded", "colormap", "colour_bar", "colour_range", "vertex_scalars",
+           "lambert_intensity", "welded_normals",
+           "BACKGROUND_BGR", "SURFACE_BGR"]
 
 BACKGROUND_BGR = (235, 235, 235)
-_SURFACE_BGR = np.array([205.0, 150.0, 95.0])  # steel blue
+SURFACE_BGR = np.array([205.0, 150.0, 95.0])  # steel blue
 _MISSING_BGR = np.array([128.0, 128.0, 128.0])  # scalar is NaN
 _TEXT_BGR = (40, 40, 40)
 _AMBIENT = 0.3
@@ -51,13 +53,9 @@ def render_shaded(
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     if scalars is not None:
-        scalars = np.asarray(scalars, dtype=np.float64)
-        if scalars.shape != (len(vertices),):
-            raise ValueError(f"scalars must have shape ({len(vertices)},), got {scalars.shape}")
-        if scalar_range is None:
-            finite = scalars[np.isfinite(scalars)]
-            scalar_range = (finite.min(), finite.max()) if len(finite) else (0.0, 1.0)
-        bar = _colour_bar(scalar_range, scalar_label, height)
+        scalars = vertex_scalars(scalars, len(vertices))
+        scalar_range = scalar_range or colour_range(scalars)
+        bar = colour_bar(scalar_range, scalar_label, height)
         view_width = width - bar.shape[1]
         if view_width < 16:
             raise ValueError(f"width {width} leaves no room for the image beside the colour bar")
@@ -75,21 +73,11 @@ def render_shaded(
         height,
         supersample=supersample,
     )
-    # Vertices at the same position share their normal, so duplicated seams shade smoothly.
-    _, canonical = np.unique(
-        np.round(vertices / _weld_tolerance(vertices)), axis=0, return_inverse=True
-    )
-    normals = vertex_normals(vertices, faces, canonical=canonical.ravel()) @ camera.rotation.T
+    normals = welded_normals(vertices, faces) @ camera.rotation.T
     attributes = [normals, points_cam] + ([] if scalars is None else [scalars[:, None]])
     pixel_index, per_pixel = interpolate_covered(raster, np.concatenate(attributes, axis=1))
-    normal, view_ray = per_pixel[:, 0:3], per_pixel[:, 3:6]
-    # Two-sided: turn every normal towards the viewer before lighting.
-    facing = np.sign(np.einsum("mc,mc->m", normal, view_ray))
-    normal *= -np.where(facing == 0, 1.0, facing)[:, None]
-    length = np.linalg.norm(normal, axis=1, keepdims=True)
-    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
-    intensity = _AMBIENT + (1.0 - _AMBIENT) * np.clip(normal @ _TOWARD_LIGHT, 0.0, 1.0)
-    base = _SURFACE_BGR if scalars is None else colormap(per_pixel[:, 6], scalar_range)
+    intensity = lambert_intensity(per_pixel[:, 0:3], per_pixel[:, 3:6])
+    base = SURFACE_BGR if scalars is None else colormap(per_pixel[:, 6], scalar_range)
 
     fine_h, fine_w = raster.face_id.shape
     fine = np.empty((fine_h * fine_w, 3), dtype=np.uint8)
@@ -101,6 +89,43 @@ def render_shaded(
     return image
 
 
+def vertex_scalars(scalars, count: int) -> np.ndarray:
+    """Per-vertex values as float64 (count,), checked."""
+    scalars = np.asarray(scalars, dtype=np.float64)
+    if scalars.shape != (count,):
+        raise ValueError(f"scalars must have shape ({count},), got {scalars.shape}")
+    return scalars
+
+
+def colour_range(values: np.ndarray, percentiles=(0.0, 100.0)) -> tuple[float, float]:
+    """The values at the ends of the colour map: these percentiles of the finite values (their
+    minimum and maximum by default), (0, 1) when there is none."""
+    finite = values[np.isfinite(values)]
+    if not len(finite):
+        return 0.0, 1.0
+    lo, hi = np.percentile(finite, percentiles)
+    return float(lo), float(hi)
+
+
+def welded_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Vertex normals (V, 3) in which vertices at the same position share their normal, so
+    duplicated seams shade smoothly."""
+    _, canonical = np.unique(
+        np.round(vertices / _weld_tolerance(vertices)), axis=0, return_inverse=True
+    )
+    return vertex_normals(vertices, faces, canonical=canonical.ravel())
+
+
+def lambert_intensity(normal: np.ndarray, view_ray: np.ndarray) -> np.ndarray:
+    """Ambient + Lambert brightness in [0, 1] (M,) of points with normals (M, 3) seen along
+    view rays (M, 3), both in camera axes; two-sided (normals turned towards the viewer)."""
+    facing = np.sign(np.einsum("mc,mc->m", normal, view_ray))
+    normal = normal * -np.where(facing == 0, 1.0, facing)[:, None]
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+    return _AMBIENT + (1.0 - _AMBIENT) * np.clip(normal @ _TOWARD_LIGHT, 0.0, 1.0)
+
+
 def _weld_tolerance(vertices: np.ndarray) -> float:
     """Positions closer than this (relative to the mesh size) count as the same point."""
     finite = vertices[np.all(np.isfinite(vertices), axis=1)]
@@ -108,7 +133,7 @@ def _weld_tolerance(vertices: np.ndarray) -> float:
     return 1e-9 * extent if extent > 0 else 1.0
 
 
-def _colour_bar(value_range, label: str, height: int) -> np.ndarray:
+def colour_bar(value_range, label: str, height: int) -> np.ndarray:
     """A panel (height, w, 3) with a vertical viridis bar, its end and middle values, a label."""
     font, scale, thickness = cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1
     lo, hi = value_range

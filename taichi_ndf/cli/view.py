@@ -1,0 +1,64 @@
+"""`ndf-view RUN_DIR [--port 8080]`: look at a run in a web browser (needs the [viewer] extra).
+
+Shows the deformed mesh coloured by displacement, membrane strain, bending strain or energy
+density with a colour bar, the reference surface as a ghost, probes, obstacles, a slider over
+the trajectory frames and the Π history. Serves until interrupted (Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+
+def _port(text: str) -> int:
+    value = int(text)
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be in [0, 65535], got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="ndf-view", description=__doc__.split("\n")[0].strip("`"))
+    p.add_argument("run", type=Path, help="run directory written by ndf-sim")
+    p.add_argument("--port", type=_port, default=8080, help="TCP port (default 8080)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="interface to listen on (default 127.0.0.1, this machine only: from "
+                   "elsewhere use ssh -L PORT:127.0.0.1:PORT; 0.0.0.0 listens on all)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        import logging
+
+        from taichi_ndf.extras import MissingExtra
+        from taichi_ndf.io.run_files import read_run
+        from taichi_ndf.viewer.app import RunViewer, require_viewer
+
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="%(levelname)s %(name)s: %(message)s")
+        require_viewer()
+        run = read_run(args.run)
+        viewer = RunViewer(run, host=args.host, port=args.port)
+    except (MissingExtra, ValueError, FileNotFoundError, OSError) as err:
+        print(f"ndf-view: error: {err}", file=sys.stderr)
+        return 2
+    print(f"ndf-view: {run.name} at {viewer.url}  (Ctrl-C stops)", flush=True)
+    if args.host == "127.0.0.1":
+        print(f"  on a remote machine: ssh -L {args.port}:127.0.0.1:{args.port} HOST, then open "
+              f"http://127.0.0.1:{args.port}", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        viewer.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

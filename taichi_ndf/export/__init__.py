@@ -1,0 +1,1 @@
+"""Runs converted to interchange formats (USD); optional dependencies are imported lazily."""

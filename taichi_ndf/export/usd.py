@@ -1,0 +1,128 @@
+"""A run as one USD stage (`.usdc`) that Blender, Houdini and Omniverse open.
+
+Layout (metres, up axis Z or Y after the run's gravity, stage metadata set so that importers
+scale and orient it right):
+
+    /World                      Xform, the default prim
+    /World/deformed             Mesh: points (time-sampled over the trajectory frames when the
+                                run has them; the default value is the final state), normals,
+                                primvars:st (UVs), per-vertex primvars displacement,
+                                membrane_strain, bending_strain, energy_density (final state),
+                                and ndf:loadFactor (time-sampled)
+    /World/reference            Mesh: the undeformed surface (purpose "guide")
+    /World/probes               Points: the probes at their final positions, names in
+                                customData
+    /World/obstacles/obstacle_k Mesh: the scene's obstacles, when it has any
+
+Positions and UVs are stored as float32, the values of the run's OBJ files rounded to float32;
+time code k is trajectory frame k (trajectory/step_k.obj).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from taichi_ndf.extras import require
+from taichi_ndf.io.normals import vertex_normals
+from taichi_ndf.io.output_dir import atomic_path
+from taichi_ndf.io.run_files import QUANTITIES, RunFiles
+
+__all__ = ["require_usd", "write_run_usd", "FRAMES_PER_SECOND"]
+
+FRAMES_PER_SECOND = 4.0  # as trajectory.mp4
+
+
+def require_usd():
+    """The pxr module of usd-core, or MissingExtra naming the [usd] extra."""
+    return require("pxr.Usd", "usd", "USD export")
+
+
+def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
+    """Write `run` as a USD stage at `path` (.usdc binary, .usda text or .usd), atomically."""
+    require_usd()
+    from pxr import Sdf, Usd, UsdGeom, Vt
+
+    path = Path(path)
+    if path.suffix not in (".usd", ".usdc", ".usda"):
+        raise ValueError(f"a USD file must end in .usdc, .usda or .usd, got {path}")
+    with atomic_path(path) as temporary:
+        stage = Usd.Stage.CreateNew(str(temporary))
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if abs(run.up[1]) > abs(run.up[2])
+                               else UsdGeom.Tokens.z)
+        world = UsdGeom.Xform.Define(stage, "/World")
+        stage.SetDefaultPrim(world.GetPrim())
+        stage.SetMetadata("comment", f"taichi-ndf run {run.name} ({run.path})")
+
+        deformed = _mesh(stage, "/World/deformed", run.deformed, run.faces)
+        points = deformed.GetPointsAttr()
+        extent = deformed.GetExtentAttr()
+        normals = deformed.CreateNormalsAttr(_vec3(vertex_normals(run.deformed, run.faces)))
+        deformed.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        if run.frames:
+            load_factor = deformed.GetPrim().CreateAttribute("ndf:loadFactor",
+                                                             Sdf.ValueTypeNames.Double)
+            load_factor.SetDocumentation("load factor (or pseudo-time) of each trajectory frame")
+            for k, frame in enumerate(run.frames):
+                points.Set(_vec3(frame.vertices), Usd.TimeCode(k))
+                extent.Set(_extent(frame.vertices), Usd.TimeCode(k))
+                normals.Set(_vec3(vertex_normals(frame.vertices, run.faces)), Usd.TimeCode(k))
+                load_factor.Set(frame.load_factor, Usd.TimeCode(k))
+            stage.SetStartTimeCode(0)
+            stage.SetEndTimeCode(len(run.frames) - 1)
+            stage.SetTimeCodesPerSecond(FRAMES_PER_SECOND)
+        primvars = UsdGeom.PrimvarsAPI(deformed)
+        if run.uv is not None:
+            st = primvars.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                        UsdGeom.Tokens.vertex)
+            st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(run.uv, dtype=np.float32)))
+        for name in run.available():
+            primvar = primvars.CreatePrimvar(name, Sdf.ValueTypeNames.FloatArray,
+                                             UsdGeom.Tokens.vertex)
+            primvar.Set(Vt.FloatArray.FromNumpy(
+                np.ascontiguousarray(run.quantity(name), dtype=np.float32)))
+            primvar.GetAttr().SetDocumentation(f"{QUANTITIES[name]} at the final state")
+
+        if run.reference is not None:
+            reference = _mesh(stage, "/World/reference", run.reference, run.faces)
+            reference.CreatePurposeAttr(UsdGeom.Tokens.guide)
+        if run.probes:
+            probes = UsdGeom.Points.Define(stage, "/World/probes")
+            probes.CreatePointsAttr(_vec3(np.array([p.deformed for p in run.probes])))
+            probes.GetPrim().SetCustomDataByKey("names", Vt.StringArray([p.name
+                                                                         for p in run.probes]))
+        for k, obstacle in enumerate(run.obstacles):
+            _mesh(stage, f"/World/obstacles/obstacle_{k}", obstacle.vertices, obstacle.faces)
+        stage.GetRootLayer().Save()
+        del stage
+    return path
+
+
+def _vec3(array: np.ndarray):
+    from pxr import Vt
+
+    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(array, dtype=np.float32))
+
+
+def _extent(points: np.ndarray):
+    from pxr import Vt
+
+    p = np.asarray(points, dtype=np.float32)
+    return Vt.Vec3fArray.FromNumpy(np.stack([p.min(axis=0), p.max(axis=0)]))
+
+
+def _mesh(stage, prim_path: str, vertices: np.ndarray, faces: np.ndarray):
+    """A triangle mesh prim (right-handed: faces counter-clockwise around their normal)."""
+    from pxr import UsdGeom, Vt
+
+    mesh = UsdGeom.Mesh.Define(stage, prim_path)
+    mesh.CreatePointsAttr(_vec3(vertices))
+    mesh.CreateExtentAttr(_extent(vertices))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(
+        np.ascontiguousarray(faces, dtype=np.int32).ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # a polygon mesh, not a cage
+    return mesh

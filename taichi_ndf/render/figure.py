@@ -1,0 +1,158 @@
+"""Figures of a result: the coloured surface from one or more named views, obstacles in grey, a
+soft shadow on the ground below, one colour bar with units."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from taichi_ndf.render.camera import frame_mesh
+from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
+from taichi_ndf.render.shaded import (
+    BACKGROUND_BGR,
+    SURFACE_BGR,
+    colormap,
+    colour_bar,
+    colour_range,
+    lambert_intensity,
+    vertex_scalars,
+    welded_normals,
+)
+
+__all__ = ["VIEWS", "RANGE_PERCENTILES", "Obstacle", "render_figure", "shadow_points"]
+
+# Named views: (elevation above the ground [deg], azimuth around up [deg]) for `frame_mesh`
+# (azimuth 0 looks from the world axis least aligned with up; with z up that is +x).
+VIEWS = {"iso": (30.0, -45.0), "front": (8.0, -90.0), "side": (8.0, 0.0), "top": (89.99, -90.0)}
+
+RANGE_PERCENTILES = (1.0, 99.0)  # default colour range of the scalars
+OBSTACLE_BGR = np.array([160.0, 160.0, 160.0])
+_SHADOW_DARKNESS = 0.35  # fraction of the background's brightness a full shadow removes
+# Direction towards the light, in the ground frame (east, north, up): high, slightly to the side.
+_LIGHT_TILT = np.array([0.25, 0.35, 1.0])
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """A rigid mesh drawn in grey beside the result: vertices [m] (V, 3), faces (F, 3)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def _ground_frame(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """East and north unit vectors completing `up` (the same axes as `frame_mesh`)."""
+    reference = np.eye(3)[np.argmin(np.abs(up))]
+    east = reference - (reference @ up) * up
+    east /= np.linalg.norm(east)
+    return east, np.cross(up, east)
+
+
+def shadow_points(points: np.ndarray, up, ground_height: float) -> np.ndarray:
+    """Points (N, 3) projected along the light onto the ground plane {x . up = ground_height}."""
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    east, north = _ground_frame(up)
+    light = _LIGHT_TILT[0] * east + _LIGHT_TILT[1] * north + _LIGHT_TILT[2] * up
+    light /= np.linalg.norm(light)
+    height = points @ up - ground_height
+    return points - (height / (light @ up))[:, None] * light[None, :]
+
+
+def render_figure(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    scalars: np.ndarray | None = None,
+    scalar_label: str = "",
+    scalar_range: tuple[float, float] | None = None,
+    obstacles: tuple[Obstacle, ...] = (),
+    views: tuple[str, ...] = ("iso",),
+    up=(0.0, 0.0, 1.0),
+    width: int = 800,
+    height: int = 600,
+    shadow: bool = True,
+    supersample: int = 3,
+) -> np.ndarray:
+    """The surface (V, 3) [m] with faces (F, 3) side by side from each of `views` (names in
+    VIEWS), uint8 BGR (height, width, 3).
+
+    scalars: per-vertex values (V,) coloured with viridis and shown on a colour bar labelled
+        `scalar_label` (give the units); without them the surface is steel blue.
+    scalar_range: the values at the ends of the colour map; by default the 1st and 99th
+        percentiles (a singular point, such as a pinned corner, then does not wash out the rest;
+        values beyond are drawn in the end colours).
+    obstacles: rigid meshes drawn in grey (they cast shadows too).
+    up: the world direction shown upwards (against gravity); the ground plane lies just below
+        the lowest point of the surface and the obstacles, normal to it.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    unknown = [v for v in views if v not in VIEWS]
+    if not views or unknown:
+        raise ValueError(f"views must be some of {', '.join(VIEWS)}, got {list(views)}")
+    bar = None
+    if scalars is not None:
+        scalars = vertex_scalars(scalars, len(vertices))
+        scalar_range = scalar_range or colour_range(scalars, RANGE_PERCENTILES)
+        bar = colour_bar(scalar_range, scalar_label, height)
+    view_width = (width - (0 if bar is None else bar.shape[1])) // len(views)
+    if view_width < 16 or height < 16:
+        raise ValueError(f"a {width}x{height} image leaves no room for {len(views)} view(s)"
+                         + ("" if bar is None else " and the colour bar"))
+
+    # One triangle soup: part 0 the surface, 1 the obstacles, 2 the shadow (depth only).
+    parts = [(vertices, faces, 0)] + [(np.asarray(o.vertices, dtype=np.float64),
+                                       np.asarray(o.faces, dtype=np.int64), 1) for o in obstacles]
+    solid = np.concatenate([p[0] for p in parts])
+    size = max(float(np.ptp(solid, axis=0).max()), 1e-9)
+    ground = float((solid @ up).min()) - 0.02 * size
+    if shadow:
+        parts += [(shadow_points(p[0], up, ground + 1e-3 * size), p[1], 2) for p in parts]
+    offsets = np.cumsum([0] + [len(p[0]) for p in parts])
+    all_points = np.concatenate([p[0] for p in parts])
+    all_faces = np.concatenate([p[1] + o for p, o in zip(parts, offsets, strict=False)])
+    face_part = np.concatenate([np.full(len(p[1]), p[2]) for p in parts])
+    vertex_scalar = np.full(len(all_points), np.nan)
+    if scalars is not None:
+        vertex_scalar[: len(vertices)] = scalars
+    normals = welded_normals(all_points, all_faces)
+
+    pictures = []
+    for view in views:
+        elevation, azimuth = VIEWS[view]
+        camera = frame_mesh(all_points, width=view_width, height=height, up=tuple(up),
+                            elevation_deg=elevation, azimuth_deg=azimuth)
+        points_cam = camera.to_camera(all_points)
+        raster = rasterize(points_cam, all_faces, camera.intrinsics(view_width, height),
+                           view_width, height, supersample=supersample)
+        attributes = np.concatenate([normals @ camera.rotation.T, points_cam,
+                                     vertex_scalar[:, None]], axis=1)
+        pixel_index, per_pixel = interpolate_covered(raster, attributes)
+        part = face_part[raster.face_id.ravel()[pixel_index]]
+        intensity = lambert_intensity(per_pixel[:, 0:3], per_pixel[:, 3:6])
+        if scalars is None:
+            base = np.broadcast_to(SURFACE_BGR, (len(pixel_index), 3))
+        else:
+            base = colormap(per_pixel[:, 6], scalar_range)
+        base = np.where((part == 1)[:, None], OBSTACLE_BGR, base)
+
+        fine_h, fine_w = raster.face_id.shape
+        shade = np.zeros(fine_h * fine_w)
+        shade[pixel_index[part == 2]] = 1.0
+        blur = 0.01 * fine_h
+        shade = cv2.GaussianBlur(shade.reshape(fine_h, fine_w), (0, 0), blur).ravel()
+        fine = np.empty((fine_h * fine_w, 3))
+        fine[:] = np.asarray(BACKGROUND_BGR, dtype=np.float64)
+        fine *= (1.0 - _SHADOW_DARKNESS * shade)[:, None]
+        lit = part != 2
+        fine[pixel_index[lit]] = base[lit] * intensity[lit, None]
+        fine = np.clip(np.rint(fine), 0, 255).astype(np.uint8)
+        pictures.append(downsample(fine.reshape(fine_h, fine_w, 3), raster.supersample))
+    image = np.concatenate(pictures + ([] if bar is None else [bar]), axis=1)
+    if image.shape[1] < width:  # the views' integer division left a few columns
+        pad = np.full((height, width - image.shape[1], 3), BACKGROUND_BGR, dtype=np.uint8)
+        image = np.concatenate([image, pad], axis=1)
+    return image

@@ -1,0 +1,1 @@
+"""Interactive web viewer of runs (viser, the optional [viewer] extra; imported lazily)."""

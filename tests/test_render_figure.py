@@ -1,0 +1,137 @@
+"""Figures of a run (render/figure.py) and `ndf-render`: views, ground shadow, obstacles, colour
+bar, bad input."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from taichi_ndf.cli import render
+from taichi_ndf.io import grid_mesh, write_obj, write_ply
+from taichi_ndf.io.run_files import read_run
+from taichi_ndf.render.figure import Obstacle, render_figure
+from taichi_ndf.render.shaded import BACKGROUND_BGR, colour_bar
+
+
+def sheet(n: int = 12):
+    """A 1 m sheet over the ground, bent up along x; vertices (V, 3), faces, uv."""
+    grid = grid_mesh(((0.0, 1.0), (0.0, 1.0)), n)
+    x, y = grid.xi[:, 0], grid.xi[:, 1]
+    return np.stack([x, y, 0.3 * x * x], axis=1), grid.faces, grid.uv
+
+
+def fake_run(path: Path, *, frames: int = 0, obstacle: bool = False) -> Path:
+    """A run directory as ndf-sim writes it (without the checkpoint), from `sheet`."""
+    vertices, faces, uv = sheet()
+    reference = vertices * [1.0, 1.0, 0.0]
+    bending = 0.6 * vertices[:, 0]
+    write_obj(path / "mesh.obj", vertices, faces, uvs=uv)
+    write_obj(path / "reference.obj", reference, faces, uvs=uv)
+    write_ply(path / "mesh.ply", vertices, faces, uvs=uv, vertex_scalars={
+        "membrane_strain": 0.01 * vertices[:, 1], "bending_strain": bending,
+        "energy_density": bending ** 2})
+    factors = [(k + 1) / frames for k in range(frames)]
+    for k, t in enumerate(factors):
+        write_obj(path / "trajectory" / f"step_{k:03d}.obj", reference + t * (vertices - reference),
+                  faces, uvs=uv)
+    if obstacle:
+        write_obj(path / "obstacles" / "block.obj",
+                  [[0.2, 0.2, 0.5], [0.4, 0.2, 0.5], [0.2, 0.4, 0.5], [0.2, 0.2, 0.7]],
+                  np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    (path / "probes.json").write_text(json.dumps({"tip": {
+        "xi": [1.0, 1.0], "reference": [1.0, 1.0, 0.0], "displacement": [0.0, 0.0, 0.3]}}))
+    (path / "result.json").write_text(json.dumps({
+        "scene": "sheet", "history": [{"iteration": i, "energy": -1.0 + 0.5 ** i}
+                                      for i in range(5)],
+        "trajectory": {"load_factors": factors} if frames else None,
+        "resolved": {"scene_file": {"loads": {"gravity": [0.0, 0.0, -9.81]}}}}))
+    return path
+
+
+def is_background(image: np.ndarray) -> np.ndarray:
+    return np.all(image == BACKGROUND_BGR, axis=-1)
+
+
+def test_shadow_lies_on_the_ground_below_the_sheet():
+    vertices, faces, _ = sheet()
+    with_shadow = render_figure(vertices, faces, width=320, height=240)
+    without = render_figure(vertices, faces, width=320, height=240, shadow=False)
+    surface = ~is_background(without)
+    grey = with_shadow.astype(int)
+    shadow = (~surface) & (grey.max(axis=-1) < BACKGROUND_BGR[0] - 20) \
+        & (np.ptp(grey, axis=-1) == 0)
+    assert shadow.sum() > 0.02 * shadow.size  # a visible soft grey area beside the sheet
+    rows = np.nonzero(shadow.any(axis=1))[0]
+    assert rows.mean() > np.nonzero(surface.any(axis=1))[0].mean()  # below it in the image
+
+
+def test_views_colour_bar_and_obstacles():
+    vertices, faces, _ = sheet()
+    block = Obstacle(np.array([[0.2, 0.2, 0.5], [0.4, 0.2, 0.5], [0.2, 0.4, 0.5],
+                               [0.2, 0.2, 0.7]]), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2],
+                                                            [1, 2, 3]]))
+    scalars = vertices[:, 0]
+    image = render_figure(vertices, faces, scalars=scalars, scalar_label="|kappa| [1/m]",
+                          obstacles=(block,), views=("iso", "top"), width=600, height=240,
+                          shadow=False)
+    assert image.shape == (240, 600, 3)
+    view = (600 - colour_bar((0.0, 1.0), "|kappa| [1/m]", 240).shape[1]) // 2
+    grey = (np.ptp(image.astype(int), axis=-1) < 4) & ~is_background(image)
+    assert grey[:, :view].sum() > 100 and grey[:, view:2 * view].sum() > 100  # in both views
+    coloured = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)[..., 1] > 80
+    assert coloured[:, :view].sum() > 2000 and coloured[:, view:2 * view].sum() > 2000
+    assert coloured[:, 2 * view:].sum() > 500  # the colour bar
+    with pytest.raises(ValueError, match="views must be some of"):
+        render_figure(vertices, faces, views=("oblique",))
+
+
+def test_read_run_and_quantities(tmp_path):
+    run = read_run(fake_run(tmp_path, frames=3, obstacle=True))
+    assert run.name == "sheet" and len(run.frames) == 3 and len(run.obstacles) == 1
+    assert [f.load_factor for f in run.frames] == pytest.approx([1 / 3, 2 / 3, 1.0])
+    np.testing.assert_allclose(run.up, [0, 0, 1])
+    np.testing.assert_allclose(run.quantity("displacement"), run.deformed[:, 2], atol=1e-8)
+    np.testing.assert_allclose(run.probes[0].deformed, [1.0, 1.0, 0.3])
+    assert run.available() == ["displacement", "membrane_strain", "bending_strain",
+                               "energy_density"]
+    with pytest.raises(ValueError, match="unknown quantity"):
+        run.quantity("stress")
+
+
+def test_scene_views_option_is_checked(tmp_path):
+    from test_cli import SMALL_NAPKIN
+
+    from taichi_ndf.scene import parse_scene
+    from taichi_ndf.scene_schema import SceneError
+
+    def views(text):
+        document = tomllib.loads(SMALL_NAPKIN.format(lr=1e-3).replace(
+            "resolution = [16, 16]", f"resolution = [16, 16]\nviews = {text}"))
+        return parse_scene(document, base_dir=tmp_path).output.views
+
+    assert views('["front", "top"]') == ("front", "top")
+    with pytest.raises(SceneError, match="output.views"):
+        views('["oblique"]')
+
+
+def test_render_cli(tmp_path, capsys):
+    run = fake_run(tmp_path / "run", obstacle=True)
+    out = tmp_path / "picture.png"
+    assert render.main([str(run), "--view", "front", "iso", "--colour", "displacement",
+                        "--size", "500x200", "--out", str(out)]) == 0
+    image = cv2.imread(str(out))
+    assert image.shape == (200, 500, 3) and (~is_background(image)).mean() > 0.1
+    assert render.main([str(run)]) == 0
+    assert (run / "render_iso_bending_strain.png").is_file()
+    assert render.main([str(run)]) == 2  # exists
+    assert "--overwrite" in capsys.readouterr().err
+    assert render.main([str(tmp_path), "--out", str(tmp_path / "x.png")]) == 2
+    assert "no result.json" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        render.main([str(run), "--size", "big"])
+    assert stop.value.code == 2 and "WIDTHxHEIGHT" in capsys.readouterr().err
