@@ -3,6 +3,7 @@ differences, partition of unity, periodic seams, exact refinement, the backward 
 dicts, checkpoints and f32/f64 agreement."""
 
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -12,6 +13,7 @@ from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.field.bspline import piece_coefficients
 from taichi_ndf.optim import Adam, AdamConfig
 
+ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
 DOMAIN = ((0.5, 2.5), (-1.0, 0.5))
 CASES = [  # (degree, periodic, spans)
@@ -398,3 +400,35 @@ def test_basis_has_the_documented_size():
         assert int(index.min()) >= 0
         assert int(index.max()) < field.config.num_coefficients
         assert math.isclose(float(basis[:, 0].sum(1).mean()), 1.0, rel_tol=1e-13)
+
+
+# ---------------------------------------------------------------- outputs and ndf-export
+def test_export_of_a_spline_checkpoint_at_any_resolution(tmp_path):
+    import numpy as np
+
+    from taichi_ndf.cli import export
+    from taichi_ndf.outputs import deformed_mesh
+    from taichi_ndf.scene import load_scene
+
+    scene_path = ROOT / "scenes" / "napkin.toml"  # a free pin: the field is also read at ξ₀
+    scene = load_scene(scene_path)
+    domain = scene.model.surface.domain
+    field = random_field(3, domain.periodic, (4, 4), domain=domain.bounds)
+    field.coefficients.mul_(0.01)
+    path = save_checkpoint(tmp_path / "ckpt.pt", field,
+                           extra={"scene": scene.document, "scene_dir": str(scene_path.parent)})
+    meshes = {}
+    for resolution in (8, 32):
+        out = tmp_path / f"mesh{resolution}.obj"
+        assert export.main([str(path), "--resolution", str(resolution), "--out", str(out),
+                            "--precision", "f64"]) == 0
+        meshes[resolution] = np.loadtxt([ln for ln in out.read_text().splitlines()
+                                         if ln.startswith("v ")], usecols=(1, 2, 3))
+    expected = deformed_mesh(scene.model, field, (32, 32))
+    np.testing.assert_allclose(meshes[32], expected.deformed, rtol=0, atol=1e-8)  # OBJ digits
+    xi = torch.from_numpy(expected.xi)
+    np.testing.assert_allclose(expected.deformed - expected.reference,
+                               scene.model.displacement(field, xi).numpy(), rtol=0, atol=1e-14)
+    i, j = np.meshgrid(np.arange(9), np.arange(9))
+    shared = (4 * j * 33 + 4 * i).ravel()  # grid vertex (i, j) is j (n + 1) + i
+    np.testing.assert_allclose(meshes[32][shared], meshes[8], rtol=0, atol=1e-8)
