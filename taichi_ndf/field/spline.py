@@ -15,15 +15,18 @@ conditioning inputs, plus exact dyadic refinement (`refined`, `prolongation`).
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import torch
 
 from taichi_ndf.field import bspline
-from taichi_ndf.field.config import _finite_range
-from taichi_ndf.field.parameters import FieldParameters
+from taichi_ndf.field.config import (
+    check_domain_and_periodic,
+    config_from_dict,
+    config_to_dict,
+)
+from taichi_ndf.field.parameters import FieldParameters, resolve_dtype_device
 from taichi_ndf.jets import CHANNELS
-from taichi_ndf.runtime import current
 
 log = logging.getLogger(__name__)
 
@@ -59,13 +62,7 @@ class SplineConfig:
             raise ValueError(f"degree must be one of {DEGREES}, got {self.degree!r}")
         if isinstance(self.out_dim, bool) or not isinstance(self.out_dim, int) or self.out_dim < 1:
             raise ValueError(f"out_dim must be a positive integer, got {self.out_dim!r}")
-        if len(self.domain) != 2:
-            raise ValueError(f"domain must hold two (lo, hi) pairs, got {self.domain!r}")
-        domain = tuple(_finite_range(f"domain[{i}]", p) for i, p in enumerate(self.domain))
-        object.__setattr__(self, "domain", domain)
-        if len(self.periodic) != 2 or not all(isinstance(p, bool) for p in self.periodic):
-            raise ValueError(f"periodic must be two booleans, got {self.periodic!r}")
-        object.__setattr__(self, "periodic", tuple(self.periodic))
+        check_domain_and_periodic(self)
 
     @property
     def coefficient_counts(self) -> tuple[int, int]:
@@ -94,25 +91,11 @@ class SplineConfig:
 
     def to_dict(self) -> dict:
         """Plain dict (lists instead of tuples) for checkpoints and logs."""
-        out = asdict(self)
-        out["spans"] = list(self.spans)
-        out["domain"] = [list(p) for p in self.domain]
-        out["periodic"] = list(self.periodic)
-        return out
+        return config_to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> SplineConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise ValueError(f"unknown SplineConfig keys: {sorted(unknown)}")
-        data = dict(data)
-        for key in ("spans", "periodic"):
-            if key in data:
-                data[key] = tuple(data[key])
-        if "domain" in data:
-            data["domain"] = tuple(tuple(p) for p in data["domain"])
-        return cls(**data)
+        return config_from_dict(cls, data)
 
 
 class _Tape:
@@ -133,23 +116,16 @@ class SplineField(FieldParameters):
 
     def __init__(self, config: SplineConfig, *, dtype: torch.dtype | None = None,
                  device: torch.device | str | None = None):
-        if dtype is None or device is None:
-            runtime = current()
-            dtype = runtime.dtype if dtype is None else dtype
-            device = runtime.device if device is None else device
-        if dtype not in (torch.float32, torch.float64):
-            raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         self.config = config
-        self.dtype = dtype
-        self.device = torch.device(device)
+        self.dtype, self.device = resolve_dtype_device(dtype, device)
         shape = (config.num_coefficients, config.out_dim)
-        self.parameters = [torch.zeros(shape, dtype=dtype, device=self.device)]
-        self.gradients = [torch.zeros(shape, dtype=dtype, device=self.device)]
+        self.parameters = [torch.zeros(shape, dtype=self.dtype, device=self.device)]
+        self.gradients = [torch.zeros(shape, dtype=self.dtype, device=self.device)]
         self.parameter_names = ["coefficients"]
         self._grid = torch.tensor([[lo, h] for (lo, _), h in
                                    zip(config.domain, config.spacing, strict=True)],
-                                  dtype=dtype, device=self.device)
-        self._matrices = bspline.basis_matrices(config.degree, dtype, self.device)
+                                  dtype=self.dtype, device=self.device)
+        self._matrices = bspline.basis_matrices(config.degree, self.dtype, self.device)
         self._tape: _Tape | None = None
 
     @property
