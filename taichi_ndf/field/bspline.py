@@ -86,8 +86,9 @@ def refinement_1d(spans: int, degree: int, periodic: bool) -> list[tuple[int, in
 
 @functools.cache
 def basis_kernel(degree: int):
-    """Kernel filling index (N, (p+1)²) int32 and basis (N, 6, (p+1)²) with the tensor-product
-    basis jets at ξ (N, 2). grid (2, 2): (lo, h) per direction; matrices: `basis_matrices`.
+    """Kernel filling index (N, (p+1)²) (an integer array) and basis (N, 6, (p+1)²) with the
+    tensor-product basis jets at ξ (N, 2). grid (2, 2): (lo, h) per direction; matrices:
+    `basis_matrices`.
 
     Contains no floating-point literal, so it computes in the dtype of its arrays.
     """
