@@ -311,6 +311,17 @@ def test_backward_matches_finite_differences_of_a_scalar():
     field.set_flat(flat)
 
 
+def test_backward_refers_to_the_last_jets_call_of_any_size():
+    field = random_field(3, (False, False), (3, 3))
+    grad = torch.randn(40, 6, 3, generator=torch.Generator().manual_seed(8), dtype=F64)
+    for xi in (points(36, seed=1), points(36, seed=2), points(20, seed=3), points(36, seed=4)):
+        jets = field.jets(xi)  # the tape's buffers are reused while N stays the same
+        torch.testing.assert_close(jets, reference_jets(field, xi), rtol=1e-12, atol=1e-11)
+        field.backward(grad[: len(xi)])
+        expected = dense_jacobian(field, xi).T @ grad[: len(xi)].reshape(-1, 3)
+        torch.testing.assert_close(field.gradients[0], expected, rtol=1e-12, atol=1e-12)
+
+
 def test_backward_is_deterministic():
     field = random_field(3, (False, False), (6, 6))
     xi = points(5000)
