@@ -59,7 +59,9 @@ def worker(args) -> dict:
     def torch_contraction():
         torch.bmm(basis, field.coefficients[index])
 
-    torch.testing.assert_close(torch.bmm(basis, field.coefficients[index]), field.jets(xi))
+    jets = field.jets(xi)
+    difference = (torch.bmm(basis, field.coefficients[index]) - jets).abs().max() / jets.abs().max()
+    assert difference < (1e-5 if dtype == torch.float32 else 1e-13), difference
     contenders = {
         "spline jets": lambda: field.jets(xi),
         "spline backward": lambda: field.backward(grad),
