@@ -177,12 +177,7 @@ class NeuralField(FieldParameters):
 
         Overwrites ``self.gradients``; uses the buffers of the last ``jets`` call.
         """
-        tape = self._tape
-        if tape is None or not tape.recorded:
-            raise RuntimeError("backward needs a preceding jets call")
-        expected = (tape.n, CHANNELS, self.config.out_dim)
-        if tuple(grad_jets.shape) != expected:
-            raise ValueError(f"grad_jets must have shape {expected}, got {tuple(grad_jets.shape)}")
+        tape = self._recorded_tape(grad_jets)
         n = tape.n
         grad = grad_jets.to(dtype=self.dtype, device=self.device).transpose(0, 1).contiguous()
         layer_inputs = [tape.inputs] + tape.post

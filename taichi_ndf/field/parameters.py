@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import torch
 
+from taichi_ndf.jets import CHANNELS
 from taichi_ndf.runtime import current
 
 
@@ -24,11 +25,22 @@ def resolve_dtype_device(dtype: torch.dtype | None, device: torch.device | str |
 
 class FieldParameters:
     """Mixin for a field holding ``parameters`` and ``gradients`` (lists of tensors of equal
-    shapes) named by ``parameter_names``."""
+    shapes) named by ``parameter_names``, and in ``_tape`` what its last ``jets`` call left for
+    ``backward`` (an object with ``n`` points and a ``recorded`` flag)."""
 
     parameters: list[torch.Tensor]
     gradients: list[torch.Tensor]
     parameter_names: list[str]
+
+    def _recorded_tape(self, grad_jets: torch.Tensor):
+        """The tape of the last ``jets`` call, once ``grad_jets`` is known to fit it."""
+        tape = self._tape
+        if tape is None or not tape.recorded:
+            raise RuntimeError("backward needs a preceding jets call")
+        expected = (tape.n, CHANNELS, self.config.out_dim)
+        if tuple(grad_jets.shape) != expected:
+            raise ValueError(f"grad_jets must have shape {expected}, got {tuple(grad_jets.shape)}")
+        return tape
 
     @property
     def num_parameters(self) -> int:

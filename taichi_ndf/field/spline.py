@@ -197,12 +197,7 @@ class SplineField(FieldParameters):
     def backward(self, grad_jets: torch.Tensor) -> None:
         """Gradient of a loss w.r.t. the coefficients from d loss / d jets (N, 6, out_dim) of
         the last ``jets`` call; overwrites ``self.gradients`` (exact adjoint of ``jets``)."""
-        tape = self._tape
-        if tape is None or not tape.recorded:
-            raise RuntimeError("backward needs a preceding jets call")
-        expected = (tape.n, CHANNELS, self.config.out_dim)
-        if tuple(grad_jets.shape) != expected:
-            raise ValueError(f"grad_jets must have shape {expected}, got {tuple(grad_jets.shape)}")
+        tape = self._recorded_tape(grad_jets)
         grad = grad_jets.to(dtype=self.dtype, device=self.device).contiguous()
         contribution = tape.contribution
         if tape.n > 0:
