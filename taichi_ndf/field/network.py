@@ -26,8 +26,8 @@ import torch
 from taichi_ndf.field.activation import sine_jets, sine_jets_adjoint
 from taichi_ndf.field.config import FieldConfig
 from taichi_ndf.field.encoding import input_jets
+from taichi_ndf.field.parameters import FieldParameters, resolve_dtype_device
 from taichi_ndf.jets import CHANNELS
-from taichi_ndf.runtime import current
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +81,7 @@ class _Tape:
         self.recorded = False
 
 
-class NeuralField:
+class NeuralField(FieldParameters):
     """SIREN displacement field u(ξ, c) with exact jets and weight gradients.
 
     parameters: [W₁, b₁, ..., W_out, b_out], weights shaped (out, in) like torch.nn.Linear,
@@ -97,17 +97,10 @@ class NeuralField:
         dtype: torch.dtype | None = None,
         device: torch.device | str | None = None,
     ):
-        if dtype is None or device is None:
-            runtime = current()
-            dtype = runtime.dtype if dtype is None else dtype
-            device = runtime.device if device is None else device
-        if dtype not in (torch.float32, torch.float64):
-            raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         self.config = config
-        self.dtype = dtype
-        self.device = torch.device(device)
+        self.dtype, self.device = resolve_dtype_device(dtype, device)
         self.parameters = [
-            p.to(dtype=dtype, device=self.device) for p in siren_parameters(config, seed)
+            p.to(dtype=self.dtype, device=self.device) for p in siren_parameters(config, seed)
         ]
         self.gradients = [torch.zeros_like(p) for p in self.parameters]
         self.parameter_names = [
@@ -116,53 +109,6 @@ class NeuralField:
             for kind in ("weight", "bias")
         ]
         self._tape: _Tape | None = None
-
-    @property
-    def num_parameters(self) -> int:
-        return sum(p.numel() for p in self.parameters)
-
-    def get_flat(self) -> torch.Tensor:
-        """Copy of all parameters as one vector, shape (num_parameters,), in list order."""
-        return torch.cat([p.reshape(-1) for p in self.parameters])
-
-    def get_flat_gradient(self) -> torch.Tensor:
-        """Copy of all gradients as one vector, in the order of ``get_flat``."""
-        return torch.cat([g.reshape(-1) for g in self.gradients])
-
-    def set_flat(self, flat: torch.Tensor) -> None:
-        """Overwrite all parameters in place from a vector laid out as ``get_flat``."""
-        if tuple(flat.shape) != (self.num_parameters,):
-            raise ValueError(
-                f"flat parameters must have shape ({self.num_parameters},), got {tuple(flat.shape)}"
-            )
-        offset = 0
-        for p in self.parameters:
-            p.copy_(flat[offset : offset + p.numel()].view_as(p))
-            offset += p.numel()
-
-    def state_dict(self) -> dict[str, torch.Tensor]:
-        """Copies of the parameters by name ("layer0.weight", "layer0.bias", ...)."""
-        return {
-            name: p.detach().clone()
-            for name, p in zip(self.parameter_names, self.parameters, strict=True)
-        }
-
-    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        """Overwrite the parameters in place (cast to this field's dtype and device).
-
-        Raises ValueError naming the first missing, unexpected or mis-shaped parameter.
-        """
-        missing = [name for name in self.parameter_names if name not in state]
-        unexpected = [name for name in state if name not in self.parameter_names]
-        if missing or unexpected:
-            raise ValueError(f"parameter names differ: missing {missing}, unexpected {unexpected}")
-        for name, p in zip(self.parameter_names, self.parameters, strict=True):
-            if tuple(state[name].shape) != tuple(p.shape):
-                raise ValueError(
-                    f"{name}: shape {tuple(state[name].shape)} given, field has {tuple(p.shape)}"
-                )
-        for name, p in zip(self.parameter_names, self.parameters, strict=True):
-            p.copy_(state[name])
 
     def _scales(self) -> list[float]:
         return [self.config.omega0] * self.config.hidden_layers + [self.config.output_scale]
@@ -231,12 +177,7 @@ class NeuralField:
 
         Overwrites ``self.gradients``; uses the buffers of the last ``jets`` call.
         """
-        tape = self._tape
-        if tape is None or not tape.recorded:
-            raise RuntimeError("backward needs a preceding jets call")
-        expected = (tape.n, CHANNELS, self.config.out_dim)
-        if tuple(grad_jets.shape) != expected:
-            raise ValueError(f"grad_jets must have shape {expected}, got {tuple(grad_jets.shape)}")
+        tape = self._recorded_tape(grad_jets)
         n = tape.n
         grad = grad_jets.to(dtype=self.dtype, device=self.device).transpose(0, 1).contiguous()
         layer_inputs = [tape.inputs] + tape.post
