@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
+from pathlib import Path
 
 from taichi_ndf.field import NeuralField
 from taichi_ndf.io import OutputDir, read_mesh
@@ -19,7 +21,8 @@ from taichi_ndf.outputs import (
     write_trajectory_video,
 )
 from taichi_ndf.pseudo_time import frame_times
-from taichi_ndf.scene import Scene
+from taichi_ndf.scene import Scene, parse_scene
+from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
 
 log = logging.getLogger(__name__)
@@ -53,7 +56,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
             write_trajectory_mesh(out, index, frames[index])
 
     run = Solver(scene.model, field, config, checkpoint_path=out.file("checkpoint.pt"),
-                 checkpoint_extra={"scene": scene.document, "scene_dir": str(scene.path.parent)})
+                 checkpoint_extra={"scene": scene.document,
+                                   "scene_dir": str(scene.path.parent.resolve())})
     try:
         result = run.run(resume=resume, on_load_step=on_load_step)
     except DivergenceError as err:
@@ -101,6 +105,32 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     out.write_json("result.json", summary)
     log.info("wrote outputs of %s to %s", scene.name, out.path)
     return summary
+
+
+def checkpoint_scene(path: str | os.PathLike, extra: dict) -> Scene:
+    """The scene a checkpoint written by `simulate` was trained on (its ``extra``).
+
+    Paths inside the scene (a template mesh) are resolved against the scene's folder as stored
+    (absolute since it is stored so; older checkpoints hold it relative to the working folder
+    of the run), then against the checkpoint's own folder, so a run folder that carries its
+    mesh along can be exported from anywhere."""
+    path = Path(path)
+    if not isinstance(extra.get("scene"), dict):
+        raise SceneError(f"{path} holds no scene; it was not written by ndf-sim")
+    stored = extra.get("scene_dir")
+    candidates = [Path(stored)] if isinstance(stored, str) else []
+    if candidates and not candidates[0].is_absolute():
+        candidates.append(path.parent / stored)
+    candidates.append(path.parent)
+    error = None
+    for base in candidates:
+        try:
+            return parse_scene(extra["scene"], base_dir=base)
+        except SceneError as err:  # a missing template: try the next folder
+            error = error or err
+            if "not found" not in str(err):
+                raise SceneError(f"{path}: its scene is invalid: {err}") from None
+    raise SceneError(f"{path}: {error}")
 
 
 def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],

@@ -45,13 +45,10 @@ def main(argv: list[str] | None = None) -> int:
         from taichi_ndf.checkpoint import load_checkpoint
         from taichi_ndf.io import write_obj, write_ply
         from taichi_ndf.outputs import deformed_mesh
-        from taichi_ndf.scene import parse_scene
+        from taichi_ndf.simulation import checkpoint_scene
 
         checkpoint = load_checkpoint(args.checkpoint)
-        extra = checkpoint.extra
-        if "scene" not in extra:
-            raise ValueError(f"{args.checkpoint} holds no scene; it was not written by ndf-sim")
-        scene = parse_scene(extra["scene"], base_dir=Path(extra["scene_dir"]))
+        scene = checkpoint_scene(args.checkpoint, checkpoint.extra)
         field = checkpoint.field
         if args.time != 1.0 and not scene.solver.pseudo_time:
             raise ValueError("--time needs a checkpoint of a pseudo-time field "
