@@ -8,6 +8,7 @@ import math
 import os
 from pathlib import Path
 
+from taichi_ndf.checkpoint import read_checkpoint
 from taichi_ndf.field import NeuralField
 from taichi_ndf.io import OutputDir, read_mesh
 from taichi_ndf.outputs import (
@@ -28,6 +29,11 @@ from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
 log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
+# What a run writes into its directory (see `simulate`): replaced as a whole by the next run.
+RUN_FILES = ("mesh.obj", "mesh.ply", "render.png", "energy.png", "checkpoint.pt", "result.json",
+             "trajectory", "trajectory.mp4")
+# Scene sections a resumed run may change: how long and how it trains, what it writes.
+RESUMABLE_CHANGES = ("name", "description", "training", "output")
 
 
 class SimulationError(RuntimeError):
@@ -44,7 +50,10 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     if config.pseudo_time != scene.solver.pseudo_time:
         raise ValueError("the solver configuration and the scene disagree on pseudo_time (the "
                          "scene's field has a pseudo-time input only with it)")
-    field = NeuralField(scene.field, seed=config.seed if seed is None else seed)
+    seed = config.seed if seed is None else seed
+    if resume:
+        _check_same_scene(out.file("checkpoint.pt"), scene)
+    field = NeuralField(scene.field, seed=seed)
     step_frames = len(config.load_steps) > 1 and not config.pseudo_time
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
 
@@ -88,6 +97,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     summary = {
         "format_version": FORMAT_VERSION,
         "scene": scene.name,
+        "seed": seed,
         "energy": result.energy,
         "iterations": result.iterations,
         "wall_time": result.wall_time,
@@ -105,6 +115,21 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     out.write_json("result.json", summary)
     log.info("wrote outputs of %s to %s", scene.name, out.path)
     return summary
+
+
+def _check_same_scene(checkpoint: Path, scene: Scene) -> None:
+    """Refuse to resume from a checkpoint of another scene (naming the sections that differ);
+    only [training] and [output] may change."""
+    stored = read_checkpoint(checkpoint)["extra"].get("scene")
+    if not isinstance(stored, dict):
+        raise SimulationError(f"--resume: {checkpoint} holds no scene; it was not written by "
+                              "ndf-sim")
+    changed = sorted(k for k in set(stored) | set(scene.document)
+                     if k not in RESUMABLE_CHANGES and stored.get(k) != scene.document.get(k))
+    if changed:
+        raise SimulationError(f"--resume: the scene changed since {checkpoint} was written "
+                              f"([{'], ['.join(changed)}] differ; only [training] and [output] "
+                              "may change); start a new run in a new directory")
 
 
 def checkpoint_scene(path: str | os.PathLike, extra: dict) -> Scene:

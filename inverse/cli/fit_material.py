@@ -36,7 +36,7 @@ from inverse.material.report import estimate_document, overlay_image
 from taichi_ndf.cli.common import add_runtime_options, machine_description, start
 from taichi_ndf.io import read_mesh
 from taichi_ndf.io.grid import grid_mesh
-from taichi_ndf.io.output_dir import OutputDir
+from taichi_ndf.io.output_dir import OutputDir, check_output_dir
 from taichi_ndf.render import save_png
 from taichi_ndf.scene import SceneError, load_scene
 
@@ -110,6 +110,10 @@ def _observations(paths, model, resolution, point_cloud: bool) -> list[Observati
         except Exception as err:  # trimesh raises many kinds on a malformed file
             raise InputError(f"cannot read observation {path}: {err}") from None
         points = torch.from_numpy(np.asarray(mesh.vertices, dtype=np.float64))
+        if not torch.isfinite(points).all():
+            bad = int((~torch.isfinite(points).all(dim=1)).sum())
+            raise InputError(f"observation {path}: {bad} vertices are not finite (NaN or "
+                             "infinity)")
         if point_cloud:
             out.append(Observation(model, points, None))
             continue
@@ -151,9 +155,10 @@ def run(args, runtime) -> dict:
     for name in ("width", "samples"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name} must be >= 1, got {getattr(args, name)}")
-    out = OutputDir(args.out)  # refuses a non-empty directory before any work
+    check_output_dir(args.out)  # a non-empty directory is refused before any work
     observations = _observations(args.observed, model, scene.output.resolution,
                                  args.point_cloud)
+    out = OutputDir(args.out)
     resolution = scene.output.resolution
     grid = grid_mesh(model.surface.domain.bounds, resolution,
                      periodic=model.surface.domain.periodic)

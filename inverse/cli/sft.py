@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -85,12 +86,14 @@ def run(args: argparse.Namespace) -> dict:
     """The whole pipeline; returns the summary written to result.json."""
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
+    config = ReconstructionConfig(physics_weight=args.physics_weight, steps=args.steps,
+                                  seed=args.seed)  # the options are checked before any work
+    if not 0 < args.fps < math.inf:
+        raise InputError(f"--fps must be finite and positive, got {args.fps}")
     inputs = load_inputs(frames=args.frames, camera=args.camera, template=args.template,
                          texture=args.texture, masks=args.masks, pinned=args.pinned)
     gt = _read_ground_truth(args.gt, len(inputs.frames)) if args.gt is not None else None
     out = OutputDir(args.out, overwrite=args.overwrite)
-    config = ReconstructionConfig(physics_weight=args.physics_weight, steps=args.steps,
-                                  seed=args.seed)
     runtime = start(args)
     seconds["load"] = time.perf_counter() - clock
 

@@ -44,11 +44,14 @@ def main(argv: list[str] | None = None) -> int:
         start(args)
         from taichi_ndf.checkpoint import load_checkpoint
         from taichi_ndf.io import write_obj, write_ply
-        from taichi_ndf.outputs import deformed_mesh
+        from taichi_ndf.io.memory import check_export_memory
+        from taichi_ndf.outputs import deformed_mesh, exports_on_template
         from taichi_ndf.simulation import checkpoint_scene
 
         checkpoint = load_checkpoint(args.checkpoint)
         scene = checkpoint_scene(args.checkpoint, checkpoint.extra)
+        if not exports_on_template(scene.model):
+            check_export_memory(res, "--resolution")
         field = checkpoint.field
         if args.time != 1.0 and not scene.solver.pseudo_time:
             raise ValueError("--time needs a checkpoint of a pseudo-time field "
