@@ -33,7 +33,7 @@ from inverse.material.conditioned import ConditionedConfig, to_values
 from inverse.material.identifiability import finite_or_none
 from inverse.material.implicit import ImplicitConfig, implicit_estimate
 from inverse.material.report import estimate_document, overlay_image
-from taichi_ndf.cli.common import add_runtime_options, machine_description, start
+from taichi_ndf.cli.common import add_runtime_options, interruptible, machine_description, start
 from taichi_ndf.io import read_mesh
 from taichi_ndf.io.grid import grid_mesh
 from taichi_ndf.io.output_dir import OutputDir, check_output_dir
@@ -219,6 +219,7 @@ def run(args, runtime) -> dict:
     return document
 
 
+@interruptible("ndf-fit-material")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     runtime = start(args)

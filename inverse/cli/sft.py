@@ -29,7 +29,7 @@ from inverse.sft.inputs import Camera, InputError, load_inputs
 from inverse.sft.metrics import evaluate_sequence
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
 from inverse.sft.tracking import track_sequence
-from taichi_ndf.cli.common import add_runtime_options, machine_description, start
+from taichi_ndf.cli.common import add_runtime_options, interruptible, machine_description, start
 from taichi_ndf.io import OutputDir, read_mesh, write_obj
 from taichi_ndf.render import write_video
 
@@ -64,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@interruptible("ndf-sft")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:

@@ -21,6 +21,7 @@ import numpy as np
 
 from inverse.sft.inputs import InputError, load_camera
 from inverse.sft.metrics import evaluate_sequence
+from taichi_ndf.cli.common import interruptible
 from taichi_ndf.io import read_mesh
 
 MESH_SUFFIXES = (".obj", ".ply")
@@ -61,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@interruptible("ndf-sft-eval")
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import platform
+import sys
 
 import taichi_ndf
 
@@ -49,3 +51,26 @@ def machine_description(runtime) -> dict:
     return {"python": platform.python_version(), "platform": platform.platform(),
             "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
             "arch": runtime.arch, "precision": runtime.precision}
+
+
+def interruptible(prog: str):
+    """Decorate a tool's `main`: Ctrl-C ends it with one line and exit code 130, running out of
+    memory with one line and exit code 2 (instead of a traceback). Files a tool writes are
+    atomic (`atomic_path`), so an interruption leaves no half-written file."""
+
+    def wrap(main):
+        @functools.wraps(main)
+        def run(argv=None) -> int:
+            try:
+                return main(argv)
+            except KeyboardInterrupt:
+                print(f"{prog}: interrupted", file=sys.stderr)
+                return 130
+            except MemoryError:
+                print(f"{prog}: error: out of memory; try a smaller problem (resolution, "
+                      "samples, frames)", file=sys.stderr)
+                return 2
+
+        return run
+
+    return wrap

@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import add_runtime_options, start
+from taichi_ndf.cli.common import add_runtime_options, interruptible, start
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -28,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@interruptible("ndf-export")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import add_runtime_options, start
+from taichi_ndf.cli.common import add_runtime_options, interruptible, start
 from taichi_ndf.io import OutputDir
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import DivergenceError
@@ -34,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@interruptible("ndf-validate")
 def main(argv: list[str] | None = None) -> int:
     from taichi_ndf.validation import CASES, run_case, write_report
 
