@@ -296,11 +296,17 @@ def test_7_binary_scene_names_the_file(tmp_path, capsys):
 def test_7_sft_refuses_a_nan_physics_weight_before_work(tmp_path, capsys):
     from inverse.cli.sft import main as sft
 
-    code = sft(["--frames", str(tmp_path / "f"), "--camera", str(tmp_path / "c.json"),
-                "--template", str(tmp_path / "t.obj"), "--texture", str(tmp_path / "x.png"),
-                "--out", str(tmp_path / "out"), "--physics-weight", "nan"])
+    with pytest.raises(SystemExit) as stop:
+        sft(["--frames", str(tmp_path / "f"), "--camera", str(tmp_path / "c.json"),
+             "--template", str(tmp_path / "t.obj"), "--texture", str(tmp_path / "x.png"),
+             "--out", str(tmp_path / "out"), "--physics-weight", "nan"])
     line = one_line(capsys.readouterr().err)
-    assert code == 2 and "physics_weight" in line.replace("-", "_")
+    assert stop.value.code == 2 and "--physics-weight" in line and "finite" in line
+    # The configuration refuses it too (for callers that do not parse a command line).
+    from inverse.sft.reconstruct import ReconstructionConfig
+
+    with pytest.raises(ValueError, match="physics_weight"):
+        ReconstructionConfig(physics_weight=float("nan"))
 
 
 def test_7_resume_with_a_changed_scene_says_so(tmp_path, capsys):

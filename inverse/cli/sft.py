@@ -29,7 +29,14 @@ from inverse.sft.inputs import Camera, InputError, load_inputs
 from inverse.sft.metrics import evaluate_sequence
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
 from inverse.sft.tracking import track_sequence
-from taichi_ndf.cli.common import add_runtime_options, interruptible, machine_description, start
+from taichi_ndf.cli.common import (
+    ArgumentParser,
+    add_runtime_options,
+    finite_float,
+    interruptible,
+    machine_description,
+    start,
+)
 from taichi_ndf.io import OutputDir, read_mesh, write_obj
 from taichi_ndf.render import write_video
 
@@ -37,7 +44,7 @@ OVERLAY_COLOUR = (60, 230, 60)  # BGR
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-sft", description=__doc__.split("\n")[0].strip("`"))
+    p = ArgumentParser(prog="ndf-sft", description=__doc__.split("\n")[0].strip("`"))
     p.add_argument("--frames", type=Path, required=True, help="video file or folder of images")
     p.add_argument("--camera", type=Path, required=True, help="camera JSON (docs/sft.md)")
     p.add_argument("--template", type=Path, required=True,
@@ -49,7 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "order, for metrics")
     p.add_argument("--out", type=Path, required=True, help="output directory (new or empty "
                    "unless --overwrite)")
-    p.add_argument("--physics-weight", type=float, default=ReconstructionConfig.physics_weight,
+    p.add_argument("--physics-weight", type=finite_float,
+                   default=ReconstructionConfig.physics_weight,
                    help="w_phys of the Kirchhoff–Love prior; 0 switches it off "
                    "(default: %(default)s)")
     p.add_argument("--steps", type=int, default=ReconstructionConfig.steps,
@@ -57,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init", choices=("baseline", "previous"), default="baseline",
                    help="initial guess of each frame: the baseline's mesh or the previous "
                    "frame (default: %(default)s)")
-    p.add_argument("--fps", type=float, default=30.0, help="overlay video frame rate")
+    p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
     add_runtime_options(p)

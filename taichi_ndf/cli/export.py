@@ -10,18 +10,24 @@ import argparse
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import add_runtime_options, interruptible, start
+from taichi_ndf.cli.common import (
+    ArgumentParser,
+    add_runtime_options,
+    finite_float,
+    interruptible,
+    start,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-export", description=__doc__.split("\n")[0].strip("`"))
+    p = ArgumentParser(prog="ndf-export", description=__doc__.split("\n")[0].strip("`"))
     p.add_argument("checkpoint", type=Path, help="checkpoint.pt written by ndf-sim")
     p.add_argument("--resolution", type=int, nargs="+", default=[128],
                    help="grid cells per surface coordinate: R or R1 R2 (default 128)")
     p.add_argument("--out", type=Path, required=True,
                    help="output mesh file (.obj or .ply); refused if it exists without --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--time", type=float, default=1.0,
+    p.add_argument("--time", type=finite_float, default=1.0,
                    help="load factor t in [0, 1] of a pseudo-time field's path (default 1)")
     add_runtime_options(p)
     p.set_defaults(precision="f64")

@@ -7,7 +7,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import add_runtime_options, machine_description, start
+from taichi_ndf.cli.common import ArgumentParser, add_runtime_options, machine_description, start
 from taichi_ndf.io import incomplete_path, staged_run
 from taichi_ndf.io.memory import check_export_memory
 from taichi_ndf.outputs import exports_on_template
@@ -16,7 +16,7 @@ from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-sim", description=__doc__.split("\n")[0].strip("`"))
+    p = ArgumentParser(prog="ndf-sim", description=__doc__.split("\n")[0].strip("`"))
     p.add_argument("scene", type=Path, help="scene file (TOML); see docs/scenes.md")
     p.add_argument("--out", type=Path, required=True, help="output directory (must be new or "
                    "empty unless --overwrite or --resume); written as DIR.incomplete and moved "
