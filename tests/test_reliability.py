@@ -139,26 +139,11 @@ def test_2_export_of_an_unreadable_checkpoint_is_one_line(tmp_path, capsys, good
 
 # -- 3: scene paths in checkpoints ------------------------------------------------------------
 
-TEMPLATE_SCENE = """
-name = "template_sheet"
-[geometry]
-type = "mesh"
-path = "sheet.obj"
-[material]
-preset = "cloth"
-[loads]
-gravity = [0.0, 0.0, -9.81]
-[[boundary.constraint]]
-type = "pinned_point"
-xi = [0.0, 0.0]
-[field]
-width = 16
-[training]
-iterations = 2
-samples = 64
-monitor_every = 1
-monitor_samples = 64
-"""
+# The small napkin of test_cli on a template mesh (sheet.obj next to the scene), 2 iterations.
+TEMPLATE_SCENE = SMALL_NAPKIN.format(lr=1e-3).replace(
+    'type = "plane"\nbounds = [[0.0, 1.0], [0.0, 1.0]]', 'type = "mesh"\npath = "sheet.obj"'
+).replace("iterations = 10", "iterations = 2")
+assert 'path = "sheet.obj"' in TEMPLATE_SCENE
 
 
 def write_sheet(path: Path, n: int = 4, *, mirrored: bool = False) -> None:
