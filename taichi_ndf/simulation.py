@@ -147,15 +147,14 @@ def checkpoint_scene(path: str | os.PathLike, extra: dict) -> Scene:
     if candidates and not candidates[0].is_absolute():
         candidates.append(path.parent / stored)
     candidates.append(path.parent)
-    error = None
-    for base in candidates:
-        try:
-            return parse_scene(extra["scene"], base_dir=base)
-        except SceneError as err:  # a missing template: try the next folder
-            error = error or err
-            if "not found" not in str(err):
-                raise SceneError(f"{path}: its scene is invalid: {err}") from None
-    raise SceneError(f"{path}: {error}")
+    geometry = extra["scene"].get("geometry")
+    mesh = geometry.get("path") if isinstance(geometry, dict) else None
+    base = next((b for b in candidates if not isinstance(mesh, str) or (b / mesh).is_file()),
+                candidates[0])
+    try:
+        return parse_scene(extra["scene"], base_dir=base)
+    except SceneError as err:
+        raise SceneError(f"{path}: the scene it holds: {err}") from None
 
 
 def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],
