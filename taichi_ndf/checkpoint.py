@@ -28,6 +28,10 @@ KIND = "taichi_ndf.checkpoint"
 FIELD_TYPES = {"siren": (NeuralField, FieldConfig), "spline": (SplineField, SplineConfig)}
 
 
+class CheckpointError(ValueError):
+    """A file is not a readable checkpoint of this version; the message names it and why."""
+
+
 @dataclass
 class Checkpoint:
     """What ``load_checkpoint`` found: the field (loaded), optimiser state and metadata."""
@@ -122,46 +126,93 @@ def _architecture_mismatch(stored, ours) -> list[str]:
     ]
 
 
+def read_checkpoint(path: str | os.PathLike) -> dict:
+    """The checked contents of a checkpoint file: a dict with ``field_type`` ("siren" or
+    "spline"), ``architecture`` (its FieldConfig or SplineConfig),
+    ``parameters`` (name -> finite tensor), ``optimiser`` (dict or None), ``extra`` (dict) and
+    ``format_version``.
+
+    Raises FileNotFoundError if ``path`` does not exist and CheckpointError (one line naming the
+    file and the reason) for anything else that is not a checkpoint of this version: a folder,
+    an empty, truncated, corrupted or foreign file.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    if not path.is_file():
+        raise CheckpointError(f"{path}: not a checkpoint file (it is a directory)")
+    if path.stat().st_size == 0:
+        raise CheckpointError(f"{path}: not a checkpoint (the file is empty)")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many kinds on damaged or foreign files
+        reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise CheckpointError(f"{path}: not a readable checkpoint (truncated, corrupted or "
+                              f"another format: {reason[:200]})") from None
+    if not isinstance(payload, dict) or payload.get("kind") != KIND:
+        raise CheckpointError(f"{path}: not a taichi_ndf checkpoint")
+    version = payload.get("format_version")
+    if version != FORMAT_VERSION:
+        raise CheckpointError(
+            f"{path}: checkpoint format {version!r}, this version reads {FORMAT_VERSION}")
+    tag = payload.get("field_type", "siren")
+    if tag not in FIELD_TYPES:
+        raise CheckpointError(f"{path}: unknown field type {tag!r}; known: {list(FIELD_TYPES)}")
+    try:
+        architecture = FIELD_TYPES[tag][1].from_dict(payload["architecture"])
+        parameters = payload["parameters"]
+        if not isinstance(parameters, dict) or not all(
+                isinstance(v, torch.Tensor) for v in parameters.values()):
+            raise ValueError("parameters are not a dict of tensors")
+        if not all(torch.isfinite(v).all() for v in parameters.values()):
+            raise ValueError("parameters hold NaN or infinity")
+        optimiser = payload["optimiser"]
+        if optimiser is not None and not isinstance(optimiser, dict):
+            raise ValueError("optimiser state is not a dict")
+        extra = payload["extra"]
+        if not isinstance(extra, dict):
+            raise ValueError("extra is not a dict")
+    except (KeyError, TypeError, ValueError) as err:
+        reason = f"missing entry {err}" if isinstance(err, KeyError) else str(err)
+        raise CheckpointError(f"{path}: damaged checkpoint ({reason})") from None
+    return {"architecture": architecture, "parameters": parameters, "optimiser": optimiser,
+            "extra": extra, "format_version": version, "field_type": tag}
+
+
 def load_checkpoint(
     path: str | os.PathLike,
     field: NeuralField | SplineField | None = None,
     *,
     optimiser: Adam | None = None,
 ) -> Checkpoint:
-    """Read a checkpoint; load its weights into ``field`` (or a new field of the stored
-    architecture in the runtime's dtype) and its state into ``optimiser`` if given.
+    """Read a checkpoint (``read_checkpoint``); load its weights into ``field`` (or a new field
+    of the stored architecture in the runtime's dtype) and its state into ``optimiser`` if given.
 
-    Raises ValueError if the file is not a checkpoint of a supported version, if ``field``
-    has a different architecture (naming each differing setting), or if ``optimiser`` is
-    given but the checkpoint holds no optimiser state.
+    Raises CheckpointError (a ValueError) if the file is not a checkpoint of a supported
+    version, if ``field`` has a different architecture (naming each differing setting), or if
+    ``optimiser`` is given but the checkpoint holds no optimiser state.
     """
-    payload = torch.load(Path(path), map_location="cpu", weights_only=True)
-    if not isinstance(payload, dict) or payload.get("kind") != KIND:
-        raise ValueError(f"{path} is not a taichi_ndf checkpoint")
-    version = payload["format_version"]
-    if version != FORMAT_VERSION:
-        raise ValueError(
-            f"{path}: checkpoint format {version}, this version reads {FORMAT_VERSION}"
-        )
-    tag = payload.get("field_type", "siren")
-    if tag not in FIELD_TYPES:
-        raise ValueError(f"{path}: unknown field type {tag!r}; known: {list(FIELD_TYPES)}")
-    field_class, config_class = FIELD_TYPES[tag]
-    stored = config_class.from_dict(payload["architecture"])
+    contents = read_checkpoint(path)
+    stored = contents["architecture"]
+    field_class = FIELD_TYPES[contents["field_type"]][0]
     if field is None:
         field = field_class(stored)
     else:
         mismatch = _architecture_mismatch(stored, field.config)
         if mismatch:
-            raise ValueError(f"{path} does not fit the field: " + "; ".join(mismatch))
-    field.load_state_dict(payload["parameters"])
-    if optimiser is not None:
-        if payload["optimiser"] is None:
-            raise ValueError(f"{path} holds no optimiser state")
-        optimiser.load_state_dict(payload["optimiser"])
+            raise CheckpointError(f"{path} does not fit the field: " + "; ".join(mismatch))
+    if optimiser is not None and contents["optimiser"] is None:
+        raise CheckpointError(f"{path} holds no optimiser state")
+    try:
+        field.load_state_dict(contents["parameters"])
+        if optimiser is not None:
+            optimiser.load_state_dict(contents["optimiser"])
+    except (KeyError, RuntimeError, TypeError, ValueError) as err:
+        reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise CheckpointError(f"{path}: damaged checkpoint ({reason[:200]})") from None
     return Checkpoint(
         field=field,
-        optimiser_state=payload["optimiser"],
-        extra=payload["extra"],
-        format_version=version,
+        optimiser_state=contents["optimiser"],
+        extra=contents["extra"],
+        format_version=contents["format_version"],
     )

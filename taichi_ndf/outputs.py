@@ -54,11 +54,17 @@ class DeformedMesh:
                 "energy_density": self.energy_density}
 
 
+def exports_on_template(model: ShellModel) -> bool:
+    """Whether `model` is exported on its template mesh's own vertices (a mesh surface), so an
+    export resolution does not apply."""
+    return hasattr(model.surface, "uv") and hasattr(model.surface, "faces")
+
+
 def export_grid(model: ShellModel, resolution: tuple[int, int]):
     """Surface coordinates, faces and UVs to export a model on: the template mesh's own
     vertices for a mesh surface, else a regular grid (faces outside a masked chart dropped)."""
     surface = model.surface
-    if hasattr(surface, "uv") and hasattr(surface, "faces"):
+    if exports_on_template(model):
         uv = np.asarray(surface.uv, dtype=np.float64)
         return uv, np.asarray(surface.faces, dtype=np.int64), uv
     domain = surface.domain

@@ -78,9 +78,11 @@ def load_scene(path: str | Path, *, material: str | None = None) -> Scene:
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")
     try:
-        document = tomllib.loads(path.read_text())
+        document = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise SceneError(f"{path}: not a text file (a scene is TOML in UTF-8)") from None
     except tomllib.TOMLDecodeError as err:
-        raise SceneError(f"{path}: not valid TOML: {err}") from err
+        raise SceneError(f"{path}: not valid TOML: {err}") from None
     if material is not None:
         document["material"] = {"preset": material}
     return parse_scene(document, base_dir=path.parent, path=path)
@@ -129,10 +131,18 @@ def _placement(t: Table) -> dict:
         out["origin"] = t.vector("origin", 3)
     if t.has("frame"):
         frame = t._get("frame", None)
-        if not (isinstance(frame, list) and len(frame) == 3):
+        if not _number_rows(frame, 3, 3):
             raise SceneError(f"{t.key('frame')}: expected three 3-vectors [e_x, e_y, e_z]")
         out["frame"] = tuple(tuple(float(v) for v in row) for row in frame)
     return out
+
+
+def _number_rows(value, rows: int, columns: int) -> bool:
+    """Whether `value` is a list of `rows` lists of `columns` finite numbers."""
+    return (isinstance(value, list) and len(value) == rows
+            and all(isinstance(row, list) and len(row) == columns for row in value)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                    for row in value for v in row))
 
 
 def _geometry(t: Table, base_dir: Path):
@@ -149,8 +159,9 @@ def _geometry(t: Table, base_dir: Path):
     placement = _placement(t)
     if kind == "plane":
         b = t._get("bounds", [[0.0, 1.0], [0.0, 1.0]])
-        if not (isinstance(b, list) and len(b) == 2 and all(len(p) == 2 for p in b)):
-            raise SceneError(f"{t.key('bounds')}: expected [[x_min, x_max], [y_min, y_max]] [m]")
+        if not _number_rows(b, 2, 2):
+            raise SceneError(f"{t.key('bounds')}: expected [[x_min, x_max], [y_min, y_max]] [m] "
+                             f"(finite numbers), got {b!r}")
         return Plane(bounds=tuple(tuple(float(v) for v in p) for p in b), **placement)
     if kind == "cylinder":
         return Cylinder(radius=t.number("radius", positive=True),
@@ -263,6 +274,11 @@ def _adam(t: Table) -> dict:
             "grad_clip": t.number("grad_clip", None)}
 
 
+def trains_the_field(config: SolverConfig) -> bool:
+    """Whether `config` runs any optimisation at all (Adam, L-BFGS or Newton iterations)."""
+    return config.iterations > 0 or config.lbfgs_iterations > 0 or config.newton_iterations > 0
+
+
 def adam_config(lr: float, schedule: str, final_ratio: float, grad_clip: float | None,
                 total_steps: int) -> AdamConfig:
     """Adam whose learning rate falls from `lr` to `final_ratio`·lr over `total_steps`
@@ -277,7 +293,7 @@ def _solver(t: Table, adam: dict, defaults: SolverConfig | None = None) -> Solve
     d = defaults or SolverConfig()
     steps = t.numbers("load_steps", d.load_steps)
     iterations = t.integer("iterations", d.iterations, minimum=0)
-    return SolverConfig(
+    config = SolverConfig(
         iterations=iterations,
         samples=t.integer("samples", d.samples, minimum=16),
         adam=adam_config(**adam, total_steps=iterations * len(steps)),
@@ -291,6 +307,10 @@ def _solver(t: Table, adam: dict, defaults: SolverConfig | None = None) -> Solve
         newton_samples=t.integer("newton_samples", d.newton_samples, minimum=16),
         seed=t.integer("seed", d.seed),
     )
+    if not trains_the_field(config):
+        raise SceneError(f"{t.key('iterations')}: must be >= 1 (or lbfgs_iterations or "
+                         "newton_iterations > 0): nothing would train the field")
+    return config
 
 
 def _training(t: Table) -> tuple[SolverConfig, SolverConfig]:

@@ -5,7 +5,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
+from pathlib import Path
 
+from taichi_ndf.checkpoint import read_checkpoint
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
 from taichi_ndf.field import NeuralField
@@ -24,12 +27,18 @@ from taichi_ndf.outputs import (
     write_trajectory_video,
 )
 from taichi_ndf.pseudo_time import frame_times
-from taichi_ndf.scene import Scene
+from taichi_ndf.scene import Scene, parse_scene
+from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
 
 log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
+# What a run writes into its directory (see `simulate`): replaced as a whole by the next run.
+RUN_FILES = ("mesh.obj", "mesh.ply", "reference.obj", "probes.json", "render.png", "energy.png",
+             "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4")
+# Scene sections a resumed run may change: how long and how it trains, what it writes.
+RESUMABLE_CHANGES = ("name", "description", "training", "output")
 
 
 class SimulationError(RuntimeError):
@@ -52,7 +61,10 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     if config.pseudo_time != scene.solver.pseudo_time:
         raise ValueError("the solver configuration and the scene disagree on pseudo_time (the "
                          "scene's field has a pseudo-time input only with it)")
-    field = NeuralField(scene.field, seed=config.seed if seed is None else seed)
+    seed = config.seed if seed is None else seed
+    if resume:
+        _check_same_scene(out.file("checkpoint.pt"), scene)
+    field = NeuralField(scene.field, seed=seed)
     step_frames = len(config.load_steps) > 1 and not config.pseudo_time
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
 
@@ -64,7 +76,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
             write_trajectory_mesh(out, index, frames[index])
 
     run = Solver(scene.model, field, config, checkpoint_path=out.file("checkpoint.pt"),
-                 checkpoint_extra={"scene": scene.document, "scene_dir": str(scene.path.parent)})
+                 checkpoint_extra={"scene": scene.document,
+                                   "scene_dir": str(scene.path.parent.resolve())})
     try:
         result = run.run(resume=resume, on_load_step=on_load_step)
     except DivergenceError as err:
@@ -98,6 +111,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     summary = {
         "format_version": FORMAT_VERSION,
         "scene": scene.name,
+        "seed": seed,
         "energy": result.energy,
         "iterations": result.iterations,
         "wall_time": result.wall_time,
@@ -117,6 +131,46 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         write_run_usd(read_run(out.path), out.file("result.usdc"))
     log.info("wrote outputs of %s to %s", scene.name, out.path)
     return summary
+
+
+def _check_same_scene(checkpoint: Path, scene: Scene) -> None:
+    """Refuse to resume from a checkpoint of another scene (naming the sections that differ);
+    only [training] and [output] may change."""
+    stored = read_checkpoint(checkpoint)["extra"].get("scene")
+    if not isinstance(stored, dict):
+        raise SimulationError(f"--resume: {checkpoint} holds no scene; it was not written by "
+                              "ndf-sim")
+    changed = sorted(k for k in set(stored) | set(scene.document)
+                     if k not in RESUMABLE_CHANGES and stored.get(k) != scene.document.get(k))
+    if changed:
+        raise SimulationError(f"--resume: the scene changed since {checkpoint} was written "
+                              f"([{'], ['.join(changed)}] differ; only [training] and [output] "
+                              "may change); start a new run in a new directory")
+
+
+def checkpoint_scene(path: str | os.PathLike, extra: dict) -> Scene:
+    """The scene a checkpoint written by `simulate` was trained on (its ``extra``).
+
+    Paths inside the scene (a template mesh) are resolved against the scene's folder as stored
+    (absolute since it is stored so; older checkpoints hold it relative to the working folder
+    of the run), then against the checkpoint's own folder, so a run folder that carries its
+    mesh along can be exported from anywhere."""
+    path = Path(path)
+    if not isinstance(extra.get("scene"), dict):
+        raise SceneError(f"{path} holds no scene; it was not written by ndf-sim")
+    stored = extra.get("scene_dir")
+    candidates = [Path(stored)] if isinstance(stored, str) else []
+    if candidates and not candidates[0].is_absolute():
+        candidates.append(path.parent / stored)
+    candidates.append(path.parent)
+    geometry = extra["scene"].get("geometry")
+    mesh = geometry.get("path") if isinstance(geometry, dict) else None
+    base = next((b for b in candidates if not isinstance(mesh, str) or (b / mesh).is_file()),
+                candidates[0])
+    try:
+        return parse_scene(extra["scene"], base_dir=base)
+    except SceneError as err:
+        raise SceneError(f"{path}: the scene it holds: {err}") from None
 
 
 def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],

@@ -359,7 +359,8 @@ class Solver:
 
     def _diverged(self, energy: float, gnorm: float, step: int):
         self.field.set_flat(self._good_state)
-        where = f" (checkpoint {self.checkpoint_path})" if self.checkpoint_path else ""
+        saved = self.checkpoint_path is not None and self.checkpoint_path.is_file()
+        where = f" (checkpoint {self.checkpoint_path})" if saved else ""
         last = self.history[-1].iteration if self.history else 0
         raise DivergenceError(
             f"training diverged at iteration {self.iteration}: Π = {energy}, "

@@ -106,11 +106,13 @@ def test_resume_continues_an_interrupted_run(tmp_path, monkeypatch):
             raise KeyboardInterrupt
 
     monkeypatch.setattr(Solver, "save", save_then_crash)
-    with pytest.raises(KeyboardInterrupt):
-        run_sim(scene, "--out", tmp_path / "cut")
+    assert run_sim(scene, "--out", tmp_path / "cut") == 130  # Ctrl-C
     monkeypatch.undo()
-    assert not (tmp_path / "cut" / "result.json").exists()
-    assert load_checkpoint(tmp_path / "cut" / "checkpoint.pt").extra["iteration"] == 5
+    # The attempt lies beside the (never completed) run directory, ready to resume.
+    assert not (tmp_path / "cut").exists()
+    staged = tmp_path / "cut.incomplete"
+    assert not (staged / "result.json").exists()
+    assert load_checkpoint(staged / "checkpoint.pt").extra["iteration"] == 5
 
     assert run_sim(scene, "--out", tmp_path / "cut", "--resume") == 0
     resumed = json.loads((tmp_path / "cut" / "result.json").read_text())
@@ -151,7 +153,10 @@ def test_nan_guard_keeps_the_last_good_checkpoint(tmp_path, capsys):
     bad = small_napkin(tmp_path, lr=1e30, name="bad.toml")
     assert run_sim(bad, "--out", out, "--resume", "--iters", "20") == 2
     err = capsys.readouterr().err
-    assert "diverged at iteration 11" in err and str(out / "checkpoint.pt") in err
+    # The resumed attempt runs in run.incomplete; its checkpoint is the good one.
+    staged = tmp_path / "run.incomplete" / "checkpoint.pt"
+    assert "diverged at iteration 11" in err and str(staged) in err
+    assert staged.read_bytes() == good
     assert (out / "checkpoint.pt").read_bytes() == good
     assert (out / "result.json").read_bytes() == result
     weights = load_checkpoint(out / "checkpoint.pt").field.get_flat()
@@ -239,11 +244,11 @@ def test_resume_keeps_the_trajectory_of_load_steps_finished_before_the_interrupt
             raise KeyboardInterrupt
 
     monkeypatch.setattr(Solver, "save", save_then_crash)
-    with pytest.raises(KeyboardInterrupt):
-        run_sim(scene, "--out", tmp_path / "cut")
+    assert run_sim(scene, "--out", tmp_path / "cut") == 130  # Ctrl-C
     monkeypatch.undo()
+    # the first step's frame is on disk at once (in the incomplete attempt)
+    written_before = (tmp_path / "cut.incomplete" / "trajectory" / "step_000.obj").read_bytes()
     first = tmp_path / "cut" / "trajectory" / "step_000.obj"
-    written_before = first.read_bytes()  # the first step's frame is on disk at once
 
     assert run_sim(scene, "--out", tmp_path / "cut", "--resume") == 0
     resumed = json.loads((tmp_path / "cut" / "result.json").read_text())

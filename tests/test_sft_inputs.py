@@ -95,7 +95,7 @@ def test_zero_distortion_leaves_frames_unchanged(inputs_dir):
         ({**CAMERA, "dist": [0.1, 0.0]}, "5 coefficients"),
         ({**CAMERA, "R": np.eye(3).tolist()}, "both R and t"),
         ({**CAMERA, "R": (2 * np.eye(3)).tolist(), "t": [0, 0, 0]}, "rotation matrix"),
-        ({**CAMERA, "cx": "centre"}, "malformed value"),
+        ({**CAMERA, "cx": "centre"}, "cx must be a number"),
     ],
 )
 def test_bad_camera_json_is_refused(data, message):

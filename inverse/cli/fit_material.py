@@ -33,10 +33,17 @@ from inverse.material.conditioned import ConditionedConfig, to_values
 from inverse.material.identifiability import finite_or_none
 from inverse.material.implicit import ImplicitConfig, implicit_estimate
 from inverse.material.report import estimate_document, overlay_image
-from taichi_ndf.cli.common import add_runtime_options, machine_description, start
+from taichi_ndf.cli.common import (
+    ArgumentParser,
+    add_runtime_options,
+    finite_float,
+    interruptible,
+    machine_description,
+    start,
+)
 from taichi_ndf.io import read_mesh
 from taichi_ndf.io.grid import grid_mesh
-from taichi_ndf.io.output_dir import OutputDir
+from taichi_ndf.io.output_dir import OutputDir, check_output_dir
 from taichi_ndf.render import save_png
 from taichi_ndf.scene import SceneError, load_scene
 
@@ -48,7 +55,7 @@ class InputError(ValueError):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-fit-material", description=__doc__.split("\n\n")[0])
+    p = ArgumentParser(prog="ndf-fit-material", description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", required=True, help="scene TOML: known conditions, start values")
     p.add_argument("--observed", required=True, nargs="+",
                    help="observed shape(s), OBJ or PLY, all under the scene's conditions")
@@ -74,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory (must be new or empty)")
     p.add_argument("--point-cloud", action="store_true",
                    help="treat observations as point clouds without correspondence")
-    p.add_argument("--decades", type=float, default=1.3,
+    p.add_argument("--decades", type=finite_float, default=1.3,
                    help="bilevel search box: decades either side of the start (default 1.3)")
     p.add_argument("--box-centre", default="start", choices=("residual", "start"),
                    help="bilevel search box centre: the equilibrium-residual estimate when it "
@@ -89,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "conditioned field's training (default 0: none); with a wide --band it "
                         "brought the orthotropic flap from +31 %% to -0.3 %% "
                         "(docs/inverse_material.md)")
-    p.add_argument("--band", type=float, default=None,
+    p.add_argument("--band", type=finite_float, default=None,
                    help="bilevel: band width of the boundary conditions' vanishing factors for "
                         "the conditioned field, a fraction of the domain (edges accept > 1; "
                         "default: the scene's)")
@@ -110,6 +117,10 @@ def _observations(paths, model, resolution, point_cloud: bool) -> list[Observati
         except Exception as err:  # trimesh raises many kinds on a malformed file
             raise InputError(f"cannot read observation {path}: {err}") from None
         points = torch.from_numpy(np.asarray(mesh.vertices, dtype=np.float64))
+        if not torch.isfinite(points).all():
+            bad = int((~torch.isfinite(points).all(dim=1)).sum())
+            raise InputError(f"observation {path}: {bad} vertices are not finite (NaN or "
+                             "infinity)")
         if point_cloud:
             out.append(Observation(model, points, None))
             continue
@@ -151,9 +162,10 @@ def run(args, runtime) -> dict:
     for name in ("width", "samples"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name} must be >= 1, got {getattr(args, name)}")
-    out = OutputDir(args.out)  # refuses a non-empty directory before any work
+    check_output_dir(args.out)  # a non-empty directory is refused before any work
     observations = _observations(args.observed, model, scene.output.resolution,
                                  args.point_cloud)
+    out = OutputDir(args.out)
     resolution = scene.output.resolution
     grid = grid_mesh(model.surface.domain.bounds, resolution,
                      periodic=model.surface.domain.periodic)
@@ -214,6 +226,7 @@ def run(args, runtime) -> dict:
     return document
 
 
+@interruptible("ndf-fit-material")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     runtime = start(args)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -28,7 +29,14 @@ from inverse.sft.inputs import Camera, InputError, load_inputs
 from inverse.sft.metrics import evaluate_sequence
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
 from inverse.sft.tracking import track_sequence
-from taichi_ndf.cli.common import add_runtime_options, machine_description, start
+from taichi_ndf.cli.common import (
+    ArgumentParser,
+    add_runtime_options,
+    finite_float,
+    interruptible,
+    machine_description,
+    start,
+)
 from taichi_ndf.io import OutputDir, read_mesh, write_obj
 from taichi_ndf.render import write_video
 
@@ -36,7 +44,7 @@ OVERLAY_COLOUR = (60, 230, 60)  # BGR
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-sft", description=__doc__.split("\n")[0].strip("`"))
+    p = ArgumentParser(prog="ndf-sft", description=__doc__.split("\n")[0].strip("`"))
     p.add_argument("--frames", type=Path, required=True, help="video file or folder of images")
     p.add_argument("--camera", type=Path, required=True, help="camera JSON (docs/sft.md)")
     p.add_argument("--template", type=Path, required=True,
@@ -48,7 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "order, for metrics")
     p.add_argument("--out", type=Path, required=True, help="output directory (new or empty "
                    "unless --overwrite)")
-    p.add_argument("--physics-weight", type=float, default=ReconstructionConfig.physics_weight,
+    p.add_argument("--physics-weight", type=finite_float,
+                   default=ReconstructionConfig.physics_weight,
                    help="w_phys of the Kirchhoff–Love prior; 0 switches it off "
                    "(default: %(default)s)")
     p.add_argument("--steps", type=int, default=ReconstructionConfig.steps,
@@ -56,13 +65,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init", choices=("baseline", "previous"), default="baseline",
                    help="initial guess of each frame: the baseline's mesh or the previous "
                    "frame (default: %(default)s)")
-    p.add_argument("--fps", type=float, default=30.0, help="overlay video frame rate")
+    p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
     add_runtime_options(p)
     return p
 
 
+@interruptible("ndf-sft")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -85,12 +95,14 @@ def run(args: argparse.Namespace) -> dict:
     """The whole pipeline; returns the summary written to result.json."""
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
+    config = ReconstructionConfig(physics_weight=args.physics_weight, steps=args.steps,
+                                  seed=args.seed)  # the options are checked before any work
+    if not 0 < args.fps < math.inf:
+        raise InputError(f"--fps must be finite and positive, got {args.fps}")
     inputs = load_inputs(frames=args.frames, camera=args.camera, template=args.template,
                          texture=args.texture, masks=args.masks, pinned=args.pinned)
     gt = _read_ground_truth(args.gt, len(inputs.frames)) if args.gt is not None else None
     out = OutputDir(args.out, overwrite=args.overwrite)
-    config = ReconstructionConfig(physics_weight=args.physics_weight, steps=args.steps,
-                                  seed=args.seed)
     runtime = start(args)
     seconds["load"] = time.perf_counter() - clock
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from inverse.sft.inputs import InputError, load_camera
 from inverse.sft.metrics import evaluate_sequence
+from taichi_ndf.cli.common import ArgumentParser, interruptible
 from taichi_ndf.io import read_mesh
 
 MESH_SUFFIXES = (".obj", ".ply")
@@ -50,7 +51,7 @@ def paired_meshes(pred_dir: Path, gt_dir: Path) -> list[tuple[str, Path, Path]]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="ndf-sft-eval",
         description="Shape-from-template accuracy: e3D, chamfer, normal and reprojection error.",
     )
@@ -61,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@interruptible("ndf-sft-eval")
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")

@@ -147,6 +147,18 @@ def camera_from_json(data: dict, *, source: str = "camera JSON") -> Camera:
             f"{source}: unknown key(s) {sorted(unknown)}; allowed: "
             f"{sorted(CAMERA_KEYS | OPTIONAL_CAMERA_KEYS)}"
         )
+    for name in ("fx", "fy", "cx", "cy", "width", "height"):
+        if not _is_number(data[name]):
+            raise InputError(f"{source}: {name} must be a number, got {data[name]!r}")
+    for name in ("dist", "t"):
+        value = data.get(name)
+        if value is not None and not (isinstance(value, list)
+                                      and all(_is_number(x) for x in value)):
+            raise InputError(f"{source}: {name} must be a list of numbers, got {value!r}")
+    rows = data.get("R")
+    if rows is not None and not (isinstance(rows, list) and all(
+            isinstance(row, list) and all(_is_number(x) for x in row) for row in rows)):
+        raise InputError(f"{source}: R must be a list of rows of numbers, got {rows!r}")
     try:
         dist = None if data.get("dist") is None else tuple(float(x) for x in data["dist"])
         rotation = None
@@ -164,6 +176,11 @@ def camera_from_json(data: dict, *, source: str = "camera JSON") -> Camera:
         if isinstance(err, InputError):
             raise InputError(f"{source}: {err}") from None
         raise InputError(f"{source}: malformed value ({err})") from None
+
+
+def _is_number(value) -> bool:
+    """A JSON number: int or float, not a boolean nor a numeric string."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def load_camera(path: str | Path) -> Camera:

@@ -88,12 +88,12 @@ class ReconstructionConfig:
 
     def __post_init__(self):
         for name in ("physics_weight", "silhouette_weight", "temporal_weight", "init_steps"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+            if not 0 <= getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
         for name in ("huber_px", "omega0", "output_scale", "lr", "energy_samples", "steps",
                      "width", "hidden_layers"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
         if not 0 <= self.min_lr <= self.lr:
             raise ValueError(f"min_lr must be in [0, lr], got {self.min_lr}")
         if not isinstance(preset(self.material), LinearIsotropic):

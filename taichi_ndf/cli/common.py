@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
+import math
 import platform
+import sys
 
 import taichi_ndf
 
@@ -16,6 +19,40 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def nonnegative_int(text: str) -> int:
+    """An argparse type: an integer >= 0."""
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser whose errors are one line (``PROG: error: ...``, exit code 2) like
+    every other user error of the tools; --help still shows the usage."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def finite_float(text: str) -> float:
+    """An argparse type: a finite number (NaN and infinity are refused)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+    return value
+
+
+def _seed(text: str) -> int:
+    value = int(text)
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"must be in [0, 2^32), got {value}")
+    return value
+
+
 def add_runtime_options(parser: argparse.ArgumentParser, *, precision: str = "f32",
                         seed: int | None = 0, seed_help: str = "random seed (default: 0)") -> None:
     """--arch, --precision, --seed, --threads and --verbose, with the tool's defaults."""
@@ -24,7 +61,7 @@ def add_runtime_options(parser: argparse.ArgumentParser, *, precision: str = "f3
     parser.add_argument("--precision", default=precision, choices=("f32", "f64"),
                         help=f"floating-point precision of fields and kernels (default: "
                         f"{precision})")
-    parser.add_argument("--seed", type=int, default=seed, help=seed_help)
+    parser.add_argument("--seed", type=_seed, default=seed, help=seed_help)
     parser.add_argument("--threads", type=_positive_int, default=1,
                         help="torch CPU threads (default 1: Taichi's kernels run on their own "
                         "pool of all cores, and torch's spinning OpenMP threads competing with it "
@@ -49,3 +86,26 @@ def machine_description(runtime) -> dict:
     return {"python": platform.python_version(), "platform": platform.platform(),
             "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
             "arch": runtime.arch, "precision": runtime.precision}
+
+
+def interruptible(prog: str):
+    """Decorate a tool's `main`: Ctrl-C ends it with one line and exit code 130, running out of
+    memory with one line and exit code 2 (instead of a traceback). Files a tool writes are
+    atomic (`atomic_path`), so an interruption leaves no half-written file."""
+
+    def wrap(main):
+        @functools.wraps(main)
+        def run(argv=None) -> int:
+            try:
+                return main(argv)
+            except KeyboardInterrupt:
+                print(f"{prog}: interrupted", file=sys.stderr)
+                return 130
+            except MemoryError:
+                print(f"{prog}: error: out of memory; try a smaller problem (resolution, "
+                      "samples, frames)", file=sys.stderr)
+                return 2
+
+        return run
+
+    return wrap

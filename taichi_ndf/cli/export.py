@@ -12,11 +12,17 @@ import argparse
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import add_runtime_options, start
+from taichi_ndf.cli.common import (
+    ArgumentParser,
+    add_runtime_options,
+    finite_float,
+    interruptible,
+    start,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-export", description=__doc__.split("\n")[0].strip("`"))
+    p = ArgumentParser(prog="ndf-export", description=__doc__.split("\n")[0].strip("`"))
     p.add_argument("checkpoint", type=Path, help="checkpoint.pt written by ndf-sim (with --format "
                    "usd: the run directory, or its checkpoint.pt)")
     p.add_argument("--format", choices=("obj", "ply", "usd"),
@@ -27,13 +33,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output mesh file (.obj or .ply, or .usdc/.usda/.usd with --format usd: "
                    "default RUN_DIR/result.usdc); refused if it exists without --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--time", type=float, default=1.0,
+    p.add_argument("--time", type=finite_float, default=1.0,
                    help="load factor t in [0, 1] of a pseudo-time field's path (default 1)")
     add_runtime_options(p)
     p.set_defaults(precision="f64")
     return p
 
 
+@interruptible("ndf-export")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.format == "usd":
@@ -57,14 +64,14 @@ def main(argv: list[str] | None = None) -> int:
         start(args)
         from taichi_ndf.checkpoint import load_checkpoint
         from taichi_ndf.io import write_obj, write_ply
-        from taichi_ndf.outputs import deformed_mesh
-        from taichi_ndf.scene import parse_scene
+        from taichi_ndf.io.memory import check_export_memory
+        from taichi_ndf.outputs import deformed_mesh, exports_on_template
+        from taichi_ndf.simulation import checkpoint_scene
 
         checkpoint = load_checkpoint(args.checkpoint)
-        extra = checkpoint.extra
-        if "scene" not in extra:
-            raise ValueError(f"{args.checkpoint} holds no scene; it was not written by ndf-sim")
-        scene = parse_scene(extra["scene"], base_dir=Path(extra["scene_dir"]))
+        scene = checkpoint_scene(args.checkpoint, checkpoint.extra)
+        if not exports_on_template(scene.model):
+            check_export_memory(res, "--resolution")
         field = checkpoint.field
         if args.time != 1.0 and not scene.solver.pseudo_time:
             raise ValueError("--time needs a checkpoint of a pseudo-time field "

@@ -7,17 +7,20 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import add_runtime_options, machine_description, start
-from taichi_ndf.io import OutputDir
+from taichi_ndf.cli.common import ArgumentParser, add_runtime_options, machine_description, start
+from taichi_ndf.io import incomplete_path, staged_run
+from taichi_ndf.io.memory import check_export_memory
+from taichi_ndf.outputs import exports_on_template
 from taichi_ndf.scene_schema import SceneError
-from taichi_ndf.simulation import SimulationError, simulate
+from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-sim", description=__doc__.split("\n")[0].strip("`"))
+    p = ArgumentParser(prog="ndf-sim", description=__doc__.split("\n")[0].strip("`"))
     p.add_argument("scene", type=Path, help="scene file (TOML); see docs/scenes.md")
     p.add_argument("--out", type=Path, required=True, help="output directory (must be new or "
-                   "empty unless --overwrite or --resume)")
+                   "empty unless --overwrite or --resume); written as DIR.incomplete and moved "
+                   "into place when the run completes")
     p.add_argument("--iters", type=int, help="Adam iterations per load step (overrides scene)")
     p.add_argument("--samples", type=int, help="samples per iteration (overrides scene)")
     p.add_argument("--material", help="replace the scene's material by a preset "
@@ -25,40 +28,61 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true",
                    help="a short run with the scene's [training.quick] settings (smoke test)")
     p.add_argument("--resume", action="store_true",
-                   help="continue an interrupted run from DIR/checkpoint.pt")
+                   help="continue an interrupted run from DIR.incomplete/checkpoint.pt (or a "
+                   "finished one from DIR/checkpoint.pt, e.g. with more --iters)")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
-    add_runtime_options(p)
+    add_runtime_options(p, seed=None, seed_help="random seed (default: the scene's "
+                        "[training] seed, 0 if none)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    staging = incomplete_path(args.out)
     try:
-        from taichi_ndf.scene import load_scene
+        from taichi_ndf.scene import load_scene, trains_the_field
 
         scene = load_scene(args.scene, material=args.material)
-        runtime = start(args)
-        if args.resume and not (args.out / "checkpoint.pt").is_file():
-            raise SimulationError(f"--resume: no checkpoint at {args.out / 'checkpoint.pt'}")
-        out = OutputDir(args.out, overwrite=args.overwrite or args.resume)
         solver = scene.quick_solver if args.quick else scene.solver
         if args.iters is not None:
+            if args.iters < 0:
+                raise ValueError(f"--iters must be >= 0, got {args.iters}")
             solver = solver.with_iterations(args.iters)
-        overrides = {"seed": args.seed}
+            if not trains_the_field(solver):
+                raise ValueError("--iters 0: nothing would train the field (no L-BFGS or "
+                                 "Newton iterations in the scene either)")
+        overrides = {} if args.seed is None else {"seed": args.seed}
         if args.samples is not None:
             overrides["samples"] = args.samples
         solver = dataclasses.replace(solver, **overrides)
-        result = simulate(scene, out, solver=solver, resume=args.resume,
-                          machine=machine_description(runtime))
-    except (SceneError, SimulationError, FileExistsError, ValueError) as err:
+        if not exports_on_template(scene.model):
+            check_export_memory(scene.output.resolution, "output.resolution",
+                                frames=scene.output.frames or len(solver.load_steps))
+        runtime = start(args)
+        with staged_run(args.out, overwrite=args.overwrite, resume=args.resume,
+                        products=RUN_FILES) as out:
+            result = simulate(scene, out, solver=solver, resume=args.resume,
+                              machine=machine_description(runtime))
+    except (SceneError, SimulationError, FileExistsError, FileNotFoundError, ValueError) as err:
         print(f"ndf-sim: error: {err}", file=sys.stderr)
         return 2
+    except MemoryError:
+        kept = f"; the previous run in {args.out} is unchanged" if args.out.exists() else ""
+        print(f"ndf-sim: error: out of memory; the incomplete attempt is in {staging} (its "
+              f"checkpoint can be resumed with --resume){kept}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        where = (f"the last checkpoint is in {staging} (continue with --resume)"
+                 if (staging / "checkpoint.pt").is_file() else "no checkpoint was written yet")
+        print(f"ndf-sim: interrupted; {where}", file=sys.stderr)
+        return 130
+    out = args.out
     print(f"{scene.name}: Π = {result['energy']:.6g} J after {result['iterations']} iterations "
           f"in {result['wall_time']:.1f} s")
     for name, u in result["probes"].items():
         print(f"  probe {name}: u = ({u[0]:.5g}, {u[1]:.5g}, {u[2]:.5g}) m")
-    print(f"outputs in {out.path}")
+    print(f"outputs in {out}")
     return 0
 
 

@@ -7,7 +7,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import add_runtime_options, start
+from taichi_ndf.cli.common import (
+    ArgumentParser,
+    add_runtime_options,
+    interruptible,
+    nonnegative_int,
+    start,
+)
 from taichi_ndf.io import OutputDir
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import DivergenceError
@@ -16,14 +22,14 @@ from taichi_ndf.solver import DivergenceError
 def build_parser() -> argparse.ArgumentParser:
     from taichi_ndf.validation import CASES, SCENES_DIR
 
-    p = argparse.ArgumentParser(prog="ndf-validate", description=__doc__.split("\n")[0])
+    p = ArgumentParser(prog="ndf-validate", description=__doc__.split("\n")[0])
     p.add_argument("cases", nargs="*", metavar="CASE",
                    help=f"cases to run (default: all): {', '.join(CASES)}")
     p.add_argument("--out", type=Path, required=True, help="output directory (new or empty "
                    "unless --overwrite)")
     p.add_argument("--quick", action="store_true",
                    help="short runs with each scene's [training.quick] settings (smoke test)")
-    p.add_argument("--iters", type=int,
+    p.add_argument("--iters", type=nonnegative_int,
                    help="Adam iterations per load step (overrides the scenes)")
     p.add_argument("--scenes", type=Path, default=SCENES_DIR,
                    help=f"folder of the case scene files (default: {SCENES_DIR})")
@@ -34,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@interruptible("ndf-validate")
 def main(argv: list[str] | None = None) -> int:
     from taichi_ndf.validation import CASES, run_case, write_report
 

@@ -199,21 +199,15 @@ class MeshSurface(ReferenceSurface):
 
     @classmethod
     def from_file(cls, path: str | Path, **options) -> MeshSurface:
-        """Load an OBJ or PLY mesh with UVs (trimesh, no processing: vertex order preserved)
-        and fit it; `options` are those of the constructor."""
-        import trimesh
+        """Load an OBJ or PLY mesh with UVs (`read_mesh`: vertex order preserved, polygons
+        triangulated) and fit it; `options` are those of the constructor."""
+        from taichi_ndf.io import read_mesh
 
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"mesh file {path} does not exist")
-        # Not force="mesh": that copies the scene's materials, which needs Pillow.
-        mesh = trimesh.load(path, process=False, maintain_order=True)
-        if isinstance(mesh, trimesh.Scene):
-            raise ValueError(
-                f"{path.name}: contains {len(mesh.geometry)} separate meshes; a template must "
-                "be a single mesh"
-            )
-        uv = getattr(mesh.visual, "uv", None)
+        mesh = read_mesh(path)
+        uv = mesh.uvs
         if uv is None or len(uv) != len(mesh.vertices):
             raise ValueError(
                 f"{path.name}: the mesh has no UV coordinates (one per vertex; trimesh also "
@@ -341,6 +335,11 @@ def _validate(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, name: str
             f"{name}: flipped UV triangles (orientation opposite to the rest of the chart): "
             f"{_listing(bad)}"
         )
+    if orientation < 0:
+        log.warning(
+            "%s: the UV chart is mirrored (its triangles run clockwise in UV): the shell's "
+            "normal a1 x a2 points opposite to the normals of the file's face winding, so "
+            "pressure, the sign of curvature and the rendered front side follow the UV chart", name)
 
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)

@@ -161,12 +161,18 @@ def read_mesh(path: str | os.PathLike) -> MeshData:
         raise FileNotFoundError(f"mesh file not found: {path}")
     # load_scene, not load_mesh: load_mesh copies the geometry, which needs Pillow for textured
     # materials, and concatenates parts (dropping the PLY metadata read below).
-    scene = trimesh.load_scene(path, process=False, maintain_order=True, fix_texture=False)
+    try:
+        scene = trimesh.load_scene(path, process=False, maintain_order=True, fix_texture=False)
+    except Exception as err:  # trimesh raises many kinds (decode, import, index) on bad files
+        reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ValueError(f"{path}: not a readable OBJ or PLY mesh ({reason[:200]})") from None
     meshes = list(scene.geometry.values())
     if len(meshes) != 1 or not isinstance(meshes[0], trimesh.Trimesh):
         raise ValueError(f"{path} does not hold exactly one triangle mesh")
     mesh = meshes[0]
     uv = getattr(mesh.visual, "uv", None)
+    if uv is None and path.lower().endswith(".obj"):
+        uv = _obj_vertex_uvs(path, len(mesh.vertices))
     scalars = {}
     vertex_element = mesh.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
     if vertex_element is not None:
@@ -186,3 +192,37 @@ def read_mesh(path: str | os.PathLike) -> MeshData:
         uvs=None if uv is None else np.asarray(uv, dtype=np.float64),
         vertex_scalars=scalars,
     )
+
+
+def _obj_vertex_uvs(path: str, vertex_count: int) -> np.ndarray | None:
+    """Per-vertex UVs (V, 2) of an OBJ file from its ``vt`` lines and face corners ``v/vt``, or
+    None when it has none or gives a vertex several UVs. trimesh drops the UVs of polygons
+    (quads) that it triangulates; the vertex order it keeps is the file's."""
+    try:
+        return _read_obj_vertex_uvs(path, vertex_count)
+    except (ValueError, IndexError):  # malformed numbers or indices: no usable UVs
+        return None
+
+
+def _read_obj_vertex_uvs(path: str, vertex_count: int) -> np.ndarray | None:
+    texture, vertex_uv = [], {}
+    with open(path, encoding="utf-8", errors="replace") as stream:
+        for line in stream:
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == "vt" and len(parts) >= 3:
+                texture.append((float(parts[1]), float(parts[2])))
+            elif parts[0] == "f":
+                for corner in parts[1:]:
+                    indices = corner.split("/")
+                    if len(indices) < 2 or not indices[1]:
+                        return None
+                    v, t = int(indices[0]), int(indices[1])
+                    v = v - 1 if v > 0 else vertex_count + v
+                    t = t - 1 if t > 0 else len(texture) + t
+                    if vertex_uv.setdefault(v, t) != t:
+                        return None  # a seam: several UVs at one vertex
+    if not texture or len(vertex_uv) != vertex_count or set(vertex_uv) != set(range(vertex_count)):
+        return None
+    return np.array([texture[vertex_uv[v]] for v in range(vertex_count)], dtype=np.float64)

@@ -1,14 +1,15 @@
-"""Run directories that are never silently reused, and atomic file writes."""
+"""Run directories that are never silently reused nor mixed, and atomic file writes."""
 
 import json
 import logging
 import os
+import shutil
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["OutputDir", "atomic_path"]
+__all__ = ["OutputDir", "atomic_path", "check_output_dir", "incomplete_path", "staged_run"]
 
 logger = logging.getLogger(__name__)
 
@@ -33,6 +34,17 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         temporary.unlink(missing_ok=True)
 
 
+def check_output_dir(path: str | os.PathLike, overwrite: bool = False) -> None:
+    """Raise FileExistsError if `path` cannot hold a new run: it is a file, or a non-empty
+    directory and not `overwrite`. Creates nothing."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(f"output path {path} exists and is not a directory")
+    if not overwrite and path.is_dir() and any(path.iterdir()):
+        raise FileExistsError(f"output directory {path} is not empty; choose a new directory or "
+                              "allow overwriting (overwrite=True, --overwrite)")
+
+
 class OutputDir:
     """A run's output directory: created if missing, refused if it already holds files.
 
@@ -43,14 +55,8 @@ class OutputDir:
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False):
         self.path = Path(path)
-        if self.path.exists() and not self.path.is_dir():
-            raise FileExistsError(f"output path {self.path} exists and is not a directory")
+        check_output_dir(self.path, overwrite)
         if self.path.is_dir() and any(self.path.iterdir()):
-            if not overwrite:
-                raise FileExistsError(
-                    f"output directory {self.path} is not empty; choose a new directory or "
-                    "allow overwriting (overwrite=True, --overwrite)"
-                )
             logger.warning("writing into non-empty output directory %s", self.path)
         self.path.mkdir(parents=True, exist_ok=True)
 
@@ -76,3 +82,66 @@ class OutputDir:
 
     def __repr__(self) -> str:
         return f"OutputDir({str(self.path)!r})"
+
+
+def incomplete_path(path: str | os.PathLike) -> Path:
+    """The staging folder of the run in `path`: ``<path>.incomplete`` beside it."""
+    path = Path(path)
+    return path.with_name(path.name + ".incomplete")
+
+
+@contextmanager
+def staged_run(path: str | os.PathLike, *, overwrite: bool = False, resume: bool = False,
+               products: tuple[str, ...] = ()) -> Iterator[OutputDir]:
+    """Yield the OutputDir of a run that is written into ``<path>.incomplete`` and moved into
+    place as `path` only when the block completes.
+
+    So `path` holds one complete run; after an error or Ctrl-C it holds the previous complete
+    run (if any) and the failed attempt lies beside it in ``<path>.incomplete``.
+    overwrite: allow replacing the run in a non-empty `path`; entries of `path` named in
+        `products` (the files a run writes) that the new run did not write are removed with the
+        previous run, other entries (a user's notes) are kept.
+    resume: continue from ``<path>.incomplete`` if it holds checkpoint.pt, else from the
+        complete run in `path` (copied into the staging folder first); FileNotFoundError if
+        neither has a checkpoint.
+    A fresh run (no `resume`) removes an earlier incomplete attempt.
+    """
+    path = Path(path)
+    stage = incomplete_path(path)
+    check_output_dir(path, overwrite or resume)
+    if stage.exists() and not stage.is_dir():
+        raise FileExistsError(f"{stage} exists and is not a directory")
+    if resume:
+        if (stage / "checkpoint.pt").is_file():
+            logger.info("resuming the incomplete attempt in %s", stage)
+        elif (path / "checkpoint.pt").is_file():
+            shutil.rmtree(stage, ignore_errors=True)
+            shutil.copytree(path, stage)
+        else:
+            raise FileNotFoundError(f"--resume: no checkpoint at {stage / 'checkpoint.pt'} or "
+                                    f"{path / 'checkpoint.pt'}")
+    elif stage.exists():
+        logger.warning("removing the earlier incomplete attempt %s", stage)
+        shutil.rmtree(stage)
+    stage.mkdir(parents=True, exist_ok=True)
+    try:
+        yield OutputDir(stage, overwrite=True)
+    except BaseException:
+        if not any(stage.iterdir()):
+            stage.rmdir()  # nothing was written: no attempt to keep
+        raise
+    _commit(stage, path, products)
+
+
+def _commit(stage: Path, path: Path, products: tuple[str, ...]) -> None:
+    """Move the complete run in `stage` into place as `path` (see `staged_run`)."""
+    if not path.exists():
+        os.replace(stage, path)
+        return
+    for entry in path.iterdir():
+        if entry.name not in products and not (stage / entry.name).exists():
+            os.replace(entry, stage / entry.name)  # not the run's: kept
+    previous = path.with_name(f".{path.name}.previous-{uuid.uuid4().hex[:8]}")
+    os.replace(path, previous)
+    os.replace(stage, path)
+    shutil.rmtree(previous)
