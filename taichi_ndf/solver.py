@@ -22,21 +22,25 @@ import logging
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
 from tqdm import tqdm
 
-from taichi_ndf import checks
 from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
 from taichi_ndf.field import NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import NewtonConfig, solve_last_layer
-from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.objective import Objective
+from taichi_ndf.operator import DisplacementOperator
+from taichi_ndf.optim import Adam
 from taichi_ndf.pseudo_time import TIME_RANGE, conditioning, samples_over_time
 from taichi_ndf.sampling import sample_surface
-from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
+from taichi_ndf.shell.energy import EnergyResult
+from taichi_ndf.training import SolverConfig
+
+__all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverConfig"]
 
 log = logging.getLogger(__name__)
 
@@ -49,72 +53,6 @@ NEWTON_SEED_OFFSET = 104729
 
 class DivergenceError(RuntimeError):
     """Training produced a non-finite energy or gradient; the last good state was kept."""
-
-
-@dataclass(frozen=True)
-class SolverConfig:
-    """How Π is minimised.
-
-    iterations: Adam iterations per load step.
-    samples: area samples per iteration (stratified, jittered, resampled every iteration).
-    load_steps: load factors solved in turn (continuation); loads and prescribed displacements
-        are scaled by the factor. The last must be 1.
-    monitor_every: iterations between evaluations of Π on a fixed monitor sample set.
-    checkpoint_every: iterations between checkpoints (0: only at the end).
-    lbfgs_iterations: L-BFGS polish iterations on a fixed sample set after each load step.
-    newton_iterations: most last-layer Newton steps per Newton phase (0: no Newton phases).
-    newton_every: Adam iterations between Newton phases inside a load step (0: Newton only at
-        the start and the end of each load step).
-    newton_samples: area samples of the fixed Newton sample set (point-load samples added).
-    pseudo_time: train a field whose one conditioning input is the load factor t over all t in
-        [pseudo_time_start, λ] at once (module docstring); λ is the current load step.
-    pseudo_time_start: the smallest t trained, in [0, first load step).
-    """
-
-    iterations: int = 1500
-    samples: int = 4096
-    adam: AdamConfig = field(default_factory=AdamConfig)
-    load_steps: tuple[float, ...] = (1.0,)
-    monitor_every: int = 50
-    monitor_samples: int = 16384
-    checkpoint_every: int = 500
-    lbfgs_iterations: int = 0
-    newton_iterations: int = 0
-    newton_every: int = 0
-    newton_samples: int = 16384
-    seed: int = 0
-    progress: bool = True
-    pseudo_time: bool = False
-    pseudo_time_start: float = 0.0
-
-    def __post_init__(self):
-        if self.iterations < 0:
-            raise ValueError(f"iterations must be >= 0, got {self.iterations}")
-        if self.samples < 16:
-            raise ValueError(f"samples must be >= 16, got {self.samples}")
-        checks.load_steps(self.load_steps)
-        if self.monitor_every < 1:
-            raise ValueError(f"monitor_every must be >= 1, got {self.monitor_every}")
-        if self.checkpoint_every < 0 or self.lbfgs_iterations < 0:
-            raise ValueError("checkpoint_every and lbfgs_iterations must be >= 0")
-        if self.newton_iterations < 0 or self.newton_every < 0:
-            raise ValueError(f"newton_iterations and newton_every must be >= 0, got "
-                             f"{self.newton_iterations}, {self.newton_every}")
-        if self.newton_samples < 16:
-            raise ValueError(f"newton_samples must be >= 16, got {self.newton_samples}")
-        if not 0.0 <= self.pseudo_time_start < self.load_steps[0]:
-            raise ValueError(f"pseudo_time_start must be in [0, {self.load_steps[0]}) (the "
-                             f"first load step), got {self.pseudo_time_start}")
-        if self.pseudo_time and self.newton_iterations:
-            raise ValueError("newton_iterations must be 0 with pseudo_time: the last-layer "
-                             "Newton solver does not take a pseudo-time input")
-
-    def with_iterations(self, iterations: int) -> SolverConfig:
-        """The same run with another iteration count; the learning-rate schedule is stretched
-        to the new length."""
-        total = max(iterations * len(self.load_steps), 1)
-        adam = replace(self.adam, decay_steps=total, total_steps=total)
-        return replace(self, iterations=iterations, adam=adam)
 
 
 @dataclass
@@ -144,14 +82,19 @@ class Solver:
     """Minimises Π of a model over a field's weights; checkpoints, resumes, guards NaNs."""
 
     def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
+                 objective: Objective | None = None,
                  checkpoint_path: str | Path | None = None, checkpoint_extra: dict | None = None):
-        if config.pseudo_time and model.boundary.free_pin is not None:
-            raise ValueError("pseudo_time does not support a free pin (pinned point, "
-                             "rotation='free'): the pin's value would differ per sample time")
+        """objective: what is minimised (default: the model's potential energy,
+        `Objective.of_model`); e.g. with the work of an end moment added."""
+        self.operator = DisplacementOperator(field, model.boundary)
+        if config.pseudo_time:
+            self.operator.refuse_free_pin("pseudo_time", ": the pin's value would differ per "
+                                          "sample time")
         if config.pseudo_time and field.config.conditioning != (TIME_RANGE,):
             raise ValueError(f"a pseudo-time solve needs a field with the one conditioning "
                              f"input range {TIME_RANGE}, got {field.config.conditioning}")
         self.model = model
+        self.objective = objective or Objective.of_model(model)
         self.checkpoint_extra = checkpoint_extra or {}
         self.field = field
         self.config = config
@@ -166,39 +109,27 @@ class Solver:
         self._newton_samples = {}
 
     # -- energy -------------------------------------------------------------------------------
-    def potential(self, samples, u_jets: torch.Tensor, load_factor: float | torch.Tensor, *,
-                  grad: bool = True) -> EnergyResult:
-        """Π [J] of displacement jets u_jets (N, 6, 3) [m] at the samples, with dΠ/du_jets if
-        `grad`. The one place the potential is defined: subclasses add energy terms here.
-
-        load_factor: a number (the samples' point forces are already scaled by it), or one per
-            sample (N,) for a pseudo-time field (the samples carry the unscaled point forces)."""
-        if isinstance(load_factor, torch.Tensor):
-            energy = ShellEnergy(self.model.material, self.model.loads)
-            return energy.evaluate(samples, u_jets, grad=grad, load_factor=load_factor)
-        energy = ShellEnergy(self.model.material, self.model.loads.scaled(load_factor))
-        return energy.evaluate(samples, u_jets, grad=grad)
-
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
-                            times: torch.Tensor | None = None):
-        """Π [J] of the current field on given samples; fills the field's gradients.
+                            times: torch.Tensor | None = None) -> EnergyResult:
+        """Π [J] of the current field on given samples (the objective at the displacement
+        operator's jets); fills the field's gradients if `grad`.
 
         times: the pseudo-time of each sample (N,) of a pseudo-time solve; default: t =
-            load_factor at every sample (Π of the field's state at that load factor)."""
+            load_factor at every sample (Π of the field's state at that load factor). A number
+            load factor means the samples' point forces are already scaled by it (`_samples`)."""
         xi = samples.xi
+        cond = None
         if self.config.pseudo_time:
             t = times if times is not None else torch.full_like(xi[:, 0], float(load_factor))
-            raw = self.field.jets(xi, conditioning(t, len(xi), dtype=xi.dtype, device=xi.device))
+            cond = conditioning(t, len(xi), dtype=xi.dtype, device=xi.device)
         else:
             if times is not None:
                 raise ValueError("per-sample times need a pseudo-time solve")
             t = load_factor
-            raw = self.field.jets(self.model.boundary.evaluation_points(xi))
-        u = self.model.boundary.compose(xi, raw, t=t)
-        result = self.potential(samples, u, t, grad=grad)
+        u = self.operator.jets(xi, t=t, conditioning=cond)
+        result = self.objective.evaluate(samples, u, t, grad=grad)
         if grad:
-            g_raw = self.model.boundary.compose_adjoint(xi, result.grad_u_jets, t=t)
-            self.field.backward(g_raw)
+            self.operator.backward(result.grad_u_jets)
         return result
 
     def _samples(self, n: int, load_factor: float, generator: torch.Generator):
@@ -238,10 +169,7 @@ class Solver:
     def newton(self, load_factor: float) -> None:
         """A last-layer Newton phase on the fixed Newton samples of this load factor."""
         samples = self.newton_samples(load_factor)
-
-        def potential(s, u, grad):
-            return self.potential(s, u, load_factor, grad=grad)
-
+        potential = self.objective.potential(load_factor)
         result = solve_last_layer(self.field, self.model.boundary, potential, samples,
                                   load_factor,
                                   NewtonConfig(iterations=self.config.newton_iterations))
@@ -255,7 +183,7 @@ class Solver:
         cond = None
         if self.config.pseudo_time:
             cond = conditioning(load_factor, len(xi), dtype=dtype)
-        u = self.model.displacement(self.field, xi, t=load_factor, conditioning=cond)
+        u = self.operator.displacement(xi, t=load_factor, conditioning=cond)
         return {p.name: [float(v) for v in u[k]] for k, p in enumerate(self.model.probes)}
 
     # -- checkpoints ----------------------------------------------------------------------------

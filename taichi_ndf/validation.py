@@ -47,6 +47,7 @@ from taichi_ndf import jets
 from taichi_ndf.field import NeuralField
 from taichi_ndf.io import OutputDir
 from taichi_ndf.model import ShellModel
+from taichi_ndf.objective import EndMomentTerm, Objective
 from taichi_ndf.render import plot_curves, save_png
 from taichi_ndf.scene import Scene, load_scene
 from taichi_ndf.solver import Solver, SolverConfig
@@ -121,54 +122,6 @@ class Case:
 
 
 # -- the end moment of the roll-up ---------------------------------------------------------------
-
-
-class EndMoment:
-    """Conservative moment M [N·m] about +y on the end ξ¹ = max of a strip clamped at ξ¹ = min
-    (positive M rolls the free end from +x towards +z): Π_M = −M/b ∫∫ θ_,1 dξ¹ dξ² over the
-    strip of width b (see the module docstring)."""
-
-    def __init__(self, moment: float, width: float):
-        if not (math.isfinite(moment) and math.isfinite(width) and width > 0):
-            raise ValueError(f"EndMoment: moment must be finite and width > 0, got "
-                             f"{moment!r}, {width!r}")
-        self.moment = float(moment)
-        self.width = float(width)
-
-    def potential(self, samples, u_jets: torch.Tensor, load_factor: float, *,
-                  grad: bool = True) -> tuple[float, torch.Tensor | None]:
-        """Π_M [J] at the samples and dΠ_M/du_jets (N, 6, 3)."""
-        u = u_jets.detach().clone().requires_grad_(grad)
-        x = samples.r_jets + u
-        t, dt = x[:, jets.D1], x[:, jets.D11]
-        rate = (t[:, 0] * dt[:, 2] - t[:, 2] * dt[:, 0]) / (t * t).sum(dim=1)
-        potential = -(load_factor * self.moment / self.width) * (samples.weight * rate).sum()
-        if not grad:
-            return float(potential), None
-        potential.backward()
-        return float(potential.detach()), u.grad
-
-    def end_rotation(self, samples, u_jets: torch.Tensor) -> float:
-        """Mean end rotation θ_end [rad] of the strip."""
-        energy, _ = self.potential(samples, u_jets, 1.0, grad=False)
-        return -energy * self.width / self.moment
-
-
-class MomentSolver(Solver):
-    """`Solver` whose potential also holds the work of an `EndMoment`."""
-
-    def __init__(self, model, field, config, *, end_moment: EndMoment, **kwargs):
-        super().__init__(model, field, config, **kwargs)
-        self.end_moment = end_moment
-
-    def potential(self, samples, u_jets, load_factor: float, *, grad: bool = True):
-        result = super().potential(samples, u_jets, load_factor, grad=grad)
-        work, work_grad = self.end_moment.potential(samples, u_jets, load_factor, grad=grad)
-        result.total += work
-        result.external += work
-        if grad:
-            result.grad_u_jets = result.grad_u_jets + work_grad
-        return result
 
 
 def roll_up_moment(model: ShellModel) -> float:
@@ -326,8 +279,9 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
     kwargs = {"checkpoint_path": None}
     if case.end_moment is not None:
         width = model.surface.domain.lengths[1]
-        run = MomentSolver(model, field_, config,
-                           end_moment=EndMoment(case.end_moment(model), width), **kwargs)
+        objective = Objective.of_model(model).with_terms(
+            EndMomentTerm(case.end_moment(model), width))
+        run = Solver(model, field_, config, objective=objective, **kwargs)
     else:
         run = Solver(model, field_, config, **kwargs)
     dtype = field_.parameters[0].dtype

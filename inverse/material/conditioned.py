@@ -41,6 +41,7 @@ from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.loads import Loads
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import NewtonConfig, solve_last_layer
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.optim import Adam, AdamConfig
 from taichi_ndf.sampling import SurfaceSamples, sample_surface, stratified_uniform
 from taichi_ndf.scaling import characteristic_displacement
@@ -139,10 +140,8 @@ class ConditionedEquilibrium:
         if bad:
             raise ValueError(f"the material-conditioned field takes stiffness and point-load "
                              f"unknowns only, not {bad}: estimate these with the residual method")
-        if model.boundary.free_pin is not None:
-            raise ValueError("the material-conditioned field does not support a free pin "
-                             "(pinned point, rotation = 'free'); use --method implicit or "
-                             "rotation = 'held'")
+        DisplacementOperator(None, model.boundary).refuse_free_pin(
+            "the material-conditioned field", "; use --method implicit or rotation = 'held'")
         if len(ranges) != len(unknowns):
             raise ValueError(f"need one coordinate range per unknown, got {len(ranges)} for "
                              f"{len(unknowns)}")
@@ -163,6 +162,7 @@ class ConditionedEquilibrium:
                                    periodic=domain.periodic,
                                    conditioning=tuple(self.ranges), output_scale=scale)
         self.field = NeuralField(field_config, seed=config.seed)
+        self.operator = model.operator(self.field)
         self.history: list[tuple[int, float]] = []
         self.training_time = 0.0
         self.newton_result = None  # NewtonResult of the Newton phase, if any
@@ -297,15 +297,13 @@ class ConditionedEquilibrium:
         """Mean-over-z of w(z) Π [J] on given samples (`_weighted`); fills the field's
         gradients."""
         samples = self._weighted(samples, z)
-        raw = self.field.jets(samples.xi, z)
-        u = self.model.boundary.compose(samples.xi, raw)
+        u = self.operator.jets(samples.xi, conditioning=z)
         result = energy.evaluate(samples, u, stiffness=self.stiffness(z), grad=grad)
         if not math.isfinite(result.total):
             raise RuntimeError(f"conditioned training diverged: Π = {result.total}; lower the "
                                f"learning rate")
         if grad:
-            self.field.backward(self.model.boundary.compose_adjoint(samples.xi,
-                                                                    result.grad_u_jets))
+            self.operator.backward(result.grad_u_jets)
         return result.total
 
     def _lbfgs(self, energy: ShellEnergy, generator: torch.Generator) -> None:
@@ -357,10 +355,10 @@ class ConditionedEquilibrium:
         """Equilibrium positions x*(ξ; θ) (N, 3) [m] at ξ (N, 2) for coordinates z (p,)."""
         xi = xi.to(self.field.parameters[0].dtype)
         r = self.model.surface.jets(xi)[:, jets.VALUE]
-        return r + self.model.displacement(self.field, xi, conditioning=self._conditioning(xi, z))
+        return r + self.operator.displacement(xi, conditioning=self._conditioning(xi, z))
 
     def position_jets(self, xi: torch.Tensor, z) -> torch.Tensor:
         """Jets (N, 6, 3) of x*(ξ; θ) [m] (for projections onto the surface)."""
         xi = xi.to(self.field.parameters[0].dtype)
-        u = self.model.displacement_jets(self.field, xi, conditioning=self._conditioning(xi, z))
+        u = self.operator.jets(xi, conditioning=self._conditioning(xi, z))
         return self.model.surface.jets(xi) + u

@@ -32,6 +32,7 @@ from inverse.material.identifiability import Identifiability, analyse
 from inverse.material.observations import Observation
 from inverse.material.shape_fit import FittedShape, fit_shape
 from inverse.material.unknowns import Unknown, residual_samples, term_gradients
+from taichi_ndf.operator import DisplacementOperator
 
 log = logging.getLogger(__name__)
 
@@ -93,8 +94,10 @@ def equilibrium_system(shape: FittedShape, unknowns: list[Unknown],
     columns, rest = term_gradients(model, unknowns, samples, u_jets)
     virtual = LegendreBasis(model.surface.domain.bounds, config.virtual_degree).jets(samples.xi)
 
+    composition = DisplacementOperator(None, model.boundary)
+
     def rows(grad_u: torch.Tensor) -> torch.Tensor:
-        grad_raw = model.boundary.compose_adjoint(samples.xi, grad_u)
+        grad_raw = composition.raw_gradient(samples.xi, grad_u)
         return torch.einsum("nck,ncj->kj", grad_raw, virtual).reshape(-1)
 
     a = torch.stack([rows(c) for c in columns], dim=1)
@@ -117,10 +120,9 @@ def residual_estimate(observations: list[Observation], unknowns: list[Unknown],
                       config: ResidualConfig = ResidualConfig()) -> Estimate:
     """Estimate the unknowns from observed equilibrium shapes (see module docstring)."""
     for obs in observations:
-        if obs.model.boundary.free_pin is not None:
-            raise ValueError("the residual method does not support a free pin (pinned point, "
-                             "rotation = 'free'): its virtual displacements are not made to "
-                             "vanish there; use --method implicit or rotation = 'held'")
+        DisplacementOperator(None, obs.model.boundary).refuse_free_pin(
+            "the residual method", ": its virtual displacements are not made to vanish there; "
+            "use --method implicit or rotation = 'held'")
     start = time.perf_counter()
     shapes, blocks_a, blocks_b = [], [], []
     for obs in observations:
