@@ -6,6 +6,7 @@ import dataclasses
 import logging
 import math
 
+from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard, ProgressBar
 from taichi_ndf.field import NeuralField
 from taichi_ndf.io import OutputDir, read_mesh
 from taichi_ndf.outputs import (
@@ -52,10 +53,16 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
                                           load_factor=load_factor)
             write_trajectory_mesh(out, index, frames[index])
 
-    run = Solver(scene.model, field, config, checkpoint_path=out.file("checkpoint.pt"),
-                 checkpoint_extra={"scene": scene.document, "scene_dir": str(scene.path.parent)})
+    checkpoint = out.file("checkpoint.pt")
+    run = Solver(scene.model, field, config, guard=DivergenceGuard(checkpoint))
+    if resume:
+        run.state.restore(checkpoint)
+    callbacks = [CheckpointWriter(checkpoint, {"scene": scene.document,
+                                               "scene_dir": str(scene.path.parent)})]
+    if config.progress:
+        callbacks.append(ProgressBar())
     try:
-        result = run.run(resume=resume, on_load_step=on_load_step)
+        result = run.run(callbacks=callbacks, on_load_step=on_load_step)
     except DivergenceError as err:
         raise SimulationError(str(err)) from err
 

@@ -14,58 +14,43 @@ With `pseudo_time` the field takes the load factor t as an extra input and is tr
 t at once (`taichi_ndf.pseudo_time`): every area sample draws its own t in
 [pseudo_time_start, λ] for the current load step λ, so several load steps act as a curriculum
 that widens the range of t. The monitor reports Π at t = λ.
+
+Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chains gradients
+back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
+(`taichi_ndf.minimisers`, `taichi_ndf.newton`) change the state (`taichi_ndf.state`); this
+module draws the sample sets and drives the continuation over load steps. Progress bar,
+checkpoint files and the divergence policy are callbacks (`taichi_ndf.callbacks`).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import sys
 import time
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import dataclass
 
 import torch
-from tqdm import tqdm
 
-from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
+from taichi_ndf.callbacks import DivergenceError, DivergenceGuard
 from taichi_ndf.field import NeuralField
+from taichi_ndf.minimisers import adam_iteration, lbfgs
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import NewtonConfig, solve_last_layer
 from taichi_ndf.objective import Objective
 from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.optim import Adam
 from taichi_ndf.pseudo_time import TIME_RANGE, conditioning, samples_over_time
 from taichi_ndf.sampling import sample_surface
 from taichi_ndf.shell.energy import EnergyResult
+from taichi_ndf.state import MonitorRecord, State
 from taichi_ndf.training import SolverConfig
 
 __all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverConfig"]
 
 log = logging.getLogger(__name__)
 
-
-BLOW_UP_FACTOR = 1e3
 # Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
 MONITOR_SEED_OFFSET = 7919
 NEWTON_SEED_OFFSET = 104729
-
-
-class DivergenceError(RuntimeError):
-    """Training produced a non-finite energy or gradient; the last good state was kept."""
-
-
-@dataclass
-class MonitorRecord:
-    """One row of the convergence history."""
-
-    iteration: int  # counted over all load steps
-    load_factor: float
-    energy: float  # Π on the monitor samples [J]
-    grad_norm: float  # ‖∂Π/∂weights‖ of the last training step
-    learning_rate: float
-    probes: dict[str, list[float]]  # displacement [m] at each probe
-    wall_time: float  # seconds since the start of this run
 
 
 @dataclass
@@ -79,13 +64,16 @@ class SolveResult:
 
 
 class Solver:
-    """Minimises Π of a model over a field's weights; checkpoints, resumes, guards NaNs."""
+    """Minimises an objective (default: Π of the model) over a field's weights: sample sets,
+    Adam / Newton / L-BFGS phases and the continuation over load steps."""
 
     def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
-                 objective: Objective | None = None,
-                 checkpoint_path: str | Path | None = None, checkpoint_extra: dict | None = None):
+                 objective: Objective | None = None, state: State | None = None,
+                 guard: DivergenceGuard | None = None):
         """objective: what is minimised (default: the model's potential energy,
-        `Objective.of_model`); e.g. with the work of an end moment added."""
+        `Objective.of_model`), e.g. with the work of an end moment added. state: where to
+        start (default: `State.initial`; a restored one resumes). guard: the divergence
+        guard (default: one that names no checkpoint)."""
         self.operator = DisplacementOperator(field, model.boundary)
         if config.pseudo_time:
             self.operator.refuse_free_pin("pseudo_time", ": the pin's value would differ per "
@@ -95,20 +83,13 @@ class Solver:
                              f"input range {TIME_RANGE}, got {field.config.conditioning}")
         self.model = model
         self.objective = objective or Objective.of_model(model)
-        self.checkpoint_extra = checkpoint_extra or {}
         self.field = field
         self.config = config
-        self.checkpoint_path = Path(checkpoint_path) if checkpoint_path else None
-        self.optimiser = Adam(field.parameters, field.gradients, config=config.adam)
-        self.generator = torch.Generator().manual_seed(config.seed)
-        self.iteration = 0
-        self.newton_steps = 0
-        self.history: list[MonitorRecord] = []
-        self._good_state = field.get_flat().clone()
+        self.state = state or State.initial(field, config.adam, config.seed)
+        self.guard = guard or DivergenceGuard()
         self._monitor = {}
         self._newton_samples = {}
 
-    # -- energy -------------------------------------------------------------------------------
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
                             times: torch.Tensor | None = None) -> EnergyResult:
         """Π [J] of the current field on given samples (the objective at the displacement
@@ -131,6 +112,12 @@ class Solver:
         if grad:
             self.operator.backward(result.grad_u_jets)
         return result
+
+    def evaluator(self, samples, load_factor: float, times: torch.Tensor | None = None):
+        """`evaluate(grad) -> Π` on fixed samples, the form the minimisers take."""
+        def evaluate(grad: bool) -> float:
+            return self.energy_and_gradient(samples, load_factor, grad=grad, times=times).total
+        return evaluate
 
     def _samples(self, n: int, load_factor: float, generator: torch.Generator):
         """n area samples (and the point-load samples) with their point forces scaled by the
@@ -173,7 +160,7 @@ class Solver:
         result = solve_last_layer(self.field, self.model.boundary, potential, samples,
                                   load_factor,
                                   NewtonConfig(iterations=self.config.newton_iterations))
-        self.newton_steps += result.steps
+        self.state.newton_steps += result.steps
 
     def probe_displacements(self, load_factor: float) -> dict[str, list[float]]:
         if not self.model.probes:
@@ -186,115 +173,67 @@ class Solver:
         u = self.operator.displacement(xi, t=load_factor, conditioning=cond)
         return {p.name: [float(v) for v in u[k]] for k, p in enumerate(self.model.probes)}
 
-    # -- checkpoints ----------------------------------------------------------------------------
-    def save(self, load_step: int) -> None:
-        if self.checkpoint_path is None:
-            return
-        save_checkpoint(
-            self.checkpoint_path, self.field, self.optimiser,
-            extra={**self.checkpoint_extra, "iteration": self.iteration,
-                   "load_step": load_step, "history": [asdict(h) for h in self.history],
-                   "sampling_rng": self.generator.get_state()},
-        )
-
-    def resume(self) -> int:
-        """Load the checkpoint; returns the load step to continue from."""
-        if self.checkpoint_path is None or not self.checkpoint_path.exists():
-            raise FileNotFoundError(f"no checkpoint to resume from at {self.checkpoint_path}")
-        extra = load_checkpoint(self.checkpoint_path, self.field, optimiser=self.optimiser).extra
-        self.iteration = int(extra["iteration"])
-        self.history = [MonitorRecord(**h) for h in extra["history"]]
-        if "sampling_rng" in extra:  # absent in checkpoints written before it was kept
-            self.generator.set_state(extra["sampling_rng"])
-        self._good_state = self.field.get_flat().clone()
-        log.info("resumed from %s at iteration %d", self.checkpoint_path, self.iteration)
-        # A finished run stores one past its last step; resumed (with more iterations) it goes
-        # on in its last step.
-        return min(int(extra["load_step"]), len(self.config.load_steps) - 1)
-
-    # -- main loop ------------------------------------------------------------------------------
-    def run(self, *, resume: bool = False, on_load_step=None) -> SolveResult:
-        """Minimise Π for every load step; `on_load_step(load_factor)` is called after each."""
-        cfg = self.config
-        start_step = self.resume() if resume else 0
+    # -- continuation over the load steps ------------------------------------------------------
+    def run(self, *, callbacks=(), on_load_step=None) -> SolveResult:
+        """Minimise Π for every load step from the state's; `callbacks` (`taichi_ndf.callbacks`)
+        see every iteration, and `on_load_step(load_factor)` is called after each step."""
+        cfg, state = self.config, self.state
+        start_step = min(state.load_step, len(cfg.load_steps) - 1)  # a finished run goes on
         t0 = time.perf_counter()
-        total = cfg.iterations * len(cfg.load_steps)
-        show = cfg.progress and sys.stderr.isatty()
-        bar = tqdm(total=total, initial=min(self.iteration, total), disable=not show,
-                   desc="Π minimisation", dynamic_ncols=True)
-        energy = float("nan")
+        hooks = [self.guard, *callbacks]
+        _call(hooks, "on_start", self)
+        newton = cfg.newton_iterations > 0
         for step in range(start_step, len(cfg.load_steps)):
-            lam = cfg.load_steps[step]
-            done_in_step = max(self.iteration - step * cfg.iterations, 0)
-            newton = cfg.newton_iterations > 0
+            state.load_step, lam = step, cfg.load_steps[step]
+            done_in_step = max(state.iteration - step * cfg.iterations, 0)
             if newton and done_in_step == 0:
                 self.newton(lam)
             for _ in range(done_in_step, cfg.iterations):
-                samples, times = self.training_samples(cfg.samples, lam, self.generator)
-                res = self.energy_and_gradient(samples, lam, times=times)
-                gnorm = self.optimiser.gradient_norm()
-                if not (math.isfinite(res.total) and math.isfinite(gnorm)):
-                    self._diverged(res.total, gnorm, step)
-                self.optimiser.step()
-                self.iteration += 1
-                bar.update(1)
-                if self.iteration % cfg.monitor_every == 0:
-                    energy = self._record(lam, gnorm, t0, step)
-                    bar.set_postfix(energy=f"{energy:.5g}", grad=f"{gnorm:.3g}")
-                if cfg.checkpoint_every and self.iteration % cfg.checkpoint_every == 0:
-                    self.save(step)
-                in_step = self.iteration - step * cfg.iterations
+                samples, times = self.training_samples(cfg.samples, lam, state.generator)
+                _, gnorm = adam_iteration(state.optimiser, self.evaluator(samples, lam, times),
+                                          check=self._check_step)
+                state.iteration += 1
+                record = None
+                if state.iteration % cfg.monitor_every == 0:
+                    record = self._record(lam, gnorm, t0)
+                _call(callbacks, "on_iteration", self, record)
+                in_step = state.iteration - step * cfg.iterations
                 if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
                         and in_step < cfg.iterations:
                     self.newton(lam)
             if newton and cfg.iterations > 0:
                 self.newton(lam)
             if cfg.lbfgs_iterations:
-                self._lbfgs(lam, step)
-            recorded = self.history and self.history[-1].iteration == self.iteration
+                self._lbfgs(lam)
+            recorded = state.history and state.history[-1].iteration == state.iteration
             if cfg.lbfgs_iterations or newton or not recorded:
-                self._record(lam, self.optimiser.gradient_norm(), t0, step)
-            energy = self.history[-1].energy
-            log.info("load factor %.4g: Π = %.8g J after %d iterations", lam, energy,
-                     self.iteration)
+                self._record(lam, state.optimiser.gradient_norm(), t0)
+            log.info("load factor %.4g: Π = %.8g J after %d iterations", lam,
+                     state.history[-1].energy, state.iteration)
+            _call(callbacks, "on_load_step", self, lam)
             if on_load_step is not None:
                 on_load_step(lam)
-        bar.close()
-        self.save(len(cfg.load_steps))
-        return SolveResult(energy=energy, iterations=self.iteration,
-                           wall_time=time.perf_counter() - t0, history=self.history,
+        state.load_step = len(cfg.load_steps)
+        _call(callbacks, "on_end", self)
+        return SolveResult(energy=state.history[-1].energy, iterations=state.iteration,
+                           wall_time=time.perf_counter() - t0, history=state.history,
                            probes=self.probe_displacements(cfg.load_steps[-1]),
-                           newton_steps=self.newton_steps)
+                           newton_steps=state.newton_steps)
 
-    def _record(self, lam: float, gnorm: float, t0: float, step: int) -> float:
+    def _check_step(self, energy: float, grad_norm: float) -> None:
+        self.guard.check_step(self, energy, grad_norm)
+
+    def _record(self, lam: float, gnorm: float, t0: float) -> MonitorRecord:
         energy = self.energy_and_gradient(self.monitor_samples(lam), lam, grad=False).total
-        if not math.isfinite(energy) or self._blown_up(energy, lam):
-            self._diverged(energy, gnorm, step)
-        self._good_state = self.field.get_flat().clone()
-        self.history.append(MonitorRecord(
-            iteration=self.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
-            learning_rate=self.optimiser.learning_rate, probes=self.probe_displacements(lam),
-            wall_time=time.perf_counter() - t0))
-        return energy
+        self.guard.check_record(self, energy, gnorm, lam)
+        record = MonitorRecord(
+            iteration=self.state.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
+            learning_rate=self.state.optimiser.learning_rate,
+            probes=self.probe_displacements(lam), wall_time=time.perf_counter() - t0)
+        self.state.history.append(record)
+        return record
 
-    def _blown_up(self, energy: float, lam: float) -> bool:
-        """Π far above anything seen at this load factor: a minimiser must not climb by
-        orders of magnitude (1000× the largest magnitude recorded so far)."""
-        seen = [h.energy for h in self.history if h.load_factor == lam]
-        if not seen:
-            return False
-        return energy > seen[0] + BLOW_UP_FACTOR * max(abs(e) for e in seen)
-
-    def _diverged(self, energy: float, gnorm: float, step: int):
-        self.field.set_flat(self._good_state)
-        where = f" (checkpoint {self.checkpoint_path})" if self.checkpoint_path else ""
-        last = self.history[-1].iteration if self.history else 0
-        raise DivergenceError(
-            f"training diverged at iteration {self.iteration}: Π = {energy}, "
-            f"‖∇Π‖ = {gnorm}; the field was reset to its last good state from iteration "
-            f"{last}{where}. Lower the learning rate or the load step.")
-
-    def _lbfgs(self, lam: float, step: int) -> None:
+    def _lbfgs(self, lam: float) -> None:
         """Deterministic L-BFGS polish on a fixed, large sample set (of (ξ, t) in a
         pseudo-time solve)."""
         if self.config.pseudo_time:
@@ -302,23 +241,15 @@ class Solver:
             samples, times = self.training_samples(self.config.monitor_samples, lam, gen)
         else:
             samples, times = self.monitor_samples(lam), None
-        flat = torch.nn.Parameter(self.field.get_flat().clone())
-        # torch's default tolerances are absolute (1e-7 on the gradient, 1e-9 on Π) and stop at
-        # once when Π is small; run the requested iterations instead.
-        opt = torch.optim.LBFGS([flat], lr=1.0, max_iter=self.config.lbfgs_iterations,
-                                history_size=20, line_search_fn="strong_wolfe",
-                                tolerance_grad=0.0, tolerance_change=0.0)
-
-        def closure():
-            self.field.set_flat(flat.detach())
-            res = self.energy_and_gradient(samples, lam, times=times)
-            flat.grad = self.field.get_flat_gradient().clone()
-            return torch.tensor(res.total, dtype=flat.dtype)
-
-        before = self.energy_and_gradient(samples, lam, grad=False, times=times).total
-        opt.step(closure)
-        self.field.set_flat(flat.detach())
-        after = self.energy_and_gradient(samples, lam, grad=False, times=times).total
+        before, after = lbfgs(self.field, self.evaluator(samples, lam, times),
+                              self.config.lbfgs_iterations)
         if not math.isfinite(after):
-            self._diverged(after, float("nan"), step)
+            self.guard.fail(self, after, float("nan"))
         log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)
+
+
+def _call(callbacks, hook: str, *args) -> None:
+    for callback in callbacks:
+        method = getattr(callback, hook, None)
+        if method is not None:
+            method(*args)

@@ -39,11 +39,19 @@ from inverse.material.unknowns import Unknown, apply
 from taichi_ndf import jets
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.loads import Loads
+from taichi_ndf.minimisers import lbfgs
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import NewtonConfig, solve_last_layer
+from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.optim import Adam, AdamConfig
-from taichi_ndf.sampling import SurfaceSamples, sample_surface, stratified_uniform
+from taichi_ndf.sampling import (
+    SurfaceSamples,
+    sample_surface,
+    sobol,
+    stratified_uniform,
+    unit_to_domain,
+)
 from taichi_ndf.scaling import characteristic_displacement
 from taichi_ndf.shell.energy import ShellEnergy
 
@@ -221,20 +229,17 @@ class ConditionedEquilibrium:
         lo = torch.tensor([r[0] for r in self.ranges], dtype=dtype)
         hi = torch.tensor([r[1] for r in self.ranges], dtype=dtype)
 
-        def sobol(dim: int, m: int) -> torch.Tensor:
-            seed = int(torch.randint(2**31 - 1, (1,), generator=generator))
-            return torch.quasirandom.SobolEngine(dim, scramble=True, seed=seed).draw(m).to(dtype)
+        def draw(dim: int, m: int) -> torch.Tensor:
+            return sobol(dim, m, int(torch.randint(2**31 - 1, (1,), generator=generator)), dtype)
 
-        u = sobol(2 + len(self.ranges), n)
-        (lo1, hi1), (lo2, hi2) = domain.bounds
-        xi = torch.stack((lo1 + (hi1 - lo1) * u[:, 0], lo2 + (hi2 - lo2) * u[:, 1]), dim=1)
-        inside = domain.contains(xi)
-        xi, z = xi[inside], lo + (hi - lo) * u[inside, 2:]
+        u = draw(2 + len(self.ranges), n)
+        xi, inside = unit_to_domain(domain, u)
+        z = lo + (hi - lo) * u[inside, 2:]
         weight = torch.full((len(xi),), domain.area / len(xi), dtype=dtype)
         force = torch.zeros(len(xi), 3, dtype=dtype)
         points = self.model.loads.point_loads
         for k, point in enumerate(points):
-            z_k = lo + (hi - lo) * sobol(len(self.ranges), copies)
+            z_k = lo + (hi - lo) * draw(len(self.ranges), copies)
             xi = torch.cat((xi, torch.tensor(point.xi, dtype=dtype).expand(copies, 2)))
             z = torch.cat((z, z_k))
             weight = torch.cat((weight, weight.new_zeros(copies)))
@@ -311,21 +316,11 @@ class ConditionedEquilibrium:
         dtype = field.parameters[0].dtype
         samples, z = self.samples(self.config.lbfgs_samples, generator, dtype,
                                   field.parameters[0].device)
-        flat = torch.nn.Parameter(field.get_flat().clone())
-        opt = torch.optim.LBFGS([flat], lr=1.0, max_iter=self.config.lbfgs_iterations,
-                                history_size=30, line_search_fn="strong_wolfe",
-                                tolerance_grad=0.0, tolerance_change=0.0)
 
-        def closure():
-            field.set_flat(flat.detach())
-            total = self._energy_and_gradient(energy, samples, z)
-            flat.grad = field.get_flat_gradient().clone()
-            return torch.tensor(total, dtype=flat.dtype)
+        def evaluate(grad: bool) -> float:
+            return self._energy_and_gradient(energy, samples, z, grad=grad)
 
-        before = self._energy_and_gradient(energy, samples, z, grad=False)
-        opt.step(closure)
-        field.set_flat(flat.detach())
-        after = self._energy_and_gradient(energy, samples, z, grad=False)
+        before, after = lbfgs(field, evaluate, self.config.lbfgs_iterations, history_size=30)
         log.info("conditioned L-BFGS polish: mean Π %.8g -> %.8g J", before, after)
 
     def _newton(self, energy: ShellEnergy, generator: torch.Generator):
@@ -337,12 +332,10 @@ class ConditionedEquilibrium:
         samples, z = self.quasi_samples(cfg.newton_samples, generator, dtype, device,
                                         cfg.newton_point_load_copies)
         samples = self._weighted(samples, z)
-        stiffness = self.stiffness(z)
-
-        def potential(s, u, grad):
-            return energy.evaluate(s, u, grad=grad, stiffness=stiffness)
-
-        return solve_last_layer(self.field, self.model.boundary, potential, samples, 1.0,
+        objective = Objective(ShellEnergyTerm(energy.material, energy.loads,
+                                              stiffness=self.stiffness(z)))
+        return solve_last_layer(self.field, self.model.boundary, objective.potential(1.0),
+                                samples, 1.0,
                                 NewtonConfig(iterations=cfg.newton_iterations),
                                 conditioning=z)
 

@@ -42,11 +42,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from inverse.material.bilevel import _project, gravity_ratios
+from inverse.material.bilevel import closest_surface_points, gravity_ratios
 from inverse.material.conditioned import to_coordinates, to_values
 from inverse.material.identifiability import UNDETERMINED_STD, Identifiability, analyse
 from inverse.material.observations import Observation
-from inverse.material.residual import Estimate, _groups
+from inverse.material.residual import Estimate, unknown_scales
 from inverse.material.unknowns import Unknown, apply, term_gradients
 from taichi_ndf import checks, jets
 from taichi_ndf.field import FieldConfig, NeuralField
@@ -59,8 +59,8 @@ from taichi_ndf.newton import (
     parameter_gradient,
     solve_last_layer,
 )
-from taichi_ndf.sampling import SurfaceSamples, with_point_loads
-from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.sampling import SurfaceSamples, sobol, unit_to_domain, with_point_loads
 
 log = logging.getLogger(__name__)
 
@@ -150,10 +150,7 @@ def sobol_samples(model: ShellModel, n: int, seed: int, dtype=torch.float64) -> 
     dropped, weight |Ω| / kept), then one zero-weight sample per point load of the model, in
     the model's order, with its force."""
     domain = model.surface.domain
-    (lo1, hi1), (lo2, hi2) = domain.bounds
-    unit = torch.quasirandom.SobolEngine(2, scramble=True, seed=seed).draw(n).to(dtype)
-    xi = torch.stack((lo1 + (hi1 - lo1) * unit[:, 0], lo2 + (hi2 - lo2) * unit[:, 1]), dim=1)
-    xi = xi[domain.contains(xi)]
+    xi, _ = unit_to_domain(domain, sobol(2, n, seed, dtype))
     weight = torch.full((len(xi),), domain.area / len(xi), dtype=dtype)
     return with_point_loads(model.surface, xi, weight, model.loads)
 
@@ -180,8 +177,8 @@ class ImplicitEquilibrium:
             output_scale=config.output_scale), seed=seed)
         dtype = self.field.parameters[0].dtype
         with torch.no_grad():  # the reference state: the first solve starts from u = 0
-            self.field.parameters[-2].zero_()
-            self.field.parameters[-1].zero_()
+            for p in self.field.output_layer():
+                p.zero_()
         self.samples = sobol_samples(model, config.samples, seed, dtype)
         self.values: np.ndarray | None = None  # θ of the current solution
         self.newton_steps = 0
@@ -190,12 +187,12 @@ class ImplicitEquilibrium:
 
     # -- state of the output layer --------------------------------------------------------------
     def state(self) -> list[torch.Tensor]:
-        return [self.field.parameters[-2].clone(), self.field.parameters[-1].clone()]
+        return [p.clone() for p in self.field.output_layer()]
 
     def set_state(self, state: list[torch.Tensor], values) -> None:
         with torch.no_grad():
-            self.field.parameters[-2].copy_(state[0])
-            self.field.parameters[-1].copy_(state[1])
+            for p, saved in zip(self.field.output_layer(), state, strict=True):
+                p.copy_(saved)
         self.values = None if values is None else np.array(values, dtype=np.float64)
 
     # -- inner problem --------------------------------------------------------------------------
@@ -209,12 +206,8 @@ class ImplicitEquilibrium:
             forces[-len(loads.point_loads):] = torch.tensor(
                 [p.force for p in loads.point_loads], dtype=forces.dtype)
             samples = dataclasses.replace(samples, point_force=forces)
-        energy = ShellEnergy(loaded.material, loads)
-
-        def potential(s, u, grad):
-            return energy.evaluate(s, u, grad=grad)
-
-        return samples, potential
+        # The loads are scaled here already (the samples carry the point forces).
+        return samples, Objective(ShellEnergyTerm(loaded.material, loads)).potential(1.0)
 
     def _newton(self, iterations: int | None = None) -> NewtonConfig:
         return NewtonConfig(iterations=iterations or self.config.newton_iterations,
@@ -233,7 +226,7 @@ class ImplicitEquilibrium:
             self.set_state(self._first[1], values)
             return 0
         if self.values is None or from_reference:
-            self.set_state([torch.zeros_like(p) for p in self.field.parameters[-2:]], None)
+            self.set_state([torch.zeros_like(p) for p in self.field.output_layer()], None)
             for factor in self.config.load_steps:
                 samples, potential = self._system(values, factor)
                 steps += solve_last_layer(self.field, self.model.boundary, potential, samples,
@@ -242,9 +235,10 @@ class ImplicitEquilibrium:
                 self._first = (values, self.state())
         else:
             if prediction is not None:
+                weight, bias = self.field.output_layer()
                 with torch.no_grad():
-                    self.field.parameters[-2].add_(prediction[:, :-1])
-                    self.field.parameters[-1].add_(prediction[:, -1])
+                    weight.add_(prediction[:, :-1])
+                    bias.add_(prediction[:, -1])
             samples, potential = self._system(values, 1.0)
             steps += solve_last_layer(self.field, self.model.boundary, potential, samples, 1.0,
                                       self._newton(self.config.resolve_iterations)).steps
@@ -274,7 +268,7 @@ class ImplicitEquilibrium:
     # -- observation space ----------------------------------------------------------------------
     def position_jets(self, xi: torch.Tensor, z=None) -> torch.Tensor:
         """Jets (N, 6, 3) of the current equilibrium positions [m] (z: ignored, for the
-        interface of `bilevel._project`)."""
+        interface of `bilevel.closest_surface_points`)."""
         xi = xi.to(self.field.parameters[0].dtype)
         return self.model.surface.jets(xi) + self.model.displacement_jets(self.field, xi)
 
@@ -303,7 +297,7 @@ def residuals(equilibrium: ImplicitEquilibrium, observation: Observation, grid: 
             return r.numpy(), None
         dx = equilibrium.position_sensitivity(xi, sensitivity)
         return r.numpy(), dx.reshape(-1, dx.shape[-1]).numpy()
-    xi = _project(equilibrium, None, points, grid)
+    xi = closest_surface_points(equilibrium, None, points, grid)
     x = equilibrium.position_jets(xi)
     normal = torch.linalg.cross(x[:, jets.D1], x[:, jets.D2], dim=-1)
     normal = normal / normal.norm(dim=1, keepdim=True)
@@ -371,7 +365,7 @@ def fit_basis(equilibria: list[ImplicitEquilibrium], observations: list[Observat
     grid = config.projection_grid
     z = np.array(to_coordinates(unknowns, start_values))
     positive = np.array([u.positive for u in unknowns])
-    norm = np.where(positive, 1.0, _groups(unknowns, start_values))
+    norm = np.where(positive, 1.0, unknown_scales(unknowns, start_values))
     for eq in equilibria:
         eq.solve(start_values, from_reference=True)
     r, jac, sens = _evaluate(equilibria, observations, grid, True)
@@ -465,7 +459,7 @@ def implicit_estimate(observations: list[Observation], unknowns: list[Unknown],
     zs = np.array([f.z for f in fits])
     z = zs.mean(axis=0)
     values = np.array(to_values(unknowns, z))
-    scale = _groups(unknowns, values)
+    scale = unknown_scales(unknowns, values)
     norm = np.where(positive, 1.0, scale)  # normalised coordinates: ln θ, or θ / |group|
     spread_std = (zs.std(axis=0, ddof=1) / norm if len(fits) > 1
                   else np.zeros(len(unknowns)))

@@ -104,7 +104,7 @@ def equilibrium_system(shape: FittedShape, unknowns: list[Unknown],
     return a.numpy(), -rows(rest).numpy()
 
 
-def _groups(unknowns: list[Unknown], values: np.ndarray) -> np.ndarray:
+def unknown_scales(unknowns: list[Unknown], values: np.ndarray) -> np.ndarray:
     """Scale of each unknown's normalised coordinate: |θ| (log) or |vector group|."""
     scale = np.empty(len(unknowns))
     for j, u in enumerate(unknowns):
@@ -154,7 +154,7 @@ def residual_estimate(observations: list[Observation], unknowns: list[Unknown],
     residual = a @ values - b
     dof = max(len(b) - len(unknowns) + (gauge is not None), 1)
     sigma2 = float(residual @ residual) / dof
-    scale = _groups(unknowns, values)
+    scale = unknown_scales(unknowns, values)
     ident = analyse(a * scale, sigma2, names, positive)
     if gauge is not None:
         # Only ratios are determined: the common factor was fixed by hand, not by the data.

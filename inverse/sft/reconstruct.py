@@ -143,8 +143,8 @@ class FieldReconstructor:
             seed=cfg.seed,
         )
         # A zero output layer makes u ≡ 0 (the template) before the first frame is fitted.
-        self.field.parameters[-2].zero_()
-        self.field.parameters[-1].zero_()
+        for p in self.field.output_layer():
+            p.zero_()
         self.ftype = self.field.dtype
         material = preset(cfg.material)
         self.energy = ShellEnergy(material, Loads())
