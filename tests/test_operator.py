@@ -17,7 +17,7 @@ SURFACE = Plane(bounds=((0.0, 1.0), (0.0, 1.0)))
 def boundaries():
     """Clamped edge with a held pin, and a free pin (u = N(ξ) − N(ξ₀)) on two components."""
     return {
-        "clamped": BoundaryConditions([ClampedEdge("left"), PinnedPoint((1.0, 1.0))],
+        "clamped": BoundaryConditions([ClampedEdge("xi1_min"), PinnedPoint((1.0, 1.0))],
                                       SURFACE.domain, surface=SURFACE),
         "free_pin": BoundaryConditions([PinnedPoint((0.2, 0.3), components="xz",
                                                     rotation="free")],
