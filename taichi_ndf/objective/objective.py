@@ -6,6 +6,7 @@ from typing import Protocol
 
 import torch
 
+from taichi_ndf.objective.terms import ShellEnergyTerm
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult
 
@@ -30,15 +31,13 @@ class Objective:
     (`ShellEnergyTerm`); extra: further terms, counted as external work.
     """
 
-    def __init__(self, shell, extra: tuple[Term, ...] = ()):
+    def __init__(self, shell: ShellEnergyTerm, extra: tuple[Term, ...] = ()):
         self.shell = shell
         self.extra = tuple(extra)
 
     @classmethod
     def of_model(cls, model) -> Objective:
         """The potential energy of a `ShellModel`: its material under its loads."""
-        from taichi_ndf.objective.terms import ShellEnergyTerm
-
         return cls(ShellEnergyTerm(model.material, model.loads))
 
     def with_terms(self, *terms: Term) -> Objective:
