@@ -5,10 +5,11 @@ sample draws its own z (stratified uniform in the box) and its energy uses the s
 that z (`ShellEnergy.evaluate(..., stiffness=...)`). Π is a sum over samples, so the training
 objective is the mean over z of Π(u(·, z); z), whose minimiser is the equilibrium u*(·, z) for
 every z in the box: after one training, x*(θ) is a cheap, smooth function of θ for the outer
-(misfit) problem. The training loop is the solver's (`taichi_ndf.solver.Solver`): jets,
-boundary conditions, energy gradient, boundary adjoint, field adjoint, Adam; it differs only
-in the conditioning inputs and per-sample stiffness, so it is written here rather than as a
-hook in the solver.
+(misfit) problem. The training loop is built from the solver's pieces: the displacement
+operator (`taichi_ndf.operator`: jets, boundary conditions and their adjoint), the shell
+energy, Adam and the one L-BFGS (`taichi_ndf.minimisers`); it differs from
+`taichi_ndf.solver.Solver` in the conditioning inputs, the per-sample stiffness and the
+per-z weights, so the loop is written here rather than as a hook in the solver.
 
 Point-load components can be conditioning inputs too (signed, so in linear coordinates: the
 input is the force component itself [N]). A point load acts at one ξ, so it gets

@@ -87,14 +87,13 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
         config = dataclasses.replace(config, seed=seed)
     config = dataclasses.replace(config, progress=False)
     field_ = NeuralField(field_config, seed=config.seed)
-    kwargs = {"checkpoint_path": None}
     if case.end_moment is not None:
         width = model.surface.domain.lengths[1]
         objective = Objective.of_model(model).with_terms(
             EndMomentTerm(case.end_moment(model), width))
-        run = Solver(model, field_, config, objective=objective, **kwargs)
+        run = Solver(model, field_, config, objective=objective)
     else:
-        run = Solver(model, field_, config, **kwargs)
+        run = Solver(model, field_, config)
     dtype = field_.parameters[0].dtype
     names = [p.name for p in model.probes]
     xi = torch.tensor([p.xi for p in model.probes], dtype=dtype)
