@@ -57,7 +57,8 @@ import taichi_ndf
 from inverse.material import Observation, apply, parse_unknowns, template_xi
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig
-from inverse.material.implicit import ImplicitConfig, implicit_estimate
+from inverse.material.implicit import ImplicitConfig
+from inverse.material.implicit_fit import implicit_estimate
 from taichi_ndf.field import NeuralField
 from taichi_ndf.loads import PointLoad
 from taichi_ndf.scene import load_scene

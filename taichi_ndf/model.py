@@ -16,6 +16,7 @@ from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.geometry import ReferenceSurface
 from taichi_ndf.loads import Loads
+from taichi_ndf.operator import DisplacementOperator
 
 
 @dataclass(frozen=True)
@@ -61,23 +62,17 @@ class ShellModel:
         return replace(self, boundary=BoundaryConditions(b.constraints, b.domain,
                                                          surface=b.surface, length=length))
 
+    def operator(self, field) -> DisplacementOperator:
+        """The displacement operator of a field under this model's boundary conditions."""
+        return DisplacementOperator(field, self.boundary)
+
     def displacement_jets(self, field, xi: torch.Tensor, *, t: float = 1.0, conditioning=None):
         """Displacement jets u (N, 6, 3) [m] of a field at ξ, boundary conditions applied."""
-        raw = field.jets(self.boundary.evaluation_points(xi), self._conditioning(conditioning))
-        return self.boundary.compose(xi, raw, t=t)
+        return self.operator(field).jets(xi, t=t, conditioning=conditioning)
 
     def displacement(self, field, xi: torch.Tensor, *, t: float = 1.0, conditioning=None):
         """Displacement u (N, 3) [m] at ξ (no tape kept: for outputs and probes)."""
-        values = field.evaluate(self.boundary.evaluation_points(xi),
-                                self._conditioning(conditioning))
-        raw = jets.constant(values)
-        return self.boundary.compose(xi, raw, t=t)[:, jets.VALUE]
-
-    def _conditioning(self, conditioning):
-        if conditioning is not None and self.boundary.free_pin is not None:
-            raise ValueError("a free pin (pinned point, rotation='free') does not support a "
-                             "conditioned field (pseudo-time or material inputs)")
-        return conditioning
+        return self.operator(field).displacement(xi, t=t, conditioning=conditioning)
 
     def characteristic_length(self) -> float:
         """√(surface area) [m], estimated from the reference surface."""

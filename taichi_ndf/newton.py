@@ -34,6 +34,7 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import NeuralField
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult
 
@@ -84,21 +85,17 @@ def output_jacobian(field: NeuralField, boundary: BoundaryConditions, xi: torch.
                     load_factor: float, conditioning: torch.Tensor | None = None
                     ) -> tuple[torch.Tensor, torch.Tensor]:
     """Displacement jets u (N, 6, 3) [m] of the current field and their Jacobian with respect
-    to the output layer, shape (3, N, 6, width + 1): J[k, :, :, a] = ∂u_k/∂θ_k[a] with
-    θ_k = (W_out[k, :], b_out[k]); u_k does not depend on θ_l for l ≠ k.
+    to the output layer, shape (3, N, 6, width + 1)
+    (`DisplacementOperator.output_layer_jacobian`).
     conditioning: the field's extra inputs per sample (N, k), for a conditioned field."""
-    if conditioning is not None and boundary.free_pin is not None:
-        raise ValueError("last-layer Newton does not support a free pin (pinned point, "
-                         "rotation='free') with a conditioned field")
-    raw = field.jets(boundary.evaluation_points(xi), conditioning)
-    features = field.last_features()  # (6, N (+ 1 for a free pin), width)
-    n, width = features.shape[1], features.shape[2]
-    basis = features.new_zeros(n, jets.CHANNELS, width + 1)
-    basis[:, :, :width] = features.permute(1, 0, 2)
-    basis[:, jets.VALUE, width] = 1.0  # the bias enters the value channel only
-    basis *= field.config.output_scale
-    xi = xi.to(raw.dtype)
-    return boundary.compose(xi, raw, t=load_factor), boundary.compose_jacobian(xi, basis)
+    return DisplacementOperator(field, boundary).output_layer_jacobian(
+        xi, t=load_factor, conditioning=conditioning)
+
+
+def output_parameters(field: NeuralField) -> torch.Tensor:
+    """θ = (W_out | b_out), shape (3, width + 1): a copy of the field's output layer."""
+    weight, bias = field.output_layer()
+    return torch.cat((weight, bias[:, None]), dim=1)
 
 
 def parameter_gradient(jacobian: torch.Tensor, grad_u_jets: torch.Tensor) -> torch.Tensor:
@@ -198,7 +195,7 @@ def output_hessian(field: NeuralField, boundary: BoundaryConditions, potential: 
     parameter p of the potential, with ∂(∇_θ Π)/∂p = Jᵀ ∂(dΠ/du)/∂p."""
     config = config or NewtonConfig()
     u, jacobian = output_jacobian(field, boundary, samples.xi, load_factor, conditioning)
-    theta = torch.cat((field.parameters[-2], field.parameters[-1][:, None]), dim=1)
+    theta = output_parameters(field)
     return u, jacobian, _hessian_at(potential, samples, u, jacobian, theta, config.fd_step)
 
 
@@ -211,9 +208,9 @@ def solve_last_layer(field: NeuralField, boundary: BoundaryConditions, potential
 
     conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring)."""
     config = config or NewtonConfig()
-    weight, bias = field.parameters[-2], field.parameters[-1]
+    weight, bias = field.output_layer()
     u, jacobian = output_jacobian(field, boundary, samples.xi, load_factor, conditioning)
-    theta = torch.cat((weight, bias[:, None]), dim=1)
+    theta = output_parameters(field)
     shape = theta.shape
     delta = torch.zeros_like(theta)  # θ − θ₀, with u(θ) = u + J·(θ − θ₀)
 

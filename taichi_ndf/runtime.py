@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+import platform
 import random
 from dataclasses import dataclass
 from pathlib import Path
@@ -125,3 +126,11 @@ def current() -> Runtime:
 
 def is_initialised() -> bool:
     return _current is not None
+
+
+def machine_description(runtime: Runtime) -> dict:
+    """Python, platform, processor, CPU count and the runtime's arch and precision (for the
+    machine record of result files)."""
+    return {"python": platform.python_version(), "platform": platform.platform(),
+            "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+            "arch": runtime.arch, "precision": runtime.precision}

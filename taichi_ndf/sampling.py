@@ -55,6 +55,20 @@ def stratified_uniform(n: int, low: float, high: float, generator: torch.Generat
     return (low + (strata + jitter) / n * (high - low)).to(device)
 
 
+def sobol(dim: int, n: int, seed: int, dtype: torch.dtype) -> torch.Tensor:
+    """n points (n, dim) of a scrambled Sobol sequence in the unit cube [0, 1)^dim."""
+    return torch.quasirandom.SobolEngine(dim, scramble=True, seed=seed).draw(n).to(dtype)
+
+
+def unit_to_domain(domain, unit: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points of the unit square (n, 2) mapped affinely to the domain's rectangle: those
+    inside the domain (M, 2) and the mask (n,) of the kept ones (a masked domain drops some)."""
+    (lo1, hi1), (lo2, hi2) = domain.bounds
+    xi = torch.stack((lo1 + (hi1 - lo1) * unit[:, 0], lo2 + (hi2 - lo2) * unit[:, 1]), dim=1)
+    inside = domain.contains(xi)
+    return xi[inside], inside
+
+
 def sample_surface(surface: ReferenceSurface, n: int, loads: Loads | None = None,
                    generator: torch.Generator | None = None, *,
                    dtype: torch.dtype | None = None,

@@ -37,7 +37,7 @@ from taichi_ndf.shell.materials import (
     OrthotropicStVK,
     preset,
 )
-from taichi_ndf.solver import SolverConfig
+from taichi_ndf.training import SolverConfig
 
 GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "mesh")
 DEFAULT_FRAMES = 16  # trajectory frames of a pseudo-time field

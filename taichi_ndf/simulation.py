@@ -8,6 +8,7 @@ import math
 import os
 from pathlib import Path
 
+from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard, ProgressBar
 from taichi_ndf.checkpoint import read_checkpoint
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
@@ -75,11 +76,16 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
                                           load_factor=load_factor)
             write_trajectory_mesh(out, index, frames[index])
 
-    run = Solver(scene.model, field, config, checkpoint_path=out.file("checkpoint.pt"),
-                 checkpoint_extra={"scene": scene.document,
-                                   "scene_dir": str(scene.path.parent.resolve())})
+    checkpoint = out.file("checkpoint.pt")
+    run = Solver(scene.model, field, config, guard=DivergenceGuard(checkpoint))
+    if resume:
+        run.state.restore(checkpoint)
+    callbacks = [CheckpointWriter(checkpoint, {"scene": scene.document,
+                                               "scene_dir": str(scene.path.parent.resolve())})]
+    if config.progress:
+        callbacks.append(ProgressBar())
     try:
-        result = run.run(resume=resume, on_load_step=on_load_step)
+        result = run.run(callbacks=callbacks, on_load_step=on_load_step)
     except DivergenceError as err:
         raise SimulationError(str(err)) from err
 

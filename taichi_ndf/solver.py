@@ -14,120 +14,43 @@ With `pseudo_time` the field takes the load factor t as an extra input and is tr
 t at once (`taichi_ndf.pseudo_time`): every area sample draws its own t in
 [pseudo_time_start, λ] for the current load step λ, so several load steps act as a curriculum
 that widens the range of t. The monitor reports Π at t = λ.
+
+Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chains gradients
+back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
+(`taichi_ndf.minimisers`, `taichi_ndf.newton`) change the state (`taichi_ndf.state`); this
+module draws the sample sets and drives the continuation over load steps. Progress bar,
+checkpoint files and the divergence policy are callbacks (`taichi_ndf.callbacks`).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
+from dataclasses import dataclass
 
 import torch
-from tqdm import tqdm
 
-from taichi_ndf import checks
-from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
+from taichi_ndf.callbacks import DivergenceError, DivergenceGuard
 from taichi_ndf.field import NeuralField
+from taichi_ndf.minimisers import adam_iteration, lbfgs
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import NewtonConfig, solve_last_layer
-from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.objective import Objective
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.pseudo_time import TIME_RANGE, conditioning, samples_over_time
 from taichi_ndf.sampling import sample_surface
-from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
+from taichi_ndf.shell.energy import EnergyResult
+from taichi_ndf.state import MonitorRecord, State
+from taichi_ndf.training import SolverConfig
+
+__all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverConfig"]
 
 log = logging.getLogger(__name__)
 
-
-BLOW_UP_FACTOR = 1e3
 # Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
 MONITOR_SEED_OFFSET = 7919
 NEWTON_SEED_OFFSET = 104729
-
-
-class DivergenceError(RuntimeError):
-    """Training produced a non-finite energy or gradient; the last good state was kept."""
-
-
-@dataclass(frozen=True)
-class SolverConfig:
-    """How Π is minimised.
-
-    iterations: Adam iterations per load step.
-    samples: area samples per iteration (stratified, jittered, resampled every iteration).
-    load_steps: load factors solved in turn (continuation); loads and prescribed displacements
-        are scaled by the factor. The last must be 1.
-    monitor_every: iterations between evaluations of Π on a fixed monitor sample set.
-    checkpoint_every: iterations between checkpoints (0: only at the end).
-    lbfgs_iterations: L-BFGS polish iterations on a fixed sample set after each load step.
-    newton_iterations: most last-layer Newton steps per Newton phase (0: no Newton phases).
-    newton_every: Adam iterations between Newton phases inside a load step (0: Newton only at
-        the start and the end of each load step).
-    newton_samples: area samples of the fixed Newton sample set (point-load samples added).
-    pseudo_time: train a field whose one conditioning input is the load factor t over all t in
-        [pseudo_time_start, λ] at once (module docstring); λ is the current load step.
-    pseudo_time_start: the smallest t trained, in [0, first load step).
-    """
-
-    iterations: int = 1500
-    samples: int = 4096
-    adam: AdamConfig = field(default_factory=AdamConfig)
-    load_steps: tuple[float, ...] = (1.0,)
-    monitor_every: int = 50
-    monitor_samples: int = 16384
-    checkpoint_every: int = 500
-    lbfgs_iterations: int = 0
-    newton_iterations: int = 0
-    newton_every: int = 0
-    newton_samples: int = 16384
-    seed: int = 0
-    progress: bool = True
-    pseudo_time: bool = False
-    pseudo_time_start: float = 0.0
-
-    def __post_init__(self):
-        if self.iterations < 0:
-            raise ValueError(f"iterations must be >= 0, got {self.iterations}")
-        if self.samples < 16:
-            raise ValueError(f"samples must be >= 16, got {self.samples}")
-        checks.load_steps(self.load_steps)
-        if self.monitor_every < 1:
-            raise ValueError(f"monitor_every must be >= 1, got {self.monitor_every}")
-        if self.checkpoint_every < 0 or self.lbfgs_iterations < 0:
-            raise ValueError("checkpoint_every and lbfgs_iterations must be >= 0")
-        if self.newton_iterations < 0 or self.newton_every < 0:
-            raise ValueError(f"newton_iterations and newton_every must be >= 0, got "
-                             f"{self.newton_iterations}, {self.newton_every}")
-        if self.newton_samples < 16:
-            raise ValueError(f"newton_samples must be >= 16, got {self.newton_samples}")
-        if not 0.0 <= self.pseudo_time_start < self.load_steps[0]:
-            raise ValueError(f"pseudo_time_start must be in [0, {self.load_steps[0]}) (the "
-                             f"first load step), got {self.pseudo_time_start}")
-        if self.pseudo_time and self.newton_iterations:
-            raise ValueError("newton_iterations must be 0 with pseudo_time: the last-layer "
-                             "Newton solver does not take a pseudo-time input")
-
-    def with_iterations(self, iterations: int) -> SolverConfig:
-        """The same run with another iteration count; the learning-rate schedule is stretched
-        to the new length."""
-        total = max(iterations * len(self.load_steps), 1)
-        adam = replace(self.adam, decay_steps=total, total_steps=total)
-        return replace(self, iterations=iterations, adam=adam)
-
-
-@dataclass
-class MonitorRecord:
-    """One row of the convergence history."""
-
-    iteration: int  # counted over all load steps
-    load_factor: float
-    energy: float  # Π on the monitor samples [J]
-    grad_norm: float  # ‖∂Π/∂weights‖ of the last training step
-    learning_rate: float
-    probes: dict[str, list[float]]  # displacement [m] at each probe
-    wall_time: float  # seconds since the start of this run
 
 
 @dataclass
@@ -141,65 +64,60 @@ class SolveResult:
 
 
 class Solver:
-    """Minimises Π of a model over a field's weights; checkpoints, resumes, guards NaNs."""
+    """Minimises an objective (default: Π of the model) over a field's weights: sample sets,
+    Adam / Newton / L-BFGS phases and the continuation over load steps."""
 
     def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
-                 checkpoint_path: str | Path | None = None, checkpoint_extra: dict | None = None):
-        if config.pseudo_time and model.boundary.free_pin is not None:
-            raise ValueError("pseudo_time does not support a free pin (pinned point, "
-                             "rotation='free'): the pin's value would differ per sample time")
+                 objective: Objective | None = None, state: State | None = None,
+                 guard: DivergenceGuard | None = None):
+        """objective: what is minimised (default: the model's potential energy,
+        `Objective.of_model`), e.g. with the work of an end moment added. state: where to
+        start (default: `State.initial`; a restored one resumes). guard: the divergence
+        guard (default: one that names no checkpoint)."""
+        self.operator = DisplacementOperator(field, model.boundary)
+        if config.pseudo_time:
+            self.operator.refuse_free_pin("pseudo_time", ": the pin's value would differ per "
+                                          "sample time")
         if config.pseudo_time and field.config.conditioning != (TIME_RANGE,):
             raise ValueError(f"a pseudo-time solve needs a field with the one conditioning "
                              f"input range {TIME_RANGE}, got {field.config.conditioning}")
         self.model = model
-        self.checkpoint_extra = checkpoint_extra or {}
+        self.objective = objective or Objective.of_model(model)
         self.field = field
         self.config = config
-        self.checkpoint_path = Path(checkpoint_path) if checkpoint_path else None
-        self.optimiser = Adam(field.parameters, field.gradients, config=config.adam)
-        self.generator = torch.Generator().manual_seed(config.seed)
-        self.iteration = 0
-        self.newton_steps = 0
-        self.history: list[MonitorRecord] = []
-        self._good_state = field.get_flat().clone()
+        self.state = state or State.initial(field, config.adam, config.seed)
+        self.guard = guard or DivergenceGuard()
         self._monitor = {}
         self._newton_samples = {}
 
-    # -- energy -------------------------------------------------------------------------------
-    def potential(self, samples, u_jets: torch.Tensor, load_factor: float | torch.Tensor, *,
-                  grad: bool = True) -> EnergyResult:
-        """Π [J] of displacement jets u_jets (N, 6, 3) [m] at the samples, with dΠ/du_jets if
-        `grad`. The one place the potential is defined: subclasses add energy terms here.
-
-        load_factor: a number (the samples' point forces are already scaled by it), or one per
-            sample (N,) for a pseudo-time field (the samples carry the unscaled point forces)."""
-        if isinstance(load_factor, torch.Tensor):
-            energy = ShellEnergy(self.model.material, self.model.loads)
-            return energy.evaluate(samples, u_jets, grad=grad, load_factor=load_factor)
-        energy = ShellEnergy(self.model.material, self.model.loads.scaled(load_factor))
-        return energy.evaluate(samples, u_jets, grad=grad)
-
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
-                            times: torch.Tensor | None = None):
-        """Π [J] of the current field on given samples; fills the field's gradients.
+                            times: torch.Tensor | None = None) -> EnergyResult:
+        """Π [J] of the current field on given samples (the objective at the displacement
+        operator's jets); fills the field's gradients if `grad`.
 
         times: the pseudo-time of each sample (N,) of a pseudo-time solve; default: t =
-            load_factor at every sample (Π of the field's state at that load factor)."""
+            load_factor at every sample (Π of the field's state at that load factor). A number
+            load factor means the samples' point forces are already scaled by it (`_samples`)."""
         xi = samples.xi
+        cond = None
         if self.config.pseudo_time:
             t = times if times is not None else torch.full_like(xi[:, 0], float(load_factor))
-            raw = self.field.jets(xi, conditioning(t, len(xi), dtype=xi.dtype, device=xi.device))
+            cond = conditioning(t, len(xi), dtype=xi.dtype, device=xi.device)
         else:
             if times is not None:
                 raise ValueError("per-sample times need a pseudo-time solve")
             t = load_factor
-            raw = self.field.jets(self.model.boundary.evaluation_points(xi))
-        u = self.model.boundary.compose(xi, raw, t=t)
-        result = self.potential(samples, u, t, grad=grad)
+        u = self.operator.jets(xi, t=t, conditioning=cond)
+        result = self.objective.evaluate(samples, u, t, grad=grad)
         if grad:
-            g_raw = self.model.boundary.compose_adjoint(xi, result.grad_u_jets, t=t)
-            self.field.backward(g_raw)
+            self.operator.backward(result.grad_u_jets)
         return result
+
+    def evaluator(self, samples, load_factor: float, times: torch.Tensor | None = None):
+        """`evaluate(grad) -> Π` on fixed samples, the form the minimisers take."""
+        def evaluate(grad: bool) -> float:
+            return self.energy_and_gradient(samples, load_factor, grad=grad, times=times).total
+        return evaluate
 
     def _samples(self, n: int, load_factor: float, generator: torch.Generator):
         """n area samples (and the point-load samples) with their point forces scaled by the
@@ -238,14 +156,11 @@ class Solver:
     def newton(self, load_factor: float) -> None:
         """A last-layer Newton phase on the fixed Newton samples of this load factor."""
         samples = self.newton_samples(load_factor)
-
-        def potential(s, u, grad):
-            return self.potential(s, u, load_factor, grad=grad)
-
+        potential = self.objective.potential(load_factor)
         result = solve_last_layer(self.field, self.model.boundary, potential, samples,
                                   load_factor,
                                   NewtonConfig(iterations=self.config.newton_iterations))
-        self.newton_steps += result.steps
+        self.state.newton_steps += result.steps
 
     def probe_displacements(self, load_factor: float) -> dict[str, list[float]]:
         if not self.model.probes:
@@ -255,119 +170,70 @@ class Solver:
         cond = None
         if self.config.pseudo_time:
             cond = conditioning(load_factor, len(xi), dtype=dtype)
-        u = self.model.displacement(self.field, xi, t=load_factor, conditioning=cond)
+        u = self.operator.displacement(xi, t=load_factor, conditioning=cond)
         return {p.name: [float(v) for v in u[k]] for k, p in enumerate(self.model.probes)}
 
-    # -- checkpoints ----------------------------------------------------------------------------
-    def save(self, load_step: int) -> None:
-        if self.checkpoint_path is None:
-            return
-        save_checkpoint(
-            self.checkpoint_path, self.field, self.optimiser,
-            extra={**self.checkpoint_extra, "iteration": self.iteration,
-                   "load_step": load_step, "history": [asdict(h) for h in self.history],
-                   "sampling_rng": self.generator.get_state()},
-        )
-
-    def resume(self) -> int:
-        """Load the checkpoint; returns the load step to continue from."""
-        if self.checkpoint_path is None or not self.checkpoint_path.exists():
-            raise FileNotFoundError(f"no checkpoint to resume from at {self.checkpoint_path}")
-        extra = load_checkpoint(self.checkpoint_path, self.field, optimiser=self.optimiser).extra
-        self.iteration = int(extra["iteration"])
-        self.history = [MonitorRecord(**h) for h in extra["history"]]
-        if "sampling_rng" in extra:  # absent in checkpoints written before it was kept
-            self.generator.set_state(extra["sampling_rng"])
-        self._good_state = self.field.get_flat().clone()
-        log.info("resumed from %s at iteration %d", self.checkpoint_path, self.iteration)
-        # A finished run stores one past its last step; resumed (with more iterations) it goes
-        # on in its last step.
-        return min(int(extra["load_step"]), len(self.config.load_steps) - 1)
-
-    # -- main loop ------------------------------------------------------------------------------
-    def run(self, *, resume: bool = False, on_load_step=None) -> SolveResult:
-        """Minimise Π for every load step; `on_load_step(load_factor)` is called after each."""
-        cfg = self.config
-        start_step = self.resume() if resume else 0
+    # -- continuation over the load steps ------------------------------------------------------
+    def run(self, *, callbacks=(), on_load_step=None) -> SolveResult:
+        """Minimise Π for every load step from the state's; `callbacks` (`taichi_ndf.callbacks`)
+        see every iteration, and `on_load_step(load_factor)` is called after each step."""
+        cfg, state = self.config, self.state
+        start_step = min(state.load_step, len(cfg.load_steps) - 1)  # a finished run goes on
         t0 = time.perf_counter()
-        total = cfg.iterations * len(cfg.load_steps)
-        show = cfg.progress and sys.stderr.isatty()
-        bar = tqdm(total=total, initial=min(self.iteration, total), disable=not show,
-                   desc="Π minimisation", dynamic_ncols=True)
-        energy = float("nan")
+        hooks = [self.guard, *callbacks]
+        _call(hooks, "on_start", self)
+        newton = cfg.newton_iterations > 0
         for step in range(start_step, len(cfg.load_steps)):
-            lam = cfg.load_steps[step]
-            done_in_step = max(self.iteration - step * cfg.iterations, 0)
-            newton = cfg.newton_iterations > 0
+            state.load_step, lam = step, cfg.load_steps[step]
+            done_in_step = max(state.iteration - step * cfg.iterations, 0)
             if newton and done_in_step == 0:
                 self.newton(lam)
             for _ in range(done_in_step, cfg.iterations):
-                samples, times = self.training_samples(cfg.samples, lam, self.generator)
-                res = self.energy_and_gradient(samples, lam, times=times)
-                gnorm = self.optimiser.gradient_norm()
-                if not (math.isfinite(res.total) and math.isfinite(gnorm)):
-                    self._diverged(res.total, gnorm, step)
-                self.optimiser.step()
-                self.iteration += 1
-                bar.update(1)
-                if self.iteration % cfg.monitor_every == 0:
-                    energy = self._record(lam, gnorm, t0, step)
-                    bar.set_postfix(energy=f"{energy:.5g}", grad=f"{gnorm:.3g}")
-                if cfg.checkpoint_every and self.iteration % cfg.checkpoint_every == 0:
-                    self.save(step)
-                in_step = self.iteration - step * cfg.iterations
+                samples, times = self.training_samples(cfg.samples, lam, state.generator)
+                _, gnorm = adam_iteration(state.optimiser, self.evaluator(samples, lam, times),
+                                          check=self._check_step)
+                state.iteration += 1
+                record = None
+                if state.iteration % cfg.monitor_every == 0:
+                    record = self._record(lam, gnorm, t0)
+                _call(callbacks, "on_iteration", self, record)
+                in_step = state.iteration - step * cfg.iterations
                 if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
                         and in_step < cfg.iterations:
                     self.newton(lam)
             if newton and cfg.iterations > 0:
                 self.newton(lam)
             if cfg.lbfgs_iterations:
-                self._lbfgs(lam, step)
-            recorded = self.history and self.history[-1].iteration == self.iteration
+                self._lbfgs(lam)
+            recorded = state.history and state.history[-1].iteration == state.iteration
             if cfg.lbfgs_iterations or newton or not recorded:
-                self._record(lam, self.optimiser.gradient_norm(), t0, step)
-            energy = self.history[-1].energy
-            log.info("load factor %.4g: Π = %.8g J after %d iterations", lam, energy,
-                     self.iteration)
+                self._record(lam, state.optimiser.gradient_norm(), t0)
+            log.info("load factor %.4g: Π = %.8g J after %d iterations", lam,
+                     state.history[-1].energy, state.iteration)
+            _call(callbacks, "on_load_step", self, lam)
             if on_load_step is not None:
                 on_load_step(lam)
-        bar.close()
-        self.save(len(cfg.load_steps))
-        return SolveResult(energy=energy, iterations=self.iteration,
-                           wall_time=time.perf_counter() - t0, history=self.history,
+        state.load_step = len(cfg.load_steps)
+        _call(callbacks, "on_end", self)
+        return SolveResult(energy=state.history[-1].energy, iterations=state.iteration,
+                           wall_time=time.perf_counter() - t0, history=state.history,
                            probes=self.probe_displacements(cfg.load_steps[-1]),
-                           newton_steps=self.newton_steps)
+                           newton_steps=state.newton_steps)
 
-    def _record(self, lam: float, gnorm: float, t0: float, step: int) -> float:
+    def _check_step(self, energy: float, grad_norm: float) -> None:
+        self.guard.check_step(self, energy, grad_norm)
+
+    def _record(self, lam: float, gnorm: float, t0: float) -> MonitorRecord:
         energy = self.energy_and_gradient(self.monitor_samples(lam), lam, grad=False).total
-        if not math.isfinite(energy) or self._blown_up(energy, lam):
-            self._diverged(energy, gnorm, step)
-        self._good_state = self.field.get_flat().clone()
-        self.history.append(MonitorRecord(
-            iteration=self.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
-            learning_rate=self.optimiser.learning_rate, probes=self.probe_displacements(lam),
-            wall_time=time.perf_counter() - t0))
-        return energy
+        self.guard.check_record(self, energy, gnorm, lam)
+        record = MonitorRecord(
+            iteration=self.state.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
+            learning_rate=self.state.optimiser.learning_rate,
+            probes=self.probe_displacements(lam), wall_time=time.perf_counter() - t0)
+        self.state.history.append(record)
+        return record
 
-    def _blown_up(self, energy: float, lam: float) -> bool:
-        """Π far above anything seen at this load factor: a minimiser must not climb by
-        orders of magnitude (1000× the largest magnitude recorded so far)."""
-        seen = [h.energy for h in self.history if h.load_factor == lam]
-        if not seen:
-            return False
-        return energy > seen[0] + BLOW_UP_FACTOR * max(abs(e) for e in seen)
-
-    def _diverged(self, energy: float, gnorm: float, step: int):
-        self.field.set_flat(self._good_state)
-        saved = self.checkpoint_path is not None and self.checkpoint_path.is_file()
-        where = f" (checkpoint {self.checkpoint_path})" if saved else ""
-        last = self.history[-1].iteration if self.history else 0
-        raise DivergenceError(
-            f"training diverged at iteration {self.iteration}: Π = {energy}, "
-            f"‖∇Π‖ = {gnorm}; the field was reset to its last good state from iteration "
-            f"{last}{where}. Lower the learning rate or the load step.")
-
-    def _lbfgs(self, lam: float, step: int) -> None:
+    def _lbfgs(self, lam: float) -> None:
         """Deterministic L-BFGS polish on a fixed, large sample set (of (ξ, t) in a
         pseudo-time solve)."""
         if self.config.pseudo_time:
@@ -375,23 +241,15 @@ class Solver:
             samples, times = self.training_samples(self.config.monitor_samples, lam, gen)
         else:
             samples, times = self.monitor_samples(lam), None
-        flat = torch.nn.Parameter(self.field.get_flat().clone())
-        # torch's default tolerances are absolute (1e-7 on the gradient, 1e-9 on Π) and stop at
-        # once when Π is small; run the requested iterations instead.
-        opt = torch.optim.LBFGS([flat], lr=1.0, max_iter=self.config.lbfgs_iterations,
-                                history_size=20, line_search_fn="strong_wolfe",
-                                tolerance_grad=0.0, tolerance_change=0.0)
-
-        def closure():
-            self.field.set_flat(flat.detach())
-            res = self.energy_and_gradient(samples, lam, times=times)
-            flat.grad = self.field.get_flat_gradient().clone()
-            return torch.tensor(res.total, dtype=flat.dtype)
-
-        before = self.energy_and_gradient(samples, lam, grad=False, times=times).total
-        opt.step(closure)
-        self.field.set_flat(flat.detach())
-        after = self.energy_and_gradient(samples, lam, grad=False, times=times).total
+        before, after = lbfgs(self.field, self.evaluator(samples, lam, times),
+                              self.config.lbfgs_iterations)
         if not math.isfinite(after):
-            self._diverged(after, float("nan"), step)
+            self.guard.fail(self, after, float("nan"))
         log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)
+
+
+def _call(callbacks, hook: str, *args) -> None:
+    for callback in callbacks:
+        method = getattr(callback, hook, None)
+        if method is not None:
+            method(*args)

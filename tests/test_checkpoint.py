@@ -99,3 +99,37 @@ def test_failed_save_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
         save_checkpoint(path, NeuralField(CONFIG, seed=9))
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["ckpt.pt"]
+
+
+def test_state_round_trip_restores_weights_moments_generator_and_counters(tmp_path):
+    from taichi_ndf.state import MonitorRecord, State
+
+    field, adam, _, _ = trained()
+    generator = torch.Generator().manual_seed(5)
+    torch.rand(7, generator=generator)  # a generator part-way along its stream
+    record = MonitorRecord(iteration=3, load_factor=0.5, energy=-1.25, grad_norm=0.1,
+                           learning_rate=1e-2, probes={"tip": [0.0, 0.5, -1.0]}, wall_time=2.0)
+    state = State(field, adam, generator, iteration=3, load_step=1, newton_steps=4,
+                  history=[record])
+    state.save(tmp_path / "state.pt", {"scene": "napkin"})
+
+    other_field = NeuralField(CONFIG, seed=1)
+    other = State.initial(other_field, AdamConfig(lr=1e-2), seed=0)
+    extra = other.restore(tmp_path / "state.pt")
+    assert extra["scene"] == "napkin"
+    assert (other.iteration, other.load_step, other.newton_steps) == (3, 1, 4)
+    assert other.history == [record]
+    assert torch.equal(other_field.get_flat(), field.get_flat())
+    assert other.optimiser.state_dict()["step"] == adam.state_dict()["step"]
+    for a, b in zip(other.optimiser.exp_avg_sq, adam.exp_avg_sq, strict=True):
+        assert torch.equal(a, b)
+    assert torch.equal(torch.rand(5, generator=other.generator), torch.rand(5, generator=generator))
+
+
+def test_restoring_a_missing_state_names_the_path(tmp_path):
+    from taichi_ndf.state import State
+
+    field, _, _, _ = trained()
+    state = State.initial(field, AdamConfig(), seed=0)
+    with pytest.raises(FileNotFoundError, match="no checkpoint to resume from"):
+        state.restore(tmp_path / "missing.pt")

@@ -13,7 +13,7 @@ import torch
 
 from taichi_ndf.checkpoint import load_checkpoint
 from taichi_ndf.cli import export, sim
-from taichi_ndf.solver import Solver
+from taichi_ndf.state import State
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNTIME = ["--precision", "f64"]  # the test session's runtime (tests/conftest.py)
@@ -98,14 +98,14 @@ def test_resume_continues_an_interrupted_run(tmp_path, monkeypatch):
     assert run_sim(scene, "--out", tmp_path / "whole") == 0
     whole = json.loads((tmp_path / "whole" / "result.json").read_text())
 
-    save = Solver.save
+    save = State.save
 
-    def save_then_crash(self, load_step):
-        save(self, load_step)
+    def save_then_crash(self, path, extra=None):
+        save(self, path, extra)
         if self.iteration == 5:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(Solver, "save", save_then_crash)
+    monkeypatch.setattr(State, "save", save_then_crash)
     assert run_sim(scene, "--out", tmp_path / "cut") == 130  # Ctrl-C
     monkeypatch.undo()
     # The attempt lies beside the (never completed) run directory, ready to resume.
@@ -236,14 +236,14 @@ def test_resume_keeps_the_trajectory_of_load_steps_finished_before_the_interrupt
     whole = json.loads((tmp_path / "whole" / "result.json").read_text())
     assert whole["trajectory"]["load_factors"] == [0.5, 1.0]
 
-    save = Solver.save
+    save = State.save
 
-    def save_then_crash(self, load_step):
-        save(self, load_step)
+    def save_then_crash(self, path, extra=None):
+        save(self, path, extra)
         if self.iteration == 15:  # in the second load step
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(Solver, "save", save_then_crash)
+    monkeypatch.setattr(State, "save", save_then_crash)
     assert run_sim(scene, "--out", tmp_path / "cut") == 130  # Ctrl-C
     monkeypatch.undo()
     # the first step's frame is on disk at once (in the incomplete attempt)

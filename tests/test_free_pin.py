@@ -113,10 +113,8 @@ def test_newton_jacobian_is_exact_and_a_step_lowers_the_energy(hanging):
     predicted = u + torch.einsum("knca,ka->nck", jacobian, change)
     torch.testing.assert_close(moved, predicted, rtol=1e-10, atol=1e-14)
 
-    def potential(s, u, grad):
-        return solver.potential(s, u, 1.0, grad=grad)
-
-    result = solve_last_layer(field, model.boundary, potential, samples, 1.0)
+    result = solve_last_layer(field, model.boundary, solver.objective.potential(1.0), samples,
+                              1.0)
     assert result.energy_after < result.energy_before
 
 

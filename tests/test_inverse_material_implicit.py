@@ -15,7 +15,8 @@ from test_inverse_material_elastica import cantilever
 from inverse.cli.fit_material import main
 from inverse.material import Observation, parse_unknowns, template_xi
 from inverse.material.conditioned import to_coordinates, to_values
-from inverse.material.implicit import ImplicitConfig, ImplicitEquilibrium, implicit_estimate
+from inverse.material.implicit import ImplicitConfig, ImplicitEquilibrium
+from inverse.material.implicit_fit import implicit_estimate
 from taichi_ndf.io import write_obj
 from taichi_ndf.io.grid import grid_mesh
 from taichi_ndf.loads import PointLoad

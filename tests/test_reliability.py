@@ -72,15 +72,15 @@ def test_1_failed_output_writing_keeps_the_previous_complete_run(tmp_path, monke
 
 def test_1_an_interrupted_first_run_leaves_only_a_named_incomplete_attempt(tmp_path,
                                                                            monkeypatch, capsys):
-    from taichi_ndf.solver import Solver
+    from taichi_ndf.state import State
 
-    save = Solver.save
+    save = State.save
 
-    def save_then_interrupt(self, load_step):
-        save(self, load_step)
+    def save_then_interrupt(self, path, extra=None):
+        save(self, path, extra)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(Solver, "save", save_then_interrupt)
+    monkeypatch.setattr(State, "save", save_then_interrupt)
     out = tmp_path / "run"
     assert run_sim(small_napkin(tmp_path), "--out", out) == 130
     line = one_line(capsys.readouterr().err)

@@ -448,6 +448,7 @@ def test_export_of_a_spline_checkpoint_at_any_resolution(tmp_path):
 def test_adam_solver_runs_unchanged_on_a_spline_field(tmp_path):
     import dataclasses
 
+    from taichi_ndf.callbacks import CheckpointWriter
     from taichi_ndf.scene import load_scene
     from taichi_ndf.solver import Solver
 
@@ -458,8 +459,8 @@ def test_adam_solver_runs_unchanged_on_a_spline_field(tmp_path):
     config = dataclasses.replace(scene.quick_solver.with_iterations(40), progress=False,
                                  samples=512, monitor_every=20, monitor_samples=1024,
                                  lbfgs_iterations=0, newton_iterations=0)
-    solver = Solver(scene.model, field, config, checkpoint_path=tmp_path / "ckpt.pt")
-    result = solver.run()
+    solver = Solver(scene.model, field, config)
+    result = solver.run(callbacks=[CheckpointWriter(tmp_path / "ckpt.pt")])
     energies = [record.energy for record in result.history]
     assert energies[-1] < energies[0] < 1e-12  # a hanging napkin: Π falls below 0 from 0
     assert isinstance(load_checkpoint(tmp_path / "ckpt.pt").field, SplineField)

@@ -15,6 +15,7 @@ import torch
 from taichi_ndf.cli.validate import main as validate_main
 from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads
+from taichi_ndf.objective import EndMomentTerm
 from taichi_ndf.sampling import sample_surface
 from taichi_ndf.scene import load_scene
 from taichi_ndf.shell.energy import ShellEnergy, function_jets
@@ -24,7 +25,6 @@ from taichi_ndf.validation import (
     LINEARISATION,
     SCENES_DIR,
     Case,
-    EndMoment,
     Quantity,
     _component,
     _roll_up_references,
@@ -67,7 +67,7 @@ def test_end_moment_measures_rotation_past_a_full_turn(level):
     samples = sample_surface(strip, 4096, generator=torch.Generator().manual_seed(0))
     angle = 2 * math.pi * level
     u = function_jets(_arc(angle / 12.0), samples.xi)
-    assert EndMoment(1.0, 1.0).end_rotation(samples, u) == pytest.approx(angle, rel=1e-9)
+    assert EndMomentTerm(1.0, 1.0).end_rotation(samples, u) == pytest.approx(angle, rel=1e-9)
 
 
 def test_end_moment_gains_no_work_from_tilting_the_strip_out_of_its_plane():
@@ -84,7 +84,7 @@ def test_end_moment_gains_no_work_from_tilting_the_strip_out_of_its_plane():
                          math.sin(alpha) * (1 - torch.cos(k * s)) / k), dim=1)
         return x - torch.stack((s, y, torch.zeros_like(s)), dim=1)
 
-    rotation = EndMoment(1.0, 1.0).end_rotation(samples, function_jets(helix, samples.xi))
+    rotation = EndMomentTerm(1.0, 1.0).end_rotation(samples, function_jets(helix, samples.xi))
     assert rotation == pytest.approx(k * math.sin(alpha) ** 2 * 12.0, rel=1e-9)
 
 
@@ -94,12 +94,12 @@ def test_rolled_arc_is_the_stationary_point_of_shell_plus_end_moment():
     material = LinearIsotropic.from_young(1.2e6, 0.0, 0.1, 1.0)
     samples = sample_surface(strip, 4096, generator=torch.Generator().manual_seed(1))
     moment = 2 * math.pi * material.bending_stiffness / 12.0
-    end_moment = EndMoment(moment, 1.0)
+    end_moment = EndMomentTerm(moment, 1.0)
 
     def total(curvature):
         u = function_jets(_arc(curvature), samples.xi)
         shell = ShellEnergy(material, Loads()).evaluate(samples, u, grad=False).total
-        return shell + end_moment.potential(samples, u, 1.0, grad=False)[0]
+        return shell + end_moment.evaluate(samples, u, 1.0, grad=False)[0]
 
     best = moment / material.bending_stiffness
     assert total(best) == pytest.approx(-0.5 * moment**2 / material.bending_stiffness * 12,

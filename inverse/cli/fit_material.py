@@ -31,7 +31,8 @@ from inverse.material import (
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig, to_values
 from inverse.material.identifiability import finite_or_none
-from inverse.material.implicit import ImplicitConfig, implicit_estimate
+from inverse.material.implicit import ImplicitConfig
+from inverse.material.implicit_fit import implicit_estimate
 from inverse.material.report import estimate_document, overlay_image
 from taichi_ndf.cli.common import (
     ArgumentParser,

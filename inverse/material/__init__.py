@@ -3,7 +3,8 @@
 from inverse.material.bilevel import BilevelConfig, BilevelResult, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig, ConditionedEquilibrium
 from inverse.material.identifiability import Identifiability
-from inverse.material.implicit import ImplicitConfig, ImplicitResult, implicit_estimate
+from inverse.material.implicit import ImplicitConfig
+from inverse.material.implicit_fit import ImplicitResult, implicit_estimate
 from inverse.material.observations import Observation, read_observation, template_xi
 from inverse.material.residual import (
     Estimate,

@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 from scipy.optimize import least_squares
-from scipy.spatial import cKDTree
 
 from inverse.material.conditioned import (
     CONDITIONABLE,
@@ -43,7 +42,8 @@ from inverse.material.conditioned import (
 )
 from inverse.material.identifiability import analyse
 from inverse.material.observations import Observation
-from inverse.material.residual import Estimate, ResidualConfig, _groups, residual_estimate
+from inverse.material.projection import closest_points, grid_seeds, nearest_seeds
+from inverse.material.residual import Estimate, ResidualConfig, residual_estimate, unknown_scales
 from inverse.material.unknowns import Unknown
 from taichi_ndf import jets
 
@@ -135,29 +135,15 @@ def gravity_ratios(observations: list[Observation], unknowns: list[Unknown], val
                     f"ρ_A = {model0.material.areal_density:g} kg/m²"]
 
 
-def _project(equilibrium: ConditionedEquilibrium, z, points: torch.Tensor,
-             grid: int) -> torch.Tensor:
-    """Closest points ξ (M, 2) of the surface x*(·; θ) to `points`: nearest grid seed, then
-    Gauss–Newton on |x(ξ) − p|² clipped to the parameter rectangle."""
+def closest_surface_points(equilibrium, z, points: torch.Tensor, grid: int) -> torch.Tensor:
+    """Closest points ξ (M, 2) of the equilibrium surface x*(·; θ) to `points`: nearest grid
+    seed, then Gauss–Newton on |x(ξ) − p|² clipped to the parameter rectangle
+    (`projection`). equilibrium: anything with `positions(ξ, z)` and `position_jets(ξ, z)`."""
     domain = equilibrium.model.surface.domain
-    (lo1, hi1), (lo2, hi2) = domain.bounds
-    dtype = points.dtype
-    g1, g2 = torch.meshgrid(torch.linspace(lo1, hi1, grid, dtype=dtype),
-                            torch.linspace(lo2, hi2, grid, dtype=dtype), indexing="ij")
-    seeds = torch.stack([g1.ravel(), g2.ravel()], dim=1)
-    seeds = seeds[domain.contains(seeds)]
-    _, nearest = cKDTree(equilibrium.positions(seeds, z).numpy()).query(points.numpy())
-    xi = seeds[torch.from_numpy(np.asarray(nearest))]
-    lo = torch.tensor([lo1, lo2], dtype=dtype)
-    hi = torch.tensor([hi1, hi2], dtype=dtype)
-    for _ in range(8):
-        x = equilibrium.position_jets(xi, z)
-        tangent = torch.stack([x[:, jets.D1], x[:, jets.D2]], dim=1)  # (M, 2, 3)
-        gap = points - x[:, jets.VALUE]
-        normal = tangent @ tangent.transpose(1, 2)
-        rhs = (tangent @ gap[:, :, None])[:, :, 0]
-        xi = torch.minimum(torch.maximum(xi + torch.linalg.solve(normal, rhs), lo), hi)
-    return xi
+    seeds = grid_seeds(domain, grid, points.dtype)
+    xi = nearest_seeds(seeds, equilibrium.positions(seeds, z), points)
+    return closest_points(lambda q: equilibrium.position_jets(q, z), domain.bounds, points, xi,
+                          steps=8)
 
 
 def _residuals(equilibrium: ConditionedEquilibrium, observation: Observation, z,
@@ -165,7 +151,7 @@ def _residuals(equilibrium: ConditionedEquilibrium, observation: Observation, z,
     points = observation.points.to(equilibrium.field.parameters[0].dtype)
     if observation.xi is not None:
         return (equilibrium.positions(observation.xi, z) - points).numpy().ravel()
-    xi = _project(equilibrium, z, points, grid)
+    xi = closest_surface_points(equilibrium, z, points, grid)
     x = equilibrium.position_jets(xi, z)
     normal = torch.linalg.cross(x[:, jets.D1], x[:, jets.D2], dim=-1)
     normal = normal / normal.norm(dim=1, keepdim=True)
@@ -176,7 +162,7 @@ def _box(unknowns: list[Unknown], values: np.ndarray, positive_half: list[float]
          load_half: float) -> list[tuple[float, float]]:
     """Coordinate ranges around `values`: ± positive_half[j] in ln θ for positive unknowns,
     ± load_half · |force vector| for point-load components."""
-    scale = _groups(unknowns, values)
+    scale = unknown_scales(unknowns, values)
     z = to_coordinates(unknowns, values)
     return [(zj - h, zj + h) if u.positive else (zj - load_half * s, zj + load_half * s)
             for u, zj, h, s in zip(unknowns, z, positive_half, scale, strict=True)]
@@ -288,7 +274,7 @@ def bilevel_estimate(observations: list[Observation], unknowns: list[Unknown],
     values = np.array(to_values(unknowns, z))
     r = solution.fun
     # Identifiability in normalised coordinates: ln θ, or a force over its vector's magnitude.
-    scale = _groups(unknowns, values)
+    scale = unknown_scales(unknowns, values)
     jac = np.atleast_2d(solution.jac) * np.where(positive, 1.0, scale)
     dof = max(len(r) - len(unknowns), 1)
     sigma2 = float(r @ r) / dof

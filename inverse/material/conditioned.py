@@ -5,10 +5,11 @@ sample draws its own z (stratified uniform in the box) and its energy uses the s
 that z (`ShellEnergy.evaluate(..., stiffness=...)`). Π is a sum over samples, so the training
 objective is the mean over z of Π(u(·, z); z), whose minimiser is the equilibrium u*(·, z) for
 every z in the box: after one training, x*(θ) is a cheap, smooth function of θ for the outer
-(misfit) problem. The training loop is the solver's (`taichi_ndf.solver.Solver`): jets,
-boundary conditions, energy gradient, boundary adjoint, field adjoint, Adam; it differs only
-in the conditioning inputs and per-sample stiffness, so it is written here rather than as a
-hook in the solver.
+(misfit) problem. The training loop is built from the solver's pieces: the displacement
+operator (`taichi_ndf.operator`: jets, boundary conditions and their adjoint), the shell
+energy, Adam and the one L-BFGS (`taichi_ndf.minimisers`); it differs from
+`taichi_ndf.solver.Solver` in the conditioning inputs, the per-sample stiffness and the
+per-z weights, so the loop is written here rather than as a hook in the solver.
 
 Point-load components can be conditioning inputs too (signed, so in linear coordinates: the
 input is the force component itself [N]). A point load acts at one ξ, so it gets
@@ -39,10 +40,19 @@ from inverse.material.unknowns import Unknown, apply
 from taichi_ndf import jets
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.loads import Loads
+from taichi_ndf.minimisers import lbfgs
 from taichi_ndf.model import ShellModel
 from taichi_ndf.newton import NewtonConfig, solve_last_layer
+from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.optim import Adam, AdamConfig
-from taichi_ndf.sampling import SurfaceSamples, sample_surface, stratified_uniform
+from taichi_ndf.sampling import (
+    SurfaceSamples,
+    sample_surface,
+    sobol,
+    stratified_uniform,
+    unit_to_domain,
+)
 from taichi_ndf.scaling import characteristic_displacement
 from taichi_ndf.shell.energy import ShellEnergy
 
@@ -139,10 +149,8 @@ class ConditionedEquilibrium:
         if bad:
             raise ValueError(f"the material-conditioned field takes stiffness and point-load "
                              f"unknowns only, not {bad}: estimate these with the residual method")
-        if model.boundary.free_pin is not None:
-            raise ValueError("the material-conditioned field does not support a free pin "
-                             "(pinned point, rotation = 'free'); use --method implicit or "
-                             "rotation = 'held'")
+        DisplacementOperator(None, model.boundary).refuse_free_pin(
+            "the material-conditioned field", "; use --method implicit or rotation = 'held'")
         if len(ranges) != len(unknowns):
             raise ValueError(f"need one coordinate range per unknown, got {len(ranges)} for "
                              f"{len(unknowns)}")
@@ -163,6 +171,7 @@ class ConditionedEquilibrium:
                                    periodic=domain.periodic,
                                    conditioning=tuple(self.ranges), output_scale=scale)
         self.field = NeuralField(field_config, seed=config.seed)
+        self.operator = model.operator(self.field)
         self.history: list[tuple[int, float]] = []
         self.training_time = 0.0
         self.newton_result = None  # NewtonResult of the Newton phase, if any
@@ -221,20 +230,17 @@ class ConditionedEquilibrium:
         lo = torch.tensor([r[0] for r in self.ranges], dtype=dtype)
         hi = torch.tensor([r[1] for r in self.ranges], dtype=dtype)
 
-        def sobol(dim: int, m: int) -> torch.Tensor:
-            seed = int(torch.randint(2**31 - 1, (1,), generator=generator))
-            return torch.quasirandom.SobolEngine(dim, scramble=True, seed=seed).draw(m).to(dtype)
+        def draw(dim: int, m: int) -> torch.Tensor:
+            return sobol(dim, m, int(torch.randint(2**31 - 1, (1,), generator=generator)), dtype)
 
-        u = sobol(2 + len(self.ranges), n)
-        (lo1, hi1), (lo2, hi2) = domain.bounds
-        xi = torch.stack((lo1 + (hi1 - lo1) * u[:, 0], lo2 + (hi2 - lo2) * u[:, 1]), dim=1)
-        inside = domain.contains(xi)
-        xi, z = xi[inside], lo + (hi - lo) * u[inside, 2:]
+        u = draw(2 + len(self.ranges), n)
+        xi, inside = unit_to_domain(domain, u)
+        z = lo + (hi - lo) * u[inside, 2:]
         weight = torch.full((len(xi),), domain.area / len(xi), dtype=dtype)
         force = torch.zeros(len(xi), 3, dtype=dtype)
         points = self.model.loads.point_loads
         for k, point in enumerate(points):
-            z_k = lo + (hi - lo) * sobol(len(self.ranges), copies)
+            z_k = lo + (hi - lo) * draw(len(self.ranges), copies)
             xi = torch.cat((xi, torch.tensor(point.xi, dtype=dtype).expand(copies, 2)))
             z = torch.cat((z, z_k))
             weight = torch.cat((weight, weight.new_zeros(copies)))
@@ -297,15 +303,13 @@ class ConditionedEquilibrium:
         """Mean-over-z of w(z) Π [J] on given samples (`_weighted`); fills the field's
         gradients."""
         samples = self._weighted(samples, z)
-        raw = self.field.jets(samples.xi, z)
-        u = self.model.boundary.compose(samples.xi, raw)
+        u = self.operator.jets(samples.xi, conditioning=z)
         result = energy.evaluate(samples, u, stiffness=self.stiffness(z), grad=grad)
         if not math.isfinite(result.total):
             raise RuntimeError(f"conditioned training diverged: Π = {result.total}; lower the "
                                f"learning rate")
         if grad:
-            self.field.backward(self.model.boundary.compose_adjoint(samples.xi,
-                                                                    result.grad_u_jets))
+            self.operator.backward(result.grad_u_jets)
         return result.total
 
     def _lbfgs(self, energy: ShellEnergy, generator: torch.Generator) -> None:
@@ -313,21 +317,11 @@ class ConditionedEquilibrium:
         dtype = field.parameters[0].dtype
         samples, z = self.samples(self.config.lbfgs_samples, generator, dtype,
                                   field.parameters[0].device)
-        flat = torch.nn.Parameter(field.get_flat().clone())
-        opt = torch.optim.LBFGS([flat], lr=1.0, max_iter=self.config.lbfgs_iterations,
-                                history_size=30, line_search_fn="strong_wolfe",
-                                tolerance_grad=0.0, tolerance_change=0.0)
 
-        def closure():
-            field.set_flat(flat.detach())
-            total = self._energy_and_gradient(energy, samples, z)
-            flat.grad = field.get_flat_gradient().clone()
-            return torch.tensor(total, dtype=flat.dtype)
+        def evaluate(grad: bool) -> float:
+            return self._energy_and_gradient(energy, samples, z, grad=grad)
 
-        before = self._energy_and_gradient(energy, samples, z, grad=False)
-        opt.step(closure)
-        field.set_flat(flat.detach())
-        after = self._energy_and_gradient(energy, samples, z, grad=False)
+        before, after = lbfgs(field, evaluate, self.config.lbfgs_iterations, history_size=30)
         log.info("conditioned L-BFGS polish: mean Π %.8g -> %.8g J", before, after)
 
     def _newton(self, energy: ShellEnergy, generator: torch.Generator):
@@ -339,12 +333,10 @@ class ConditionedEquilibrium:
         samples, z = self.quasi_samples(cfg.newton_samples, generator, dtype, device,
                                         cfg.newton_point_load_copies)
         samples = self._weighted(samples, z)
-        stiffness = self.stiffness(z)
-
-        def potential(s, u, grad):
-            return energy.evaluate(s, u, grad=grad, stiffness=stiffness)
-
-        return solve_last_layer(self.field, self.model.boundary, potential, samples, 1.0,
+        objective = Objective(ShellEnergyTerm(energy.material, energy.loads,
+                                              stiffness=self.stiffness(z)))
+        return solve_last_layer(self.field, self.model.boundary, objective.potential(1.0),
+                                samples, 1.0,
                                 NewtonConfig(iterations=cfg.newton_iterations),
                                 conditioning=z)
 
@@ -357,10 +349,10 @@ class ConditionedEquilibrium:
         """Equilibrium positions x*(ξ; θ) (N, 3) [m] at ξ (N, 2) for coordinates z (p,)."""
         xi = xi.to(self.field.parameters[0].dtype)
         r = self.model.surface.jets(xi)[:, jets.VALUE]
-        return r + self.model.displacement(self.field, xi, conditioning=self._conditioning(xi, z))
+        return r + self.operator.displacement(xi, conditioning=self._conditioning(xi, z))
 
     def position_jets(self, xi: torch.Tensor, z) -> torch.Tensor:
         """Jets (N, 6, 3) of x*(ξ; θ) [m] (for projections onto the surface)."""
         xi = xi.to(self.field.parameters[0].dtype)
-        u = self.model.displacement_jets(self.field, xi, conditioning=self._conditioning(xi, z))
+        u = self.operator.jets(xi, conditioning=self._conditioning(xi, z))
         return self.model.surface.jets(xi) + u

@@ -17,36 +17,20 @@ unknowns, so ∂/∂z_j = θ_j ∂/∂θ_j; the value itself for signed ones: fo
 dx/dz = J_obs da*/dz exactly. Without correspondence (point clouds) the residual is the signed
 distance n · (x(ξ_k) − p_k) at the closest point ξ_k (as `bilevel`), its derivative n · dx/dz.
 
-Outer problem: Levenberg–Marquardt on the residuals (metres) over z, unbounded (no box: every
-iterate is an exact re-solve, so nothing limits where z may go), each step capped at
-`max_step` in normalised coordinates (ln θ; a signed unknown over the magnitude of its vector
-group at the start) and accepted only if the misfit falls. Stops on a relative step below
-`tolerance`.
-
-Uncertainty: the Fisher matrix of the implicit Jacobian (`identifiability.analyse`) assumes an
-exact forward model. The forward model's own error (its basis: the features) is measured by
-repeating the estimate with feature seeds `seeds` (and `widths`); the estimate is the mean over
-the bases (in z), and the reported standard error combines in quadrature the Fisher standard
-error with the standard deviation of the estimates over the bases. An unknown whose combined
-relative standard deviation exceeds `identifiability.UNDETERMINED_STD` is undetermined.
+The outer problem (Levenberg–Marquardt over z, uncertainty over feature bases) is
+`inverse.material.implicit_fit`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from inverse.material.bilevel import _project, gravity_ratios
-from inverse.material.conditioned import to_coordinates, to_values
-from inverse.material.identifiability import UNDETERMINED_STD, Identifiability, analyse
-from inverse.material.observations import Observation
-from inverse.material.residual import Estimate, _groups
 from inverse.material.unknowns import Unknown, apply, term_gradients
 from taichi_ndf import checks, jets
 from taichi_ndf.field import FieldConfig, NeuralField
@@ -59,13 +43,11 @@ from taichi_ndf.newton import (
     parameter_gradient,
     solve_last_layer,
 )
-from taichi_ndf.sampling import SurfaceSamples, with_point_loads
-from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.sampling import SurfaceSamples, sobol, unit_to_domain, with_point_loads
 
 log = logging.getLogger(__name__)
 
-# Levenberg–Marquardt trials per outer iteration (damping × 10 after each rejected one).
-LM_ATTEMPTS = 6
 
 
 @dataclass(frozen=True)
@@ -150,10 +132,7 @@ def sobol_samples(model: ShellModel, n: int, seed: int, dtype=torch.float64) -> 
     dropped, weight |Ω| / kept), then one zero-weight sample per point load of the model, in
     the model's order, with its force."""
     domain = model.surface.domain
-    (lo1, hi1), (lo2, hi2) = domain.bounds
-    unit = torch.quasirandom.SobolEngine(2, scramble=True, seed=seed).draw(n).to(dtype)
-    xi = torch.stack((lo1 + (hi1 - lo1) * unit[:, 0], lo2 + (hi2 - lo2) * unit[:, 1]), dim=1)
-    xi = xi[domain.contains(xi)]
+    xi, _ = unit_to_domain(domain, sobol(2, n, seed, dtype))
     weight = torch.full((len(xi),), domain.area / len(xi), dtype=dtype)
     return with_point_loads(model.surface, xi, weight, model.loads)
 
@@ -180,8 +159,8 @@ class ImplicitEquilibrium:
             output_scale=config.output_scale), seed=seed)
         dtype = self.field.parameters[0].dtype
         with torch.no_grad():  # the reference state: the first solve starts from u = 0
-            self.field.parameters[-2].zero_()
-            self.field.parameters[-1].zero_()
+            for p in self.field.output_layer():
+                p.zero_()
         self.samples = sobol_samples(model, config.samples, seed, dtype)
         self.values: np.ndarray | None = None  # θ of the current solution
         self.newton_steps = 0
@@ -190,12 +169,12 @@ class ImplicitEquilibrium:
 
     # -- state of the output layer --------------------------------------------------------------
     def state(self) -> list[torch.Tensor]:
-        return [self.field.parameters[-2].clone(), self.field.parameters[-1].clone()]
+        return [p.clone() for p in self.field.output_layer()]
 
     def set_state(self, state: list[torch.Tensor], values) -> None:
         with torch.no_grad():
-            self.field.parameters[-2].copy_(state[0])
-            self.field.parameters[-1].copy_(state[1])
+            for p, saved in zip(self.field.output_layer(), state, strict=True):
+                p.copy_(saved)
         self.values = None if values is None else np.array(values, dtype=np.float64)
 
     # -- inner problem --------------------------------------------------------------------------
@@ -209,12 +188,8 @@ class ImplicitEquilibrium:
             forces[-len(loads.point_loads):] = torch.tensor(
                 [p.force for p in loads.point_loads], dtype=forces.dtype)
             samples = dataclasses.replace(samples, point_force=forces)
-        energy = ShellEnergy(loaded.material, loads)
-
-        def potential(s, u, grad):
-            return energy.evaluate(s, u, grad=grad)
-
-        return samples, potential
+        # The loads are scaled here already (the samples carry the point forces).
+        return samples, Objective(ShellEnergyTerm(loaded.material, loads)).potential(1.0)
 
     def _newton(self, iterations: int | None = None) -> NewtonConfig:
         return NewtonConfig(iterations=iterations or self.config.newton_iterations,
@@ -233,7 +208,7 @@ class ImplicitEquilibrium:
             self.set_state(self._first[1], values)
             return 0
         if self.values is None or from_reference:
-            self.set_state([torch.zeros_like(p) for p in self.field.parameters[-2:]], None)
+            self.set_state([torch.zeros_like(p) for p in self.field.output_layer()], None)
             for factor in self.config.load_steps:
                 samples, potential = self._system(values, factor)
                 steps += solve_last_layer(self.field, self.model.boundary, potential, samples,
@@ -242,9 +217,10 @@ class ImplicitEquilibrium:
                 self._first = (values, self.state())
         else:
             if prediction is not None:
+                weight, bias = self.field.output_layer()
                 with torch.no_grad():
-                    self.field.parameters[-2].add_(prediction[:, :-1])
-                    self.field.parameters[-1].add_(prediction[:, -1])
+                    weight.add_(prediction[:, :-1])
+                    bias.add_(prediction[:, -1])
             samples, potential = self._system(values, 1.0)
             steps += solve_last_layer(self.field, self.model.boundary, potential, samples, 1.0,
                                       self._newton(self.config.resolve_iterations)).steps
@@ -274,7 +250,7 @@ class ImplicitEquilibrium:
     # -- observation space ----------------------------------------------------------------------
     def position_jets(self, xi: torch.Tensor, z=None) -> torch.Tensor:
         """Jets (N, 6, 3) of the current equilibrium positions [m] (z: ignored, for the
-        interface of `bilevel._project`)."""
+        interface of `bilevel.closest_surface_points`)."""
         xi = xi.to(self.field.parameters[0].dtype)
         return self.model.surface.jets(xi) + self.model.displacement_jets(self.field, xi)
 
@@ -288,219 +264,3 @@ class ImplicitEquilibrium:
         xi = xi.to(self.field.parameters[0].dtype)
         _, jacobian = output_jacobian(self.field, self.model.boundary, xi, 1.0)
         return torch.einsum("kna,kaj->nkj", jacobian[:, :, jets.VALUE], sensitivity)
-
-
-def residuals(equilibrium: ImplicitEquilibrium, observation: Observation, grid: int,
-              sensitivity: torch.Tensor | None = None
-              ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Residuals [m] of the current equilibrium against an observation (module docstring) and,
-    given da*/dz, their Jacobian (R, p) in z."""
-    points = observation.points.to(equilibrium.field.parameters[0].dtype)
-    if observation.xi is not None:
-        xi = observation.xi
-        r = (equilibrium.positions(xi) - points).reshape(-1)
-        if sensitivity is None:
-            return r.numpy(), None
-        dx = equilibrium.position_sensitivity(xi, sensitivity)
-        return r.numpy(), dx.reshape(-1, dx.shape[-1]).numpy()
-    xi = _project(equilibrium, None, points, grid)
-    x = equilibrium.position_jets(xi)
-    normal = torch.linalg.cross(x[:, jets.D1], x[:, jets.D2], dim=-1)
-    normal = normal / normal.norm(dim=1, keepdim=True)
-    r = ((x[:, jets.VALUE] - points) * normal).sum(dim=1)
-    if sensitivity is None:
-        return r.numpy(), None
-    dx = equilibrium.position_sensitivity(xi, sensitivity)
-    return r.numpy(), torch.einsum("nk,nkj->nj", normal, dx).numpy()
-
-
-@dataclass
-class BasisFit:
-    """The outer fit on one feature basis: values, z, residuals and Jacobian in z at the end,
-    outer iterations, Newton steps, time [s]."""
-
-    seed: int
-    width: int
-    values: np.ndarray
-    z: np.ndarray
-    residuals: np.ndarray
-    jacobian: np.ndarray
-    iterations: int
-    newton_steps: int
-    time: float
-    converged: bool
-
-
-@dataclass
-class ImplicitResult:
-    """The combined estimate, the per-basis fits, the forward models (one list per basis,
-    one per observation), the spread of the per-basis estimates (absolute, per unknown) and
-    the Fisher standard errors of the first basis; `ratios` and `notes` as `BilevelResult`."""
-
-    estimate: Estimate
-    fits: list[BasisFit]
-    equilibria: list[list[ImplicitEquilibrium]]
-    fisher_errors: np.ndarray
-    spread: np.ndarray
-    ratios: dict[str, tuple[float, float]] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    def fitted_positions(self, index: int, xi: torch.Tensor) -> torch.Tensor:
-        """Equilibrium positions (N, 3) [m] of observation `index` on the first basis."""
-        return self.equilibria[0][index].positions(xi)
-
-
-def _evaluate(equilibria, observations, grid, jacobian: bool):
-    rs, js, sens = [], [], []
-    for eq, obs in zip(equilibria, observations, strict=True):
-        s = eq.sensitivity() if jacobian else None
-        r, j = residuals(eq, obs, grid, s)
-        rs.append(r)
-        js.append(j)
-        sens.append(s)
-    r = np.concatenate(rs)
-    return r, (np.concatenate(js) if jacobian else None), sens
-
-
-def fit_basis(equilibria: list[ImplicitEquilibrium], observations: list[Observation],
-              unknowns: list[Unknown], start_values: np.ndarray,
-              config: ImplicitConfig) -> BasisFit:
-    """Levenberg–Marquardt over z on one feature basis, from the start values."""
-    t0 = time.perf_counter()
-    steps0 = sum(eq.newton_steps for eq in equilibria)
-    grid = config.projection_grid
-    z = np.array(to_coordinates(unknowns, start_values))
-    positive = np.array([u.positive for u in unknowns])
-    norm = np.where(positive, 1.0, _groups(unknowns, start_values))
-    for eq in equilibria:
-        eq.solve(start_values, from_reference=True)
-    r, jac, sens = _evaluate(equilibria, observations, grid, True)
-    cost = float(r @ r)
-    mu, iterations, converged = 1e-3, 0, False
-    for iterations in range(1, config.max_iterations + 1):
-        js = jac * norm
-        a, g = js.T @ js, js.T @ r
-        states = [eq.state() for eq in equilibria]
-        accepted = False
-        for _attempt in range(LM_ATTEMPTS):
-            damped = a + mu * np.diag(np.maximum(np.diag(a), 1e-30 * np.trace(a) + 1e-300))
-            step = -np.linalg.solve(damped, g)
-            largest = float(np.abs(step).max())
-            if largest > config.max_step:
-                step *= config.max_step / largest
-            dz = step * norm
-            trial = z + dz
-            values = np.array(to_values(unknowns, trial))
-            for eq, s in zip(equilibria, sens, strict=True):
-                eq.solve(values, prediction=torch.einsum("kaj,j->ka", s, torch.from_numpy(dz)))
-            r_trial, _, _ = _evaluate(equilibria, observations, grid, False)
-            cost_trial = float(r_trial @ r_trial)
-            if math.isfinite(cost_trial) and cost_trial < cost:
-                accepted = True
-                mu = max(mu / 3, 1e-9)
-                break
-            for eq, state in zip(equilibria, states, strict=True):
-                eq.set_state(state, to_values(unknowns, z))
-            mu *= 10
-        if not accepted:
-            converged = True  # no step lowers the misfit: a minimum within rounding
-            log.info("implicit fit: no step lowers the misfit at iteration %d", iterations)
-            break
-        relative = cost - cost_trial
-        z, cost = trial, cost_trial
-        r, jac, sens = _evaluate(equilibria, observations, grid, True)
-        log.info("implicit fit (seed %d) iteration %d: %s, rms %.4g m, step %.3g, mu %.2g",
-                 equilibria[0].seed, iterations,
-                 dict(zip([u.name for u in unknowns], to_values(unknowns, z), strict=True)),
-                 math.sqrt(cost / len(r)), float(np.abs(step).max()), mu)
-        if float(np.abs(step).max()) < config.tolerance or relative <= 1e-14 * cost:
-            converged = True
-            break
-    return BasisFit(seed=equilibria[0].seed, width=equilibria[0].field.config.width,
-                    values=np.array(to_values(unknowns, z)), z=z, residuals=r, jacobian=jac,
-                    iterations=iterations,
-                    newton_steps=sum(eq.newton_steps for eq in equilibria) - steps0,
-                    time=time.perf_counter() - t0, converged=converged)
-
-
-def _check(observations: list[Observation], unknowns: list[Unknown], start) -> np.ndarray:
-    if not observations:
-        raise ValueError("need at least one observation")
-    names = [u.name for u in unknowns]
-    model0 = observations[0].model
-    values = np.array([u.value(model0) for u in unknowns] if start is None else start,
-                      dtype=np.float64)
-    positive = np.array([u.positive for u in unknowns])
-    if values.shape != (len(unknowns),) or not np.all(np.isfinite(values)) or \
-            not np.all(values[positive] > 0):
-        raise ValueError(f"start values must be finite, one per unknown {names} and positive "
-                         f"for {[n for n, p in zip(names, positive, strict=True) if p]}, got "
-                         f"{values.tolist()}")
-    return values
-
-
-def implicit_estimate(observations: list[Observation], unknowns: list[Unknown],
-                      config: ImplicitConfig = ImplicitConfig(), *,
-                      start: list[float] | None = None,
-                      equilibria: list[list[ImplicitEquilibrium]] | None = None
-                      ) -> ImplicitResult:
-    """Estimate any unknowns of `parse_unknowns` by fitting Newton equilibria, one outer fit
-    per feature basis of `config` (module docstring).
-
-    start: start values (default: the first observation's model values).
-    equilibria: forward models from an earlier result for the same conditions (one list per
-        basis, one per observation): their start solution is reused."""
-    t0 = time.perf_counter()
-    start_values = _check(observations, unknowns, start)
-    names = [u.name for u in unknowns]
-    positive = np.array([u.positive for u in unknowns])
-    bases = config.bases()
-    if equilibria is None:
-        equilibria = [[ImplicitEquilibrium(obs.model, unknowns, config, seed, width)
-                       for obs in observations] for seed, width in bases]
-    elif len(equilibria) != len(bases) or any(len(e) != len(observations) for e in equilibria):
-        raise ValueError(f"need one forward model per basis ({len(bases)}) and observation "
-                         f"({len(observations)})")
-    fits = [fit_basis(eqs, observations, unknowns, start_values, config) for eqs in equilibria]
-    zs = np.array([f.z for f in fits])
-    z = zs.mean(axis=0)
-    values = np.array(to_values(unknowns, z))
-    scale = _groups(unknowns, values)
-    norm = np.where(positive, 1.0, scale)  # normalised coordinates: ln θ, or θ / |group|
-    spread_std = (zs.std(axis=0, ddof=1) / norm if len(fits) > 1
-                  else np.zeros(len(unknowns)))
-    first = fits[0]
-    r = first.residuals
-    dof = max(len(r) - len(unknowns), 1)
-    sigma2 = float(r @ r) / dof
-    ident = analyse(first.jacobian * norm, sigma2, names, positive.tolist())
-    fisher_std = ident.std.copy()
-    combined = np.sqrt(fisher_std**2 + spread_std**2)
-    ident = Identifiability(ident.fisher, ident.eigenvalues, ident.eigenvectors, combined,
-                            [bool(c < UNDETERMINED_STD) for c in combined], ident.combinations)
-    notes = []
-    if len(fits) > 1:
-        notes.append(
-            f"standard errors combine in quadrature the Fisher error (exact forward model) and "
-            f"the standard deviation of the estimates over {len(fits)} feature bases "
-            f"(seed, width) {[(f.seed, f.width) for f in fits]}")
-    else:
-        notes.append("one feature basis: the standard errors are Fisher errors only and "
-                     "ignore the forward model's error")
-    for f in fits:
-        if not f.converged:
-            notes.append(f"basis (seed {f.seed}, width {f.width}) stopped at the iteration "
-                         f"limit ({f.iterations}) before the step fell below the tolerance")
-    errors = np.where(ident.determined, combined * scale, np.inf)
-    rms = math.sqrt(float(r @ r) / max(len(r), 1))
-    elapsed = time.perf_counter() - t0
-    estimate = Estimate(unknowns, values, errors, ident, rms, sum(f.iterations for f in fits),
-                        elapsed, "bilevel_implicit_function")
-    ratios, note = gravity_ratios(observations, unknowns, values, ident)
-    result = ImplicitResult(estimate, fits, equilibria, np.where(
-        np.isfinite(fisher_std), fisher_std * scale, np.inf), spread_std * scale,
-        ratios=ratios, notes=notes + note)
-    log.info("implicit estimate: %s ± %s (bases %s; rms misfit %.3g m, %.1f s)",
-             dict(zip(names, values.tolist(), strict=True)), errors.tolist(),
-             [f.values.tolist() for f in fits], rms, elapsed)
-    return result

@@ -32,6 +32,7 @@ from inverse.material.identifiability import Identifiability, analyse
 from inverse.material.observations import Observation
 from inverse.material.shape_fit import FittedShape, fit_shape
 from inverse.material.unknowns import Unknown, residual_samples, term_gradients
+from taichi_ndf.operator import DisplacementOperator
 
 log = logging.getLogger(__name__)
 
@@ -93,15 +94,17 @@ def equilibrium_system(shape: FittedShape, unknowns: list[Unknown],
     columns, rest = term_gradients(model, unknowns, samples, u_jets)
     virtual = LegendreBasis(model.surface.domain.bounds, config.virtual_degree).jets(samples.xi)
 
+    composition = DisplacementOperator(None, model.boundary)
+
     def rows(grad_u: torch.Tensor) -> torch.Tensor:
-        grad_raw = model.boundary.compose_adjoint(samples.xi, grad_u)
+        grad_raw = composition.raw_gradient(samples.xi, grad_u)
         return torch.einsum("nck,ncj->kj", grad_raw, virtual).reshape(-1)
 
     a = torch.stack([rows(c) for c in columns], dim=1)
     return a.numpy(), -rows(rest).numpy()
 
 
-def _groups(unknowns: list[Unknown], values: np.ndarray) -> np.ndarray:
+def unknown_scales(unknowns: list[Unknown], values: np.ndarray) -> np.ndarray:
     """Scale of each unknown's normalised coordinate: |θ| (log) or |vector group|."""
     scale = np.empty(len(unknowns))
     for j, u in enumerate(unknowns):
@@ -117,10 +120,9 @@ def residual_estimate(observations: list[Observation], unknowns: list[Unknown],
                       config: ResidualConfig = ResidualConfig()) -> Estimate:
     """Estimate the unknowns from observed equilibrium shapes (see module docstring)."""
     for obs in observations:
-        if obs.model.boundary.free_pin is not None:
-            raise ValueError("the residual method does not support a free pin (pinned point, "
-                             "rotation = 'free'): its virtual displacements are not made to "
-                             "vanish there; use --method implicit or rotation = 'held'")
+        DisplacementOperator(None, obs.model.boundary).refuse_free_pin(
+            "the residual method", ": its virtual displacements are not made to vanish there; "
+            "use --method implicit or rotation = 'held'")
     start = time.perf_counter()
     shapes, blocks_a, blocks_b = [], [], []
     for obs in observations:
@@ -152,7 +154,7 @@ def residual_estimate(observations: list[Observation], unknowns: list[Unknown],
     residual = a @ values - b
     dof = max(len(b) - len(unknowns) + (gauge is not None), 1)
     sigma2 = float(residual @ residual) / dof
-    scale = _groups(unknowns, values)
+    scale = unknown_scales(unknowns, values)
     ident = analyse(a * scale, sigma2, names, positive)
     if gauge is not None:
         # Only ratios are determined: the common factor was fixed by hand, not by the data.

@@ -16,12 +16,11 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from inverse.material.basis import LegendreBasis
 from inverse.material.observations import Observation
+from inverse.material.projection import closest_points, grid_seeds, nearest_seeds
 from taichi_ndf import jets
 
 log = logging.getLogger(__name__)
@@ -78,21 +77,11 @@ def _solve(model, basis: LegendreBasis, roughness: torch.Tensor, xi: torch.Tenso
 
 def _project(shape: FittedShape, points: torch.Tensor, xi0: torch.Tensor,
              steps: int = 4) -> torch.Tensor:
-    """Surface coordinates of the closest surface points to `points`: Gauss–Newton on
-    |x(ξ) − p|² from xi0, clipped to the domain."""
-    (lo1, hi1), (lo2, hi2) = shape.observation.model.surface.domain.bounds
-    lo = xi0.new_tensor([lo1, lo2])
-    hi = xi0.new_tensor([hi1, hi2])
-    xi = xi0.clone()
+    """Surface coordinates of the closest points of the fitted surface to `points`
+    (`projection.closest_points`)."""
     surface = shape.observation.model.surface
-    for _ in range(steps):
-        x_jets = surface.jets(xi) + shape.displacement_jets(xi)
-        tangent = x_jets[:, [jets.D1, jets.D2]]  # (N, 2, 3)
-        gap = points - x_jets[:, jets.VALUE]
-        normal = tangent @ tangent.transpose(1, 2)
-        rhs = (tangent @ gap[:, :, None])[:, :, 0]
-        xi = torch.minimum(torch.maximum(xi + torch.linalg.solve(normal, rhs), lo), hi)
-    return xi
+    return closest_points(lambda xi: surface.jets(xi) + shape.displacement_jets(xi),
+                          surface.domain.bounds, points, xi0, steps)
 
 
 def fit_shape(observation: Observation, *, degree: int = 10, smoothing: float = 1e-11,
@@ -121,17 +110,9 @@ def fit_shape(observation: Observation, *, degree: int = 10, smoothing: float = 
     else:
         shape = FittedShape(observation, basis, torch.zeros(basis.size, 3, dtype=torch.float64),
                             float("nan"))
-        (lo1, hi1), (lo2, hi2) = model.surface.domain.bounds
-        g1, g2 = torch.meshgrid(torch.linspace(lo1, hi1, grid, dtype=torch.float64),
-                                torch.linspace(lo2, hi2, grid, dtype=torch.float64),
-                                indexing="ij")
-        seeds = torch.stack([g1.ravel(), g2.ravel()], dim=1)
-        inside = model.surface.domain.contains(seeds)
-        seeds = seeds[inside]
+        seeds = grid_seeds(model.surface.domain, grid, torch.float64)
         for it in range(icp_iterations):
-            tree = cKDTree(shape.positions(seeds).numpy())
-            _, nearest = tree.query(points.numpy())
-            xi = _project(shape, points, seeds[torch.from_numpy(np.asarray(nearest))])
+            xi = _project(shape, points, nearest_seeds(seeds, shape.positions(seeds), points))
             shape.coefficients = _solve(model, basis, roughness, xi, points, smoothing)
             log.debug("ICP iteration %d: rms %.3g m", it,
                       float((shape.positions(xi) - points).norm(dim=1).square().mean().sqrt()))

@@ -48,6 +48,7 @@ from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.loads import Loads
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.optim import Adam, AdamConfig
 from taichi_ndf.sampling import sample_surface
 from taichi_ndf.shell.energy import ShellEnergy
@@ -142,16 +143,17 @@ class FieldReconstructor:
             seed=cfg.seed,
         )
         # A zero output layer makes u ≡ 0 (the template) before the first frame is fitted.
-        self.field.parameters[-2].zero_()
-        self.field.parameters[-1].zero_()
+        for p in self.field.output_layer():
+            p.zero_()
         self.ftype = self.field.dtype
         material = preset(cfg.material)
         self.energy = ShellEnergy(material, Loads())
         self.energy_reference = 0.5 * material.bending_stiffness
-        self.conditions = None
+        conditions = None
         if pinned is not None and len(pinned):
             points = [PinnedPoint(xi=tuple(float(c) for c in template.uvs[i])) for i in pinned]
-            self.conditions = BoundaryConditions(points, self.surface.domain)
+            conditions = BoundaryConditions(points, self.surface.domain)
+        self.operator = DisplacementOperator(self.field, conditions)
         self.vertex_xi = torch.from_numpy(template.uvs).to(self.ftype)
         self.rest = torch.from_numpy(template.vertices)
         self.K = torch.from_numpy(camera.K)
@@ -159,18 +161,9 @@ class FieldReconstructor:
 
     # -- field evaluation ------------------------------------------------------------------
 
-    def _jets(self, xi: torch.Tensor) -> torch.Tensor:
-        raw = self.field.jets(xi)
-        return raw if self.conditions is None else self.conditions.compose(xi, raw)
-
-    def _backward(self, xi: torch.Tensor, grad: torch.Tensor) -> None:
-        if self.conditions is not None:
-            grad = self.conditions.compose_adjoint(xi, grad)
-        self.field.backward(grad.to(self.ftype))
-
     def vertices(self) -> np.ndarray:
         """Current surface at the template vertices [m], shape (n, 3), template order."""
-        u = self._jets(self.vertex_xi)[:, jets.VALUE].double()
+        u = self.operator.jets(self.vertex_xi)[:, jets.VALUE].double()
         return (self.rest + u).numpy()
 
     # -- one frame ---------------------------------------------------------------------------
@@ -213,7 +206,7 @@ class FieldReconstructor:
                                      dtype=self.ftype)
             n_energy = len(samples)
             xi = torch.cat([samples.xi, track_xi.to(self.ftype), self.vertex_xi])
-            u_jets = self._jets(xi)
+            u_jets = self.operator.jets(xi)
             grad = torch.zeros_like(u_jets, dtype=torch.float64)
 
             u = u_jets[n_energy:, jets.VALUE].double().requires_grad_(True)
@@ -235,7 +228,7 @@ class FieldReconstructor:
                 result = self.energy.evaluate(samples, u_jets[:n_energy])
                 grad[:n_energy] = lam * result.grad_u_jets.double()
                 terms["energy"] = result.internal / self.energy_reference
-            self._backward(xi, grad)
+            self.operator.backward(grad)
             optimiser.step()
         return self.vertices(), terms
 
@@ -246,11 +239,11 @@ class FieldReconstructor:
         optimiser = Adam(self.field.parameters, self.field.gradients, config=AdamConfig(
             lr=cfg.lr, schedule="cosine", total_steps=cfg.init_steps, min_lr=cfg.min_lr))
         for _ in range(cfg.init_steps):
-            u_jets = self._jets(self.vertex_xi)
+            u_jets = self.operator.jets(self.vertex_xi)
             grad = torch.zeros_like(u_jets, dtype=torch.float64)
             difference = u_jets[:, jets.VALUE].double() - goal
             grad[:, jets.VALUE] = 2.0 * difference / (len(goal) * self.mean_edge**2)
-            self._backward(self.vertex_xi, grad)
+            self.operator.backward(grad)
             optimiser.step()
 
 

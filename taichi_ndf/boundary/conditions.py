@@ -45,9 +45,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from taichi_ndf import jets
@@ -62,41 +60,16 @@ from taichi_ndf.boundary.constraints import (
     PinnedPoint,
     RimRotation,
 )
+from taichi_ndf.boundary.resolution import (
+    ResolvedConstraint,
+    check_contradictions,
+    resolve,
+    to_eta,
+)
+from taichi_ndf.boundary.segments import (
+    rotations,
+)
 from taichi_ndf.geometry import ParameterDomain, ReferenceSurface
-
-# Distance (in η) below which two constraint sets count as touching.
-_TOUCH_TOL = 1e-9
-# Points tested along a segment to decide that it lies inside a masked domain.
-_SEGMENT_PROBES = 65
-
-_EDGE_SETS = {
-    "xi1_min": ((0.0, 0.0), (0.0, 1.0)),
-    "xi1_max": ((1.0, 0.0), (1.0, 1.0)),
-    "xi2_min": ((0.0, 0.0), (1.0, 0.0)),
-    "xi2_max": ((0.0, 1.0), (1.0, 1.0)),
-}
-
-Segment = tuple[tuple[float, float], tuple[float, float]]
-
-
-@dataclass(frozen=True)
-class _Term:
-    """A constraint resolved against the domain."""
-
-    constraint: Constraint
-    length: float
-    where: tuple[Segment, ...]  # the constrained set in η, points as zero-length segments
-    prescribes: frozenset[int]  # components (0, 1, 2) with a non-zero prescribed displacement
-
-    @property
-    def linear(self) -> bool:
-        """Whether the factor vanishes linearly (odd, changes sign across the set)."""
-        con = self.constraint
-        return isinstance(con, HingedEdge) or (isinstance(con, InteriorLine) and con.hinged)
-
-    @property
-    def components(self) -> frozenset[int]:
-        return frozenset(COMPONENTS.index(c) for c in self.constraint.components)
 
 
 class BoundaryConditions:
@@ -150,10 +123,10 @@ class BoundaryConditions:
         self.free_pin: PinnedPoint | None = free[0] if free else None
         # A free pin has no vanishing factor: it is resolved (checked) but not a term.
         self._terms = tuple(
-            term for term in (self._resolve(c) for c in self.constraints)
+            term for term in (resolve(c, domain, surface, self.length) for c in self.constraints)
             if term.constraint is not self.free_pin
         )
-        self._check_contradictions()
+        check_contradictions(self._terms, domain)
 
     # ---- composition -------------------------------------------------------------------
 
@@ -313,7 +286,7 @@ class BoundaryConditions:
                 delta[:, k] -= torch.round(delta[:, k])
         return delta
 
-    def _factor(self, term: _Term, xi: torch.Tensor) -> torch.Tensor:
+    def _factor(self, term: ResolvedConstraint, xi: torch.Tensor) -> torch.Tensor:
         """Jets (N, 6, 1) of the vanishing factor of one constraint."""
         con, ell = term.constraint, term.length
         eta, scale = self._eta(xi)
@@ -327,7 +300,7 @@ class BoundaryConditions:
                 return vanishing.linear_vanishing(s)
             return vanishing.quadratic_vanishing(vanishing.square(s))
         if isinstance(con, (PinnedPoint, Handle)):
-            p = torch.tensor(self._to_eta(con.xi), dtype=xi.dtype, device=xi.device)
+            p = torch.tensor(to_eta(self.domain, con.xi), dtype=xi.dtype, device=xi.device)
             delta = self._wrap(eta - p)
             d1 = vanishing.affine(delta[:, 0], scale[0], 0.0)
             d2 = vanishing.affine(delta[:, 1], 0.0, scale[1])
@@ -335,7 +308,7 @@ class BoundaryConditions:
                 (vanishing.square(d1) + vanishing.square(d2)) / ell**2
             )
         if isinstance(con, InteriorLine):
-            a, b = self._to_eta(con.start), self._to_eta(con.end)
+            a, b = to_eta(self.domain, con.start), to_eta(self.domain, con.end)
             if con.extend:
                 norm = math.hypot(b[0] - a[0], b[1] - a[1])
                 n = (-(b[1] - a[1]) / norm, (b[0] - a[0]) / norm)
@@ -357,7 +330,8 @@ class BoundaryConditions:
             )
         raise TypeError(f"unknown constraint type {type(con).__name__}")
 
-    def _motion(self, term: _Term, xi: torch.Tensor, t: float | torch.Tensor) -> torch.Tensor:
+    def _motion(self, term: ResolvedConstraint, xi: torch.Tensor,
+                t: float | torch.Tensor) -> torch.Tensor:
         """Jets (N, 6, 3) [m] of the displacement a prescribing constraint imposes on its set
         at pseudo-time t (a float, or a tensor (N,) of one t per sample)."""
         con = term.constraint
@@ -365,14 +339,14 @@ class BoundaryConditions:
             p = torch.tensor(con.axis_point, dtype=xi.dtype, device=xi.device)
             r = self.surface.jets(xi).to(xi.dtype)
             if isinstance(t, torch.Tensor):  # one rotation per sample: M_i = R(t_i θ) − I
-                m = _rotations(con.axis, t * con.angle) - torch.eye(3, dtype=xi.dtype,
+                m = rotations(con.axis, t * con.angle) - torch.eye(3, dtype=xi.dtype,
                                                                     device=xi.device)
                 motion = torch.einsum("nkj,nij->nki", r, m)
                 motion[:, jets.VALUE] -= m @ p
                 return motion
-            m = torch.tensor(
-                _rotation(con.axis, t * con.angle) - np.eye(3), dtype=xi.dtype, device=xi.device
-            )
+            angle = torch.tensor([t * con.angle], dtype=torch.float64)
+            m = (rotations(con.axis, angle)[0] - torch.eye(3, dtype=torch.float64)).to(
+                dtype=xi.dtype, device=xi.device)
             motion = r @ m.T
             motion[:, jets.VALUE] -= m @ p
             return motion
@@ -380,138 +354,6 @@ class BoundaryConditions:
         if isinstance(t, torch.Tensor):
             return jets.constant(t[:, None] * d)
         return jets.constant((t * d).expand(xi.shape[0], 3))
-
-    # ---- validation --------------------------------------------------------------------
-
-    def _to_eta(self, xi: tuple[float, float]) -> tuple[float, float]:
-        (lo1, _), (lo2, _) = self.domain.bounds
-        l1, l2 = self.domain.lengths
-        return ((xi[0] - lo1) / l1, (xi[1] - lo2) / l2)
-
-    def _inside(self, points: list[tuple[float, float]]) -> torch.Tensor:
-        return self.domain.contains(torch.tensor(points, dtype=torch.float64))
-
-    def _resolve(self, con: Constraint) -> _Term:
-        name = type(con).__name__
-        ell = self.length if con.length is None else float(con.length)
-        prescribes: frozenset[int] = frozenset()
-        if isinstance(con, (ClampedEdge, HingedEdge, RimRotation)):
-            k = 0 if con.edge.startswith("xi1") else 1
-            if self.domain.periodic[k]:
-                raise ValueError(
-                    f"{name} on edge {con.edge!r}: ξ{k + 1} is periodic, so the domain has no "
-                    "such edge (a periodic direction needs no boundary condition)"
-                )
-            where = (_EDGE_SETS[con.edge],)
-        elif ell >= 0.5:
-            raise ValueError(
-                f"{name}: band length {ell} must be below 0.5 for a point or line (its distance "
-                "is taken to the nearest periodic image); only edges take wider bands"
-            )
-        elif isinstance(con, (PinnedPoint, Handle)):
-            if not bool(self._inside([con.xi])[0]):
-                raise ValueError(f"{name} at ξ={con.xi} lies outside the parameter domain")
-            p = self._to_eta(con.xi)
-            where = ((p, p),)
-        elif isinstance(con, InteriorLine):
-            where = (self._resolve_line(con, ell),)
-        else:
-            raise TypeError(f"unknown constraint type {type(con).__name__}")
-
-        if isinstance(con, RimRotation):
-            if self.surface is None:
-                raise ValueError("RimRotation needs the reference surface: pass surface=...")
-            if con.angle != 0.0:
-                axis = np.asarray(con.axis) / np.linalg.norm(con.axis)
-                # The row c of R − I vanishes for every angle only if the axis is along c.
-                prescribes = frozenset(
-                    COMPONENTS.index(c)
-                    for c in con.components
-                    if abs(abs(axis[COMPONENTS.index(c)]) - 1.0) > 1e-14
-                )
-        elif isinstance(con, (ClampedEdge, HingedEdge, Handle)):
-            prescribes = frozenset(
-                COMPONENTS.index(c)
-                for c in con.components
-                if con.displacement[COMPONENTS.index(c)] != 0.0
-            )
-        return _Term(constraint=con, length=ell, where=where, prescribes=prescribes)
-
-    def _resolve_line(self, con: InteriorLine, ell: float) -> Segment:
-        a, b = self._to_eta(con.start), self._to_eta(con.end)
-        periodic = self.domain.periodic
-        if con.extend:
-            axis_parallel = a[0] == b[0] or a[1] == b[1]
-            if any(periodic) and not axis_parallel:
-                raise ValueError(
-                    f"InteriorLine through {con.start} and {con.end}: on a domain with a periodic "
-                    "coordinate a whole line must be parallel to a coordinate axis"
-                )
-            for k in range(2):
-                # The line crosses the periodic coordinate k when it is normal to it.
-                if periodic[k] and a[k] == b[k] and con.hinged:
-                    raise ValueError(
-                        f"InteriorLine through {con.start} and {con.end}: a hinged line across "
-                        f"the periodic coordinate ξ{k + 1} is impossible (a smooth periodic φ "
-                        "changes sign an even number of times); use hinged=False"
-                    )
-            clipped = _clip_to_unit_square(a, b)
-            if clipped is None:
-                raise ValueError(
-                    f"InteriorLine through {con.start} and {con.end} misses the domain"
-                )
-            if self.domain.inside is not None:
-                probes = _points_along(self._from_eta(clipped[0]), self._from_eta(clipped[1]))
-                if not bool(self._inside(probes).any()):
-                    raise ValueError(
-                        f"InteriorLine through {con.start} and {con.end} misses the domain's mask"
-                    )
-            return clipped
-        probes = _points_along(con.start, con.end)
-        if not bool(self._inside(probes).all()):
-            raise ValueError(
-                f"InteriorLine from {con.start} to {con.end} leaves the parameter domain"
-            )
-        for k in range(2):
-            if periodic[k] and abs(b[k] - a[k]) + 2 * ell >= 1.0:
-                raise ValueError(
-                    f"InteriorLine from {con.start} to {con.end}: with its band (length {ell}) it "
-                    f"spans the whole period of ξ{k + 1}; use extend=True for a closed line"
-                )
-        return (a, b)
-
-    def _from_eta(self, eta: tuple[float, float]) -> tuple[float, float]:
-        (lo1, _), (lo2, _) = self.domain.bounds
-        l1, l2 = self.domain.lengths
-        return (lo1 + l1 * eta[0], lo2 + l2 * eta[1])
-
-    def _check_contradictions(self) -> None:
-        for i, first in enumerate(self._terms):
-            for second in self._terms[i + 1 :]:
-                shared = first.components & second.components
-                if not shared & (first.prescribes | second.prescribes):
-                    continue
-                if self._distance(first.where, second.where) <= _TOUCH_TOL:
-                    comps = "".join(COMPONENTS[c] for c in sorted(shared))
-                    raise ValueError(
-                        f"contradictory constraints on component(s) {comps!r}: "
-                        f"{first.constraint} and {second.constraint} meet, and at least one "
-                        "prescribes a displacement there"
-                    )
-
-    def _distance(self, first: tuple[Segment, ...], second: tuple[Segment, ...]) -> float:
-        shifts = [
-            (s1, s2)
-            for s1 in ((-1, 0, 1) if self.domain.periodic[0] else (0,))
-            for s2 in ((-1, 0, 1) if self.domain.periodic[1] else (0,))
-        ]
-        best = math.inf
-        for p, q in first:
-            for r, s in second:
-                for d1, d2 in shifts:
-                    shifted = ((r[0] + d1, r[1] + d2), (s[0] + d1, s[1] + d2))
-                    best = min(best, _segment_distance((p, q), shifted))
-        return best
 
 
 def _product(factors: list[torch.Tensor], xi: torch.Tensor) -> torch.Tensor:
@@ -535,67 +377,3 @@ def _pseudo_time(t: float | torch.Tensor, xi: torch.Tensor) -> float | torch.Ten
     if not math.isfinite(t):
         raise ValueError(f"pseudo-time t must be a finite number, got {t!r}")
     return t
-
-
-def _rotations(axis: tuple[float, float, float], angles: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (N, 3, 3) by `angles` (N,) [rad] about `axis` (Rodrigues)."""
-    k = np.asarray(axis, dtype=np.float64)
-    k = k / np.linalg.norm(k)
-    cross = torch.tensor([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]],
-                         dtype=angles.dtype, device=angles.device)
-    eye = torch.eye(3, dtype=angles.dtype, device=angles.device)
-    return (eye + torch.sin(angles)[:, None, None] * cross
-            + (1.0 - torch.cos(angles))[:, None, None] * (cross @ cross))
-
-
-def _rotation(axis: tuple[float, float, float], angle: float) -> np.ndarray:
-    """Rotation matrix (3, 3) by `angle` [rad] about `axis` (Rodrigues)."""
-    k = np.asarray(axis, dtype=np.float64)
-    k = k / np.linalg.norm(k)
-    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * cross + (1.0 - math.cos(angle)) * cross @ cross
-
-
-def _points_along(start, end) -> list[tuple[float, float]]:
-    s = np.linspace(0.0, 1.0, _SEGMENT_PROBES)
-    return [(start[0] + u * (end[0] - start[0]), start[1] + u * (end[1] - start[1])) for u in s]
-
-
-def _clip_to_unit_square(a, b) -> Segment | None:
-    """The part of the infinite line through a and b inside [0, 1]² (Liang–Barsky)."""
-    d = (b[0] - a[0], b[1] - a[1])
-    lo, hi = -math.inf, math.inf
-    for k in range(2):
-        if d[k] == 0.0:
-            if not 0.0 <= a[k] <= 1.0:
-                return None
-            continue
-        t0, t1 = (0.0 - a[k]) / d[k], (1.0 - a[k]) / d[k]
-        lo, hi = max(lo, min(t0, t1)), min(hi, max(t0, t1))
-    if lo > hi:
-        return None
-    return ((a[0] + lo * d[0], a[1] + lo * d[1]), (a[0] + hi * d[0], a[1] + hi * d[1]))
-
-
-def _point_segment_distance(p, a, b) -> float:
-    d = (b[0] - a[0], b[1] - a[1])
-    dd = d[0] ** 2 + d[1] ** 2
-    u = 0.0 if dd == 0.0 else min(1.0, max(0.0, ((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / dd))
-    return math.hypot(p[0] - a[0] - u * d[0], p[1] - a[1] - u * d[1])
-
-
-def _segment_distance(first: Segment, second: Segment) -> float:
-    (p, q), (r, s) = first, second
-
-    def orient(a, b, c):
-        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
-
-    o1, o2, o3, o4 = orient(p, q, r), orient(p, q, s), orient(r, s, p), orient(r, s, q)
-    if o1 * o2 < 0 and o3 * o4 < 0:
-        return 0.0
-    return min(
-        _point_segment_distance(p, r, s),
-        _point_segment_distance(q, r, s),
-        _point_segment_distance(r, p, q),
-        _point_segment_distance(s, p, q),
-    )

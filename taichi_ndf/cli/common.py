@@ -6,10 +6,12 @@ import argparse
 import functools
 import logging
 import math
-import platform
 import sys
 
 import taichi_ndf
+from taichi_ndf.runtime import machine_description
+
+__all__ = ["add_runtime_options", "machine_description", "start"]
 
 
 def _positive_int(text: str) -> int:
@@ -78,14 +80,6 @@ def start(args: argparse.Namespace) -> taichi_ndf.runtime.Runtime:
     torch.set_num_threads(args.threads)
     return taichi_ndf.init(arch=args.arch, precision=args.precision,
                            seed=0 if args.seed is None else args.seed)
-
-
-def machine_description(runtime) -> dict:
-    import os
-
-    return {"python": platform.python_version(), "platform": platform.platform(),
-            "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-            "arch": runtime.arch, "precision": runtime.precision}
 
 
 def interruptible(prog: str):

@@ -162,6 +162,11 @@ class NeuralField(FieldParameters):
         tape.recorded = True
         return out.transpose(0, 1).contiguous()
 
+    def output_layer(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The output layer (W_out (out_dim, width), b_out (out_dim,)): the parameters the
+        raw output is linear in (`last_features`). The tensors themselves, not copies."""
+        return self.parameters[-2], self.parameters[-1]
+
     def last_features(self) -> torch.Tensor:
         """Jets of the last hidden layer's activations from the last ``jets`` call, shape
         (6, N, width), channel-major: the raw output is linear in them, jets[:, c, k] =

@@ -1,0 +1,203 @@
+"""Constraints resolved against a parameter domain: each constraint's set in normalised
+coordinates η ∈ [0, 1]², its band length and the components it prescribes, with the checks
+that it fits the domain and does not contradict another constraint
+(`taichi_ndf.boundary.conditions` builds the vanishing factors from them)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from taichi_ndf.boundary.constraints import (
+    COMPONENTS,
+    ClampedEdge,
+    Constraint,
+    Handle,
+    HingedEdge,
+    InteriorLine,
+    PinnedPoint,
+    RimRotation,
+)
+from taichi_ndf.boundary.segments import (
+    Segment,
+    clip_to_unit_square,
+    points_along,
+    segment_distance,
+)
+from taichi_ndf.geometry import ParameterDomain, ReferenceSurface
+
+# Distance (in η) below which two constraint sets count as touching.
+_TOUCH_TOL = 1e-9
+
+_EDGE_SETS = {
+    "xi1_min": ((0.0, 0.0), (0.0, 1.0)),
+    "xi1_max": ((1.0, 0.0), (1.0, 1.0)),
+    "xi2_min": ((0.0, 0.0), (1.0, 0.0)),
+    "xi2_max": ((0.0, 1.0), (1.0, 1.0)),
+}
+
+@dataclass(frozen=True)
+class ResolvedConstraint:
+    """A constraint resolved against the domain."""
+
+    constraint: Constraint
+    length: float
+    where: tuple[Segment, ...]  # the constrained set in η, points as zero-length segments
+    prescribes: frozenset[int]  # components (0, 1, 2) with a non-zero prescribed displacement
+
+    @property
+    def linear(self) -> bool:
+        """Whether the factor vanishes linearly (odd, changes sign across the set)."""
+        con = self.constraint
+        return isinstance(con, HingedEdge) or (isinstance(con, InteriorLine) and con.hinged)
+
+    @property
+    def components(self) -> frozenset[int]:
+        return frozenset(COMPONENTS.index(c) for c in self.constraint.components)
+
+
+def to_eta(domain: ParameterDomain, xi: tuple[float, float]) -> tuple[float, float]:
+    """Normalised coordinates η = (ξ − lo)/(hi − lo) of a point."""
+    (lo1, _), (lo2, _) = domain.bounds
+    l1, l2 = domain.lengths
+    return ((xi[0] - lo1) / l1, (xi[1] - lo2) / l2)
+
+
+def _inside(domain: ParameterDomain, points: list[tuple[float, float]]) -> torch.Tensor:
+    return domain.contains(torch.tensor(points, dtype=torch.float64))
+
+
+def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface | None,
+            length: float) -> ResolvedConstraint:
+    """The constraint resolved against the domain (its set in η, band, prescribed
+    components); ValueError naming the problem if it does not fit the domain."""
+    name = type(con).__name__
+    ell = length if con.length is None else float(con.length)
+    prescribes: frozenset[int] = frozenset()
+    if isinstance(con, (ClampedEdge, HingedEdge, RimRotation)):
+        k = 0 if con.edge.startswith("xi1") else 1
+        if domain.periodic[k]:
+            raise ValueError(
+                f"{name} on edge {con.edge!r}: ξ{k + 1} is periodic, so the domain has no "
+                "such edge (a periodic direction needs no boundary condition)"
+            )
+        where = (_EDGE_SETS[con.edge],)
+    elif ell >= 0.5:
+        raise ValueError(
+            f"{name}: band length {ell} must be below 0.5 for a point or line (its distance "
+            "is taken to the nearest periodic image); only edges take wider bands"
+        )
+    elif isinstance(con, (PinnedPoint, Handle)):
+        if not bool(_inside(domain, [con.xi])[0]):
+            raise ValueError(f"{name} at ξ={con.xi} lies outside the parameter domain")
+        p = to_eta(domain, con.xi)
+        where = ((p, p),)
+    elif isinstance(con, InteriorLine):
+        where = (_resolve_line(con, domain, ell),)
+    else:
+        raise TypeError(f"unknown constraint type {type(con).__name__}")
+
+    if isinstance(con, RimRotation):
+        if surface is None:
+            raise ValueError("RimRotation needs the reference surface: pass surface=...")
+        if con.angle != 0.0:
+            axis = np.asarray(con.axis) / np.linalg.norm(con.axis)
+            # The row c of R − I vanishes for every angle only if the axis is along c.
+            prescribes = frozenset(
+                COMPONENTS.index(c)
+                for c in con.components
+                if abs(abs(axis[COMPONENTS.index(c)]) - 1.0) > 1e-14
+            )
+    elif isinstance(con, (ClampedEdge, HingedEdge, Handle)):
+        prescribes = frozenset(
+            COMPONENTS.index(c)
+            for c in con.components
+            if con.displacement[COMPONENTS.index(c)] != 0.0
+        )
+    return ResolvedConstraint(constraint=con, length=ell, where=where, prescribes=prescribes)
+
+
+def _resolve_line(con: InteriorLine, domain: ParameterDomain, ell: float) -> Segment:
+    a, b = to_eta(domain, con.start), to_eta(domain, con.end)
+    periodic = domain.periodic
+    if con.extend:
+        axis_parallel = a[0] == b[0] or a[1] == b[1]
+        if any(periodic) and not axis_parallel:
+            raise ValueError(
+                f"InteriorLine through {con.start} and {con.end}: on a domain with a periodic "
+                "coordinate a whole line must be parallel to a coordinate axis"
+            )
+        for k in range(2):
+            # The line crosses the periodic coordinate k when it is normal to it.
+            if periodic[k] and a[k] == b[k] and con.hinged:
+                raise ValueError(
+                    f"InteriorLine through {con.start} and {con.end}: a hinged line across "
+                    f"the periodic coordinate ξ{k + 1} is impossible (a smooth periodic φ "
+                    "changes sign an even number of times); use hinged=False"
+                )
+        clipped = clip_to_unit_square(a, b)
+        if clipped is None:
+            raise ValueError(
+                f"InteriorLine through {con.start} and {con.end} misses the domain"
+            )
+        if domain.inside is not None:
+            probes = points_along(_from_eta(domain, clipped[0]), _from_eta(domain, clipped[1]))
+            if not bool(_inside(domain, probes).any()):
+                raise ValueError(
+                    f"InteriorLine through {con.start} and {con.end} misses the domain's mask"
+                )
+        return clipped
+    probes = points_along(con.start, con.end)
+    if not bool(_inside(domain, probes).all()):
+        raise ValueError(
+            f"InteriorLine from {con.start} to {con.end} leaves the parameter domain"
+        )
+    for k in range(2):
+        if periodic[k] and abs(b[k] - a[k]) + 2 * ell >= 1.0:
+            raise ValueError(
+                f"InteriorLine from {con.start} to {con.end}: with its band (length {ell}) it "
+                f"spans the whole period of ξ{k + 1}; use extend=True for a closed line"
+            )
+    return (a, b)
+
+
+def _from_eta(domain: ParameterDomain, eta: tuple[float, float]) -> tuple[float, float]:
+    (lo1, _), (lo2, _) = domain.bounds
+    l1, l2 = domain.lengths
+    return (lo1 + l1 * eta[0], lo2 + l2 * eta[1])
+
+
+def check_contradictions(terms: tuple[ResolvedConstraint, ...], domain: ParameterDomain) -> None:
+    """ValueError if a prescribed displacement's set touches another constraint's set on the
+    same component."""
+    for i, first in enumerate(terms):
+        for second in terms[i + 1 :]:
+            shared = first.components & second.components
+            if not shared & (first.prescribes | second.prescribes):
+                continue
+            if _distance(domain, first.where, second.where) <= _TOUCH_TOL:
+                comps = "".join(COMPONENTS[c] for c in sorted(shared))
+                raise ValueError(
+                    f"contradictory constraints on component(s) {comps!r}: "
+                    f"{first.constraint} and {second.constraint} meet, and at least one "
+                    "prescribes a displacement there"
+                )
+
+
+def _distance(domain: ParameterDomain, first: tuple[Segment, ...],
+              second: tuple[Segment, ...]) -> float:
+    shifts = [
+        (s1, s2)
+        for s1 in ((-1, 0, 1) if domain.periodic[0] else (0,))
+        for s2 in ((-1, 0, 1) if domain.periodic[1] else (0,))
+    ]
+    best = math.inf
+    for p, q in first:
+        for r, s in second:
+            for d1, d2 in shifts:
+                shifted = ((r[0] + d1, r[1] + d2), (s[0] + d1, s[1] + d2))
+                best = min(best, segment_distance((p, q), shifted))
+    return best

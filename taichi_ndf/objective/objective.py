@@ -1,0 +1,67 @@
+"""The objective Π = Σ_terms Π_term of displacement jets at samples, and the term protocol."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import torch
+
+from taichi_ndf.objective.terms import ShellEnergyTerm
+from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.energy import EnergyResult
+
+
+class Term(Protocol):
+    """An energy term of the displacement jets.
+
+    evaluate(samples, u_jets (N, 6, 3) [m], load_factor, *, grad) -> (value [J], dΠ/du_jets
+    (N, 6, 3) or None). load_factor: one number (the samples' point forces are already scaled
+    by it) or one per sample (N,) (a pseudo-time field; the samples carry unscaled forces).
+    """
+
+    def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                 load_factor: float | torch.Tensor, *, grad: bool = True
+                 ) -> tuple[float, torch.Tensor | None]: ...
+
+
+class Objective:
+    """The shell's potential energy plus further terms (work of an end moment, ...).
+
+    shell: the term whose `EnergyResult` (strain energy density, parts) the objective reports
+    (`ShellEnergyTerm`); extra: further terms, counted as external work.
+    """
+
+    def __init__(self, shell: ShellEnergyTerm, extra: tuple[Term, ...] = ()):
+        self.shell = shell
+        self.extra = tuple(extra)
+
+    @classmethod
+    def of_model(cls, model) -> Objective:
+        """The potential energy of a `ShellModel`: its material under its loads."""
+        return cls(ShellEnergyTerm(model.material, model.loads))
+
+    def with_terms(self, *terms: Term) -> Objective:
+        """The objective with further terms added."""
+        return Objective(self.shell, self.extra + terms)
+
+    def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                 load_factor: float | torch.Tensor = 1.0, *, grad: bool = True
+                 ) -> EnergyResult:
+        """Π [J] of the displacement jets u_jets (N, 6, 3) [m] at the samples, with dΠ/du_jets
+        if `grad`: the shell term's result with the other terms' values added to its total
+        and external work and their gradients to its gradient."""
+        result = self.shell.result(samples, u_jets, load_factor, grad=grad)
+        for term in self.extra:
+            value, term_grad = term.evaluate(samples, u_jets, load_factor, grad=grad)
+            result.total += value
+            result.external += value
+            if grad:
+                result.grad_u_jets = result.grad_u_jets + term_grad
+        return result
+
+    def potential(self, load_factor: float | torch.Tensor = 1.0):
+        """Π at a fixed load factor as a function (samples, u_jets, grad) -> EnergyResult (the
+        form the last-layer Newton solver takes)."""
+        def evaluate(samples, u_jets, grad):
+            return self.evaluate(samples, u_jets, load_factor, grad=grad)
+        return evaluate

@@ -1,0 +1,77 @@
+"""Energy terms of the objective: the shell's potential energy and the end moment's work."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.loads import Loads
+from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
+
+
+class ShellEnergyTerm:
+    """Strain energy and the work of the distributed loads and point forces at a load factor
+    (physics.md §4; `ShellEnergy`): the loads are scaled by a number, or each sample's work by
+    its own factor (N,) for a pseudo-time field.
+
+    stiffness: optional per-sample stiffness (N, K) of a material-conditioned field (fixed
+    samples) or None (the material's values)."""
+
+    def __init__(self, material, loads: Loads, *, stiffness: torch.Tensor | None = None):
+        self.material = material
+        self.loads = loads
+        self.stiffness = stiffness
+
+    def result(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+               load_factor: float | torch.Tensor = 1.0, *, grad: bool = True) -> EnergyResult:
+        """The shell energy's `EnergyResult` (value, parts, density, gradient)."""
+        if isinstance(load_factor, torch.Tensor):
+            return ShellEnergy(self.material, self.loads).evaluate(
+                samples, u_jets, grad=grad, load_factor=load_factor, stiffness=self.stiffness)
+        energy = ShellEnergy(self.material, self.loads.scaled(load_factor))
+        return energy.evaluate(samples, u_jets, grad=grad, stiffness=self.stiffness)
+
+    def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                 load_factor: float | torch.Tensor = 1.0, *, grad: bool = True
+                 ) -> tuple[float, torch.Tensor | None]:
+        result = self.result(samples, u_jets, load_factor, grad=grad)
+        return result.total, result.grad_u_jets
+
+
+class EndMomentTerm:
+    """Conservative moment M [N·m] about +y on the end ξ¹ = max of a strip clamped at ξ¹ = min
+    (positive M rolls the free end from +x towards +z): Π_M = −λ M/b ∫∫ θ_,1 dξ¹ dξ² over the
+    strip of width b, θ the rotation of the tangent t = x_,1 in the x–z plane, so θ_,1 =
+    (t_x t′_z − t_z t′_x)/|t|² with t′ = x_,11 (the roll-up benchmark; the
+    `taichi_ndf.validation` docstring says why this rate)."""
+
+    def __init__(self, moment: float, width: float):
+        if not (math.isfinite(moment) and math.isfinite(width) and width > 0):
+            raise ValueError(f"EndMoment: moment must be finite and width > 0, got "
+                             f"{moment!r}, {width!r}")
+        self.moment = float(moment)
+        self.width = float(width)
+
+    def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                 load_factor: float = 1.0, *, grad: bool = True
+                 ) -> tuple[float, torch.Tensor | None]:
+        """Π_M [J] at the samples and dΠ_M/du_jets (N, 6, 3)."""
+        if isinstance(load_factor, torch.Tensor):
+            raise ValueError("the end moment takes one load factor, not one per sample")
+        u = u_jets.detach().clone().requires_grad_(grad)
+        x = samples.r_jets + u
+        t, dt = x[:, jets.D1], x[:, jets.D11]
+        rate = (t[:, 0] * dt[:, 2] - t[:, 2] * dt[:, 0]) / (t * t).sum(dim=1)
+        potential = -(load_factor * self.moment / self.width) * (samples.weight * rate).sum()
+        if not grad:
+            return float(potential), None
+        potential.backward()
+        return float(potential.detach()), u.grad
+
+    def end_rotation(self, samples: SurfaceSamples, u_jets: torch.Tensor) -> float:
+        """Mean end rotation θ_end [rad] of the strip."""
+        energy, _ = self.evaluate(samples, u_jets, 1.0, grad=False)
+        return -energy * self.width / self.moment

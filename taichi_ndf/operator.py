@@ -1,0 +1,148 @@
+"""The displacement operator: a field composed with the boundary conditions.
+
+    u(ξ) = compose(ξ, N(evaluation_points(ξ), c), t)      (u_k = φ_k N_k + g_k, Leibniz on jets)
+
+`DisplacementOperator` is the one place that evaluates the chain field → boundary composition
+and its reverse (boundary adjoint → field backward), and the one place that refuses what the
+composition cannot do (a free pin with a conditioned field: the pin's value would differ per
+sample). Any field with `jets(points, conditioning)` / `backward(grad_jets)` /
+`evaluate(points, conditioning)` works; the Jacobian with respect to a linear block of the
+field's parameters is served for a dense block (the SIREN output layer: the same p functions at
+every point) and for a local basis (k functions per point, e.g. a spline's nearby
+coefficients), see `jacobian` and `local_jacobian`.
+
+Shapes: ξ (N, 2); jets (N, 6, 3) [m]; with a free pin the raw field is evaluated at N + 1
+points (the pin ξ₀ appended) and u = N(ξ) − N(ξ₀).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions
+
+
+@dataclass
+class LocalJacobian:
+    """Jacobian of u (N, 6, 3) with respect to coefficients that multiply a per-point basis.
+
+    own: (3, N, 6, k): own[c, n, :, j] = ∂u_c(ξ_n)/∂(coefficient of basis function j of point
+        n) — the rows `index[n]` of the field's local basis at ξ_n.
+    pin: (3, 6, k) or None: with a free pin, ∂u_c(ξ_n)/∂(coefficient of the pin's basis
+        function j) — the same for every n; the pin's rows are `index[N]`.
+    """
+
+    own: torch.Tensor
+    pin: torch.Tensor | None
+
+
+class DisplacementOperator:
+    """Displacement jets of `field` under `boundary` (None: u = the raw field, no conditions).
+
+    field may be None for the composition alone (`raw_gradient`, `jacobian`, the refusals)."""
+
+    def __init__(self, field, boundary: BoundaryConditions | None):
+        self.field = field
+        self.boundary = boundary
+        self._last: tuple[torch.Tensor, float | torch.Tensor] | None = None
+
+    @property
+    def free_pin(self) -> bool:
+        return self.boundary is not None and self.boundary.free_pin is not None
+
+    def refuse_free_pin(self, what: str, hint: str = "") -> None:
+        """Raise ValueError if the boundary has a free pin, which `what` does not support."""
+        if self.free_pin:
+            raise ValueError(f"{what} does not support a free pin (pinned point, rotation = "
+                             f"'free'){hint}")
+
+    def evaluation_points(self, xi: torch.Tensor) -> torch.Tensor:
+        """Where the raw field is evaluated for displacements at ξ (N, 2): (N, 2) or, with a
+        free pin, (N + 1, 2)."""
+        return xi if self.boundary is None else self.boundary.evaluation_points(xi)
+
+    def _points(self, xi: torch.Tensor, conditioning: torch.Tensor | None) -> torch.Tensor:
+        if conditioning is not None and self.free_pin:
+            raise ValueError("a free pin (pinned point, rotation='free') does not support a "
+                             "conditioned field (pseudo-time or material inputs)")
+        return self.evaluation_points(xi)
+
+    def _compose(self, xi: torch.Tensor, raw: torch.Tensor, t) -> torch.Tensor:
+        return raw if self.boundary is None else self.boundary.compose(xi, raw, t=t)
+
+    # -- jets and their reverse ------------------------------------------------------------
+    def jets(self, xi: torch.Tensor, *, t: float | torch.Tensor = 1.0,
+             conditioning: torch.Tensor | None = None) -> torch.Tensor:
+        """Displacement jets u (N, 6, 3) [m] at ξ (N, 2); t: load factor of prescribed
+        motions (one number or one per sample); conditioning: the field's extra inputs (N, k).
+        Keeps what `backward` needs (the field's tape, ξ and t) until the next call."""
+        raw = self.field.jets(self._points(xi, conditioning), conditioning)
+        self._last = (xi, t)
+        return self._compose(xi, raw, t)
+
+    def backward(self, grad_u_jets: torch.Tensor) -> None:
+        """Fill the field's gradients from dL/du_jets (N, 6, 3) of the last `jets` call."""
+        if self._last is None:
+            raise RuntimeError("backward needs a preceding jets call")
+        xi, t = self._last
+        grad = self.raw_gradient(xi, grad_u_jets, t=t)
+        self.field.backward(grad.to(self.field.parameters[0].dtype))
+
+    def raw_gradient(self, xi: torch.Tensor, grad_u_jets: torch.Tensor,
+                     t: float | torch.Tensor = 1.0) -> torch.Tensor:
+        """dL/d(raw jets) at `evaluation_points(ξ)` (M, 6, 3) from dL/du_jets (N, 6, 3): the
+        adjoint of the composition alone (e.g. virtual displacements of a raw basis)."""
+        if self.boundary is None:
+            return grad_u_jets
+        return self.boundary.compose_adjoint(xi, grad_u_jets, t=t)
+
+    def displacement(self, xi: torch.Tensor, *, t: float | torch.Tensor = 1.0,
+                     conditioning: torch.Tensor | None = None) -> torch.Tensor:
+        """Displacement u (N, 3) [m] at ξ (no tape kept: for outputs and probes)."""
+        values = self.field.evaluate(self._points(xi, conditioning), conditioning)
+        return self._compose(xi, jets.constant(values), t)[:, jets.VALUE]
+
+    # -- Jacobians with respect to a linear block of parameters ------------------------------
+    def jacobian(self, xi: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
+        """Jacobian (3, N, 6, p) of u at ξ with respect to θ_k when each raw component is
+        N_k = basis · θ_k + (terms free of θ): basis (M, 6, p) are the jets of the same p
+        functions at `evaluation_points(ξ)` (M = N, or N + 1 with a free pin)."""
+        if self.boundary is None:
+            return basis[None].expand(3, -1, -1, -1).clone()
+        return self.boundary.compose_jacobian(xi.to(basis.dtype), basis)
+
+    def local_jacobian(self, xi: torch.Tensor, basis: torch.Tensor) -> LocalJacobian:
+        """Like `jacobian` for a local basis: basis (M, 6, k) are the jets at
+        `evaluation_points(ξ)` of each point's own k basis functions (different coefficient
+        rows per point), so the free pin's part is kept apart (`LocalJacobian`)."""
+        n = xi.shape[0]
+        own_basis = basis
+        if self.free_pin:  # the pin's row set to zero: `own` then has no pin part
+            own_basis = torch.cat((basis[:n], torch.zeros_like(basis[n:])))
+        own = self.jacobian(xi, own_basis)
+        if not self.free_pin:
+            return LocalJacobian(own=own, pin=None)
+        # u_c = ... − N_c(ξ₀) on the pin's free components: the pin part is the same at every
+        # point, so evaluate it at one point with a zero own basis.
+        only_pin = torch.cat((torch.zeros_like(basis[:1]), basis[n:]))
+        pin = self.jacobian(xi[:1], only_pin)[:, 0]
+        return LocalJacobian(own=own, pin=pin)
+
+    def output_layer_jacobian(self, xi: torch.Tensor, *, t: float = 1.0,
+                              conditioning: torch.Tensor | None = None
+                              ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Displacement jets u (N, 6, 3) [m] of the current field and their Jacobian with
+        respect to the field's output layer, shape (3, N, 6, width + 1): J[k, :, :, a] =
+        ∂u_k/∂θ_k[a] with θ_k = (W_out[k, :], b_out[k]) (`field.output_layer()`); u_k does not
+        depend on θ_l for l ≠ k. Needs a field with `last_features()` (the SIREN)."""
+        u = self.jets(xi, t=t, conditioning=conditioning)
+        features = self.field.last_features()  # (6, M, width)
+        m, width = features.shape[1], features.shape[2]
+        basis = features.new_zeros(m, jets.CHANNELS, width + 1)
+        basis[:, :, :width] = features.permute(1, 0, 2)
+        basis[:, jets.VALUE, width] = 1.0  # the bias enters the value channel only
+        basis *= self.field.config.output_scale
+        return u, self.jacobian(xi.to(u.dtype), basis)

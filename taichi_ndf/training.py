@@ -1,0 +1,78 @@
+"""The training specification of a quasistatic solve: a plain frozen configuration.
+
+Scene files produce it (`taichi_ndf.scene`) without importing the solver; the solver
+(`taichi_ndf.solver`) consumes it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from taichi_ndf import checks
+from taichi_ndf.optim import AdamConfig
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """How Π is minimised.
+
+    iterations: Adam iterations per load step.
+    samples: area samples per iteration (stratified, jittered, resampled every iteration).
+    load_steps: load factors solved in turn (continuation); loads and prescribed displacements
+        are scaled by the factor. The last must be 1.
+    monitor_every: iterations between evaluations of Π on a fixed monitor sample set.
+    checkpoint_every: iterations between checkpoints (0: only at the end).
+    lbfgs_iterations: L-BFGS polish iterations on a fixed sample set after each load step.
+    newton_iterations: most last-layer Newton steps per Newton phase (0: no Newton phases).
+    newton_every: Adam iterations between Newton phases inside a load step (0: Newton only at
+        the start and the end of each load step).
+    newton_samples: area samples of the fixed Newton sample set (point-load samples added).
+    pseudo_time: train a field whose one conditioning input is the load factor t over all t in
+        [pseudo_time_start, λ] at once (module docstring); λ is the current load step.
+    pseudo_time_start: the smallest t trained, in [0, first load step).
+    """
+
+    iterations: int = 1500
+    samples: int = 4096
+    adam: AdamConfig = field(default_factory=AdamConfig)
+    load_steps: tuple[float, ...] = (1.0,)
+    monitor_every: int = 50
+    monitor_samples: int = 16384
+    checkpoint_every: int = 500
+    lbfgs_iterations: int = 0
+    newton_iterations: int = 0
+    newton_every: int = 0
+    newton_samples: int = 16384
+    seed: int = 0
+    progress: bool = True
+    pseudo_time: bool = False
+    pseudo_time_start: float = 0.0
+
+    def __post_init__(self):
+        if self.iterations < 0:
+            raise ValueError(f"iterations must be >= 0, got {self.iterations}")
+        if self.samples < 16:
+            raise ValueError(f"samples must be >= 16, got {self.samples}")
+        checks.load_steps(self.load_steps)
+        if self.monitor_every < 1:
+            raise ValueError(f"monitor_every must be >= 1, got {self.monitor_every}")
+        if self.checkpoint_every < 0 or self.lbfgs_iterations < 0:
+            raise ValueError("checkpoint_every and lbfgs_iterations must be >= 0")
+        if self.newton_iterations < 0 or self.newton_every < 0:
+            raise ValueError(f"newton_iterations and newton_every must be >= 0, got "
+                             f"{self.newton_iterations}, {self.newton_every}")
+        if self.newton_samples < 16:
+            raise ValueError(f"newton_samples must be >= 16, got {self.newton_samples}")
+        if not 0.0 <= self.pseudo_time_start < self.load_steps[0]:
+            raise ValueError(f"pseudo_time_start must be in [0, {self.load_steps[0]}) (the "
+                             f"first load step), got {self.pseudo_time_start}")
+        if self.pseudo_time and self.newton_iterations:
+            raise ValueError("newton_iterations must be 0 with pseudo_time: the last-layer "
+                             "Newton solver does not take a pseudo-time input")
+
+    def with_iterations(self, iterations: int) -> SolverConfig:
+        """The same run with another iteration count; the learning-rate schedule is stretched
+        to the new length."""
+        total = max(iterations * len(self.load_steps), 1)
+        adam = replace(self.adam, decay_steps=total, total_steps=total)
+        return replace(self, iterations=iterations, adam=adam)
