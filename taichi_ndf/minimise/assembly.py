@@ -1,0 +1,181 @@
+"""Gradient and sparse Hessian of Π over the coefficients of a local-support field.
+
+A spline field's raw displacement at a point is u_c = Σ_a B_a(ξ) c[i_a, c] over the k = (p+1)²
+coefficients i_a acting there (`field.local_basis(ξ)`: index (N, k), basis jets (N, 6, k)). The
+boundary composition u = φ N + g is pointwise and affine in N, so at the fixed quadrature points
+
+    U_q = G_q + J_q · C_q      (C_q: the 3k coefficients acting at q),
+
+with J_q from `compose_jacobian` and G_q = compose(ξ, 0) the prescribed part. A free pin
+(u = N(ξ) − N(ξ₀)) makes every point also depend on the k coefficients acting at the pin ξ₀
+(a "shared" set, the same for all points). Then
+
+    g = Σ_q J_qᵀ ∂e_q/∂U_q,     K = Σ_q J_qᵀ H_q J_q
+
+exactly (U is affine in the coefficients). The point-local part of K is scattered into a CSR
+pattern computed once per grid (a `np.bincount` per Newton step); the couplings through the
+shared pin set are summed densely (3n × 3k) and added as a sparse block.
+
+Unknowns are ordered coefficient × 3 + component.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE
+
+
+@dataclass(frozen=True)
+class LocalBasis:
+    """A local basis at N points: index (N, k) int64 of the coefficients acting at each point
+    and their jets (N, 6, k); with a free pin also at the pin: pin_index (k,), pin_jets (6, k)."""
+
+    index: torch.Tensor
+    jets: torch.Tensor
+    pin_index: torch.Tensor | None = None
+    pin_jets: torch.Tensor | None = None
+
+
+def local_basis_at(field, boundary: BoundaryConditions, xi: torch.Tensor) -> LocalBasis:
+    """The field's local basis (`field.local_basis`) at ξ (N, 2), and at a free pin."""
+    index, basis = field.local_basis(boundary.evaluation_points(xi))
+    if boundary.free_pin is None:
+        return LocalBasis(index, basis)
+    return LocalBasis(index[:-1], basis[:-1], index[-1], basis[-1])
+
+
+def composed_jacobian(boundary: BoundaryConditions, xi: torch.Tensor, basis: LocalBasis,
+                      load_factor: float
+                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """The one adapter to the boundary composition: at ξ (N, 2) and load factor t,
+    U = offset + Σ_a J[:, :, :, a] C[a] with
+    offset (N, 6, 3) [m] the prescribed displacement (compose of a zero raw field),
+    jacobian (3, N, 6, k): J[c, q, :, a] = ∂u_c(ξ_q)/∂C[index[q, a], c],
+    pin_jacobian (3, N, 6, k) the same for the pin's coefficients (None without a free pin).
+    """
+    n, k = basis.index.shape
+    dtype = basis.jets.dtype
+    xi = xi.to(dtype)
+    if basis.pin_index is None:
+        extended = basis.jets
+    else:  # point rows act on the local columns, the pin row on the pin's columns
+        extended = basis.jets.new_zeros(n + 1, jets.CHANNELS, 2 * k)
+        extended[:n, :, :k] = basis.jets
+        extended[n, :, k:] = basis.pin_jets
+    zero = basis.jets.new_zeros(extended.shape[0], jets.CHANNELS, COMPONENTS)
+    offset = boundary.compose(xi, zero, t=load_factor)
+    jacobian = boundary.compose_jacobian(xi, extended)
+    if basis.pin_index is None:
+        return offset, jacobian, None
+    return offset, jacobian[..., :k].contiguous(), jacobian[..., k:].contiguous()
+
+
+def _per_point_matrix(jacobian: torch.Tensor) -> torch.Tensor:
+    """J (3, N, 6, k) as per-point matrices (N, 18, 3k): rows channel × 3 + component,
+    columns coefficient × 3 + component (block diagonal in the component)."""
+    _, n, channels, k = jacobian.shape
+    out = jacobian.new_zeros(n, channels, COMPONENTS, k, COMPONENTS)
+    for c in range(COMPONENTS):
+        out[:, :, c, :, c] = jacobian[c]
+    return out.reshape(n, JET_SIZE, k * COMPONENTS)
+
+
+def _dofs(index: torch.Tensor) -> np.ndarray:
+    """Unknown numbers (…, 3k) of coefficient indices (…, k): coefficient × 3 + component."""
+    idx = index.cpu().numpy().astype(np.int64)
+    return (idx[..., :, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(
+        *idx.shape[:-1], -1)
+
+
+class Assembly:
+    """Π's coefficient-space gradient and Hessian on fixed samples (module docstring).
+
+    samples: the quadrature points; basis: the local basis there (`local_basis_at`);
+    n_coefficients: coefficients of the field (unknowns: 3 × that).
+    Call `at_load(boundary, load_factor)` before use (the prescribed part depends on t).
+    """
+
+    def __init__(self, samples: SurfaceSamples, basis: LocalBasis, n_coefficients: int):
+        if basis.index.shape[0] != len(samples):
+            raise ValueError(f"basis has {basis.index.shape[0]} points for {len(samples)} "
+                             "samples")
+        self.samples = samples
+        self.basis = basis
+        self.n_coefficients = int(n_coefficients)
+        self.size = COMPONENTS * self.n_coefficients
+        self.dofs = _dofs(basis.index)  # (N, 3k)
+        self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
+        width = self.dofs.shape[1]
+        keys = (self.dofs[:, :, None] * self.size + self.dofs[:, None, :]).ravel()
+        unique, self._scatter = np.unique(keys, return_inverse=True)
+        self._pattern = (unique // self.size, unique % self.size)
+        self._per_point = width * width
+        self.offset = self.jacobian = self.pin_jacobian = None
+
+    def at_load(self, boundary: BoundaryConditions, load_factor: float) -> Assembly:
+        """Linearise the composition at load factor t (see `composed_jacobian`)."""
+        self.offset, jac, pin = composed_jacobian(boundary, self.samples.xi, self.basis,
+                                                  load_factor)
+        self.jacobian = _per_point_matrix(jac)
+        self.pin_jacobian = None if pin is None else _per_point_matrix(pin)
+        return self
+
+    def displacement(self, coefficients: torch.Tensor) -> torch.Tensor:
+        """Displacement jets U (N, 6, 3) [m] of coefficients (n, 3)."""
+        u = torch.bmm(self.jacobian, coefficients[self.basis.index].reshape(
+            len(self.samples), -1, 1))
+        if self.pin_jacobian is not None:
+            pin = coefficients[self.basis.pin_index].reshape(-1, 1)
+            u = u + self.pin_jacobian @ pin
+        return self.offset + u.reshape(-1, jets.CHANNELS, COMPONENTS)
+
+    def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
+        """dΠ/dC (n, 3) from dΠ/dU (N, 6, 3)."""
+        flat = grad_u_jets.reshape(-1, JET_SIZE, 1)
+        local = torch.bmm(self.jacobian.transpose(1, 2), flat)[..., 0]  # (N, 3k)
+        out = local.new_zeros(self.size)
+        out.index_add_(0, torch.from_numpy(self.dofs.ravel()), local.reshape(-1))
+        if self.pin_jacobian is not None:
+            pin = torch.bmm(self.pin_jacobian.transpose(1, 2), flat)[..., 0].sum(dim=0)
+            out.index_add_(0, torch.from_numpy(self.pin_dofs), pin)
+        return out.reshape(-1, COMPONENTS)
+
+    def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
+        """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18)."""
+        weighted = torch.bmm(blocks, self.jacobian)  # (N, 18, 3k)
+        local = torch.bmm(self.jacobian.transpose(1, 2), weighted)
+        data = np.bincount(self._scatter, weights=local.double().cpu().numpy().ravel(),
+                           minlength=len(self._pattern[0]))
+        matrix = sp.csr_matrix((data, self._pattern), shape=(self.size, self.size))
+        if self.pin_jacobian is None:
+            return matrix
+        # Couplings through the pin's coefficients: summed over the points, then added.
+        cross = torch.bmm(self.pin_jacobian.transpose(1, 2), weighted)  # (N, 3k pin, 3k)
+        pin_pin = torch.einsum("nia,nij,njb->ab", self.pin_jacobian, blocks,
+                               self.pin_jacobian)
+        dense = cross.new_zeros(self.size, cross.shape[1])  # rows: all unknowns
+        dense.index_add_(0, torch.from_numpy(self.dofs.ravel()),
+                         cross.transpose(1, 2).reshape(-1, cross.shape[1]))
+        dense[torch.from_numpy(self.pin_dofs)] += pin_pin
+        rows = np.flatnonzero(np.abs(dense.double().cpu().numpy()).sum(axis=1))
+        block = dense.double().cpu().numpy()[rows]
+        coupling = sp.csr_matrix(
+            (block.ravel(), (np.repeat(rows, block.shape[1]),
+                             np.tile(self.pin_dofs, len(rows)))),
+            shape=(self.size, self.size))
+        # The pin–pin block is in `dense` at the pin rows, so `coupling` holds it once and
+        # its transpose once more: take it out of one of them.
+        pin_block = sp.csr_matrix(
+            (pin_pin.double().cpu().numpy().ravel(),
+             (np.repeat(self.pin_dofs, len(self.pin_dofs)),
+              np.tile(self.pin_dofs, len(self.pin_dofs)))),
+            shape=(self.size, self.size))
+        return (matrix + coupling + coupling.T - pin_block).tocsr()

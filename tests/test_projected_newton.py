@@ -1,0 +1,122 @@
+"""Per-point Hessian blocks, coefficient-space assembly and projected Newton on a spline basis
+(a small cubic stand-in with the spline field's `local_basis` interface)."""
+
+import numpy as np
+import pytest
+import torch
+from spline_stand_in import StandInSpline, gauss_samples
+
+from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge, PinnedPoint
+from taichi_ndf.geometry import Plane
+from taichi_ndf.loads import Loads
+from taichi_ndf.minimise.assembly import Assembly, local_basis_at
+from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.shell.hessian import flat_blocks, jet_steps, project_psd, sample_hessians
+from taichi_ndf.shell.materials import LinearIsotropic, OrthotropicStVK, preset
+
+DT = torch.float64
+
+
+def _potential(material, loads):
+    energy = ShellEnergy(material, loads)
+    return lambda s, u, grad: energy.evaluate(s, u, grad=grad)
+
+
+def _materials():
+    return {
+        "linear_isotropic": LinearIsotropic.from_young(1e6, 0.3, 0.01, 1.0),
+        "orthotropic": OrthotropicStVK(a11=2e4, a12=3e3, a22=1e4, G12=4e3, thickness=0.01,
+                                       areal_density=1.0),
+        "clyde": preset("canvas"),
+    }
+
+
+@pytest.mark.parametrize("law", ["linear_isotropic", "orthotropic", "clyde"])
+def test_hessian_blocks_match_directional_differences_of_the_gradient(law):
+    material = _materials()[law]
+    surface = Plane(bounds=((0.0, 1.0), (0.0, 1.0)))
+    samples = gauss_samples(surface, ((0.0, 1.0), (0.0, 1.0)), (2, 2), 3)
+    generator = torch.Generator().manual_seed(1)
+    u = 0.05 * torch.randn(len(samples), 6, 3, generator=generator, dtype=DT)
+    potential = _potential(material, Loads(gravity=(0.0, 0.0, -9.81)))
+    steps = jet_steps(samples.r_jets, u, 1.0, 1e-4)
+    blocks = flat_blocks(sample_hessians(potential, samples, u, steps=steps))
+    direction = (torch.randn(len(samples), 6, 3, generator=generator, dtype=DT)
+                 * (steps / 1e-4)[:, None])
+    eps = 1e-6
+    plus = potential(samples, u + eps * direction, True).grad_u_jets
+    minus = potential(samples, u - eps * direction, True).grad_u_jets
+    expected = ((plus - minus) / (2 * eps)).reshape(len(samples), 18)
+    got = torch.bmm(blocks, direction.reshape(len(samples), 18, 1))[..., 0]
+    assert float((got - expected).norm() / expected.norm()) <= 1e-6
+
+
+def test_projection_clamps_negative_eigenvalues_and_keeps_definite_blocks():
+    generator = torch.Generator().manual_seed(0)
+    a = torch.randn(5, 18, 18, generator=generator, dtype=DT)
+    definite = a @ a.transpose(1, 2) + torch.eye(18, dtype=DT)
+    indefinite = a + a.transpose(1, 2)
+    blocks = torch.cat((definite, indefinite))
+    projected, count = project_psd(blocks)
+    assert count == 5
+    assert torch.equal(projected[:5], definite)
+    values, vectors = torch.linalg.eigh(indefinite)
+    assert float(torch.linalg.eigvalsh(projected[5:]).min()) > -1e-12
+    expected = (vectors * values.clamp_min(0)[:, None]) @ vectors.transpose(1, 2)
+    assert torch.allclose(projected[5:], expected, atol=1e-12)
+
+
+def _case(boundary_kind):
+    bounds = ((0.0, 1.0), (0.0, 1.0))
+    surface = Plane(bounds=bounds)
+    if boundary_kind == "free_pin":
+        constraints = [PinnedPoint(xi=(0.3, 0.0), rotation="free")]
+    else:
+        constraints = [ClampedEdge(edge="xi1_min"), HingedEdge(edge="xi2_max")]
+    boundary = BoundaryConditions(constraints, domain=surface.domain, surface=surface)
+    loads = Loads(gravity=(0.0, 0.0, -9.81))
+    material = LinearIsotropic.from_young(1e4, 0.3, 0.01, 1.0)
+    field = StandInSpline(bounds, (2, 2))
+    samples = gauss_samples(surface, bounds, (2, 2), 3, loads)
+    generator = torch.Generator().manual_seed(2)
+    coefficients = 0.02 * torch.randn(field.parameters[0].shape, generator=generator, dtype=DT)
+    assembly = Assembly(samples, local_basis_at(field, boundary, samples.xi),
+                        coefficients.shape[0]).at_load(boundary, 1.0)
+    return field, boundary, samples, _potential(material, loads), assembly, coefficients
+
+
+@pytest.mark.parametrize("boundary_kind", ["edges", "free_pin"])
+def test_assembled_gradient_matches_the_composition_adjoint(boundary_kind):
+    field, boundary, samples, potential, assembly, c = _case(boundary_kind)
+    index, basis = field.local_basis(boundary.evaluation_points(samples.xi))
+    raw = torch.einsum("nja,nac->njc", basis, c[index])
+    u = boundary.compose(samples.xi, raw)
+    assert torch.allclose(assembly.displacement(c), u, atol=1e-14)
+    grad_raw = boundary.compose_adjoint(samples.xi, potential(samples, u, True).grad_u_jets)
+    expected = torch.zeros_like(c).index_add_(
+        0, index.reshape(-1), torch.einsum("nja,njc->nac", basis, grad_raw).reshape(-1, 3))
+    got = assembly.gradient(potential(samples, u, True).grad_u_jets)
+    assert torch.allclose(got, expected, rtol=1e-12, atol=1e-12 * float(expected.abs().max()))
+
+
+@pytest.mark.parametrize("boundary_kind", ["edges", "free_pin"])
+def test_assembled_hessian_matches_differences_of_the_assembled_gradient(boundary_kind):
+    _, _, samples, potential, assembly, c = _case(boundary_kind)
+
+    def gradient(coefficients):
+        u = assembly.displacement(coefficients)
+        return assembly.gradient(potential(samples, u, True).grad_u_jets).reshape(-1)
+
+    u = assembly.displacement(c)
+    blocks = flat_blocks(sample_hessians(potential, samples, u,
+                                         steps=jet_steps(samples.r_jets, u, 1.0, 1e-4)))
+    matrix = assembly.hessian(blocks).toarray()
+    eps = 1e-6
+    dense = np.zeros_like(matrix)
+    for j in range(matrix.shape[0]):
+        step = torch.zeros(matrix.shape[0], dtype=DT)
+        step[j] = eps
+        dense[:, j] = ((gradient(c + step.reshape(c.shape))
+                        - gradient(c - step.reshape(c.shape))) / (2 * eps)).numpy()
+    assert np.abs(matrix - matrix.T).max() <= 1e-12 * np.abs(matrix).max()
+    assert np.linalg.norm(matrix - dense) <= 1e-6 * np.linalg.norm(dense)
