@@ -1,4 +1,4 @@
-"""Save and load a field (architecture and weights), its optimiser state and caller metadata.
+"""Save and load a field (type, architecture and weights), its optimiser state and caller metadata.
 
 A checkpoint is a ``torch.save`` of a dict holding only tensors, dicts, lists, numbers,
 strings, booleans and None, so ``torch.load(path, weights_only=True)`` reads it. Files are
@@ -16,20 +16,23 @@ from pathlib import Path
 
 import torch
 
-from taichi_ndf.field import FieldConfig, NeuralField
+from taichi_ndf.field import FieldConfig, NeuralField, SplineConfig, SplineField
 from taichi_ndf.optim import Adam
 
 log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
 KIND = "taichi_ndf.checkpoint"
+# Field types by checkpoint tag: (field class, its config class). A checkpoint without a
+# "field_type" (written before spline fields existed) holds a SIREN field.
+FIELD_TYPES = {"siren": (NeuralField, FieldConfig), "spline": (SplineField, SplineConfig)}
 
 
 @dataclass
 class Checkpoint:
     """What ``load_checkpoint`` found: the field (loaded), optimiser state and metadata."""
 
-    field: NeuralField
+    field: NeuralField | SplineField
     optimiser_state: dict | None
     extra: dict
     format_version: int
@@ -65,9 +68,16 @@ def _to_cpu(value):
     return value
 
 
+def _field_type(field) -> str:
+    for tag, (cls, _) in FIELD_TYPES.items():
+        if isinstance(field, cls):
+            return tag
+    raise TypeError(f"cannot checkpoint a {type(field).__name__}; fields: {list(FIELD_TYPES)}")
+
+
 def save_checkpoint(
     path: str | os.PathLike,
-    field: NeuralField,
+    field: NeuralField | SplineField,
     optimiser: Adam | None = None,
     *,
     extra: dict | None = None,
@@ -80,6 +90,7 @@ def save_checkpoint(
     payload = {
         "kind": KIND,
         "format_version": FORMAT_VERSION,
+        "field_type": _field_type(field),
         "architecture": field.config.to_dict(),
         "parameters": _to_cpu(field.state_dict()),
         "optimiser": None if optimiser is None else _to_cpu(optimiser.state_dict()),
@@ -101,17 +112,19 @@ def save_checkpoint(
     return path
 
 
-def _architecture_mismatch(stored: FieldConfig, ours: FieldConfig) -> list[str]:
+def _architecture_mismatch(stored, ours) -> list[str]:
+    if type(stored) is not type(ours):
+        return [f"field type: checkpoint {type(stored).__name__}, field {type(ours).__name__}"]
     return [
         f"{f.name}: checkpoint {getattr(stored, f.name)}, field {getattr(ours, f.name)}"
-        for f in fields(FieldConfig)
+        for f in fields(stored)
         if getattr(stored, f.name) != getattr(ours, f.name)
     ]
 
 
 def load_checkpoint(
     path: str | os.PathLike,
-    field: NeuralField | None = None,
+    field: NeuralField | SplineField | None = None,
     *,
     optimiser: Adam | None = None,
 ) -> Checkpoint:
@@ -130,9 +143,13 @@ def load_checkpoint(
         raise ValueError(
             f"{path}: checkpoint format {version}, this version reads {FORMAT_VERSION}"
         )
-    stored = FieldConfig.from_dict(payload["architecture"])
+    tag = payload.get("field_type", "siren")
+    if tag not in FIELD_TYPES:
+        raise ValueError(f"{path}: unknown field type {tag!r}; known: {list(FIELD_TYPES)}")
+    field_class, config_class = FIELD_TYPES[tag]
+    stored = config_class.from_dict(payload["architecture"])
     if field is None:
-        field = NeuralField(stored)
+        field = field_class(stored)
     else:
         mismatch = _architecture_mismatch(stored, field.config)
         if mismatch:

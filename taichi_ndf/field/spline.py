@@ -1,0 +1,270 @@
+"""Tensor-product B-spline displacement field on the parameter domain (issue 19).
+
+    u_c(ξ) = Σ_{j1, j2} B_{j1}(ξ¹) B_{j2}(ξ²) C[j1·m2 + j2, c]
+
+with uniform unclamped B-splines of degree p (3 or 4, `bspline.py`) on n1 × n2 knot spans;
+m_d = n_d + p coefficients per open direction, n_d per periodic one (then exactly periodic).
+The coefficients C (m1·m2, out_dim) [m] are the only parameters, zero at construction (the
+undeformed state). Jets are exact and linear in C: at a point (p + 1)² coefficients act, with
+the basis jets of `local_basis`, which is also the Jacobian of the jets with respect to C.
+
+The same interface as `NeuralField` (jets/backward/evaluate, flat vectors, state dicts), with no
+conditioning inputs, plus exact dyadic refinement (`refined`, `prolongation`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, fields, replace
+
+import torch
+
+from taichi_ndf.field import bspline
+from taichi_ndf.field.config import _finite_range
+from taichi_ndf.field.parameters import FieldParameters
+from taichi_ndf.jets import CHANNELS
+from taichi_ndf.runtime import current
+
+log = logging.getLogger(__name__)
+
+DEGREES = (3, 4)
+EVALUATION_CHUNK = 65536  # points per `evaluate` chunk: (chunk, 6, 25) basis buffers
+
+
+@dataclass(frozen=True)
+class SplineConfig:
+    """B-spline field u(ξ): surface coordinates ξ -> displacement.
+
+    spans: knot spans (n1, n2) per direction over the domain, each ≥ 1.
+    degree: polynomial degree p, 3 (cubic, C²) or 4 (quartic, C³).
+    out_dim: number of output components (3 for a displacement).
+    domain: ((lo1, hi1), (lo2, hi2)), bounds of ξ¹ and ξ² covered by the spans.
+    periodic: per direction, whether the field is periodic with period hi − lo.
+    """
+
+    spans: tuple[int, int]
+    degree: int = 3
+    out_dim: int = 3
+    domain: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 1.0), (0.0, 1.0))
+    periodic: tuple[bool, bool] = (False, False)
+
+    def __post_init__(self):
+        spans = tuple(self.spans) if isinstance(self.spans, (tuple, list)) else None
+        if spans is None or len(spans) != 2 or not all(
+            isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in spans
+        ):
+            raise ValueError(f"spans must be two positive integers, got {self.spans!r}")
+        object.__setattr__(self, "spans", spans)
+        if isinstance(self.degree, bool) or self.degree not in DEGREES:
+            raise ValueError(f"degree must be one of {DEGREES}, got {self.degree!r}")
+        if isinstance(self.out_dim, bool) or not isinstance(self.out_dim, int) or self.out_dim < 1:
+            raise ValueError(f"out_dim must be a positive integer, got {self.out_dim!r}")
+        if len(self.domain) != 2:
+            raise ValueError(f"domain must hold two (lo, hi) pairs, got {self.domain!r}")
+        domain = tuple(_finite_range(f"domain[{i}]", p) for i, p in enumerate(self.domain))
+        object.__setattr__(self, "domain", domain)
+        if len(self.periodic) != 2 or not all(isinstance(p, bool) for p in self.periodic):
+            raise ValueError(f"periodic must be two booleans, got {self.periodic!r}")
+        object.__setattr__(self, "periodic", tuple(self.periodic))
+
+    @property
+    def coefficient_counts(self) -> tuple[int, int]:
+        """(m1, m2): coefficients per direction, n + p (open) or n (periodic)."""
+        return tuple(n if periodic else n + self.degree
+                     for n, periodic in zip(self.spans, self.periodic, strict=True))
+
+    @property
+    def num_coefficients(self) -> int:
+        m1, m2 = self.coefficient_counts
+        return m1 * m2
+
+    @property
+    def support(self) -> int:
+        """Coefficients acting at a point, (p + 1)²."""
+        return (self.degree + 1) ** 2
+
+    @property
+    def spacing(self) -> tuple[float, float]:
+        """Knot spacing h = (hi − lo)/n per direction, in the units of ξ."""
+        return tuple((hi - lo) / n for (lo, hi), n in zip(self.domain, self.spans, strict=True))
+
+    def refined(self) -> SplineConfig:
+        """The configuration with every span halved."""
+        return replace(self, spans=(2 * self.spans[0], 2 * self.spans[1]))
+
+    def to_dict(self) -> dict:
+        """Plain dict (lists instead of tuples) for checkpoints and logs."""
+        out = asdict(self)
+        out["spans"] = list(self.spans)
+        out["domain"] = [list(p) for p in self.domain]
+        out["periodic"] = list(self.periodic)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> SplineConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown SplineConfig keys: {sorted(unknown)}")
+        data = dict(data)
+        for key in ("spans", "periodic"):
+            if key in data:
+                data[key] = tuple(data[key])
+        if "domain" in data:
+            data["domain"] = tuple(tuple(p) for p in data["domain"])
+        return cls(**data)
+
+
+class _Tape:
+    """What `backward` needs from the last `jets` call: the basis at its points."""
+
+    def __init__(self, index: torch.Tensor, basis: torch.Tensor):
+        self.index = index  # (N, k) int32
+        self.basis = basis  # (N, 6, k)
+
+
+class SplineField(FieldParameters):
+    """B-spline displacement field with exact jets and coefficient gradients.
+
+    parameters: [coefficients (m1·m2, out_dim)] [m], runtime dtype and device
+        (``taichi_ndf.current()``) unless ``dtype``/``device`` given; row j1·m2 + j2.
+    gradients: a tensor of the same shape, overwritten in place by ``backward``.
+    """
+
+    def __init__(self, config: SplineConfig, *, dtype: torch.dtype | None = None,
+                 device: torch.device | str | None = None):
+        if dtype is None or device is None:
+            runtime = current()
+            dtype = runtime.dtype if dtype is None else dtype
+            device = runtime.device if device is None else device
+        if dtype not in (torch.float32, torch.float64):
+            raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        self.config = config
+        self.dtype = dtype
+        self.device = torch.device(device)
+        shape = (config.num_coefficients, config.out_dim)
+        self.parameters = [torch.zeros(shape, dtype=dtype, device=self.device)]
+        self.gradients = [torch.zeros(shape, dtype=dtype, device=self.device)]
+        self.parameter_names = ["coefficients"]
+        self._grid = torch.tensor([[lo, h] for (lo, _), h in
+                                   zip(config.domain, config.spacing, strict=True)],
+                                  dtype=dtype, device=self.device)
+        self._matrices = bspline.basis_matrices(config.degree, dtype, self.device)
+        self._tape: _Tape | None = None
+
+    @property
+    def coefficients(self) -> torch.Tensor:
+        """The coefficient tensor (m1·m2, out_dim) [m] (the one parameter)."""
+        return self.parameters[0]
+
+    def _points(self, xi: torch.Tensor, conditioning: torch.Tensor | None) -> torch.Tensor:
+        if xi.ndim != 2 or xi.shape[1] != 2:
+            raise ValueError(f"xi must have shape (N, 2), got {tuple(xi.shape)}")
+        if conditioning is not None and conditioning.numel() > 0:
+            raise ValueError("a spline field has no conditioning inputs, but got conditioning")
+        return xi.to(dtype=self.dtype, device=self.device).contiguous()
+
+    def _basis(self, xi: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        n, k = xi.shape[0], self.config.support
+        index = torch.empty(n, k, dtype=torch.int32, device=self.device)
+        basis = torch.empty(n, CHANNELS, k, dtype=self.dtype, device=self.device)
+        if n > 0:
+            config = self.config
+            bspline.basis_kernel(config.degree)(
+                xi, self._grid, self._matrices, config.spans[0], config.spans[1],
+                int(config.periodic[0]), int(config.periodic[1]), index, basis)
+        return index, basis
+
+    def _contract(self, index: torch.Tensor, basis: torch.Tensor, channels: int) -> torch.Tensor:
+        out = torch.empty(index.shape[0], channels, self.config.out_dim, dtype=self.dtype,
+                          device=self.device)
+        if index.shape[0] > 0:
+            bspline.contract(index, basis, self.coefficients.contiguous(), out)
+        return out
+
+    def local_basis(self, xi: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The coefficients acting at each point and their basis jets: index (N, k) int64 into
+        the rows of ``coefficients`` and basis (N, 6, k), k = (p + 1)², with
+        jets[n, :, c] = Σ_k basis[n, :, k] · coefficients[index[n, k], c] exactly. A periodic
+        direction with fewer than p + 1 spans repeats indices (their terms add)."""
+        index, basis = self._basis(self._points(xi, None))
+        return index.long(), basis
+
+    def jets(self, xi: torch.Tensor, conditioning: torch.Tensor | None = None) -> torch.Tensor:
+        """Displacement jets w.r.t. the physical ξ, shape (N, 6, out_dim) [m, m, m, ...].
+
+        xi: surface coordinates (N, 2); conditioning must be None (or empty). Keeps the basis
+        that ``backward`` needs from this (the last) call.
+        """
+        index, basis = self._basis(self._points(xi, conditioning))
+        self._tape = _Tape(index, basis)
+        return self._contract(index, basis, CHANNELS)
+
+    def backward(self, grad_jets: torch.Tensor) -> None:
+        """Gradient of a loss w.r.t. the coefficients from d loss / d jets (N, 6, out_dim) of
+        the last ``jets`` call; overwrites ``self.gradients`` (exact adjoint of ``jets``)."""
+        tape = self._tape
+        if tape is None:
+            raise RuntimeError("backward needs a preceding jets call")
+        expected = (tape.index.shape[0], CHANNELS, self.config.out_dim)
+        if tuple(grad_jets.shape) != expected:
+            raise ValueError(f"grad_jets must have shape {expected}, got {tuple(grad_jets.shape)}")
+        grad = grad_jets.to(dtype=self.dtype, device=self.device).contiguous()
+        contribution = torch.empty(expected[0], self.config.support, self.config.out_dim,
+                                   dtype=self.dtype, device=self.device)
+        if expected[0] > 0:
+            bspline.contract_adjoint(tape.basis, grad, contribution)
+        gradient = self.gradients[0]
+        gradient.zero_()
+        # index_add_ sums in a fixed order on the CPU (deterministic); atomics on CUDA.
+        gradient.index_add_(0, tape.index.view(-1), contribution.view(-1, self.config.out_dim))
+
+    def evaluate(self, xi: torch.Tensor, conditioning: torch.Tensor | None = None, *,
+                 derivatives: bool = False, chunk: int | None = None
+                 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Displacement [m], shape (N, out_dim), and with ``derivatives`` also (N, 2, out_dim).
+
+        Processes ``chunk`` points at a time (default EVALUATION_CHUNK), so memory stays
+        bounded for millions of points; keeps no state.
+        """
+        chunk = EVALUATION_CHUNK if chunk is None else chunk
+        if chunk < 1:
+            raise ValueError(f"chunk must be a positive integer, got {chunk}")
+        xi = self._points(xi, conditioning)
+        channels = 3 if derivatives else 1
+        result = torch.empty(xi.shape[0], channels, self.config.out_dim, dtype=self.dtype,
+                             device=self.device)
+        for start in range(0, xi.shape[0], chunk):
+            part = xi[start:start + chunk]
+            result[start:start + chunk] = self._contract(*self._basis(part), channels)
+        if not derivatives:
+            return result[:, 0]
+        return result[:, 0], result[:, 1:]
+
+    def prolongation(self) -> torch.Tensor:
+        """Sparse matrix P (coalesced COO), shape (m1'·m2', m1·m2), of the exact dyadic
+        refinement: the field of ``config.refined()`` with coefficients P @ C is this field on
+        the whole domain. Entries are products of 2⁻ᵖ C(p + 1, r); this field's dtype and
+        device (use as ``torch.sparse.mm(P, C)``; the transpose restricts gradients)."""
+        config = self.config
+        one_d = [bspline.refinement_1d(n, config.degree, periodic)
+                 for n, periodic in zip(config.spans, config.periodic, strict=True)]
+        (f1, c1, w1), (f2, c2, w2) = (torch.tensor(entries, dtype=torch.float64).T
+                                      for entries in one_d)
+        fine2 = config.refined().coefficient_counts[1]
+        coarse2 = config.coefficient_counts[1]
+        rows = (f1[:, None] * fine2 + f2[None, :]).long().reshape(-1)
+        cols = (c1[:, None] * coarse2 + c2[None, :]).long().reshape(-1)
+        values = (w1[:, None] * w2[None, :]).reshape(-1)
+        shape = (config.refined().num_coefficients, config.num_coefficients)
+        matrix = torch.sparse_coo_tensor(torch.stack((rows, cols)), values, shape,
+                                         check_invariants=True)
+        return matrix.coalesce().to(dtype=self.dtype, device=self.device)
+
+    def refined(self) -> SplineField:
+        """A new field on ``config.refined()`` representing exactly the same function."""
+        fine = SplineField(self.config.refined(), dtype=self.dtype, device=self.device)
+        fine.coefficients.copy_(self.prolongation() @ self.coefficients)
+        log.debug("refined spline field %s -> %s spans", self.config.spans, fine.config.spans)
+        return fine
+
