@@ -29,6 +29,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE
 
@@ -179,3 +180,26 @@ class Assembly:
               np.tile(self.pin_dofs, len(self.pin_dofs)))),
             shape=(self.size, self.size))
         return (matrix + coupling + coupling.T - pin_block).tocsr()
+
+
+def displacement_at(field, boundary: BoundaryConditions, xi: torch.Tensor,
+                    coefficients: torch.Tensor, load_factor: float) -> torch.Tensor:
+    """Displacement jets (N, 6, 3) [m] at ξ (N, 2) of the field with `coefficients` (n, 3),
+    composed with the boundary conditions at load factor t (e.g. at probe points)."""
+    basis = local_basis_at(field, boundary, xi)
+    offset, jacobian, pin_jacobian = composed_jacobian(boundary, xi, basis, load_factor)
+    u = offset + torch.einsum("cnja,nac->njc", jacobian, coefficients[basis.index])
+    if pin_jacobian is not None:
+        u = u + torch.einsum("cnja,ac->njc", pin_jacobian, coefficients[basis.pin_index])
+    return u
+
+
+def gauge_unknowns(boundary: BoundaryConditions, basis: LocalBasis) -> np.ndarray | None:
+    """Unknowns to hold so that K is regular: with a free pin (u = N(ξ) − N(ξ₀)) adding a
+    constant to every coefficient of a held component changes nothing (the B-splines sum to
+    1), so one coefficient per held component is held: the pin's largest. None otherwise."""
+    if boundary.free_pin is None:
+        return None
+    coefficient = int(basis.pin_index[int(torch.argmax(basis.pin_jets[jets.VALUE]))])
+    held = [COMPONENTS_XYZ.index(c) for c in boundary.free_pin.components]
+    return np.array([coefficient * COMPONENTS + c for c in held], dtype=np.int64)

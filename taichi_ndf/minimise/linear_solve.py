@@ -23,10 +23,14 @@ MAX_DAMPING_RAISES = 12
 
 
 def damped_solve(matrix: sp.csr_matrix, rhs: np.ndarray, damping: float,
-                 fixed: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                 fixed: np.ndarray | None = None, *, require_definite: bool = False
+                 ) -> tuple[np.ndarray, float] | None:
     """Solve (K + μ D) x = rhs over the free unknowns (x = 0 at `fixed`), D = diag(K) (the
     mean diagonal where an entry of it is 0), μ = damping (raised ×10 from at least 1e-12
-    while the factorisation fails). Returns x and the μ used."""
+    while the factorisation fails). Returns x and the μ used.
+
+    require_definite: return None unless K + μ D is positive definite (all pivots of the
+    symmetric-mode factorisation positive: its inertia), without raising μ."""
     size = matrix.shape[0]
     free = np.ones(size, dtype=bool)
     if fixed is not None:
@@ -43,12 +47,24 @@ def damped_solve(matrix: sp.csr_matrix, rhs: np.ndarray, damping: float,
                                options={"SymmetricMode": True})
             solution = factor.solve(rhs[free])
         except RuntimeError as err:  # exactly singular
+            if require_definite:
+                return None
             log.debug("factorisation failed at damping %g: %s", mu, err)
             mu = max(10 * mu, 1e-12)
             continue
+        if require_definite and not _positive_pivots(factor):
+            return None
         if np.all(np.isfinite(solution)):
             out = np.zeros(size)
             out[free] = solution
             return out, mu
         mu = max(10 * mu, 1e-12)
     raise RuntimeError(f"the Newton system stayed singular up to damping {mu:g}")
+
+
+def _positive_pivots(factor) -> bool:
+    """Whether a symmetric-mode LU of a symmetric matrix has only positive pivots (then it is
+    LDLᵀ with D > 0 under one symmetric permutation: the matrix is positive definite)."""
+    if not np.array_equal(factor.perm_r, factor.perm_c):
+        return False
+    return bool(np.all(factor.U.diagonal() > 0))

@@ -5,7 +5,10 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
    composition: `Assembly.gradient`);
 2. per-point Hessian blocks by central differences of that gradient, projected to positive
    semi-definite (`taichi_ndf.shell.hessian`);
-3. K = Σ Jᵀ H J, sparse (`Assembly.hessian`);
+3. K = Σ Jᵀ H J, sparse (`Assembly.hessian`) — of the exact blocks when that K is positive
+   definite (checked by the pivots of its factorisation: a stable state may have indefinite
+   blocks, and the exact Newton step then converges quadratically), else of the projected
+   ones;
 4. d from (K + μ diag K) d = −g (`damped_solve`; μ = 0 unless the system is singular or a
    step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd.
@@ -84,9 +87,9 @@ class ProjectedNewtonConfig:
 @dataclass
 class NewtonIteration:
     """One projected-Newton iteration: Π [J] before the step, the decrement λ² = −gᵀd [J],
-    the accepted step length α (0: none), the damping μ, the number of indefinite (projected)
-    blocks, ‖g‖, and seconds spent on energy + gradient, Hessian blocks, assembly and the
-    linear solve."""
+    the accepted step length α (0: none), the damping μ, the number of indefinite blocks
+    projected (0 also when the exact K was definite and used), ‖g‖, and seconds spent on
+    energy + gradient, Hessian blocks, assembly and the linear solve."""
 
     load_factor: float
     iteration: int
@@ -139,19 +142,34 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             break
         started = time.perf_counter()
         steps = jet_steps(samples.r_jets, u, length, config.fd_step)
-        blocks = flat_blocks(sample_hessians(potential, samples, u, steps=steps))
-        projected = 0
-        if config.project:
-            blocks, projected = project_psd(blocks)
+        exact = flat_blocks(sample_hessians(potential, samples, u, steps=steps))
+        blocks, projected = project_psd(exact) if config.project else (exact, 0)
         t_hessian = time.perf_counter() - started
-        started = time.perf_counter()
-        matrix = assembly.hessian(blocks)
-        t_assembly = time.perf_counter() - started
         rhs = -gradient.reshape(-1).double().cpu().numpy()
-        t_solve, alpha, trial = 0.0, 0.0, current.total
+        t_assembly = t_solve = 0.0
+        exact_step = None
+        if projected and damping == 0.0:
+            # The assembled K may be definite although some blocks are not (a stable state
+            # under compression): then its exact Newton step converges quadratically.
+            started = time.perf_counter()
+            matrix = assembly.hessian(exact)
+            t_assembly += time.perf_counter() - started
+            started = time.perf_counter()
+            exact_step = damped_solve(matrix, rhs, 0.0, fixed, require_definite=True)
+            t_solve += time.perf_counter() - started
+        if exact_step is None:
+            started = time.perf_counter()
+            matrix = assembly.hessian(blocks)
+            t_assembly += time.perf_counter() - started
+        else:
+            projected = 0
+        alpha, trial = 0.0, current.total
         for _attempt in range(6):
             started = time.perf_counter()
-            step_np, damping = damped_solve(matrix, rhs, damping, fixed)
+            if exact_step is not None:
+                (step_np, damping), exact_step = exact_step, None
+            else:
+                step_np, damping = damped_solve(matrix, rhs, damping, fixed)
             t_solve += time.perf_counter() - started
             step = torch.from_numpy(step_np).to(c).reshape(c.shape)
             decrement = float(-(gradient * step).sum())

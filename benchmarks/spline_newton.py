@@ -1,0 +1,156 @@
+"""Spline field + projected Newton on the validation cases and the napkin (issue 19).
+
+One configuration for every case: cubic B-splines, 4 × 4 Gauss–Legendre points per knot span,
+`ProjectedNewtonConfig()` defaults, the scene's load steps; the coarsest grid follows one rule
+from the geometry (`grid_spans`), then two exact dyadic refinements (three grids), each solved
+from the coarser solution prolonged. Reported per case and quantity: the value on each grid,
+the Richardson-extrapolated value with its estimated error, and the error of the finest grid
+against the published reference.
+
+    python benchmarks/spline_newton.py [--cases a,b] [--levels 3] [--napkin] [--json out]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import time
+
+import numpy as np
+import torch
+
+import taichi_ndf
+from taichi_ndf import jets
+from taichi_ndf.field.spline import SplineConfig, SplineField
+from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
+from taichi_ndf.minimise.refinement import potential_at_load, richardson, solve_levels
+from taichi_ndf.sampling import SurfaceSamples, with_point_loads
+from taichi_ndf.validation import CASES, LINEARISATION, EndMoment, load_case_scene
+
+GAUSS_ORDER = 4  # points per direction and knot span (p + 1 for cubics)
+DEGREE = 3
+# Grid rule: knot spans of physical size at most min(L_short / SPANS_PER_SIDE, √(R_min h))
+# (L_short: the shorter side of the surface; R_min: least principal radius of curvature).
+SPANS_PER_SIDE = 4
+
+
+def gauss_samples(surface, config: SplineConfig, loads) -> SurfaceSamples:
+    """GAUSS_ORDER² Gauss–Legendre points per knot span of the spline's grid, plus point
+    loads (stand-in until the spline branch ships its quadrature module)."""
+    nodes, weights = np.polynomial.legendre.leggauss(GAUSS_ORDER)
+    axes, axis_weights = [], []
+    for (lo, hi), n in zip(config.domain, config.spans, strict=True):
+        h = (hi - lo) / n
+        left = lo + h * np.arange(n)
+        axes.append((left[:, None] + h * (nodes + 1) / 2).ravel())
+        axis_weights.append(np.tile(weights * h / 2, n))
+    x1, x2 = np.meshgrid(axes[0], axes[1], indexing="ij")
+    dtype = taichi_ndf.current().dtype
+    xi = torch.tensor(np.stack((x1.ravel(), x2.ravel()), axis=1), dtype=dtype)
+    weight = torch.tensor(np.outer(axis_weights[0], axis_weights[1]).ravel(), dtype=dtype)
+    return with_point_loads(surface, xi, weight, loads)
+
+
+def surface_scales(surface, thickness: float) -> tuple[tuple[float, float], float]:
+    """Mean physical lengths of the two coordinate directions [m] and √(R_min h) [m]
+    (infinite for a flat surface), from the reference jets on a 33 × 33 grid."""
+    (lo1, hi1), (lo2, hi2) = surface.domain.bounds
+    g1, g2 = torch.meshgrid(torch.linspace(lo1, hi1, 33, dtype=torch.float64),
+                            torch.linspace(lo2, hi2, 33, dtype=torch.float64), indexing="ij")
+    r = surface.jets(torch.stack((g1.ravel(), g2.ravel()), dim=1)).double()
+    a1, a2 = r[:, jets.D1], r[:, jets.D2]
+    lengths = (float(a1.norm(dim=1).mean()) * (hi1 - lo1),
+               float(a2.norm(dim=1).mean()) * (hi2 - lo2))
+    normal = torch.linalg.cross(a1, a2)
+    normal = normal / normal.norm(dim=1, keepdim=True).clamp_min(1e-300)
+    b = torch.stack([(r[:, c] * normal).sum(dim=1) for c in (jets.D11, jets.D12, jets.D22)], 1)
+    metric = torch.stack(((a1 * a1).sum(1), (a1 * a2).sum(1), (a2 * a2).sum(1)), dim=1)
+
+    def sym(m):
+        return torch.stack((torch.stack((m[:, 0], m[:, 1]), -1),
+                            torch.stack((m[:, 1], m[:, 2]), -1)), -2)
+
+    ok = torch.isfinite(b).all(dim=1) & (torch.linalg.det(sym(metric)) > 1e-12)
+    shape_operator = torch.linalg.solve(sym(metric)[ok], sym(b)[ok])
+    curvature = float(torch.linalg.eigvals(shape_operator).abs().max())
+    bending = math.inf if curvature < 1e-12 else math.sqrt(thickness / curvature)
+    return lengths, bending
+
+
+def grid_spans(surface, thickness: float) -> tuple[int, int]:
+    """The grid rule (module docstring)."""
+    lengths, bending = surface_scales(surface, thickness)
+    size = min(min(lengths) / SPANS_PER_SIDE, bending)
+    return tuple(max(1, math.ceil(length / size - 1e-9)) for length in lengths)
+
+
+def run_validation_case(name: str, levels: int, config: ProjectedNewtonConfig) -> dict:
+    case = CASES[name]
+    scene, model, _ = load_case_scene(case)
+    surface = model.surface
+    spans = grid_spans(surface, model.material.thickness)
+    domain = surface.domain
+    field = SplineField(SplineConfig(spans=spans, degree=DEGREE, domain=domain.bounds,
+                                     periodic=domain.periodic))
+    end_moment = None
+    if case.end_moment is not None:
+        end_moment = EndMoment(case.end_moment(model), domain.lengths[1])
+    probes = {p.name: p.xi for p in model.probes}
+    load_steps = tuple(scene.solver.load_steps)
+    started = time.perf_counter()
+    results = solve_levels(
+        field, model.boundary, lambda f: gauss_samples(surface, f.config, model.loads),
+        potential_at_load(model.material, model.loads, end_moment), levels=levels,
+        load_steps=load_steps, config=config, probes=probes,
+        length=math.sqrt(domain.rectangle_area))
+    wall = time.perf_counter() - started
+    xi = torch.tensor(list(probes.values()), dtype=torch.float64)
+    positions = surface.jets(xi)[:, jets.VALUE].double().numpy()
+    reference_positions = {n: positions[k] for k, n in enumerate(probes)}
+    unit = LINEARISATION if case.linear else 1.0
+    rows = []
+    for q in case.quantities:
+        k = min(range(len(load_steps)), key=lambda i: abs(load_steps[i] - q.level))
+        values = [q.read({n: v / unit for n, v in level[k].probes.items()},
+                         reference_positions) for level in results]
+        extrapolated = richardson(values) if len(values) >= 3 else None
+        rows.append({
+            "case": name, "quantity": q.name, "level": q.level, "reference": q.reference,
+            "values": values, "errors": [abs(v - q.reference) / abs(q.reference) for v in values],
+            "extrapolated": None if extrapolated is None else extrapolated.value,
+            "estimated_error": None if extrapolated is None else extrapolated.error,
+            "order": None if extrapolated is None else extrapolated.order,
+        })
+    energies = [level[-1].energy for level in results]
+    return {"case": name, "spans": [list(level[0].spans) for level in results],
+            "seconds": [sum(s.seconds for s in level) for level in results],
+            "newton_steps": [sum(len(s.history) for s in level) for level in results],
+            "converged": all(s.converged for level in results for s in level),
+            "energy": energies, "wall": wall, "rows": rows}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default=",".join(CASES))
+    parser.add_argument("--levels", type=int, default=3)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    torch.set_num_threads(1)
+    taichi_ndf.init(arch="cpu", precision="f64")
+    out = []
+    for name in [c for c in args.cases.split(",") if c]:
+        if name not in CASES:
+            raise SystemExit(f"unknown case {name!r}; choose from {', '.join(CASES)}")
+        result = run_validation_case(name, args.levels, ProjectedNewtonConfig())
+        out.append(result)
+        print(json.dumps(result, default=float))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1, default=float)
+
+
+if __name__ == "__main__":
+    main()
