@@ -31,7 +31,10 @@ from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
 from taichi_ndf.sampling import SurfaceSamples
-from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE
+from taichi_ndf.shell.hessian import COMPONENTS
+
+# Points per batch of the Hessian products (bounds the (chunk, 3k, 3k) temporaries).
+CHUNK = 4096
 
 
 @dataclass(frozen=True)
@@ -79,14 +82,16 @@ def composed_jacobian(boundary: BoundaryConditions, xi: torch.Tensor, basis: Loc
     return offset, jacobian[..., :k].contiguous(), jacobian[..., k:].contiguous()
 
 
-def _per_point_matrix(jacobian: torch.Tensor) -> torch.Tensor:
-    """J (3, N, 6, k) as per-point matrices (N, 18, 3k): rows channel × 3 + component,
-    columns coefficient × 3 + component (block diagonal in the component)."""
-    _, n, channels, k = jacobian.shape
-    out = jacobian.new_zeros(n, channels, COMPONENTS, k, COMPONENTS)
+def _products(left: torch.Tensor, blocks: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
+    """M[q, a, c, b, d] = Σ_ij L[c, q, i, a] H[q, i, c, j, d] R[d, q, j, b] for Jacobians
+    (3, n, 6, k) and blocks (n, 6, 3, 6, 3); shape (n, k, 3, k, 3)."""
+    n, k = left.shape[1], left.shape[3]
+    out = left.new_empty(n, k, COMPONENTS, right.shape[3], COMPONENTS)
     for c in range(COMPONENTS):
-        out[:, :, c, :, c] = jacobian[c]
-    return out.reshape(n, JET_SIZE, k * COMPONENTS)
+        left_t = left[c].transpose(1, 2)
+        for d in range(COMPONENTS):
+            out[:, :, c, :, d] = torch.bmm(left_t, torch.bmm(blocks[:, :, c, :, d], right[d]))
+    return out
 
 
 def _dofs(index: torch.Tensor) -> np.ndarray:
@@ -102,6 +107,8 @@ class Assembly:
     samples: the quadrature points; basis: the local basis there (`local_basis_at`);
     n_coefficients: coefficients of the field (unknowns: 3 × that).
     Call `at_load(boundary, load_factor)` before use (the prescribed part depends on t).
+    Points acting on the same coefficients (the Gauss points of one knot span) are summed
+    before the scatter, so the sparse pattern has one (3k)² block per span.
     """
 
     def __init__(self, samples: SurfaceSamples, basis: LocalBasis, n_coefficients: int):
@@ -112,74 +119,81 @@ class Assembly:
         self.basis = basis
         self.n_coefficients = int(n_coefficients)
         self.size = COMPONENTS * self.n_coefficients
-        self.dofs = _dofs(basis.index)  # (N, 3k)
+        self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel())
         self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
-        width = self.dofs.shape[1]
-        keys = (self.dofs[:, :, None] * self.size + self.dofs[:, None, :]).ravel()
+        groups, self._group = torch.unique(basis.index, dim=0, return_inverse=True)
+        group_dofs = _dofs(groups)  # (G, 3k)
+        keys = (group_dofs[:, :, None] * self.size + group_dofs[:, None, :]).ravel()
         unique, self._scatter = np.unique(keys, return_inverse=True)
         self._pattern = (unique // self.size, unique % self.size)
-        self._per_point = width * width
+        self._groups = groups.shape[0]
         self.offset = self.jacobian = self.pin_jacobian = None
 
     def at_load(self, boundary: BoundaryConditions, load_factor: float) -> Assembly:
         """Linearise the composition at load factor t (see `composed_jacobian`)."""
-        self.offset, jac, pin = composed_jacobian(boundary, self.samples.xi, self.basis,
-                                                  load_factor)
-        self.jacobian = _per_point_matrix(jac)
-        self.pin_jacobian = None if pin is None else _per_point_matrix(pin)
+        self.offset, self.jacobian, self.pin_jacobian = composed_jacobian(
+            boundary, self.samples.xi, self.basis, load_factor)
         return self
 
     def displacement(self, coefficients: torch.Tensor) -> torch.Tensor:
         """Displacement jets U (N, 6, 3) [m] of coefficients (n, 3)."""
-        u = torch.bmm(self.jacobian, coefficients[self.basis.index].reshape(
-            len(self.samples), -1, 1))
+        u = torch.einsum("cnja,nac->njc", self.jacobian, coefficients[self.basis.index])
         if self.pin_jacobian is not None:
-            pin = coefficients[self.basis.pin_index].reshape(-1, 1)
-            u = u + self.pin_jacobian @ pin
-        return self.offset + u.reshape(-1, jets.CHANNELS, COMPONENTS)
+            u = u + torch.einsum("cnja,ac->njc", self.pin_jacobian,
+                                 coefficients[self.basis.pin_index])
+        return self.offset + u
 
     def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
         """dΠ/dC (n, 3) from dΠ/dU (N, 6, 3)."""
-        flat = grad_u_jets.reshape(-1, JET_SIZE, 1)
-        local = torch.bmm(self.jacobian.transpose(1, 2), flat)[..., 0]  # (N, 3k)
+        local = torch.einsum("cnja,njc->nac", self.jacobian, grad_u_jets)
         out = local.new_zeros(self.size)
-        out.index_add_(0, torch.from_numpy(self.dofs.ravel()), local.reshape(-1))
+        out.index_add_(0, self.point_dofs, local.reshape(-1))
         if self.pin_jacobian is not None:
-            pin = torch.bmm(self.pin_jacobian.transpose(1, 2), flat)[..., 0].sum(dim=0)
-            out.index_add_(0, torch.from_numpy(self.pin_dofs), pin)
+            pin = torch.einsum("cnja,njc->ac", self.pin_jacobian, grad_u_jets)
+            out.index_add_(0, torch.from_numpy(self.pin_dofs), pin.reshape(-1))
         return out.reshape(-1, COMPONENTS)
 
     def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
-        """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18)."""
-        weighted = torch.bmm(blocks, self.jacobian)  # (N, 18, 3k)
-        local = torch.bmm(self.jacobian.transpose(1, 2), weighted)
-        data = np.bincount(self._scatter, weights=local.double().cpu().numpy().ravel(),
+        """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18) (index
+        channel × 3 + component)."""
+        n = blocks.shape[0]
+        blocks = blocks.reshape(n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
+        k = self.jacobian.shape[3]
+        summed = blocks.new_zeros(self._groups, k * COMPONENTS, k * COMPONENTS)
+        pin = self.pin_jacobian is not None
+        if pin:
+            dense = blocks.new_zeros(self.size, k * COMPONENTS)  # Σ J_localᵀ H J_pin
+            pin_pin = blocks.new_zeros(k * COMPONENTS, k * COMPONENTS)
+        for start in range(0, n, CHUNK):
+            part = slice(start, min(n, start + CHUNK))
+            h, jac = blocks[part], self.jacobian[:, part]
+            local = _products(jac, h, jac).reshape(-1, k * COMPONENTS, k * COMPONENTS)
+            summed.index_add_(0, self._group[part], local)
+            if pin:
+                pin_jac = self.pin_jacobian[:, part]
+                cross = _products(jac, h, pin_jac).reshape(-1, k * COMPONENTS)
+                rows = self.point_dofs[start * k * COMPONENTS:part.stop * k * COMPONENTS]
+                dense.index_add_(0, rows, cross)
+                pin_pin += _products(pin_jac, h, pin_jac).sum(dim=0).reshape(
+                    k * COMPONENTS, k * COMPONENTS)
+        data = np.bincount(self._scatter, weights=summed.double().cpu().numpy().ravel(),
                            minlength=len(self._pattern[0]))
         matrix = sp.csr_matrix((data, self._pattern), shape=(self.size, self.size))
-        if self.pin_jacobian is None:
+        if not pin:
             return matrix
-        # Couplings through the pin's coefficients: summed over the points, then added.
-        cross = torch.bmm(self.pin_jacobian.transpose(1, 2), weighted)  # (N, 3k pin, 3k)
-        pin_pin = torch.einsum("nia,nij,njb->ab", self.pin_jacobian, blocks,
-                               self.pin_jacobian)
-        dense = cross.new_zeros(self.size, cross.shape[1])  # rows: all unknowns
-        dense.index_add_(0, torch.from_numpy(self.dofs.ravel()),
-                         cross.transpose(1, 2).reshape(-1, cross.shape[1]))
-        dense[torch.from_numpy(self.pin_dofs)] += pin_pin
-        rows = np.flatnonzero(np.abs(dense.double().cpu().numpy()).sum(axis=1))
-        block = dense.double().cpu().numpy()[rows]
+        # Couplings through the pin's coefficients: Σ J_localᵀ H J_pin at the rows of the
+        # points' unknowns and the pin's columns, its transpose, and the pin–pin block.
+        dense = dense.double().cpu().numpy()
+        rows = np.flatnonzero(np.abs(dense).sum(axis=1))
+        width = len(self.pin_dofs)
         coupling = sp.csr_matrix(
-            (block.ravel(), (np.repeat(rows, block.shape[1]),
-                             np.tile(self.pin_dofs, len(rows)))),
+            (dense[rows].ravel(), (np.repeat(rows, width), np.tile(self.pin_dofs, len(rows)))),
             shape=(self.size, self.size))
-        # The pin–pin block is in `dense` at the pin rows, so `coupling` holds it once and
-        # its transpose once more: take it out of one of them.
         pin_block = sp.csr_matrix(
             (pin_pin.double().cpu().numpy().ravel(),
-             (np.repeat(self.pin_dofs, len(self.pin_dofs)),
-              np.tile(self.pin_dofs, len(self.pin_dofs)))),
+             (np.repeat(self.pin_dofs, width), np.tile(self.pin_dofs, width))),
             shape=(self.size, self.size))
-        return (matrix + coupling + coupling.T - pin_block).tocsr()
+        return (matrix + coupling + coupling.T + pin_block).tocsr()
 
 
 def displacement_at(field, boundary: BoundaryConditions, xi: torch.Tensor,
