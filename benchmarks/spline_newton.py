@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -27,13 +28,15 @@ from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import potential_at_load, richardson, solve_levels
 from taichi_ndf.sampling import SurfaceSamples, with_point_loads
+from taichi_ndf.scene import load_scene
 from taichi_ndf.validation import CASES, LINEARISATION, EndMoment, load_case_scene
 
+SCENE_DIR = Path(__file__).resolve().parents[1] / "scenes"
 GAUSS_ORDER = 4  # points per direction and knot span (p + 1 for cubics)
 DEGREE = 3
-# Grid rule: knot spans of physical size at most min(L_short / SPANS_PER_SIDE, √(R_min h))
-# (L_short: the shorter side of the surface; R_min: least principal radius of curvature).
-SPANS_PER_SIDE = 4
+# Grid rule: knot spans of physical size at most min(L_long / SPANS_PER_SIDE, √(R_min h))
+# (L_long: the longer side of the surface; R_min: least principal radius of curvature).
+SPANS_PER_SIDE = 8
 
 
 def gauss_samples(surface, config: SplineConfig, loads) -> SurfaceSamples:
@@ -82,7 +85,7 @@ def surface_scales(surface, thickness: float) -> tuple[tuple[float, float], floa
 def grid_spans(surface, thickness: float) -> tuple[int, int]:
     """The grid rule (module docstring)."""
     lengths, bending = surface_scales(surface, thickness)
-    size = min(min(lengths) / SPANS_PER_SIDE, bending)
+    size = min(max(lengths) / SPANS_PER_SIDE, bending)
     return tuple(max(1, math.ceil(length / size - 1e-9)) for length in lengths)
 
 
@@ -131,16 +134,60 @@ def run_validation_case(name: str, levels: int, config: ProjectedNewtonConfig) -
             "energy": energies, "wall": wall, "rows": rows}
 
 
+def run_napkin(levels: int, coarsest: int, config: ProjectedNewtonConfig) -> dict:
+    """The napkin (scenes/napkin.toml, free pin) from coarsest × coarsest spans through
+    `levels` grids: Π per level, the cumulative time, and the first level within 1 % of the
+    Π extrapolated from the last three."""
+    scene = load_scene(SCENE_DIR / "napkin.toml")
+    model = scene.model
+    surface = model.surface
+    field = SplineField(SplineConfig(spans=(coarsest, coarsest), degree=DEGREE,
+                                     domain=surface.domain.bounds))
+    started = time.perf_counter()
+    results = solve_levels(
+        field, model.boundary, lambda f: gauss_samples(surface, f.config, model.loads),
+        potential_at_load(model.material, model.loads), levels=levels, config=config,
+        probes={p.name: p.xi for p in model.probes},
+        length=math.sqrt(surface.domain.rectangle_area))
+    wall = time.perf_counter() - started
+    energies = [level[-1].energy for level in results]
+    cumulative = np.cumsum([level[-1].seconds for level in results]).tolist()
+    limit = richardson(energies)
+    within = [abs(e - limit.value) <= 0.01 * abs(limit.value) for e in energies]
+    first = within.index(True) if any(within) else None
+    return {"case": "napkin", "precision": taichi_ndf.current().precision,
+            "spans": [list(level[-1].spans) for level in results], "energy": energies,
+            "cumulative_seconds": cumulative,
+            "newton_steps": [len(level[-1].history) for level in results],
+            "time_split": [{key: sum(getattr(h, f"time_{key}") for h in level[-1].history)
+                            for key in ("energy", "hessian", "assembly", "solve")}
+                           for level in results],
+            "extrapolated": limit.value, "estimated_error": limit.error, "order": limit.order,
+            "first_within_1pct": first,
+            "seconds_to_1pct": None if first is None else cumulative[first],
+            "free_corner": [level[-1].probes["free_corner"].tolist() for level in results],
+            "wall": wall}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--levels", type=int, default=3)
     parser.add_argument("--json", default=None)
+    parser.add_argument("--napkin", action="store_true", help="run the napkin instead")
+    parser.add_argument("--napkin-levels", type=int, default=5)
+    parser.add_argument("--napkin-coarsest", type=int, default=2)
+    parser.add_argument("--precision", choices=("f32", "f64"), default="f64")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     torch.set_num_threads(1)
-    taichi_ndf.init(arch="cpu", precision="f64")
+    taichi_ndf.init(arch="cpu", precision=args.precision)
     out = []
+    if args.napkin:
+        config = ProjectedNewtonConfig(fd_step=1e-4 if args.precision == "f64" else 3e-3)
+        out.append(run_napkin(args.napkin_levels, args.napkin_coarsest, config))
+        print(json.dumps(out[-1], default=float))
+        args.cases = ""
     for name in [c for c in args.cases.split(",") if c]:
         if name not in CASES:
             raise SystemExit(f"unknown case {name!r}; choose from {', '.join(CASES)}")

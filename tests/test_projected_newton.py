@@ -91,7 +91,8 @@ def _case(boundary_kind):
     coefficients = 0.02 * torch.randn(field.parameters[0].shape, generator=generator, dtype=DT)
     assembly = Assembly(samples, local_basis_at(field, boundary, samples.xi),
                         coefficients.shape[0]).at_load(boundary, 1.0)
-    return field, boundary, samples, _potential(material, loads), assembly, coefficients
+    return (field, boundary, assembly.samples, _potential(material, loads), assembly,
+            coefficients)
 
 
 @pytest.mark.parametrize("boundary_kind", ["edges", "free_pin"])

@@ -82,16 +82,15 @@ def composed_jacobian(boundary: BoundaryConditions, xi: torch.Tensor, basis: Loc
     return offset, jacobian[..., :k].contiguous(), jacobian[..., k:].contiguous()
 
 
-def _products(left: torch.Tensor, blocks: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
-    """M[q, a, c, b, d] = Σ_ij L[c, q, i, a] H[q, i, c, j, d] R[d, q, j, b] for Jacobians
-    (3, n, 6, k) and blocks (n, 6, 3, 6, 3); shape (n, k, 3, k, 3)."""
-    n, k = left.shape[1], left.shape[3]
-    out = left.new_empty(n, k, COMPONENTS, right.shape[3], COMPONENTS)
-    for c in range(COMPONENTS):
-        left_t = left[c].transpose(1, 2)
-        for d in range(COMPONENTS):
-            out[:, :, c, :, d] = torch.bmm(left_t, torch.bmm(blocks[:, :, c, :, d], right[d]))
-    return out
+def _weighted(blocks: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
+    """T[q, i, c, b, d] = Σ_j H[q, i, c, j, d] J[d, q, j, b]: blocks (n, 6, 3, 6, 3) times
+    Jacobians (3, n, 6, k); shape (n, 6, 3, k, 3)."""
+    return torch.einsum("qicjd,dqjb->qicbd", blocks, jacobian)
+
+
+def _contract(jacobian: torch.Tensor, weighted: torch.Tensor) -> torch.Tensor:
+    """M[q, a, c, b, d] = Σ_i J[c, q, i, a] T[q, i, c, b, d], shape (n, k, 3, k, 3)."""
+    return torch.einsum("cqia,qicbd->qacbd", jacobian, weighted)
 
 
 def _dofs(index: torch.Tensor) -> np.ndarray:
@@ -108,20 +107,36 @@ class Assembly:
     n_coefficients: coefficients of the field (unknowns: 3 × that).
     Call `at_load(boundary, load_factor)` before use (the prescribed part depends on t).
     Points acting on the same coefficients (the Gauss points of one knot span) are summed
-    before the scatter, so the sparse pattern has one (3k)² block per span.
+    before the scatter, so the sparse pattern has one (3k)² block per span; `samples` holds
+    the points in the assembly's own order (use it, not the samples passed in).
     """
 
     def __init__(self, samples: SurfaceSamples, basis: LocalBasis, n_coefficients: int):
         if basis.index.shape[0] != len(samples):
             raise ValueError(f"basis has {basis.index.shape[0]} points for {len(samples)} "
                              "samples")
-        self.samples = samples
-        self.basis = basis
+        # The points are reordered: the first m points of every group of points acting on the
+        # same coefficients (m: the smallest group; the Gauss points of a span), group by group,
+        # are contracted in one GEMM per group; the others (point-load samples) follow and are
+        # contracted point by point.
+        groups, group = torch.unique(basis.index, dim=0, return_inverse=True)
+        counts = torch.bincount(group)
+        order = torch.argsort(group, stable=True)
+        rank = torch.arange(len(order)) - torch.repeat_interleave(
+            torch.cumsum(counts, 0) - counts, counts)
+        regular = rank < int(counts.min())
+        order = torch.cat((order[regular], order[~regular]))
+        self._per_group = int(counts.min())
+        self._extra = slice(len(groups) * self._per_group, len(order))
+        self._group = group[order]
+        self.samples = SurfaceSamples(*(t[order] for t in (
+            samples.xi, samples.r_jets, samples.weight, samples.point_force)))
+        self.basis = basis = LocalBasis(basis.index[order], basis.jets[order], basis.pin_index,
+                                        basis.pin_jets)
         self.n_coefficients = int(n_coefficients)
         self.size = COMPONENTS * self.n_coefficients
         self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel())
         self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
-        groups, self._group = torch.unique(basis.index, dim=0, return_inverse=True)
         group_dofs = _dofs(groups)  # (G, 3k)
         keys = (group_dofs[:, :, None] * self.size + group_dofs[:, None, :]).ravel()
         unique, self._scatter = np.unique(keys, return_inverse=True)
@@ -159,23 +174,35 @@ class Assembly:
         n = blocks.shape[0]
         blocks = blocks.reshape(n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
         k = self.jacobian.shape[3]
-        summed = blocks.new_zeros(self._groups, k * COMPONENTS, k * COMPONENTS)
+        width = k * COMPONENTS
+        summed = blocks.new_empty(self._groups, k, COMPONENTS, width)
+        m = self._per_group
+        step = max(1, CHUNK // m)
+        for start in range(0, self._groups, step):
+            groups = slice(start, min(self._groups, start + step))
+            points = slice(groups.start * m, groups.stop * m)
+            jac = self.jacobian[:, points]
+            weighted = _weighted(blocks[points], jac).reshape(-1, m * jets.CHANNELS,
+                                                              COMPONENTS, width)
+            jac = jac.reshape(COMPONENTS, -1, m * jets.CHANNELS, k)
+            for c in range(COMPONENTS):
+                summed[groups, :, c] = torch.bmm(jac[c].transpose(1, 2), weighted[:, :, c])
+        summed = summed.reshape(self._groups, width, width)
+        if self._extra.stop > self._extra.start:
+            jac = self.jacobian[:, self._extra]
+            summed.index_add_(0, self._group[self._extra], _contract(
+                jac, _weighted(blocks[self._extra], jac)).reshape(-1, width, width))
         pin = self.pin_jacobian is not None
         if pin:
-            dense = blocks.new_zeros(self.size, k * COMPONENTS)  # Σ J_localᵀ H J_pin
-            pin_pin = blocks.new_zeros(k * COMPONENTS, k * COMPONENTS)
-        for start in range(0, n, CHUNK):
-            part = slice(start, min(n, start + CHUNK))
-            h, jac = blocks[part], self.jacobian[:, part]
-            local = _products(jac, h, jac).reshape(-1, k * COMPONENTS, k * COMPONENTS)
-            summed.index_add_(0, self._group[part], local)
-            if pin:
-                pin_jac = self.pin_jacobian[:, part]
-                cross = _products(jac, h, pin_jac).reshape(-1, k * COMPONENTS)
-                rows = self.point_dofs[start * k * COMPONENTS:part.stop * k * COMPONENTS]
-                dense.index_add_(0, rows, cross)
-                pin_pin += _products(pin_jac, h, pin_jac).sum(dim=0).reshape(
-                    k * COMPONENTS, k * COMPONENTS)
+            dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
+            pin_pin = blocks.new_zeros(width, width)
+            for start in range(0, n, CHUNK):
+                part = slice(start, min(n, start + CHUNK))
+                weighted = _weighted(blocks[part], self.pin_jacobian[:, part])
+                dense.index_add_(0, self.point_dofs[part.start * width:part.stop * width],
+                                 _contract(self.jacobian[:, part], weighted).reshape(-1, width))
+                pin_pin += _contract(self.pin_jacobian[:, part], weighted).sum(dim=0).reshape(
+                    width, width)
         data = np.bincount(self._scatter, weights=summed.double().cpu().numpy().ravel(),
                            minlength=len(self._pattern[0]))
         matrix = sp.csr_matrix((data, self._pattern), shape=(self.size, self.size))
@@ -185,7 +212,6 @@ class Assembly:
         # points' unknowns and the pin's columns, its transpose, and the pin–pin block.
         dense = dense.double().cpu().numpy()
         rows = np.flatnonzero(np.abs(dense).sum(axis=1))
-        width = len(self.pin_dofs)
         coupling = sp.csr_matrix(
             (dense[rows].ravel(), (np.repeat(rows, width), np.tile(self.pin_dofs, len(rows)))),
             shape=(self.size, self.size))

@@ -12,10 +12,11 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
 4. d from (K + μ diag K) d = −g (`damped_solve`; μ = 0 unless the system is singular or a
    step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd.
-Stops when the Newton decrement λ² = −gᵀd satisfies λ²/2 ≤ decrement_tolerance × |Π| (λ²/2
-estimates Π − Π* near the minimum) or ‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: the gradient at
-the start of the load step). Each iteration logs Π, λ², α, μ and the time split (energy,
-Hessian, assembly, solve), and returns them as `NewtonIteration` records.
+Stops, without taking that step, when the Newton decrement λ² = −gᵀd satisfies
+λ²/2 ≤ decrement_tolerance × |Π| (λ²/2 estimates Π − Π* near the minimum), or when
+‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: the gradient at the start of the load step). Each
+iteration logs Π, λ², α, μ and the time split (energy, Hessian, assembly, solve), and returns
+them as `NewtonIteration` records.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ class ProjectedNewtonConfig:
         damping, for convex problems).
     """
 
-    max_iterations: int = 40
+    max_iterations: int = 100
     decrement_tolerance: float = 1e-12
     gradient_tolerance: float = 1e-10
     fd_step: float = 1e-4
@@ -173,7 +174,8 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             t_solve += time.perf_counter() - started
             step = torch.from_numpy(step_np).to(c).reshape(c.shape)
             decrement = float(-(gradient * step).sum())
-            if decrement <= 0:  # not a descent direction: rounding at the minimum
+            if decrement <= 0 or 0.5 * decrement <= config.decrement_tolerance * abs(
+                    current.total):  # converged: the step would change Π by rounding only
                 break
             started = time.perf_counter()
             alpha = 1.0
@@ -205,9 +207,6 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
         damping = damping / 10 if alpha == 1.0 else damping
         if damping < RETRY_DAMPING:
             damping = 0.0
-        if 0.5 * decrement <= config.decrement_tolerance * abs(current.total):
-            converged = True
-            break
     energy = potential(samples, assembly.displacement(c), False).total
     return NewtonSolution(coefficients=c, energy=energy, converged=converged, history=history)
 
