@@ -91,8 +91,20 @@ def _case(boundary_kind):
     coefficients = 0.02 * torch.randn(field.parameters[0].shape, generator=generator, dtype=DT)
     assembly = Assembly(samples, local_basis_at(field, boundary, samples.xi),
                         coefficients.shape[0]).at_load(boundary, 1.0)
-    return (field, boundary, assembly.samples, _potential(material, loads), assembly,
-            coefficients)
+    shell = _potential(material, loads)
+
+    def potential(s, u, grad):
+        """The shell plus springs ½ k |u|² per area to the reference positions: a term in the
+        displacement value, which the free pin's coupling carries."""
+        result = shell(s, u, grad)
+        stiffness = 50.0 * s.weight
+        result.total += float(0.5 * (stiffness[:, None] * u[:, 0] ** 2).sum())
+        if grad:
+            result.grad_u_jets = result.grad_u_jets.clone()
+            result.grad_u_jets[:, 0] += stiffness[:, None] * u[:, 0]
+        return result
+
+    return field, boundary, assembly.samples, potential, assembly, coefficients
 
 
 @pytest.mark.parametrize("boundary_kind", ["edges", "free_pin"])

@@ -138,6 +138,7 @@ class Assembly:
         self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel())
         self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
         group_dofs = _dofs(groups)  # (G, 3k)
+        self._group_dofs = torch.from_numpy(group_dofs.ravel())
         keys = (group_dofs[:, :, None] * self.size + group_dofs[:, None, :]).ravel()
         unique, self._scatter = np.unique(keys, return_inverse=True)
         self._pattern = (unique // self.size, unique % self.size)
@@ -148,6 +149,9 @@ class Assembly:
         """Linearise the composition at load factor t (see `composed_jacobian`)."""
         self.offset, self.jacobian, self.pin_jacobian = composed_jacobian(
             boundary, self.samples.xi, self.basis, load_factor)
+        if self.pin_jacobian is not None:
+            used = self.pin_jacobian.abs().amax(dim=(0, 1, 3)) > 0
+            self._pin_channels = torch.nonzero(used).flatten()
         return self
 
     def displacement(self, coefficients: torch.Tensor) -> torch.Tensor:
@@ -168,12 +172,12 @@ class Assembly:
             out.index_add_(0, torch.from_numpy(self.pin_dofs), pin.reshape(-1))
         return out.reshape(-1, COMPONENTS)
 
-    def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
-        """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18) (index
-        channel × 3 + component)."""
-        n = blocks.shape[0]
-        blocks = blocks.reshape(n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
-        k = self.jacobian.shape[3]
+    def _group_sums(self, left: torch.Tensor, blocks: torch.Tensor, right: torch.Tensor
+                    ) -> torch.Tensor:
+        """Σ over the points q of each group of L_qᵀ H_q R_q, shape (G, 3k, 3k), for
+        Jacobians L (3, N, cl, k), R (3, N, cr, k) on channel subsets and blocks
+        (N, cl, 3, cr, 3) on the same channels."""
+        k, channels = left.shape[3], left.shape[2]
         width = k * COMPONENTS
         summed = blocks.new_empty(self._groups, k, COMPONENTS, width)
         m = self._per_group
@@ -181,28 +185,34 @@ class Assembly:
         for start in range(0, self._groups, step):
             groups = slice(start, min(self._groups, start + step))
             points = slice(groups.start * m, groups.stop * m)
-            jac = self.jacobian[:, points]
-            weighted = _weighted(blocks[points], jac).reshape(-1, m * jets.CHANNELS,
-                                                              COMPONENTS, width)
-            jac = jac.reshape(COMPONENTS, -1, m * jets.CHANNELS, k)
+            weighted = _weighted(blocks[points], right[:, points]).reshape(
+                -1, m * channels, COMPONENTS, width)
+            lhs = left[:, points].reshape(COMPONENTS, -1, m * channels, k)
             for c in range(COMPONENTS):
-                summed[groups, :, c] = torch.bmm(jac[c].transpose(1, 2), weighted[:, :, c])
+                summed[groups, :, c] = torch.bmm(lhs[c].transpose(1, 2), weighted[:, :, c])
         summed = summed.reshape(self._groups, width, width)
         if self._extra.stop > self._extra.start:
-            jac = self.jacobian[:, self._extra]
-            summed.index_add_(0, self._group[self._extra], _contract(
-                jac, _weighted(blocks[self._extra], jac)).reshape(-1, width, width))
+            extra = self._extra
+            summed.index_add_(0, self._group[extra], _contract(
+                left[:, extra], _weighted(blocks[extra], right[:, extra])).reshape(
+                    -1, width, width))
+        return summed
+
+    def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
+        """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18) (index
+        channel × 3 + component)."""
+        n = blocks.shape[0]
+        blocks = blocks.reshape(n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
+        width = self.jacobian.shape[3] * COMPONENTS
+        summed = self._group_sums(self.jacobian, blocks, self.jacobian)
         pin = self.pin_jacobian is not None
-        if pin:
+        if pin:  # the pin's Jacobian lives on few channels (the value): only those enter
+            ch = self._pin_channels
+            pin_jac = self.pin_jacobian[:, :, ch]
+            cross = self._group_sums(self.jacobian, blocks[:, :, :, ch], pin_jac)
             dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
-            pin_pin = blocks.new_zeros(width, width)
-            for start in range(0, n, CHUNK):
-                part = slice(start, min(n, start + CHUNK))
-                weighted = _weighted(blocks[part], self.pin_jacobian[:, part])
-                dense.index_add_(0, self.point_dofs[part.start * width:part.stop * width],
-                                 _contract(self.jacobian[:, part], weighted).reshape(-1, width))
-                pin_pin += _contract(self.pin_jacobian[:, part], weighted).sum(dim=0).reshape(
-                    width, width)
+            dense.index_add_(0, self._group_dofs, cross.reshape(-1, width))
+            pin_pin = self._group_sums(pin_jac, blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
         data = np.bincount(self._scatter, weights=summed.double().cpu().numpy().ravel(),
                            minlength=len(self._pattern[0]))
         matrix = sp.csr_matrix((data, self._pattern), shape=(self.size, self.size))
