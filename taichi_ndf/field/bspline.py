@@ -86,8 +86,9 @@ def refinement_1d(spans: int, degree: int, periodic: bool) -> list[tuple[int, in
 
 @functools.cache
 def basis_kernel(degree: int):
-    """Kernel filling index (N, (p+1)²) int32 and basis (N, 6, (p+1)²) with the tensor-product
-    basis jets at ξ (N, 2). grid (2, 2): (lo, h) per direction; matrices: `basis_matrices`.
+    """Kernel filling index (N, (p+1)²) (an integer array) and basis (N, 6, (p+1)²) with the
+    tensor-product basis jets at ξ (N, 2). grid (2, 2): (lo, h) per direction; matrices:
+    `basis_matrices`.
 
     Contains no floating-point literal, so it computes in the dtype of its arrays.
     """
@@ -147,25 +148,46 @@ def basis_kernel(degree: int):
     return evaluate
 
 
-@ti.kernel
-def contract(index: ti.types.ndarray(ndim=2), basis: ti.types.ndarray(ndim=3),
-             coefficients: ti.types.ndarray(ndim=2), out: ti.types.ndarray(ndim=3)):
-    """out[i, ch, c] = Σ_k basis[i, ch, k] · coefficients[index[i, k], c] (ch < out channels)."""
-    for i, ch, c in ti.ndrange(out.shape[0], out.shape[1], out.shape[2]):
-        acc = basis[i, ch, 0] * coefficients[index[i, 0], c]
-        for k in range(1, index.shape[1]):
-            acc += basis[i, ch, k] * coefficients[index[i, k], c]
-        out[i, ch, c] = acc
+@functools.cache
+def contract_kernel(channels: int, out_dim: int):
+    """Kernel out[i, ch, c] = Σ_k basis[i, ch, k] · coefficients[index[i, k], c] for the first
+    `channels` jet channels: one thread per point, its (channels × out_dim) sums in registers,
+    each coefficient row read once."""
+
+    @ti.kernel
+    def contract(index: ti.types.ndarray(ndim=2), basis: ti.types.ndarray(ndim=3),
+                 coefficients: ti.types.ndarray(ndim=2), out: ti.types.ndarray(ndim=3)):
+        for i in range(out.shape[0]):
+            row = index[i, 0]
+            acc = ti.Matrix([[basis[i, ch, 0] * coefficients[row, c]
+                              for c in ti.static(range(out_dim))]
+                             for ch in ti.static(range(channels))])
+            for k in range(1, index.shape[1]):
+                row = index[i, k]
+                for ch, c in ti.static(ti.ndrange(channels, out_dim)):
+                    acc[ch, c] += basis[i, ch, k] * coefficients[row, c]
+            for ch, c in ti.static(ti.ndrange(channels, out_dim)):
+                out[i, ch, c] = acc[ch, c]
+
+    return contract
 
 
-@ti.kernel
-def contract_adjoint(basis: ti.types.ndarray(ndim=3), grad: ti.types.ndarray(ndim=3),
-                     contribution: ti.types.ndarray(ndim=3)):
-    """contribution[i, k, c] = Σ_ch basis[i, ch, k] · grad[i, ch, c]: what point i adds to the
-    gradient of the coefficient index[i, k] (the scatter itself is left to the caller)."""
-    for i, k, c in ti.ndrange(contribution.shape[0], contribution.shape[1],
-                              contribution.shape[2]):
-        acc = basis[i, 0, k] * grad[i, 0, c]
-        for ch in ti.static(range(1, CHANNELS)):
-            acc += basis[i, ch, k] * grad[i, ch, c]
-        contribution[i, k, c] = acc
+@functools.cache
+def contract_adjoint_kernel(out_dim: int):
+    """Kernel contribution[i, k, c] = Σ_ch basis[i, ch, k] · grad[i, ch, c]: what point i
+    adds to the gradient of the coefficient index[i, k] (the scatter is left to the caller)."""
+
+    @ti.kernel
+    def contract_adjoint(basis: ti.types.ndarray(ndim=3), grad: ti.types.ndarray(ndim=3),
+                         contribution: ti.types.ndarray(ndim=3)):
+        for i in range(contribution.shape[0]):
+            g = ti.Matrix([[grad[i, ch, c] for c in ti.static(range(out_dim))]
+                           for ch in ti.static(range(CHANNELS))])
+            for k in range(contribution.shape[1]):
+                for c in ti.static(range(out_dim)):
+                    acc = basis[i, 0, k] * g[0, c]
+                    for ch in ti.static(range(1, CHANNELS)):
+                        acc += basis[i, ch, k] * g[ch, c]
+                    contribution[i, k, c] = acc
+
+    return contract_adjoint

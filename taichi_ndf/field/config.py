@@ -16,6 +16,41 @@ def _finite_range(name: str, pair) -> tuple[float, float]:
     return lo, hi
 
 
+def check_domain_and_periodic(config) -> None:
+    """Validate a field configuration's `domain` (two finite (lo, hi) pairs, lo < hi) and
+    `periodic` (two booleans) and store them as tuples of floats and booleans."""
+    if len(config.domain) != 2:
+        raise ValueError(f"domain must hold two (lo, hi) pairs, got {config.domain!r}")
+    domain = tuple(_finite_range(f"domain[{i}]", p) for i, p in enumerate(config.domain))
+    object.__setattr__(config, "domain", domain)
+    if len(config.periodic) != 2 or not all(isinstance(p, bool) for p in config.periodic):
+        raise ValueError(f"periodic must be two booleans, got {config.periodic!r}")
+    object.__setattr__(config, "periodic", tuple(config.periodic))
+
+
+def _lists(value):
+    return [_lists(v) for v in value] if isinstance(value, (tuple, list)) else value
+
+
+def _tuples(value):
+    return tuple(_tuples(v) for v in value) if isinstance(value, (tuple, list)) else value
+
+
+def config_to_dict(config) -> dict:
+    """A field configuration (frozen dataclass) as a plain dict, tuples as lists."""
+    return {key: _lists(value) for key, value in asdict(config).items()}
+
+
+def config_from_dict(cls, data: dict):
+    """The configuration of class `cls` from `config_to_dict`'s dict (lists back to tuples).
+
+    Raises ValueError naming unknown keys (and whatever the configuration's checks raise)."""
+    unknown = set(data) - {f.name for f in fields(cls)}
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} keys: {sorted(unknown)}")
+    return cls(**{key: _tuples(value) for key, value in data.items()})
+
+
 @dataclass(frozen=True)
 class FieldConfig:
     """SIREN field u(ξ, c): surface coordinates ξ (and conditioning inputs c) -> displacement.
@@ -51,13 +86,7 @@ class FieldConfig:
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
             object.__setattr__(self, name, float(value))
-        if len(self.domain) != 2:
-            raise ValueError(f"domain must hold two (lo, hi) pairs, got {self.domain!r}")
-        domain = tuple(_finite_range(f"domain[{i}]", p) for i, p in enumerate(self.domain))
-        object.__setattr__(self, "domain", domain)
-        if len(self.periodic) != 2 or not all(isinstance(p, bool) for p in self.periodic):
-            raise ValueError(f"periodic must be two booleans, got {self.periodic!r}")
-        object.__setattr__(self, "periodic", tuple(self.periodic))
+        check_domain_and_periodic(self)
         conditioning = tuple(
             _finite_range(f"conditioning[{i}]", p) for i, p in enumerate(self.conditioning)
         )
@@ -76,22 +105,8 @@ class FieldConfig:
 
     def to_dict(self) -> dict:
         """Plain dict (lists instead of tuples) for checkpoints and logs."""
-        out = asdict(self)
-        out["domain"] = [list(p) for p in self.domain]
-        out["periodic"] = list(self.periodic)
-        out["conditioning"] = [list(p) for p in self.conditioning]
-        return out
+        return config_to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> FieldConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise ValueError(f"unknown FieldConfig keys: {sorted(unknown)}")
-        data = dict(data)
-        for key in ("domain", "conditioning"):
-            if key in data:
-                data[key] = tuple(tuple(p) for p in data[key])
-        if "periodic" in data:
-            data["periodic"] = tuple(data["periodic"])
-        return cls(**data)
+        return config_from_dict(cls, data)

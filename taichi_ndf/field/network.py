@@ -26,9 +26,8 @@ import torch
 from taichi_ndf.field.activation import sine_jets, sine_jets_adjoint
 from taichi_ndf.field.config import FieldConfig
 from taichi_ndf.field.encoding import input_jets
-from taichi_ndf.field.parameters import FieldParameters
+from taichi_ndf.field.parameters import FieldParameters, resolve_dtype_device
 from taichi_ndf.jets import CHANNELS
-from taichi_ndf.runtime import current
 
 log = logging.getLogger(__name__)
 
@@ -98,17 +97,10 @@ class NeuralField(FieldParameters):
         dtype: torch.dtype | None = None,
         device: torch.device | str | None = None,
     ):
-        if dtype is None or device is None:
-            runtime = current()
-            dtype = runtime.dtype if dtype is None else dtype
-            device = runtime.device if device is None else device
-        if dtype not in (torch.float32, torch.float64):
-            raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         self.config = config
-        self.dtype = dtype
-        self.device = torch.device(device)
+        self.dtype, self.device = resolve_dtype_device(dtype, device)
         self.parameters = [
-            p.to(dtype=dtype, device=self.device) for p in siren_parameters(config, seed)
+            p.to(dtype=self.dtype, device=self.device) for p in siren_parameters(config, seed)
         ]
         self.gradients = [torch.zeros_like(p) for p in self.parameters]
         self.parameter_names = [

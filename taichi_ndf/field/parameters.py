@@ -1,9 +1,25 @@
-"""The parameter bookkeeping every field shares: flat vectors and state dicts for Adam,
-L-BFGS and checkpoints, over the lists ``parameters``, ``gradients`` and ``parameter_names``."""
+"""What every field shares: its dtype and device, and the parameter bookkeeping (flat vectors
+and state dicts for Adam, L-BFGS and checkpoints) over the lists ``parameters``, ``gradients``
+and ``parameter_names``."""
 
 from __future__ import annotations
 
 import torch
+
+from taichi_ndf.runtime import current
+
+
+def resolve_dtype_device(dtype: torch.dtype | None, device: torch.device | str | None
+                         ) -> tuple[torch.dtype, torch.device]:
+    """A field's dtype and device: the runtime's (``taichi_ndf.current()``) unless given;
+    raises ValueError for a dtype other than float32/float64."""
+    if dtype is None or device is None:
+        runtime = current()
+        dtype = runtime.dtype if dtype is None else dtype
+        device = runtime.device if device is None else device
+    if dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+    return dtype, torch.device(device)
 
 
 class FieldParameters:
