@@ -1,6 +1,7 @@
 """Spline field + projected Newton on the validation cases and the napkin (issue 19).
 
-One configuration for every case: cubic B-splines, 4 × 4 Gauss–Legendre points per knot span,
+One configuration for every case: cubic B-splines, 4 × 4 Gauss–Legendre points per knot span
+(`span_quadrature`),
 `ProjectedNewtonConfig()` defaults, the scene's load steps; the coarsest grid follows one rule
 from the geometry (`grid_spans`), then two exact dyadic refinements (three grids), each solved
 from the coarser solution prolonged. Reported per case and quantity: the value on each grid,
@@ -27,33 +28,15 @@ from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import potential_at_load, richardson, solve_levels
-from taichi_ndf.sampling import SurfaceSamples, with_point_loads
+from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.scene import load_scene
 from taichi_ndf.validation import CASES, LINEARISATION, EndMoment, load_case_scene
 
 SCENE_DIR = Path(__file__).resolve().parents[1] / "scenes"
-GAUSS_ORDER = 4  # points per direction and knot span (p + 1 for cubics)
 DEGREE = 3
 # Grid rule: knot spans of physical size at most min(L_long / SPANS_PER_SIDE, √(R_min h))
 # (L_long: the longer side of the surface; R_min: least principal radius of curvature).
 SPANS_PER_SIDE = 8
-
-
-def gauss_samples(surface, config: SplineConfig, loads) -> SurfaceSamples:
-    """GAUSS_ORDER² Gauss–Legendre points per knot span of the spline's grid, plus point
-    loads (stand-in until the spline branch ships its quadrature module)."""
-    nodes, weights = np.polynomial.legendre.leggauss(GAUSS_ORDER)
-    axes, axis_weights = [], []
-    for (lo, hi), n in zip(config.domain, config.spans, strict=True):
-        h = (hi - lo) / n
-        left = lo + h * np.arange(n)
-        axes.append((left[:, None] + h * (nodes + 1) / 2).ravel())
-        axis_weights.append(np.tile(weights * h / 2, n))
-    x1, x2 = np.meshgrid(axes[0], axes[1], indexing="ij")
-    dtype = taichi_ndf.current().dtype
-    xi = torch.tensor(np.stack((x1.ravel(), x2.ravel()), axis=1), dtype=dtype)
-    weight = torch.tensor(np.outer(axis_weights[0], axis_weights[1]).ravel(), dtype=dtype)
-    return with_point_loads(surface, xi, weight, loads)
 
 
 def surface_scales(surface, thickness: float) -> tuple[tuple[float, float], float]:
@@ -104,7 +87,7 @@ def run_validation_case(name: str, levels: int, config: ProjectedNewtonConfig) -
     load_steps = tuple(scene.solver.load_steps)
     started = time.perf_counter()
     results = solve_levels(
-        field, model.boundary, lambda f: gauss_samples(surface, f.config, model.loads),
+        field, model.boundary, lambda f: span_quadrature(surface, f.config, model.loads),
         potential_at_load(model.material, model.loads, end_moment), levels=levels,
         load_steps=load_steps, config=config, probes=probes,
         length=math.sqrt(domain.rectangle_area))
@@ -145,7 +128,7 @@ def run_napkin(levels: int, coarsest: int, config: ProjectedNewtonConfig) -> dic
                                      domain=surface.domain.bounds))
     started = time.perf_counter()
     results = solve_levels(
-        field, model.boundary, lambda f: gauss_samples(surface, f.config, model.loads),
+        field, model.boundary, lambda f: span_quadrature(surface, f.config, model.loads),
         potential_at_load(model.material, model.loads), levels=levels, config=config,
         probes={p.name: p.xi for p in model.probes},
         length=math.sqrt(surface.domain.rectangle_area))
@@ -178,13 +161,16 @@ def main() -> None:
     parser.add_argument("--napkin-levels", type=int, default=5)
     parser.add_argument("--napkin-coarsest", type=int, default=2)
     parser.add_argument("--precision", choices=("f32", "f64"), default="f64")
+    parser.add_argument("--napkin-tolerance", type=float, default=1e-12,
+                        help="Newton decrement tolerance (relative to |Π|) of the napkin")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     torch.set_num_threads(1)
     taichi_ndf.init(arch="cpu", precision=args.precision)
     out = []
     if args.napkin:
-        config = ProjectedNewtonConfig(fd_step=1e-4 if args.precision == "f64" else 3e-3)
+        config = ProjectedNewtonConfig(fd_step=1e-4 if args.precision == "f64" else 3e-3,
+                                       decrement_tolerance=args.napkin_tolerance)
         out.append(run_napkin(args.napkin_levels, args.napkin_coarsest, config))
         print(json.dumps(out[-1], default=float))
         args.cases = ""

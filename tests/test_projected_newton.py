@@ -1,5 +1,5 @@
-"""Per-point Hessian blocks, coefficient-space assembly and projected Newton on a spline basis
-(a small cubic stand-in with the spline field's `local_basis` interface)."""
+"""Per-point Hessian blocks, coefficient-space assembly and projected Newton on a spline
+field."""
 
 import math
 from pathlib import Path
@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from spline_stand_in import StandInSpline, gauss_samples
 
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge, PinnedPoint
 from taichi_ndf.field.spline import SplineConfig, SplineField
@@ -16,6 +15,7 @@ from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import potential_at_load, solve_levels
+from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.scene import load_scene
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.hessian import flat_blocks, jet_steps, project_psd, sample_hessians
@@ -44,7 +44,7 @@ def _materials():
 def test_hessian_blocks_match_directional_differences_of_the_gradient(law):
     material = _materials()[law]
     surface = Plane(bounds=((0.0, 1.0), (0.0, 1.0)))
-    samples = gauss_samples(surface, ((0.0, 1.0), (0.0, 1.0)), (2, 2), 3)
+    samples = span_quadrature(surface, SplineConfig(spans=(2, 2)), points=3, dtype=DT)
     generator = torch.Generator().manual_seed(1)
     u = 0.05 * torch.randn(len(samples), 6, 3, generator=generator, dtype=DT)
     potential = _potential(material, Loads(gravity=(0.0, 0.0, -9.81)))
@@ -85,8 +85,8 @@ def _case(boundary_kind):
     boundary = BoundaryConditions(constraints, domain=surface.domain, surface=surface)
     loads = Loads(gravity=(0.0, 0.0, -9.81))
     material = LinearIsotropic.from_young(1e4, 0.3, 0.01, 1.0)
-    field = StandInSpline(bounds, (2, 2))
-    samples = gauss_samples(surface, bounds, (2, 2), 3, loads)
+    field = SplineField(SplineConfig(spans=(2, 2), domain=bounds), dtype=DT)
+    samples = span_quadrature(surface, field.config, loads, points=3, dtype=DT)
     generator = torch.Generator().manual_seed(2)
     coefficients = 0.02 * torch.randn(field.parameters[0].shape, generator=generator, dtype=DT)
     assembly = Assembly(samples, local_basis_at(field, boundary, samples.xi),
@@ -147,15 +147,12 @@ def test_assembled_hessian_matches_differences_of_the_assembled_gradient(boundar
 # -- projected Newton on the spline field ------------------------------------------------------
 
 
-def _gauss(surface, config, loads):
-    return gauss_samples(surface, config.domain, config.spans, 4, loads)
-
-
 def _solve(scene_model, spans, load_steps, config=None, probes=None, levels=1):
     surface, boundary = scene_model.surface, scene_model.boundary
     material, loads = scene_model.material, scene_model.loads
     field = SplineField(SplineConfig(spans=spans, domain=surface.domain.bounds), dtype=DT)
-    return solve_levels(field, boundary, lambda f: _gauss(surface, f.config, loads),
+    return solve_levels(field, boundary,
+                        lambda f: span_quadrature(surface, f.config, loads, dtype=DT),
                         potential_at_load(material, loads), levels=levels,
                         load_steps=load_steps, config=config,
                         probes=probes or {}, length=math.sqrt(surface.domain.rectangle_area))
