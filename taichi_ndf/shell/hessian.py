@@ -30,7 +30,8 @@ from taichi_ndf.shell.energy import EnergyResult
 COMPONENTS = 3
 JET_SIZE = jets.CHANNELS * COMPONENTS  # 18 jet values per point
 # Relative shift of the Cholesky test: a block whose least eigenvalue is above −PSD_SLACK × its
-# mean diagonal counts as semi-definite (rounding and FD noise are ~1e-8 of it in float64).
+# mean diagonal counts as semi-definite (rounding and FD noise are ~1e-8 of it in float64; in
+# float32 the shift is 1000 ε, or rank-deficient blocks would all fail the test).
 PSD_SLACK = 1e-7
 
 # Potential at given displacement jets: (samples, u_jets (N, 6, 3), grad) -> EnergyResult.
@@ -86,7 +87,8 @@ def project_psd(blocks: torch.Tensor) -> tuple[torch.Tensor, int]:
     0), and how many were indefinite. Only those are eigen-decomposed (module docstring)."""
     scale = blocks.diagonal(dim1=1, dim2=2).abs().mean(dim=1).clamp_min(
         torch.finfo(blocks.dtype).tiny)
-    shift = PSD_SLACK * scale[:, None, None] * torch.eye(
+    slack = max(PSD_SLACK, 1000 * torch.finfo(blocks.dtype).eps)  # float32: 1.2e-4
+    shift = slack * scale[:, None, None] * torch.eye(
         blocks.shape[1], dtype=blocks.dtype, device=blocks.device)
     _, info = torch.linalg.cholesky_ex(blocks + shift)
     bad = torch.nonzero(info != 0).flatten()
