@@ -135,10 +135,11 @@ class Assembly:
                                         basis.pin_jets)
         self.n_coefficients = int(n_coefficients)
         self.size = COMPONENTS * self.n_coefficients
-        self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel())
+        device = basis.jets.device  # index tensors live with the data; K is built on the CPU
+        self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel()).to(device)
         self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
         group_dofs = _dofs(groups)  # (G, 3k)
-        self._group_dofs = torch.from_numpy(group_dofs.ravel())
+        self._group_dofs = torch.from_numpy(group_dofs.ravel()).to(device)
         keys = (group_dofs[:, :, None] * self.size + group_dofs[:, None, :]).ravel()
         unique, self._scatter = np.unique(keys, return_inverse=True)
         self._pattern = (unique // self.size, unique % self.size)
@@ -169,7 +170,7 @@ class Assembly:
         out.index_add_(0, self.point_dofs, local.reshape(-1))
         if self.pin_jacobian is not None:
             pin = torch.einsum("cnja,njc->ac", self.pin_jacobian, grad_u_jets)
-            out.index_add_(0, torch.from_numpy(self.pin_dofs), pin.reshape(-1))
+            out.index_add_(0, torch.from_numpy(self.pin_dofs).to(out.device), pin.reshape(-1))
         return out.reshape(-1, COMPONENTS)
 
     def _group_sums(self, left: torch.Tensor, blocks: torch.Tensor, right: torch.Tensor

@@ -140,7 +140,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
         current = potential(samples, u, True)
         gradient = assembly.gradient(current.grad_u_jets)
         if fixed is not None:
-            gradient.reshape(-1)[torch.from_numpy(fixed)] = 0.0
+            gradient.reshape(-1)[torch.from_numpy(fixed).to(gradient.device)] = 0.0
         norm = float(gradient.norm())
         first_norm = norm if first_norm is None else first_norm
         t_energy = time.perf_counter() - started
