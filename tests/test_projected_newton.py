@@ -14,7 +14,7 @@ from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
-from taichi_ndf.minimise.refinement import potential_at_load, solve_levels
+from taichi_ndf.minimise.refinement import potential_at_load, richardson, solve_levels
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.scene import load_scene
 from taichi_ndf.shell.energy import ShellEnergy
@@ -202,3 +202,17 @@ def test_free_pin_hangs_and_holds_the_pinned_point():
         assert np.abs(solution.probes["pin"]).max() < 1e-12
         assert solution.probes["free"][2] < -0.5  # the free corner hangs below the pin
     assert fine.energy < coarse.energy  # the finer grid contains the coarser one
+
+
+def test_richardson_recovers_the_limit_and_order_of_a_power_law():
+    values = [2.0 + 0.5 * h**3 for h in (1.0, 0.5, 0.25)]
+    result = richardson(values)
+    assert result.order == pytest.approx(3.0, rel=1e-9)
+    assert result.value == pytest.approx(2.0, rel=1e-12)
+    assert result.error == pytest.approx(0.5 * 0.25**3, rel=1e-9)
+    stalled = richardson([1.0, 1.1, 1.05])  # differences not falling: no extrapolation
+    assert stalled.order is None and stalled.value == 1.05
+    assert stalled.error == pytest.approx(0.05)
+    assert richardson([1.0, 1.5], order=1.0).value == pytest.approx(2.0)
+    with pytest.raises(ValueError, match="assumed order"):
+        richardson([1.0, 1.5])
