@@ -26,24 +26,18 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
-from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import NeuralField
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
-from taichi_ndf.shell.energy import EnergyResult
+from taichi_ndf.shell.hessian import COMPONENTS, Potential, sample_hessians
 
 log = logging.getLogger(__name__)
 
-# Potential at given displacement jets: (samples, u_jets (N, 6, 3), grad) -> EnergyResult.
-Potential = Callable[[SurfaceSamples, torch.Tensor, bool], EnergyResult]
-
-COMPONENTS = 3
 # Least Levenberg–Marquardt damping, relative to the mean diagonal of the Jacobi-scaled Hessian:
 # nearly collinear features and zero-energy motions (rigid modes) would otherwise take steps
 # made of rounding noise.
@@ -101,27 +95,6 @@ def output_parameters(field: NeuralField) -> torch.Tensor:
 def parameter_gradient(jacobian: torch.Tensor, grad_u_jets: torch.Tensor) -> torch.Tensor:
     """dΠ/dθ, shape (3, width + 1), from dΠ/du_jets (N, 6, 3)."""
     return torch.einsum("knca,nck->ka", jacobian, grad_u_jets)
-
-
-def sample_hessians(potential: Potential, samples: SurfaceSamples, u_jets: torch.Tensor, *,
-                    steps: torch.Tensor) -> torch.Tensor:
-    """Per-sample Hessian blocks d²Π/du_jets², shape (N, 6, 3, 6, 3), symmetrised.
-
-    steps: central-difference step of each jet channel, shape (6,). Perturbing one
-    (channel, component) of every sample at once is exact for a sum of per-sample terms.
-    """
-    n = u_jets.shape[0]
-    hessian = u_jets.new_zeros(n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
-    for c in range(jets.CHANNELS):
-        step = float(steps[c])
-        for k in range(COMPONENTS):
-            grads = []
-            for sign in (1.0, -1.0):
-                shifted = u_jets.clone()
-                shifted[:, c, k] += sign * step
-                grads.append(potential(samples, shifted, True).grad_u_jets)
-            hessian[:, :, :, c, k] = (grads[0] - grads[1]) / (2 * step)
-    return 0.5 * (hessian + hessian.permute(0, 3, 4, 1, 2))
 
 
 def parameter_hessian(jacobian: torch.Tensor, hessians: torch.Tensor) -> torch.Tensor:

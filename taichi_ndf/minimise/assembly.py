@@ -1,0 +1,256 @@
+"""Gradient and sparse Hessian of Π over the coefficients of a local-support field.
+
+A spline field's raw displacement at a point is u_c = Σ_a B_a(ξ) c[i_a, c] over the k = (p+1)²
+coefficients i_a acting there (`field.local_basis(ξ)`: index (N, k), basis jets (N, 6, k)). The
+boundary composition u = φ N + g is pointwise and affine in N, so at the fixed quadrature points
+
+    U_q = G_q + J_q · C_q      (C_q: the 3k coefficients acting at q),
+
+with J_q from `compose_jacobian` and G_q = compose(ξ, 0) the prescribed part. A free pin
+(u = N(ξ) − N(ξ₀)) makes every point also depend on the k coefficients acting at the pin ξ₀
+(a "shared" set, the same for all points). Then
+
+    g = Σ_q J_qᵀ ∂e_q/∂U_q,     K = Σ_q J_qᵀ H_q J_q
+
+exactly (U is affine in the coefficients). The point-local part of K is scattered into a CSR
+pattern computed once per grid (a `np.bincount` per Newton step); the couplings through the
+shared pin set are summed densely (3n × 3k) and added as a sparse block.
+
+Unknowns are ordered coefficient × 3 + component.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
+from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.hessian import COMPONENTS
+
+# Points per batch of the Hessian products (bounds the (chunk, 3k, 3k) temporaries).
+CHUNK = 4096
+
+
+@dataclass(frozen=True)
+class LocalBasis:
+    """A local basis at N points: index (N, k) int64 of the coefficients acting at each point
+    and their jets (N, 6, k); with a free pin also at the pin: pin_index (k,), pin_jets (6, k)."""
+
+    index: torch.Tensor
+    jets: torch.Tensor
+    pin_index: torch.Tensor | None = None
+    pin_jets: torch.Tensor | None = None
+
+
+def local_basis_at(field, boundary: BoundaryConditions, xi: torch.Tensor) -> LocalBasis:
+    """The field's local basis (`field.local_basis`) at ξ (N, 2), and at a free pin."""
+    index, basis = field.local_basis(boundary.evaluation_points(xi))
+    if boundary.free_pin is None:
+        return LocalBasis(index, basis)
+    return LocalBasis(index[:-1], basis[:-1], index[-1], basis[-1])
+
+
+def composed_jacobian(boundary: BoundaryConditions, xi: torch.Tensor, basis: LocalBasis,
+                      load_factor: float
+                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """The one adapter to the boundary composition: at ξ (N, 2) and load factor t,
+    U = offset + Σ_a J[:, :, :, a] C[a] with
+    offset (N, 6, 3) [m] the prescribed displacement (compose of a zero raw field),
+    jacobian (3, N, 6, k): J[c, q, :, a] = ∂u_c(ξ_q)/∂C[index[q, a], c],
+    pin_jacobian (3, N, 6, k) the same for the pin's coefficients (None without a free pin).
+    """
+    n, k = basis.index.shape
+    dtype = basis.jets.dtype
+    xi = xi.to(dtype)
+    if basis.pin_index is None:
+        extended = basis.jets
+    else:  # point rows act on the local columns, the pin row on the pin's columns
+        extended = basis.jets.new_zeros(n + 1, jets.CHANNELS, 2 * k)
+        extended[:n, :, :k] = basis.jets
+        extended[n, :, k:] = basis.pin_jets
+    zero = basis.jets.new_zeros(extended.shape[0], jets.CHANNELS, COMPONENTS)
+    offset = boundary.compose(xi, zero, t=load_factor)
+    jacobian = boundary.compose_jacobian(xi, extended)
+    if basis.pin_index is None:
+        return offset, jacobian, None
+    return offset, jacobian[..., :k].contiguous(), jacobian[..., k:].contiguous()
+
+
+def _weighted(blocks: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
+    """T[q, i, c, b, d] = Σ_j H[q, i, c, j, d] J[d, q, j, b]: blocks (n, 6, 3, 6, 3) times
+    Jacobians (3, n, 6, k); shape (n, 6, 3, k, 3)."""
+    return torch.einsum("qicjd,dqjb->qicbd", blocks, jacobian)
+
+
+def _contract(jacobian: torch.Tensor, weighted: torch.Tensor) -> torch.Tensor:
+    """M[q, a, c, b, d] = Σ_i J[c, q, i, a] T[q, i, c, b, d], shape (n, k, 3, k, 3)."""
+    return torch.einsum("cqia,qicbd->qacbd", jacobian, weighted)
+
+
+def _dofs(index: torch.Tensor) -> np.ndarray:
+    """Unknown numbers (…, 3k) of coefficient indices (…, k): coefficient × 3 + component."""
+    idx = index.cpu().numpy().astype(np.int64)
+    return (idx[..., :, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(
+        *idx.shape[:-1], -1)
+
+
+class Assembly:
+    """Π's coefficient-space gradient and Hessian on fixed samples (module docstring).
+
+    samples: the quadrature points; basis: the local basis there (`local_basis_at`);
+    n_coefficients: coefficients of the field (unknowns: 3 × that).
+    Call `at_load(boundary, load_factor)` before use (the prescribed part depends on t).
+    Points acting on the same coefficients (the Gauss points of one knot span) are summed
+    before the scatter, so the sparse pattern has one (3k)² block per span; `samples` holds
+    the points in the assembly's own order (use it, not the samples passed in).
+    """
+
+    def __init__(self, samples: SurfaceSamples, basis: LocalBasis, n_coefficients: int):
+        if basis.index.shape[0] != len(samples):
+            raise ValueError(f"basis has {basis.index.shape[0]} points for {len(samples)} "
+                             "samples")
+        # The points are reordered: the first m points of every group of points acting on the
+        # same coefficients (m: the smallest group; the Gauss points of a span), group by group,
+        # are contracted in one GEMM per group; the others (point-load samples) follow and are
+        # contracted point by point.
+        groups, group = torch.unique(basis.index, dim=0, return_inverse=True)
+        counts = torch.bincount(group)
+        order = torch.argsort(group, stable=True)
+        rank = torch.arange(len(order)) - torch.repeat_interleave(
+            torch.cumsum(counts, 0) - counts, counts)
+        regular = rank < int(counts.min())
+        order = torch.cat((order[regular], order[~regular]))
+        self._per_group = int(counts.min())
+        self._extra = slice(len(groups) * self._per_group, len(order))
+        self._group = group[order]
+        self.samples = SurfaceSamples(*(t[order] for t in (
+            samples.xi, samples.r_jets, samples.weight, samples.point_force)))
+        self.basis = basis = LocalBasis(basis.index[order], basis.jets[order], basis.pin_index,
+                                        basis.pin_jets)
+        self.n_coefficients = int(n_coefficients)
+        self.size = COMPONENTS * self.n_coefficients
+        device = basis.jets.device  # index tensors live with the data; K is built on the CPU
+        self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel()).to(device)
+        self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
+        group_dofs = _dofs(groups)  # (G, 3k)
+        self._group_dofs = torch.from_numpy(group_dofs.ravel()).to(device)
+        keys = (group_dofs[:, :, None] * self.size + group_dofs[:, None, :]).ravel()
+        unique, self._scatter = np.unique(keys, return_inverse=True)
+        self._pattern = (unique // self.size, unique % self.size)
+        self._groups = groups.shape[0]
+        self.offset = self.jacobian = self.pin_jacobian = None
+
+    def at_load(self, boundary: BoundaryConditions, load_factor: float) -> Assembly:
+        """Linearise the composition at load factor t (see `composed_jacobian`)."""
+        self.offset, self.jacobian, self.pin_jacobian = composed_jacobian(
+            boundary, self.samples.xi, self.basis, load_factor)
+        if self.pin_jacobian is not None:
+            used = self.pin_jacobian.abs().amax(dim=(0, 1, 3)) > 0
+            self._pin_channels = torch.nonzero(used).flatten()
+        return self
+
+    def displacement(self, coefficients: torch.Tensor) -> torch.Tensor:
+        """Displacement jets U (N, 6, 3) [m] of coefficients (n, 3)."""
+        u = torch.einsum("cnja,nac->njc", self.jacobian, coefficients[self.basis.index])
+        if self.pin_jacobian is not None:
+            u = u + torch.einsum("cnja,ac->njc", self.pin_jacobian,
+                                 coefficients[self.basis.pin_index])
+        return self.offset + u
+
+    def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
+        """dΠ/dC (n, 3) from dΠ/dU (N, 6, 3)."""
+        local = torch.einsum("cnja,njc->nac", self.jacobian, grad_u_jets)
+        out = local.new_zeros(self.size)
+        out.index_add_(0, self.point_dofs, local.reshape(-1))
+        if self.pin_jacobian is not None:
+            pin = torch.einsum("cnja,njc->ac", self.pin_jacobian, grad_u_jets)
+            out.index_add_(0, torch.from_numpy(self.pin_dofs).to(out.device), pin.reshape(-1))
+        return out.reshape(-1, COMPONENTS)
+
+    def _group_sums(self, left: torch.Tensor, blocks: torch.Tensor, right: torch.Tensor
+                    ) -> torch.Tensor:
+        """Σ over the points q of each group of L_qᵀ H_q R_q, shape (G, 3k, 3k), for
+        Jacobians L (3, N, cl, k), R (3, N, cr, k) on channel subsets and blocks
+        (N, cl, 3, cr, 3) on the same channels."""
+        k, channels = left.shape[3], left.shape[2]
+        width = k * COMPONENTS
+        summed = blocks.new_empty(self._groups, k, COMPONENTS, width)
+        m = self._per_group
+        step = max(1, CHUNK // m)
+        for start in range(0, self._groups, step):
+            groups = slice(start, min(self._groups, start + step))
+            points = slice(groups.start * m, groups.stop * m)
+            weighted = _weighted(blocks[points], right[:, points]).reshape(
+                -1, m * channels, COMPONENTS, width)
+            lhs = left[:, points].reshape(COMPONENTS, -1, m * channels, k)
+            for c in range(COMPONENTS):
+                summed[groups, :, c] = torch.bmm(lhs[c].transpose(1, 2), weighted[:, :, c])
+        summed = summed.reshape(self._groups, width, width)
+        if self._extra.stop > self._extra.start:
+            extra = self._extra
+            summed.index_add_(0, self._group[extra], _contract(
+                left[:, extra], _weighted(blocks[extra], right[:, extra])).reshape(
+                    -1, width, width))
+        return summed
+
+    def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
+        """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18) (index
+        channel × 3 + component)."""
+        n = blocks.shape[0]
+        blocks = blocks.reshape(n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
+        width = self.jacobian.shape[3] * COMPONENTS
+        summed = self._group_sums(self.jacobian, blocks, self.jacobian)
+        pin = self.pin_jacobian is not None
+        if pin:  # the pin's Jacobian lives on few channels (the value): only those enter
+            ch = self._pin_channels
+            pin_jac = self.pin_jacobian[:, :, ch]
+            cross = self._group_sums(self.jacobian, blocks[:, :, :, ch], pin_jac)
+            dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
+            dense.index_add_(0, self._group_dofs, cross.reshape(-1, width))
+            pin_pin = self._group_sums(pin_jac, blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
+        data = np.bincount(self._scatter, weights=summed.double().cpu().numpy().ravel(),
+                           minlength=len(self._pattern[0]))
+        matrix = sp.csr_matrix((data, self._pattern), shape=(self.size, self.size))
+        if not pin:
+            return matrix
+        # Couplings through the pin's coefficients: Σ J_localᵀ H J_pin at the rows of the
+        # points' unknowns and the pin's columns, its transpose, and the pin–pin block.
+        dense = dense.double().cpu().numpy()
+        rows = np.flatnonzero(np.abs(dense).sum(axis=1))
+        coupling = sp.csr_matrix(
+            (dense[rows].ravel(), (np.repeat(rows, width), np.tile(self.pin_dofs, len(rows)))),
+            shape=(self.size, self.size))
+        pin_block = sp.csr_matrix(
+            (pin_pin.double().cpu().numpy().ravel(),
+             (np.repeat(self.pin_dofs, width), np.tile(self.pin_dofs, width))),
+            shape=(self.size, self.size))
+        return (matrix + coupling + coupling.T + pin_block).tocsr()
+
+
+def displacement_at(field, boundary: BoundaryConditions, xi: torch.Tensor,
+                    coefficients: torch.Tensor, load_factor: float) -> torch.Tensor:
+    """Displacement jets (N, 6, 3) [m] at ξ (N, 2) of the field with `coefficients` (n, 3),
+    composed with the boundary conditions at load factor t (e.g. at probe points)."""
+    basis = local_basis_at(field, boundary, xi)
+    offset, jacobian, pin_jacobian = composed_jacobian(boundary, xi, basis, load_factor)
+    u = offset + torch.einsum("cnja,nac->njc", jacobian, coefficients[basis.index])
+    if pin_jacobian is not None:
+        u = u + torch.einsum("cnja,ac->njc", pin_jacobian, coefficients[basis.pin_index])
+    return u
+
+
+def gauge_unknowns(boundary: BoundaryConditions, basis: LocalBasis) -> np.ndarray | None:
+    """Unknowns to hold so that K is regular: with a free pin (u = N(ξ) − N(ξ₀)) adding a
+    constant to every coefficient of a held component changes nothing (the B-splines sum to
+    1), so one coefficient per held component is held: the pin's largest. None otherwise."""
+    if boundary.free_pin is None:
+        return None
+    coefficient = int(basis.pin_index[int(torch.argmax(basis.pin_jets[jets.VALUE]))])
+    held = [COMPONENTS_XYZ.index(c) for c in boundary.free_pin.components]
+    return np.array([coefficient * COMPONENTS + c for c in held], dtype=np.int64)
