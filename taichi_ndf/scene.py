@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from taichi_ndf.boundary import (
+    EDGES,
     PIN_ROTATIONS,
     BoundaryConditions,
     ClampedEdge,
@@ -24,6 +25,7 @@ from taichi_ndf.boundary import (
 )
 from taichi_ndf.field import FieldConfig
 from taichi_ndf.geometry import Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
+from taichi_ndf.line_loads import LineLoad, edge_path
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.optim import AdamConfig
@@ -89,7 +91,7 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     description = top.string("description", "")
     surface = _section(top.table("geometry"), _geometry, base_dir)
     material = _section(top.table("material"), _material)
-    loads = _section(top.table("loads", optional=True), _loads)
+    loads = _section(top.table("loads", optional=True), _loads, surface.domain)
     _check(lambda: loads.check_domain(surface.domain), "loads")
     boundary = _section(top.table("boundary", optional=True), _boundary, surface)
     probes = tuple(Probe(t.string("name"), t.vector("xi", 2)) for t in top.tables("probes"))
@@ -192,14 +194,34 @@ def _material(t: Table):
                        areal_density=density)
 
 
-def _loads(t: Table) -> Loads:
+def _loads(t: Table, domain) -> Loads:
     points = []
     for p in t.tables("point"):
         points.append(PointLoad(p.vector("xi", 2), p.vector("force", 3)))
         p.close()
+    lines = []
+    for line in t.tables("line"):
+        lines.append(_check(lambda line=line: _line_load(line, domain), line.path))
+        line.close()
     return Loads(gravity=t.vector("gravity", 3, (0.0, 0.0, 0.0)),
                  body_force=t.vector("body_force", 3, (0.0, 0.0, 0.0)),
-                 pressure=t.number("pressure", 0.0), point_loads=tuple(points))
+                 pressure=t.number("pressure", 0.0), point_loads=tuple(points),
+                 line_loads=tuple(lines))
+
+
+def _line_load(t: Table, domain) -> LineLoad:
+    """[[loads.line]]: `edge` (a name) or `path` (points in ξ), `force` [N/m], `nodes`."""
+    if t.has("edge") == t.has("path"):
+        raise SceneError(f"{t.path}: give exactly one of 'edge' or 'path'")
+    if t.has("edge"):
+        path = edge_path(t.string("edge", choices=EDGES), domain.bounds)
+    else:
+        raw = t._get("path", None)
+        if not (isinstance(raw, list) and len(raw) >= 2
+                and all(isinstance(p, list) and len(p) == 2 for p in raw)):
+            raise SceneError(f"{t.key('path')}: expected a list of two or more [ξ¹, ξ²] points")
+        path = tuple(tuple(p) for p in raw)
+    return LineLoad(path, t.vector("force", 3), t.integer("nodes", 8, minimum=1))
 
 
 def _constraint(c: Table):
