@@ -24,7 +24,7 @@ from taichi_ndf.boundary import (
     RimRotation,
 )
 from taichi_ndf.field import FieldConfig
-from taichi_ndf.geometry import Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
+from taichi_ndf.geometry import Annulus, Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
 from taichi_ndf.line_loads import LineLoad, edge_path
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
@@ -40,7 +40,7 @@ from taichi_ndf.shell.materials import (
 )
 from taichi_ndf.training import SolverConfig
 
-GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "mesh")
+GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "annulus", "mesh")
 DEFAULT_FRAMES = 16  # trajectory frames of a pseudo-time field
 CONSTRAINTS = ("clamped_edge", "hinged_edge", "pinned_point", "handle", "interior_line",
                "rim_rotation")
@@ -144,7 +144,8 @@ def _geometry(t: Table, base_dir: Path):
             mesh_path = base_dir / mesh_path
         if not mesh_path.is_file():
             raise SceneError(f"{t.key('path')}: template mesh not found: {mesh_path}")
-        return MeshSurface.from_file(mesh_path)
+        options = {"cells": t.integer("fit_cells", minimum=1)} if t.has("fit_cells") else {}
+        return MeshSurface.from_file(mesh_path, **options)
     placement = _placement(t)
     if kind == "plane":
         b = t._get("bounds", [[0.0, 1.0], [0.0, 1.0]])
@@ -163,6 +164,12 @@ def _geometry(t: Table, base_dir: Path):
                                length=t.number("length", positive=True),
                                half_angle=math.radians(t.number("half_angle_deg", positive=True)),
                                **placement)
+    if kind == "annulus":
+        return Annulus(inner_radius=t.number("inner_radius", positive=True),
+                       outer_radius=t.number("outer_radius", positive=True),
+                       angle=math.radians(t.number("angle_deg", 360.0, positive=True)),
+                       start_angle=math.radians(t.number("start_angle_deg", 0.0)),
+                       slit=t.boolean("slit", False), **placement)
     return Hemisphere(radius=t.number("radius", positive=True),
                       hole_half_angle=math.radians(t.number("hole_half_angle_deg", 0.0)),
                       rim_angle=math.radians(t.number("rim_angle_deg", 90.0)), **placement)

@@ -2,6 +2,7 @@
 key."""
 
 import copy
+import math
 from pathlib import Path
 
 import pytest
@@ -44,3 +45,46 @@ def test_line_loads_along_an_edge_and_a_path():
 def test_line_load_errors_name_the_key(line, key):
     with pytest.raises(SceneError, match=key.replace("[", r"\[").replace("]", r"\]")):
         parse(loads={"line": [line]})
+
+
+def test_annulus_geometry():
+    scene = parse(geometry={"type": "annulus", "inner_radius": 6.0, "outer_radius": 10.0,
+                            "slit": True},
+                  boundary={"constraint": [{"type": "clamped_edge", "edge": "xi2_min"}]})
+    surface = scene.model.surface
+    assert surface.domain.bounds[1] == pytest.approx((0.0, 2 * math.pi))
+    assert surface.domain.periodic == (False, False)
+    full = parse(geometry={"type": "annulus", "inner_radius": 1.0, "outer_radius": 2.0})
+    assert full.model.surface.domain.periodic == (False, True)
+    assert full.field.periodic == (False, True)
+    sector = parse(geometry={"type": "annulus", "inner_radius": 1.0, "outer_radius": 2.0,
+                             "angle_deg": 90.0, "start_angle_deg": -45.0})
+    assert sector.model.surface.domain.bounds[1] == pytest.approx((-math.pi / 4, math.pi / 4))
+
+
+@pytest.mark.parametrize("geometry, key", [
+    ({"inner_radius": 0.0, "outer_radius": 1.0}, "geometry.inner_radius"),
+    ({"inner_radius": 2.0, "outer_radius": 1.0}, "geometry: outer_radius"),
+    ({"inner_radius": 1.0, "outer_radius": 2.0, "angle_deg": 400.0}, "geometry: angle"),
+    ({"inner_radius": 1.0, "outer_radius": 2.0, "angle_deg": 90.0, "slit": True},
+     "geometry: slit"),
+    ({"inner_radius": 1.0, "outer_radius": 2.0, "slit": 1}, "geometry.slit"),
+])
+def test_annulus_errors_name_the_key(geometry, key):
+    with pytest.raises(SceneError, match=key):
+        parse(geometry={"type": "annulus", **geometry})
+
+
+def test_a_periodic_annulus_has_no_radial_edges():
+    with pytest.raises(SceneError, match="periodic"):
+        parse(geometry={"type": "annulus", "inner_radius": 1.0, "outer_radius": 2.0},
+              boundary={"constraint": [{"type": "clamped_edge", "edge": "xi2_min"}]})
+
+
+def test_mesh_fit_cells():
+    root = Path(__file__).resolve().parents[1]
+    geometry = {"type": "mesh", "path": str(root / "data" / "napkin.obj"), "fit_cells": 6}
+    surface = parse(geometry=geometry).model.surface
+    assert max(surface.cells) == 6
+    with pytest.raises(SceneError, match="geometry.fit_cells"):
+        parse(geometry={**geometry, "fit_cells": 0})
