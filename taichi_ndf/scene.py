@@ -22,6 +22,7 @@ from taichi_ndf.boundary import (
     InteriorLine,
     PinnedPoint,
     RimRotation,
+    SymmetryPlane,
 )
 from taichi_ndf.field import FieldConfig
 from taichi_ndf.geometry import Annulus, Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
@@ -43,7 +44,7 @@ from taichi_ndf.training import SolverConfig
 GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "annulus", "mesh")
 DEFAULT_FRAMES = 16  # trajectory frames of a pseudo-time field
 CONSTRAINTS = ("clamped_edge", "hinged_edge", "pinned_point", "handle", "interior_line",
-               "rim_rotation")
+               "rim_rotation", "symmetry_plane")
 
 
 @dataclass(frozen=True)
@@ -233,6 +234,10 @@ def _line_load(t: Table, domain) -> LineLoad:
 
 def _constraint(c: Table):
     kind = c.string("type", choices=CONSTRAINTS)
+    if kind == "symmetry_plane":  # its components follow from the normal
+        return SymmetryPlane(edge=c.string("edge"), normal=c.string("normal"),
+                             antisymmetric=c.boolean("antisymmetric", False),
+                             length=c.number("length", None, positive=True))
     common = {"components": c.string("components", "xyz")}
     if c.has("length"):
         common["length"] = c.number("length", positive=True)

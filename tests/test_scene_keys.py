@@ -88,3 +88,24 @@ def test_mesh_fit_cells():
     assert max(surface.cells) == 6
     with pytest.raises(SceneError, match="geometry.fit_cells"):
         parse(geometry={**geometry, "fit_cells": 0})
+
+
+def test_symmetry_plane_constraints():
+    scene = parse(boundary={"constraint": [
+        {"type": "symmetry_plane", "edge": "xi1_min", "normal": "x"},
+        {"type": "symmetry_plane", "edge": "xi2_max", "normal": "y", "antisymmetric": True,
+         "length": 0.3}]})
+    first, second = scene.model.boundary.constraints
+    assert first.components == "x" and second.components == "xz" and second.length == 0.3
+    assert scene.model.boundary.fold.active
+
+
+@pytest.mark.parametrize("constraint, key", [
+    ({"edge": "xi1_min", "normal": "x", "components": "x"}, "'components'"),
+    ({"edge": "xi1_min"}, "boundary.constraint[0].normal: required"),
+    ({"edge": "xi1_min", "normal": "q"}, "boundary.constraint[0]: SymmetryPlane: normal"),
+    ({"edge": "xi1_min", "normal": "y"}, "plane normal to y"),
+])
+def test_symmetry_plane_errors_name_the_key(constraint, key):
+    with pytest.raises(SceneError, match=key.replace("[", r"\[").replace("]", r"\]")):
+        parse(boundary={"constraint": [{"type": "symmetry_plane", **constraint}]})
