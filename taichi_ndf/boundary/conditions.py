@@ -65,6 +65,7 @@ from taichi_ndf.boundary.fold import Fold
 from taichi_ndf.boundary.resolution import (
     ResolvedConstraint,
     check_contradictions,
+    check_symmetry_planes,
     resolve,
     to_eta,
 )
@@ -132,6 +133,7 @@ class BoundaryConditions:
         check_contradictions(self._terms, domain)
         self.fold = Fold.of_edges(domain, [c.edge for c in self.constraints
                                            if isinstance(c, SymmetryPlane)])
+        check_symmetry_planes(self._terms, domain)
 
     # ---- composition -------------------------------------------------------------------
 

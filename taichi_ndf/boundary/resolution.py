@@ -213,6 +213,35 @@ def check_contradictions(terms: tuple[ResolvedConstraint, ...], domain: Paramete
                 )
 
 
+def check_symmetry_planes(terms: tuple[ResolvedConstraint, ...],
+                          domain: ParameterDomain) -> None:
+    """ValueError if another constraint's factor on a component that a symmetry plane keeps
+    even varies across the plane: u_c = φ N_c(m(ξ)) has zero derivative across the edge only
+    if φ does too. Edges of the other coordinate (φ varies along the plane only) are fine;
+    any other set must stay at least its band length away from the plane."""
+    for plane in terms:
+        if not isinstance(plane.constraint, SymmetryPlane):
+            continue
+        edge = plane.constraint.edge
+        even = frozenset(range(3)) - plane.components
+        for other in terms:
+            shared = other.components & even
+            if other is plane or not shared:
+                continue
+            con = other.constraint
+            if (isinstance(con, (ClampedEdge, HingedEdge, RimRotation, SymmetryPlane))
+                    and con.edge[:3] != edge[:3]):
+                continue
+            gap = _distance(domain, other.where, plane.where)
+            if gap < other.length - 1e-12:
+                comps = "".join(COMPONENTS[c] for c in sorted(shared))
+                raise ValueError(
+                    f"symmetry plane on edge {edge!r}: the band of {type(con).__name__} on "
+                    f"component(s) {comps!r} reaches the plane (distance {gap:.3g} < length "
+                    f"{other.length:.3g}, fractions of the domain extent), so those components "
+                    "would not be even there; shorten its length or move it away")
+
+
 def _distance(domain: ParameterDomain, first: tuple[Segment, ...],
               second: tuple[Segment, ...]) -> float:
     shifts = [
