@@ -8,7 +8,6 @@ material) are re-raised as `SceneError` with the section they come from.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -31,7 +30,8 @@ from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.optim import AdamConfig
 from taichi_ndf.pseudo_time import TIME_RANGE
-from taichi_ndf.scene_schema import SceneError, Table
+from taichi_ndf.scene_schema import SceneError, Table, read_toml
+from taichi_ndf.scene_schema import checked as _check
 from taichi_ndf.shell.materials import (
     PRESETS,
     ClydeFabric,
@@ -75,12 +75,7 @@ def load_scene(path: str | Path, *, material: str | None = None) -> Scene:
     material: a preset name that replaces the scene's [material] table.
     """
     path = Path(path)
-    if not path.is_file():
-        raise SceneError(f"scene file not found: {path}")
-    try:
-        document = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise SceneError(f"{path}: not valid TOML: {err}") from err
+    document = read_toml(path, "scene file")
     if material is not None:
         document["material"] = {"preset": material}
     return parse_scene(document, base_dir=path.parent, path=path)
@@ -112,15 +107,6 @@ def _section(table: Table, build, *args):
     result = _check(lambda: build(table, *args), table.path)
     table.close()
     return result
-
-
-def _check(build, where: str):
-    try:
-        return build()
-    except SceneError:
-        raise
-    except (ValueError, TypeError, FileNotFoundError) as err:
-        raise SceneError(f"{where}: {err}") from err
 
 
 def _placement(t: Table) -> dict:

@@ -75,6 +75,11 @@ class Fold:
         return (torch.stack(values, dim=1), torch.stack(first, dim=1),
                 torch.stack(second, dim=1))
 
+    def _rates(self, xi: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """m₁', m₂', m₁'', m₂'' at ξ, each (N, 1) (to broadcast over components)."""
+        _, first, second = self._map(xi)
+        return first[:, :1], first[:, 1:], second[:, :1], second[:, 1:]
+
     def points(self, xi: torch.Tensor) -> torch.Tensor:
         """Where the raw field is evaluated: m(ξ) (N, 2)."""
         return self._map(xi)[0] if self.active else xi
@@ -83,9 +88,7 @@ class Fold:
         """Jets (N, 6, C) at ξ of N∘m from the raw jets (N, 6, C) at m(ξ)."""
         if not self.active:
             return raw
-        _, d1, d2 = self._map(xi)
-        a, b = d1[:, 0, None], d1[:, 1, None]
-        da, db = d2[:, 0, None], d2[:, 1, None]
+        a, b, da, db = self._rates(xi)
         f0, f1, f2, f11, f12, f22 = raw.unbind(1)
         return torch.stack((f0, a * f1, b * f2, a * a * f11 + da * f1, a * b * f12,
                             b * b * f22 + db * f2), dim=1)
@@ -94,9 +97,7 @@ class Fold:
         """Gradient (N, 6, C) with respect to the raw jets of <grad, pullback(ξ, raw)>."""
         if not self.active:
             return grad
-        _, d1, d2 = self._map(xi)
-        a, b = d1[:, 0, None], d1[:, 1, None]
-        da, db = d2[:, 0, None], d2[:, 1, None]
+        a, b, da, db = self._rates(xi)
         g0, g1, g2, g11, g12, g22 = grad.unbind(1)
         return torch.stack((g0, a * g1 + da * g11, b * g2 + db * g22, a * a * g11,
                             a * b * g12, b * b * g22), dim=1)

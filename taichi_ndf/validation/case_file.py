@@ -7,10 +7,9 @@ Unknown keys and wrong types raise `SceneError` naming the key (`quantity[0].tol
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
-from taichi_ndf.scene_schema import SceneError, Table
+from taichi_ndf.scene_schema import SceneError, Table, checked, read_toml
 from taichi_ndf.validation.catalogue import (
     CASES_DIR,
     SCENES_DIR,
@@ -38,12 +37,7 @@ def load_case(path: str | Path, *, scenes_dir: Path | None = None) -> Case:
     the scene lies in it, the case names the scene relative to that folder (so a runner's
     `scenes_dir` may replace it, as `ndf-validate --scenes` does for the built-in cases)."""
     path = Path(path)
-    if not path.is_file():
-        raise SceneError(f"case file not found: {path}")
-    try:
-        document = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise SceneError(f"{path}: not valid TOML: {err}") from err
+    document = read_toml(path, "case file")
     try:
         return parse_case(document, base_dir=path.parent, scenes_dir=scenes_dir)
     except SceneError as err:
@@ -97,19 +91,10 @@ def _quantity(t: Table) -> Quantity:
             functions.append(distance_change_read(pair[0], pair[1], sign))
             probes.extend(pair)
         r.close()
-    quantity = _check(lambda: Quantity(
+    quantity = checked(lambda: Quantity(
         t.string("name"), t.string("description", ""), t.number("reference"),
         t.number("tolerance", positive=True), mean_read(*functions),
         t.number("level", 1.0, positive=True), source=t.string("source", ""),
         probes=tuple(dict.fromkeys(probes))), t.path)
     t.close()
     return quantity
-
-
-def _check(build, where: str):
-    try:
-        return build()
-    except SceneError:
-        raise
-    except ValueError as err:
-        raise SceneError(f"{where}: {err}") from err
