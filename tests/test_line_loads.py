@@ -92,3 +92,19 @@ def test_path_outside_the_domain_is_refused():
     loads = Loads(line_loads=(LineLoad(((0, 0), (1.5, 0)), (0, 0, 1)),))
     with pytest.raises(ValueError, match="line load path point"):
         loads.check_domain(Plane().domain)
+
+
+def test_the_material_conditioned_field_refuses_line_loads():
+    from inverse.material.conditioned import ConditionedEquilibrium
+    from inverse.material.unknowns import parse_unknowns
+    from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
+    from taichi_ndf.model import ShellModel
+    from taichi_ndf.shell.materials import LinearIsotropic
+
+    plane = Plane()
+    loads = Loads(line_loads=(LineLoad(edge_path("xi1_max", plane.domain.bounds), (0, 0, -1.0)),))
+    model = ShellModel(plane, LinearIsotropic(6.4, 7.68e-7, 0.25, 0.144), loads,
+                       BoundaryConditions([ClampedEdge("xi1_min")], plane.domain))
+    model, unknowns = parse_unknowns("bending", model)
+    with pytest.raises(ValueError, match="does not support line loads"):
+        ConditionedEquilibrium(model, unknowns, [(-1.0, 1.0)])
