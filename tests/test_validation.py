@@ -23,11 +23,13 @@ from taichi_ndf.shell.energy import ShellEnergy, function_jets
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.validation import (
     CASES,
+    CASES_DIR,
     LINEARISATION,
     SCENES_DIR,
     Case,
     Quantity,
     component_read,
+    load_case,
     load_case_scene,
     roll_up_moment,
     roll_up_references,
@@ -79,6 +81,15 @@ def test_case_file_errors_name_the_key(edit, key):
     edit(document)
     with pytest.raises(SceneError, match=key):
         parse_case(document, base_dir=SCENES_DIR)
+
+
+@pytest.mark.parametrize("name", ["square_plate_quarter", "pinched_cylinder_octant"])
+def test_example_case_files_load_with_their_scenes(name):
+    case = load_case(CASES_DIR.parent / "examples" / f"{name}.toml")
+    scene, model, _ = load_case_scene(case)
+    names = {p.name for p in model.probes}
+    assert all(set(q.probes) <= names for q in case.quantities)
+    assert any(type(c).__name__ == "SymmetryPlane" for c in model.boundary.constraints)
 
 
 def test_a_case_reading_an_unknown_probe_is_refused_before_the_run():
