@@ -9,8 +9,10 @@ The estimate needs only the order of magnitude.
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from taichi_ndf.boundary import ClampedEdge, Handle, HingedEdge, RimRotation
+from taichi_ndf.line_loads import quadrature
 from taichi_ndf.model import ShellModel
 from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, OrthotropicStVK
 
@@ -30,7 +32,7 @@ def membrane_and_bending_stiffness(material) -> tuple[float, float]:
 def characteristic_displacement(model: ShellModel) -> float:
     """Order of magnitude of the displacement [m]: the smaller of the bending estimate
     f L⁴ / (8 B), the membrane estimate (f L⁴ / D)^{1/3} and the size L, where f is the load
-    per unit area (point loads spread over the surface); at least the largest prescribed
+    per unit area (point and line loads spread over the surface); at least the largest prescribed
     displacement; 1e-3 L if nothing loads the shell."""
     length = model.characteristic_length()
     d, b = membrane_and_bending_stiffness(model.material)
@@ -38,6 +40,8 @@ def characteristic_displacement(model: ShellModel) -> float:
     f = float(np.linalg.norm(loads.distributed_force(model.material.areal_density)))
     f += abs(loads.pressure)
     f += sum(float(np.linalg.norm(p.force)) for p in loads.point_loads) / length**2
+    _, line_forces = quadrature(model.surface, loads.line_loads, dtype=torch.float64)
+    f += float(line_forces.norm(dim=1).sum()) / length**2
     prescribed = 0.0
     for c in model.boundary.constraints:
         if isinstance(c, (ClampedEdge, HingedEdge, Handle)):
