@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf.callbacks import DivergenceError, DivergenceGuard
+from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimisers import adam_iteration, lbfgs
 from taichi_ndf.model import ShellModel
@@ -47,6 +48,12 @@ from taichi_ndf.training import SolverConfig
 __all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverConfig"]
 
 log = logging.getLogger(__name__)
+
+# Most halvings of an Adam step that makes a checked point penetrate before it is rejected.
+FILTER_HALVINGS = 6
+
+# Adam iterations between dense contact checks (ContactPoints.refresh).
+CONTACT_CHECK_EVERY = 10
 
 # Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
 MONITOR_SEED_OFFSET = 7919
@@ -89,6 +96,15 @@ class Solver:
         self.guard = guard or DivergenceGuard()
         self._monitor = {}
         self._newton_samples = {}
+        self.contact = None
+        self.rejected_steps = 0  # Adam steps the contact filter rejected
+        if model.contact is not None:
+            if config.pseudo_time:
+                raise ValueError("contact is not available with a pseudo-time field")
+            self.contact = ContactPoints(model.contact.term(), model.surface,
+                                         model.contact.check_resolution,
+                                         dtype=field.parameters[0].dtype)
+            self.objective = self.objective.with_terms(self.contact.term)
 
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
                             times: torch.Tensor | None = None) -> EnergyResult:
@@ -98,6 +114,8 @@ class Solver:
         times: the pseudo-time of each sample (N,) of a pseudo-time solve; default: t =
             load_factor at every sample (Π of the field's state at that load factor). A number
             load factor means the samples' point forces are already scaled by it (`_samples`)."""
+        if self.contact is not None:
+            samples = self.contact.augment(samples)
         xi = samples.xi
         cond = None
         if self.config.pseudo_time:
@@ -157,6 +175,9 @@ class Solver:
         """A last-layer Newton phase on the fixed Newton samples of this load factor."""
         samples = self.newton_samples(load_factor)
         potential = self.objective.potential(load_factor)
+        if self.contact is not None:
+            samples = self.contact.augment(samples)
+            potential = self._contact_filter(potential, samples, load_factor)
         result = solve_last_layer(self.field, self.model.boundary, potential, samples,
                                   load_factor,
                                   NewtonConfig(iterations=self.config.newton_iterations))
@@ -186,14 +207,16 @@ class Solver:
         for step in range(start_step, len(cfg.load_steps)):
             state.load_step, lam = step, cfg.load_steps[step]
             done_in_step = max(state.iteration - step * cfg.iterations, 0)
+            self._refresh_contact(lam)
             if newton and done_in_step == 0:
                 self.newton(lam)
             for _ in range(done_in_step, cfg.iterations):
                 samples, times = self.training_samples(cfg.samples, lam, state.generator)
-                _, gnorm = adam_iteration(state.optimiser, self.evaluator(samples, lam, times),
-                                          check=self._check_step)
+                gnorm = self._adam_step(samples, lam, times)
                 state.iteration += 1
                 record = None
+                if state.iteration % CONTACT_CHECK_EVERY == 0:
+                    self._refresh_contact(lam)
                 if state.iteration % cfg.monitor_every == 0:
                     record = self._record(lam, gnorm, t0)
                 _call(callbacks, "on_iteration", self, record)
@@ -219,6 +242,56 @@ class Solver:
                            wall_time=time.perf_counter() - t0, history=state.history,
                            probes=self.probe_displacements(cfg.load_steps[-1]),
                            newton_steps=state.newton_steps)
+
+    # -- contact: penetration filter and dense check ----------------------------------------------
+    def _adam_step(self, samples, lam: float, times) -> float:
+        """One Adam step (`adam_iteration`); with contact, the step is halved until no
+        checked point (area samples and check points) penetrates deeper than before it, at
+        most FILTER_HALVINGS times, else rejected. Returns ‖∇Π‖ before the step."""
+        evaluate = self.evaluator(samples, lam, times)
+        if self.contact is None:
+            return adam_iteration(self.state.optimiser, evaluate, check=self._check_step)[1]
+        before = self.field.get_flat().clone()
+        checked = self.contact.augment(samples)
+        floor = min(0.0, self._min_gap(checked, lam))
+        _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=self._check_step)
+        after = self.field.get_flat().clone()
+        for _ in range(FILTER_HALVINGS):
+            if self._min_gap(checked, lam) > floor:
+                return gnorm
+            after = 0.5 * (before + after)
+            self.field.set_flat(after)
+        if self._min_gap(checked, lam) <= floor:
+            self.field.set_flat(before)
+            self.rejected_steps += 1
+        return gnorm
+
+    def _min_gap(self, samples, lam: float) -> float:
+        """Smallest contact gap [m] of the current field at the samples with a barrier
+        weight (area samples and check points)."""
+        return self.contact.min_gap(lambda xi: self.operator.displacement(xi, t=lam), samples,
+                                    lam)
+
+    def _contact_filter(self, potential, samples, lam: float):
+        """`potential` whose value (grad=False: the Newton line search's trials) is +inf
+        where a checked point penetrates deeper than at the start: the line search then
+        rejects the step."""
+        floor = min(0.0, self._min_gap(samples, lam))
+        keep = self.contact.checked(samples)
+
+        def filtered(trial_samples, u_jets, grad):
+            result = potential(trial_samples, u_jets, grad)
+            if not grad:
+                x = trial_samples.r_jets[keep, 0] + u_jets[keep, 0]
+                if self.contact.term.min_gap(x, lam) <= floor:
+                    result.total = math.inf
+            return result
+        return filtered
+
+    def _refresh_contact(self, lam: float) -> None:
+        """Dense check: add the grid points that came within the activation distance."""
+        if self.contact is not None:
+            self.contact.refresh(lambda xi: self.operator.displacement(xi, t=lam), lam)
 
     def _check_step(self, energy: float, grad_norm: float) -> None:
         self.guard.check_step(self, energy, grad_norm)
