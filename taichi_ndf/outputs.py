@@ -108,6 +108,20 @@ def deformed_mesh(model: ShellModel, field, resolution: tuple[int, int] = (64, 6
                         energy_density=cat["psi"])
 
 
+def surface_points(model: ShellModel, field, resolution: tuple[int, int], *,
+                   load_factor: float = 1.0) -> np.ndarray:
+    """Deformed positions (V, 3) [m] of the export grid's vertices (`export_grid`), without
+    strains: e.g. the clearance to obstacles on a dense grid."""
+    xi_np, _, _ = export_grid(model, resolution)
+    dtype = field.parameters[0].dtype
+    points = []
+    for start in range(0, len(xi_np), CHUNK):
+        xi = torch.from_numpy(xi_np[start:start + CHUNK]).to(dtype)
+        points.append(model.surface.jets(xi)[:, jets.VALUE]
+                      + model.displacement(field, xi, t=load_factor))
+    return torch.cat(points).double().numpy()
+
+
 def write_mesh_files(out: OutputDir, stem: str, mesh: DeformedMesh) -> None:
     """`stem`.obj (positions, UVs) and `stem`.ply (UVs, strains, energy density)."""
     write_obj(out.file(f"{stem}.obj"), mesh.deformed, mesh.faces, uvs=mesh.uv)

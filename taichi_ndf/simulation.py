@@ -7,11 +7,13 @@ import logging
 import math
 
 from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard, ProgressBar
+from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.field import NeuralField
 from taichi_ndf.io import OutputDir, read_mesh
 from taichi_ndf.outputs import (
     DeformedMesh,
     deformed_mesh,
+    surface_points,
     trajectory_mesh_name,
     write_energy_plot,
     write_mesh_files,
@@ -26,6 +28,8 @@ from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
 log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
+# Grid cells per coordinate (256² points) of the clearance to the obstacles in result.json.
+CONTACT_GRID = (255, 255)
 
 
 class SimulationError(RuntimeError):
@@ -86,6 +90,13 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         if not all(math.isfinite(float(v)) for v in values):
             raise SimulationError(f"non-finite {name} in the exported mesh")
     write_mesh_files(out, "mesh", mesh)
+    contact = None
+    if scene.model.contact is not None:
+        write_obstacles(scene.model.contact, out)
+        contact = contact_summary(scene.model.contact,
+                                  surface_points(scene.model, field, CONTACT_GRID))
+        contact["evaluation_grid"] = list(CONTACT_GRID)
+        contact.update(check_points=run.contact.count, rejected_steps=run.rejected_steps)
     write_render(out, "render.png", mesh)
     write_energy_plot(out, "energy.png", result.history)
     summary = {
@@ -96,6 +107,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         "wall_time": result.wall_time,
         "probes": result.probes,
         "trajectory": trajectory,
+        "contact": contact,
         "resolved": {
             "field": scene.field.to_dict(),
             "solver": _plain(dataclasses.asdict(config)),

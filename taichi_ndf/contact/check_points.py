@@ -5,9 +5,9 @@ an obstacle between them. `ContactPoints` keeps the points of a dense grid (chec
 per surface) that ever came within the activation distance; they are appended to every
 sample set with shell weight 0 and a barrier weight (the trapezoidal rule on the grid), and
 they alone carry the barrier (the area samples get barrier weight 0): the contact forces are
-a fixed grid quadrature, free of the sampling noise. `refresh` evaluates the whole grid after accepted
-steps; `min_gap` is the line-search filter's test on the area samples and the check points: a
-state in which one of them penetrates is rejected.
+a fixed grid quadrature, free of the sampling noise. `refresh` evaluates the whole grid after
+accepted steps; `min_gap` is the line-search filter's test on the area samples and the check
+points: a state in which one of them penetrates is rejected.
 """
 
 from __future__ import annotations

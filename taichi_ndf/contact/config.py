@@ -103,3 +103,31 @@ def check_pins(config: ContactConfig, model) -> None:
                         f"ξ={pin.xi} (load factor {load_factor:g}): its distance "
                         f"{float(gaps[0, k]) + config.offset:.4g} m is not more than "
                         f"h/2 + margin = {config.offset:.4g} m")
+
+
+def contact_summary(config: ContactConfig, points, load_factor: float = 1.0) -> dict:
+    """For result.json: the smallest signed distance [m] of the shell's faces (mid-surface
+    distance − h/2) and the smallest gap (also − margin) over points (N, 3) [m] (the output
+    mesh's vertices), per obstacle and overall."""
+    x = torch.as_tensor(points, dtype=torch.float64)
+    gaps, _ = config.term().gaps(x, load_factor)
+    per = {o.name: float(gaps[:, k].min()) + config.margin
+           for k, o in enumerate(config.obstacles)}
+    return {"min_signed_distance": min(per.values()),
+            "min_gap": min(per.values()) - config.margin,
+            "min_signed_distance_per_obstacle": per, "offset": config.offset,
+            "activation_distance": config.activation, "stiffness": config.stiffness}
+
+
+def write_obstacles(config: ContactConfig, out, load_factor: float = 1.0) -> list[str]:
+    """obstacles/<name>.obj of every obstacle at the load factor in the run directory `out`
+    (an `OutputDir`); returns the file names."""
+    from taichi_ndf.io import write_obj
+
+    names = []
+    for obstacle in config.obstacles:
+        vertices, faces = obstacle.triangles(load_factor)
+        name = f"obstacles/{obstacle.name}.obj"
+        write_obj(out.file(name), vertices, faces)
+        names.append(name)
+    return names

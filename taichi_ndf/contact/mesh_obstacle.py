@@ -3,8 +3,8 @@
 For every query point the kernel visits every triangle (brute force, parallel over points):
 the closest point on each triangle (Ericson, Real-Time Collision Detection §5.1.5) gives the
 unsigned distance and the nearest point q; the generalised winding number (sum of the
-triangles' solid angles / 4π, Van Oosterom–Strackee) gives the sign, exact for a closed mesh
-whatever the triangles' orientation quality. The gradient of the signed distance is
+triangles' solid angles / 4π, Van Oosterom–Strackee) gives the sign: a point is inside where
+its magnitude exceeds 1/2, exact for a closed, consistently oriented mesh (outward or inward). The gradient of the signed distance is
 sign · (x − q)/|x − q|, the exact one wherever the closest point is unique.
 
 Cost: points × triangles. Measured (tests/test_contact_obstacles.py prints it with -s): see
@@ -93,7 +93,7 @@ def _distance_kernel():
                     nearest = q
                 winding += _solid_angle(a - p, b - p, c - p)
             sign = 1.0
-            if winding > 2.0 * math.pi:  # winding number > 1/2: inside
+            if ti.abs(winding) > 2.0 * math.pi:  # |winding number| > 1/2: inside
                 sign = -1.0
             dist = ti.sqrt(best)
             out_distance[i] = sign * dist
