@@ -36,7 +36,8 @@ def parse_contact(top: Table, model, base_dir: Path) -> ContactConfig | None:
         t.close()
     activation = _auto(settings, "activation_distance")
     stiffness = _auto(settings, "stiffness")
-    margin = settings.number("margin", 0.0, nonnegative=True)
+    margin = None if settings._get("margin", "auto") == "auto" else \
+        settings.number("margin", nonnegative=True)
     resolution = settings.integer("check_resolution", DEFAULT_CHECK_RESOLUTION, minimum=2)
     settings.close()
     return _checked(lambda: ContactConfig.resolve(

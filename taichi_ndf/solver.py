@@ -52,9 +52,6 @@ log = logging.getLogger(__name__)
 # Most halvings of an Adam step that makes a checked point penetrate before it is rejected.
 FILTER_HALVINGS = 6
 
-# Adam iterations between dense contact checks (ContactPoints.refresh).
-CONTACT_CHECK_EVERY = 10
-
 # Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
 MONITOR_SEED_OFFSET = 7919
 NEWTON_SEED_OFFSET = 104729
@@ -182,6 +179,7 @@ class Solver:
                                   load_factor,
                                   NewtonConfig(iterations=self.config.newton_iterations))
         self.state.newton_steps += result.steps
+        self._refresh_contact(load_factor)
 
     def probe_displacements(self, load_factor: float) -> dict[str, list[float]]:
         if not self.model.probes:
@@ -202,6 +200,8 @@ class Solver:
         start_step = min(state.load_step, len(cfg.load_steps) - 1)  # a finished run goes on
         t0 = time.perf_counter()
         hooks = [self.guard, *callbacks]
+        if self.contact is not None and state.iteration == 0 and state.newton_steps == 0:
+            self._feasible_start(cfg.load_steps[start_step])
         _call(hooks, "on_start", self)
         newton = cfg.newton_iterations > 0
         for step in range(start_step, len(cfg.load_steps)):
@@ -215,8 +215,6 @@ class Solver:
                 gnorm = self._adam_step(samples, lam, times)
                 state.iteration += 1
                 record = None
-                if state.iteration % CONTACT_CHECK_EVERY == 0:
-                    self._refresh_contact(lam)
                 if state.iteration % cfg.monitor_every == 0:
                     record = self._record(lam, gnorm, t0)
                 _call(callbacks, "on_iteration", self, record)
@@ -245,53 +243,76 @@ class Solver:
 
     # -- contact: penetration filter and dense check ----------------------------------------------
     def _adam_step(self, samples, lam: float, times) -> float:
-        """One Adam step (`adam_iteration`); with contact, the step is halved until no
-        checked point (area samples and check points) penetrates deeper than before it, at
-        most FILTER_HALVINGS times, else rejected. Returns ‖∇Π‖ before the step."""
+        """One Adam step (`adam_iteration`); with contact, the step is halved until the
+        filter allows it (`ContactPoints.step_allowed` on the step's area samples and the
+        dense grid), at most FILTER_HALVINGS times, else rejected; the grid points that came
+        close become check points. Returns ‖∇Π‖ before the step."""
         evaluate = self.evaluator(samples, lam, times)
         if self.contact is None:
             return adam_iteration(self.state.optimiser, evaluate, check=self._check_step)[1]
+        contact = self.contact
         before = self.field.get_flat().clone()
-        checked = self.contact.augment(samples)
-        floor = min(0.0, self._min_gap(checked, lam))
+        start = contact.filter_positions(self._displacement(lam), samples)
+        start_gap = contact.point_gaps(start, lam)
         _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=self._check_step)
         after = self.field.get_flat().clone()
-        for _ in range(FILTER_HALVINGS):
-            if self._min_gap(checked, lam) > floor:
+        for halving in range(FILTER_HALVINGS + 1):
+            end = contact.filter_positions(self._displacement(lam), samples)
+            if contact.step_allowed(start, start_gap, end, lam):
+                contact.flag(contact.point_gaps(end, lam))
                 return gnorm
-            after = 0.5 * (before + after)
-            self.field.set_flat(after)
-        if self._min_gap(checked, lam) <= floor:
-            self.field.set_flat(before)
-            self.rejected_steps += 1
+            if halving < FILTER_HALVINGS:
+                after = 0.5 * (before + after)
+                self.field.set_flat(after)
+        self.field.set_flat(before)
+        self.rejected_steps += 1
         return gnorm
 
-    def _min_gap(self, samples, lam: float) -> float:
-        """Smallest contact gap [m] of the current field at the samples with a barrier
-        weight (area samples and check points)."""
-        return self.contact.min_gap(lambda xi: self.operator.displacement(xi, t=lam), samples,
-                                    lam)
+    def _displacement(self, lam: float):
+        """u(ξ) (N, 3) of the current field at the load factor."""
+        return lambda xi: self.operator.displacement(xi, t=lam)
+
+    def _positions(self, samples, lam: float) -> torch.Tensor:
+        """Positions of the checked points of `samples` (`ContactPoints.checked`)."""
+        keep = self.contact.checked(samples)
+        return samples.r_jets[keep, 0] + self._displacement(lam)(samples.xi[keep])
 
     def _contact_filter(self, potential, samples, lam: float):
         """`potential` whose value (grad=False: the Newton line search's trials) is +inf
-        where a checked point penetrates deeper than at the start: the line search then
-        rejects the step."""
-        floor = min(0.0, self._min_gap(samples, lam))
+        where the filter refuses the step from the current field (`step_allowed`): the line
+        search then rejects it."""
         keep = self.contact.checked(samples)
+        start = self._positions(samples, lam)
+        start_gap = self.contact.point_gaps(start, lam)
 
         def filtered(trial_samples, u_jets, grad):
             result = potential(trial_samples, u_jets, grad)
             if not grad:
-                x = trial_samples.r_jets[keep, 0] + u_jets[keep, 0]
-                if self.contact.term.min_gap(x, lam) <= floor:
+                end = trial_samples.r_jets[keep, 0] + u_jets[keep, 0]
+                if not self.contact.step_allowed(start, start_gap, end, lam):
                     result.total = math.inf
             return result
         return filtered
 
+    def _feasible_start(self, lam: float) -> None:
+        """A fresh field whose initial displacement makes the dense grid touch an obstacle
+        starts from its output layer set to zero instead (u = the prescribed motions only):
+        the filter needs a state without penetration to start from."""
+        if self.contact.refresh(self._displacement(lam), lam) > 0:
+            return
+        weight, bias = self.field.output_layer()
+        with torch.no_grad():
+            weight.zero_()
+            bias.zero_()
+        gap = self.contact.refresh(self._displacement(lam), lam)
+        log.info("contact: the initial field touched an obstacle; output layer set to zero "
+                 "(smallest gap now %.3g m)", gap)
+
     def _refresh_contact(self, lam: float) -> None:
-        """Dense check: add the grid points that came within the activation distance."""
+        """Dense check (with contact): add the grid points that came within the activation
+        distance."""
         if self.contact is not None:
-            self.contact.refresh(lambda xi: self.operator.displacement(xi, t=lam), lam)
+            self.contact.refresh(self._displacement(lam), lam)
 
     def _check_step(self, energy: float, grad_norm: float) -> None:
         self.guard.check_step(self, energy, grad_norm)

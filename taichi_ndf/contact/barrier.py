@@ -8,7 +8,7 @@ distance, h the shell's thickness). Barrier (Li et al. 2020):
 C² at the activation distance ĝ and unbounded as g → 0. Below g_min = ĝ · FLOOR_RATIO it
 continues as its second-order Taylor polynomial at g_min, so a stray sample inside an obstacle
 (a fresh random sample between checked points) gives a finite, steeply repelling energy; the
-penetration filter (`ContactTerm.min_gap`) keeps accepted states outside.
+penetration filter (`ContactPoints.step_allowed`) keeps accepted states outside.
 
 Energy term: Π_c = κ Σ_i w_i √a_i Σ_o b(g_io) over the samples (quadrature weight w_i, or the
 samples' `barrier_weight` where given: the dense check points), κ [N/m³] the barrier stiffness
@@ -85,12 +85,6 @@ class ContactTerm:
             gaps.append(d - self.offset)
             normals.append(n)
         return torch.stack(gaps, dim=1), torch.stack(normals, dim=1)
-
-    def min_gap(self, points: torch.Tensor, load_factor: float = 1.0) -> float:
-        """Smallest gap [m] over points (N, 3) and obstacles (< 0: a point penetrates)."""
-        if points.shape[0] == 0:
-            return math.inf
-        return float(self.gaps(points, load_factor)[0].min())
 
     def _weights(self, samples: SurfaceSamples) -> torch.Tensor:
         weight = samples.weight if samples.barrier_weight is None else samples.barrier_weight

@@ -6,8 +6,8 @@ per surface) that ever came within the activation distance; they are appended to
 sample set with shell weight 0 and a barrier weight (the trapezoidal rule on the grid), and
 they alone carry the barrier (the area samples get barrier weight 0): the contact forces are
 a fixed grid quadrature, free of the sampling noise. `refresh` evaluates the whole grid after
-accepted steps; `min_gap` is the line-search filter's test on the area samples and the check
-points: a state in which one of them penetrates is rejected.
+accepted steps; `step_allowed` is the line-search filter's test on the area samples and the check
+points: a step in which one of them could cross an obstacle is rejected.
 """
 
 from __future__ import annotations
@@ -74,8 +74,14 @@ class ContactPoints:
         """Evaluate the grid (`displacement(xi) -> u (N, 3)` of the current state), add the
         points within the activation distance; returns the smallest gap [m]."""
         u = displacement(self.grid_xi)
-        gaps, _ = self.term.gaps(self.grid_r.to(u.dtype) + u, load_factor)
-        close = (gaps < self.term.activation).any(dim=1).cpu()
+        return self.flag(self.point_gaps(self.grid_r.to(u.dtype) + u, load_factor))
+
+    def flag(self, grid_gaps: torch.Tensor) -> float:
+        """Add the grid points whose gap (the last len(grid) entries of `grid_gaps`, as
+        `filter_positions` orders them) is below the activation distance; returns the
+        smallest of those gaps [m]."""
+        gaps = grid_gaps[-len(self.grid_xi):]
+        close = (gaps < self.term.activation).cpu()
         new = close & ~self.active
         if bool(new.any()):
             self.active |= close
@@ -84,18 +90,38 @@ class ContactPoints:
                       self.count)
         return float(gaps.min())
 
+    def filter_positions(self, displacement, samples: SurfaceSamples) -> torch.Tensor:
+        """Positions x = r + u (M, 3) [m] of the points the Adam filter checks: the area
+        samples of `samples`, then the whole grid (`displacement(xi) -> u` of a state)."""
+        area = samples.weight > 0
+        xi = torch.cat((samples.xi[area], self.grid_xi.to(samples.xi.dtype)))
+        r = torch.cat((samples.r_jets[area, 0], self.grid_r.to(samples.xi.dtype)))
+        return r + displacement(xi)
+
     @staticmethod
     def checked(samples: SurfaceSamples) -> torch.Tensor:
-        """Mask (N,) of the points the filter checks: positive shell or barrier weight."""
+        """Mask (N,) of the points the Newton filter checks: positive shell or barrier
+        weight."""
         keep = samples.weight > 0
         if samples.barrier_weight is not None:
             keep = keep | (samples.barrier_weight > 0)
         return keep
 
-    def min_gap(self, displacement, samples: SurfaceSamples, load_factor: float) -> float:
-        """Smallest gap [m] at the area samples and check points of `samples` (positive
-        shell or barrier weight; `displacement(xi) -> u (N, 3)` of the current state): the
-        filter's test (< 0: a point penetrates)."""
-        keep = self.checked(samples)
-        u = displacement(samples.xi[keep])
-        return self.term.min_gap(samples.r_jets[keep, 0] + u, load_factor)
+    def point_gaps(self, x: torch.Tensor, load_factor: float) -> torch.Tensor:
+        """Each point's smallest gap over the obstacles (N,) [m]."""
+        return self.term.gaps(x, load_factor)[0].min(dim=1).values
+
+    def step_allowed(self, start: torch.Tensor, start_gap: torch.Tensor, end: torch.Tensor,
+                     load_factor: float) -> bool:
+        """The filter's test of a step that moves the checked points from `start` to `end`
+        (M, 3) [m] (`start_gap` (M,): their gaps at the start): every point outside moves
+        by less than its gap — the signed distance is 1-Lipschitz, so it stays outside and
+        cannot tunnel through an obstacle — and no point ends deeper inside than the deepest
+        stray point started."""
+        moved = (end - start).norm(dim=1)
+        outside = start_gap > 0
+        if bool((moved[outside] >= start_gap[outside]).any()):
+            return False
+        if bool(outside.all()):
+            return True
+        return float(self.point_gaps(end, load_factor).min()) > float(start_gap.min())

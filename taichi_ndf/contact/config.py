@@ -2,7 +2,8 @@
 
 Rules (docs/contact.md):
 - offset = h/2 + margin: the mid-surface keeps h/2 (the material's thickness) plus a margin
-  [m] from every obstacle.
+  [m] from every obstacle; by default margin = MARGIN_FRACTION × ĝ, which absorbs the sag of
+  the surface between the points of the dense check grid.
 - activation distance ĝ: by default ACTIVATION_FRACTION × the surface's characteristic length
   √A.
 - barrier stiffness κ [N/m³]: by default the one that carries the scene's load per area q at a
@@ -24,6 +25,7 @@ from taichi_ndf.contact.barrier import ContactTerm, barrier_slope_at_half
 from taichi_ndf.scaling import load_per_area
 
 ACTIVATION_FRACTION = 5e-3
+MARGIN_FRACTION = 0.1
 DEFAULT_CHECK_RESOLUTION = 64
 
 
@@ -65,7 +67,7 @@ class ContactConfig:
                            stiffness=self.stiffness)
 
     @classmethod
-    def resolve(cls, obstacles, model, *, margin: float = 0.0,
+    def resolve(cls, obstacles, model, *, margin: float | None = None,
                 activation: float | None = None, stiffness: float | None = None,
                 check_resolution: int = DEFAULT_CHECK_RESOLUTION) -> ContactConfig:
         """Settings for `model` (a `ShellModel`) with the default rules of the module
@@ -73,6 +75,8 @@ class ContactConfig:
         an obstacle."""
         if activation is None:
             activation = ACTIVATION_FRACTION * model.characteristic_length()
+        if margin is None:
+            margin = MARGIN_FRACTION * activation
         if stiffness is None:
             stiffness = load_per_area(model) / (barrier_slope_at_half() * activation)
             if stiffness == 0:
@@ -81,7 +85,28 @@ class ContactConfig:
         config = cls(tuple(obstacles), float(model.material.thickness), float(activation),
                      float(stiffness), float(margin), int(check_resolution))
         check_pins(config, model)
+        check_reference(config, model)
         return config
+
+
+def check_reference(config: ContactConfig, model, resolution: int = 129) -> None:
+    """ValueError naming the obstacle when the undeformed reference surface (a grid of
+    resolution² points) lies within h/2 + margin of it at load factor 0: the solve must start
+    from a state without contact penetration."""
+    (lo1, hi1), (lo2, hi2) = model.surface.domain.bounds
+    s = torch.linspace(0, 1, resolution, dtype=torch.float64)
+    g1, g2 = torch.meshgrid(lo1 + (hi1 - lo1) * s, lo2 + (hi2 - lo2) * s, indexing="ij")
+    xi = torch.stack((g1.reshape(-1), g2.reshape(-1)), dim=1)
+    xi = xi[model.surface.domain.contains(xi)]
+    gaps, _ = config.term().gaps(model.surface.jets(xi)[:, 0], 0.0)
+    for k, obstacle in enumerate(config.obstacles):
+        worst = int(gaps[:, k].argmin())
+        if float(gaps[worst, k]) <= 0:
+            raise ValueError(
+                f"obstacle {obstacle.name!r} intersects the reference surface (at ξ="
+                f"{tuple(round(float(v), 6) for v in xi[worst])}, distance "
+                f"{float(gaps[worst, k]) + config.offset:.4g} m, needs more than h/2 + margin "
+                f"= {config.offset:.4g} m)")
 
 
 def check_pins(config: ContactConfig, model) -> None:

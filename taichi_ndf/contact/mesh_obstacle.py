@@ -4,8 +4,9 @@ For every query point the kernel visits every triangle (brute force, parallel ov
 the closest point on each triangle (Ericson, Real-Time Collision Detection §5.1.5) gives the
 unsigned distance and the nearest point q; the generalised winding number (sum of the
 triangles' solid angles / 4π, Van Oosterom–Strackee) gives the sign: a point is inside where
-its magnitude exceeds 1/2, exact for a closed, consistently oriented mesh (outward or inward). The gradient of the signed distance is
-sign · (x − q)/|x − q|, the exact one wherever the closest point is unique.
+its magnitude exceeds 1/2, exact for a closed, consistently oriented mesh (outward or
+inward). The gradient of the signed distance is sign · (x − q)/|x − q|, the exact one wherever
+the closest point is unique.
 
 Cost: points × triangles. Measured (tests/test_contact_obstacles.py prints it with -s): see
 docs/contact.md; a uniform grid of triangle lists would cut it for large meshes but is not
