@@ -98,6 +98,7 @@ class Solver:
         if model.contact is not None:
             if config.pseudo_time:
                 raise ValueError("contact is not available with a pseudo-time field")
+            model.contact.check(model)
             self.contact = ContactPoints(model.contact.term(), model.surface,
                                          model.contact.check_resolution,
                                          dtype=field.parameters[0].dtype)

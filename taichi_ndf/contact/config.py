@@ -71,8 +71,7 @@ class ContactConfig:
                 activation: float | None = None, stiffness: float | None = None,
                 check_resolution: int = DEFAULT_CHECK_RESOLUTION) -> ContactConfig:
         """Settings for `model` (a `ShellModel`) with the default rules of the module
-        docstring for what is not given; checks that no pinned point or handle starts inside
-        an obstacle."""
+        docstring for what is not given."""
         if activation is None:
             activation = ACTIVATION_FRACTION * model.characteristic_length()
         if margin is None:
@@ -82,11 +81,15 @@ class ContactConfig:
             if stiffness == 0:
                 raise ValueError("the scene has no load to set the contact stiffness from; "
                                  "give it (contact stiffness [N/m³])")
-        config = cls(tuple(obstacles), float(model.material.thickness), float(activation),
-                     float(stiffness), float(margin), int(check_resolution))
-        check_pins(config, model)
-        check_reference(config, model)
-        return config
+        return cls(tuple(obstacles), float(model.material.thickness), float(activation),
+                   float(stiffness), float(margin), int(check_resolution))
+
+    def check(self, model) -> None:
+        """ValueError naming the obstacle when it intersects the reference surface or a
+        pinned point or handle (`check_reference`, `check_pins`); needs the Taichi runtime
+        (mesh obstacles), so the solver calls it rather than the scene parser."""
+        check_pins(self, model)
+        check_reference(self, model)
 
 
 def check_reference(config: ContactConfig, model, resolution: int = 129) -> None:
