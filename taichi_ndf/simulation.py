@@ -96,7 +96,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         contact = contact_summary(scene.model.contact,
                                   surface_points(scene.model, field, CONTACT_GRID))
         contact["evaluation_grid"] = list(CONTACT_GRID)
-        contact.update(check_points=run.contact.count, rejected_steps=run.rejected_steps)
+        contact.update(check_points=run.contact.count, rejected_steps=run.rejected_steps,
+                       final_stiffness=run.contact.term.stiffness)
     write_render(out, "render.png", mesh)
     write_energy_plot(out, "energy.png", result.history)
     summary = {

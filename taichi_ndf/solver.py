@@ -50,7 +50,7 @@ __all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverC
 log = logging.getLogger(__name__)
 
 # Most halvings of an Adam step that makes a checked point penetrate before it is rejected.
-FILTER_HALVINGS = 6
+FILTER_HALVINGS = 10
 
 # Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
 MONITOR_SEED_OFFSET = 7919

@@ -22,6 +22,11 @@ from taichi_ndf.sampling import SurfaceSamples
 
 log = logging.getLogger(__name__)
 
+# Adaptive barrier stiffness (IPC): κ doubles whenever a grid point comes closer than
+# ADAPT_BELOW × ĝ, up to ADAPT_LIMIT × its initial value.
+ADAPT_BELOW = 0.1
+ADAPT_LIMIT = 1024.0
+
 
 class ContactPoints:
     """The contact term with its dense grid and the check points added so far.
@@ -32,6 +37,7 @@ class ContactPoints:
     def __init__(self, term: ContactTerm, surface, resolution: int, *,
                  dtype: torch.dtype = torch.float64):
         self.term = term
+        self.initial_stiffness = term.stiffness
         self.surface = surface
         (lo1, hi1), (lo2, hi2) = surface.domain.bounds
         s = torch.linspace(0, 1, resolution, dtype=dtype)
@@ -78,9 +84,16 @@ class ContactPoints:
 
     def flag(self, grid_gaps: torch.Tensor) -> float:
         """Add the grid points whose gap (the last len(grid) entries of `grid_gaps`, as
-        `filter_positions` orders them) is below the activation distance; returns the
-        smallest of those gaps [m]."""
+        `filter_positions` orders them) is below the activation distance, and double the
+        barrier stiffness if one came closer than ADAPT_BELOW × ĝ; returns the smallest of
+        those gaps [m]."""
         gaps = grid_gaps[-len(self.grid_xi):]
+        smallest = float(gaps.min())
+        if 0 < smallest < ADAPT_BELOW * self.term.activation \
+                and self.term.stiffness < ADAPT_LIMIT * self.initial_stiffness:
+            self.term.stiffness *= 2.0
+            log.debug("contact: gap %.3g m, barrier stiffness raised to %.4g N/m³", smallest,
+                      self.term.stiffness)
         close = (gaps < self.term.activation).cpu()
         new = close & ~self.active
         if bool(new.any()):
@@ -88,7 +101,7 @@ class ContactPoints:
             self._samples = None
             log.debug("contact: %d check points added (%d in all)", int(new.sum()),
                       self.count)
-        return float(gaps.min())
+        return smallest
 
     def filter_positions(self, displacement, samples: SurfaceSamples) -> torch.Tensor:
         """Positions x = r + u (M, 3) [m] of the points the Adam filter checks: the area
