@@ -30,6 +30,7 @@ from taichi_ndf.optim import AdamConfig
 from taichi_ndf.pseudo_time import TIME_RANGE
 from taichi_ndf.scene_contact import parse_contact
 from taichi_ndf.scene_schema import SceneError, Table
+from taichi_ndf.scene_schema import checked as _check
 from taichi_ndf.shell.materials import (
     PRESETS,
     ClydeFabric,
@@ -113,15 +114,6 @@ def _section(table: Table, build, *args):
     result = _check(lambda: build(table, *args), table.path)
     table.close()
     return result
-
-
-def _check(build, where: str):
-    try:
-        return build()
-    except SceneError:
-        raise
-    except (ValueError, TypeError, FileNotFoundError) as err:
-        raise SceneError(f"{where}: {err}") from err
 
 
 def _placement(t: Table) -> dict:

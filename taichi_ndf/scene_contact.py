@@ -14,7 +14,7 @@ from taichi_ndf.contact import (
     Sphere,
 )
 from taichi_ndf.contact.config import DEFAULT_CHECK_RESOLUTION
-from taichi_ndf.scene_schema import SceneError, Table
+from taichi_ndf.scene_schema import SceneError, Table, checked
 
 OBSTACLES = ("plane", "sphere", "box", "capsule", "cylinder", "mesh")
 ZERO = (0.0, 0.0, 0.0)
@@ -32,7 +32,7 @@ def parse_contact(top: Table, model, base_dir: Path) -> ContactConfig | None:
         return None
     obstacles = []
     for k, t in enumerate(tables):
-        obstacles.append(_checked(lambda t=t, k=k: _obstacle(t, k, base_dir), t.path))
+        obstacles.append(checked(lambda t=t, k=k: _obstacle(t, k, base_dir), t.path))
         t.close()
     activation = _auto(settings, "activation_distance")
     stiffness = _auto(settings, "stiffness")
@@ -40,18 +40,9 @@ def parse_contact(top: Table, model, base_dir: Path) -> ContactConfig | None:
         settings.number("margin", nonnegative=True)
     resolution = settings.integer("check_resolution", DEFAULT_CHECK_RESOLUTION, minimum=2)
     settings.close()
-    return _checked(lambda: ContactConfig.resolve(
+    return checked(lambda: ContactConfig.resolve(
         obstacles, model, margin=margin, activation=activation, stiffness=stiffness,
         check_resolution=resolution), "obstacles")
-
-
-def _checked(build, where: str):
-    try:
-        return build()
-    except SceneError:
-        raise
-    except (ValueError, TypeError, FileNotFoundError) as err:
-        raise SceneError(f"{where}: {err}") from err
 
 
 def _auto(t: Table, name: str) -> float | None:

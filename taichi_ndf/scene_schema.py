@@ -112,3 +112,14 @@ class Table:
         if unknown:
             where = self.path or "top level"
             raise SceneError(f"{where}: unknown key(s) {', '.join(repr(k) for k in unknown)}")
+
+
+def checked(build, where: str):
+    """`build()`, with its ValueError / TypeError / FileNotFoundError re-raised as a
+    `SceneError` naming `where` (the section of the scene file)."""
+    try:
+        return build()
+    except SceneError:
+        raise
+    except (ValueError, TypeError, FileNotFoundError) as err:
+        raise SceneError(f"{where}: {err}") from err

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import taichi as ti
 import torch
+import trimesh
 
 from taichi_ndf.contact.obstacles import Obstacle, _motion
 
@@ -117,8 +118,6 @@ class MeshObstacle(Obstacle):
     motion: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
-        import trimesh
-
         vertices = np.asarray(self.vertices, dtype=np.float64)
         faces = np.asarray(self.faces, dtype=np.int64)
         if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 \
@@ -140,8 +139,6 @@ class MeshObstacle(Obstacle):
                   offset=(0.0, 0.0, 0.0), motion=(0.0, 0.0, 0.0)) -> "MeshObstacle":
         """Read an OBJ/PLY/STL file (trimesh), scale it by `scale` and move it by `offset`
         [m]."""
-        import trimesh
-
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"obstacle mesh not found: {path}")

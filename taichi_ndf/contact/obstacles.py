@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+import trimesh
 
 from taichi_ndf.checks import finite_vector
 
@@ -112,8 +113,6 @@ class Sphere(Obstacle):
         return (p - p.new_tensor(self.centre)).norm(dim=1) - self.radius
 
     def _mesh(self):
-        import trimesh
-
         mesh = trimesh.creation.icosphere(subdivisions=4, radius=self.radius)
         return np.asarray(mesh.vertices) + np.asarray(self.centre), np.asarray(mesh.faces)
 
@@ -149,8 +148,6 @@ class RoundedBox(Obstacle):
         return outside + inside - self.rounding
 
     def _mesh(self):
-        import trimesh
-
         # A sphere of the rounding radius split at its equators and moved out to the corners:
         # the stretched triangles between octants are the flat faces and the rounded edges.
         radius = max(self.rounding, 1e-6)
@@ -162,10 +159,10 @@ class RoundedBox(Obstacle):
 
 
 @dataclass(frozen=True)
-class Capsule(Obstacle):
-    """Points within `radius` [m] of the segment from `start` to `end` (hemispherical ends)."""
+class _SegmentObstacle(Obstacle):
+    """A solid of `radius` [m] about the segment from `start` to `end` [m]."""
 
-    name: str = "capsule"
+    name: str = "segment"
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)
     end: tuple[float, float, float] = (1.0, 0.0, 0.0)
     radius: float = 0.1
@@ -173,54 +170,55 @@ class Capsule(Obstacle):
 
     def __post_init__(self):
         _check_segment(self)
-
-    def _sdf(self, p):
-        a, b = p.new_tensor(self.start), p.new_tensor(self.end)
-        ba = b - a
-        s = ((p - a) @ ba / (ba @ ba)).clamp(0.0, 1.0)
-        return (p - a - s[:, None] * ba).norm(dim=1) - self.radius
 
     def _mesh(self):
-        import trimesh
-
         length = float(np.linalg.norm(np.subtract(self.end, self.start)))
-        mesh = trimesh.creation.capsule(height=length, radius=self.radius, count=[32, 32])
-        # trimesh's capsule: the segment of length height centred on the origin along z
-        return _along_segment(np.asarray(mesh.vertices), self, centred=True), \
-            np.asarray(mesh.faces)
+        mesh = self._mesh_along_z(length)  # centred on the origin
+        return _along_segment(np.asarray(mesh.vertices), self), np.asarray(mesh.faces)
 
+    def _mesh_along_z(self, length: float):
+        raise NotImplementedError
 
-@dataclass(frozen=True)
-class Cylinder(Obstacle):
-    """Solid cylinder of `radius` [m] about the segment from `start` to `end`, flat ends."""
-
-    name: str = "cylinder"
-    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    end: tuple[float, float, float] = (1.0, 0.0, 0.0)
-    radius: float = 0.1
-    motion: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self):
-        _check_segment(self)
-
-    def _sdf(self, p):
-        a, b = p.new_tensor(self.start), p.new_tensor(self.end)
-        axis = b - a
+    def _axial(self, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Position along the axis from `start` (N,) [m], distance from the axis (N,) [m]
+        and the segment's length of points p (N, 3)."""
+        a = p.new_tensor(self.start)
+        axis = p.new_tensor(self.end) - a
         length = axis.norm()
         axis = axis / length
         along = (p - a) @ axis
-        radial = (p - a - along[:, None] * axis).norm(dim=1) - self.radius
+        return along, (p - a - along[:, None] * axis).norm(dim=1), length
+
+
+@dataclass(frozen=True)
+class Capsule(_SegmentObstacle):
+    """Points within `radius` [m] of the segment from `start` to `end` (hemispherical ends)."""
+
+    name: str = "capsule"
+
+    def _sdf(self, p):
+        along, radial, length = self._axial(p)
+        beyond = along - along.clamp(min=0.0, max=float(length))
+        return torch.sqrt(radial**2 + beyond**2) - self.radius
+
+    def _mesh_along_z(self, length):
+        return trimesh.creation.capsule(height=length, radius=self.radius, count=[32, 32])
+
+
+@dataclass(frozen=True)
+class Cylinder(_SegmentObstacle):
+    """Solid cylinder of `radius` [m] about the segment from `start` to `end`, flat ends."""
+
+    name: str = "cylinder"
+
+    def _sdf(self, p):
+        along, radial, length = self._axial(p)
         axial = (along - 0.5 * length).abs() - 0.5 * length
-        q = torch.stack((radial, axial), dim=1)
+        q = torch.stack((radial - self.radius, axial), dim=1)
         return q.clamp(min=0).norm(dim=1) + q.max(dim=1).values.clamp(max=0)
 
-    def _mesh(self):
-        import trimesh
-
-        length = float(np.linalg.norm(np.subtract(self.end, self.start)))
-        mesh = trimesh.creation.cylinder(radius=self.radius, height=length, sections=48)
-        return _along_segment(np.asarray(mesh.vertices), self, centred=True), \
-            np.asarray(mesh.faces)
+    def _mesh_along_z(self, length):
+        return trimesh.creation.cylinder(radius=self.radius, height=length, sections=48)
 
 
 def _check_segment(obstacle) -> None:
@@ -233,12 +231,11 @@ def _check_segment(obstacle) -> None:
     object.__setattr__(obstacle, "motion", _motion(name, obstacle.motion))
 
 
-def _along_segment(vertices: np.ndarray, obstacle, *, centred: bool) -> np.ndarray:
-    """Vertices of a mesh built along +z (from 0, or centred on 0) moved onto the segment."""
+def _along_segment(vertices: np.ndarray, obstacle) -> np.ndarray:
+    """Vertices of a mesh built along z, centred on the origin, moved onto the segment."""
     a, b = np.asarray(obstacle.start), np.asarray(obstacle.end)
     axis = (b - a) / np.linalg.norm(b - a)
     e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(axis, e1)
-    origin = 0.5 * (a + b) if centred else a
-    return origin + vertices @ np.stack((e1, e2, axis))
+    return 0.5 * (a + b) + vertices @ np.stack((e1, e2, axis))
