@@ -29,12 +29,15 @@ class SurfaceSamples:
     weight: parameter-area quadrature weight, shape (N,): |Ω|/M for the M area samples, 0 for
         point-load samples.
     point_force: concentrated force [N], shape (N, 3): P_k at point-load samples, 0 elsewhere.
+    barrier_weight: quadrature weight of the contact barrier (N,) [m² of parameter domain], or
+        None: `weight` (the contact check points carry one and a shell weight of 0).
     """
 
     xi: torch.Tensor
     r_jets: torch.Tensor
     weight: torch.Tensor
     point_force: torch.Tensor
+    barrier_weight: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.xi.shape[0]
@@ -42,8 +45,21 @@ class SurfaceSamples:
     def to(self, *, dtype: torch.dtype | None = None,
            device: torch.device | str | None = None) -> SurfaceSamples:
         """The same samples with tensors converted to `dtype` / moved to `device`."""
-        return SurfaceSamples(*(t.to(dtype=dtype, device=device) for t in
-                                (self.xi, self.r_jets, self.weight, self.point_force)))
+        return SurfaceSamples(*(None if t is None else t.to(dtype=dtype, device=device)
+                                for t in (self.xi, self.r_jets, self.weight, self.point_force,
+                                          self.barrier_weight)))
+
+    def joined(self, other: SurfaceSamples) -> SurfaceSamples:
+        """These samples followed by `other` (barrier weights: each set's own, or its
+        `weight`)."""
+        barrier = None
+        if self.barrier_weight is not None or other.barrier_weight is not None:
+            barrier = torch.cat([s.weight if s.barrier_weight is None else s.barrier_weight
+                                 for s in (self, other)])
+        return SurfaceSamples(torch.cat((self.xi, other.xi)),
+                              torch.cat((self.r_jets, other.r_jets)),
+                              torch.cat((self.weight, other.weight)),
+                              torch.cat((self.point_force, other.point_force)), barrier)
 
 
 def stratified_uniform(n: int, low: float, high: float, generator: torch.Generator, *,

@@ -31,6 +31,7 @@ from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.optim import AdamConfig
 from taichi_ndf.pseudo_time import TIME_RANGE
 from taichi_ndf.render.figure import VIEWS
+from taichi_ndf.scene_contact import parse_contact
 from taichi_ndf.scene_schema import SceneError, Table, read_toml
 from taichi_ndf.scene_schema import checked as _check
 from taichi_ndf.shell.materials import (
@@ -95,10 +96,13 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     boundary = _section(top.table("boundary", optional=True), _boundary, surface)
     probes = tuple(Probe(t.string("name"), t.vector("xi", 2)) for t in top.tables("probes"))
     model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
+    model = replace(model, contact=parse_contact(top, model, base_dir))
     field = _section(top.table("field", optional=True), _field, model, loads)
     solver, quick = _section(top.table("training", optional=True), _training)
     output = _section(top.table("output", optional=True), _output, solver.pseudo_time)
     if solver.pseudo_time:
+        if model.contact is not None:
+            raise SceneError("training.pseudo_time: not available with [[obstacles]]")
         field = replace(field, conditioning=(TIME_RANGE,))
     top.close()
     return Scene(name=name, description=description, model=model, field=field, solver=solver,

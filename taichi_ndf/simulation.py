@@ -10,6 +10,7 @@ from pathlib import Path
 
 from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard, ProgressBar
 from taichi_ndf.checkpoint import read_checkpoint
+from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
 from taichi_ndf.field import NeuralField
@@ -18,6 +19,7 @@ from taichi_ndf.io.run_files import read_run, up_direction
 from taichi_ndf.outputs import (
     DeformedMesh,
     deformed_mesh,
+    surface_points,
     trajectory_mesh_name,
     write_energy_plot,
     write_mesh_files,
@@ -37,9 +39,12 @@ log = logging.getLogger(__name__)
 FORMAT_VERSION = 1
 # What a run writes into its directory (see `simulate`): replaced as a whole by the next run.
 RUN_FILES = ("mesh.obj", "mesh.ply", "reference.obj", "probes.json", "render.png", "energy.png",
-             "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4")
+             "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4",
+             "obstacles")
 # Scene sections a resumed run may change: how long and how it trains, what it writes.
 RESUMABLE_CHANGES = ("name", "description", "training", "output")
+# Grid cells per coordinate (256² points) of the clearance to the obstacles in result.json.
+CONTACT_GRID = (255, 255)
 
 
 class SimulationError(RuntimeError):
@@ -109,10 +114,19 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         if not all(math.isfinite(float(v)) for v in values):
             raise SimulationError(f"non-finite {name} in the exported mesh")
     write_mesh_files(out, "mesh", mesh)
+    contact, obstacle_meshes = None, ()
+    if scene.model.contact is not None:
+        write_obstacles(scene.model.contact, out)
+        obstacle_meshes = tuple(o.triangles(1.0) for o in scene.model.contact.obstacles)
+        contact = contact_summary(scene.model.contact,
+                                  surface_points(scene.model, field, CONTACT_GRID))
+        contact["evaluation_grid"] = list(CONTACT_GRID)
+        contact.update(check_points=run.contact.count, rejected_steps=run.rejected_steps,
+                       final_stiffness=run.contact.term.stiffness)
     write_reference_mesh(out, mesh)
     write_probe_points(out, scene.model, result.probes)
     write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
-                 views=scene.output.views)
+                 views=scene.output.views, obstacles=obstacle_meshes)
     write_energy_plot(out, "energy.png", result.history)
     summary = {
         "format_version": FORMAT_VERSION,
@@ -123,6 +137,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         "wall_time": result.wall_time,
         "probes": result.probes,
         "trajectory": trajectory,
+        "contact": contact,
         "resolved": {
             "field": scene.field.to_dict(),
             "solver": _plain(dataclasses.asdict(config)),
