@@ -4,7 +4,8 @@
 the parameter domain with equal weights w = |Ω| / M (M area samples), so the sum estimates the
 integral in joules; the energy multiplies by √a itself, so the weights never contain it
 (uniform in parameter space, weighted by √a once). Each point load adds one sample of weight 0
-that carries its force.
+that carries its force, unscaled: the objective multiplies it by the load factor
+(`taichi_ndf.objective.ShellEnergyTerm`).
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ class SurfaceSamples:
     r_jets: reference surface jets, shape (N, 6, 3) [m].
     weight: parameter-area quadrature weight, shape (N,): |Ω|/M for the M area samples, 0 for
         point-load samples.
-    point_force: concentrated force [N], shape (N, 3): P_k at point-load samples, 0 elsewhere.
+    point_force: concentrated force [N], shape (N, 3): P_k at point-load samples, 0 elsewhere;
+        at load factor 1 (the energy term scales it).
     """
 
     xi: torch.Tensor
@@ -42,6 +44,13 @@ class SurfaceSamples:
         """The same samples with tensors converted to `dtype` / moved to `device`."""
         return SurfaceSamples(*(t.to(dtype=dtype, device=device) for t in
                                 (self.xi, self.r_jets, self.weight, self.point_force)))
+
+    def with_point_force(self, point_force: torch.Tensor) -> SurfaceSamples:
+        """The same samples carrying other point forces (N, 3) [N]."""
+        if point_force.shape != self.point_force.shape:
+            raise ValueError(f"point_force must have shape {tuple(self.point_force.shape)}, "
+                             f"got {tuple(point_force.shape)}")
+        return SurfaceSamples(self.xi, self.r_jets, self.weight, point_force)
 
 
 def stratified_uniform(n: int, low: float, high: float, generator: torch.Generator, *,

@@ -87,8 +87,8 @@ class Solver:
         self.config = config
         self.state = state or State.initial(field, config.adam, config.seed)
         self.guard = guard or DivergenceGuard()
-        self._monitor = {}
-        self._newton_samples = {}
+        self._monitor = None
+        self._newton_samples = None
 
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
                             times: torch.Tensor | None = None) -> EnergyResult:
@@ -96,8 +96,7 @@ class Solver:
         operator's jets); fills the field's gradients if `grad`.
 
         times: the pseudo-time of each sample (N,) of a pseudo-time solve; default: t =
-            load_factor at every sample (Π of the field's state at that load factor). A number
-            load factor means the samples' point forces are already scaled by it (`_samples`)."""
+            load_factor at every sample (Π of the field's state at that load factor)."""
         xi = samples.xi
         cond = None
         if self.config.pseudo_time:
@@ -119,43 +118,39 @@ class Solver:
             return self.energy_and_gradient(samples, load_factor, grad=grad, times=times).total
         return evaluate
 
-    def _samples(self, n: int, load_factor: float, generator: torch.Generator):
-        """n area samples (and the point-load samples) with their point forces scaled by the
-        load factor; unscaled in a pseudo-time solve, where the energy scales them per
-        sample."""
+    def _samples(self, n: int, generator: torch.Generator):
+        """n area samples and the point-load samples, with unscaled point forces (the
+        objective applies the load factor)."""
         rt_dtype = self.field.parameters[0].dtype
-        factor = 1.0 if self.config.pseudo_time else load_factor
-        s = sample_surface(self.model.surface, n, self.model.loads.scaled(factor), generator)
+        s = sample_surface(self.model.surface, n, self.model.loads, generator)
         return s.to(dtype=rt_dtype, device=self.field.parameters[0].device)
 
     def training_samples(self, n: int, load_factor: float, generator: torch.Generator):
         """Samples of one iteration (or of the L-BFGS polish) and their pseudo-times: in a
         pseudo-time solve each draws its t in [pseudo_time_start, load_factor], else None."""
-        samples = self._samples(n, load_factor, generator)
+        samples = self._samples(n, generator)
         if not self.config.pseudo_time:
             return samples, None
         return samples_over_time(samples, self.config.pseudo_time_start, load_factor,
                                  generator)
 
-    def monitor_samples(self, load_factor: float):
-        """Fixed samples on which Π is monitored (the same at every t of a pseudo-time
-        solve, whose samples do not depend on the load factor)."""
-        key = 1.0 if self.config.pseudo_time else load_factor
-        if key not in self._monitor:
+    def monitor_samples(self):
+        """Fixed samples on which Π is monitored (the same at every load factor)."""
+        if self._monitor is None:
             gen = torch.Generator().manual_seed(self.config.seed + MONITOR_SEED_OFFSET)
-            self._monitor[key] = self._samples(self.config.monitor_samples, key, gen)
-        return self._monitor[key]
+            self._monitor = self._samples(self.config.monitor_samples, gen)
+        return self._monitor
 
-    def newton_samples(self, load_factor: float):
-        if load_factor not in self._newton_samples:
+    def newton_samples(self):
+        """Fixed samples of the last-layer Newton phases (the same at every load factor)."""
+        if self._newton_samples is None:
             gen = torch.Generator().manual_seed(self.config.seed + NEWTON_SEED_OFFSET)
-            self._newton_samples[load_factor] = self._samples(self.config.newton_samples,
-                                                              load_factor, gen)
-        return self._newton_samples[load_factor]
+            self._newton_samples = self._samples(self.config.newton_samples, gen)
+        return self._newton_samples
 
     def newton(self, load_factor: float) -> None:
-        """A last-layer Newton phase on the fixed Newton samples of this load factor."""
-        samples = self.newton_samples(load_factor)
+        """A last-layer Newton phase on the fixed Newton samples at this load factor."""
+        samples = self.newton_samples()
         potential = self.objective.potential(load_factor)
         result = solve_last_layer(self.field, self.model.boundary, potential, samples,
                                   load_factor,
@@ -224,7 +219,7 @@ class Solver:
         self.guard.check_step(self, energy, grad_norm)
 
     def _record(self, lam: float, gnorm: float, t0: float) -> MonitorRecord:
-        energy = self.energy_and_gradient(self.monitor_samples(lam), lam, grad=False).total
+        energy = self.energy_and_gradient(self.monitor_samples(), lam, grad=False).total
         self.guard.check_record(self, energy, gnorm, lam)
         record = MonitorRecord(
             iteration=self.state.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
@@ -240,7 +235,7 @@ class Solver:
             gen = torch.Generator().manual_seed(self.config.seed + MONITOR_SEED_OFFSET)
             samples, times = self.training_samples(self.config.monitor_samples, lam, gen)
         else:
-            samples, times = self.monitor_samples(lam), None
+            samples, times = self.monitor_samples(), None
         before, after = lbfgs(self.field, self.evaluator(samples, lam, times),
                               self.config.lbfgs_iterations)
         if not math.isfinite(after):

@@ -23,7 +23,6 @@ The outer problem (Levenberg–Marquardt over z, uncertainty over feature bases)
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -179,17 +178,17 @@ class ImplicitEquilibrium:
 
     # -- inner problem --------------------------------------------------------------------------
     def _system(self, values, load_factor: float):
-        """The samples with θ's point forces and the potential of θ at a load factor."""
+        """The samples with θ's (unscaled) point forces and the potential of θ at a load
+        factor (the objective scales the loads)."""
         loaded = apply(self.model, self.unknowns, values)
-        loads = loaded.loads.scaled(load_factor)
+        loads = loaded.loads
         samples = self.samples
         if loads.point_loads:
             forces = samples.point_force.clone()
             forces[-len(loads.point_loads):] = torch.tensor(
                 [p.force for p in loads.point_loads], dtype=forces.dtype)
-            samples = dataclasses.replace(samples, point_force=forces)
-        # The loads are scaled here already (the samples carry the point forces).
-        return samples, Objective(ShellEnergyTerm(loaded.material, loads)).potential(1.0)
+            samples = samples.with_point_force(forces)
+        return samples, Objective(ShellEnergyTerm(loaded.material, loads)).potential(load_factor)
 
     def _newton(self, iterations: int | None = None) -> NewtonConfig:
         return NewtonConfig(iterations=iterations or self.config.newton_iterations,
