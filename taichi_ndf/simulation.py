@@ -77,10 +77,10 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
             write_trajectory_mesh(out, index, frames[index])
 
     checkpoint = out.file("checkpoint.pt")
-    run = Solver(scene.model, field, config, guard=DivergenceGuard(checkpoint))
+    run = Solver(scene.model, field, config)
     if resume:
         run.state.restore(checkpoint)
-    callbacks = [CheckpointWriter(checkpoint, {"scene": scene.document,
+    callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {"scene": scene.document,
                                                "scene_dir": str(scene.path.parent.resolve())})]
     if config.progress:
         callbacks.append(ProgressBar())

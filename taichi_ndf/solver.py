@@ -19,19 +19,19 @@ Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chai
 back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
 (`taichi_ndf.minimisers`, `taichi_ndf.newton`) change the state (`taichi_ndf.state`); this
 module draws the sample sets and drives the continuation over load steps. Progress bar,
-checkpoint files and the divergence policy are callbacks (`taichi_ndf.callbacks`).
+checkpoint files and the divergence guard are callbacks (`taichi_ndf.callbacks`) that the
+application installs.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass
 
 import torch
 
-from taichi_ndf.callbacks import DivergenceError, DivergenceGuard
+from taichi_ndf.callbacks import DivergenceError
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimisers import adam_iteration, lbfgs
 from taichi_ndf.model import ShellModel
@@ -68,12 +68,10 @@ class Solver:
     Adam / Newton / L-BFGS phases and the continuation over load steps."""
 
     def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
-                 objective: Objective | None = None, state: State | None = None,
-                 guard: DivergenceGuard | None = None):
+                 objective: Objective | None = None, state: State | None = None):
         """objective: what is minimised (default: the model's potential energy,
         `Objective.of_model`), e.g. with the work of an end moment added. state: where to
-        start (default: `State.initial`; a restored one resumes). guard: the divergence
-        guard (default: one that names no checkpoint)."""
+        start (default: `State.initial`; a restored one resumes)."""
         self.operator = DisplacementOperator(field, model.boundary)
         if config.pseudo_time:
             self.operator.refuse_free_pin("pseudo_time", ": the pin's value would differ per "
@@ -86,9 +84,9 @@ class Solver:
         self.field = field
         self.config = config
         self.state = state or State.initial(field, config.adam, config.seed)
-        self.guard = guard or DivergenceGuard()
         self._monitor = None
         self._newton_samples = None
+        self._callbacks = ()
 
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
                             times: torch.Tensor | None = None) -> EnergyResult:
@@ -170,13 +168,14 @@ class Solver:
 
     # -- continuation over the load steps ------------------------------------------------------
     def run(self, *, callbacks=(), on_load_step=None) -> SolveResult:
-        """Minimise Π for every load step from the state's; `callbacks` (`taichi_ndf.callbacks`)
-        see every iteration, and `on_load_step(load_factor)` is called after each step."""
+        """Minimise Π for every load step from the state's; `callbacks` (`taichi_ndf.callbacks`:
+        progress, checkpoints, the divergence guard) see every iteration, and
+        `on_load_step(load_factor)` is called after each step."""
         cfg, state = self.config, self.state
         start_step = min(state.load_step, len(cfg.load_steps) - 1)  # a finished run goes on
         t0 = time.perf_counter()
-        hooks = [self.guard, *callbacks]
-        _call(hooks, "on_start", self)
+        self._callbacks = callbacks = tuple(callbacks)
+        _call(callbacks, "on_start", self)
         newton = cfg.newton_iterations > 0
         for step in range(start_step, len(cfg.load_steps)):
             state.load_step, lam = step, cfg.load_steps[step]
@@ -216,11 +215,11 @@ class Solver:
                            newton_steps=state.newton_steps)
 
     def _check_step(self, energy: float, grad_norm: float) -> None:
-        self.guard.check_step(self, energy, grad_norm)
+        _call(self._callbacks, "on_step", self, energy, grad_norm)
 
     def _record(self, lam: float, gnorm: float, t0: float) -> MonitorRecord:
         energy = self.energy_and_gradient(self.monitor_samples(), lam, grad=False).total
-        self.guard.check_record(self, energy, gnorm, lam)
+        _call(self._callbacks, "on_record", self, energy, gnorm, lam)
         record = MonitorRecord(
             iteration=self.state.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
             learning_rate=self.state.optimiser.learning_rate,
@@ -238,8 +237,7 @@ class Solver:
             samples, times = self.monitor_samples(), None
         before, after = lbfgs(self.field, self.evaluator(samples, lam, times),
                               self.config.lbfgs_iterations)
-        if not math.isfinite(after):
-            self.guard.fail(self, after, float("nan"))
+        _call(self._callbacks, "on_polish", self, before, after)
         log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)
 
 
