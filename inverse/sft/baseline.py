@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from inverse.sft.inputs import Camera, Template
-from inverse.sft.tracking import FrameCorrespondences
+from inverse.sft.correspondences import FrameCorrespondences
 
 log = logging.getLogger(__name__)
 

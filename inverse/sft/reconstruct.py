@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from inverse.sft.inputs import Camera, Template
-from inverse.sft.tracking import FrameCorrespondences
+from inverse.sft.correspondences import FrameCorrespondences
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
