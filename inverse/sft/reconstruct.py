@@ -40,8 +40,8 @@ import cv2
 import numpy as np
 import torch
 
-from inverse.sft.inputs import Camera, Template
 from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.inputs import Camera, Template, mean_edge_length
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
@@ -55,6 +55,9 @@ from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.materials import LinearIsotropic, preset
 
 log = logging.getLogger(__name__)
+
+# Depth [m] below which projected points are clamped (a bad step must not divide by ~0).
+MIN_DEPTH = 1e-6
 
 
 @dataclass(frozen=True)
@@ -132,10 +135,7 @@ class FieldReconstructor:
         tri = template.vertices[template.faces]
         area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
         self.area = float(area.sum())
-        edges = np.concatenate([template.faces[:, [0, 1]], template.faces[:, [1, 2]],
-                                template.faces[:, [2, 0]]])
-        self.mean_edge = float(np.linalg.norm(
-            template.vertices[edges[:, 0]] - template.vertices[edges[:, 1]], axis=1).mean())
+        self.mean_edge = mean_edge_length(template.vertices, template.faces)
         self.field = NeuralField(
             FieldConfig(width=cfg.width, hidden_layers=cfg.hidden_layers, omega0=cfg.omega0,
                         domain=self.surface.domain.bounds,
@@ -156,7 +156,6 @@ class FieldReconstructor:
         self.operator = DisplacementOperator(self.field, conditions)
         self.vertex_xi = torch.from_numpy(template.uvs).to(self.ftype)
         self.rest = torch.from_numpy(template.vertices)
-        self.K = torch.from_numpy(camera.K)
         self.generator = torch.Generator().manual_seed(cfg.seed)
 
     # -- field evaluation ------------------------------------------------------------------
@@ -212,13 +211,14 @@ class FieldReconstructor:
             u = u_jets[n_energy:, jets.VALUE].double().requires_grad_(True)
             x_tracks = track_rest + u[:n_tracks]
             x_vertices = self.rest + u[n_tracks:]
-            residual = _project(self.K, x_tracks) - target
+            residual = self.camera.project(x_tracks, min_depth=MIN_DEPTH) - target
             reprojection = (weight * _huber(residual, cfg.huber_px)).sum()
             motion = ((x_vertices - predicted) ** 2).sum(1).mean() / self.mean_edge**2
             loss = reprojection + cfg.temporal_weight * motion
             terms = {"reprojection": reprojection.item(), "motion": motion.item()}
             if distance is not None and cfg.silhouette_weight > 0:
-                silhouette = (_bilinear(distance, _project(self.K, x_vertices)) ** 2).mean()
+                pixels = self.camera.project(x_vertices, min_depth=MIN_DEPTH)
+                silhouette = (_bilinear(distance, pixels) ** 2).mean()
                 loss = loss + cfg.silhouette_weight * silhouette
                 terms["silhouette"] = silhouette.item()
             (grad_u,) = torch.autograd.grad(loss, u)
@@ -279,14 +279,6 @@ def reconstruct(
     log.info("reconstruction: %d frames, %.2f s per frame", len(vertices),
              np.mean(seconds[1:]) if len(seconds) > 1 else 0.0)
     return ReconstructionResult(vertices=vertices, seconds=seconds, losses=losses)
-
-
-def _project(K: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Pixels (n, 2) of camera-frame points (n, 3) [m]."""
-    # Points behind the camera (a bad step) must not divide by ~0.
-    z = points[:, 2].clamp_min(1e-6)
-    return torch.stack([K[0, 0] * points[:, 0] / z + K[0, 2],
-                        K[1, 1] * points[:, 1] / z + K[1, 2]], dim=1)
 
 
 def _huber(residual: torch.Tensor, delta: float) -> torch.Tensor:
