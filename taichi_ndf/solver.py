@@ -150,7 +150,7 @@ class Solver:
         """A last-layer Newton phase on the fixed Newton samples at this load factor."""
         samples = self.newton_samples()
         potential = self.objective.potential(load_factor)
-        result = solve_last_layer(self.field, self.model.boundary, potential, samples,
+        result = solve_last_layer(self.operator, potential, samples,
                                   load_factor,
                                   NewtonConfig(iterations=self.config.newton_iterations))
         self.state.newton_steps += result.steps
