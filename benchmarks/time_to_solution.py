@@ -42,6 +42,7 @@ def solve(scene_path: Path, iteration_factor: float, precision: str, monitor_eve
     torch.set_num_threads(threads)
 
     taichi_ndf.init(arch="cpu", precision=precision, seed=0)
+    from taichi_ndf.callbacks import DivergenceGuard
     from taichi_ndf.field import NeuralField
     from taichi_ndf.scene import load_scene
     from taichi_ndf.solver import Solver
@@ -52,7 +53,7 @@ def solve(scene_path: Path, iteration_factor: float, precision: str, monitor_eve
         config, monitor_every=monitor_every, progress=False, checkpoint_every=0
     )
     field = NeuralField(scene.field, seed=config.seed)
-    result = Solver(scene.model, field, config).run()
+    result = Solver(scene.model, field, config).run(callbacks=[DivergenceGuard()])
     return {
         "energy": result.energy,
         "iterations": result.iterations,

@@ -1,9 +1,11 @@
 """What the application layer hooks into a solve: progress bar, checkpoint writing, and the
 divergence guard. The solver itself does no I/O.
 
-A callback has any of `on_start(solver)`, `on_iteration(solver, record)` (record: the
-`MonitorRecord` of this iteration or None), `on_load_step(solver, load_factor)` and
-`on_end(solver)`.
+A callback has any of `on_start(solver)`, `on_step(solver, energy, grad_norm)` (before each
+Adam step), `on_iteration(solver, record)` (record: the `MonitorRecord` of this iteration or
+None), `on_record(solver, energy, grad_norm, load_factor)` (Π on the monitor samples, before
+the record is kept), `on_polish(solver, before, after)` (Π around an L-BFGS polish),
+`on_load_step(solver, load_factor)` and `on_end(solver)`. A hook may raise to stop the solve.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ class DivergenceError(RuntimeError):
 class DivergenceGuard:
     """Refuses non-finite Π or gradients and a Π far above anything seen at a load factor;
     then resets the field to its last monitored good state and raises `DivergenceError`.
+    A callback: installed by the application (`taichi_ndf.simulation`, the validation
+    runner); a solve without it does not stop on divergence.
 
     checkpoint_path: named in the error message (where the last checkpoint lies), or None."""
 
@@ -34,12 +38,17 @@ class DivergenceGuard:
     def on_start(self, solver) -> None:
         self._good = solver.field.get_flat().clone()
 
-    def check_step(self, solver, energy: float, grad_norm: float) -> None:
+    def on_step(self, solver, energy: float, grad_norm: float) -> None:
         """Before an optimiser step: Π and ‖∇Π‖ must be finite."""
         if not (math.isfinite(energy) and math.isfinite(grad_norm)):
             self.fail(solver, energy, grad_norm)
 
-    def check_record(self, solver, energy: float, grad_norm: float, load_factor: float) -> None:
+    def on_polish(self, solver, before: float, after: float) -> None:
+        """After an L-BFGS polish: Π must be finite."""
+        if not math.isfinite(after):
+            self.fail(solver, after, float("nan"))
+
+    def on_record(self, solver, energy: float, grad_norm: float, load_factor: float) -> None:
         """At a monitor record: Π finite and not blown up; then the state is the good one."""
         if not math.isfinite(energy) or self._blown_up(solver, energy, load_factor):
             self.fail(solver, energy, grad_norm)

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 
 import torch
 
-from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import NeuralField
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
@@ -75,15 +74,14 @@ class NewtonResult:
     steps: int  # accepted Newton steps
 
 
-def output_jacobian(field: NeuralField, boundary: BoundaryConditions, xi: torch.Tensor,
-                    load_factor: float, conditioning: torch.Tensor | None = None
+def output_jacobian(operator: DisplacementOperator, xi: torch.Tensor, load_factor: float,
+                    conditioning: torch.Tensor | None = None
                     ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Displacement jets u (N, 6, 3) [m] of the current field and their Jacobian with respect
-    to the output layer, shape (3, N, 6, width + 1)
+    """Displacement jets u (N, 6, 3) [m] of the operator's current field and their Jacobian
+    with respect to the output layer, shape (3, N, 6, width + 1)
     (`DisplacementOperator.output_layer_jacobian`).
     conditioning: the field's extra inputs per sample (N, k), for a conditioned field."""
-    return DisplacementOperator(field, boundary).output_layer_jacobian(
-        xi, t=load_factor, conditioning=conditioning)
+    return operator.output_layer_jacobian(xi, t=load_factor, conditioning=conditioning)
 
 
 def output_parameters(field: NeuralField) -> torch.Tensor:
@@ -155,7 +153,7 @@ def _hessian_at(potential: Potential, samples: SurfaceSamples, u_jets: torch.Ten
     return parameter_hessian(jacobian, hessians)
 
 
-def output_hessian(field: NeuralField, boundary: BoundaryConditions, potential: Potential,
+def output_hessian(operator: DisplacementOperator, potential: Potential,
                    samples: SurfaceSamples, load_factor: float,
                    config: NewtonConfig | None = None, *,
                    conditioning: torch.Tensor | None = None
@@ -167,22 +165,24 @@ def output_hessian(field: NeuralField, boundary: BoundaryConditions, potential: 
     this is what the implicit-function theorem needs: dθ*/dp = −H⁻¹ ∂(∇_θ Π)/∂p for any
     parameter p of the potential, with ∂(∇_θ Π)/∂p = Jᵀ ∂(dΠ/du)/∂p."""
     config = config or NewtonConfig()
-    u, jacobian = output_jacobian(field, boundary, samples.xi, load_factor, conditioning)
-    theta = output_parameters(field)
+    u, jacobian = output_jacobian(operator, samples.xi, load_factor, conditioning)
+    theta = output_parameters(operator.field)
     return u, jacobian, _hessian_at(potential, samples, u, jacobian, theta, config.fd_step)
 
 
-def solve_last_layer(field: NeuralField, boundary: BoundaryConditions, potential: Potential,
+def solve_last_layer(operator: DisplacementOperator, potential: Potential,
                      samples: SurfaceSamples, load_factor: float,
                      config: NewtonConfig | None = None, *,
                      conditioning: torch.Tensor | None = None) -> NewtonResult:
-    """Minimise Π over the field's output layer on fixed samples (damped Newton with a
-    backtracking line search); updates W_out and b_out in place.
+    """Minimise Π (potential: the objective at a load factor, `Objective.potential`) over the
+    output layer of the operator's field on fixed samples (damped Newton with a backtracking
+    line search); updates W_out and b_out in place.
 
     conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring)."""
     config = config or NewtonConfig()
+    field = operator.field
     weight, bias = field.output_layer()
-    u, jacobian = output_jacobian(field, boundary, samples.xi, load_factor, conditioning)
+    u, jacobian = output_jacobian(operator, samples.xi, load_factor, conditioning)
     theta = output_parameters(field)
     shape = theta.shape
     delta = torch.zeros_like(theta)  # θ − θ₀, with u(θ) = u + J·(θ − θ₀)

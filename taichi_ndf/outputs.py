@@ -18,11 +18,11 @@ from taichi_ndf.io import grid_mesh, write_obj, write_ply
 from taichi_ndf.io.output_dir import OutputDir
 from taichi_ndf.io.run_files import QUANTITIES
 from taichi_ndf.model import ShellModel
+from taichi_ndf.objective import ShellEnergyTerm
 from taichi_ndf.pseudo_time import conditioning
 from taichi_ndf.render import plot_curves, render_shaded, save_png, write_video
 from taichi_ndf.render.figure import Obstacle, render_figure
 from taichi_ndf.sampling import SurfaceSamples
-from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.kinematics import strains
 
 log = logging.getLogger(__name__)
@@ -95,7 +95,7 @@ def deformed_mesh(model: ShellModel, field, resolution: tuple[int, int] = (64, 6
     with `pseudo_time` the field's pseudo-time input is that load factor too."""
     xi_np, faces, uv = export_grid(model, resolution)
     dtype = field.parameters[0].dtype
-    energy = ShellEnergy(model.material, model.loads.scaled(load_factor))
+    energy = ShellEnergyTerm(model.material, model.loads)
     parts = {k: [] for k in ("r", "u", "eps", "kappa", "psi")}
     for start in range(0, len(xi_np), CHUNK):
         xi = torch.from_numpy(xi_np[start:start + CHUNK]).to(dtype)
@@ -109,7 +109,7 @@ def deformed_mesh(model: ShellModel, field, resolution: tuple[int, int] = (64, 6
         parts["u"].append(u[:, jets.VALUE])
         parts["eps"].append(_strain_norm(eps, r))
         parts["kappa"].append(_strain_norm(kappa, r))
-        parts["psi"].append(energy.evaluate(samples, u, grad=False).density)
+        parts["psi"].append(energy.result(samples, u, load_factor, grad=False).density)
     cat = {k: torch.cat(v).double().numpy() for k, v in parts.items()}
     return DeformedMesh(xi=xi_np, reference=cat["r"], deformed=cat["r"] + cat["u"], faces=faces,
                         uv=uv, membrane_strain=cat["eps"], bending_strain=cat["kappa"],

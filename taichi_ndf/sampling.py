@@ -4,7 +4,8 @@
 the parameter domain with equal weights w = |Ω| / M (M area samples), so the sum estimates the
 integral in joules; the energy multiplies by √a itself, so the weights never contain it
 (uniform in parameter space, weighted by √a once). Each point load adds one sample of weight 0
-that carries its force; a line load adds its Gauss nodes the same way
+that carries its force, unscaled: the objective multiplies it by the load factor
+(`taichi_ndf.objective.ShellEnergyTerm`); a line load adds its Gauss nodes the same way
 (`taichi_ndf.line_loads`), before the point-load samples.
 """
 
@@ -28,7 +29,8 @@ class SurfaceSamples:
     r_jets: reference surface jets, shape (N, 6, 3) [m].
     weight: parameter-area quadrature weight, shape (N,): |Ω|/M for the M area samples, 0 for
         point-load samples.
-    point_force: concentrated force [N], shape (N, 3): P_k at point-load samples, 0 elsewhere.
+    point_force: concentrated force [N], shape (N, 3): P_k at point-load samples, 0 elsewhere;
+        at load factor 1 (the energy term scales it).
     barrier_weight: quadrature weight of the contact barrier (N,) [m² of parameter domain], or
         None: `weight` (the contact check points carry one and a shell weight of 0).
     """
@@ -60,6 +62,13 @@ class SurfaceSamples:
                               torch.cat((self.r_jets, other.r_jets)),
                               torch.cat((self.weight, other.weight)),
                               torch.cat((self.point_force, other.point_force)), barrier)
+
+    def with_point_force(self, point_force: torch.Tensor) -> SurfaceSamples:
+        """The same samples carrying other point forces (N, 3) [N]."""
+        if point_force.shape != self.point_force.shape:
+            raise ValueError(f"point_force must have shape {tuple(self.point_force.shape)}, "
+                             f"got {tuple(point_force.shape)}")
+        return SurfaceSamples(self.xi, self.r_jets, self.weight, point_force, self.barrier_weight)
 
 
 def stratified_uniform(n: int, low: float, high: float, generator: torch.Generator, *,

@@ -82,10 +82,10 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
             write_trajectory_mesh(out, index, frames[index])
 
     checkpoint = out.file("checkpoint.pt")
-    run = Solver(scene.model, field, config, guard=DivergenceGuard(checkpoint))
+    run = Solver(scene.model, field, config)
     if resume:
         run.state.restore(checkpoint)
-    callbacks = [CheckpointWriter(checkpoint, {"scene": scene.document,
+    callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {"scene": scene.document,
                                                "scene_dir": str(scene.path.parent.resolve())})]
     if config.progress:
         callbacks.append(ProgressBar())
@@ -105,7 +105,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
                                  pseudo_time=True)
             write_trajectory_mesh(out, index, mesh)
             pictures.append((mesh.deformed, mesh.faces))
-            energy.append(run.energy_and_gradient(run.monitor_samples(t), t, grad=False).total)
+            energy.append(run.energy_and_gradient(run.monitor_samples(), t, grad=False).total)
         write_trajectory_video(out, pictures)
         trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy}
     mesh = deformed_mesh(scene.model, field, scene.output.resolution,

@@ -19,7 +19,8 @@ Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chai
 back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
 (`taichi_ndf.minimisers`, `taichi_ndf.newton`) change the state (`taichi_ndf.state`); this
 module draws the sample sets and drives the continuation over load steps. Progress bar,
-checkpoint files and the divergence policy are callbacks (`taichi_ndf.callbacks`).
+checkpoint files and the divergence guard are callbacks (`taichi_ndf.callbacks`) that the
+application installs.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from dataclasses import dataclass
 
 import torch
 
-from taichi_ndf.callbacks import DivergenceError, DivergenceGuard
+from taichi_ndf.callbacks import DivergenceError
 from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimisers import adam_iteration, lbfgs
@@ -72,12 +73,10 @@ class Solver:
     Adam / Newton / L-BFGS phases and the continuation over load steps."""
 
     def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
-                 objective: Objective | None = None, state: State | None = None,
-                 guard: DivergenceGuard | None = None):
+                 objective: Objective | None = None, state: State | None = None):
         """objective: what is minimised (default: the model's potential energy,
         `Objective.of_model`), e.g. with the work of an end moment added. state: where to
-        start (default: `State.initial`; a restored one resumes). guard: the divergence
-        guard (default: one that names no checkpoint)."""
+        start (default: `State.initial`; a restored one resumes)."""
         self.operator = DisplacementOperator(field, model.boundary)
         if config.pseudo_time:
             self.operator.refuse_free_pin("pseudo_time", ": the pin's value would differ per "
@@ -90,9 +89,9 @@ class Solver:
         self.field = field
         self.config = config
         self.state = state or State.initial(field, config.adam, config.seed)
-        self.guard = guard or DivergenceGuard()
-        self._monitor = {}
-        self._newton_samples = {}
+        self._monitor = None
+        self._newton_samples = None
+        self._callbacks = ()
         self.contact = None
         self.rejected_steps = 0  # Adam steps the contact filter rejected
         if model.contact is not None:
@@ -110,8 +109,7 @@ class Solver:
         operator's jets); fills the field's gradients if `grad`.
 
         times: the pseudo-time of each sample (N,) of a pseudo-time solve; default: t =
-            load_factor at every sample (Π of the field's state at that load factor). A number
-            load factor means the samples' point forces are already scaled by it (`_samples`)."""
+            load_factor at every sample (Π of the field's state at that load factor)."""
         if self.contact is not None:
             samples = self.contact.augment(samples)
         xi = samples.xi
@@ -135,48 +133,44 @@ class Solver:
             return self.energy_and_gradient(samples, load_factor, grad=grad, times=times).total
         return evaluate
 
-    def _samples(self, n: int, load_factor: float, generator: torch.Generator):
-        """n area samples (and the point-load samples) with their point forces scaled by the
-        load factor; unscaled in a pseudo-time solve, where the energy scales them per
-        sample."""
+    def _samples(self, n: int, generator: torch.Generator):
+        """n area samples and the point-load samples, with unscaled point forces (the
+        objective applies the load factor)."""
         rt_dtype = self.field.parameters[0].dtype
-        factor = 1.0 if self.config.pseudo_time else load_factor
-        s = sample_surface(self.model.surface, n, self.model.loads.scaled(factor), generator)
+        s = sample_surface(self.model.surface, n, self.model.loads, generator)
         return s.to(dtype=rt_dtype, device=self.field.parameters[0].device)
 
     def training_samples(self, n: int, load_factor: float, generator: torch.Generator):
         """Samples of one iteration (or of the L-BFGS polish) and their pseudo-times: in a
         pseudo-time solve each draws its t in [pseudo_time_start, load_factor], else None."""
-        samples = self._samples(n, load_factor, generator)
+        samples = self._samples(n, generator)
         if not self.config.pseudo_time:
             return samples, None
         return samples_over_time(samples, self.config.pseudo_time_start, load_factor,
                                  generator)
 
-    def monitor_samples(self, load_factor: float):
-        """Fixed samples on which Π is monitored (the same at every t of a pseudo-time
-        solve, whose samples do not depend on the load factor)."""
-        key = 1.0 if self.config.pseudo_time else load_factor
-        if key not in self._monitor:
+    def monitor_samples(self):
+        """Fixed samples on which Π is monitored (the same at every load factor)."""
+        if self._monitor is None:
             gen = torch.Generator().manual_seed(self.config.seed + MONITOR_SEED_OFFSET)
-            self._monitor[key] = self._samples(self.config.monitor_samples, key, gen)
-        return self._monitor[key]
+            self._monitor = self._samples(self.config.monitor_samples, gen)
+        return self._monitor
 
-    def newton_samples(self, load_factor: float):
-        if load_factor not in self._newton_samples:
+    def newton_samples(self):
+        """Fixed samples of the last-layer Newton phases (the same at every load factor)."""
+        if self._newton_samples is None:
             gen = torch.Generator().manual_seed(self.config.seed + NEWTON_SEED_OFFSET)
-            self._newton_samples[load_factor] = self._samples(self.config.newton_samples,
-                                                              load_factor, gen)
-        return self._newton_samples[load_factor]
+            self._newton_samples = self._samples(self.config.newton_samples, gen)
+        return self._newton_samples
 
     def newton(self, load_factor: float) -> None:
-        """A last-layer Newton phase on the fixed Newton samples of this load factor."""
-        samples = self.newton_samples(load_factor)
+        """A last-layer Newton phase on the fixed Newton samples at this load factor."""
+        samples = self.newton_samples()
         potential = self.objective.potential(load_factor)
         if self.contact is not None:
             samples = self.contact.augment(samples)
             potential = self._contact_filter(potential, samples, load_factor)
-        result = solve_last_layer(self.field, self.model.boundary, potential, samples,
+        result = solve_last_layer(self.operator, potential, samples,
                                   load_factor,
                                   NewtonConfig(iterations=self.config.newton_iterations))
         self.state.newton_steps += result.steps
@@ -195,15 +189,16 @@ class Solver:
 
     # -- continuation over the load steps ------------------------------------------------------
     def run(self, *, callbacks=(), on_load_step=None) -> SolveResult:
-        """Minimise Π for every load step from the state's; `callbacks` (`taichi_ndf.callbacks`)
-        see every iteration, and `on_load_step(load_factor)` is called after each step."""
+        """Minimise Π for every load step from the state's; `callbacks` (`taichi_ndf.callbacks`:
+        progress, checkpoints, the divergence guard) see every iteration, and
+        `on_load_step(load_factor)` is called after each step."""
         cfg, state = self.config, self.state
         start_step = min(state.load_step, len(cfg.load_steps) - 1)  # a finished run goes on
         t0 = time.perf_counter()
-        hooks = [self.guard, *callbacks]
+        self._callbacks = callbacks = tuple(callbacks)
         if self.contact is not None and state.iteration == 0 and state.newton_steps == 0:
             self._feasible_start(cfg.load_steps[start_step])
-        _call(hooks, "on_start", self)
+        _call(callbacks, "on_start", self)
         newton = cfg.newton_iterations > 0
         for step in range(start_step, len(cfg.load_steps)):
             state.load_step, lam = step, cfg.load_steps[step]
@@ -316,11 +311,11 @@ class Solver:
             self.contact.refresh(self._displacement(lam), lam)
 
     def _check_step(self, energy: float, grad_norm: float) -> None:
-        self.guard.check_step(self, energy, grad_norm)
+        _call(self._callbacks, "on_step", self, energy, grad_norm)
 
     def _record(self, lam: float, gnorm: float, t0: float) -> MonitorRecord:
-        energy = self.energy_and_gradient(self.monitor_samples(lam), lam, grad=False).total
-        self.guard.check_record(self, energy, gnorm, lam)
+        energy = self.energy_and_gradient(self.monitor_samples(), lam, grad=False).total
+        _call(self._callbacks, "on_record", self, energy, gnorm, lam)
         record = MonitorRecord(
             iteration=self.state.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
             learning_rate=self.state.optimiser.learning_rate,
@@ -335,11 +330,10 @@ class Solver:
             gen = torch.Generator().manual_seed(self.config.seed + MONITOR_SEED_OFFSET)
             samples, times = self.training_samples(self.config.monitor_samples, lam, gen)
         else:
-            samples, times = self.monitor_samples(lam), None
+            samples, times = self.monitor_samples(), None
         before, after = lbfgs(self.field, self.evaluator(samples, lam, times),
                               self.config.lbfgs_iterations)
-        if not math.isfinite(after):
-            self.guard.fail(self, after, float("nan"))
+        _call(self._callbacks, "on_polish", self, before, after)
         log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)
 
 

@@ -75,7 +75,7 @@ def test_free_pin_adjoint_is_the_transpose_of_compose():
 def test_training_gradient_matches_finite_differences(hanging):
     """dΠ/dweights through the pin's own value N(ξ₀), against central differences in f64."""
     _, field, solver = hanging
-    samples = solver.monitor_samples(1.0)
+    samples = solver.monitor_samples()
     solver.energy_and_gradient(samples, 1.0)
     gradient = field.get_flat_gradient().clone()
     flat = field.get_flat().clone()
@@ -103,8 +103,8 @@ def test_trained_pin_does_not_move(hanging):
 
 def test_newton_jacobian_is_exact_and_a_step_lowers_the_energy(hanging):
     model, field, solver = hanging
-    samples = solver.newton_samples(1.0)
-    u, jacobian = output_jacobian(field, model.boundary, samples.xi, 1.0)
+    samples = solver.newton_samples()
+    u, jacobian = output_jacobian(solver.operator, samples.xi, 1.0)
     change = 1e-3 * torch.randn(3, field.config.width + 1, dtype=torch.float64,
                                 generator=torch.Generator().manual_seed(6))
     field.parameters[-2].add_(change[:, :-1])
@@ -113,8 +113,7 @@ def test_newton_jacobian_is_exact_and_a_step_lowers_the_energy(hanging):
     predicted = u + torch.einsum("knca,ka->nck", jacobian, change)
     torch.testing.assert_close(moved, predicted, rtol=1e-10, atol=1e-14)
 
-    result = solve_last_layer(field, model.boundary, solver.objective.potential(1.0), samples,
-                              1.0)
+    result = solve_last_layer(solver.operator, solver.objective.potential(1.0), samples, 1.0)
     assert result.energy_after < result.energy_before
 
 

@@ -17,6 +17,7 @@ from taichi_ndf.newton import (
     sample_hessians,
     solve_last_layer,
 )
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import sample_surface
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.materials import LinearIsotropic
@@ -56,7 +57,7 @@ def _theta_gradient_by_backward(field, boundary, samples, potential):
 
 def test_assembled_gradient_matches_the_field_backward(plate):
     field, boundary, samples, potential = plate
-    u, jacobian = output_jacobian(field, boundary, samples.xi, LOAD_FACTOR)
+    u, jacobian = output_jacobian(DisplacementOperator(field, boundary), samples.xi, LOAD_FACTOR)
     assembled = parameter_gradient(jacobian, potential(samples, u, True).grad_u_jets)
     expected = _theta_gradient_by_backward(field, boundary, samples, potential)
     assert torch.allclose(assembled, expected, rtol=1e-10, atol=1e-12 * expected.abs().max())
@@ -64,7 +65,7 @@ def test_assembled_gradient_matches_the_field_backward(plate):
 
 def test_jacobian_is_exact_for_a_change_of_the_output_layer(plate):
     field, boundary, samples, _ = plate
-    u, jacobian = output_jacobian(field, boundary, samples.xi, LOAD_FACTOR)
+    u, jacobian = output_jacobian(DisplacementOperator(field, boundary), samples.xi, LOAD_FACTOR)
     change = 1e-3 * torch.randn(3, field.config.width + 1, generator=torch.Generator()
                                 .manual_seed(1), dtype=torch.float64)
     field.parameters[-2].add_(change[:, :-1])
@@ -76,7 +77,7 @@ def test_jacobian_is_exact_for_a_change_of_the_output_layer(plate):
 
 def test_hessian_blocks_are_symmetric_and_match_second_differences_of_the_energy(plate):
     field, boundary, samples, potential = plate
-    u, _ = output_jacobian(field, boundary, samples.xi, LOAD_FACTOR)
+    u, _ = output_jacobian(DisplacementOperator(field, boundary), samples.xi, LOAD_FACTOR)
     scale = u.pow(2).mean(dim=(0, 2)).sqrt()
     hessians = sample_hessians(potential, samples, u, steps=1e-4 * scale)
     assert torch.equal(hessians, hessians.permute(0, 3, 4, 1, 2))
@@ -91,16 +92,16 @@ def test_hessian_blocks_are_symmetric_and_match_second_differences_of_the_energy
 
 def test_one_newton_step_reaches_the_minimum_over_the_last_layer(plate):
     field, boundary, samples, potential = plate
-    first = solve_last_layer(field, boundary, potential, samples, LOAD_FACTOR,
+    first = solve_last_layer(DisplacementOperator(field, boundary), potential, samples, LOAD_FACTOR,
                              NewtonConfig(iterations=1))
     assert first.energy_after < first.energy_before
     gradient = _theta_gradient_by_backward(field, boundary, samples, potential)
-    again = solve_last_layer(field, boundary, potential, samples, LOAD_FACTOR,
+    again = solve_last_layer(DisplacementOperator(field, boundary), potential, samples, LOAD_FACTOR,
                              NewtonConfig(iterations=3))
     # Π no longer decreases (beyond the damping of near-null feature combinations: 1e-5) and
     # dΠ/dθ vanishes at the Galerkin optimum.
     assert again.energy_after >= first.energy_after - 1e-5 * abs(first.energy_after)
-    u, jacobian = output_jacobian(field, boundary, samples.xi, LOAD_FACTOR)
+    u, jacobian = output_jacobian(DisplacementOperator(field, boundary), samples.xi, LOAD_FACTOR)
     hessian = parameter_hessian(jacobian, sample_hessians(
         potential, samples, u, steps=1e-4 * u.pow(2).mean(dim=(0, 2)).sqrt()))
     # Newton decrement gᵀH⁻¹g, relative to the energy: the optimum within rounding.
@@ -130,7 +131,8 @@ def test_newton_optimum_with_point_loads_obeys_the_work_theorem():
     def potential(s, u, grad):
         return energy.evaluate(s, u, grad=grad)
 
-    result = solve_last_layer(field, boundary, potential, samples, LOAD_FACTOR,
+    operator = DisplacementOperator(field, boundary)
+    result = solve_last_layer(operator, potential, samples, LOAD_FACTOR,
                               NewtonConfig(iterations=3))
     u = boundary.compose(samples.xi, field.jets(samples.xi), t=LOAD_FACTOR)
     work = float((samples.point_force * u[:, 0]).sum())
@@ -167,7 +169,8 @@ def test_conditioned_field_reaches_the_galerkin_optimum_at_every_stiffness():
     field = NeuralField(FieldConfig(width=128, hidden_layers=2, omega0=3.0, output_scale=1e-6,
                                     domain=surface.domain.bounds, conditioning=(log_range,)),
                         seed=3, dtype=torch.float64)
-    result = solve_last_layer(field, boundary, conditioned_potential, samples, LOAD_FACTOR,
+    operator = DisplacementOperator(field, boundary)
+    result = solve_last_layer(operator, conditioned_potential, samples, LOAD_FACTOR,
                               NewtonConfig(iterations=3), conditioning=z)
     u = boundary.compose(samples.xi, field.jets(samples.xi, z), t=LOAD_FACTOR)
     evaluated = conditioned_potential(samples, u, False)
@@ -178,7 +181,8 @@ def test_conditioned_field_reaches_the_galerkin_optimum_at_every_stiffness():
 
     plain = NeuralField(FieldConfig(width=64, hidden_layers=2, omega0=3.0, output_scale=1e-6,
                                     domain=surface.domain.bounds), seed=3, dtype=torch.float64)
-    solve_last_layer(plain, boundary, lambda s, u, grad: energy.evaluate(s, u, grad=grad),
+    solve_last_layer(DisplacementOperator(plain, boundary),
+                     lambda s, u, grad: energy.evaluate(s, u, grad=grad),
                      samples, LOAD_FACTOR, NewtonConfig(iterations=3))
     centre = torch.tensor([[0.5, 0.5]], dtype=torch.float64)
     reference = float(boundary.compose(centre, plain.jets(centre))[0, 0, 2])

@@ -33,15 +33,15 @@ def samples_at(load_factor, n=64):
 
 
 def test_shell_term_is_the_shell_energy_at_the_load_factor():
-    samples = samples_at(0.5)
-    u = displacement(len(samples))
+    # The samples carry the unscaled point forces; the term scales them with the loads.
+    unscaled = samples_at(1.0)
+    u = displacement(len(unscaled))
     objective = Objective(ShellEnergyTerm(MATERIAL, LOADS))
-    got = objective.evaluate(samples, u, 0.5)
-    expected = ShellEnergy(MATERIAL, LOADS.scaled(0.5)).evaluate(samples, u)
+    got = objective.evaluate(unscaled, u, 0.5)
+    expected = ShellEnergy(MATERIAL, LOADS.scaled(0.5)).evaluate(samples_at(0.5), u)
     assert got.total == expected.total
     assert torch.equal(got.grad_u_jets, expected.grad_u_jets)
-    # One factor per sample: the samples carry the unscaled point forces.
-    unscaled = samples_at(1.0)
+    # One factor per sample: the same.
     factors = torch.full((len(unscaled),), 0.5, dtype=F64)
     per_sample = objective.evaluate(unscaled, u, factors)
     assert per_sample.total == pytest.approx(expected.total, rel=1e-13)

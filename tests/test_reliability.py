@@ -320,7 +320,8 @@ def test_8_zero_iterations_is_refused(tmp_path, capsys):
 @pytest.mark.parametrize("edit", [{"fx": "600"}, {"width": 640.5}, {"cy": True},
                                   {"t": [0, 0, "1"]}, {"fy": None}])
 def test_8_camera_values_must_be_numbers(edit):
-    from inverse.sft.inputs import InputError, camera_from_json
+    from inverse.sft.camera import camera_from_json
+    from inverse.sft.inputs import InputError
 
     camera = {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480,
               "R": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "t": [0, 0, 1]}

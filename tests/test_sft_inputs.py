@@ -7,10 +7,10 @@ import cv2
 import numpy as np
 import pytest
 
+from inverse.sft.camera import camera_from_json
 from inverse.sft.inputs import (
     Camera,
     InputError,
-    camera_from_json,
     load_camera,
     load_inputs,
     load_template,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from inverse.cli import sft_eval
+from inverse.sft.camera import write_camera
 from inverse.sft.deformations import rotation_xyz
-from inverse.sft.inputs import write_camera
 from inverse.sft.metrics import (
     CHAMFER_SCALE,
     PROTOCOL,

@@ -9,15 +9,11 @@ import pytest
 import torch
 
 from inverse.cli import sft as sft_cli
+from inverse.sft.data_terms import bilinear_differentiable, outside_distance
 from inverse.sft.deformations import Pose, cylindrical_bend
 from inverse.sft.inputs import Template
 from inverse.sft.metrics import relative_error
-from inverse.sft.reconstruct import (
-    ReconstructionConfig,
-    _bilinear,
-    _outside_distance,
-    reconstruct,
-)
+from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
 from inverse.sft.surface import surface_positions
 from inverse.sft.synth import SynthConfig, default_camera, flat_sheet, generate, write_sequence
 from inverse.sft.tracking import FrameCorrespondences
@@ -80,10 +76,10 @@ def test_pinned_vertices_stay_at_the_template():
 def test_silhouette_distance_and_its_gradient():
     mask = np.zeros((20, 30), bool)
     mask[5:15, 5:15] = True
-    distance = torch.from_numpy(_outside_distance(mask))
+    distance = outside_distance(mask)
     assert distance[10, 10] == 0 and distance[10, 20] == pytest.approx(6.0)
     xy = torch.tensor([[20.0, 10.0], [10.0, 10.0]], dtype=torch.float64, requires_grad=True)
-    values = _bilinear(distance, xy)
+    values = bilinear_differentiable(distance, xy)
     values.sum().backward()
     assert values[0].item() == pytest.approx(6.0) and values[1].item() == 0
     # Moving an outside point towards the mask (−x) lowers the distance.

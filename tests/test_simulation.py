@@ -34,7 +34,7 @@ def test_uniform_stretch_matches_the_exact_solution():
     solver, _, result = solve(scene, scene.solver)
 
     # Π on fresh, denser samples than the training ones (no quadrature bias from training).
-    fresh = solver._samples(32768, 1.0, torch.Generator().manual_seed(12345))
+    fresh = solver._samples(32768, torch.Generator().manual_seed(12345))
     energy = solver.energy_and_gradient(fresh, 1.0, grad=False).total
     assert energy == pytest.approx(exact_energy, rel=0.01)
     assert result.energy == pytest.approx(exact_energy, rel=0.01)

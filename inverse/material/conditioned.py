@@ -338,7 +338,7 @@ class ConditionedEquilibrium:
         samples = self._weighted(samples, z)
         objective = Objective(ShellEnergyTerm(energy.material, energy.loads,
                                               stiffness=self.stiffness(z)))
-        return solve_last_layer(self.field, self.model.boundary, objective.potential(1.0),
+        return solve_last_layer(self.operator, objective.potential(1.0),
                                 samples, 1.0,
                                 NewtonConfig(iterations=cfg.newton_iterations),
                                 conditioning=z)

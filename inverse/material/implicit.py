@@ -23,7 +23,6 @@ The outer problem (Levenberg–Marquardt over z, uncertainty over feature bases)
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -161,6 +160,7 @@ class ImplicitEquilibrium:
         with torch.no_grad():  # the reference state: the first solve starts from u = 0
             for p in self.field.output_layer():
                 p.zero_()
+        self.operator = model.operator(self.field)
         self.samples = sobol_samples(model, config.samples, seed, dtype)
         self.values: np.ndarray | None = None  # θ of the current solution
         self.newton_steps = 0
@@ -179,17 +179,17 @@ class ImplicitEquilibrium:
 
     # -- inner problem --------------------------------------------------------------------------
     def _system(self, values, load_factor: float):
-        """The samples with θ's point forces and the potential of θ at a load factor."""
+        """The samples with θ's (unscaled) point forces and the potential of θ at a load
+        factor (the objective scales the loads)."""
         loaded = apply(self.model, self.unknowns, values)
-        loads = loaded.loads.scaled(load_factor)
+        loads = loaded.loads
         samples = self.samples
         if loads.point_loads:
             forces = samples.point_force.clone()
             forces[-len(loads.point_loads):] = torch.tensor(
                 [p.force for p in loads.point_loads], dtype=forces.dtype)
-            samples = dataclasses.replace(samples, point_force=forces)
-        # The loads are scaled here already (the samples carry the point forces).
-        return samples, Objective(ShellEnergyTerm(loaded.material, loads)).potential(1.0)
+            samples = samples.with_point_force(forces)
+        return samples, Objective(ShellEnergyTerm(loaded.material, loads)).potential(load_factor)
 
     def _newton(self, iterations: int | None = None) -> NewtonConfig:
         return NewtonConfig(iterations=iterations or self.config.newton_iterations,
@@ -211,7 +211,7 @@ class ImplicitEquilibrium:
             self.set_state([torch.zeros_like(p) for p in self.field.output_layer()], None)
             for factor in self.config.load_steps:
                 samples, potential = self._system(values, factor)
-                steps += solve_last_layer(self.field, self.model.boundary, potential, samples,
+                steps += solve_last_layer(self.operator, potential, samples,
                                           factor, self._newton()).steps
             if self._first is None:
                 self._first = (values, self.state())
@@ -222,7 +222,7 @@ class ImplicitEquilibrium:
                     weight.add_(prediction[:, :-1])
                     bias.add_(prediction[:, -1])
             samples, potential = self._system(values, 1.0)
-            steps += solve_last_layer(self.field, self.model.boundary, potential, samples, 1.0,
+            steps += solve_last_layer(self.operator, potential, samples, 1.0,
                                       self._newton(self.config.resolve_iterations)).steps
         self.values = values
         self.newton_steps += steps
@@ -235,7 +235,7 @@ class ImplicitEquilibrium:
         if self.values is None:
             raise RuntimeError("solve before asking for the sensitivity")
         samples, potential = self._system(self.values, 1.0)
-        u, jacobian, hessian = output_hessian(self.field, self.model.boundary, potential,
+        u, jacobian, hessian = output_hessian(self.operator, potential,
                                               samples, 1.0, self._newton())
         columns, _ = term_gradients(self.model, self.unknowns, samples, u)
         shape = (jacobian.shape[0], jacobian.shape[3])
@@ -262,5 +262,5 @@ class ImplicitEquilibrium:
                              ) -> torch.Tensor:
         """dx/dz (N, 3, p) at ξ from da*/dz (`sensitivity`): x is affine in a."""
         xi = xi.to(self.field.parameters[0].dtype)
-        _, jacobian = output_jacobian(self.field, self.model.boundary, xi, 1.0)
+        _, jacobian = output_jacobian(self.operator, xi, 1.0)
         return torch.einsum("kna,kaj->nkj", jacobian[:, :, jets.VALUE], sensitivity)

@@ -196,7 +196,7 @@ def residual_samples(model: ShellModel, n: int) -> SurfaceSamples:
 def _gradient(model: ShellModel, samples: SurfaceSamples, u_jets: torch.Tensor,
               stiffness: torch.Tensor, loads: Loads, point_force: torch.Tensor) -> torch.Tensor:
     """dΠ/du_jets for a given per-sample stiffness, distributed loads and point forces."""
-    s = dataclasses.replace(samples, point_force=point_force)
+    s = samples.with_point_force(point_force)
     return ShellEnergy(model.material, loads).evaluate(s, u_jets, stiffness=stiffness).grad_u_jets
 
 

@@ -33,12 +33,14 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from inverse.sft.inputs import Camera, Template
-from inverse.sft.tracking import FrameCorrespondences
+from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.inputs import Camera, Template, mean_edge_length, mesh_edges
 
 log = logging.getLogger(__name__)
 
 MAX_VERTICES = 5000
+# Depth [m] below which projected points are clamped.
+MIN_DEPTH = 1e-9
 
 
 @dataclass(frozen=True)
@@ -80,12 +82,6 @@ class BaselineResult:
     seconds: list[float]
 
 
-def mesh_edges(faces: np.ndarray) -> np.ndarray:
-    """Unique undirected edges of a triangle mesh, shape (e, 2), int64."""
-    pairs = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return np.unique(np.sort(pairs, axis=1), axis=0)
-
-
 def uniform_laplacian(n: int, edges: np.ndarray) -> np.ndarray:
     """Dense uniform graph Laplacian Δ = I − D⁻¹A of a mesh with n vertices, shape (n, n)."""
     adjacency = np.zeros((n, n))
@@ -118,7 +114,7 @@ class BaselineReconstructor:
         self.edges = mesh_edges(template.faces)
         rest = template.vertices[self.edges[:, 0]] - template.vertices[self.edges[:, 1]]
         self.rest_length = np.linalg.norm(rest, axis=1)
-        mean_edge = float(self.rest_length.mean())
+        mean_edge = mean_edge_length(template.vertices, template.faces)
         laplacian = uniform_laplacian(n, self.edges)
         # E_smooth = w/(n h²) Σ_v |Δ(V − V_prev)|_v² is quadratic: its Hessian (halved) is fixed.
         block = self.config.smoothness_weight / (n * mean_edge**2) * (laplacian.T @ laplacian)
@@ -215,9 +211,8 @@ class BaselineReconstructor:
         corners = self.template.faces[corr.face]  # (m, 3)
         points = np.einsum("mk,mkd->md", corr.bary, vertices[corners])
         fx, fy = self.camera.fx, self.camera.fy
-        z = np.maximum(points[:, 2], 1e-9)
-        projected = np.stack([fx * points[:, 0] / z + self.camera.cx,
-                              fy * points[:, 1] / z + self.camera.cy], axis=1)
+        z = np.maximum(points[:, 2], MIN_DEPTH)
+        projected = self.camera.project(points, min_depth=MIN_DEPTH)
         residual = projected - corr.xy
         weight = corr.confidence / max(corr.confidence.sum(), 1e-300)
         huber = np.linalg.norm(residual, axis=1) > self.config.huber_px

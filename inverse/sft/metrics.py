@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from inverse.sft.inputs import Camera
+from taichi_ndf.io import vertex_normals
 
 CHAMFER_SAMPLES = 10_000
 CHAMFER_SEED = 0
@@ -145,16 +146,6 @@ def _nearest_in_cells(query: np.ndarray, points: np.ndarray, cell: float) -> np.
     if len(first):
         best[found] = np.minimum.reduceat(distance, first)
     return best
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit area-weighted vertex normals, shape (n, 3); orientation from the face winding."""
-    tri = vertices[faces]
-    face_normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 × area
-    normals = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(normals, faces[:, k], face_normal)
-    return normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
 
 
 def normal_error_deg(pred: np.ndarray, gt: np.ndarray, faces: np.ndarray) -> float:

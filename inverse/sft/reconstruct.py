@@ -24,8 +24,9 @@ the one number w_phys, chosen once on a tuning sequence and never per sequence.
 Sequential warm starts rather than one field over (ξ, t): each step then costs as much as one
 frame, the cost per frame does not grow with the sequence, and a frame is done before the next
 one is read. Pinned vertices are exact: u = φ N with ``PinnedPoint`` conditions at their UVs.
-Gradients: the data terms by torch autograd with respect to u at their points, the energy by
-``ShellEnergy``; both enter the field's ``backward`` in one batch of jets.
+Gradients: the data terms (`inverse.sft.data_terms`) by torch autograd with respect to u at
+their points, the prior by the objective's ``ShellEnergyTerm``; both enter the displacement
+operator's ``backward`` in one batch of jets.
 """
 
 from __future__ import annotations
@@ -36,22 +37,28 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 import torch
 
-from inverse.sft.inputs import Camera, Template
-from inverse.sft.tracking import FrameCorrespondences
+from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.data_terms import (
+    DataTerms,
+    MotionTerm,
+    ReprojectionTerm,
+    SilhouetteTerm,
+    outside_distance,
+)
+from inverse.sft.inputs import Camera, Template, mean_edge_length
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.loads import Loads
+from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.optim import Adam, AdamConfig
 from taichi_ndf.sampling import sample_surface
-from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.materials import LinearIsotropic, preset
 
 log = logging.getLogger(__name__)
@@ -132,10 +139,7 @@ class FieldReconstructor:
         tri = template.vertices[template.faces]
         area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
         self.area = float(area.sum())
-        edges = np.concatenate([template.faces[:, [0, 1]], template.faces[:, [1, 2]],
-                                template.faces[:, [2, 0]]])
-        self.mean_edge = float(np.linalg.norm(
-            template.vertices[edges[:, 0]] - template.vertices[edges[:, 1]], axis=1).mean())
+        self.mean_edge = mean_edge_length(template.vertices, template.faces)
         self.field = NeuralField(
             FieldConfig(width=cfg.width, hidden_layers=cfg.hidden_layers, omega0=cfg.omega0,
                         domain=self.surface.domain.bounds,
@@ -147,7 +151,7 @@ class FieldReconstructor:
             p.zero_()
         self.ftype = self.field.dtype
         material = preset(cfg.material)
-        self.energy = ShellEnergy(material, Loads())
+        self.prior = Objective(ShellEnergyTerm(material, Loads()))
         self.energy_reference = 0.5 * material.bending_stiffness
         conditions = None
         if pinned is not None and len(pinned):
@@ -156,7 +160,6 @@ class FieldReconstructor:
         self.operator = DisplacementOperator(self.field, conditions)
         self.vertex_xi = torch.from_numpy(template.uvs).to(self.ftype)
         self.rest = torch.from_numpy(template.vertices)
-        self.K = torch.from_numpy(camera.K)
         self.generator = torch.Generator().manual_seed(cfg.seed)
 
     # -- field evaluation ------------------------------------------------------------------
@@ -188,19 +191,27 @@ class FieldReconstructor:
         bary = torch.from_numpy(correspondences.bary)
         track_xi = (bary[:, :, None] * torch.from_numpy(self.template.uvs[faces])).sum(1)
         track_rest = (bary[:, :, None] * self.rest[torch.from_numpy(faces)]).sum(1)
-        target = torch.from_numpy(correspondences.xy)
-        weight = torch.from_numpy(correspondences.confidence)
-        weight = weight / weight.sum().clamp_min(1e-300)
-        distance = None if mask is None else torch.from_numpy(_outside_distance(mask))
         previous = torch.from_numpy(history[-1])
         before = torch.from_numpy(history[-2]) if len(history) > 1 else previous
-        predicted = 2.0 * previous - before
+        n_tracks = len(track_xi)
+        tracks, vertices = slice(0, n_tracks), slice(n_tracks, None)
+        terms = [
+            ("reprojection", ReprojectionTerm(
+                track_rest, torch.from_numpy(correspondences.xy),
+                torch.from_numpy(correspondences.confidence), self.camera, cfg.huber_px),
+             1.0, tracks),
+            ("motion", MotionTerm(self.rest, 2.0 * previous - before, self.mean_edge),
+             cfg.temporal_weight, vertices)]
+        if mask is not None and cfg.silhouette_weight > 0:
+            terms.append(("silhouette",
+                          SilhouetteTerm(self.rest, outside_distance(mask), self.camera),
+                          cfg.silhouette_weight, vertices))
+        data = DataTerms(terms)
         lam = cfg.physics_weight / self.energy_reference
 
         optimiser = Adam(self.field.parameters, self.field.gradients, config=AdamConfig(
             lr=cfg.lr, schedule="cosine", total_steps=cfg.steps, min_lr=cfg.min_lr))
-        n_tracks = len(track_xi)
-        terms: dict[str, float] = {}
+        parts: dict[str, float] = {}
         for _ in range(cfg.steps):
             samples = sample_surface(self.surface, cfg.energy_samples, generator=self.generator,
                                      dtype=self.ftype)
@@ -209,28 +220,15 @@ class FieldReconstructor:
             u_jets = self.operator.jets(xi)
             grad = torch.zeros_like(u_jets, dtype=torch.float64)
 
-            u = u_jets[n_energy:, jets.VALUE].double().requires_grad_(True)
-            x_tracks = track_rest + u[:n_tracks]
-            x_vertices = self.rest + u[n_tracks:]
-            residual = _project(self.K, x_tracks) - target
-            reprojection = (weight * _huber(residual, cfg.huber_px)).sum()
-            motion = ((x_vertices - predicted) ** 2).sum(1).mean() / self.mean_edge**2
-            loss = reprojection + cfg.temporal_weight * motion
-            terms = {"reprojection": reprojection.item(), "motion": motion.item()}
-            if distance is not None and cfg.silhouette_weight > 0:
-                silhouette = (_bilinear(distance, _project(self.K, x_vertices)) ** 2).mean()
-                loss = loss + cfg.silhouette_weight * silhouette
-                terms["silhouette"] = silhouette.item()
-            (grad_u,) = torch.autograd.grad(loss, u)
-            grad[n_energy:, jets.VALUE] = grad_u
-
+            _, grad[n_energy:, jets.VALUE], parts = data.evaluate(
+                u_jets[n_energy:, jets.VALUE].double())
             if lam > 0:
-                result = self.energy.evaluate(samples, u_jets[:n_energy])
+                result = self.prior.evaluate(samples, u_jets[:n_energy])
                 grad[:n_energy] = lam * result.grad_u_jets.double()
-                terms["energy"] = result.internal / self.energy_reference
+                parts["energy"] = result.internal / self.energy_reference
             self.operator.backward(grad)
             optimiser.step()
-        return self.vertices(), terms
+        return self.vertices(), parts
 
     def _fit_to(self, target: np.ndarray) -> None:
         """Fit u at the template vertices to target − template (least squares, Adam)."""
@@ -279,35 +277,3 @@ def reconstruct(
     log.info("reconstruction: %d frames, %.2f s per frame", len(vertices),
              np.mean(seconds[1:]) if len(seconds) > 1 else 0.0)
     return ReconstructionResult(vertices=vertices, seconds=seconds, losses=losses)
-
-
-def _project(K: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Pixels (n, 2) of camera-frame points (n, 3) [m]."""
-    # Points behind the camera (a bad step) must not divide by ~0.
-    z = points[:, 2].clamp_min(1e-6)
-    return torch.stack([K[0, 0] * points[:, 0] / z + K[0, 2],
-                        K[1, 1] * points[:, 1] / z + K[1, 2]], dim=1)
-
-
-def _huber(residual: torch.Tensor, delta: float) -> torch.Tensor:
-    r = torch.sqrt((residual**2).sum(dim=1) + 1e-24)
-    return torch.where(r <= delta, r**2, 2.0 * delta * r - delta**2)
-
-
-def _outside_distance(mask: np.ndarray) -> np.ndarray:
-    """Distance [px] of every pixel to the mask (0 on it), float64 (h, w)."""
-    outside = (~mask).astype(np.uint8)
-    return cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64)
-
-
-def _bilinear(image: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
-    """Bilinear samples (n,) of an (h, w) image at pixels xy (n, 2), clamped to the image;
-    differentiable in xy."""
-    h, w = image.shape
-    x = xy[:, 0].clamp(0, w - 1.001)
-    y = xy[:, 1].clamp(0, h - 1.001)
-    x0, y0 = x.detach().floor().long(), y.detach().floor().long()
-    fx, fy = x - x0, y - y0
-    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx
-    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
-    return top * (1 - fy) + bottom * fy

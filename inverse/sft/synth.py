@@ -27,9 +27,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from inverse.sft.camera import Camera, write_camera
 from inverse.sft.deformations import Fold, Pose, Roll
 from inverse.sft.degradations import Degradations
-from inverse.sft.inputs import Camera, Template, write_camera
+from inverse.sft.inputs import Template
 from inverse.sft.texture import cluttered_background, sheet_texture
 from taichi_ndf.io import OutputDir, grid_mesh, write_obj
 from taichi_ndf.render import render_textured, write_video

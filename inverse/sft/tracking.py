@@ -29,20 +29,19 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from inverse.sft.correspondences import FrameCorrespondences, TrackingTimings
+from inverse.sft.image import contrast_normalised, inside, sample_mask, to_gray
 from inverse.sft.inputs import Camera, Template
-from inverse.sft.surface import surface_positions, uv_locator, view_locator
+from inverse.sft.matching import TextureMatcher, local_affine, patch_ncc, prefiltered_texture
+from inverse.sft.surface import surface_positions, view_locator
 from taichi_ndf.render import uv_to_texture_pixels
 
 log = logging.getLogger(__name__)
-
-# Window [px] of the local contrast normalisation of the images Lucas–Kanade sees.
-CONTRAST_SIGMA = 8.0
-
 
 @dataclass(frozen=True)
 class TrackerConfig:
@@ -98,75 +97,6 @@ class TrackerConfig:
             raise ValueError(f"seed_confidence must be in (0, 1], got {self.seed_confidence}")
 
 
-@dataclass(frozen=True)
-class FrameCorrespondences:
-    """Template surface points seen at image pixels in one frame.
-
-    face: template triangle, shape (n,), int64; bary: barycentrics in that triangle, (n, 3);
-    xy: pixel position (x right, y down, pixel centres at integers), (n, 2); confidence: (n,)
-    in (0, 1]; track_id: identity of the track across frames, (n,), int64.
-    """
-
-    face: np.ndarray
-    bary: np.ndarray
-    xy: np.ndarray
-    confidence: np.ndarray
-    track_id: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.face)
-
-
-@dataclass
-class TrackingTimings:
-    """Wall time [s] per frame of the tracker's stages."""
-
-    per_frame: list[float] = field(default_factory=list)
-    matching: float = 0.0
-    flow: float = 0.0
-    seeding: float = 0.0
-
-
-class TextureMatcher:
-    """SIFT features of the texture and their template surface points."""
-
-    def __init__(self, template: Template, texture: np.ndarray, *, ratio: float):
-        self.ratio = ratio
-        self.sift = cv2.SIFT_create()
-        self.matcher = cv2.BFMatcher(cv2.NORM_L2)
-        h, w = texture.shape[:2]
-        self.chart = uv_locator(template, w, h)
-        keypoints, descriptors = self.sift.detectAndCompute(_gray(texture), None)
-        xy = np.array([k.pt for k in keypoints], dtype=np.float64).reshape(-1, 2)
-        face, bary = self.chart.locate(xy)
-        on_sheet = face >= 0
-        self.texture_xy = xy[on_sheet]
-        self.face, self.bary = face[on_sheet], bary[on_sheet]
-        self.descriptors = descriptors[on_sheet] if descriptors is not None else None
-        log.info("texture: %d SIFT features on the template's UV chart", len(self.face))
-
-    def match(self, gray: np.ndarray, region: np.ndarray | None) -> tuple[np.ndarray, ...]:
-        """Ratio-test matches of an image to the texture.
-
-        Returns image xy (k, 2), texture xy (k, 2), face (k,), bary (k, 3) of matched features.
-        """
-        empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 3)))
-        if self.descriptors is None or len(self.descriptors) < 2:
-            return empty
-        mask = None if region is None else region.astype(np.uint8) * 255
-        keypoints, descriptors = self.sift.detectAndCompute(gray, mask)
-        if descriptors is None or len(keypoints) == 0:
-            return empty
-        pairs = self.matcher.knnMatch(descriptors, self.descriptors, k=2)
-        good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < self.ratio * p[1].distance]
-        if not good:
-            return empty
-        query = np.array([m.queryIdx for m in good])
-        train = np.array([m.trainIdx for m in good])
-        image_xy = np.array([keypoints[i].pt for i in query], dtype=np.float64)
-        return image_xy, self.texture_xy[train], self.face[train], self.bary[train]
-
-
 class Tracker:
     """Stateful tracker: ``start`` on frame 0, then ``step`` on each next frame.
 
@@ -187,7 +117,7 @@ class Tracker:
         self.matcher = TextureMatcher(template, texture, ratio=self.config.match_ratio)
         h, w = texture.shape[:2]
         self.texture_corners = uv_to_texture_pixels(template.uvs, w, h)
-        self.texture_gray = self._prefiltered_texture(texture)
+        self.texture_gray = prefiltered_texture(texture, template, camera, self.texture_corners)
         self.timings = TrackingTimings()
         self._next_id = 0
         self._frame_index = -1
@@ -199,7 +129,7 @@ class Tracker:
         start = time.perf_counter()
         self._reset_tracks()
         self._frame_index = 0
-        gray = _gray(frame)
+        gray = to_gray(frame)
         view = view_locator(self.template.vertices, self.template.faces, self.camera)
         silhouette = view.face_image >= 0
         region = self._region(silhouette if mask is None else mask & silhouette)
@@ -235,7 +165,7 @@ class Tracker:
         self._add(face[fresh], bary[fresh], image_xy[fresh], base=1.0)
         self.timings.matching += time.perf_counter() - t0
 
-        self._flow_image = _contrast_normalised(gray)
+        self._flow_image = contrast_normalised(gray)
         self.timings.per_frame.append(time.perf_counter() - start)
         return self.correspondences()
 
@@ -245,11 +175,11 @@ class Tracker:
             raise RuntimeError("call start() on frame 0 before step()")
         start = time.perf_counter()
         self._frame_index += 1
-        gray = _gray(frame)
+        gray = to_gray(frame)
         cfg = self.config
 
         t0 = time.perf_counter()
-        flow_image = _contrast_normalised(gray)
+        flow_image = contrast_normalised(gray)
         self._flow(self._flow_image, flow_image, mask)
         self.timings.flow += time.perf_counter() - t0
 
@@ -291,9 +221,9 @@ class Tracker:
         p1 = p1.reshape(-1, 2).astype(np.float64)
         fb = np.linalg.norm(p0_back.reshape(-1, 2) - self.xy, axis=1)
         keep = (ok_forward.ravel() == 1) & (ok_backward.ravel() == 1) & (fb < cfg.fb_threshold)
-        keep &= _inside(p1, current.shape, margin=cfg.lk_window / 2)
+        keep &= inside(p1, current.shape, margin=cfg.lk_window / 2)
         if mask is not None:
-            keep &= _sample_mask(self._region(mask), p1)
+            keep &= sample_mask(self._region(mask), p1)
         self.xy = p1
         self.fb = fb
         self._keep(keep)
@@ -321,7 +251,7 @@ class Tracker:
         if n <= cfg.neighbours:
             return np.ones(n, bool)
         texture_xy = self._texture_xy()
-        predicted, ok, jacobian = _local_affine(
+        predicted, ok, jacobian = local_affine(
             self.xy, texture_xy, self.xy, cfg.neighbours, cfg.neighbour_radius,
             with_jacobian=True, exclude_self=True,
         )
@@ -339,7 +269,7 @@ class Tracker:
         if len(image_xy) == 0 or len(self.face) < cfg.neighbours:
             return
         # Fresh matches must agree with where the current tracks put that texture point.
-        predicted, ok = _local_affine(
+        predicted, ok = local_affine(
             self._texture_xy(), self.xy, texture_xy, cfg.neighbours,
             cfg.neighbour_radius * self._texture_scale(),
         )
@@ -349,7 +279,7 @@ class Tracker:
         if len(image_xy) < cfg.neighbours:
             return
         # Existing tracks must agree with the fresh matches around them: else they drifted.
-        check, ok = _local_affine(
+        check, ok = local_affine(
             texture_xy, image_xy, self._texture_xy(), cfg.neighbours,
             cfg.neighbour_radius * self._texture_scale(),
         )
@@ -372,11 +302,12 @@ class Tracker:
         corners = self._new_corners(gray, region, cfg.max_tracks - len(self.face))
         if len(corners) == 0:
             return
-        texture_xy, ok, jacobian = _local_affine(
+        texture_xy, ok, jacobian = local_affine(
             self.xy, self._texture_xy(), corners, cfg.neighbours, cfg.neighbour_radius,
             with_jacobian=True,
         )
-        ok &= self._patch_ncc(gray, corners, texture_xy, jacobian) >= cfg.min_ncc
+        ok &= patch_ncc(gray, self.texture_gray, corners, texture_xy, jacobian,
+                         cfg.patch_radius) >= cfg.min_ncc
         face, bary = self.matcher.chart.locate(texture_xy[ok])
         on_sheet = face >= 0
         self._add(face[on_sheet], bary[on_sheet], corners[ok][on_sheet], base=cfg.seed_confidence)
@@ -459,32 +390,6 @@ class Tracker:
         d = np.linalg.norm(xy[:, None, :] - self.xy[None, :, :], axis=2).min(axis=1)
         return d >= self.config.min_distance
 
-    def _prefiltered_texture(self, texture: np.ndarray) -> np.ndarray:
-        """Grey texture blurred to roughly the image's resolution (for patch comparison)."""
-        h, w = texture.shape[:2]
-        projected = self.camera.project(self.template.vertices)
-        tri_img = projected[self.template.faces]
-        tri_tex = self.texture_corners[self.template.faces]
-        area_img = np.abs(_signed_area(tri_img)).sum()
-        area_tex = np.abs(_signed_area(tri_tex)).sum()
-        scale = np.sqrt(area_tex / max(area_img, 1e-12))
-        sigma = max(0.5 * scale, 0.5)
-        return cv2.GaussianBlur(_gray(texture).astype(np.float32), (0, 0), sigma)
-
-    def _patch_ncc(self, gray, image_xy, texture_xy, jacobian) -> np.ndarray:
-        """NCC between image patches and texture patches mapped by the local affine maps."""
-        r = self.config.patch_radius
-        offsets = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), -1)
-        offsets = offsets.reshape(-1, 2).astype(np.float64)
-        img_pts = image_xy[:, None, :] + offsets[None]
-        tex_pts = texture_xy[:, None, :] + np.einsum("nij,kj->nki", jacobian, offsets)
-        a = _bilinear(gray.astype(np.float32), img_pts)
-        b = _bilinear(self.texture_gray, tex_pts)
-        a = a - a.mean(axis=1, keepdims=True)
-        b = b - b.mean(axis=1, keepdims=True)
-        den = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
-        return np.where(den > 0, (a * b).sum(axis=1) / np.maximum(den, 1e-12), -1.0)
-
 
 def track_sequence(
     frames: Sequence[np.ndarray],
@@ -506,84 +411,3 @@ def track_sequence(
         len(out), np.mean([len(c) for c in out]), np.mean(tracker.timings.per_frame),
     )
     return out, tracker.timings
-
-
-def _gray(image: np.ndarray) -> np.ndarray:
-    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
-
-
-def _contrast_normalised(gray: np.ndarray) -> np.ndarray:
-    """Local contrast normalisation (8-bit): removes slowly varying gain and offset.
-
-    Lucas–Kanade assumes constant brightness; under illumination drift it is biased by a
-    fraction of a pixel per frame, which accumulates along a track.
-    """
-    g = gray.astype(np.float32)
-    detail = g - cv2.GaussianBlur(g, (0, 0), CONTRAST_SIGMA)
-    spread = np.sqrt(cv2.GaussianBlur(detail * detail, (0, 0), CONTRAST_SIGMA)) + 1.0
-    return np.clip(128.0 + 40.0 * detail / spread, 0, 255).astype(np.uint8)
-
-
-def _inside(xy: np.ndarray, shape: tuple[int, ...], *, margin: float) -> np.ndarray:
-    h, w = shape[:2]
-    return (
-        (xy[:, 0] >= margin) & (xy[:, 0] <= w - 1 - margin)
-        & (xy[:, 1] >= margin) & (xy[:, 1] <= h - 1 - margin)
-    )
-
-
-def _sample_mask(mask: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    h, w = mask.shape
-    col = np.clip(np.rint(xy[:, 0]).astype(int), 0, w - 1)
-    row = np.clip(np.rint(xy[:, 1]).astype(int), 0, h - 1)
-    return mask[row, col]
-
-
-def _signed_area(tri: np.ndarray) -> np.ndarray:
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    ab, ac = b - a, c - a
-    return 0.5 * (ab[:, 0] * ac[:, 1] - ac[:, 0] * ab[:, 1])
-
-
-def _bilinear(image: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a float32 image at points (n, k, 2) [px], shape (n, k)."""
-    n, k, _ = points.shape
-    coords = points.reshape(1, -1, 2).astype(np.float32)
-    samples = cv2.remap(image, coords[..., 0], coords[..., 1], cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_REPLICATE)
-    return samples.reshape(n, k)
-
-
-def _local_affine(
-    source, target, query, neighbours, radius, *, with_jacobian=False, exclude_self=False
-):
-    """Predict target positions of query points by affine fits to their nearest source points.
-
-    source, target: matched 2D points (n, 2); query: (m, 2) in source space. Each query uses its
-    ``neighbours`` nearest source points, all within ``radius``; with exclude_self the queries
-    are the source points themselves and each leaves itself out. Returns predictions (m, 2), a
-    validity mask (m,) and, if asked, the affine maps' linear parts (m, 2, 2) (d target / d source).
-    """
-    m = len(query)
-    d = np.linalg.norm(query[:, None, :] - source[None, :, :], axis=2)
-    if exclude_self:
-        np.fill_diagonal(d, np.inf)
-    k = min(neighbours, len(source) - int(exclude_self))
-    nearest = np.argpartition(d, k - 1, axis=1)[:, :k]
-    within = np.take_along_axis(d, nearest, axis=1).max(axis=1) <= radius
-    x = source[nearest] - query[:, None, :]
-    design = np.concatenate([x, np.ones((m, k, 1))], axis=2)
-    normal = np.einsum("mki,mkj->mij", design, design)
-    rhs = np.einsum("mki,mkj->mij", design, target[nearest])
-    # Collinear neighbours leave the affine map undetermined: compare the smallest eigenvalue
-    # of the neighbours' spread with its largest.
-    spread = np.linalg.eigvalsh(np.einsum("mki,mkj->mij", x - x.mean(1, keepdims=True),
-                                          x - x.mean(1, keepdims=True)))
-    well_posed = (k >= 3) & (spread[:, 0] > 1e-3 * np.maximum(spread[:, 1], 1e-300))
-    normal[~well_posed] = np.eye(3)
-    coef = np.linalg.solve(normal, rhs)  # (m, 3, 2): rows d/dx, d/dy, value at the query
-    prediction = coef[:, 2, :]
-    ok = within & well_posed
-    if with_jacobian:
-        return prediction, ok, np.transpose(coef[:, :2, :], (0, 2, 1))
-    return prediction, ok

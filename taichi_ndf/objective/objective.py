@@ -15,8 +15,8 @@ class Term(Protocol):
     """An energy term of the displacement jets.
 
     evaluate(samples, u_jets (N, 6, 3) [m], load_factor, *, grad) -> (value [J], dΠ/du_jets
-    (N, 6, 3) or None). load_factor: one number (the samples' point forces are already scaled
-    by it) or one per sample (N,) (a pseudo-time field; the samples carry unscaled forces).
+    (N, 6, 3) or None). load_factor: one number or one per sample (N,) (a pseudo-time field);
+    the samples carry unscaled point forces and the term applies the load factor.
     """
 
     def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,

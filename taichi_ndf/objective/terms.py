@@ -14,8 +14,9 @@ from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
 
 class ShellEnergyTerm:
     """Strain energy and the work of the distributed loads and point forces at a load factor
-    (physics.md §4; `ShellEnergy`): the loads are scaled by a number, or each sample's work by
-    its own factor (N,) for a pseudo-time field.
+    (physics.md §4; `ShellEnergy`): the loads and the samples' point forces (carried unscaled,
+    `taichi_ndf.sampling`) are scaled by a number, or each sample's work by its own factor (N,)
+    for a pseudo-time field. The one place the load factor multiplies the loads.
 
     stiffness: optional per-sample stiffness (N, K) of a material-conditioned field (fixed
     samples) or None (the material's values)."""
@@ -31,7 +32,10 @@ class ShellEnergyTerm:
         if isinstance(load_factor, torch.Tensor):
             return ShellEnergy(self.material, self.loads).evaluate(
                 samples, u_jets, grad=grad, load_factor=load_factor, stiffness=self.stiffness)
+        # The one place a number load factor scales the loads: distributed and point forces.
         energy = ShellEnergy(self.material, self.loads.scaled(load_factor))
+        if load_factor != 1.0:
+            samples = samples.with_point_force(samples.point_force * float(load_factor))
         return energy.evaluate(samples, u_jets, grad=grad, stiffness=self.stiffness)
 
     def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,

@@ -30,7 +30,8 @@ from taichi_ndf.shell.kinematics import (
     strains,
     vec3,
 )
-from taichi_ndf.shell.materials import KERNEL_STIFFNESS, LAW_TERMS, Material
+from taichi_ndf.shell.law_terms import KERNEL_STIFFNESS, LAW_TERMS
+from taichi_ndf.shell.materials import Material
 
 
 @functools.cache

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.callbacks import DivergenceGuard
 from taichi_ndf.field import NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import EndMomentTerm, Objective
@@ -116,7 +117,7 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
         at_level[load_factor] = readings(run.probe_displacements(load_factor))
 
     start = time.perf_counter()
-    result = run.run(on_load_step=on_load_step)
+    result = run.run(callbacks=[DivergenceGuard()], on_load_step=on_load_step)
     wall = time.perf_counter() - start
     rows, convergence = [], {}
     for q in case.quantities:
