@@ -27,8 +27,8 @@ import taichi_ndf
 from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
-from taichi_ndf.minimise.refinement import potential_at_load, richardson, solve_levels
-from taichi_ndf.objective import EndMomentTerm
+from taichi_ndf.minimise.refinement import potential_at, richardson, solve_levels
+from taichi_ndf.objective import EndMomentTerm, Objective
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.scene import load_scene
 from taichi_ndf.validation import CASES, LINEARISATION, load_case_scene
@@ -81,15 +81,16 @@ def run_validation_case(name: str, levels: int, config: ProjectedNewtonConfig) -
     domain = surface.domain
     field = SplineField(SplineConfig(spans=spans, degree=DEGREE, domain=domain.bounds,
                                      periodic=domain.periodic))
-    end_moment = None
+    objective = Objective.of_model(model)
     if case.end_moment is not None:
-        end_moment = EndMomentTerm(case.end_moment(model), domain.lengths[1])
+        objective = objective.with_terms(
+            EndMomentTerm(case.end_moment(model), domain.lengths[1]))
     probes = {p.name: p.xi for p in model.probes}
     load_steps = tuple(scene.solver.load_steps)
     started = time.perf_counter()
     results = solve_levels(
         field, model.boundary, lambda f: span_quadrature(surface, f.config, model.loads),
-        potential_at_load(model.material, model.loads, end_moment), levels=levels,
+        objective, levels=levels,
         load_steps=load_steps, config=config, probes=probes,
         length=math.sqrt(domain.rectangle_area))
     wall = time.perf_counter() - started
@@ -130,14 +131,14 @@ def run_napkin(levels: int, coarsest: int, config: ProjectedNewtonConfig) -> dic
     # Compile (or load from the cache) the energy and basis kernels first: reported apart.
     started = time.perf_counter()
     warm = span_quadrature(surface, field.config, model.loads)
-    potential_at_load(model.material, model.loads)(1.0)(
+    potential_at(Objective.of_model(model), 1.0)(
         warm, torch.zeros(len(warm), jets.CHANNELS, 3, dtype=field.coefficients.dtype), True)
     field.local_basis(warm.xi)
     compile_seconds = time.perf_counter() - started
     started = time.perf_counter()
     results = solve_levels(
         field, model.boundary, lambda f: span_quadrature(surface, f.config, model.loads),
-        potential_at_load(model.material, model.loads), levels=levels, config=config,
+        Objective.of_model(model), levels=levels, config=config,
         probes={p.name: p.xi for p in model.probes},
         length=math.sqrt(surface.domain.rectangle_area))
     wall = time.perf_counter() - started
