@@ -109,13 +109,17 @@ def solve_levels(field_, boundary: BoundaryConditions,
                  load_steps: tuple[float, ...] = (1.0,),
                  config: ProjectedNewtonConfig | None = None,
                  probes: dict[str, tuple[float, float]] | None = None,
-                 length: float = 1.0) -> list[list[LevelSolution]]:
+                 length: float = 1.0,
+                 on_level: Callable[[int, object, list[LevelSolution]], None] | None = None
+                 ) -> list[list[LevelSolution]]:
     """Solve on `levels` grids, the field's and its dyadic refinements (module docstring).
 
     field_: a `SplineField` (its coefficients are the level-0 starting point; not changed).
     samples_for(field): the quadrature points of a field's grid (point forces unscaled).
     objective: Π (`potential_at` applies the load factor). probes: name -> ξ. length: a
-    parameter-domain length for the Hessian's FD steps. Returns [level][load step] solutions.
+    parameter-domain length for the Hessian's FD steps. on_level(level, grid, solutions): called
+    after each level with its field (coefficients: its starting point) and its solutions per
+    load step. Returns [level][load step] solutions.
     """
     if levels < 1:
         raise ValueError(f"levels must be >= 1, got {levels}")
@@ -156,4 +160,6 @@ def solve_levels(field_, boundary: BoundaryConditions,
                      "%.2f s", level, *grid.config.spans, t, solution.energy,
                      len(solution.history), seconds)
         results.append(per_load)
+        if on_level is not None:
+            on_level(level, grid, per_load)
     return results
