@@ -43,7 +43,7 @@ def run_validation_case(name: str, levels: int, config: ProjectedNewtonConfig) -
     case = CASES[name]
     scene, model, _ = load_case_scene(case)
     surface = model.surface
-    spans = grid_spans(surface, model.material.thickness)
+    spans = grid_spans(surface, model.material.thickness, model.boundary.narrowest_band)
     domain = surface.domain
     field = SplineField(SplineConfig(spans=spans, degree=DEGREE, domain=domain.bounds,
                                      periodic=domain.periodic))

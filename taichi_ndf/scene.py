@@ -321,7 +321,8 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
     else:
         length = t._get("span_length", "auto")
         if length == "auto":
-            length = auto_span_length(surface, model.material.thickness)
+            length = auto_span_length(surface, model.material.thickness,
+                                      model.boundary.narrowest_band)
         elif (isinstance(length, bool) or not isinstance(length, (int, float))
               or not (math.isfinite(length) and length > 0)):
             raise SceneError(f"{t.key('span_length')}: expected \"auto\" or a positive length "

@@ -170,10 +170,10 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
     from the last finished level), result.json with the per-iteration Newton history and, with
     several levels, the refinement study."""
     from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
-    from taichi_ndf.spline_solver import LevelSummary, solve_spline
+    from taichi_ndf.spline_solver import LevelSummary, NewtonRecord, solve_spline
 
     checkpoint = out.file("checkpoint.pt")
-    start, done = None, None
+    start, done, history = None, None, None
     extra = {"scene": scene.document, "scene_dir": str(scene.path.parent.resolve())}
     if resume:
         stored = load_checkpoint(checkpoint)
@@ -183,12 +183,15 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
         start = stored.field
         done = [LevelSummary(**{**d, "spans": tuple(d["spans"])})
                 for d in stored.extra["levels"]]
+        history = [NewtonRecord(**{**h, "spans": tuple(h["spans"])})
+                   for h in stored.extra["history"]]
     step_frames = len(config.load_steps) > 1
     frames: dict[int, DeformedMesh] = {}
 
     def on_level(run) -> None:
         save_checkpoint(checkpoint, run.field, extra={
-            **extra, "levels": [dataclasses.asdict(lv) for lv in run.levels]})
+            **extra, "levels": [dataclasses.asdict(lv) for lv in run.levels],
+            "history": [dataclasses.asdict(h) for h in run.history]})
         if config.progress:
             last = run.levels[-1]
             print(f"level {last.level} ({last.spans[0]} × {last.spans[1]} spans): "
@@ -204,7 +207,7 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
                 write_trajectory_mesh(out, index, frames[index])
 
     run = solve_spline(scene.model, scene.field, config, start=start, done=done,
-                       on_level=on_level)
+                       history=history, on_level=on_level)
     if not run.levels[-1].converged:
         log.warning("projected Newton did not converge on the finest grid (see result.json "
                     "history)")

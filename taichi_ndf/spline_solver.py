@@ -117,12 +117,14 @@ def newton_config(config: SolverConfig, dtype: torch.dtype) -> ProjectedNewtonCo
 def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                  objective: Objective | None = None, start: SplineField | None = None,
                  done: list[LevelSummary] | None = None,
+                 history: list[NewtonRecord] | None = None,
                  on_level: Callable[[SplineRun], None] | None = None) -> SplineRun:
     """Solve the model on the plan's grids (at most `config.max_levels` of them when > 0).
 
     start: a resumed run's field (the last finished level, at the last load step) with the
-    summaries `done` of its levels; the remaining levels are solved at the last load factor
-    from it. on_level(run): after each level, the run so far (its field: that level's grid).
+    summaries `done` of its levels and its `history`; the remaining levels are solved at the
+    last load factor from it. on_level(run): after each level, the run so far (its field:
+    that level's grid).
     """
     objective = objective or Objective.of_model(model)
     surface = model.surface
@@ -134,7 +136,7 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     else:  # re-solved (one Newton step: converged) and refined from there
         first, grid, load_steps = len(done) - 1, start, load_steps[-1:]
         done = done[:-1]
-    run = SplineRun(grid, done)
+    run = SplineRun(grid, done, list(history or []))
     if first + 1 > levels:
         raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "
                          "this run solves")
