@@ -156,3 +156,17 @@ def test_refine_needs_a_spline_field(tmp_path, capsys):
     siren = write(tmp_path, field="[field]\nwidth = 16", training="[training]\niterations = 2")
     assert sim.main([str(siren), "--out", str(tmp_path / "x"), "--refine", "2", *RUNTIME]) == 2
     assert "--refine needs a spline field" in capsys.readouterr().err
+
+
+def test_validate_runs_a_case_with_the_spline_path(tmp_path, capsys):
+    from taichi_ndf.cli import validate
+
+    out = tmp_path / "val"
+    assert validate.main(["square_plate", "--field", "spline", "--quick", "--out", str(out),
+                          *RUNTIME]) == 0
+    printed = capsys.readouterr().out
+    assert "square_plate w_centre @ 1" in printed
+    result = json.loads((out / "results.json").read_text())
+    case = result["cases"]["square_plate"]
+    assert case["solver"]["method"] == "newton" and case["solver"]["spans"] == [[8, 8]]
+    assert (out / "square_plate_convergence.png").is_file()
