@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import torch
 
 from taichi_ndf.field import SplineField
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
+from taichi_ndf.minimise.projected_newton import NewtonIteration, ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import LevelSolution, richardson, solve_levels
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective
@@ -34,24 +34,12 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class NewtonRecord:
-    """One projected-Newton iteration of a run (`NewtonIteration` with its place): iteration
-    counts over all levels and load steps."""
+class NewtonRecord(NewtonIteration):
+    """One projected-Newton iteration of a run with its place: its grid level and spans;
+    `iteration` counts over all levels and load steps."""
 
-    iteration: int
-    level: int
-    spans: tuple[int, int]
-    load_factor: float
-    energy: float
-    decrement: float
-    step_length: float
-    damping: float
-    projected_blocks: int
-    gradient_norm: float
-    time_energy: float
-    time_hessian: float
-    time_assembly: float
-    time_solve: float
+    level: int = 0
+    spans: tuple[int, int] = (0, 0)
 
 
 @dataclass
