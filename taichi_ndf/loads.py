@@ -4,8 +4,9 @@ The distributed load per unit reference area is f = ρ_A g + b + p a₃ [N/m²]:
 the material's areal density ρ_A, a uniform body force b, and a uniform pressure p along the
 normal a₃ of the *reference* surface (a dead load: its direction does not follow the
 deformation; positive p pushes along a₃, i.e. outwards on the closed analytic surfaces).
-Point loads P_k [N] act at surface coordinates ξ_k. All loads are conservative:
-Π_ext = −∫ f·u √a dξ − Σ_k P_k·u(ξ_k).
+Point loads P_k [N] act at surface coordinates ξ_k; line loads q [N/m] along curves in ξ
+(`taichi_ndf.line_loads`). All loads are dead loads and conservative:
+Π_ext = −∫ f·u √a dξ − Σ_k P_k·u(ξ_k) − Σ_lines ∫ q·u dℓ.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import torch
 
 from taichi_ndf.checks import finite_vector
 from taichi_ndf.geometry import ParameterDomain
+from taichi_ndf.line_loads import LineLoad
 
 Vector3 = tuple[float, float, float]
 
@@ -42,12 +44,14 @@ class Loads:
     body_force: uniform force per unit reference area [N/m²] (wind, etc.).
     pressure: uniform pressure [Pa] along the reference normal a₃ (dead load).
     point_loads: concentrated forces; `PointLoad` or (xi, force) pairs.
+    line_loads: forces per unit length along curves in ξ; `LineLoad`.
     """
 
     gravity: Vector3 = (0.0, 0.0, 0.0)
     body_force: Vector3 = (0.0, 0.0, 0.0)
     pressure: float = 0.0
     point_loads: tuple[PointLoad, ...] = ()
+    line_loads: tuple[LineLoad, ...] = ()
 
     def __post_init__(self):
         object.__setattr__(self, "gravity", finite_vector("gravity", self.gravity, 3, "m/s²"))
@@ -59,6 +63,10 @@ class Loads:
         object.__setattr__(self, "pressure", pressure)
         points = tuple(p if isinstance(p, PointLoad) else PointLoad(*p) for p in self.point_loads)
         object.__setattr__(self, "point_loads", points)
+        lines = tuple(self.line_loads)
+        if not all(isinstance(line, LineLoad) for line in lines):
+            raise ValueError(f"line_loads must be LineLoad objects, got {self.line_loads!r}")
+        object.__setattr__(self, "line_loads", lines)
 
     def distributed_force(self, areal_density: float) -> Vector3:
         """Uniform part ρ_A g + b of the load per unit reference area [N/m²] (pressure, which
@@ -77,15 +85,18 @@ class Loads:
             pressure=factor * self.pressure,
             point_loads=tuple(PointLoad(p.xi, tuple(factor * v for v in p.force))
                               for p in self.point_loads),
+            line_loads=tuple(line.scaled(factor) for line in self.line_loads),
         )
 
     def check_domain(self, domain: ParameterDomain) -> None:
-        """Raise ValueError if a point load lies outside the parameter domain."""
-        if not self.point_loads:
+        """Raise ValueError if a point load or a vertex of a line load's path lies outside the
+        parameter domain."""
+        points = [(f"point load at ξ = {p.xi}", p.xi) for p in self.point_loads]
+        points += [(f"line load path point ξ = {xi}", xi)
+                   for line in self.line_loads for xi in line.path]
+        if not points:
             return
-        xi = torch.tensor([p.xi for p in self.point_loads], dtype=torch.float64)
-        inside = domain.contains(xi)
-        for p, ok in zip(self.point_loads, inside.tolist(), strict=True):
+        inside = domain.contains(torch.tensor([xi for _, xi in points], dtype=torch.float64))
+        for (what, _), ok in zip(points, inside.tolist(), strict=True):
             if not ok:
-                raise ValueError(f"point load at ξ = {p.xi} lies outside the parameter domain "
-                                 f"{domain.bounds}")
+                raise ValueError(f"{what} lies outside the parameter domain {domain.bounds}")

@@ -32,13 +32,15 @@ class Probe:
 
 @dataclass(frozen=True)
 class ShellModel:
-    """Reference surface + material + loads + boundary conditions (+ probes)."""
+    """Reference surface + material + loads + boundary conditions (+ probes, + rigid
+    obstacles: contact, a `taichi_ndf.contact.ContactConfig` or None)."""
 
     surface: ReferenceSurface
     material: object
     loads: Loads
     boundary: BoundaryConditions
     probes: tuple[Probe, ...] = field(default_factory=tuple)
+    contact: object = None
 
     def __post_init__(self):
         names = [p.name for p in self.probes]

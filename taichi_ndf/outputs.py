@@ -20,7 +20,7 @@ from taichi_ndf.io.run_files import QUANTITIES
 from taichi_ndf.model import ShellModel
 from taichi_ndf.pseudo_time import conditioning
 from taichi_ndf.render import plot_curves, render_shaded, save_png, write_video
-from taichi_ndf.render.figure import render_figure
+from taichi_ndf.render.figure import Obstacle, render_figure
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.kinematics import strains
@@ -116,6 +116,20 @@ def deformed_mesh(model: ShellModel, field, resolution: tuple[int, int] = (64, 6
                         energy_density=cat["psi"])
 
 
+def surface_points(model: ShellModel, field, resolution: tuple[int, int], *,
+                   load_factor: float = 1.0) -> np.ndarray:
+    """Deformed positions (V, 3) [m] of the export grid's vertices (`export_grid`), without
+    strains: e.g. the clearance to obstacles on a dense grid."""
+    xi_np, _, _ = export_grid(model, resolution)
+    dtype = field.parameters[0].dtype
+    points = []
+    for start in range(0, len(xi_np), CHUNK):
+        xi = torch.from_numpy(xi_np[start:start + CHUNK]).to(dtype)
+        points.append(model.surface.jets(xi)[:, jets.VALUE]
+                      + model.displacement(field, xi, t=load_factor))
+    return torch.cat(points).double().numpy()
+
+
 def write_mesh_files(out: OutputDir, stem: str, mesh: DeformedMesh) -> None:
     """`stem`.obj (positions, UVs) and `stem`.ply (UVs, strains, energy density)."""
     write_obj(out.file(f"{stem}.obj"), mesh.deformed, mesh.faces, uvs=mesh.uv)
@@ -142,11 +156,13 @@ def write_probe_points(out: OutputDir, model: ShellModel, displacements: dict) -
 
 
 def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0, 1.0),
-                 views: tuple[str, ...] = ("iso",)) -> None:
+                 views: tuple[str, ...] = ("iso",), obstacles=()) -> None:
     """The deformed surface coloured by bending strain from `views` side by side (default a
-    three-quarter view), with its ground shadow and a colour bar; 640 x 600 pixels per view."""
+    three-quarter view), with its ground shadow, the obstacles (vertices, faces) drawn in grey
+    and a colour bar; 640 x 600 pixels per view."""
     image = render_figure(mesh.deformed, mesh.faces, scalars=mesh.bending_strain,
                           scalar_label=QUANTITIES["bending_strain"], up=up, views=views,
+                          obstacles=tuple(Obstacle(v, f) for v, f in obstacles),
                           width=160 + 640 * len(views), height=600)
     save_png(out.file(name), image)
 

@@ -4,7 +4,8 @@
 the parameter domain with equal weights w = |Ω| / M (M area samples), so the sum estimates the
 integral in joules; the energy multiplies by √a itself, so the weights never contain it
 (uniform in parameter space, weighted by √a once). Each point load adds one sample of weight 0
-that carries its force.
+that carries its force; a line load adds its Gauss nodes the same way
+(`taichi_ndf.line_loads`), before the point-load samples.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 
 import torch
 
+from taichi_ndf import line_loads
 from taichi_ndf.geometry import ReferenceSurface
 from taichi_ndf.loads import Loads
 from taichi_ndf.runtime import current
@@ -27,12 +29,15 @@ class SurfaceSamples:
     weight: parameter-area quadrature weight, shape (N,): |Ω|/M for the M area samples, 0 for
         point-load samples.
     point_force: concentrated force [N], shape (N, 3): P_k at point-load samples, 0 elsewhere.
+    barrier_weight: quadrature weight of the contact barrier (N,) [m² of parameter domain], or
+        None: `weight` (the contact check points carry one and a shell weight of 0).
     """
 
     xi: torch.Tensor
     r_jets: torch.Tensor
     weight: torch.Tensor
     point_force: torch.Tensor
+    barrier_weight: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.xi.shape[0]
@@ -40,8 +45,21 @@ class SurfaceSamples:
     def to(self, *, dtype: torch.dtype | None = None,
            device: torch.device | str | None = None) -> SurfaceSamples:
         """The same samples with tensors converted to `dtype` / moved to `device`."""
-        return SurfaceSamples(*(t.to(dtype=dtype, device=device) for t in
-                                (self.xi, self.r_jets, self.weight, self.point_force)))
+        return SurfaceSamples(*(None if t is None else t.to(dtype=dtype, device=device)
+                                for t in (self.xi, self.r_jets, self.weight, self.point_force,
+                                          self.barrier_weight)))
+
+    def joined(self, other: SurfaceSamples) -> SurfaceSamples:
+        """These samples followed by `other` (barrier weights: each set's own, or its
+        `weight`)."""
+        barrier = None
+        if self.barrier_weight is not None or other.barrier_weight is not None:
+            barrier = torch.cat([s.weight if s.barrier_weight is None else s.barrier_weight
+                                 for s in (self, other)])
+        return SurfaceSamples(torch.cat((self.xi, other.xi)),
+                              torch.cat((self.r_jets, other.r_jets)),
+                              torch.cat((self.weight, other.weight)),
+                              torch.cat((self.point_force, other.point_force)), barrier)
 
 
 def stratified_uniform(n: int, low: float, high: float, generator: torch.Generator, *,
@@ -74,7 +92,8 @@ def sample_surface(surface: ReferenceSurface, n: int, loads: Loads | None = None
                    dtype: torch.dtype | None = None,
                    device: torch.device | str | None = None) -> SurfaceSamples:
     """n stratified jittered area samples of the surface's domain (fewer with a masked domain:
-    the candidates outside the mask are dropped), plus one zero-weight sample per point load.
+    the candidates outside the mask are dropped), plus one zero-weight sample per line-load
+    quadrature node and per point load.
 
     dtype/device default to the runtime's (`taichi_ndf.current()`).
     """
@@ -87,7 +106,7 @@ def sample_surface(surface: ReferenceSurface, n: int, loads: Loads | None = None
     # |Ω| / M rather than |rectangle| / n: with a mask, the number M of samples kept
     # fluctuates, and dividing by it removes that noise from the estimate.
     weight = torch.full((xi.shape[0],), domain.area / xi.shape[0], dtype=dtype, device=device)
-    if loads is not None and loads.point_loads:
+    if loads is not None and (loads.point_loads or loads.line_loads):
         loads.check_domain(domain)
     return with_point_loads(surface, xi, weight, loads)
 
@@ -95,8 +114,15 @@ def sample_surface(surface: ReferenceSurface, n: int, loads: Loads | None = None
 def with_point_loads(surface: ReferenceSurface, xi: torch.Tensor, weight: torch.Tensor,
                      loads: Loads | None) -> SurfaceSamples:
     """Area samples ξ (N, 2) with quadrature weights (N,) [m² of parameter domain], followed by
-    one zero-weight sample per point load of `loads` (in their order) carrying its force."""
+    one zero-weight sample per line-load quadrature node of `loads` carrying its share of the
+    line force, then one per point load (in their order, last) carrying its force."""
     force = torch.zeros(xi.shape[0], 3, dtype=xi.dtype, device=xi.device)
+    if loads is not None and loads.line_loads:
+        line_xi, line_force = line_loads.quadrature(surface, loads.line_loads, dtype=xi.dtype,
+                                                    device=xi.device)
+        xi = torch.cat((xi, line_xi))
+        weight = torch.cat((weight, weight.new_zeros(line_xi.shape[0])))
+        force = torch.cat((force, line_force))
     if loads is not None and loads.point_loads:
         point_xi = torch.tensor([p.xi for p in loads.point_loads], dtype=xi.dtype,
                                 device=xi.device)

@@ -9,8 +9,10 @@ The estimate needs only the order of magnitude.
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from taichi_ndf.boundary import ClampedEdge, Handle, HingedEdge, RimRotation
+from taichi_ndf.line_loads import quadrature
 from taichi_ndf.model import ShellModel
 from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, OrthotropicStVK
 
@@ -27,17 +29,27 @@ def membrane_and_bending_stiffness(material) -> tuple[float, float]:
     raise TypeError(f"unknown material type {type(material).__name__}")
 
 
-def characteristic_displacement(model: ShellModel) -> float:
-    """Order of magnitude of the displacement [m]: the smaller of the bending estimate
-    f L⁴ / (8 B), the membrane estimate (f L⁴ / D)^{1/3} and the size L, where f is the load
-    per unit area (point loads spread over the surface); at least the largest prescribed
-    displacement; 1e-3 L if nothing loads the shell."""
+def load_per_area(model: ShellModel) -> float:
+    """Load per unit area f [N/m²]: |ρ_A g + body force| + |pressure| + (Σ|P_k| + Σ|line load
+    resultants|) / L² (point and line loads spread over the surface of size L =
+    `model.characteristic_length()`)."""
     length = model.characteristic_length()
-    d, b = membrane_and_bending_stiffness(model.material)
     loads = model.loads
     f = float(np.linalg.norm(loads.distributed_force(model.material.areal_density)))
     f += abs(loads.pressure)
     f += sum(float(np.linalg.norm(p.force)) for p in loads.point_loads) / length**2
+    _, line_forces = quadrature(model.surface, loads.line_loads, dtype=torch.float64)
+    return f + float(line_forces.norm(dim=1).sum()) / length**2
+
+
+def characteristic_displacement(model: ShellModel) -> float:
+    """Order of magnitude of the displacement [m]: the smaller of the bending estimate
+    f L⁴ / (8 B), the membrane estimate (f L⁴ / D)^{1/3} and the size L, where f is the load
+    per unit area (point and line loads spread over the surface); at least the largest prescribed
+    displacement; 1e-3 L if nothing loads the shell."""
+    length = model.characteristic_length()
+    d, b = membrane_and_bending_stiffness(model.material)
+    f = load_per_area(model)
     prescribed = 0.0
     for c in model.boundary.constraints:
         if isinstance(c, (ClampedEdge, HingedEdge, Handle)):

@@ -8,11 +8,11 @@ material) are re-raised as `SceneError` with the section they come from.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from taichi_ndf.boundary import (
+    EDGES,
     PIN_ROTATIONS,
     BoundaryConditions,
     ClampedEdge,
@@ -21,16 +21,20 @@ from taichi_ndf.boundary import (
     InteriorLine,
     PinnedPoint,
     RimRotation,
+    SymmetryPlane,
 )
 from taichi_ndf.field import FieldConfig
-from taichi_ndf.geometry import Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
+from taichi_ndf.geometry import Annulus, Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
+from taichi_ndf.line_loads import LineLoad, edge_path
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.optim import AdamConfig
 from taichi_ndf.pseudo_time import TIME_RANGE
 from taichi_ndf.render.figure import VIEWS
+from taichi_ndf.scene_contact import parse_contact
 from taichi_ndf.scene_field import field_config, newton_training, with_field_type
-from taichi_ndf.scene_schema import SceneError, Table
+from taichi_ndf.scene_schema import SceneError, Table, read_toml
+from taichi_ndf.scene_schema import checked as _check
 from taichi_ndf.shell.materials import (
     PRESETS,
     ClydeFabric,
@@ -41,10 +45,10 @@ from taichi_ndf.shell.materials import (
 from taichi_ndf.spline_grid import SplinePlan
 from taichi_ndf.training import SolverConfig
 
-GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "mesh")
+GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "annulus", "mesh")
 DEFAULT_FRAMES = 16  # trajectory frames of a pseudo-time field
 CONSTRAINTS = ("clamped_edge", "hinged_edge", "pinned_point", "handle", "interior_line",
-               "rim_rotation")
+               "rim_rotation", "symmetry_plane")
 
 
 @dataclass(frozen=True)
@@ -79,14 +83,7 @@ def load_scene(path: str | Path, *, material: str | None = None,
     field: "siren" or "spline" to solve the scene with that field (`with_field_type`).
     """
     path = Path(path)
-    if not path.is_file():
-        raise SceneError(f"scene file not found: {path}")
-    try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise SceneError(f"{path}: not a text file (a scene is TOML in UTF-8)") from None
-    except tomllib.TOMLDecodeError as err:
-        raise SceneError(f"{path}: not valid TOML: {err}") from None
+    document = read_toml(path, "scene file")
     if material is not None:
         document["material"] = {"preset": material}
     if field is not None:
@@ -100,11 +97,12 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     description = top.string("description", "")
     surface = _section(top.table("geometry"), _geometry, base_dir)
     material = _section(top.table("material"), _material)
-    loads = _section(top.table("loads", optional=True), _loads)
+    loads = _section(top.table("loads", optional=True), _loads, surface.domain)
     _check(lambda: loads.check_domain(surface.domain), "loads")
     boundary = _section(top.table("boundary", optional=True), _boundary, surface)
     probes = tuple(Probe(t.string("name"), t.vector("xi", 2)) for t in top.tables("probes"))
     model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
+    model = replace(model, contact=parse_contact(top, model, base_dir))
     field = _section(top.table("field", optional=True), field_config, model)
     solver, quick = _section(top.table("training", optional=True), _training,
                              isinstance(field, SplinePlan))
@@ -113,6 +111,8 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
         raise SceneError("training.pseudo_time: needs a SIREN field (a spline field has no "
                          "pseudo-time input)")
     if solver.pseudo_time:
+        if model.contact is not None:
+            raise SceneError("training.pseudo_time: not available with [[obstacles]]")
         field = replace(field, conditioning=(TIME_RANGE,))
     top.close()
     return Scene(name=name, description=description, model=model, field=field, solver=solver,
@@ -124,15 +124,6 @@ def _section(table: Table, build, *args):
     result = _check(lambda: build(table, *args), table.path)
     table.close()
     return result
-
-
-def _check(build, where: str):
-    try:
-        return build()
-    except SceneError:
-        raise
-    except (ValueError, TypeError, FileNotFoundError) as err:
-        raise SceneError(f"{where}: {err}") from err
 
 
 def _placement(t: Table) -> dict:
@@ -165,7 +156,8 @@ def _geometry(t: Table, base_dir: Path):
             mesh_path = base_dir / mesh_path
         if not mesh_path.is_file():
             raise SceneError(f"{t.key('path')}: template mesh not found: {mesh_path}")
-        return MeshSurface.from_file(mesh_path)
+        options = {"cells": t.integer("fit_cells", minimum=1)} if t.has("fit_cells") else {}
+        return MeshSurface.from_file(mesh_path, **options)
     placement = _placement(t)
     if kind == "plane":
         b = t._get("bounds", [[0.0, 1.0], [0.0, 1.0]])
@@ -185,6 +177,12 @@ def _geometry(t: Table, base_dir: Path):
                                length=t.number("length", positive=True),
                                half_angle=math.radians(t.number("half_angle_deg", positive=True)),
                                **placement)
+    if kind == "annulus":
+        return Annulus(inner_radius=t.number("inner_radius", positive=True),
+                       outer_radius=t.number("outer_radius", positive=True),
+                       angle=math.radians(t.number("angle_deg", 360.0, positive=True)),
+                       start_angle=math.radians(t.number("start_angle_deg", 0.0)),
+                       slit=t.boolean("slit", False), **placement)
     return Hemisphere(radius=t.number("radius", positive=True),
                       hole_half_angle=math.radians(t.number("hole_half_angle_deg", 0.0)),
                       rim_angle=math.radians(t.number("rim_angle_deg", 90.0)), **placement)
@@ -216,18 +214,42 @@ def _material(t: Table):
                        areal_density=density)
 
 
-def _loads(t: Table) -> Loads:
+def _loads(t: Table, domain) -> Loads:
     points = []
     for p in t.tables("point"):
         points.append(PointLoad(p.vector("xi", 2), p.vector("force", 3)))
         p.close()
+    lines = []
+    for line in t.tables("line"):
+        lines.append(_check(lambda line=line: _line_load(line, domain), line.path))
+        line.close()
     return Loads(gravity=t.vector("gravity", 3, (0.0, 0.0, 0.0)),
                  body_force=t.vector("body_force", 3, (0.0, 0.0, 0.0)),
-                 pressure=t.number("pressure", 0.0), point_loads=tuple(points))
+                 pressure=t.number("pressure", 0.0), point_loads=tuple(points),
+                 line_loads=tuple(lines))
+
+
+def _line_load(t: Table, domain) -> LineLoad:
+    """[[loads.line]]: `edge` (a name) or `path` (points in ξ), `force` [N/m], `nodes`."""
+    if t.has("edge") == t.has("path"):
+        raise SceneError(f"{t.path}: give exactly one of 'edge' or 'path'")
+    if t.has("edge"):
+        path = edge_path(t.string("edge", choices=EDGES), domain.bounds)
+    else:
+        raw = t._get("path", None)
+        if not (isinstance(raw, list) and len(raw) >= 2
+                and all(isinstance(p, list) and len(p) == 2 for p in raw)):
+            raise SceneError(f"{t.key('path')}: expected a list of two or more [ξ¹, ξ²] points")
+        path = tuple(tuple(p) for p in raw)
+    return LineLoad(path, t.vector("force", 3), t.integer("nodes", 8, minimum=1))
 
 
 def _constraint(c: Table):
     kind = c.string("type", choices=CONSTRAINTS)
+    if kind == "symmetry_plane":  # its components follow from the normal
+        return SymmetryPlane(edge=c.string("edge"), normal=c.string("normal"),
+                             antisymmetric=c.boolean("antisymmetric", False),
+                             length=c.number("length", None, positive=True))
     common = {"components": c.string("components", "xyz")}
     if c.has("length"):
         common["length"] = c.number("length", positive=True)

@@ -6,6 +6,8 @@ Errors name the full key (``material.poisson``) so a user can find the line in t
 from __future__ import annotations
 
 import math
+import tomllib
+from pathlib import Path
 from typing import Any
 
 
@@ -14,6 +16,30 @@ class SceneError(ValueError):
 
 
 _MISSING = object()
+
+
+def read_toml(path: Path, what: str) -> dict:
+    """The parsed TOML file `path`; SceneError if it is missing ("`what` not found") or not
+    valid TOML."""
+    if not path.is_file():
+        raise SceneError(f"{what} not found: {path}")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise SceneError(f"{path}: not a text file (TOML in UTF-8)") from None
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"{path}: not valid TOML: {err}") from None
+
+
+def checked(build, where: str):
+    """build(), with a ValueError, TypeError or FileNotFoundError it raises re-raised as a
+    SceneError prefixed by `where` (the section or key it comes from)."""
+    try:
+        return build()
+    except SceneError:
+        raise
+    except (ValueError, TypeError, FileNotFoundError) as err:
+        raise SceneError(f"{where}: {err}") from err
 
 
 class Table:

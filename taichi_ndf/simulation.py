@@ -10,6 +10,7 @@ from pathlib import Path
 
 from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard, ProgressBar
 from taichi_ndf.checkpoint import read_checkpoint
+from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
 from taichi_ndf.field import NeuralField, SplineField
@@ -18,6 +19,7 @@ from taichi_ndf.io.run_files import read_run, up_direction
 from taichi_ndf.outputs import (
     DeformedMesh,
     deformed_mesh,
+    surface_points,
     trajectory_mesh_name,
     write_energy_plot,
     write_mesh_files,
@@ -38,7 +40,10 @@ log = logging.getLogger(__name__)
 FORMAT_VERSION = 1
 # What a run writes into its directory (see `simulate`): replaced as a whole by the next run.
 RUN_FILES = ("mesh.obj", "mesh.ply", "reference.obj", "probes.json", "render.png", "energy.png",
-             "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4")
+             "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4",
+             "obstacles")
+# Grid cells per coordinate (256² points) of the clearance to the obstacles in result.json.
+CONTACT_GRID = (255, 255)
 # Scene sections a resumed run may change: how long and how it trains, what it writes.
 RESUMABLE_CHANGES = ("name", "description", "training", "output")
 
@@ -108,16 +113,26 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
             energy.append(run.energy_and_gradient(run.monitor_samples(t), t, grad=False).total)
         write_trajectory_video(out, pictures)
         trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy}
+    contact, obstacle_meshes = None, ()
+    if scene.model.contact is not None:
+        write_obstacles(scene.model.contact, out)
+        obstacle_meshes = tuple(o.triangles(1.0) for o in scene.model.contact.obstacles)
+        contact = contact_summary(scene.model.contact,
+                                  surface_points(scene.model, field, CONTACT_GRID))
+        contact["evaluation_grid"] = list(CONTACT_GRID)
+        contact.update(check_points=run.contact.count, rejected_steps=run.rejected_steps,
+                       final_stiffness=run.contact.term.stiffness)
     _write_field_outputs(scene, out, field, result.probes, result.history,
-                         pseudo_time=config.pseudo_time)
+                         pseudo_time=config.pseudo_time, obstacles=obstacle_meshes)
     summary = _summary(scene, config, seed, result.energy, result.iterations, result.wall_time,
                        result.probes, trajectory, scene.field.to_dict(), machine,
-                       result.history)
+                       result.history, contact)
     return _finish(scene, out, summary)
 
 
 def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, history, *,
-                         pseudo_time: bool = False, refinement: dict | None = None) -> None:
+                         pseudo_time: bool = False, refinement: dict | None = None,
+                         obstacles: tuple = ()) -> None:
     """mesh.obj/.ply, reference.obj, probes.json, render.png and energy.png of the final
     field."""
     mesh = deformed_mesh(scene.model, field, scene.output.resolution, pseudo_time=pseudo_time)
@@ -128,13 +143,13 @@ def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, hist
     write_reference_mesh(out, mesh)
     write_probe_points(out, scene.model, probes)
     write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
-                 views=scene.output.views)
+                 views=scene.output.views, obstacles=obstacles)
     write_energy_plot(out, "energy.png", history, refinement)
 
 
 def _summary(scene: Scene, config: SolverConfig, seed: int, energy: float, iterations: int,
              wall_time: float, probes: dict, trajectory, field: dict, machine: dict | None,
-             history) -> dict:
+             history, contact: dict | None = None) -> dict:
     return {
         "format_version": FORMAT_VERSION,
         "scene": scene.name,
@@ -144,6 +159,7 @@ def _summary(scene: Scene, config: SolverConfig, seed: int, energy: float, itera
         "wall_time": wall_time,
         "probes": probes,
         "trajectory": trajectory,
+        "contact": contact,
         "resolved": {
             "field": field,
             "solver": _plain(dataclasses.asdict(config)),
@@ -172,6 +188,9 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
     from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
     from taichi_ndf.spline_solver import LevelSummary, NewtonRecord, solve_spline
 
+    if scene.model.contact is not None:
+        raise ValueError("[[obstacles]]: contact is solved on the SIREN path only (the "
+                         "projected-Newton spline path has no contact term yet)")
     checkpoint = out.file("checkpoint.pt")
     start, done, history = None, None, None
     extra = {"scene": scene.document, "scene_dir": str(scene.path.parent.resolve())}

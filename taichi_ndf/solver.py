@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf.callbacks import DivergenceError, DivergenceGuard
+from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimisers import adam_iteration, lbfgs
 from taichi_ndf.model import ShellModel
@@ -47,6 +48,9 @@ from taichi_ndf.training import SolverConfig
 __all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverConfig"]
 
 log = logging.getLogger(__name__)
+
+# Most halvings of an Adam step that makes a checked point penetrate before it is rejected.
+FILTER_HALVINGS = 10
 
 # Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
 MONITOR_SEED_OFFSET = 7919
@@ -89,6 +93,16 @@ class Solver:
         self.guard = guard or DivergenceGuard()
         self._monitor = {}
         self._newton_samples = {}
+        self.contact = None
+        self.rejected_steps = 0  # Adam steps the contact filter rejected
+        if model.contact is not None:
+            if config.pseudo_time:
+                raise ValueError("contact is not available with a pseudo-time field")
+            model.contact.check(model)
+            self.contact = ContactPoints(model.contact.term(), model.surface,
+                                         model.contact.check_resolution,
+                                         dtype=field.parameters[0].dtype)
+            self.objective = self.objective.with_terms(self.contact.term)
 
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
                             times: torch.Tensor | None = None) -> EnergyResult:
@@ -98,6 +112,8 @@ class Solver:
         times: the pseudo-time of each sample (N,) of a pseudo-time solve; default: t =
             load_factor at every sample (Π of the field's state at that load factor). A number
             load factor means the samples' point forces are already scaled by it (`_samples`)."""
+        if self.contact is not None:
+            samples = self.contact.augment(samples)
         xi = samples.xi
         cond = None
         if self.config.pseudo_time:
@@ -157,10 +173,14 @@ class Solver:
         """A last-layer Newton phase on the fixed Newton samples of this load factor."""
         samples = self.newton_samples(load_factor)
         potential = self.objective.potential(load_factor)
+        if self.contact is not None:
+            samples = self.contact.augment(samples)
+            potential = self._contact_filter(potential, samples, load_factor)
         result = solve_last_layer(self.field, self.model.boundary, potential, samples,
                                   load_factor,
                                   NewtonConfig(iterations=self.config.newton_iterations))
         self.state.newton_steps += result.steps
+        self._refresh_contact(load_factor)
 
     def probe_displacements(self, load_factor: float) -> dict[str, list[float]]:
         if not self.model.probes:
@@ -181,17 +201,19 @@ class Solver:
         start_step = min(state.load_step, len(cfg.load_steps) - 1)  # a finished run goes on
         t0 = time.perf_counter()
         hooks = [self.guard, *callbacks]
+        if self.contact is not None and state.iteration == 0 and state.newton_steps == 0:
+            self._feasible_start(cfg.load_steps[start_step])
         _call(hooks, "on_start", self)
         newton = cfg.newton_iterations > 0
         for step in range(start_step, len(cfg.load_steps)):
             state.load_step, lam = step, cfg.load_steps[step]
             done_in_step = max(state.iteration - step * cfg.iterations, 0)
+            self._refresh_contact(lam)
             if newton and done_in_step == 0:
                 self.newton(lam)
             for _ in range(done_in_step, cfg.iterations):
                 samples, times = self.training_samples(cfg.samples, lam, state.generator)
-                _, gnorm = adam_iteration(state.optimiser, self.evaluator(samples, lam, times),
-                                          check=self._check_step)
+                gnorm = self._adam_step(samples, lam, times)
                 state.iteration += 1
                 record = None
                 if state.iteration % cfg.monitor_every == 0:
@@ -219,6 +241,79 @@ class Solver:
                            wall_time=time.perf_counter() - t0, history=state.history,
                            probes=self.probe_displacements(cfg.load_steps[-1]),
                            newton_steps=state.newton_steps)
+
+    # -- contact: penetration filter and dense check ----------------------------------------------
+    def _adam_step(self, samples, lam: float, times) -> float:
+        """One Adam step (`adam_iteration`); with contact, the step is halved until the
+        filter allows it (`ContactPoints.step_allowed` on the step's area samples and the
+        dense grid), at most FILTER_HALVINGS times, else rejected; the grid points that came
+        close become check points. Returns ‖∇Π‖ before the step."""
+        evaluate = self.evaluator(samples, lam, times)
+        if self.contact is None:
+            return adam_iteration(self.state.optimiser, evaluate, check=self._check_step)[1]
+        contact = self.contact
+        before = self.field.get_flat().clone()
+        start = contact.filter_positions(self._displacement(lam), samples)
+        start_gap = contact.point_gaps(start, lam)
+        _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=self._check_step)
+        after = self.field.get_flat().clone()
+        for halving in range(FILTER_HALVINGS + 1):
+            end = contact.filter_positions(self._displacement(lam), samples)
+            if contact.step_allowed(start, start_gap, end, lam):
+                contact.flag(contact.point_gaps(end, lam))
+                return gnorm
+            if halving < FILTER_HALVINGS:
+                after = 0.5 * (before + after)
+                self.field.set_flat(after)
+        self.field.set_flat(before)
+        self.rejected_steps += 1
+        return gnorm
+
+    def _displacement(self, lam: float):
+        """u(ξ) (N, 3) of the current field at the load factor."""
+        return lambda xi: self.operator.displacement(xi, t=lam)
+
+    def _positions(self, samples, lam: float) -> torch.Tensor:
+        """Positions of the checked points of `samples` (`ContactPoints.checked`)."""
+        keep = self.contact.checked(samples)
+        return samples.r_jets[keep, 0] + self._displacement(lam)(samples.xi[keep])
+
+    def _contact_filter(self, potential, samples, lam: float):
+        """`potential` whose value (grad=False: the Newton line search's trials) is +inf
+        where the filter refuses the step from the current field (`step_allowed`): the line
+        search then rejects it."""
+        keep = self.contact.checked(samples)
+        start = self._positions(samples, lam)
+        start_gap = self.contact.point_gaps(start, lam)
+
+        def filtered(trial_samples, u_jets, grad):
+            result = potential(trial_samples, u_jets, grad)
+            if not grad:
+                end = trial_samples.r_jets[keep, 0] + u_jets[keep, 0]
+                if not self.contact.step_allowed(start, start_gap, end, lam):
+                    result.total = math.inf
+            return result
+        return filtered
+
+    def _feasible_start(self, lam: float) -> None:
+        """A fresh field whose initial displacement makes the dense grid touch an obstacle
+        starts from its output layer set to zero instead (u = the prescribed motions only):
+        the filter needs a state without penetration to start from."""
+        if self.contact.refresh(self._displacement(lam), lam) > 0:
+            return
+        weight, bias = self.field.output_layer()
+        with torch.no_grad():
+            weight.zero_()
+            bias.zero_()
+        gap = self.contact.refresh(self._displacement(lam), lam)
+        log.info("contact: the initial field touched an obstacle; output layer set to zero "
+                 "(smallest gap now %.3g m)", gap)
+
+    def _refresh_contact(self, lam: float) -> None:
+        """Dense check (with contact): add the grid points that came within the activation
+        distance."""
+        if self.contact is not None:
+            self.contact.refresh(self._displacement(lam), lam)
 
     def _check_step(self, energy: float, grad_norm: float) -> None:
         self.guard.check_step(self, energy, grad_norm)

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from taichi_ndf.geometry import (
+    Annulus,
     Cone,
     Cylinder,
     CylindricalRoof,
@@ -25,6 +26,9 @@ SURFACES = {
     "hemisphere_hole": Hemisphere(radius=2.0, hole_half_angle=math.radians(18)),
     "hemisphere_disk": Hemisphere(radius=2.0),
     "cap_disk": Hemisphere(radius=1.5, rim_angle=2.5, frame=TILTED),
+    "annulus": Annulus(inner_radius=0.5, outer_radius=2.0, origin=(0.3, 0.0, 1.0), frame=TILTED),
+    "slit_annulus": Annulus(inner_radius=6.0, outer_radius=10.0, slit=True),
+    "sector": Annulus(inner_radius=0.5, outer_radius=2.0, angle=1.5, start_angle=-0.5),
 }
 
 # Exact surface areas [m²].
@@ -36,6 +40,9 @@ AREAS = {
     "hemisphere_hole": 2 * math.pi * 4.0 * math.cos(math.radians(18)),
     "hemisphere_disk": 2 * math.pi * 4.0,
     "cap_disk": 2 * math.pi * 1.5**2 * (1 - math.cos(2.5)),
+    "annulus": math.pi * (2.0**2 - 0.5**2),
+    "slit_annulus": math.pi * (10.0**2 - 6.0**2),
+    "sector": 0.5 * 1.5 * (2.0**2 - 0.5**2),
 }
 
 
@@ -55,6 +62,39 @@ def test_jets_are_the_derivatives_of_the_position(name):
         d2 = torch.autograd.grad(j[:, 2, c].sum(), xi, retain_graph=True)[0]
         assert torch.allclose(d1, j[:, 3:5, c], atol=1e-12, rtol=0)
         assert torch.allclose(d2, j[:, 4:6, c], atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("name", ["annulus", "slit_annulus", "sector"])
+def test_annulus_jets_against_central_differences(name):
+    surface, h = SURFACES[name], 1e-5
+    xi = _samples(surface, 64)
+    j = surface.jets(xi)
+
+    def shifted(k, step):
+        delta = torch.zeros(2, dtype=torch.float64)
+        delta[k] = step
+        return surface.jets(xi + delta)
+
+    for k in range(2):   # first derivatives from r, second ones from the first derivatives
+        plus, minus = shifted(k, h), shifted(k, -h)
+        fd = (plus - minus) / (2 * h)
+        assert torch.allclose(fd[:, 0], j[:, 1 + k], atol=1e-9, rtol=0)
+        assert torch.allclose(fd[:, 1], j[:, 3 + k], atol=1e-9, rtol=0)
+        assert torch.allclose(fd[:, 2], j[:, 4 + k], atol=1e-9, rtol=0)
+
+
+def test_annulus_domains_rims_and_normal():
+    full, slit, sector = SURFACES["annulus"], SURFACES["slit_annulus"], SURFACES["sector"]
+    assert full.domain.periodic == (False, True)
+    assert slit.domain.periodic == (False, False)
+    assert sector.domain.periodic == (False, False)
+    assert sector.domain.bounds == ((0.5, 2.0), (-0.5, 1.0))
+    j = slit.jets(_samples(slit))
+    radius = j[:, 0, :2].norm(dim=1)
+    assert torch.allclose(radius, _samples(slit)[:, 0])
+    normal = torch.linalg.cross(j[:, 1], j[:, 2], dim=1)
+    assert torch.allclose(normal / radius[:, None],
+                          torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(len(j), 3))
 
 
 def test_points_lie_on_the_analytic_surfaces():
@@ -126,6 +166,11 @@ def test_hemisphere_charts():
     (lambda: Hemisphere(hole_half_angle=2.0), "hole_half_angle"),
     (lambda: Hemisphere(hole_half_angle=-0.1), "hole_half_angle"),
     (lambda: Plane(bounds=((0.0, 0.0), (0.0, 1.0))), "bounds"),
+    (lambda: Annulus(inner_radius=0.0), "inner_radius"),
+    (lambda: Annulus(inner_radius=1.0, outer_radius=1.0), "outer_radius"),
+    (lambda: Annulus(angle=7.0), "angle"),
+    (lambda: Annulus(angle=1.0, slit=True), "slit"),
+    (lambda: Annulus(start_angle=math.inf), "start_angle"),
     (lambda: Plane(origin=(0.0, 1.0)), "origin"),
     (lambda: Plane(frame=((1, 0, 0), (1, 0, 0), (0, 0, 1))), "orthonormal"),
     (lambda: Plane(frame=((1, 0, 0), (0, 1, 0), (0, 0, -1))), "right-handed"),

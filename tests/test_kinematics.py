@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from taichi_ndf.geometry import Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
+from taichi_ndf.geometry import Annulus, Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
 from taichi_ndf.shell import function_jets, strains
 
 SURFACES = [
@@ -16,6 +16,8 @@ SURFACES = [
     CylindricalRoof(),
     Hemisphere(radius=2.0, hole_half_angle=0.3),
     Hemisphere(radius=2.0),
+    Annulus(inner_radius=0.5, outer_radius=2.0),
+    Annulus(inner_radius=6.0, outer_radius=10.0, slit=True, origin=(1.0, 0.0, -2.0)),
 ]
 
 

@@ -5,7 +5,7 @@ basis (with a free pin kept apart); the refusals; no boundary conditions = the r
 import pytest
 import torch
 
-from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, PinnedPoint
+from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, PinnedPoint, SymmetryPlane
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
 from taichi_ndf.operator import DisplacementOperator
@@ -22,6 +22,10 @@ def boundaries():
         "free_pin": BoundaryConditions([PinnedPoint((0.2, 0.3), components="xz",
                                                     rotation="free")],
                                        SURFACE.domain, surface=SURFACE),
+        "symmetry": BoundaryConditions(
+            [SymmetryPlane("xi1_min", "x"), SymmetryPlane("xi2_max", "y", antisymmetric=True),
+             ClampedEdge("xi1_max", displacement=(0.0, 0.1, 0.0))],
+            SURFACE.domain, surface=SURFACE),
     }
 
 
@@ -34,7 +38,7 @@ def xi_points(n=9, seed=4):
     return torch.rand(n, 2, dtype=F64, generator=torch.Generator().manual_seed(seed))
 
 
-@pytest.mark.parametrize("name", ["clamped", "free_pin"])
+@pytest.mark.parametrize("name", ["clamped", "free_pin", "symmetry"])
 def test_backward_is_the_gradient_of_a_loss_of_the_jets(name):
     field = small_field()
     operator = DisplacementOperator(field, boundaries()[name])
@@ -79,7 +83,7 @@ def test_without_boundary_conditions_the_displacement_is_the_raw_field():
     assert torch.equal(operator.raw_gradient(xi, grad), grad)
 
 
-@pytest.mark.parametrize("name", ["clamped", "free_pin"])
+@pytest.mark.parametrize("name", ["clamped", "free_pin", "symmetry"])
 def test_output_layer_jacobian_predicts_a_change_of_the_output_layer(name):
     field = small_field()
     operator = DisplacementOperator(field, boundaries()[name])
@@ -93,7 +97,7 @@ def test_output_layer_jacobian_predicts_a_change_of_the_output_layer(name):
     torch.testing.assert_close(operator.jets(xi, t=0.4), predicted, rtol=1e-10, atol=1e-14)
 
 
-@pytest.mark.parametrize("name", ["clamped", "free_pin"])
+@pytest.mark.parametrize("name", ["clamped", "free_pin", "symmetry"])
 def test_local_jacobian_of_a_shared_basis_adds_up_to_the_dense_one(name):
     """A dense basis is a local basis whose rows are the same for every point: own + pin
     must then give `jacobian`; without a free pin there is no pin part."""

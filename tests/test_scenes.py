@@ -47,6 +47,8 @@ PRESCRIBED = {
 }
 # Held points without a probe in the scene file, checked on the field read from the checkpoint.
 HELD_POINTS = {"napkin": [(0.0, 0.0)]}
+# Scenes with obstacles: the shell's faces stay outside them (256² points, result.json).
+CONTACT = {"napkin_sphere", "tablecloth_box", "sleeve_capsule", "sheet_torus"}
 
 
 def small(scene: Scene, width: int = TEST_WIDTH) -> Scene:
@@ -60,7 +62,7 @@ def obj_vertices(path: Path) -> np.ndarray:
 
 def test_every_scene_has_expectations():
     names = {p.stem for p in SCENES}
-    assert set(PRESCRIBED) | set(HELD_POINTS) | {"membrane_stretch"} == names
+    assert set(PRESCRIBED) | set(HELD_POINTS) | CONTACT | {"membrane_stretch"} == names
 
 
 @pytest.mark.parametrize("path", SCENES, ids=lambda p: p.stem)
@@ -103,6 +105,16 @@ def test_scene_runs_quick_with_finite_outputs(path, tmp_path):
     else:
         assert written["trajectory"] is None
 
+    if path.stem in CONTACT:
+        contact = written["contact"]
+        assert contact["evaluation_grid"] == [255, 255]
+        assert contact["min_signed_distance"] >= -1e-4, contact
+        assert contact["check_points"] > 0
+        for obstacle in scene.model.contact.obstacles:
+            assert (out / "obstacles" / f"{obstacle.name}.obj").stat().st_size > 0
+    else:
+        assert written["contact"] is None
+
     for name, expected in PRESCRIBED.get(path.stem, {}).items():
         np.testing.assert_allclose(written["probes"][name], expected, rtol=0, atol=1e-12,
                                    err_msg=f"{path.stem}: probe {name}")
@@ -125,8 +137,13 @@ def test_scene_solves_with_a_clyde_fabric(path):
     fabric = FABRICS[SCENES.index(path) % len(FABRICS)]
     scene = small(load_scene(path, material=fabric))
     assert type(scene.model.material).__name__ == "ClydeFabric"
+    # Contact scenes without their Newton phases here: the central-difference Hessian over
+    # the check points with the Clyde law takes minutes (Newton with contact:
+    # tests/test_contact_scenes.py and the quick runs above).
+    newton = 0 if path.stem in CONTACT else scene.quick_solver.newton_iterations
     solver = dataclasses.replace(scene.quick_solver.with_iterations(3), progress=False,
-                                 load_steps=(1.0,), monitor_samples=256)
+                                 load_steps=(1.0,), monitor_samples=256,
+                                 newton_iterations=newton)
     field = NeuralField(scene.field, seed=0)
     result = Solver(scene.model, field, solver).run()
     assert math.isfinite(result.energy)

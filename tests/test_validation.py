@@ -18,19 +18,24 @@ from taichi_ndf.loads import Loads
 from taichi_ndf.objective import EndMomentTerm
 from taichi_ndf.sampling import sample_surface
 from taichi_ndf.scene import load_scene
+from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.shell.energy import ShellEnergy, function_jets
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.validation import (
     CASES,
+    CASES_DIR,
     LINEARISATION,
     SCENES_DIR,
     Case,
     Quantity,
-    _component,
-    _roll_up_references,
+    component_read,
+    load_case,
     load_case_scene,
+    roll_up_moment,
+    roll_up_references,
     run_case,
 )
+from taichi_ndf.validation.case_file import parse_case
 
 
 def test_every_case_scene_loads_and_reads_existing_probes():
@@ -43,11 +48,62 @@ def test_every_case_scene_loads_and_reads_existing_probes():
         assert set(q.level for q in case.quantities) <= set(scene.solver.load_steps)
 
 
+def test_builtin_case_files():
+    assert list(CASES) == ["cantilever_moment", "cantilever_shear", "pinched_cylinder",
+                           "pinched_hemisphere", "scordelis_lo_roof", "square_plate"]
+    moment = CASES["cantilever_moment"]
+    assert moment.end_moment is roll_up_moment and moment.scene == "cantilever_moment.toml"
+    for q in moment.quantities:
+        minus_u, w = roll_up_references(q.level)
+        assert q.reference == (minus_u if q.name == "-U" else w)
+    assert CASES["square_plate"].linear and not CASES["cantilever_shear"].linear
+    hemisphere = CASES["pinched_hemisphere"].quantities[0]
+    assert hemisphere.probes == ("out_0", "out_180", "in_90", "in_270")
+
+
+@pytest.mark.parametrize("edit, key", [
+    (lambda d: d.pop("name"), "name: required"),
+    (lambda d: d.update(scene="nowhere.toml"), "scene file not found"),
+    (lambda d: d.update(colour="red"), r"unknown key\(s\) 'colour'"),
+    (lambda d: d.update(end_moment="twist"), "end_moment: must be one of"),
+    (lambda d: d["quantity"][0].update(tolerance="1 %"), r"quantity\[0\].tolerance"),
+    (lambda d: d["quantity"][0].update(reference=0.0), r"quantity\[0\]: quantity w"),
+    (lambda d: d["quantity"][0].update(read=[]), r"quantity\[0\].read: needs"),
+    (lambda d: d["quantity"][0]["read"][0].update(component="r"),
+     r"quantity\[0\].read\[0\].component"),
+    (lambda d: d["quantity"][0]["read"][0].update(distance=["a", "b"]), "exactly one of"),
+    (lambda d: d["quantity"][0]["read"][0].update(sign=2), r"read\[0\].sign: must be 1 or -1"),
+])
+def test_case_file_errors_name_the_key(edit, key):
+    document = {"name": "c", "scene": str(SCENES_DIR / "square_plate.toml"),
+                "quantity": [{"name": "w", "reference": 1.0, "tolerance": 0.01,
+                              "read": [{"probe": "centre", "component": "z"}]}]}
+    edit(document)
+    with pytest.raises(SceneError, match=key):
+        parse_case(document, base_dir=SCENES_DIR)
+
+
+@pytest.mark.parametrize("name", ["square_plate_quarter", "pinched_cylinder_octant"])
+def test_example_case_files_load_with_their_scenes(name):
+    case = load_case(CASES_DIR.parent / "examples" / f"{name}.toml")
+    scene, model, _ = load_case_scene(case)
+    names = {p.name for p in model.probes}
+    assert all(set(q.probes) <= names for q in case.quantities)
+    assert any(type(c).__name__ == "SymmetryPlane" for c in model.boundary.constraints)
+
+
+def test_a_case_reading_an_unknown_probe_is_refused_before_the_run():
+    case = Case("c", "square_plate.toml",
+                (Quantity("w", "", 1.0, 0.01, component_read("middle", 2), probes=("middle",)),))
+    with pytest.raises(ValueError, match="middle"):
+        run_case(case, quick=True)
+
+
 def test_roll_up_references_match_the_published_numbers():
-    minus_u, w = _roll_up_references(0.5)
+    minus_u, w = roll_up_references(0.5)
     assert minus_u == pytest.approx(12.0)
     assert w == pytest.approx(7.639, abs=5e-4)
-    minus_u, w = _roll_up_references(1.0)
+    minus_u, w = roll_up_references(1.0)
     assert minus_u == pytest.approx(12.0) and w == pytest.approx(0.0, abs=1e-12)
 
 
@@ -150,7 +206,7 @@ def test_quick_plate_under_a_point_load_matches_kirchhoff(tmp_path):
     reference = _navier_point_load_deflection(1.0, 100.0, stiffness)
     case = Case("plate_point_load", "plate_point.toml",
                 (Quantity("w_centre", "deflection under the load", reference, 0.05,
-                          _component("centre", 2)),), linear=True)
+                          component_read("centre", 2)),), linear=True)
     scene_config = load_scene(tmp_path / "plate_point.toml").solver
     config = dataclasses.replace(scene_config, newton_samples=4096, newton_iterations=3,
                                  monitor_samples=2048)
@@ -192,11 +248,32 @@ def test_quick_coarse_cantilever():
     assert rows[1].relative_error < QUICK_TOLERANCE, rows[1]
 
 
-def test_validate_command_writes_tables_and_plot(tmp_path):
-    args = ["square_plate", "--quick", "--iters", "10", "--out", str(tmp_path / "v")]
+USER_CASE = """
+name = "my_plate"
+scene = "{scene}"
+linear = true
+[[quantity]]
+name = "w_centre"
+description = "centre deflection"
+reference = 0.4875
+tolerance = 0.01
+source = "Navier series"
+read = [{{ probe = "centre", component = "z" }}]
+"""
+
+
+def test_validate_command_writes_tables_and_plot_and_runs_a_case_file(tmp_path):
+    """A user case file next to its own copy of the scene reproduces the built-in row."""
+    (tmp_path / "plate.toml").write_text((SCENES_DIR / "square_plate.toml").read_text())
+    (tmp_path / "my_plate.toml").write_text(USER_CASE.format(scene="plate.toml"))
+    args = ["square_plate", str(tmp_path / "my_plate.toml"), "--quick", "--iters", "10",
+            "--out", str(tmp_path / "v")]
     assert validate_main(args) == 0
     table = json.loads((tmp_path / "v" / "results.json").read_text())
-    assert [r["case"] for r in table["rows"]] == ["square_plate"]
+    assert [r["case"] for r in table["rows"]] == ["square_plate", "my_plate"]
+    builtin, user = table["rows"]
+    assert user["computed"] == builtin["computed"] and user["source"] == "Navier series"
+    assert (tmp_path / "v" / "my_plate_convergence.png").stat().st_size > 0
     assert "| square_plate | w_centre |" in (tmp_path / "v" / "results.md").read_text()
     assert (tmp_path / "v" / "square_plate_convergence.png").stat().st_size > 0
 

@@ -151,6 +151,9 @@ class ConditionedEquilibrium:
                              f"unknowns only, not {bad}: estimate these with the residual method")
         DisplacementOperator(None, model.boundary).refuse_free_pin(
             "the material-conditioned field", "; use --method implicit or rotation = 'held'")
+        if model.loads.line_loads:
+            raise ValueError("the material-conditioned field does not support line loads "
+                             "([[loads.line]]); use --method implicit")
         if len(ranges) != len(unknowns):
             raise ValueError(f"need one coordinate range per unknown, got {len(ranges)} for "
                              f"{len(unknowns)}")

@@ -11,6 +11,7 @@ from taichi_ndf.boundary.constraints import (
     InteriorLine,
     PinnedPoint,
     RimRotation,
+    SymmetryPlane,
 )
 
 __all__ = [
@@ -24,4 +25,5 @@ __all__ = [
     "Handle",
     "InteriorLine",
     "RimRotation",
+    "SymmetryPlane",
 ]

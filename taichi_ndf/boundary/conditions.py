@@ -59,10 +59,13 @@ from taichi_ndf.boundary.constraints import (
     InteriorLine,
     PinnedPoint,
     RimRotation,
+    SymmetryPlane,
 )
+from taichi_ndf.boundary.fold import Fold
 from taichi_ndf.boundary.resolution import (
     ResolvedConstraint,
     check_contradictions,
+    check_symmetry_planes,
     resolve,
     to_eta,
 )
@@ -76,11 +79,12 @@ class BoundaryConditions:
     """Exact boundary conditions on a parameter domain.
 
     constraints: `ClampedEdge`, `HingedEdge`, `PinnedPoint`, `Handle`, `InteriorLine`,
-        `RimRotation` (see `taichi_ndf.boundary.constraints`); several may act on one
-        component (their factors multiply).
+        `RimRotation`, `SymmetryPlane` (see `taichi_ndf.boundary.constraints`); several may
+        act on one component (their factors multiply).
     domain: the reference surface's parameter domain; periodic coordinates need no condition
         (the field is periodic by construction) and have no edges.
-    surface: the reference surface; needed by `RimRotation` (positions r on the rim).
+    surface: the reference surface; needed by `RimRotation` (positions r on the rim) and
+        `SymmetryPlane` (the edge must lie in the plane and cross it at right angles).
     length: default band width ℓ of the vanishing factors, a fraction of the domain extent,
         positive; below 0.5 for points and lines (see the module docstring for the choice of
         0.1).
@@ -127,6 +131,9 @@ class BoundaryConditions:
             if term.constraint is not self.free_pin
         )
         check_contradictions(self._terms, domain)
+        self.fold = Fold.of_edges(domain, [c.edge for c in self.constraints
+                                           if isinstance(c, SymmetryPlane)])
+        check_symmetry_planes(self._terms, domain)
 
     @property
     def narrowest_band(self) -> float | None:
@@ -138,10 +145,11 @@ class BoundaryConditions:
     # ---- composition -------------------------------------------------------------------
 
     def evaluation_points(self, xi: torch.Tensor) -> torch.Tensor:
-        """Where the raw field is needed for `compose` at ξ (N, 2): ξ itself, or with a free
+        """Where the raw field is needed for `compose` at ξ (N, 2): ξ itself (the folded
+        coordinates m(ξ) with a symmetry plane, `taichi_ndf.boundary.fold`), or with a free
         pin ξ followed by the pin ξ₀, shape (N + 1, 2)."""
         if self.free_pin is None:
-            return xi
+            return self.fold.points(xi)
         pin = torch.tensor([self.free_pin.xi], dtype=xi.dtype, device=xi.device)
         return torch.cat((xi, pin))
 
@@ -153,6 +161,7 @@ class BoundaryConditions:
         (tensor (N,), for a pseudo-time field). With a free pin u = N(ξ) − N(ξ₀)."""
         xi = xi.to(raw_jets.dtype)
         raw_jets, pin_jets = self._split(xi, raw_jets)
+        raw_jets = self.fold.pullback(xi, raw_jets)
         factors = self._factors(xi)
         phi = self._vanishing(xi, factors)
         u = jets.product(phi, raw_jets) + self._prescribed(xi, factors, t)
@@ -169,6 +178,7 @@ class BoundaryConditions:
         is grad_u_jets (N, 6, 3); g does not depend on N, so t is unused."""
         xi = xi.to(grad_u_jets.dtype)
         grad = jets.product_adjoint(self._vanishing(xi, self._factors(xi)), grad_u_jets)
+        grad = self.fold.pullback_adjoint(xi, grad)
         if self.free_pin is None:
             return grad
         pin = torch.zeros_like(grad[:1])
@@ -182,6 +192,7 @@ class BoundaryConditions:
         `evaluation_points(ξ)`; returns (3, N, 6, p), J[k] = ∂u_k/∂θ_k (u is affine in N)."""
         xi = xi.to(basis.dtype)
         basis, pin_basis = self._split(xi, basis)
+        basis = self.fold.pullback(xi, basis)
         phi = self.vanishing_factor(xi)
         jacobian = torch.stack([jets.product(phi[:, :, k : k + 1], basis) for k in range(3)])
         if pin_basis is not None:
@@ -297,13 +308,13 @@ class BoundaryConditions:
         """Jets (N, 6, 1) of the vanishing factor of one constraint."""
         con, ell = term.constraint, term.length
         eta, scale = self._eta(xi)
-        if isinstance(con, (ClampedEdge, HingedEdge, RimRotation)):
+        if isinstance(con, (ClampedEdge, HingedEdge, RimRotation, SymmetryPlane)):
             k = 0 if con.edge.startswith("xi1") else 1
             sign = 1.0 if con.edge.endswith("min") else -1.0
             value = eta[:, k] if sign > 0 else 1.0 - eta[:, k]
             d = (sign * scale[0] / ell, 0.0) if k == 0 else (0.0, sign * scale[1] / ell)
             s = vanishing.affine(value / ell, *d)
-            if isinstance(con, HingedEdge):
+            if term.linear:
                 return vanishing.linear_vanishing(s)
             return vanishing.quadratic_vanishing(vanishing.square(s))
         if isinstance(con, (PinnedPoint, Handle)):

@@ -13,7 +13,7 @@ vanishing factor φ rises from 0 to 1, as a fraction of the domain's extent (see
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from taichi_ndf.checks import finite_vector
 
@@ -206,4 +206,39 @@ class RimRotation:
         _check_length("RimRotation", self.length, edge=True)
 
 
-Constraint = ClampedEdge | HingedEdge | PinnedPoint | Handle | InteriorLine | RimRotation
+@dataclass(frozen=True)
+class SymmetryPlane:
+    """An edge of the parameter rectangle lying in a plane of mirror symmetry (a quarter or
+    octant model) whose normal is the Cartesian axis `normal` ("x", "y" or "z").
+
+    Symmetric (default): the displacement along the normal vanishes on the edge (its factor
+    vanishes linearly: it is odd across the plane) and the other two components have zero
+    derivative across the edge (they are even), so the rotation about the in-plane direction
+    of the edge vanishes. Antisymmetric: the two in-plane components vanish (odd) and the
+    normal one is even. The even part is exact by construction: the field is evaluated at
+    folded coordinates whose derivative across the edge vanishes there
+    (`taichi_ndf.boundary.fold`). `components` are those that vanish (derived, not given).
+    """
+
+    edge: str
+    normal: str
+    antisymmetric: bool = False
+    length: float | None = None
+    components: str = field(init=False)
+
+    def __post_init__(self):
+        _check_edge("SymmetryPlane", self.edge)
+        if self.normal not in tuple(COMPONENTS):
+            raise ValueError(f"SymmetryPlane: normal must be one of 'x', 'y', 'z' (a Cartesian "
+                             f"axis; planes of other orientations are not supported), got "
+                             f"{self.normal!r}")
+        if not isinstance(self.antisymmetric, bool):
+            raise ValueError(f"SymmetryPlane: antisymmetric must be true or false, got "
+                             f"{self.antisymmetric!r}")
+        _check_length("SymmetryPlane", self.length, edge=True)
+        others = "".join(c for c in COMPONENTS if c != self.normal)
+        _set(self, "components", others if self.antisymmetric else self.normal)
+
+
+Constraint = (ClampedEdge | HingedEdge | PinnedPoint | Handle | InteriorLine | RimRotation
+              | SymmetryPlane)

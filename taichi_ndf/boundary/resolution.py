@@ -20,6 +20,7 @@ from taichi_ndf.boundary.constraints import (
     InteriorLine,
     PinnedPoint,
     RimRotation,
+    SymmetryPlane,
 )
 from taichi_ndf.boundary.segments import (
     Segment,
@@ -52,7 +53,8 @@ class ResolvedConstraint:
     def linear(self) -> bool:
         """Whether the factor vanishes linearly (odd, changes sign across the set)."""
         con = self.constraint
-        return isinstance(con, HingedEdge) or (isinstance(con, InteriorLine) and con.hinged)
+        return (isinstance(con, (HingedEdge, SymmetryPlane))
+                or (isinstance(con, InteriorLine) and con.hinged))
 
     @property
     def components(self) -> frozenset[int]:
@@ -77,7 +79,7 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
     name = type(con).__name__
     ell = length if con.length is None else float(con.length)
     prescribes: frozenset[int] = frozenset()
-    if isinstance(con, (ClampedEdge, HingedEdge, RimRotation)):
+    if isinstance(con, (ClampedEdge, HingedEdge, RimRotation, SymmetryPlane)):
         k = 0 if con.edge.startswith("xi1") else 1
         if domain.periodic[k]:
             raise ValueError(
@@ -100,6 +102,8 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
     else:
         raise TypeError(f"unknown constraint type {type(con).__name__}")
 
+    if isinstance(con, SymmetryPlane):
+        _check_symmetry_plane(con, domain, surface)
     if isinstance(con, RimRotation):
         if surface is None:
             raise ValueError("RimRotation needs the reference surface: pass surface=...")
@@ -118,6 +122,28 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
             if con.displacement[COMPONENTS.index(c)] != 0.0
         )
     return ResolvedConstraint(constraint=con, length=ell, where=where, prescribes=prescribes)
+
+
+def _check_symmetry_plane(con: SymmetryPlane, domain: ParameterDomain,
+                          surface: ReferenceSurface | None) -> None:
+    """ValueError unless the edge lies in a plane normal to `con.normal` and the surface
+    crosses it at right angles (its tangent across the edge along the normal)."""
+    if surface is None:
+        raise ValueError("SymmetryPlane needs the reference surface: pass surface=...")
+    start, end = (_from_eta(domain, p) for p in _EDGE_SETS[con.edge])
+    r = surface.jets(torch.tensor(points_along(start, end), dtype=torch.float64))
+    axis = COMPONENTS.index(con.normal)
+    across = r[:, 1 if con.edge.startswith("xi1") else 2]   # tangent across the edge
+    speed = across.norm(dim=1)
+    size = float((r[:, 0] - r[:, 0].mean(dim=0)).norm(dim=1).max() + speed.max())
+    spread = float(r[:, 0, axis].max() - r[:, 0, axis].min())
+    tilt = float(((speed - across[:, axis].abs()) / speed).max())
+    if spread > 1e-9 * size or tilt > 1e-9:
+        raise ValueError(
+            f"SymmetryPlane on edge {con.edge!r}: the edge must lie in a plane normal to "
+            f"{con.normal} and the surface must cross it at right angles (spread of "
+            f"{con.normal} along the edge {spread:.3g} m, tangent across it off the normal by "
+            f"{tilt:.3g})")
 
 
 def _resolve_line(con: InteriorLine, domain: ParameterDomain, ell: float) -> Segment:
@@ -185,6 +211,35 @@ def check_contradictions(terms: tuple[ResolvedConstraint, ...], domain: Paramete
                     f"{first.constraint} and {second.constraint} meet, and at least one "
                     "prescribes a displacement there"
                 )
+
+
+def check_symmetry_planes(terms: tuple[ResolvedConstraint, ...],
+                          domain: ParameterDomain) -> None:
+    """ValueError if another constraint's factor on a component that a symmetry plane keeps
+    even varies across the plane: u_c = φ N_c(m(ξ)) has zero derivative across the edge only
+    if φ does too. Edges of the other coordinate (φ varies along the plane only) are fine;
+    any other set must stay at least its band length away from the plane."""
+    for plane in terms:
+        if not isinstance(plane.constraint, SymmetryPlane):
+            continue
+        edge = plane.constraint.edge
+        even = frozenset(range(3)) - plane.components
+        for other in terms:
+            shared = other.components & even
+            if other is plane or not shared:
+                continue
+            con = other.constraint
+            if (isinstance(con, (ClampedEdge, HingedEdge, RimRotation, SymmetryPlane))
+                    and con.edge[:3] != edge[:3]):
+                continue
+            gap = _distance(domain, other.where, plane.where)
+            if gap < other.length - 1e-12:
+                comps = "".join(COMPONENTS[c] for c in sorted(shared))
+                raise ValueError(
+                    f"symmetry plane on edge {edge!r}: the band of {type(con).__name__} on "
+                    f"component(s) {comps!r} reaches the plane (distance {gap:.3g} < length "
+                    f"{other.length:.3g}, fractions of the domain extent), so those components "
+                    "would not be even there; shorten its length or move it away")
 
 
 def _distance(domain: ParameterDomain, first: tuple[Segment, ...],

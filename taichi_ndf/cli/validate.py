@@ -1,5 +1,6 @@
-"""`ndf-validate [CASE ...] [--quick] --out DIR`: run the published shell benchmarks and write
-the results table (results.md, results.json) and one convergence plot per case."""
+"""`ndf-validate [CASE ...] [--quick] --out DIR`: run the published shell benchmarks (built-in
+case names or case files CASE.toml) and write the results table (results.md, results.json)
+and one convergence plot per case."""
 
 from __future__ import annotations
 
@@ -24,7 +25,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = ArgumentParser(prog="ndf-validate", description=__doc__.split("\n")[0])
     p.add_argument("cases", nargs="*", metavar="CASE",
-                   help=f"cases to run (default: all): {', '.join(CASES)}")
+                   help=f"built-in cases (default: all): {', '.join(CASES)}; or case files "
+                   "CASE.toml (docs/validation.md)")
     p.add_argument("--out", type=Path, required=True, help="output directory (new or empty "
                    "unless --overwrite)")
     p.add_argument("--quick", action="store_true",
@@ -46,21 +48,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 @interruptible("ndf-validate")
 def main(argv: list[str] | None = None) -> int:
-    from taichi_ndf.validation import CASES, run_case, write_report
+    from taichi_ndf.validation import CASES, load_case, run_case, write_report
 
     args = build_parser().parse_args(argv)
-    unknown = [c for c in args.cases if c not in CASES]
+    unknown = [c for c in args.cases if c not in CASES and not c.endswith(".toml")]
     if unknown:
         print(f"ndf-validate: error: unknown case(s) {', '.join(unknown)}; choose from "
-              f"{', '.join(CASES)}", file=sys.stderr)
+              f"{', '.join(CASES)} or give a case file CASE.toml", file=sys.stderr)
         return 2
-    names = args.cases or list(CASES)
     try:
+        cases = [load_case(c) if c.endswith(".toml") else CASES[c]
+                 for c in args.cases or list(CASES)]
+        names = [case.name for case in cases]
+        if len(set(names)) != len(names):
+            raise ValueError(f"two cases share a name: {', '.join(names)}")
         out = OutputDir(args.out, overwrite=args.overwrite)
         start(args)
         results = []
-        for name in names:
-            result = run_case(CASES[name], quick=args.quick, iterations=args.iters,
+        for case in cases:
+            name = case.name
+            result = run_case(case, quick=args.quick, iterations=args.iters,
                               scenes_dir=args.scenes, seed=args.seed,
                               field=args.field)
             results.append(result)

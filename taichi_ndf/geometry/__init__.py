@@ -1,6 +1,6 @@
 """Reference surfaces and their parameter domains."""
 
-from taichi_ndf.geometry.analytic import Cone, Cylinder, CylindricalRoof, Plane
+from taichi_ndf.geometry.analytic import Annulus, Cone, Cylinder, CylindricalRoof, Plane
 from taichi_ndf.geometry.domain import ParameterDomain
 from taichi_ndf.geometry.mesh_surface import MeshSurface
 from taichi_ndf.geometry.sphere import Hemisphere
@@ -11,6 +11,7 @@ __all__ = [
     "ReferenceSurface",
     "PlacedSurface",
     "Plane",
+    "Annulus",
     "Cylinder",
     "Cone",
     "CylindricalRoof",

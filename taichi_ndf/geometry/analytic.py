@@ -1,4 +1,5 @@
-"""Analytic reference surfaces with exact jets: plane, cylinder, cone, cylindrical roof.
+"""Analytic reference surfaces with exact jets: plane, cylinder, cone, cylindrical roof,
+annulus.
 
 All are defined in local axes and placed in the world by `origin` and `frame`
 (see `PlacedSurface`). Jets are exact closed forms, differentiable in torch with respect to ξ.
@@ -139,3 +140,59 @@ class CylindricalRoof(PlacedSurface):
         zero, one, rad = torch.zeros_like(c), torch.ones_like(c), self.radius
         return _stack((rad * s, xi[:, 1], rad * c), (rad * c, zero, -rad * s), (zero, one, zero),
                       (-rad * s, zero, -rad * c), (zero, zero, zero), (zero, zero, zero))
+
+
+@dataclass(frozen=True)
+class Annulus(PlacedSurface):
+    """Flat annulus (or annular sector) in the local x–y plane, in polar coordinates.
+
+    r(ρ, θ) = (ρ cos θ, ρ sin θ, 0): ξ¹ = ρ ∈ [inner_radius, outer_radius] is the radius [m],
+    ξ² = θ ∈ [start_angle, start_angle + angle] the polar angle [rad]. Normal a₃ = local +z.
+    A full annulus (angle = 2π) is periodic in θ unless `slit`: then θ = start and θ = start
+    + 2π are the two faces of a radial cut (the slit annular plate), edges `xi2_min` and
+    `xi2_max`; a sector (angle < 2π) is never periodic. Edges `xi1_min` / `xi1_max` are the
+    inner / outer rims. inner_radius > 0 (the centre of a disk is a singular point of polar
+    coordinates).
+    """
+
+    inner_radius: float = 0.5
+    outer_radius: float = 1.0
+    angle: float = 2 * math.pi
+    start_angle: float = 0.0
+    slit: bool = False
+
+    def __post_init__(self):
+        super().__post_init__()
+        inner = require_positive(self, "inner_radius", "m")
+        if require_positive(self, "outer_radius", "m") <= inner:
+            raise ValueError(f"outer_radius must exceed inner_radius {inner}, got "
+                             f"{self.outer_radius}")
+        angle = require_positive(self, "angle", "rad")
+        if angle > 2 * math.pi * (1 + 1e-12):
+            raise ValueError(f"angle must be at most 2π (one turn) [rad], got {angle}")
+        start = float(self.start_angle)
+        if not math.isfinite(start):
+            raise ValueError(f"start_angle must be a finite number [rad], got {start}")
+        object.__setattr__(self, "start_angle", start)
+        if not isinstance(self.slit, bool):
+            raise ValueError(f"slit must be true or false, got {self.slit!r}")
+        if self.slit and angle < 2 * math.pi * (1 - 1e-12):
+            raise ValueError("slit applies to a full annulus (angle = 2π); a sector has its "
+                             "two radial edges already")
+
+    @property
+    def full(self) -> bool:
+        """Whether θ covers one turn."""
+        return self.angle >= 2 * math.pi * (1 - 1e-12)
+
+    @property
+    def domain(self) -> ParameterDomain:
+        angles = (self.start_angle, self.start_angle + self.angle)
+        return ParameterDomain(((self.inner_radius, self.outer_radius), angles),
+                               periodic=(False, self.full and not self.slit))
+
+    def local_jets(self, xi: torch.Tensor) -> torch.Tensor:
+        rho, c, s = xi[:, 0], torch.cos(xi[:, 1]), torch.sin(xi[:, 1])
+        zero = torch.zeros_like(c)
+        return _stack((rho * c, rho * s, zero), (c, s, zero), (-rho * s, rho * c, zero),
+                      (zero, zero, zero), (-s, c, zero), (-rho * c, -rho * s, zero))

@@ -1,21 +1,26 @@
-"""Validation against published shell benchmarks (`../shared/spec/benchmarks.md`): the case
-catalogue (`catalogue`), the runner that trains a case's field and reads its quantities
-(`runner`) and the report writer (`report`)."""
+"""Validation against published shell benchmarks (`../shared/spec/benchmarks.md`): what a case
+is (`catalogue`), case files and the built-in cases (`case_file`, `validation/cases/`), the
+runner that trains a case's field and reads its quantities (`runner`) and the report writer
+(`report`)."""
 
+from taichi_ndf.validation.case_file import builtin_cases, load_case
 from taichi_ndf.validation.catalogue import (
-    CASES,
+    CASES_DIR,
     LINEARISATION,
     SCENES_DIR,
     Case,
     Quantity,
     Readings,
-    _component,
-    _roll_up_references,
+    component_read,
     roll_up_moment,
+    roll_up_references,
 )
 from taichi_ndf.validation.report import convergence_plot, markdown_table, write_report
 from taichi_ndf.validation.runner import CaseResult, Row, load_case_scene, run_case
 
-__all__ = ["CASES", "LINEARISATION", "SCENES_DIR", "Case", "CaseResult", "Quantity", "Readings",
-           "Row", "_component", "_roll_up_references", "convergence_plot", "load_case_scene",
-           "markdown_table", "roll_up_moment", "run_case", "write_report"]
+CASES = builtin_cases()
+
+__all__ = ["CASES", "CASES_DIR", "LINEARISATION", "SCENES_DIR", "Case", "CaseResult", "Quantity",
+           "Readings", "Row", "builtin_cases", "component_read", "convergence_plot",
+           "load_case", "load_case_scene", "markdown_table", "roll_up_moment",
+           "roll_up_references", "run_case", "write_report"]

@@ -1,8 +1,10 @@
-"""The catalogue of validation cases: published shell benchmarks (`../shared/spec/benchmarks.md`).
+"""What a validation case is: published shell benchmarks (`../shared/spec/benchmarks.md`).
 
-A *case* is a scene file of `validation/scenes/` plus what to read from the trained field: one
-or more *quantities* (a displacement component at a probe, a change of distance between two
-probes, …), each at a load factor, with its published reference value and tolerance.
+A *case* is a scene file plus what to read from the trained field: one or more *quantities*
+(a displacement component at a probe, a change of distance between two probes, or the mean of
+several such reads), each at a load factor, with its published reference value, source and
+tolerance. Cases are written as case files (`taichi_ndf.validation.case_file`); the built-in
+ones are `validation/cases/*.toml`, their scenes `validation/scenes/*.toml`.
 
 Two protocols beyond the scene itself:
 
@@ -41,6 +43,7 @@ import numpy as np
 from taichi_ndf.model import ShellModel
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "validation" / "scenes"
+CASES_DIR = SCENES_DIR.parent / "cases"
 # Displacement scale ε of the linear-regime solve of a linear case (module docstring).
 LINEARISATION = 1e-3
 
@@ -58,6 +61,8 @@ class Quantity:
     tolerance: admissible relative error (0.01 = 1 %).
     read: function (displacements, reference positions) -> value, both by probe name.
     level: load factor (of the case's load steps) at which it is read.
+    source: where the reference comes from (publication, formula).
+    probes: the probe names `read` uses (checked against the scene before a run).
     """
 
     name: str
@@ -66,6 +71,8 @@ class Quantity:
     tolerance: float
     read: Callable[[Readings, Readings], float]
     level: float = 1.0
+    source: str = ""
+    probes: tuple[str, ...] = ()
 
     def __post_init__(self):
         if not (math.isfinite(self.reference) and self.reference != 0.0):
@@ -78,7 +85,8 @@ class Quantity:
 class Case:
     """A benchmark: a scene file and the quantities checked on its solution.
 
-    scene: file name in `scenes_dir` (default `validation/scenes/`).
+    scene: scene file, relative to the runner's `scenes_dir` (default `validation/scenes/`) or
+        absolute.
     load_scale: factor on every scene load (e.g. a single load level of a nonlinear case).
     linear: whether the reference is a linear-theory value, solved in the linear regime
         (module docstring).
@@ -120,13 +128,14 @@ def roll_up_moment(model: ShellModel) -> float:
 # -- quantities ---------------------------------------------------------------------------------
 
 
-def _component(probe: str, axis: int, sign: float = 1.0):
+def component_read(probe: str, axis: int, sign: float = 1.0):
+    """sign × the displacement component `axis` (0, 1, 2) at a probe."""
     def read(u: Readings, r: Readings) -> float:
         return sign * float(u[probe][axis])
     return read
 
 
-def _distance_change(first: str, second: str, sign: float = 1.0):
+def distance_change_read(first: str, second: str, sign: float = 1.0):
     """sign × half the change of the distance between two probes: invariant under rigid
     motion, equal to the radial displacement of each for a symmetric deformation."""
     def read(u: Readings, r: Readings) -> float:
@@ -136,60 +145,14 @@ def _distance_change(first: str, second: str, sign: float = 1.0):
     return read
 
 
-def _mean(*reads):
+def mean_read(*reads):
+    """The mean of several reads."""
     def read(u: Readings, r: Readings) -> float:
         return sum(f(u, r) for f in reads) / len(reads)
     return read
 
 
-def _roll_up_references(level: float, length: float = 12.0) -> tuple[float, float]:
+def roll_up_references(level: float, length: float = 12.0) -> tuple[float, float]:
     """Analytic (−U, W) of the tip of a strip rolled by λ = M/Mmax (ν = 0)."""
     angle = 2 * math.pi * level
     return length * (1 - math.sin(angle) / angle), length * (1 - math.cos(angle)) / angle
-
-
-def _shear_quantities() -> tuple[Quantity, ...]:
-    references = {0.1: (1.309, 0.103), 0.5: (4.933, 1.604), 1.0: (6.698, 3.286)}
-    out = []
-    for level, (w, u) in references.items():
-        out += [Quantity("W", "tip deflection", w, 0.02, _component("tip", 2), level),
-                Quantity("-U", "tip shortening", u, 0.02, _component("tip", 0, -1.0), level)]
-    return tuple(out)
-
-
-def _moment_quantities() -> tuple[Quantity, ...]:
-    out = []
-    for level in (0.25, 0.5, 0.75, 1.0):
-        minus_u, w = _roll_up_references(level)
-        out.append(Quantity("-U", "tip shortening", minus_u, 0.02, _component("tip", 0, -1.0),
-                            level))
-        if level < 1.0:  # W = 0 at λ = 1: a relative error is meaningless there
-            out.append(Quantity("W", "tip lift", w, 0.02, _component("tip", 2), level))
-    return tuple(out)
-
-
-CASES: dict[str, Case] = {
-    case.name: case
-    for case in (
-        Case("square_plate", "square_plate.toml",
-             (Quantity("w_centre", "centre deflection", 0.4875, 0.01,
-                       _component("centre", 2)),),
-             linear=True),
-        Case("scordelis_lo_roof", "scordelis_lo_roof.toml",
-             (Quantity("-u_z", "vertical deflection at mid free edge", 0.3024, 0.01,
-                       _component("free_edge_mid", 2, -1.0)),),
-             linear=True),
-        Case("pinched_cylinder", "pinched_cylinder.toml",
-             (Quantity("u_r", "radial (inward) displacement under a load", 1.8248e-5, 0.02,
-                       _mean(_component("load_0", 0, -1.0), _component("load_pi", 0))),),
-             linear=True),
-        Case("pinched_hemisphere", "pinched_hemisphere.toml",
-             (Quantity("u_r", "radial displacement at a load (rigid-motion invariant)", 0.094,
-                       0.02, _mean(_distance_change("out_0", "out_180"),
-                                   _distance_change("in_90", "in_270", -1.0))),),
-             linear=True),
-        Case("cantilever_shear", "cantilever_shear.toml", _shear_quantities()),
-        Case("cantilever_moment", "cantilever_moment.toml", _moment_quantities(),
-             end_moment=roll_up_moment),
-    )
-}

@@ -44,6 +44,7 @@ class Row:
     samples: int  # per Adam iteration
     newton_steps: int = 0  # last-layer Newton steps, all phases
     newton_samples: int = 0  # fixed samples of the Newton phases (0: no Newton)
+    source: str = ""  # where the reference comes from
 
 
 @dataclass
@@ -93,6 +94,13 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
             raise ValueError("--iters sets Adam; the spline path solves by projected Newton")
         return run_spline_case(case, quick=quick, scenes_dir=scenes_dir, levels=levels)
     scene, model, field_config = load_case_scene(case, scenes_dir, field)
+    names = [p.name for p in model.probes]
+    for q in case.quantities:
+        missing = [p for p in q.probes if p not in names]
+        if missing:
+            raise ValueError(f"case {case.name}: quantity {q.name} reads probe(s) "
+                             f"{', '.join(missing)} that the scene {case.scene} does not "
+                             f"define (its probes: {', '.join(names) or 'none'})")
     config = solver or (scene.quick_solver if quick else scene.solver)
     if iterations is not None:
         config = config.with_iterations(iterations)
@@ -102,7 +110,6 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
     field_ = NeuralField(field_config, seed=config.seed)
     run = Solver(model, field_, config, objective=_objective(case, model))
     dtype = field_.parameters[0].dtype
-    names = [p.name for p in model.probes]
     xi = torch.tensor([p.xi for p in model.probes], dtype=dtype)
     positions = model.surface.jets(xi)[:, jets.VALUE]
     reference_positions = {n: positions[k].double().numpy() for k, n in enumerate(names)}
@@ -129,7 +136,8 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
                         passed=None if error is None else error <= q.tolerance,
                         iterations=result.iterations, wall_time=wall, samples=config.samples,
                         newton_steps=result.newton_steps,
-                        newton_samples=config.newton_samples if config.newton_iterations else 0))
+                        newton_samples=config.newton_samples if config.newton_iterations else 0,
+                        source=q.source))
         if key is not None:
             records = [h for h in result.history if h.load_factor == key]
             convergence[f"{q.name} @ {q.level:g}"] = (

@@ -1,0 +1,140 @@
+"""Contact between the samples: a dense check grid, the points that came close, the filter.
+
+The field is continuous, so a state whose quadrature samples are all outside may still cross
+an obstacle between them. `ContactPoints` keeps the points of a dense grid (check_resolution²
+per surface) that ever came within the activation distance; they are appended to every
+sample set with shell weight 0 and a barrier weight (the trapezoidal rule on the grid), and
+they alone carry the barrier (the area samples get barrier weight 0): the contact forces are
+a fixed grid quadrature, free of the sampling noise. `refresh` evaluates the whole grid after
+accepted steps; `step_allowed` is the line-search filter's test on the area samples and the check
+points: a step in which one of them could cross an obstacle is rejected.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import torch
+
+from taichi_ndf.contact.barrier import ContactTerm
+from taichi_ndf.sampling import SurfaceSamples
+
+log = logging.getLogger(__name__)
+
+# Adaptive barrier stiffness (IPC): κ doubles whenever a grid point comes closer than
+# ADAPT_BELOW × ĝ, up to ADAPT_LIMIT × its initial value.
+ADAPT_BELOW = 0.1
+ADAPT_LIMIT = 1024.0
+
+
+class ContactPoints:
+    """The contact term with its dense grid and the check points added so far.
+
+    term: the `ContactTerm`; surface: the reference surface; resolution: grid points per
+    coordinate."""
+
+    def __init__(self, term: ContactTerm, surface, resolution: int, *,
+                 dtype: torch.dtype = torch.float64):
+        self.term = term
+        self.initial_stiffness = term.stiffness
+        self.surface = surface
+        (lo1, hi1), (lo2, hi2) = surface.domain.bounds
+        s = torch.linspace(0, 1, resolution, dtype=dtype)
+        g1, g2 = torch.meshgrid(lo1 + (hi1 - lo1) * s, lo2 + (hi2 - lo2) * s, indexing="ij")
+        xi = torch.stack((g1.reshape(-1), g2.reshape(-1)), dim=1)
+        # trapezoidal rule (half weight on the edges of the rectangle), scaled so that the
+        # weights of the points inside the domain add up to its area |Ω|
+        ends = torch.ones(resolution, dtype=dtype)
+        ends[0] = ends[-1] = 0.5
+        weight = (ends[:, None] * ends[None, :]).reshape(-1)
+        inside = surface.domain.contains(xi)
+        self.grid_xi = xi[inside]
+        self.grid_weight = weight[inside] * (surface.domain.area / float(weight[inside].sum()))
+        self.grid_r = surface.jets(self.grid_xi)[:, 0]
+        self.active = torch.zeros(len(self.grid_xi), dtype=torch.bool)
+        self._samples = None
+
+    @property
+    def count(self) -> int:
+        return int(self.active.sum())
+
+    def samples(self) -> SurfaceSamples | None:
+        """The check points as samples (shell weight 0, their barrier weight), or None."""
+        if self._samples is None and self.count:
+            xi = self.grid_xi[self.active]
+            self._samples = SurfaceSamples(xi, self.surface.jets(xi), xi.new_zeros(len(xi)),
+                                           xi.new_zeros(len(xi), 3),
+                                           self.grid_weight[self.active])
+        return self._samples
+
+    def augment(self, samples: SurfaceSamples) -> SurfaceSamples:
+        """`samples` with barrier weight 0, followed by the check points."""
+        base = replace(samples, barrier_weight=torch.zeros_like(samples.weight))
+        check = self.samples()
+        if check is None:
+            return base
+        return base.joined(check.to(dtype=samples.xi.dtype, device=samples.xi.device))
+
+    def refresh(self, displacement, load_factor: float) -> float:
+        """Evaluate the grid (`displacement(xi) -> u (N, 3)` of the current state), add the
+        points within the activation distance; returns the smallest gap [m]."""
+        u = displacement(self.grid_xi)
+        return self.flag(self.point_gaps(self.grid_r.to(u.dtype) + u, load_factor))
+
+    def flag(self, grid_gaps: torch.Tensor) -> float:
+        """Add the grid points whose gap (the last len(grid) entries of `grid_gaps`, as
+        `filter_positions` orders them) is below the activation distance, and double the
+        barrier stiffness if one came closer than ADAPT_BELOW × ĝ; returns the smallest of
+        those gaps [m]."""
+        gaps = grid_gaps[-len(self.grid_xi):]
+        smallest = float(gaps.min())
+        if 0 < smallest < ADAPT_BELOW * self.term.activation \
+                and self.term.stiffness < ADAPT_LIMIT * self.initial_stiffness:
+            self.term.stiffness *= 2.0
+            log.debug("contact: gap %.3g m, barrier stiffness raised to %.4g N/m³", smallest,
+                      self.term.stiffness)
+        close = (gaps < self.term.activation).cpu()
+        new = close & ~self.active
+        if bool(new.any()):
+            self.active |= close
+            self._samples = None
+            log.debug("contact: %d check points added (%d in all)", int(new.sum()),
+                      self.count)
+        return smallest
+
+    def filter_positions(self, displacement, samples: SurfaceSamples) -> torch.Tensor:
+        """Positions x = r + u (M, 3) [m] of the points the Adam filter checks: the area
+        samples of `samples`, then the whole grid (`displacement(xi) -> u` of a state)."""
+        area = samples.weight > 0
+        xi = torch.cat((samples.xi[area], self.grid_xi.to(samples.xi.dtype)))
+        r = torch.cat((samples.r_jets[area, 0], self.grid_r.to(samples.xi.dtype)))
+        return r + displacement(xi)
+
+    @staticmethod
+    def checked(samples: SurfaceSamples) -> torch.Tensor:
+        """Mask (N,) of the points the Newton filter checks: positive shell or barrier
+        weight."""
+        keep = samples.weight > 0
+        if samples.barrier_weight is not None:
+            keep = keep | (samples.barrier_weight > 0)
+        return keep
+
+    def point_gaps(self, x: torch.Tensor, load_factor: float) -> torch.Tensor:
+        """Each point's smallest gap over the obstacles (N,) [m]."""
+        return self.term.gaps(x, load_factor)[0].min(dim=1).values
+
+    def step_allowed(self, start: torch.Tensor, start_gap: torch.Tensor, end: torch.Tensor,
+                     load_factor: float) -> bool:
+        """The filter's test of a step that moves the checked points from `start` to `end`
+        (M, 3) [m] (`start_gap` (M,): their gaps at the start): every point outside moves
+        by less than its gap — the signed distance is 1-Lipschitz, so it stays outside and
+        cannot tunnel through an obstacle — and no point ends deeper inside than the deepest
+        stray point started."""
+        moved = (end - start).norm(dim=1)
+        outside = start_gap > 0
+        if bool((moved[outside] >= start_gap[outside]).any()):
+            return False
+        if bool(outside.all()):
+            return True
+        return float(self.point_gaps(end, load_factor).min()) > float(start_gap.min())
