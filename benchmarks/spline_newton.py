@@ -3,7 +3,8 @@
 One configuration for every case: cubic B-splines, 4 × 4 Gauss–Legendre points per knot span
 (`span_quadrature`),
 `ProjectedNewtonConfig()` defaults, the scene's load steps; the coarsest grid follows one rule
-from the geometry (`grid_spans`), then two exact dyadic refinements (three grids), each solved
+from the geometry (`taichi_ndf.spline_grid.grid_spans`, `span_length = "auto"` of a scene),
+then two exact dyadic refinements (three grids), each solved
 from the coarser solution prolonged. Reported per case and quantity: the value on each grid,
 the Richardson-extrapolated value with its estimated error, and the error of the finest grid
 against the published reference.
@@ -27,69 +28,35 @@ import taichi_ndf
 from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
-from taichi_ndf.minimise.refinement import potential_at_load, richardson, solve_levels
-from taichi_ndf.objective import EndMomentTerm
+from taichi_ndf.minimise.refinement import richardson, solve_levels
+from taichi_ndf.objective import EndMomentTerm, Objective
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.scene import load_scene
+from taichi_ndf.spline_grid import grid_spans
 from taichi_ndf.validation import CASES, LINEARISATION, load_case_scene
 
 SCENE_DIR = Path(__file__).resolve().parents[1] / "scenes"
 DEGREE = 3
-# Grid rule: knot spans of physical size at most min(L_long / SPANS_PER_SIDE, √(R_min h))
-# (L_long: the longer side of the surface; R_min: least principal radius of curvature).
-SPANS_PER_SIDE = 8
-
-
-def surface_scales(surface, thickness: float) -> tuple[tuple[float, float], float]:
-    """Mean physical lengths of the two coordinate directions [m] and √(R_min h) [m]
-    (infinite for a flat surface), from the reference jets on a 33 × 33 grid."""
-    (lo1, hi1), (lo2, hi2) = surface.domain.bounds
-    g1, g2 = torch.meshgrid(torch.linspace(lo1, hi1, 33, dtype=torch.float64),
-                            torch.linspace(lo2, hi2, 33, dtype=torch.float64), indexing="ij")
-    r = surface.jets(torch.stack((g1.ravel(), g2.ravel()), dim=1)).double()
-    a1, a2 = r[:, jets.D1], r[:, jets.D2]
-    lengths = (float(a1.norm(dim=1).mean()) * (hi1 - lo1),
-               float(a2.norm(dim=1).mean()) * (hi2 - lo2))
-    normal = torch.linalg.cross(a1, a2)
-    normal = normal / normal.norm(dim=1, keepdim=True).clamp_min(1e-300)
-    b = torch.stack([(r[:, c] * normal).sum(dim=1) for c in (jets.D11, jets.D12, jets.D22)], 1)
-    metric = torch.stack(((a1 * a1).sum(1), (a1 * a2).sum(1), (a2 * a2).sum(1)), dim=1)
-
-    def sym(m):
-        return torch.stack((torch.stack((m[:, 0], m[:, 1]), -1),
-                            torch.stack((m[:, 1], m[:, 2]), -1)), -2)
-
-    ok = torch.isfinite(b).all(dim=1) & (torch.linalg.det(sym(metric)) > 1e-12)
-    shape_operator = torch.linalg.solve(sym(metric)[ok], sym(b)[ok])
-    curvature = float(torch.linalg.eigvals(shape_operator).abs().max())
-    bending = math.inf if curvature < 1e-12 else math.sqrt(thickness / curvature)
-    return lengths, bending
-
-
-def grid_spans(surface, thickness: float) -> tuple[int, int]:
-    """The grid rule (module docstring)."""
-    lengths, bending = surface_scales(surface, thickness)
-    size = min(max(lengths) / SPANS_PER_SIDE, bending)
-    return tuple(max(1, math.ceil(length / size - 1e-9)) for length in lengths)
 
 
 def run_validation_case(name: str, levels: int, config: ProjectedNewtonConfig) -> dict:
     case = CASES[name]
     scene, model, _ = load_case_scene(case)
     surface = model.surface
-    spans = grid_spans(surface, model.material.thickness)
+    spans = grid_spans(surface, model.material.thickness, model.boundary.narrowest_band)
     domain = surface.domain
     field = SplineField(SplineConfig(spans=spans, degree=DEGREE, domain=domain.bounds,
                                      periodic=domain.periodic))
-    end_moment = None
+    objective = Objective.of_model(model)
     if case.end_moment is not None:
-        end_moment = EndMomentTerm(case.end_moment(model), domain.lengths[1])
+        objective = objective.with_terms(
+            EndMomentTerm(case.end_moment(model), domain.lengths[1]))
     probes = {p.name: p.xi for p in model.probes}
     load_steps = tuple(scene.solver.load_steps)
     started = time.perf_counter()
     results = solve_levels(
         field, model.boundary, lambda f: span_quadrature(surface, f.config, model.loads),
-        potential_at_load(model.material, model.loads, end_moment), levels=levels,
+        objective, levels=levels,
         load_steps=load_steps, config=config, probes=probes,
         length=math.sqrt(domain.rectangle_area))
     wall = time.perf_counter() - started
@@ -130,14 +97,14 @@ def run_napkin(levels: int, coarsest: int, config: ProjectedNewtonConfig) -> dic
     # Compile (or load from the cache) the energy and basis kernels first: reported apart.
     started = time.perf_counter()
     warm = span_quadrature(surface, field.config, model.loads)
-    potential_at_load(model.material, model.loads)(1.0)(
+    Objective.of_model(model).potential(1.0)(
         warm, torch.zeros(len(warm), jets.CHANNELS, 3, dtype=field.coefficients.dtype), True)
     field.local_basis(warm.xi)
     compile_seconds = time.perf_counter() - started
     started = time.perf_counter()
     results = solve_levels(
         field, model.boundary, lambda f: span_quadrature(surface, f.config, model.loads),
-        potential_at_load(model.material, model.loads), levels=levels, config=config,
+        Objective.of_model(model), levels=levels, config=config,
         probes={p.name: p.xi for p in model.probes},
         length=math.sqrt(surface.domain.rectangle_area))
     wall = time.perf_counter() - started

@@ -105,6 +105,16 @@ class DisplacementOperator:
         values = self.field.evaluate(self._points(xi, conditioning), conditioning)
         return self._compose(xi, jets.constant(values), t)[:, jets.VALUE]
 
+    def prescribed(self, xi: torch.Tensor, *, t: float | torch.Tensor = 1.0,
+                   dtype: torch.dtype | None = None) -> torch.Tensor:
+        """Displacement jets (N, 6, 3) [m] at ξ of a zero raw field: the prescribed part g of
+        u = φ N + g (zero without boundary conditions). u is affine in a linear field's
+        parameters, so u = prescribed + jacobian · θ."""
+        dtype = dtype or xi.dtype
+        points = self.evaluation_points(xi)
+        raw = torch.zeros(points.shape[0], jets.CHANNELS, 3, dtype=dtype, device=xi.device)
+        return self._compose(xi.to(dtype), raw, t)
+
     # -- Jacobians with respect to a linear block of parameters ------------------------------
     def jacobian(self, xi: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
         """Jacobian (3, N, 6, p) of u at ξ with respect to θ_k when each raw component is

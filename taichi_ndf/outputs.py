@@ -167,8 +167,11 @@ def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0,
     save_png(out.file(name), image)
 
 
-def write_energy_plot(out: OutputDir, name: str, history) -> None:
-    """Π over iterations (and, when Π changes sign, |Π − Π_final| on a log axis)."""
+def write_energy_plot(out: OutputDir, name: str, history, refinement: dict | None = None
+                      ) -> None:
+    """Π over iterations and |Π − Π_final| / |Π_final| on a log axis; with `refinement` (a
+    spline run on several grids: `SplineRun.refinement`) also Π per grid level with its
+    Richardson-extrapolated value."""
     if not history:
         return
     it = np.array([h.iteration for h in history], dtype=np.float64)
@@ -179,7 +182,16 @@ def write_energy_plot(out: OutputDir, name: str, history) -> None:
     bottom = plot_curves({"|Pi - Pi_final| / |Pi_final|": (it[:-1], gap[:-1])},
                          title="Relative distance to the final energy", xlabel="iteration",
                          ylabel="relative gap", log_y=True, height=400)
-    save_png(out.file(name), np.concatenate((top, bottom), axis=0))
+    panels = [top, bottom]
+    if refinement is not None:
+        values = np.array(refinement["energy"]["values"], dtype=np.float64)
+        level = np.arange(len(values), dtype=np.float64)
+        limit = np.full_like(level, refinement["energy"]["extrapolated"])
+        panels.append(plot_curves(
+            {"Pi per grid level": (level, values), "Richardson extrapolation": (level, limit)},
+            title="Refinement: Pi on each grid (spans doubled per level)",
+            xlabel="grid level", ylabel="Pi [J]", height=400))
+    save_png(out.file(name), np.concatenate(panels, axis=0))
 
 
 def trajectory_mesh_name(index: int) -> str:

@@ -32,6 +32,7 @@ from taichi_ndf.optim import AdamConfig
 from taichi_ndf.pseudo_time import TIME_RANGE
 from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.scene_contact import parse_contact
+from taichi_ndf.scene_field import field_config, newton_training, with_field_type
 from taichi_ndf.scene_schema import SceneError, Table, read_toml
 from taichi_ndf.scene_schema import checked as _check
 from taichi_ndf.shell.materials import (
@@ -41,6 +42,7 @@ from taichi_ndf.shell.materials import (
     OrthotropicStVK,
     preset,
 )
+from taichi_ndf.spline_grid import SplinePlan
 from taichi_ndf.training import SolverConfig
 
 GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "annulus", "mesh")
@@ -65,7 +67,7 @@ class Scene:
     name: str
     description: str
     model: ShellModel
-    field: FieldConfig
+    field: FieldConfig | SplinePlan  # a SIREN's configuration, or a spline field's grids
     solver: SolverConfig
     quick_solver: SolverConfig
     output: OutputConfig
@@ -73,15 +75,19 @@ class Scene:
     document: dict  # the parsed TOML, for result.json
 
 
-def load_scene(path: str | Path, *, material: str | None = None) -> Scene:
+def load_scene(path: str | Path, *, material: str | None = None,
+               field: str | None = None) -> Scene:
     """Read and validate a scene file; relative paths inside it are relative to the file.
 
     material: a preset name that replaces the scene's [material] table.
+    field: "siren" or "spline" to solve the scene with that field (`with_field_type`).
     """
     path = Path(path)
     document = read_toml(path, "scene file")
     if material is not None:
         document["material"] = {"preset": material}
+    if field is not None:
+        document = with_field_type(document, field)
     return parse_scene(document, base_dir=path.parent, path=path)
 
 
@@ -97,9 +103,13 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     probes = tuple(Probe(t.string("name"), t.vector("xi", 2)) for t in top.tables("probes"))
     model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
     model = replace(model, contact=parse_contact(top, model, base_dir))
-    field = _section(top.table("field", optional=True), _field, model, loads)
-    solver, quick = _section(top.table("training", optional=True), _training)
+    field = _section(top.table("field", optional=True), field_config, model)
+    solver, quick = _section(top.table("training", optional=True), _training,
+                             isinstance(field, SplinePlan))
     output = _section(top.table("output", optional=True), _output, solver.pseudo_time)
+    if solver.pseudo_time and isinstance(field, SplinePlan):
+        raise SceneError("training.pseudo_time: needs a SIREN field (a spline field has no "
+                         "pseudo-time input)")
     if solver.pseudo_time:
         if model.contact is not None:
             raise SceneError("training.pseudo_time: not available with [[obstacles]]")
@@ -270,23 +280,6 @@ def _boundary(t: Table, surface) -> BoundaryConditions:
     return BoundaryConditions(constraints, surface.domain, surface=surface, **kwargs)
 
 
-def _field(t: Table, model: ShellModel, loads: Loads) -> FieldConfig:
-    scale = t._get("output_scale", "auto")
-    if scale == "auto":
-        from taichi_ndf.scaling import characteristic_displacement
-
-        scale = characteristic_displacement(model)
-    elif isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
-        raise SceneError(f"{t.key('output_scale')}: expected \"auto\" or a positive number "
-                         f"[m], got {scale!r}")
-    domain = model.surface.domain
-    return FieldConfig(width=t.integer("width", 128, minimum=1),
-                       hidden_layers=t.integer("hidden_layers", 3, minimum=1),
-                       omega0=t.number("omega0", 30.0, positive=True),
-                       domain=domain.bounds, periodic=domain.periodic,
-                       output_scale=float(scale))
-
-
 def _adam(t: Table) -> dict:
     lr = t.number("learning_rate", 1e-3, positive=True)
     return {"lr": lr,
@@ -335,7 +328,14 @@ def _solver(t: Table, adam: dict, defaults: SolverConfig | None = None) -> Solve
     return config
 
 
-def _training(t: Table) -> tuple[SolverConfig, SolverConfig]:
+def _training(t: Table, spline: bool) -> tuple[SolverConfig, SolverConfig]:
+    method = t.string("method", "newton" if spline else "adam", choices=("adam", "newton"))
+    if method == "newton":
+        if not spline:
+            raise SceneError(f"{t.key('method')}: \"newton\" (projected Newton) needs [field] "
+                             "type = \"spline\"; a SIREN field trains with \"adam\" (and its "
+                             "last-layer Newton phases: newton_iterations)")
+        return newton_training(t)
     adam = _adam(t)
     quick_table = t.table("quick", optional=True)
     solver = _solver(t, adam)

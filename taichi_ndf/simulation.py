@@ -13,7 +13,7 @@ from taichi_ndf.checkpoint import read_checkpoint
 from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
-from taichi_ndf.field import NeuralField
+from taichi_ndf.field import NeuralField, SplineField
 from taichi_ndf.io import OutputDir, read_mesh
 from taichi_ndf.io.run_files import read_run, up_direction
 from taichi_ndf.outputs import (
@@ -33,6 +33,7 @@ from taichi_ndf.pseudo_time import frame_times
 from taichi_ndf.scene import Scene, parse_scene
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
+from taichi_ndf.spline_grid import SplinePlan
 
 log = logging.getLogger(__name__)
 
@@ -41,10 +42,10 @@ FORMAT_VERSION = 1
 RUN_FILES = ("mesh.obj", "mesh.ply", "reference.obj", "probes.json", "render.png", "energy.png",
              "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4",
              "obstacles")
-# Scene sections a resumed run may change: how long and how it trains, what it writes.
-RESUMABLE_CHANGES = ("name", "description", "training", "output")
 # Grid cells per coordinate (256² points) of the clearance to the obstacles in result.json.
 CONTACT_GRID = (255, 255)
+# Scene sections a resumed run may change: how long and how it trains, what it writes.
+RESUMABLE_CHANGES = ("name", "description", "training", "output")
 
 
 class SimulationError(RuntimeError):
@@ -70,6 +71,10 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     seed = config.seed if seed is None else seed
     if resume:
         _check_same_scene(out.file("checkpoint.pt"), scene)
+    if isinstance(scene.field, SplinePlan):
+        if config.method != "newton":
+            raise ValueError("a spline field is solved with [training] method = \"newton\"")
+        return _simulate_spline(scene, out, config, resume=resume, machine=machine, seed=seed)
     field = NeuralField(scene.field, seed=seed)
     step_frames = len(config.load_steps) > 1 and not config.pseudo_time
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
@@ -108,12 +113,6 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
             energy.append(run.energy_and_gradient(run.monitor_samples(), t, grad=False).total)
         write_trajectory_video(out, pictures)
         trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy}
-    mesh = deformed_mesh(scene.model, field, scene.output.resolution,
-                         pseudo_time=config.pseudo_time)
-    for name, values in mesh.scalars().items():
-        if not all(math.isfinite(float(v)) for v in values):
-            raise SimulationError(f"non-finite {name} in the exported mesh")
-    write_mesh_files(out, "mesh", mesh)
     contact, obstacle_meshes = None, ()
     if scene.model.contact is not None:
         write_obstacles(scene.model.contact, out)
@@ -123,35 +122,126 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         contact["evaluation_grid"] = list(CONTACT_GRID)
         contact.update(check_points=run.contact.count, rejected_steps=run.rejected_steps,
                        final_stiffness=run.contact.term.stiffness)
+    _write_field_outputs(scene, out, field, result.probes, result.history,
+                         pseudo_time=config.pseudo_time, obstacles=obstacle_meshes)
+    summary = _summary(scene, config, seed, result.energy, result.iterations, result.wall_time,
+                       result.probes, trajectory, scene.field.to_dict(), machine,
+                       result.history, contact)
+    return _finish(scene, out, summary)
+
+
+def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, history, *,
+                         pseudo_time: bool = False, refinement: dict | None = None,
+                         obstacles: tuple = ()) -> None:
+    """mesh.obj/.ply, reference.obj, probes.json, render.png and energy.png of the final
+    field."""
+    mesh = deformed_mesh(scene.model, field, scene.output.resolution, pseudo_time=pseudo_time)
+    for name, values in mesh.scalars().items():
+        if not all(math.isfinite(float(v)) for v in values):
+            raise SimulationError(f"non-finite {name} in the exported mesh")
+    write_mesh_files(out, "mesh", mesh)
     write_reference_mesh(out, mesh)
-    write_probe_points(out, scene.model, result.probes)
+    write_probe_points(out, scene.model, probes)
     write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
-                 views=scene.output.views, obstacles=obstacle_meshes)
-    write_energy_plot(out, "energy.png", result.history)
-    summary = {
+                 views=scene.output.views, obstacles=obstacles)
+    write_energy_plot(out, "energy.png", history, refinement)
+
+
+def _summary(scene: Scene, config: SolverConfig, seed: int, energy: float, iterations: int,
+             wall_time: float, probes: dict, trajectory, field: dict, machine: dict | None,
+             history, contact: dict | None = None) -> dict:
+    return {
         "format_version": FORMAT_VERSION,
         "scene": scene.name,
         "seed": seed,
-        "energy": result.energy,
-        "iterations": result.iterations,
-        "wall_time": result.wall_time,
-        "probes": result.probes,
+        "energy": energy,
+        "iterations": iterations,
+        "wall_time": wall_time,
+        "probes": probes,
         "trajectory": trajectory,
         "contact": contact,
         "resolved": {
-            "field": scene.field.to_dict(),
+            "field": field,
             "solver": _plain(dataclasses.asdict(config)),
             "output": dataclasses.asdict(scene.output),
             "scene_file": scene.document,
         },
         "machine": machine or {},
-        "history": [dataclasses.asdict(h) for h in result.history],
+        "history": [dataclasses.asdict(h) for h in history],
     }
+
+
+def _finish(scene: Scene, out: OutputDir, summary: dict) -> dict:
     out.write_json("result.json", summary)
     if scene.output.usd:
         write_run_usd(read_run(out.path), out.file("result.usdc"))
     log.info("wrote outputs of %s to %s", scene.name, out.path)
     return summary
+
+
+def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resume: bool,
+                     machine: dict | None, seed: int) -> dict:
+    """`simulate` for a spline field solved by projected Newton (`spline_solver`): a
+    checkpoint after every grid level (the field and the levels' summaries; --resume goes on
+    from the last finished level), result.json with the per-iteration Newton history and, with
+    several levels, the refinement study."""
+    from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
+    from taichi_ndf.spline_solver import LevelSummary, NewtonRecord, solve_spline
+
+    if scene.model.contact is not None:
+        raise ValueError("[[obstacles]]: contact is solved on the SIREN path only (the "
+                         "projected-Newton spline path has no contact term yet)")
+    checkpoint = out.file("checkpoint.pt")
+    start, done, history = None, None, None
+    extra = {"scene": scene.document, "scene_dir": str(scene.path.parent.resolve())}
+    if resume:
+        stored = load_checkpoint(checkpoint)
+        if not isinstance(stored.extra.get("levels"), list):
+            raise SimulationError(f"--resume: {checkpoint} holds no spline levels; it was not "
+                                  "written by a method = \"newton\" run")
+        start = stored.field
+        done = [LevelSummary(**{**d, "spans": tuple(d["spans"])})
+                for d in stored.extra["levels"]]
+        history = [NewtonRecord(**{**h, "spans": tuple(h["spans"])})
+                   for h in stored.extra["history"]]
+    step_frames = len(config.load_steps) > 1
+    frames: dict[int, DeformedMesh] = {}
+
+    def on_level(run) -> None:
+        save_checkpoint(checkpoint, run.field, extra={
+            **extra, "levels": [dataclasses.asdict(lv) for lv in run.levels],
+            "history": [dataclasses.asdict(h) for h in run.history]})
+        if config.progress:
+            last = run.levels[-1]
+            print(f"level {last.level} ({last.spans[0]} × {last.spans[1]} spans): "
+                  f"Π = {last.energy:.8g} J, {last.iterations} Newton iterations, "
+                  f"{last.seconds:.1f} s", flush=True)
+        if step_frames:
+            for t, coefficients in run.steps:
+                index = config.load_steps.index(t)
+                field = SplineField(run.field.config)
+                field.coefficients.copy_(coefficients)
+                frames[index] = deformed_mesh(scene.model, field, scene.output.resolution,
+                                              load_factor=t)
+                write_trajectory_mesh(out, index, frames[index])
+
+    run = solve_spline(scene.model, scene.field, config, start=start, done=done,
+                       history=history, on_level=on_level)
+    if not run.levels[-1].converged:
+        log.warning("projected Newton did not converge on the finest grid (see result.json "
+                    "history)")
+    trajectory = None
+    if step_frames:
+        trajectory = _load_step_trajectory(out, config.load_steps, frames, run.history)
+    refinement = run.refinement(scene.field.config.degree)
+    _write_field_outputs(scene, out, run.field, run.probes, run.history, refinement=refinement)
+    summary = _summary(scene, config, seed, run.energy, len(run.history), run.wall_time,
+                       run.probes, trajectory, {**scene.field.to_dict(),
+                                                "finest_spans": list(run.field.config.spans)},
+                       machine, run.history)
+    summary["levels"] = [dataclasses.asdict(lv) for lv in run.levels]
+    summary["refinement"] = refinement
+    return _finish(scene, out, summary)
 
 
 def _check_same_scene(checkpoint: Path, scene: Scene) -> None:

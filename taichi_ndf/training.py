@@ -11,6 +11,8 @@ from dataclasses import dataclass, field, replace
 from taichi_ndf import checks
 from taichi_ndf.optim import AdamConfig
 
+METHODS = ("adam", "newton")
+
 
 @dataclass(frozen=True)
 class SolverConfig:
@@ -30,6 +32,12 @@ class SolverConfig:
     pseudo_time: train a field whose one conditioning input is the load factor t over all t in
         [pseudo_time_start, λ] at once (module docstring); λ is the current load step.
     pseudo_time_start: the smallest t trained, in [0, first load step).
+    method: "adam" (the Adam / Newton / L-BFGS phases above, SIREN or spline field) or
+        "newton" (projected Newton over a spline field's coefficients on fixed Gauss points,
+        load continuation over `load_steps`, coarse to fine over the field's levels; the
+        Adam keys do not apply).
+    newton_max_iterations: most projected-Newton iterations per load step and level.
+    max_levels: most grid levels a Newton run solves (0: all of the field's; 1 for --quick).
     """
 
     iterations: int = 1500
@@ -47,8 +55,18 @@ class SolverConfig:
     progress: bool = True
     pseudo_time: bool = False
     pseudo_time_start: float = 0.0
+    method: str = "adam"
+    newton_max_iterations: int = 100
+    max_levels: int = 0
 
     def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {list(METHODS)}, got {self.method!r}")
+        if self.newton_max_iterations < 1 or self.max_levels < 0:
+            raise ValueError(f"newton_max_iterations must be >= 1 and max_levels >= 0, got "
+                             f"{self.newton_max_iterations}, {self.max_levels}")
+        if self.method == "newton" and self.pseudo_time:
+            raise ValueError("pseudo_time needs method 'adam' (a SIREN field)")
         if self.iterations < 0:
             raise ValueError(f"iterations must be >= 0, got {self.iterations}")
         if self.samples < 16:

@@ -14,7 +14,9 @@ from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
-from taichi_ndf.minimise.refinement import potential_at_load, richardson, solve_levels
+from taichi_ndf.minimise.refinement import richardson, solve_levels
+from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.scene import load_scene
 from taichi_ndf.shell.energy import ShellEnergy
@@ -89,8 +91,9 @@ def _case(boundary_kind):
     samples = span_quadrature(surface, field.config, loads, points=3, dtype=DT)
     generator = torch.Generator().manual_seed(2)
     coefficients = 0.02 * torch.randn(field.parameters[0].shape, generator=generator, dtype=DT)
-    assembly = Assembly(samples, local_basis_at(field, boundary, samples.xi),
-                        coefficients.shape[0]).at_load(boundary, 1.0)
+    operator = DisplacementOperator(field, boundary)
+    assembly = Assembly(samples, local_basis_at(operator, samples.xi),
+                        coefficients.shape[0]).at_load(operator, 1.0)
     shell = _potential(material, loads)
 
     def potential(s, u, grad):
@@ -153,7 +156,7 @@ def _solve(scene_model, spans, load_steps, config=None, probes=None, levels=1):
     field = SplineField(SplineConfig(spans=spans, domain=surface.domain.bounds), dtype=DT)
     return solve_levels(field, boundary,
                         lambda f: span_quadrature(surface, f.config, loads, dtype=DT),
-                        potential_at_load(material, loads), levels=levels,
+                        Objective(ShellEnergyTerm(material, loads)), levels=levels,
                         load_steps=load_steps, config=config,
                         probes=probes or {}, length=math.sqrt(surface.domain.rectangle_area))
 

@@ -135,6 +135,13 @@ class BoundaryConditions:
                                            if isinstance(c, SymmetryPlane)])
         check_symmetry_planes(self._terms, domain)
 
+    @property
+    def narrowest_band(self) -> float | None:
+        """The narrowest vanishing band ℓ of the constraints (a fraction of the domain extent;
+        None without vanishing factors, e.g. a free pin alone): a discretisation must resolve
+        the factors' ramps of that width."""
+        return min((term.length for term in self._terms), default=None)
+
     # ---- composition -------------------------------------------------------------------
 
     def evaluation_points(self, xi: torch.Tensor) -> torch.Tensor:

@@ -13,6 +13,7 @@ from taichi_ndf.io.memory import check_export_memory
 from taichi_ndf.outputs import exports_on_template
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
+from taichi_ndf.spline_grid import SplinePlan
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,6 +26,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, help="samples per iteration (overrides scene)")
     p.add_argument("--material", help="replace the scene's material by a preset "
                    "(cloth, canvas, cotton, silk)")
+    p.add_argument("--field", choices=("siren", "spline"),
+                   help="solve with this field type: spline = a B-spline field solved by "
+                   "projected Newton on the grid rule's grid (docs/scenes.md); keeps the "
+                   "scene's load steps and seed, other field and training settings default")
+    p.add_argument("--refine", type=int, metavar="K",
+                   help="spline field: solve on K successively refined grids (replaces "
+                   "[field] levels) and report Π and every probe per level with the "
+                   "Richardson-extrapolated value and its estimated error")
     p.add_argument("--quick", action="store_true",
                    help="a short run with the scene's [training.quick] settings (smoke test)")
     p.add_argument("--resume", action="store_true",
@@ -37,14 +46,30 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def refined_scene(scene, levels: int):
+    """The scene with its spline field solved on `levels` grids (--refine)."""
+    if not isinstance(scene.field, SplinePlan):
+        raise ValueError("--refine needs a spline field ([field] type = \"spline\" or "
+                         "--field spline)")
+    if levels < 1:
+        raise ValueError(f"--refine must be >= 1, got {levels}")
+    return dataclasses.replace(scene, field=dataclasses.replace(scene.field, levels=levels))
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     staging = incomplete_path(args.out)
     try:
         from taichi_ndf.scene import load_scene, trains_the_field
 
-        scene = load_scene(args.scene, material=args.material)
+        scene = load_scene(args.scene, material=args.material, field=args.field)
         solver = scene.quick_solver if args.quick else scene.solver
+        if args.refine is not None:
+            scene = refined_scene(scene, args.refine)
+            solver = dataclasses.replace(solver, max_levels=0)
+        if solver.method == "newton" and (args.iters is not None or args.samples is not None):
+            raise ValueError("--iters and --samples set Adam; this scene is solved by "
+                             "projected Newton ([training] method = \"newton\")")
         if args.iters is not None:
             if args.iters < 0:
                 raise ValueError(f"--iters must be >= 0, got {args.iters}")

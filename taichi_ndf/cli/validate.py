@@ -33,6 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="short runs with each scene's [training.quick] settings (smoke test)")
     p.add_argument("--iters", type=nonnegative_int,
                    help="Adam iterations per load step (overrides the scenes)")
+    p.add_argument("--field", choices=("siren", "spline"), default="siren",
+                   help="spline: every case with one default spline configuration solved by "
+                   "projected Newton on three grids (the grid rule's, then refined twice; "
+                   "--quick: one), read on the finest")
     p.add_argument("--scenes", type=Path, default=SCENES_DIR,
                    help=f"folder of the case scene files (default: {SCENES_DIR})")
     p.add_argument("--overwrite", action="store_true",
@@ -64,8 +68,8 @@ def main(argv: list[str] | None = None) -> int:
         for case in cases:
             name = case.name
             result = run_case(case, quick=args.quick, iterations=args.iters,
-                              scenes_dir=args.scenes,
-                              seed=args.seed)
+                              scenes_dir=args.scenes, seed=args.seed,
+                              field=args.field)
             results.append(result)
             for row in result.rows:
                 value = "not run" if row.computed is None else f"{row.computed:.5g}"

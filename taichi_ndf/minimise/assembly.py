@@ -6,7 +6,8 @@ boundary composition u = φ N + g is pointwise and affine in N, so at the fixed 
 
     U_q = G_q + J_q · C_q      (C_q: the 3k coefficients acting at q),
 
-with J_q from `compose_jacobian` and G_q = compose(ξ, 0) the prescribed part. A free pin
+with J_q and G_q (the prescribed part) from the displacement operator
+(`DisplacementOperator.local_jacobian`, `.prescribed`). A free pin
 (u = N(ξ) − N(ξ₀)) makes every point also depend on the k coefficients acting at the pin ξ₀
 (a "shared" set, the same for all points). Then
 
@@ -30,6 +31,7 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS
 
@@ -48,38 +50,30 @@ class LocalBasis:
     pin_jets: torch.Tensor | None = None
 
 
-def local_basis_at(field, boundary: BoundaryConditions, xi: torch.Tensor) -> LocalBasis:
-    """The field's local basis (`field.local_basis`) at ξ (N, 2), and at a free pin."""
-    index, basis = field.local_basis(boundary.evaluation_points(xi))
-    if boundary.free_pin is None:
+def local_basis_at(operator: DisplacementOperator, xi: torch.Tensor) -> LocalBasis:
+    """The local basis (`field.local_basis`) of the operator's field at ξ (N, 2), and at a
+    free pin."""
+    index, basis = operator.field.local_basis(operator.evaluation_points(xi))
+    if not operator.free_pin:
         return LocalBasis(index, basis)
     return LocalBasis(index[:-1], basis[:-1], index[-1], basis[-1])
 
 
-def composed_jacobian(boundary: BoundaryConditions, xi: torch.Tensor, basis: LocalBasis,
-                      load_factor: float
-                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-    """The one adapter to the boundary composition: at ξ (N, 2) and load factor t,
-    U = offset + Σ_a J[:, :, :, a] C[a] with
-    offset (N, 6, 3) [m] the prescribed displacement (compose of a zero raw field),
+def linearised(operator: DisplacementOperator, xi: torch.Tensor, basis: LocalBasis,
+               load_factor: float
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """U = offset + Σ_a J[:, :, :, a] C[a] at ξ (N, 2) and load factor t, from the operator:
+    offset (N, 6, 3) [m] the prescribed displacement (`operator.prescribed`),
     jacobian (3, N, 6, k): J[c, q, :, a] = ∂u_c(ξ_q)/∂C[index[q, a], c],
-    pin_jacobian (3, N, 6, k) the same for the pin's coefficients (None without a free pin).
-    """
-    n, k = basis.index.shape
+    pin_jacobian (3, N, 6, k) the same for the pin's coefficients, the same at every point
+    (an expanded view; None without a free pin)."""
     dtype = basis.jets.dtype
     xi = xi.to(dtype)
-    if basis.pin_index is None:
-        extended = basis.jets
-    else:  # point rows act on the local columns, the pin row on the pin's columns
-        extended = basis.jets.new_zeros(n + 1, jets.CHANNELS, 2 * k)
-        extended[:n, :, :k] = basis.jets
-        extended[n, :, k:] = basis.pin_jets
-    zero = basis.jets.new_zeros(extended.shape[0], jets.CHANNELS, COMPONENTS)
-    offset = boundary.compose(xi, zero, t=load_factor)
-    jacobian = boundary.compose_jacobian(xi, extended)
-    if basis.pin_index is None:
-        return offset, jacobian, None
-    return offset, jacobian[..., :k].contiguous(), jacobian[..., k:].contiguous()
+    full = basis.jets if basis.pin_jets is None else torch.cat((basis.jets, basis.pin_jets[None]))
+    offset = operator.prescribed(xi, t=load_factor, dtype=dtype)
+    local = operator.local_jacobian(xi, full)
+    pin = None if local.pin is None else local.pin[:, None].expand(-1, xi.shape[0], -1, -1)
+    return offset, local.own, pin
 
 
 def _weighted(blocks: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
@@ -105,7 +99,7 @@ class Assembly:
 
     samples: the quadrature points; basis: the local basis there (`local_basis_at`);
     n_coefficients: coefficients of the field (unknowns: 3 × that).
-    Call `at_load(boundary, load_factor)` before use (the prescribed part depends on t).
+    Call `at_load(operator, load_factor)` before use (the prescribed part depends on t).
     Points acting on the same coefficients (the Gauss points of one knot span) are summed
     before the scatter, so the sparse pattern has one (3k)² block per span; `samples` holds
     the points in the assembly's own order (use it, not the samples passed in).
@@ -146,10 +140,10 @@ class Assembly:
         self._groups = groups.shape[0]
         self.offset = self.jacobian = self.pin_jacobian = None
 
-    def at_load(self, boundary: BoundaryConditions, load_factor: float) -> Assembly:
-        """Linearise the composition at load factor t (see `composed_jacobian`)."""
-        self.offset, self.jacobian, self.pin_jacobian = composed_jacobian(
-            boundary, self.samples.xi, self.basis, load_factor)
+    def at_load(self, operator: DisplacementOperator, load_factor: float) -> Assembly:
+        """Linearise the composition at load factor t (see `linearised`)."""
+        self.offset, self.jacobian, self.pin_jacobian = linearised(
+            operator, self.samples.xi, self.basis, load_factor)
         if self.pin_jacobian is not None:
             used = self.pin_jacobian.abs().amax(dim=(0, 1, 3)) > 0
             self._pin_channels = torch.nonzero(used).flatten()
@@ -233,12 +227,12 @@ class Assembly:
         return (matrix + coupling + coupling.T + pin_block).tocsr()
 
 
-def displacement_at(field, boundary: BoundaryConditions, xi: torch.Tensor,
+def displacement_at(operator: DisplacementOperator, xi: torch.Tensor,
                     coefficients: torch.Tensor, load_factor: float) -> torch.Tensor:
-    """Displacement jets (N, 6, 3) [m] at ξ (N, 2) of the field with `coefficients` (n, 3),
-    composed with the boundary conditions at load factor t (e.g. at probe points)."""
-    basis = local_basis_at(field, boundary, xi)
-    offset, jacobian, pin_jacobian = composed_jacobian(boundary, xi, basis, load_factor)
+    """Displacement jets (N, 6, 3) [m] at ξ (N, 2) of the operator's field with `coefficients`
+    (n, 3) in place of its own, at load factor t (e.g. at probe points)."""
+    basis = local_basis_at(operator, xi)
+    offset, jacobian, pin_jacobian = linearised(operator, xi, basis, load_factor)
     u = offset + torch.einsum("cnja,nac->njc", jacobian, coefficients[basis.index])
     if pin_jacobian is not None:
         u = u + torch.einsum("cnja,ac->njc", pin_jacobian, coefficients[basis.pin_index])

@@ -24,13 +24,11 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.minimise.assembly import Assembly
 from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.shell.hessian import (
@@ -218,26 +216,3 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             damping = 0.0
     energy = potential(samples, assembly.displacement(c), False).total
     return NewtonSolution(coefficients=c, energy=energy, converged=converged, history=history)
-
-
-def solve_load_steps(assembly: Assembly, boundary: BoundaryConditions,
-                     potential_at: Callable[[float], Potential], coefficients: torch.Tensor,
-                     load_steps: tuple[float, ...], config: ProjectedNewtonConfig | None = None,
-                     *, length: float = 1.0, fixed: np.ndarray | None = None,
-                     on_load_step: Callable[[float, NewtonSolution], None] | None = None
-                     ) -> NewtonSolution:
-    """Load continuation: minimise at each load factor in turn, each from the previous
-    solution. potential_at(t): Π at load factor t. Returns the last solution with the
-    history of all steps."""
-    history: list[NewtonIteration] = []
-    solution = None
-    for t in load_steps:
-        assembly.at_load(boundary, t)
-        solution = minimise(assembly, potential_at(t), coefficients, config, load_factor=t,
-                            length=length, fixed=fixed)
-        history += solution.history
-        coefficients = solution.coefficients
-        if on_load_step is not None:
-            on_load_step(t, solution)
-    solution.history = history
-    return solution

@@ -26,7 +26,6 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
-from taichi_ndf.loads import Loads
 from taichi_ndf.minimise.assembly import (
     Assembly,
     displacement_at,
@@ -38,10 +37,9 @@ from taichi_ndf.minimise.projected_newton import (
     ProjectedNewtonConfig,
     minimise,
 )
+from taichi_ndf.objective import Objective
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
-from taichi_ndf.shell.energy import ShellEnergy
-from taichi_ndf.shell.hessian import Potential
-from taichi_ndf.shell.materials import Material
 
 log = logging.getLogger(__name__)
 
@@ -93,43 +91,24 @@ def richardson(values: list[float], order: float | None = None) -> Extrapolation
     return Extrapolation(limit, abs(limit - v2), order)
 
 
-def potential_at_load(material: Material, loads: Loads, extra=None
-                      ) -> Callable[[float], Potential]:
-    """potential_at(t) for `solve_levels`: Π at load factor t of the shell with every load × t
-    — distributed loads and the point forces the samples carry unscaled (`with_point_loads`
-    of the unscaled loads). extra: an additional energy term with the signature of
-    `EndMomentTerm.evaluate` (samples, u_jets, t, grad=) -> (Π_extra, dΠ_extra/du_jets), or
-    None."""
-    energy = ShellEnergy(material, loads)
-
-    def potential_at(t: float) -> Potential:
-        def potential(samples, u, grad):
-            factor = torch.full((len(samples),), t, dtype=u.dtype, device=u.device)
-            result = energy.evaluate(samples, u, grad=grad, load_factor=factor)
-            if extra is not None:
-                work, work_grad = extra.evaluate(samples, u, t, grad=grad)
-                result.total += work
-                result.external += work
-                if grad:
-                    result.grad_u_jets = result.grad_u_jets + work_grad
-            return result
-        return potential
-    return potential_at
-
-
 def solve_levels(field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples],
-                 potential_at: Callable[[float], Potential], *, levels: int,
+                 objective: Objective, *, levels: int,
                  load_steps: tuple[float, ...] = (1.0,),
                  config: ProjectedNewtonConfig | None = None,
                  probes: dict[str, tuple[float, float]] | None = None,
-                 length: float = 1.0) -> list[list[LevelSolution]]:
+                 length: float = 1.0,
+                 on_level: Callable[[int, object, list[LevelSolution]], None] | None = None
+                 ) -> list[list[LevelSolution]]:
     """Solve on `levels` grids, the field's and its dyadic refinements (module docstring).
 
     field_: a `SplineField` (its coefficients are the level-0 starting point; not changed).
-    samples_for(field): the quadrature points of a field's grid. potential_at(t): Π at load
-    factor t on given samples. probes: name -> ξ. length: a parameter-domain length for the
-    Hessian's FD steps. Returns [level][load step] solutions.
+    samples_for(field): the quadrature points of a field's grid (point forces unscaled).
+    objective: Π (`Objective.potential(t)` applies the load factor to every load).
+    probes: name -> ξ. length: a
+    parameter-domain length for the Hessian's FD steps. on_level(level, grid, solutions): called
+    after each level with its field (coefficients: its starting point) and its solutions per
+    load step. Returns [level][load step] solutions.
     """
     if levels < 1:
         raise ValueError(f"levels must be >= 1, got {levels}")
@@ -144,7 +123,8 @@ def solve_levels(field_, boundary: BoundaryConditions,
             grid = grid.refined()
         started = time.perf_counter()
         samples = samples_for(grid)
-        basis = local_basis_at(grid, boundary, samples.xi)
+        operator = DisplacementOperator(grid, boundary)
+        basis = local_basis_at(operator, samples.xi)
         assembly = Assembly(samples, basis, grid.coefficients.shape[0])
         fixed = gauge_unknowns(boundary, basis)
         setup = time.perf_counter() - started
@@ -155,11 +135,11 @@ def solve_levels(field_, boundary: BoundaryConditions,
             if level:
                 coefficients = torch.sparse.mm(prolongation,
                                                results[-1][k].coefficients.to(dtype))
-            assembly.at_load(boundary, t)
-            solution = minimise(assembly, potential_at(t), coefficients, config,
+            assembly.at_load(operator, t)
+            solution = minimise(assembly, objective.potential(t), coefficients, config,
                                 load_factor=t, length=length, fixed=fixed)
             coefficients = solution.coefficients
-            u = displacement_at(grid, boundary, probe_xi, coefficients, t)[:, jets.VALUE]
+            u = displacement_at(operator, probe_xi, coefficients, t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(probes)}
             seconds = time.perf_counter() - started + (setup if k == 0 else 0.0)
             per_load.append(LevelSolution(grid.config.spans, t, solution.energy, readings,
@@ -169,4 +149,6 @@ def solve_levels(field_, boundary: BoundaryConditions,
                      "%.2f s", level, *grid.config.spans, t, solution.energy,
                      len(solution.history), seconds)
         results.append(per_load)
+        if on_level is not None:
+            on_level(level, grid, per_load)
     return results

@@ -31,7 +31,8 @@ def markdown_table(rows: list[Row]) -> str:
 
 
 def convergence_plot(result: CaseResult) -> np.ndarray:
-    """Computed / reference of each quantity against the iteration count (BGR image)."""
+    """Computed / reference of each quantity against the iteration count, or the grid level
+    of a spline refinement study (BGR image)."""
     series = {}
     references = {f"{q.name} @ {q.level:g}": q.reference for q in result.case.quantities}
     for key, (iterations, values) in result.convergence.items():
@@ -42,7 +43,8 @@ def convergence_plot(result: CaseResult) -> np.ndarray:
         last = max(max(x) for x, _ in series.values() if len(x))
         series["reference"] = (np.array([first, last], float), np.ones(2))
     return plot_curves(series, title=f"{result.case.name}: value / reference",
-                       xlabel="iteration", ylabel="computed / reference")
+                       xlabel=result.solver.get("convergence_axis", "iteration"),
+                       ylabel="computed / reference")
 
 
 def write_report(results: list[CaseResult], out: OutputDir, *, quick: bool) -> None:

@@ -14,7 +14,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.callbacks import DivergenceGuard
-from taichi_ndf.field import NeuralField
+from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import EndMomentTerm, Objective
 from taichi_ndf.scene import Scene, load_scene
@@ -22,6 +22,9 @@ from taichi_ndf.solver import Solver, SolverConfig
 from taichi_ndf.validation.catalogue import LINEARISATION, SCENES_DIR, Case, Readings
 
 log = logging.getLogger(__name__)
+
+# Grids of the spline path: the grid rule's, then two dyadic refinements (benchmarks/RESULTS.md).
+SPLINE_LEVELS = 3
 
 
 @dataclass
@@ -54,9 +57,11 @@ class CaseResult:
     solver: dict = field(default_factory=dict)
 
 
-def load_case_scene(case: Case, scenes_dir: Path = SCENES_DIR) -> tuple[Scene, ShellModel, object]:
-    """The case's scene, its model with the case's load scale, and the field configuration."""
-    scene = load_scene(Path(scenes_dir) / case.scene)
+def load_case_scene(case: Case, scenes_dir: Path = SCENES_DIR, field: str | None = None
+                    ) -> tuple[Scene, ShellModel, object]:
+    """The case's scene, its model with the case's load scale, and the field configuration.
+    field: "spline" or "siren" to solve the case with that field (`load_scene`)."""
+    scene = load_scene(Path(scenes_dir) / case.scene, field=field)
     model = scene.model
     field_config = scene.field
     loads = model.loads.scaled(case.load_scale)
@@ -67,6 +72,7 @@ def load_case_scene(case: Case, scenes_dir: Path = SCENES_DIR) -> tuple[Scene, S
     if case.linear:
         loads = loads.scaled(1 / LINEARISATION)
         model = model.with_material(model.material.scaled(LINEARISATION**-2))
+    if case.linear and isinstance(field_config, FieldConfig):
         field_config = dataclasses.replace(
             field_config, output_scale=field_config.output_scale * LINEARISATION)
     return scene, model.with_loads(loads), field_config
@@ -74,14 +80,21 @@ def load_case_scene(case: Case, scenes_dir: Path = SCENES_DIR) -> tuple[Scene, S
 
 def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = None,
              iterations: int | None = None, scenes_dir: Path = SCENES_DIR,
-             seed: int | None = None) -> CaseResult:
+             seed: int | None = None, field: str | None = None,
+             levels: int = SPLINE_LEVELS) -> CaseResult:
     """Train the case's field and read its quantities.
 
     quick: use the scene's [training.quick] settings; solver: explicit settings instead.
     iterations: Adam iterations per load step (overrides the settings).
     seed: field initialisation and sampling seed (default: the scene's).
+    field: "spline" to solve the case with a spline field by projected Newton on `levels`
+    grids (`run_spline_case`).
     """
-    scene, model, field_config = load_case_scene(case, scenes_dir)
+    if field == "spline":
+        if iterations is not None:
+            raise ValueError("--iters sets Adam; the spline path solves by projected Newton")
+        return run_spline_case(case, quick=quick, scenes_dir=scenes_dir, levels=levels)
+    scene, model, field_config = load_case_scene(case, scenes_dir, field)
     names = [p.name for p in model.probes]
     for q in case.quantities:
         missing = [p for p in q.probes if p not in names]
@@ -96,13 +109,7 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
         config = dataclasses.replace(config, seed=seed)
     config = dataclasses.replace(config, progress=False)
     field_ = NeuralField(field_config, seed=config.seed)
-    if case.end_moment is not None:
-        width = model.surface.domain.lengths[1]
-        objective = Objective.of_model(model).with_terms(
-            EndMomentTerm(case.end_moment(model), width))
-        run = Solver(model, field_, config, objective=objective)
-    else:
-        run = Solver(model, field_, config)
+    run = Solver(model, field_, config, objective=_objective(case, model))
     dtype = field_.parameters[0].dtype
     xi = torch.tensor([p.xi for p in model.probes], dtype=dtype)
     positions = model.surface.jets(xi)[:, jets.VALUE]
@@ -149,6 +156,71 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
                               "learning_rate": config.adam.lr,
                               "field": field_config.to_dict(),
                               "load_scale": case.load_scale})
+
+
+def run_spline_case(case: Case, *, quick: bool = False, scenes_dir: Path = SCENES_DIR,
+                    levels: int = SPLINE_LEVELS) -> CaseResult:
+    """The case with one default spline configuration (`ndf-sim --field spline`: cubic, the
+    grid rule, Gauss points p + 1, projected-Newton defaults) on `levels` grids (quick: one).
+    Quantities are read on the finest grid; the convergence plot shows them per grid level."""
+    from taichi_ndf.minimise.assembly import displacement_at
+    from taichi_ndf.operator import DisplacementOperator
+    from taichi_ndf.spline_solver import solve_spline
+
+    scene, model, plan = load_case_scene(case, scenes_dir, "spline")
+    plan = dataclasses.replace(plan, levels=1 if quick else levels)
+    config = dataclasses.replace(scene.solver, progress=False)
+    objective = _objective(case, model)
+    names = [p.name for p in model.probes]
+    unit = LINEARISATION if case.linear else 1.0
+    positions = {}
+    per_level: list[dict[float, Readings]] = []
+
+    def on_level(run) -> None:
+        operator = DisplacementOperator(run.field, model.boundary)
+        dtype = run.field.coefficients.dtype
+        xi = torch.tensor([p.xi for p in model.probes], dtype=dtype).reshape(-1, 2)
+        if not positions:
+            r = model.surface.jets(xi)[:, jets.VALUE]
+            positions.update({n: r[k].double().numpy() for k, n in enumerate(names)})
+        per_level.append({t: {n: u[k].double().numpy() / unit for k, n in enumerate(names)}
+                          for t, c in run.steps
+                          for u in [displacement_at(operator, xi, c, t)[:, jets.VALUE]]})
+
+    start = time.perf_counter()
+    run = solve_spline(model, plan, config, objective=objective, on_level=on_level)
+    wall = time.perf_counter() - start
+    rows, convergence = [], {}
+    for q in case.quantities:
+        key = _level_key(q.level, config.load_steps)
+        computed = None if key is None else q.read(per_level[-1][key], positions)
+        error = None if computed is None else abs(computed - q.reference) / abs(q.reference)
+        rows.append(Row(case=case.name, quantity=q.name, description=q.description,
+                        level=q.level, computed=computed, reference=q.reference,
+                        relative_error=error, tolerance=q.tolerance,
+                        passed=None if error is None else error <= q.tolerance,
+                        iterations=0, wall_time=wall, samples=0,
+                        newton_steps=len(run.history)))
+        if key is not None and all(key in level for level in per_level):
+            convergence[f"{q.name} @ {q.level:g}"] = (
+                list(range(len(per_level))),
+                [q.read(level[key], positions) for level in per_level])
+    log.info("%s (spline): %d Newton iterations in %.1f s", case.name, len(run.history), wall)
+    return CaseResult(case=case, rows=rows, convergence=convergence,
+                      solver={"method": "newton", "convergence_axis": "grid level",
+                              "load_steps": list(config.load_steps),
+                              "spans": [list(lv.spans) for lv in run.levels],
+                              "newton_iterations": len(run.history),
+                              "field": plan.to_dict(), "load_scale": case.load_scale})
+
+
+def _objective(case: Case, model: ShellModel) -> Objective:
+    """Π of the case: the model's, plus the end moment's work for the roll-up."""
+    objective = Objective.of_model(model)
+    if case.end_moment is None:
+        return objective
+    width = model.surface.domain.lengths[1]
+    return objective.with_terms(EndMomentTerm(case.end_moment(model), width))
 
 
 def _level_key(level: float, load_steps: tuple[float, ...]) -> float | None:

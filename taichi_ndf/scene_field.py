@@ -1,0 +1,105 @@
+"""The [field] table of a scene (a SIREN or a spline field), the [training] table of a
+projected-Newton run, and the field-type switch of `ndf-sim --field` (docs/scenes.md)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from taichi_ndf.field import FieldConfig, SplineConfig
+from taichi_ndf.model import ShellModel
+from taichi_ndf.scene_schema import SceneError, Table
+from taichi_ndf.spline_grid import SplinePlan, auto_span_length, spans_for
+from taichi_ndf.training import SolverConfig
+
+SIREN_KEYS = ("width", "hidden_layers", "omega0", "output_scale")
+SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
+FIELD_TYPES = ("siren", "spline")
+
+
+def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
+    kind = t.string("type", "siren", choices=FIELD_TYPES)
+    foreign = SPLINE_KEYS if kind == "siren" else SIREN_KEYS
+    for key in foreign:
+        if t.has(key):
+            raise SceneError(f"{t.key(key)}: a {'spline' if kind == 'siren' else 'SIREN'} key, "
+                             f"not used with field.type = {kind!r}")
+    domain = model.surface.domain
+    if kind == "spline":
+        return _spline(t, model)
+    scale = t._get("output_scale", "auto")
+    if scale == "auto":
+        from taichi_ndf.scaling import characteristic_displacement
+
+        scale = characteristic_displacement(model)
+    elif isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
+        raise SceneError(f"{t.key('output_scale')}: expected \"auto\" or a positive number "
+                         f"[m], got {scale!r}")
+    return FieldConfig(width=t.integer("width", 128, minimum=1),
+                       hidden_layers=t.integer("hidden_layers", 3, minimum=1),
+                       omega0=t.number("omega0", 30.0, positive=True),
+                       domain=domain.bounds, periodic=domain.periodic,
+                       output_scale=float(scale))
+
+
+def _spline(t: Table, model: ShellModel) -> SplinePlan:
+    degree = t.integer("degree", 3)
+    if degree not in (3, 4):
+        raise SceneError(f"{t.key('degree')}: must be 3 (cubic) or 4 (quartic), got {degree}")
+    surface = model.surface
+    if t.has("spans") and t.has("span_length"):
+        raise SceneError(f"{t.key('spans')}: give spans or span_length, not both")
+    if t.has("spans"):
+        spans = t._get("spans", None)
+        if (not isinstance(spans, list) or len(spans) != 2 or any(
+                isinstance(n, bool) or not isinstance(n, int) or n < 1 for n in spans)):
+            raise SceneError(f"{t.key('spans')}: expected two integers >= 1, got {spans!r}")
+        spans = tuple(spans)
+    else:
+        length = t._get("span_length", "auto")
+        if length == "auto":
+            length = auto_span_length(surface, model.material.thickness,
+                                      model.boundary.narrowest_band)
+        elif (isinstance(length, bool) or not isinstance(length, (int, float))
+              or not (math.isfinite(length) and length > 0)):
+            raise SceneError(f"{t.key('span_length')}: expected \"auto\" or a positive length "
+                             f"[m], got {length!r}")
+        spans = spans_for(surface, float(length))
+    domain = surface.domain
+    config = SplineConfig(spans=spans, degree=degree, domain=domain.bounds,
+                          periodic=domain.periodic)
+    points = t.integer("quadrature_points", degree + 1, minimum=1)
+    return SplinePlan(config, levels=t.integer("levels", 1, minimum=1),
+                      quadrature_points=points)
+
+
+NEWTON_KEYS = ("method", "load_steps", "seed", "newton_max_iterations")
+
+
+def newton_training(t: Table) -> tuple[SolverConfig, SolverConfig]:
+    for key in sorted(t.data):
+        if key not in NEWTON_KEYS:
+            raise SceneError(f"{t.key(key)}: not used by method = \"newton\" (its keys: "
+                             f"{', '.join(NEWTON_KEYS)})")
+    solver = SolverConfig(
+        method="newton", load_steps=t.numbers("load_steps", (1.0,)), seed=t.integer("seed", 0),
+        newton_max_iterations=t.integer("newton_max_iterations", 100, minimum=1))
+    return solver, replace(solver, max_levels=1)
+
+
+def with_field_type(document: dict, kind: str) -> dict:
+    """The scene document solved with another field type (`ndf-sim --field`): unchanged if its
+    [field] already has that type; otherwise [field] holds only the type (every other setting
+    at its default: for a spline the grid rule, span_length = "auto", one level) and
+    [training] keeps its load steps and seed, with the method of that field type (spline:
+    projected Newton; SIREN: Adam with its defaults)."""
+    if kind not in FIELD_TYPES:
+        raise SceneError(f"field type must be one of {list(FIELD_TYPES)}, got {kind!r}")
+    current = document.get("field", {})
+    if isinstance(current, dict) and current.get("type", "siren") == kind:
+        return document
+    training = document.get("training", {})
+    kept = {k: training[k] for k in ("load_steps", "seed")
+            if isinstance(training, dict) and k in training}
+    return {**document, "field": {"type": kind},
+            "training": {**kept, "method": "newton" if kind == "spline" else "adam"}}

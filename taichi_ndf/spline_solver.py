@@ -1,0 +1,167 @@
+"""A model solved by projected Newton over a spline field, coarse to fine (`method = "newton"`).
+
+The continuation driver of the spline path (the Adam path's is `solver.py`): level 0 from the
+undeformed state through the load steps, each finer grid (exact dyadic refinement) at each load
+step from the coarser solution prolonged (`minimise.refinement.solve_levels`). Reports per level
+Π, every probe and the seconds taken, and per Newton iteration Π, the decrement, the step
+length and the time split; with several levels the Richardson-extrapolated Π and probes and
+their estimated discretisation errors (`richardson`: an observed order from three or more
+levels, order 2·(p − 1) assumed with two — the energy-norm rate of degree-p splines for a
+fourth-order problem).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+
+from taichi_ndf.field import SplineField
+from taichi_ndf.minimise.projected_newton import NewtonIteration, ProjectedNewtonConfig
+from taichi_ndf.minimise.refinement import LevelSolution, richardson, solve_levels
+from taichi_ndf.model import ShellModel
+from taichi_ndf.objective import Objective
+from taichi_ndf.quadrature import span_quadrature
+from taichi_ndf.spline_grid import SplinePlan
+from taichi_ndf.training import SolverConfig
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class NewtonRecord(NewtonIteration):
+    """One projected-Newton iteration of a run with its place: its grid level and spans;
+    `iteration` counts over all levels and load steps."""
+
+    level: int = 0
+    spans: tuple[int, int] = (0, 0)
+
+
+@dataclass
+class LevelSummary:
+    """The final load step on one grid: Π [J], probes (displacement [m] by name), Newton
+    iterations and seconds over all its load steps, whether every load step converged."""
+
+    level: int
+    spans: tuple[int, int]
+    energy: float
+    probes: dict[str, list[float]]
+    iterations: int
+    seconds: float
+    converged: bool
+
+
+@dataclass
+class SplineRun:
+    field: SplineField  # the finest grid with its final coefficients
+    levels: list[LevelSummary]
+    history: list[NewtonRecord] = field(default_factory=list)
+    wall_time: float = 0.0
+    # (load factor, coefficients (n, 3)) of every load step solved on the last level
+    steps: list[tuple[float, torch.Tensor]] = field(default_factory=list)
+
+    @property
+    def energy(self) -> float:
+        return self.levels[-1].energy
+
+    @property
+    def probes(self) -> dict[str, list[float]]:
+        return self.levels[-1].probes
+
+    def refinement(self, degree: int) -> dict | None:
+        """Π and every probe component per level with the Richardson value and its estimated
+        error (module docstring); None with one level."""
+        if len(self.levels) < 2:
+            return None
+        order = 2.0 * (degree - 1)
+
+        def extrapolate(values):
+            e = richardson(values, order=None if len(values) >= 3 else order)
+            return {"values": values, "extrapolated": e.value, "estimated_error": e.error,
+                    "order": e.order}
+
+        probes = {name: [extrapolate([lv.probes[name][c] for lv in self.levels])
+                         for c in range(3)] for name in self.levels[-1].probes}
+        return {"spans": [list(lv.spans) for lv in self.levels],
+                "energy": extrapolate([lv.energy for lv in self.levels]), "probes": probes}
+
+
+def newton_config(config: SolverConfig, dtype: torch.dtype) -> ProjectedNewtonConfig:
+    """Projected-Newton settings of a run: the FD step and the stopping tolerances suit the
+    precision (float32: Π is summed over thousands of points, so its rounding floor is about
+    1e-6 |Π|; the float64 defaults would never stop)."""
+    if dtype == torch.float64:
+        return ProjectedNewtonConfig(max_iterations=config.newton_max_iterations)
+    return ProjectedNewtonConfig(max_iterations=config.newton_max_iterations, fd_step=3e-3,
+                                 decrement_tolerance=1e-7, gradient_tolerance=1e-5,
+                                 floor_tolerance=1e-6)
+
+
+def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
+                 objective: Objective | None = None, start: SplineField | None = None,
+                 done: list[LevelSummary] | None = None,
+                 history: list[NewtonRecord] | None = None,
+                 on_level: Callable[[SplineRun], None] | None = None) -> SplineRun:
+    """Solve the model on the plan's grids (at most `config.max_levels` of them when > 0).
+
+    start: a resumed run's field (the last finished level, at the last load step) with the
+    summaries `done` of its levels and its `history`; the remaining levels are solved at the
+    last load factor from it. on_level(run): after each level, the run so far (its field:
+    that level's grid).
+    """
+    objective = objective or Objective.of_model(model)
+    surface = model.surface
+    levels = plan.levels if not config.max_levels else min(plan.levels, config.max_levels)
+    done = list(done or [])
+    load_steps = tuple(config.load_steps)
+    if start is None:
+        first, grid = 0, SplineField(plan.config)
+    else:  # re-solved (one Newton step: converged) and refined from there
+        first, grid, load_steps = len(done) - 1, start, load_steps[-1:]
+        done = done[:-1]
+    run = SplineRun(grid, done, list(history or []))
+    if first + 1 > levels:
+        raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "
+                         "this run solves")
+    probes = {p.name: p.xi for p in model.probes}
+    newton = newton_config(config, grid.coefficients.dtype)
+    started = time.perf_counter()
+
+    def finished(level: int, field_: SplineField, solutions: list[LevelSolution]) -> None:
+        level += first
+        field_.coefficients.copy_(solutions[-1].coefficients)
+        for s in solutions:
+            for h in s.history:
+                values = dataclasses.asdict(h)
+                values.update(iteration=len(run.history), level=level, spans=s.spans)
+                run.history.append(NewtonRecord(**values))
+        last = solutions[-1]
+        summary = LevelSummary(level, last.spans, last.energy,
+                               {k: v.tolist() for k, v in last.probes.items()},
+                               sum(len(s.history) for s in solutions),
+                               sum(s.seconds for s in solutions),
+                               all(s.converged for s in solutions))
+        run.levels.append(summary)
+        run.field = field_
+        run.steps = [(s.load_factor, s.coefficients) for s in solutions]
+        run.wall_time = time.perf_counter() - started
+        log.info("level %d (%d × %d spans): Π %.10g J, %d Newton iterations, %.2f s%s", level,
+                 *last.spans, last.energy, summary.iterations, summary.seconds,
+                 "" if summary.converged else " (not converged)")
+        if on_level is not None:
+            on_level(run)
+
+    points = plan.quadrature_points
+    solve_levels(grid, model.boundary,
+                 lambda f: span_quadrature(surface, f.config, model.loads, points=points,
+                                           dtype=f.coefficients.dtype),
+                 objective, levels=levels - first, load_steps=load_steps, config=newton,
+                 probes=probes, length=math.sqrt(surface.domain.rectangle_area),
+                 on_level=finished)
+    run.wall_time = time.perf_counter() - started
+    return run
