@@ -6,6 +6,7 @@ import dataclasses
 import logging
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard, ProgressBar
@@ -53,11 +54,14 @@ class SimulationError(RuntimeError):
 
 
 def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None,
-             resume: bool = False, machine: dict | None = None, seed: int | None = None) -> dict:
+             resume: bool = False, machine: dict | None = None, seed: int | None = None,
+             report: Callable[[str], None] | None = None) -> dict:
     """Solve `scene` and write mesh.obj/.ply, reference.obj, probes.json, render.png,
     energy.png, checkpoint.pt, result.json (result.usdc with `[output] usd`; and trajectory/ +
     trajectory.mp4 with several load steps, or with a pseudo-time field at `output.frames`
     pseudo-times) into `out`.
+    report: where a spline run's one-line summary of each finished grid level goes when the
+    solver configuration asks for progress (the command line passes `print`); None: nowhere.
     Returns the result dictionary also written to result.json."""
     config = solver or scene.solver
     if scene.output.usd:  # before the solve, not after it
@@ -74,7 +78,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     if isinstance(scene.field, SplinePlan):
         if config.method != "newton":
             raise ValueError("a spline field is solved with [training] method = \"newton\"")
-        return _simulate_spline(scene, out, config, resume=resume, machine=machine, seed=seed)
+        return _simulate_spline(scene, out, config, resume=resume, machine=machine, seed=seed,
+                                report=report)
     field = NeuralField(scene.field, seed=seed)
     step_frames = len(config.load_steps) > 1 and not config.pseudo_time
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
@@ -180,7 +185,8 @@ def _finish(scene: Scene, out: OutputDir, summary: dict) -> dict:
 
 
 def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resume: bool,
-                     machine: dict | None, seed: int) -> dict:
+                     machine: dict | None, seed: int,
+                     report: Callable[[str], None] | None) -> dict:
     """`simulate` for a spline field solved by projected Newton (`spline_solver`): a
     checkpoint after every grid level (the field and the levels' summaries; --resume goes on
     from the last finished level), result.json with the per-iteration Newton history and, with
@@ -211,11 +217,11 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
         save_checkpoint(checkpoint, run.field, extra={
             **extra, "levels": [dataclasses.asdict(lv) for lv in run.levels],
             "history": [dataclasses.asdict(h) for h in run.history]})
-        if config.progress:
+        if config.progress and report is not None:
             last = run.levels[-1]
-            print(f"level {last.level} ({last.spans[0]} × {last.spans[1]} spans): "
-                  f"Π = {last.energy:.8g} J, {last.iterations} Newton iterations, "
-                  f"{last.seconds:.1f} s", flush=True)
+            report(f"level {last.level} ({last.spans[0]} × {last.spans[1]} spans): "
+                   f"Π = {last.energy:.8g} J, {last.iterations} Newton iterations, "
+                   f"{last.seconds:.1f} s")
         if step_frames:
             for t, coefficients in run.steps:
                 index = config.load_steps.index(t)

@@ -88,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
         with staged_run(args.out, overwrite=args.overwrite, resume=args.resume,
                         products=RUN_FILES) as out:
             result = simulate(scene, out, solver=solver, resume=args.resume,
-                              machine=machine_description(runtime))
+                              machine=machine_description(runtime),
+                              report=lambda line: print(line, flush=True))
     except (SceneError, SimulationError, FileExistsError, FileNotFoundError, ValueError) as err:
         print(f"ndf-sim: error: {err}", file=sys.stderr)
         return 2
