@@ -99,3 +99,29 @@ def test_newton_hessian_blocks_work_on_the_whole_objective():
     # (measured); the moment's blocks are ~1e-6 of it.
     scale = float(both.abs().max())
     torch.testing.assert_close(both - alone, of_moment, rtol=0.0, atol=1e-10 * scale)
+
+
+def test_objective_hessian_blocks_sum_each_terms_own_blocks_or_their_differences():
+    samples = samples_at(1.0, n=16)
+    u = displacement(len(samples))
+    u[:, 1, 0] += 1.0
+    moment = EndMomentTerm(0.3, 1.0)
+    steps = torch.full((6,), 1e-5, dtype=F64)
+
+    class Analytic:  # a term with its own blocks: a quadratic ½ k |u|² in the value channel
+        def evaluate(self, s, jets_, load_factor, *, grad=True):
+            value = 0.5 * 3.0 * float(jets_[:, 0].pow(2).sum())
+            g = torch.zeros_like(jets_)
+            g[:, 0] = 3.0 * jets_[:, 0]
+            return value, g
+
+        def hessian_blocks(self, s, jets_, load_factor, *, steps):
+            blocks = jets_.new_zeros(jets_.shape[0], 6, 3, 6, 3)
+            blocks[:, 0, :, 0, :] = 3.0 * torch.eye(3, dtype=jets_.dtype)
+            return blocks
+
+    objective = Objective(ShellEnergyTerm(MATERIAL, LOADS)).with_terms(moment, Analytic())
+    blocks = objective.potential(1.0).hessian_blocks(samples, u, steps=steps)
+    by_differences = sample_hessians(objective.potential(1.0), samples, u, steps=steps)
+    scale = float(by_differences.abs().max())
+    torch.testing.assert_close(blocks, by_differences, rtol=0.0, atol=1e-9 * scale)

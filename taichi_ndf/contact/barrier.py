@@ -108,13 +108,18 @@ class ContactTerm:
         return value, out
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
-                       load_factor: float = 1.0) -> torch.Tensor:
-        """Positive semi-definite d²Π_c/du² blocks (N, 3, 3) of the value channel: κ w √a
-        Σ_o b''(g) n nᵀ. The exact Hessian adds κ w √a b'(g) ∇²d (the obstacle's curvature,
-        zero for a plane), which can be indefinite and is left out (projected Newton)."""
+                       load_factor: float = 1.0, *, steps: torch.Tensor | None = None
+                       ) -> torch.Tensor:
+        """Positive semi-definite d²Π_c/du_jets² blocks (N, 6, 3, 6, 3), non-zero only in the
+        value channel: κ w √a Σ_o b''(g) n nᵀ. The exact Hessian adds κ w √a b'(g) ∇²d (the
+        obstacle's curvature, zero for a plane), which can be indefinite and is left out
+        (projected Newton). steps: unused (the blocks are analytic)."""
         x = samples.r_jets[:, jets.VALUE] + u_jets[:, jets.VALUE]
         gap, normal = self.gaps(x, load_factor)
         _, _, ddb = barrier(gap, self.activation)
         ddb = torch.where(gap < self.activation, ddb, torch.zeros_like(ddb))
         weight = self._weights(samples)
-        return torch.einsum("n,nk,nki,nkj->nij", weight, ddb, normal, normal)
+        value = torch.einsum("n,nk,nki,nkj->nij", weight, ddb, normal, normal)
+        blocks = u_jets.new_zeros(u_jets.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3)
+        blocks[:, jets.VALUE, :, jets.VALUE, :] = value
+        return blocks

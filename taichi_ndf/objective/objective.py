@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import torch
@@ -9,6 +10,7 @@ import torch
 from taichi_ndf.objective.terms import ShellEnergyTerm
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult
+from taichi_ndf.shell.hessian import sample_hessians
 
 
 class Term(Protocol):
@@ -59,9 +61,60 @@ class Objective:
                 result.grad_u_jets = result.grad_u_jets + term_grad
         return result
 
-    def potential(self, load_factor: float | torch.Tensor = 1.0):
-        """Π at a fixed load factor as a function (samples, u_jets, grad) -> EnergyResult (the
-        form the last-layer Newton solver takes)."""
-        def evaluate(samples, u_jets, grad):
-            return self.evaluate(samples, u_jets, load_factor, grad=grad)
-        return evaluate
+    def potential(self, load_factor: float | torch.Tensor = 1.0) -> FixedLoadPotential:
+        """Π at a fixed load factor: callable (samples, u_jets, grad) -> EnergyResult (the
+        form the Newton solvers take), with its per-point Hessian blocks."""
+        return FixedLoadPotential(self, load_factor)
+
+    def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                       load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor
+                       ) -> torch.Tensor:
+        """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3), not projected: the sum of
+        each term's own `hessian_blocks(samples, u_jets, load_factor, steps=steps)` where the
+        term has one, else central differences of that term's gradient (`sample_hessians`,
+        steps (6,) per jet channel)."""
+        total = None
+        for term in (self.shell, *self.extra):
+            own = getattr(term, "hessian_blocks", None)
+            if own is not None:
+                blocks = own(samples, u_jets, load_factor, steps=steps)
+            else:
+                blocks = sample_hessians(_term_potential(term, load_factor), samples, u_jets,
+                                         steps=steps)
+            total = blocks if total is None else total + blocks
+        return total
+
+
+def _term_potential(term: Term, load_factor):
+    """One term at a fixed load factor as (samples, u_jets, grad) -> an object with
+    `.grad_u_jets` (what `sample_hessians` differentiates)."""
+    if isinstance(term, ShellEnergyTerm):
+        return lambda samples, u_jets, grad: term.result(samples, u_jets, load_factor, grad=grad)
+
+    def evaluate(samples, u_jets, grad):
+        value, gradient = term.evaluate(samples, u_jets, load_factor, grad=grad)
+        return _Gradient(value, gradient)
+    return evaluate
+
+
+@dataclass(frozen=True)
+class _Gradient:
+    total: float
+    grad_u_jets: torch.Tensor | None
+
+
+@dataclass(frozen=True)
+class FixedLoadPotential:
+    """Π of an objective at one load factor (`Objective.potential`)."""
+
+    objective: Objective
+    load_factor: float | torch.Tensor
+
+    def __call__(self, samples: SurfaceSamples, u_jets: torch.Tensor, grad: bool
+                 ) -> EnergyResult:
+        return self.objective.evaluate(samples, u_jets, self.load_factor, grad=grad)
+
+    def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
+                       steps: torch.Tensor) -> torch.Tensor:
+        """Per-point Hessian blocks (N, 6, 3, 6, 3) (`Objective.hessian_blocks`)."""
+        return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
