@@ -39,14 +39,29 @@ class LocalJacobian:
     pin: torch.Tensor | None
 
 
+def _unfolded_for(field, boundary: BoundaryConditions | None) -> BoundaryConditions | None:
+    even = getattr(getattr(field, "config", None), "even_ends", ((), ()))
+    if not any(even):
+        return boundary
+    planes = ((), ()) if boundary is None else tuple(
+        tuple(e for e in ("min", "max") if e in side) for side in boundary.fold.ends)
+    if tuple(even) != planes:
+        raise ValueError(f"the field is even across the ends {even} but the boundary's "
+                         f"symmetry planes are at {planes} (per direction)")
+    return boundary.unfolded()
+
+
 class DisplacementOperator:
     """Displacement jets of `field` under `boundary` (None: u = the raw field, no conditions).
 
-    field may be None for the composition alone (`raw_gradient`, `jacobian`, the refusals)."""
+    field may be None for the composition alone (`raw_gradient`, `jacobian`, the refusals).
+    A field even across the boundary's symmetry planes by itself (a spline whose
+    `config.even_ends` are the planes' edges) is composed without folded coordinates; a field
+    even across other edges is refused."""
 
     def __init__(self, field, boundary: BoundaryConditions | None):
         self.field = field
-        self.boundary = boundary
+        self.boundary = _unfolded_for(field, boundary)
         self._last: tuple[torch.Tensor, float | torch.Tensor] | None = None
 
     @property

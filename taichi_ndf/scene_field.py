@@ -66,8 +66,16 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
                              f"[m], got {length!r}")
         spans = spans_for(surface, float(length))
     domain = surface.domain
+    # Even across the symmetry planes by its coefficients (not by folded coordinates, which
+    # coarsen the grid at the planes: SplineConfig.even_ends).
+    even = tuple(tuple(e for e in ("min", "max") if e in side)
+                 for side in model.boundary.fold.ends)
+    for d, side in enumerate(even):
+        if side and spans[d] < degree:
+            raise SceneError(f"{t.key('spans')}: a symmetry plane on an edge of ξ{d + 1} needs "
+                             f"at least {degree} spans (the degree) along it, got {spans[d]}")
     config = SplineConfig(spans=spans, degree=degree, domain=domain.bounds,
-                          periodic=domain.periodic)
+                          periodic=domain.periodic, even_ends=even)
     points = t.integer("quadrature_points", degree + 1, minimum=1)
     return SplinePlan(config, levels=t.integer("levels", 1, minimum=1),
                       quadrature_points=points)

@@ -135,6 +135,14 @@ class BoundaryConditions:
                                            if isinstance(c, SymmetryPlane)])
         check_symmetry_planes(self._terms, domain)
 
+    def unfolded(self) -> BoundaryConditions:
+        """The same conditions without folded coordinates, for a field that is even across
+        its symmetry planes by itself (a spline with `even_ends`)."""
+        copy = object.__new__(BoundaryConditions)
+        copy.__dict__.update(self.__dict__)
+        copy.fold = Fold(self.domain, (frozenset(), frozenset()))
+        return copy
+
     @property
     def narrowest_band(self) -> float | None:
         """The narrowest vanishing band ℓ of the constraints (a fraction of the domain extent;
