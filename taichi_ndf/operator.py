@@ -9,7 +9,9 @@ sample). Any field with `jets(points, conditioning)` / `backward(grad_jets)` /
 `evaluate(points, conditioning)` works; the Jacobian with respect to a linear block of the
 field's parameters is served for a dense block (the SIREN output layer: the same p functions at
 every point) and for a local basis (k functions per point, e.g. a spline's nearby
-coefficients), see `jacobian` and `local_jacobian`.
+coefficients), see `jacobian` and `local_jacobian`. They are per component: u_k depends on the
+raw component k only, u_k along the boundary frame's axis k (the world axes unless the
+boundary has a `frame`; `to_world`, `to_frame`, `blocks_to_frame` convert).
 
 Shapes: ξ (N, 2); jets (N, 6, 3) [m]; with a free pin the raw field is evaluated at N + 1
 points (the pin ξ₀ appended) and u = N(ξ) − N(ξ₀).
@@ -63,6 +65,32 @@ class DisplacementOperator:
         self.field = field
         self.boundary = _unfolded_for(field, boundary)
         self._last: tuple[torch.Tensor, float | torch.Tensor] | None = None
+
+    @property
+    def frame(self) -> bool:
+        """Whether the boundary's components refer to a frame other than the world axes: then
+        the Jacobians (`jacobian`, `local_jacobian`) are per component along the frame's
+        axes, and `to_world` / `to_frame` / `blocks_to_frame` turn them to world components."""
+        return self.boundary is not None and self.boundary.frame is not None
+
+    def to_world(self, local: torch.Tensor) -> torch.Tensor:
+        """Vectors (…, 3) along the boundary frame's axes in world components."""
+        return local if self.boundary is None else self.boundary.to_world(local)
+
+    def to_frame(self, world: torch.Tensor) -> torch.Tensor:
+        """World vectors (…, 3), or gradients with respect to world components, along the
+        boundary frame's axes."""
+        return world if self.boundary is None else self.boundary.to_frame(world)
+
+    def blocks_to_frame(self, blocks: torch.Tensor) -> torch.Tensor:
+        """Per-point Hessian blocks (n, 18, 18) (index channel × 3 + component) with respect to
+        world components, turned to the frame's: F H Fᵀ per pair of channels."""
+        if not self.frame:
+            return blocks
+        n = blocks.shape[0]
+        split = blocks.reshape(n, jets.CHANNELS, 3, jets.CHANNELS, 3)
+        split = self.to_frame(split.transpose(2, 4)).transpose(2, 4)   # the left component
+        return self.to_frame(split).reshape(n, 3 * jets.CHANNELS, 3 * jets.CHANNELS)
 
     @property
     def free_pin(self) -> bool:
@@ -162,7 +190,12 @@ class DisplacementOperator:
         """Displacement jets u (N, 6, 3) [m] of the current field and their Jacobian with
         respect to the field's output layer, shape (3, N, 6, width + 1): J[k, :, :, a] =
         ∂u_k/∂θ_k[a] with θ_k = (W_out[k, :], b_out[k]) (`field.output_layer()`); u_k does not
-        depend on θ_l for l ≠ k. Needs a field with `last_features()` (the SIREN)."""
+        depend on θ_l for l ≠ k. Needs a field with `last_features()` (the SIREN) and the
+        world axes as the boundary's frame (in a tilted frame u_k depends on every θ_l)."""
+        if self.frame:
+            raise ValueError("the last-layer Newton solve does not support a boundary frame "
+                             "(components along tilted axes mix the world components); use "
+                             "Adam or the spline field (--field spline)")
         u = self.jets(xi, t=t, conditioning=conditioning)
         features = self.field.last_features()  # (6, M, width)
         m, width = features.shape[1], features.shape[2]

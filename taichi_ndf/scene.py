@@ -277,6 +277,11 @@ def _boundary(t: Table, surface) -> BoundaryConditions:
         constraints.append(_check(lambda c=c: _constraint(c), c.path))
         c.close()
     kwargs = {"length": t.number("length")} if t.has("length") else {}
+    if t.has("frame"):
+        frame = t._get("frame", None)
+        if not _number_rows(frame, 3, 3):
+            raise SceneError(f"{t.key('frame')}: expected three 3-vectors [e_x, e_y, e_z]")
+        kwargs["frame"] = frame
     return BoundaryConditions(constraints, surface.domain, surface=surface, **kwargs)
 
 

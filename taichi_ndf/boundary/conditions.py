@@ -73,6 +73,7 @@ from taichi_ndf.boundary.segments import (
     rotations,
 )
 from taichi_ndf.geometry import ParameterDomain, ReferenceSurface
+from taichi_ndf.geometry.surface import IDENTITY_FRAME, checked_frame
 
 
 class BoundaryConditions:
@@ -88,6 +89,13 @@ class BoundaryConditions:
     length: default band width ℓ of the vanishing factors, a fraction of the domain extent,
         positive; below 0.5 for points and lines (see the module docstring for the choice of
         0.1).
+    frame: (e_x, e_y, e_z), world directions of the axes the constraints' components (and a
+        symmetry plane's `normal`) refer to; orthonormal, right-handed; None: the world axes.
+        A tilted symmetry plane, or a clamp acting differently along and across a tilted
+        edge, is stated in a frame whose axes are the plane's normal or the edge's directions.
+        The composition holds per component in the frame, u = Fᵀ (φ ⊙ N + g) with F the
+        matrix of rows e_x, e_y, e_z (N: the raw field's components along the frame's axes);
+        prescribed displacements, rim axes and the result are world vectors.
 
     Raises ValueError naming the problem for a constraint outside the domain, an edge on a
     periodic coordinate, or a prescribed displacement whose set touches another constraint's
@@ -101,6 +109,7 @@ class BoundaryConditions:
         *,
         surface: ReferenceSurface | None = None,
         length: float = 0.1,
+        frame=None,
     ):
         if not (isinstance(length, (int, float)) and math.isfinite(length) and length > 0):
             raise ValueError(
@@ -125,9 +134,15 @@ class BoundaryConditions:
                 "pins or a free pin with other constraints are not supported"
             )
         self.free_pin: PinnedPoint | None = free[0] if free else None
+        frame = None if frame is None else checked_frame(frame)
+        self.frame = None if frame in (None, IDENTITY_FRAME) else frame
+        # F (3, 3), rows the frame's axes; None for the world axes.
+        self._rotation = (None if self.frame is None
+                          else torch.tensor(self.frame, dtype=torch.float64))
         # A free pin has no vanishing factor: it is resolved (checked) but not a term.
         self._terms = tuple(
-            term for term in (resolve(c, domain, surface, self.length) for c in self.constraints)
+            term for term in (resolve(c, domain, surface, self.length, frame or IDENTITY_FRAME)
+                              for c in self.constraints)
             if term.constraint is not self.free_pin
         )
         check_contradictions(self._terms, domain)
@@ -176,7 +191,21 @@ class BoundaryConditions:
         if pin_jets is not None:
             held = self._free_components()
             u[:, jets.VALUE, held] -= pin_jets[jets.VALUE, held]
-        return u
+        return self.to_world(u)
+
+    def to_world(self, local: torch.Tensor) -> torch.Tensor:
+        """Vectors (…, 3) given along the frame's axes, in world components: Fᵀ v."""
+        if self._rotation is None:
+            return local
+        return local @ self._rotation.to(dtype=local.dtype, device=local.device)
+
+    def to_frame(self, world: torch.Tensor) -> torch.Tensor:
+        """World vectors (…, 3) along the frame's axes, F v; also the gradient with respect
+        to the frame components of a scalar from its gradient with respect to the world ones
+        (F is orthogonal)."""
+        if self._rotation is None:
+            return world
+        return world @ self._rotation.to(dtype=world.dtype, device=world.device).T
 
     def compose_adjoint(
         self, xi: torch.Tensor, grad_u_jets: torch.Tensor, t: float | torch.Tensor = 1.0
@@ -185,6 +214,7 @@ class BoundaryConditions:
         a free pin, × 6 × 3) of a scalar whose gradient with respect to u = compose(ξ, N, t)
         is grad_u_jets (N, 6, 3); g does not depend on N, so t is unused."""
         xi = xi.to(grad_u_jets.dtype)
+        grad_u_jets = self.to_frame(grad_u_jets)
         grad = jets.product_adjoint(self._vanishing(xi, self._factors(xi)), grad_u_jets)
         grad = self.fold.pullback_adjoint(xi, grad)
         if self.free_pin is None:
@@ -197,7 +227,9 @@ class BoundaryConditions:
     def compose_jacobian(self, xi: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
         """Jacobian of u = compose(ξ, N) with respect to θ_k when each raw component is
         N_k = basis · θ_k: basis are the jets (N or N + 1, 6, p) of the p functions at
-        `evaluation_points(ξ)`; returns (3, N, 6, p), J[k] = ∂u_k/∂θ_k (u is affine in N)."""
+        `evaluation_points(ξ)`; returns (3, N, 6, p), J[k] = ∂u_k/∂θ_k (u is affine in N),
+        u_k the component along the frame's axis k (`to_world` turns J[k] θ_k to world
+        components; with the world axes u_k is the world component)."""
         xi = xi.to(basis.dtype)
         basis, pin_basis = self._split(xi, basis)
         basis = self.fold.pullback(xi, basis)
@@ -229,16 +261,16 @@ class BoundaryConditions:
         return raw[:n], raw[n]
 
     def vanishing_factor(self, xi: torch.Tensor) -> torch.Tensor:
-        """Jets of φ_c at ξ (N, 2), shape (N, 6, 3): 0 on each constrained set of component c,
-        1 outside the bands of its constraints."""
+        """Jets of φ_c at ξ (N, 2), shape (N, 6, 3): 0 on each constrained set of component c
+        (along the frame's axis c), 1 outside the bands of its constraints."""
         return self._vanishing(xi, self._factors(xi))
 
     def prescribed_displacement(self, xi: torch.Tensor,
                                 t: float | torch.Tensor = 1.0) -> torch.Tensor:
         """Jets of g_c at ξ (N, 2), shape (N, 6, 3) [m]: the prescribed displacement at
         pseudo-time t (a number, or one per sample (N,)) on each prescribing constraint's set,
-        0 on the other sets."""
-        return self._prescribed(xi, self._factors(xi), t)
+        0 on the other sets. World components."""
+        return self.to_world(self._prescribed(xi, self._factors(xi), t))
 
     def _factors(self, xi: torch.Tensor) -> list[torch.Tensor]:
         return [self._factor(term, xi) for term in self._terms]
@@ -359,7 +391,12 @@ class BoundaryConditions:
     def _motion(self, term: ResolvedConstraint, xi: torch.Tensor,
                 t: float | torch.Tensor) -> torch.Tensor:
         """Jets (N, 6, 3) [m] of the displacement a prescribing constraint imposes on its set
-        at pseudo-time t (a float, or a tensor (N,) of one t per sample)."""
+        at pseudo-time t (a float, or a tensor (N,) of one t per sample), along the frame's
+        axes."""
+        return self.to_frame(self._world_motion(term, xi, t))
+
+    def _world_motion(self, term: ResolvedConstraint, xi: torch.Tensor,
+                      t: float | torch.Tensor) -> torch.Tensor:
         con = term.constraint
         if isinstance(con, RimRotation):
             p = torch.tensor(con.axis_point, dtype=xi.dtype, device=xi.device)
