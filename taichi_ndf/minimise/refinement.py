@@ -92,7 +92,7 @@ def richardson(values: list[float], order: float | None = None) -> Extrapolation
     return Extrapolation(limit, abs(limit - v2), order)
 
 
-def _held_unknowns(grid, boundary, basis) -> np.ndarray | None:
+def held_unknowns(grid, boundary, basis) -> np.ndarray | None:
     """Unknowns held at zero: the gauge of a free pin (`gauge_unknowns`) and the coefficients
     a mirrored spline never reads (`SplineField.aliased_coefficients`), which no point
     couples."""
@@ -139,7 +139,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
         operator = DisplacementOperator(grid, boundary)
         basis = local_basis_at(operator, samples.xi)
         assembly = Assembly(samples, basis, grid.coefficients.shape[0])
-        fixed = _held_unknowns(grid, boundary, basis)
+        fixed = held_unknowns(grid, boundary, basis)
         setup = time.perf_counter() - started
         per_load: list[LevelSolution] = []
         coefficients = grid.coefficients.detach().clone()
