@@ -45,8 +45,7 @@ def _unfolded_for(field, boundary: BoundaryConditions | None) -> BoundaryConditi
     even = getattr(getattr(field, "config", None), "even_ends", ((), ()))
     if not any(even):
         return boundary
-    planes = ((), ()) if boundary is None else tuple(
-        tuple(e for e in ("min", "max") if e in side) for side in boundary.fold.ends)
+    planes = ((), ()) if boundary is None else boundary.fold.edge_ends
     if tuple(even) != planes:
         raise ValueError(f"the field is even across the ends {even} but the boundary's "
                          f"symmetry planes are at {planes} (per direction)")

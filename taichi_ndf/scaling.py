@@ -91,7 +91,7 @@ def linear_displacement(model: ShellModel) -> float:
     model = dataclasses.replace(model, contact=None)
     surface, domain, boundary = model.surface, model.surface.domain, model.boundary
     degree = 3
-    even = tuple(tuple(e for e in ("min", "max") if e in side) for side in boundary.fold.ends)
+    even = boundary.fold.edge_ends
     spans = tuple(
         max(min(n, LINEAR_ESTIMATE_SPANS), degree if side else 1)
         for n, side in zip(grid_spans(surface, model.material.thickness,

@@ -113,6 +113,11 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     if solver.pseudo_time and isinstance(field, SplinePlan):
         raise SceneError("training.pseudo_time: needs a SIREN field (a spline field has no "
                          "pseudo-time input)")
+    if (isinstance(field, FieldConfig) and model.boundary.frame is not None
+            and (solver.newton_iterations or quick.newton_iterations)):
+        raise SceneError("training.newton_iterations: the last-layer Newton phases do not "
+                         "support [boundary] frame (a tilted component depends on every output "
+                         "weight); use Adam (newton_iterations = 0) or [field] type = \"spline\"")
     if isinstance(field, FieldConfig) and _auto_output_scale(document) and (
             solver.iterations > 0 or quick.iterations > 0):
         field = replace(field, output_scale=_linear_output_scale(model, field.output_scale))

@@ -68,8 +68,7 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
     domain = surface.domain
     # Even across the symmetry planes by its coefficients (not by folded coordinates, which
     # coarsen the grid at the planes: SplineConfig.even_ends).
-    even = tuple(tuple(e for e in ("min", "max") if e in side)
-                 for side in model.boundary.fold.ends)
+    even = model.boundary.fold.edge_ends
     for d, side in enumerate(even):
         if side and spans[d] < degree:
             raise SceneError(f"{t.key('spans')}: a symmetry plane on an edge of ξ{d + 1} needs "
