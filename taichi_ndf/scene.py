@@ -7,7 +7,6 @@ material) are re-raised as `SceneError` with the section they come from.
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -45,8 +44,6 @@ from taichi_ndf.shell.materials import (
 )
 from taichi_ndf.spline_grid import SplinePlan
 from taichi_ndf.training import SolverConfig
-
-log = logging.getLogger(__name__)
 
 GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "annulus", "mesh")
 DEFAULT_FRAMES = 16  # trajectory frames of a pseudo-time field
@@ -118,9 +115,6 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
         raise SceneError("training.newton_iterations: the last-layer Newton phases do not "
                          "support [boundary] frame (a tilted component depends on every output "
                          "weight); use Adam (newton_iterations = 0) or [field] type = \"spline\"")
-    if isinstance(field, FieldConfig) and _auto_output_scale(document) and (
-            solver.iterations > 0 or quick.iterations > 0):
-        field = replace(field, output_scale=_linear_output_scale(model, field.output_scale))
     if solver.pseudo_time:
         if model.contact is not None:
             raise SceneError("training.pseudo_time: not available with [[obstacles]]")
@@ -129,25 +123,6 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     return Scene(name=name, description=description, model=model, field=field, solver=solver,
                  quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
                  document=document)
-
-
-def _auto_output_scale(document: dict) -> bool:
-    field = document.get("field", {})
-    return isinstance(field, dict) and field.get("output_scale", "auto") == "auto"
-
-
-def _linear_output_scale(model: ShellModel, dimensional: float) -> float:
-    """`output_scale = "auto"` of a field that Adam trains: the linear solution's largest
-    displacement (`scaling.linear_displacement`; the dimensional estimate if that solve
-    fails)."""
-    from taichi_ndf.scaling import linear_displacement
-
-    try:
-        return linear_displacement(model)
-    except (ValueError, RuntimeError) as err:
-        log.warning("output_scale = \"auto\": the linear estimate failed (%s); using the "
-                    "dimensional estimate %.4g m", err, dimensional)
-        return dimensional
 
 
 def _section(table: Table, build, *args):
