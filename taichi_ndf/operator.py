@@ -74,22 +74,17 @@ class DisplacementOperator:
 
     def to_world(self, local: torch.Tensor) -> torch.Tensor:
         """Vectors (…, 3) along the boundary frame's axes in world components."""
-        return local if self.boundary is None else self.boundary.to_world(local)
+        return local if self.boundary is None else self.boundary.axes.to_world(local)
 
     def to_frame(self, world: torch.Tensor) -> torch.Tensor:
         """World vectors (…, 3), or gradients with respect to world components, along the
         boundary frame's axes."""
-        return world if self.boundary is None else self.boundary.to_frame(world)
+        return world if self.boundary is None else self.boundary.axes.to_frame(world)
 
     def blocks_to_frame(self, blocks: torch.Tensor) -> torch.Tensor:
-        """Per-point Hessian blocks (n, 18, 18) (index channel × 3 + component) with respect to
-        world components, turned to the frame's: F H Fᵀ per pair of channels."""
-        if not self.frame:
-            return blocks
-        n = blocks.shape[0]
-        split = blocks.reshape(n, jets.CHANNELS, 3, jets.CHANNELS, 3)
-        split = self.to_frame(split.transpose(2, 4)).transpose(2, 4)   # the left component
-        return self.to_frame(split).reshape(n, 3 * jets.CHANNELS, 3 * jets.CHANNELS)
+        """Per-point Hessian blocks (n, 18, 18) with respect to world components, with respect
+        to the boundary frame's (`ComponentFrame.blocks_to_frame`)."""
+        return blocks if self.boundary is None else self.boundary.axes.blocks_to_frame(blocks)
 
     @property
     def free_pin(self) -> bool:

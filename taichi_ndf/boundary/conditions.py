@@ -62,6 +62,8 @@ from taichi_ndf.boundary.constraints import (
     SymmetryPlane,
 )
 from taichi_ndf.boundary.fold import Fold
+from taichi_ndf.boundary.frame import ComponentFrame
+from taichi_ndf.boundary.motions import prescribed_motion, pseudo_time
 from taichi_ndf.boundary.resolution import (
     ResolvedConstraint,
     check_contradictions,
@@ -69,11 +71,8 @@ from taichi_ndf.boundary.resolution import (
     resolve,
     to_eta,
 )
-from taichi_ndf.boundary.segments import (
-    rotations,
-)
 from taichi_ndf.geometry import ParameterDomain, ReferenceSurface
-from taichi_ndf.geometry.surface import IDENTITY_FRAME, checked_frame
+from taichi_ndf.geometry.surface import IDENTITY_FRAME
 
 
 class BoundaryConditions:
@@ -134,14 +133,12 @@ class BoundaryConditions:
                 "pins or a free pin with other constraints are not supported"
             )
         self.free_pin: PinnedPoint | None = free[0] if free else None
-        frame = None if frame is None else checked_frame(frame)
-        self.frame = None if frame in (None, IDENTITY_FRAME) else frame
-        # F (3, 3), rows the frame's axes; None for the world axes.
-        self._rotation = (None if self.frame is None
-                          else torch.tensor(self.frame, dtype=torch.float64))
+        self.axes = ComponentFrame(frame)
+        self.frame = self.axes.rows  # None: the world axes
         # A free pin has no vanishing factor: it is resolved (checked) but not a term.
         self._terms = tuple(
-            term for term in (resolve(c, domain, surface, self.length, frame or IDENTITY_FRAME)
+            term for term in (resolve(c, domain, surface, self.length,
+                                      self.frame or IDENTITY_FRAME)
                               for c in self.constraints)
             if term.constraint is not self.free_pin
         )
@@ -191,21 +188,7 @@ class BoundaryConditions:
         if pin_jets is not None:
             held = self._free_components()
             u[:, jets.VALUE, held] -= pin_jets[jets.VALUE, held]
-        return self.to_world(u)
-
-    def to_world(self, local: torch.Tensor) -> torch.Tensor:
-        """Vectors (…, 3) given along the frame's axes, in world components: Fᵀ v."""
-        if self._rotation is None:
-            return local
-        return local @ self._rotation.to(dtype=local.dtype, device=local.device)
-
-    def to_frame(self, world: torch.Tensor) -> torch.Tensor:
-        """World vectors (…, 3) along the frame's axes, F v; also the gradient with respect
-        to the frame components of a scalar from its gradient with respect to the world ones
-        (F is orthogonal)."""
-        if self._rotation is None:
-            return world
-        return world @ self._rotation.to(dtype=world.dtype, device=world.device).T
+        return self.axes.to_world(u)
 
     def compose_adjoint(
         self, xi: torch.Tensor, grad_u_jets: torch.Tensor, t: float | torch.Tensor = 1.0
@@ -214,7 +197,7 @@ class BoundaryConditions:
         a free pin, × 6 × 3) of a scalar whose gradient with respect to u = compose(ξ, N, t)
         is grad_u_jets (N, 6, 3); g does not depend on N, so t is unused."""
         xi = xi.to(grad_u_jets.dtype)
-        grad_u_jets = self.to_frame(grad_u_jets)
+        grad_u_jets = self.axes.to_frame(grad_u_jets)
         grad = jets.product_adjoint(self._vanishing(xi, self._factors(xi)), grad_u_jets)
         grad = self.fold.pullback_adjoint(xi, grad)
         if self.free_pin is None:
@@ -228,7 +211,7 @@ class BoundaryConditions:
         """Jacobian of u = compose(ξ, N) with respect to θ_k when each raw component is
         N_k = basis · θ_k: basis are the jets (N or N + 1, 6, p) of the p functions at
         `evaluation_points(ξ)`; returns (3, N, 6, p), J[k] = ∂u_k/∂θ_k (u is affine in N),
-        u_k the component along the frame's axis k (`to_world` turns J[k] θ_k to world
+        u_k the component along the frame's axis k (`axes.to_world` turns J[k] θ_k to world
         components; with the world axes u_k is the world component)."""
         xi = xi.to(basis.dtype)
         basis, pin_basis = self._split(xi, basis)
@@ -270,7 +253,7 @@ class BoundaryConditions:
         """Jets of g_c at ξ (N, 2), shape (N, 6, 3) [m]: the prescribed displacement at
         pseudo-time t (a number, or one per sample (N,)) on each prescribing constraint's set,
         0 on the other sets. World components."""
-        return self.to_world(self._prescribed(xi, self._factors(xi), t))
+        return self.axes.to_world(self._prescribed(xi, self._factors(xi), t))
 
     def _factors(self, xi: torch.Tensor) -> list[torch.Tensor]:
         return [self._factor(term, xi) for term in self._terms]
@@ -288,7 +271,7 @@ class BoundaryConditions:
 
     def _prescribed(self, xi: torch.Tensor, factors: list[torch.Tensor],
                     t: float | torch.Tensor) -> torch.Tensor:
-        t = _pseudo_time(t, xi)
+        t = pseudo_time(t, xi)
         zero = xi.new_zeros(xi.shape[0], jets.CHANNELS, 1)
         if not any(term.prescribes for term in self._terms):
             return torch.cat([zero] * 3, dim=2)
@@ -393,30 +376,7 @@ class BoundaryConditions:
         """Jets (N, 6, 3) [m] of the displacement a prescribing constraint imposes on its set
         at pseudo-time t (a float, or a tensor (N,) of one t per sample), along the frame's
         axes."""
-        return self.to_frame(self._world_motion(term, xi, t))
-
-    def _world_motion(self, term: ResolvedConstraint, xi: torch.Tensor,
-                      t: float | torch.Tensor) -> torch.Tensor:
-        con = term.constraint
-        if isinstance(con, RimRotation):
-            p = torch.tensor(con.axis_point, dtype=xi.dtype, device=xi.device)
-            r = self.surface.jets(xi).to(xi.dtype)
-            if isinstance(t, torch.Tensor):  # one rotation per sample: M_i = R(t_i θ) − I
-                m = rotations(con.axis, t * con.angle) - torch.eye(3, dtype=xi.dtype,
-                                                                    device=xi.device)
-                motion = torch.einsum("nkj,nij->nki", r, m)
-                motion[:, jets.VALUE] -= m @ p
-                return motion
-            angle = torch.tensor([t * con.angle], dtype=torch.float64)
-            m = (rotations(con.axis, angle)[0] - torch.eye(3, dtype=torch.float64)).to(
-                dtype=xi.dtype, device=xi.device)
-            motion = r @ m.T
-            motion[:, jets.VALUE] -= m @ p
-            return motion
-        d = torch.tensor(con.displacement, dtype=xi.dtype, device=xi.device)
-        if isinstance(t, torch.Tensor):
-            return jets.constant(t[:, None] * d)
-        return jets.constant((t * d).expand(xi.shape[0], 3))
+        return self.axes.to_frame(prescribed_motion(term.constraint, self.surface, xi, t))
 
 
 def _product(factors: list[torch.Tensor], xi: torch.Tensor) -> torch.Tensor:
@@ -425,18 +385,3 @@ def _product(factors: list[torch.Tensor], xi: torch.Tensor) -> torch.Tensor:
     for f in factors:
         out = jets.product(out, f)
     return out
-
-
-def _pseudo_time(t: float | torch.Tensor, xi: torch.Tensor) -> float | torch.Tensor:
-    """t checked: a finite float, or a finite tensor (N,) of xi's dtype (one t per sample)."""
-    if isinstance(t, torch.Tensor):
-        if t.shape != (xi.shape[0],):
-            raise ValueError(f"pseudo-time t per sample must have shape ({xi.shape[0]},), got "
-                             f"{tuple(t.shape)}")
-        if not bool(torch.isfinite(t).all()):
-            raise ValueError("pseudo-time t must be finite at every sample")
-        return t.detach().to(dtype=xi.dtype, device=xi.device)
-    t = float(t)
-    if not math.isfinite(t):
-        raise ValueError(f"pseudo-time t must be a finite number, got {t!r}")
-    return t
