@@ -9,7 +9,9 @@ sample). Any field with `jets(points, conditioning)` / `backward(grad_jets)` /
 `evaluate(points, conditioning)` works; the Jacobian with respect to a linear block of the
 field's parameters is served for a dense block (the SIREN output layer: the same p functions at
 every point) and for a local basis (k functions per point, e.g. a spline's nearby
-coefficients), see `jacobian` and `local_jacobian`.
+coefficients), see `jacobian` and `local_jacobian`. They are per component: u_k depends on the
+raw component k only, u_k along the boundary frame's axis k (the world axes unless the
+boundary has a `frame`; `to_world`, `to_frame`, `blocks_to_frame` convert).
 
 Shapes: ξ (N, 2); jets (N, 6, 3) [m]; with a free pin the raw field is evaluated at N + 1
 points (the pin ξ₀ appended) and u = N(ξ) − N(ξ₀).
@@ -39,15 +41,50 @@ class LocalJacobian:
     pin: torch.Tensor | None
 
 
+def _unfolded_for(field, boundary: BoundaryConditions | None) -> BoundaryConditions | None:
+    even = getattr(getattr(field, "config", None), "even_ends", ((), ()))
+    if not any(even):
+        return boundary
+    planes = ((), ()) if boundary is None else boundary.fold.edge_ends
+    if tuple(even) != planes:
+        raise ValueError(f"the field is even across the ends {even} but the boundary's "
+                         f"symmetry planes are at {planes} (per direction)")
+    return boundary.unfolded()
+
+
 class DisplacementOperator:
     """Displacement jets of `field` under `boundary` (None: u = the raw field, no conditions).
 
-    field may be None for the composition alone (`raw_gradient`, `jacobian`, the refusals)."""
+    field may be None for the composition alone (`raw_gradient`, `jacobian`, the refusals).
+    A field even across the boundary's symmetry planes by itself (a spline whose
+    `config.even_ends` are the planes' edges) is composed without folded coordinates; a field
+    even across other edges is refused."""
 
     def __init__(self, field, boundary: BoundaryConditions | None):
         self.field = field
-        self.boundary = boundary
+        self.boundary = _unfolded_for(field, boundary)
         self._last: tuple[torch.Tensor, float | torch.Tensor] | None = None
+
+    @property
+    def frame(self) -> bool:
+        """Whether the boundary's components refer to a frame other than the world axes: then
+        the Jacobians (`jacobian`, `local_jacobian`) are per component along the frame's
+        axes, and `to_world` / `to_frame` / `blocks_to_frame` turn them to world components."""
+        return self.boundary is not None and self.boundary.frame is not None
+
+    def to_world(self, local: torch.Tensor) -> torch.Tensor:
+        """Vectors (…, 3) along the boundary frame's axes in world components."""
+        return local if self.boundary is None else self.boundary.axes.to_world(local)
+
+    def to_frame(self, world: torch.Tensor) -> torch.Tensor:
+        """World vectors (…, 3), or gradients with respect to world components, along the
+        boundary frame's axes."""
+        return world if self.boundary is None else self.boundary.axes.to_frame(world)
+
+    def blocks_to_frame(self, blocks: torch.Tensor) -> torch.Tensor:
+        """Per-point Hessian blocks (n, 18, 18) with respect to world components, with respect
+        to the boundary frame's (`ComponentFrame.blocks_to_frame`)."""
+        return blocks if self.boundary is None else self.boundary.axes.blocks_to_frame(blocks)
 
     @property
     def free_pin(self) -> bool:
@@ -147,7 +184,12 @@ class DisplacementOperator:
         """Displacement jets u (N, 6, 3) [m] of the current field and their Jacobian with
         respect to the field's output layer, shape (3, N, 6, width + 1): J[k, :, :, a] =
         ∂u_k/∂θ_k[a] with θ_k = (W_out[k, :], b_out[k]) (`field.output_layer()`); u_k does not
-        depend on θ_l for l ≠ k. Needs a field with `last_features()` (the SIREN)."""
+        depend on θ_l for l ≠ k. Needs a field with `last_features()` (the SIREN) and the
+        world axes as the boundary's frame (in a tilted frame u_k depends on every θ_l)."""
+        if self.frame:
+            raise ValueError("the last-layer Newton solve does not support a boundary frame "
+                             "(components along tilted axes mix the world components); use "
+                             "Adam or the spline field (--field spline)")
         u = self.jets(xi, t=t, conditioning=conditioning)
         features = self.field.last_features()  # (6, M, width)
         m, width = features.shape[1], features.shape[2]

@@ -110,6 +110,11 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     if solver.pseudo_time and isinstance(field, SplinePlan):
         raise SceneError("training.pseudo_time: needs a SIREN field (a spline field has no "
                          "pseudo-time input)")
+    if (isinstance(field, FieldConfig) and model.boundary.frame is not None
+            and (solver.newton_iterations or quick.newton_iterations)):
+        raise SceneError("training.newton_iterations: the last-layer Newton phases do not "
+                         "support [boundary] frame (a tilted component depends on every output "
+                         "weight); use Adam (newton_iterations = 0) or [field] type = \"spline\"")
     if solver.pseudo_time:
         if model.contact is not None:
             raise SceneError("training.pseudo_time: not available with [[obstacles]]")
@@ -277,6 +282,11 @@ def _boundary(t: Table, surface) -> BoundaryConditions:
         constraints.append(_check(lambda c=c: _constraint(c), c.path))
         c.close()
     kwargs = {"length": t.number("length")} if t.has("length") else {}
+    if t.has("frame"):
+        frame = t._get("frame", None)
+        if not _number_rows(frame, 3, 3):
+            raise SceneError(f"{t.key('frame')}: expected three 3-vectors [e_x, e_y, e_z]")
+        kwargs["frame"] = frame
     return BoundaryConditions(constraints, surface.domain, surface=surface, **kwargs)
 
 

@@ -3,6 +3,7 @@ projected-Newton run, and the field-type switch of `ndf-sim --field` (docs/scene
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import replace
 
@@ -11,6 +12,8 @@ from taichi_ndf.model import ShellModel
 from taichi_ndf.scene_schema import SceneError, Table
 from taichi_ndf.spline_grid import SplinePlan, auto_span_length, spans_for
 from taichi_ndf.training import SolverConfig
+
+log = logging.getLogger(__name__)
 
 SIREN_KEYS = ("width", "hidden_layers", "omega0", "output_scale")
 SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
@@ -42,6 +45,28 @@ def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
                        output_scale=float(scale))
 
 
+def field_for_solver(field: FieldConfig, document: dict, model: ShellModel,
+                     config: SolverConfig) -> FieldConfig:
+    """The SIREN configuration a run with `config` trains. The scene's `output_scale = "auto"`
+    (the default) is the dimensional estimate when read (no runtime needed); where Adam trains
+    the field (config.iterations > 0), the scale matters, and it becomes the linear solution's
+    largest displacement (`scaling.linear_displacement` on `model`, which needs the runtime;
+    the dimensional estimate kept, with a warning, if that solve fails). Otherwise unchanged."""
+    table = document.get("field", {})
+    auto = isinstance(table, dict) and table.get("output_scale", "auto") == "auto"
+    if not (auto and config.iterations > 0):
+        return field
+    from taichi_ndf.scaling import linear_displacement
+
+    try:
+        scale = linear_displacement(model)
+    except (ValueError, RuntimeError) as err:
+        log.warning("output_scale = \"auto\": the linear estimate failed (%s); using the "
+                    "dimensional estimate %.4g m", err, field.output_scale)
+        return field
+    return replace(field, output_scale=scale)
+
+
 def _spline(t: Table, model: ShellModel) -> SplinePlan:
     degree = t.integer("degree", 3)
     if degree not in (3, 4):
@@ -66,8 +91,15 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
                              f"[m], got {length!r}")
         spans = spans_for(surface, float(length))
     domain = surface.domain
+    # Even across the symmetry planes by its coefficients (not by folded coordinates, which
+    # coarsen the grid at the planes: SplineConfig.even_ends).
+    even = model.boundary.fold.edge_ends
+    for d, side in enumerate(even):
+        if side and spans[d] < degree:
+            raise SceneError(f"{t.key('spans')}: a symmetry plane on an edge of ξ{d + 1} needs "
+                             f"at least {degree} spans (the degree) along it, got {spans[d]}")
     config = SplineConfig(spans=spans, degree=degree, domain=domain.bounds,
-                          periodic=domain.periodic)
+                          periodic=domain.periodic, even_ends=even)
     points = t.integer("quadrature_points", degree + 1, minimum=1)
     return SplinePlan(config, levels=t.integer("levels", 1, minimum=1),
                       quadrature_points=points)

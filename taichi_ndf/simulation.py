@@ -32,6 +32,7 @@ from taichi_ndf.outputs import (
 )
 from taichi_ndf.pseudo_time import frame_times
 from taichi_ndf.scene import Scene, parse_scene
+from taichi_ndf.scene_field import field_for_solver
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
 from taichi_ndf.spline_grid import SplinePlan
@@ -80,7 +81,12 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
             raise ValueError("a spline field is solved with [training] method = \"newton\"")
         return _simulate_spline(scene, out, config, resume=resume, machine=machine, seed=seed,
                                 report=report)
-    field = NeuralField(scene.field, seed=seed)
+    if resume:  # the output scale the run started with ("auto" is not estimated again)
+        stored = read_checkpoint(out.file("checkpoint.pt"))["architecture"]
+        field_config = dataclasses.replace(scene.field, output_scale=stored.output_scale)
+    else:
+        field_config = field_for_solver(scene.field, scene.document, scene.model, config)
+    field = NeuralField(field_config, seed=seed)
     step_frames = len(config.load_steps) > 1 and not config.pseudo_time
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
 
@@ -130,7 +136,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     _write_field_outputs(scene, out, field, result.probes, result.history,
                          pseudo_time=config.pseudo_time, obstacles=obstacle_meshes)
     summary = _summary(scene, config, seed, result.energy, result.iterations, result.wall_time,
-                       result.probes, trajectory, scene.field.to_dict(), machine,
+                       result.probes, trajectory, field_config.to_dict(), machine,
                        result.history, contact)
     return _finish(scene, out, summary)
 

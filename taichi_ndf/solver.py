@@ -78,6 +78,9 @@ class Solver:
         `Objective.of_model`), e.g. with the work of an end moment added. state: where to
         start (default: `State.initial`; a restored one resumes)."""
         self.operator = DisplacementOperator(field, model.boundary)
+        if config.newton_iterations and self.operator.frame:
+            raise ValueError("the last-layer Newton phases (newton_iterations) do not support "
+                             "a boundary frame; use Adam or the spline field")
         if config.pseudo_time:
             self.operator.refuse_free_pin("pseudo_time", ": the pin's value would differ per "
                                           "sample time")

@@ -33,6 +33,7 @@ from taichi_ndf.validation import (
     load_case_scene,
     roll_up_moment,
     roll_up_references,
+    rotation_read,
     run_case,
 )
 from taichi_ndf.validation.case_file import parse_case
@@ -73,6 +74,13 @@ def test_builtin_case_files():
      r"quantity\[0\].read\[0\].component"),
     (lambda d: d["quantity"][0]["read"][0].update(distance=["a", "b"]), "exactly one of"),
     (lambda d: d["quantity"][0]["read"][0].update(sign=2), r"read\[0\].sign: must be 1 or -1"),
+    (lambda d: d["quantity"][0].update(read=[{"rotation": ["centre", "centre"]}]),
+     r"read\[0\].rotation: expected two different probe names"),
+    (lambda d: d["quantity"][0].update(read=[{"rotation": ["centre", "corner"]}]),
+     r"read\[0\].axis: expected three numbers"),
+    (lambda d: d["quantity"][0].update(read=[{"rotation": ["centre", "corner"],
+                                                "axis": [0, 0, 0]}]),
+     r"read\[0\].axis: rotation axis must be a finite non-zero vector"),
 ])
 def test_case_file_errors_name_the_key(edit, key):
     document = {"name": "c", "scene": str(SCENES_DIR / "square_plate.toml"),
@@ -90,6 +98,34 @@ def test_example_case_files_load_with_their_scenes(name):
     names = {p.name for p in model.probes}
     assert all(set(q.probes) <= names for q in case.quantities)
     assert any(type(c).__name__ == "SymmetryPlane" for c in model.boundary.constraints)
+
+
+def test_rotation_read_is_the_angle_of_a_rigid_rotation_about_its_axis():
+    """A chord turned rigidly by 0.7 rad about a tilted axis (and translated) reads 0.7; the
+    same motion read about the reversed axis, or with sign -1, reads -0.7."""
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    turn = np.eye(3) + np.sin(0.7) * k + (1 - np.cos(0.7)) * k @ k
+    r = {"a": np.array([0.3, -1.0, 0.5]), "b": np.array([2.0, 0.4, -0.1])}
+    u = {n: turn @ x + np.array([5.0, -2.0, 1.0]) - x for n, x in r.items()}
+    assert rotation_read("a", "b", axis * 3)(u, r) == pytest.approx(0.7, rel=1e-12)
+    assert rotation_read("a", "b", -axis)(u, r) == pytest.approx(-0.7, rel=1e-12)
+    assert rotation_read("a", "b", axis, sign=-1.0)(u, r) == pytest.approx(-0.7, rel=1e-12)
+    still = {n: np.array([5.0, -2.0, 1.0]) for n in r}
+    assert abs(rotation_read("a", "b", axis)(still, r)) < 1e-15
+
+
+def test_a_case_file_reads_a_rotation():
+    document = {"name": "c", "scene": str(SCENES_DIR / "pinched_cylinder.toml"),
+                "quantity": [{"name": "theta", "reference": 1.0, "tolerance": 0.01,
+                              "read": [{"rotation": ["load_0", "load_pi"], "axis": [0, 0, 1],
+                                        "sign": -1}]}]}
+    (q,) = parse_case(document, base_dir=SCENES_DIR).quantities
+    assert q.probes == ("load_0", "load_pi")
+    r = {"load_0": np.array([1.0, 0.0, 0.0]), "load_pi": np.array([-1.0, 0.0, 0.0])}
+    u = {"load_0": np.array([-1.0, 1.0, 0.0]), "load_pi": np.array([1.0, -1.0, 0.0])}
+    # The chord turns from -x to -y: +π/2 about z, read with sign -1.
+    assert q.read(u, r) == pytest.approx(-math.pi / 2, rel=1e-12)
 
 
 def test_a_case_reading_an_unknown_probe_is_refused_before_the_run():

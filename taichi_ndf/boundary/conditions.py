@@ -62,6 +62,8 @@ from taichi_ndf.boundary.constraints import (
     SymmetryPlane,
 )
 from taichi_ndf.boundary.fold import Fold
+from taichi_ndf.boundary.frame import ComponentFrame
+from taichi_ndf.boundary.motions import prescribed_motion, pseudo_time
 from taichi_ndf.boundary.resolution import (
     ResolvedConstraint,
     check_contradictions,
@@ -69,10 +71,8 @@ from taichi_ndf.boundary.resolution import (
     resolve,
     to_eta,
 )
-from taichi_ndf.boundary.segments import (
-    rotations,
-)
 from taichi_ndf.geometry import ParameterDomain, ReferenceSurface
+from taichi_ndf.geometry.surface import IDENTITY_FRAME
 
 
 class BoundaryConditions:
@@ -88,6 +88,13 @@ class BoundaryConditions:
     length: default band width ℓ of the vanishing factors, a fraction of the domain extent,
         positive; below 0.5 for points and lines (see the module docstring for the choice of
         0.1).
+    frame: (e_x, e_y, e_z), world directions of the axes the constraints' components (and a
+        symmetry plane's `normal`) refer to; orthonormal, right-handed; None: the world axes.
+        A tilted symmetry plane, or a clamp acting differently along and across a tilted
+        edge, is stated in a frame whose axes are the plane's normal or the edge's directions.
+        The composition holds per component in the frame, u = Fᵀ (φ ⊙ N + g) with F the
+        matrix of rows e_x, e_y, e_z (N: the raw field's components along the frame's axes);
+        prescribed displacements, rim axes and the result are world vectors.
 
     Raises ValueError naming the problem for a constraint outside the domain, an edge on a
     periodic coordinate, or a prescribed displacement whose set touches another constraint's
@@ -101,6 +108,7 @@ class BoundaryConditions:
         *,
         surface: ReferenceSurface | None = None,
         length: float = 0.1,
+        frame=None,
     ):
         if not (isinstance(length, (int, float)) and math.isfinite(length) and length > 0):
             raise ValueError(
@@ -125,15 +133,27 @@ class BoundaryConditions:
                 "pins or a free pin with other constraints are not supported"
             )
         self.free_pin: PinnedPoint | None = free[0] if free else None
+        self.axes = ComponentFrame(frame)
+        self.frame = self.axes.rows  # None: the world axes
         # A free pin has no vanishing factor: it is resolved (checked) but not a term.
         self._terms = tuple(
-            term for term in (resolve(c, domain, surface, self.length) for c in self.constraints)
+            term for term in (resolve(c, domain, surface, self.length,
+                                      self.frame or IDENTITY_FRAME)
+                              for c in self.constraints)
             if term.constraint is not self.free_pin
         )
         check_contradictions(self._terms, domain)
         self.fold = Fold.of_edges(domain, [c.edge for c in self.constraints
                                            if isinstance(c, SymmetryPlane)])
         check_symmetry_planes(self._terms, domain)
+
+    def unfolded(self) -> BoundaryConditions:
+        """The same conditions without folded coordinates, for a field that is even across
+        its symmetry planes by itself (a spline with `even_ends`)."""
+        copy = object.__new__(BoundaryConditions)
+        copy.__dict__.update(self.__dict__)
+        copy.fold = Fold(self.domain, (frozenset(), frozenset()))
+        return copy
 
     @property
     def narrowest_band(self) -> float | None:
@@ -168,7 +188,7 @@ class BoundaryConditions:
         if pin_jets is not None:
             held = self._free_components()
             u[:, jets.VALUE, held] -= pin_jets[jets.VALUE, held]
-        return u
+        return self.axes.to_world(u)
 
     def compose_adjoint(
         self, xi: torch.Tensor, grad_u_jets: torch.Tensor, t: float | torch.Tensor = 1.0
@@ -177,6 +197,7 @@ class BoundaryConditions:
         a free pin, × 6 × 3) of a scalar whose gradient with respect to u = compose(ξ, N, t)
         is grad_u_jets (N, 6, 3); g does not depend on N, so t is unused."""
         xi = xi.to(grad_u_jets.dtype)
+        grad_u_jets = self.axes.to_frame(grad_u_jets)
         grad = jets.product_adjoint(self._vanishing(xi, self._factors(xi)), grad_u_jets)
         grad = self.fold.pullback_adjoint(xi, grad)
         if self.free_pin is None:
@@ -189,7 +210,9 @@ class BoundaryConditions:
     def compose_jacobian(self, xi: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
         """Jacobian of u = compose(ξ, N) with respect to θ_k when each raw component is
         N_k = basis · θ_k: basis are the jets (N or N + 1, 6, p) of the p functions at
-        `evaluation_points(ξ)`; returns (3, N, 6, p), J[k] = ∂u_k/∂θ_k (u is affine in N)."""
+        `evaluation_points(ξ)`; returns (3, N, 6, p), J[k] = ∂u_k/∂θ_k (u is affine in N),
+        u_k the component along the frame's axis k (`axes.to_world` turns J[k] θ_k to world
+        components; with the world axes u_k is the world component)."""
         xi = xi.to(basis.dtype)
         basis, pin_basis = self._split(xi, basis)
         basis = self.fold.pullback(xi, basis)
@@ -221,16 +244,16 @@ class BoundaryConditions:
         return raw[:n], raw[n]
 
     def vanishing_factor(self, xi: torch.Tensor) -> torch.Tensor:
-        """Jets of φ_c at ξ (N, 2), shape (N, 6, 3): 0 on each constrained set of component c,
-        1 outside the bands of its constraints."""
+        """Jets of φ_c at ξ (N, 2), shape (N, 6, 3): 0 on each constrained set of component c
+        (along the frame's axis c), 1 outside the bands of its constraints."""
         return self._vanishing(xi, self._factors(xi))
 
     def prescribed_displacement(self, xi: torch.Tensor,
                                 t: float | torch.Tensor = 1.0) -> torch.Tensor:
         """Jets of g_c at ξ (N, 2), shape (N, 6, 3) [m]: the prescribed displacement at
         pseudo-time t (a number, or one per sample (N,)) on each prescribing constraint's set,
-        0 on the other sets."""
-        return self._prescribed(xi, self._factors(xi), t)
+        0 on the other sets. World components."""
+        return self.axes.to_world(self._prescribed(xi, self._factors(xi), t))
 
     def _factors(self, xi: torch.Tensor) -> list[torch.Tensor]:
         return [self._factor(term, xi) for term in self._terms]
@@ -248,7 +271,7 @@ class BoundaryConditions:
 
     def _prescribed(self, xi: torch.Tensor, factors: list[torch.Tensor],
                     t: float | torch.Tensor) -> torch.Tensor:
-        t = _pseudo_time(t, xi)
+        t = pseudo_time(t, xi)
         zero = xi.new_zeros(xi.shape[0], jets.CHANNELS, 1)
         if not any(term.prescribes for term in self._terms):
             return torch.cat([zero] * 3, dim=2)
@@ -351,27 +374,9 @@ class BoundaryConditions:
     def _motion(self, term: ResolvedConstraint, xi: torch.Tensor,
                 t: float | torch.Tensor) -> torch.Tensor:
         """Jets (N, 6, 3) [m] of the displacement a prescribing constraint imposes on its set
-        at pseudo-time t (a float, or a tensor (N,) of one t per sample)."""
-        con = term.constraint
-        if isinstance(con, RimRotation):
-            p = torch.tensor(con.axis_point, dtype=xi.dtype, device=xi.device)
-            r = self.surface.jets(xi).to(xi.dtype)
-            if isinstance(t, torch.Tensor):  # one rotation per sample: M_i = R(t_i θ) − I
-                m = rotations(con.axis, t * con.angle) - torch.eye(3, dtype=xi.dtype,
-                                                                    device=xi.device)
-                motion = torch.einsum("nkj,nij->nki", r, m)
-                motion[:, jets.VALUE] -= m @ p
-                return motion
-            angle = torch.tensor([t * con.angle], dtype=torch.float64)
-            m = (rotations(con.axis, angle)[0] - torch.eye(3, dtype=torch.float64)).to(
-                dtype=xi.dtype, device=xi.device)
-            motion = r @ m.T
-            motion[:, jets.VALUE] -= m @ p
-            return motion
-        d = torch.tensor(con.displacement, dtype=xi.dtype, device=xi.device)
-        if isinstance(t, torch.Tensor):
-            return jets.constant(t[:, None] * d)
-        return jets.constant((t * d).expand(xi.shape[0], 3))
+        at pseudo-time t (a float, or a tensor (N,) of one t per sample), along the frame's
+        axes."""
+        return self.axes.to_frame(prescribed_motion(term.constraint, self.surface, xi, t))
 
 
 def _product(factors: list[torch.Tensor], xi: torch.Tensor) -> torch.Tensor:
@@ -380,18 +385,3 @@ def _product(factors: list[torch.Tensor], xi: torch.Tensor) -> torch.Tensor:
     for f in factors:
         out = jets.product(out, f)
     return out
-
-
-def _pseudo_time(t: float | torch.Tensor, xi: torch.Tensor) -> float | torch.Tensor:
-    """t checked: a finite float, or a finite tensor (N,) of xi's dtype (one t per sample)."""
-    if isinstance(t, torch.Tensor):
-        if t.shape != (xi.shape[0],):
-            raise ValueError(f"pseudo-time t per sample must have shape ({xi.shape[0]},), got "
-                             f"{tuple(t.shape)}")
-        if not bool(torch.isfinite(t).all()):
-            raise ValueError("pseudo-time t must be finite at every sample")
-        return t.detach().to(dtype=xi.dtype, device=xi.device)
-    t = float(t)
-    if not math.isfinite(t):
-        raise ValueError(f"pseudo-time t must be a finite number, got {t!r}")
-    return t

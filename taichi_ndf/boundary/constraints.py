@@ -209,7 +209,9 @@ class RimRotation:
 @dataclass(frozen=True)
 class SymmetryPlane:
     """An edge of the parameter rectangle lying in a plane of mirror symmetry (a quarter or
-    octant model) whose normal is the Cartesian axis `normal` ("x", "y" or "z").
+    octant model) whose normal is the axis `normal` ("x", "y" or "z") of the boundary's frame
+    (the world axes by default; a tilted plane: a frame with the plane's normal as an axis,
+    `BoundaryConditions(frame=...)`).
 
     Symmetric (default): the displacement along the normal vanishes on the edge (its factor
     vanishes linearly: it is odd across the plane) and the other two components have zero
@@ -229,8 +231,8 @@ class SymmetryPlane:
     def __post_init__(self):
         _check_edge("SymmetryPlane", self.edge)
         if self.normal not in tuple(COMPONENTS):
-            raise ValueError(f"SymmetryPlane: normal must be one of 'x', 'y', 'z' (a Cartesian "
-                             f"axis; planes of other orientations are not supported), got "
+            raise ValueError(f"SymmetryPlane: normal must be one of 'x', 'y', 'z' (an axis of "
+                             f"the boundary's frame; a tilted plane: a tilted frame), got "
                              f"{self.normal!r}")
         if not isinstance(self.antisymmetric, bool):
             raise ValueError(f"SymmetryPlane: antisymmetric must be true or false, got "

@@ -50,6 +50,11 @@ class Fold:
         return cls(domain, ends)
 
     @property
+    def edge_ends(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """The folded ends per coordinate as ordered tuples ("min" before "max")."""
+        return tuple(tuple(e for e in ("min", "max") if e in side) for side in self.ends)
+
+    @property
     def active(self) -> bool:
         return any(self.ends)
 

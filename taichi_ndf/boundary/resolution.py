@@ -73,9 +73,12 @@ def _inside(domain: ParameterDomain, points: list[tuple[float, float]]) -> torch
 
 
 def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface | None,
-            length: float) -> ResolvedConstraint:
+            length: float, frame=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+            ) -> ResolvedConstraint:
     """The constraint resolved against the domain (its set in η, band, prescribed
-    components); ValueError naming the problem if it does not fit the domain."""
+    components along the axes of `frame`, rows e_x, e_y, e_z); ValueError naming the problem
+    if it does not fit the domain."""
+    frame = np.asarray(frame, dtype=np.float64)
     name = type(con).__name__
     ell = length if con.length is None else float(con.length)
     prescribes: frozenset[int] = frozenset()
@@ -103,12 +106,12 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
         raise TypeError(f"unknown constraint type {type(con).__name__}")
 
     if isinstance(con, SymmetryPlane):
-        _check_symmetry_plane(con, domain, surface)
+        _check_symmetry_plane(con, domain, surface, frame[COMPONENTS.index(con.normal)])
     if isinstance(con, RimRotation):
         if surface is None:
             raise ValueError("RimRotation needs the reference surface: pass surface=...")
         if con.angle != 0.0:
-            axis = np.asarray(con.axis) / np.linalg.norm(con.axis)
+            axis = frame @ (np.asarray(con.axis) / np.linalg.norm(con.axis))
             # The row c of R − I vanishes for every angle only if the axis is along c.
             prescribes = frozenset(
                 COMPONENTS.index(c)
@@ -116,28 +119,32 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
                 if abs(abs(axis[COMPONENTS.index(c)]) - 1.0) > 1e-14
             )
     elif isinstance(con, (ClampedEdge, HingedEdge, Handle)):
+        displacement = frame @ np.asarray(con.displacement, dtype=np.float64)
+        size = float(np.abs(displacement).max())
         prescribes = frozenset(
             COMPONENTS.index(c)
             for c in con.components
-            if con.displacement[COMPONENTS.index(c)] != 0.0
+            if abs(displacement[COMPONENTS.index(c)]) > 1e-14 * size
         )
     return ResolvedConstraint(constraint=con, length=ell, where=where, prescribes=prescribes)
 
 
 def _check_symmetry_plane(con: SymmetryPlane, domain: ParameterDomain,
-                          surface: ReferenceSurface | None) -> None:
-    """ValueError unless the edge lies in a plane normal to `con.normal` and the surface
-    crosses it at right angles (its tangent across the edge along the normal)."""
+                          surface: ReferenceSurface | None, normal: np.ndarray) -> None:
+    """ValueError unless the edge lies in a plane normal to `normal` (the world direction of
+    `con.normal`) and the surface crosses it at right angles (its tangent across the edge
+    along the normal)."""
     if surface is None:
         raise ValueError("SymmetryPlane needs the reference surface: pass surface=...")
     start, end = (_from_eta(domain, p) for p in _EDGE_SETS[con.edge])
     r = surface.jets(torch.tensor(points_along(start, end), dtype=torch.float64))
-    axis = COMPONENTS.index(con.normal)
+    normal = torch.as_tensor(normal, dtype=torch.float64)
     across = r[:, 1 if con.edge.startswith("xi1") else 2]   # tangent across the edge
     speed = across.norm(dim=1)
     size = float((r[:, 0] - r[:, 0].mean(dim=0)).norm(dim=1).max() + speed.max())
-    spread = float(r[:, 0, axis].max() - r[:, 0, axis].min())
-    tilt = float(((speed - across[:, axis].abs()) / speed).max())
+    height = r[:, 0] @ normal
+    spread = float(height.max() - height.min())
+    tilt = float(((speed - (across @ normal).abs()) / speed).max())
     if spread > 1e-9 * size or tilt > 1e-9:
         raise ValueError(
             f"SymmetryPlane on edge {con.edge!r}: the edge must lie in a plane normal to "

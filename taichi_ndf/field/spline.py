@@ -43,6 +43,15 @@ class SplineConfig:
     out_dim: number of output components (3 for a displacement).
     domain: ((lo1, hi1), (lo2, hi2)), bounds of ξ¹ and ξ² covered by the spans.
     periodic: per direction, whether the field is periodic with period hi − lo.
+    even_ends: per direction, the ends among ("min", "max") across which the field is even
+        (mirror-symmetric: the edge of a symmetry plane). The edge is a knot, so the field is
+        even exactly when the coefficients of mirrored basis functions are equal: B_j and
+        B_{p−1−j} at the min end, B_j and B_{2n+p−1−j} at the max end (coefficient numbers
+        per direction). The outer one of each pair is an alias of the inner one: it is never
+        read (`aliased_coefficients`). The space is exactly the splines whose odd derivatives
+        across the edge vanish up to order p − 1, which every smooth even function satisfies
+        (unlike folded coordinates, `taichi_ndf.boundary.fold`, it keeps the grid's
+        resolution at the edge). Needs an open direction with at least p spans.
     """
 
     spans: tuple[int, int]
@@ -50,6 +59,7 @@ class SplineConfig:
     out_dim: int = 3
     domain: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 1.0), (0.0, 1.0))
     periodic: tuple[bool, bool] = (False, False)
+    even_ends: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
 
     def __post_init__(self):
         spans = tuple(self.spans) if isinstance(self.spans, (tuple, list)) else None
@@ -63,6 +73,39 @@ class SplineConfig:
         if isinstance(self.out_dim, bool) or not isinstance(self.out_dim, int) or self.out_dim < 1:
             raise ValueError(f"out_dim must be a positive integer, got {self.out_dim!r}")
         check_domain_and_periodic(self)
+        self._check_even_ends()
+
+    def _check_even_ends(self) -> None:
+        ends = self.even_ends
+        if (not isinstance(ends, (tuple, list)) or len(ends) != 2
+                or not all(isinstance(e, (tuple, list)) for e in ends)):
+            raise ValueError(f"even_ends must be two sequences of ends, got {ends!r}")
+        ends = tuple(tuple(e for e in ("min", "max") if e in side) for side in ends)
+        for d, side in enumerate(self.even_ends):
+            if len(set(side)) != len(side) or any(e not in ("min", "max") for e in side):
+                raise ValueError(f"even_ends[{d}] must be distinct ends among 'min', 'max', "
+                                 f"got {side!r}")
+            if side and self.periodic[d]:
+                raise ValueError(f"even_ends[{d}]: direction {d + 1} is periodic (no ends)")
+            if side and self.spans[d] < self.degree:
+                raise ValueError(f"even_ends[{d}]: a mirrored direction needs at least "
+                                 f"{self.degree} spans (the degree), got {self.spans[d]}")
+        object.__setattr__(self, "even_ends", ends)
+
+    def alias_map(self) -> torch.Tensor:
+        """(m1·m2,) int64: the coefficient read in place of each coefficient (itself, or
+        its mirror's for an alias, `even_ends`)."""
+        per_direction = []
+        for d, m in enumerate(self.coefficient_counts):
+            j = torch.arange(m)
+            n, p = self.spans[d], self.degree
+            if "min" in self.even_ends[d]:
+                j = torch.where(j < p - 1 - j, p - 1 - j, j)
+            if "max" in self.even_ends[d]:
+                j = torch.where(j > 2 * n + p - 1 - j, 2 * n + p - 1 - j, j)
+            per_direction.append(j)
+        m2 = self.coefficient_counts[1]
+        return (per_direction[0][:, None] * m2 + per_direction[1][None, :]).reshape(-1)
 
     @property
     def coefficient_counts(self) -> tuple[int, int]:
@@ -131,7 +174,19 @@ class SplineField(FieldParameters):
                                    zip(config.domain, config.spacing, strict=True)],
                                   dtype=self.dtype, device=self.device)
         self._matrices = bspline.basis_matrices(config.degree, self.dtype, self.device)
+        alias = config.alias_map()
+        self._alias = (alias.to(self.device)
+                       if bool((alias != torch.arange(alias.numel())).any()) else None)
         self._tape: _Tape | None = None
+
+    @property
+    def aliased_coefficients(self) -> torch.Tensor:
+        """Numbers (int64) of the coefficients never read: the aliases of a mirrored end
+        (`SplineConfig.even_ends`); empty without."""
+        if self._alias is None:
+            return torch.zeros(0, dtype=torch.int64)
+        alias = self._alias.cpu()
+        return torch.nonzero(alias != torch.arange(alias.numel())).flatten()
 
     @property
     def coefficients(self) -> torch.Tensor:
@@ -158,6 +213,8 @@ class SplineField(FieldParameters):
             bspline.basis_kernel(config.degree)(
                 xi, self._grid, self._matrices, config.spans[0], config.spans[1],
                 int(config.periodic[0]), int(config.periodic[1]), index, basis)
+            if self._alias is not None:
+                index.copy_(self._alias[index])
 
     def _contract(self, index: torch.Tensor, basis: torch.Tensor, channels: int) -> torch.Tensor:
         out = torch.empty(index.shape[0], channels, self.config.out_dim, dtype=self.dtype,
@@ -171,7 +228,8 @@ class SplineField(FieldParameters):
         """The coefficients acting at each point and their basis jets: index (N, k) int64 into
         the rows of ``coefficients`` and basis (N, 6, k), k = (p + 1)², with
         jets[n, :, c] = Σ_k basis[n, :, k] · coefficients[index[n, k], c] exactly. A periodic
-        direction with fewer than p + 1 spans repeats indices (their terms add)."""
+        direction with fewer than p + 1 spans, and a mirrored end (`SplineConfig.even_ends`), repeat
+        indices (their terms add)."""
         xi = self._points(xi, None)
         index, basis = self._allocate(xi.shape[0])
         self._basis(xi, index, basis)
@@ -246,6 +304,8 @@ class SplineField(FieldParameters):
         coarse2 = config.coefficient_counts[1]
         rows = (f1[:, None] * fine2 + f2[None, :]).long().reshape(-1)
         cols = (c1[:, None] * coarse2 + c2[None, :]).long().reshape(-1)
+        if self._alias is not None:  # an alias holds its mirror's value
+            cols = self._alias.cpu()[cols]
         values = (w1[:, None] * w2[None, :]).reshape(-1)
         shape = (config.refined().num_coefficients, config.num_coefficients)
         matrix = torch.sparse_coo_tensor(torch.stack((rows, cols)), values, shape,

@@ -49,15 +49,8 @@ class PlacedSurface(ReferenceSurface):
         origin = tuple(float(v) for v in self.origin)
         if len(origin) != 3 or not all(math.isfinite(v) for v in origin):
             raise ValueError(f"origin must be 3 finite numbers [m], got {self.origin!r}")
-        frame = torch.tensor(self.frame, dtype=torch.float64)
-        if frame.shape != (3, 3) or not torch.isfinite(frame).all():
-            raise ValueError(f"frame must be three 3-vectors (e_x, e_y, e_z), got {self.frame!r}")
-        if not torch.allclose(frame @ frame.T, torch.eye(3, dtype=torch.float64), atol=1e-9):
-            raise ValueError("frame must be orthonormal (unit, mutually orthogonal e_x, e_y, e_z)")
-        if torch.linalg.det(frame) < 0:
-            raise ValueError("frame must be right-handed (e_x × e_y = e_z)")
         object.__setattr__(self, "origin", origin)
-        object.__setattr__(self, "frame", tuple(tuple(float(v) for v in row) for row in self.frame))
+        object.__setattr__(self, "frame", checked_frame(self.frame))
 
     @abstractmethod
     def local_jets(self, xi: torch.Tensor) -> torch.Tensor:
@@ -69,6 +62,19 @@ class PlacedSurface(ReferenceSurface):
         world = local @ frame
         world[:, 0] += torch.tensor(self.origin, dtype=local.dtype, device=local.device)
         return world
+
+
+def checked_frame(frame) -> tuple[Vector3, Vector3, Vector3]:
+    """A frame (e_x, e_y, e_z), the world directions of local axes, as a tuple of float rows;
+    ValueError unless three finite 3-vectors, orthonormal and right-handed."""
+    matrix = torch.tensor(frame, dtype=torch.float64)
+    if matrix.shape != (3, 3) or not torch.isfinite(matrix).all():
+        raise ValueError(f"frame must be three 3-vectors (e_x, e_y, e_z), got {frame!r}")
+    if not torch.allclose(matrix @ matrix.T, torch.eye(3, dtype=torch.float64), atol=1e-9):
+        raise ValueError("frame must be orthonormal (unit, mutually orthogonal e_x, e_y, e_z)")
+    if torch.linalg.det(matrix) < 0:
+        raise ValueError("frame must be right-handed (e_x × e_y = e_z)")
+    return tuple(tuple(float(v) for v in row) for row in frame)
 
 
 def require_positive(surface: ReferenceSurface, name: str, unit: str) -> float:

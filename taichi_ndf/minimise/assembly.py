@@ -7,7 +7,10 @@ boundary composition u = φ N + g is pointwise and affine in N, so at the fixed 
     U_q = G_q + J_q · C_q      (C_q: the 3k coefficients acting at q),
 
 with J_q and G_q (the prescribed part) from the displacement operator
-(`DisplacementOperator.local_jacobian`, `.prescribed`). A free pin
+(`DisplacementOperator.local_jacobian`, `.prescribed`), J_q per component along the boundary
+frame's axes (the world axes unless the boundary has a `frame`: then U_q = G_q + Fᵀ J_q C_q and
+the gradient and Hessian blocks are turned to the frame, `operator.to_frame`,
+`.blocks_to_frame`; the coefficients are the frame components). A free pin
 (u = N(ξ) − N(ξ₀)) makes every point also depend on the k coefficients acting at the pin ξ₀
 (a "shared" set, the same for all points). Then
 
@@ -144,6 +147,7 @@ class Assembly:
         """Linearise the composition at load factor t (see `linearised`)."""
         self.offset, self.jacobian, self.pin_jacobian = linearised(
             operator, self.samples.xi, self.basis, load_factor)
+        self._operator = operator  # its boundary frame turns the per-component parts
         if self.pin_jacobian is not None:
             used = self.pin_jacobian.abs().amax(dim=(0, 1, 3)) > 0
             self._pin_channels = torch.nonzero(used).flatten()
@@ -155,10 +159,11 @@ class Assembly:
         if self.pin_jacobian is not None:
             u = u + torch.einsum("cnja,ac->njc", self.pin_jacobian,
                                  coefficients[self.basis.pin_index])
-        return self.offset + u
+        return self.offset + self._operator.to_world(u)
 
     def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
         """dΠ/dC (n, 3) from dΠ/dU (N, 6, 3)."""
+        grad_u_jets = self._operator.to_frame(grad_u_jets)
         local = torch.einsum("cnja,njc->nac", self.jacobian, grad_u_jets)
         out = local.new_zeros(self.size)
         out.index_add_(0, self.point_dofs, local.reshape(-1))
@@ -197,7 +202,8 @@ class Assembly:
         """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18) (index
         channel × 3 + component)."""
         n = blocks.shape[0]
-        blocks = blocks.reshape(n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
+        blocks = self._operator.blocks_to_frame(blocks).reshape(
+            n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
         width = self.jacobian.shape[3] * COMPONENTS
         summed = self._group_sums(self.jacobian, blocks, self.jacobian)
         pin = self.pin_jacobian is not None
@@ -233,10 +239,10 @@ def displacement_at(operator: DisplacementOperator, xi: torch.Tensor,
     (n, 3) in place of its own, at load factor t (e.g. at probe points)."""
     basis = local_basis_at(operator, xi)
     offset, jacobian, pin_jacobian = linearised(operator, xi, basis, load_factor)
-    u = offset + torch.einsum("cnja,nac->njc", jacobian, coefficients[basis.index])
+    u = torch.einsum("cnja,nac->njc", jacobian, coefficients[basis.index])
     if pin_jacobian is not None:
         u = u + torch.einsum("cnja,ac->njc", pin_jacobian, coefficients[basis.pin_index])
-    return u
+    return offset + operator.to_world(u)
 
 
 def gauge_unknowns(boundary: BoundaryConditions, basis: LocalBasis) -> np.ndarray | None:

@@ -40,6 +40,7 @@ from taichi_ndf.minimise.projected_newton import (
 from taichi_ndf.objective import Objective
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.hessian import COMPONENTS
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +92,18 @@ def richardson(values: list[float], order: float | None = None) -> Extrapolation
     return Extrapolation(limit, abs(limit - v2), order)
 
 
+def held_unknowns(grid, boundary, basis) -> np.ndarray | None:
+    """Unknowns held at zero: the gauge of a free pin (`gauge_unknowns`) and the coefficients
+    a mirrored spline never reads (`SplineField.aliased_coefficients`), which no point
+    couples."""
+    held = [gauge_unknowns(boundary, basis)]
+    aliased = grid.aliased_coefficients.numpy()
+    if aliased.size:
+        held.append((aliased[:, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(-1))
+    held = [h for h in held if h is not None]
+    return np.concatenate(held) if held else None
+
+
 def solve_levels(field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples],
                  objective: Objective, *, levels: int,
@@ -126,7 +139,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
         operator = DisplacementOperator(grid, boundary)
         basis = local_basis_at(operator, samples.xi)
         assembly = Assembly(samples, basis, grid.coefficients.shape[0])
-        fixed = gauge_unknowns(boundary, basis)
+        fixed = held_unknowns(grid, boundary, basis)
         setup = time.perf_counter() - started
         per_load: list[LevelSolution] = []
         coefficients = grid.coefficients.detach().clone()

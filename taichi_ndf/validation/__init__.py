@@ -14,6 +14,7 @@ from taichi_ndf.validation.catalogue import (
     component_read,
     roll_up_moment,
     roll_up_references,
+    rotation_read,
 )
 from taichi_ndf.validation.report import convergence_plot, markdown_table, write_report
 from taichi_ndf.validation.runner import CaseResult, Row, load_case_scene, run_case
@@ -23,4 +24,4 @@ CASES = builtin_cases()
 __all__ = ["CASES", "CASES_DIR", "LINEARISATION", "SCENES_DIR", "Case", "CaseResult", "Quantity",
            "Readings", "Row", "builtin_cases", "component_read", "convergence_plot",
            "load_case", "load_case_scene", "markdown_table", "roll_up_moment",
-           "roll_up_references", "run_case", "write_report"]
+           "roll_up_references", "rotation_read", "run_case", "write_report"]

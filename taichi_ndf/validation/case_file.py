@@ -19,6 +19,7 @@ from taichi_ndf.validation.catalogue import (
     distance_change_read,
     mean_read,
     roll_up_moment,
+    rotation_read,
 )
 
 COMPONENTS = ("x", "y", "z")
@@ -75,20 +76,28 @@ def _quantity(t: Table) -> Quantity:
         sign = r.number("sign", 1.0)
         if sign not in (1.0, -1.0):
             raise SceneError(f"{r.key('sign')}: must be 1 or -1, got {sign}")
-        if r.has("probe") == r.has("distance"):
-            raise SceneError(f"{r.path}: give exactly one of 'probe' (with 'component') or "
-                             "'distance' (two probes)")
+        kinds = [k for k in ("probe", "distance", "rotation") if r.has(k)]
+        if len(kinds) != 1:
+            raise SceneError(f"{r.path}: give exactly one of 'probe' (with 'component'), "
+                             "'distance' (two probes) or 'rotation' (two probes, with 'axis')")
         if r.has("probe"):
             probe = r.string("probe")
             axis = COMPONENTS.index(r.string("component", choices=COMPONENTS))
             functions.append(component_read(probe, axis, sign))
             probes.append(probe)
-        else:
-            pair = r._get("distance", None)
-            if not (isinstance(pair, list) and len(pair) == 2
-                    and all(isinstance(p, str) for p in pair)):
-                raise SceneError(f"{r.key('distance')}: expected two probe names, got {pair!r}")
+        elif r.has("distance"):
+            pair = _probe_pair(r, "distance")
             functions.append(distance_change_read(pair[0], pair[1], sign))
+            probes.extend(pair)
+        else:
+            pair = _probe_pair(r, "rotation")
+            axis = r._get("axis", None)
+            if not (isinstance(axis, list) and len(axis) == 3 and all(
+                    isinstance(a, (int, float)) and not isinstance(a, bool) for a in axis)):
+                raise SceneError(f"{r.key('axis')}: expected three numbers (the rotation "
+                                 f"axis), got {axis!r}")
+            functions.append(checked(
+                lambda p=pair, a=axis, s=sign: rotation_read(p[0], p[1], a, s), r.key("axis")))
             probes.extend(pair)
         r.close()
     quantity = checked(lambda: Quantity(
@@ -98,3 +107,11 @@ def _quantity(t: Table) -> Quantity:
         probes=tuple(dict.fromkeys(probes))), t.path)
     t.close()
     return quantity
+
+
+def _probe_pair(r: Table, key: str) -> list[str]:
+    pair = r._get(key, None)
+    if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(p, str) for p in pair)
+            and pair[0] != pair[1]):
+        raise SceneError(f"{r.key(key)}: expected two different probe names, got {pair!r}")
+    return pair

@@ -1,10 +1,11 @@
 """What a validation case is: published shell benchmarks (`../shared/spec/benchmarks.md`).
 
 A *case* is a scene file plus what to read from the trained field: one or more *quantities*
-(a displacement component at a probe, a change of distance between two probes, or the mean of
-several such reads), each at a load factor, with its published reference value, source and
-tolerance. Cases are written as case files (`taichi_ndf.validation.case_file`); the built-in
-ones are `validation/cases/*.toml`, their scenes `validation/scenes/*.toml`.
+(a displacement component at a probe, a change of distance between two probes, the rotation
+of the chord between two probes about an axis, or the mean of several such reads), each at a
+load factor, with its published reference value, source and tolerance. Cases are written as
+case files (`taichi_ndf.validation.case_file`); the built-in ones are `validation/cases/*.toml`,
+their scenes `validation/scenes/*.toml`.
 
 Two protocols beyond the scene itself:
 
@@ -142,6 +143,27 @@ def distance_change_read(first: str, second: str, sign: float = 1.0):
         before = np.linalg.norm(r[first] - r[second])
         after = np.linalg.norm(r[first] + u[first] - r[second] - u[second])
         return sign * 0.5 * float(after - before)
+    return read
+
+
+def rotation_read(first: str, second: str, axis, sign: float = 1.0):
+    """sign × the rotation [rad] about `axis` (3,) of the chord from probe `first` to probe
+    `second` between the reference and the deformed state: the signed angle, in (−π, π],
+    from the chord's reference projection on the plane normal to the axis to its deformed
+    one (right-hand rule about the axis). Invariant under translation; for close probes on
+    an edge it is the rotation of the edge's tangent, on a line across the surface that of
+    the surface about the axis."""
+    axis = np.asarray(axis, dtype=np.float64)
+    norm = float(np.linalg.norm(axis))
+    if not (np.all(np.isfinite(axis)) and norm > 0):
+        raise ValueError(f"rotation axis must be a finite non-zero vector, got {axis.tolist()}")
+    axis = axis / norm
+
+    def read(u: Readings, r: Readings) -> float:
+        before = r[second] - r[first]
+        after = before + u[second] - u[first]
+        p0, p1 = (d - np.dot(d, axis) * axis for d in (before, after))
+        return sign * float(np.arctan2(np.dot(axis, np.cross(p0, p1)), np.dot(p0, p1)))
     return read
 
 

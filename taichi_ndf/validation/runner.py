@@ -18,6 +18,7 @@ from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import EndMomentTerm, Objective
 from taichi_ndf.scene import Scene, load_scene
+from taichi_ndf.scene_field import field_for_solver
 from taichi_ndf.solver import Solver, SolverConfig
 from taichi_ndf.validation.catalogue import LINEARISATION, SCENES_DIR, Case, Readings
 
@@ -108,6 +109,8 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
     if seed is not None:
         config = dataclasses.replace(config, seed=seed)
     config = dataclasses.replace(config, progress=False)
+    # "auto" output scale with Adam: the linear estimate of the case's (scaled) model.
+    field_config = field_for_solver(field_config, scene.document, model, config)
     field_ = NeuralField(field_config, seed=config.seed)
     run = Solver(model, field_, config, objective=_objective(case, model))
     dtype = field_.parameters[0].dtype
