@@ -189,9 +189,11 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             t_solve += time.perf_counter() - started
             step = torch.from_numpy(step_np).to(c).reshape(c.shape)
             decrement = float(-(gradient * step).sum())
-            if decrement <= 0 or 0.5 * decrement <= config.decrement_tolerance * abs(
-                    current.total):  # converged: the step would change Π by rounding only
-                break
+            if 0.5 * abs(decrement) <= config.decrement_tolerance * abs(current.total):
+                break  # converged: the step would change Π by rounding only
+            if decrement < 0:  # K (nearly) singular along d, e.g. a flat sheet's rigid
+                damping = max(10 * damping, RETRY_DAMPING)  # rotations: damp and solve again
+                continue
             started = time.perf_counter()
             alpha = 1.0
             for _ in range(config.halvings):
@@ -214,9 +216,9 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                  "time energy %.3f hessian %.3f assembly %.3f solve %.3f s", iteration,
                  load_factor, current.total, decrement, alpha, damping, projected, t_energy,
                  t_hessian, t_assembly, t_solve)
-        near = 0.5 * decrement <= config.floor_tolerance * abs(current.total)
+        near = 0.5 * abs(decrement) <= config.floor_tolerance * abs(current.total)
         if alpha == 0.0:
-            converged = decrement <= 0 or near
+            converged = near
             break
         c = c + alpha * step
         if alpha < 1.0 and near:  # the quadratic model no longer predicts Π: rounding floor
