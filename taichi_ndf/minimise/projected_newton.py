@@ -8,7 +8,8 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
 3. K = Σ Jᵀ H J, sparse (`Assembly.hessian`) — of the exact blocks when that K is positive
    definite (checked by the pivots of its factorisation: a stable state may have indefinite
    blocks, and the exact Newton step then converges quadratically), else of the projected
-   ones;
+   ones (projected only then; the iteration after a failed attempt skips it: far from the
+   minimum attempts fail in a row and each costs an assembly and a factorisation);
 4. d from (K + μ diag K) d = −g (`damped_solve`; μ = 0 unless the system is singular or a
    step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd.
@@ -34,6 +35,7 @@ from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.shell.hessian import (
     Potential,
     flat_blocks,
+    indefinite_blocks,
     jet_steps,
     project_psd,
     sample_hessians,
@@ -142,7 +144,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
     samples = assembly.samples
     c = coefficients.detach().clone()
     history: list[NewtonIteration] = []
-    damping, converged, first_norm = 0.0, False, None
+    damping, converged, first_norm, exact_failed = 0.0, False, None, False
     for iteration in range(config.max_iterations):
         started = time.perf_counter()
         u = assembly.displacement(c)
@@ -159,12 +161,12 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
         started = time.perf_counter()
         steps = jet_steps(samples.r_jets, u, length, config.fd_step)
         exact = flat_blocks(hessian_blocks(potential, samples, u, steps))
-        blocks, projected = project_psd(exact) if config.project else (exact, 0)
+        bad = indefinite_blocks(exact) if config.project else exact.new_zeros(0)
         t_hessian = time.perf_counter() - started
         rhs = -gradient.reshape(-1).double().cpu().numpy()
         t_assembly = t_solve = 0.0
         exact_step = None
-        if projected and damping == 0.0:
+        if bad.numel() and damping == 0.0 and not exact_failed:
             # The assembled K may be definite although some blocks are not (a stable state
             # under compression): then its exact Newton step converges quadratically.
             started = time.perf_counter()
@@ -173,12 +175,17 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             started = time.perf_counter()
             exact_step = damped_solve(matrix, rhs, 0.0, fixed, require_definite=True)
             t_solve += time.perf_counter() - started
+            exact_failed = exact_step is None
+        else:  # after a failed attempt the next iteration goes straight to the projected K
+            exact_failed = False
+        projected = 0
         if exact_step is None:
+            started = time.perf_counter()
+            blocks, projected = project_psd(exact, bad)
+            t_hessian += time.perf_counter() - started
             started = time.perf_counter()
             matrix = assembly.hessian(blocks)
             t_assembly += time.perf_counter() - started
-        else:
-            projected = 0
         alpha, trial = 0.0, current.total
         for _attempt in range(6):
             started = time.perf_counter()

@@ -36,10 +36,11 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import law_inputs
-from taichi_ndf.shell.kinematics import mat2, reference_geometry, strains
+from taichi_ndf.shell.kinematics import jet_channel, mat2, reference_geometry, strains, vec3
 from taichi_ndf.shell.law_terms import LAW_TERMS, strain_energy_density
 from taichi_ndf.shell.materials import Material
 
+mat3 = ti.math.mat3
 STRAINS = 6  # ε₁₁, ε₁₂, ε₂₂, κ₁₁, κ₁₂, κ₂₂
 BENDING_CHANNELS = (jets.D11, jets.D12, jets.D22)
 
@@ -76,76 +77,76 @@ def _strain_gradient(kernel, r, strain, weight, stiffness, params) -> torch.Tens
     return s.grad
 
 
-def _cross_matrix(a: torch.Tensor) -> torch.Tensor:
-    """[a]× (N, 3, 3) with [a]× b = a × b, for a (N, 3)."""
-    zero = torch.zeros_like(a[:, 0])
-    return torch.stack((torch.stack((zero, -a[:, 2], a[:, 1]), -1),
-                        torch.stack((a[:, 2], zero, -a[:, 0]), -1),
-                        torch.stack((-a[:, 1], a[:, 0], zero), -1)), 1)
+@ti.func
+def _cross_matrix(a: vec3) -> mat3:
+    """[a]× with [a]× b = a × b."""
+    return mat3([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
-def _strain_jacobian(x: torch.Tensor, n: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
-    """J = ds/dU (N, 6 strains, 6 channels, 3) at deformed jets x (N, 6, 3) with unit normal
-    n (N, 3) and ℓ = |x₁ × x₂| (N,) (module docstring)."""
-    x1, x2 = x[:, jets.D1], x[:, jets.D2]
-    jac = x.new_zeros(x.shape[0], STRAINS, jets.CHANNELS, 3)
-    jac[:, 0, jets.D1] = x1
-    jac[:, 1, jets.D1] = 0.5 * x2
-    jac[:, 1, jets.D2] = 0.5 * x1
-    jac[:, 2, jets.D2] = x2
-    for b, channel in enumerate(BENDING_CHANNELS):
-        v = x[:, channel]
-        g = (v - (v * n).sum(1, keepdim=True) * n) / length[:, None]
-        jac[:, 3 + b, channel] = -n
-        jac[:, 3 + b, jets.D1] = -torch.linalg.cross(x2, g)
-        jac[:, 3 + b, jets.D2] = -torch.linalg.cross(g, x1)
-    return jac
+@ti.func
+def _put_block(out: ti.template(), i, row: ti.template(), col: ti.template(), block: mat3):
+    for k, m in ti.static(ti.ndrange(3, 3)):
+        out[i, row, k, col, m] = block[k, m]
 
 
-def _stress_part(x: torch.Tensor, n: torch.Tensor, length: torch.Tensor,
-                 stress: torch.Tensor) -> torch.Tensor:
-    """Σ_s (dE/ds) d²s/dU², shape (N, 6, 3, 6, 3), for stress = dE/ds (N, 6)."""
-    count = x.shape[0]
-    out = x.new_zeros(count, jets.CHANNELS, 3, jets.CHANNELS, 3)
-    eye = torch.eye(3, dtype=x.dtype, device=x.device)
-    d1, d2 = jets.D1, jets.D2
-    out[:, d1, :, d1] += stress[:, 0, None, None] * eye
-    out[:, d2, :, d2] += stress[:, 2, None, None] * eye
-    out[:, d1, :, d2] += 0.5 * stress[:, 1, None, None] * eye
-    out[:, d2, :, d1] += 0.5 * stress[:, 1, None, None] * eye
-    x1, x2 = x[:, d1], x[:, d2]
-    projector = eye - n[:, :, None] * n[:, None, :]
-    inv = (1.0 / length)[:, None, None]
-    dn = {d1: -inv * projector @ _cross_matrix(x2), d2: inv * projector @ _cross_matrix(x1)}
-    moments = stress[:, 3:]
-    v = torch.zeros_like(x1)
-    for b, channel in enumerate(BENDING_CHANNELS):
-        m = moments[:, b, None, None]
-        v = v + moments[:, b, None] * x[:, channel]
-        for a in (d1, d2):
-            out[:, channel, :, a] -= m * dn[a]
-            out[:, a, :, channel] -= m * dn[a].transpose(1, 2)
-    vn = (v * n).sum(1)[:, None, None]
-    outer = v[:, :, None] * n[:, None, :]
-    f = (-outer - outer.transpose(1, 2) - vn * eye
-         + 3.0 * vn * n[:, :, None] * n[:, None, :]) * inv * inv
-    g = (v - vn[:, :, 0] * n) / length[:, None]
-    mm = {d1: -_cross_matrix(x2), d2: _cross_matrix(x1)}
-    gx = _cross_matrix(g)
-    for a in (d1, d2):
-        for b in (d1, d2):
-            second = mm[a].transpose(1, 2) @ f @ mm[b]
-            if a != b:
-                second = second + (-gx if a == d1 else gx)
-            out[:, a, :, b] -= second
-    return out
+@ti.kernel
+def _strain_derivatives(x: ti.types.ndarray(), stress: ti.types.ndarray(),
+                        jac: ti.types.ndarray(), second: ti.types.ndarray()):
+    """J = ds/dU into jac (N, 6 strains, 6 channels, 3) and Σ_s (dE/ds) d²s/dU² into second
+    (N, 6, 3, 6, 3), both zero on entry, at deformed jets x (N, 6, 3) and stress = dE/ds
+    (N, 6) (module docstring)."""
+    for i in range(x.shape[0]):
+        x1 = jet_channel(x, i, jets.D1)
+        x2 = jet_channel(x, i, jets.D2)
+        normal = x1.cross(x2)
+        length = normal.norm()
+        n = normal / length
+        projector = ti.Matrix.identity(float, 3) - n.outer_product(n)
+        for k in ti.static(range(3)):
+            jac[i, 0, jets.D1, k] = x1[k]
+            jac[i, 1, jets.D1, k] = 0.5 * x2[k]
+            jac[i, 1, jets.D2, k] = 0.5 * x1[k]
+            jac[i, 2, jets.D2, k] = x2[k]
+        dn1 = -(projector @ _cross_matrix(x2)) / length  # dn/dx₁
+        dn2 = (projector @ _cross_matrix(x1)) / length  # dn/dx₂
+        v_sum = vec3(0.0, 0.0, 0.0)
+        for b in ti.static(range(3)):
+            channel = ti.static(BENDING_CHANNELS[b])
+            v = jet_channel(x, i, channel)
+            g = (v - v.dot(n) * n) / length
+            d1 = -x2.cross(g)
+            d2 = -g.cross(x1)
+            for k in ti.static(range(3)):
+                jac[i, 3 + b, channel, k] = -n[k]
+                jac[i, 3 + b, jets.D1, k] = d1[k]
+                jac[i, 3 + b, jets.D2, k] = d2[k]
+            moment = stress[i, 3 + b]
+            v_sum += moment * v
+            _put_block(second, i, channel, jets.D1, -moment * dn1)
+            _put_block(second, i, channel, jets.D2, -moment * dn2)
+            _put_block(second, i, jets.D1, channel, -moment * dn1.transpose())
+            _put_block(second, i, jets.D2, channel, -moment * dn2.transpose())
+        vn = v_sum.dot(n)
+        outer = v_sum.outer_product(n)
+        eye = ti.Matrix.identity(float, 3)
+        f = (-outer - outer.transpose() - vn * eye + 3.0 * vn * n.outer_product(n)) / (
+            length * length)
+        gx = _cross_matrix((v_sum - vn * n) / length)
+        m1 = -_cross_matrix(x2)
+        m2 = _cross_matrix(x1)
+        _put_block(second, i, jets.D1, jets.D1, stress[i, 0] * eye - m1.transpose() @ f @ m1)
+        _put_block(second, i, jets.D2, jets.D2, stress[i, 2] * eye - m2.transpose() @ f @ m2)
+        _put_block(second, i, jets.D1, jets.D2,
+                   0.5 * stress[i, 1] * eye - m1.transpose() @ f @ m2 + gx)
+        _put_block(second, i, jets.D2, jets.D1,
+                   0.5 * stress[i, 1] * eye - m2.transpose() @ f @ m1 - gx)
 
 
 def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: torch.Tensor,
                            *, steps: torch.Tensor, stiffness: torch.Tensor | None = None
                            ) -> torch.Tensor:
     """Per-point Hessian blocks d²E/dU² (N, 6, 3, 6, 3) of the strain energy (module
-    docstring), symmetrised; zero at point-load samples (weight 0).
+    docstring), symmetric; zero at point-load samples (weight 0).
 
     steps: the jet channels' central-difference steps (6,) (`jet_steps`); the strain steps
     are the strain changes they cause: δε = the tangent step × the RMS tangent length,
@@ -156,9 +157,11 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     dtype, device = r_all.dtype, r_all.device
     kernel_stiffness, params = law_inputs(material, count, stiffness, dtype, device)
     active = torch.nonzero(samples.weight != 0).flatten()
-    out = r_all.new_zeros(count, jets.CHANNELS, 3, jets.CHANNELS, 3)
-    if active.numel() == 0:
-        return out
+    everywhere = active.numel() == count
+    if everywhere:
+        active = slice(None)
+    elif active.numel() == 0:
+        return r_all.new_zeros(count, jets.CHANNELS, 3, jets.CHANNELS, 3)
     r = r_all[active].contiguous()
     u = u_jets.detach().to(dtype)[active]
     x = r + u
@@ -182,11 +185,13 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
         minus = _strain_gradient(kernel, r, shifted, weight, kstiff, params)
         stiffness_s[:, :, j] = (plus - minus) / (2 * delta)
     stiffness_s = 0.5 * (stiffness_s + stiffness_s.transpose(1, 2))
-    normal = torch.linalg.cross(x[:, jets.D1], x[:, jets.D2])
-    length = normal.norm(dim=1)
-    n = normal / length[:, None]
-    jac = _strain_jacobian(x, n, length).reshape(-1, STRAINS, jets.CHANNELS * 3)
-    blocks = (jac.transpose(1, 2) @ stiffness_s @ jac).reshape(
-        -1, jets.CHANNELS, 3, jets.CHANNELS, 3) + _stress_part(x, n, length, stress)
-    out[active] = 0.5 * (blocks + blocks.permute(0, 3, 4, 1, 2))
+    jac = x.new_zeros(x.shape[0], STRAINS, jets.CHANNELS, 3)
+    stress_part = x.new_zeros(x.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3)
+    _strain_derivatives(x.contiguous(), stress.contiguous(), jac, stress_part)
+    jac = jac.reshape(-1, STRAINS, jets.CHANNELS * 3)
+    blocks = (jac.transpose(1, 2) @ stiffness_s @ jac).reshape(stress_part.shape) + stress_part
+    if everywhere:
+        return blocks
+    out = r_all.new_zeros(count, jets.CHANNELS, 3, jets.CHANNELS, 3)
+    out[active] = blocks
     return out
