@@ -6,7 +6,7 @@ positive definite after projection and damping, so the diagonal is a stable pivo
 listed in `fixed` (gauge freedoms, e.g. the constant shift of a free-pinned field) are held
 at zero. Levenberg–Marquardt damping μ · diag(K) keeps near-singular systems (zero-energy
 motions, a flat sheet under a transverse load) solvable; it is raised tenfold while the
-factorisation fails. The solves of one Newton run share their ordering (`FillOrdering`).
+factorisation fails.
 """
 
 from __future__ import annotations
@@ -22,61 +22,15 @@ log = logging.getLogger(__name__)
 MAX_DAMPING_RAISES = 12
 
 
-class FillOrdering:
-    """The fill-reducing ordering of a first factorisation, reused for later matrices of the
-    same sparsity pattern (the Newton steps of one grid): it saves a third of a factorisation
-    (SuperLU with MMD 163 ms, with the stored ordering 106 + 8 ms, napkin 32 × 32 spans,
-    3675 unknowns, benchmarks/RESULTS.md)."""
-
-    def __init__(self):
-        self._key = None
-        self._inverse = None
-
-    @staticmethod
-    def _pattern(matrix: sp.csc_matrix):
-        return (matrix.shape, matrix.nnz, hash(matrix.indptr.tobytes()),
-                hash(matrix.indices.tobytes()))
-
-    def get(self, matrix: sp.csc_matrix) -> np.ndarray | None:
-        return self._inverse if self._key == self._pattern(matrix) else None
-
-    def store(self, matrix: sp.csc_matrix, perm_c: np.ndarray) -> None:
-        inverse = np.empty_like(perm_c)
-        inverse[perm_c] = np.arange(len(perm_c))
-        self._key, self._inverse = self._pattern(matrix), inverse
-
-
-def _factor(system: sp.csc_matrix, ordering: FillOrdering | None):
-    """LU of the symmetric system in symmetric mode and a solve function for it: with the
-    stored ordering when `ordering` holds one for this pattern, else a minimum-degree one
-    (stored)."""
-    options = {"diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
-    inverse = None if ordering is None else ordering.get(system)
-    if inverse is None:
-        factor = spla.splu(system, permc_spec="MMD_AT_PLUS_A", **options)
-        if ordering is not None:
-            ordering.store(system, factor.perm_c)
-        return factor, factor.solve
-    factor = spla.splu(system[inverse][:, inverse].tocsc(), permc_spec="NATURAL", **options)
-
-    def solve(rhs):
-        out = np.empty_like(rhs)
-        out[inverse] = factor.solve(rhs[inverse])
-        return out
-    return factor, solve
-
-
 def damped_solve(matrix: sp.csr_matrix, rhs: np.ndarray, damping: float,
-                 fixed: np.ndarray | None = None, *, require_definite: bool = False,
-                 ordering: FillOrdering | None = None
+                 fixed: np.ndarray | None = None, *, require_definite: bool = False
                  ) -> tuple[np.ndarray, float] | None:
     """Solve (K + μ D) x = rhs over the free unknowns (x = 0 at `fixed`), D = diag(K) (the
     mean diagonal where an entry of it is 0), μ = damping (raised ×10 from at least 1e-12
     while the factorisation fails). Returns x and the μ used.
 
     require_definite: return None unless K + μ D is positive definite (all pivots of the
-    symmetric-mode factorisation positive: its inertia), without raising μ.
-    ordering: a `FillOrdering` shared by the solves of one sparsity pattern, or None."""
+    symmetric-mode factorisation positive: its inertia), without raising μ."""
     size = matrix.shape[0]
     free = np.ones(size, dtype=bool)
     if fixed is not None:
@@ -89,8 +43,9 @@ def damped_solve(matrix: sp.csr_matrix, rhs: np.ndarray, damping: float,
     for _ in range(MAX_DAMPING_RAISES):
         system = reduced + sp.diags(mu * diag, format="csc") if mu > 0 else reduced
         try:
-            factor, solve = _factor(system, ordering)
-            solution = solve(rhs[free])
+            factor = spla.splu(system, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                               options={"SymmetricMode": True})
+            solution = factor.solve(rhs[free])
         except RuntimeError as err:  # exactly singular
             if require_definite:
                 return None

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from taichi_ndf.minimise.assembly import Assembly
-from taichi_ndf.minimise.linear_solve import FillOrdering, damped_solve
+from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.shell.hessian import (
     Potential,
     flat_blocks,
@@ -145,7 +145,6 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
     c = coefficients.detach().clone()
     history: list[NewtonIteration] = []
     damping, converged, first_norm, exact_failed = 0.0, False, None, False
-    ordering = FillOrdering()  # one sparsity pattern: every K of these coefficients
     for iteration in range(config.max_iterations):
         started = time.perf_counter()
         u = assembly.displacement(c)
@@ -174,8 +173,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             matrix = assembly.hessian(exact)
             t_assembly += time.perf_counter() - started
             started = time.perf_counter()
-            exact_step = damped_solve(matrix, rhs, 0.0, fixed, require_definite=True,
-                                      ordering=ordering)
+            exact_step = damped_solve(matrix, rhs, 0.0, fixed, require_definite=True)
             t_solve += time.perf_counter() - started
             exact_failed = exact_step is None
         else:  # after a failed attempt the next iteration goes straight to the projected K
@@ -194,7 +192,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             if exact_step is not None:
                 (step_np, damping), exact_step = exact_step, None
             else:
-                step_np, damping = damped_solve(matrix, rhs, damping, fixed, ordering=ordering)
+                step_np, damping = damped_solve(matrix, rhs, damping, fixed)
             t_solve += time.perf_counter() - started
             step = torch.from_numpy(step_np).to(c).reshape(c.shape)
             decrement = float(-(gradient * step).sum())
