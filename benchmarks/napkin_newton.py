@@ -9,7 +9,10 @@ three grids. Kernels are compiled (or loaded from the cache) before the clock st
 2 × 2 grid: that time is printed apart.
 
     OMP_NUM_THREADS=1 python benchmarks/napkin_newton.py [--levels 4] [--coarsest 2]
-        [--tolerance 1e-4] [--reference -1.3318] [--precision f64]
+        [--tolerance 1e-4] [--reference -1.3318] [--precision f64] [--parts]
+
+--parts: also the CPU time of each part of one Newton step at the finest grid's solution
+(median of 3), with the central-difference Hessian blocks (`sample_hessians`) for comparison.
 """
 
 from __future__ import annotations
@@ -24,11 +27,21 @@ import torch
 
 import taichi_ndf
 from taichi_ndf.field.spline import SplineConfig, SplineField
+from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
+from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective
+from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.scene import load_scene
+from taichi_ndf.shell.hessian import (
+    flat_blocks,
+    indefinite_blocks,
+    jet_steps,
+    project_psd,
+    sample_hessians,
+)
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "napkin.toml"
 # Richardson from 8², 16², 32² spans solved to the rounding floor (benchmarks/RESULTS.md,
@@ -48,6 +61,52 @@ def solve(model, levels: int, coarsest: int, config: ProjectedNewtonConfig):
                         length=math.sqrt(surface.domain.rectangle_area))
 
 
+def step_parts(model, spans: tuple[int, int], coefficients: torch.Tensor) -> list[tuple]:
+    """CPU seconds (median of 3) of each part of a Newton step at these coefficients."""
+    surface = model.surface
+    field = SplineField(SplineConfig(spans=spans, degree=3, domain=surface.domain.bounds))
+    samples = span_quadrature(surface, field.config, model.loads)
+    operator = DisplacementOperator(field, model.boundary)
+    basis = local_basis_at(operator, samples.xi)
+    assembly = Assembly(samples, basis, field.coefficients.shape[0]).at_load(operator, 1.0)
+    fixed = gauge_unknowns(model.boundary, basis)
+    potential = Objective.of_model(model).potential(1.0)
+    s = assembly.samples
+    u = assembly.displacement(coefficients)
+    result = potential(s, u, True)
+    steps = jet_steps(s.r_jets, u, math.sqrt(surface.domain.rectangle_area), 1e-5)
+    blocks = flat_blocks(potential.hessian_blocks(s, u, steps=steps))
+    bad = indefinite_blocks(blocks)
+    projected, _ = project_psd(blocks, bad)
+    matrix = assembly.hessian(projected)
+    rhs = -assembly.gradient(result.grad_u_jets).reshape(-1).numpy()
+    parts = [
+        ("displacement U = offset + J C", lambda: assembly.displacement(coefficients)),
+        ("energy + autodiff gradient dΠ/dU", lambda: potential(s, u, True)),
+        ("energy alone (a line-search trial)", lambda: potential(s, u, False)),
+        ("gradient pull-back dΠ/dC", lambda: assembly.gradient(result.grad_u_jets)),
+        ("Hessian blocks through the strains", lambda: potential.hessian_blocks(
+            s, u, steps=steps)),
+        ("Hessian blocks by central differences (before)", lambda: sample_hessians(
+            potential, s, u, steps=steps)),
+        ("indefinite-block screen (batched Cholesky)", lambda: indefinite_blocks(blocks)),
+        (f"projection ({bad.numel()} of {len(s)} blocks eigen-decomposed)",
+         lambda: project_psd(blocks, bad)),
+        ("assembly K = Σ Jᵀ H J", lambda: assembly.hessian(projected)),
+        ("factorise + solve (SuperLU)", lambda: damped_solve(matrix, rhs, 0.0, fixed)),
+    ]
+    out = []
+    for name, part in parts:
+        part()
+        times = []
+        for _ in range(3):
+            started = time.process_time()
+            part()
+            times.append(time.process_time() - started)
+        out.append((name, sorted(times)[1]))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--levels", type=int, default=4)
@@ -58,6 +117,8 @@ def main() -> None:
                         help="the extrapolated Π∞ [J] the gap is measured against")
     parser.add_argument("--precision", choices=("f32", "f64"), default="f64")
     parser.add_argument("--verbose", action="store_true", help="log every Newton iteration")
+    parser.add_argument("--parts", action="store_true",
+                        help="time each part of a Newton step at the finest grid")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s: %(message)s")
@@ -100,6 +161,12 @@ def main() -> None:
               f"estimated error {e.error:.4f} J), {100 * gap:+.2f} % from the reference")
     print(f"wall {wall:.2f} s, CPU {cpu:.2f} s (this process; the two differ by the time the "
           "machine's other load took the core)")
+    if args.parts:
+        last = results[-1][-1]
+        print(f"\nparts of one Newton step at {last.spans[0]} × {last.spans[1]} spans "
+              "(CPU ms, median of 3):")
+        for name, seconds in step_parts(model, last.spans, last.coefficients):
+            print(f"| {name} | {1000 * seconds:.1f} |")
 
 
 if __name__ == "__main__":
