@@ -3,8 +3,9 @@
 Per iteration at coefficients C (n, 3), on fixed quadrature points:
 1. Π and g = dΠ/dC (Taichi-autodiff gradient with respect to the jets, pulled back through the
    composition: `Assembly.gradient`);
-2. per-point Hessian blocks by central differences of that gradient, projected to positive
-   semi-definite (`taichi_ndf.shell.hessian`);
+2. per-point Hessian blocks, the potential's own (`Objective.hessian_blocks`: the shell's
+   through its strains, `taichi_ndf.shell.strain_hessian`) or central differences of its
+   gradient, projected to positive semi-definite where needed (`taichi_ndf.shell.hessian`);
 3. K = Σ Jᵀ H J, sparse (`Assembly.hessian`) — of the exact blocks when that K is positive
    definite (checked by the pivots of its factorisation: a stable state may have indefinite
    blocks, and the exact Newton step then converges quadratically), else of the projected
