@@ -105,7 +105,7 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
                       quadrature_points=points)
 
 
-NEWTON_KEYS = ("method", "load_steps", "seed", "newton_max_iterations")
+NEWTON_KEYS = ("method", "load_steps", "seed", "newton_max_iterations", "newton_tolerance")
 
 
 def newton_training(t: Table) -> tuple[SolverConfig, SolverConfig]:
@@ -115,8 +115,19 @@ def newton_training(t: Table) -> tuple[SolverConfig, SolverConfig]:
                              f"{', '.join(NEWTON_KEYS)})")
     solver = SolverConfig(
         method="newton", load_steps=t.numbers("load_steps", (1.0,)), seed=t.integer("seed", 0),
-        newton_max_iterations=t.integer("newton_max_iterations", 100, minimum=1))
+        newton_max_iterations=t.integer("newton_max_iterations", 100, minimum=1),
+        newton_tolerance=_tolerance(t))
     return solver, replace(solver, max_levels=1)
+
+
+def _tolerance(t: Table) -> float | None:
+    if not t.has("newton_tolerance"):
+        return None
+    value = t._get("newton_tolerance", None)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1:
+        raise SceneError(f"{t.key('newton_tolerance')}: expected a number in (0, 1) (λ²/2 "
+                         f"relative to |Π|), got {value!r}")
+    return float(value)
 
 
 def with_field_type(document: dict, kind: str) -> dict:

@@ -94,12 +94,17 @@ class SplineRun:
 def newton_config(config: SolverConfig, dtype: torch.dtype) -> ProjectedNewtonConfig:
     """Projected-Newton settings of a run: the FD step and the stopping tolerances suit the
     precision (float32: Π is summed over thousands of points, so its rounding floor is about
-    1e-6 |Π|; the float64 defaults would never stop)."""
+    1e-6 |Π|; the float64 defaults would never stop); a run's `newton_tolerance` looser than
+    that floor replaces the decrement tolerance."""
     if dtype == torch.float64:
-        return ProjectedNewtonConfig(max_iterations=config.newton_max_iterations)
-    return ProjectedNewtonConfig(max_iterations=config.newton_max_iterations, fd_step=3e-3,
-                                 decrement_tolerance=1e-7, gradient_tolerance=1e-5,
-                                 floor_tolerance=1e-6)
+        newton = ProjectedNewtonConfig(max_iterations=config.newton_max_iterations)
+    else:
+        newton = ProjectedNewtonConfig(max_iterations=config.newton_max_iterations,
+                                       fd_step=3e-3, decrement_tolerance=1e-7,
+                                       gradient_tolerance=1e-5, floor_tolerance=1e-6)
+    if config.newton_tolerance is None or config.newton_tolerance <= newton.decrement_tolerance:
+        return newton
+    return dataclasses.replace(newton, decrement_tolerance=config.newton_tolerance)
 
 
 def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,

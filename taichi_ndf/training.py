@@ -37,6 +37,9 @@ class SolverConfig:
         load continuation over `load_steps`, coarse to fine over the field's levels; the
         Adam keys do not apply).
     newton_max_iterations: most projected-Newton iterations per load step and level.
+    newton_tolerance: stop a level's Newton iterations when λ²/2 ≤ this × |Π| (λ² the Newton
+        decrement; λ²/2 estimates Π − Π*); None: the precision's rounding floor (1e-12 in
+        float64, 1e-7 in float32). E.g. 1e-4 for a solve whose Π must be good to 1 %.
     max_levels: most grid levels a Newton run solves (0: all of the field's; 1 for --quick).
     """
 
@@ -57,6 +60,7 @@ class SolverConfig:
     pseudo_time_start: float = 0.0
     method: str = "adam"
     newton_max_iterations: int = 100
+    newton_tolerance: float | None = None
     max_levels: int = 0
 
     def __post_init__(self):
@@ -65,6 +69,9 @@ class SolverConfig:
         if self.newton_max_iterations < 1 or self.max_levels < 0:
             raise ValueError(f"newton_max_iterations must be >= 1 and max_levels >= 0, got "
                              f"{self.newton_max_iterations}, {self.max_levels}")
+        tol = self.newton_tolerance
+        if tol is not None and not (isinstance(tol, (int, float)) and 0 < tol < 1):
+            raise ValueError(f"newton_tolerance must be in (0, 1), got {tol!r}")
         if self.method == "newton" and self.pseudo_time:
             raise ValueError("pseudo_time needs method 'adam' (a SIREN field)")
         if self.iterations < 0:

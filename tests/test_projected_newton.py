@@ -205,6 +205,9 @@ def test_free_pin_hangs_and_holds_the_pinned_point():
         assert np.abs(solution.probes["pin"]).max() < 1e-12
         assert solution.probes["free"][2] < -0.5  # the free corner hangs below the pin
     assert fine.energy < coarse.energy  # the finer grid contains the coarser one
+    # From the flat sheet, K is singular along the rigid rotations about the pin: a negative
+    # decrement must raise the damping, not end the solve at Π = 0 as "converged".
+    assert coarse.energy < -1.25
 
 
 def test_richardson_recovers_the_limit_and_order_of_a_power_law():

@@ -3,16 +3,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
 import numpy as np
 import pytest
+import torch
 
 from taichi_ndf.cli import export, sim
 from taichi_ndf.scene import load_scene
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.spline_grid import SplinePlan, grid_spans
+from taichi_ndf.spline_solver import newton_config
 
 RUNTIME = ["--precision", "f64"]
 
@@ -81,10 +84,25 @@ def test_a_spline_scene_reads_its_grid_and_defaults_to_newton(tmp_path):
     (SPLINE, "[training]\niterations = 100", "training.iterations: not used by method = "
      "\"newton\""),
     (SPLINE, '[training]\nmethod = "adam"\npseudo_time = true', "training.pseudo_time"),
+    (SPLINE, "[training]\nnewton_tolerance = 0", "training.newton_tolerance: expected a "
+     "number in (0, 1)"),
 ])
 def test_wrong_spline_and_newton_keys_are_named(tmp_path, field, training, message):
     with pytest.raises(SceneError, match=re.escape(message)):
         load_scene(write(tmp_path, field=field, training=training))
+
+
+def test_newton_tolerance_loosens_only_the_decrement_tolerance(tmp_path):
+    scene = load_scene(write(tmp_path, training="[training]\nnewton_tolerance = 1e-4"))
+    assert scene.solver.newton_tolerance == 1e-4
+    loose = newton_config(scene.solver, torch.float64)
+    default = newton_config(load_scene(write(tmp_path)).solver, torch.float64)
+    assert loose.decrement_tolerance == 1e-4 and default.decrement_tolerance == 1e-12
+    assert dataclasses.replace(loose, decrement_tolerance=1e-12) == default
+    # float32: a tolerance tighter than its rounding floor leaves the floor
+    assert newton_config(scene.solver, torch.float32).decrement_tolerance == 1e-4
+    assert newton_config(dataclasses.replace(scene.solver, newton_tolerance=1e-9),
+                         torch.float32).decrement_tolerance == 1e-7
 
 
 def test_field_switch_keeps_load_steps_and_seed(tmp_path):

@@ -79,6 +79,31 @@ def linearised(operator: DisplacementOperator, xi: torch.Tensor, basis: LocalBas
     return offset, local.own, pin
 
 
+def _apply(jacobian: torch.Tensor, local: torch.Tensor) -> torch.Tensor:
+    """U[n, j, c] = Σ_a J[c, n, j, a] C[n, a, c]: Jacobians (3, N, 6, k) of the per-point
+    coefficients local (N, k, 3); shape (N, 6, 3). One batched GEMV (3× faster than einsum)."""
+    comps, count, channels, k = jacobian.shape
+    out = torch.bmm(jacobian.reshape(comps * count, channels, k),
+                    local.permute(2, 0, 1).reshape(comps * count, k, 1))
+    return out.reshape(comps, count, channels).permute(1, 2, 0)
+
+
+def _pin_displacement(pin_jacobian: torch.Tensor, pin_coefficients: torch.Tensor
+                      ) -> torch.Tensor:
+    """The pin's part of U (1, 6, 3), the same at every point: pin Jacobian (3, N, 6, k) (an
+    expanded view), the pin's coefficients (k, 3)."""
+    return torch.einsum("cja,ac->jc", pin_jacobian[:, 0], pin_coefficients)[None]
+
+
+def _apply_transpose(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
+    """G[n, a, c] = Σ_j J[c, n, j, a] g[n, j, c] for Jacobians (3, N, 6, k) and g (N, 6, 3);
+    shape (N, k, 3)."""
+    comps, count, channels, k = jacobian.shape
+    out = torch.bmm(grad.permute(2, 0, 1).reshape(comps * count, 1, channels),
+                    jacobian.reshape(comps * count, channels, k))
+    return out.reshape(comps, count, k).permute(1, 2, 0)
+
+
 def _weighted(blocks: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
     """T[q, i, c, b, d] = Σ_j H[q, i, c, j, d] J[d, q, j, b]: blocks (n, 6, 3, 6, 3) times
     Jacobians (3, n, 6, k); shape (n, 6, 3, k, 3)."""
@@ -155,20 +180,20 @@ class Assembly:
 
     def displacement(self, coefficients: torch.Tensor) -> torch.Tensor:
         """Displacement jets U (N, 6, 3) [m] of coefficients (n, 3)."""
-        u = torch.einsum("cnja,nac->njc", self.jacobian, coefficients[self.basis.index])
+        u = _apply(self.jacobian, coefficients[self.basis.index])
         if self.pin_jacobian is not None:
-            u = u + torch.einsum("cnja,ac->njc", self.pin_jacobian,
-                                 coefficients[self.basis.pin_index])
+            u = u + _pin_displacement(self.pin_jacobian, coefficients[self.basis.pin_index])
         return self.offset + self._operator.to_world(u)
 
     def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
         """dΠ/dC (n, 3) from dΠ/dU (N, 6, 3)."""
         grad_u_jets = self._operator.to_frame(grad_u_jets)
-        local = torch.einsum("cnja,njc->nac", self.jacobian, grad_u_jets)
+        local = _apply_transpose(self.jacobian, grad_u_jets)
         out = local.new_zeros(self.size)
         out.index_add_(0, self.point_dofs, local.reshape(-1))
         if self.pin_jacobian is not None:
-            pin = torch.einsum("cnja,njc->ac", self.pin_jacobian, grad_u_jets)
+            # the pin's Jacobian is the same at every point: sum the gradient first
+            pin = torch.einsum("cja,jc->ac", self.pin_jacobian[:, 0], grad_u_jets.sum(0))
             out.index_add_(0, torch.from_numpy(self.pin_dofs).to(out.device), pin.reshape(-1))
         return out.reshape(-1, COMPONENTS)
 
@@ -205,12 +230,23 @@ class Assembly:
         blocks = self._operator.blocks_to_frame(blocks).reshape(
             n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
         width = self.jacobian.shape[3] * COMPONENTS
-        summed = self._group_sums(self.jacobian, blocks, self.jacobian)
+        # Only the channels some block touches enter (the shell energy's blocks have no value
+        # channel: 5² of the 6² channel pairs, and no coupling through a free pin's value).
+        touched = blocks.reshape(n, -1).abs().amax(dim=0).reshape(blocks.shape[1:]).amax(
+            dim=(1, 3)) > 0
+        used = torch.nonzero(touched.any(dim=0) | touched.any(dim=1)).flatten()
+        jacobian = self.jacobian
+        if used.numel() < jets.CHANNELS:
+            blocks = blocks[:, used][:, :, :, used]
+            jacobian = jacobian[:, :, used]
+        summed = self._group_sums(jacobian, blocks, jacobian)
         pin = self.pin_jacobian is not None
         if pin:  # the pin's Jacobian lives on few channels (the value): only those enter
-            ch = self._pin_channels
-            pin_jac = self.pin_jacobian[:, :, ch]
-            cross = self._group_sums(self.jacobian, blocks[:, :, :, ch], pin_jac)
+            ch = torch.nonzero(torch.isin(used, self._pin_channels)).flatten()
+            pin = ch.numel() > 0
+        if pin:
+            pin_jac = self.pin_jacobian[:, :, used[ch]]
+            cross = self._group_sums(jacobian, blocks[:, :, :, ch], pin_jac)
             dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
             dense.index_add_(0, self._group_dofs, cross.reshape(-1, width))
             pin_pin = self._group_sums(pin_jac, blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
@@ -239,9 +275,9 @@ def displacement_at(operator: DisplacementOperator, xi: torch.Tensor,
     (n, 3) in place of its own, at load factor t (e.g. at probe points)."""
     basis = local_basis_at(operator, xi)
     offset, jacobian, pin_jacobian = linearised(operator, xi, basis, load_factor)
-    u = torch.einsum("cnja,nac->njc", jacobian, coefficients[basis.index])
+    u = _apply(jacobian, coefficients[basis.index])
     if pin_jacobian is not None:
-        u = u + torch.einsum("cnja,ac->njc", pin_jacobian, coefficients[basis.pin_index])
+        u = u + _pin_displacement(pin_jacobian, coefficients[basis.pin_index])
     return offset + operator.to_world(u)
 
 

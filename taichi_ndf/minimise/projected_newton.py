@@ -3,12 +3,14 @@
 Per iteration at coefficients C (n, 3), on fixed quadrature points:
 1. Π and g = dΠ/dC (Taichi-autodiff gradient with respect to the jets, pulled back through the
    composition: `Assembly.gradient`);
-2. per-point Hessian blocks by central differences of that gradient, projected to positive
-   semi-definite (`taichi_ndf.shell.hessian`);
+2. per-point Hessian blocks, the potential's own (`Objective.hessian_blocks`: the shell's
+   through its strains, `taichi_ndf.shell.strain_hessian`) or central differences of its
+   gradient, projected to positive semi-definite where needed (`taichi_ndf.shell.hessian`);
 3. K = Σ Jᵀ H J, sparse (`Assembly.hessian`) — of the exact blocks when that K is positive
    definite (checked by the pivots of its factorisation: a stable state may have indefinite
    blocks, and the exact Newton step then converges quadratically), else of the projected
-   ones;
+   ones (projected only then; the iteration after a failed attempt skips it: far from the
+   minimum attempts fail in a row and each costs an assembly and a factorisation);
 4. d from (K + μ diag K) d = −g (`damped_solve`; μ = 0 unless the system is singular or a
    step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd.
@@ -34,6 +36,7 @@ from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.shell.hessian import (
     Potential,
     flat_blocks,
+    indefinite_blocks,
     jet_steps,
     project_psd,
     sample_hessians,
@@ -142,7 +145,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
     samples = assembly.samples
     c = coefficients.detach().clone()
     history: list[NewtonIteration] = []
-    damping, converged, first_norm = 0.0, False, None
+    damping, converged, first_norm, exact_failed = 0.0, False, None, False
     for iteration in range(config.max_iterations):
         started = time.perf_counter()
         u = assembly.displacement(c)
@@ -159,12 +162,12 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
         started = time.perf_counter()
         steps = jet_steps(samples.r_jets, u, length, config.fd_step)
         exact = flat_blocks(hessian_blocks(potential, samples, u, steps))
-        blocks, projected = project_psd(exact) if config.project else (exact, 0)
+        bad = indefinite_blocks(exact) if config.project else exact.new_zeros(0)
         t_hessian = time.perf_counter() - started
         rhs = -gradient.reshape(-1).double().cpu().numpy()
         t_assembly = t_solve = 0.0
         exact_step = None
-        if projected and damping == 0.0:
+        if bad.numel() and damping == 0.0 and not exact_failed:
             # The assembled K may be definite although some blocks are not (a stable state
             # under compression): then its exact Newton step converges quadratically.
             started = time.perf_counter()
@@ -173,12 +176,17 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             started = time.perf_counter()
             exact_step = damped_solve(matrix, rhs, 0.0, fixed, require_definite=True)
             t_solve += time.perf_counter() - started
+            exact_failed = exact_step is None
+        else:  # after a failed attempt the next iteration goes straight to the projected K
+            exact_failed = False
+        projected = 0
         if exact_step is None:
+            started = time.perf_counter()
+            blocks, projected = project_psd(exact, bad)
+            t_hessian += time.perf_counter() - started
             started = time.perf_counter()
             matrix = assembly.hessian(blocks)
             t_assembly += time.perf_counter() - started
-        else:
-            projected = 0
         alpha, trial = 0.0, current.total
         for _attempt in range(6):
             started = time.perf_counter()
@@ -189,9 +197,11 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             t_solve += time.perf_counter() - started
             step = torch.from_numpy(step_np).to(c).reshape(c.shape)
             decrement = float(-(gradient * step).sum())
-            if decrement <= 0 or 0.5 * decrement <= config.decrement_tolerance * abs(
-                    current.total):  # converged: the step would change Π by rounding only
-                break
+            if 0.5 * abs(decrement) <= config.decrement_tolerance * abs(current.total):
+                break  # converged: the step would change Π by rounding only
+            if decrement < 0:  # K (nearly) singular along d, e.g. a flat sheet's rigid
+                damping = max(10 * damping, RETRY_DAMPING)  # rotations: damp and solve again
+                continue
             started = time.perf_counter()
             alpha = 1.0
             for _ in range(config.halvings):
@@ -214,9 +224,9 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                  "time energy %.3f hessian %.3f assembly %.3f solve %.3f s", iteration,
                  load_factor, current.total, decrement, alpha, damping, projected, t_energy,
                  t_hessian, t_assembly, t_solve)
-        near = 0.5 * decrement <= config.floor_tolerance * abs(current.total)
+        near = 0.5 * abs(decrement) <= config.floor_tolerance * abs(current.total)
         if alpha == 0.0:
-            converged = decrement <= 0 or near
+            converged = near
             break
         c = c + alpha * step
         if alpha < 1.0 and near:  # the quadratic model no longer predicts Π: rounding floor

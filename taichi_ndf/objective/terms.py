@@ -10,6 +10,7 @@ from taichi_ndf import jets
 from taichi_ndf.loads import Loads
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
+from taichi_ndf.shell.strain_hessian import strain_energy_hessians
 
 
 class ShellEnergyTerm:
@@ -43,6 +44,15 @@ class ShellEnergyTerm:
                  ) -> tuple[float, torch.Tensor | None]:
         result = self.result(samples, u_jets, load_factor, grad=grad)
         return result.total, result.grad_u_jets
+
+    def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                       load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor
+                       ) -> torch.Tensor:
+        """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3) through the strains
+        (`strain_energy_hessians`; the loads are linear in u: the load factor adds nothing).
+        steps (6,): the jet channels' central-difference steps (`jet_steps`)."""
+        return strain_energy_hessians(self.material, samples, u_jets, steps=steps,
+                                      stiffness=self.stiffness)
 
 
 class EndMomentTerm:

@@ -30,7 +30,7 @@ from taichi_ndf.shell.kinematics import (
     strains,
     vec3,
 )
-from taichi_ndf.shell.law_terms import KERNEL_STIFFNESS, LAW_TERMS
+from taichi_ndf.shell.law_terms import KERNEL_STIFFNESS, LAW_TERMS, strain_energy_density
 from taichi_ndf.shell.materials import Material
 
 
@@ -59,8 +59,7 @@ def _energy_kernel(law: str):
                 t = law_terms(membrane_strain(metric, metric_bar),
                               bending_strain(curvature, curvature_bar),
                               a1, a2, a3, metric, params)
-                psi = (stiffness[i, 0] * t[0] + stiffness[i, 1] * t[1]
-                       + stiffness[i, 2] * t[2] + stiffness[i, 3] * t[3])
+                psi = strain_energy_density(t, stiffness, i)
                 f = lam * (vec3(load[0], load[1], load[2]) + load[3] * a3)
                 area = w * area_element
                 internal[i] = area * psi
@@ -72,6 +71,22 @@ def _energy_kernel(law: str):
             external[i] = -work
 
     return energy
+
+
+def law_inputs(material: Material, n: int, stiffness: torch.Tensor | None, dtype, device
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The law's kernel stiffness (n, 4) and packed parameters for n samples.
+
+    stiffness: per-sample stiffness (n, K) in the order of `material.stiffness_names`, or None
+    (the material's values at every sample)."""
+    if stiffness is None:
+        stiffness = torch.tensor(material.stiffness, dtype=dtype, device=device).expand(n, -1)
+    elif stiffness.shape != (n, len(material.stiffness_names)):
+        raise ValueError(f"stiffness must have shape ({n}, {len(material.stiffness_names)}) "
+                         f"for {material.stiffness_names}, got {tuple(stiffness.shape)}")
+    kernel_stiffness = material.law_stiffness(stiffness.to(dtype)).contiguous()
+    params = torch.tensor(material.law_parameters(), dtype=dtype, device=device)
+    return kernel_stiffness, params
 
 
 @dataclass
@@ -125,19 +140,13 @@ class ShellEnergy:
         r = samples.r_jets.contiguous()
         dtype, device = r.dtype, r.device
         material = self.material
-        if stiffness is None:
-            stiffness = torch.tensor(material.stiffness, dtype=dtype, device=device).expand(n, -1)
-        elif stiffness.shape != (n, len(material.stiffness_names)):
-            raise ValueError(f"stiffness must have shape ({n}, {len(material.stiffness_names)}) "
-                             f"for {material.stiffness_names}, got {tuple(stiffness.shape)}")
+        kernel_stiffness, params = law_inputs(material, n, stiffness, dtype, device)
         if load_factor is None:
             load_factor = torch.ones(n, dtype=dtype, device=device)
         elif load_factor.shape != (n,):
             raise ValueError(f"load_factor must have shape ({n},), got "
                              f"{tuple(load_factor.shape)}")
         load_factor = load_factor.detach().to(dtype=dtype, device=device).contiguous()
-        kernel_stiffness = material.law_stiffness(stiffness.to(dtype)).contiguous()
-        params = torch.tensor(material.law_parameters(), dtype=dtype, device=device)
         load = torch.tensor([*self.loads.distributed_force(material.areal_density),
                              self.loads.pressure], dtype=dtype, device=device)
         u = u_jets.detach().to(dtype).contiguous().requires_grad_(grad)

@@ -82,16 +82,25 @@ def flat_blocks(hessians: torch.Tensor) -> torch.Tensor:
     return hessians.reshape(hessians.shape[0], JET_SIZE, JET_SIZE)
 
 
-def project_psd(blocks: torch.Tensor) -> tuple[torch.Tensor, int]:
-    """Blocks (N, m, m) projected to positive semi-definite (negative eigenvalues clamped to
-    0), and how many were indefinite. Only those are eigen-decomposed (module docstring)."""
+def indefinite_blocks(blocks: torch.Tensor) -> torch.Tensor:
+    """Indices of the blocks (N, m, m) that are not positive semi-definite, by a batched
+    Cholesky of H + τ I (module docstring)."""
     scale = blocks.diagonal(dim1=1, dim2=2).abs().mean(dim=1).clamp_min(
         torch.finfo(blocks.dtype).tiny)
     slack = max(PSD_SLACK, 1000 * torch.finfo(blocks.dtype).eps)  # float32: 1.2e-4
     shift = slack * scale[:, None, None] * torch.eye(
         blocks.shape[1], dtype=blocks.dtype, device=blocks.device)
     _, info = torch.linalg.cholesky_ex(blocks + shift)
-    bad = torch.nonzero(info != 0).flatten()
+    return torch.nonzero(info != 0).flatten()
+
+
+def project_psd(blocks: torch.Tensor, bad: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, int]:
+    """Blocks (N, m, m) projected to positive semi-definite (negative eigenvalues clamped to
+    0), and how many were indefinite. Only those (`indefinite_blocks`, or `bad` if given) are
+    eigen-decomposed (module docstring)."""
+    if bad is None:
+        bad = indefinite_blocks(blocks)
     if bad.numel() == 0:
         return blocks, 0
     values, vectors = torch.linalg.eigh(blocks[bad])

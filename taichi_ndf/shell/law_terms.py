@@ -18,6 +18,13 @@ KERNEL_STIFFNESS = 4  # width of the per-sample stiffness array the kernels read
 
 
 @ti.func
+def strain_energy_density(t: vec4, stiffness: ti.template(), i) -> float:
+    """Ψ = Σ_k S_k T_k of sample i from the law's terms t and the kernel stiffness (N, 4)."""
+    return (stiffness[i, 0] * t[0] + stiffness[i, 1] * t[1] + stiffness[i, 2] * t[2]
+            + stiffness[i, 3] * t[3])
+
+
+@ti.func
 def _isotropic_quadratic(strain: mat2, ainv: mat2, nu) -> float:
     """e:H:e = ν (a^{αβ} e_αβ)² + (1 − ν) a^{αγ} a^{βδ} e_αβ e_γδ for symmetric e."""
     mixed = ainv @ strain

@@ -1,0 +1,173 @@
+"""Napkin (scenes/napkin.toml: 1 m cloth square hanging from a free pin at one corner) by
+spline + projected Newton, coarse to fine: the time to a Π within 1 % of the
+refinement-extrapolated Π (issue 19's target: ≤ 10 s on one core).
+
+Per grid: Newton steps, Π, its gap to the reference Π∞, the time to reach this grid (all
+coarser grids included; setup of each grid included) and the split of the Newton iterations'
+time (energy + line search, Hessian blocks, assembly, solve); then Richardson from the last
+three grids. Kernels are compiled (or loaded from the cache) before the clock starts, on a
+2 × 2 grid: that time is printed apart.
+
+    OMP_NUM_THREADS=1 python benchmarks/napkin_newton.py [--levels 4] [--coarsest 2]
+        [--tolerance 1e-4] [--reference -1.3318] [--precision f64] [--parts]
+
+--parts: also the CPU time of each part of one Newton step at the finest grid's solution
+(median of 3), with the central-difference Hessian blocks (`sample_hessians`) for comparison.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import time
+from pathlib import Path
+
+import torch
+
+import taichi_ndf
+from taichi_ndf.field.spline import SplineConfig, SplineField
+from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
+from taichi_ndf.minimise.linear_solve import damped_solve
+from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
+from taichi_ndf.minimise.refinement import richardson, solve_levels
+from taichi_ndf.objective import Objective
+from taichi_ndf.operator import DisplacementOperator
+from taichi_ndf.quadrature import span_quadrature
+from taichi_ndf.scene import load_scene
+from taichi_ndf.shell.hessian import (
+    flat_blocks,
+    indefinite_blocks,
+    jet_steps,
+    project_psd,
+    sample_hessians,
+)
+
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "napkin.toml"
+# Richardson from 8², 16², 32² spans solved to the rounding floor (benchmarks/RESULTS.md,
+# 2026-12-01): −1.3318 J, estimated error 0.0096 J.
+REFERENCE = -1.3318
+SPLIT = ("energy", "hessian", "assembly", "solve")
+
+
+def solve(model, levels: int, coarsest: int, config: ProjectedNewtonConfig):
+    surface = model.surface
+    field = SplineField(SplineConfig(spans=(coarsest, coarsest), degree=3,
+                                     domain=surface.domain.bounds))
+    return solve_levels(field, model.boundary,
+                        lambda f: span_quadrature(surface, f.config, model.loads),
+                        Objective.of_model(model), levels=levels, config=config,
+                        probes={p.name: p.xi for p in model.probes},
+                        length=math.sqrt(surface.domain.rectangle_area))
+
+
+def step_parts(model, spans: tuple[int, int], coefficients: torch.Tensor) -> list[tuple]:
+    """CPU seconds (median of 3) of each part of a Newton step at these coefficients."""
+    surface = model.surface
+    field = SplineField(SplineConfig(spans=spans, degree=3, domain=surface.domain.bounds))
+    samples = span_quadrature(surface, field.config, model.loads)
+    operator = DisplacementOperator(field, model.boundary)
+    basis = local_basis_at(operator, samples.xi)
+    assembly = Assembly(samples, basis, field.coefficients.shape[0]).at_load(operator, 1.0)
+    fixed = gauge_unknowns(model.boundary, basis)
+    potential = Objective.of_model(model).potential(1.0)
+    s = assembly.samples
+    u = assembly.displacement(coefficients)
+    result = potential(s, u, True)
+    steps = jet_steps(s.r_jets, u, math.sqrt(surface.domain.rectangle_area), 1e-5)
+    blocks = flat_blocks(potential.hessian_blocks(s, u, steps=steps))
+    bad = indefinite_blocks(blocks)
+    projected, _ = project_psd(blocks, bad)
+    matrix = assembly.hessian(projected)
+    rhs = -assembly.gradient(result.grad_u_jets).reshape(-1).numpy()
+    parts = [
+        ("displacement U = offset + J C", lambda: assembly.displacement(coefficients)),
+        ("energy + autodiff gradient dΠ/dU", lambda: potential(s, u, True)),
+        ("energy alone (a line-search trial)", lambda: potential(s, u, False)),
+        ("gradient pull-back dΠ/dC", lambda: assembly.gradient(result.grad_u_jets)),
+        ("Hessian blocks through the strains", lambda: potential.hessian_blocks(
+            s, u, steps=steps)),
+        ("Hessian blocks by central differences (before)", lambda: sample_hessians(
+            potential, s, u, steps=steps)),
+        ("indefinite-block screen (batched Cholesky)", lambda: indefinite_blocks(blocks)),
+        (f"projection ({bad.numel()} of {len(s)} blocks eigen-decomposed)",
+         lambda: project_psd(blocks, bad)),
+        ("assembly K = Σ Jᵀ H J", lambda: assembly.hessian(projected)),
+        ("factorise + solve (SuperLU)", lambda: damped_solve(matrix, rhs, 0.0, fixed)),
+    ]
+    out = []
+    for name, part in parts:
+        part()
+        times = []
+        for _ in range(3):
+            started = time.process_time()
+            part()
+            times.append(time.process_time() - started)
+        out.append((name, sorted(times)[1]))
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--levels", type=int, default=4)
+    parser.add_argument("--coarsest", type=int, default=2)
+    parser.add_argument("--tolerance", type=float, default=1e-4,
+                        help="Newton decrement tolerance λ²/2 relative to |Π|")
+    parser.add_argument("--reference", type=float, default=REFERENCE,
+                        help="the extrapolated Π∞ [J] the gap is measured against")
+    parser.add_argument("--precision", choices=("f32", "f64"), default="f64")
+    parser.add_argument("--verbose", action="store_true", help="log every Newton iteration")
+    parser.add_argument("--parts", action="store_true",
+                        help="time each part of a Newton step at the finest grid")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s: %(message)s")
+    torch.set_num_threads(1)
+    taichi_ndf.init(arch="cpu", precision=args.precision)
+    model = load_scene(SCENE).model
+    f64 = args.precision == "f64"
+    config = ProjectedNewtonConfig(fd_step=1e-5 if f64 else 3e-3,
+                                   decrement_tolerance=args.tolerance,
+                                   gradient_tolerance=1e-10 if f64 else 1e-5,
+                                   floor_tolerance=1e-8 if f64 else 1e-6)
+    started = time.perf_counter()
+    solve(model, 1, 2, ProjectedNewtonConfig(max_iterations=2))  # compile / load kernels
+    compile_seconds = time.perf_counter() - started
+    started, cpu = time.perf_counter(), time.process_time()
+    results = solve(model, args.levels, args.coarsest, config)
+    wall, cpu = time.perf_counter() - started, time.process_time() - cpu
+    print(f"napkin, spline cubic + projected Newton, {args.precision}, decrement tolerance "
+          f"{args.tolerance:g}; kernels compiled/loaded before: {compile_seconds:.1f} s")
+    print(f"reference Π∞ = {args.reference} J")
+    print("| spans | Newton steps | Π [J] | gap to Π∞ | time to this grid [s] | "
+          "energy / Hessian / assembly / solve [s] |")
+    print("|---|---|---|---|---|---|")
+    elapsed = 0.0
+    for level in results:
+        last = level[-1]
+        elapsed += sum(s.seconds for s in level)
+        history = [h for s in level for h in s.history]
+        split = " / ".join(f"{sum(getattr(h, 'time_' + k) for h in history):.2f}"
+                           for k in SPLIT)
+        gap = (last.energy - args.reference) / abs(args.reference)
+        print(f"| {last.spans[0]} × {last.spans[1]} | {len(history)} | {last.energy:.5f} | "
+              f"{100 * gap:+.2f} % | {elapsed:.2f} | {split} |")
+    energies = [level[-1].energy for level in results]
+    if len(energies) >= 3:
+        e = richardson(energies)
+        gap = (e.value - args.reference) / abs(args.reference)
+        order = "not trusted" if e.order is None else f"order {e.order:.2f}"
+        print(f"Richardson from the last three grids: Π∞ = {e.value:.5f} J ({order}, "
+              f"estimated error {e.error:.4f} J), {100 * gap:+.2f} % from the reference")
+    print(f"wall {wall:.2f} s, CPU {cpu:.2f} s (this process; the two differ by the time the "
+          "machine's other load took the core)")
+    if args.parts:
+        last = results[-1][-1]
+        print(f"\nparts of one Newton step at {last.spans[0]} × {last.spans[1]} spans "
+              "(CPU ms, median of 3):")
+        for name, seconds in step_parts(model, last.spans, last.coefficients):
+            print(f"| {name} | {1000 * seconds:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
