@@ -183,7 +183,7 @@ def run(args, runtime) -> dict:
             u.name: {"fisher": finite_or_none(f), "feature_spread": finite_or_none(s)}
             for u, f, s in zip(unknowns, result.fisher_errors, result.spread, strict=True)}
         document["feature_bases"] = [
-            {"seed": f.seed, "width": f.width, "values": f.values.tolist(),
+            {**f.label, "values": f.values.tolist(),
              "outer_iterations": f.iterations, "newton_steps": f.newton_steps,
              "converged": f.converged, "time_s": f.time} for f in result.fits]
         fitted = result.fitted_positions(0, grid_xi).numpy()
