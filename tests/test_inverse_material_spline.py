@@ -13,20 +13,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from test_inverse_material_implicit import _elastica_mesh, resolve_differences
 
 from inverse.cli.fit_material import main
-from inverse.material import ResidualConfig, parse_unknowns, residual_estimate, template_xi
+from inverse.material import ResidualConfig, parse_unknowns, residual_estimate
 from inverse.material.calibration import calibrate, strip_case
-from inverse.material.conditioned import to_coordinates, to_values
 from inverse.material.identifiability import UNDETERMINED_STD
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.residual import MAX_RELATIVE_RESIDUAL
 from inverse.material.spline_equilibrium import SplineEquilibrium, SplineModelConfig
-from taichi_ndf.io import write_obj
-from taichi_ndf.io.grid import grid_mesh
 from taichi_ndf.loads import PointLoad
 from taichi_ndf.scene import load_scene
-from taichi_ndf.validation.elastica import cantilever
 
 SCENE = Path(__file__).parents[1] / "scenes" / "inverse" / "cantilever_strip.toml"
 B_TRUE = 0.2 * 9.81 * 0.2**3
@@ -48,19 +45,8 @@ def test_spline_sensitivity_matches_finite_differences_of_resolves():
     xi = torch.tensor([[0.2, 0.02], [0.1, 0.0], [0.15, 0.04]], dtype=torch.float64)
     dx = eq.position_sensitivity(xi, eq.sensitivity())
     assert eq.stable
-    z, state = np.array(to_coordinates(unknowns, values)), eq.state()
-    for j, unknown in enumerate(unknowns):
-        h = 1e-4 if unknown.positive else 1e-5
-        x = []
-        for sign in (1, -1):
-            eq.set_state(state, values)
-            zj = z.copy()
-            zj[j] += sign * h
-            eq.solve(to_values(unknowns, zj))
-            x.append(eq.positions(xi))
-        fd = (x[0] - x[1]) / (2 * h)
-        error = float((dx[:, :, j] - fd).norm() / fd.norm())
-        assert error < 1e-6, (unknown.name, error)
+    for name, error in resolve_differences(eq, unknowns, values, xi, dx):
+        assert error < 1e-6, (name, error)
 
 
 def test_quick_strip_estimate_within_its_standard_error():
@@ -85,15 +71,6 @@ def test_quick_strip_estimate_within_its_standard_error():
         r.estimate.values, r.estimate.standard_errors, r.fisher_errors, r.discretisation))(
             newton_estimate(obs, unk, config)), 0.01, 1)
     assert noisy.coverage()[0] == 1.0
-
-
-def _elastica_mesh(path, model, resolution):
-    positions, _ = cantilever(0.2, B_TRUE, 200.0, (0.0, -0.2 * 9.81))
-    xi = template_xi(model, resolution).numpy()
-    xz = positions(xi[:, 0])
-    grid = grid_mesh(model.surface.domain.bounds, resolution)
-    write_obj(path, np.stack([xz[:, 0], xi[:, 1], xz[:, 1]], axis=1), grid.faces)
-    return str(path)
 
 
 def test_cli_newton_is_the_default_and_reports_both_parts(tmp_path, capsys):

@@ -166,6 +166,18 @@ def _newton(args, observations, unknowns):
         raise InputError(str(err)) from None
 
 
+def _add_fits(document: dict, result, unknowns, part: str, fits: str) -> None:
+    """The standard error's parts (`fisher` and the forward model's `part`) per unknown and
+    every forward model's fit (under `fits`) of an `OuterResult`, into the document."""
+    document["standard_error_parts"] = {
+        u.name: {"fisher": finite_or_none(f), part: finite_or_none(m)}
+        for u, f, m in zip(unknowns, result.fisher_errors, result.model_errors, strict=True)}
+    document[fits] = [
+        {**f.label, "values": f.values.tolist(), "outer_iterations": f.iterations,
+         "newton_steps": f.newton_steps, "converged": f.converged, "stable": f.stable,
+         "time_s": f.time} for f in result.fits]
+
+
 def run(args, runtime) -> dict:
     try:
         scene = load_scene(args.scene)
@@ -198,30 +210,14 @@ def run(args, runtime) -> dict:
         estimate = residual_estimate(observations, unknowns, ResidualConfig(samples=16384))
         document = estimate_document(estimate, model, notes=estimate.notes)
         fitted = estimate.shapes[0].positions(grid_xi).numpy()
-    elif args.method == "newton":
-        result = _newton(args, observations, unknowns)
+    elif args.method in ("newton", "implicit"):
+        newton = args.method == "newton"
+        result = (_newton if newton else _implicit)(args, observations, unknowns)
         estimate = result.estimate
         document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
-        document["standard_error_parts"] = {
-            u.name: {"fisher": finite_or_none(f), "discretisation": finite_or_none(d)}
-            for u, f, d in zip(unknowns, result.fisher_errors, result.discretisation,
-                               strict=True)}
-        document["grids"] = [
-            {**f.label, "values": f.values.tolist(), "outer_iterations": f.iterations,
-             "newton_steps": f.newton_steps, "converged": f.converged, "stable": f.stable,
-             "time_s": f.time} for f in result.fits]
-        fitted = result.fitted_positions(0, grid_xi).numpy()
-    elif args.method == "implicit":
-        result = _implicit(args, observations, unknowns)
-        estimate = result.estimate
-        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
-        document["standard_error_parts"] = {
-            u.name: {"fisher": finite_or_none(f), "feature_spread": finite_or_none(s)}
-            for u, f, s in zip(unknowns, result.fisher_errors, result.spread, strict=True)}
-        document["feature_bases"] = [
-            {**f.label, "values": f.values.tolist(),
-             "outer_iterations": f.iterations, "newton_steps": f.newton_steps,
-             "converged": f.converged, "time_s": f.time} for f in result.fits]
+        _add_fits(document, result, unknowns,
+                  *(("discretisation", "grids") if newton else ("feature_spread",
+                                                               "feature_bases")))
         fitted = result.fitted_positions(0, grid_xi).numpy()
     else:
         iterations = args.iterations or (300 if args.quick else 1000)

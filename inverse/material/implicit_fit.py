@@ -14,38 +14,26 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 
 from inverse.material.conditioned import to_values
 from inverse.material.implicit import ImplicitConfig, ImplicitEquilibrium
 from inverse.material.observations import Observation
-from inverse.material.outer_fit import ForwardFit, OuterConfig, combine, fit, start_values
-from inverse.material.residual import Estimate, unknown_scales
+from inverse.material.outer_fit import OuterConfig, OuterResult, combine, fit, start_values
+from inverse.material.residual import unknown_scales
 from inverse.material.unknowns import Unknown
 
 log = logging.getLogger(__name__)
 
 
-@dataclass
-class ImplicitResult:
-    """The combined estimate, the per-basis fits, the forward models (one list per basis,
-    one per observation), the spread of the per-basis estimates (absolute, per unknown) and
-    the Fisher standard errors of the first basis; `ratios` and `notes` as `BilevelResult`."""
+class ImplicitResult(OuterResult):
+    """`OuterResult` of the implicit method: one fit per feature basis, the first reported;
+    the forward model's part is the spread of the per-basis estimates."""
 
-    estimate: Estimate
-    fits: list[ForwardFit]
-    equilibria: list[list[ImplicitEquilibrium]]
-    fisher_errors: np.ndarray
-    spread: np.ndarray
-    ratios: dict[str, tuple[float, float]] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    def fitted_positions(self, index: int, xi: torch.Tensor) -> torch.Tensor:
-        """Equilibrium positions (N, 3) [m] of observation `index` on the first basis."""
-        return self.equilibria[0][index].positions(xi)
+    @property
+    def spread(self) -> np.ndarray:
+        return self.model_errors
 
 
 def implicit_estimate(observations: list[Observation], unknowns: list[Unknown],
@@ -62,7 +50,6 @@ def implicit_estimate(observations: list[Observation], unknowns: list[Unknown],
     config = config or ImplicitConfig()
     t0 = time.perf_counter()
     first_values = start_values(observations, unknowns, start)
-    names = [u.name for u in unknowns]
     positive = np.array([u.positive for u in unknowns])
     bases = config.bases()
     if equilibria is None:
@@ -97,9 +84,5 @@ def implicit_estimate(observations: list[Observation], unknowns: list[Unknown],
             notes.append(f"basis (seed {seed}, width {width}) stopped at the iteration "
                          f"limit ({f.iterations}) before the step fell below the tolerance")
     estimate = result.estimate
-    log.info("implicit estimate: %s ± %s (bases %s; rms misfit %.3g m, %.1f s)",
-             dict(zip(names, estimate.values.tolist(), strict=True)),
-             estimate.standard_errors.tolist(), [f.values.tolist() for f in fits],
-             estimate.misfit, estimate.time)
     return ImplicitResult(estimate, fits, equilibria, result.fisher, result.model,
                           ratios=result.ratios, notes=notes + result.notes)

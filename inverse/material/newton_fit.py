@@ -24,8 +24,15 @@ import torch
 
 from inverse.material.conditioned import to_values
 from inverse.material.observations import Observation
-from inverse.material.outer_fit import ForwardFit, OuterConfig, combine, fit, start_values
-from inverse.material.residual import Estimate, unknown_scales
+from inverse.material.outer_fit import (
+    ForwardFit,
+    OuterConfig,
+    OuterResult,
+    combine,
+    fit,
+    start_values,
+)
+from inverse.material.residual import unknown_scales
 from inverse.material.spline_equilibrium import SplineEquilibrium, SplineModelConfig
 from inverse.material.unknowns import Unknown
 
@@ -48,23 +55,13 @@ class NewtonEstimateConfig:
             raise ValueError(f"levels must be an integer in 1..4, got {self.levels!r}")
 
 
-@dataclass
-class NewtonResult:
-    """The estimate (the finest grid's), the fit on every grid, the forward models (one list
-    per grid, one per observation), the Fisher and discretisation parts of the standard error
-    (absolute, per unknown); `ratios` and `notes` as `BilevelResult`."""
+class NewtonResult(OuterResult):
+    """`OuterResult` of the Newton method: one fit per grid, the finest reported; the forward
+    model's part is the discretisation error (the difference of the last two grids)."""
 
-    estimate: Estimate
-    fits: list[ForwardFit]
-    equilibria: list[list[SplineEquilibrium]]
-    fisher_errors: np.ndarray
-    discretisation: np.ndarray
-    ratios: dict[str, tuple[float, float]] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    def fitted_positions(self, index: int, xi: torch.Tensor) -> torch.Tensor:
-        """Equilibrium positions (N, 3) [m] of observation `index` on the finest grid."""
-        return self.equilibria[-1][index].positions(xi)
+    @property
+    def discretisation(self) -> np.ndarray:
+        return self.model_errors
 
 
 def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
@@ -119,9 +116,6 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
     result = combine(observations, unknowns, z, fits[-1], discretisation, "bilevel_newton",
                      sum(f.iterations for f in fits), time.perf_counter() - t0)
     estimate = result.estimate
-    log.info("newton estimate: %s ± %s (grids %s; rms misfit %.3g m, %.1f s)",
-             dict(zip(names, estimate.values.tolist(), strict=True)),
-             estimate.standard_errors.tolist(), [f.values.tolist() for f in fits],
-             estimate.misfit, estimate.time)
     return NewtonResult(estimate, fits, equilibria, result.fisher, result.model,
-                        ratios=result.ratios, notes=notes + result.notes)
+                        ratios=result.ratios, notes=notes + result.notes,
+                        reported=len(fits) - 1)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -203,6 +203,28 @@ def start_values(observations: list[Observation], unknowns: list[Unknown], start
 
 
 @dataclass
+class OuterResult:
+    """An estimate on forward models: the combined estimate, the fit on every forward model
+    (feature basis or grid), the forward models (one list per fit, one per observation), the
+    Fisher and the forward model's parts of the standard error (absolute, per unknown), the
+    index of the fit whose equilibria are reported, and `ratios` and `notes` as
+    `BilevelResult`."""
+
+    estimate: Estimate
+    fits: list[ForwardFit]
+    equilibria: list[list]
+    fisher_errors: np.ndarray
+    model_errors: np.ndarray
+    ratios: dict[str, tuple[float, float]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    reported: int = 0
+
+    def fitted_positions(self, index: int, xi: torch.Tensor) -> torch.Tensor:
+        """Equilibrium positions (N, 3) [m] of observation `index` on the reported fit."""
+        return self.equilibria[self.reported][index].positions(xi)
+
+
+@dataclass
 class Combined:
     """An estimate with its standard error parts (absolute, per unknown): `fisher` (noise,
     exact forward model) and `model` (the forward model's own error); ratios and notes as
@@ -239,4 +261,6 @@ def combine(observations: list[Observation], unknowns: list[Unknown], z: np.ndar
     estimate = Estimate(unknowns, values, errors, ident, rms, iterations, elapsed, method)
     ratios, notes = gravity_ratios(observations, unknowns, values, ident)
     fisher = np.where(np.isfinite(fisher_std), fisher_std * scale, np.inf)
+    log.info("%s estimate: %s ± %s (rms misfit %.3g m, %.1f s)", method,
+             dict(zip(names, values.tolist(), strict=True)), errors.tolist(), rms, elapsed)
     return Combined(estimate, fisher, model_part * scale, ratios, list(notes))
