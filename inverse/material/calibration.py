@@ -143,7 +143,8 @@ CASES: dict[str, Callable[[], Case]] = {"strip": strip_case, "flap": flap_case,
 @dataclass
 class Draw:
     """One fit: noise seed (0: noise-free), estimate, reported standard error and its parts,
-    wall time [s]."""
+    wall time and this process's CPU time [s] (one core: the estimators are single-threaded
+    with torch.set_num_threads(1))."""
 
     seed: int
     values: np.ndarray
@@ -151,6 +152,7 @@ class Draw:
     fisher: np.ndarray
     model_part: np.ndarray
     seconds: float
+    cpu_seconds: float = 0.0
 
 
 @dataclass
@@ -183,10 +185,11 @@ def calibrate(case: Case, estimator: Callable[[list[Observation], list[Unknown]]
     for seed in seeds:
         observation = case.observation.with_noise(noise, seed=seed) if seed else \
             case.observation
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         values, errors, fisher, part = estimator([observation], case.unknowns)
         out.append(Draw(seed, np.asarray(values), np.asarray(errors), np.asarray(fisher),
-                        np.asarray(part), time.perf_counter() - started))
+                        np.asarray(part), time.perf_counter() - started,
+                        time.process_time() - cpu))
         log.info("%s noise %g seed %d: %s ± %s (%.1f s)", case.name, noise, seed,
                  out[-1].values, out[-1].errors, out[-1].seconds)
     return Calibration(case.name, noise, case.truth, out)
