@@ -4,8 +4,9 @@ For every case of `inverse.material.calibration` (strip: heavy elastica at a til
 flap: orthotropic flap; point_load: tip load on the cantilever strip) one noise-free fit and
 `--draws` fits per noise level (seeds 1..draws), each by `newton_estimate` with its defaults
 (grid rule, cubic, band 2, grids h and h/2). Prints per case, noise level and unknown: the
-truth, the mean estimate, the mean and rms relative error, the mean reported standard error
-(and its Fisher and discretisation parts), the coverage (fraction of fits with
+truth, how many fits determine the unknown, the mean estimate, the mean and rms relative
+error, the mean reported standard error of the determined fits (and the mean Fisher and
+discretisation parts), the coverage (fraction of the determined fits with
 |estimate − truth| ≤ 2 s.e.; target ≥ 90 %), and the mean / largest wall and CPU time per fit.
 
     python benchmarks/material_calibration.py [--cases strip,flap,point_load]
@@ -38,7 +39,7 @@ def newton(observations, unknowns):
 
 def rows(cal: Calibration, names: list[str]) -> list[dict]:
     rel = cal.relative_errors()
-    coverage = cal.coverage()
+    coverage, determined = cal.coverage(), cal.determined()
     seconds = [d.seconds for d in cal.draws]
     cpu = [d.cpu_seconds for d in cal.draws]
     out = []
@@ -49,10 +50,14 @@ def rows(cal: Calibration, names: list[str]) -> list[dict]:
             "mean_estimate": float(np.mean([d.values[j] for d in cal.draws])),
             "mean_error_pct": 100 * float(rel[:, j].mean()),
             "rms_error_pct": 100 * float(np.sqrt((rel[:, j] ** 2).mean())),
-            "mean_se": float(np.mean([d.errors[j] for d in cal.draws])),
+            "determined": int(determined[j]),
+            "mean_se": float(np.mean([d.errors[j] for d in cal.draws
+                                      if np.isfinite(d.errors[j])] or [np.inf])),
             "mean_fisher": float(np.mean([d.fisher[j] for d in cal.draws])),
             "mean_discretisation": float(np.mean([d.model_part[j] for d in cal.draws])),
             "coverage_2se": float(coverage[j]),
+            "draws": [{"seed": d.seed, "value": float(d.values[j]),
+                       "standard_error": float(d.errors[j])} for d in cal.draws],
             "mean_s": float(np.mean(seconds)), "max_s": float(np.max(seconds)),
             "mean_cpu_s": float(np.mean(cpu)), "max_cpu_s": float(np.max(cpu))})
     return out
@@ -70,8 +75,9 @@ def main() -> None:
     logging.basicConfig(level=logging.WARNING)
     results = []
     print(f"load average at start: {os.getloadavg()}")
-    header = ("case", "unknown", "noise", "fits", "truth", "mean est.", "mean err %",
-              "rms err %", "mean s.e.", "(Fisher; disc.)", "coverage", "wall s/fit (max)",
+    header = ("case", "unknown", "noise", "fits (determined)", "truth", "mean est.",
+              "mean err %", "rms err %", "mean s.e. (determined)", "(Fisher; disc.)",
+              "coverage (of determined)", "wall s/fit (max)",
               "CPU s/fit (max)")
     print(" | ".join(header))
     for name in args.cases.split(","):
@@ -83,7 +89,8 @@ def main() -> None:
             cal = calibrate(case, newton, noise, args.draws)
             for r in rows(cal, names):
                 results.append(r)
-                print(f"{r['case']} | {r['unknown']} | {100 * r['noise']:g} % | {r['fits']} | "
+                print(f"{r['case']} | {r['unknown']} | {100 * r['noise']:g} % | {r['fits']} "
+                      f"({r['determined']}) | "
                       f"{r['truth']:.5g} | {r['mean_estimate']:.6g} | "
                       f"{r['mean_error_pct']:+.3f} | {r['rms_error_pct']:.3f} | "
                       f"{r['mean_se']:.3g} | ({r['mean_fisher']:.2g}; "

@@ -15,8 +15,8 @@ noise-free observation):
   quartic 40 × 8-span equilibrium (band 1); unknown F (3 components), start (0, 0, −20) mN.
 
 `calibrate` fits `draws` noisy copies (Gaussian, σ = noise × bounding-box diagonal per
-coordinate, seeds 1..draws) and reports per unknown the coverage: the fraction of fits with
-|estimate − truth| ≤ 2 reported standard errors.
+coordinate, seeds 1..draws) and reports per unknown how many fits determine it and the
+coverage: the fraction of those fits with |estimate − truth| ≤ 2 reported standard errors.
 """
 
 from __future__ import annotations
@@ -169,10 +169,17 @@ class Calibration:
         scale = np.linalg.norm(self.truth) if len(self.truth) > 1 else abs(self.truth)
         return (np.array([d.values for d in self.draws]) - self.truth) / scale
 
+    def determined(self) -> np.ndarray:
+        """Number of draws that determine each unknown (a finite standard error)."""
+        return np.sum([np.isfinite(d.errors) for d in self.draws], axis=0)
+
     def coverage(self) -> np.ndarray:
-        """Fraction of draws with |estimate − truth| ≤ 2 s.e., per unknown."""
-        inside = [np.abs(d.values - self.truth) <= 2 * d.errors for d in self.draws]
-        return np.mean(inside, axis=0)
+        """Fraction of the draws that determine an unknown with |estimate − truth| ≤ 2 s.e.,
+        per unknown (nan where no draw determines it)."""
+        inside = np.array([np.abs(d.values - self.truth) <= 2 * d.errors for d in self.draws])
+        finite = np.array([np.isfinite(d.errors) for d in self.draws])
+        with np.errstate(invalid="ignore"):
+            return (inside & finite).sum(axis=0) / finite.sum(axis=0)
 
 
 def calibrate(case: Case, estimator: Callable[[list[Observation], list[Unknown]], tuple],
