@@ -6,14 +6,13 @@ calibration study (≥ 20 noise draws per case) is `benchmarks/material_calibrat
 strip row is the slow test here."""
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from test_inverse_material_implicit import _elastica_mesh, resolve_differences
+from test_inverse_material_implicit import cli_on_elastica, resolve_differences
 
 from inverse.cli.fit_material import main
 from inverse.material import ResidualConfig, parse_unknowns, residual_estimate
@@ -78,13 +77,7 @@ def test_cli_newton_is_the_default_and_reports_both_parts(tmp_path, capsys):
     its 10.2× start: B within 0.5 %, the standard error combining the Fisher and the
     discretisation part, both grids reported. Measured: −0.0026 % ± 0.0027 % on 4 × 1 and
     8 × 2 spans, 7.8 s (−0.0013 % ± 0.0013 %, 4.8 s on the grid rule's 8 × 2 and 16 × 4)."""
-    scene = load_scene(SCENE)
-    obs = _elastica_mesh(tmp_path / "obs.obj", scene.model, scene.output.resolution)
-    out = tmp_path / "out"
-    code = main(["--scene", str(SCENE), "--observed", obs, "--estimate", "bending",
-                 "--spans", "4", "1", "--out", str(out)])
-    assert code == 0
-    document = json.loads((out / "estimate.json").read_text())
+    out, document = cli_on_elastica(tmp_path, "--spans", "4", "1")
     entry = document["parameters"]["bending_stiffness"]
     assert document["method"] == "bilevel_newton"
     assert entry["determined"] and abs(entry["value"] / B_TRUE - 1) < 0.005
@@ -93,8 +86,8 @@ def test_cli_newton_is_the_default_and_reports_both_parts(tmp_path, capsys):
                                                                parts["discretisation"]))
     assert [g["spans"] for g in document["grids"]] == [[4, 1], [8, 2]]
     assert (out / "overlay.png").exists()
-    code = main(["--scene", str(SCENE), "--observed", obs, "--estimate", "bending",
-                 "--spans", "0", "1", "--out", str(tmp_path / "bad")])
+    code = main(["--scene", str(SCENE), "--observed", str(tmp_path / "obs.obj"), "--estimate",
+                 "bending", "--spans", "0", "1", "--out", str(tmp_path / "bad")])
     assert code == 2 and "--spans must be" in capsys.readouterr().err
 
 
