@@ -3,8 +3,8 @@
 1. The observed shape: a strip of bending length 0.2 m (B = 1.57e-2 N·m) under its own weight,
    solved with this project's forward solver, exported on the scene's template grid, with
    noise of 0.5 % of the sheet size.
-2. `ndf-fit-material` estimates B by the bilevel method from the scene's start value, which is
-   10× too stiff, and writes estimate.json and overlay.png.
+2. `ndf-fit-material` estimates B by its default method (newton) from the scene's start
+   value, which is 10× too stiff, and writes estimate.json and overlay.png.
 
     python demos/fit_material.py --out runs/fit_material [--quick]
 """

@@ -58,7 +58,7 @@ def test_existing_non_empty_output_directory(tmp_path, capsys):
 def test_bilevel_refuses_load_unknowns(tmp_path, capsys):
     obs = _mesh(tmp_path / "o.obj", np.eye(3))
     code, err = _run(capsys, "--observed", obs, "--point-cloud", "--estimate", "gravity",
-                     "--out", str(tmp_path / "out"))
+                     "--method", "bilevel", "--out", str(tmp_path / "out"))
     assert code == 2 and "residual method" in err
 
 

@@ -1,7 +1,7 @@
 """`ndf-fit-material`: estimate material parameters and loads from observed equilibrium shapes.
 
     ndf-fit-material --scene S.toml --observed OBS.obj [OBS2.ply ...] --estimate bending \
-        [--method residual|bilevel|implicit] --out DIR
+        [--method newton|implicit|bilevel|residual] --out DIR
 
 The scene gives everything known (geometry, boundary conditions, known loads) and start values
 of the unknowns. An observation whose vertex count equals the scene's exported template grid
@@ -33,7 +33,9 @@ from inverse.material.conditioned import ConditionedConfig, to_values
 from inverse.material.identifiability import finite_or_none
 from inverse.material.implicit import ImplicitConfig
 from inverse.material.implicit_fit import implicit_estimate
+from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.report import estimate_document, overlay_image
+from inverse.material.spline_equilibrium import SplineModelConfig
 from taichi_ndf.cli.common import (
     ArgumentParser,
     add_runtime_options,
@@ -65,13 +67,20 @@ def build_parser() -> argparse.ArgumentParser:
                         "young_modulus (E; linear isotropic), density, gravity, body_force, "
                         "pressure, point_load:NAME, or a stiffness name of the scene's "
                         "material")
-    p.add_argument("--method", default="bilevel", choices=("residual", "bilevel", "implicit"),
-                   help="bilevel: fit equilibria of a material-conditioned field (robust "
-                        "to noise; stiffness and point loads); implicit: fit last-layer Newton "
-                        "equilibria on fixed features with implicit-function gradients (every "
-                        "unknown; the spread over feature seeds enters the standard error); "
-                        "residual: equilibrium-residual least squares (fast, also distributed "
-                        "loads; needs clean data). Default: bilevel")
+    p.add_argument("--method", default="newton",
+                   choices=("newton", "implicit", "bilevel", "residual"),
+                   help="newton: fit projected-Newton equilibria on a spline grid and its "
+                        "refinement with implicit-function gradients (every unknown; the "
+                        "difference between the two grids enters the standard error); "
+                        "implicit: the same on last-layer Newton equilibria of fixed SIREN "
+                        "features (minutes); bilevel: fit equilibria of a material-conditioned "
+                        "field (stiffness and point loads; biased, its standard errors are too "
+                        "small); residual: equilibrium-residual least squares (fast, also "
+                        "distributed loads; needs clean data, refuses an observation that is "
+                        "not an equilibrium). Default: newton")
+    p.add_argument("--spans", type=int, nargs=2, default=None, metavar=("N1", "N2"),
+                   help="newton: knot spans of the coarse grid (default: the grid rule, "
+                        "docs/scenes.md, with the band); the fine grid halves the spans")
     p.add_argument("--seeds", type=int, nargs="+", default=None,
                    help="implicit: feature seeds, one estimate each (default 2 3)")
     p.add_argument("--width", type=int, default=None,
@@ -98,9 +107,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "brought the orthotropic flap from +31 %% to -0.3 %% "
                         "(docs/inverse_material.md)")
     p.add_argument("--band", type=finite_float, default=None,
-                   help="bilevel: band width of the boundary conditions' vanishing factors for "
-                        "the conditioned field, a fraction of the domain (edges accept > 1; "
-                        "default: the scene's)")
+                   help="band width of the boundary conditions' vanishing factors, a fraction "
+                        "of the domain (edges accept > 1; default: 2 for newton and implicit, "
+                        "the scene's for bilevel)")
     p.add_argument("--quick", action="store_true", help="short training, for smoke tests")
     add_runtime_options(p)
     p.set_defaults(precision="f64")
@@ -147,6 +156,28 @@ def _implicit(args, observations, unknowns):
         raise InputError(str(err)) from None
 
 
+def _newton(args, observations, unknowns):
+    """The Newton estimate with the command line's settings."""
+    try:
+        model = SplineModelConfig(spans=tuple(args.spans) if args.spans else None,
+                                  boundary_length=2.0 if args.band is None else args.band)
+        return newton_estimate(observations, unknowns, NewtonEstimateConfig(model=model))
+    except ValueError as err:
+        raise InputError(str(err)) from None
+
+
+def _add_fits(document: dict, result, unknowns, part: str, fits: str) -> None:
+    """The standard error's parts (`fisher` and the forward model's `part`) per unknown and
+    every forward model's fit (under `fits`) of an `OuterResult`, into the document."""
+    document["standard_error_parts"] = {
+        u.name: {"fisher": finite_or_none(f), part: finite_or_none(m)}
+        for u, f, m in zip(unknowns, result.fisher_errors, result.model_errors, strict=True)}
+    document[fits] = [
+        {**f.label, "values": f.values.tolist(), "outer_iterations": f.iterations,
+         "newton_steps": f.newton_steps, "converged": f.converged, "stable": f.stable,
+         "time_s": f.time} for f in result.fits]
+
+
 def run(args, runtime) -> dict:
     try:
         scene = load_scene(args.scene)
@@ -158,11 +189,15 @@ def run(args, runtime) -> dict:
         raise InputError(str(err)) from None
     if args.iterations is not None and args.iterations < 1:
         raise InputError(f"--iterations must be >= 1, got {args.iterations}")
+    if args.newton < 0:
+        raise InputError(f"--newton must be >= 0, got {args.newton}")
     if args.band is not None and not args.band > 0:
         raise InputError(f"--band must be positive, got {args.band}")
     for name in ("width", "samples"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if args.spans is not None and min(args.spans) < 1:
+        raise InputError(f"--spans must be two integers >= 1, got {args.spans}")
     check_output_dir(args.out)  # a non-empty directory is refused before any work
     observations = _observations(args.observed, model, scene.output.resolution,
                                  args.point_cloud)
@@ -173,24 +208,19 @@ def run(args, runtime) -> dict:
     grid_xi = torch.from_numpy(grid.xi)
     if args.method == "residual":
         estimate = residual_estimate(observations, unknowns, ResidualConfig(samples=16384))
-        document = estimate_document(estimate, model)
+        document = estimate_document(estimate, model, notes=estimate.notes)
         fitted = estimate.shapes[0].positions(grid_xi).numpy()
-    elif args.method == "implicit":
-        result = _implicit(args, observations, unknowns)
+    elif args.method in ("newton", "implicit"):
+        newton = args.method == "newton"
+        result = (_newton if newton else _implicit)(args, observations, unknowns)
         estimate = result.estimate
         document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
-        document["standard_error_parts"] = {
-            u.name: {"fisher": finite_or_none(f), "feature_spread": finite_or_none(s)}
-            for u, f, s in zip(unknowns, result.fisher_errors, result.spread, strict=True)}
-        document["feature_bases"] = [
-            {"seed": f.seed, "width": f.width, "values": f.values.tolist(),
-             "outer_iterations": f.iterations, "newton_steps": f.newton_steps,
-             "converged": f.converged, "time_s": f.time} for f in result.fits]
+        _add_fits(document, result, unknowns,
+                  *(("discretisation", "grids") if newton else ("feature_spread",
+                                                               "feature_bases")))
         fitted = result.fitted_positions(0, grid_xi).numpy()
     else:
         iterations = args.iterations or (300 if args.quick else 1000)
-        if args.newton < 0:
-            raise InputError(f"--newton must be >= 0, got {args.newton}")
         field = ConditionedConfig(
             width=scene.field.width, hidden_layers=scene.field.hidden_layers,
             omega0=scene.field.omega0, output_scale=scene.field.output_scale,

@@ -17,8 +17,8 @@ unknowns, so ∂/∂z_j = θ_j ∂/∂θ_j; the value itself for signed ones: fo
 dx/dz = J_obs da*/dz exactly. Without correspondence (point clouds) the residual is the signed
 distance n · (x(ξ_k) − p_k) at the closest point ξ_k (as `bilevel`), its derivative n · dx/dz.
 
-The outer problem (Levenberg–Marquardt over z, uncertainty over feature bases) is
-`inverse.material.implicit_fit`.
+The outer problem (Levenberg–Marquardt over z) is `inverse.material.outer_fit`, the
+uncertainty over feature bases `inverse.material.implicit_fit`.
 """
 
 from __future__ import annotations
@@ -151,6 +151,7 @@ class ImplicitEquilibrium:
         self.unknowns = list(unknowns)
         self.config = config
         self.seed = seed
+        self.label = {"seed": int(seed), "width": int(width or config.width)}
         domain = model.surface.domain
         self.field = NeuralField(FieldConfig(
             width=width or config.width, hidden_layers=config.hidden_layers,
@@ -176,6 +177,10 @@ class ImplicitEquilibrium:
             for p, saved in zip(self.field.output_layer(), state, strict=True):
                 p.copy_(saved)
         self.values = None if values is None else np.array(values, dtype=np.float64)
+
+    def predicted_change(self, sensitivity: torch.Tensor, dz: np.ndarray) -> torch.Tensor:
+        """First-order change (3, width + 1) of the output layer for a step dz (p,) in z."""
+        return torch.einsum("kaj,j->ka", sensitivity, torch.from_numpy(dz))
 
     # -- inner problem --------------------------------------------------------------------------
     def _system(self, values, load_factor: float):

@@ -1,0 +1,121 @@
+"""Estimate on the spline + projected-Newton forward model, with a discretisation error bar.
+
+The outer fit (`outer_fit.fit`: Levenberg–Marquardt with implicit-function Jacobians) runs on
+the forward model `spline_equilibrium.SplineEquilibrium` of two grids, h and h/2 (the grid
+rule's, or the given spans, and its dyadic refinement): first on h from the start values, then
+on h/2 from the estimate of h, the first solve of h/2 from the coarse equilibrium prolonged
+exactly. The estimate is the fine grid's.
+
+Standard error (`outer_fit.combine`): the noise part is the Fisher / Gauss–Newton standard
+error of the fine fit (its Jacobian, the residual variance at the estimate); the forward
+model's part is the difference of the two grids' estimates |z_{h/2} − z_h| (normalised
+coordinates), an over-estimate of the fine grid's error for any convergence order ≥ 1 in the
+asymptotic range. They are combined in quadrature.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from inverse.material.conditioned import to_values
+from inverse.material.observations import Observation
+from inverse.material.outer_fit import (
+    ForwardFit,
+    OuterConfig,
+    OuterResult,
+    combine,
+    fit,
+    start_values,
+)
+from inverse.material.residual import unknown_scales
+from inverse.material.spline_equilibrium import SplineEquilibrium, SplineModelConfig
+from inverse.material.unknowns import Unknown
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class NewtonEstimateConfig:
+    """model: the spline forward model (coarse grid, degree, band, load steps);
+    outer: the Levenberg–Marquardt settings; levels: grids fitted, each refining the previous
+    (≥ 2: the last two give the discretisation part; 1: Fisher errors only, flagged)."""
+
+    model: SplineModelConfig = field(default_factory=SplineModelConfig)
+    outer: OuterConfig = field(default_factory=OuterConfig)
+    levels: int = 2
+
+    def __post_init__(self):
+        if isinstance(self.levels, bool) or not isinstance(self.levels, int) or \
+                not 1 <= self.levels <= 4:
+            raise ValueError(f"levels must be an integer in 1..4, got {self.levels!r}")
+
+
+class NewtonResult(OuterResult):
+    """`OuterResult` of the Newton method: one fit per grid, the finest reported; the forward
+    model's part is the discretisation error (the difference of the last two grids)."""
+
+    @property
+    def discretisation(self) -> np.ndarray:
+        return self.model_errors
+
+
+def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
+                    config: NewtonEstimateConfig | None = None, *,
+                    start: list[float] | None = None) -> NewtonResult:
+    """Estimate any unknowns of `parse_unknowns` by fitting spline equilibria on `levels`
+    grids (module docstring). start: start values (default: the first observation's model
+    values)."""
+    config = config or NewtonEstimateConfig()
+    t0 = time.perf_counter()
+    values = start_values(observations, unknowns, start)
+    names = [u.name for u in unknowns]
+    positive = np.array([u.positive for u in unknowns])
+    grids = [config.model.grid(obs.model) for obs in observations]
+    fits: list[ForwardFit] = []
+    equilibria: list[list[SplineEquilibrium]] = []
+    for level in range(config.levels):
+        if level:
+            grids = [g.refined() for g in grids]
+        eqs = [SplineEquilibrium(obs.model, unknowns, config.model, grid)
+               for obs, grid in zip(observations, grids, strict=True)]
+        if level:  # start where the coarser grid ended: its estimate, its solution prolonged
+            for eq, coarse in zip(eqs, equilibria[-1], strict=True):
+                prolonged = torch.sparse.mm(coarse.field.prolongation(), coarse.coefficients)
+                eq.solve(values, start=prolonged)
+        fits.append(fit(eqs, observations, unknowns, values, config.outer))
+        equilibria.append(eqs)
+        values = fits[-1].values
+        log.info("newton estimate on %s: %s (%d outer iterations, %.1f s)", fits[-1].label,
+                 dict(zip(names, values.tolist(), strict=True)), fits[-1].iterations,
+                 fits[-1].time)
+    z = fits[-1].z
+    norm = np.where(positive, 1.0, unknown_scales(unknowns, np.array(to_values(unknowns, z))))
+    notes = []
+    if len(fits) > 1:
+        discretisation = np.abs(fits[-1].z - fits[-2].z) / norm
+        notes.append(f"standard errors combine in quadrature the Fisher error (exact forward "
+                     f"model) and the difference of the estimates on the grids "
+                     f"{fits[-2].label['spans']} and {fits[-1].label['spans']} (discretisation)")
+    else:
+        discretisation = np.zeros(len(unknowns))
+        notes.append("one grid: the standard errors are Fisher errors only and ignore the "
+                     "discretisation error")
+    for f in fits:
+        if not f.converged:
+            notes.append(f"grid {f.label['spans']} stopped at the iteration limit "
+                         f"({f.iterations}) before the step fell below the tolerance")
+        if not f.stable:
+            notes.append(f"grid {f.label['spans']}: the fitted equilibrium is unstable (its "
+                         "Hessian K is not positive definite): the estimate describes a "
+                         "saddle of the energy, not a state the sheet would rest in")
+    result = combine(observations, unknowns, z, fits[-1], discretisation, "bilevel_newton",
+                     sum(f.iterations for f in fits), time.perf_counter() - t0)
+    estimate = result.estimate
+    return NewtonResult(estimate, fits, equilibria, result.fisher, result.model,
+                        ratios=result.ratios, notes=notes + result.notes,
+                        reported=len(fits) - 1)

@@ -1,0 +1,266 @@
+"""The outer problem of the implicit-function estimates, shared by their forward models.
+
+A forward model (`implicit.ImplicitEquilibrium`: last-layer Newton on fixed SIREN features;
+`spline_equilibrium.SplineEquilibrium`: projected Newton on a spline grid) gives, for unknowns
+θ, the equilibrium and its sensitivity to the outer coordinates z (ln θ for positive unknowns,
+the value for signed ones). Its interface: `solve(values, prediction=, from_reference=)`,
+`state()` / `set_state(state, values)`, `sensitivity()`, `predicted_change(sensitivity, dz)`,
+`positions(ξ)`, `position_jets(ξ)`, `position_sensitivity(ξ, sensitivity)`, `model`,
+`field` (its dtype), `label` (a dict naming it in reports), `newton_steps`.
+
+Outer problem (`fit`): Levenberg–Marquardt on the residuals (metres) over z, unbounded (no
+box: every iterate is an exact re-solve), each step capped at `max_step` in normalised
+coordinates (ln θ; a signed unknown over the magnitude of its vector group at the start) and
+accepted only if the misfit falls. Stops on a relative step below `tolerance`, or when no
+damped step lowers the misfit. Residuals: x*(ξ_k) − p_k with correspondence, else the signed
+distance n · (x(ξ_k) − p_k) at the closest point ξ_k.
+
+Uncertainty (`combine`): the Fisher matrix JᵀJ/σ² of the final Jacobian (σ² from the residual
+at the estimate; the Gauss–Newton covariance, `identifiability.analyse`) gives the noise part;
+the caller gives the forward model's part (the spread over feature bases, or the difference
+between two grid levels); the reported standard error combines both in quadrature, and an
+unknown whose combined relative standard deviation exceeds `identifiability.UNDETERMINED_STD`
+is undetermined.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from inverse.material.bilevel import closest_surface_points, gravity_ratios
+from inverse.material.conditioned import to_coordinates, to_values
+from inverse.material.identifiability import UNDETERMINED_STD, Identifiability, analyse
+from inverse.material.observations import Observation
+from inverse.material.residual import Estimate, unknown_scales
+from inverse.material.unknowns import Unknown
+from taichi_ndf import jets
+
+log = logging.getLogger(__name__)
+
+# Levenberg–Marquardt trials per outer iteration (damping × 10 after each rejected one).
+LM_ATTEMPTS = 6
+
+
+@dataclass(frozen=True)
+class OuterConfig:
+    """max_iterations: outer Levenberg–Marquardt iterations (Jacobians); tolerance: stop when
+    the outer step is below this in normalised coordinates; max_step: largest outer step in
+    normalised coordinates (1: a factor e in θ, or the start magnitude of a force);
+    projection_grid: seeds per coordinate of the closest-point search of point clouds."""
+
+    max_iterations: int = 30
+    tolerance: float = 1e-4
+    max_step: float = 1.0
+    projection_grid: int = 48
+
+    def __post_init__(self):
+        for name in ("max_iterations", "projection_grid"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        for name in ("tolerance", "max_step"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+
+
+def residuals(equilibrium, observation: Observation, grid: int,
+              sensitivity: torch.Tensor | None = None
+              ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Residuals [m] of the current equilibrium against an observation (module docstring) and,
+    given its sensitivity, their Jacobian (R, p) in z."""
+    points = observation.points.to(equilibrium.field.parameters[0].dtype)
+    if observation.xi is not None:
+        xi = observation.xi
+        r = (equilibrium.positions(xi) - points).reshape(-1)
+        if sensitivity is None:
+            return r.numpy(), None
+        dx = equilibrium.position_sensitivity(xi, sensitivity)
+        return r.numpy(), dx.reshape(-1, dx.shape[-1]).numpy()
+    xi = closest_surface_points(equilibrium, None, points, grid)
+    x = equilibrium.position_jets(xi)
+    normal = torch.linalg.cross(x[:, jets.D1], x[:, jets.D2], dim=-1)
+    normal = normal / normal.norm(dim=1, keepdim=True)
+    r = ((x[:, jets.VALUE] - points) * normal).sum(dim=1)
+    if sensitivity is None:
+        return r.numpy(), None
+    dx = equilibrium.position_sensitivity(xi, sensitivity)
+    return r.numpy(), torch.einsum("nk,nkj->nj", normal, dx).numpy()
+
+
+@dataclass
+class ForwardFit:
+    """The outer fit on one forward model: its label, values, z, residuals and Jacobian in z at
+    the end, outer iterations, Newton steps, time [s], whether it converged, and whether every
+    equilibrium was stable at the end (K positive definite; True where not checked)."""
+
+    label: dict
+    values: np.ndarray
+    z: np.ndarray
+    residuals: np.ndarray
+    jacobian: np.ndarray
+    iterations: int
+    newton_steps: int
+    time: float
+    converged: bool
+    stable: bool = True
+
+
+def _evaluate(equilibria, observations, grid, jacobian: bool):
+    rs, js, sens = [], [], []
+    for eq, obs in zip(equilibria, observations, strict=True):
+        s = eq.sensitivity() if jacobian else None
+        r, j = residuals(eq, obs, grid, s)
+        rs.append(r)
+        js.append(j)
+        sens.append(s)
+    r = np.concatenate(rs)
+    return r, (np.concatenate(js) if jacobian else None), sens
+
+
+def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknown],
+        start_values: np.ndarray, config: OuterConfig) -> ForwardFit:
+    """Levenberg–Marquardt over z on one forward model per observation, from the start values
+    (module docstring)."""
+    t0 = time.perf_counter()
+    steps0 = sum(eq.newton_steps for eq in equilibria)
+    grid = config.projection_grid
+    z = np.array(to_coordinates(unknowns, start_values))
+    positive = np.array([u.positive for u in unknowns])
+    norm = np.where(positive, 1.0, unknown_scales(unknowns, start_values))
+    for eq in equilibria:
+        eq.solve(start_values, from_reference=True)
+    r, jac, sens = _evaluate(equilibria, observations, grid, True)
+    cost = float(r @ r)
+    mu, iterations, converged = 1e-3, 0, False
+    for iterations in range(1, config.max_iterations + 1):
+        js = jac * norm
+        a, g = js.T @ js, js.T @ r
+        states = [eq.state() for eq in equilibria]
+        accepted = False
+        for _attempt in range(LM_ATTEMPTS):
+            damped = a + mu * np.diag(np.maximum(np.diag(a), 1e-30 * np.trace(a) + 1e-300))
+            step = -np.linalg.solve(damped, g)
+            largest = float(np.abs(step).max())
+            if largest > config.max_step:
+                step *= config.max_step / largest
+            dz = step * norm
+            trial = z + dz
+            values = np.array(to_values(unknowns, trial))
+            for eq, s in zip(equilibria, sens, strict=True):
+                eq.solve(values, prediction=eq.predicted_change(s, dz))
+            r_trial, _, _ = _evaluate(equilibria, observations, grid, False)
+            cost_trial = float(r_trial @ r_trial)
+            if math.isfinite(cost_trial) and cost_trial < cost:
+                accepted = True
+                mu = max(mu / 3, 1e-9)
+                break
+            for eq, state in zip(equilibria, states, strict=True):
+                eq.set_state(state, to_values(unknowns, z))
+            mu *= 10
+        if not accepted:
+            converged = True  # no step lowers the misfit: a minimum within rounding
+            log.info("outer fit %s: no step lowers the misfit at iteration %d",
+                     equilibria[0].label, iterations)
+            break
+        relative = cost - cost_trial
+        z, cost = trial, cost_trial
+        r, jac, sens = _evaluate(equilibria, observations, grid, True)
+        log.info("outer fit %s iteration %d: %s, rms %.4g m, step %.3g, mu %.2g",
+                 equilibria[0].label, iterations,
+                 dict(zip([u.name for u in unknowns], to_values(unknowns, z), strict=True)),
+                 math.sqrt(cost / len(r)), float(np.abs(step).max()), mu)
+        if float(np.abs(step).max()) < config.tolerance or relative <= 1e-14 * cost:
+            converged = True
+            break
+    return ForwardFit(label=dict(equilibria[0].label), values=np.array(to_values(unknowns, z)),
+                      z=z, residuals=r, jacobian=jac, iterations=iterations,
+                      newton_steps=sum(eq.newton_steps for eq in equilibria) - steps0,
+                      time=time.perf_counter() - t0, converged=converged,
+                      stable=all(getattr(eq, "stable", True) for eq in equilibria))
+
+
+def start_values(observations: list[Observation], unknowns: list[Unknown], start) -> np.ndarray:
+    """The start values (default: the first observation's model values), checked."""
+    if not observations:
+        raise ValueError("need at least one observation")
+    names = [u.name for u in unknowns]
+    model0 = observations[0].model
+    values = np.array([u.value(model0) for u in unknowns] if start is None else start,
+                      dtype=np.float64)
+    positive = np.array([u.positive for u in unknowns])
+    if values.shape != (len(unknowns),) or not np.all(np.isfinite(values)) or \
+            not np.all(values[positive] > 0):
+        raise ValueError(f"start values must be finite, one per unknown {names} and positive "
+                         f"for {[n for n, p in zip(names, positive, strict=True) if p]}, got "
+                         f"{values.tolist()}")
+    return values
+
+
+@dataclass
+class OuterResult:
+    """An estimate on forward models: the combined estimate, the fit on every forward model
+    (feature basis or grid), the forward models (one list per fit, one per observation), the
+    Fisher and the forward model's parts of the standard error (absolute, per unknown), the
+    index of the fit whose equilibria are reported, and `ratios` and `notes` as
+    `BilevelResult`."""
+
+    estimate: Estimate
+    fits: list[ForwardFit]
+    equilibria: list[list]
+    fisher_errors: np.ndarray
+    model_errors: np.ndarray
+    ratios: dict[str, tuple[float, float]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    reported: int = 0
+
+    def fitted_positions(self, index: int, xi: torch.Tensor) -> torch.Tensor:
+        """Equilibrium positions (N, 3) [m] of observation `index` on the reported fit."""
+        return self.equilibria[self.reported][index].positions(xi)
+
+
+@dataclass
+class Combined:
+    """An estimate with its standard error parts (absolute, per unknown): `fisher` (noise,
+    exact forward model) and `model` (the forward model's own error); ratios and notes as
+    `bilevel.gravity_ratios`."""
+
+    estimate: Estimate
+    fisher: np.ndarray
+    model: np.ndarray
+    ratios: dict
+    notes: list[str]
+
+
+def combine(observations: list[Observation], unknowns: list[Unknown], z: np.ndarray,
+            final: ForwardFit, model_part: np.ndarray, method: str, iterations: int,
+            elapsed: float) -> Combined:
+    """The estimate at z with the Fisher standard error of `final`'s residuals and Jacobian
+    and the forward model's part `model_part` (normalised coordinates: relative for positive
+    unknowns, over the vector group's magnitude for signed ones) in quadrature."""
+    names = [u.name for u in unknowns]
+    positive = np.array([u.positive for u in unknowns])
+    values = np.array(to_values(unknowns, z))
+    scale = unknown_scales(unknowns, values)
+    norm = np.where(positive, 1.0, scale)
+    r = final.residuals
+    dof = max(len(r) - len(unknowns), 1)
+    sigma2 = float(r @ r) / dof
+    ident = analyse(final.jacobian * norm, sigma2, names, positive.tolist())
+    fisher_std = ident.std.copy()
+    combined = np.sqrt(fisher_std**2 + model_part**2)
+    ident = Identifiability(ident.fisher, ident.eigenvalues, ident.eigenvectors, combined,
+                            [bool(c < UNDETERMINED_STD) for c in combined], ident.combinations)
+    errors = np.where(ident.determined, combined * scale, np.inf)
+    rms = math.sqrt(float(r @ r) / max(len(r), 1))
+    estimate = Estimate(unknowns, values, errors, ident, rms, iterations, elapsed, method)
+    ratios, notes = gravity_ratios(observations, unknowns, values, ident)
+    fisher = np.where(np.isfinite(fisher_std), fisher_std * scale, np.inf)
+    log.info("%s estimate: %s ± %s (rms misfit %.3g m, %.1f s)", method,
+             dict(zip(names, values.tolist(), strict=True)), errors.tolist(), rms, elapsed)
+    return Combined(estimate, fisher, model_part * scale, ratios, list(notes))

@@ -1,0 +1,257 @@
+"""Forward model of the Newton estimate: the equilibrium on a spline field and its sensitivity.
+
+For given unknowns θ the equilibrium coefficients C*(θ) of a B-spline displacement field
+(`SplineField`) minimise Π(C; θ) on the span quadrature of its grid, by projected Newton
+(`minimise.projected_newton.minimise`): the first solve from the undeformed state through
+`load_steps`, later ones warm-started from the previous C* moved by the first-order prediction
+(dC*/dz) Δz, or from a given start (e.g. a coarser grid's solution prolonged).
+
+Sensitivity: Π is linear in every unknown (Π = Π_known + Σ_j θ_j T_j, `unknowns`), so
+∂g/∂θ_j = Assembly.gradient(dT_j/dU) (`term_gradients`: the same pull-back as the gradient) and
+dC*/dθ_j = −K⁻¹ ∂g/∂θ_j with K of the exact blocks at C*, factorised once for all unknowns
+(`minimise.sensitivity`). If K is not positive definite the equilibrium is unstable and
+`stable` is False. In the outer coordinates z (ln θ for positive unknowns, the value for
+signed ones) a column is multiplied by θ_j for a positive unknown. Observed positions
+x(ξ) = X(ξ) + u(ξ) are affine in C, so dx/dz = J_obs dC*/dz exactly (the composition at ξ).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from inverse.material.unknowns import Unknown, apply, term_gradients
+from taichi_ndf import checks, jets
+from taichi_ndf.field import SplineConfig, SplineField
+from taichi_ndf.minimise.assembly import (
+    Assembly,
+    displacement_at,
+    gauge_unknowns,
+    linearised,
+    local_basis_at,
+)
+from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, minimise
+from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
+from taichi_ndf.model import ShellModel
+from taichi_ndf.objective import Objective
+from taichi_ndf.quadrature import span_quadrature
+from taichi_ndf.spline_grid import auto_span_length, spans_for
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SplineModelConfig:
+    """The spline forward model.
+
+    spans: knot spans (n1, n2) of the coarsest grid; None: the project's grid rule
+        (`spline_grid.auto_span_length` with the model's thickness and band).
+    degree: 3 or 4. quadrature_points: Gauss points per span and direction (None: degree + 1).
+    boundary_length: band width of the boundary conditions' vanishing factors, a fraction of
+        the domain (None: the model's); a wide band keeps the grid rule's spans coarse.
+    load_steps: load factors of the first solve from the undeformed state (the last is 1).
+    newton_iterations: most projected-Newton iterations per solve (per load step).
+    """
+
+    spans: tuple[int, int] | None = None
+    degree: int = 3
+    quadrature_points: int | None = None
+    boundary_length: float | None = 2.0
+    load_steps: tuple[float, ...] = (0.25, 0.5, 0.75, 1.0)
+    newton_iterations: int = 60
+
+    def __post_init__(self):
+        if self.spans is not None and (len(self.spans) != 2 or any(
+                isinstance(n, bool) or not isinstance(n, int) or n < 1 for n in self.spans)):
+            raise ValueError(f"spans must be two positive integers or None, got {self.spans!r}")
+        if self.degree not in (3, 4):
+            raise ValueError(f"degree must be 3 or 4, got {self.degree!r}")
+        q = self.quadrature_points
+        if q is not None and (isinstance(q, bool) or not isinstance(q, int) or q < 1):
+            raise ValueError(f"quadrature_points must be a positive integer or None, got {q!r}")
+        if self.boundary_length is not None and not self.boundary_length > 0:
+            raise ValueError(f"boundary_length must be positive or None, got "
+                             f"{self.boundary_length!r}")
+        checks.load_steps(self.load_steps)
+        if isinstance(self.newton_iterations, bool) or self.newton_iterations < 1:
+            raise ValueError(f"newton_iterations must be >= 1, got {self.newton_iterations!r}")
+
+    def grid(self, model: ShellModel) -> SplineConfig:
+        """The coarsest grid for a model (with this configuration's band)."""
+        if self.boundary_length is not None:
+            model = model.with_boundary_length(self.boundary_length)
+        domain = model.surface.domain
+        spans = self.spans or spans_for(model.surface, auto_span_length(
+            model.surface, model.material.thickness, model.boundary.narrowest_band))
+        return SplineConfig(spans=tuple(spans), degree=self.degree, domain=domain.bounds,
+                            periodic=domain.periodic)
+
+
+def _zero_weight_rows(ordered, original) -> torch.Tensor:
+    """Rows of `ordered` (an Assembly's reordered samples) holding the zero-weight samples
+    (line- and point-load nodes) of `original`, in the original order (what
+    `term_gradients` and the point forces index by)."""
+    want = torch.nonzero(original.weight == 0).ravel()
+    have = torch.nonzero(ordered.weight == 0).ravel()
+    rows, used = [], set()
+    for i in want.tolist():
+        match = [int(j) for j in have.tolist() if j not in used
+                 and torch.equal(ordered.xi[j], original.xi[i])
+                 and torch.equal(ordered.point_force[j], original.point_force[i])]
+        rows.append(match[0])
+        used.add(match[0])
+    return torch.tensor(rows, dtype=torch.long)
+
+
+class SplineEquilibrium:
+    """The equilibrium of `model` with the unknowns set to θ on one spline grid, and dC*/dz.
+
+    model: the observation's model (unknowns at their scene values); grid: the field's
+    configuration (`SplineModelConfig.grid`, or a refinement of it)."""
+
+    def __init__(self, model: ShellModel, unknowns: list[Unknown], config: SplineModelConfig,
+                 grid: SplineConfig):
+        if config.boundary_length is not None:
+            model = model.with_boundary_length(config.boundary_length)
+        self.model = model
+        self.unknowns = list(unknowns)
+        self.config = config
+        self.field = SplineField(grid, dtype=torch.float64)
+        self.label = {"spans": list(grid.spans), "degree": grid.degree}
+        self.operator = model.operator(self.field)
+        original = span_quadrature(model.surface, grid, model.loads,
+                                   points=config.quadrature_points, dtype=torch.float64)
+        basis = local_basis_at(self.operator, original.xi)
+        self.assembly = Assembly(original, basis, grid.num_coefficients)
+        self.fixed = gauge_unknowns(model.boundary, basis)
+        samples = self.assembly.samples
+        self._loaded_rows = _zero_weight_rows(samples, original)
+        self._point_rows = self._loaded_rows[len(self._loaded_rows) - len(model.loads.point_loads):]
+        # term_gradients indexes point loads among the zero-weight rows in model order
+        positive = torch.nonzero(samples.weight > 0).ravel()
+        self._model_order = torch.cat((positive, self._loaded_rows))
+        self.length = math.sqrt(model.surface.domain.rectangle_area)
+        self.newton = ProjectedNewtonConfig(max_iterations=config.newton_iterations)
+        self.coefficients = torch.zeros(grid.num_coefficients, 3, dtype=torch.float64)
+        self.values: np.ndarray | None = None
+        self.newton_steps = 0
+        self.solve_time = 0.0
+        self.stable = True
+        self._first: tuple[np.ndarray, torch.Tensor] | None = None
+
+    # -- state ----------------------------------------------------------------------------------
+    def state(self) -> torch.Tensor:
+        return self.coefficients.clone()
+
+    def set_state(self, state: torch.Tensor, values) -> None:
+        self.coefficients = state.clone()
+        self.values = None if values is None else np.array(values, dtype=np.float64)
+
+    def predicted_change(self, sensitivity: torch.Tensor, dz: np.ndarray) -> torch.Tensor:
+        """First-order change of the state (n, 3) for a step dz (p,) in the outer coordinates."""
+        return torch.einsum("ncj,j->nc", sensitivity, torch.from_numpy(dz))
+
+    # -- inner problem --------------------------------------------------------------------------
+    def _potential(self, values, load_factor: float):
+        """Π of θ at a load factor; sets the samples' (unscaled) point forces of θ."""
+        loaded = apply(self.model, self.unknowns, values)
+        if loaded.loads.point_loads:
+            forces = self.assembly.samples.point_force.clone()
+            forces[self._point_rows] = torch.tensor(
+                [p.force for p in loaded.loads.point_loads], dtype=forces.dtype)
+            self.assembly.samples = self.assembly.samples.with_point_force(forces)
+        return loaded, Objective.of_model(loaded).potential(load_factor)
+
+    def _minimise(self, values, start: torch.Tensor, load_factor: float) -> torch.Tensor:
+        _, potential = self._potential(values, load_factor)
+        self.assembly.at_load(self.operator, load_factor)
+        solution = minimise(self.assembly, potential, start, self.newton,
+                            load_factor=load_factor, length=self.length, fixed=self.fixed)
+        self.newton_steps += len(solution.history)
+        if not solution.converged:
+            log.warning("spline equilibrium %s: Newton did not converge at θ = %s (load %.3g)",
+                        self.label, np.asarray(values).tolist(), load_factor)
+        return solution.coefficients
+
+    def solve(self, values, *, prediction: torch.Tensor | None = None,
+              from_reference: bool = False, start: torch.Tensor | None = None) -> None:
+        """Solve for θ = values: from `start` (n, 3) at load 1 when given, else from the
+        undeformed state through `load_steps` the first time (or with `from_reference`; the
+        result kept and reused when asked for the same θ again), else warm-started from the
+        current C* plus `prediction`."""
+        values = np.array(values, dtype=np.float64)
+        t0 = time.perf_counter()
+        if start is not None:
+            self.coefficients = self._minimise(values, start, 1.0)
+            self._first = (values, self.coefficients.clone())
+        elif self._first is not None and (from_reference or self.values is None) and \
+                np.array_equal(values, self._first[0]):
+            self.coefficients = self._first[1].clone()
+        elif self.values is None or from_reference:
+            c = torch.zeros_like(self.coefficients)
+            for factor in self.config.load_steps:
+                c = self._minimise(values, c, factor)
+            self.coefficients = c
+            if self._first is None:
+                self._first = (values, c.clone())
+        else:
+            start = self.coefficients if prediction is None else self.coefficients + prediction
+            self.coefficients = self._minimise(values, start, 1.0)
+        self.values = values
+        self.solve_time += time.perf_counter() - t0
+
+    def sensitivity(self) -> torch.Tensor:
+        """dC*/dz (n, 3, p) at the current solution (module docstring); sets `stable`."""
+        if self.values is None:
+            raise RuntimeError("solve before asking for the sensitivity")
+        _, potential = self._potential(self.values, 1.0)
+        self.assembly.at_load(self.operator, 1.0)
+        matrix = exact_hessian(self.assembly, potential, self.coefficients, length=self.length,
+                               fd_step=self.newton.fd_step)
+        samples = self.assembly.samples
+        order = self._model_order
+        u = self.assembly.displacement(self.coefficients)
+        in_order = type(samples)(samples.xi[order], samples.r_jets[order], samples.weight[order],
+                                 samples.point_force[order])
+        columns, _ = term_gradients(self.model, self.unknowns, in_order, u[order])
+        dg = []
+        for unknown, value, column in zip(self.unknowns, self.values, columns, strict=True):
+            back = torch.empty_like(column)
+            back[order] = column
+            g = self.assembly.gradient(back)
+            dg.append(g * float(value) if unknown.positive else g)
+        result = sensitivity(matrix, torch.stack(dg, dim=-1), self.fixed)
+        if not result.definite and self.stable:
+            log.warning("spline equilibrium %s at θ = %s: K is not positive definite — the "
+                        "equilibrium is unstable", self.label, self.values.tolist())
+        self.stable = result.definite
+        return result.derivative
+
+    # -- observation space ----------------------------------------------------------------------
+    def position_jets(self, xi: torch.Tensor, z=None) -> torch.Tensor:
+        """Jets (N, 6, 3) of the current equilibrium positions [m] (z: ignored, for the
+        interface of `bilevel.closest_surface_points`)."""
+        xi = xi.to(torch.float64)
+        return self.model.surface.jets(xi) + displacement_at(self.operator, xi,
+                                                             self.coefficients, 1.0)
+
+    def positions(self, xi: torch.Tensor, z=None) -> torch.Tensor:
+        """Current equilibrium positions (N, 3) [m] at ξ (N, 2)."""
+        return self.position_jets(xi)[:, jets.VALUE]
+
+    def position_sensitivity(self, xi: torch.Tensor, sensitivity: torch.Tensor) -> torch.Tensor:
+        """dx/dz (N, 3, p) at ξ from dC*/dz (`sensitivity`): x is affine in C."""
+        xi = xi.to(torch.float64)
+        basis = local_basis_at(self.operator, xi)
+        _, jacobian, pin = linearised(self.operator, xi, basis, 1.0)
+        value = jacobian[:, :, jets.VALUE]  # (3, N, k)
+        out = torch.einsum("cna,nacj->ncj", value, sensitivity[basis.index])
+        if pin is not None:
+            out = out + torch.einsum("cna,acj->ncj", pin[:, :, jets.VALUE],
+                                     sensitivity[basis.pin_index])
+        return out
