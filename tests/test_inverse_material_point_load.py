@@ -72,3 +72,26 @@ def test_bilevel_needs_a_non_zero_start_force():
     with pytest.raises(ValueError, match="non-zero"):
         bilevel_estimate([Observation(model, points)], unknowns,
                          BilevelConfig(centre_on_residual=False))
+
+
+def test_point_load_unknown_acts_at_its_own_sample_beside_line_load_nodes():
+    """Line-load nodes are zero-weight samples too; the point-load unknown's unit force must
+    act at the point load's own sample (the last), not at the first zero-weight row."""
+    from inverse.material.unknowns import term_gradients
+    from taichi_ndf.line_loads import LineLoad
+    from taichi_ndf.sampling import with_point_loads
+
+    _, model = _model((0.0, 0.0, -0.02))
+    line = LineLoad(path=((0.2, 0.0), (0.2, 0.04)), force=(0.0, 0.0, -0.1), nodes=4)
+    model = model.with_loads(dataclasses.replace(model.loads, line_loads=(line,)))
+    model, unknowns = parse_unknowns("point_load:0", model)
+    xi = torch.tensor([[0.05, 0.02], [0.1, 0.01]], dtype=torch.float64)
+    samples = with_point_loads(model.surface, xi, torch.full((2,), 1e-3, dtype=torch.float64),
+                               model.loads)
+    u = torch.zeros(len(samples), 6, 3, dtype=torch.float64)
+    columns, _ = term_gradients(model, unknowns, samples, u)
+    z = next(i for i, unknown in enumerate(unknowns) if unknown.axis == 2)
+    rows = torch.nonzero(columns[z].abs().amax(dim=(1, 2))).ravel().tolist()
+    assert rows == [len(samples) - 1]
+    # dT/du of a unit force F_z at its sample: the work −F·u, so −1 in the value channel's z
+    assert float(columns[z][-1, 0, 2]) == pytest.approx(-1.0)

@@ -212,7 +212,8 @@ def term_gradients(model: ShellModel, unknowns: list[Unknown], samples: SurfaceS
     stiffness = torch.tensor(material.stiffness, dtype=dtype).expand(n, -1).clone()
     no_stiffness = torch.zeros(n, len(names), dtype=dtype)
     no_points = torch.zeros_like(samples.point_force)
-    point_rows = torch.nonzero(samples.weight == 0).ravel()
+    # The point loads' samples come last, after any line-load nodes (`with_point_loads`).
+    point_rows = torch.arange(n - len(loads.point_loads), n)
     known_points = samples.point_force.clone()
     kinds = {u.kind for u in unknowns}
     known = {"gravity": loads.gravity, "body_force": loads.body_force,
