@@ -113,8 +113,8 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
 
     start: a resumed run's field (the last finished level, at the last load step) with the
     summaries `done` of its levels and its `history`; the remaining levels are solved at the
-    last load factor from it. With obstacles (`model.contact`) the contact terms join the
-    objective and each load step is solved by `NewtonContact.solve`. on_level(run): after
+    last load factor from it. With obstacles (`model.contact`) each load step is solved by
+    `NewtonContact.solve` (which adds the contact terms to the objective). on_level(run): after
     each level, the run so far (its field: that level's grid).
     """
     objective = objective or Objective.of_model(model)
@@ -131,7 +131,6 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     contact = None
     if model.contact is not None:
         contact = NewtonContact(model.contact, model, grid.coefficients.dtype)
-        objective = objective.with_terms(*contact.terms)
     run = SplineRun(grid, done, list(history or []), contact=contact)
     if first + 1 > levels:
         raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "

@@ -24,6 +24,7 @@ of the round's starting state, the positions at the start of the load step.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import torch
 
@@ -33,6 +34,8 @@ from taichi_ndf.contact.config import FRICTION_SMOOTHING, ContactConfig
 from taichi_ndf.contact.friction import FrictionTerm
 from taichi_ndf.minimise.assembly import Assembly, displacement_at, linearised, local_basis_at
 from taichi_ndf.minimise.projected_newton import NewtonSolution, minimise
+from taichi_ndf.objective import Objective
+from taichi_ndf.sampling import SurfaceSamples
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +64,39 @@ class PointMap:
         return u
 
 
+def _subset(samples: SurfaceSamples, rows: torch.Tensor) -> SurfaceSamples:
+    return SurfaceSamples(*(None if t is None else t[rows] for t in (
+        samples.xi, samples.r_jets, samples.weight, samples.point_force,
+        samples.barrier_weight)))
+
+
+@dataclass(frozen=True)
+class ContactPotential:
+    """Π + the contact terms at a load factor, the form `minimise` takes. Its Hessian blocks
+    are the contact terms' (analytic) at every sample plus `objective`'s (the shell: central
+    differences) only at the samples with shell weight or a point force: at the check points
+    (shell weight 0) those are exactly zero, and skipping them saves most of the Hessian's
+    time once the check points outnumber the Gauss points."""
+
+    objective: Objective  # without the contact terms
+    terms: tuple
+    load_factor: float
+
+    def __call__(self, samples: SurfaceSamples, u_jets: torch.Tensor, grad: bool):
+        return self.objective.with_terms(*self.terms).evaluate(samples, u_jets,
+                                                                 self.load_factor, grad=grad)
+
+    def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
+                       steps: torch.Tensor) -> torch.Tensor:
+        """Per-point blocks (N, 6, 3, 6, 3), not projected (`Objective.hessian_blocks`)."""
+        blocks = sum(term.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
+                     for term in self.terms)
+        rows = (samples.weight > 0) | (samples.point_force != 0).any(dim=1)
+        blocks[rows] += self.objective.hessian_blocks(_subset(samples, rows), u_jets[rows],
+                                                      self.load_factor, steps=steps)
+        return blocks
+
+
 class NewtonContact:
     """The contact of one spline solve: the check points (kept over load steps and grid
     levels), the terms it adds to the objective, and the contact-aware load-step solve.
@@ -81,19 +117,20 @@ class NewtonContact:
 
     @property
     def terms(self) -> tuple:
-        """The energy terms contact adds to the objective."""
+        """The energy terms contact adds to the objective (`ContactPotential`)."""
         return (self.points.term,) + (() if self.friction is None else (self.friction,))
 
-    def solve(self, operator, quadrature, potential, coefficients: torch.Tensor, config, *,
-              load_factor: float, start_load_factor: float, length: float = 1.0,
+    def solve(self, operator, quadrature, objective: Objective, coefficients: torch.Tensor,
+              config, *, load_factor: float, start_load_factor: float, length: float = 1.0,
               fixed=None) -> NewtonSolution:
         """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
 
         operator: the grid's `DisplacementOperator`; quadrature: its Gauss-point samples;
-        potential: Π (with `terms`) at this load factor; start_load_factor: the load factor
-        of the starting coefficients (friction's start-of-step positions); config, length,
-        fixed: as `minimise`."""
+        objective: Π without the contact terms (`ContactPotential` adds them);
+        start_load_factor: the load factor of the starting coefficients (friction's
+        start-of-step positions); config, length, fixed: as `minimise`."""
         t = load_factor
+        potential = ContactPotential(objective, self.terms, t)
         points = self.points
         dtype = coefficients.dtype
         grid_xi, grid_r = points.grid_xi.to(dtype), points.grid_r.to(dtype)

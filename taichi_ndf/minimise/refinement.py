@@ -108,8 +108,8 @@ def solve_levels(field_, boundary: BoundaryConditions,
     probes: name -> ξ. length: a
     parameter-domain length for the Hessian's FD steps. on_level(level, grid, solutions): called
     after each level with its field (coefficients: its starting point) and its solutions per
-    load step. contact: a `taichi_ndf.contact.NewtonContact` (its terms in `objective`) that
-    solves each load step with its check points and penetration-free line search. Returns
+    load step. contact: a `taichi_ndf.contact.newton_contact.NewtonContact` that solves each
+    load step with its check points, its terms and a penetration-free line search. Returns
     [level][load step] solutions.
     """
     if levels < 1:
@@ -143,7 +143,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
                                     load_factor=t, length=length, fixed=fixed)
             else:  # from the previous load step's state (a finer level: this one's, prolonged)
                 solution = contact.solve(
-                    operator, samples, objective.potential(t), coefficients, config,
+                    operator, samples, objective, coefficients, config,
                     load_factor=t, start_load_factor=t if level else (
                         load_steps[k - 1] if k else 0.0), length=length, fixed=fixed)
             coefficients = solution.coefficients
