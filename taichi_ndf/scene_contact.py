@@ -30,9 +30,10 @@ def parse_contact(top: Table, model, base_dir: Path) -> ContactConfig | None:
             raise SceneError("contact: the scene has no [[obstacles]]")
         settings.close()
         return None
-    obstacles = []
+    obstacles, friction = [], []
     for k, t in enumerate(tables):
         obstacles.append(checked(lambda t=t, k=k: _obstacle(t, k, base_dir), t.path))
+        friction.append(t.number("friction", 0.0, nonnegative=True))
         t.close()
     activation = _auto(settings, "activation_distance")
     stiffness = _auto(settings, "stiffness")
@@ -42,7 +43,7 @@ def parse_contact(top: Table, model, base_dir: Path) -> ContactConfig | None:
     settings.close()
     return checked(lambda: ContactConfig.resolve(
         obstacles, model, margin=margin, activation=activation, stiffness=stiffness,
-        check_resolution=resolution), "obstacles")
+        check_resolution=resolution, friction=tuple(friction)), "obstacles")
 
 
 def _auto(t: Table, name: str) -> float | None:

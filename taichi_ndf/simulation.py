@@ -126,19 +126,28 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy}
     contact, obstacle_meshes = None, ()
     if scene.model.contact is not None:
-        write_obstacles(scene.model.contact, out)
-        obstacle_meshes = tuple(o.triangles(1.0) for o in scene.model.contact.obstacles)
-        contact = contact_summary(scene.model.contact,
-                                  surface_points(scene.model, field, CONTACT_GRID))
-        contact["evaluation_grid"] = list(CONTACT_GRID)
-        contact.update(check_points=run.contact.count, rejected_steps=run.rejected_steps,
-                       final_stiffness=run.contact.term.stiffness)
+        contact, obstacle_meshes = _contact_outputs(scene, out, field, run.contact,
+                                                    rejected_steps=run.rejected_steps)
     _write_field_outputs(scene, out, field, result.probes, result.history,
                          pseudo_time=config.pseudo_time, obstacles=obstacle_meshes)
     summary = _summary(scene, config, seed, result.energy, result.iterations, result.wall_time,
                        result.probes, trajectory, field_config.to_dict(), machine,
                        result.history, contact)
     return _finish(scene, out, summary)
+
+
+def _contact_outputs(scene: Scene, out: OutputDir, field, points, **counts
+                     ) -> tuple[dict, tuple]:
+    """The obstacles' meshes (RUN/obstacles/*.obj, and for the render) and result.json's
+    `contact`: the clearance over a 256² grid of the final surface (`contact_summary`), the
+    check points and κ of `points` (`ContactPoints`), and `counts`."""
+    config = scene.model.contact
+    write_obstacles(config, out)
+    meshes = tuple(o.triangles(1.0) for o in config.obstacles)
+    contact = contact_summary(config, surface_points(scene.model, field, CONTACT_GRID))
+    contact.update(evaluation_grid=list(CONTACT_GRID), check_points=points.count,
+                   final_stiffness=points.term.stiffness, **counts)
+    return contact, meshes
 
 
 def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, history, *,
@@ -200,9 +209,6 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
     from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
     from taichi_ndf.spline_solver import LevelSummary, NewtonRecord, solve_spline
 
-    if scene.model.contact is not None:
-        raise ValueError("[[obstacles]]: contact is solved on the SIREN path only (the "
-                         "projected-Newton spline path has no contact term yet)")
     checkpoint = out.file("checkpoint.pt")
     start, done, history = None, None, None
     extra = {"scene": scene.document, "scene_dir": str(scene.path.parent.resolve())}
@@ -246,11 +252,16 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
     if step_frames:
         trajectory = _load_step_trajectory(out, config.load_steps, frames, run.history)
     refinement = run.refinement(scene.field.config.degree)
-    _write_field_outputs(scene, out, run.field, run.probes, run.history, refinement=refinement)
+    contact, obstacle_meshes = None, ()
+    if run.contact is not None:
+        contact, obstacle_meshes = _contact_outputs(scene, out, run.field, run.contact.points,
+                                                    newton_rounds=run.contact.rounds)
+    _write_field_outputs(scene, out, run.field, run.probes, run.history, refinement=refinement,
+                         obstacles=obstacle_meshes)
     summary = _summary(scene, config, seed, run.energy, len(run.history), run.wall_time,
                        run.probes, trajectory, {**scene.field.to_dict(),
                                                 "finest_spans": list(run.field.config.spans)},
-                       machine, run.history)
+                       machine, run.history, contact)
     summary["levels"] = [dataclasses.asdict(lv) for lv in run.levels]
     summary["refinement"] = refinement
     return _finish(scene, out, summary)

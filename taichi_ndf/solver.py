@@ -100,6 +100,9 @@ class Solver:
         if model.contact is not None:
             if config.pseudo_time:
                 raise ValueError("contact is not available with a pseudo-time field")
+            if model.contact.has_friction:
+                raise ValueError("obstacle friction is solved on the spline + projected-Newton "
+                                 "path only ([field] type = \"spline\" or --field spline)")
             model.contact.check(model)
             self.contact = ContactPoints(model.contact.term(), model.surface,
                                          model.contact.check_resolution,

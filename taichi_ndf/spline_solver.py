@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.projected_newton import NewtonIteration, ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import LevelSolution, richardson, solve_levels
@@ -64,6 +65,7 @@ class SplineRun:
     wall_time: float = 0.0
     # (load factor, coefficients (n, 3)) of every load step solved on the last level
     steps: list[tuple[float, torch.Tensor]] = field(default_factory=list)
+    contact: NewtonContact | None = None  # with obstacles: the check points, κ, rounds
 
     @property
     def energy(self) -> float:
@@ -116,11 +118,13 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
 
     start: a resumed run's field (the last finished level, at the last load step) with the
     summaries `done` of its levels and its `history`; the remaining levels are solved at the
-    last load factor from it. on_level(run): after each level, the run so far (its field:
-    that level's grid).
+    last load factor from it. With obstacles (`model.contact`) each load step is solved by
+    `NewtonContact.solve` (which adds the contact terms to the objective). on_level(run): after
+    each level, the run so far (its field: that level's grid).
     """
     objective = objective or Objective.of_model(model)
     surface = model.surface
+
     levels = plan.levels if not config.max_levels else min(plan.levels, config.max_levels)
     done = list(done or [])
     load_steps = tuple(config.load_steps)
@@ -129,7 +133,10 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     else:  # re-solved (one Newton step: converged) and refined from there
         first, grid, load_steps = len(done) - 1, start, load_steps[-1:]
         done = done[:-1]
-    run = SplineRun(grid, done, list(history or []))
+    contact = None
+    if model.contact is not None:
+        contact = NewtonContact(model.contact, model, grid.coefficients.dtype)
+    run = SplineRun(grid, done, list(history or []), contact=contact)
     if first + 1 > levels:
         raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "
                          "this run solves")
@@ -167,6 +174,6 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                                            dtype=f.coefficients.dtype),
                  objective, levels=levels - first, load_steps=load_steps, config=newton,
                  probes=probes, length=math.sqrt(surface.domain.rectangle_area),
-                 on_level=finished)
+                 on_level=finished, contact=contact)
     run.wall_time = time.perf_counter() - started
     return run

@@ -93,7 +93,7 @@ def term_values(term, samples, u):
     x = samples.r_jets[:, jets.VALUE] + u[:, jets.VALUE]
     gap, _ = term.gaps(x)
     b, _, _ = b_of(gap, term.activation)
-    return (term._weights(samples)[:, None] * b).sum(dim=1)
+    return (term.weights(samples)[:, None] * b).sum(dim=1)
 
 
 def test_hessian_blocks_are_psd_and_exact_for_a_plane():

@@ -31,11 +31,11 @@ from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import (
     Assembly,
     displacement_at,
-    gauge_unknowns,
     linearised,
     local_basis_at,
 )
 from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, minimise
+from taichi_ndf.minimise.refinement import held_unknowns
 from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective
@@ -128,7 +128,7 @@ class SplineEquilibrium:
                                    points=config.quadrature_points, dtype=torch.float64)
         basis = local_basis_at(self.operator, original.xi)
         self.assembly = Assembly(original, basis, grid.num_coefficients)
-        self.fixed = gauge_unknowns(model.boundary, basis)
+        self.fixed = held_unknowns(self.field, model.boundary, basis)
         samples = self.assembly.samples
         self._loaded_rows = _zero_weight_rows(samples, original)
         self._point_rows = self._loaded_rows[len(self._loaded_rows) - len(model.loads.point_loads):]
@@ -254,4 +254,5 @@ class SplineEquilibrium:
         if pin is not None:
             out = out + torch.einsum("cna,acj->ncj", pin[:, :, jets.VALUE],
                                      sensitivity[basis.pin_index])
-        return out
+        # components along the boundary frame's axes -> world (vectors on the last axis)
+        return self.operator.to_world(out.transpose(1, 2)).transpose(1, 2)

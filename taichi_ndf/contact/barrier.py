@@ -86,7 +86,8 @@ class ContactTerm:
             normals.append(n)
         return torch.stack(gaps, dim=1), torch.stack(normals, dim=1)
 
-    def _weights(self, samples: SurfaceSamples) -> torch.Tensor:
+    def weights(self, samples: SurfaceSamples) -> torch.Tensor:
+        """κ w √a per sample (N,) [N/m] (b(g) [m²] times it: joules)."""
         weight = samples.weight if samples.barrier_weight is None else samples.barrier_weight
         return self.stiffness * weight * area_element(samples)
 
@@ -99,7 +100,7 @@ class ContactTerm:
         x = samples.r_jets[:, jets.VALUE] + u_jets[:, jets.VALUE]
         gap, normal = self.gaps(x, load_factor)
         b, db, _ = barrier(gap, self.activation)
-        weight = self._weights(samples)
+        weight = self.weights(samples)
         value = float((weight[:, None] * b).sum())
         if not grad:
             return value, None
@@ -118,7 +119,7 @@ class ContactTerm:
         gap, normal = self.gaps(x, load_factor)
         _, _, ddb = barrier(gap, self.activation)
         ddb = torch.where(gap < self.activation, ddb, torch.zeros_like(ddb))
-        weight = self._weights(samples)
+        weight = self.weights(samples)
         value = torch.einsum("n,nk,nki,nkj->nij", weight, ddb, normal, normal)
         blocks = u_jets.new_zeros(u_jets.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3)
         blocks[:, jets.VALUE, :, jets.VALUE, :] = value

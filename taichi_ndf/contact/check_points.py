@@ -82,11 +82,12 @@ class ContactPoints:
         u = displacement(self.grid_xi)
         return self.flag(self.point_gaps(self.grid_r.to(u.dtype) + u, load_factor))
 
-    def flag(self, grid_gaps: torch.Tensor) -> float:
+    def flag(self, grid_gaps: torch.Tensor, reach: float | torch.Tensor = 0.0) -> float:
         """Add the grid points whose gap (the last len(grid) entries of `grid_gaps`, as
-        `filter_positions` orders them) is below the activation distance, and double the
-        barrier stiffness if one came closer than ADAPT_BELOW × ĝ; returns the smallest of
-        those gaps [m]."""
+        `filter_positions` orders them) is below the activation distance (plus `reach` [m],
+        one number or one per grid point: points that could come within it by the next step),
+        and double the barrier stiffness if one came closer than ADAPT_BELOW × ĝ; returns the
+        smallest of those gaps [m]."""
         gaps = grid_gaps[-len(self.grid_xi):]
         smallest = float(gaps.min())
         if 0 < smallest < ADAPT_BELOW * self.term.activation \
@@ -94,7 +95,7 @@ class ContactPoints:
             self.term.stiffness *= 2.0
             log.debug("contact: gap %.3g m, barrier stiffness raised to %.4g N/m³", smallest,
                       self.term.stiffness)
-        close = (gaps < self.term.activation).cpu()
+        close = (gaps < self.term.activation + reach).cpu()
         new = close & ~self.active
         if bool(new.any()):
             self.active |= close

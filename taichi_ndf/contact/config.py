@@ -11,6 +11,8 @@ Rules (docs/contact.md):
   (ln 2 + 1/2) ĝ, q = `taichi_ndf.scaling.load_per_area` (|ρ_A g + body force| + |pressure| +
   Σ|P_k| / A). A scene without loads
   (driven by prescribed motions only) must give κ.
+- friction: the Coulomb coefficient μ ≥ 0 of each obstacle (0: frictionless); its smoothing
+  distance ε = FRICTION_SMOOTHING × ĝ (`taichi_ndf.contact.friction`).
 """
 
 from __future__ import annotations
@@ -27,13 +29,14 @@ from taichi_ndf.scaling import load_per_area
 ACTIVATION_FRACTION = 5e-3
 MARGIN_FRACTION = 0.1
 DEFAULT_CHECK_RESOLUTION = 64
+FRICTION_SMOOTHING = 1e-2
 
 
 @dataclass(frozen=True)
 class ContactConfig:
     """obstacles: the rigid obstacles; thickness: h [m]; margin [m] added to h/2;
     activation: ĝ [m]; stiffness: κ [N/m³]; check_resolution: points per surface coordinate
-    of the dense check grid."""
+    of the dense check grid; friction: μ per obstacle (empty: 0 for all)."""
 
     obstacles: tuple
     thickness: float
@@ -41,6 +44,7 @@ class ContactConfig:
     stiffness: float
     margin: float = 0.0
     check_resolution: int = DEFAULT_CHECK_RESOLUTION
+    friction: tuple = ()
 
     def __post_init__(self):
         if not self.obstacles:
@@ -53,9 +57,22 @@ class ContactConfig:
             if not math.isfinite(value) or value < 0 or (name != "margin" and value == 0):
                 raise ValueError(f"contact {name} must be finite and "
                                  f"{'>= 0' if name == 'margin' else '> 0'}, got {value!r}")
+        friction = tuple(float(m) for m in self.friction) or (0.0,) * len(self.obstacles)
+        if len(friction) != len(self.obstacles):
+            raise ValueError(f"contact friction: one coefficient per obstacle "
+                             f"({len(self.obstacles)}), got {len(friction)}")
+        for obstacle, mu in zip(self.obstacles, friction, strict=True):
+            if not (math.isfinite(mu) and mu >= 0):
+                raise ValueError(f"obstacle {obstacle.name!r}: friction must be finite and "
+                                 f">= 0, got {mu!r}")
+        object.__setattr__(self, "friction", friction)
         if self.check_resolution < 2:
             raise ValueError(f"contact check_resolution must be >= 2, got "
                              f"{self.check_resolution}")
+
+    @property
+    def has_friction(self) -> bool:
+        return any(mu > 0 for mu in self.friction)
 
     @property
     def offset(self) -> float:
@@ -69,7 +86,8 @@ class ContactConfig:
     @classmethod
     def resolve(cls, obstacles, model, *, margin: float | None = None,
                 activation: float | None = None, stiffness: float | None = None,
-                check_resolution: int = DEFAULT_CHECK_RESOLUTION) -> ContactConfig:
+                check_resolution: int = DEFAULT_CHECK_RESOLUTION,
+                friction: tuple = ()) -> ContactConfig:
         """Settings for `model` (a `ShellModel`) with the default rules of the module
         docstring for what is not given."""
         if activation is None:
@@ -82,7 +100,7 @@ class ContactConfig:
                 raise ValueError("the scene has no load to set the contact stiffness from; "
                                  "give it (contact stiffness [N/m³])")
         return cls(tuple(obstacles), float(model.material.thickness), float(activation),
-                   float(stiffness), float(margin), int(check_resolution))
+                   float(stiffness), float(margin), int(check_resolution), tuple(friction))
 
     def check(self, model) -> None:
         """ValueError naming the obstacle when it intersects the reference surface or a

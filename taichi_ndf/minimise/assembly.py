@@ -151,8 +151,9 @@ class Assembly:
         self._per_group = int(counts.min())
         self._extra = slice(len(groups) * self._per_group, len(order))
         self._group = group[order]
-        self.samples = SurfaceSamples(*(t[order] for t in (
-            samples.xi, samples.r_jets, samples.weight, samples.point_force)))
+        self.samples = SurfaceSamples(*(None if t is None else t[order] for t in (
+            samples.xi, samples.r_jets, samples.weight, samples.point_force,
+            samples.barrier_weight)))
         self.basis = basis = LocalBasis(basis.index[order], basis.jets[order], basis.pin_index,
                                         basis.pin_jets)
         self.n_coefficients = int(n_coefficients)

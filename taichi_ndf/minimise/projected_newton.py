@@ -13,7 +13,8 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
    minimum attempts fail in a row and each costs an assembly and a factorisation);
 4. d from (K + μ diag K) d = −g (`damped_solve`; μ = 0 unless the system is singular or a
    step failed);
-5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd.
+5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd
+   (and, with a `feasible` test, the trial is feasible: contact never steps into an obstacle).
 Stops, without taking that step, when the Newton decrement λ² = −gᵀd satisfies
 λ²/2 ≤ decrement_tolerance × |Π| (λ²/2 estimates Π − Π* near the minimum), or when
 ‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: the gradient at the start of the load step). Each
@@ -26,6 +27,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -134,12 +136,18 @@ class NewtonSolution:
 
 def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tensor,
              config: ProjectedNewtonConfig | None = None, *, load_factor: float = 1.0,
-             length: float = 1.0, fixed: np.ndarray | None = None) -> NewtonSolution:
+             length: float = 1.0, fixed: np.ndarray | None = None,
+             feasible: Callable[[torch.Tensor, torch.Tensor], bool] | None = None,
+             on_step: Callable[[torch.Tensor], bool] | None = None) -> NewtonSolution:
     """Minimise Π(C) = potential(U(C)) by projected Newton from `coefficients` (n, 3).
 
     assembly: linearised at this load factor (`Assembly.at_load`); potential: Π at the
     assembly's samples for this load factor. length: a length of the parameter domain for the
     FD steps (`jet_steps`). fixed: unknowns (coefficient × 3 + component) held.
+    feasible(C, C_trial): False rejects a line-search trial (halved like an Armijo failure;
+    contact: a step that could enter an obstacle). on_step(C): called with each accepted
+    iterate; True stops the minimisation there, not converged (contact: the caller adds
+    quadrature points and solves again).
     """
     config = config or ProjectedNewtonConfig()
     samples = assembly.samples
@@ -205,6 +213,9 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             started = time.perf_counter()
             alpha = 1.0
             for _ in range(config.halvings):
+                if feasible is not None and not feasible(c, c + alpha * step):
+                    alpha *= 0.5
+                    continue
                 trial = potential(samples, assembly.displacement(c + alpha * step), False).total
                 if math.isfinite(trial) and (
                         trial <= current.total - config.armijo * alpha * decrement):
@@ -229,6 +240,8 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             converged = near
             break
         c = c + alpha * step
+        if on_step is not None and on_step(c):
+            break
         if alpha < 1.0 and near:  # the quadratic model no longer predicts Π: rounding floor
             converged = True
             break

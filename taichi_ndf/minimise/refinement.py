@@ -111,8 +111,8 @@ def solve_levels(field_, boundary: BoundaryConditions,
                  config: ProjectedNewtonConfig | None = None,
                  probes: dict[str, tuple[float, float]] | None = None,
                  length: float = 1.0,
-                 on_level: Callable[[int, object, list[LevelSolution]], None] | None = None
-                 ) -> list[list[LevelSolution]]:
+                 on_level: Callable[[int, object, list[LevelSolution]], None] | None = None,
+                 contact=None) -> list[list[LevelSolution]]:
     """Solve on `levels` grids, the field's and its dyadic refinements (module docstring).
 
     field_: a `SplineField` (its coefficients are the level-0 starting point; not changed).
@@ -121,7 +121,9 @@ def solve_levels(field_, boundary: BoundaryConditions,
     probes: name -> ξ. length: a
     parameter-domain length for the Hessian's FD steps. on_level(level, grid, solutions): called
     after each level with its field (coefficients: its starting point) and its solutions per
-    load step. Returns [level][load step] solutions.
+    load step. contact: a `taichi_ndf.contact.newton_contact.NewtonContact` that solves each
+    load step with its check points, its terms and a penetration-free line search. Returns
+    [level][load step] solutions.
     """
     if levels < 1:
         raise ValueError(f"levels must be >= 1, got {levels}")
@@ -138,7 +140,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
         samples = samples_for(grid)
         operator = DisplacementOperator(grid, boundary)
         basis = local_basis_at(operator, samples.xi)
-        assembly = Assembly(samples, basis, grid.coefficients.shape[0])
+        assembly = None if contact else Assembly(samples, basis, grid.coefficients.shape[0])
         fixed = held_unknowns(grid, boundary, basis)
         setup = time.perf_counter() - started
         per_load: list[LevelSolution] = []
@@ -148,9 +150,15 @@ def solve_levels(field_, boundary: BoundaryConditions,
             if level:
                 coefficients = torch.sparse.mm(prolongation,
                                                results[-1][k].coefficients.to(dtype))
-            assembly.at_load(operator, t)
-            solution = minimise(assembly, objective.potential(t), coefficients, config,
-                                load_factor=t, length=length, fixed=fixed)
+            if contact is None:
+                assembly.at_load(operator, t)
+                solution = minimise(assembly, objective.potential(t), coefficients, config,
+                                    load_factor=t, length=length, fixed=fixed)
+            else:  # from the previous load step's state (a finer level: this one's, prolonged)
+                solution = contact.solve(
+                    operator, samples, objective, coefficients, config,
+                    load_factor=t, start_load_factor=t if level else (
+                        load_steps[k - 1] if k else 0.0), length=length, fixed=fixed)
             coefficients = solution.coefficients
             u = displacement_at(operator, probe_xi, coefficients, t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(probes)}

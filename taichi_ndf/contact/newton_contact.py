@@ -1,0 +1,199 @@
+"""Contact on the spline + projected-Newton path (`method = "newton"`; docs/contact.md).
+
+Each load step on each grid (`NewtonContact.solve`) runs in rounds:
+1. the dense check grid (`ContactPoints`, check_resolution² points) is evaluated at the current
+   coefficients; its points within the activation distance ĝ become check points for good;
+2. the quadrature is the fixed Gauss points (shell energy and loads, barrier weight 0) and
+   the check points (the barrier with the grid's trapezoidal weights, shell weight 0), as on
+   the SIREN path; an `Assembly` is built on them and projected Newton minimises
+   Π + Π_c (+ friction) there, with the barrier's PSD blocks in K;
+3. the line search rejects a trial in which a Gauss point or *any* point of the dense grid
+   could enter an obstacle (`ContactPoints.step_allowed`: each point outside moves by less
+   than its gap, so, the signed distance being 1-Lipschitz, it cannot enter or tunnel);
+4. after each accepted Newton iterate the grid is evaluated again (and κ raised if a point
+   came closer than ĝ/10); when points came within ĝ (or within ĝ + LOOK_AHEAD × their last
+   move: they could by the next steps), Newton stops there, they are added, the Assembly is
+   rebuilt and the next round goes on from that state.
+Rounds end when Newton converged and no point was added (and, with friction, the lagged
+normal forces changed by less than LAG_TOLERANCE of their largest), at most MAX_ROUNDS.
+
+Friction (`taichi_ndf.contact.friction`) is lagged per round: the normal forces and normals
+of the round's starting state, the positions at the start of the load step.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.contact.check_points import ContactPoints
+from taichi_ndf.contact.config import FRICTION_SMOOTHING, ContactConfig
+from taichi_ndf.contact.friction import FrictionTerm
+from taichi_ndf.minimise.assembly import Assembly, displacement_at, linearised, local_basis_at
+from taichi_ndf.minimise.projected_newton import NewtonSolution, minimise
+from taichi_ndf.objective import Objective
+from taichi_ndf.sampling import SurfaceSamples
+
+log = logging.getLogger(__name__)
+
+MAX_ROUNDS = 50
+LOOK_AHEAD = 4.0
+LAG_TOLERANCE = 1e-3
+
+
+class PointMap:
+    """Displacement values u (N, 3) [m] at fixed ξ (N, 2) as a function of the coefficients
+    (n, 3) of the operator's field, at a load factor (affine: precomputed once)."""
+
+    def __init__(self, operator, xi: torch.Tensor, load_factor: float):
+        basis = local_basis_at(operator, xi)
+        offset, jacobian, pin = linearised(operator, xi, basis, load_factor)
+        self.index, self.pin_index = basis.index, basis.pin_index
+        self.offset = offset[:, jets.VALUE]
+        self.jacobian = jacobian[:, :, jets.VALUE]  # (3, N, k)
+        self.pin = None if pin is None else pin[:, 0, jets.VALUE]  # (3, k)
+
+    def __call__(self, coefficients: torch.Tensor) -> torch.Tensor:
+        u = self.offset + torch.einsum("cna,nac->nc", self.jacobian,
+                                       coefficients[self.index])
+        if self.pin is not None:
+            u = u + torch.einsum("ca,ac->c", self.pin, coefficients[self.pin_index])
+        return u
+
+
+def _subset(samples: SurfaceSamples, rows: torch.Tensor) -> SurfaceSamples:
+    return SurfaceSamples(*(None if t is None else t[rows] for t in (
+        samples.xi, samples.r_jets, samples.weight, samples.point_force,
+        samples.barrier_weight)))
+
+
+@dataclass(frozen=True)
+class ContactPotential:
+    """Π + the contact terms at a load factor, the form `minimise` takes. Its Hessian blocks
+    are the contact terms' (analytic) at every sample plus `objective`'s (the shell: central
+    differences) only at the samples with shell weight or a point force: at the check points
+    (shell weight 0) those are exactly zero, and skipping them saves most of the Hessian's
+    time once the check points outnumber the Gauss points."""
+
+    objective: Objective  # without the contact terms
+    terms: tuple
+    load_factor: float
+
+    def __call__(self, samples: SurfaceSamples, u_jets: torch.Tensor, grad: bool):
+        return self.objective.with_terms(*self.terms).evaluate(samples, u_jets,
+                                                                 self.load_factor, grad=grad)
+
+    def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
+                       steps: torch.Tensor) -> torch.Tensor:
+        """Per-point blocks (N, 6, 3, 6, 3), not projected (`Objective.hessian_blocks`)."""
+        blocks = sum(term.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
+                     for term in self.terms)
+        rows = (samples.weight > 0) | (samples.point_force != 0).any(dim=1)
+        blocks[rows] += self.objective.hessian_blocks(_subset(samples, rows), u_jets[rows],
+                                                      self.load_factor, steps=steps)
+        return blocks
+
+
+class NewtonContact:
+    """The contact of one spline solve: the check points (kept over load steps and grid
+    levels), the terms it adds to the objective, and the contact-aware load-step solve.
+
+    config: the model's `ContactConfig`; model: the `ShellModel` (checked: no obstacle at the
+    reference surface or a pin); dtype: of the solve."""
+
+    def __init__(self, config: ContactConfig, model, dtype: torch.dtype):
+        config.check(model)
+        self.config = config
+        self.points = ContactPoints(config.term(), model.surface, config.check_resolution,
+                                    dtype=dtype)
+        self.friction = None
+        if config.has_friction:
+            self.friction = FrictionTerm(self.points.term, config.friction,
+                                         FRICTION_SMOOTHING * config.activation)
+        self.rounds = 0  # Newton rounds over all load steps and levels
+
+    @property
+    def terms(self) -> tuple:
+        """The energy terms contact adds to the objective (`ContactPotential`)."""
+        return (self.points.term,) + (() if self.friction is None else (self.friction,))
+
+    def solve(self, operator, quadrature, objective: Objective, coefficients: torch.Tensor,
+              config, *, load_factor: float, start_load_factor: float, length: float = 1.0,
+              fixed=None) -> NewtonSolution:
+        """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
+
+        operator: the grid's `DisplacementOperator`; quadrature: its Gauss-point samples;
+        objective: Π without the contact terms (`ContactPotential` adds them);
+        start_load_factor: the load factor of the starting coefficients (friction's
+        start-of-step positions); config, length, fixed: as `minimise`."""
+        t = load_factor
+        potential = ContactPotential(objective, self.terms, t)
+        points = self.points
+        dtype = coefficients.dtype
+        grid_xi, grid_r = points.grid_xi.to(dtype), points.grid_r.to(dtype)
+        area = quadrature.weight > 0
+        checked_xi = torch.cat((quadrature.xi[area], grid_xi))
+        checked_r = torch.cat((quadrature.r_jets[area, jets.VALUE], grid_r))
+        checked = PointMap(operator, checked_xi, t)
+        on_grid = slice(int(area.sum()), None)
+        start = coefficients
+        cache: dict = {}
+        last: dict = {}
+
+        def refresh(c: torch.Tensor) -> bool:
+            """Evaluate the grid at c; True when points were added: those within ĝ plus
+            LOOK_AHEAD × how far they moved since the last call (so that fewer rounds are
+            needed while a sheet wraps an obstacle)."""
+            before = points.count
+            u = checked(c)[on_grid]
+            moved = 0.0 if "u" not in last else (u - last["u"]).norm(dim=1)
+            last["u"] = u
+            points.flag(points.point_gaps(grid_r + u, t), LOOK_AHEAD * moved)
+            return points.count > before
+
+        def feasible(c: torch.Tensor, trial: torch.Tensor) -> bool:
+            if cache.get("c") is not c:
+                x = checked_r + checked(c)
+                cache.update(c=c, x=x, gap=points.point_gaps(x, t))
+            return points.step_allowed(cache["x"], cache["gap"], checked_r + checked(trial), t)
+
+        refresh(start)
+        history, c, solution, lagged = [], coefficients, None, None
+        for _round in range(MAX_ROUNDS):
+            self.rounds += 1
+            count = points.count
+            samples = points.augment(quadrature)
+            assembly = Assembly(samples, local_basis_at(operator, samples.xi),
+                                coefficients.shape[0])
+            assembly.at_load(operator, t)
+            lag_changed = False
+            if self.friction is not None:
+                s = assembly.samples
+                x0 = s.r_jets[:, jets.VALUE] + displacement_at(
+                    operator, s.xi, start, start_load_factor)[:, jets.VALUE]
+                capacity = self.friction.lag(s, assembly.displacement(c), t, x0,
+                                             start_load_factor)
+                if lagged is None or len(lagged) != len(capacity):
+                    lag_changed = bool((capacity > 0).any())
+                else:
+                    change = float((capacity - lagged).abs().max())
+                    lag_changed = change > LAG_TOLERANCE * float(capacity.abs().max())
+                lagged = capacity
+            solution = minimise(assembly, potential, c, config, load_factor=t, length=length,
+                                fixed=fixed, feasible=feasible, on_step=refresh)
+            history += solution.history
+            c = solution.coefficients
+            refresh(c)
+            added = points.count - count
+            log.debug("contact round at λ=%.3g: %d Newton steps, %d check points added "
+                      "(%d in all), κ %.4g", t, len(solution.history), added, points.count,
+                      points.term.stiffness)
+            if not added and not lag_changed:
+                break
+        else:
+            log.warning("contact: %d rounds at load factor %g without settling the check "
+                        "points", MAX_ROUNDS, t)
+        return NewtonSolution(c, solution.energy, solution.converged and not added, history)
