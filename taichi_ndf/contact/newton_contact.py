@@ -73,10 +73,10 @@ def _subset(samples: SurfaceSamples, rows: torch.Tensor) -> SurfaceSamples:
 @dataclass(frozen=True)
 class ContactPotential:
     """Π + the contact terms at a load factor, the form `minimise` takes. Its Hessian blocks
-    are the contact terms' (analytic) at every sample plus `objective`'s (the shell: central
-    differences) only at the samples with shell weight or a point force: at the check points
-    (shell weight 0) those are exactly zero, and skipping them saves most of the Hessian's
-    time once the check points outnumber the Gauss points."""
+    are the contact terms' (analytic) at every sample plus `objective`'s (the shell's) only at
+    the samples with shell weight or a point force: at the check points (shell weight 0) those
+    are exactly zero, and skipping them saves most of the Hessian's time once the check points
+    outnumber the Gauss points."""
 
     objective: Objective  # without the contact terms
     terms: tuple
