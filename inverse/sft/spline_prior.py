@@ -86,7 +86,7 @@ class SplinePriorConfig:
     degree: int = 3
     quadrature_points: int | None = 3
     silhouette_weight: float = 1.0
-    temporal_weight: float = 1.0
+    temporal_weight: float = 0.1
     huber_px: float = 2.0
     max_iterations: int = 8
     tolerance: float = 1e-2
