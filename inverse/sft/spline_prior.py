@@ -3,7 +3,8 @@
 Each frame's surface is x(ξ) = X(ξ) + u(ξ) on the template's UV domain (X the template itself,
 piecewise linear for data and output, its C² spline fit `MeshSurface` for the energy), with u a
 cubic tensor-product B-spline `SplineField` (spans about ``span_edges`` template edges long).
-Frame 0 is the template. Frame t > 0 starts from frame t − 1's coefficients and minimises
+Frame 0 is the template. Frame t > 0 starts from the constant-velocity extrapolation of the
+last two frames' coefficients (2 C_{t−1} − C_{t−2}; C_{t−1} at frame 1) and minimises
 
     E(C) = E_data(u) + w_phys · Π_int(u) / E_ref
 
@@ -22,11 +23,12 @@ its Taichi gradient, projected to PSD) plus the data terms' Gauss–Newton block
 Levenberg–Marquardt damping and an Armijo line search on E. So the data terms are Gauss–Newton
 and the shell is Newton in one linear system per iteration; a frame takes a few iterations.
 
-Why this pins the depth: a global depth shift at unchanged reprojection is a scaling of the
-surface about the camera centre, i.e. a uniform membrane strain ε, which costs about
-w_phys · (D / B) · A · ε² (D / B = 12 / h²: 10⁴ ε² for the cloth preset, w_phys = 1e-2) — a
-stiff mode that the exact quadrature and a second-order solve resolve in one step, where Adam
-with Monte-Carlo samples of the energy (`inverse.sft.reconstruct`) leaves it unconverged.
+The global depth: a depth shift of the whole sheet at unchanged reprojection is a scaling
+about the camera centre, a uniform membrane strain ε, which the prior charges
+w_phys · 2 D (1 + ν) A ε² / B ≈ 1.2e4 ε² px² (cloth preset, w_phys = 1e-2; D / B = 12 / h²).
+A pull that the data cannot see competes with it: the motion term at w_temp = 1 dragged the
+accelerating corner sequence along its constant-velocity prediction, mostly in depth (e3D
+0.0108 and 2.7 mm depth bias against 0.0020 and 0.3 mm at w_temp = 0.1; docs/sft_results.md).
 """
 
 from __future__ import annotations
@@ -71,12 +73,15 @@ class SplinePriorConfig:
     """Weights and solver settings of the spline reconstruction.
 
     physics_weight: w_phys (0 switches the prior off); material: preset name of a linear
-    isotropic material (ν and thickness set the prior's shape); span_edges: knot span length
-    in template mean edge lengths; degree: spline degree (3 or 4); quadrature_points: Gauss
-    points per span and direction (None: degree + 1); silhouette_weight: w_sil;
-    temporal_weight: w_temp; huber_px: reprojection error [px] beyond which the penalty grows
-    linearly; max_iterations: Newton iterations per frame; tolerance: stop when the Newton
-    decrement's predicted decrease λ²/2 is below this fraction of E.
+    isotropic material (ν and thickness set the prior's shape); membrane_factor: multiplies
+    the material's membrane stiffness (inextensibility against bending); span_edges: knot span
+    length in template mean edge lengths; degree: spline degree (3 or 4); quadrature_points:
+    Gauss points per span and direction (None: degree + 1; 3 measured as accurate as 4 for
+    cubics here at half the Hessian cost); silhouette_weight: w_sil; temporal_weight: w_temp;
+    huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
+    Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
+    decrease λ²/2 is below this fraction of E; extrapolate: start each frame from the
+    constant-velocity extrapolation of the coefficients (else from the last frame's).
     """
 
     physics_weight: float = 1e-2
