@@ -131,8 +131,37 @@ def test_eval_command_line_reports_metrics_and_protocol(mesh_folders, capsys):
 
 
 def test_eval_command_line_refuses_unmatched_names(mesh_folders, capsys):
-    (mesh_folders / "pred" / "000001.obj").rename(mesh_folders / "pred" / "frame1.obj")
+    (mesh_folders / "pred" / "000001.obj").rename(mesh_folders / "pred" / "frame2.obj")
     code = sft_eval.main(["--pred", str(mesh_folders / "pred"), "--gt", str(mesh_folders / "gt")])
     assert code == 2
     err = capsys.readouterr().err
-    assert "missing predictions ['000001']" in err and "without ground truth ['frame1']" in err
+    assert err.count("\n") == 1
+    assert "paired by frame number" in err
+    assert "missing predictions [1]" in err and "without ground truth [2]" in err
+
+
+def test_eval_pairs_frames_by_number_and_says_so(mesh_folders, capsys):
+    """ndf-sft writes 000000.obj…, other tools 0000.obj…: the same frames."""
+    gt = mesh_folders / "gt"
+    for name in ("000000", "000001"):
+        (gt / f"{name}.obj").rename(gt / f"{name[2:]}.obj")
+    code = sft_eval.main(["--pred", str(mesh_folders / "pred"), "--gt", str(gt),
+                          "--json", str(mesh_folders / "m.json")])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "paired 2 frames by frame number: 000000.obj <-> 0000.obj ... 000001.obj <-> " \
+        "0001.obj" in out
+    report = json.loads((mesh_folders / "m.json").read_text())
+    assert report["pairs"] == [["000000.obj", "0000.obj"], ["000001.obj", "0001.obj"]]
+    # The second frame is the offset one whichever way it is named.
+    assert report["per_frame"]["chamfer_x1e4"][1] > 0 == report["per_frame"]["chamfer_x1e4"][0]
+
+
+def test_eval_pairs_by_file_name_without_frame_numbers(mesh_folders, capsys):
+    for folder in ("pred", "gt"):
+        d = mesh_folders / folder
+        (d / "000000.obj").rename(d / "first.obj")
+        (d / "000001.obj").rename(d / "second.obj")
+    code = sft_eval.main(["--pred", str(mesh_folders / "pred"), "--gt", str(mesh_folders / "gt")])
+    assert code == 0
+    assert "paired 2 frames by file name" in capsys.readouterr().out

@@ -106,7 +106,7 @@ def test_cli_writes_meshes_overlay_and_result(tmp_path):
         "--frames", str(seq / "frames"), "--camera", str(seq / "camera.json"),
         "--template", str(seq / "template.obj"), "--texture", str(seq / "texture.png"),
         "--masks", str(seq / "masks"), "--gt", str(seq / "gt"), "--out", str(out),
-        "--steps", "5", "--precision", "f64",
+        "--field", "siren", "--steps", "5", "--precision", "f64",
     ])
     assert status == 0
     template = read_mesh(seq / "template.obj")

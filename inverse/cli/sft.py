@@ -1,11 +1,17 @@
 """`ndf-sft`: monocular shape-from-template reconstruction with the Kirchhoff–Love prior.
 
     ndf-sft --frames F --camera C.json --template T.obj --texture X.png [--masks M]
-            [--pinned P] [--gt G] --out DIR
+            [--pinned P] [--gt G] [--method prior|no-prior|baseline] [--field spline|siren]
+            --out DIR
 
-Stages (each timed in ``result.json``): load inputs, tracking (``inverse.sft.tracking``),
-baseline (``inverse.sft.baseline``; the initial guess of every frame unless ``--init previous``),
-reconstruction (``inverse.sft.reconstruct``), output. Writes ``DIR/meshes/000000.obj`` … (the
+Methods: ``prior`` (default) fits a displacement field per frame with the Kirchhoff–Love prior,
+``no-prior`` the same field without it (w_phys = 0), ``baseline`` the per-frame baseline alone
+(``inverse.sft.baseline``). Fields: ``spline`` (default; Gauss–Newton over a B-spline,
+``inverse.sft.spline_prior``, needs ``--precision f64``) or ``siren`` (a neural field trained
+with Adam, ``inverse.sft.reconstruct``, initialised per frame from the baseline unless
+``--init previous``). Stages (each timed in ``result.json``): load inputs, tracking
+(``inverse.sft.tracking``), baseline (when the method or the SIREN's initialisation needs it),
+reconstruction, output. Writes ``DIR/meshes/000000.obj`` … (the
 template's connectivity, vertex order and UVs), ``DIR/overlay.mp4`` (the reconstructed mesh's
 projected wireframe drawn over the frames) and ``DIR/result.json``; with ``--gt`` (a folder of
 ground-truth meshes, template vertex order) also the metrics of ``inverse.sft.metrics``.
@@ -28,6 +34,7 @@ from inverse.sft.baseline import mesh_edges, reconstruct_baseline
 from inverse.sft.inputs import Camera, InputError, load_inputs
 from inverse.sft.metrics import evaluate_sequence
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
+from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
 from inverse.sft.tracking import track_sequence
 from taichi_ndf.cli.common import (
     ArgumentParser,
@@ -41,6 +48,7 @@ from taichi_ndf.io import OutputDir, read_mesh, write_obj
 from taichi_ndf.render import write_video
 
 OVERLAY_COLOUR = (60, 230, 60)  # BGR
+METHODS = ("prior", "no-prior", "baseline")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -56,19 +64,25 @@ def build_parser() -> argparse.ArgumentParser:
                    "order, for metrics")
     p.add_argument("--out", type=Path, required=True, help="output directory (new or empty "
                    "unless --overwrite)")
-    p.add_argument("--physics-weight", type=finite_float,
-                   default=ReconstructionConfig.physics_weight,
-                   help="w_phys of the Kirchhoff–Love prior; 0 switches it off "
-                   "(default: %(default)s)")
+    p.add_argument("--method", choices=METHODS, default="prior",
+                   help="prior: field + Kirchhoff–Love prior; no-prior: the same field without "
+                   "it; baseline: the per-frame baseline alone (default: %(default)s)")
+    p.add_argument("--field", choices=("spline", "siren"), default="spline",
+                   help="displacement field of prior/no-prior: spline (Gauss–Newton) or siren "
+                   "(Adam) (default: %(default)s)")
+    p.add_argument("--physics-weight", type=finite_float, default=None,
+                   help="w_phys of the Kirchhoff–Love prior (default: the field's, "
+                   f"{SplinePriorConfig.physics_weight:g} spline, "
+                   f"{ReconstructionConfig.physics_weight:g} siren); --method no-prior sets 0")
     p.add_argument("--steps", type=int, default=ReconstructionConfig.steps,
-                   help="Adam steps per frame (default: %(default)s)")
+                   help="siren: Adam steps per frame (default: %(default)s)")
     p.add_argument("--init", choices=("baseline", "previous"), default="baseline",
-                   help="initial guess of each frame: the baseline's mesh or the previous "
-                   "frame (default: %(default)s)")
+                   help="siren: initial guess of each frame, the baseline's mesh or the "
+                   "previous frame (default: %(default)s)")
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
-    add_runtime_options(p)
+    add_runtime_options(p, precision="f64")
     return p
 
 
@@ -95,8 +109,7 @@ def run(args: argparse.Namespace) -> dict:
     """The whole pipeline; returns the summary written to result.json."""
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
-    config = ReconstructionConfig(physics_weight=args.physics_weight, steps=args.steps,
-                                  seed=args.seed)  # the options are checked before any work
+    config = method_config(args)  # the options are checked before any work
     if not 0 < args.fps < math.inf:
         raise InputError(f"--fps must be finite and positive, got {args.fps}")
     inputs = load_inputs(frames=args.frames, camera=args.camera, template=args.template,
@@ -111,24 +124,36 @@ def run(args: argparse.Namespace) -> dict:
                                         inputs.camera, masks=inputs.masks)
     seconds["tracking"] = time.perf_counter() - clock
 
-    initial = None
-    if args.init == "baseline":
+    baseline = None
+    if args.method == "baseline" or (args.field == "siren" and args.init == "baseline"):
         clock = time.perf_counter()
-        initial = reconstruct_baseline(inputs.template, inputs.camera, correspondences,
-                                       pinned=inputs.pinned).vertices
+        baseline = reconstruct_baseline(inputs.template, inputs.camera, correspondences,
+                                        pinned=inputs.pinned)
         seconds["baseline"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    result = reconstruct(inputs.template, inputs.camera, correspondences, masks=inputs.masks,
-                         pinned=inputs.pinned, initial=initial, config=config)
-    seconds["reconstruction"] = time.perf_counter() - clock
+    if args.method == "baseline":
+        vertices, losses, per_frame = baseline.vertices, None, baseline.seconds
+    elif args.field == "spline":
+        result = reconstruct_spline(inputs.template, inputs.camera, correspondences,
+                                    masks=inputs.masks, pinned=inputs.pinned, config=config)
+        vertices, losses, per_frame = result.vertices, result.losses, result.seconds
+    else:
+        result = reconstruct(inputs.template, inputs.camera, correspondences,
+                             masks=inputs.masks, pinned=inputs.pinned,
+                             initial=None if baseline is None else baseline.vertices,
+                             config=config)
+        vertices, losses, per_frame = result.vertices, result.losses, result.seconds
+    if args.method != "baseline":
+        seconds["reconstruction"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
     template = inputs.template
-    for i, vertices in enumerate(result.vertices):
-        write_obj(out.file(f"meshes/{i:06d}.obj"), vertices, template.faces, uvs=template.uvs)
+    for i, frame_vertices in enumerate(vertices):
+        write_obj(out.file(f"meshes/{i:06d}.obj"), frame_vertices, template.faces,
+                  uvs=template.uvs)
     write_video(out.file("overlay.mp4"),
-                overlay_frames(inputs.frames, result.vertices, template.faces, inputs.camera),
+                overlay_frames(inputs.frames, vertices, template.faces, inputs.camera),
                 args.fps)
     seconds["output"] = time.perf_counter() - clock
 
@@ -138,24 +163,43 @@ def run(args: argparse.Namespace) -> dict:
         "vertices": len(template.vertices),
         "inputs": {name: None if getattr(args, name) is None else str(getattr(args, name))
                    for name in ("frames", "camera", "template", "texture", "masks", "pinned")},
-        "init": args.init,
-        "config": dataclasses.asdict(config),
+        "method": args.method,
+        "field": None if args.method == "baseline" else args.field,
+        "init": args.init if args.field == "siren" and args.method != "baseline" else None,
+        "config": None if config is None else dataclasses.asdict(config),
         "correspondences_per_frame": [len(c) for c in correspondences],
-        "final_loss_terms": result.losses,
+        "final_loss_terms": losses,
         "timings": {
             "total": seconds,
             "per_frame": {name: value / n for name, value in seconds.items()},
-            "reconstruction_per_frame": result.seconds,
+            "method_per_frame": per_frame,
         },
         "machine": machine_description(runtime),
         "threads": args.threads,
     }
     if gt is not None:
-        metrics = evaluate_sequence(result.vertices, gt, template.faces, camera=inputs.camera)
+        metrics = evaluate_sequence(vertices, gt, template.faces, camera=inputs.camera)
         summary["metrics"] = metrics.summary()
         summary["metrics_per_frame"] = metrics.per_frame()
     out.write_json("result.json", summary)
     return summary
+
+
+def method_config(args: argparse.Namespace) -> SplinePriorConfig | ReconstructionConfig | None:
+    """The reconstruction settings of the chosen method and field (None for the baseline);
+    raises ValueError for options that do not fit them."""
+    if args.method == "baseline":
+        return None
+    if args.field == "spline" and args.precision != "f64":
+        raise ValueError("--field spline needs --precision f64 (its Hessian blocks are central "
+                         "differences)")
+    kind = SplinePriorConfig if args.field == "spline" else ReconstructionConfig
+    weight = kind.physics_weight if args.physics_weight is None else args.physics_weight
+    if args.method == "no-prior":
+        weight = 0.0
+    if kind is SplinePriorConfig:
+        return SplinePriorConfig(physics_weight=weight)
+    return ReconstructionConfig(physics_weight=weight, steps=args.steps, seed=args.seed)
 
 
 def overlay_frames(

@@ -2,9 +2,12 @@
 
     ndf-sft-eval --pred DIR --gt DIR [--camera C.json] [--json OUT]
 
-Both folders hold one mesh per frame (OBJ or PLY) with matching file names (``000000.obj`` …);
-the prediction must keep the ground truth's vertex order. Prints the means over frames and the
-evaluation protocol; ``--json`` also writes per-frame values. Meshes are in camera coordinates
+Both folders hold one mesh per frame (OBJ or PLY); the prediction must keep the ground truth's
+vertex order. Frames are paired by their frame number, the last group of digits of the file
+name (``000012.obj``, ``0012.obj`` and ``frame12.ply`` are frame 12), when every name in both
+folders has one and no number repeats; otherwise by identical file names. Prints how it paired
+them, the means over frames and the evaluation protocol; ``--json`` also writes per-frame
+values and the pairs. Meshes are in camera coordinates
 (world coordinates when the camera JSON has extrinsics); the camera adds the reprojection error.
 """
 
@@ -13,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -37,17 +41,39 @@ def mesh_files(folder: Path) -> dict[str, Path]:
     return files
 
 
-def paired_meshes(pred_dir: Path, gt_dir: Path) -> list[tuple[str, Path, Path]]:
-    """(name, prediction, ground truth) for every frame, in sorted name order."""
+def frame_number(stem: str) -> int | None:
+    """The frame number of a file stem: its last group of digits, or None."""
+    digits = re.findall(r"\d+", stem)
+    return int(digits[-1]) if digits else None
+
+
+def _by_number(files: dict[str, Path]) -> dict[int, Path] | None:
+    numbers = {frame_number(stem): path for stem, path in files.items()}
+    if None in numbers or len(numbers) != len(files):
+        return None
+    return numbers
+
+
+def _listing(keys: list) -> str:
+    return f"{keys[:5]}{'…' if len(keys) > 5 else ''}"
+
+
+def paired_meshes(pred_dir: Path, gt_dir: Path) -> tuple[list[tuple[str, Path, Path]], str]:
+    """(ground-truth name, prediction, ground truth) for every frame in frame order, and how
+    they were paired: "frame number" or "file name" (module docstring)."""
     pred, gt = mesh_files(pred_dir), mesh_files(gt_dir)
+    pred_numbers, gt_numbers = _by_number(pred), _by_number(gt)
+    if pred_numbers is not None and gt_numbers is not None:
+        pred, gt, how = pred_numbers, gt_numbers, "frame number"
+    else:
+        how = "file name"
     missing = sorted(gt.keys() - pred.keys())
     extra = sorted(pred.keys() - gt.keys())
     if missing or extra:
         raise InputError(
-            f"mesh names differ: missing predictions {missing[:5]}{'…' if len(missing) > 5 else ''}"
-            f", predictions without ground truth {extra[:5]}{'…' if len(extra) > 5 else ''}"
-        )
-    return [(name, pred[name], gt[name]) for name in sorted(gt)]
+            f"frames differ (paired by {how}): missing predictions {_listing(missing)}, "
+            f"predictions without ground truth {_listing(extra)}")
+    return [(gt[key].stem, pred[key], gt[key]) for key in sorted(gt)], how
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,7 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         camera = load_camera(args.camera) if args.camera else None
-        pairs = paired_meshes(args.pred, args.gt)
+        pairs, how = paired_meshes(args.pred, args.gt)
         pred, gt = [], []
         faces = gt_faces = None
         to_camera = camera.to_camera if camera is not None else np.asarray
@@ -88,6 +114,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (InputError, ValueError, OSError) as err:
         print(f"ndf-sft-eval: error: {err}", file=sys.stderr)
         return 2
+    first, last = pairs[0], pairs[-1]
+    print(f"paired {len(pairs)} frames by {how}: {first[1].name} <-> {first[2].name}"
+          + (f" ... {last[1].name} <-> {last[2].name}" if len(pairs) > 1 else ""))
     metrics = evaluate_sequence(pred, gt, faces, camera=camera, gt_faces=gt_faces)
     summary = metrics.summary()
     for key in ("frames", "e3d", "e3d_procrustes", "chamfer_x1e4", "normal_deg",
@@ -98,7 +127,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"protocol: {summary['protocol']}")
     if args.json:
         report = {"summary": summary, "per_frame": metrics.per_frame(),
-                  "frames": [name for name, _, _ in pairs]}
+                  "frames": [name for name, _, _ in pairs], "paired_by": how,
+                  "pairs": [[p.name, g.name] for _, p, g in pairs]}
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=2) + "\n")
     return 0

@@ -4,7 +4,9 @@ Modules, in pipeline order (conventions and the evaluation protocol: ``docs/sft.
 ``inputs`` (input contract, loading, validation), ``surface`` (template surface points as
 (face, barycentric)), ``tracking`` (texture registration and Lucas–Kanade tracks),
 ``baseline`` (per-frame reprojection + inextensibility + smoothness least squares),
-``reconstruct`` (the physics-regularised reconstruction), ``metrics`` (e3D, chamfer, normal
+``spline_prior`` with ``least_squares`` (the physics-regularised reconstruction: a spline
+field per frame by Gauss–Newton, the default), ``reconstruct`` with ``data_terms`` (the same
+with a SIREN field and Adam), ``metrics`` (e3D, chamfer, normal
 and reprojection errors); synthetic data with ground truth: ``texture``, ``deformations``,
 ``degradations``, ``synth``.
 """

@@ -210,17 +210,11 @@ class BaselineReconstructor:
         Jacobian blocks (m, 2, 9) and their dofs (m, 9)."""
         corners = self.template.faces[corr.face]  # (m, 3)
         points = np.einsum("mk,mkd->md", corr.bary, vertices[corners])
-        fx, fy = self.camera.fx, self.camera.fy
-        z = np.maximum(points[:, 2], MIN_DEPTH)
         projected = self.camera.project(points, min_depth=MIN_DEPTH)
         residual = projected - corr.xy
         weight = corr.confidence / max(corr.confidence.sum(), 1e-300)
         huber = np.linalg.norm(residual, axis=1) > self.config.huber_px
-        d_proj = np.zeros((len(z), 2, 3))
-        d_proj[:, 0, 0] = fx / z
-        d_proj[:, 0, 2] = -fx * points[:, 0] / z**2
-        d_proj[:, 1, 1] = fy / z
-        d_proj[:, 1, 2] = -fy * points[:, 1] / z**2
+        d_proj = self.camera.projection_jacobian(points, min_depth=MIN_DEPTH)
         jac = (d_proj[:, :, None, :] * corr.bary[:, None, :, None]).reshape(-1, 2, 9)
         dofs = (3 * corners[:, :, None] + np.arange(3)).reshape(-1, 9)
         return residual, weight, huber, jac, dofs

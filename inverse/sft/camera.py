@@ -88,6 +88,21 @@ class Camera:
             axis=1,
         )
 
+    def projection_jacobian(self, points_cam, *, min_depth: float | None = None):
+        """d(pixel)/d(point) (n, 2, 3) [px/m] of `project` at camera-frame points (n, 3): rows
+        (fx/z, 0, −fx x/z²) and (0, fy/z, −fy y/z²), z clamped like `project`. numpy in,
+        numpy out; torch in, torch out."""
+        xp = torch if isinstance(points_cam, torch.Tensor) else np
+        if xp is np:
+            points_cam = np.asarray(points_cam, dtype=float)
+        x, y, z = points_cam[:, 0], points_cam[:, 1], points_cam[:, 2]
+        if min_depth is not None:
+            z = z.clamp_min(min_depth) if xp is torch else np.maximum(z, min_depth)
+        zero = xp.zeros_like(z)
+        rows = (xp.stack([self.fx / z, zero, -self.fx * x / z**2], 1),
+                xp.stack([zero, self.fy / z, -self.fy * y / z**2], 1))
+        return xp.stack(rows, 1)
+
     def to_camera(self, points_world: np.ndarray) -> np.ndarray:
         """World points [m], shape (n, 3), in camera coordinates (identity without extrinsics)."""
         points_world = np.asarray(points_world, dtype=float)

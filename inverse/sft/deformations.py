@@ -150,3 +150,73 @@ class Fold:
             offset=(1 - t) * self.offset_start + t * self.offset_end,
             radius=self.radius, angle=t * self.angle, lift=self.lift,
         )
+
+
+@dataclass(frozen=True)
+class CornerLift:
+    """A corner lifted and dropped again: bending about a generator that cuts off a corner,
+    the arc angle rising from 0 to `angle` at t = ½ and back to 0 at t = 1 (sin(π t)).
+
+    direction_deg: direction (in the sheet plane, from +x) perpendicular to the generator,
+    pointing into the corner; offset: generator position along it [m]; radius [m];
+    angle: peak arc angle [rad]; lift: +1 away from the camera, −1 towards it.
+    """
+
+    direction_deg: float = -140.0
+    offset: float = 0.07
+    radius: float = 0.03
+    angle: float = 1.3
+    lift: float = -1.0
+
+    def __post_init__(self):
+        if self.radius <= 0:
+            raise ValueError(f"CornerLift.radius must be positive, got {self.radius}")
+        if not 0.0 <= self.angle <= np.pi:
+            raise ValueError(f"CornerLift.angle must be in [0, π], got {self.angle}")
+
+    def shape(self, points: np.ndarray, t: float, *, sheet_width: float) -> np.ndarray:
+        """Sheet-frame positions [m] (n, 3) of flat points (n, 2) at time t ∈ [0, 1]."""
+        phi = np.radians(self.direction_deg)
+        return cylindrical_bend(
+            points, direction=(np.cos(phi), np.sin(phi)), offset=self.offset,
+            radius=self.radius, angle=self.angle * np.sin(np.pi * t), lift=self.lift,
+        )
+
+
+@dataclass(frozen=True)
+class Wave:
+    """A flag-like travelling wave: the sheet's cross-section along x is the curve of arc
+    length s (from the −x edge, which stays put like a flagpole) whose slope angle is
+    θ(s, t) = t · amplitude · (s / W) · sin(2π (s / wavelength − cycles · t)), W the sheet
+    width; lines of constant x stay straight, so the map is isometric (a generalised
+    cylinder), exact up to the quadrature of x(s) = ∫ cos θ, z(s) = ∫ sin θ (trapezoid rule on
+    `QUADRATURE_POINTS` nodes, isometry error ~ (W / nodes)² relative).
+
+    amplitude: slope angle [rad] at the free edge at t = 1; wavelength [m]; cycles: waves
+    travelled by t = 1.
+    """
+
+    amplitude: float = 0.6
+    wavelength: float = 0.2
+    cycles: float = 1.0
+
+    QUADRATURE_POINTS = 8192
+
+    def __post_init__(self):
+        if not 0.0 <= self.amplitude < np.pi / 2:
+            raise ValueError(f"Wave.amplitude must be in [0, π/2), got {self.amplitude}")
+        if self.wavelength <= 0:
+            raise ValueError(f"Wave.wavelength must be positive, got {self.wavelength}")
+
+    def shape(self, points: np.ndarray, t: float, *, sheet_width: float) -> np.ndarray:
+        """Sheet-frame positions [m] (n, 3) of flat points (n, 2) at time t ∈ [0, 1]."""
+        points = np.asarray(points, dtype=np.float64)
+        s = np.linspace(0.0, sheet_width, self.QUADRATURE_POINTS)
+        theta = (t * self.amplitude * s / sheet_width
+                 * np.sin(2 * np.pi * (s / self.wavelength - self.cycles * t)))
+        ds = np.diff(s)
+        x = np.concatenate([[0.0], np.cumsum(0.5 * ds * (np.cos(theta[1:]) + np.cos(theta[:-1])))])
+        z = np.concatenate([[0.0], np.cumsum(0.5 * ds * (np.sin(theta[1:]) + np.sin(theta[:-1])))])
+        arc = np.clip(points[:, 0] + sheet_width / 2, 0.0, sheet_width)
+        return np.column_stack([np.interp(arc, s, x) - sheet_width / 2, points[:, 1],
+                                np.interp(arc, s, z)])

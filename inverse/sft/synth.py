@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from inverse.sft.camera import Camera, write_camera
-from inverse.sft.deformations import Fold, Pose, Roll
+from inverse.sft.deformations import CornerLift, Fold, Pose, Roll, Wave
 from inverse.sft.degradations import Degradations
 from inverse.sft.inputs import Template
 from inverse.sft.texture import cluttered_background, sheet_texture
@@ -38,6 +38,7 @@ from taichi_ndf.render import render_textured, write_video
 log = logging.getLogger(__name__)
 
 FRAME_FORMATS = ("jpg", "png", "mp4")
+SEQUENCES = ("roll", "fold", "corner", "wave")  # the motion families (`deformations`)
 
 
 def default_camera(width: int = 640, height: int = 480, *, focal: float = 600.0) -> Camera:
@@ -50,7 +51,8 @@ def default_camera(width: int = 640, height: int = 480, *, focal: float = 600.0)
 class SynthConfig:
     """A synthetic sequence.
 
-    sequence: "roll" or "fold"; frames: number of frames (t = 0 … 1); seed: texture, background
+    sequence: one of SEQUENCES (roll, fold, corner lift-and-drop, flag-like wave); frames:
+    number of frames (t = 0 … 1); seed: texture, background
     and noise; sheet_size: (width, height) [m]; cells: grid cells along (width, height);
     texture_size: (width, height) [px]; supersample: sub-pixels per pixel and axis;
     clutter: cluttered background (else mid grey); degradations: camera effects.
@@ -68,12 +70,14 @@ class SynthConfig:
     clutter: bool = True
     roll: Roll = field(default_factory=Roll)
     fold: Fold = field(default_factory=Fold)
+    corner: CornerLift = field(default_factory=CornerLift)
+    wave: Wave = field(default_factory=Wave)
     pose: Pose = field(default_factory=Pose)
     degradations: Degradations = field(default_factory=Degradations)
 
     def __post_init__(self):
-        if self.sequence not in ("roll", "fold"):
-            raise ValueError(f"sequence must be 'roll' or 'fold', got {self.sequence!r}")
+        if self.sequence not in SEQUENCES:
+            raise ValueError(f"sequence must be one of {SEQUENCES}, got {self.sequence!r}")
         if self.frames < 1:
             raise ValueError(f"frames must be >= 1, got {self.frames}")
         if min(self.sheet_size) <= 0:
@@ -125,7 +129,7 @@ def flat_sheet(
 def deformed_vertices(config: SynthConfig) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     """Ground-truth camera-frame vertices per frame, faces and UVs of the configured sequence."""
     points, faces, uvs = flat_sheet(config.sheet_size, config.cells)
-    motion = config.roll if config.sequence == "roll" else config.fold
+    motion = getattr(config, config.sequence)
     times = np.linspace(0.0, 1.0, config.frames) if config.frames > 1 else np.zeros(1)
     vertices = [
         config.pose.apply(motion.shape(points, t, sheet_width=config.sheet_size[0]), t)
@@ -235,7 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Render a synthetic shape-from-template sequence with exact ground truth.",
     )
     parser.add_argument("--out", required=True, help="output directory (must be new or empty)")
-    parser.add_argument("--sequence", choices=("roll", "fold"), default="roll")
+    parser.add_argument("--sequence", choices=SEQUENCES, default="roll")
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--format", choices=FRAME_FORMATS, default="jpg", dest="frame_format")

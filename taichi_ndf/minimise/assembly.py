@@ -130,7 +130,8 @@ class Assembly:
     Call `at_load(operator, load_factor)` before use (the prescribed part depends on t).
     Points acting on the same coefficients (the Gauss points of one knot span) are summed
     before the scatter, so the sparse pattern has one (3k)² block per span; `samples` holds
-    the points in the assembly's own order (use it, not the samples passed in).
+    the points in the assembly's own order (use it, not the samples passed in): its point j is
+    the given point `order[j]`.
     """
 
     def __init__(self, samples: SurfaceSamples, basis: LocalBasis, n_coefficients: int):
@@ -151,6 +152,7 @@ class Assembly:
         self._per_group = int(counts.min())
         self._extra = slice(len(groups) * self._per_group, len(order))
         self._group = group[order]
+        self.order = order
         self.samples = SurfaceSamples(*(None if t is None else t[order] for t in (
             samples.xi, samples.r_jets, samples.weight, samples.point_force,
             samples.barrier_weight)))

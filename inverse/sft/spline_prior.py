@@ -1,0 +1,298 @@
+"""Shape-from-template on a spline displacement field, frame by frame by Gauss–Newton.
+
+Each frame's surface is x(ξ) = X(ξ) + u(ξ) on the template's UV domain (X the template itself,
+piecewise linear for data and output, its C² spline fit `MeshSurface` for the energy), with u a
+cubic tensor-product B-spline `SplineField` (spans about ``span_edges`` template edges long).
+Frame 0 is the template. Frame t > 0 starts from the constant-velocity extrapolation of the
+last two frames' coefficients (2 C_{t−1} − C_{t−2}; C_{t−1} at frame 1) and minimises
+
+    E(C) = E_data(u) + w_phys · Π_int(u) / E_ref
+
+E_data the least-squares data terms of `inverse.sft.least_squares` (robust reprojection of the
+tracked points, silhouette of the template vertices with masks, smooth motion towards the
+constant-velocity prediction), Π_int the Kirchhoff–Love internal energy of a fixed linear
+isotropic material over the template (membrane + bending; exact Gauss–Legendre quadrature on
+the spline's knot spans) and E_ref = B / 2 the bending energy of the template bent to uniform
+curvature 1/√A, so Π_int / E_ref is dimensionless (as in `inverse.sft.reconstruct`).
+
+Solver: the project's projected Newton over the spline coefficients
+(`taichi_ndf.minimise.projected_newton.minimise` on an `Assembly` of the quadrature points, the
+tracked points and the vertices): the shell's per-point Hessian blocks (central differences of
+its Taichi gradient, projected to PSD) plus the data terms' Gauss–Newton blocks JᵀWJ, summed by
+`Objective.hessian_blocks` term by term, assembled sparse in coefficient space and solved with
+Levenberg–Marquardt damping and an Armijo line search on E. So the data terms are Gauss–Newton
+and the shell is Newton in one linear system per iteration; a frame takes a few iterations.
+
+The global depth: a depth shift of the whole sheet at unchanged reprojection is a scaling
+about the camera centre, a uniform membrane strain ε, which the prior charges
+w_phys · 2 D (1 + ν) A ε² / B ≈ 1.2e4 ε² px² (cloth preset, w_phys = 1e-2; D / B = 12 / h²).
+A pull that the data cannot see competes with it: the motion term at w_temp = 1 dragged the
+accelerating corner sequence along its constant-velocity prediction, mostly in depth (e3D
+0.0108 and 2.7 mm depth bias against 0.0020 and 0.3 mm at w_temp = 0.1; docs/sft_results.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.data_terms import outside_distance
+from inverse.sft.inputs import Camera, Template, mean_edge_length
+from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
+from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.boundary.constraints import PinnedPoint
+from taichi_ndf.field import SplineConfig, SplineField
+from taichi_ndf.geometry import MeshSurface
+from taichi_ndf.loads import Loads
+from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
+from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, minimise
+from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.operator import DisplacementOperator
+from taichi_ndf.quadrature import span_quadrature
+from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.hessian import sample_hessians
+from taichi_ndf.shell.materials import LinearIsotropic, preset
+from taichi_ndf.spline_grid import spans_for
+
+log = logging.getLogger(__name__)
+
+DTYPE = torch.float64  # the Hessian blocks are central differences: float64 only
+JETS_SHAPE = (jets.CHANNELS, 3)
+
+
+@dataclass(frozen=True)
+class SplinePriorConfig:
+    """Weights and solver settings of the spline reconstruction.
+
+    physics_weight: w_phys (0 switches the prior off); material: preset name of a linear
+    isotropic material (ν and thickness set the prior's shape); membrane_factor: multiplies
+    the material's membrane stiffness (inextensibility against bending); span_edges: knot span
+    length in template mean edge lengths; degree: spline degree (3 or 4); quadrature_points:
+    Gauss points per span and direction (None: degree + 1; 3 measured as accurate as 4 for
+    cubics here at half the Hessian cost); silhouette_weight: w_sil; temporal_weight: w_temp;
+    huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
+    Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
+    decrease λ²/2 is below this fraction of E; extrapolate: start each frame from the
+    constant-velocity extrapolation of the coefficients (else from the last frame's).
+    """
+
+    physics_weight: float = 1e-2
+    material: str = "cloth"
+    membrane_factor: float = 1.0
+    span_edges: float = 2.0
+    degree: int = 3
+    quadrature_points: int | None = 3
+    silhouette_weight: float = 1.0
+    temporal_weight: float = 0.1
+    huber_px: float = 2.0
+    max_iterations: int = 8
+    tolerance: float = 1e-2
+    extrapolate: bool = True
+
+    def __post_init__(self):
+        for name in ("physics_weight", "silhouette_weight", "temporal_weight"):
+            if not 0 <= getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
+        for name in ("span_edges", "huber_px", "tolerance", "membrane_factor"):
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if self.degree not in (3, 4):
+            raise ValueError(f"degree must be 3 or 4, got {self.degree}")
+        if not isinstance(preset(self.material), LinearIsotropic):
+            raise ValueError(
+                f"material {self.material!r} is not linear isotropic; the prior uses a fixed "
+                "linear material (e.g. 'cloth')")
+
+
+@dataclass
+class SplinePriorResult:
+    """Vertices per frame [m] (n, 3), template order; wall and process CPU seconds (all
+    threads) and Newton iterations per frame; final data-term values per frame."""
+
+    vertices: list[np.ndarray]
+    seconds: list[float]
+    cpu_seconds: list[float]
+    iterations: list[int]
+    losses: list[dict[str, float]] = field(default_factory=list)
+
+
+class SplinePriorReconstructor:
+    """Holds the spline field, the template's quadrature and the per-frame solve."""
+
+    def __init__(self, template: Template, camera: Camera, *,
+                 pinned: np.ndarray | None = None, config: SplinePriorConfig | None = None):
+        self.config = cfg = config or SplinePriorConfig()
+        self.template = template
+        self.camera = camera
+        self.surface = MeshSurface(template.vertices, template.faces, template.uvs,
+                                   name="template")
+        self.mean_edge = mean_edge_length(template.vertices, template.faces)
+        spans = spans_for(self.surface, cfg.span_edges * self.mean_edge)
+        self.field = SplineField(SplineConfig(spans, degree=cfg.degree,
+                                              domain=self.surface.domain.bounds), dtype=DTYPE)
+        self.quadrature = span_quadrature(self.surface, self.field.config,
+                                          points=cfg.quadrature_points, dtype=DTYPE)
+        self.conditions = None
+        if pinned is not None and len(pinned):
+            points = [PinnedPoint(xi=tuple(float(c) for c in template.uvs[i])) for i in pinned]
+            self.conditions = BoundaryConditions(points, self.surface.domain)
+        self.operator = DisplacementOperator(self.field, self.conditions)
+        material = preset(cfg.material)
+        material = material.with_stiffness(
+            membrane_stiffness=cfg.membrane_factor * material.membrane_stiffness)
+        self.energy_reference = 0.5 * material.bending_stiffness
+        # The prior in the data's units: stiffnesses scaled by λ = w_phys / E_ref.
+        self.shell = None
+        if cfg.physics_weight > 0:
+            self.shell = QuadratureShellTerm(
+                material.scaled(cfg.physics_weight / self.energy_reference), Loads())
+        self.vertex_xi = torch.from_numpy(template.uvs).to(DTYPE)
+        self.vertex_samples = self._samples_at(self.vertex_xi)
+        self.rest = torch.from_numpy(template.vertices).double()
+        self.length = math.sqrt(self.surface.domain.rectangle_area)
+        self._previous = None  # the coefficients of the frame before the last
+        self.newton = ProjectedNewtonConfig(
+            max_iterations=cfg.max_iterations, decrement_tolerance=cfg.tolerance,
+            gradient_tolerance=1e-8, floor_tolerance=cfg.tolerance)
+        log.info("spline prior: %d x %d spans, %d coefficients, %d quadrature points", *spans,
+                 self.field.config.num_coefficients, len(self.quadrature))
+
+    def _samples_at(self, xi: torch.Tensor) -> SurfaceSamples:
+        """Zero-weight samples at ξ (N, 2): points where only the data terms act."""
+        n = xi.shape[0]
+        return SurfaceSamples(xi, self.surface.jets(xi).to(DTYPE),
+                              torch.zeros(n, dtype=DTYPE), torch.zeros(n, 3, dtype=DTYPE))
+
+    def vertices(self, coefficients: torch.Tensor | None = None) -> np.ndarray:
+        """Surface at the template vertices [m], shape (n, 3), template order."""
+        if coefficients is not None:
+            self.field.coefficients.copy_(coefficients)
+        return (self.rest + self.operator.displacement(self.vertex_xi).double()).numpy()
+
+    def fit_frame(self, correspondences: FrameCorrespondences, history: Sequence[np.ndarray],
+                  *, mask: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, float], int]:
+        """Vertices [m] (n, 3) of one frame, its final data-term values and Newton iterations.
+
+        history: the previous one or two frames' vertices (latest last): the motion term's
+        prediction; the solve starts from the field's current coefficients (the last frame).
+        """
+        cfg = self.config
+        faces = self.template.faces[correspondences.face]
+        bary = torch.from_numpy(correspondences.bary)
+        track_xi = (bary[:, :, None] * torch.from_numpy(self.template.uvs[faces])).sum(1)
+        track_rest = (bary[:, :, None] * self.rest[torch.from_numpy(faces)]).sum(1)
+        samples = self.quadrature.joined(self._samples_at(track_xi.to(DTYPE))).joined(
+            self.vertex_samples)
+        basis = local_basis_at(self.operator, samples.xi)
+        assembly = Assembly(samples, basis, self.field.config.num_coefficients).at_load(
+            self.operator, 1.0)
+        position = torch.empty_like(assembly.order)
+        position[assembly.order] = torch.arange(len(assembly.order))
+        n_q, n_t = len(self.quadrature), len(track_xi)
+        tracks, vertex_rows = position[n_q:n_q + n_t], position[n_q + n_t:]
+
+        previous = torch.from_numpy(history[-1])
+        before = torch.from_numpy(history[-2]) if len(history) > 1 else previous
+        distance = None
+        if mask is not None and cfg.silhouette_weight > 0:
+            distance = outside_distance(mask)
+        data = LeastSquaresData(
+            self.camera, tracks,
+            Reprojection(track_rest, torch.from_numpy(correspondences.xy),
+                         torch.from_numpy(correspondences.confidence), cfg.huber_px),
+            vertex_rows,
+            VertexTerms(self.rest, 2.0 * previous - before, cfg.temporal_weight,
+                        self.mean_edge, distance, cfg.silhouette_weight))
+        potential = (_DataOnly(data) if self.shell is None
+                     else Objective(self.shell, (data,)).potential(1.0))
+        fixed = None if self.conditions is None else gauge_unknowns(self.conditions, basis)
+        start = self.field.coefficients
+        if cfg.extrapolate and self._previous is not None:
+            start = 2.0 * start - self._previous
+        self._previous = self.field.coefficients.clone()
+        solution = minimise(assembly, potential, start,
+                            self.newton, length=self.length, fixed=fixed)
+        self.field.coefficients.copy_(solution.coefficients)
+        u = assembly.displacement(solution.coefficients)
+        parts = data.parts(u)
+        if self.shell is not None:
+            result = self.shell.result(assembly.samples, u)
+            parts["energy"] = result.internal / (cfg.physics_weight)  # Π_int / E_ref
+        return self.vertices(), parts, len(solution.history)
+
+
+class QuadratureShellTerm(ShellEnergyTerm):
+    """The shell energy term whose Hessian blocks are differenced only at the samples with
+    quadrature weight (the data points carry weight 0, so their shell blocks are 0): saves the
+    central differences at every tracked point and vertex."""
+
+    def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                       load_factor: float = 1.0, *, steps: torch.Tensor) -> torch.Tensor:
+        rows = torch.nonzero(samples.weight != 0).flatten()
+        weighted = SurfaceSamples(samples.xi[rows], samples.r_jets[rows], samples.weight[rows],
+                                  samples.point_force[rows])
+        blocks = u_jets.new_zeros(u_jets.shape[0], *JETS_SHAPE, *JETS_SHAPE)
+        blocks[rows] = sample_hessians(
+            lambda s, u, grad: self.result(s, u, load_factor, grad=grad), weighted,
+            u_jets[rows], steps=steps)
+        return blocks
+
+
+@dataclass(frozen=True)
+class _DataOnly:
+    """The data terms alone as a potential (w_phys = 0): callable (samples, u_jets, grad) ->
+    an object with `.total` and `.grad_u_jets`, with Gauss–Newton `hessian_blocks`."""
+
+    data: LeastSquaresData
+
+    def __call__(self, samples: SurfaceSamples, u_jets: torch.Tensor, grad: bool):
+        value, gradient = self.data.evaluate(samples, u_jets, grad=grad)
+        return _Value(value, gradient)
+
+    def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
+                       steps: torch.Tensor) -> torch.Tensor:
+        return self.data.hessian_blocks(samples, u_jets, steps=steps)
+
+
+@dataclass(frozen=True)
+class _Value:
+    total: float
+    grad_u_jets: torch.Tensor | None
+
+
+def reconstruct_spline(template: Template, camera: Camera,
+                       correspondences: Sequence[FrameCorrespondences], *,
+                       masks: Sequence[np.ndarray] | None = None,
+                       pinned: np.ndarray | None = None,
+                       config: SplinePriorConfig | None = None) -> SplinePriorResult:
+    """Vertices for every frame (frame 0 = template), solved frame by frame with warm starts.
+
+    masks: per-frame silhouettes (bool (h, w)) or None; pinned: vertex indices held at their
+    template positions.
+    """
+    solver = SplinePriorReconstructor(template, camera, pinned=pinned, config=config)
+    vertices = [template.vertices.copy()]
+    seconds, cpu_seconds, iterations, losses = [0.0], [0.0], [0], [{}]
+    for i in range(1, len(correspondences)):
+        start, cpu = time.perf_counter(), time.process_time()
+        fitted, parts, n_iter = solver.fit_frame(
+            correspondences[i], vertices[-2:], mask=None if masks is None else masks[i])
+        seconds.append(time.perf_counter() - start)
+        cpu_seconds.append(time.process_time() - cpu)
+        vertices.append(fitted)
+        iterations.append(n_iter)
+        losses.append(parts)
+        log.debug("frame %d: %.2f s, %d iterations, %s", i, seconds[-1], n_iter, parts)
+    log.info("spline prior: %d frames, %.2f s per frame", len(vertices),
+             np.mean(seconds[1:]) if len(seconds) > 1 else 0.0)
+    return SplinePriorResult(vertices, seconds, cpu_seconds, iterations, losses)
