@@ -46,3 +46,19 @@ def test_fit_of_a_point_cloud_without_correspondence():
     points = model.surface.jets(xi)[:, jets.VALUE] + _bent(xi)[:, jets.VALUE]
     shape = fit_shape(Observation(model, points, None), degree=5, smoothing=1e-12)
     assert shape.rms < 1e-4 * 0.2
+
+
+def test_misfit_is_the_rms_point_distance_not_per_coordinate():
+    """Three points each 3 mm off along one axis with correspondence (9 residual entries) and
+    the same as a point cloud (3 signed distances) both give an rms point distance of 3 mm."""
+    import numpy as np
+    import pytest
+
+    from inverse.material.observations import rms_point_distance
+
+    points = torch.zeros(3, 3, dtype=torch.float64)
+    with_xi = Observation(_model(), points, torch.full((3, 2), 0.05, dtype=torch.float64))
+    offsets = np.array([[0.003, 0.0, 0.0], [0.0, 0.003, 0.0], [0.0, 0.0, -0.003]])
+    assert rms_point_distance(offsets.ravel(), [with_xi]) == pytest.approx(0.003)
+    cloud = Observation(_model(), points, None)
+    assert rms_point_distance(np.array([0.003, -0.003, 0.003]), [cloud]) == pytest.approx(0.003)

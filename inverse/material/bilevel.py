@@ -41,7 +41,7 @@ from inverse.material.conditioned import (
     to_values,
 )
 from inverse.material.identifiability import analyse
-from inverse.material.observations import Observation
+from inverse.material.observations import Observation, rms_point_distance
 from inverse.material.projection import closest_points, grid_seeds, nearest_seeds
 from inverse.material.residual import Estimate, ResidualConfig, residual_estimate, unknown_scales
 from inverse.material.unknowns import Unknown
@@ -288,7 +288,7 @@ def bilevel_estimate(observations: list[Observation], unknowns: list[Unknown],
                          f"[{low_values[j]:.4g}, {high_values[j]:.4g}]: the truth may "
                          f"lie outside; start closer or widen the box")
     errors = np.where(ident.determined, ident.std * scale, np.inf)
-    rms = math.sqrt(float(r @ r) / max(len(r), 1))
+    rms = rms_point_distance(r, observations)
     elapsed = time.perf_counter() - t0
     estimate = Estimate(unknowns, values, errors, ident, rms, int(solution.njev or 0),
                         elapsed, "bilevel_conditioned_field")

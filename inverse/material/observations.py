@@ -78,3 +78,12 @@ def read_observation(path, model: ShellModel, resolution: tuple[int, int]) -> Ob
     if len(points) == len(xi):
         return Observation(model, points, xi)
     return Observation(model, points, None)
+
+
+def rms_point_distance(residuals: np.ndarray, observations: list[Observation]) -> float:
+    """Root-mean-square 3-D distance [m] between the model and the observed points from the
+    stacked residuals of all observations: a point with correspondence contributes its 3
+    coordinate differences, a point-cloud point its signed distance, so Σ r² over the number
+    of points (not of residual entries) is the mean squared point distance."""
+    points = sum(len(obs.points) for obs in observations)
+    return float(np.sqrt(float(residuals @ residuals) / max(points, 1)))

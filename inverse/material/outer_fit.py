@@ -36,7 +36,7 @@ import torch
 from inverse.material.bilevel import closest_surface_points, gravity_ratios
 from inverse.material.conditioned import to_coordinates, to_values
 from inverse.material.identifiability import UNDETERMINED_STD, Identifiability, analyse
-from inverse.material.observations import Observation
+from inverse.material.observations import Observation, rms_point_distance
 from inverse.material.residual import Estimate, unknown_scales
 from inverse.material.unknowns import Unknown
 from taichi_ndf import jets
@@ -174,7 +174,7 @@ def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknow
         log.info("outer fit %s iteration %d: %s, rms %.4g m, step %.3g, mu %.2g",
                  equilibria[0].label, iterations,
                  dict(zip([u.name for u in unknowns], to_values(unknowns, z), strict=True)),
-                 math.sqrt(cost / len(r)), float(np.abs(step).max()), mu)
+                 rms_point_distance(r, observations), float(np.abs(step).max()), mu)
         if float(np.abs(step).max()) < config.tolerance or relative <= 1e-14 * cost:
             converged = True
             break
@@ -257,7 +257,7 @@ def combine(observations: list[Observation], unknowns: list[Unknown], z: np.ndar
     ident = Identifiability(ident.fisher, ident.eigenvalues, ident.eigenvectors, combined,
                             [bool(c < UNDETERMINED_STD) for c in combined], ident.combinations)
     errors = np.where(ident.determined, combined * scale, np.inf)
-    rms = math.sqrt(float(r @ r) / max(len(r), 1))
+    rms = rms_point_distance(r, observations)
     estimate = Estimate(unknowns, values, errors, ident, rms, iterations, elapsed, method)
     ratios, notes = gravity_ratios(observations, unknowns, values, ident)
     fisher = np.where(np.isfinite(fisher_std), fisher_std * scale, np.inf)
