@@ -30,7 +30,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +71,7 @@ def run_one(scene: str, field: str, out: Path, precision: str, quick: bool) -> d
     _, status, usage = os.wait4(process.pid, 0)
     record = {"wall": time.perf_counter() - started, "peak_mib": usage.ru_maxrss / 1024,
               "load": [round(load_before, 2), round(os.getloadavg()[0], 2)],
-              "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+              "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
               "commit": _commit(), "precision": precision, "quick": quick}
     code = os.waitstatus_to_exitcode(status)
     if code != 0:
