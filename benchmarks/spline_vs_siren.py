@@ -37,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"
 STORE = ROOT / "benchmarks" / "spline_vs_siren.json"
 RESULTS = ROOT / "benchmarks" / "RESULTS.md"
+GALLERY = ROOT / "docs" / "spline_vs_siren.md"
 RENDERS = ROOT / "docs" / "images" / "compare"
 FIELDS = {"siren": [], "spline": ["--field", "spline"]}
 LABELS = {"siren": "SIREN + Adam", "spline": "spline + Newton"}
@@ -154,17 +155,35 @@ def table(store: dict) -> str:
     return "\n".join(lines)
 
 
-def write_results(store: dict) -> None:
-    """Replace the section between BEGIN and END in RESULTS.md (appended if missing)."""
-    text = RESULTS.read_text()
-    body = f"{BEGIN}\n{table(store)}\n{END}"
+def renders(store: dict) -> str:
+    """The generated part of docs/spline_vs_siren.md: both renders of each scene side by side
+    (or why a run has none)."""
+    lines = [f"| scene | {LABELS['siren']} | {LABELS['spline']} |", "|---|---|---|"]
+    for scene in sorted(store):
+        cells = []
+        for field in FIELDS:
+            r = store[scene].get(field)
+            image = RENDERS / f"{scene}_{field}.png"
+            if r is not None and r["status"] == "ok" and image.is_file():
+                cells.append(f"![{scene}, {LABELS[field]}]"
+                             f"({image.relative_to(GALLERY.parent).as_posix()})")
+            else:
+                cells.append("not run" if r is None else r["status"])
+        lines.append(f"| {scene} | {' | '.join(cells)} |")
+    return "\n".join(lines)
+
+
+def replace_section(path: Path, body: str, heading: str) -> None:
+    """Replace the text between BEGIN and END in `path` by `body` (appended under `heading`
+    if the markers are missing)."""
+    text = path.read_text()
+    block = f"{BEGIN}\n{body}\n{END}"
     if BEGIN in text and END in text:
         head, rest = text.split(BEGIN, 1)
-        text = head + body + rest.split(END, 1)[1]
+        text = head + block + rest.split(END, 1)[1]
     else:
-        text = text.rstrip("\n") + "\n\n## Spline + Newton against SIREN + Adam " \
-               "(benchmarks/spline_vs_siren.py, issue 19)\n\n" + body + "\n"
-    RESULTS.write_text(text)
+        text = text.rstrip("\n") + f"\n\n{heading}\n\n{block}\n"
+    path.write_text(text)
 
 
 def main() -> None:
@@ -203,7 +222,9 @@ def main() -> None:
                 STORE.write_text(json.dumps(store, indent=1, sort_keys=True) + "\n")
                 print(json.dumps({name: {field: record}}), flush=True)
     if store:
-        write_results(store)
+        replace_section(RESULTS, table(store), "## Spline + Newton against SIREN + Adam "
+                        "(benchmarks/spline_vs_siren.py, issue 19)")
+        replace_section(GALLERY, renders(store), "## Renders")
         print(table(store))
 
 
