@@ -7,7 +7,8 @@ Per scene and field: Π reached [J], the relative gap (Π_spline − Π_SIREN) /
 compilation, solve, outputs), the solve time result.json reports, the peak resident memory
 [MiB] of the child process (ru_maxrss of its own rusage from `os.wait4`, Linux: KiB; the
 high-water mark of that process alone), iterations (Adam: the fixed count; Newton: all
-iterations and whether every load step converged). A scene whose spline run is refused
+iterations and whether every load step converged; the JSON store also keeps the last Newton
+steps and how many iterations used the projected Hessian). A scene whose spline run is refused
 (exit 2, e.g. obstacles: contact is not on the Newton path yet) is listed as refused.
 
 Results are kept per (scene, field) in benchmarks/spline_vs_siren.json, so a subset can be
@@ -83,8 +84,13 @@ def run_one(scene: str, field: str, out: Path, precision: str, quick: bool) -> d
     record.update(status="ok", energy=result["energy"], solve=result["wall_time"],
                   iterations=result["iterations"])
     if "levels" in result:
+        history = result["history"]
         record.update(converged=all(lv["converged"] for lv in result["levels"]),
-                      spans=result["resolved"]["field"]["finest_spans"])
+                      spans=result["resolved"]["field"]["finest_spans"],
+                      # how the Newton run ended: Π, λ², α, projected blocks of its last steps
+                      newton_tail=[[h["energy"], h["decrement"], h["step_length"],
+                                    h["projected_blocks"]] for h in history[-5:]],
+                      projected_iterations=sum(h["projected_blocks"] > 0 for h in history))
     return record
 
 
