@@ -153,8 +153,8 @@ def table(store: dict) -> str:
         "| scene | field | Π [J] | gap | wall [s] | solve [s] | peak [MiB] | iterations |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for scene in sorted(store):
-        rows = store[scene]
+    for scene in sorted(set(shipped_scenes()) | set(store)):
+        rows = store.get(scene, {})
         gap = _gap(rows)
         for field in FIELDS:
             lines.append(_row(scene, field, rows.get(field), gap if field == "spline" else ""))
@@ -165,10 +165,10 @@ def renders(store: dict) -> str:
     """The generated part of docs/spline_vs_siren.md: both renders of each scene side by side
     (or why a run has none)."""
     lines = [f"| scene | {LABELS['siren']} | {LABELS['spline']} |", "|---|---|---|"]
-    for scene in sorted(store):
+    for scene in sorted(set(shipped_scenes()) | set(store)):
         cells = []
         for field in FIELDS:
-            r = store[scene].get(field)
+            r = store.get(scene, {}).get(field)
             image = RENDERS / f"{scene}_{field}.png"
             if r is not None and r["status"] == "ok" and image.is_file():
                 cells.append(f"![{scene}, {LABELS[field]}]"

@@ -48,6 +48,7 @@ def test_table_gives_the_gap_and_names_refused_and_missing_runs():
     assert "not run" in rows["flag", "SIREN + Adam"]
     assert "NOT converged" in rows["flag", "spline + Newton"]
     assert "%" not in rows["flag", "spline + Newton"].split("|")[4]  # no gap without both
+    assert "not run" in rows["skirt", "spline + Newton"]  # every shipped scene has its rows
 
 
 def test_sections_are_replaced_between_the_markers(tmp_path, monkeypatch):
