@@ -19,6 +19,7 @@ from taichi_ndf.sampling import SurfaceSamples, stratified_uniform
 
 # Range of the pseudo-time input: the network sees 2t − 1 ∈ [−1, 1].
 TIME_RANGE = (0.0, 1.0)
+DEFAULT_FRAMES = 16  # trajectory frames of a pseudo-time field ([output] frames)
 # Each point load enters the training samples this many times, with its own stratified t and
 # 1/POINT_REPEATS of its force, so that its work is averaged over t like the area samples'.
 POINT_REPEATS = 16

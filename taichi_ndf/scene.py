@@ -29,7 +29,7 @@ from taichi_ndf.line_loads import LineLoad, edge_path
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.optim import AdamConfig
-from taichi_ndf.pseudo_time import TIME_RANGE
+from taichi_ndf.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
 from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.scene_contact import parse_contact
 from taichi_ndf.scene_field import field_config, newton_training, with_field_type
@@ -46,7 +46,6 @@ from taichi_ndf.spline_grid import SplinePlan
 from taichi_ndf.training import SolverConfig
 
 GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "annulus", "mesh")
-DEFAULT_FRAMES = 16  # trajectory frames of a pseudo-time field
 CONSTRAINTS = ("clamped_edge", "hinged_edge", "pinned_point", "handle", "interior_line",
                "rim_rotation", "symmetry_plane")
 

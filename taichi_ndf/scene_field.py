@@ -9,6 +9,7 @@ from dataclasses import replace
 
 from taichi_ndf.field import FieldConfig, SplineConfig
 from taichi_ndf.model import ShellModel
+from taichi_ndf.pseudo_time import DEFAULT_FRAMES
 from taichi_ndf.scene_schema import SceneError, Table
 from taichi_ndf.spline_grid import SplinePlan, auto_span_length, spans_for
 from taichi_ndf.training import SolverConfig
@@ -135,14 +136,37 @@ def with_field_type(document: dict, kind: str) -> dict:
     [field] already has that type; otherwise [field] holds only the type (every other setting
     at its default: for a spline the grid rule, span_length = "auto", one level) and
     [training] keeps its load steps and seed, with the method of that field type (spline:
-    projected Newton; SIREN: Adam with its defaults)."""
+    projected Newton; SIREN: Adam with its defaults). A pseudo-time scene's spline solve
+    takes its trajectory frames as load steps (`_path_as_load_steps`)."""
     if kind not in FIELD_TYPES:
         raise SceneError(f"field type must be one of {list(FIELD_TYPES)}, got {kind!r}")
     current = document.get("field", {})
     if isinstance(current, dict) and current.get("type", "siren") == kind:
         return document
     training = document.get("training", {})
-    kept = {k: training[k] for k in ("load_steps", "seed")
-            if isinstance(training, dict) and k in training}
+    training = training if isinstance(training, dict) else {}
+    kept = {k: training[k] for k in ("load_steps", "seed") if k in training}
+    if kind == "spline" and training.get("pseudo_time") is True:
+        return _path_as_load_steps(document, kept)
     return {**document, "field": {"type": kind},
             "training": {**kept, "method": "newton" if kind == "spline" else "adam"}}
+
+
+def _path_as_load_steps(document: dict, kept: dict) -> dict:
+    """A pseudo-time scene solved with a spline field: its trajectory frames (t evenly spaced
+    from pseudo_time_start to 1) become load steps (t = 0, the undeformed state, left out),
+    so the run writes the same trajectory, one frame per load step solved."""
+    output = document.get("output", {})
+    output = output if isinstance(output, dict) else {}
+    frames = output.get("frames", DEFAULT_FRAMES)
+    start = document["training"].get("pseudo_time_start", 0.0)
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 2:
+        raise SceneError(f"output.frames: expected an integer >= 2, got {frames!r}")
+    if isinstance(start, bool) or not isinstance(start, (int, float)) or not 0 <= start < 1:
+        raise SceneError(f"training.pseudo_time_start: expected a number in [0, 1), got "
+                         f"{start!r}")
+    steps = [start + (1.0 - start) * k / (frames - 1) for k in range(frames)]
+    kept["load_steps"] = [t for t in steps if t > 0]
+    rest = {k: v for k, v in output.items() if k != "frames"}
+    return {**document, "field": {"type": "spline"}, "output": rest,
+            "training": {**kept, "method": "newton"}}

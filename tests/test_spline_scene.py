@@ -115,6 +115,17 @@ def test_field_switch_keeps_load_steps_and_seed(tmp_path):
     assert load_scene(siren, field="siren").document == load_scene(siren).document
 
 
+def test_field_switch_solves_a_pseudo_time_path_at_its_frames(tmp_path):
+    path = write(tmp_path, field="[field]\nwidth = 16", training="[training]\n"
+                 "iterations = 10\npseudo_time = true\npseudo_time_start = 0.2")
+    path.write_text(path.read_text() + "frames = 5\n")
+    assert load_scene(path).output.frames == 5
+    scene = load_scene(path, field="spline")
+    assert isinstance(scene.field, SplinePlan) and scene.solver.method == "newton"
+    assert scene.solver.load_steps == pytest.approx((0.2, 0.4, 0.6, 0.8, 1.0))
+    assert scene.output.frames is None and "frames" not in scene.document["output"]
+
+
 def test_sim_solves_a_spline_scene_on_refined_grids_and_resumes_and_exports(tmp_path,
                                                                              capsys):
     out = tmp_path / "run"

@@ -1,0 +1,77 @@
+"""benchmarks/spline_vs_siren.py: the table and the render gallery rebuilt from stored results
+(no simulation runs here), and its filters refusing unknown names."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "spline_vs_siren.py"
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("spline_vs_siren", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _record(**values):
+    return {"wall": 10.0, "peak_mib": 900.0, "load": [1.0, 2.0], "date": "2026-12-01 20:00 UTC",
+            "commit": "abc1234", "precision": "f32", "quick": False, **values}
+
+
+STORE = {
+    "napkin": {"siren": _record(status="ok", energy=-1.0, solve=8.0, iterations=800),
+               "spline": _record(status="ok", energy=-1.02, solve=2.0, iterations=12,
+                                 converged=True, spans=[8, 8])},
+    "napkin_sphere": {"siren": _record(status="ok", energy=-0.5, solve=8.0, iterations=400),
+                      "spline": _record(status="refused", exit_code=2, message=(
+                          "ndf-sim: error: [[obstacles]]: contact is solved on the SIREN "
+                          "path only"))},
+    "flag": {"spline": _record(status="ok", energy=-1.4, solve=70.0, iterations=100,
+                               converged=False, spans=[15, 10])},
+}
+
+
+def test_table_gives_the_gap_and_names_refused_and_missing_runs():
+    rows = {tuple(c.strip() for c in line.split("|")[1:3]): line
+            for line in _module().table(STORE).splitlines() if line.startswith("| ")}
+    assert "-2.00 %" in rows["napkin", "spline + Newton"]  # (−1.02 − −1) / 1
+    assert "12 (converged, 8 × 8 spans)" in rows["napkin", "spline + Newton"]
+    assert "800 (fixed)" in rows["napkin", "SIREN + Adam"]
+    assert "refused (contact on Newton path: pending)" in rows["napkin_sphere",
+                                                              "spline + Newton"]
+    assert "not run" in rows["flag", "SIREN + Adam"]
+    assert "NOT converged" in rows["flag", "spline + Newton"]
+    assert "%" not in rows["flag", "spline + Newton"].split("|")[4]  # no gap without both
+    assert "not run" in rows["skirt", "spline + Newton"]  # every shipped scene has its rows
+
+
+def test_sections_are_replaced_between_the_markers(tmp_path, monkeypatch):
+    module = _module()
+    page = tmp_path / "page.md"
+    page.write_text("# Title\n\nprose\n")
+    module.replace_section(page, "first", "## Section")
+    module.replace_section(page, "second", "## Section")
+    text = page.read_text()
+    assert text.count(module.BEGIN) == 1 and "first" not in text and "second" in text
+    assert text.startswith("# Title\n\nprose\n\n## Section\n")
+    monkeypatch.setattr(module, "GALLERY", tmp_path / "page.md")
+    monkeypatch.setattr(module, "RENDERS", tmp_path / "images")
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "napkin_siren.png").write_bytes(b"png")
+    gallery = module.renders(STORE)
+    assert "(images/napkin_siren.png)" in gallery
+    assert "| napkin_sphere | ok | refused |" in gallery  # a row without its image file
+    assert "| flag | not run |" in gallery
+
+
+def test_unknown_scene_or_field_is_exit_code_2():
+    for args in (["--scenes", "no_such_scene"], ["--fields", "mlp"]):
+        done = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True,
+                              text=True, timeout=60)
+        assert done.returncode == 2 and args[1] in done.stderr.strip().splitlines()[-1]
