@@ -69,9 +69,22 @@ def load_demo(name: str):
     return module
 
 
-def test_napkin_demo_quick(tmp_path, capsys):
+def test_napkin_demo_quick_on_the_spline_path(tmp_path, capsys):
     out = tmp_path / "napkin"
-    assert load_demo("napkin").main(["--quick", "--out", str(out), "--iters", "3", *RUNTIME]) == 0
+    assert load_demo("napkin").main(["--quick", "--out", str(out), *RUNTIME]) == 0
+    printed = capsys.readouterr().out
+    assert str(out) in printed and "render.png" in printed
+    result = json.loads((out / "result.json").read_text())
+    assert result["scene"] == "napkin" and len(result["levels"]) == 1  # one spline grid level
+    assert np.isfinite(result["energy"]) and result["energy"] < 0
+    for name in ("mesh.obj", "mesh.ply", "render.png", "energy.png", "checkpoint.pt"):
+        assert (out / name).is_file()
+
+
+def test_napkin_demo_quick_with_the_siren(tmp_path, capsys):
+    out = tmp_path / "napkin"
+    assert load_demo("napkin").main(["--quick", "--siren", "--out", str(out), "--iters", "3",
+                                     *RUNTIME]) == 0
     printed = capsys.readouterr().out
     assert str(out) in printed and "render.png" in printed
     result = json.loads((out / "result.json").read_text())
