@@ -29,15 +29,19 @@ def test_the_linear_estimate_is_within_a_factor_two_of_the_solved_displacement(c
     assert 0.5 < ratio < 2.0
 
 
-def test_auto_is_the_linear_estimate_when_adam_trains_the_field():
-    """Read without a runtime, "auto" is the dimensional estimate; a run that trains with
-    Adam takes the linear one, a Newton-only run and an explicit number are kept."""
+def test_linear_scale_is_the_linear_estimate_when_adam_trains_the_field():
+    """Read without a runtime, "linear" is the dimensional estimate; a run that trains with
+    Adam takes the linear one, a Newton-only run, "auto" (the dimensional estimate) and an
+    explicit number are kept."""
     scene = load_scene(SCENES_DIR / "scordelis_lo_roof.toml")
     assert scene.solver.iterations == 0
     dimensional = characteristic_displacement(scene.model)
     assert scene.field.output_scale == dimensional
-    assert field_for_solver(scene.field, scene.document, scene.model, scene.solver) == scene.field
     adam = dataclasses.replace(scene.solver, iterations=10)
+    assert field_for_solver(scene.field, scene.document, scene.model, adam) == scene.field
+    scene = dataclasses.replace(scene, document={
+        **scene.document, "field": {**scene.document.get("field", {}), "output_scale": "linear"}})
+    assert field_for_solver(scene.field, scene.document, scene.model, scene.solver) == scene.field
     linear = field_for_solver(scene.field, scene.document, scene.model, adam)
     assert linear.output_scale == pytest.approx(linear_displacement(scene.model), rel=1e-12)
     assert linear == dataclasses.replace(scene.field, output_scale=linear.output_scale)
