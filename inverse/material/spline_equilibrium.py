@@ -92,22 +92,6 @@ class SplineModelConfig:
                             periodic=domain.periodic)
 
 
-def _zero_weight_rows(ordered, original) -> torch.Tensor:
-    """Rows of `ordered` (an Assembly's reordered samples) holding the zero-weight samples
-    (line- and point-load nodes) of `original`, in the original order (what
-    `term_gradients` and the point forces index by)."""
-    want = torch.nonzero(original.weight == 0).ravel()
-    have = torch.nonzero(ordered.weight == 0).ravel()
-    rows, used = [], set()
-    for i in want.tolist():
-        match = [int(j) for j in have.tolist() if j not in used
-                 and torch.equal(ordered.xi[j], original.xi[i])
-                 and torch.equal(ordered.point_force[j], original.point_force[i])]
-        rows.append(match[0])
-        used.add(match[0])
-    return torch.tensor(rows, dtype=torch.long)
-
-
 class SplineEquilibrium:
     """The equilibrium of `model` with the unknowns set to θ on one spline grid, and dC*/dz.
 
@@ -129,12 +113,10 @@ class SplineEquilibrium:
         basis = local_basis_at(self.operator, original.xi)
         self.assembly = Assembly(original, basis, grid.num_coefficients)
         self.fixed = held_unknowns(self.field, model.boundary, basis)
-        samples = self.assembly.samples
-        self._loaded_rows = _zero_weight_rows(samples, original)
-        self._point_rows = self._loaded_rows[len(self._loaded_rows) - len(model.loads.point_loads):]
-        # term_gradients indexes point loads among the zero-weight rows in model order
-        positive = torch.nonzero(samples.weight > 0).ravel()
-        self._model_order = torch.cat((positive, self._loaded_rows))
+        # the assembly's row of each original sample (`Assembly.order` is the inverse):
+        # term_gradients and the point forces index the original order (point loads last)
+        self._model_order = torch.argsort(self.assembly.order)
+        self._point_rows = self._model_order[len(original) - len(model.loads.point_loads):]
         self.length = math.sqrt(model.surface.domain.rectangle_area)
         self.newton = ProjectedNewtonConfig(max_iterations=config.newton_iterations)
         self.coefficients = torch.zeros(grid.num_coefficients, 3, dtype=torch.float64)
