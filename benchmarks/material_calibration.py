@@ -10,7 +10,7 @@ discretisation parts), the coverage (fraction of the determined fits with
 |estimate − truth| ≤ 2 s.e.; target ≥ 90 %), and the mean / largest wall and CPU time per fit.
 
     python benchmarks/material_calibration.py [--cases strip,flap,point_load]
-        [--noise 0.005 0.02] [--draws 20] [--json out.json]
+        [--noise 0.005 0.02] [--draws 20] [--flap-spans 40 40] [--json out.json]
 
 Single-threaded (torch and OpenMP); the machine load (`os.getloadavg`) is printed.
 """
@@ -57,7 +57,9 @@ def rows(cal: Calibration, names: list[str]) -> list[dict]:
             "mean_discretisation": float(np.mean([d.model_part[j] for d in cal.draws])),
             "coverage_2se": float(coverage[j]),
             "draws": [{"seed": d.seed, "value": float(d.values[j]),
-                       "standard_error": float(d.errors[j])} for d in cal.draws],
+                       "standard_error": float(d.errors[j]), "fisher": float(d.fisher[j]),
+                       "discretisation": float(d.model_part[j]), "seconds": d.seconds,
+                       "cpu_seconds": d.cpu_seconds} for d in cal.draws],
             "mean_s": float(np.mean(seconds)), "max_s": float(np.max(seconds)),
             "mean_cpu_s": float(np.mean(cpu)), "max_cpu_s": float(np.max(cpu))})
     return out
@@ -69,10 +71,19 @@ def main() -> None:
     p.add_argument("--noise", type=float, nargs="+", default=[0.005, 0.02])
     p.add_argument("--draws", type=int, default=20)
     p.add_argument("--json", default=None)
+    p.add_argument("--flap-spans", type=int, nargs=2, default=[40, 40], metavar=("N1", "N2"),
+                   help="spans of the flap observation's quartic grid (each divisible by 4: "
+                        "the Richardson check solves 1/4 and 1/2 of them too)")
     args = p.parse_args()
+    unknown = [n for n in args.cases.split(",") if n not in CASES]
+    if unknown:
+        p.error(f"unknown case(s) {unknown}; choose from {', '.join(CASES)}")
+    if any(n < 4 or n % 4 for n in args.flap_spans):
+        p.error(f"--flap-spans must be positive multiples of 4, got {args.flap_spans}")
     torch.set_num_threads(1)
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
     logging.basicConfig(level=logging.WARNING)
+    logging.getLogger("inverse.material.calibration").setLevel(logging.INFO)  # one line a fit
     results = []
     print(f"load average at start: {os.getloadavg()}")
     header = ("case", "unknown", "noise", "fits (determined)", "truth", "mean est.",
@@ -82,12 +93,18 @@ def main() -> None:
     print(" | ".join(header))
     for name in args.cases.split(","):
         started = time.perf_counter()
-        case = CASES[name]()
-        print(f"# {name}: observation from {case.source} ({time.perf_counter() - started:.1f} s)")
+        case = CASES[name](tuple(args.flap_spans)) if name == "flap" else CASES[name]()
+        accuracy = "" if case.observation_error is None else (
+            f"; Richardson: order {case.observation_order:.2f}, largest position error "
+            f"{case.observation_error:.3g} m")
+        print(f"# {name}: observation from {case.source} ({time.perf_counter() - started:.1f} s"
+              f"{accuracy})")
         names = [u.name for u in case.unknowns]
         for noise in [0.0, *args.noise]:
             cal = calibrate(case, newton, noise, args.draws)
             for r in rows(cal, names):
+                r["observation_error_m"] = case.observation_error
+                r["observation_order"] = case.observation_order
                 results.append(r)
                 print(f"{r['case']} | {r['unknown']} | {100 * r['noise']:g} % | {r['fits']} "
                       f"({r['determined']}) | "
@@ -97,10 +114,10 @@ def main() -> None:
                       f"{r['mean_discretisation']:.2g}) | {100 * r['coverage_2se']:.0f} % | "
                       f"{r['mean_s']:.1f} ({r['max_s']:.1f}) | "
                       f"{r['mean_cpu_s']:.1f} ({r['max_cpu_s']:.1f})", flush=True)
+            if args.json:  # after every noise level: a long study keeps what it finished
+                with open(args.json, "w") as f:
+                    json.dump(results, f, indent=2)
     print(f"load average at end: {os.getloadavg()}")
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(results, f, indent=2)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from test_inverse_material_implicit import cli_on_elastica, resolve_differences
 
 from inverse.cli.fit_material import main
 from inverse.material import ResidualConfig, parse_unknowns, residual_estimate
-from inverse.material.calibration import calibrate, strip_case
+from inverse.material.calibration import calibrate, richardson, strip_case
 from inverse.material.identifiability import UNDETERMINED_STD
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.residual import MAX_RELATIVE_RESIDUAL
@@ -118,3 +118,20 @@ def test_strip_standard_errors_cover_the_truth_over_twenty_noise_draws():
     cal = calibrate(case, newton, 0.01, 20)
     assert cal.coverage()[0] >= 0.9
     assert max(d.seconds for d in cal.draws) < 60
+
+
+def test_richardson_recovers_the_order_and_the_error_of_the_finest_grid():
+    """Three solutions x_h = x* + c h^p (a different c per point): the observed order is p and
+    the estimated error of the finest is its true largest error; no estimate where the
+    differences do not shrink."""
+    rng = np.random.default_rng(0)
+    exact, c = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+    for order in (2.0, 4.5):
+        coarse, medium, fine = (exact + c * h**order for h in (0.4, 0.2, 0.1))
+        p, error = richardson(coarse, medium, fine)
+        assert p == pytest.approx(order, rel=1e-12)
+        truth = np.linalg.norm(fine - exact, axis=1).max()
+        assert error == pytest.approx(truth, rel=1e-12)
+    p, error = richardson(exact + c, exact + 0.5 * c, exact + c)
+    assert math.isnan(p) and error == math.inf
+
