@@ -155,7 +155,7 @@ def newton_check(model, start: SplineField, spans: int, tolerances) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--spans", type=int, nargs="+", default=[32, 64, 128])
+    parser.add_argument("--spans", type=int, nargs="*", default=[32, 64, 128])
     parser.add_argument("--start", type=int, default=8)
     parser.add_argument("--tolerance", type=float, default=1e-8)
     parser.add_argument("--newton", type=int, default=0,

@@ -100,7 +100,11 @@ class LinearSolverConfig:
 
     kind: "direct" (`damped_solve`), "multigrid" (MG-preconditioned CG) or "auto"
         (multigrid from `threshold` unknowns where the grid has a coarser level).
-    threshold: unknowns (3 × coefficients) from which "auto" uses multigrid.
+    threshold: unknowns (3 × coefficients) from which "auto" uses multigrid: measured on
+        the napkin's Newton systems (benchmarks/RESULTS.md, one core under load), SuperLU
+        0.52 / 4.4 / 25 s and MG-PCG 0.95 / 4.4 / 9.2 s at 32² / 64² / 128² spans (3.7 k /
+        13.5 k / 51 k unknowns): they tie at 64², so the direct solve (exact, with its
+        inertia check) keeps up to there.
     tolerance: CG's relative residual ‖K d + g‖ ≤ tolerance ‖g‖.
     max_iterations: most CG iterations before the direct fallback.
     smoother: "gauss_seidel" (symmetric) or "jacobi" (damped, on 3 × 3 coefficient blocks).

@@ -11,8 +11,8 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
    blocks, and the exact Newton step then converges quadratically), else of the projected
    ones (projected only then; the iteration after a failed attempt skips it: far from the
    minimum attempts fail in a row and each costs an assembly and a factorisation);
-4. d from (K + μ diag K) d = −g (`damped_solve`; μ = 0 unless the system is singular or a
-   step failed);
+4. d from (K + μ diag K) d = −g (`damped_solve`, or the given `linear_solver`; μ = 0 unless
+   the system is singular or a step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd
    (and, with a `feasible` test, the trial is feasible: contact never steps into an obstacle).
 Stops, without taking that step, when the Newton decrement λ² = −gᵀd satisfies
