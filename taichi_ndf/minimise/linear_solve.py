@@ -40,6 +40,7 @@ from taichi_ndf.minimise.multigrid import (
     conjugate_gradients,
     spline_prolongations,
 )
+from taichi_ndf.shell.hessian import COMPONENTS
 from taichi_ndf.training import LINEAR_SOLVERS
 
 log = logging.getLogger(__name__)
@@ -152,7 +153,7 @@ class LinearSolver:
         """The solver of a spline grid (`SplineConfig`): its hierarchy when multigrid may be
         used."""
         config = config or LinearSolverConfig()
-        size = 3 * spline_config.num_coefficients
+        size = COMPONENTS * spline_config.num_coefficients
         wanted = config.kind == "multigrid" or (config.kind == "auto"
                                                 and size >= config.threshold)
         hierarchy = spline_prolongations(spline_config, config.coarsest) if wanted else []
