@@ -12,7 +12,7 @@ from taichi_ndf.model import ShellModel
 from taichi_ndf.pseudo_time import DEFAULT_FRAMES
 from taichi_ndf.scene_schema import SceneError, Table
 from taichi_ndf.spline_grid import SplinePlan, auto_span_length, spans_for
-from taichi_ndf.training import SolverConfig
+from taichi_ndf.training import LINEAR_SOLVERS, SolverConfig
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +110,8 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
                       quadrature_points=points)
 
 
-NEWTON_KEYS = ("method", "load_steps", "seed", "newton_max_iterations", "newton_tolerance")
+NEWTON_KEYS = ("method", "load_steps", "seed", "newton_max_iterations", "newton_tolerance",
+               "linear_solver")
 
 
 def newton_training(t: Table) -> tuple[SolverConfig, SolverConfig]:
@@ -121,7 +122,8 @@ def newton_training(t: Table) -> tuple[SolverConfig, SolverConfig]:
     solver = SolverConfig(
         method="newton", load_steps=t.numbers("load_steps", (1.0,)), seed=t.integer("seed", 0),
         newton_max_iterations=t.integer("newton_max_iterations", 100, minimum=1),
-        newton_tolerance=_tolerance(t))
+        newton_tolerance=_tolerance(t),
+        linear_solver=t.string("linear_solver", "auto", choices=LINEAR_SOLVERS))
     return solver, replace(solver, max_levels=1)
 
 

@@ -23,6 +23,7 @@ import torch
 
 from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.field import SplineField
+from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.projected_newton import NewtonIteration, ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import LevelSolution, richardson, solve_levels
 from taichi_ndf.model import ShellModel
@@ -174,6 +175,7 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                                            dtype=f.coefficients.dtype),
                  objective, levels=levels - first, load_steps=load_steps, config=newton,
                  probes=probes, length=math.sqrt(surface.domain.rectangle_area),
-                 on_level=finished, contact=contact)
+                 on_level=finished, contact=contact,
+                 linear=LinearSolverConfig(kind=config.linear_solver))
     run.wall_time = time.perf_counter() - started
     return run

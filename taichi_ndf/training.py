@@ -12,6 +12,7 @@ from taichi_ndf import checks
 from taichi_ndf.optim import AdamConfig
 
 METHODS = ("adam", "newton")
+LINEAR_SOLVERS = ("auto", "direct", "multigrid")  # projected Newton's (`linear_solve`)
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,9 @@ class SolverConfig:
         decrement; λ²/2 estimates Π − Π*); None: the precision's rounding floor (1e-12 in
         float64, 1e-7 in float32). E.g. 1e-4 for a solve whose Π must be good to 1 %.
     max_levels: most grid levels a Newton run solves (0: all of the field's; 1 for --quick).
+    linear_solver: how Newton solves its linear systems: "auto" (the direct solve below
+        `LinearSolverConfig.threshold` unknowns, multigrid-preconditioned CG above it),
+        "direct" or "multigrid" (`taichi_ndf.minimise.linear_solve`).
     """
 
     iterations: int = 1500
@@ -62,6 +66,7 @@ class SolverConfig:
     newton_max_iterations: int = 100
     newton_tolerance: float | None = None
     max_levels: int = 0
+    linear_solver: str = "auto"
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -72,6 +77,9 @@ class SolverConfig:
         tol = self.newton_tolerance
         if tol is not None and not (isinstance(tol, (int, float)) and 0 < tol < 1):
             raise ValueError(f"newton_tolerance must be in (0, 1), got {tol!r}")
+        if self.linear_solver not in LINEAR_SOLVERS:
+            raise ValueError(f"linear_solver must be one of {list(LINEAR_SOLVERS)}, got "
+                             f"{self.linear_solver!r}")
         if self.method == "newton" and self.pseudo_time:
             raise ValueError("pseudo_time needs method 'adam' (a SIREN field)")
         if self.iterations < 0:

@@ -122,13 +122,13 @@ class NewtonContact:
 
     def solve(self, operator, quadrature, objective: Objective, coefficients: torch.Tensor,
               config, *, load_factor: float, start_load_factor: float, length: float = 1.0,
-              fixed=None) -> NewtonSolution:
+              fixed=None, linear_solver=None) -> NewtonSolution:
         """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
 
         operator: the grid's `DisplacementOperator`; quadrature: its Gauss-point samples;
         objective: Π without the contact terms (`ContactPotential` adds them);
         start_load_factor: the load factor of the starting coefficients (friction's
-        start-of-step positions); config, length, fixed: as `minimise`."""
+        start-of-step positions); config, length, fixed, linear_solver: as `minimise`."""
         t = load_factor
         potential = ContactPotential(objective, self.terms, t)
         points = self.points
@@ -183,7 +183,8 @@ class NewtonContact:
                     lag_changed = change > LAG_TOLERANCE * float(capacity.abs().max())
                 lagged = capacity
             solution = minimise(assembly, potential, c, config, load_factor=t, length=length,
-                                fixed=fixed, feasible=feasible, on_step=refresh)
+                                fixed=fixed, feasible=feasible, on_step=refresh,
+                                linear_solver=linear_solver)
             history += solution.history
             c = solution.coefficients
             refresh(c)

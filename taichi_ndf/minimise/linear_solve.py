@@ -7,15 +7,41 @@ listed in `fixed` (gauge freedoms, e.g. the constant shift of a free-pinned fiel
 at zero. Levenberg–Marquardt damping μ · diag(K) keeps near-singular systems (zero-energy
 motions, a flat sheet under a transverse load) solvable; it is raised tenfold while the
 factorisation fails.
+
+`LinearSolver` chooses between that direct solve and conjugate gradients preconditioned by a
+geometric multigrid V-cycle over the spline grid's own dyadic hierarchy
+(`taichi_ndf.minimise.multigrid`): "direct", "multigrid", or "auto" (multigrid from
+`threshold` unknowns, where the grid can be coarsened). The multigrid path keeps
+`damped_solve`'s contract (held unknowns stay 0, the same damping, require_definite) and
+falls back to the direct solve, with a logged note, when CG meets negative curvature or does
+not converge — except under require_definite, where either answers "not definite" (None)
+without a factorisation (projected Newton then projects the blocks, as after failed pivots).
+Converging without meeting negative curvature is taken as definite there (CG does not prove
+it: a Newton step on an indefinite K that CG happens to solve is still checked by the line
+search and the decrement's sign).
 """
 
 from __future__ import annotations
 
 import logging
+import math
+import time
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from taichi_ndf.minimise.multigrid import (
+    SMOOTHERS,
+    CGResult,
+    VCycle,
+    active_unknowns,
+    conjugate_gradients,
+    spline_prolongations,
+)
+from taichi_ndf.shell.hessian import COMPONENTS
+from taichi_ndf.training import LINEAR_SOLVERS
 
 log = logging.getLogger(__name__)
 
@@ -68,3 +94,128 @@ def _positive_pivots(factor) -> bool:
     if not np.array_equal(factor.perm_r, factor.perm_c):
         return False
     return bool(np.all(factor.U.diagonal() > 0))
+
+
+@dataclass(frozen=True)
+class LinearSolverConfig:
+    """How projected Newton solves K d = −g.
+
+    kind: "direct" (`damped_solve`), "multigrid" (MG-preconditioned CG) or "auto"
+        (multigrid from `threshold` unknowns where the grid has a coarser level).
+    threshold: unknowns (3 × coefficients) from which "auto" uses multigrid: measured on
+        the napkin's Newton systems (benchmarks/RESULTS.md, one core under load), SuperLU
+        0.52 / 4.4 / 25 s and MG-PCG 0.95 / 4.4 / 9.2 s at 32² / 64² / 128² spans (3.7 k /
+        13.5 k / 51 k unknowns): they tie at 64², so the direct solve (exact, with its
+        inertia check) keeps up to there.
+    tolerance: CG's relative residual ‖K d + g‖ ≤ tolerance ‖g‖ (an inexact Newton step:
+        on the napkin at 64² spans 1e-8, 1e-6 and 1e-4 all kept the direct solve's 17 Newton
+        iterations, Π within 1e-10, 4e-9 and 2e-7 relative; benchmarks/RESULTS.md).
+    max_iterations: most CG iterations before the direct fallback.
+    smoother: "gauss_seidel" (symmetric) or "jacobi" (damped, on 3 × 3 coefficient blocks).
+    coarsest: the hierarchy stops at a grid of at most this many unknowns (direct solve).
+    """
+
+    kind: str = "auto"
+    threshold: int = 20_000
+    tolerance: float = 1e-6
+    max_iterations: int = 300
+    smoother: str = "gauss_seidel"
+    coarsest: int = 1500
+
+    def __post_init__(self):
+        if self.kind not in LINEAR_SOLVERS:
+            raise ValueError(f"kind must be one of {LINEAR_SOLVERS}, got {self.kind!r}")
+        if self.smoother not in SMOOTHERS:
+            raise ValueError(f"smoother must be one of {SMOOTHERS}, got {self.smoother!r}")
+        if not (math.isfinite(self.tolerance) and 0 < self.tolerance < 1):
+            raise ValueError(f"tolerance must be in (0, 1), got {self.tolerance!r}")
+        for name in ("threshold", "max_iterations", "coarsest"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+
+
+class LinearSolver:
+    """`damped_solve`'s call (matrix, rhs, damping, fixed, require_definite=) by the method
+    the config chooses for a grid (module docstring). `prolongations`: the grid's hierarchy
+    (`spline_prolongations`; empty: direct only). After each call `last` holds the CG result
+    of a multigrid solve (None after a direct one)."""
+
+    def __init__(self, config: LinearSolverConfig | None = None,
+                 prolongations: list[sp.csr_matrix] | None = None):
+        self.config = config or LinearSolverConfig()
+        self.prolongations = list(prolongations or [])
+        self.last = None
+
+    @classmethod
+    def for_grid(cls, spline_config, config: LinearSolverConfig | None = None
+                 ) -> LinearSolver:
+        """The solver of a spline grid (`SplineConfig`): its hierarchy when multigrid may be
+        used."""
+        config = config or LinearSolverConfig()
+        size = COMPONENTS * spline_config.num_coefficients
+        wanted = config.kind == "multigrid" or (config.kind == "auto"
+                                                and size >= config.threshold)
+        hierarchy = spline_prolongations(spline_config, config.coarsest) if wanted else []
+        if wanted and not hierarchy:
+            log.info("no multigrid hierarchy for %s spans (odd or too few): direct solves",
+                     spline_config.spans)
+        return cls(config, hierarchy)
+
+    @property
+    def multigrid(self) -> bool:
+        return bool(self.prolongations) and self.config.kind != "direct"
+
+    def __call__(self, matrix: sp.csr_matrix, rhs: np.ndarray, damping: float,
+                 fixed: np.ndarray | None = None, *, require_definite: bool = False
+                 ) -> tuple[np.ndarray, float] | None:
+        self.last = None
+        if self.multigrid:
+            result = self._multigrid(matrix, rhs, damping, fixed)
+            if result is not None:
+                self.last = result
+                if result.status == "converged":
+                    return result.x, damping
+                if require_definite:  # not shown definite: the caller projects instead
+                    log.debug("multigrid CG under require_definite: %s", result.status)
+                    return None
+                log.info("multigrid CG stopped (%s after %d iterations, residual %.2e): "
+                         "direct solve", result.status, result.iterations, result.residual)
+        return damped_solve(matrix, rhs, damping, fixed, require_definite=require_definite)
+
+    def _multigrid(self, matrix, rhs, damping, fixed):
+        """MG-preconditioned CG on the free, coupled unknowns; None where it cannot apply
+        (a right-hand side on an uncoupled unknown, a singular coarsest level)."""
+        size = matrix.shape[0]
+        free = np.ones(size, dtype=bool)
+        if fixed is not None:
+            free[fixed] = False
+        unknowns = np.flatnonzero(free)
+        reduced = matrix.tocsr()[unknowns][:, unknowns]
+        active = active_unknowns(reduced)
+        idle = np.ones(len(unknowns), dtype=bool)
+        idle[active] = False
+        if np.any(rhs[unknowns[idle]] != 0):
+            log.info("multigrid: a force on an unknown with no stiffness: direct solve")
+            return None
+        system = reduced[active][:, active]
+        if np.any(system.diagonal() < 0):  # e_iᵀ K e_i < 0
+            return CGResult(np.zeros(size), 0, 1.0, "negative curvature")
+        if damping > 0:
+            system = system + sp.diags(damping * system.diagonal(), format="csr")
+        started = time.perf_counter()
+        try:
+            cycle = VCycle(system, unknowns[active], self.prolongations, self.config.smoother)
+        except RuntimeError as err:
+            log.info("multigrid: coarsest factorisation failed (%s): direct solve", err)
+            return None
+        setup = time.perf_counter() - started
+        result = conjugate_gradients(system, rhs[unknowns[active]], cycle,
+                                     self.config.tolerance, self.config.max_iterations)
+        solve = time.perf_counter() - started - setup
+        log.debug("multigrid CG: %s in %d iterations, residual %.2e, levels %s, setup %.3f "
+                  "s, iterations %.3f s", result.status, result.iterations, result.residual,
+                  cycle.sizes, setup, solve)
+        x = np.zeros(size)
+        x[unknowns[active]] = result.x
+        return CGResult(x, result.iterations, result.residual, result.status, setup, solve)

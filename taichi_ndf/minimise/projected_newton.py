@@ -11,8 +11,8 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
    blocks, and the exact Newton step then converges quadratically), else of the projected
    ones (projected only then; the iteration after a failed attempt skips it: far from the
    minimum attempts fail in a row and each costs an assembly and a factorisation);
-4. d from (K + μ diag K) d = −g (`damped_solve`; μ = 0 unless the system is singular or a
-   step failed);
+4. d from (K + μ diag K) d = −g (`damped_solve`, or the given `linear_solver`; μ = 0 unless
+   the system is singular or a step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd
    (and, with a `feasible` test, the trial is feasible: contact never steps into an obstacle).
 Stops, without taking that step, when the Newton decrement λ² = −gᵀd satisfies
@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from taichi_ndf.minimise.assembly import Assembly
-from taichi_ndf.minimise.linear_solve import damped_solve
+from taichi_ndf.minimise.linear_solve import LinearSolver, damped_solve
 from taichi_ndf.shell.hessian import (
     Potential,
     flat_blocks,
@@ -138,7 +138,8 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
              config: ProjectedNewtonConfig | None = None, *, load_factor: float = 1.0,
              length: float = 1.0, fixed: np.ndarray | None = None,
              feasible: Callable[[torch.Tensor, torch.Tensor], bool] | None = None,
-             on_step: Callable[[torch.Tensor], bool] | None = None) -> NewtonSolution:
+             on_step: Callable[[torch.Tensor], bool] | None = None,
+             linear_solver: LinearSolver | None = None) -> NewtonSolution:
     """Minimise Π(C) = potential(U(C)) by projected Newton from `coefficients` (n, 3).
 
     assembly: linearised at this load factor (`Assembly.at_load`); potential: Π at the
@@ -147,9 +148,12 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
     feasible(C, C_trial): False rejects a line-search trial (halved like an Armijo failure;
     contact: a step that could enter an obstacle). on_step(C): called with each accepted
     iterate; True stops the minimisation there, not converged (contact: the caller adds
-    quadrature points and solves again).
+    quadrature points and solves again). linear_solver: solves the Newton systems with
+    `damped_solve`'s contract (`LinearSolver.for_grid`: multigrid on large grids); None: the
+    direct `damped_solve`.
     """
     config = config or ProjectedNewtonConfig()
+    solve = linear_solver or damped_solve
     samples = assembly.samples
     c = coefficients.detach().clone()
     history: list[NewtonIteration] = []
@@ -182,7 +186,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             matrix = assembly.hessian(exact)
             t_assembly += time.perf_counter() - started
             started = time.perf_counter()
-            exact_step = damped_solve(matrix, rhs, 0.0, fixed, require_definite=True)
+            exact_step = solve(matrix, rhs, 0.0, fixed, require_definite=True)
             t_solve += time.perf_counter() - started
             exact_failed = exact_step is None
         else:  # after a failed attempt the next iteration goes straight to the projected K
@@ -201,7 +205,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             if exact_step is not None:
                 (step_np, damping), exact_step = exact_step, None
             else:
-                step_np, damping = damped_solve(matrix, rhs, damping, fixed)
+                step_np, damping = solve(matrix, rhs, damping, fixed)
             t_solve += time.perf_counter() - started
             step = torch.from_numpy(step_np).to(c).reshape(c.shape)
             decrement = float(-(gradient * step).sum())

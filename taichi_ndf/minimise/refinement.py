@@ -32,6 +32,7 @@ from taichi_ndf.minimise.assembly import (
     gauge_unknowns,
     local_basis_at,
 )
+from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig
 from taichi_ndf.minimise.projected_newton import (
     NewtonIteration,
     ProjectedNewtonConfig,
@@ -112,7 +113,8 @@ def solve_levels(field_, boundary: BoundaryConditions,
                  probes: dict[str, tuple[float, float]] | None = None,
                  length: float = 1.0,
                  on_level: Callable[[int, object, list[LevelSolution]], None] | None = None,
-                 contact=None) -> list[list[LevelSolution]]:
+                 contact=None, linear: LinearSolverConfig | None = None
+                 ) -> list[list[LevelSolution]]:
     """Solve on `levels` grids, the field's and its dyadic refinements (module docstring).
 
     field_: a `SplineField` (its coefficients are the level-0 starting point; not changed).
@@ -122,8 +124,9 @@ def solve_levels(field_, boundary: BoundaryConditions,
     parameter-domain length for the Hessian's FD steps. on_level(level, grid, solutions): called
     after each level with its field (coefficients: its starting point) and its solutions per
     load step. contact: a `taichi_ndf.contact.newton_contact.NewtonContact` that solves each
-    load step with its check points, its terms and a penetration-free line search. Returns
-    [level][load step] solutions.
+    load step with its check points, its terms and a penetration-free line search. linear:
+    the linear solver's settings (`LinearSolver.for_grid` per level: multigrid over the
+    level's own dyadic hierarchy on large grids). Returns [level][load step] solutions.
     """
     if levels < 1:
         raise ValueError(f"levels must be >= 1, got {levels}")
@@ -142,6 +145,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
         basis = local_basis_at(operator, samples.xi)
         assembly = None if contact else Assembly(samples, basis, grid.coefficients.shape[0])
         fixed = held_unknowns(grid, boundary, basis)
+        solver = LinearSolver.for_grid(grid.config, linear)
         setup = time.perf_counter() - started
         per_load: list[LevelSolution] = []
         coefficients = grid.coefficients.detach().clone()
@@ -153,12 +157,14 @@ def solve_levels(field_, boundary: BoundaryConditions,
             if contact is None:
                 assembly.at_load(operator, t)
                 solution = minimise(assembly, objective.potential(t), coefficients, config,
-                                    load_factor=t, length=length, fixed=fixed)
+                                    load_factor=t, length=length, fixed=fixed,
+                                    linear_solver=solver)
             else:  # from the previous load step's state (a finer level: this one's, prolonged)
                 solution = contact.solve(
                     operator, samples, objective, coefficients, config,
                     load_factor=t, start_load_factor=t if level else (
-                        load_steps[k - 1] if k else 0.0), length=length, fixed=fixed)
+                        load_steps[k - 1] if k else 0.0), length=length, fixed=fixed,
+                    linear_solver=solver)
             coefficients = solution.coefficients
             u = displacement_at(operator, probe_xi, coefficients, t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(probes)}
