@@ -67,41 +67,43 @@ def test_the_equilibrium_estimate_of_a_cloth_drape(scene, solved):
     assert not 1 / 1.5 < characteristic_displacement(model) / solved < 1.5
 
 
-def test_auto_is_the_equilibrium_estimate_when_adam_trains_the_field():
+def test_which_estimate_a_run_gets():
     """Read without a runtime, an estimated scale is the dimensional estimate; a run that
-    trains with Adam takes the equilibrium estimate ("auto", the default, and
-    "equilibrium") or the linear one ("linear"); a Newton-only run, "dimensional" and an
-    explicit number keep the scale read."""
+    trains with Adam takes the equilibrium estimate ("equilibrium") or the linear one
+    ("linear"); "auto" (the default), "dimensional", an explicit number and a Newton-only run
+    keep the scale read."""
     scene = load_scene(SCENES_DIR / "scordelis_lo_roof.toml")
     assert scene.solver.iterations == 0
     assert scene.field.output_scale == characteristic_displacement(scene.model)
     adam = dataclasses.replace(scene.solver, iterations=10)
-
-    def with_scale(value):
-        return {**scene.document, "field": {**scene.document["field"], "output_scale": value}}
-
-    assert field_for_solver(scene.field, scene.document, scene.model, scene.solver) == scene.field
-    equilibrium = equilibrium_displacement(scene.model)
-    for name in ("auto", "equilibrium"):
-        trained = field_for_solver(scene.field, with_scale(name), scene.model, adam)
-        assert trained == dataclasses.replace(scene.field, output_scale=equilibrium)
-    linear = field_for_solver(scene.field, with_scale("linear"), scene.model, adam)
+    equilibrium = with_scale(scene, "equilibrium")
+    assert field_for_solver(scene.field, equilibrium, scene.model, scene.solver) == scene.field
+    trained = field_for_solver(scene.field, equilibrium, scene.model, adam)
+    assert trained == dataclasses.replace(
+        scene.field, output_scale=equilibrium_displacement(scene.model))
+    linear = field_for_solver(scene.field, with_scale(scene, "linear"), scene.model, adam)
     assert linear.output_scale == pytest.approx(linear_displacement(scene.model), rel=1e-12)
-    for kept in ("dimensional", 0.5):
-        assert field_for_solver(scene.field, with_scale(kept), scene.model, adam) == scene.field
+    for kept in ("auto", "dimensional", 0.5):
+        assert field_for_solver(scene.field, with_scale(scene, kept), scene.model,
+                                adam) == scene.field
+
+
+def with_scale(scene, value):
+    return {**scene.document, "field": {**scene.document["field"], "output_scale": value}}
 
 
 def test_a_failed_estimate_falls_back_to_the_next_with_a_warning(monkeypatch, caplog):
     scene = load_scene(SCENES_DIR / "scordelis_lo_roof.toml")
     adam = dataclasses.replace(scene.solver, iterations=10)
+    document = with_scale(scene, "equilibrium")
 
     def refuse(model):
         raise ValueError("refused for the test")
 
     monkeypatch.setattr(scaling, "equilibrium_displacement", refuse)
     with caplog.at_level(logging.WARNING, logger="taichi_ndf.scene_field"):
-        fallen = field_for_solver(scene.field, scene.document, scene.model, adam)
+        fallen = field_for_solver(scene.field, document, scene.model, adam)
     assert fallen.output_scale == pytest.approx(linear_displacement(scene.model), rel=1e-12)
     assert "the equilibrium estimate failed (refused for the test)" in caplog.text
     monkeypatch.setattr(scaling, "linear_displacement", refuse)
-    assert field_for_solver(scene.field, scene.document, scene.model, adam) == scene.field
+    assert field_for_solver(scene.field, document, scene.model, adam) == scene.field
