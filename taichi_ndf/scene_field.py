@@ -21,10 +21,9 @@ SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
 FIELD_TYPES = ("siren", "spline")
 # output_scale estimates (`scaling`), each falling back to the cheaper ones after it; "auto"
 # is AUTO_ESTIMATE: the dimensional one, with which the shipped scenes' learning rates were
-# chosen (the output scale is Adam's step, lr × scale). Neither estimate trains every scene
-# better: with the equilibrium one napkin_sphere ended far higher (Π +0.0024 against
-# -0.0655 J), with the dimensional one napkin_interior_point (-0.185 against -0.600 J with the
-# linear one): docs/scenes.md.
+# chosen (the output scale is Adam's step, lr × scale). With the (more accurate) equilibrium
+# one napkin_sphere ended far higher (Π +0.0024 against -0.0655 J) and bowl slightly higher,
+# four others 0.06-2.6 % lower: docs/scenes.md.
 SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
 AUTO_ESTIMATE = "dimensional"
 ESTIMATE_FALLBACKS = {"equilibrium": ("equilibrium", "linear", "dimensional"),
