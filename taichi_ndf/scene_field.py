@@ -19,6 +19,18 @@ log = logging.getLogger(__name__)
 SIREN_KEYS = ("width", "hidden_layers", "omega0", "output_scale")
 SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
 FIELD_TYPES = ("siren", "spline")
+# output_scale estimates (`scaling`), each falling back to the cheaper ones after it; "auto"
+# is AUTO_ESTIMATE: the dimensional one, with which the shipped scenes' learning rates were
+# chosen (the output scale is Adam's step, lr × scale). With the (more accurate) equilibrium
+# one napkin_sphere ended far higher (Π +0.0024 against -0.0655 J) and bowl slightly higher,
+# four others 0.06-2.6 % lower: docs/scenes.md.
+SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
+AUTO_ESTIMATE = "dimensional"
+ESTIMATE_FALLBACKS = {"equilibrium": ("equilibrium", "linear", "dimensional"),
+                      "linear": ("linear", "dimensional"), "dimensional": ("dimensional",)}
+ESTIMATE_FUNCTIONS = {"equilibrium": "equilibrium_displacement",
+                      "linear": "linear_displacement",
+                      "dimensional": "characteristic_displacement"}
 
 
 def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
@@ -32,13 +44,14 @@ def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
     if kind == "spline":
         return _spline(t, model)
     scale = t._get("output_scale", "auto")
-    if scale in ("auto", "linear"):
+    if scale in SCALE_ESTIMATES:
         from taichi_ndf.scaling import characteristic_displacement
 
         scale = characteristic_displacement(model)
     elif isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
-        raise SceneError(f"{t.key('output_scale')}: expected \"auto\", \"linear\" or a "
-                         f"positive number [m], got {scale!r}")
+        raise SceneError(f"{t.key('output_scale')}: expected one of "
+                         f"{', '.join(repr(e) for e in SCALE_ESTIMATES)} or a positive number "
+                         f"[m], got {scale!r}")
     return FieldConfig(width=t.integer("width", 128, minimum=1),
                        hidden_layers=t.integer("hidden_layers", 3, minimum=1),
                        omega0=t.number("omega0", 30.0, positive=True),
@@ -48,28 +61,29 @@ def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
 
 def field_for_solver(field: FieldConfig, document: dict, model: ShellModel,
                      config: SolverConfig) -> FieldConfig:
-    """The SIREN configuration a run with `config` trains. `output_scale = "auto"` (the
-    default) is the dimensional estimate (set when the scene is read). `output_scale =
-    "linear"`: the dimensional estimate when read (no runtime needed); where Adam trains the
-    field (config.iterations > 0) it becomes the linear solution's largest displacement
-    (`scaling.linear_displacement` on `model`, which needs the runtime; the dimensional
-    estimate kept, with a warning, if that solve fails). Not the default: the shipped SIREN
-    scenes' learning rates were chosen with the dimensional scale, and with the (larger, more
-    accurate) linear one Adam diverged on napkin_template (f32, Π up to 8 J near iteration 100,
-    ending at −0.19 J against −0.84 J after 300 iterations with the dimensional scale)."""
+    """The SIREN configuration a run with `config` trains. A scene is read without a runtime,
+    so an estimated `output_scale` holds the dimensional estimate until the run starts; where
+    Adam trains the field (config.iterations > 0) "equilibrium" and "linear" (and "auto" if
+    AUTO_ESTIMATE is one of them) become their estimate of `model` (`scaling`; each falls
+    back to the next cheaper one, "equilibrium" -> "linear" -> "dimensional", with a logged
+    warning naming why). Elsewhere (last-layer Newton only: the output layer absorbs the scale) the
+    dimensional estimate is kept."""
     table = document.get("field", {})
-    auto = isinstance(table, dict) and table.get("output_scale", "auto") == "linear"
-    if not (auto and config.iterations > 0):
+    name = table.get("output_scale", "auto") if isinstance(table, dict) else "auto"
+    if name not in SCALE_ESTIMATES or config.iterations == 0:
         return field
-    from taichi_ndf.scaling import linear_displacement
+    from taichi_ndf import scaling
 
-    try:
-        scale = linear_displacement(model)
-    except (ValueError, RuntimeError) as err:
-        log.warning("output_scale = \"auto\": the linear estimate failed (%s); using the "
-                    "dimensional estimate %.4g m", err, field.output_scale)
-        return field
-    return replace(field, output_scale=scale)
+    chain = ESTIMATE_FALLBACKS[AUTO_ESTIMATE if name == "auto" else name]
+    for estimate, fallback in zip(chain, chain[1:], strict=False):
+        try:
+            scale = getattr(scaling, ESTIMATE_FUNCTIONS[estimate])(model)
+        except (ValueError, RuntimeError) as err:
+            log.warning("output_scale = %r: the %s estimate failed (%s); trying the %s "
+                        "estimate", name, estimate, err, fallback)
+            continue
+        return replace(field, output_scale=scale)
+    return field
 
 
 def _spline(t: Table, model: ShellModel) -> SplinePlan:
