@@ -88,6 +88,19 @@ def test_silhouette_distance_and_its_gradient():
     assert xy.grad[0, 0] > 0.5 and xy.grad[1].abs().max() == 0
 
 
+def test_silhouette_is_nearly_free_at_the_ground_truth():
+    """The rendered outline passes through the true outline vertices: their silhouette residual
+    is small (measured 0.017–0.020 px² mean square; the distance to the nearest mask pixel
+    centre gave 0.11–0.14 px², 34–35 of the 99 vertices at > 0.1 px)."""
+    sequence = generate(SynthConfig(sequence="wave", frames=2, image_size=(320, 240),
+                                    focal=300.0, cells=(10, 8), texture_size=(512, 384),
+                                    supersample=1))
+    for mask, vertices in zip(sequence.masks, sequence.vertices, strict=True):
+        pixels = torch.from_numpy(sequence.camera.project(vertices))
+        residual = silhouette_residual(silhouette_distance(mask), pixels)
+        assert float((residual**2).mean()) < 0.04
+
+
 @pytest.mark.parametrize("name, value", [("physics_weight", -1.0), ("steps", 0),
                                          ("material", "silk"), ("min_lr", 1.0)])
 def test_config_refuses_bad_values(name, value):
