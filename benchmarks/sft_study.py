@@ -2,7 +2,7 @@
 (and the same spline field without the prior) on the project's own sequence generator.
 
     python benchmarks/sft_study.py [--sequences roll fold corner wave] [--seeds 0 1]
-        [--frames 30] [--cache DIR] [--json OUT]
+        [--frames 30] [--field spline|siren] [--cache DIR] [--json OUT]
 
 For every sequence family and seed: render the sequence (`inverse.sft.synth`, default
 degradations), track it (`inverse.sft.tracking`), reconstruct it with the baseline
@@ -10,13 +10,16 @@ degradations), track it (`inverse.sft.tracking`), reconstruct it with the baseli
 (`inverse.sft.spline_prior`), and print the metrics (`inverse.sft.metrics.PROTOCOL`), the
 largest per-frame depth bias (mean over vertices of z − z_gt [mm]: a global depth drift shows
 here), and seconds per frame (wall, and process CPU summed over threads); then whether the prior
-beats the baseline on e3D, chamfer and normal error on every sequence. --cache keeps the
+beats the baseline on e3D, chamfer and normal error on every sequence. --field siren runs the
+older SIREN + Adam field (`inverse.sft.reconstruct`, initialised from the baseline's meshes)
+instead of the spline; its per-frame time excludes the baseline it starts from. --cache keeps the
 rendered and tracked sequences (pickles) for reruns. docs/sft_results.md holds a run.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pickle
 import sys
@@ -29,6 +32,7 @@ import torch
 import taichi_ndf
 from inverse.sft.baseline import reconstruct_baseline
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
+from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
 from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
@@ -41,7 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sequences", nargs="+", choices=SEQUENCES, default=list(SEQUENCES))
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     p.add_argument("--frames", type=int, default=30)
-    p.add_argument("--physics-weight", type=float, default=SplinePriorConfig.physics_weight)
+    p.add_argument("--field", choices=("spline", "siren"), default="spline",
+                   help="the prior's displacement field (siren: the older SIREN + Adam path)")
+    p.add_argument("--physics-weight", type=float, default=None,
+                   help="w_phys (default: the field's own)")
     p.add_argument("--no-prior", action="store_true", help="also run the field without prior")
     p.add_argument("--cache", type=Path, help="folder for rendered and tracked sequences")
     p.add_argument("--json", type=Path, help="write every row here")
@@ -90,15 +97,27 @@ def row(method: str, data: dict, vertices: list[np.ndarray], wall: float, cpu: f
 def study(sequence: str, seed: int, args: argparse.Namespace) -> list[dict]:
     data = prepared(sequence, seed, args.frames, args.cache)
     rows = [row("baseline", data, data["baseline"], data["baseline_s"], data["baseline_cpu_s"])]
-    weights = [("prior", args.physics_weight)] + ([("no-prior", 0.0)] if args.no_prior else [])
+    config = (SplinePriorConfig() if args.field == "spline"
+              else ReconstructionConfig(seed=seed))
+    if args.physics_weight is not None:
+        config = dataclasses.replace(config, physics_weight=args.physics_weight)
+    weights = [("prior", config.physics_weight)] + ([("no-prior", 0.0)] if args.no_prior else [])
     for name, weight in weights:
-        result = reconstruct_spline(data["template"], data["camera"], data["tracks"],
-                                    masks=data["masks"],
-                                    config=SplinePriorConfig(physics_weight=weight))
-        rows.append(row(name, data, result.vertices, float(np.mean(result.seconds[1:])),
-                        float(np.mean(result.cpu_seconds[1:]))))
+        settings = dataclasses.replace(config, physics_weight=weight)
+        clock, cpu = time.perf_counter(), time.process_time()
+        if args.field == "spline":
+            result = reconstruct_spline(data["template"], data["camera"], data["tracks"],
+                                        masks=data["masks"], config=settings)
+            wall, cpu = float(np.mean(result.seconds[1:])), float(np.mean(result.cpu_seconds[1:]))
+        else:
+            result = reconstruct(data["template"], data["camera"], data["tracks"],
+                                 masks=data["masks"], initial=data["baseline"], config=settings)
+            solved = len(result.vertices) - 1
+            wall = (time.perf_counter() - clock) / solved
+            cpu = (time.process_time() - cpu) / solved
+        rows.append(row(name, data, result.vertices, wall, cpu))
     for r in rows:
-        r.update(sequence=sequence, seed=seed, tracking_s=data["tracking_s"],
+        r.update(sequence=sequence, seed=seed, field=args.field, tracking_s=data["tracking_s"],
                  tracks_per_frame=float(np.mean([len(t) for t in data["tracks"]])))
     return rows
 

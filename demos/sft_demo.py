@@ -1,13 +1,17 @@
 """Shape-from-template demo: a synthetic sequence reconstructed with and without the physics prior.
 
 Renders a textured sheet sequence with exact ground truth (``inverse.sft.synth``), tracks it,
-and reconstructs it three ways: the per-frame baseline, the field reconstruction without the
-Kirchhoff–Love prior (w_phys = 0) and with it; prints the metrics (protocol of
+and reconstructs it three ways: the per-frame baseline, a displacement field without the
+Kirchhoff–Love prior (w_phys = 0) and the same field with it; prints the metrics (protocol of
 ``inverse.sft.metrics``) and the seconds per frame of every stage.
 
-    python demos/sft_demo.py [--sequence fold|roll] [--frames 30] [--seed 0] [--quick]
+    python demos/sft_demo.py [--sequence fold|roll|corner|wave] [--frames 30] [--seed 0]
+        [--field spline|siren] [--quick]
 
-``--quick``: 3 frames at 320x240 and few steps, a smoke test (tens of seconds).
+``--field spline`` (default): the B-spline field solved per frame by Gauss–Newton
+(``inverse.sft.spline_prior``, float64, as ``ndf-sft``). ``--field siren``: the older SIREN
+field trained with Adam (``inverse.sft.reconstruct``, initialised from the baseline).
+``--quick``: 3 frames at 320x240 (and few Adam steps for the SIREN), a smoke test.
 """
 
 from __future__ import annotations
@@ -24,41 +28,56 @@ import taichi_ndf
 from inverse.sft.baseline import reconstruct_baseline
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
-from inverse.sft.synth import SynthConfig, generate
+from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
+from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--sequence", choices=("fold", "roll"), default="fold")
+    p.add_argument("--sequence", choices=SEQUENCES, default="fold")
     p.add_argument("--frames", type=int, default=30)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--field", choices=("spline", "siren"), default="spline",
+                   help="spline: Gauss-Newton on a B-spline (default, float64); siren: the "
+                        "older SIREN + Adam path")
     p.add_argument("--quick", action="store_true", help="tiny smoke-test version")
-    p.add_argument("--precision", choices=("f32", "f64"), default="f32")
+    p.add_argument("--precision", choices=("f32", "f64"), default=None,
+                   help="Taichi precision (default: f64 for spline, which needs it; f32 siren)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    taichi_ndf.init(precision=args.precision, seed=args.seed)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    precision = args.precision or ("f64" if args.field == "spline" else "f32")
+    if args.field == "spline" and precision != "f64":
+        parser.error("--field spline needs --precision f64 (its Hessian blocks are central "
+                     "differences)")
+    if args.frames < 2:
+        parser.error(f"--frames must be at least 2, got {args.frames}")
+    taichi_ndf.init(precision=precision, seed=args.seed)
     torch.set_num_threads(1)  # see ndf-sft --threads
     synth = SynthConfig(sequence=args.sequence, frames=args.frames, seed=args.seed)
-    config = ReconstructionConfig(seed=args.seed)
+    config = (SplinePriorConfig() if args.field == "spline"
+              else ReconstructionConfig(seed=args.seed))
     if args.quick:
         synth = dataclasses.replace(synth, frames=3, image_size=(320, 240), focal=300.0,
                                     cells=(10, 8), texture_size=(512, 384), supersample=1)
-        config = dataclasses.replace(config, width=16, energy_samples=128, steps=10,
-                                     init_steps=10)
+        if args.field == "siren":
+            config = dataclasses.replace(config, width=16, energy_samples=128, steps=10,
+                                         init_steps=10)
     rows = run(synth, config)
     print(f"{args.sequence}, {synth.frames} frames {synth.image_size[0]}x{synth.image_size[1]}, "
-          f"noise {synth.degradations.noise_sigma * 255:.0f}/255")
+          f"noise {synth.degradations.noise_sigma * 255:.0f}/255, {args.field} field")
     print(format_table(rows))
     print(f"protocol: {PROTOCOL}")
     return 0
 
 
-def run(synth: SynthConfig, config: ReconstructionConfig) -> list[dict]:
-    """Metrics and seconds per frame of the baseline and the field with and without the prior."""
+def run(synth: SynthConfig, config: SplinePriorConfig | ReconstructionConfig) -> list[dict]:
+    """Metrics and seconds per frame of the baseline and the field with and without the prior
+    (the spline field if `config` is a `SplinePriorConfig`, else the SIREN)."""
     sequence = generate(synth)
     n = len(sequence.frames)
     clock = time.perf_counter()
@@ -76,14 +95,19 @@ def run(synth: SynthConfig, config: ReconstructionConfig) -> list[dict]:
 
     rows = [row("baseline", baseline, {"tracking": tracking, "baseline": baseline_time})]
     for name, weight in (("field, no prior", 0.0), ("field + KL prior", config.physics_weight)):
+        settings = dataclasses.replace(config, physics_weight=weight)
         clock = time.perf_counter()
-        result = reconstruct(sequence.template, sequence.camera, correspondences,
-                             masks=sequence.masks, initial=baseline,
-                             config=dataclasses.replace(config, physics_weight=weight))
-        rows.append(row(name, result.vertices, {
-            "tracking": tracking, "baseline": baseline_time,
-            "reconstruction": (time.perf_counter() - clock) / n,
-        }))
+        if isinstance(settings, SplinePriorConfig):
+            vertices = reconstruct_spline(sequence.template, sequence.camera, correspondences,
+                                          masks=sequence.masks, config=settings).vertices
+            stages = {"tracking": tracking}
+        else:
+            vertices = reconstruct(sequence.template, sequence.camera, correspondences,
+                                   masks=sequence.masks, initial=baseline,
+                                   config=settings).vertices
+            stages = {"tracking": tracking, "baseline": baseline_time}
+        stages["reconstruction"] = (time.perf_counter() - clock) / n
+        rows.append(row(name, vertices, stages))
     return rows
 
 

@@ -11,7 +11,7 @@ from test_sft_reconstruct import bent_pair, exact_tracks, small_sequence
 
 from inverse.cli import sft as sft_cli
 from inverse.sft.camera import Camera
-from inverse.sft.data_terms import outside_distance
+from inverse.sft.data_terms import silhouette_distance
 from inverse.sft.deformations import CornerLift, Wave
 from inverse.sft.inputs import mesh_edges
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
@@ -37,7 +37,7 @@ def data_term(seed=0, tracks=12, vertices=8):
         Reprojection(rest[:tracks], pixels, torch.from_numpy(rng.uniform(0.5, 1, tracks)), 2.0),
         torch.arange(tracks, n),
         VertexTerms(rest[tracks:], rest[tracks:] + 0.002, 0.3, 0.01,
-                    outside_distance(mask), 1.0))
+                    silhouette_distance(mask), 1.0))
     u = torch.zeros(n, jets.CHANNELS, 3, dtype=torch.float64)
     u[:, jets.VALUE] = torch.from_numpy(rng.normal(0, 0.003, (n, 3)))
     return term, u

@@ -54,8 +54,8 @@ class MotionTerm:
 
 
 class SilhouetteTerm:
-    """mean_v D(π(X_v + u_v))² [px²]: D (h, w) the distance [px] to the mask (0 inside),
-    sampled bilinearly."""
+    """mean_v D(π(X_v + u_v))² [px²]: D the distance [px] outside the silhouette (0 inside),
+    `silhouette_residual` of the `silhouette_distance` image (h, w)."""
 
     def __init__(self, rest: torch.Tensor, distance: torch.Tensor, camera: Camera):
         self.rest = rest
@@ -64,7 +64,7 @@ class SilhouetteTerm:
 
     def value(self, u: torch.Tensor) -> torch.Tensor:
         pixels = self.camera.project(self.rest + u, min_depth=MIN_DEPTH)
-        return (bilinear_differentiable(self.distance, pixels) ** 2).mean()
+        return (silhouette_residual(self.distance, pixels) ** 2).mean()
 
 
 class DataTerms:
@@ -109,8 +109,20 @@ def bilinear_differentiable(image: torch.Tensor, xy: torch.Tensor) -> torch.Tens
     return top * (1 - fy) + bottom * fy
 
 
-def outside_distance(mask: np.ndarray) -> torch.Tensor:
-    """Distance [px] of every pixel to the mask (0 on it), float64 (h, w)."""
-    outside = (~mask).astype(np.uint8)
-    return torch.from_numpy(
-        cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64))
+def silhouette_distance(mask: np.ndarray) -> torch.Tensor:
+    """Signed distance [px] of every pixel centre to the silhouette's outline, float64 (h, w):
+    positive outside the mask, negative on it. The outline runs half-way between the centres of
+    mask and non-mask pixels (centres at integer coordinates, as the renderer's; a mask pixel
+    is one at least half covered), so a point on the true outline samples ≈ 0 bilinearly.
+    (The distance to the nearest mask pixel centre, 0 on the mask, samples ≈ 0.5 px there: it
+    charged every outline vertex of the true surface and pulled the outline inwards.)"""
+    mask = np.asarray(mask, dtype=bool)
+    outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return torch.from_numpy(np.where(mask, 0.5 - inside, outside - 0.5).astype(np.float64))
+
+
+def silhouette_residual(distance: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
+    """Distance [px] (n,) of pixels xy (n, 2) outside the silhouette (0 inside): the
+    `silhouette_distance` image sampled bilinearly, clamped at 0 (differentiable)."""
+    return bilinear_differentiable(distance, xy).clamp_min(0.0)

@@ -15,7 +15,8 @@ energy ignores them):
 
 with w_i the confidences normalised to sum 1, ρ the Huber penalty (quadratic up to huber_px,
 linearised for Gauss–Newton by iteratively reweighted least squares as in the baseline), π the
-pinhole projection, D the distance [px] to the mask (0 on it), x̂_v = 2 x_{t−1} − x_{t−2} the
+pinhole projection, D the distance [px] outside the silhouette's outline (0 inside;
+`inverse.sft.data_terms.silhouette_residual`), x̂_v = 2 x_{t−1} − x_{t−2} the
 constant-velocity prediction of vertex v and h the template's mean edge length.
 """
 
@@ -27,7 +28,7 @@ import numpy as np
 import torch
 
 from inverse.sft.camera import Camera
-from inverse.sft.data_terms import MIN_DEPTH, bilinear_differentiable, huber
+from inverse.sft.data_terms import MIN_DEPTH, bilinear_differentiable, huber, silhouette_residual
 from taichi_ndf import jets
 from taichi_ndf.sampling import SurfaceSamples
 
@@ -48,7 +49,7 @@ class Reprojection:
 class VertexTerms:
     """Template vertices X_v (n, 3) [m]: motion towards `predicted` (n, 3) [m] with weight
     w_temp over the squared mean edge length h² [m²]; silhouette distance image (h, w) [px]
-    (None: no silhouette term) with weight w_sil."""
+    (None: no silhouette term) with weight w_sil: `inverse.sft.data_terms.silhouette_distance`."""
 
     rest: torch.Tensor
     predicted: torch.Tensor
@@ -89,7 +90,7 @@ class LeastSquaresData:
         out["motion"] = float(((x - self.vertex.predicted) ** 2).sum(1).mean()
                               / self.vertex.mean_edge**2)
         if self.vertex.distance is not None:
-            d = bilinear_differentiable(self.vertex.distance, self._vertex_pixels(u))
+            d = silhouette_residual(self.vertex.distance, self._vertex_pixels(u))
             out["silhouette"] = float((d**2).mean())
         return out
 
@@ -149,10 +150,11 @@ class LeastSquaresData:
         if vt.distance is not None and self.silhouette_scale > 0:
             points = vt.rest + u[self.vertices]
             pixels = self.camera.project(points, min_depth=MIN_DEPTH)
-            d = bilinear_differentiable(vt.distance, pixels)
+            d = silhouette_residual(vt.distance, pixels)
             value = value + self.silhouette_scale * (d**2).sum()
-            slope = torch.stack([bilinear_differentiable(g, pixels)
-                                 for g in self.distance_gradient], 1)  # dD/dpixel (n, 2)
+            outside = (d > 0).to(d.dtype)[:, None]  # inside, D = 0 is flat
+            slope = outside * torch.stack([bilinear_differentiable(g, pixels)
+                                           for g in self.distance_gradient], 1)  # dD/dpixel
             row = torch.einsum("nr,nri->ni", slope,
                                self.camera.projection_jacobian(points, min_depth=MIN_DEPTH))
             if grad:

@@ -46,7 +46,7 @@ from inverse.sft.data_terms import (
     MotionTerm,
     ReprojectionTerm,
     SilhouetteTerm,
-    outside_distance,
+    silhouette_distance,
 )
 from inverse.sft.inputs import Camera, Template, mean_edge_length
 from taichi_ndf import jets
@@ -204,7 +204,7 @@ class FieldReconstructor:
              cfg.temporal_weight, vertices)]
         if mask is not None and cfg.silhouette_weight > 0:
             terms.append(("silhouette",
-                          SilhouetteTerm(self.rest, outside_distance(mask), self.camera),
+                          SilhouetteTerm(self.rest, silhouette_distance(mask), self.camera),
                           cfg.silhouette_weight, vertices))
         data = DataTerms(terms)
         lam = cfg.physics_weight / self.energy_reference

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 from inverse.sft.correspondences import FrameCorrespondences
-from inverse.sft.data_terms import outside_distance
+from inverse.sft.data_terms import silhouette_distance
 from inverse.sft.inputs import Camera, Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from taichi_ndf import jets
@@ -205,7 +205,7 @@ class SplinePriorReconstructor:
         before = torch.from_numpy(history[-2]) if len(history) > 1 else previous
         distance = None
         if mask is not None and cfg.silhouette_weight > 0:
-            distance = outside_distance(mask)
+            distance = silhouette_distance(mask)
         data = LeastSquaresData(
             self.camera, tracks,
             Reprojection(track_rest, torch.from_numpy(correspondences.xy),
