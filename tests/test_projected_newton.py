@@ -62,19 +62,28 @@ def test_hessian_blocks_match_directional_differences_of_the_gradient(law):
     assert float((got - expected).norm() / expected.norm()) <= 1e-6
 
 
-def test_projection_clamps_negative_eigenvalues_and_keeps_definite_blocks():
+@pytest.mark.parametrize("mode", ["abs", "clamp"])
+def test_projection_mirrors_or_clamps_negative_eigenvalues_and_keeps_definite_blocks(mode):
     generator = torch.Generator().manual_seed(0)
     a = torch.randn(5, 18, 18, generator=generator, dtype=DT)
     definite = a @ a.transpose(1, 2) + torch.eye(18, dtype=DT)
     indefinite = a + a.transpose(1, 2)
     blocks = torch.cat((definite, indefinite))
-    projected, count = project_psd(blocks)
+    projected, count = project_psd(blocks, mode=mode)
     assert count == 5
     assert torch.equal(projected[:5], definite)
     values, vectors = torch.linalg.eigh(indefinite)
     assert float(torch.linalg.eigvalsh(projected[5:]).min()) > -1e-12
-    expected = (vectors * values.clamp_min(0)[:, None]) @ vectors.transpose(1, 2)
+    modified = values.abs() if mode == "abs" else values.clamp_min(0)
+    expected = (vectors * modified[:, None]) @ vectors.transpose(1, 2)
     assert torch.allclose(projected[5:], expected, atol=1e-12)
+    # Rows zero in every block (the shell's value channel) stay zero; the rest as before.
+    padded = torch.nn.functional.pad(blocks, (3, 0, 3, 0))
+    projected_padded, count = project_psd(padded, mode=mode)
+    assert count == 5 and torch.all(projected_padded[:, :3] == 0)
+    assert torch.allclose(projected_padded[:, 3:, 3:], projected, atol=1e-12)
+    with pytest.raises(ValueError, match="projection"):
+        project_psd(blocks, mode="flip")
 
 
 def _case(boundary_kind):
