@@ -231,3 +231,21 @@ def test_richardson_recovers_the_limit_and_order_of_a_power_law():
     assert richardson([1.0, 1.5], order=1.0).value == pytest.approx(2.0)
     with pytest.raises(ValueError, match="assumed order"):
         richardson([1.0, 1.5])
+
+
+def test_clamped_projection_needs_fewer_newton_steps_than_mirrored_on_a_draped_flag():
+    """The default projection (negative eigenvalues clamped to 0) against the mirrored one
+    (|λ|) on a coarse flag that drapes from its hoist under gravity and wind from the flat
+    state: many blocks are indefinite (compression folds). Measured: 40 against 48 Newton
+    steps to the same minimum (napkin 32 × 32 spans from 16 × 16: 9 against 11)."""
+    model = load_scene(SCENES / "flag.toml").model
+    steps, energies = {}, {}
+    for mode in ("clamp", "abs"):
+        config = ProjectedNewtonConfig(hessian=mode, decrement_tolerance=1e-10,
+                                       max_iterations=200)
+        (solution,), = _solve(model, (4, 3), (1.0,), config)
+        assert solution.converged
+        assert any(h.projected_blocks for h in solution.history)
+        steps[mode], energies[mode] = len(solution.history), solution.energy
+    assert energies["clamp"] == pytest.approx(energies["abs"], rel=1e-8)
+    assert steps["clamp"] < steps["abs"], steps
