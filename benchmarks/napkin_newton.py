@@ -8,8 +8,12 @@ time (energy + line search, Hessian blocks, assembly, solve); then Richardson fr
 three grids. Kernels are compiled (or loaded from the cache) before the clock starts, on a
 2 × 2 grid: that time is printed apart.
 
-    OMP_NUM_THREADS=1 python benchmarks/napkin_newton.py [--levels 4] [--coarsest 2]
-        [--tolerance 1e-4] [--reference -1.3318] [--precision f64] [--parts]
+    OMP_NUM_THREADS=1 python benchmarks/napkin_newton.py [--levels 3] [--coarsest 7]
+        [--tolerance 1e-4] [--coarse-tolerance T] [--reference -1.3318] [--precision f64]
+        [--hessian clamp|abs] [--parts]
+
+The default grids 7², 14², 28² reach 0.90 % from Π∞ (benchmarks/RESULTS.md; 3² → 24²: 0.96 %,
+2² → 16²: 1.30 %, 2² → 32²: 0.79 %: the napkin converges with order ~0.75 under refinement).
 
 --parts: also the CPU time of each part of one Newton step at the finest grid's solution
 (median of 3), with the central-difference Hessian blocks (`sample_hessians`) for comparison.
@@ -112,8 +116,8 @@ def step_parts(model, spans: tuple[int, int], coefficients: torch.Tensor) -> lis
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--levels", type=int, default=4)
-    parser.add_argument("--coarsest", type=int, default=2)
+    parser.add_argument("--levels", type=int, default=3)
+    parser.add_argument("--coarsest", type=int, default=7)
     parser.add_argument("--tolerance", type=float, default=1e-4,
                         help="Newton decrement tolerance λ²/2 relative to |Π|")
     parser.add_argument("--coarse-tolerance", type=float, default=None,
