@@ -10,8 +10,8 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
    definite (checked by the pivots of its factorisation: a stable state may have indefinite
    blocks, and the exact Newton step then converges quadratically), else of the blocks
    projected to positive semi-definite (`project_psd`: screened and projected only then;
-   the iteration after a failed attempt skips it: far from the minimum attempts fail in a
-   row and each costs an assembly and a factorisation);
+   the first iteration and the iteration after a failed attempt skip it and screen: far from
+   the minimum attempts fail in a row and each costs an assembly and a factorisation);
 4. d from (K + μ diag K) d = −g (`damped_solve`; μ = 0 unless the system is singular or a
    step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd
@@ -164,7 +164,9 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
     samples = assembly.samples
     c = coefficients.detach().clone()
     history: list[NewtonIteration] = []
-    damping, converged, first_norm, exact_failed = 0.0, False, None, False
+    # The first iteration screens the blocks instead of trying the exact K (a start from a
+    # coarser grid or the flat sheet is rarely a definite state; a definite one costs a screen)
+    damping, converged, first_norm, exact_failed = 0.0, False, None, True
     for iteration in range(config.max_iterations):
         started = time.perf_counter()
         u = assembly.displacement(c)
