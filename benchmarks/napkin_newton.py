@@ -8,8 +8,12 @@ time (energy + line search, Hessian blocks, assembly, solve); then Richardson fr
 three grids. Kernels are compiled (or loaded from the cache) before the clock starts, on a
 2 × 2 grid: that time is printed apart.
 
-    OMP_NUM_THREADS=1 python benchmarks/napkin_newton.py [--levels 4] [--coarsest 2]
-        [--tolerance 1e-4] [--reference -1.3318] [--precision f64] [--parts]
+    OMP_NUM_THREADS=1 python benchmarks/napkin_newton.py [--levels 3] [--coarsest 7]
+        [--tolerance 1e-4] [--coarse-tolerance T] [--reference -1.3318] [--precision f64]
+        [--hessian clamp|abs] [--parts]
+
+The default grids 7², 14², 28² reach 0.90 % from Π∞ (benchmarks/RESULTS.md; 3² → 24²: 0.96 %,
+2² → 16²: 1.30 %, 2² → 32²: 0.79 %: the napkin converges with order ~0.75 under refinement).
 
 --parts: also the CPU time of each part of one Newton step at the finest grid's solution
 (median of 3), with the central-difference Hessian blocks (`sample_hessians`) for comparison.
@@ -18,6 +22,7 @@ three grids. Kernels are compiled (or loaded from the cache) before the clock st
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import time
@@ -29,7 +34,7 @@ import taichi_ndf
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
 from taichi_ndf.minimise.linear_solve import damped_solve
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
+from taichi_ndf.minimise.projected_newton import HESSIANS, ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective
 from taichi_ndf.operator import DisplacementOperator
@@ -50,13 +55,15 @@ REFERENCE = -1.3318
 SPLIT = ("energy", "hessian", "assembly", "solve")
 
 
-def solve(model, levels: int, coarsest: int, config: ProjectedNewtonConfig):
+def solve(model, levels: int, coarsest: int, config: ProjectedNewtonConfig,
+          coarse_config: ProjectedNewtonConfig | None = None, on_level=None):
     surface = model.surface
     field = SplineField(SplineConfig(spans=(coarsest, coarsest), degree=3,
                                      domain=surface.domain.bounds))
     return solve_levels(field, model.boundary,
                         lambda f: span_quadrature(surface, f.config, model.loads),
                         Objective.of_model(model), levels=levels, config=config,
+                        coarse_config=coarse_config, on_level=on_level,
                         probes={p.name: p.xi for p in model.probes},
                         length=math.sqrt(surface.domain.rectangle_area))
 
@@ -109,13 +116,18 @@ def step_parts(model, spans: tuple[int, int], coefficients: torch.Tensor) -> lis
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--levels", type=int, default=4)
-    parser.add_argument("--coarsest", type=int, default=2)
+    parser.add_argument("--levels", type=int, default=3)
+    parser.add_argument("--coarsest", type=int, default=7)
     parser.add_argument("--tolerance", type=float, default=1e-4,
                         help="Newton decrement tolerance λ²/2 relative to |Π|")
+    parser.add_argument("--coarse-tolerance", type=float, default=None,
+                        help="decrement tolerance of the levels before the finest (default: "
+                        "--tolerance)")
     parser.add_argument("--reference", type=float, default=REFERENCE,
                         help="the extrapolated Π∞ [J] the gap is measured against")
     parser.add_argument("--precision", choices=("f32", "f64"), default="f64")
+    parser.add_argument("--hessian", choices=HESSIANS, default=ProjectedNewtonConfig.hessian,
+                        help="Hessian modification of projected Newton (ProjectedNewtonConfig)")
     parser.add_argument("--verbose", action="store_true", help="log every Newton iteration")
     parser.add_argument("--parts", action="store_true",
                         help="time each part of a Newton step at the finest grid")
@@ -129,21 +141,28 @@ def main() -> None:
     config = ProjectedNewtonConfig(fd_step=1e-5 if f64 else 3e-3,
                                    decrement_tolerance=args.tolerance,
                                    gradient_tolerance=1e-10 if f64 else 1e-5,
-                                   floor_tolerance=1e-8 if f64 else 1e-6)
+                                   floor_tolerance=1e-8 if f64 else 1e-6,
+                                   hessian=args.hessian)
+    coarse = None if args.coarse_tolerance is None else dataclasses.replace(
+        config, decrement_tolerance=args.coarse_tolerance)
     started = time.perf_counter()
     solve(model, 1, 2, ProjectedNewtonConfig(max_iterations=2))  # compile / load kernels
     compile_seconds = time.perf_counter() - started
     started, cpu = time.perf_counter(), time.process_time()
-    results = solve(model, args.levels, args.coarsest, config)
+    level_cpu = []
+    results = solve(model, args.levels, args.coarsest, config, coarse,
+                    on_level=lambda *_: level_cpu.append(time.process_time() - cpu))
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
-    print(f"napkin, spline cubic + projected Newton, {args.precision}, decrement tolerance "
-          f"{args.tolerance:g}; kernels compiled/loaded before: {compile_seconds:.1f} s")
+    print(f"napkin, spline cubic + projected Newton ({args.hessian}), {args.precision}, "
+          f"decrement tolerance {args.tolerance:g} (coarser levels "
+          f"{args.coarse_tolerance or args.tolerance:g}); kernels compiled/loaded before: "
+          f"{compile_seconds:.1f} s")
     print(f"reference Π∞ = {args.reference} J")
-    print("| spans | Newton steps | Π [J] | gap to Π∞ | time to this grid [s] | "
-          "energy / Hessian / assembly / solve [s] |")
-    print("|---|---|---|---|---|---|")
+    print("| spans | Newton steps | Π [J] | gap to Π∞ | wall to this grid [s] | "
+          "CPU to this grid [s] | energy / Hessian / assembly / solve [s, wall] |")
+    print("|---|---|---|---|---|---|---|")
     elapsed = 0.0
-    for level in results:
+    for level, level_seconds in zip(results, level_cpu, strict=True):
         last = level[-1]
         elapsed += sum(s.seconds for s in level)
         history = [h for s in level for h in s.history]
@@ -151,7 +170,7 @@ def main() -> None:
                            for k in SPLIT)
         gap = (last.energy - args.reference) / abs(args.reference)
         print(f"| {last.spans[0]} × {last.spans[1]} | {len(history)} | {last.energy:.5f} | "
-              f"{100 * gap:+.2f} % | {elapsed:.2f} | {split} |")
+              f"{100 * gap:+.2f} % | {elapsed:.2f} | {level_seconds:.2f} | {split} |")
     energies = [level[-1].energy for level in results]
     if len(energies) >= 3:
         e = richardson(energies)

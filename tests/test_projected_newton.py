@@ -62,19 +62,28 @@ def test_hessian_blocks_match_directional_differences_of_the_gradient(law):
     assert float((got - expected).norm() / expected.norm()) <= 1e-6
 
 
-def test_projection_clamps_negative_eigenvalues_and_keeps_definite_blocks():
+@pytest.mark.parametrize("mode", ["abs", "clamp"])
+def test_projection_mirrors_or_clamps_negative_eigenvalues_and_keeps_definite_blocks(mode):
     generator = torch.Generator().manual_seed(0)
     a = torch.randn(5, 18, 18, generator=generator, dtype=DT)
     definite = a @ a.transpose(1, 2) + torch.eye(18, dtype=DT)
     indefinite = a + a.transpose(1, 2)
     blocks = torch.cat((definite, indefinite))
-    projected, count = project_psd(blocks)
+    projected, count = project_psd(blocks, mode=mode)
     assert count == 5
     assert torch.equal(projected[:5], definite)
     values, vectors = torch.linalg.eigh(indefinite)
     assert float(torch.linalg.eigvalsh(projected[5:]).min()) > -1e-12
-    expected = (vectors * values.clamp_min(0)[:, None]) @ vectors.transpose(1, 2)
+    modified = values.abs() if mode == "abs" else values.clamp_min(0)
+    expected = (vectors * modified[:, None]) @ vectors.transpose(1, 2)
     assert torch.allclose(projected[5:], expected, atol=1e-12)
+    # Rows zero in every block (the shell's value channel) stay zero; the rest as before.
+    padded = torch.nn.functional.pad(blocks, (3, 0, 3, 0))
+    projected_padded, count = project_psd(padded, mode=mode)
+    assert count == 5 and torch.all(projected_padded[:, :3] == 0)
+    assert torch.allclose(projected_padded[:, 3:, 3:], projected, atol=1e-12)
+    with pytest.raises(ValueError, match="projection"):
+        project_psd(blocks, mode="flip")
 
 
 def _case(boundary_kind):
@@ -222,3 +231,21 @@ def test_richardson_recovers_the_limit_and_order_of_a_power_law():
     assert richardson([1.0, 1.5], order=1.0).value == pytest.approx(2.0)
     with pytest.raises(ValueError, match="assumed order"):
         richardson([1.0, 1.5])
+
+
+def test_clamped_projection_needs_fewer_newton_steps_than_mirrored_on_a_draped_flag():
+    """The default projection (negative eigenvalues clamped to 0) against the mirrored one
+    (|λ|) on a coarse flag that drapes from its hoist under gravity and wind from the flat
+    state: many blocks are indefinite (compression folds). Measured: 40 against 48 Newton
+    steps to the same minimum (napkin 32 × 32 spans from 16 × 16: 9 against 11)."""
+    model = load_scene(SCENES / "flag.toml").model
+    steps, energies = {}, {}
+    for mode in ("clamp", "abs"):
+        config = ProjectedNewtonConfig(hessian=mode, decrement_tolerance=1e-10,
+                                       max_iterations=200)
+        (solution,), = _solve(model, (4, 3), (1.0,), config)
+        assert solution.converged
+        assert any(h.projected_blocks for h in solution.history)
+        steps[mode], energies[mode] = len(solution.history), solution.energy
+    assert energies["clamp"] == pytest.approx(energies["abs"], rel=1e-8)
+    assert steps["clamp"] < steps["abs"], steps

@@ -165,9 +165,15 @@ class Assembly:
         self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
         group_dofs = _dofs(groups)  # (G, 3k)
         self._group_dofs = torch.from_numpy(group_dofs.ravel()).to(device)
-        keys = (group_dofs[:, :, None] * self.size + group_dofs[:, None, :]).ravel()
+        # K's point-local part is summed per group and component pair as (3, 3, G, k, k)
+        # (`_pair_sums`): the unknowns of entry [c, d, g, a, b] are (dof[g, a, c],
+        # dof[g, b, d]). Their keys row × size + column, sorted, are K's CSR order.
+        dofs = group_dofs.reshape(groups.shape[0], -1, COMPONENTS).transpose(2, 0, 1)
+        keys = (dofs[:, None, :, :, None] * self.size + dofs[None, :, :, None, :]).ravel()
         unique, self._scatter = np.unique(keys, return_inverse=True)
-        self._pattern = (unique // self.size, unique % self.size)
+        self._columns = (unique % self.size).astype(np.int32)
+        self._row_starts = np.concatenate(([0], np.cumsum(np.bincount(
+            unique // self.size, minlength=self.size)))).astype(np.int32)
         self._groups = groups.shape[0]
         self.offset = self.jacobian = self.pin_jacobian = None
 
@@ -226,6 +232,30 @@ class Assembly:
                     -1, width, width))
         return summed
 
+    def _pair_sums(self, jacobian: torch.Tensor, blocks: torch.Tensor) -> torch.Tensor:
+        """R[c, d, g] = Σ over the points q of group g of J_c,qᵀ H_q[:, c, :, d] J_d,q, shape
+        (3, 3, G, k, k), for Jacobians (3, N, ch, k) and per-point symmetric blocks
+        (N, ch, 3, ch, 3): per component pair two batched GEMMs, the group's points folded
+        into the inner dimension of the second; R[d, c] = R[c, d]ᵀ."""
+        k, channels = jacobian.shape[3], jacobian.shape[2]
+        m, count = self._per_group, self._groups
+        regular = count * m
+        pairs = blocks[:regular].permute(0, 2, 4, 1, 3).contiguous()  # (N, c, d, i, j)
+        out = blocks.new_empty(COMPONENTS, COMPONENTS, count, k, k)
+        for c in range(COMPONENTS):
+            left = jacobian[c, :regular].reshape(count, m * channels, k).transpose(1, 2)
+            for d in range(c, COMPONENTS):
+                weighted = torch.bmm(pairs[:, c, d], jacobian[d, :regular])  # (N, ch, k)
+                torch.bmm(left, weighted.reshape(count, m * channels, k), out=out[c, d])
+                if d != c:
+                    out[d, c] = out[c, d].transpose(1, 2)
+        if self._extra.stop > self._extra.start:
+            extra = self._extra
+            per_point = _contract(jacobian[:, extra], _weighted(blocks[extra],
+                                                               jacobian[:, extra]))
+            out.index_add_(2, self._group[extra], per_point.permute(2, 4, 0, 1, 3))
+        return out
+
     def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
         """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18) (index
         channel × 3 + component)."""
@@ -235,14 +265,20 @@ class Assembly:
         width = self.jacobian.shape[3] * COMPONENTS
         # Only the channels some block touches enter (the shell energy's blocks have no value
         # channel: 5² of the 6² channel pairs, and no coupling through a free pin's value).
-        touched = blocks.reshape(n, -1).abs().amax(dim=0).reshape(blocks.shape[1:]).amax(
-            dim=(1, 3)) > 0
+        touched = torch.count_nonzero(blocks.reshape(n, -1), dim=0).reshape(
+            blocks.shape[1:]).amax(dim=(1, 3)) > 0
         used = torch.nonzero(touched.any(dim=0) | touched.any(dim=1)).flatten()
+        if used.numel() == 0:  # all blocks zero: K = 0 on the pattern
+            used = torch.zeros(1, dtype=torch.int64, device=used.device)
         jacobian = self.jacobian
         if used.numel() < jets.CHANNELS:
-            blocks = blocks[:, used][:, :, :, used]
-            jacobian = jacobian[:, :, used]
-        summed = self._group_sums(jacobian, blocks, jacobian)
+            lo, hi = int(used[0]), int(used[-1]) + 1
+            if hi - lo == used.numel():  # a range of channels: views, no copies
+                blocks, jacobian = blocks[:, lo:hi, :, lo:hi], jacobian[:, :, lo:hi]
+            else:
+                blocks = blocks[:, used][:, :, :, used]
+                jacobian = jacobian[:, :, used]
+        pairs = self._pair_sums(jacobian, blocks)
         pin = self.pin_jacobian is not None
         if pin:  # the pin's Jacobian lives on few channels (the value): only those enter
             ch = torch.nonzero(torch.isin(used, self._pin_channels)).flatten()
@@ -253,9 +289,10 @@ class Assembly:
             dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
             dense.index_add_(0, self._group_dofs, cross.reshape(-1, width))
             pin_pin = self._group_sums(pin_jac, blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
-        data = np.bincount(self._scatter, weights=summed.double().cpu().numpy().ravel(),
-                           minlength=len(self._pattern[0]))
-        matrix = sp.csr_matrix((data, self._pattern), shape=(self.size, self.size))
+        data = np.bincount(self._scatter, weights=pairs.double().cpu().numpy().ravel(),
+                           minlength=len(self._columns))
+        matrix = sp.csr_matrix((data, self._columns, self._row_starts),
+                               shape=(self.size, self.size))
         if not pin:
             return matrix
         # Couplings through the pin's coefficients: Σ J_localᵀ H J_pin at the rows of the

@@ -8,9 +8,10 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
    gradient, projected to positive semi-definite where needed (`taichi_ndf.shell.hessian`);
 3. K = Σ Jᵀ H J, sparse (`Assembly.hessian`) — of the exact blocks when that K is positive
    definite (checked by the pivots of its factorisation: a stable state may have indefinite
-   blocks, and the exact Newton step then converges quadratically), else of the projected
-   ones (projected only then; the iteration after a failed attempt skips it: far from the
-   minimum attempts fail in a row and each costs an assembly and a factorisation);
+   blocks, and the exact Newton step then converges quadratically), else of the blocks
+   projected to positive semi-definite (`project_psd`: screened and projected only then;
+   the first iteration and the iteration after a failed attempt skip it and screen: far from
+   the minimum attempts fail in a row and each costs an assembly and a factorisation);
 4. d from (K + μ diag K) d = −g (`damped_solve`, or the given `linear_solver`; μ = 0 unless
    the system is singular or a step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd
@@ -36,9 +37,9 @@ import torch
 from taichi_ndf.minimise.assembly import Assembly
 from taichi_ndf.minimise.linear_solve import LinearSolver, damped_solve
 from taichi_ndf.shell.hessian import (
+    PROJECTIONS,
     Potential,
     flat_blocks,
-    indefinite_blocks,
     jet_steps,
     project_psd,
     sample_hessians,
@@ -59,6 +60,8 @@ def hessian_blocks(potential: Potential, samples, u_jets: torch.Tensor, steps: t
 
 # Least Levenberg–Marquardt damping after a failed line search.
 RETRY_DAMPING = 1e-8
+# Per-block projections (`ProjectedNewtonConfig.hessian`, `project_psd`).
+HESSIANS = PROJECTIONS
 
 
 @dataclass(frozen=True)
@@ -77,8 +80,13 @@ class ProjectedNewtonConfig:
         solve is reached.
     armijo: sufficient-decrease constant c of the line search.
     halvings: most step halvings before the damping is raised.
-    project: project each per-point block to positive semi-definite (off: plain Newton with
+    project: make the Newton matrix positive definite where it is not (off: plain Newton with
         damping, for convex problems).
+    hessian: how an indefinite block is projected (`project_psd`) when the exact K is not
+        definite: "clamp" (default) sets its negative eigenvalues to 0, "abs" mirrors them.
+        Measured (benchmarks/RESULTS.md): clamp took fewer or as many Newton steps as abs and
+        as the exact K shifted by μ diag K until definite (Levenberg–Marquardt), on the
+        napkin and the flag.
     """
 
     max_iterations: int = 100
@@ -89,8 +97,11 @@ class ProjectedNewtonConfig:
     armijo: float = 1e-4
     halvings: int = 30
     project: bool = True
+    hessian: str = "clamp"
 
     def __post_init__(self):
+        if self.hessian not in HESSIANS:
+            raise ValueError(f"hessian must be one of {HESSIANS}, got {self.hessian!r}")
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
         for name in ("decrement_tolerance", "gradient_tolerance", "floor_tolerance"):
@@ -157,7 +168,9 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
     samples = assembly.samples
     c = coefficients.detach().clone()
     history: list[NewtonIteration] = []
-    damping, converged, first_norm, exact_failed = 0.0, False, None, False
+    # The first iteration screens the blocks instead of trying the exact K (a start from a
+    # coarser grid or the flat sheet is rarely a definite state; a definite one costs a screen)
+    damping, converged, first_norm, exact_failed = 0.0, False, None, True
     for iteration in range(config.max_iterations):
         started = time.perf_counter()
         u = assembly.displacement(c)
@@ -173,37 +186,38 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             break
         started = time.perf_counter()
         steps = jet_steps(samples.r_jets, u, length, config.fd_step)
-        exact = flat_blocks(hessian_blocks(potential, samples, u, steps))
-        bad = indefinite_blocks(exact) if config.project else exact.new_zeros(0)
+        blocks = flat_blocks(hessian_blocks(potential, samples, u, steps))
         t_hessian = time.perf_counter() - started
         rhs = -gradient.reshape(-1).double().cpu().numpy()
         t_assembly = t_solve = 0.0
-        exact_step = None
-        if bad.numel() and damping == 0.0 and not exact_failed:
-            # The assembled K may be definite although some blocks are not (a stable state
-            # under compression): then its exact Newton step converges quadratically.
-            started = time.perf_counter()
-            matrix = assembly.hessian(exact)
-            t_assembly += time.perf_counter() - started
-            started = time.perf_counter()
-            exact_step = solve(matrix, rhs, 0.0, fixed, require_definite=True)
-            t_solve += time.perf_counter() - started
-            exact_failed = exact_step is None
-        else:  # after a failed attempt the next iteration goes straight to the projected K
-            exact_failed = False
-        projected = 0
-        if exact_step is None:
-            started = time.perf_counter()
-            blocks, projected = project_psd(exact, bad)
-            t_hessian += time.perf_counter() - started
+        first_step = matrix = None  # (step, damping) of a factorisation checked definite
+        if config.project and damping == 0.0 and not exact_failed:
+            # The exact K may be definite although some blocks are not (a stable state under
+            # compression): then its Newton step converges quadratically.
             started = time.perf_counter()
             matrix = assembly.hessian(blocks)
             t_assembly += time.perf_counter() - started
+            started = time.perf_counter()
+            first_step = solve(matrix, rhs, 0.0, fixed, require_definite=True)
+            exact_failed = first_step is None
+            t_solve += time.perf_counter() - started
+        else:  # after a failed attempt the next iteration goes straight to the projected K
+            exact_failed = False
+        projected = 0
+        if first_step is None:
+            if config.project:
+                started = time.perf_counter()
+                blocks, projected = project_psd(blocks, mode=config.hessian)
+                t_hessian += time.perf_counter() - started
+            if matrix is None or projected:
+                started = time.perf_counter()
+                matrix = assembly.hessian(blocks)
+                t_assembly += time.perf_counter() - started
         alpha, trial = 0.0, current.total
         for _attempt in range(6):
             started = time.perf_counter()
-            if exact_step is not None:
-                (step_np, damping), exact_step = exact_step, None
+            if first_step is not None:
+                (step_np, damping), first_step = first_step, None
             else:
                 step_np, damping = solve(matrix, rhs, damping, fixed)
             t_solve += time.perf_counter() - started

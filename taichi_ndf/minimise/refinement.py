@@ -110,6 +110,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
                  objective: Objective, *, levels: int,
                  load_steps: tuple[float, ...] = (1.0,),
                  config: ProjectedNewtonConfig | None = None,
+                 coarse_config: ProjectedNewtonConfig | None = None,
                  probes: dict[str, tuple[float, float]] | None = None,
                  length: float = 1.0,
                  on_level: Callable[[int, object, list[LevelSolution]], None] | None = None,
@@ -120,6 +121,8 @@ def solve_levels(field_, boundary: BoundaryConditions,
     field_: a `SplineField` (its coefficients are the level-0 starting point; not changed).
     samples_for(field): the quadrature points of a field's grid (point forces unscaled).
     objective: Π (`Objective.potential(t)` applies the load factor to every load).
+    config: Newton settings of the finest level; coarse_config: of the coarser levels (e.g. a
+    looser tolerance: they only give the next level its start), `config` if None.
     probes: name -> ξ. length: a
     parameter-domain length for the Hessian's FD steps. on_level(level, grid, solutions): called
     after each level with its field (coefficients: its starting point) and its solutions per
@@ -149,6 +152,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
         setup = time.perf_counter() - started
         per_load: list[LevelSolution] = []
         coefficients = grid.coefficients.detach().clone()
+        newton = config if coarse_config is None or level == levels - 1 else coarse_config
         for k, t in enumerate(load_steps):
             started = time.perf_counter()
             if level:
@@ -156,12 +160,12 @@ def solve_levels(field_, boundary: BoundaryConditions,
                                                results[-1][k].coefficients.to(dtype))
             if contact is None:
                 assembly.at_load(operator, t)
-                solution = minimise(assembly, objective.potential(t), coefficients, config,
+                solution = minimise(assembly, objective.potential(t), coefficients, newton,
                                     load_factor=t, length=length, fixed=fixed,
                                     linear_solver=solver)
             else:  # from the previous load step's state (a finer level: this one's, prolonged)
                 solution = contact.solve(
-                    operator, samples, objective, coefficients, config,
+                    operator, samples, objective, coefficients, newton,
                     load_factor=t, start_load_factor=t if level else (
                         load_steps[k - 1] if k else 0.0), length=length, fixed=fixed,
                     linear_solver=solver)

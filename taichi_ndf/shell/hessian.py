@@ -11,10 +11,13 @@ nothing). In float64 with steps ~1e-4 of each channel's scale the truncation err
 ~1e-8 relative.
 
 Projection (projected Newton): a block with a negative eigenvalue (compressive stress, a
-buckling or folding state) is replaced by V max(Λ, 0) Vᵀ, so Σ Jᵀ H J is positive
-semi-definite and the Newton direction descends. Only the blocks that need it are
-eigen-decomposed: a batched Cholesky of H + τ I (τ a tiny fraction of the block's mean
-diagonal) finds them first; at an unstressed or tensile state that is none.
+buckling or folding state) is replaced by V max(Λ, 0) Vᵀ (clamped, the default) or V |Λ| Vᵀ
+(mirrored, as Chen et al. 2024, "Trust-region eigenvalue filtering for projected Newton"), so
+Σ Jᵀ H J is positive semi-definite and the Newton direction descends. On this project's
+draped sheets mirroring took as many or more Newton steps (benchmarks/RESULTS.md). Only the
+blocks that need it are eigen-decomposed: a batched Cholesky of H + τ I (τ a tiny fraction of
+the block's mean diagonal) finds them first; at an unstressed or tensile state that is none.
+Both work on the rows that are not zero in every block (`active_rows`).
 """
 
 from __future__ import annotations
@@ -82,9 +85,33 @@ def flat_blocks(hessians: torch.Tensor) -> torch.Tensor:
     return hessians.reshape(hessians.shape[0], JET_SIZE, JET_SIZE)
 
 
-def indefinite_blocks(blocks: torch.Tensor) -> torch.Tensor:
+def active_rows(blocks: torch.Tensor) -> slice | torch.Tensor:
+    """The rows (and columns) of blocks (N, m, m) that are not zero in every block, as a slice
+    when they are a range (the shell's blocks: all but the value channel's 3): a block is
+    positive semi-definite iff its part on them is, so the screen and the eigen-decompositions
+    work on that part only."""
+    rows = torch.nonzero(torch.count_nonzero(blocks, dim=0).sum(dim=1) > 0).flatten()
+    if rows.numel() == 0:
+        return slice(0, 0)
+    first, last = int(rows[0]), int(rows[-1]) + 1
+    return slice(first, last) if last - first == rows.numel() else rows
+
+
+def _part(blocks: torch.Tensor, rows: slice | torch.Tensor) -> torch.Tensor:
+    """blocks[:, rows][:, :, rows]."""
+    if isinstance(rows, slice):
+        return blocks[:, rows, rows]
+    return blocks[:, rows][:, :, rows]
+
+
+def indefinite_blocks(blocks: torch.Tensor, rows: slice | torch.Tensor | None = None
+                      ) -> torch.Tensor:
     """Indices of the blocks (N, m, m) that are not positive semi-definite, by a batched
-    Cholesky of H + τ I (module docstring)."""
+    Cholesky of H + τ I on their active rows (`active_rows`, or `rows` if given) (module
+    docstring)."""
+    blocks = _part(blocks, active_rows(blocks) if rows is None else rows)
+    if blocks.shape[1] == 0:
+        return torch.zeros(0, dtype=torch.int64, device=blocks.device)
     scale = blocks.diagonal(dim1=1, dim2=2).abs().mean(dim=1).clamp_min(
         torch.finfo(blocks.dtype).tiny)
     slack = max(PSD_SLACK, 1000 * torch.finfo(blocks.dtype).eps)  # float32: 1.2e-4
@@ -94,16 +121,30 @@ def indefinite_blocks(blocks: torch.Tensor) -> torch.Tensor:
     return torch.nonzero(info != 0).flatten()
 
 
-def project_psd(blocks: torch.Tensor, bad: torch.Tensor | None = None
+PROJECTIONS = ("abs", "clamp")
+
+
+def project_psd(blocks: torch.Tensor, bad: torch.Tensor | None = None, mode: str = "clamp"
                 ) -> tuple[torch.Tensor, int]:
-    """Blocks (N, m, m) projected to positive semi-definite (negative eigenvalues clamped to
-    0), and how many were indefinite. Only those (`indefinite_blocks`, or `bad` if given) are
-    eigen-decomposed (module docstring)."""
+    """Blocks (N, m, m) projected to positive semi-definite, and how many were indefinite.
+    mode "abs": negative eigenvalues replaced by their absolute values; "clamp": by 0. Only
+    the indefinite blocks (`indefinite_blocks`, or `bad` if given) are eigen-decomposed
+    (module docstring)."""
+    if mode not in PROJECTIONS:
+        raise ValueError(f"projection must be one of {PROJECTIONS}, got {mode!r}")
+    rows = active_rows(blocks)
     if bad is None:
-        bad = indefinite_blocks(blocks)
+        bad = indefinite_blocks(blocks, rows)
     if bad.numel() == 0:
         return blocks, 0
-    values, vectors = torch.linalg.eigh(blocks[bad])
+    values, vectors = torch.linalg.eigh(_part(blocks[bad], rows))
+    values = values.abs() if mode == "abs" else values.clamp_min(0.0)
+    part = (vectors * values[:, None, :]) @ vectors.transpose(1, 2)
     projected = blocks.clone()
-    projected[bad] = (vectors * values.clamp_min(0.0)[:, None, :]) @ vectors.transpose(1, 2)
+    if isinstance(rows, slice):
+        projected[bad, rows, rows] = part
+    else:
+        changed = projected[bad]
+        changed[:, rows[:, None], rows[None, :]] = part
+        projected[bad] = changed
     return projected, int(bad.numel())

@@ -84,17 +84,18 @@ def _cross_matrix(a: vec3) -> mat3:
 
 
 @ti.func
-def _put_block(out: ti.template(), i, row: ti.template(), col: ti.template(), block: mat3):
+def _add_block(out: ti.template(), i, row: ti.template(), col: ti.template(), block: mat3):
     for k, m in ti.static(ti.ndrange(3, 3)):
-        out[i, row, k, col, m] = block[k, m]
+        out[i, row, k, col, m] += block[k, m]
 
 
 @ti.kernel
 def _strain_derivatives(x: ti.types.ndarray(), stress: ti.types.ndarray(),
-                        jac: ti.types.ndarray(), second: ti.types.ndarray()):
-    """J = ds/dU into jac (N, 6 strains, 6 channels, 3) and Σ_s (dE/ds) d²s/dU² into second
-    (N, 6, 3, 6, 3), both zero on entry, at deformed jets x (N, 6, 3) and stress = dE/ds
-    (N, 6) (module docstring)."""
+                        jac: ti.types.ndarray(), second: ti.types.ndarray(),
+                        stress_part: ti.template()):
+    """At deformed jets x (N, 6, 3) and stress = dE/ds (N, 6) (module docstring): J = ds/dU
+    into jac (N, 6 strains, 6 channels, 3), zero on entry; with stress_part, Σ_s (dE/ds)
+    d²s/dU² added to second (N, 6, 3, 6, 3) instead."""
     for i in range(x.shape[0]):
         x1 = jet_channel(x, i, jets.D1)
         x2 = jet_channel(x, i, jets.D2)
@@ -102,11 +103,12 @@ def _strain_derivatives(x: ti.types.ndarray(), stress: ti.types.ndarray(),
         length = normal.norm()
         n = normal / length
         projector = ti.Matrix.identity(float, 3) - n.outer_product(n)
-        for k in ti.static(range(3)):
-            jac[i, 0, jets.D1, k] = x1[k]
-            jac[i, 1, jets.D1, k] = 0.5 * x2[k]
-            jac[i, 1, jets.D2, k] = 0.5 * x1[k]
-            jac[i, 2, jets.D2, k] = x2[k]
+        if ti.static(not stress_part):
+            for k in ti.static(range(3)):
+                jac[i, 0, jets.D1, k] = x1[k]
+                jac[i, 1, jets.D1, k] = 0.5 * x2[k]
+                jac[i, 1, jets.D2, k] = 0.5 * x1[k]
+                jac[i, 2, jets.D2, k] = x2[k]
         dn1 = -(projector @ _cross_matrix(x2)) / length  # dn/dx₁
         dn2 = (projector @ _cross_matrix(x1)) / length  # dn/dx₂
         v_sum = vec3(0.0, 0.0, 0.0)
@@ -116,30 +118,33 @@ def _strain_derivatives(x: ti.types.ndarray(), stress: ti.types.ndarray(),
             g = (v - v.dot(n) * n) / length
             d1 = -x2.cross(g)
             d2 = -g.cross(x1)
-            for k in ti.static(range(3)):
-                jac[i, 3 + b, channel, k] = -n[k]
-                jac[i, 3 + b, jets.D1, k] = d1[k]
-                jac[i, 3 + b, jets.D2, k] = d2[k]
+            if ti.static(not stress_part):
+                for k in ti.static(range(3)):
+                    jac[i, 3 + b, channel, k] = -n[k]
+                    jac[i, 3 + b, jets.D1, k] = d1[k]
+                    jac[i, 3 + b, jets.D2, k] = d2[k]
             moment = stress[i, 3 + b]
             v_sum += moment * v
-            _put_block(second, i, channel, jets.D1, -moment * dn1)
-            _put_block(second, i, channel, jets.D2, -moment * dn2)
-            _put_block(second, i, jets.D1, channel, -moment * dn1.transpose())
-            _put_block(second, i, jets.D2, channel, -moment * dn2.transpose())
-        vn = v_sum.dot(n)
-        outer = v_sum.outer_product(n)
-        eye = ti.Matrix.identity(float, 3)
-        f = (-outer - outer.transpose() - vn * eye + 3.0 * vn * n.outer_product(n)) / (
-            length * length)
-        gx = _cross_matrix((v_sum - vn * n) / length)
-        m1 = -_cross_matrix(x2)
-        m2 = _cross_matrix(x1)
-        _put_block(second, i, jets.D1, jets.D1, stress[i, 0] * eye - m1.transpose() @ f @ m1)
-        _put_block(second, i, jets.D2, jets.D2, stress[i, 2] * eye - m2.transpose() @ f @ m2)
-        _put_block(second, i, jets.D1, jets.D2,
-                   0.5 * stress[i, 1] * eye - m1.transpose() @ f @ m2 + gx)
-        _put_block(second, i, jets.D2, jets.D1,
-                   0.5 * stress[i, 1] * eye - m2.transpose() @ f @ m1 - gx)
+            if ti.static(stress_part):
+                _add_block(second, i, channel, jets.D1, -moment * dn1)
+                _add_block(second, i, channel, jets.D2, -moment * dn2)
+                _add_block(second, i, jets.D1, channel, -moment * dn1.transpose())
+                _add_block(second, i, jets.D2, channel, -moment * dn2.transpose())
+        if ti.static(stress_part):
+            vn = v_sum.dot(n)
+            outer = v_sum.outer_product(n)
+            eye = ti.Matrix.identity(float, 3)
+            f = (-outer - outer.transpose() - vn * eye + 3.0 * vn * n.outer_product(n)) / (
+                length * length)
+            gx = _cross_matrix((v_sum - vn * n) / length)
+            m1 = -_cross_matrix(x2)
+            m2 = _cross_matrix(x1)
+            _add_block(second, i, jets.D1, jets.D1, stress[i, 0] * eye - m1.transpose() @ f @ m1)
+            _add_block(second, i, jets.D2, jets.D2, stress[i, 2] * eye - m2.transpose() @ f @ m2)
+            _add_block(second, i, jets.D1, jets.D2,
+                       0.5 * stress[i, 1] * eye - m1.transpose() @ f @ m2 + gx)
+            _add_block(second, i, jets.D2, jets.D1,
+                       0.5 * stress[i, 1] * eye - m2.transpose() @ f @ m1 - gx)
 
 
 def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: torch.Tensor,
@@ -185,11 +190,15 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
         minus = _strain_gradient(kernel, r, shifted, weight, kstiff, params)
         stiffness_s[:, :, j] = (plus - minus) / (2 * delta)
     stiffness_s = 0.5 * (stiffness_s + stiffness_s.transpose(1, 2))
+    # J first; then the stress part is added to the Gauss–Newton part Jᵀ (d²E/ds²) J in place.
+    x = x.contiguous()
+    stress = stress.contiguous()
     jac = x.new_zeros(x.shape[0], STRAINS, jets.CHANNELS, 3)
-    stress_part = x.new_zeros(x.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3)
-    _strain_derivatives(x.contiguous(), stress.contiguous(), jac, stress_part)
-    jac = jac.reshape(-1, STRAINS, jets.CHANNELS * 3)
-    blocks = (jac.transpose(1, 2) @ stiffness_s @ jac).reshape(stress_part.shape) + stress_part
+    _strain_derivatives(x, stress, jac, jac, False)
+    flat = jac.reshape(-1, STRAINS, jets.CHANNELS * 3)
+    blocks = (flat.transpose(1, 2) @ stiffness_s @ flat).reshape(
+        -1, jets.CHANNELS, 3, jets.CHANNELS, 3)
+    _strain_derivatives(x, stress, jac, blocks, True)
     if everywhere:
         return blocks
     out = r_all.new_zeros(count, jets.CHANNELS, 3, jets.CHANNELS, 3)
