@@ -4,11 +4,12 @@ The field's raw output is O(1) at initialisation-scale weights; multiplying it b
 characteristic displacement keeps Adam's step sizes meaningful across scenes whose
 displacements differ by orders of magnitude (a pinched cylinder moves 1e-5, a napkin 1 m).
 Three estimates (docs/scenes.md, "Field output scale", compares them):
-`equilibrium_displacement`, the largest displacement of a coarse nonlinear equilibrium (the
-default, "auto"); `linear_displacement`, that of one Newton step from the undeformed state
-(the linear solution), which overshoots grossly for draped cloth; and
-`characteristic_displacement`, dimensional (loads, stiffnesses, size; blind to supports and
-to where loads act). The two solves are capped at the surface's size.
+`equilibrium_displacement`, the largest displacement of a coarse nonlinear equilibrium
+(`output_scale = "equilibrium"`; not "auto": see scene_field.AUTO_ESTIMATE);
+`linear_displacement`, that of one Newton step from the undeformed state (the linear
+solution), which overshoots grossly for draped cloth; and `characteristic_displacement`,
+dimensional (loads, stiffnesses, size; blind to supports and to where loads act; "auto").
+The two solves are capped at the surface's size.
 """
 
 from __future__ import annotations

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import replace
+from itertools import pairwise
 
 from taichi_ndf.field import FieldConfig, SplineConfig
 from taichi_ndf.model import ShellModel
@@ -26,11 +27,12 @@ FIELD_TYPES = ("siren", "spline")
 # four others 0.06-2.6 % lower: docs/scenes.md.
 SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
 AUTO_ESTIMATE = "dimensional"
-ESTIMATE_FALLBACKS = {"equilibrium": ("equilibrium", "linear", "dimensional"),
-                      "linear": ("linear", "dimensional"), "dimensional": ("dimensional",)}
+# The estimates that need a solve at run start, in the order tried for each name; the
+# dimensional estimate, set when the scene is read, is what remains if all of them fail.
+RUNTIME_ESTIMATES = {"equilibrium": ("equilibrium", "linear"), "linear": ("linear",),
+                     "dimensional": ()}
 ESTIMATE_FUNCTIONS = {"equilibrium": "equilibrium_displacement",
-                      "linear": "linear_displacement",
-                      "dimensional": "characteristic_displacement"}
+                      "linear": "linear_displacement"}
 
 
 def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
@@ -74,8 +76,8 @@ def field_for_solver(field: FieldConfig, document: dict, model: ShellModel,
         return field
     from taichi_ndf import scaling
 
-    chain = ESTIMATE_FALLBACKS[AUTO_ESTIMATE if name == "auto" else name]
-    for estimate, fallback in zip(chain, chain[1:], strict=False):
+    chain = (*RUNTIME_ESTIMATES[AUTO_ESTIMATE if name == "auto" else name], "dimensional")
+    for estimate, fallback in pairwise(chain):
         try:
             scale = getattr(scaling, ESTIMATE_FUNCTIONS[estimate])(model)
         except (ValueError, RuntimeError) as err:
@@ -83,7 +85,7 @@ def field_for_solver(field: FieldConfig, document: dict, model: ShellModel,
                         "estimate", name, estimate, err, fallback)
             continue
         return replace(field, output_scale=scale)
-    return field
+    return field  # the dimensional estimate, set when the scene was read
 
 
 def _spline(t: Table, model: ShellModel) -> SplinePlan:
