@@ -34,13 +34,14 @@ import taichi_ndf
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
 from taichi_ndf.minimise.linear_solve import damped_solve
-from taichi_ndf.minimise.projected_newton import HESSIANS, ProjectedNewtonConfig
+from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.scene import load_scene
 from taichi_ndf.shell.hessian import (
+    PROJECTIONS,
     flat_blocks,
     indefinite_blocks,
     jet_steps,
@@ -126,7 +127,7 @@ def main() -> None:
     parser.add_argument("--reference", type=float, default=REFERENCE,
                         help="the extrapolated Π∞ [J] the gap is measured against")
     parser.add_argument("--precision", choices=("f32", "f64"), default="f64")
-    parser.add_argument("--hessian", choices=HESSIANS, default=ProjectedNewtonConfig.hessian,
+    parser.add_argument("--hessian", choices=PROJECTIONS, default=ProjectedNewtonConfig.hessian,
                         help="Hessian modification of projected Newton (ProjectedNewtonConfig)")
     parser.add_argument("--verbose", action="store_true", help="log every Newton iteration")
     parser.add_argument("--parts", action="store_true",

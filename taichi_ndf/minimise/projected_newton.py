@@ -60,8 +60,6 @@ def hessian_blocks(potential: Potential, samples, u_jets: torch.Tensor, steps: t
 
 # Least Levenberg–Marquardt damping after a failed line search.
 RETRY_DAMPING = 1e-8
-# Per-block projections (`ProjectedNewtonConfig.hessian`, `project_psd`).
-HESSIANS = PROJECTIONS
 
 
 @dataclass(frozen=True)
@@ -100,8 +98,8 @@ class ProjectedNewtonConfig:
     hessian: str = "clamp"
 
     def __post_init__(self):
-        if self.hessian not in HESSIANS:
-            raise ValueError(f"hessian must be one of {HESSIANS}, got {self.hessian!r}")
+        if self.hessian not in PROJECTIONS:
+            raise ValueError(f"hessian must be one of {PROJECTIONS}, got {self.hessian!r}")
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
         for name in ("decrement_tolerance", "gradient_tolerance", "floor_tolerance"):
