@@ -1,7 +1,7 @@
 """The spline field on scenes/napkin_interior_line.toml (a towel hinged along x = 0.5 m): Π per
-grid with the hinged line's vanishing factor (the default composition) and with exact knot-line
-constraints (`SplineConfig.vanishing_lines`), on uniform knots and on knots graded towards the
-line (docs/scenes.md, "Hinged interior lines with a spline field").
+grid with the hinged line's vanishing factor (the composition every field uses), on uniform knots
+and on knots graded towards the line (docs/scenes.md, "Hinged interior lines with a spline
+field").
 
 Grading is measured without a field option: the napkin's plane is given the parametrisation
 x = g(ξ¹), y = ξ², so the spline's uniform knots in ξ¹ are graded in x. g is monotone, maps
@@ -9,8 +9,7 @@ x = g(ξ¹), y = ξ², so the spline's uniform knots in ξ¹ are graded in x. g 
 so the knot spacing at the line is K (1 − B) times the uniform one (B = 0.9, W = 0.05: 0.109).
 float64, projected Newton to its default tolerance (at most 200 iterations), one level per run.
 
-    python benchmarks/interior_line_study.py [--spans 10,20] [--modes factor,knots]
-        [--grading uniform,graded]
+    python benchmarks/interior_line_study.py [--spans 10,20] [--grading uniform,graded]
 """
 
 from __future__ import annotations
@@ -51,15 +50,14 @@ class GradedPlane(Plane):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spans", default="8,10,16,20")
-    parser.add_argument("--modes", default="factor,knots")
     parser.add_argument("--grading", default="uniform,graded")
     args = parser.parse_args()
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
     torch.set_num_threads(1)
     scene = load_scene(SCENE, field="spline")
     solver = dataclasses.replace(scene.solver, progress=False, newton_max_iterations=200)
-    print("| grid | spans | composition | Π [J] | converged | iterations | seconds |")
-    print("|---|---|---|---|---|---|---|")
+    print("| grid | spans | Π [J] | converged | iterations | seconds |")
+    print("|---|---|---|---|---|---|")
     for grading in args.grading.split(","):
         model = scene.model
         if grading == "graded":
@@ -69,17 +67,12 @@ def main() -> None:
                                           length=old.length)
             model = dataclasses.replace(model, surface=surface, boundary=boundary)
         for n in (int(v) for v in args.spans.split(",")):
-            for mode in args.modes.split(","):
-                lines = ((0.5,), ()) if mode == "knots" else ((), ())
-                config = dataclasses.replace(scene.field.config, spans=(n, n),
-                                             vanishing_lines=lines)
-                started = time.perf_counter()
-                run = solve_spline(model, dataclasses.replace(scene.field, config=config),
-                                   solver)
-                level = run.levels[-1]
-                print(f"| {grading} | {n} × {n} | {mode} | {level.energy:.6f} | "
-                      f"{level.converged} | {level.iterations} | "
-                      f"{time.perf_counter() - started:.1f} |", flush=True)
+            config = dataclasses.replace(scene.field.config, spans=(n, n))
+            started = time.perf_counter()
+            run = solve_spline(model, dataclasses.replace(scene.field, config=config), solver)
+            level = run.levels[-1]
+            print(f"| {grading} | {n} × {n} | {level.energy:.6f} | {level.converged} | "
+                  f"{level.iterations} | {time.perf_counter() - started:.1f} |", flush=True)
 
 
 if __name__ == "__main__":
