@@ -180,18 +180,9 @@ def test_square_plate_within_one_percent_on_an_8_by_8_grid():
 
 
 def test_newton_converges_quadratically_on_a_large_deflection():
-    """A cantilever strip under an end shear that deflects it by a third of its length: the
-    final Newton decrements fall quadratically."""
-    bounds = ((0.0, 10.0), (0.0, 1.0))
-    surface = Plane(bounds=bounds)
-    boundary = BoundaryConditions([ClampedEdge(edge="xi1_min")], domain=surface.domain,
-                                  surface=surface, length=2.0)
-    loads = Loads(point_loads=[PointLoad(xi=(10.0, y), force=(0.0, 0.0, 1.0))
-                               for y in (0.25, 0.5, 0.75)])
-    material = LinearIsotropic.from_young(1.2e6, 0.0, 0.1, 1.0)
-    model = type("Model", (), {"surface": surface, "boundary": boundary,
-                               "material": material, "loads": loads})
-    (solution,), = _solve(model, (6, 1), (0.5,), ProjectedNewtonConfig(
+    """The large-deflection strip (`_large_deflection_strip`): the final Newton decrements
+    fall quadratically."""
+    (solution,), = _solve(_large_deflection_strip(), (6, 1), (0.5,), ProjectedNewtonConfig(
         decrement_tolerance=1e-15), probes={"tip": (10.0, 0.5)})
     decrements = [h.decrement / abs(solution.energy) for h in solution.history]
     assert solution.converged
@@ -203,6 +194,31 @@ def test_newton_converges_quadratically_on_a_large_deflection():
     d0, d1, d2 = [d for d in decrements if d > 1e-18][-3:]
     assert d1 <= 1e4 * d0**2 and d2 <= 1e4 * d1**2, decrements
     assert math.log(d2 / d1) / math.log(d1 / d0) > 1.5, decrements
+
+
+def _large_deflection_strip():
+    """A cantilever strip under an end shear that deflects it by a third of its length."""
+    bounds = ((0.0, 10.0), (0.0, 1.0))
+    surface = Plane(bounds=bounds)
+    boundary = BoundaryConditions([ClampedEdge(edge="xi1_min")], domain=surface.domain,
+                                  surface=surface, length=2.0)
+    loads = Loads(point_loads=[PointLoad(xi=(10.0, y), force=(0.0, 0.0, 1.0))
+                               for y in (0.25, 0.5, 0.75)])
+    material = LinearIsotropic.from_young(1.2e6, 0.0, 0.1, 1.0)
+    return type("Model", (), {"surface": surface, "boundary": boundary,
+                              "material": material, "loads": loads})
+
+
+def test_a_solve_stopped_by_a_loose_decrement_tolerance_is_converged():
+    """A decrement tolerance (a run's newton_tolerance) far above the rounding floor ends the
+    solve before the step, converged."""
+    tolerance = 1e-4
+    (solution,), = _solve(_large_deflection_strip(), (6, 1), (0.5,), ProjectedNewtonConfig(
+        decrement_tolerance=tolerance, floor_tolerance=1e-14))
+    last = solution.history[-1]
+    assert last.step_length == 0.0
+    assert 1e-14 < 0.5 * last.decrement / abs(last.energy) <= tolerance
+    assert solution.converged
 
 
 def test_free_pin_hangs_and_holds_the_pinned_point():

@@ -211,7 +211,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                 started = time.perf_counter()
                 matrix = assembly.hessian(blocks)
                 t_assembly += time.perf_counter() - started
-        alpha, trial = 0.0, current.total
+        alpha, trial, small = 0.0, current.total, False
         for _attempt in range(6):
             started = time.perf_counter()
             if first_step is not None:
@@ -221,8 +221,9 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             t_solve += time.perf_counter() - started
             step = torch.from_numpy(step_np).to(c).reshape(c.shape)
             decrement = float(-(gradient * step).sum())
-            if 0.5 * abs(decrement) <= config.decrement_tolerance * abs(current.total):
-                break  # converged: the step would change Π by rounding only
+            small = 0.5 * abs(decrement) <= config.decrement_tolerance * abs(current.total)
+            if small:
+                break  # converged: the step would change Π by less than the tolerance
             if decrement < 0:  # K (nearly) singular along d, e.g. a flat sheet's rigid
                 damping = max(10 * damping, RETRY_DAMPING)  # rotations: damp and solve again
                 continue
@@ -252,8 +253,8 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                  load_factor, current.total, decrement, alpha, damping, projected, t_energy,
                  t_hessian, t_assembly, t_solve)
         near = 0.5 * abs(decrement) <= config.floor_tolerance * abs(current.total)
-        if alpha == 0.0:
-            converged = near
+        if alpha == 0.0:  # stopped on the decrement tolerance, or no step decreased Π
+            converged = small or near
             break
         c = c + alpha * step
         if on_step is not None and on_step(c):
