@@ -13,7 +13,7 @@ from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
+from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, _longer_step
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.operator import DisplacementOperator
@@ -219,6 +219,47 @@ def test_a_solve_stopped_by_a_loose_decrement_tolerance_is_converged():
     assert last.step_length == 0.0
     assert 1e-14 < 0.5 * last.decrement / abs(last.energy) <= tolerance
     assert solution.converged
+
+
+def test_a_full_step_is_lengthened_only_where_the_quadratic_model_underestimates_the_fall():
+    """λ² = 2 (the model: Π(α) = Π(0) − 2α + α², so Π(1) = Π(0) − 1)."""
+    calls = []
+
+    def along(energy):
+        def at(alpha):
+            calls.append(alpha)
+            return energy(alpha)
+        return at
+
+    # Π falls as the model says (a quadratic with its minimum at α = 1): no extra trial.
+    assert _longer_step(along(lambda a: -2 * a + a * a), 0.0, -1.0, 2.0, 4) == 1.0
+    assert calls == []
+    # A direction without curvature (Π(α) = −2α, e.g. along a clamped negative eigenvalue):
+    # doubled up to the cap.
+    assert _longer_step(along(lambda a: -2 * a), 0.0, -2.0, 2.0, 4) == 16.0
+    assert _longer_step(along(lambda a: -2 * a), 0.0, -2.0, 2.0, 2) == 4.0
+    # Curvature a quarter of the model's (minimum at α = 4): the best power of two.
+    assert _longer_step(along(lambda a: -2 * a + a * a / 4), 0.0, -1.75, 2.0, 4) == 4.0
+    # A rejected (infeasible) longer trial keeps the step accepted so far.
+    assert _longer_step(lambda a: -2 * a if a < 4 else math.inf, 0.0, -2.0, 2.0, 4) == 2.0
+    with pytest.raises(ValueError, match="longer_steps"):
+        ProjectedNewtonConfig(longer_steps=-1)
+
+
+def test_longer_steps_take_fewer_newton_steps_on_the_draped_napkin():
+    """The napkin on 8 × 8 spans from the flat sheet (projected K, cloth folds): measured 67
+    Newton steps with longer steps against 69 without, to the same minimum."""
+    model = load_scene(SCENES / "napkin.toml").model
+    steps, energies = {}, {}
+    for longer in (0, 4):
+        config = ProjectedNewtonConfig(decrement_tolerance=1e-10, longer_steps=longer)
+        (solution,), = _solve(model, (8, 8), (1.0,), config, probes={"free": (1.0, 1.0)})
+        assert solution.converged
+        longer_taken = sum(h.step_length > 1 for h in solution.history)
+        assert longer_taken > 0 if longer else longer_taken == 0
+        steps[longer], energies[longer] = len(solution.history), solution.energy
+    assert energies[4] == pytest.approx(energies[0], rel=1e-8)
+    assert steps[4] < steps[0], steps
 
 
 def test_free_pin_hangs_and_holds_the_pinned_point():
