@@ -126,9 +126,9 @@ class ProjectedNewtonConfig:
 @dataclass
 class NewtonIteration:
     """One projected-Newton iteration: Π [J] before the step, the decrement λ² = −gᵀd [J],
-    the accepted step length α (0: none), the damping μ, the number of indefinite blocks
-    projected (0 also when the exact K was definite and used), ‖g‖, and seconds spent on
-    energy + gradient, Hessian blocks, assembly and the linear solve."""
+    the accepted step length α (0: none; above 1: a lengthened full step), the damping μ, the
+    number of indefinite blocks projected (0 also when the exact K was definite and used), ‖g‖,
+    and seconds spent on energy + gradient, Hessian blocks, assembly and the linear solve."""
 
     load_factor: float
     iteration: int
@@ -301,7 +301,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
         if alpha < 1.0 and near:  # the quadratic model no longer predicts Π: rounding floor
             converged = True
             break
-        damping = damping / 10 if alpha == 1.0 else damping
+        damping = damping / 10 if alpha >= 1.0 else damping
         if damping < RETRY_DAMPING:
             damping = 0.0
     energy = potential(samples, assembly.displacement(c), False).total
