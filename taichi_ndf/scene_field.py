@@ -13,7 +13,7 @@ from taichi_ndf.model import ShellModel
 from taichi_ndf.pseudo_time import DEFAULT_FRAMES
 from taichi_ndf.scene_schema import SceneError, Table
 from taichi_ndf.spline_grid import SplinePlan, auto_span_length, spans_for
-from taichi_ndf.training import LINEAR_SOLVERS, SolverConfig
+from taichi_ndf.training import LINEAR_SOLVERS, NEWTON_MAX_ITERATIONS, SolverConfig
 
 log = logging.getLogger(__name__)
 
@@ -137,7 +137,8 @@ def newton_training(t: Table) -> tuple[SolverConfig, SolverConfig]:
                              f"{', '.join(NEWTON_KEYS)})")
     solver = SolverConfig(
         method="newton", load_steps=t.numbers("load_steps", (1.0,)), seed=t.integer("seed", 0),
-        newton_max_iterations=t.integer("newton_max_iterations", 100, minimum=1),
+        newton_max_iterations=t.integer("newton_max_iterations", NEWTON_MAX_ITERATIONS,
+                                        minimum=1),
         newton_tolerance=_tolerance(t),
         linear_solver=t.string("linear_solver", "auto", choices=LINEAR_SOLVERS))
     return solver, replace(solver, max_levels=1)

@@ -15,7 +15,9 @@ Per iteration at coefficients C (n, 3), on fixed quadrature points:
 4. d from (K + μ diag K) d = −g (`damped_solve`, or the given `linear_solver`; μ = 0 unless
    the system is singular or a step failed);
 5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(C + α d) ≤ Π(C) + c α gᵀd
-   (and, with a `feasible` test, the trial is feasible: contact never steps into an obstacle).
+   (and, with a `feasible` test, the trial is feasible: contact never steps into an obstacle);
+   a full step that lowered Π clearly more than the quadratic model predicts is doubled while
+   Π keeps falling (`_longer_step`: the model overestimates the curvature along d).
 Stops, without taking that step, when the Newton decrement λ² = −gᵀd satisfies
 λ²/2 ≤ decrement_tolerance × |Π| (λ²/2 estimates Π − Π* near the minimum), or when
 ‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: the gradient at the start of the load step). Each
@@ -30,6 +32,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import torch
@@ -80,6 +83,9 @@ class ProjectedNewtonConfig:
     halvings: most step halvings before the damping is raised.
     project: make the Newton matrix positive definite where it is not (off: plain Newton with
         damping, for convex problems).
+    longer_steps: most doublings of an accepted full step (`_longer_step`) when it lowered Π
+        by clearly more than the quadratic model predicts; 0: never longer than the Newton
+        step.
     hessian: how an indefinite block is projected (`project_psd`) when the exact K is not
         definite: "clamp" (default) sets its negative eigenvalues to 0, "abs" mirrors them.
         Measured (benchmarks/RESULTS.md): clamp took fewer or as many Newton steps as abs and
@@ -96,6 +102,7 @@ class ProjectedNewtonConfig:
     halvings: int = 30
     project: bool = True
     hessian: str = "clamp"
+    longer_steps: int = 4
 
     def __post_init__(self):
         if self.hessian not in PROJECTIONS:
@@ -110,6 +117,8 @@ class ProjectedNewtonConfig:
             raise ValueError(f"fd_step must be in (0, 1), got {self.fd_step}")
         if not 0 < self.armijo < 0.5:
             raise ValueError(f"armijo must be in (0, 0.5), got {self.armijo}")
+        if self.longer_steps < 0:
+            raise ValueError(f"longer_steps must be >= 0, got {self.longer_steps}")
         if self.halvings < 1:
             raise ValueError(f"halvings must be >= 1, got {self.halvings}")
 
@@ -117,9 +126,9 @@ class ProjectedNewtonConfig:
 @dataclass
 class NewtonIteration:
     """One projected-Newton iteration: Π [J] before the step, the decrement λ² = −gᵀd [J],
-    the accepted step length α (0: none), the damping μ, the number of indefinite blocks
-    projected (0 also when the exact K was definite and used), ‖g‖, and seconds spent on
-    energy + gradient, Hessian blocks, assembly and the linear solve."""
+    the accepted step length α (0: none; above 1: a lengthened full step), the damping μ, the
+    number of indefinite blocks projected (0 also when the exact K was definite and used), ‖g‖,
+    and seconds spent on energy + gradient, Hessian blocks, assembly and the linear solve."""
 
     load_factor: float
     iteration: int
@@ -141,6 +150,27 @@ class NewtonSolution:
     energy: float  # Π [J] at the solution
     converged: bool
     history: list[NewtonIteration] = field(default_factory=list)
+
+
+# A full step that lowered Π by more than this × the quadratic model's ½λ² is tried longer.
+LONGER_STEP_RATIO = 1.25
+
+
+def _longer_step(energy_at: Callable[[float], float], start: float, full: float,
+                 decrement: float, doublings: int) -> float:
+    """The step length from α = 1 (accepted, Π = `full`; Π = `start` at α = 0): doubled while Π
+    keeps falling, at most `doublings` times, when the full step lowered Π by more than
+    LONGER_STEP_RATIO × ½λ² — the model overestimates the curvature along d (a projected K, or
+    far from the minimum: a draped cloth's soft folds), so d is too short."""
+    alpha, best = 1.0, full
+    if not start - full > LONGER_STEP_RATIO * 0.5 * decrement:
+        return alpha
+    for _ in range(doublings):
+        trial = energy_at(2 * alpha)
+        if not (math.isfinite(trial) and trial < best):
+            break
+        alpha, best = 2 * alpha, trial
+    return alpha
 
 
 def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tensor,
@@ -169,6 +199,12 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
     # The first iteration screens the blocks instead of trying the exact K (a start from a
     # coarser grid or the flat sheet is rarely a definite state; a definite one costs a screen)
     damping, converged, first_norm, exact_failed = 0.0, False, None, True
+
+    def _trial_energy(step, a):  # Π at C + a d; inf where `feasible` rejects it
+        if feasible is not None and not feasible(c, c + a * step):
+            return math.inf
+        return potential(samples, assembly.displacement(c + a * step), False).total
+
     for iteration in range(config.max_iterations):
         started = time.perf_counter()
         u = assembly.displacement(c)
@@ -211,7 +247,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                 started = time.perf_counter()
                 matrix = assembly.hessian(blocks)
                 t_assembly += time.perf_counter() - started
-        alpha, trial = 0.0, current.total
+        alpha, trial, small = 0.0, current.total, False
         for _attempt in range(6):
             started = time.perf_counter()
             if first_step is not None:
@@ -221,8 +257,9 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             t_solve += time.perf_counter() - started
             step = torch.from_numpy(step_np).to(c).reshape(c.shape)
             decrement = float(-(gradient * step).sum())
-            if 0.5 * abs(decrement) <= config.decrement_tolerance * abs(current.total):
-                break  # converged: the step would change Π by rounding only
+            small = 0.5 * abs(decrement) <= config.decrement_tolerance * abs(current.total)
+            if small:
+                break  # converged: the step would change Π by less than the tolerance
             if decrement < 0:  # K (nearly) singular along d, e.g. a flat sheet's rigid
                 damping = max(10 * damping, RETRY_DAMPING)  # rotations: damp and solve again
                 continue
@@ -239,6 +276,9 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                 alpha *= 0.5
             else:
                 alpha = 0.0
+            if alpha == 1.0 and config.longer_steps:
+                alpha = _longer_step(partial(_trial_energy, step), current.total, trial,
+                                     decrement, config.longer_steps)
             t_energy += time.perf_counter() - started
             if alpha > 0:
                 break
@@ -252,8 +292,8 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                  load_factor, current.total, decrement, alpha, damping, projected, t_energy,
                  t_hessian, t_assembly, t_solve)
         near = 0.5 * abs(decrement) <= config.floor_tolerance * abs(current.total)
-        if alpha == 0.0:
-            converged = near
+        if alpha == 0.0:  # stopped on the decrement tolerance, or no step decreased Π
+            converged = small or near
             break
         c = c + alpha * step
         if on_step is not None and on_step(c):
@@ -261,7 +301,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
         if alpha < 1.0 and near:  # the quadratic model no longer predicts Π: rounding floor
             converged = True
             break
-        damping = damping / 10 if alpha == 1.0 else damping
+        damping = damping / 10 if alpha >= 1.0 else damping
         if damping < RETRY_DAMPING:
             damping = 0.0
     energy = potential(samples, assembly.displacement(c), False).total
