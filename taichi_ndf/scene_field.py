@@ -26,7 +26,7 @@ FIELD_TYPES = ("siren", "spline")
 # trains no better (docs/scenes.md, "Field output scale"): napkin_sphere's far higher end with
 # it (Π +0.0024 J) was the contact filter freezing Adam, fixed (`step_allowed`'s both_ends);
 # since then it ends 1.5 % higher than with this one on two seeds (seed spread 2 %), bowl
-# within its seed spread, four scenes 0.06-2.6 % lower, five not compared.
+# within its seed spread, six scenes 0.04-2.6 % lower, four not compared.
 SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
 AUTO_ESTIMATE = "dimensional"
 # The estimates that need a solve at run start, in the order tried for each name; the
