@@ -22,9 +22,12 @@ SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
 FIELD_TYPES = ("siren", "spline")
 # output_scale estimates (`scaling`), each falling back to the cheaper ones after it; "auto"
 # is AUTO_ESTIMATE: the dimensional one, with which the shipped scenes' learning rates were
-# chosen (the output scale is Adam's step, lr × scale). With the (more accurate) equilibrium
-# one napkin_sphere ended far higher (Π +0.0024 against -0.0655 J) and bowl slightly higher,
-# four others 0.06-2.6 % lower: docs/scenes.md.
+# chosen (the output scale is Adam's step, lr × scale). The (more accurate) equilibrium one
+# trains no better (docs/scenes.md, "Field output scale"): napkin_sphere's far higher end with
+# it (Π +0.0024 J) was the contact filter freezing Adam, fixed (`step_allowed`'s both_ends);
+# since then it ends 1.5 % higher than with this one on two seeds (seed spread 2 %), bowl
+# within its seed spread, six scenes 0.04-2.6 % lower, and Adam diverges with it on flag
+# (1.78 m: Π +0.59 against -0.13 J) and napkin_handles (1.32 m: stopped at Π 1423 J).
 SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
 AUTO_ESTIMATE = "dimensional"
 # The estimates that need a solve at run start, in the order tried for each name; the

@@ -260,7 +260,7 @@ class Solver:
         after = self.field.get_flat().clone()
         for halving in range(FILTER_HALVINGS + 1):
             end = contact.filter_positions(self._displacement(lam), samples)
-            if contact.step_allowed(start, start_gap, end, lam):
+            if contact.step_allowed(start, start_gap, end, lam, both_ends=True):
                 contact.flag(contact.point_gaps(end, lam))
                 return gnorm
             if halving < FILTER_HALVINGS:
@@ -291,7 +291,7 @@ class Solver:
             result = potential(trial_samples, u_jets, grad)
             if not grad:
                 end = trial_samples.r_jets[keep, 0] + u_jets[keep, 0]
-                if not self.contact.step_allowed(start, start_gap, end, lam):
+                if not self.contact.step_allowed(start, start_gap, end, lam, both_ends=True):
                     result.total = math.inf
             return result
         return filtered
