@@ -36,6 +36,8 @@ JET_SIZE = jets.CHANNELS * COMPONENTS  # 18 jet values per point
 # mean diagonal counts as semi-definite (rounding and FD noise are ~1e-8 of it in float64; in
 # float32 the shift is 1000 ε, or rank-deficient blocks would all fail the test).
 PSD_SLACK = 1e-7
+# Blocks per chunk of `used_entries`'s sum (a ~5 MB temporary of 18 × 18 float64 blocks).
+USED_CHUNK = 2048
 
 # Potential at given displacement jets: (samples, u_jets (N, 6, 3), grad) -> EnergyResult.
 Potential = Callable[[SurfaceSamples, torch.Tensor, bool], EnergyResult]
@@ -87,11 +89,14 @@ def flat_blocks(hessians: torch.Tensor) -> torch.Tensor:
 
 def used_entries(blocks: torch.Tensor) -> torch.Tensor:
     """Which entries of blocks (N, …) are not zero in every block, shape blocks.shape[1:]
-    (bool; NaN and ±inf count as not zero): one matrix-vector product of the absolute values
-    with ones, faster than `torch.count_nonzero` over the batch."""
+    (bool; NaN and ±inf count as not zero): Σ |blocks| over the batch, summed in chunks of
+    `USED_CHUNK` blocks (no full-size temporary: 7 against 18 ms for `torch.count_nonzero`
+    over the batch, 12 544 blocks of 18 × 18, one core under load)."""
     flat = blocks.reshape(blocks.shape[0], -1)
-    ones = flat.new_ones(flat.shape[0])
-    return (torch.mv(flat.abs().t(), ones) != 0).reshape(blocks.shape[1:])
+    total = flat.new_zeros(flat.shape[1])
+    for start in range(0, flat.shape[0], USED_CHUNK):
+        total += flat[start:start + USED_CHUNK].abs().sum(dim=0)
+    return (total != 0).reshape(blocks.shape[1:])
 
 
 def active_rows(blocks: torch.Tensor) -> slice | torch.Tensor:
