@@ -44,7 +44,7 @@ from taichi_ndf.minimise.multigrid import (
     SMOOTHERS,
     CGResult,
     VCycle,
-    active_unknowns,
+    active_of_diagonal,
     conjugate_gradients,
     spline_prolongations,
 )
@@ -195,6 +195,7 @@ class LinearSolver:
         self.config = config or LinearSolverConfig()
         self.prolongations = list(prolongations or [])
         self.last = None
+        self._cycle = None  # the last V-cycle: its pattern-only parts are reused
 
     @classmethod
     def for_grid(cls, spline_config, config: LinearSolverConfig | None = None
@@ -240,21 +241,23 @@ class LinearSolver:
         if fixed is not None:
             free[fixed] = False
         unknowns = np.flatnonzero(free)
-        reduced = matrix.tocsr()[unknowns][:, unknowns]
-        active = active_unknowns(reduced)
+        matrix = matrix.tocsr()
+        active = active_of_diagonal(matrix.diagonal()[unknowns])
         idle = np.ones(len(unknowns), dtype=bool)
         idle[active] = False
         if np.any(rhs[unknowns[idle]] != 0):
             log.info("multigrid: a force on an unknown with no stiffness: direct solve")
             return None
-        system = reduced[active][:, active]
+        system = matrix[unknowns[active]][:, unknowns[active]]
         if np.any(system.diagonal() < 0):  # e_iᵀ K e_i < 0
             return CGResult(np.zeros(size), 0, 1.0, "negative curvature")
         if damping > 0:
             system = system + sp.diags(damping * system.diagonal(), format="csr")
         started = time.perf_counter()
         try:
-            cycle = VCycle(system, unknowns[active], self.prolongations, self.config.smoother)
+            cycle = VCycle(system, unknowns[active], self.prolongations, self.config.smoother,
+                           reuse=self._cycle)
+            self._cycle = cycle
         except RuntimeError as err:
             log.info("multigrid: coarsest factorisation failed (%s): direct solve", err)
             return None
