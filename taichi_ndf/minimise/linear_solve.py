@@ -17,8 +17,9 @@ factorisation fails.
 
 `LinearSolver` chooses between that direct solve and conjugate gradients preconditioned by a
 geometric multigrid V-cycle over the spline grid's own dyadic hierarchy
-(`taichi_ndf.minimise.multigrid`): "direct", "multigrid", or "auto" (multigrid from
-`threshold` unknowns, where the grid can be coarsened). The multigrid path keeps
+(`taichi_ndf.minimise.multigrid`): "direct", "multigrid", or "auto" (multigrid, where the
+grid can be coarsened, from `band_threshold` unknowns, or from `threshold` unknowns when the
+band is too wide for the banded factorisation). The multigrid path keeps
 `damped_solve`'s contract (held unknowns stay 0, the same damping, require_definite) and
 falls back to the direct solve, with a logged note, when CG meets negative curvature or does
 not converge — except under require_definite, where either answers "not definite" (None)
@@ -107,18 +108,33 @@ def damped_solve(matrix: sp.csr_matrix, rhs: np.ndarray, damping: float,
     raise RuntimeError(f"the Newton system stayed singular up to damping {mu:g}")
 
 
+def half_bandwidth(matrix: sp.spmatrix) -> int:
+    """The largest i − j of a stored entry A[i, j] below the diagonal (the half-bandwidth of a
+    symmetric matrix), from the first column of each CSR row."""
+    csr = matrix.tocsr()
+    if not csr.has_sorted_indices:
+        csr = csr.sorted_indices()
+    rows = np.flatnonzero(np.diff(csr.indptr))
+    return int(np.max(rows - csr.indices[csr.indptr[rows]], initial=0))
+
+
+def narrow_band(matrix: sp.spmatrix) -> bool:
+    """Whether the banded Cholesky factorisation applies: half-bandwidth ≤ BAND_LIMIT × √N."""
+    return half_bandwidth(matrix) <= BAND_LIMIT * math.sqrt(matrix.shape[0])
+
+
 def lower_band(matrix: sp.spmatrix) -> np.ndarray | None:
     """The lower band of a symmetric matrix (N × N) in LAPACK's layout, shape (b + 1, N):
     band[i − j, j] = A[i, j] for j ≤ i ≤ j + b, b its half-bandwidth; None when b exceeds
     BAND_LIMIT × √N (module docstring)."""
+    if not narrow_band(matrix):
+        return None
     coo = matrix.tocoo()
     lower = coo.row >= coo.col
     row, col = coo.row[lower], coo.col[lower]
     offset = row - col
     width = int(offset.max(initial=0))
     size = matrix.shape[0]
-    if width > BAND_LIMIT * math.sqrt(size):
-        return None
     # bincount sums duplicate entries, as the sparse matrix does
     return np.bincount(offset * size + col, weights=coo.data[lower],
                        minlength=(width + 1) * size).reshape(width + 1, size)
@@ -150,12 +166,17 @@ class LinearSolverConfig:
     """How projected Newton solves K d = −g.
 
     kind: "direct" (`damped_solve`), "multigrid" (MG-preconditioned CG) or "auto"
-        (multigrid from `threshold` unknowns where the grid has a coarser level).
-    threshold: unknowns (3 × coefficients) from which "auto" uses multigrid: measured on
-        the napkin's Newton systems (benchmarks/RESULTS.md, one core under load), SuperLU
-        0.52 / 4.4 / 25 s and MG-PCG 0.95 / 4.4 / 9.2 s at 32² / 64² / 128² spans (3.7 k /
-        13.5 k / 51 k unknowns): they tie at 64², so the direct solve (exact, with its
-        inertia check) keeps up to there.
+        (multigrid from `threshold` or `band_threshold` unknowns where the grid has a
+        coarser level).
+    threshold: unknowns (3 × coefficients) from which "auto" uses multigrid when K's band is
+        too wide for the banded Cholesky factorisation (`narrow_band`: SuperLU would
+        factorise): measured on the napkin's Newton systems (benchmarks/RESULTS.md, one core
+        under load), SuperLU 0.52 / 4.4 / 25 s and MG-PCG 0.95 / 4.4 / 9.2 s at 32² / 64² /
+        128² spans (3.7 k / 13.5 k / 51 k unknowns): they tie at 64².
+    band_threshold: unknowns from which "auto" uses multigrid also when the band is narrow:
+        the banded Cholesky factorisation took 0.22 / 2.6 s CPU at 64² / 128² spans and MG-PCG
+        0.80 / 2.9 s (setup reused), so the direct solve (exact, with its definiteness check)
+        keeps up to 128² spans (51 k unknowns; its band then takes ~0.5 GB).
     tolerance: CG's relative residual ‖K d + g‖ ≤ tolerance ‖g‖ (an inexact Newton step:
         on the napkin at 64² spans 1e-8, 1e-6 and 1e-4 all kept the direct solve's 17 Newton
         iterations, Π within 1e-10, 4e-9 and 2e-7 relative; benchmarks/RESULTS.md).
@@ -166,6 +187,7 @@ class LinearSolverConfig:
 
     kind: str = "auto"
     threshold: int = 20_000
+    band_threshold: int = 60_000
     tolerance: float = 1e-6
     max_iterations: int = 300
     smoother: str = "gauss_seidel"
@@ -178,7 +200,7 @@ class LinearSolverConfig:
             raise ValueError(f"smoother must be one of {SMOOTHERS}, got {self.smoother!r}")
         if not (math.isfinite(self.tolerance) and 0 < self.tolerance < 1):
             raise ValueError(f"tolerance must be in (0, 1), got {self.tolerance!r}")
-        for name in ("threshold", "max_iterations", "coarsest"):
+        for name in ("threshold", "band_threshold", "max_iterations", "coarsest"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -204,8 +226,8 @@ class LinearSolver:
         used."""
         config = config or LinearSolverConfig()
         size = COMPONENTS * spline_config.num_coefficients
-        wanted = config.kind == "multigrid" or (config.kind == "auto"
-                                                and size >= config.threshold)
+        wanted = config.kind == "multigrid" or (
+            config.kind == "auto" and size >= min(config.threshold, config.band_threshold))
         hierarchy = spline_prolongations(spline_config, config.coarsest) if wanted else []
         if wanted and not hierarchy:
             log.info("no multigrid hierarchy for %s spans (odd or too few): direct solves",
@@ -220,7 +242,9 @@ class LinearSolver:
                  fixed: np.ndarray | None = None, *, require_definite: bool = False
                  ) -> tuple[np.ndarray, float] | None:
         self.last = None
-        if self.multigrid:
+        if self.multigrid and (self.config.kind == "multigrid"
+                               or matrix.shape[0] >= self.config.band_threshold
+                               or not narrow_band(matrix)):
             result = self._multigrid(matrix, rhs, damping, fixed)
             if result is not None:
                 self.last = result
