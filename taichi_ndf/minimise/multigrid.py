@@ -75,6 +75,13 @@ def active_of_diagonal(diagonal: np.ndarray) -> np.ndarray:
     return np.flatnonzero(diagonal > 1e-14 * max(float(diagonal.max(initial=0)), 1e-300))
 
 
+def _sorted_csr(matrix: sp.spmatrix) -> sp.csr_matrix:
+    """The matrix as CSR with sorted column indices (a copy only where needed: the caller's
+    matrix is not changed)."""
+    matrix = matrix.tocsr()
+    return matrix if matrix.has_sorted_indices else matrix.sorted_indices()
+
+
 def _same_pattern(a: sp.csr_matrix, b: sp.csr_matrix) -> bool:
     return (a.shape == b.shape and np.array_equal(a.indptr, b.indptr)
             and np.array_equal(a.indices, b.indices))
@@ -167,8 +174,7 @@ class VCycle:
         self.smoother = smoother
         self.levels: list[_Level] = []
         rows = np.asarray(unknowns)
-        matrix = matrix.tocsr()
-        matrix.sort_indices()
+        matrix = _sorted_csr(matrix)
         old_levels = reuse.levels if reuse is not None and reuse.smoother == smoother else []
         for depth, full in enumerate(prolongations):
             old = old_levels[depth] if depth < len(old_levels) else None
@@ -185,8 +191,7 @@ class VCycle:
                 level.prolongation = level.restricted[:, level.keep].tocsr()
                 level.restriction = level.prolongation.T.tocsr()
             self.levels.append(level)
-            matrix = coarse[level.keep][:, level.keep].tocsr()
-            matrix.sort_indices()
+            matrix = _sorted_csr(coarse[level.keep][:, level.keep])
             rows = level.keep
         self.coarsest = spla.splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A",
                                   diag_pivot_thresh=0.0, options={"SymmetricMode": True})
