@@ -101,7 +101,8 @@ def step_parts(model, spans: tuple[int, int], coefficients: torch.Tensor) -> lis
         (f"projection ({bad.numel()} of {len(s)} blocks eigen-decomposed)",
          lambda: project_psd(blocks, bad)),
         ("assembly K = Σ Jᵀ H J", lambda: assembly.hessian(projected)),
-        ("factorise + solve (SuperLU)", lambda: damped_solve(matrix, rhs, 0.0, fixed)),
+        ("factorise + solve (damped_solve: banded Cholesky)",
+         lambda: damped_solve(matrix, rhs, 0.0, fixed)),
     ]
     out = []
     for name, part in parts:

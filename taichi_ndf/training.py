@@ -51,7 +51,8 @@ class SolverConfig:
         float64, 1e-7 in float32). E.g. 1e-4 for a solve whose Π must be good to 1 %.
     max_levels: most grid levels a Newton run solves (0: all of the field's; 1 for --quick).
     linear_solver: how Newton solves its linear systems: "auto" (the direct solve below
-        `LinearSolverConfig.threshold` unknowns, multigrid-preconditioned CG above it),
+        `LinearSolverConfig.band_threshold` unknowns, or `threshold` where K's band is too
+        wide, multigrid-preconditioned CG above),
         "direct" or "multigrid" (`taichi_ndf.minimise.linear_solve`).
     """
 

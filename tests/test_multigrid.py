@@ -11,6 +11,7 @@ import scipy.sparse as sp
 import torch
 
 from taichi_ndf.field.spline import SplineConfig, SplineField
+from taichi_ndf.minimise import linear_solve
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig, damped_solve
 from taichi_ndf.minimise.multigrid import VCycle, active_unknowns, spline_prolongations
@@ -128,6 +129,38 @@ def test_newton_with_multigrid_matches_the_direct_solve(caplog):
     assert np.allclose(a.probes["free"], b.probes["free"], rtol=1e-6)
 
 
+def test_a_reused_vcycle_equals_a_fresh_one(napkin_system):
+    """The V-cycle built with the previous one's pattern-only parts (another matrix with the
+    same pattern: a Newton step later) applies the same operator as one built from scratch."""
+    matrix, rhs, fixed, config = napkin_system
+    prolongations = spline_prolongations(config, 100)
+    unknowns = np.setdiff1d(np.arange(matrix.shape[0]), fixed)
+    system = matrix[unknowns][:, unknowns].tocsr()
+    first = VCycle(system, unknowns, prolongations)
+    changed = (system + sp.diags(0.3 * system.diagonal())).tocsr()
+    reused = VCycle(changed, unknowns, prolongations, reuse=first)
+    fresh = VCycle(changed, unknowns, prolongations)
+    assert reused.levels[0].smoother.parts is first.levels[0].smoother.parts
+    r = np.random.default_rng(0).standard_normal(len(unknowns))
+    assert np.allclose(reused(r), fresh(r), rtol=1e-12, atol=1e-12 * np.abs(fresh(r)).max())
+    assert not np.allclose(first(r), fresh(r), rtol=1e-3)
+
+
+def test_auto_solves_directly_while_the_band_is_narrow(napkin_system, monkeypatch):
+    """"auto" above `threshold` unknowns: the banded direct solve while K's band is narrow and
+    it is below `band_threshold`, multigrid when the band is too wide or from
+    `band_threshold`."""
+    matrix, rhs, fixed, config = napkin_system
+    for band_threshold, band_limit, multigrid in ((10**6, linear_solve.BAND_LIMIT, False),
+                                                  (10**6, 0.0, True),
+                                                  (100, linear_solve.BAND_LIMIT, True)):
+        monkeypatch.setattr(linear_solve, "BAND_LIMIT", band_limit)
+        solver = LinearSolver.for_grid(config, LinearSolverConfig(
+            threshold=100, band_threshold=band_threshold, coarsest=100))
+        solver(matrix, rhs, 0.0, fixed)
+        assert (solver.last is not None) == multigrid
+
+
 def test_linear_solver_settings_are_checked():
     with pytest.raises(ValueError, match="kind"):
         LinearSolverConfig(kind="cholesky")
@@ -135,6 +168,8 @@ def test_linear_solver_settings_are_checked():
         LinearSolverConfig(smoother="sor")
     with pytest.raises(ValueError, match="tolerance"):
         LinearSolverConfig(tolerance=0.0)
+    with pytest.raises(ValueError, match="band_threshold"):
+        LinearSolverConfig(band_threshold=0)
 
 
 def test_scene_key_linear_solver(tmp_path):

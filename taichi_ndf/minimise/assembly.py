@@ -36,7 +36,7 @@ from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
-from taichi_ndf.shell.hessian import COMPONENTS
+from taichi_ndf.shell.hessian import COMPONENTS, used_entries
 
 # Points per batch of the Hessian products (bounds the (chunk, 3k, 3k) temporaries).
 CHUNK = 4096
@@ -122,6 +122,36 @@ def _dofs(index: torch.Tensor) -> np.ndarray:
         *idx.shape[:-1], -1)
 
 
+def _csr_pattern(groups: np.ndarray, n_coefficients: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """K's CSR pattern for groups of coefficients acting together (G, k): the position in K's
+    data of each entry [c, d, g, a, b] of the per-group sums (3, 3, G, k, k) (`_pair_sums`:
+    unknowns (3 groups[g, a] + c, 3 groups[g, b] + d)), the column of each datum (int32) and
+    the row starts (3n + 1, int32). Found on the coefficient pairs (9× fewer keys than the
+    unknown pairs): unknown row 3a + c holds the columns 3b + d of the coefficients b coupled
+    to a, in order, so it starts at 9 start[a] + 3 c count[a] (start, count: of coefficient
+    row a)."""
+    count_groups, k = groups.shape
+    n = n_coefficients
+    keys = (groups[:, :, None] * n + groups[:, None, :]).ravel()
+    pairs, pair = np.unique(keys, return_inverse=True)
+    per_row = np.bincount(pairs // n, minlength=n)
+    start = np.concatenate(([0], np.cumsum(per_row)))
+    first = start[groups][:, :, None]  # (G, k, 1): start of coefficient row a
+    within = pair.reshape(count_groups, k, k) - first  # position of b in row a
+    comps = np.arange(COMPONENTS)
+    scatter = (9 * first + 3 * within)[None, None] + (
+        3 * comps[:, None, None, None, None] * per_row[groups][None, None, :, :, None]
+        + comps[None, :, None, None, None])
+    lengths = np.repeat(3 * per_row, COMPONENTS)  # unknown rows: 3 columns per coefficient
+    row_starts = np.concatenate(([0], np.cumsum(lengths)))
+    columns3 = (3 * (pairs % n)[:, None] + comps).ravel()  # coefficient row a's at 3 start[a]
+    index = np.arange(row_starts[-1]) - np.repeat(
+        row_starts[:-1] - np.repeat(3 * start[:-1], COMPONENTS), lengths)
+    return (scatter.ravel(), columns3[index].astype(np.int32),
+            row_starts.astype(np.int32))
+
+
 class Assembly:
     """Π's coefficient-space gradient and Hessian on fixed samples (module docstring).
 
@@ -167,13 +197,9 @@ class Assembly:
         self._group_dofs = torch.from_numpy(group_dofs.ravel()).to(device)
         # K's point-local part is summed per group and component pair as (3, 3, G, k, k)
         # (`_pair_sums`): the unknowns of entry [c, d, g, a, b] are (dof[g, a, c],
-        # dof[g, b, d]). Their keys row × size + column, sorted, are K's CSR order.
-        dofs = group_dofs.reshape(groups.shape[0], -1, COMPONENTS).transpose(2, 0, 1)
-        keys = (dofs[:, None, :, :, None] * self.size + dofs[None, :, :, None, :]).ravel()
-        unique, self._scatter = np.unique(keys, return_inverse=True)
-        self._columns = (unique % self.size).astype(np.int32)
-        self._row_starts = np.concatenate(([0], np.cumsum(np.bincount(
-            unique // self.size, minlength=self.size)))).astype(np.int32)
+        # dof[g, b, d]); `_scatter` is its position in K's CSR data (`_csr_pattern`).
+        self._scatter, self._columns, self._row_starts = _csr_pattern(
+            groups.cpu().numpy().astype(np.int64), self.n_coefficients)
         self._groups = groups.shape[0]
         self.offset = self.jacobian = self.pin_jacobian = None
 
@@ -183,7 +209,8 @@ class Assembly:
             operator, self.samples.xi, self.basis, load_factor)
         self._operator = operator  # its boundary frame turns the per-component parts
         if self.pin_jacobian is not None:
-            used = self.pin_jacobian.abs().amax(dim=(0, 1, 3)) > 0
+            # the same at every point (an expanded view): read point 0
+            used = self.pin_jacobian[:, 0].abs().amax(dim=(0, 2)) > 0
             self._pin_channels = torch.nonzero(used).flatten()
         return self
 
@@ -265,8 +292,7 @@ class Assembly:
         width = self.jacobian.shape[3] * COMPONENTS
         # Only the channels some block touches enter (the shell energy's blocks have no value
         # channel: 5² of the 6² channel pairs, and no coupling through a free pin's value).
-        touched = torch.count_nonzero(blocks.reshape(n, -1), dim=0).reshape(
-            blocks.shape[1:]).amax(dim=(1, 3)) > 0
+        touched = used_entries(blocks).any(dim=3).any(dim=1)
         used = torch.nonzero(touched.any(dim=0) | touched.any(dim=1)).flatten()
         if used.numel() == 0:  # all blocks zero: K = 0 on the pattern
             used = torch.zeros(1, dtype=torch.int64, device=used.device)

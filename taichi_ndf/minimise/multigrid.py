@@ -66,8 +66,25 @@ def spline_prolongations(config: SplineConfig, coarsest: int) -> list[sp.csr_mat
 def active_unknowns(matrix: sp.csr_matrix) -> np.ndarray:
     """Indices of the unknowns with a non-zero diagonal (the others have a zero row in a
     positive semi-definite matrix: nothing couples them)."""
-    diagonal = np.abs(matrix.diagonal())
+    return active_of_diagonal(matrix.diagonal())
+
+
+def active_of_diagonal(diagonal: np.ndarray) -> np.ndarray:
+    """`active_unknowns` from the matrix's diagonal."""
+    diagonal = np.abs(diagonal)
     return np.flatnonzero(diagonal > 1e-14 * max(float(diagonal.max(initial=0)), 1e-300))
+
+
+def _sorted_csr(matrix: sp.spmatrix) -> sp.csr_matrix:
+    """The matrix as CSR with sorted column indices (a copy only where needed: the caller's
+    matrix is not changed)."""
+    matrix = matrix.tocsr()
+    return matrix if matrix.has_sorted_indices else matrix.sorted_indices()
+
+
+def _same_pattern(a: sp.csr_matrix, b: sp.csr_matrix) -> bool:
+    return (a.shape == b.shape and np.array_equal(a.indptr, b.indptr)
+            and np.array_equal(a.indices, b.indices))
 
 
 class _Smoother:
@@ -75,25 +92,30 @@ class _Smoother:
     coefficient (`block`: the coefficient of each unknown). Gauss–Seidel sweeps with the
     block-lower part (diagonal blocks included) forward and the block-upper part backward,
     each factorised once (SuperLU on a block-triangular matrix with the natural order fills
-    nothing in: a block-triangular solve); Jacobi with the block diagonal."""
+    nothing in: a block-triangular solve); Jacobi with the block diagonal.
 
-    def __init__(self, matrix: sp.csr_matrix, kind: str, block: np.ndarray):
+    The parts are taken from the symmetric `matrix` (CSR, sorted indices) without a format
+    conversion: the CSR arrays of its block-upper part, read as CSC, are the block-lower part
+    (its transpose), and the reverse. Which entries belong to each part depends only on the
+    pattern: `reuse`, a smoother of a matrix with the same pattern and blocks, lends its
+    selections."""
+
+    def __init__(self, matrix: sp.csr_matrix, kind: str, block: np.ndarray,
+                 reuse: _Smoother | None = None):
         self.matrix = matrix
         self.kind = kind
+        if reuse is None:
+            row = block[np.repeat(np.arange(matrix.shape[0]), np.diff(matrix.indptr))]
+            col = block[matrix.indices]
+            # read as CSC: the upper part gives the lower one (class docstring)
+            parts = [row == col] if kind == "jacobi" else [row <= col, row >= col]
+            self.parts = [_Part(matrix, keep) for keep in parts]
+        else:
+            self.parts = reuse.parts
         options = dict(permc_spec="NATURAL", diag_pivot_thresh=0.0,
                        options={"SymmetricMode": True})
-        coo = matrix.tocoo()
-        row, col = block[coo.row], block[coo.col]
-
-        def factor(keep):
-            part = sp.csc_matrix((coo.data[keep], (coo.row[keep], coo.col[keep])),
-                                 shape=matrix.shape)
-            return spla.splu(part, **options)
-
-        if kind == "gauss_seidel":
-            self.lower, self.upper = factor(row >= col), factor(row <= col)
-        else:
-            self.lower = self.upper = factor(row == col)
+        factors = [spla.splu(part.csc_transpose(matrix), **options) for part in self.parts]
+        self.lower, self.upper = factors[0], factors[-1]
 
     def pre(self, rhs: np.ndarray) -> np.ndarray:
         """The smoothed solution of A x = rhs from x = 0."""
@@ -106,11 +128,31 @@ class _Smoother:
         return x + (JACOBI_WEIGHT * correction if self.kind == "jacobi" else correction)
 
 
+class _Part:
+    """The entries `keep` (bool, in CSR order) of a CSR pattern as a CSR structure."""
+
+    def __init__(self, matrix: sp.csr_matrix, keep: np.ndarray):
+        self.select = np.flatnonzero(keep)
+        rows = np.repeat(np.arange(matrix.shape[0]), np.diff(matrix.indptr))[self.select]
+        self.indptr = np.concatenate(([0], np.cumsum(np.bincount(
+            rows, minlength=matrix.shape[0])))).astype(matrix.indptr.dtype)
+        self.indices = matrix.indices[self.select]
+
+    def csc_transpose(self, matrix: sp.csr_matrix) -> sp.csc_matrix:
+        """The part of `matrix` (this pattern), transposed, as CSC (no conversion)."""
+        return sp.csc_matrix((matrix.data[self.select], self.indices, self.indptr),
+                             shape=matrix.shape)
+
+
 @dataclass
 class _Level:
     matrix: sp.csr_matrix
+    rows: np.ndarray  # this level's unknowns in the numbering of its prolongation's rows
     smoother: _Smoother | None = None
+    restricted: sp.csr_matrix | None = None  # the prolongation's rows of this level's unknowns
+    keep: np.ndarray | None = None  # the coarser level's active unknowns
     prolongation: sp.csr_matrix | None = None  # this level's active unknowns <- coarser ones
+    restriction: sp.csr_matrix | None = None  # its transpose
 
 
 class VCycle:
@@ -119,25 +161,38 @@ class VCycle:
     (N indices; the fine system's free unknowns, coefficient × 3 + component).
 
     prolongations: `spline_prolongations`, finest first. smoother: one of SMOOTHERS.
+    reuse: the V-cycle of the previous Newton step: on each level where the matrix's pattern
+    and unknowns are the same, its restricted prolongations and the smoother's selections
+    are kept (only the Galerkin products and the factorisations are redone).
     Raises RuntimeError when the coarsest factorisation fails (singular)."""
 
     def __init__(self, matrix: sp.csr_matrix, unknowns: np.ndarray,
-                 prolongations: list[sp.csr_matrix], smoother: str = "gauss_seidel"):
+                 prolongations: list[sp.csr_matrix], smoother: str = "gauss_seidel",
+                 reuse: VCycle | None = None):
         if smoother not in SMOOTHERS:
             raise ValueError(f"smoother must be one of {SMOOTHERS}, got {smoother!r}")
+        self.smoother = smoother
         self.levels: list[_Level] = []
         rows = np.asarray(unknowns)
-        matrix = matrix.tocsr()
-        for full in prolongations:
-            block = rows // COMPONENTS
-            level = _Level(matrix, _Smoother(matrix, smoother, block))
-            p = full[rows]
-            coarse = (p.T @ matrix @ p).tocsr()
-            keep = active_unknowns(coarse)
-            level.prolongation = p[:, keep].tocsr()
+        matrix = _sorted_csr(matrix)
+        old_levels = reuse.levels if reuse is not None and reuse.smoother == smoother else []
+        for depth, full in enumerate(prolongations):
+            old = old_levels[depth] if depth < len(old_levels) else None
+            same = (old is not None and np.array_equal(old.rows, rows)
+                    and _same_pattern(old.matrix, matrix))
+            level = _Level(matrix, rows, _Smoother(matrix, smoother, rows // COMPONENTS,
+                                                   old.smoother if same else None))
+            level.restricted = old.restricted if same else full[rows].tocsr()
+            coarse = (level.restricted.T @ (matrix @ level.restricted)).tocsr()
+            level.keep = active_unknowns(coarse)
+            if same and np.array_equal(level.keep, old.keep):
+                level.prolongation, level.restriction = old.prolongation, old.restriction
+            else:
+                level.prolongation = level.restricted[:, level.keep].tocsr()
+                level.restriction = level.prolongation.T.tocsr()
             self.levels.append(level)
-            matrix = coarse[keep][:, keep].tocsr()
-            rows = keep
+            matrix = _sorted_csr(coarse[level.keep][:, level.keep])
+            rows = level.keep
         self.coarsest = spla.splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A",
                                   diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         self.sizes = [lv.matrix.shape[0] for lv in self.levels] + [matrix.shape[0]]
@@ -150,7 +205,7 @@ class VCycle:
             return self.coarsest.solve(rhs)
         level = self.levels[depth]
         x = level.smoother.pre(rhs)
-        coarse_rhs = level.prolongation.T @ (rhs - level.matrix @ x)
+        coarse_rhs = level.restriction @ (rhs - level.matrix @ x)
         x = x + level.prolongation @ self._cycle(depth + 1, coarse_rhs)
         return level.smoother.post(x, rhs)
 
