@@ -247,7 +247,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                 started = time.perf_counter()
                 matrix = assembly.hessian(blocks)
                 t_assembly += time.perf_counter() - started
-        alpha, trial, small = 0.0, current.total, False
+        alpha, small = 0.0, False
         for _attempt in range(6):
             started = time.perf_counter()
             if first_step is not None:
@@ -266,10 +266,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
             started = time.perf_counter()
             alpha = 1.0
             for _ in range(config.halvings):
-                if feasible is not None and not feasible(c, c + alpha * step):
-                    alpha *= 0.5
-                    continue
-                trial = potential(samples, assembly.displacement(c + alpha * step), False).total
+                trial = _trial_energy(step, alpha)
                 if math.isfinite(trial) and (
                         trial <= current.total - config.armijo * alpha * decrement):
                     break
