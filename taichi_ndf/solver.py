@@ -260,8 +260,10 @@ class Solver:
         after = self.field.get_flat().clone()
         for halving in range(FILTER_HALVINGS + 1):
             end = contact.filter_positions(self._displacement(lam), samples)
-            if contact.step_allowed(start, start_gap, end, lam, both_ends=True):
-                contact.flag(contact.point_gaps(end, lam))
+            end_gap = contact.point_gaps(end, lam)
+            if contact.step_allowed(start, start_gap, end, lam, both_ends=True,
+                                    end_gap=end_gap):
+                contact.flag(end_gap)
                 return gnorm
             if halving < FILTER_HALVINGS:
                 after = 0.5 * (before + after)

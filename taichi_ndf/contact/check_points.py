@@ -126,7 +126,8 @@ class ContactPoints:
         return self.term.gaps(x, load_factor)[0].min(dim=1).values
 
     def step_allowed(self, start: torch.Tensor, start_gap: torch.Tensor, end: torch.Tensor,
-                     load_factor: float, *, both_ends: bool = False) -> bool:
+                     load_factor: float, *, both_ends: bool = False,
+                     end_gap: torch.Tensor | None = None) -> bool:
         """The filter's test of a step that moves the checked points from `start` to `end`
         (M, 3) [m] (`start_gap` (M,): their gaps at the start): every point outside moves
         by less than its gap — the signed distance is 1-Lipschitz, so it stays outside and
@@ -138,11 +139,14 @@ class ContactPoints:
         max(g_start − |x − start|, g_end − |x − end|) > 0 (1-Lipschitz again), so it still
         cannot enter or tunnel, but a point at a tiny gap may move away from the obstacle by
         more than that gap (the one-sided test refuses every step of a point left at 2.5 µm
-        whose smallest Adam step moves it 20 µm away: docs/contact.md)."""
+        whose smallest Adam step moves it 20 µm away: docs/contact.md).
+
+        end_gap: the points' gaps at `end` (`point_gaps`) where the caller has them; computed
+        here where the test needs them."""
         moved = (end - start).norm(dim=1)
         outside = start_gap > 0
-        end_gap = self.point_gaps(end, load_factor) if both_ends or not bool(outside.all()) \
-            else None
+        if end_gap is None and (both_ends or not bool(outside.all())):
+            end_gap = self.point_gaps(end, load_factor)
         bound = start_gap[outside]
         if both_ends:
             bound = bound + end_gap[outside].clamp(min=0.0)
