@@ -127,14 +127,14 @@ def lower_band(matrix: sp.spmatrix) -> np.ndarray | None:
     """The lower band of a symmetric matrix (N × N) in LAPACK's layout, shape (b + 1, N):
     band[i − j, j] = A[i, j] for j ≤ i ≤ j + b, b its half-bandwidth; None when b exceeds
     BAND_LIMIT × √N (module docstring)."""
-    if not narrow_band(matrix):
-        return None
     coo = matrix.tocoo()
     lower = coo.row >= coo.col
     row, col = coo.row[lower], coo.col[lower]
     offset = row - col
-    width = int(offset.max(initial=0))
+    width = int(offset.max(initial=0))  # the half-bandwidth (`half_bandwidth`)
     size = matrix.shape[0]
+    if width > BAND_LIMIT * math.sqrt(size):  # not `narrow_band`
+        return None
     # bincount sums duplicate entries, as the sparse matrix does
     return np.bincount(offset * size + col, weights=coo.data[lower],
                        minlength=(width + 1) * size).reshape(width + 1, size)
