@@ -83,6 +83,9 @@ def run_one(scene: str, field: str, out: Path, precision: str, quick: bool) -> d
     result = json.loads((out / "result.json").read_text())
     record.update(status="ok", energy=result["energy"], solve=result["wall_time"],
                   iterations=result["iterations"])
+    if "backoffs" in result:  # the SIREN path: Adam's learning-rate backoffs, its output scale
+        record.update(backoffs=result["backoffs"],
+                      output_scale=result["resolved"]["field"]["output_scale"])
     if "levels" in result:
         history = result["history"]
         record.update(converged=all(lv["converged"] for lv in result["levels"]),
@@ -124,8 +127,11 @@ def _row(scene: str, field: str, r: dict | None, gap: str) -> str:
         spans = " × ".join(str(s) for s in r.get("spans", []))
         its = f"{r['iterations']} ({'converged' if r['converged'] else 'NOT converged'}, " \
               f"{spans} spans)"
+    elif "output_scale" in r:  # recorded since "auto" became the equilibrium estimate
+        backoffs = f", {r['backoffs']} backoffs" if r["backoffs"] else ""
+        its = f"{r['iterations']} (fixed; output scale {r['output_scale']:.3g} m{backoffs})"
     else:
-        its = f"{r['iterations']} (fixed)"
+        its = f"{r['iterations']} (fixed; dimensional output scale)"
     quick = " (quick)" if r.get("quick") else ""
     return (f"| {scene} | {label}{quick} | {r['energy']:.6g} | {gap} | {r['wall']:.0f} | "
             f"{r['solve']:.0f} | {r['peak_mib']:.0f} | {its} |")

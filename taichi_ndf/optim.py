@@ -87,13 +87,14 @@ class Adam:
         self.gradients = gradients
         self.config = config
         self.step_count = 0
+        self.lr_scale = 1.0  # multiplies the schedule's rate; halved by a backoff (`backoff`)
         self.exp_avg = [torch.zeros_like(p) for p in parameters]
         self.exp_avg_sq = [torch.zeros_like(p) for p in parameters]
 
     @property
     def learning_rate(self) -> float:
-        """Learning rate the next ``step`` will use."""
-        return self.config.learning_rate(self.step_count)
+        """Learning rate the next ``step`` will use: the schedule's, times ``lr_scale``."""
+        return self.lr_scale * self.config.learning_rate(self.step_count)
 
     def gradient_norm(self) -> float:
         """Global L2 norm of the gradients."""
@@ -121,9 +122,11 @@ class Adam:
         return lr
 
     def state_dict(self) -> dict:
-        """Step count and moment estimates (tensors, ints only: safe for weights_only loads)."""
+        """Step count, learning-rate scale and moment estimates (tensors, numbers only: safe
+        for weights_only loads)."""
         return {
             "step": self.step_count,
+            "lr_scale": self.lr_scale,
             "exp_avg": [m.detach().clone() for m in self.exp_avg],
             "exp_avg_sq": [v.detach().clone() for v in self.exp_avg_sq],
         }
@@ -140,3 +143,4 @@ class Adam:
         ):
             ours.copy_(theirs)
         self.step_count = int(state["step"])
+        self.lr_scale = float(state.get("lr_scale", 1.0))  # absent in older checkpoints

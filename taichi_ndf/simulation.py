@@ -133,6 +133,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     summary = _summary(scene, config, seed, result.energy, result.iterations, result.wall_time,
                        result.probes, trajectory, field_config.to_dict(), machine,
                        result.history, contact)
+    summary["backoffs"] = result.backoffs  # learning-rate backoffs (`taichi_ndf.backoff`)
     return _finish(scene, out, summary)
 
 

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import torch
 
+from taichi_ndf.backoff import MAX_BACKOFFS, BestState, climbed
 from taichi_ndf.callbacks import DivergenceError
 from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.field import NeuralField
@@ -66,6 +67,7 @@ class SolveResult:
     history: list[MonitorRecord]
     probes: dict[str, list[float]]
     newton_steps: int = 0
+    backoffs: int = 0  # learning-rate backoffs (`taichi_ndf.backoff`)
 
 
 class Solver:
@@ -212,6 +214,8 @@ class Solver:
             self._refresh_contact(lam)
             if newton and done_in_step == 0:
                 self.newton(lam)
+            if done_in_step == 0 and cfg.iterations > 0:  # the step's start: backoff's first best
+                self._keep_if_best(lam, self._monitor_energy(lam))
             for _ in range(done_in_step, cfg.iterations):
                 samples, times = self.training_samples(cfg.samples, lam, state.generator)
                 gnorm = self._adam_step(samples, lam, times)
@@ -241,7 +245,7 @@ class Solver:
         return SolveResult(energy=state.history[-1].energy, iterations=state.iteration,
                            wall_time=time.perf_counter() - t0, history=state.history,
                            probes=self.probe_displacements(cfg.load_steps[-1]),
-                           newton_steps=state.newton_steps)
+                           newton_steps=state.newton_steps, backoffs=state.backoffs)
 
     # -- contact: penetration filter and dense check ----------------------------------------------
     def _adam_step(self, samples, lam: float, times) -> float:
@@ -322,14 +326,56 @@ class Solver:
         _call(self._callbacks, "on_step", self, energy, grad_norm)
 
     def _record(self, lam: float, gnorm: float, t0: float) -> MonitorRecord:
-        energy = self.energy_and_gradient(self.monitor_samples(), lam, grad=False).total
+        energy = self._monitor_energy(lam)
+        if self._climbed(lam, energy):
+            energy = self._back_off(lam, energy)
         _call(self._callbacks, "on_record", self, energy, gnorm, lam)
         record = MonitorRecord(
             iteration=self.state.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
             learning_rate=self.state.optimiser.learning_rate,
             probes=self.probe_displacements(lam), wall_time=time.perf_counter() - t0)
         self.state.history.append(record)
+        self._keep_if_best(lam, energy)
         return record
+
+    def _monitor_energy(self, lam: float) -> float:
+        return self.energy_and_gradient(self.monitor_samples(), lam, grad=False).total
+
+    # -- learning-rate backoff (`taichi_ndf.backoff`) ---------------------------------------------
+    def _climbed(self, lam: float, energy: float) -> bool:
+        best = self.state.best
+        if best is None or best.load_factor != lam or self.state.backoffs >= MAX_BACKOFFS:
+            return False
+        recorded = [h.energy for h in self.state.history if h.load_factor == lam]
+        return climbed(energy, best.energy, [best.energy, *recorded])
+
+    def _back_off(self, lam: float, energy: float) -> float:
+        """The field and Adam's moments back to the best state at this load factor, the
+        learning rate halved; returns Π of the restored field on the monitor samples."""
+        state, best = self.state, self.state.best
+        flat = self.field.get_flat()
+        self.field.set_flat(best.parameters.to(device=flat.device, dtype=flat.dtype))
+        optimiser = state.optimiser
+        step, scale = optimiser.step_count, optimiser.lr_scale
+        optimiser.load_state_dict(best.optimiser)
+        optimiser.step_count, optimiser.lr_scale = step, 0.5 * scale  # the schedule goes on
+        state.backoffs += 1
+        self._refresh_contact(lam)
+        restored = self._monitor_energy(lam)
+        log.warning("Adam's Π climbed to %.6g J at iteration %d (best %.6g J at iteration %d, "
+                    "load factor %g): back to that state, learning rate halved to %.3g "
+                    "(backoff %d of at most %d)", energy, state.iteration, best.energy,
+                    best.iteration, lam, optimiser.learning_rate, state.backoffs, MAX_BACKOFFS)
+        return restored
+
+    def _keep_if_best(self, lam: float, energy: float) -> None:
+        best = self.state.best
+        if math.isfinite(energy) and (best is None or best.load_factor != lam
+                                      or energy < best.energy):
+            self.state.best = BestState(
+                iteration=self.state.iteration, load_factor=lam, energy=energy,
+                parameters=self.field.get_flat().detach().clone(),
+                optimiser=self.state.optimiser.state_dict())
 
     def _lbfgs(self, lam: float) -> None:
         """Deterministic L-BFGS polish on a fixed, large sample set (of (ξ, t) in a

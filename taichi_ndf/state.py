@@ -1,8 +1,8 @@
 """The state of a minimisation: everything that changes while Π is minimised.
 
 A `State` holds the field's parameters (the field itself), the optimiser's moments, the
-sampling random-number generator, the iteration and load-step counters and the convergence
-history. The model and the objective are immutable and live elsewhere, so a state saved with
+sampling random-number generator, the iteration and load-step counters, the convergence
+history and the best monitored state of the learning-rate backoff (`taichi_ndf.backoff`). The model and the objective are immutable and live elsewhere, so a state saved with
 `save` and read back with `restore` continues a run exactly where it stopped (checkpoint file
 I/O: `taichi_ndf.checkpoint`).
 """
@@ -15,6 +15,7 @@ from pathlib import Path
 
 import torch
 
+from taichi_ndf.backoff import BestState
 from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
 from taichi_ndf.optim import Adam, AdamConfig
 
@@ -39,6 +40,8 @@ class State:
     """Field (its parameters), Adam (its moments), sampling generator, counters, history.
 
     load_step: index of the load step in progress (the number of load steps once finished).
+    best: the lowest monitored Π at the current load factor and its state (`backoff`).
+    backoffs: learning-rate backoffs so far.
     """
 
     field: object
@@ -48,6 +51,8 @@ class State:
     load_step: int = 0
     newton_steps: int = 0
     history: list[MonitorRecord] = field(default_factory=list)
+    best: BestState | None = None
+    backoffs: int = 0
 
     @classmethod
     def initial(cls, field, adam: AdamConfig, seed: int) -> State:
@@ -60,7 +65,8 @@ class State:
         save_checkpoint(path, self.field, self.optimiser, extra={
             **(extra or {}), "iteration": self.iteration, "load_step": self.load_step,
             "newton_steps": self.newton_steps, "history": [asdict(h) for h in self.history],
-            "sampling_rng": self.generator.get_state()})
+            "sampling_rng": self.generator.get_state(), "backoffs": self.backoffs,
+            "best": None if self.best is None else self.best.to_dict()})
 
     def restore(self, path: str | Path) -> dict:
         """Read a state written by `save` into this one (in place); returns the checkpoint's
@@ -75,5 +81,8 @@ class State:
         self.history = [MonitorRecord(**h) for h in extra["history"]]
         if "sampling_rng" in extra:  # absent in checkpoints written before it was kept
             self.generator.set_state(extra["sampling_rng"])
+        self.backoffs = int(extra.get("backoffs", 0))  # absent before the backoff existed
+        best = extra.get("best")
+        self.best = None if best is None else BestState.from_dict(best)
         log.info("resumed from %s at iteration %d", path, self.iteration)
         return extra

@@ -117,3 +117,25 @@ def test_state_dict_round_trip_continues_identically():
 def test_config_rejects_bad_values(kwargs, message):
     with pytest.raises(ValueError, match=message):
         AdamConfig(**kwargs)
+
+
+def test_lr_scale_scales_the_step_and_is_kept_in_the_state():
+    params, grads, g = make_problem(5)
+    fill_gradients(grads, g)
+    start = [p.clone() for p in params]
+    full = Adam([p.clone() for p in params], grads, config=AdamConfig(lr=0.02))
+    halved = Adam(params, grads, config=AdamConfig(lr=0.02))
+    halved.lr_scale = 0.5
+    assert halved.learning_rate == pytest.approx(0.01)
+    full.step()
+    halved.step()
+    for p0, p1, p2 in zip(start, full.parameters, halved.parameters, strict=True):
+        torch.testing.assert_close(p2 - p0, 0.5 * (p1 - p0), rtol=1e-12, atol=0)
+    state = halved.state_dict()
+    assert state["lr_scale"] == 0.5
+    restored = Adam([p.clone() for p in params], grads, config=AdamConfig(lr=0.02))
+    restored.load_state_dict(state)
+    assert restored.lr_scale == 0.5
+    del state["lr_scale"]  # a checkpoint written before the backoff existed
+    restored.load_state_dict(state)
+    assert restored.lr_scale == 1.0

@@ -28,7 +28,8 @@ STORE = {
     "napkin": {"siren": _record(status="ok", energy=-1.0, solve=8.0, iterations=800),
                "spline": _record(status="ok", energy=-1.02, solve=2.0, iterations=12,
                                  converged=True, spans=[8, 8])},
-    "napkin_sphere": {"siren": _record(status="ok", energy=-0.5, solve=8.0, iterations=400),
+    "napkin_sphere": {"siren": _record(status="ok", energy=-0.5, solve=8.0, iterations=400,
+                                       output_scale=0.4517, backoffs=2),
                       "spline": _record(status="refused", exit_code=2, message=(
                           "ndf-sim: error: [[obstacles]]: contact is solved on the SIREN "
                           "path only"))},
@@ -42,7 +43,9 @@ def test_table_gives_the_gap_and_names_refused_and_missing_runs():
             for line in _module().table(STORE).splitlines() if line.startswith("| ")}
     assert "-2.00 %" in rows["napkin", "spline + Newton"]  # (−1.02 − −1) / 1
     assert "12 (converged, 8 × 8 spans)" in rows["napkin", "spline + Newton"]
-    assert "800 (fixed)" in rows["napkin", "SIREN + Adam"]
+    assert "800 (fixed; dimensional output scale)" in rows["napkin", "SIREN + Adam"]
+    assert "400 (fixed; output scale 0.452 m, 2 backoffs)" in rows["napkin_sphere",
+                                                                  "SIREN + Adam"]
     assert "refused (contact on Newton path: pending)" in rows["napkin_sphere",
                                                               "spline + Newton"]
     assert "not run" in rows["flag", "SIREN + Adam"]

@@ -1,0 +1,63 @@
+"""Learning-rate backoff: Adam's answer to a step that is too long.
+
+Adam moves every weight by about the learning rate per step, so a SIREN field's displacement
+step is about learning rate × output_scale (docs/scenes.md, "Field output scale"). Where that
+is too long for the shell's stiff directions, Π does not just fluctuate: it climbs by orders of
+magnitude (flag with a 1.78 m output scale: −0.419 J at iteration 50, +141 J at 100, +4.8e5 J
+at 250). At every monitor record the solver compares Π on the fixed monitor samples with the
+best Π recorded at the same load factor (from the load step's start on); if Π has climbed
+above it by more than CLIMB_FACTOR times the largest |Π| recorded at that load factor, the
+field's parameters and Adam's moments go back to the
+best state and the learning rate is halved (`Adam.lr_scale`), at most MAX_BACKOFFS times per
+run. Training noise moves the monitored Π by a fraction of |Π|, so a run whose steps are
+short enough does not back off; a step so long that Π climbs an order of magnitude above
+anything recorded is not a step a minimiser should keep.
+
+The best state is part of the solver's `State` (a checkpoint keeps it), so a resumed run backs
+off exactly as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+# A climb above the best Π by more than this many times the largest |Π| recorded backs off.
+CLIMB_FACTOR = 10.0
+# The most halvings of the learning rate in one run (1/1024 of the schedule's after all).
+MAX_BACKOFFS = 10
+
+
+@dataclass
+class BestState:
+    """The lowest monitored Π at a load factor and the state that had it.
+
+    parameters: the field's flat parameter vector; optimiser: `Adam.state_dict()`."""
+
+    iteration: int
+    load_factor: float
+    energy: float  # Π on the monitor samples [J]
+    parameters: torch.Tensor
+    optimiser: dict
+
+    def to_dict(self) -> dict:
+        return {"iteration": self.iteration, "load_factor": self.load_factor,
+                "energy": self.energy, "parameters": self.parameters,
+                "optimiser": self.optimiser}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> BestState:
+        return cls(iteration=int(data["iteration"]), load_factor=float(data["load_factor"]),
+                   energy=float(data["energy"]), parameters=data["parameters"],
+                   optimiser=data["optimiser"])
+
+
+def climbed(energy: float, best: float, recorded: list[float]) -> bool:
+    """Π [J] has climbed too far: non-finite, or above the best Π by more than CLIMB_FACTOR
+    times the largest |Π| among `recorded` (the monitored Π at this load factor, the best
+    among them)."""
+    if not math.isfinite(energy):
+        return True
+    return energy - best > CLIMB_FACTOR * max(abs(e) for e in recorded)
