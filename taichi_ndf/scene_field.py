@@ -21,19 +21,20 @@ SIREN_KEYS = ("width", "hidden_layers", "omega0", "output_scale")
 SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
 FIELD_TYPES = ("siren", "spline")
 # output_scale estimates (`scaling`), each falling back to the cheaper ones after it; "auto"
-# is AUTO_ESTIMATE: the dimensional one, with which the shipped scenes' learning rates were
-# chosen (the output scale is Adam's step, lr × scale). The (more accurate) equilibrium one
-# trains no better (docs/scenes.md, "Field output scale"): napkin_sphere's far higher end with
-# it (Π +0.0024 J) was the contact filter freezing Adam, fixed (`step_allowed`'s both_ends);
-# since then it ends 1.5 % higher than with this one on two seeds (seed spread 2 %), bowl
-# within its seed spread, six scenes 0.04-2.6 % lower, and Adam diverges with it on flag
-# (1.78 m: Π +0.59 against -0.13 J) and napkin_handles (1.32 m: stopped at Π 1423 J).
+# is AUTO_ESTIMATE: the equilibrium one, the displacement of a coarse projected-Newton solve
+# (docs/scenes.md, "Field output scale": measured against the dimensional guess, which is off
+# by up to 260× on a cantilever). A longer Adam step (lr × scale) than the dimensional one made
+# flag and napkin_handles diverge; the learning-rate backoff (`taichi_ndf.backoff`) answers that.
 SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
-AUTO_ESTIMATE = "dimensional"
+AUTO_ESTIMATE = "equilibrium"
 # The estimates that need a solve at run start, in the order tried for each name; the
 # dimensional estimate, set when the scene is read, is what remains if all of them fail.
 RUNTIME_ESTIMATES = {"equilibrium": ("equilibrium", "linear"), "linear": ("linear",),
                      "dimensional": ()}
+# Fewer Adam iterations in all (a --quick smoke test: 1-15 per load step) keep the dimensional
+# estimate: the estimate's solve (0.4-40 s, 106 s with a mesh obstacle) would cost more than
+# the run.
+MIN_ESTIMATE_ITERATIONS = 100
 ESTIMATE_FUNCTIONS = {"equilibrium": "equilibrium_displacement",
                       "linear": "linear_displacement"}
 
@@ -68,14 +69,15 @@ def field_for_solver(field: FieldConfig, document: dict, model: ShellModel,
                      config: SolverConfig) -> FieldConfig:
     """The SIREN configuration a run with `config` trains. A scene is read without a runtime,
     so an estimated `output_scale` holds the dimensional estimate until the run starts; where
-    Adam trains the field (config.iterations > 0) "equilibrium" and "linear" (and "auto" if
-    AUTO_ESTIMATE is one of them) become their estimate of `model` (`scaling`; each falls
-    back to the next cheaper one, "equilibrium" -> "linear" -> "dimensional", with a logged
-    warning naming why). Elsewhere (last-layer Newton only: the output layer absorbs the scale) the
-    dimensional estimate is kept."""
+    Adam trains the field for at least MIN_ESTIMATE_ITERATIONS iterations over all load steps,
+    "equilibrium" and "linear" (and "auto", which is AUTO_ESTIMATE) become their estimate of
+    `model` (`scaling`; each falls back to the next cheaper one, "equilibrium" -> "linear" ->
+    "dimensional", with a logged warning naming why). Elsewhere (last-layer Newton only: the
+    output layer absorbs the scale; a short smoke test) the dimensional estimate is kept."""
     table = document.get("field", {})
     name = table.get("output_scale", "auto") if isinstance(table, dict) else "auto"
-    if name not in SCALE_ESTIMATES or config.iterations == 0:
+    if (name not in SCALE_ESTIMATES
+            or config.iterations * len(config.load_steps) < MIN_ESTIMATE_ITERATIONS):
         return field
     from taichi_ndf import scaling
 

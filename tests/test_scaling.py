@@ -14,7 +14,7 @@ from taichi_ndf.scaling import (
     linear_displacement,
 )
 from taichi_ndf.scene import load_scene
-from taichi_ndf.scene_field import field_for_solver
+from taichi_ndf.scene_field import MIN_ESTIMATE_ITERATIONS, field_for_solver
 from taichi_ndf.validation import CASES, SCENES_DIR
 
 SHIPPED = Path(__file__).resolve().parents[1] / "scenes"
@@ -70,20 +70,28 @@ def test_the_equilibrium_estimate_of_a_cloth_drape(scene, solved):
 def test_which_estimate_a_run_gets():
     """Read without a runtime, an estimated scale is the dimensional estimate; a run that
     trains with Adam takes the equilibrium estimate ("equilibrium") or the linear one
-    ("linear"); "auto" (the default), "dimensional", an explicit number and a Newton-only run
-    keep the scale read."""
+    ("linear"); "auto" (the default) is the equilibrium estimate; "dimensional", an explicit
+    number and a Newton-only run keep the scale read, and so does a run of fewer than
+    MIN_ESTIMATE_ITERATIONS Adam iterations (a smoke test)."""
     scene = load_scene(SCENES_DIR / "scordelis_lo_roof.toml")
     assert scene.solver.iterations == 0
     assert scene.field.output_scale == characteristic_displacement(scene.model)
-    adam = dataclasses.replace(scene.solver, iterations=10)
+    adam = dataclasses.replace(scene.solver, iterations=MIN_ESTIMATE_ITERATIONS)
     equilibrium = with_scale(scene, "equilibrium")
     assert field_for_solver(scene.field, equilibrium, scene.model, scene.solver) == scene.field
+    smoke = dataclasses.replace(scene.solver, iterations=MIN_ESTIMATE_ITERATIONS - 1)
+    assert field_for_solver(scene.field, equilibrium, scene.model, smoke) == scene.field
     trained = field_for_solver(scene.field, equilibrium, scene.model, adam)
     assert trained == dataclasses.replace(
         scene.field, output_scale=equilibrium_displacement(scene.model))
+    assert field_for_solver(scene.field, with_scale(scene, "auto"), scene.model,
+                            adam) == trained
+    plain = {**scene.document, "field": {k: v for k, v in scene.document["field"].items()
+                                         if k != "output_scale"}}
+    assert field_for_solver(scene.field, plain, scene.model, adam) == trained
     linear = field_for_solver(scene.field, with_scale(scene, "linear"), scene.model, adam)
     assert linear.output_scale == pytest.approx(linear_displacement(scene.model), rel=1e-12)
-    for kept in ("auto", "dimensional", 0.5):
+    for kept in ("dimensional", 0.5):
         assert field_for_solver(scene.field, with_scale(scene, kept), scene.model,
                                 adam) == scene.field
 
@@ -94,7 +102,7 @@ def with_scale(scene, value):
 
 def test_a_failed_estimate_falls_back_to_the_next_with_a_warning(monkeypatch, caplog):
     scene = load_scene(SCENES_DIR / "scordelis_lo_roof.toml")
-    adam = dataclasses.replace(scene.solver, iterations=10)
+    adam = dataclasses.replace(scene.solver, iterations=MIN_ESTIMATE_ITERATIONS)
     document = with_scale(scene, "equilibrium")
 
     def refuse(model):
