@@ -2,9 +2,10 @@
 
 A `State` holds the field's parameters (the field itself), the optimiser's moments, the
 sampling random-number generator, the iteration and load-step counters, the convergence
-history and the best monitored state of the learning-rate backoff (`taichi_ndf.backoff`). The model and the objective are immutable and live elsewhere, so a state saved with
-`save` and read back with `restore` continues a run exactly where it stopped (checkpoint file
-I/O: `taichi_ndf.checkpoint`).
+history and the best monitored state of the learning-rate backoff (`taichi_ndf.backoff`).
+The model and the objective are immutable and live elsewhere, so a state saved with `save`
+and read back with `restore` continues a run exactly where it stopped (checkpoint file I/O:
+`taichi_ndf.checkpoint`).
 """
 
 from __future__ import annotations
