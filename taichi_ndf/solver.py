@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import torch
 
-from taichi_ndf.backoff import MAX_BACKOFFS, BestState, should_back_off
+from taichi_ndf.backoff import MAX_BACKOFFS, BestState, climbed
 from taichi_ndf.callbacks import DivergenceError
 from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.field import NeuralField
@@ -343,15 +343,11 @@ class Solver:
 
     # -- learning-rate backoff (`taichi_ndf.backoff`) ---------------------------------------------
     def _climbed(self, lam: float, energy: float) -> bool:
-        """Π has climbed far enough to back off (`backoff.should_back_off`)."""
         best = self.state.best
         if best is None or best.load_factor != lam or self.state.backoffs >= MAX_BACKOFFS:
             return False
-        history = self.state.history
-        last = history[-1] if history else None
-        previous = (last.energy if last is not None and last.load_factor == lam
-                    and last.iteration > best.iteration else None)
-        return should_back_off(energy, previous, best)
+        recorded = [h.energy for h in self.state.history if h.load_factor == lam]
+        return climbed(energy, best.energy, [best.energy, *recorded])
 
     def _back_off(self, lam: float, energy: float) -> float:
         """The field and Adam's moments back to the best state at this load factor, the
@@ -373,18 +369,13 @@ class Solver:
         return restored
 
     def _keep_if_best(self, lam: float, energy: float) -> None:
-        """A monitored Π below the best at this load factor (or the first at it) makes the
-        current state the best (`backoff.BestState`)."""
         best = self.state.best
-        same = best is not None and best.load_factor == lam
-        if not math.isfinite(energy) or (same and energy >= best.energy):
-            return
-        recorded = [abs(h.energy) for h in self.state.history if h.load_factor == lam]
-        magnitude = max(abs(energy), *recorded, best.magnitude if same else 0.0)
-        self.state.best = BestState(
-            iteration=self.state.iteration, load_factor=lam, energy=energy,
-            magnitude=magnitude, parameters=self.field.get_flat().detach().clone(),
-            optimiser=self.state.optimiser.state_dict())
+        if math.isfinite(energy) and (best is None or best.load_factor != lam
+                                      or energy < best.energy):
+            self.state.best = BestState(
+                iteration=self.state.iteration, load_factor=lam, energy=energy,
+                parameters=self.field.get_flat().detach().clone(),
+                optimiser=self.state.optimiser.state_dict())
 
     def _lbfgs(self, lam: float) -> None:
         """Deterministic L-BFGS polish on a fixed, large sample set (of (ξ, t) in a

@@ -3,36 +3,24 @@ magnitude above anything recorded, the best state comes back and the learning ra
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 
 import pytest
-import torch
 from test_cli import SMALL_NAPKIN, run_sim, write_scene
 
-from taichi_ndf.backoff import CLIMB_FACTOR, DIVERGED_FACTOR, BestState, climbed, should_back_off
+from taichi_ndf.backoff import CLIMB_FACTOR, climbed
 from taichi_ndf.state import State
 
 
-def test_a_climb_is_an_order_of_magnitude_that_persists_for_two_records():
-    best = BestState(iteration=100, load_factor=1.0, energy=-0.4, magnitude=0.5,
-                     parameters=torch.zeros(3), optimiser={})
+def test_a_climb_is_an_order_of_magnitude_above_anything_recorded():
+    recorded = [0.5, -0.2, -0.4]
+    best = -0.4
     assert CLIMB_FACTOR == 10
-    assert not climbed(-0.1, best)  # noise: 0.3 J above the best
-    assert not climbed(best.energy + 4.99, best)
-    assert climbed(best.energy + 5.01, best)  # 10 × 0.5 J above the best
-    assert climbed(math.nan, best) and climbed(math.inf, best)
-    # One order of magnitude at one record is an overshoot that may come back down; at two in
-    # a row, or two orders at one, the run backs off.
-    assert DIVERGED_FACTOR == 100
-    assert not should_back_off(6.0, None, best)
-    assert not should_back_off(6.0, -0.3, best)
-    assert not should_back_off(-0.3, 6.0, best)
-    assert should_back_off(6.0, 7.0, best)
-    assert not should_back_off(best.energy + 49.9, None, best)
-    assert should_back_off(best.energy + 50.1, None, best)  # 100 × 0.5 J above the best
-    assert should_back_off(math.nan, None, best)  # nothing to wait for
+    assert not climbed(-0.1, best, recorded)  # noise: 0.3 J above the best
+    assert not climbed(best + 4.99, best, recorded)
+    assert climbed(best + 5.01, best, recorded)  # 10 × 0.5 J above the best
+    assert climbed(math.nan, best, recorded) and climbed(math.inf, best, recorded)
 
 
 def scene(tmp_path, lr, iterations):
@@ -41,7 +29,7 @@ def scene(tmp_path, lr, iterations):
 
 
 def test_a_too_long_adam_step_backs_off_and_the_run_ends_lower(tmp_path, caplog):
-    # lr 0.1 on the small napkin: Π climbs from ~1e-3 J to ~1e11 J in ten iterations. Without
+    # lr 0.1 on the small napkin: Π climbs from ~1e-3 J to ~1e10 J in five iterations. Without
     # the backoff it ended at +1.5e7 J (f32, 100 iterations); with it, on the cloth's way down.
     path = scene(tmp_path, 0.1, 40)
     assert run_sim(path, "--out", tmp_path / "run") == 0
@@ -52,11 +40,8 @@ def test_a_too_long_adam_step_backs_off_and_the_run_ends_lower(tmp_path, caplog)
     assert result["energy"] < 0  # the cloth hangs: Π below the flat sheet's
     rates = [h["learning_rate"] for h in history]
     assert rates[-1] < 0.1 * 0.5 ** result["backoffs"] * 1.0001
-    # A record that climbed by less than two orders of magnitude is kept once (an overshoot may
-    # come back down); at the second in a row the record holds the restored state: never two
-    # climbed records in a row.
-    climbed_records = [h["energy"] > 1.0 for h in history]
-    assert not any(a and b for a, b in itertools.pairwise(climbed_records))
+    # Every record holds the state kept (a restored one after a backoff): none has climbed.
+    assert max(h["energy"] for h in history) < 1.0
 
 
 def test_a_short_enough_step_never_backs_off(tmp_path, caplog):
