@@ -128,7 +128,8 @@ def _row(scene: str, field: str, r: dict | None, gap: str) -> str:
         its = f"{r['iterations']} ({'converged' if r['converged'] else 'NOT converged'}, " \
               f"{spans} spans)"
     elif "output_scale" in r:  # recorded since "auto" became the equilibrium estimate
-        backoffs = f", {r['backoffs']} backoffs" if r["backoffs"] else ""
+        n = r["backoffs"]
+        backoffs = f", {n} backoff{'s' if n > 1 else ''}" if n else ""
         its = f"{r['iterations']} (fixed; output scale {r['output_scale']:.3g} m{backoffs})"
     else:
         its = f"{r['iterations']} (fixed; dimensional output scale)"
