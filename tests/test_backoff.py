@@ -7,10 +7,9 @@ import json
 import math
 
 import pytest
-from test_cli import SMALL_NAPKIN, run_sim, write_scene
+from test_cli import SMALL_NAPKIN, interrupt_after_saving, run_sim, write_scene
 
 from taichi_ndf.backoff import CLIMB_FACTOR, climbed
-from taichi_ndf.state import State
 
 
 def test_a_climb_is_an_order_of_magnitude_above_anything_recorded():
@@ -56,14 +55,7 @@ def test_a_resumed_run_backs_off_as_the_uninterrupted_one(tmp_path, monkeypatch)
     whole = json.loads((tmp_path / "whole" / "result.json").read_text())
     assert whole["backoffs"] >= 2
 
-    save = State.save
-
-    def save_then_crash(self, path, extra=None):
-        save(self, path, extra)
-        if self.iteration == 10:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(State, "save", save_then_crash)
+    interrupt_after_saving(monkeypatch, 10)
     assert run_sim(path, "--out", tmp_path / "cut") == 130
     monkeypatch.undo()
     assert run_sim(path, "--out", tmp_path / "cut", "--resume") == 0

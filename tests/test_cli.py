@@ -62,6 +62,18 @@ def run_sim(*args) -> int:
     return sim.main([str(a) for a in args] + RUNTIME)
 
 
+def interrupt_after_saving(monkeypatch, iteration: int | None = None) -> None:
+    """Ctrl-C right after the checkpoint of `iteration` is written (None: the first one)."""
+    save = State.save
+
+    def save_then_interrupt(self, path, extra=None):
+        save(self, path, extra)
+        if iteration is None or self.iteration == iteration:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(State, "save", save_then_interrupt)
+
+
 def load_demo(name: str):
     spec = importlib.util.spec_from_file_location(f"demo_{name}", ROOT / "demos" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
@@ -111,14 +123,7 @@ def test_resume_continues_an_interrupted_run(tmp_path, monkeypatch):
     assert run_sim(scene, "--out", tmp_path / "whole") == 0
     whole = json.loads((tmp_path / "whole" / "result.json").read_text())
 
-    save = State.save
-
-    def save_then_crash(self, path, extra=None):
-        save(self, path, extra)
-        if self.iteration == 5:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(State, "save", save_then_crash)
+    interrupt_after_saving(monkeypatch, 5)
     assert run_sim(scene, "--out", tmp_path / "cut") == 130  # Ctrl-C
     monkeypatch.undo()
     # The attempt lies beside the (never completed) run directory, ready to resume.
@@ -249,14 +254,7 @@ def test_resume_keeps_the_trajectory_of_load_steps_finished_before_the_interrupt
     whole = json.loads((tmp_path / "whole" / "result.json").read_text())
     assert whole["trajectory"]["load_factors"] == [0.5, 1.0]
 
-    save = State.save
-
-    def save_then_crash(self, path, extra=None):
-        save(self, path, extra)
-        if self.iteration == 15:  # in the second load step
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(State, "save", save_then_crash)
+    interrupt_after_saving(monkeypatch, 15)  # in the second load step
     assert run_sim(scene, "--out", tmp_path / "cut") == 130  # Ctrl-C
     monkeypatch.undo()
     # the first step's frame is on disk at once (in the incomplete attempt)

@@ -15,7 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_cli import RUNTIME, SMALL_NAPKIN, run_sim, small_napkin, write_scene
+from test_cli import (
+    RUNTIME,
+    SMALL_NAPKIN,
+    interrupt_after_saving,
+    run_sim,
+    small_napkin,
+    write_scene,
+)
 
 from taichi_ndf.checkpoint import CheckpointError, load_checkpoint
 from taichi_ndf.cli import export
@@ -72,15 +79,7 @@ def test_1_failed_output_writing_keeps_the_previous_complete_run(tmp_path, monke
 
 def test_1_an_interrupted_first_run_leaves_only_a_named_incomplete_attempt(tmp_path,
                                                                            monkeypatch, capsys):
-    from taichi_ndf.state import State
-
-    save = State.save
-
-    def save_then_interrupt(self, path, extra=None):
-        save(self, path, extra)
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(State, "save", save_then_interrupt)
+    interrupt_after_saving(monkeypatch)
     out = tmp_path / "run"
     assert run_sim(small_napkin(tmp_path), "--out", out) == 130
     line = one_line(capsys.readouterr().err)
