@@ -7,11 +7,14 @@ magnitude (flag with a 1.78 m output scale: −0.419 J at iteration 50, +141 J a
 at 250). At every monitor record the solver compares Π on the fixed monitor samples with the
 best Π recorded at the same load factor (from the load step's start on); if Π has climbed
 above it by more than CLIMB_FACTOR times the largest |Π| recorded at that load factor, the
-field's parameters and Adam's moments go back to the
-best state and the learning rate is halved (`Adam.lr_scale`), at most MAX_BACKOFFS times per
-run. Training noise moves the monitored Π by a fraction of |Π|, so a run whose steps are
-short enough does not back off; a step so long that Π climbs an order of magnitude above
-anything recorded is not a step a minimiser should keep.
+field's parameters and Adam's moments go back to the best state and the learning rate is
+halved (`Adam.lr_scale`), at most MAX_BACKOFFS times per run. Training noise moves the
+monitored Π by a fraction of |Π|, so a run whose steps are short enough does not back off; a
+step so long that Π climbs an order of magnitude above anything recorded is not a step a
+minimiser should keep. Gentler rules (wait for a second climbed record; back off at once only
+at two orders of magnitude) were measured and let Adam come back from a climb into a worse
+state (docs/scenes.md, "Learning-rate backoff"). A non-finite Π or gradient between records
+is the divergence guard's (`taichi_ndf.callbacks`), which stops the run.
 
 The best state is part of the solver's `State` (a checkpoint keeps it), so a resumed run backs
 off exactly as an uninterrupted one.

@@ -10,6 +10,10 @@ fixed sample set: at the start of each load step, every `newton_every` Adam iter
 the end of the step. Adam improves the features (hidden layers), Newton the combination of
 them — first-order steps alone crawl on stiff shells.
 
+At every monitor record a Π that climbed an order of magnitude above anything recorded at
+the load factor sends the field and Adam's moments back to the best state and halves the
+learning rate (`taichi_ndf.backoff`).
+
 With `pseudo_time` the field takes the load factor t as an extra input and is trained over all
 t at once (`taichi_ndf.pseudo_time`): every area sample draws its own t in
 [pseudo_time_start, λ] for the current load step λ, so several load steps act as a curriculum
