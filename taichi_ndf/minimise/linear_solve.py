@@ -119,8 +119,14 @@ def half_bandwidth(matrix: sp.spmatrix) -> int:
 
 
 def narrow_band(matrix: sp.spmatrix) -> bool:
-    """Whether the banded Cholesky factorisation applies: half-bandwidth ≤ BAND_LIMIT × √N."""
-    return half_bandwidth(matrix) <= BAND_LIMIT * math.sqrt(matrix.shape[0])
+    """Whether the banded Cholesky factorisation applies (`_band_fits`)."""
+    return _band_fits(half_bandwidth(matrix), matrix.shape[0])
+
+
+def _band_fits(width: int, size: int) -> bool:
+    """A half-bandwidth `width` of an N × N matrix (N = `size`) is narrow enough for the
+    banded factorisation: width ≤ BAND_LIMIT × √N."""
+    return width <= BAND_LIMIT * math.sqrt(size)
 
 
 def lower_band(matrix: sp.spmatrix) -> np.ndarray | None:
@@ -133,7 +139,7 @@ def lower_band(matrix: sp.spmatrix) -> np.ndarray | None:
     offset = row - col
     width = int(offset.max(initial=0))  # the half-bandwidth (`half_bandwidth`)
     size = matrix.shape[0]
-    if width > BAND_LIMIT * math.sqrt(size):  # not `narrow_band`
+    if not _band_fits(width, size):
         return None
     # bincount sums duplicate entries, as the sparse matrix does
     return np.bincount(offset * size + col, weights=coo.data[lower],
