@@ -57,10 +57,12 @@ class BestState:
                    optimiser=data["optimiser"])
 
 
-def climbed(energy: float, best: float, recorded: list[float]) -> bool:
-    """Π [J] has climbed too far: non-finite, or above the best Π by more than CLIMB_FACTOR
-    times the largest |Π| among `recorded` (the monitored Π at this load factor, the best
-    among them)."""
+def climbed(energy: float, reference: float, recorded: list[float],
+            factor: float = CLIMB_FACTOR) -> bool:
+    """Π [J] has climbed too far: non-finite, or above `reference` (the backoff: the best Π)
+    by more than `factor` times the largest |Π| among `recorded` (the monitored Π at this
+    load factor, the reference among them). The divergence guard's blow-up test is the same
+    with a factor of 1000 (`callbacks.BLOW_UP_FACTOR`)."""
     if not math.isfinite(energy):
         return True
-    return energy - best > CLIMB_FACTOR * max(abs(e) for e in recorded)
+    return energy - reference > factor * max(abs(e) for e in recorded)

@@ -16,6 +16,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from taichi_ndf.backoff import climbed
+
 BLOW_UP_FACTOR = 1e3
 
 
@@ -58,10 +60,8 @@ class DivergenceGuard:
     def _blown_up(solver, energy: float, load_factor: float) -> bool:
         """Π far above anything seen at this load factor: a minimiser must not climb by
         orders of magnitude (1000× the largest magnitude recorded so far)."""
-        seen = [h.energy for h in solver.state.history if h.load_factor == load_factor]
-        if not seen:
-            return False
-        return energy > seen[0] + BLOW_UP_FACTOR * max(abs(e) for e in seen)
+        seen = solver.state.energies_at(load_factor)
+        return bool(seen) and climbed(energy, seen[0], seen, BLOW_UP_FACTOR)
 
     def fail(self, solver, energy: float, grad_norm: float):
         if self._good is not None:

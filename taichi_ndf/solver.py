@@ -350,8 +350,7 @@ class Solver:
         best = self.state.best
         if best is None or best.load_factor != lam or self.state.backoffs >= MAX_BACKOFFS:
             return False
-        recorded = [h.energy for h in self.state.history if h.load_factor == lam]
-        return climbed(energy, best.energy, [best.energy, *recorded])
+        return climbed(energy, best.energy, [best.energy, *self.state.energies_at(lam)])
 
     def _back_off(self, lam: float, energy: float) -> float:
         """The field and Adam's moments back to the best state at this load factor, the

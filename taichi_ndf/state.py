@@ -55,6 +55,10 @@ class State:
     best: BestState | None = None
     backoffs: int = 0
 
+    def energies_at(self, load_factor: float) -> list[float]:
+        """Π [J] of every monitor record at this load factor, in order."""
+        return [h.energy for h in self.history if h.load_factor == load_factor]
+
     @classmethod
     def initial(cls, field, adam: AdamConfig, seed: int) -> State:
         """A fresh state: the field as given, zero Adam moments, the generator seeded."""
