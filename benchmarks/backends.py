@@ -10,8 +10,9 @@ process and its threads) side by side, with the load average before and after.
                 and again with that cache (warm); the steady SIREN step (napkin scene's field,
                 128 x 3, 4096 samples) and Newton step (napkin, 16 x 16 cubic spans)
     napkin      the README demo (demos/napkin.py: spline, 8² and 16² spans, Richardson) in f64
-    energies    Π of the napkin (8² spans) and of every validation case (spline path, one grid)
-                in f64 on both backends, and their relative difference (acceptance: 1e-12)
+    energies    Π in f64 of the napkin (spline, 8² spans; and its SIREN after the steps' Adam
+                iterations) and of every validation case (spline path, one grid) on both
+                backends, and their relative difference (acceptance: 1e-12)
 
     OMP_NUM_THREADS=1 nice -n 10 python benchmarks/backends.py [--quick]
         [--tasks steps napkin energies] [--cases square_plate ...]
@@ -72,9 +73,9 @@ def _init(precision: str = "f64") -> dict:
             "init_s": wall, "init_cpu_s": cpu}
 
 
-def siren_steps(count: int) -> dict:
-    """Times of the napkin scene's Adam iterations: the first (compilation included), the
-    median of the others."""
+def napkin_siren(count: int, callbacks=()):
+    """`count` Adam iterations of the napkin scene's SIREN (its field and samples) from the
+    scene's seed; the `SolveResult` (Π on the monitor samples at the end)."""
     import dataclasses
 
     from taichi_ndf.field import NeuralField
@@ -87,6 +88,12 @@ def siren_steps(count: int) -> dict:
                                  monitor_every=count, checkpoint_every=0)
     field = NeuralField(field_for_solver(scene.field, scene.document, scene.model, config),
                         seed=config.seed)
+    return Solver(scene.model, field, config).run(callbacks=callbacks)
+
+
+def siren_steps(count: int) -> dict:
+    """Times of the napkin scene's Adam iterations: the first (compilation included), the
+    median of the others."""
     laps = []
 
     class Timer:
@@ -96,7 +103,7 @@ def siren_steps(count: int) -> dict:
         def on_step(self, solver, energy, grad_norm):
             laps.append(self.clock.lap())
 
-    Solver(scene.model, field, config).run(callbacks=[Timer()])
+    napkin_siren(count, [Timer()])
     return _first_and_steady("siren", laps)
 
 
@@ -154,8 +161,9 @@ def napkin_demo(out: Path) -> dict:
     return {"demo_s": wall, "demo_cpu_s": cpu, "energy": {"napkin demo": result["energy"]}}
 
 
-def energies(cases: list[str]) -> dict:
-    """Π [J] (the solve's final Π on one grid, f64) of the napkin (8² spans) and the cases."""
+def energies(cases: list[str], siren_steps: int) -> dict:
+    """Π [J] in f64: the napkin's spline solve on one grid (8² spans), `siren_steps` Adam
+    iterations of its SIREN, and each validation case's spline solve on one grid."""
     import dataclasses
 
     from taichi_ndf.scene import load_scene
@@ -168,6 +176,7 @@ def energies(cases: list[str]) -> dict:
     plan = dataclasses.replace(scene.field, levels=1)
     config = dataclasses.replace(scene.solver, progress=False)
     out["napkin 8x8"] = solve_spline(scene.model, plan, config).levels[-1].energy
+    out[f"napkin SIREN, {siren_steps} Adam steps"] = napkin_siren(siren_steps).energy
     for name in cases:
         case = CASES[name]
         case_scene, model, plan = load_case_scene(case, field="spline")
@@ -187,7 +196,7 @@ def child(args: argparse.Namespace) -> None:
         with tempfile.TemporaryDirectory() as work:
             result |= napkin_demo(Path(work) / "napkin")
     else:
-        result |= energies(args.cases)
+        result |= energies(args.cases, args.siren_steps)
     print(json.dumps(result))
 
 
@@ -224,6 +233,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", choices=TASKS, default=list(TASKS))
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--backends", nargs=2, choices=BACKENDS, default=list(BACKENDS),
+                        help="the order in which each measurement runs them (default: %(default)s)")
     parser.add_argument("--cases", nargs="*", default=None,
                         help="validation cases of the energies task (default: all; --quick: "
                         f"{', '.join(QUICK_CASES)})")
@@ -245,10 +256,11 @@ def main() -> None:
     print(f"machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}; wall / CPU "
           "seconds; load = 1-minute load average before / after each process\n")
     with tempfile.TemporaryDirectory() as work:
-        caches = {b: str(Path(work) / b) for b in BACKENDS}
+        backends = args.backends
+        caches = {b: str(Path(work) / b) for b in backends}
         if "steps" in args.tasks:
             runs = {(b, state): run_child("steps", b, caches[b], args)
-                    for state in ("cold", "warm") for b in BACKENDS}
+                    for state in ("cold", "warm") for b in backends}
             print(row("backend", "cache", "init", "first SIREN step", "SIREN step",
                       "first Newton step", "Newton step", "compile (first − steady)",
                       "process", "load"))
@@ -265,7 +277,7 @@ def main() -> None:
             print()
         results = {}
         for task in [t for t in ("napkin", "energies") if t in args.tasks]:
-            for b in BACKENDS:  # warm caches from the steps task where it ran
+            for b in backends:  # warm caches from the steps task where it ran
                 results.setdefault(b, {}).setdefault("energy", {})
                 r = run_child(task, b, caches[b], args)
                 results[b]["energy"] |= r.pop("energy")
@@ -273,7 +285,7 @@ def main() -> None:
         if "napkin" in args.tasks:
             print(row("backend", "napkin demo (f64)", "process", "load"))
             print(row(*["---"] * 4))
-            for b in BACKENDS:
+            for b in backends:
                 r = results[b]["napkin"]
                 print(row(r["backend"], pair(r, "demo"), pair(r, "process"),
                           "{:.1f} / {:.1f}".format(*r["load"])))
