@@ -2,9 +2,11 @@
 
 import os
 
-# Taichi prints a version banner when imported; the library (and every tool's --help) stays
-# quiet. ENABLE_TAICHI_HEADER_PRINT=1 in the environment brings the banner back.
+# Taichi (and its fork quadrants) prints a version banner when imported; the library (and every
+# tool's --help) stays quiet. ENABLE_TAICHI_HEADER_PRINT=1 (ENABLE_QUADRANTS_HEADER_PRINT=1) in
+# the environment brings the banner back.
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
+os.environ.setdefault("ENABLE_QUADRANTS_HEADER_PRINT", "False")
 
 from taichi_ndf.runtime import current, init, is_initialised, reset
 

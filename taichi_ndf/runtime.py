@@ -1,4 +1,16 @@
-"""The one place that initialises Taichi.
+"""The one place that imports and initialises the Taichi language.
+
+Two implementations of the language are supported (*backends*): ``taichi`` (taichi 1.7.4, the
+last release) and ``quadrants`` (Genesis' maintained fork, 1.3.3; the same language without
+OpenGL, GGUI, AOT and the C API). Every module with kernels imports the language from here::
+
+    from taichi_ndf.runtime import ti
+
+The backend is bound when ``ti`` is first imported (or at ``init``, whichever comes first):
+``init(backend=...)`` when called before any kernel module is imported, else the environment
+variable ``TAICHI_NDF_BACKEND`` (``taichi`` or ``quadrants``), else the first installed of
+taichi, quadrants (docs/backends.md says why taichi comes first). Kernels are compiled by the
+backend that defined them, so the choice cannot change once a kernel module is imported.
 
 Nothing Taichi happens at import time. ``init`` is called once per process (tests use a
 session fixture); a second call with the same settings is a no-op, a second call with other
@@ -7,20 +19,105 @@ settings raises, because re-initialising Taichi invalidates every field and kern
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
 import logging
 import os
 import platform
 import random
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import torch
 
 log = logging.getLogger(__name__)
 
-ARCHES = ("cpu", "x64", "cuda", "vulkan", "metal", "opengl", "gpu")
+BACKEND_VARIABLE = "TAICHI_NDF_BACKEND"
+BACKENDS = ("taichi", "quadrants")  # in the order a default is looked for
+# The arch names each backend offers ("cpu" is the x64 backend on both); quadrants has no OpenGL.
+BACKEND_ARCHES = {
+    "taichi": ("cpu", "x64", "cuda", "vulkan", "metal", "opengl", "gpu"),
+    "quadrants": ("cpu", "x64", "cuda", "vulkan", "metal", "gpu"),
+}
 PRECISIONS = ("f32", "f64")
+
+_language: ModuleType | None = None  # the bound backend's module, once `ti` or `init` asked
+
+
+def _check_backend(backend: str) -> str:
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown Taichi backend {backend!r}; choose one of {BACKENDS}")
+    return backend
+
+
+def installed_backends() -> tuple[str, ...]:
+    """The backends whose package is installed (found, not imported)."""
+    return tuple(name for name in BACKENDS if importlib.util.find_spec(name) is not None)
+
+
+def selected_backend() -> str:
+    """The backend `ti` is (or will be) bound to: the bound one, else ``TAICHI_NDF_BACKEND``,
+    else the first installed of taichi, quadrants. Imports nothing; raises (one line) on an
+    unknown name or a backend that is not installed."""
+    if _language is not None:
+        return _language.__name__
+    wanted = os.environ.get(BACKEND_VARIABLE, "").strip()
+    if wanted:
+        try:
+            return _installed(_check_backend(wanted))
+        except (ValueError, RuntimeError) as error:
+            raise type(error)(f"{BACKEND_VARIABLE}={wanted}: {error}") from None
+    installed = installed_backends()
+    if not installed:
+        raise RuntimeError("neither taichi nor quadrants is installed: pip install taichi-ndf "
+                           "(taichi) or taichi-ndf[quadrants]")
+    return installed[0]
+
+
+def _installed(backend: str) -> str:
+    if importlib.util.find_spec(backend) is None:
+        extra = "taichi-ndf[quadrants]" if backend == "quadrants" else "taichi-ndf"
+        raise RuntimeError(f"the {backend} backend is not installed: pip install {extra}")
+    return backend
+
+
+def arches(backend: str | None = None) -> tuple[str, ...]:
+    """The arch names a backend offers (the selected backend's by default)."""
+    return BACKEND_ARCHES[_check_backend(backend or selected_backend())]
+
+
+def language(backend: str | None = None) -> ModuleType:
+    """The Taichi language module (``taichi`` or ``quadrants``), imported and bound on first use.
+
+    backend: the one wanted (default `selected_backend()`); asking for another than the bound
+    one raises, since the kernels already defined belong to the bound one.
+    """
+    global _language
+    wanted = _check_backend(backend or selected_backend())
+    if _language is None:
+        _language = importlib.import_module(_installed(wanted))
+        log.info("Taichi language: %s %s", wanted, backend_version(_language))
+    elif _language.__name__ != wanted:
+        raise RuntimeError(
+            f"the Taichi language is already {_language.__name__} (bound when the first kernel "
+            f"module was imported or init ran); cannot switch to {wanted} in this process: set "
+            f"{BACKEND_VARIABLE}={wanted} or call init(backend={wanted!r}) before importing "
+            "taichi_ndf's kernel modules")
+    return _language
+
+
+def backend_version(module: ModuleType) -> str:
+    version = module.__version__
+    return ".".join(map(str, version)) if isinstance(version, tuple) else str(version)
+
+
+def __getattr__(name: str):
+    # `from taichi_ndf.runtime import ti` binds the backend on first use (PEP 562).
+    if name == "ti":
+        return language()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass(frozen=True)
@@ -31,10 +128,14 @@ class Runtime:
     precision: str = "f64"
     seed: int = 0
     debug: bool = False
+    backend: str = "taichi"
 
     def __post_init__(self):
-        if self.arch not in ARCHES:
-            raise ValueError(f"unknown arch {self.arch!r}; choose one of {ARCHES}")
+        _check_backend(self.backend)
+        offered = BACKEND_ARCHES[self.backend]
+        if self.arch not in offered:
+            raise ValueError(f"unknown arch {self.arch!r} for the {self.backend} backend; choose "
+                             f"one of {offered}")
         if self.precision not in PRECISIONS:
             raise ValueError(f"unknown precision {self.precision!r}; choose one of {PRECISIONS}")
 
@@ -55,21 +156,26 @@ _current: Runtime | None = None
 
 
 def cache_dir() -> Path:
-    """Directory of Taichi's offline kernel cache (``TAICHI_NDF_CACHE`` overrides it)."""
+    """Directory of the offline kernel caches (``TAICHI_NDF_CACHE`` overrides it); each backend
+    keeps its own in a subdirectory named after it."""
     default = Path.home() / ".cache" / "taichi_ndf" / "ti_cache"
     return Path(os.environ.get("TAICHI_NDF_CACHE", default))
 
 
 def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *,
-         debug: bool = False) -> Runtime:
+         debug: bool = False, backend: str | None = None) -> Runtime:
     """Initialise Taichi for this process and seed torch, numpy and Python's RNG.
 
-    arch: "cpu" (Taichi's x64 backend), "cuda", "vulkan", "metal", "opengl" or "gpu".
+    arch: one of `arches(backend)`: "cpu" (the x64 backend), "cuda", "vulkan", "metal", "gpu",
+    and "opengl" on taichi only.
     precision: "f32" or "f64"; the default real type of kernels and of all tensors.
     debug: Taichi debug mode (bounds checks, autodiff validation); slow.
+    backend: "taichi" or "quadrants" (default `selected_backend()`); must be the bound one if
+    a kernel module was imported already.
     """
     global _current
-    wanted = Runtime(arch=arch, precision=precision, seed=seed, debug=debug)
+    wanted = Runtime(arch=arch, precision=precision, seed=seed, debug=debug,
+                     backend=_check_backend(backend or selected_backend()))
     if _current is not None:
         if _current == wanted:
             return _current
@@ -78,14 +184,10 @@ def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *,
             f"{wanted} in the same process (call taichi_ndf.reset() first, which invalidates "
             "every existing field and network)"
         )
-    import taichi as ti
-
-    ti_arch = {
-        "cpu": ti.x64, "x64": ti.x64, "cuda": ti.cuda, "vulkan": ti.vulkan,
-        "metal": ti.metal, "opengl": ti.opengl, "gpu": ti.gpu,
-    }[arch]
+    ti = language(wanted.backend)
+    ti_arch = getattr(ti, "x64" if arch == "cpu" else arch)
     fp = ti.f64 if precision == "f64" else ti.f32
-    path = cache_dir()
+    path = cache_dir() / wanted.backend
     path.mkdir(parents=True, exist_ok=True)
     ti.init(
         arch=ti_arch,
@@ -110,9 +212,7 @@ def reset() -> None:
     global _current
     if _current is None:
         return
-    import taichi as ti
-
-    ti.reset()
+    language().reset()
     _current = None
 
 
@@ -129,8 +229,9 @@ def is_initialised() -> bool:
 
 
 def machine_description(runtime: Runtime) -> dict:
-    """Python, platform, processor, CPU count and the runtime's arch and precision (for the
-    machine record of result files)."""
+    """Python, platform, processor, CPU count and the runtime's backend (with its version),
+    arch and precision (for the machine record of result files)."""
     return {"python": platform.python_version(), "platform": platform.platform(),
             "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+            "backend": f"{runtime.backend} {backend_version(language(runtime.backend))}",
             "arch": runtime.arch, "precision": runtime.precision}

@@ -9,7 +9,7 @@ import math
 import sys
 
 import taichi_ndf
-from taichi_ndf.runtime import machine_description
+from taichi_ndf.runtime import BACKEND_VARIABLE, arches, machine_description, selected_backend
 
 __all__ = ["add_runtime_options", "machine_description", "start"]
 
@@ -58,8 +58,11 @@ def _seed(text: str) -> int:
 def add_runtime_options(parser: argparse.ArgumentParser, *, precision: str = "f32",
                         seed: int | None = 0, seed_help: str = "random seed (default: 0)") -> None:
     """--arch, --precision, --seed, --threads and --verbose, with the tool's defaults."""
-    parser.add_argument("--arch", default="cpu", choices=("cpu", "cuda", "vulkan", "metal", "gpu"),
-                        help="Taichi backend (default: cpu)")
+    backend = selected_backend()
+    parser.add_argument("--arch", default="cpu",
+                        choices=tuple(a for a in arches(backend) if a != "x64"),
+                        help=f"device of the {backend} backend (default: cpu; the backend: "
+                        f"{BACKEND_VARIABLE}=taichi|quadrants)")
     parser.add_argument("--precision", default=precision, choices=("f32", "f64"),
                         help=f"floating-point precision of fields and kernels (default: "
                         f"{precision})")

@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import taichi as ti
 import torch
 import trimesh
 
 from taichi_ndf.contact.obstacles import Obstacle, _motion
+from taichi_ndf.runtime import ti
 
 
 @ti.func

@@ -17,8 +17,9 @@ The kernels contain no floating-point literals, so they run in the dtype of thei
 """
 
 # No ``from __future__ import annotations``: Taichi reads the kernels' annotations at definition.
-import taichi as ti
 import torch
+
+from taichi_ndf.runtime import ti
 
 
 @ti.kernel

@@ -20,10 +20,10 @@ import functools
 import math
 from fractions import Fraction
 
-import taichi as ti
 import torch
 
 from taichi_ndf.jets import CHANNELS
+from taichi_ndf.runtime import ti
 
 
 @functools.cache

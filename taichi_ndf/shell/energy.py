@@ -14,12 +14,12 @@ import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import taichi as ti
 import torch
 
 from taichi_ndf import jets
 from taichi_ndf.geometry import ReferenceSurface
 from taichi_ndf.loads import Loads
+from taichi_ndf.runtime import ti
 from taichi_ndf.sampling import SurfaceSamples, sample_surface
 from taichi_ndf.shell.kinematics import (
     bending_strain,

@@ -14,10 +14,10 @@ Strains (reference without bar, deformed x = r + u with bar):
 # objects (ti.template()), not strings. Vector and matrix types are ti.math's, which follow the
 # runtime's default float type; types built here with `float` would freeze f32 at import.
 
-import taichi as ti
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.runtime import ti
 
 vec3 = ti.math.vec3
 mat2 = ti.math.mat2

@@ -6,8 +6,7 @@ sample, and its packed parameters (`Material.law_parameters`).
 
 # No `from __future__ import annotations`: ti.func needs real annotation objects.
 
-import taichi as ti
-
+from taichi_ndf.runtime import ti
 from taichi_ndf.shell.kinematics import contravariant_metric, mat2, vec3
 
 vec4 = ti.math.vec4

@@ -30,10 +30,10 @@ The stress part of the bending strains uses v = V = Σ_αβ (dE/dκ_αβ) x_αβ
 
 import functools
 
-import taichi as ti
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.runtime import ti
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import law_inputs
 from taichi_ndf.shell.kinematics import jet_channel, mat2, reference_geometry, strains, vec3
