@@ -9,7 +9,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard, ProgressBar
+from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard
 from taichi_ndf.checkpoint import read_checkpoint
 from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.export.usd import require_usd, write_run_usd
@@ -103,8 +103,6 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         run.state.restore(checkpoint)
     callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {"scene": scene.document,
                                                "scene_dir": str(scene.path.parent.resolve())})]
-    if config.progress:
-        callbacks.append(ProgressBar())
     try:
         result = run.run(callbacks=callbacks, on_load_step=on_load_step)
     except DivergenceError as err:

@@ -84,14 +84,18 @@ def start(args: argparse.Namespace) -> taichi_ndf.runtime.Runtime:
 
 def interruptible(prog: str):
     """Decorate a tool's `main`: Ctrl-C ends it with one line and exit code 130, running out of
-    memory with one line and exit code 2 (instead of a traceback). Files a tool writes are
-    atomic (`atomic_path`), so an interruption leaves no half-written file."""
+    memory with one line and exit code 2 (instead of a traceback); its progress reports are
+    shown (`taichi_ndf.cli.progress`). Files a tool writes are atomic (`atomic_path`), so an
+    interruption leaves no half-written file."""
 
     def wrap(main):
         @functools.wraps(main)
         def run(argv=None) -> int:
+            from taichi_ndf.cli.progress import shown
+
             try:
-                return main(argv)
+                with shown(prog):
+                    return main(argv)
             except KeyboardInterrupt:
                 print(f"{prog}: interrupted", file=sys.stderr)
                 return 130

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from taichi_ndf.cli.common import ArgumentParser, add_runtime_options, machine_description, start
+from taichi_ndf.cli.progress import shown
 from taichi_ndf.io import incomplete_path, staged_run
 from taichi_ndf.io.memory import check_export_memory
 from taichi_ndf.outputs import exports_on_template
@@ -85,8 +86,8 @@ def main(argv: list[str] | None = None) -> int:
             check_export_memory(scene.output.resolution, "output.resolution",
                                 frames=scene.output.frames or len(solver.load_steps))
         runtime = start(args)
-        with staged_run(args.out, overwrite=args.overwrite, resume=args.resume,
-                        products=RUN_FILES) as out:
+        with shown("ndf-sim"), staged_run(args.out, overwrite=args.overwrite,
+                                          resume=args.resume, products=RUN_FILES) as out:
             result = simulate(scene, out, solver=solver, resume=args.resume,
                               machine=machine_description(runtime),
                               report=lambda line: print(line, flush=True))
