@@ -14,30 +14,33 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sized
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
 class Progress:
     """One report: the stage it belongs to (e.g. "Newton level 1 (16 × 16 spans), load 0.5"),
     steps done in it and the most it takes (None: unknown), the values to show (Π, decrement,
-    …, by name), the seconds since the stage began, and whether the stage has finished."""
+    …, by name), the seconds since the stage began, how many stages enclose it, and whether
+    the stage has finished."""
 
     stage: str
     step: int
     total: int | None
     values: dict[str, float] = field(default_factory=dict)
     elapsed: float = 0.0
+    depth: int = 0  # stages open around this one
     done: bool = False
 
 
 Listener = Callable[[Progress], None]
 _listeners: list[Listener] = []
-_stages: list[tuple[str, int | None, float]] = []  # (name, total, start) of the open stages
-_last: list[dict] = []  # the last step and values reported in each open stage
+_stages: list[list] = []  # the open stages: [name, total, start, last step, last values]
 
 
 @contextlib.contextmanager
@@ -54,20 +57,30 @@ def listening(listener: Listener) -> Iterator[None]:
 def stage(name: str, total: int | None = None) -> Iterator[None]:
     """A stage of at most `total` steps: the reports inside belong to it; a final report
     (done) goes out when it ends, with the last step and values reported in it."""
-    started = time.perf_counter()
-    _stages.append((name, total, started))
-    last: dict = {"step": 0, "values": {}}
-    _last.append(last)
-    _send(Progress(name, 0, total))
+    entry = [name, total, time.perf_counter(), 0, {}]
+    _stages.append(entry)
+    depth = len(_stages) - 1
+    _send(Progress(name, 0, total, depth=depth))
     try:
         yield
     finally:
-        _stages.pop()
-        _last.pop()
-        finished = Progress(name, last["step"], total, last["values"],
-                            time.perf_counter() - started, done=True)
+        _stages.remove(entry)
+        finished = Progress(name, entry[3], total, entry[4], time.perf_counter() - entry[2],
+                            depth=depth, done=True)
         log.info("%s", summary(finished))
         _send(finished)
+
+
+def counted(items: Iterable[T], name: str, total: int | None = None) -> Iterator[T]:
+    """The items of `items`, each reported as one step of a stage `name` when its turn is
+    over (`total` steps, default len(items) where it has one): a loop gets its progress by
+    iterating over `counted(...)` (values reported inside the loop body are kept)."""
+    if total is None and isinstance(items, Sized):
+        total = len(items)
+    with stage(name, total):
+        for step, item in enumerate(items, 1):
+            yield item
+            report(step, **_stages[-1][4])
 
 
 def report(step: int, **values: float) -> None:
@@ -75,10 +88,11 @@ def report(step: int, **values: float) -> None:
     any stage: nothing."""
     if not _stages:
         return
-    name, total, started = _stages[-1]
-    _last[-1].update(step=step, values=values)
+    entry = _stages[-1]
+    entry[3], entry[4] = step, values
     if _listeners:
-        _send(Progress(name, step, total, values, time.perf_counter() - started))
+        _send(Progress(entry[0], step, entry[1], values, time.perf_counter() - entry[2],
+                       depth=len(_stages) - 1))
 
 
 def _send(progress: Progress) -> None:

@@ -262,6 +262,7 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
                                                 "finest_spans": list(run.field.config.spans)},
                        machine, run.history, contact)
     summary["levels"] = [dataclasses.asdict(lv) for lv in run.levels]
+    summary["load_steps"] = run.load_steps  # Π and probes per load step, finest grid
     summary["refinement"] = refinement
     return _finish(scene, out, summary)
 

@@ -6,12 +6,17 @@ import argparse
 import functools
 import logging
 import math
+import re
 import sys
 
-import taichi_ndf
-from taichi_ndf.runtime import machine_description
+__all__ = ["add_runtime_options", "description", "machine_description", "start"]
 
-__all__ = ["add_runtime_options", "machine_description", "start"]
+
+def machine_description(runtime) -> dict:
+    """`taichi_ndf.runtime.machine_description` (imported when called: --help stays light)."""
+    from taichi_ndf.runtime import machine_description as describe
+
+    return describe(runtime)
 
 
 def _positive_int(text: str) -> int:
@@ -27,6 +32,14 @@ def nonnegative_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
+
+
+def description(doc: str) -> str:
+    """A tool's --help description from its module docstring: the first paragraph as one line,
+    without the `synopsis`: prefix (argparse's usage line shows it) and without backticks."""
+    first = " ".join(doc.strip().split("\n\n")[0].split())
+    first = re.sub(r"^`+[^`]*`+:?\s*", "", first).replace("`", "")
+    return first[:1].upper() + first[1:]
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -71,9 +84,12 @@ def add_runtime_options(parser: argparse.ArgumentParser, *, precision: str = "f3
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
 
 
-def start(args: argparse.Namespace) -> taichi_ndf.runtime.Runtime:
-    """Logging, torch's thread count and the Taichi runtime from the runtime options."""
+def start(args: argparse.Namespace):
+    """Logging, torch's thread count and the Taichi runtime (`taichi_ndf.runtime.Runtime`)
+    from the runtime options."""
     import torch
+
+    import taichi_ndf
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")

@@ -1,6 +1,7 @@
 """How the command-line tools show `taichi_ndf.progress` reports: on a terminal a tqdm bar
-per stage (its steps, the reported values, elapsed time); otherwise one line per finished
-stage on stderr, so a log file gets a line per grid level, load step, fit or frame."""
+per stage (its steps, the reported values, elapsed time; a stage inside another draws below
+it and disappears when done); otherwise one line per finished stage on stderr (stages at most
+one deep: a line per grid level, load step or fit, not per equilibrium inside a fit)."""
 
 from __future__ import annotations
 
@@ -24,15 +25,15 @@ class ProgressDisplay:
 
     def __call__(self, report: progress.Progress) -> None:
         if not self.terminal:
-            if report.done:
+            if report.done and report.depth <= 1:  # not each equilibrium inside a fit
                 print(f"{self.prog}: {progress.summary(report)}", file=self.stream, flush=True)
             return
         bar = self.bars.get(report.stage)
         if bar is None:
             from tqdm import tqdm
 
-            bar = tqdm(total=report.total, desc=report.stage, file=self.stream, leave=True,
-                       position=len(self.bars), **_width(self.stream))
+            bar = tqdm(total=report.total, desc=report.stage, file=self.stream,
+                       leave=report.depth == 0, position=report.depth, **_width(self.stream))
             self.bars[report.stage] = bar
         bar.n = report.step
         if report.values:

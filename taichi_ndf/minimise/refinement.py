@@ -161,7 +161,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
                 coefficients = torch.sparse.mm(prolongation,
                                                results[-1][k].coefficients.to(dtype))
             with progress.stage(f"Newton level {level} ({nx} × {ny} spans), load {t:.4g}",
-                                newton.max_iterations):
+                                (newton or ProjectedNewtonConfig()).max_iterations):
                 if contact is None:
                     assembly.at_load(operator, t)
                     solution = minimise(assembly, objective.potential(t), coefficients, newton,
