@@ -83,13 +83,18 @@ def main(argv: list[str] | None = None) -> int:
         if args.time != 1.0 and not scene.solver.pseudo_time:
             raise ValueError("--time needs a checkpoint of a pseudo-time field "
                              "([training] pseudo_time = true)")
-        mesh = deformed_mesh(scene.model, field, res, load_factor=args.time,
-                             pseudo_time=scene.solver.pseudo_time)
-        if args.out.suffix.lower() == ".obj":
-            write_obj(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv)
-        else:
-            write_ply(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv,
-                      vertex_scalars=mesh.scalars())
+        from taichi_ndf import progress
+
+        with progress.stage(f"export {res[0]} × {res[1]} mesh to {args.out.name}", 2):
+            mesh = deformed_mesh(scene.model, field, res, load_factor=args.time,
+                                 pseudo_time=scene.solver.pseudo_time)
+            progress.report(1)
+            if args.out.suffix.lower() == ".obj":
+                write_obj(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv)
+            else:
+                write_ply(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv,
+                          vertex_scalars=mesh.scalars())
+            progress.report(2)
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         print(f"ndf-export: error: {err}", file=sys.stderr)
         return 2
