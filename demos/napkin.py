@@ -10,8 +10,8 @@ against the inextensible limit.
 Measured (2026-12-03, f32, 2 cores shared, load 8–20): the spline path took 255 s (62 s CPU);
 Π −1.6267 J on 16 × 16 spans, extrapolated −1.6283 ± 0.0016 J; the corner hangs
 1.4336 ± 0.0010 m, 1.4 % beyond √2 m. The spline path is the default because it reaches the
-lower Π; the SIREN path was measured with the former `cloth` material only (benchmarks/
-RESULTS.md marks those rows stale).
+lower Π: the SIREN's 800 Adam iterations end at −1.4604 J, 9.8 % above the spline's 8 × 8
+grid (−1.6030 J; benchmarks/RESULTS.md, comparison table, 2026-12-03, load 23).
 
 Any further option goes to `ndf-sim` (e.g. --material canvas, --overwrite, --arch cuda).
 """

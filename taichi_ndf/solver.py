@@ -22,9 +22,9 @@ that widens the range of t. The monitor reports Π at t = λ.
 Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chains gradients
 back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
 (`taichi_ndf.minimisers`, `taichi_ndf.newton`) change the state (`taichi_ndf.state`); this
-module draws the sample sets and drives the continuation over load steps. Progress bar,
-checkpoint files and the divergence guard are callbacks (`taichi_ndf.callbacks`) that the
-application installs.
+module draws the sample sets and drives the continuation over load steps. Checkpoints and the
+divergence guard are callbacks the application installs (`taichi_ndf.callbacks`); progress
+goes to `taichi_ndf.progress` (a stage per load step).
 """
 
 from __future__ import annotations
