@@ -59,6 +59,15 @@ def _commit() -> str:
         return "unknown"
 
 
+def scene_material(scene: str) -> str:
+    """The scene's [material] table as compact JSON: a stored run whose material differs is
+    marked stale in the table (and gets no gap)."""
+    import tomllib
+
+    table = tomllib.loads((SCENES / f"{scene}.toml").read_text()).get("material", {})
+    return json.dumps(table, sort_keys=True, separators=(",", ":"))
+
+
 def run_one(scene: str, field: str, out: Path, precision: str, quick: bool) -> dict:
     """One ndf-sim process: Π, times, peak memory, iterations (or why it did not run)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -74,7 +83,8 @@ def run_one(scene: str, field: str, out: Path, precision: str, quick: bool) -> d
     record = {"wall": time.perf_counter() - started, "peak_mib": usage.ru_maxrss / 1024,
               "load": [round(load_before, 2), round(os.getloadavg()[0], 2)],
               "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
-              "commit": _commit(), "precision": precision, "quick": quick}
+              "commit": _commit(), "precision": precision, "quick": quick,
+              "material": scene_material(scene)}
     code = os.waitstatus_to_exitcode(status)
     if code != 0:
         lines = [line for line in stderr.strip().splitlines() if line.strip()]
@@ -104,10 +114,17 @@ def render(out: Path, target: Path) -> None:
                    stdout=subprocess.DEVNULL, env={**os.environ, "OMP_NUM_THREADS": "1"})
 
 
-def _gap(rows: dict) -> str:
+def _stale(scene: str, r: dict) -> bool:
+    """Run with another material than the scene has now."""
+    return (SCENES / f"{scene}.toml").is_file() and r.get("material") != scene_material(scene)
+
+
+def _gap(scene: str, rows: dict) -> str:
     siren, spline = rows.get("siren", {}), rows.get("spline", {})
     if siren.get("status") != "ok" or spline.get("status") != "ok":
         return ""
+    if _stale(scene, siren) or _stale(scene, spline):
+        return "(materials differ)"
     return f"{100 * (spline['energy'] - siren['energy']) / abs(siren['energy']):+.2f} %"
 
 
@@ -134,6 +151,8 @@ def _row(scene: str, field: str, r: dict | None, gap: str) -> str:
     else:
         its = f"{r['iterations']} (fixed; dimensional output scale)"
     quick = " (quick)" if r.get("quick") else ""
+    if _stale(scene, r):
+        quick += f" **stale: run with material {r.get('material')}, rerun**"
     return (f"| {scene} | {label}{quick} | {r['energy']:.6g} | {gap} | {r['wall']:.0f} | "
             f"{r['solve']:.0f} | {r['peak_mib']:.0f} | {its} |")
 
@@ -162,7 +181,7 @@ def table(store: dict) -> str:
     ]
     for scene in sorted(set(shipped_scenes()) | set(store)):
         rows = store.get(scene, {})
-        gap = _gap(rows)
+        gap = _gap(scene, rows)
         for field in FIELDS:
             lines.append(_row(scene, field, rows.get(field), gap if field == "spline" else ""))
     return "\n".join(lines)

@@ -58,7 +58,7 @@ def main():
     out.mkdir(parents=True, exist_ok=False)
     taichi_ndf.init(arch="cpu", precision="f64")
     observed = observe(out, args.quick)
-    argv = ["--scene", str(SCENE), "--observed", str(observed), "--estimate", "bending",
+    argv = [str(SCENE), "--observed", str(observed), "--estimate", "bending",
             "--out", str(out / "estimate")]
     fit_material([*argv, "--quick"] if args.quick else argv)
     print(f"truth: bending_stiffness = {B_TRUE:.6g} N·m")

@@ -4,7 +4,7 @@
     python demos/run_scene.py skirt --material canvas --quick
     python demos/run_scene.py --list
 
-Any further option goes to `ndf-sim` (e.g. --iters 500, --overwrite, --precision f64).
+Any further option goes to `ndf-sim` (e.g. --iterations 500, --overwrite, --precision f64).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""What the application layer hooks into a solve: progress bar, checkpoint writing, and the
-divergence guard. The solver itself does no I/O.
+"""What the application layer hooks into a solve: checkpoint writing and the divergence
+guard. The solver itself does no I/O (its progress goes to `taichi_ndf.progress`).
 
 A callback has any of `on_start(solver)`, `on_step(solver, energy, grad_norm)` (before each
 Adam step), `on_iteration(solver, record)` (record: the `MonitorRecord` of this iteration or
@@ -11,10 +11,7 @@ the record is kept), `on_polish(solver, before, after)` (Π around an L-BFGS pol
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
-
-from tqdm import tqdm
 
 from taichi_ndf.backoff import climbed
 
@@ -74,27 +71,6 @@ class DivergenceGuard:
             f"training diverged at iteration {solver.state.iteration}: Π = {energy}, "
             f"‖∇Π‖ = {grad_norm}; the field was reset to its last good state from iteration "
             f"{last}{where}. Lower the learning rate or the load step.")
-
-
-class ProgressBar:
-    """A tqdm bar over all Adam iterations, shown only on a terminal."""
-
-    def __init__(self, *, show: bool | None = None):
-        self.show = sys.stderr.isatty() if show is None else show
-        self.bar = None
-
-    def on_start(self, solver) -> None:
-        total = solver.config.iterations * len(solver.config.load_steps)
-        self.bar = tqdm(total=total, initial=min(solver.state.iteration, total),
-                        disable=not self.show, desc="Π minimisation", dynamic_ncols=True)
-
-    def on_iteration(self, solver, record) -> None:
-        self.bar.update(1)
-        if record is not None:
-            self.bar.set_postfix(energy=f"{record.energy:.5g}", grad=f"{record.grad_norm:.3g}")
-
-    def on_end(self, solver) -> None:
-        self.bar.close()
 
 
 class CheckpointWriter:

@@ -28,9 +28,12 @@ import random
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
+
+if TYPE_CHECKING:
+    import torch
 
 log = logging.getLogger(__name__)
 
@@ -142,11 +145,15 @@ class Runtime:
     @property
     def dtype(self) -> torch.dtype:
         """Torch dtype of all real-valued tensors of this runtime."""
+        import torch
+
         return torch.float64 if self.precision == "f64" else torch.float32
 
     @property
     def device(self) -> torch.device:
         """Torch device that holds tensors shared with Taichi kernels."""
+        import torch
+
         if self.arch in ("cuda", "gpu") and torch.cuda.is_available():
             return torch.device("cuda")
         return torch.device("cpu")
@@ -199,6 +206,8 @@ def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *,
         ad_stack_size=512,
         log_level=ti.WARN,
     )
+    import torch
+
     torch.manual_seed(seed)
     np.random.seed(seed)
     random.seed(seed)

@@ -48,8 +48,8 @@ def membrane_and_bending_stiffness(material) -> tuple[float, float]:
     if isinstance(material, LinearIsotropic):
         return material.membrane_stiffness, material.bending_stiffness
     if isinstance(material, OrthotropicStVK):
-        d = 0.5 * (material.a11 + material.a22)
-        return d, d * material.thickness**2 / 12
+        return (0.5 * (material.a11 + material.a22),
+                0.5 * (material.warp_bending + material.weft_bending))
     raise TypeError(f"unknown material type {type(material).__name__}")
 
 

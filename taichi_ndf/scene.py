@@ -211,7 +211,9 @@ def _material(t: Table):
     stiffness = {k: t.number(k) for k in ("a11", "a12", "a22", "G12")}
     thickness = t.number("thickness", positive=True)
     if kind == "orthotropic":
-        return OrthotropicStVK(**stiffness, thickness=thickness, areal_density=density)
+        return OrthotropicStVK(**stiffness, thickness=thickness, areal_density=density,
+                               weft_thickness=t.number("weft_thickness", thickness,
+                                                       positive=True))
     eta = t._get("eta", None)
     limits = t.vector("strain_limits", 3)
     return ClydeFabric(**stiffness, eta=eta, strain_limits=limits, thickness=thickness,

@@ -9,7 +9,8 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard, ProgressBar
+from taichi_ndf import progress
+from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard
 from taichi_ndf.checkpoint import read_checkpoint
 from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.export.usd import require_usd, write_run_usd
@@ -103,8 +104,6 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         run.state.restore(checkpoint)
     callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {"scene": scene.document,
                                                "scene_dir": str(scene.path.parent.resolve())})]
-    if config.progress:
-        callbacks.append(ProgressBar())
     try:
         result = run.run(callbacks=callbacks, on_load_step=on_load_step)
     except DivergenceError as err:
@@ -155,17 +154,23 @@ def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, hist
                          pseudo_time: bool = False, refinement: dict | None = None,
                          obstacles: tuple = ()) -> None:
     """mesh.obj/.ply, reference.obj, probes.json, render.png and energy.png of the final
-    field."""
-    mesh = deformed_mesh(scene.model, field, scene.output.resolution, pseudo_time=pseudo_time)
-    for name, values in mesh.scalars().items():
-        if not all(math.isfinite(float(v)) for v in values):
-            raise SimulationError(f"non-finite {name} in the exported mesh")
-    write_mesh_files(out, "mesh", mesh)
-    write_reference_mesh(out, mesh)
-    write_probe_points(out, scene.model, probes)
-    write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
-                 views=scene.output.views, obstacles=obstacles)
-    write_energy_plot(out, "energy.png", history, refinement)
+    field (a progress stage of five steps)."""
+    with progress.stage("outputs: mesh, render, energy plot", 5):
+        mesh = deformed_mesh(scene.model, field, scene.output.resolution,
+                             pseudo_time=pseudo_time)
+        for name, values in mesh.scalars().items():
+            if not all(math.isfinite(float(v)) for v in values):
+                raise SimulationError(f"non-finite {name} in the exported mesh")
+        progress.report(1)
+        write_mesh_files(out, "mesh", mesh)
+        write_reference_mesh(out, mesh)
+        write_probe_points(out, scene.model, probes)
+        progress.report(3)
+        write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
+                     views=scene.output.views, obstacles=obstacles)
+        progress.report(4)
+        write_energy_plot(out, "energy.png", history, refinement)
+        progress.report(5)
 
 
 def _summary(scene: Scene, config: SolverConfig, seed: int, energy: float, iterations: int,
@@ -264,6 +269,7 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
                                                 "finest_spans": list(run.field.config.spans)},
                        machine, run.history, contact)
     summary["levels"] = [dataclasses.asdict(lv) for lv in run.levels]
+    summary["load_steps"] = run.load_steps  # Π and probes per load step, finest grid
     summary["refinement"] = refinement
     return _finish(scene, out, summary)
 

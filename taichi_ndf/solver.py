@@ -22,9 +22,9 @@ that widens the range of t. The monitor reports Π at t = λ.
 Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chains gradients
 back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
 (`taichi_ndf.minimisers`, `taichi_ndf.newton`) change the state (`taichi_ndf.state`); this
-module draws the sample sets and drives the continuation over load steps. Progress bar,
-checkpoint files and the divergence guard are callbacks (`taichi_ndf.callbacks`) that the
-application installs.
+module draws the sample sets and drives the continuation over load steps. Checkpoints and the
+divergence guard are callbacks the application installs (`taichi_ndf.callbacks`); progress
+goes to `taichi_ndf.progress` (a stage per load step).
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import torch
 
+from taichi_ndf import progress
 from taichi_ndf.backoff import MAX_BACKOFFS, BestState, climbed
 from taichi_ndf.callbacks import DivergenceError
 from taichi_ndf.contact.check_points import ContactPoints
@@ -220,18 +221,22 @@ class Solver:
                 self.newton(lam)
             if done_in_step == 0 and cfg.iterations > 0:  # the step's start: backoff's first best
                 self._keep_if_best(lam, self._monitor_energy(lam))
-            for _ in range(done_in_step, cfg.iterations):
-                samples, times = self.training_samples(cfg.samples, lam, state.generator)
-                gnorm = self._adam_step(samples, lam, times)
-                state.iteration += 1
-                record = None
-                if state.iteration % cfg.monitor_every == 0:
-                    record = self._record(lam, gnorm, t0)
-                _call(callbacks, "on_iteration", self, record)
-                in_step = state.iteration - step * cfg.iterations
-                if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
-                        and in_step < cfg.iterations:
-                    self.newton(lam)
+            with progress.stage(f"Adam, load {lam:.4g}", cfg.iterations):
+                shown = {}
+                for _ in range(done_in_step, cfg.iterations):
+                    samples, times = self.training_samples(cfg.samples, lam, state.generator)
+                    gnorm = self._adam_step(samples, lam, times)
+                    state.iteration += 1
+                    record = None
+                    if state.iteration % cfg.monitor_every == 0:
+                        record = self._record(lam, gnorm, t0)
+                        shown = {"Π": record.energy, "‖∇Π‖": record.grad_norm}
+                    _call(callbacks, "on_iteration", self, record)
+                    in_step = state.iteration - step * cfg.iterations
+                    progress.report(in_step, **shown)
+                    if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
+                            and in_step < cfg.iterations:
+                        self.newton(lam)
             if newton and cfg.iterations > 0:
                 self.newton(lam)
             if cfg.lbfgs_iterations:

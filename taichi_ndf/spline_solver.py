@@ -66,6 +66,8 @@ class SplineRun:
     wall_time: float = 0.0
     # (load factor, coefficients (n, 3)) of every load step solved on the last level
     steps: list[tuple[float, torch.Tensor]] = field(default_factory=list)
+    # per load step of the last level: load factor, Π [J], probes (displacement [m] by name)
+    load_steps: list[dict] = field(default_factory=list)
     contact: NewtonContact | None = None  # with obstacles: the check points, κ, rounds
 
     @property
@@ -162,6 +164,9 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         run.levels.append(summary)
         run.field = field_
         run.steps = [(s.load_factor, s.coefficients) for s in solutions]
+        run.load_steps = [{"load_factor": s.load_factor, "energy": s.energy,
+                           "probes": {k: v.tolist() for k, v in s.probes.items()},
+                           "converged": s.converged} for s in solutions]
         run.wall_time = time.perf_counter() - started
         log.info("level %d (%d × %d spans): Π %.10g J, %d Newton iterations, %.2f s%s", level,
                  *last.spans, last.energy, summary.iterations, summary.seconds,

@@ -312,7 +312,7 @@ def test_8_zero_iterations_is_refused(tmp_path, capsys):
     assert run_sim(scene, "--out", tmp_path / "run") == 2
     assert "training.iterations" in one_line(capsys.readouterr().err)
     assert run_sim(small_napkin(tmp_path), "--out", tmp_path / "run", "--iters", "0") == 2
-    assert "--iters" in one_line(capsys.readouterr().err)
+    assert "--iterations 0" in one_line(capsys.readouterr().err)
     assert not (tmp_path / "run").exists()
 
 

@@ -173,7 +173,7 @@ def test_sim_solves_a_spline_scene_on_refined_grids_and_resumes_and_exports(tmp_
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--iters", "5"], "--iters and --samples set Adam"),
+    (["--iters", "5"], "--iterations and --samples set Adam"),
     (["--refine", "0"], "--refine must be >= 1"),
 ])
 def test_sim_refuses_adam_options_for_newton(tmp_path, capsys, args, message):

@@ -38,9 +38,32 @@ STORE = {
 }
 
 
+def _current(store: dict, module) -> dict:
+    """The store with every record run with its scene's present material."""
+    return {scene: {field: {"material": module.scene_material(scene), **r}
+                    for field, r in rows.items()} for scene, rows in store.items()}
+
+
+def _rows(table: str) -> dict:
+    return {tuple(c.strip() for c in line.split("|")[1:3]): line
+            for line in table.splitlines() if line.startswith("| ")}
+
+
+def test_a_run_with_another_material_is_marked_stale_and_has_no_gap():
+    module = _module()
+    store = _current(STORE, module)
+    store["napkin"]["siren"] = {**store["napkin"]["siren"], "material": '{"preset":"cloth"}'}
+    rows = {k[0]: line for k, line in _rows(module.table(store)).items()
+            if k[0] == "napkin"}
+    siren = next(line for line in _rows(module.table(store)).values()
+                 if line.startswith("| napkin | SIREN"))
+    assert "stale: run with material" in siren and "rerun" in siren
+    assert "(materials differ)" in rows["napkin"] and "-2.00 %" not in rows["napkin"]
+
+
 def test_table_gives_the_gap_and_names_refused_and_missing_runs():
-    rows = {tuple(c.strip() for c in line.split("|")[1:3]): line
-            for line in _module().table(STORE).splitlines() if line.startswith("| ")}
+    module = _module()
+    rows = _rows(module.table(_current(STORE, module)))
     assert "-2.00 %" in rows["napkin", "spline + Newton"]  # (−1.02 − −1) / 1
     assert "12 (converged, 8 × 8 spans)" in rows["napkin", "spline + Newton"]
     assert "800 (fixed; dimensional output scale)" in rows["napkin", "SIREN + Adam"]

@@ -320,3 +320,25 @@ def test_full_case_meets_its_target(name):
     result = run_case(CASES[name])
     failed = [r for r in result.rows if not r.passed]
     assert not failed, failed
+
+
+def test_a_case_scene_with_its_own_spline_field_is_solved_with_it(tmp_path, monkeypatch):
+    """Without --field, a case whose scene says [field] type = "spline" takes the spline path
+    (not a SIREN trained silently), and that path keeps the scene's own spline keys."""
+    from taichi_ndf.validation import runner
+
+    text = (SCENES_DIR / "square_plate.toml").read_text()
+    head, rest = text.split("[field]", 1)
+    probes = rest[rest.index("[[probes]]"):]
+    (tmp_path / "plate.toml").write_text(
+        head + '[field]\ntype = "spline"\nspans = [4, 4]\n\n' + probes)
+    document = {"name": "c", "scene": str(tmp_path / "plate.toml"),
+                "quantity": [{"name": "w", "reference": 1.0, "tolerance": 0.01,
+                              "read": [{"probe": "centre", "component": "z"}]}]}
+    case = parse_case(document, base_dir=tmp_path)
+    called = []
+    monkeypatch.setattr(runner, "run_spline_case", lambda case, **kw: called.append(kw) or "ok")
+    assert runner.run_case(case, scenes_dir=tmp_path) == "ok" and called
+    _, _, plan = load_case_scene(case, tmp_path, None)
+    assert plan.config.spans == (4, 4)
+    assert runner._own_spline(case, tmp_path)

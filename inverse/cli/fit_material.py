@@ -1,6 +1,6 @@
 """`ndf-fit-material`: estimate material parameters and loads from observed equilibrium shapes.
 
-    ndf-fit-material --scene S.toml --observed OBS.obj [OBS2.ply ...] --estimate bending \
+    ndf-fit-material S.toml --observed OBS.obj [OBS2.ply ...] --estimate bending \
         [--method newton|implicit|bilevel|residual] --out DIR
 
 The scene gives everything known (geometry, boundary conditions, known loads) and start values
@@ -39,6 +39,7 @@ from inverse.material.spline_equilibrium import SplineModelConfig
 from taichi_ndf.cli.common import (
     ArgumentParser,
     add_runtime_options,
+    description,
     finite_float,
     interruptible,
     machine_description,
@@ -58,8 +59,11 @@ class InputError(ValueError):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = ArgumentParser(prog="ndf-fit-material", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scene", required=True, help="scene TOML: known conditions, start values")
+    p = ArgumentParser(prog="ndf-fit-material", description=description(__doc__))
+    p.add_argument("scene", nargs="?", type=Path,
+                   help="scene TOML: known conditions, start values")
+    p.add_argument("--scene", dest="scene_option", type=Path, metavar="SCENE",
+                   help="the scene, as an option (the same as the positional)")
     p.add_argument("--observed", required=True, nargs="+",
                    help="observed shape(s), OBJ or PLY, all under the scene's conditions")
     p.add_argument("--estimate", required=True, action="append",
@@ -88,7 +92,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "--quick)")
     p.add_argument("--samples", type=int, default=None,
                    help="implicit: Newton samples (default 4096; 2048 with --quick)")
-    p.add_argument("--out", required=True, help="output directory (must be new or empty)")
+    p.add_argument("--out", required=True, help="output directory (new or empty unless "
+                   "--overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="allow writing into a non-empty output directory (the files this tool "
+                   "writes are replaced)")
     p.add_argument("--point-cloud", action="store_true",
                    help="treat observations as point clouds without correspondence")
     p.add_argument("--decades", type=finite_float, default=1.3,
@@ -198,10 +206,10 @@ def run(args, runtime) -> dict:
             raise InputError(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.spans is not None and min(args.spans) < 1:
         raise InputError(f"--spans must be two integers >= 1, got {args.spans}")
-    check_output_dir(args.out)  # a non-empty directory is refused before any work
+    check_output_dir(args.out, args.overwrite)  # refused before any work
     observations = _observations(args.observed, model, scene.output.resolution,
                                  args.point_cloud)
-    out = OutputDir(args.out)
+    out = OutputDir(args.out, overwrite=args.overwrite)
     resolution = scene.output.resolution
     grid = grid_mesh(model.surface.domain.bounds, resolution,
                      periodic=model.surface.domain.periodic)
@@ -257,9 +265,22 @@ def run(args, runtime) -> dict:
     return document
 
 
+def parse_args(argv: list[str] | None):
+    """The command line, with the scene given once (positional or --scene)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.scene is not None and args.scene_option is not None \
+            and args.scene != args.scene_option:
+        parser.error(f"two scenes given: {args.scene} and --scene {args.scene_option}")
+    args.scene = args.scene or args.scene_option
+    if args.scene is None:
+        parser.error("the scene is required (SCENE.toml, or --scene SCENE.toml)")
+    return args
+
+
 @interruptible("ndf-fit-material")
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = parse_args(argv)
     runtime = start(args)
     try:
         document = run(args, runtime)

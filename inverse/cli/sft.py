@@ -39,6 +39,7 @@ from inverse.sft.tracking import track_sequence
 from taichi_ndf.cli.common import (
     ArgumentParser,
     add_runtime_options,
+    description,
     finite_float,
     interruptible,
     machine_description,
@@ -52,7 +53,7 @@ METHODS = ("prior", "no-prior", "baseline")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = ArgumentParser(prog="ndf-sft", description=__doc__.split("\n")[0].strip("`"))
+    p = ArgumentParser(prog="ndf-sft", description=description(__doc__))
     p.add_argument("--frames", type=Path, required=True, help="video file or folder of images")
     p.add_argument("--camera", type=Path, required=True, help="camera JSON (docs/sft.md)")
     p.add_argument("--template", type=Path, required=True,
@@ -74,8 +75,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="w_phys of the Kirchhoff–Love prior (default: the field's, "
                    f"{SplinePriorConfig.physics_weight:g} spline, "
                    f"{ReconstructionConfig.physics_weight:g} siren); --method no-prior sets 0")
-    p.add_argument("--steps", type=int, default=ReconstructionConfig.steps,
-                   help="siren: Adam steps per frame (default: %(default)s)")
+    p.add_argument("--iterations", "--steps", dest="iterations", type=int,
+                   default=ReconstructionConfig.steps,
+                   help="siren: Adam iterations per frame (default: %(default)s; --steps: the "
+                   "same)")
     p.add_argument("--init", choices=("baseline", "previous"), default="baseline",
                    help="siren: initial guess of each frame, the baseline's mesh or the "
                    "previous frame (default: %(default)s)")
@@ -199,7 +202,7 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
         weight = 0.0
     if kind is SplinePriorConfig:
         return SplinePriorConfig(physics_weight=weight)
-    return ReconstructionConfig(physics_weight=weight, steps=args.steps, seed=args.seed)
+    return ReconstructionConfig(physics_weight=weight, steps=args.iterations, seed=args.seed)
 
 
 def overlay_frames(

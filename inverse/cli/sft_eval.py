@@ -25,7 +25,7 @@ import numpy as np
 
 from inverse.sft.inputs import InputError, load_camera
 from inverse.sft.metrics import evaluate_sequence
-from taichi_ndf.cli.common import ArgumentParser, interruptible
+from taichi_ndf.cli.common import ArgumentParser, description, interruptible
 from taichi_ndf.io import read_mesh
 
 MESH_SUFFIXES = (".obj", ".ply")
@@ -79,12 +79,14 @@ def paired_meshes(pred_dir: Path, gt_dir: Path) -> tuple[list[tuple[str, Path, P
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="ndf-sft-eval",
-        description="Shape-from-template accuracy: e3D, chamfer, normal and reprojection error.",
+        description=description(__doc__),
     )
     parser.add_argument("--pred", required=True, type=Path, help="folder of predicted meshes")
     parser.add_argument("--gt", required=True, type=Path, help="folder of ground-truth meshes")
     parser.add_argument("--camera", type=Path, help="camera JSON (adds reprojection error)")
-    parser.add_argument("--json", type=Path, help="write summary and per-frame values here")
+    parser.add_argument("--json", type=Path, help="write summary and per-frame values here "
+                        "(refused if it exists, unless --overwrite)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
     return parser
 
 
@@ -93,6 +95,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
+        if args.json is not None and args.json.exists() and not args.overwrite:
+            raise InputError(f"{args.json} exists; pass --overwrite to replace it")
         camera = load_camera(args.camera) if args.camera else None
         pairs, how = paired_meshes(args.pred, args.gt)
         pred, gt = [], []

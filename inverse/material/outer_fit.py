@@ -39,7 +39,7 @@ from inverse.material.identifiability import UNDETERMINED_STD, Identifiability, 
 from inverse.material.observations import Observation, rms_point_distance
 from inverse.material.residual import Estimate, unknown_scales
 from inverse.material.unknowns import Unknown
-from taichi_ndf import jets
+from taichi_ndf import jets, progress
 
 log = logging.getLogger(__name__)
 
@@ -138,7 +138,8 @@ def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknow
     r, jac, sens = _evaluate(equilibria, observations, grid, True)
     cost = float(r @ r)
     mu, iterations, converged = 1e-3, 0, False
-    for iterations in range(1, config.max_iterations + 1):
+    for iterations in progress.counted(range(1, config.max_iterations + 1),
+                                       f"outer fit {equilibria[0].label}"):
         js = jac * norm
         a, g = js.T @ js, js.T @ r
         states = [eq.state() for eq in equilibria]

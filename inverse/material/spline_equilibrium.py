@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from inverse.material.unknowns import Unknown, apply, term_gradients
-from taichi_ndf import checks, jets
+from taichi_ndf import checks, jets, progress
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import (
     Assembly,
@@ -152,8 +152,10 @@ class SplineEquilibrium:
     def _minimise(self, values, start: torch.Tensor, load_factor: float) -> torch.Tensor:
         _, potential = self._potential(values, load_factor)
         self.assembly.at_load(self.operator, load_factor)
-        solution = minimise(self.assembly, potential, start, self.newton,
-                            load_factor=load_factor, length=self.length, fixed=self.fixed)
+        with progress.stage(f"equilibrium {self.label}, load {load_factor:.3g}",
+                            self.newton.max_iterations):
+            solution = minimise(self.assembly, potential, start, self.newton,
+                                load_factor=load_factor, length=self.length, fixed=self.fixed)
         self.newton_steps += len(solution.history)
         if not solution.converged:
             log.warning("spline equilibrium %s: Newton did not converge at θ = %s (load %.3g)",

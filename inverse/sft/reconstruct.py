@@ -49,7 +49,7 @@ from inverse.sft.data_terms import (
     silhouette_distance,
 )
 from inverse.sft.inputs import Camera, Template, mean_edge_length
-from taichi_ndf import jets
+from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import FieldConfig, NeuralField
@@ -263,7 +263,7 @@ def reconstruct(
     solver = FieldReconstructor(template, camera, pinned=pinned, config=config)
     vertices = [template.vertices.copy()]
     seconds, losses = [0.0], [{}]
-    for i in range(1, len(correspondences)):
+    for i in progress.counted(range(1, len(correspondences)), "SfT reconstruction, frames"):
         start = time.perf_counter()
         fitted, terms = solver.fit_frame(
             correspondences[i], vertices[-2:],

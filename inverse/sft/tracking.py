@@ -39,6 +39,7 @@ from inverse.sft.image import contrast_normalised, inside, sample_mask, to_gray
 from inverse.sft.inputs import Camera, Template
 from inverse.sft.matching import TextureMatcher, local_affine, patch_ncc, prefiltered_texture
 from inverse.sft.surface import surface_positions, view_locator
+from taichi_ndf import progress
 from taichi_ndf.render import uv_to_texture_pixels
 
 log = logging.getLogger(__name__)
@@ -403,7 +404,7 @@ def track_sequence(
     """Correspondences for every frame, and the tracker's timings."""
     tracker = Tracker(template, texture, camera, config=config)
     out = []
-    for i, frame in enumerate(frames):
+    for i, frame in progress.counted(enumerate(frames), "SfT tracking, frames", len(frames)):
         mask = None if masks is None else masks[i]
         out.append(tracker.start(frame, mask) if i == 0 else tracker.step(frame, mask))
     log.info(

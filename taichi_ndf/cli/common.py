@@ -6,12 +6,12 @@ import argparse
 import functools
 import logging
 import math
+import re
 import sys
 
-import taichi_ndf
 from taichi_ndf.runtime import BACKEND_VARIABLE, arches, machine_description, selected_backend
 
-__all__ = ["add_runtime_options", "machine_description", "start"]
+__all__ = ["add_runtime_options", "description", "machine_description", "start"]
 
 
 def _positive_int(text: str) -> int:
@@ -27,6 +27,14 @@ def nonnegative_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
+
+
+def description(doc: str) -> str:
+    """A tool's --help description from its module docstring: the first paragraph as one line,
+    without the `synopsis`: prefix (argparse's usage line shows it) and without backticks."""
+    first = " ".join(doc.strip().split("\n\n")[0].split())
+    first = re.sub(r"^`+[^`]*`+:?\s*", "", first).replace("`", "")
+    return first[:1].upper() + first[1:]
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -74,9 +82,12 @@ def add_runtime_options(parser: argparse.ArgumentParser, *, precision: str = "f3
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
 
 
-def start(args: argparse.Namespace) -> taichi_ndf.runtime.Runtime:
-    """Logging, torch's thread count and the Taichi runtime from the runtime options."""
+def start(args: argparse.Namespace):
+    """Logging, torch's thread count and the Taichi runtime (`taichi_ndf.runtime.Runtime`)
+    from the runtime options."""
     import torch
+
+    import taichi_ndf
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
@@ -87,14 +98,18 @@ def start(args: argparse.Namespace) -> taichi_ndf.runtime.Runtime:
 
 def interruptible(prog: str):
     """Decorate a tool's `main`: Ctrl-C ends it with one line and exit code 130, running out of
-    memory with one line and exit code 2 (instead of a traceback). Files a tool writes are
-    atomic (`atomic_path`), so an interruption leaves no half-written file."""
+    memory with one line and exit code 2 (instead of a traceback); its progress reports are
+    shown (`taichi_ndf.cli.progress`). Files a tool writes are atomic (`atomic_path`), so an
+    interruption leaves no half-written file."""
 
     def wrap(main):
         @functools.wraps(main)
         def run(argv=None) -> int:
+            from taichi_ndf.cli.progress import shown
+
             try:
-                return main(argv)
+                with shown(prog):
+                    return main(argv)
             except KeyboardInterrupt:
                 print(f"{prog}: interrupted", file=sys.stderr)
                 return 130

@@ -15,18 +15,22 @@ from pathlib import Path
 from taichi_ndf.cli.common import (
     ArgumentParser,
     add_runtime_options,
+    description,
     finite_float,
     interruptible,
     start,
 )
 
+USD_SUFFIXES = (".usdc", ".usda", ".usd")
+
 
 def build_parser() -> argparse.ArgumentParser:
-    p = ArgumentParser(prog="ndf-export", description=__doc__.split("\n")[0].strip("`"))
-    p.add_argument("checkpoint", type=Path, help="checkpoint.pt written by ndf-sim (with --format "
-                   "usd: the run directory, or its checkpoint.pt)")
+    p = ArgumentParser(prog="ndf-export", description=description(__doc__))
+    p.add_argument("checkpoint", type=Path, metavar="RUN",
+                   help="a run directory written by ndf-sim, or its checkpoint.pt")
     p.add_argument("--format", choices=("obj", "ply", "usd"),
-                   help="output format (default: from the --out suffix)")
+                   help="output format (default: from the --out suffix: .obj, .ply, "
+                   ".usdc/.usda/.usd)")
     p.add_argument("--resolution", type=int, nargs="+", default=[128],
                    help="grid cells per surface coordinate: R or R1 R2 (default 128)")
     p.add_argument("--out", type=Path,
@@ -43,8 +47,11 @@ def build_parser() -> argparse.ArgumentParser:
 @interruptible("ndf-export")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.format == "usd":
+    usd = args.out is not None and args.out.suffix.lower() in USD_SUFFIXES
+    if args.format == "usd" or (args.format is None and usd):
         return _export_usd(args)
+    if args.checkpoint.is_dir():  # a run directory: its checkpoint
+        args.checkpoint = args.checkpoint / "checkpoint.pt"
     try:
         if args.out is None:
             raise ValueError("--out is required (a .obj or .ply file)")
@@ -76,13 +83,18 @@ def main(argv: list[str] | None = None) -> int:
         if args.time != 1.0 and not scene.solver.pseudo_time:
             raise ValueError("--time needs a checkpoint of a pseudo-time field "
                              "([training] pseudo_time = true)")
-        mesh = deformed_mesh(scene.model, field, res, load_factor=args.time,
-                             pseudo_time=scene.solver.pseudo_time)
-        if args.out.suffix.lower() == ".obj":
-            write_obj(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv)
-        else:
-            write_ply(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv,
-                      vertex_scalars=mesh.scalars())
+        from taichi_ndf import progress
+
+        with progress.stage(f"export {res[0]} × {res[1]} mesh to {args.out.name}", 2):
+            mesh = deformed_mesh(scene.model, field, res, load_factor=args.time,
+                                 pseudo_time=scene.solver.pseudo_time)
+            progress.report(1)
+            if args.out.suffix.lower() == ".obj":
+                write_obj(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv)
+            else:
+                write_ply(args.out, mesh.deformed, mesh.faces, uvs=mesh.uv,
+                          vertex_scalars=mesh.scalars())
+            progress.report(2)
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         print(f"ndf-export: error: {err}", file=sys.stderr)
         return 2
@@ -100,7 +112,7 @@ def _export_usd(args) -> int:
     out = args.out if args.out is not None else run_dir / "result.usdc"
     try:
         require_usd()
-        if out.suffix not in (".usdc", ".usda", ".usd"):
+        if out.suffix not in USD_SUFFIXES:
             raise ValueError(f"--out must end in .usdc, .usda or .usd with --format usd, got {out}")
         if out.exists() and not args.overwrite:
             raise FileExistsError(f"{out} exists; pass --overwrite to replace it")

@@ -11,6 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from taichi_ndf.cli.common import description, finite_float
 from taichi_ndf.io.run_files import QUANTITIES
 from taichi_ndf.render.figure import VIEWS
 
@@ -28,7 +29,7 @@ def image_size(text: str) -> tuple[int, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-render", description=__doc__.split("\n")[0].strip("`"))
+    p = argparse.ArgumentParser(prog="ndf-render", description=description(__doc__))
     p.add_argument("run", type=Path, help="run directory written by ndf-sim")
     p.add_argument("--view", nargs="+", choices=tuple(VIEWS), default=["iso"],
                    help="one or more views, drawn side by side (default: iso, a three-quarter "
@@ -37,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="per-vertex quantity shown (default: bending_strain)")
     p.add_argument("--size", type=image_size, default=(800, 600),
                    help="image size WIDTHxHEIGHT in pixels (default: 800x600)")
+    p.add_argument("--time", type=finite_float, default=None, metavar="T",
+                   help="the trajectory frame at load factor (or pseudo-time) T instead of the "
+                   "final state (coloured by displacement: the other quantities are stored for "
+                   "the final state only)")
     p.add_argument("--no-shadow", action="store_true", help="leave out the ground shadow")
     p.add_argument("--out", type=Path,
                    help="PNG file (default: RUN/render_<views>_<colour>.png)")
@@ -46,7 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    out = args.out or args.run / f"render_{'_'.join(args.view)}_{args.colour}.png"
+    at = "" if args.time is None else f"_t{args.time:g}"
+    out = args.out or args.run / f"render_{'_'.join(args.view)}_{args.colour}{at}.png"
     try:
         from taichi_ndf.io.run_files import read_run
         from taichi_ndf.render import save_png
@@ -57,9 +63,10 @@ def main(argv: list[str] | None = None) -> int:
         if out.exists() and not args.overwrite:
             raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
         run = read_run(args.run)
+        deformed, scalars = frame_at(run, args.time, args.colour)
         width, height = args.size
         image = render_figure(
-            run.deformed, run.faces, scalars=run.quantity(args.colour),
+            deformed, run.faces, scalars=scalars,
             scalar_label=QUANTITIES[args.colour], views=tuple(args.view), up=run.up,
             obstacles=tuple(Obstacle(o.vertices, o.faces) for o in run.obstacles),
             width=width, height=height, shadow=not args.no_shadow)
@@ -69,6 +76,28 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"wrote {out} ({width}x{height}, {', '.join(args.view)}, {args.colour})")
     return 0
+
+
+def frame_at(run, time: float | None, colour: str):
+    """Positions (V, 3) and per-vertex values (V,) of the run's final state (time None) or of
+    its trajectory frame at load factor `time` (displacement only: the strains and energy
+    density are stored for the final state)."""
+    import numpy as np
+
+    if time is None:
+        return run.deformed, run.quantity(colour)
+    factors = [f.load_factor for f in run.frames]
+    matches = [f for f in run.frames if abs(f.load_factor - time) <= 1e-9]
+    if not matches:
+        have = ", ".join(f"{t:g}" for t in factors) if factors else "none (one load step)"
+        raise ValueError(f"--time {time:g}: the run has trajectory frames at {have}")
+    if colour != "displacement":
+        raise ValueError(f"--time: {colour} is stored for the final state only; use "
+                         "--colour displacement")
+    if run.reference is None:
+        raise ValueError(f"{run.path} has no reference.obj, so no displacement")
+    vertices = matches[0].vertices
+    return vertices, np.linalg.norm(vertices - run.reference, axis=1)
 
 
 if __name__ == "__main__":

@@ -7,25 +7,27 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from taichi_ndf.cli.common import ArgumentParser, add_runtime_options, machine_description, start
-from taichi_ndf.io import incomplete_path, staged_run
-from taichi_ndf.io.memory import check_export_memory
-from taichi_ndf.outputs import exports_on_template
-from taichi_ndf.scene_schema import SceneError
-from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
-from taichi_ndf.spline_grid import SplinePlan
+from taichi_ndf.cli.common import (
+    ArgumentParser,
+    add_runtime_options,
+    description,
+    machine_description,
+    start,
+)
+from taichi_ndf.cli.progress import shown
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = ArgumentParser(prog="ndf-sim", description=__doc__.split("\n")[0].strip("`"))
+    p = ArgumentParser(prog="ndf-sim", description=description(__doc__))
     p.add_argument("scene", type=Path, help="scene file (TOML); see docs/scenes.md")
     p.add_argument("--out", type=Path, required=True, help="output directory (must be new or "
                    "empty unless --overwrite or --resume); written as DIR.incomplete and moved "
                    "into place when the run completes")
-    p.add_argument("--iters", type=int, help="Adam iterations per load step (overrides scene)")
+    p.add_argument("--iterations", "--iters", dest="iterations", type=int,
+                   help="Adam iterations per load step (overrides the scene; --iters: the same)")
     p.add_argument("--samples", type=int, help="samples per iteration (overrides scene)")
-    p.add_argument("--material", help="replace the scene's material by a preset "
-                   "(cloth, canvas, cotton, silk)")
+    p.add_argument("--material", help="replace the scene's material by a preset (cloth, "
+                   "denim, cotton_polyester, ...: docs/scenes.md, \"Material presets\")")
     p.add_argument("--field", choices=("siren", "spline"),
                    help="solve with this field type: spline = a B-spline field solved by "
                    "projected Newton on the grid rule's grid (docs/scenes.md); keeps the "
@@ -38,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a short run with the scene's [training.quick] settings (smoke test)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run from DIR.incomplete/checkpoint.pt (or a "
-                   "finished one from DIR/checkpoint.pt, e.g. with more --iters)")
+                   "finished one from DIR/checkpoint.pt, e.g. with more --iterations)")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
     add_runtime_options(p, seed=None, seed_help="random seed (default: the scene's "
@@ -48,6 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def refined_scene(scene, levels: int):
     """The scene with its spline field solved on `levels` grids (--refine)."""
+    from taichi_ndf.spline_grid import SplinePlan
+
     if not isinstance(scene.field, SplinePlan):
         raise ValueError("--refine needs a spline field ([field] type = \"spline\" or "
                          "--field spline)")
@@ -58,6 +62,13 @@ def refined_scene(scene, levels: int):
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # Imported after parsing: --help and a bad option answer without loading torch or Taichi.
+    from taichi_ndf.io import incomplete_path, staged_run
+    from taichi_ndf.io.memory import check_export_memory
+    from taichi_ndf.outputs import exports_on_template
+    from taichi_ndf.scene_schema import SceneError
+    from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
+
     staging = incomplete_path(args.out)
     try:
         from taichi_ndf.scene import load_scene, trains_the_field
@@ -67,15 +78,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.refine is not None:
             scene = refined_scene(scene, args.refine)
             solver = dataclasses.replace(solver, max_levels=0)
-        if solver.method == "newton" and (args.iters is not None or args.samples is not None):
-            raise ValueError("--iters and --samples set Adam; this scene is solved by "
+        if solver.method == "newton" and (args.iterations is not None or args.samples is not None):
+            raise ValueError("--iterations and --samples set Adam; this scene is solved by "
                              "projected Newton ([training] method = \"newton\")")
-        if args.iters is not None:
-            if args.iters < 0:
-                raise ValueError(f"--iters must be >= 0, got {args.iters}")
-            solver = solver.with_iterations(args.iters)
+        if args.iterations is not None:
+            if args.iterations < 0:
+                raise ValueError(f"--iterations must be >= 0, got {args.iterations}")
+            solver = solver.with_iterations(args.iterations)
             if not trains_the_field(solver):
-                raise ValueError("--iters 0: nothing would train the field (no L-BFGS or "
+                raise ValueError("--iterations 0: nothing would train the field (no L-BFGS or "
                                  "Newton iterations in the scene either)")
         overrides = {} if args.seed is None else {"seed": args.seed}
         if args.samples is not None:
@@ -85,8 +96,8 @@ def main(argv: list[str] | None = None) -> int:
             check_export_memory(scene.output.resolution, "output.resolution",
                                 frames=scene.output.frames or len(solver.load_steps))
         runtime = start(args)
-        with staged_run(args.out, overwrite=args.overwrite, resume=args.resume,
-                        products=RUN_FILES) as out:
+        with shown("ndf-sim"), staged_run(args.out, overwrite=args.overwrite,
+                                          resume=args.resume, products=RUN_FILES) as out:
             result = simulate(scene, out, solver=solver, resume=args.resume,
                               machine=machine_description(runtime),
                               report=lambda line: print(line, flush=True))
@@ -103,13 +114,30 @@ def main(argv: list[str] | None = None) -> int:
                  if (staging / "checkpoint.pt").is_file() else "no checkpoint was written yet")
         print(f"ndf-sim: interrupted; {where}", file=sys.stderr)
         return 130
-    out = args.out
-    print(f"{scene.name}: Π = {result['energy']:.6g} J after {result['iterations']} iterations "
-          f"in {result['wall_time']:.1f} s")
-    for name, u in result["probes"].items():
-        print(f"  probe {name}: u = ({u[0]:.5g}, {u[1]:.5g}, {u[2]:.5g}) m")
-    print(f"outputs in {out}")
+    for line in summary_lines(scene.name, result):
+        print(line)
+    print(f"outputs in {args.out}")
     return 0
+
+
+def summary_lines(name: str, result: dict) -> list[str]:
+    """The final summary of a solve: Π, with several grid levels its Richardson-extrapolated
+    value ± the estimated error, and each probe (extrapolated ± error where refined)."""
+    refinement = result.get("refinement")
+    lines = [f"{name}: Π = {result['energy']:.6g} J after {result['iterations']} iterations "
+             f"in {result['wall_time']:.1f} s"]
+    if refinement:
+        e = refinement["energy"]
+        lines.append(f"  Π extrapolated over {len(e['values'])} grids: "
+                     f"{e['extrapolated']:.6g} ± {e['estimated_error']:.2g} J")
+    for probe, u in result["probes"].items():
+        line = f"  probe {probe}: u = ({u[0]:.5g}, {u[1]:.5g}, {u[2]:.5g}) m"
+        if refinement:
+            parts = refinement["probes"][probe]
+            line += "; extrapolated (" + ", ".join(
+                f"{c['extrapolated']:.5g} ± {c['estimated_error']:.2g}" for c in parts) + ") m"
+        lines.append(line)
+    return lines
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from pathlib import Path
 from taichi_ndf.cli.common import (
     ArgumentParser,
     add_runtime_options,
+    description,
     interruptible,
     nonnegative_int,
     start,
@@ -23,7 +24,7 @@ from taichi_ndf.solver import DivergenceError
 def build_parser() -> argparse.ArgumentParser:
     from taichi_ndf.validation import CASES, SCENES_DIR
 
-    p = ArgumentParser(prog="ndf-validate", description=__doc__.split("\n")[0])
+    p = ArgumentParser(prog="ndf-validate", description=description(__doc__))
     p.add_argument("cases", nargs="*", metavar="CASE",
                    help=f"built-in cases (default: all): {', '.join(CASES)}; or case files "
                    "CASE.toml (docs/validation.md)")
@@ -31,12 +32,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "unless --overwrite)")
     p.add_argument("--quick", action="store_true",
                    help="short runs with each scene's [training.quick] settings (smoke test)")
-    p.add_argument("--iters", type=nonnegative_int,
+    p.add_argument("--iterations", "--iters", dest="iterations", type=nonnegative_int,
                    help="Adam iterations per load step (overrides the scenes)")
-    p.add_argument("--field", choices=("siren", "spline"), default="siren",
-                   help="spline: every case with one default spline configuration solved by "
-                   "projected Newton on three grids (the grid rule's, then refined twice; "
-                   "--quick: one), read on the finest")
+    p.add_argument("--field", choices=("siren", "spline"), default=None,
+                   help="default: the field each case's scene names ([field] type, as in "
+                   "ndf-sim); spline: solved by projected Newton on three grids (the scene's "
+                   "own spline keys, or the grid rule's grid; then refined twice; --quick: "
+                   "one), read on the finest; siren: trained by Adam")
     p.add_argument("--scenes", type=Path, default=SCENES_DIR,
                    help=f"folder of the case scene files (default: {SCENES_DIR})")
     p.add_argument("--overwrite", action="store_true",
@@ -67,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         results = []
         for case in cases:
             name = case.name
-            result = run_case(case, quick=args.quick, iterations=args.iters,
+            result = run_case(case, quick=args.quick, iterations=args.iterations,
                               scenes_dir=args.scenes, seed=args.seed,
                               field=args.field)
             results.append(result)

@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+from taichi_ndf.cli.common import description
+
 
 def _port(text: str) -> int:
     value = int(text)
@@ -21,7 +23,7 @@ def _port(text: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ndf-view", description=__doc__.split("\n")[0].strip("`"))
+    p = argparse.ArgumentParser(prog="ndf-view", description=description(__doc__))
     p.add_argument("run", type=Path, help="run directory written by ndf-sim")
     p.add_argument("--port", type=_port, default=8080, help="TCP port (default 8080)")
     p.add_argument("--host", default="127.0.0.1",

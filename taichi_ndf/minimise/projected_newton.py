@@ -37,6 +37,7 @@ from functools import partial
 import numpy as np
 import torch
 
+from taichi_ndf import progress
 from taichi_ndf.minimise.assembly import Assembly
 from taichi_ndf.minimise.linear_solve import LinearSolver, damped_solve
 from taichi_ndf.shell.hessian import (
@@ -288,6 +289,7 @@ def minimise(assembly: Assembly, potential: Potential, coefficients: torch.Tenso
                  "time energy %.3f hessian %.3f assembly %.3f solve %.3f s", iteration,
                  load_factor, current.total, decrement, alpha, damping, projected, t_energy,
                  t_hessian, t_assembly, t_solve)
+        progress.report(iteration + 1, **{"Π": current.total, "λ²": decrement})
         near = 0.5 * abs(decrement) <= config.floor_tolerance * abs(current.total)
         if alpha == 0.0:  # stopped on the decrement tolerance, or no step decreased Π
             converged = small or near

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from taichi_ndf import jets
+from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.minimise.assembly import (
     Assembly,
@@ -143,12 +143,14 @@ def solve_levels(field_, boundary: BoundaryConditions,
             prolongation = grid.prolongation()  # coarse -> this level
             grid = grid.refined()
         started = time.perf_counter()
-        samples = samples_for(grid)
-        operator = DisplacementOperator(grid, boundary)
-        basis = local_basis_at(operator, samples.xi)
-        assembly = None if contact else Assembly(samples, basis, grid.coefficients.shape[0])
-        fixed = held_unknowns(grid, boundary, basis)
-        solver = LinearSolver.for_grid(grid.config, linear)
+        nx, ny = grid.config.spans
+        with progress.stage(f"Newton level {level} ({nx} × {ny} spans): quadrature, basis"):
+            samples = samples_for(grid)
+            operator = DisplacementOperator(grid, boundary)
+            basis = local_basis_at(operator, samples.xi)
+            assembly = None if contact else Assembly(samples, basis, grid.coefficients.shape[0])
+            fixed = held_unknowns(grid, boundary, basis)
+            solver = LinearSolver.for_grid(grid.config, linear)
         setup = time.perf_counter() - started
         per_load: list[LevelSolution] = []
         coefficients = grid.coefficients.detach().clone()
@@ -158,17 +160,19 @@ def solve_levels(field_, boundary: BoundaryConditions,
             if level:
                 coefficients = torch.sparse.mm(prolongation,
                                                results[-1][k].coefficients.to(dtype))
-            if contact is None:
-                assembly.at_load(operator, t)
-                solution = minimise(assembly, objective.potential(t), coefficients, newton,
-                                    load_factor=t, length=length, fixed=fixed,
-                                    linear_solver=solver)
-            else:  # from the previous load step's state (a finer level: this one's, prolonged)
-                solution = contact.solve(
-                    operator, samples, objective, coefficients, newton,
-                    load_factor=t, start_load_factor=t if level else (
-                        load_steps[k - 1] if k else 0.0), length=length, fixed=fixed,
-                    linear_solver=solver)
+            with progress.stage(f"Newton level {level} ({nx} × {ny} spans), load {t:.4g}",
+                                (newton or ProjectedNewtonConfig()).max_iterations):
+                if contact is None:
+                    assembly.at_load(operator, t)
+                    solution = minimise(assembly, objective.potential(t), coefficients, newton,
+                                        load_factor=t, length=length, fixed=fixed,
+                                        linear_solver=solver)
+                else:  # from the previous load step's state (finer level: this one's, prolonged)
+                    solution = contact.solve(
+                        operator, samples, objective, coefficients, newton,
+                        load_factor=t, start_load_factor=t if level else (
+                            load_steps[k - 1] if k else 0.0), length=length, fixed=fixed,
+                        linear_solver=solver)
             coefficients = solution.coefficients
             u = displacement_at(operator, probe_xi, coefficients, t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(probes)}

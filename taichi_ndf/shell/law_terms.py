@@ -98,17 +98,25 @@ def _fabric_terms(e11, e22, e12, params: ti.template(), nonlinear: ti.template()
 
 @ti.func
 def _woven_terms(eps: mat2, kappa: mat2, a1: vec3, a2: vec3, a3: vec3, metric: mat2,
-                 params: ti.template(), nonlinear: ti.template()) -> vec4:
-    """Simpson's rule through the thickness: (T(−h/2) + 4 T(0) + T(+h/2)) / 6.
+                 params: ti.template(), nonlinear: ti.template(), weft_index: ti.template()
+                 ) -> vec4:
+    """Simpson's rule through the thickness: (T(−h/2) + 4 T(0) + T(+h/2)) / 6, where the
+    material-frame bending strain K = T κ Tᵀ enters as K_ij √(h_i h_j) with the warp and weft
+    thicknesses h₁ = params[0], h₂ = params[weft_index] (so that the warp and weft bending
+    stiffness are a11 h₁²/12 and a22 h₂²/12; h₁ = h₂ is the plain through-thickness integral).
 
     Unrolled on purpose: a runtime loop over the three points compiles faster but gave wrong
     reverse-mode gradients (measured, Taichi 1.7.4).
     """
     t = material_frame_transform(a1, a2, a3, metric)
-    h = params[0]
-    lower = t @ (eps - 0.5 * h * kappa) @ t.transpose()
+    h1 = params[0]
+    h2 = params[weft_index]
     middle = t @ eps @ t.transpose()
-    upper = t @ (eps + 0.5 * h * kappa) @ t.transpose()
+    k = t @ kappa @ t.transpose()
+    h12 = ti.sqrt(h1 * h2)
+    half = 0.5 * mat2([[h1 * k[0, 0], h12 * k[0, 1]], [h12 * k[1, 0], h2 * k[1, 1]]])
+    lower = middle - half
+    upper = middle + half
     return (_fabric_terms(lower[0, 0], lower[1, 1], lower[0, 1], params, nonlinear)
             + 4.0 * _fabric_terms(middle[0, 0], middle[1, 1], middle[0, 1], params, nonlinear)
             + _fabric_terms(upper[0, 0], upper[1, 1], upper[0, 1], params, nonlinear)) / 6.0
@@ -117,15 +125,15 @@ def _woven_terms(eps: mat2, kappa: mat2, a1: vec3, a2: vec3, a3: vec3, metric: m
 @ti.func
 def orthotropic_terms(eps: mat2, kappa: mat2, a1: vec3, a2: vec3, a3: vec3, metric: mat2,
                       params: ti.template()) -> vec4:
-    """Orthotropic StVK terms; params: [h]."""
-    return _woven_terms(eps, kappa, a1, a2, a3, metric, params, False)
+    """Orthotropic StVK terms; params: [h₁ (warp), h₂ (weft)]."""
+    return _woven_terms(eps, kappa, a1, a2, a3, metric, params, False, 1)
 
 
 @ti.func
 def clyde_terms(eps: mat2, kappa: mat2, a1: vec3, a2: vec3, a3: vec3, metric: mat2,
                 params: ti.template()) -> vec4:
-    """Clyde terms; params: [h, E11max, E22max, E12max, μ (4×3), α (4×3)]."""
-    return _woven_terms(eps, kappa, a1, a2, a3, metric, params, True)
+    """Clyde terms; params: [h, E11max, E22max, E12max, μ (4×3), α (4×3)] (h₁ = h₂ = h)."""
+    return _woven_terms(eps, kappa, a1, a2, a3, metric, params, True, 0)
 
 
 LAW_TERMS = {

@@ -13,7 +13,11 @@ Laws:
 - `OrthotropicStVK`: membrane law Ψ_m = ½ a11 E₁₁² + a12 E₁₁E₂₂ + ½ a22 E₂₂² + G12 E₁₂² in the
   material frame of the reference surface (warp d₁ = a₁/|a₁|, weft d₂ = a₃ × d₁), integrated
   through the thickness with E(ζ) = ε + ζ κ by Simpson's rule, which is exact here: bending
-  stiffness = membrane stiffness × h²/12.
+  stiffness = membrane stiffness × h²/12. A woven fabric's bending is not its membrane
+  stiffness times one h²/12 (yarns bend and slide), so the warp and weft may have their own
+  equivalent thickness h₁, h₂ (`weft_thickness`): the material-frame bending strain K_ij
+  enters as √(h_i h_j) K_ij, giving warp / weft bending a11 h₁²/12, a22 h₂²/12 and twist
+  G12 h₁h₂/12 (`OrthotropicStVK.from_bending` sets h₁, h₂ from measured bending).
 - `ClydeFabric` (Clyde et al. 2017): the same with η_k series, Ψ_m = ½ a11 η₁(E₁₁²) +
   a12 η₂(E₁₁E₂₂) + ½ a22 η₃(E₂₂²) + G12 η₄(E₁₂²), extended beyond the measured strain range by
   its second-order Taylor expansion (C¹, finite energy), Simpson (Ψ(−h/2) + 4Ψ(0) + Ψ(h/2))/6.
@@ -30,6 +34,7 @@ from typing import ClassVar
 
 import torch
 
+from taichi_ndf.shell.fabrics import CLYDE_FABRICS, MEASURED_FABRICS
 from taichi_ndf.shell.law_terms import KERNEL_STIFFNESS, MAX_SERIES_TERMS
 
 
@@ -149,8 +154,9 @@ class OrthotropicStVK(Material):
     through-thickness integration.
 
     a11, a22: warp and weft stretch stiffness [N/m] (> 0); a12: coupling [N/m] with
-    a12² < a11 a22; G12: shear stiffness [N/m] multiplying E₁₂² (> 0); thickness h [m];
-    areal_density ρ_A [kg/m²].
+    a12² < a11 a22; G12: shear stiffness [N/m] multiplying E₁₂² (> 0); thickness h₁ [m]
+    (the warp's equivalent thickness; the one contact and the grid rule use);
+    areal_density ρ_A [kg/m²]; weft_thickness h₂ [m] (default h₁).
     """
 
     a11: float
@@ -159,6 +165,7 @@ class OrthotropicStVK(Material):
     G12: float
     thickness: float
     areal_density: float
+    weft_thickness: float | None = None
 
     stiffness_names: ClassVar[tuple[str, ...]] = ("a11", "a12", "a22", "G12")
     law: ClassVar[str] = "orthotropic"
@@ -168,6 +175,30 @@ class OrthotropicStVK(Material):
         object.__setattr__(self, "thickness", _positive("thickness", self.thickness, "m"))
         object.__setattr__(self, "areal_density",
                            _positive("areal_density", self.areal_density, "kg/m²"))
+        weft = self.thickness if self.weft_thickness is None else self.weft_thickness
+        object.__setattr__(self, "weft_thickness", _positive("weft_thickness", weft, "m"))
+
+    @classmethod
+    def from_bending(cls, a11: float, a12: float, a22: float, G12: float, warp_bending: float,
+                     weft_bending: float, areal_density: float) -> "OrthotropicStVK":
+        """From the membrane stiffness [N/m] and the measured warp and weft bending
+        stiffness B₁, B₂ [N·m]: h₁ = √(12 B₁ / a11), h₂ = √(12 B₂ / a22)."""
+        b1 = _positive("warp_bending", warp_bending, "N·m")
+        b2 = _positive("weft_bending", weft_bending, "N·m")
+        a11 = _positive("a11", a11, "N/m")
+        a22 = _positive("a22", a22, "N/m")
+        return cls(a11=a11, a12=a12, a22=a22, G12=G12, thickness=math.sqrt(12 * b1 / a11),
+                   areal_density=areal_density, weft_thickness=math.sqrt(12 * b2 / a22))
+
+    @property
+    def warp_bending(self) -> float:
+        """Bending stiffness about the weft axis, bending the warp yarns: a11 h₁²/12 [N·m]."""
+        return self.a11 * self.thickness**2 / 12
+
+    @property
+    def weft_bending(self) -> float:
+        """Bending stiffness bending the weft yarns: a22 h₂²/12 [N·m]."""
+        return self.a22 * self.weft_thickness**2 / 12
 
     @classmethod
     def isotropic(cls, membrane_stiffness: float, poisson_ratio: float, thickness: float,
@@ -179,7 +210,7 @@ class OrthotropicStVK(Material):
                    areal_density=areal_density)
 
     def law_parameters(self) -> list[float]:
-        return [self.thickness]
+        return [self.thickness, self.weft_thickness]
 
     def law_stiffness(self, stiffness: torch.Tensor) -> torch.Tensor:
         return stiffness
@@ -281,35 +312,20 @@ def _check_series(k: int, series) -> Series:
     return mu, alpha
 
 
-# Published data (Clyde et al. 2017 as used by NeuralClothSim), physics.md §3.
-_FABRICS = {
-    "canvas": dict(
-        areal_density=0.294, thickness=3.7e-4, a11=5.366, a12=2.683, a22=19.804, G12=2.009,
-        strain_limits=(0.11, 0.067, 0.059),
-        eta=(((1881.386, -1880.386), (22.619, 22.082)), ((1.0,), (1.0,)),
-             ((-27.627, 70.532, -41.905), (212.682, 149.080, 69.532)),
-             ((19.484, -1.805, -16.679), (2.1, 0.869, 1.132)))),
-    "cotton": dict(
-        areal_density=0.1036, thickness=2.53e-4, a11=15.557, a12=7.779, a22=25.004, G12=1.076,
-        strain_limits=(0.14, 0.14, 0.063),
-        eta=(((-352.871, 4.952, 348.919), (-63.206, -550.784, -54.525)), ((1.0,), (1.0,)),
-             ((-2587.08, -285.733, 2873.813), (109.194, 102.720, 108.583)),
-             ((8.362, -7.362), (5.973, 3.496)))),
-    "silk": dict(
-        areal_density=0.083, thickness=2.39e-4, a11=4.3, a12=4.971, a22=9.942, G12=0.57,
-        strain_limits=(0.41, 0.34, 0.11),
-        eta=(((61.769, -60.769), (-2.23, -115.578)), ((1.0,), (1.0,)),
-             ((13.46, -12.46), (-2.612, -195.533)),
-             ((3213.226, -3503.817, 291.591), (-2.926, -3.205, -6.401)))),
-}
-PRESETS = ("cloth", *_FABRICS)
+PRESETS = ("cloth", *CLYDE_FABRICS, *MEASURED_FABRICS)
 
 
 def preset(name: str) -> Material:
     """A named material: "cloth" (linear isotropic, E = 5000 Pa, ν = 0.25, h = 1.2 mm,
-    ρ_A = 0.144 kg/m²) or the Clyde fabrics "canvas", "cotton", "silk"."""
+    ρ_A = 0.144 kg/m²; kept for the tests and the SfT prior: softer in bending than 99 % of
+    measured fabrics), the Clyde fabrics "canvas", "cotton", "silk" (`ClydeFabric`), or a
+    fabric of `taichi_ndf.shell.fabrics.MEASURED_FABRICS` (orthotropic StVK with measured
+    membrane and warp / weft bending; docs/scenes.md lists them with their sources)."""
     if name == "cloth":
         return LinearIsotropic.from_young(5000.0, 0.25, 1.2e-3, 0.144)
-    if name in _FABRICS:
-        return ClydeFabric(**_FABRICS[name])
+    if name in CLYDE_FABRICS:
+        return ClydeFabric(**CLYDE_FABRICS[name])
+    if name in MEASURED_FABRICS:
+        fabric = MEASURED_FABRICS[name]
+        return OrthotropicStVK.from_bending(**fabric.stiffness)
     raise ValueError(f"unknown material preset {name!r}; choose one of {PRESETS}")

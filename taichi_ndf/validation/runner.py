@@ -79,6 +79,13 @@ def load_case_scene(case: Case, scenes_dir: Path = SCENES_DIR, field: str | None
     return scene, model.with_loads(loads), field_config
 
 
+def _own_spline(case: Case, scenes_dir: Path) -> bool:
+    """Whether the case's scene itself asks for a spline field ([field] type = "spline")."""
+    from taichi_ndf.spline_grid import SplinePlan
+
+    return isinstance(load_scene(Path(scenes_dir) / case.scene).field, SplinePlan)
+
+
 def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = None,
              iterations: int | None = None, scenes_dir: Path = SCENES_DIR,
              seed: int | None = None, field: str | None = None,
@@ -89,11 +96,15 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
     iterations: Adam iterations per load step (overrides the settings).
     seed: field initialisation and sampling seed (default: the scene's).
     field: "spline" to solve the case with a spline field by projected Newton on `levels`
-    grids (`run_spline_case`).
+    grids (`run_spline_case`), "siren" with the SIREN; None: the field the case's scene
+    names (its `[field] type`), as `ndf-sim` does.
     """
+    if field is None:
+        field = "spline" if _own_spline(case, scenes_dir) else "siren"
     if field == "spline":
         if iterations is not None:
-            raise ValueError("--iters sets Adam; the spline path solves by projected Newton")
+            raise ValueError("--iterations sets Adam; the spline path solves by projected "
+                             "Newton")
         return run_spline_case(case, quick=quick, scenes_dir=scenes_dir, levels=levels)
     scene, model, field_config = load_case_scene(case, scenes_dir, field)
     names = [p.name for p in model.probes]
@@ -170,7 +181,9 @@ def run_spline_case(case: Case, *, quick: bool = False, scenes_dir: Path = SCENE
     from taichi_ndf.operator import DisplacementOperator
     from taichi_ndf.spline_solver import solve_spline
 
-    scene, model, plan = load_case_scene(case, scenes_dir, "spline")
+    # A scene with its own spline field keeps its keys (spans, degree, quadrature points).
+    own = _own_spline(case, scenes_dir)
+    scene, model, plan = load_case_scene(case, scenes_dir, None if own else "spline")
     plan = dataclasses.replace(plan, levels=1 if quick else levels)
     config = dataclasses.replace(scene.solver, progress=False)
     objective = _objective(case, model)
