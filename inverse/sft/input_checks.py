@@ -145,11 +145,30 @@ def check_uvs_match_texture(vertices: np.ndarray, faces: np.ndarray, uvs: np.nda
     the median patch NCC (nan when frame 0 has no textured patch under the template)."""
     ncc, count = uv_texture_ncc(vertices, faces, uvs, texture, frame, camera, mask)
     if count and ncc < MIN_UV_NCC:
+        flip = _fitting_flip(vertices, faces, uvs, texture, frame, camera, mask)
+        hint = (f"the template's axes look flipped: with {flip[0]} the texture matches "
+                f"(NCC {flip[1]:.2f}); give the template in OpenCV camera axes" if flip else
+                "re-derive the UVs by projecting the template into frame 0, or give frame 0's "
+                "texture")
         raise InputError(
             f"{what}: the texture mapped through them does not match frame 0 (median patch "
-            f"NCC {ncc:.2f} over {count} patches, need {MIN_UV_NCC}); re-derive the UVs by "
-            "projecting the template into frame 0, or give frame 0's texture")
+            f"NCC {ncc:.2f} over {count} patches, need {MIN_UV_NCC}); {hint}")
     return ncc
+
+
+def _fitting_flip(vertices, faces, uvs, texture, frame, camera, mask):
+    """(name, NCC) of the best sign flip of the template's axes (z kept positive) under which
+    the texture matches frame 0, or None."""
+    best = None
+    for signs, name in (((-1, -1, 1), "x and y negated"), ((-1, 1, 1), "x negated"),
+                        ((1, -1, 1), "y negated")):
+        flipped = vertices * signs
+        if in_view_fraction(flipped, camera) < MIN_IN_VIEW_FRACTION:
+            continue
+        ncc, count = uv_texture_ncc(flipped, faces, uvs, texture, frame, camera, mask)
+        if count and ncc >= MIN_UV_NCC and (best is None or ncc > best[1]):
+            best = (name, ncc)
+    return best
 
 
 def check_cloud_in_camera_frame(vertices: np.ndarray, cloud: np.ndarray, *,
