@@ -149,3 +149,17 @@ def test_pinned_option_takes_a_list_or_a_file():
 def test_triangulated_quads_cover_the_same_area():
     quads = np.array([[0, 1, 2, 3]])
     assert triangulated(quads).tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+R1 = Path("/work/shared/data/phi_sft_r1")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not R1.is_dir(), reason="φ-SfT's R1 capture is not on this machine")
+def test_phi_sft_r1_reads_with_the_measured_conventions():
+    capture = load_capture(R1)
+    assert capture.axes == (-1, -1, 1)  # the README's finding, found by the tool
+    cloud = np.load(R1 / "ground_truth" / "point_cloud_000.npy")
+    t = capture.inputs.template
+    # The README's value for frame 0 alone: 0.19.
+    assert 1e4 * chamfer_to_cloud(t.vertices, t.faces, cloud) == pytest.approx(0.19, abs=0.01)
