@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from itertools import product
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from inverse.sft.camera import Camera, load_camera
@@ -44,6 +45,7 @@ from inverse.sft.input_checks import (
 from inverse.sft.inputs import (
     SftInputs,
     Template,
+    list_images,
     read_frames,
     read_masks,
     read_pinned,
@@ -143,17 +145,17 @@ def load_capture(folder: str | Path, *, pinned: Sequence[int] | None = None) -> 
         raise InputError(f"template {path}: cannot be read ({err})") from None
     conventions = [f"camera: {folder / 'camera.json'}, OpenCV axes (x right, y down, z "
                    "forward), pixel centres at integers"]
-    frames = read_frames(frames_dir)
-    masks = read_masks(masks_dir) if masks_dir is not None else None
     if not np.all(np.isfinite(mesh.vertices)):
         check_template_in_view(mesh.vertices, mesh.faces, camera, None, what=f"template {path}")
-    signs, score, how = best_axes(mesh.vertices, mesh.faces, camera,
-                                  None if masks is None else masks[0])
+    # The template is checked against mask 0 before the whole sequence is read.
+    mask0 = None if masks_dir is None else _first_mask(masks_dir, camera)
+    signs, score, how = best_axes(mesh.vertices, mesh.faces, camera, mask0)
     vertices = mesh.vertices * signs
     conventions.append(f"template axes: {_axes_name(signs)} applied to {path.name} (best "
                        f"{how}; chosen {score:.2f})")
-    check_template_in_view(vertices, mesh.faces, camera, None if masks is None else masks[0],
-                           what=f"template {path}")
+    check_template_in_view(vertices, mesh.faces, camera, mask0, what=f"template {path}")
+    frames = read_frames(frames_dir)
+    masks = read_masks(masks_dir) if masks_dir is not None else None
     uvs = projected_uvs(vertices, camera)
     conventions.append("texture: frame 0; UVs re-derived by projecting the template's vertices "
                        "into frame 0 (the file's UVs and texture images are not used)")
@@ -173,6 +175,20 @@ def load_capture(folder: str | Path, *, pinned: Sequence[int] | None = None) -> 
     for line in conventions:
         log.info("capture: %s", line)
     return Capture(inputs=inputs, ground_truth=gt, conventions=tuple(conventions), axes=signs)
+
+
+def _first_mask(folder: Path, camera: Camera) -> np.ndarray | None:
+    """Mask 0 (bool (h, w)), or None when the folder has no image (refused later)."""
+    files = list_images(folder)
+    if not files:
+        return None
+    image = cv2.imread(str(files[0]), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError(f"mask {files[0]}: unreadable image")
+    if (image.shape[1], image.shape[0]) != camera.size:
+        raise InputError(f"mask {files[0]}: size {image.shape[1]}x{image.shape[0]} differs from "
+                         f"the camera size {camera.width}x{camera.height}")
+    return image > 127
 
 
 def _pinned(folder: Path, pinned: Sequence[int] | None) -> tuple[np.ndarray | None, str]:
