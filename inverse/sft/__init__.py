@@ -7,6 +7,9 @@ Modules, in pipeline order (conventions and the evaluation protocol: ``docs/sft.
 ``spline_prior`` with ``least_squares`` (the physics-regularised reconstruction: a spline
 field per frame by Gauss–Newton, the default), ``reconstruct`` with ``data_terms`` (the same
 with a SIREN field and Adam), ``metrics`` (e3D, chamfer, normal
-and reprojection errors); synthetic data with ground truth: ``texture``, ``deformations``,
-``degradations``, ``synth``.
+and reprojection errors), ``chamfer`` (the field's protocol against point clouds); input
+checks before any work: ``input_checks`` (template, UVs, clouds against frame 0) and ``limits``
+(image sizes from headers against memory); real captures: ``capture`` (the φ-SfT / PGSfT
+layout); synthetic data with ground truth: ``texture``, ``deformations``, ``degradations``,
+``synth``.
 """
