@@ -85,7 +85,7 @@ def test_nearest_neighbours_are_exact():
     points = rng.normal(size=(700, 3))
     query = np.concatenate([rng.normal(size=(300, 3)), [[40.0, 0.0, 0.0]]])  # one far away
     expected = ((query[:, None, :] - points[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-    np.testing.assert_allclose(nearest_sq_distances(query, points, cell=0.3), expected,
+    np.testing.assert_allclose(nearest_sq_distances(query, points), expected,
                                rtol=1e-12)
 
 

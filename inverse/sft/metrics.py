@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from inverse.sft.inputs import Camera
 from taichi_ndf.io import vertex_normals
@@ -90,62 +91,14 @@ def chamfer(
     """Symmetric chamfer distance [m²] (not scaled): mean sq. NN distance both ways, summed."""
     a = surface_samples(pred_vertices, pred_faces, count=count, seed=seed)
     b = surface_samples(gt_vertices, gt_faces, count=count, seed=seed)
-    tri = gt_vertices[gt_faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    # Cells about twice the sample spacing hold a few samples each.
-    cell = 2.0 * np.sqrt(area.sum() / count)
-    return float(nearest_sq_distances(a, b, cell=cell).mean()
-                 + nearest_sq_distances(b, a, cell=cell).mean())
+    return float(nearest_sq_distances(a, b).mean() + nearest_sq_distances(b, a).mean())
 
 
-def nearest_sq_distances(query: np.ndarray, points: np.ndarray, *, cell: float) -> np.ndarray:
-    """Exact squared distance from each query (m, 3) to its nearest point (n, 3), shape (m,).
-
-    Points are bucketed in cubic cells; a query looks at the 27 cells around its own, which
-    contain every point closer than the cell size. Queries whose nearest candidate is farther
-    are looked up again with cells 1.5 times as large, until every query is resolved.
-    """
-    if cell <= 0:
-        raise ValueError(f"cell must be positive, got {cell}")
-    best = np.full(len(query), np.inf)
-    todo = np.arange(len(query))
-    while len(todo):
-        best[todo] = _nearest_in_cells(query[todo], points, cell)
-        todo = todo[~(best[todo] <= cell**2)]
-        cell *= 1.5
-    return best
-
-
-def _nearest_in_cells(query: np.ndarray, points: np.ndarray, cell: float) -> np.ndarray:
-    """Squared distance to the nearest point in the 27 cells around each query (inf if none)."""
-    lo = np.minimum(query.min(axis=0), points.min(axis=0)) - cell
-    dims = np.floor((np.maximum(query.max(axis=0), points.max(axis=0)) - lo) / cell)
-    dims = dims.astype(np.int64) + 2
-
-    def key(ijk):
-        return (ijk[..., 0] * dims[1] + ijk[..., 1]) * dims[2] + ijk[..., 2]
-
-    point_keys = key(np.floor((points - lo) / cell).astype(np.int64))
-    order = np.argsort(point_keys, kind="stable")
-    sorted_keys = point_keys[order]
-    home = np.floor((query - lo) / cell).astype(np.int64)
-    offsets = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1]), -1).reshape(-1, 3)
-    neighbour = key(home[:, None, :] + offsets[None]).reshape(-1)  # (m * 27,)
-    start = np.searchsorted(sorted_keys, neighbour, side="left")
-    counts = np.searchsorted(sorted_keys, neighbour, side="right") - start
-    owner = np.repeat(np.arange(len(neighbour)), counts)
-    within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    candidate = order[start[owner] + within]
-    q = owner // len(offsets)
-    distance = ((query[q] - points[candidate]) ** 2).sum(axis=1)
-    # Candidates come grouped by query, in query order: reduce each group.
-    per_query = counts.reshape(len(query), -1).sum(axis=1)
-    best = np.full(len(query), np.inf)
-    found = per_query > 0
-    first = (np.cumsum(per_query) - per_query)[found]
-    if len(first):
-        best[found] = np.minimum.reduceat(distance, first)
-    return best
+def nearest_sq_distances(query: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Exact squared distance from each query (m, 3) to its nearest point (n, 3), shape (m,)
+    (a k-d tree, ``scipy.spatial.cKDTree``)."""
+    distance, _ = cKDTree(points).query(query, k=1)
+    return distance**2
 
 
 def normal_error_deg(pred: np.ndarray, gt: np.ndarray, faces: np.ndarray) -> float:
