@@ -40,8 +40,10 @@ from inverse.cli.sft_inputs import (
     load_run_inputs,
     metrics_line,
 )
+from inverse.cli.sft_material import add_material_options, check_held_corners, material_config
 from inverse.sft.baseline import mesh_edges, reconstruct_baseline
 from inverse.sft.inputs import Camera, InputError
+from inverse.sft.material_from_video import estimate_material, summary_line
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
 from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
 from inverse.sft.tracking import track_sequence
@@ -86,6 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
+    add_material_options(p)
     add_runtime_options(p, precision="f64")
     return p
 
@@ -103,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{name} {value:.2f}" for name, value in timings["per_frame"].items()))
     if "metrics" in summary:
         print(metrics_line(summary["metrics"]))
+    if "material" in summary:
+        print(summary_line(summary["material"]))
     print(f"outputs in {args.out}")
     return 0
 
@@ -114,8 +119,11 @@ def run(args: argparse.Namespace) -> dict:
     config = method_config(args)  # the options are checked before any work
     if not 0 < args.fps < math.inf:
         raise InputError(f"--fps must be finite and positive, got {args.fps}")
+    material = material_config(args)
     loaded = load_run_inputs(args)
     inputs = loaded.inputs
+    held = None if material is None else check_held_corners(args, inputs.template,
+                                                             inputs.pinned)
     for line in loaded.conventions:
         print(f"capture: {line}")
     out = OutputDir(args.out, overwrite=args.overwrite)
@@ -186,6 +194,11 @@ def run(args: argparse.Namespace) -> dict:
     if loaded.gt is not None:
         summary["metrics"], summary["metrics_per_frame"] = ground_truth_metrics(
             loaded, vertices, template.faces, inputs.camera)
+    if material is not None:
+        clock = time.perf_counter()
+        summary["material"] = estimate_material(vertices, template.faces, held, material)
+        seconds["material"] = time.perf_counter() - clock
+        summary["timings"]["per_frame"]["material"] = seconds["material"] / n
     out.write_json("result.json", summary)
     return summary
 

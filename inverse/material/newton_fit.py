@@ -43,11 +43,16 @@ log = logging.getLogger(__name__)
 class NewtonEstimateConfig:
     """model: the spline forward model (coarse grid, degree, band, load steps);
     outer: the Levenberg–Marquardt settings; levels: grids fitted, each refining the previous
-    (≥ 2: the last two give the discretisation part; 1: Fisher errors only, flagged)."""
+    (≥ 2: the last two give the discretisation part; 1: Fisher errors only, flagged);
+    start_from_observations: the first grid's first solve starts from the least-squares fit
+    of each observation's points (`SplineEquilibrium.fitted_state`; needs correspondence)
+    instead of going from the undeformed state through the load steps: the equilibrium
+    branch next to the observed shape, and fewer Newton steps."""
 
     model: SplineModelConfig = field(default_factory=SplineModelConfig)
     outer: OuterConfig = field(default_factory=OuterConfig)
     levels: int = 2
+    start_from_observations: bool = False
 
     def __post_init__(self):
         if isinstance(self.levels, bool) or not isinstance(self.levels, int) or \
@@ -87,6 +92,12 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
             for eq, coarse in zip(eqs, equilibria[-1], strict=True):
                 prolonged = torch.sparse.mm(coarse.field.prolongation(), coarse.coefficients)
                 eq.solve(values, start=prolonged)
+        elif config.start_from_observations:
+            for eq, obs in zip(eqs, observations, strict=True):
+                if obs.xi is None:
+                    raise ValueError("start_from_observations needs observations with "
+                                     "correspondence (xi)")
+                eq.solve(values, start=eq.fitted_state(obs.xi, obs.points))
         fits.append(fit(eqs, observations, unknowns, values, config.outer))
         equilibria.append(eqs)
         values = fits[-1].values

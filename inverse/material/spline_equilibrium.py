@@ -216,6 +216,34 @@ class SplineEquilibrium:
         self.stable = result.definite
         return result.derivative
 
+    def fitted_state(self, xi: torch.Tensor, points: torch.Tensor, *,
+                     ridge: float = 1e-10) -> torch.Tensor:
+        """Coefficients (n, 3) whose positions at ξ (N, 2) fit observed `points` (N, 3) [m]
+        in least squares (a start for a first solve next to an observed shape, on its branch):
+        u is affine in C per component, so one ridge-regularised normal-equation solve per
+        component (ridge relative to the mean diagonal)."""
+        xi = xi.to(torch.float64)
+        basis = local_basis_at(self.operator, xi)
+        offset, jacobian, pin = linearised(self.operator, xi, basis, 1.0)
+        if pin is not None:
+            raise ValueError("fitted_state does not support a free pin")
+        target = self.operator.to_frame(points.to(torch.float64)
+                                        - self.model.surface.jets(xi)[:, jets.VALUE])
+        target = target - offset[:, jets.VALUE]
+        n = self.coefficients.shape[0]
+        rows = torch.arange(len(xi)).repeat_interleave(basis.index.shape[1])
+        state = torch.zeros_like(self.coefficients)
+        for c in range(3):
+            a = torch.zeros(len(xi), n, dtype=torch.float64)
+            a.index_put_((rows, basis.index.reshape(-1)),
+                         jacobian[c, :, jets.VALUE].reshape(-1), accumulate=True)
+            normal = a.T @ a
+            normal += ridge * float(normal.diagonal().mean()) * torch.eye(n, dtype=normal.dtype)
+            state[:, c] = torch.linalg.solve(normal, a.T @ target[:, c])
+        if self.fixed is not None:
+            state.view(-1)[torch.as_tensor(self.fixed)] = 0.0
+        return state
+
     # -- observation space ----------------------------------------------------------------------
     def position_jets(self, xi: torch.Tensor, z=None) -> torch.Tensor:
         """Jets (N, 6, 3) of the current equilibrium positions [m] (z: ignored, for the

@@ -1,0 +1,85 @@
+"""`ndf-sft --estimate-material`: the options of the material estimate and their checks.
+
+The held corners are `--held-corners A B` (default: the two `--pinned` vertices, when the
+corners do not move); the template must be a regular vertex grid
+with them at the two ends of one grid edge (`inverse.sft.hanging.SheetGrid`). Everything is
+checked before tracking; a bad option is an `InputError` (exit 2). The estimate itself is
+`inverse.sft.material_from_video.estimate_material` on the reconstructed meshes.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from inverse.sft.hanging import SheetGrid
+from inverse.sft.inputs import InputError
+from inverse.sft.material_from_video import MaterialFromVideoConfig
+from taichi_ndf.cli.common import finite_float
+
+DEFAULTS = MaterialFromVideoConfig()
+
+
+def add_material_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("material from the video (--estimate-material)")
+    g.add_argument("--estimate-material", action="store_true",
+                   help="estimate the bending stiffness of a sheet held at two corners from "
+                   "its equilibria in the reconstructed frames (docs/sft.md)")
+    g.add_argument("--held-corners", type=int, nargs=2, metavar=("A", "B"),
+                   help="template vertices of the two held corners, which may move (default: "
+                   "the two --pinned vertices)")
+    g.add_argument("--areal-density", type=finite_float, default=DEFAULTS.areal_density,
+                   help="stated areal density [kg/m²] that turns B/(ρ g) into B (default: "
+                   "%(default)s, the median of measured fabrics)")
+    g.add_argument("--gravity", type=finite_float, nargs=3, default=DEFAULTS.gravity,
+                   metavar=("GX", "GY", "GZ"),
+                   help="gravity [m/s²] in camera coordinates (default: %(default)s, down "
+                   "the image)")
+    g.add_argument("--material-frames", type=int, default=DEFAULTS.frames,
+                   help="frames used, evenly spread (0: all; default: %(default)s)")
+    g.add_argument("--material-spans", type=int, nargs=2, default=DEFAULTS.spans,
+                   metavar=("N1", "N2"),
+                   help="coarse spline grid of the equilibria; the fine grid halves it "
+                   "(default: %(default)s)")
+
+
+def material_config(args: argparse.Namespace) -> MaterialFromVideoConfig | None:
+    """The estimate's settings (None without --estimate-material); InputError when an option
+    is invalid or given without --estimate-material."""
+    given = [name for name in ("areal_density", "gravity", "material_frames", "material_spans")
+             if getattr(args, name) != getattr(DEFAULTS, _FIELD.get(name, name))]
+    if args.held_corners is not None:
+        given.insert(0, "held_corners")
+    if not args.estimate_material:
+        if given:
+            raise InputError(f"--{given[0].replace('_', '-')} needs --estimate-material")
+        return None
+    try:
+        return MaterialFromVideoConfig(areal_density=args.areal_density,
+                                       gravity=tuple(args.gravity),
+                                       frames=args.material_frames,
+                                       spans=tuple(args.material_spans), fps=args.fps)
+    except ValueError as err:
+        raise InputError(f"--estimate-material: {err}") from None
+
+
+_FIELD = {"material_frames": "frames", "material_spans": "spans"}
+
+
+def check_held_corners(args: argparse.Namespace, template, pinned) -> tuple[int, int]:
+    """The two held corners (--held-corners, else the --pinned vertices) after checking that
+    the template is a grid with them at the ends of one edge; InputError otherwise."""
+    if args.held_corners is not None:
+        held = tuple(args.held_corners)
+    elif pinned is not None and len(pinned) == 2:
+        held = (int(pinned[0]), int(pinned[1]))
+    else:
+        raise InputError("--estimate-material needs the two held corners: --held-corners A B "
+                         f"or exactly two --pinned vertices (got "
+                         f"{0 if pinned is None else len(pinned)})")
+    try:
+        SheetGrid.from_template(np.asarray(template.vertices), np.asarray(template.faces), held)
+    except ValueError as err:
+        raise InputError(f"--estimate-material: {err}") from None
+    return held

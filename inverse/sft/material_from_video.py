@@ -1,0 +1,247 @@
+"""The shell's material from a reconstructed video of a sheet held at two corners.
+
+Input: the per-frame reconstructions (vertex positions, template order, camera coordinates
+[m], e.g. `ndf-sft`'s meshes) of a grid template held at two corner vertices, and gravity in
+camera coordinates. Each used frame becomes one observation of `inverse.material`: its model is
+`hanging.hanging_model` — the flat sheet of the template's grid-line lengths, the held corners
+where the reconstruction puts them in that frame, the reference plane hanging vertically from
+the corner line (`hanging.hanging_across`), gravity — and its
+points are the reconstructed vertices with their surface coordinates (correspondence). The
+unknown bending stiffness B (and optionally the membrane stiffness D) is then fitted to all
+frames at once by the Newton method of `ndf-fit-material` (`newton_fit.newton_estimate`): each
+frame's shape is the cloth's own equilibrium (spline field + projected Newton) under gravity
+with its corners held where the video puts them, B is found by Levenberg–Marquardt with
+implicit-function Jacobians over the frames' equilibria, on two grids; its standard error
+combines the Fisher error and the two grids' difference; the identifiability statement is that
+method's (eigen-analysis of the Fisher matrix).
+
+Identifiability: under gravity alone the shape fixes the stiffness only relative to the weight:
+B / (ρ_A g), i.e. the bending length c = (B / (ρ_A g))^(1/3). B itself follows from a stated
+areal density ρ_A (`areal_density`). D enters as D / (ρ_A g) and is nearly unobservable for a
+nearly inextensible sheet: it is held at `membrane_stiffness` unless `estimate_membrane`.
+
+Quasi-static check: the held corners' accelerations (second differences of the reconstructed
+corner positions at the frame rate) over g; a frame whose corners accelerate by more than
+`QUASI_STATIC_LIMIT` g is not an equilibrium, and the report says how many there are.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
+from inverse.material.observations import Observation
+from inverse.material.outer_fit import OuterConfig
+from inverse.material.report import estimate_document
+from inverse.material.spline_equilibrium import SplineModelConfig
+from inverse.material.unknowns import parse_unknowns
+from inverse.sft.hanging import STANDARD_GRAVITY, SheetGrid, hanging_across, hanging_model
+from taichi_ndf.shell.materials import LinearIsotropic
+
+log = logging.getLogger(__name__)
+
+QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not quasi-static
+
+# Bending length of measured fabrics (Feng et al., TOG 2022, 251 fabrics) [m] and areal
+# density [kg/m²]: 5th, 50th and 95th percentile.
+FABRIC_BENDING_LENGTH = (0.011, 0.020, 0.033)
+FABRIC_AREAL_DENSITY = (0.041, 0.197, 0.487)
+
+
+@dataclass(frozen=True)
+class MaterialFromVideoConfig:
+    """Settings of the estimate.
+
+    areal_density: stated ρ_A [kg/m²] that turns B / (ρ_A g) into B (default: the median of
+    measured fabrics); gravity: (3,) [m/s²] in camera coordinates (default: down the image);
+    start_bending_length: c of the start value [m]; membrane_stiffness: D [N/m] (held unless
+    estimate_membrane); poisson_ratio: ν; frames: number of frames used, evenly spread over the
+    sequence (0: all); spans: the coarse grid (the fine grid halves it); band: the handles'
+    band (fraction of the domain); fps: frame rate of the video [1/s], for the quasi-static
+    check; max_iterations: outer Levenberg–Marquardt iterations per grid."""
+
+    areal_density: float = FABRIC_AREAL_DENSITY[1]
+    gravity: tuple[float, float, float] = (0.0, STANDARD_GRAVITY, 0.0)
+    start_bending_length: float = FABRIC_BENDING_LENGTH[1]
+    membrane_stiffness: float = 300.0
+    poisson_ratio: float = 0.25
+    estimate_membrane: bool = False
+    frames: int = 8
+    spans: tuple[int, int] = (6, 6)
+    band: float = 0.1
+    fps: float = 30.0
+    max_iterations: int = 12
+
+    def __post_init__(self):
+        for name in ("areal_density", "start_bending_length", "membrane_stiffness", "fps"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        g = np.asarray(self.gravity, dtype=np.float64)
+        if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.linalg.norm(g) > 0:
+            raise ValueError(f"gravity must be a non-zero 3-vector [m/s²], got {self.gravity!r}")
+        if isinstance(self.frames, bool) or not isinstance(self.frames, int) or \
+                (self.frames != 0 and self.frames < 2):
+            raise ValueError(f"frames must be 0 (all) or >= 2, got {self.frames!r}")
+        if len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans):
+            raise ValueError(f"spans must be two positive integers, got {self.spans!r}")
+        if not 0 < self.band < 0.5:
+            raise ValueError(f"band must be in (0, 0.5), got {self.band!r}")
+
+    @property
+    def start_material(self) -> LinearIsotropic:
+        g = float(np.linalg.norm(self.gravity))
+        return LinearIsotropic(
+            membrane_stiffness=self.membrane_stiffness,
+            bending_stiffness=self.areal_density * g * self.start_bending_length ** 3,
+            poisson_ratio=self.poisson_ratio, areal_density=self.areal_density)
+
+
+def chosen_frames(count: int, used: int) -> list[int]:
+    """`used` frame indices evenly spread over `count` frames (all when used is 0 or more)."""
+    if used == 0 or used >= count:
+        return list(range(count))
+    return sorted({int(round(i)) for i in np.linspace(0, count - 1, used)})
+
+
+def corner_accelerations(vertices: list[np.ndarray], held: tuple[int, int],
+                         fps: float) -> np.ndarray:
+    """Largest acceleration [m/s²] of the two held corners per interior frame (second
+    differences at the frame rate); (F − 2,)."""
+    corners = np.stack([np.asarray(v)[list(held)] for v in vertices])  # (F, 2, 3)
+    if len(corners) < 3:
+        return np.zeros(0)
+    second = corners[2:] - 2 * corners[1:-1] + corners[:-2]
+    return np.linalg.norm(second, axis=2).max(axis=1) * fps ** 2
+
+
+def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
+                       config: MaterialFromVideoConfig, frames: list[int]
+                       ) -> list[Observation]:
+    """One observation per used frame (module docstring)."""
+    material = config.start_material
+    xi = torch.from_numpy(grid.xi)
+    observations = []
+    for f in frames:
+        points = np.asarray(vertices[f], dtype=np.float64)
+        gravity = np.asarray(config.gravity, dtype=np.float64)
+        corners = points[list(grid.held)]
+        across = hanging_across(corners, gravity)
+        model = hanging_model(grid.size, material, corners, across, gravity, band=config.band)
+        observations.append(Observation(model, torch.from_numpy(points), xi))
+    return observations
+
+
+def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple[int, int],
+                      config: MaterialFromVideoConfig | None = None) -> dict:
+    """Estimate the material from per-frame vertex positions (module docstring).
+
+    vertices: per frame (V, 3) [m], template order, camera coordinates (frame 0 gives the
+    flat sheet's size); faces: (F, 3) template faces; held: the two held corner vertices.
+    Returns the report (`report`'s keys)."""
+    config = config or MaterialFromVideoConfig()
+    t0 = time.perf_counter()
+    grid = SheetGrid.from_template(vertices[0], faces, held)
+    frames = chosen_frames(len(vertices), config.frames)
+    observations = frame_observations(vertices, grid, config, frames)
+    spec = "bending,stretch" if config.estimate_membrane else "bending"
+    _, unknowns = parse_unknowns(spec, observations[0].model)
+    material = config.start_material
+    start = [material.bending_stiffness] + (
+        [material.membrane_stiffness] if config.estimate_membrane else [])
+    newton = NewtonEstimateConfig(
+        model=SplineModelConfig(spans=tuple(int(s) for s in config.spans),
+                                boundary_length=None),
+        outer=OuterConfig(max_iterations=config.max_iterations, max_step=1.0),
+        start_from_observations=True)
+    result = newton_estimate(observations, unknowns, newton, start=start)
+    document = estimate_document(result.estimate, observations[0].model, ratios=result.ratios,
+                                 notes=result.notes)
+    fit = result.fits[-1]
+    per_frame = _per_frame_rms(fit.residuals, observations)
+    accelerations = corner_accelerations(vertices, grid.held, config.fps)
+    g = float(np.linalg.norm(config.gravity))
+    return report(document, grid, frames, per_frame, accelerations / g, config,
+                  time.perf_counter() - t0,
+                  stable=all(f.stable for f in result.fits),
+                  converged=all(f.converged for f in result.fits))
+
+
+def _per_frame_rms(residuals: np.ndarray, observations: list[Observation]) -> np.ndarray:
+    sizes = [3 * len(o.points) for o in observations]
+    parts = np.split(residuals, np.cumsum(sizes)[:-1])
+    return np.array([math.sqrt(float(p @ p) / (len(p) // 3)) for p in parts])
+
+
+def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.ndarray,
+           acceleration_over_g: np.ndarray, config: MaterialFromVideoConfig, seconds: float,
+           *, stable: bool, converged: bool) -> dict:
+    """The "material" entry of result.json: value, s.e., bending length, identifiability,
+    goodness of fit, where it falls among measured fabrics, and the quasi-static check."""
+    bending = document["parameters"]["bending_stiffness"]
+    length = document.get("bending_length_m")
+    rms = float(document["misfit"])
+    moving = int(np.sum(acceleration_over_g > QUASI_STATIC_LIMIT))
+    out = {
+        "bending_stiffness": {"value": bending.get("value"),
+                              "standard_error": bending.get("standard_error"),
+                              "unit": "N·m", "determined": bending["determined"],
+                              "at_areal_density": config.areal_density},
+        "bending_length": None if length is None else {
+            "value": length["value"], "standard_error": length["standard_error"],
+            "unit": "m"},
+        "identifiability": (
+            "gravity is the only load: the shape determines B / (ρ_A g), i.e. the bending "
+            "length c = (B / (ρ_A g))^(1/3); B is given at the stated areal density "
+            f"ρ_A = {config.areal_density:g} kg/m² (B scales with it)"
+            + ("; the membrane stiffness D was estimated too (see parameters)"
+               if config.estimate_membrane else
+               f"; the membrane stiffness is held at D = {config.membrane_stiffness:g} N/m "
+               "(nearly unobservable for a nearly inextensible sheet)")),
+        "goodness_of_fit": {
+            "rms_m": rms, "rms_over_sheet_size": rms / math.hypot(*grid.size),
+            "per_frame_rms_m": per_frame.tolist(),
+            "worst_frame": int(frames[int(np.argmax(per_frame))]),
+            "worst_frame_rms_m": float(per_frame.max()),
+            "meaning": "rms 3-D distance between each used frame's fitted equilibrium and "
+                       "its reconstructed vertices"},
+        "fabric_percentile": None if length is None else fabric_position(length["value"]),
+        "quasi_static": {
+            "largest_corner_acceleration_over_g": float(acceleration_over_g.max(initial=0.0)),
+            "frames_above_limit": moving, "limit_over_g": QUASI_STATIC_LIMIT,
+            "fps": config.fps},
+        "frames_used": frames, "sheet_size_m": list(grid.size),
+        "stable": stable, "converged": converged, "seconds": seconds,
+        "estimate": document,
+    }
+    return out
+
+
+def fabric_position(length: float) -> str:
+    """Where a bending length [m] falls among the 251 measured fabrics of Feng et al. 2022."""
+    p5, p50, p95 = FABRIC_BENDING_LENGTH
+    if length < p5:
+        return "below the 5th percentile (softer than 95 % of measured fabrics)"
+    if length > p95:
+        return "above the 95th percentile (stiffer than 95 % of measured fabrics)"
+    return ("between the 5th and the 50th percentile" if length < p50 else
+            "between the 50th and the 95th percentile")
+
+
+def summary_line(material: dict) -> str:
+    """One line for the command line."""
+    b, c = material["bending_stiffness"], material["bending_length"]
+    fit = material["goodness_of_fit"]
+    if c is None or b["value"] is None:
+        return (f"material: bending stiffness undetermined (rms misfit "
+                f"{1e3 * fit['rms_m']:.2f} mm)")
+    return (f"material: bending length {100 * c['value']:.3f} ± {100 * c['standard_error']:.3f}"
+            f" cm ({material['fabric_percentile']}); B = {b['value']:.4g} ± "
+            f"{b['standard_error']:.2g} N·m at ρ_A = {b['at_areal_density']:g} kg/m²; rms "
+            f"misfit {1e3 * fit['rms_m']:.2f} mm")

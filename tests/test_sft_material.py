@@ -1,0 +1,90 @@
+"""Material from video (`inverse.sft.material_from_video`, `ndf-sft --estimate-material`): the
+grid template's coordinates, a coarse hanging sheet of known bending length recovered from its
+equilibria (the project's forward solve on another grid and degree), and the command line's
+refusal of bad options (exit 2) before any work."""
+
+import json
+
+import numpy as np
+import pytest
+
+from inverse.cli.sft import main
+from inverse.sft.hanging import SheetGrid
+from inverse.sft.hanging_synth import HangingConfig, equilibrium_shapes, template_grid
+from inverse.sft.material_from_video import MaterialFromVideoConfig, estimate_material
+from taichi_ndf.io import grid_mesh, write_obj
+
+
+def test_sheet_grid_of_both_index_orders():
+    """ndf-sim's grid order (ξ¹ fastest) and PGSfT's (ξ² fastest, held corners 0 and 992 of a
+    32 × 32 grid) give the same surface coordinates; a held pair that is not one grid edge's
+    two ends is refused."""
+    grid = grid_mesh(((0.0, 0.3), (0.0, 0.2)), (6, 4))
+    vertices = np.column_stack([grid.xi, np.zeros(len(grid.xi))])
+    sheet = SheetGrid.from_template(vertices, grid.faces, (0, 6))
+    assert sheet.size == pytest.approx((0.3, 0.2))
+    assert np.allclose(sheet.xi, grid.xi)
+    # the same grid stored column-major (the PGSfT layout): vertex k = i * 5 + j
+    order = np.arange(len(vertices)).reshape(5, 7).T.ravel()  # new index -> old index
+    inverse = np.argsort(order)
+    transposed = SheetGrid.from_template(vertices[order], inverse[grid.faces], (0, 30))
+    assert np.allclose(transposed.xi, grid.xi[order])
+    with pytest.raises(ValueError, match="not the two ends of one edge"):
+        SheetGrid.from_template(vertices, grid.faces, (0, 34))
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="target missed (benchmarks/RESULTS.md, Material from "
+                   "video): on 4 × 4 / 8 × 8 cubic spans B came out +131 % (D 100 / 300 N/m) "
+                   "and −64 % (D 1000 N/m) with 3–4 mm misfit on noise-free truth")
+def test_coarse_hanging_sheet_bending_length_recovered():
+    """Three frames of a 0.3 m sheet (c = 5 cm, ρ_A = 0.2 kg/m², D = 100 N/m) held at its
+    moving top corners, solved on 8 × 8 quartic spans; estimated on 4 × 4 and 8 × 8 cubic
+    spans from a start of c = 2 cm with the stated areal density 0.2: the target is B within
+    5 % and within 2 standard errors. Not met yet (the xfail's reason); strict, so a fix that
+    meets it makes this test fail until the mark is removed."""
+    truth = HangingConfig(frames=3, cells=(12, 12), bending_length=0.05, spans=(8, 8))
+    shapes = equilibrium_shapes(truth)
+    grid, _, held = template_grid(truth)
+    config = MaterialFromVideoConfig(areal_density=0.2, frames=0, spans=(4, 4),
+                                     membrane_stiffness=300.0)
+    material = estimate_material(shapes, grid.faces, held, config)
+    b = material["bending_stiffness"]
+    true_b = truth.material.bending_stiffness
+    assert "B / (ρ_A g)" in material["identifiability"]
+    assert b["determined"]
+    assert abs(b["value"] - true_b) < 0.05 * true_b
+    assert abs(b["value"] - true_b) < 2 * b["standard_error"]
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--areal-density", "0.2"], "needs --estimate-material"),
+    (["--estimate-material"], "needs the two held corners"),
+    (["--estimate-material", "--held-corners", "0", "5"], "not the two ends of one edge"),
+    (["--estimate-material", "--held-corners", "0", "4", "--areal-density", "-1"],
+     "areal_density must be positive"),
+    (["--estimate-material", "--held-corners", "0", "4", "--material-frames", "1"],
+     "frames must be 0"),
+])
+def test_cli_rejects_bad_material_options(tmp_path, capsys, extra, message):
+    """Each bad option: exit 2 and one line naming it, before tracking (no output folder)."""
+    grid = grid_mesh(((0.0, 0.2), (0.0, 0.2)), (4, 4))
+    vertices = np.column_stack([grid.xi - 0.1, np.full(len(grid.xi), 0.5)])
+    uvs = np.column_stack([grid.uv[:, 0], 1.0 - grid.uv[:, 1]])
+    write_obj(tmp_path / "template.obj", vertices, grid.faces, uvs=uvs)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    import cv2
+    texture = (np.random.default_rng(0).random((64, 64, 3)) * 255).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "texture.png"), texture)
+    cv2.imwrite(str(frames / "000000.png"), np.zeros((120, 160, 3), np.uint8))
+    (tmp_path / "camera.json").write_text(json.dumps(
+        {"fx": 150.0, "fy": 150.0, "cx": 79.5, "cy": 59.5, "width": 160, "height": 120}))
+    out = tmp_path / "out"
+    code = main(["--frames", str(frames), "--camera", str(tmp_path / "camera.json"),
+                 "--template", str(tmp_path / "template.obj"),
+                 "--texture", str(tmp_path / "texture.png"), "--out", str(out), *extra])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
