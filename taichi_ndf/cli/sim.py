@@ -30,10 +30,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="solve with this field type: spline = a B-spline field solved by "
                    "projected Newton on the grid rule's grid (docs/scenes.md); keeps the "
                    "scene's load steps and seed, other field and training settings default")
-    p.add_argument("--refine", type=int, metavar="K",
-                   help="spline field: solve on K successively refined grids (replaces "
-                   "[field] levels) and report Π and every probe per level with the "
-                   "Richardson-extrapolated value and its estimated error")
+    p.add_argument("--refine", type=int, metavar="K", nargs="?", const=3,
+                   help="spline field: solve on K successively refined grids (default 3; "
+                   "replaces [field] levels) and report Π and every probe per level with the "
+                   "Richardson-extrapolated value and its error bar: from the observed order "
+                   "with K >= 3; with K = 2 the order is assumed and the bar is the change "
+                   "between the two grids")
     p.add_argument("--quick", action="store_true",
                    help="a short run with the scene's [training.quick] settings (smoke test)")
     p.add_argument("--resume", action="store_true",
@@ -108,6 +110,12 @@ def main(argv: list[str] | None = None) -> int:
           f"in {result['wall_time']:.1f} s")
     for name, u in result["probes"].items():
         print(f"  probe {name}: u = ({u[0]:.5g}, {u[1]:.5g}, {u[2]:.5g}) m")
+    refinement = result.get("refinement")
+    if refinement:
+        energy = refinement["energy"]
+        print(f"  refinement over {len(refinement['spans'])} grids: Π → {energy['text']} J")
+        if energy.get("warning"):
+            print(f"  warning: {energy['warning']}")
     print(f"outputs in {out}")
     return 0
 
