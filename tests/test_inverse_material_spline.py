@@ -79,12 +79,17 @@ def test_cli_newton_is_the_default_and_reports_both_parts(tmp_path, capsys):
     8 × 2 spans, 7.8 s (−0.0013 % ± 0.0013 %, 4.8 s on the grid rule's 8 × 2 and 16 × 4)."""
     out, document = cli_on_elastica(tmp_path, "--spans", "4", "1")
     entry = document["parameters"]["bending_stiffness"]
-    assert document["method"] == "bilevel_newton"
+    assert document["method"] == "newton"
     assert entry["determined"] and abs(entry["value"] / B_TRUE - 1) < 0.005
     parts = document["standard_error_parts"]["bending_stiffness"]
     assert entry["standard_error"] == pytest.approx(math.hypot(parts["fisher"],
                                                                parts["discretisation"]))
     assert [g["spans"] for g in document["grids"]] == [[4, 1], [8, 2]]
+    assert all(g["converged"] and g["unconverged_solves"] == 0 for g in document["grids"])
+    # a noise-free observation of the right model: the residual is the forward model's own
+    # error, which the two grids' difference bounds, so the fit explains the data
+    fit = document["goodness_of_fit"]
+    assert fit["explains_data"] and fit["forward_model_error_m"] > 0, fit
     assert (out / "overlay.png").exists()
     code = main(["--scene", str(SCENE), "--observed", str(tmp_path / "obs.obj"), "--estimate",
                  "bending", "--spans", "0", "1", "--out", str(tmp_path / "bad")])

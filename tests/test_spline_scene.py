@@ -220,5 +220,7 @@ def test_validate_runs_a_case_with_the_spline_path(tmp_path, capsys):
     assert "square_plate w_centre @ 1" in printed
     result = json.loads((out / "results.json").read_text())
     case = result["cases"]["square_plate"]
+    # issue 35: the spline path wrote "source": "" for every row
+    assert all(row["source"].startswith("Navier series") for row in result["rows"]), result["rows"]
     assert case["solver"]["method"] == "newton" and case["solver"]["spans"] == [[8, 8]]
     assert (out / "square_plate_convergence.png").is_file()
