@@ -40,6 +40,7 @@ ORDER = 4.0  # 2(p − 1) for cubic splines
 # name: (scene file, coarsest spans, levels, quantities, bar windows (first grid of three))
 CASES = {
     "napkin": ("scenes/napkin.toml", (4, 4), 5, ("energy", "free_corner:2"), (0, 1)),
+    "napkin_coarse": ("scenes/napkin.toml", (2, 2), 5, ("energy", "free_corner:2"), (0, 1)),
     "napkin_clamped_edges": ("scenes/napkin_clamped_edges.toml", (5, 5), 5, ("energy",), (0,)),
     "membrane_stretch": ("scenes/membrane_stretch.toml", (2, 2), 5, ("energy", "centre:0"),
                          (0,)),
