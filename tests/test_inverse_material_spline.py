@@ -132,7 +132,7 @@ def test_strip_standard_errors_cover_the_truth_over_sixty_noise_draws():
 def test_richardson_recovers_the_order_and_the_error_of_the_finest_grid():
     """Three solutions x_h = x* + c h^p (a different c per point): the observed order is p and
     the estimated error of the finest is its true largest error; no estimate where the
-    differences do not shrink (the last change is the bar then)."""
+    differences do not shrink (the larger change is the bar then)."""
     rng = np.random.default_rng(0)
     exact, c = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
     for order in (2.0, 4.5):

@@ -285,7 +285,7 @@ def test_richardson_recovers_the_limit_and_order_of_a_power_law():
     assert result.error == pytest.approx(0.5 * 0.25**3, rel=1e-9)
     stalled = richardson([1.0, 1.1, 1.05])  # differences not falling: no extrapolation
     assert stalled.order is None and stalled.value == 1.05
-    assert stalled.error == pytest.approx(0.05)
+    assert stalled.error == pytest.approx(0.1)  # the larger of the last two changes
     assert richardson([1.0, 1.5], order=1.0).value == pytest.approx(2.0)
     with pytest.raises(ValueError, match="assumed order"):
         richardson([1.0, 1.5])

@@ -123,8 +123,8 @@ def position_refinement(coarse, medium, fine) -> tuple[float, float]:
     positions at the same points) on grids h, h/2 and h/4: Richardson's rule
     (`taichi_ndf.minimise.refinement.extrapolate_changes`) on the changes
     d₁ = max‖x_{h/2} − x_h‖ and d₂ = max‖x_{h/4} − x_{h/2}‖, so the error of x_{h/4} is
-    d₂ / (2^p − 1) in the asymptotic range; (nan, d₂) where d₂ ≥ d₁ (not converging: the last
-    change is the bar)."""
+    d₂ / (2^p − 1) in the asymptotic range; (nan, d₂) where d₂ ≥ d₁ (not converging: the
+    larger change is the bar)."""
     d1 = float(np.linalg.norm(np.asarray(medium) - np.asarray(coarse), axis=1).max())
     d2 = float(np.linalg.norm(np.asarray(fine) - np.asarray(medium), axis=1).max())
     order, error, _, _ = extrapolate_changes([d1, d2])

@@ -13,7 +13,9 @@ the observed order is p = log₂((v₁ − v₀)/(v₂ − v₁)) and v∞ = v�
 error bar is |v∞ − v₂| (the interval v∞ ± error reaches back to v₂); a warning is logged
 where p is more than a factor `ORDER_FAR` from the expected order. When the differences do not
 fall monotonically (no asymptotic range yet) the extrapolation is not trusted: v∞ = v₂ and the
-error is |v₂ − v₁|. With two values the order cannot be observed: it is assumed (the expected
+error is the larger of the last two changes (chosen after the coverage study, where the last
+change alone missed napkin_clamped_edges' oscillating 5/10/20-span values;
+benchmarks/RESULTS.md). With two values the order cannot be observed: it is assumed (the expected
 order, 2(p − 1) for degree-p splines), the value is extrapolated with it and the error is
 widened to the whole change |v₂ − v₁| between the two grids — a bar that does not rest on the
 assumption (measured: the napkin's two-grid bar at the assumed order 4 was 15× smaller than
@@ -106,7 +108,7 @@ class Extrapolation:
                     "between them")
         if self.basis == "not converging":
             return (f"{self.grids} grids, differences not falling: finest value, error = the "
-                    "last change")
+                    "larger of the last two changes")
         expected = "" if self.expected is None else f", expected {self.expected:g}"
         return f"observed order {self.order:.2f} from {self.grids} grids{expected}"
 
@@ -132,11 +134,12 @@ def extrapolate_changes(changes: list[float], order: float | None = None
         if order is None:
             raise ValueError("two values need an assumed order")
         return order, abs(last), "assumed", None
+    largest = max(abs(c) for c in changes[-2:])
     if last == 0.0:
-        return None, 0.0, "not converging", None
+        return None, largest, "not converging", None
     ratio = changes[-2] / last
     if not (math.isfinite(ratio) and ratio > 1):
-        return None, abs(last), "not converging", None
+        return None, largest, "not converging", None
     observed = math.log2(ratio)
     warning = None
     if order is not None and not order / ORDER_FAR <= observed <= order * ORDER_FAR:
