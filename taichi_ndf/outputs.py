@@ -171,7 +171,8 @@ def write_energy_plot(out: OutputDir, name: str, history, refinement: dict | Non
                       ) -> None:
     """Π over iterations and |Π − Π_final| / |Π_final| on a log axis; with `refinement` (a
     spline run on several grids: `SplineRun.refinement`) also Π per grid level with its
-    Richardson-extrapolated value."""
+    Richardson-extrapolated value, its error bar and how the order was found ("order assumed"
+    with two grids)."""
     if not history:
         return
     it = np.array([h.iteration for h in history], dtype=np.float64)
@@ -186,10 +187,16 @@ def write_energy_plot(out: OutputDir, name: str, history, refinement: dict | Non
     if refinement is not None:
         values = np.array(refinement["energy"]["values"], dtype=np.float64)
         level = np.arange(len(values), dtype=np.float64)
-        limit = np.full_like(level, refinement["energy"]["extrapolated"])
+        energy = refinement["energy"]
+        limit = np.full_like(level, energy["extrapolated"])
+        bar = energy["estimated_error"]
+        how = ("order assumed" if energy.get("order_basis") == "assumed"
+               else energy.get("order_basis", "observed"))
         panels.append(plot_curves(
-            {"Pi per grid level": (level, values), "Richardson extrapolation": (level, limit)},
-            title="Refinement: Pi on each grid (spans doubled per level)",
+            {"Pi per grid level": (level, values),
+             f"Richardson ({how}) {energy['extrapolated']:.6g} +- {bar:.2g}": (level, limit),
+             "+ error bar": (level, limit + bar), "- error bar": (level, limit - bar)},
+            title=f"Refinement: Pi on each grid (spans doubled per level; {how})",
             xlabel="grid level", ylabel="Pi [J]", height=400))
     save_png(out.file(name), np.concatenate(panels, axis=0))
 

@@ -5,9 +5,10 @@ undeformed state through the load steps, each finer grid (exact dyadic refinemen
 step from the coarser solution prolonged (`minimise.refinement.solve_levels`). Reports per level
 Π, every probe and the seconds taken, and per Newton iteration Π, the decrement, the step
 length and the time split; with several levels the Richardson-extrapolated Π and probes and
-their estimated discretisation errors (`richardson`: an observed order from three or more
-levels, order 2·(p − 1) assumed with two — the energy-norm rate of degree-p splines for a
-fourth-order problem).
+their error bars (`richardson`: an observed order from three or more levels, warned where far
+from the expected 2·(p − 1) — the energy-norm rate of degree-p splines for a fourth-order
+problem; with two levels that order assumed, said so, and the error widened to the change
+between the levels).
 """
 
 from __future__ import annotations
@@ -79,16 +80,15 @@ class SplineRun:
         return self.levels[-1].probes
 
     def refinement(self, degree: int) -> dict | None:
-        """Π and every probe component per level with the Richardson value and its estimated
-        error (module docstring); None with one level."""
+        """Π and every probe component per level with the Richardson value, its error bar and
+        how it was found (`Extrapolation.to_dict`: order, order_basis "observed" / "assumed" /
+        "not converging", warning, text); None with one level."""
         if len(self.levels) < 2:
             return None
         order = 2.0 * (degree - 1)
 
         def extrapolate(values):
-            e = richardson(values, order=None if len(values) >= 3 else order)
-            return {"values": values, "extrapolated": e.value, "estimated_error": e.error,
-                    "order": e.order}
+            return {"values": values, **richardson(values, order=order).to_dict()}
 
         probes = {name: [extrapolate([lv.probes[name][c] for lv in self.levels])
                          for c in range(3)] for name in self.levels[-1].probes}

@@ -126,7 +126,7 @@ def test_cli_implicit_writes_estimate_with_the_feature_spread(tmp_path):
     features, 2048 samples), 7–16 s."""
     out, document = cli_on_elastica(tmp_path, "--method", "implicit", "--quick")
     entry = document["parameters"]["bending_stiffness"]
-    assert document["method"] == "bilevel_implicit_function"
+    assert document["method"] == "implicit"
     assert entry["determined"] and abs(entry["value"] / B_TRUE - 1) < 0.05
     parts = document["standard_error_parts"]["bending_stiffness"]
     assert parts["feature_spread"] > 0

@@ -16,7 +16,7 @@ from test_inverse_material_implicit import cli_on_elastica, resolve_differences
 
 from inverse.cli.fit_material import main
 from inverse.material import ResidualConfig, parse_unknowns, residual_estimate
-from inverse.material.calibration import calibrate, richardson, strip_case
+from inverse.material.calibration import calibrate, position_refinement, strip_case
 from inverse.material.identifiability import UNDETERMINED_STD
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.residual import MAX_RELATIVE_RESIDUAL
@@ -79,12 +79,17 @@ def test_cli_newton_is_the_default_and_reports_both_parts(tmp_path, capsys):
     8 × 2 spans, 7.8 s (−0.0013 % ± 0.0013 %, 4.8 s on the grid rule's 8 × 2 and 16 × 4)."""
     out, document = cli_on_elastica(tmp_path, "--spans", "4", "1")
     entry = document["parameters"]["bending_stiffness"]
-    assert document["method"] == "bilevel_newton"
+    assert document["method"] == "newton"
     assert entry["determined"] and abs(entry["value"] / B_TRUE - 1) < 0.005
     parts = document["standard_error_parts"]["bending_stiffness"]
     assert entry["standard_error"] == pytest.approx(math.hypot(parts["fisher"],
                                                                parts["discretisation"]))
     assert [g["spans"] for g in document["grids"]] == [[4, 1], [8, 2]]
+    assert all(g["converged"] and g["unconverged_solves"] == 0 for g in document["grids"])
+    # a noise-free observation of the right model: the residual is the forward model's own
+    # error, which the two grids' difference bounds, so the fit explains the data
+    fit = document["goodness_of_fit"]
+    assert fit["explains_data"] and fit["forward_model_error_m"] > 0, fit
     assert (out / "overlay.png").exists()
     code = main(["--scene", str(SCENE), "--observed", str(tmp_path / "obs.obj"), "--estimate",
                  "bending", "--spans", "0", "1", "--out", str(tmp_path / "bad")])
@@ -127,15 +132,16 @@ def test_strip_standard_errors_cover_the_truth_over_sixty_noise_draws():
 def test_richardson_recovers_the_order_and_the_error_of_the_finest_grid():
     """Three solutions x_h = x* + c h^p (a different c per point): the observed order is p and
     the estimated error of the finest is its true largest error; no estimate where the
-    differences do not shrink."""
+    differences do not shrink (the larger change is the bar then)."""
     rng = np.random.default_rng(0)
     exact, c = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
     for order in (2.0, 4.5):
         coarse, medium, fine = (exact + c * h**order for h in (0.4, 0.2, 0.1))
-        p, error = richardson(coarse, medium, fine)
+        p, error = position_refinement(coarse, medium, fine)
         assert p == pytest.approx(order, rel=1e-12)
         truth = np.linalg.norm(fine - exact, axis=1).max()
         assert error == pytest.approx(truth, rel=1e-12)
-    p, error = richardson(exact + c, exact + 0.5 * c, exact + c)
-    assert math.isnan(p) and error == math.inf
+    p, error = position_refinement(exact + c, exact + 0.5 * c, exact + c)
+    assert math.isnan(p)
+    assert error == pytest.approx(np.linalg.norm(0.5 * c, axis=1).max(), rel=1e-12)
 

@@ -285,10 +285,37 @@ def test_richardson_recovers_the_limit_and_order_of_a_power_law():
     assert result.error == pytest.approx(0.5 * 0.25**3, rel=1e-9)
     stalled = richardson([1.0, 1.1, 1.05])  # differences not falling: no extrapolation
     assert stalled.order is None and stalled.value == 1.05
-    assert stalled.error == pytest.approx(0.05)
+    assert stalled.error == pytest.approx(0.1)  # the larger of the last two changes
     assert richardson([1.0, 1.5], order=1.0).value == pytest.approx(2.0)
     with pytest.raises(ValueError, match="assumed order"):
         richardson([1.0, 1.5])
+
+
+def test_two_grid_richardson_says_order_assumed_and_widens_the_bar_to_the_change():
+    """Issue 35: the napkin's two-grid bar at the assumed order 4 (−1.31609 ± 0.00078 J) was
+    15× smaller than the change between its grids and missed the 32² value. With two grids
+    the bar is the whole change and the value says its order was assumed."""
+    two = richardson([-1.30426, -1.31535], order=4.0)
+    assert two.assumed and two.grids == 2
+    assert two.value == pytest.approx(-1.31535 - 0.01109 / 15, rel=1e-9)
+    assert two.error == pytest.approx(0.01109, rel=1e-9)
+    assert "order 4 assumed" in two.describe("J")
+    assert two.to_dict()["order_basis"] == "assumed"
+    assert two.value - two.error < -1.32216  # the 32 x 32 value lies inside
+
+
+def test_richardson_warns_where_the_observed_order_is_far_from_the_expected(caplog):
+    """The napkin's 8/16/32 grids observe order 0.77 against the expected 4: the estimate
+    rests on the observed order, with a warning that names both."""
+    slow = [1.0 + h**0.77 for h in (1.0, 0.5, 0.25)]
+    with caplog.at_level("WARNING"):
+        result = richardson(slow, order=4.0)
+    assert result.basis == "observed" and result.order == pytest.approx(0.77)
+    assert result.warning is not None and "0.77" in result.warning and "4" in result.warning
+    assert result.value == pytest.approx(1.0, abs=1e-9)
+    assert "observed order 0.77" in result.describe()
+    assert any("far from the expected" in r.message for r in caplog.records)
+    assert richardson([2.0 + h**4 for h in (1.0, 0.5, 0.25)], order=4.0).warning is None
 
 
 def test_clamped_projection_needs_fewer_newton_steps_than_mirrored_on_a_draped_flag():

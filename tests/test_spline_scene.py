@@ -172,6 +172,29 @@ def test_sim_solves_a_spline_scene_on_refined_grids_and_resumes_and_exports(tmp_
     np.testing.assert_allclose(vertices(mesh), vertices(out / "mesh.obj"), atol=1e-9)
 
 
+def test_two_grids_say_order_assumed_and_bar_the_whole_change(tmp_path, capsys):
+    """Issue 35: a two-grid Richardson value must say that its order was assumed (console and
+    result.json) and its bar must be the change between the grids, not the assumed-order
+    correction (15× smaller on the napkin, where it missed the 32 × 32 value)."""
+    out = tmp_path / "two"
+    assert sim.main([str(write(tmp_path)), "--out", str(out), "--refine", "2", *RUNTIME]) == 0
+    printed = capsys.readouterr().out
+    energy = json.loads((out / "result.json").read_text())["refinement"]["energy"]
+    assert energy["order_basis"] == "assumed" and energy["grids"] == 2
+    change = abs(energy["values"][1] - energy["values"][0])
+    assert energy["estimated_error"] == pytest.approx(change, rel=1e-12)
+    assert "order 4 assumed from 2 grids" in energy["text"]
+    assert "order 4 assumed from 2 grids" in printed and "Π →" in printed
+
+
+def test_refine_without_a_count_solves_three_grids_with_the_observed_order(tmp_path):
+    out = tmp_path / "three"
+    assert sim.main([str(write(tmp_path)), "--out", str(out), "--refine", *RUNTIME]) == 0
+    refinement = json.loads((out / "result.json").read_text())["refinement"]
+    assert len(refinement["spans"]) == 3
+    assert refinement["energy"]["order_basis"] in ("observed", "not converging")
+
+
 @pytest.mark.parametrize("args, message", [
     (["--iters", "5"], "--iterations and --samples set Adam"),
     (["--refine", "0"], "--refine must be >= 1"),
@@ -197,5 +220,7 @@ def test_validate_runs_a_case_with_the_spline_path(tmp_path, capsys):
     assert "square_plate w_centre @ 1" in printed
     result = json.loads((out / "results.json").read_text())
     case = result["cases"]["square_plate"]
+    # issue 35: the spline path wrote "source": "" for every row
+    assert all(row["source"].startswith("Navier series") for row in result["rows"]), result["rows"]
     assert case["solver"]["method"] == "newton" and case["solver"]["spans"] == [[8, 8]]
     assert (out / "square_plate_convergence.png").is_file()

@@ -30,6 +30,7 @@ from inverse.material import (
 )
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig, to_values
+from inverse.material.goodness import forward_model_error, goodness_of_fit, observation_noise
 from inverse.material.identifiability import finite_or_none
 from inverse.material.implicit import ImplicitConfig
 from inverse.material.implicit_fit import implicit_estimate
@@ -118,6 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="band width of the boundary conditions' vanishing factors, a fraction "
                         "of the domain (edges accept > 1; default: 2 for newton and implicit, "
                         "the scene's for bilevel)")
+    p.add_argument("--noise", type=finite_float, default=None, metavar="SIGMA",
+                   help="observation noise [m], standard deviation per coordinate, for the "
+                        "goodness-of-fit test (χ²/dof and its p-value against the residuals); "
+                        "default: estimated from the observation's scatter about local planes")
     p.add_argument("--quick", action="store_true", help="short training, for smoke tests")
     add_runtime_options(p)
     p.set_defaults(precision="f64")
@@ -176,14 +181,18 @@ def _newton(args, observations, unknowns):
 
 def _add_fits(document: dict, result, unknowns, part: str, fits: str) -> None:
     """The standard error's parts (`fisher` and the forward model's `part`) per unknown and
-    every forward model's fit (under `fits`) of an `OuterResult`, into the document."""
+    every forward model's fit (under `fits`) of an `OuterResult`, into the document; a fit's
+    `converged` is true only where the outer iteration and every equilibrium solve in it
+    converged."""
     document["standard_error_parts"] = {
         u.name: {"fisher": finite_or_none(f), part: finite_or_none(m)}
         for u, f, m in zip(unknowns, result.fisher_errors, result.model_errors, strict=True)}
     document[fits] = [
         {**f.label, "values": f.values.tolist(), "outer_iterations": f.iterations,
-         "newton_steps": f.newton_steps, "converged": f.converged, "stable": f.stable,
-         "time_s": f.time} for f in result.fits]
+         "newton_steps": f.newton_steps,
+         "converged": bool(f.converged and f.solves_converged),
+         "outer_converged": f.converged, "unconverged_solves": f.unconverged_solves,
+         "stable": f.stable, "time_s": f.time} for f in result.fits]
 
 
 def run(args, runtime) -> dict:
@@ -204,6 +213,8 @@ def run(args, runtime) -> dict:
     for name in ("width", "samples"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if args.noise is not None and not args.noise >= 0:
+        raise InputError(f"--noise must be >= 0 (metres), got {args.noise}")
     if args.spans is not None and min(args.spans) < 1:
         raise InputError(f"--spans must be two integers >= 1, got {args.spans}")
     check_output_dir(args.out, args.overwrite)  # refused before any work
@@ -214,6 +225,12 @@ def run(args, runtime) -> dict:
     grid = grid_mesh(model.surface.domain.bounds, resolution,
                      periodic=model.surface.domain.periodic)
     grid_xi = torch.from_numpy(grid.xi)
+    noise, noise_source = observation_noise(observations, args.noise)
+
+    def goodness(estimate, fits=()):
+        return goodness_of_fit(estimate.residuals, len(unknowns), noise, noise_source,
+                               forward_model_error(fits))
+
     if args.method == "residual":
         estimate = residual_estimate(observations, unknowns, ResidualConfig(samples=16384))
         document = estimate_document(estimate, model, notes=estimate.notes)
@@ -222,7 +239,8 @@ def run(args, runtime) -> dict:
         newton = args.method == "newton"
         result = (_newton if newton else _implicit)(args, observations, unknowns)
         estimate = result.estimate
-        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
+        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes,
+                                     goodness=goodness(estimate, result.fits))
         _add_fits(document, result, unknowns,
                   *(("discretisation", "grids") if newton else ("feature_spread",
                                                                "feature_bases")))
@@ -245,7 +263,8 @@ def run(args, runtime) -> dict:
         except ValueError as err:
             raise InputError(str(err)) from None
         estimate = result.estimate
-        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes)
+        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes,
+                                     goodness=goodness(estimate))
         lower = to_values(unknowns, [lo for lo, _ in result.ranges])
         upper = to_values(unknowns, [hi for _, hi in result.ranges])
         document["search_box"] = {u.name: [lo, hi]
@@ -291,8 +310,14 @@ def main(argv: list[str] | None = None) -> int:
         if entry["determined"]:
             print(f"{name} = {entry['value']:.6g} ± {entry['standard_error']:.2g} "
                   f"{entry['unit']}")
+        elif "best_fit_value" in entry:
+            print(f"{name}: {entry['status']} (best fit {entry['best_fit_value']:.6g} "
+                  f"{entry['unit']}, no error bar)")
         else:
             print(f"{name}: not determined by the data (no value reported)")
+    fit = document.get("goodness_of_fit")
+    print(f"goodness of fit: {fit['statement']}" if fit else
+          "goodness of fit: not tested (the residual method fits no equilibrium shape)")
     for note in document.get("notes", []):
         print(f"note: {note}")
     print(f"wrote {Path(args.out) / 'estimate.json'}")

@@ -291,7 +291,7 @@ def bilevel_estimate(observations: list[Observation], unknowns: list[Unknown],
     rms = rms_point_distance(r, observations)
     elapsed = time.perf_counter() - t0
     estimate = Estimate(unknowns, values, errors, ident, rms, int(solution.njev or 0),
-                        elapsed, "bilevel_conditioned_field")
+                        elapsed, "bilevel", residuals=r)
     result = BilevelResult(estimate, equilibria, ranges, box_centre=centre,
                            box_centre_values=centre_values, notes=notes)
     ratios, note = gravity_ratios(observations, unknowns, values, ident)

@@ -17,8 +17,8 @@ noise-free observation):
 The solved observations (flap, point load) are this project's projected Newton on a finer grid
 of another degree and band than the estimator's: a different discretisation of the same
 equations, not an independent solver. Their own error is estimated by Richardson extrapolation
-(`richardson`) from the same equilibrium on the grids with 1/4 and 1/2 of the spans, and kept
-in `Case.observation_error`.
+(`position_refinement`) from the same equilibrium on the grids with 1/4 and 1/2 of the spans,
+and kept in `Case.observation_error`.
 
 `calibrate` fits `draws` noisy copies (Gaussian, σ = noise × bounding-box diagonal per
 coordinate, seeds 1..draws) and reports per unknown how many fits determine it and the
@@ -45,6 +45,7 @@ from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads, PointLoad
+from taichi_ndf.minimise.refinement import extrapolate_changes
 from taichi_ndf.model import ShellModel
 from taichi_ndf.scene import load_scene
 from taichi_ndf.shell.materials import LinearIsotropic
@@ -60,7 +61,7 @@ class Case:
     """A test case: name, the model (unknowns at their start values), the unknowns, the true
     values, the noise-free observation, how it was made, and for a solved observation the
     Richardson estimate of its largest position error [m] and the observed order
-    (`richardson`; None for the strip's BVP)."""
+    (`position_refinement`; None for the strip's BVP)."""
 
     name: str
     model: ShellModel
@@ -117,19 +118,17 @@ def solved_observation(model: ShellModel, unknowns: list[Unknown], truth, points
     return equilibrium.positions(points)
 
 
-def richardson(coarse, medium, fine) -> tuple[float, float]:
-    """Observed order p and estimated error of the finest of three solutions (arrays (M, 3) of
-    positions at the same points) on grids h, h/2 and h/4: with d₁ = max‖x_{h/2} − x_h‖ and
-    d₂ = max‖x_{h/4} − x_{h/2}‖, p = log₂(d₁/d₂) and the error of x_{h/4} is d₂ / (2^p − 1)
-    (asymptotic range). (nan, inf) where d₂ ≥ d₁: not converging, no estimate."""
+def position_refinement(coarse, medium, fine) -> tuple[float, float]:
+    """Observed order p and error bar of the finest of three solutions (arrays (M, 3) of
+    positions at the same points) on grids h, h/2 and h/4: Richardson's rule
+    (`taichi_ndf.minimise.refinement.extrapolate_changes`) on the changes
+    d₁ = max‖x_{h/2} − x_h‖ and d₂ = max‖x_{h/4} − x_{h/2}‖, so the error of x_{h/4} is
+    d₂ / (2^p − 1) in the asymptotic range; (nan, d₂) where d₂ ≥ d₁ (not converging: the
+    larger change is the bar)."""
     d1 = float(np.linalg.norm(np.asarray(medium) - np.asarray(coarse), axis=1).max())
     d2 = float(np.linalg.norm(np.asarray(fine) - np.asarray(medium), axis=1).max())
-    if d2 == 0.0:
-        return math.inf, 0.0
-    if not d2 < d1:
-        return math.nan, math.inf
-    order = math.log2(d1 / d2)
-    return order, d2 / (2.0**order - 1.0)
+    order, error, _, _ = extrapolate_changes([d1, d2])
+    return (math.nan if order is None else order), error
 
 
 def converged_observation(model: ShellModel, unknowns: list[Unknown], truth, points,
@@ -141,7 +140,7 @@ def converged_observation(model: ShellModel, unknowns: list[Unknown], truth, poi
     solutions = [solved_observation(model, unknowns, truth, points, (spans[0] // k,
                                                                      spans[1] // k))
                  for k in (4, 2, 1)]
-    order, error = richardson(*[x.numpy() for x in solutions])
+    order, error = position_refinement(*[x.numpy() for x in solutions])
     log.info("observation on %s spans: Richardson order %.2f, error %.3g m", spans, order,
              error)
     return solutions[-1], order, error

@@ -68,7 +68,7 @@ def implicit_estimate(observations: list[Observation], unknowns: list[Unknown],
                   else np.zeros(len(unknowns)))
     labels = [(f.label["seed"], f.label["width"]) for f in fits]
     result = combine(observations, unknowns, z, fits[0], spread_std,
-                     "bilevel_implicit_function", sum(f.iterations for f in fits),
+                     "implicit", sum(f.iterations for f in fits),
                      time.perf_counter() - t0)
     notes = []
     if len(fits) > 1:

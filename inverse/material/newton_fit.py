@@ -120,11 +120,15 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
         if not f.converged:
             notes.append(f"grid {f.label['spans']} stopped at the iteration limit "
                          f"({f.iterations}) before the step fell below the tolerance")
+        if not f.solves_converged:
+            notes.append(f"grid {f.label['spans']}: {f.unconverged_solves} equilibrium solves "
+                         "stopped at Newton's iteration limit before the tolerance (the fit's "
+                         "'converged' is false)")
         if not f.stable:
             notes.append(f"grid {f.label['spans']}: the fitted equilibrium is unstable (its "
                          "Hessian K is not positive definite): the estimate describes a "
                          "saddle of the energy, not a state the sheet would rest in")
-    result = combine(observations, unknowns, z, fits[-1], discretisation, "bilevel_newton",
+    result = combine(observations, unknowns, z, fits[-1], discretisation, "newton",
                      sum(f.iterations for f in fits), time.perf_counter() - t0)
     estimate = result.estimate
     return NewtonResult(estimate, fits, equilibria, result.fisher, result.model,

@@ -96,8 +96,10 @@ def residuals(equilibrium, observation: Observation, grid: int,
 @dataclass
 class ForwardFit:
     """The outer fit on one forward model: its label, values, z, residuals and Jacobian in z at
-    the end, outer iterations, Newton steps, time [s], whether it converged, and whether every
-    equilibrium was stable at the end (K positive definite; True where not checked)."""
+    the end, outer iterations, Newton steps, time [s], whether the outer iteration converged,
+    whether every equilibrium was stable at the end (K positive definite; True where not
+    checked), and how many inner equilibrium solves of this fit stopped before their
+    tolerance (`solves_converged`: none did)."""
 
     label: dict
     values: np.ndarray
@@ -109,6 +111,11 @@ class ForwardFit:
     time: float
     converged: bool
     stable: bool = True
+    unconverged_solves: int = 0
+
+    @property
+    def solves_converged(self) -> bool:
+        return self.unconverged_solves == 0
 
 
 def _evaluate(equilibria, observations, grid, jacobian: bool):
@@ -129,6 +136,7 @@ def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknow
     (module docstring)."""
     t0 = time.perf_counter()
     steps0 = sum(eq.newton_steps for eq in equilibria)
+    failed0 = sum(getattr(eq, "unconverged_solves", 0) for eq in equilibria)
     grid = config.projection_grid
     z = np.array(to_coordinates(unknowns, start_values))
     positive = np.array([u.positive for u in unknowns])
@@ -183,7 +191,9 @@ def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknow
                       z=z, residuals=r, jacobian=jac, iterations=iterations,
                       newton_steps=sum(eq.newton_steps for eq in equilibria) - steps0,
                       time=time.perf_counter() - t0, converged=converged,
-                      stable=all(getattr(eq, "stable", True) for eq in equilibria))
+                      stable=all(getattr(eq, "stable", True) for eq in equilibria),
+                      unconverged_solves=sum(getattr(eq, "unconverged_solves", 0)
+                                             for eq in equilibria) - failed0)
 
 
 def start_values(observations: list[Observation], unknowns: list[Unknown], start) -> np.ndarray:
@@ -259,7 +269,8 @@ def combine(observations: list[Observation], unknowns: list[Unknown], z: np.ndar
                             [bool(c < UNDETERMINED_STD) for c in combined], ident.combinations)
     errors = np.where(ident.determined, combined * scale, np.inf)
     rms = rms_point_distance(r, observations)
-    estimate = Estimate(unknowns, values, errors, ident, rms, iterations, elapsed, method)
+    estimate = Estimate(unknowns, values, errors, ident, rms, iterations, elapsed, method,
+                        residuals=np.asarray(r))
     ratios, notes = gravity_ratios(observations, unknowns, values, ident)
     fisher = np.where(np.isfinite(fisher_std), fisher_std * scale, np.inf)
     log.info("%s estimate: %s ± %s (rms misfit %.3g m, %.1f s)", method,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from inverse.material.goodness import GoodnessOfFit
 from inverse.material.identifiability import finite_or_none
 from inverse.material.residual import Estimate, bending_length
 from taichi_ndf.render import frame_mesh, render_shaded
@@ -12,23 +13,42 @@ from taichi_ndf.render import frame_mesh, render_shaded
 OBSERVED_BGR = (40, 40, 220)
 
 
+REJECTED = "the model does not explain the data"
+
+
 def estimate_document(estimate: Estimate, model, *, ratios: dict | None = None,
-                      notes: list[str] | None = None) -> dict:
-    """Plain-data report: a value and standard error only for determined unknowns."""
+                      notes: list[str] | None = None,
+                      goodness: GoodnessOfFit | None = None) -> dict:
+    """Plain-data report: a value and standard error only for determined unknowns, and the
+    goodness of fit (`goodness.goodness_of_fit`; None: the residual method, which fits no
+    shape). Where the fit fails that test nothing is "determined": each unknown's entry says
+    the model does not explain the data and gives the best-fit value without an error."""
     parameters = {}
+    explains = goodness is None or goodness.explains
     for j, u in enumerate(estimate.unknowns):
-        determined = bool(estimate.identifiability.determined[j])
+        determined = bool(estimate.identifiability.determined[j]) and explains
         entry = {"unit": u.unit, "determined": determined,
                  "relative_std": finite_or_none(float(estimate.identifiability.std[j]))}
         if determined:
             entry["value"] = float(estimate.values[j])
             entry["standard_error"] = finite_or_none(float(estimate.standard_errors[j]))
+        elif not explains:
+            entry["status"] = REJECTED
+            entry["best_fit_value"] = float(estimate.values[j])
         parameters[u.name] = entry
+    identifiability = estimate.identifiability.to_dict()
+    if not explains:
+        identifiability["determined"] = [False] * len(estimate.unknowns)
+        identifiability["combinations"] = [
+            {**c, "determined": False, "status": REJECTED}
+            for c in identifiability["combinations"]]
     document = {"method": estimate.method, "parameters": parameters,
-                "identifiability": estimate.identifiability.to_dict(),
+                "goodness_of_fit": None if goodness is None else goodness.to_dict(),
+                "identifiability": identifiability,
                 "misfit": estimate.misfit,
-                "misfit_meaning": ("rms point distance [m]" if estimate.method.startswith(
-                    "bilevel") else "relative equilibrium residual |Aθ − b| / |b|"),
+                "misfit_meaning": ("relative equilibrium residual |Aθ − b| / |b|"
+                                   if estimate.method == "residual" else
+                                   "rms point distance [m]"),
                 "iterations": estimate.iterations, "time_s": estimate.time}
     if estimate.gauge is not None:
         document["gauge"] = estimate.gauge

@@ -81,6 +81,8 @@ class Estimate:
         (bilevel).
     gauge: name of the unknown held fixed when only ratios are determined, else None.
     notes: reasons an unknown is undetermined beyond the Fisher analysis (residual method).
+    residuals: the fitted shape's residuals [m] at the estimate (the goodness-of-fit test,
+        `goodness`); None for the residual method, which fits no equilibrium shape.
     """
 
     unknowns: list[Unknown]
@@ -94,6 +96,7 @@ class Estimate:
     gauge: str | None = None
     shapes: list[FittedShape] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    residuals: np.ndarray | None = None
 
     def value(self, name: str) -> float:
         return float(self.values[[u.name for u in self.unknowns].index(name)])
@@ -193,7 +196,7 @@ def residual_estimate(observations: list[Observation], unknowns: list[Unknown],
     elapsed = time.perf_counter() - start
     log.info("residual estimate: %s (misfit %.3g, %.2f s)",
              dict(zip(names, values.tolist(), strict=True)), misfit, elapsed)
-    return Estimate(unknowns, values, errors, ident, misfit, 1, elapsed, "equilibrium_residual",
+    return Estimate(unknowns, values, errors, ident, misfit, 1, elapsed, "residual",
                     gauge=names[gauge] if gauge is not None else None, shapes=shapes,
                     notes=notes)
 

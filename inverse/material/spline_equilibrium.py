@@ -122,6 +122,7 @@ class SplineEquilibrium:
         self.coefficients = torch.zeros(grid.num_coefficients, 3, dtype=torch.float64)
         self.values: np.ndarray | None = None
         self.newton_steps = 0
+        self.unconverged_solves = 0  # inner Newton solves stopped before their tolerance
         self.solve_time = 0.0
         self.stable = True
         self._first: tuple[np.ndarray, torch.Tensor] | None = None
@@ -158,6 +159,7 @@ class SplineEquilibrium:
                                 load_factor=load_factor, length=self.length, fixed=self.fixed)
         self.newton_steps += len(solution.history)
         if not solution.converged:
+            self.unconverged_solves += 1
             log.warning("spline equilibrium %s: Newton did not converge at θ = %s (load %.3g)",
                         self.label, np.asarray(values).tolist(), load_factor)
         return solution.coefficients

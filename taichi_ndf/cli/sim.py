@@ -32,10 +32,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="solve with this field type: spline = a B-spline field solved by "
                    "projected Newton on the grid rule's grid (docs/scenes.md); keeps the "
                    "scene's load steps and seed, other field and training settings default")
-    p.add_argument("--refine", type=int, metavar="K",
-                   help="spline field: solve on K successively refined grids (replaces "
-                   "[field] levels) and report Π and every probe per level with the "
-                   "Richardson-extrapolated value and its estimated error")
+    p.add_argument("--refine", type=int, metavar="K", nargs="?", const=3,
+                   help="spline field: solve on K successively refined grids (default 3; "
+                   "replaces [field] levels) and report Π and every probe per level with the "
+                   "Richardson-extrapolated value and its error bar: from the observed order "
+                   "with K >= 3; with K = 2 the order is assumed and the bar is the change "
+                   "between the two grids")
     p.add_argument("--quick", action="store_true",
                    help="a short run with the scene's [training.quick] settings (smoke test)")
     p.add_argument("--resume", action="store_true",
@@ -128,14 +130,17 @@ def summary_lines(name: str, result: dict) -> list[str]:
              f"in {result['wall_time']:.1f} s"]
     if refinement:
         e = refinement["energy"]
-        lines.append(f"  Π extrapolated over {len(e['values'])} grids: "
-                     f"{e['extrapolated']:.6g} ± {e['estimated_error']:.2g} J")
+        lines.append(f"  refinement over {len(refinement['spans'])} grids: Π → {e['text']} J")
+        if e.get("warning"):
+            lines.append(f"  warning: {e['warning']}")
     for probe, u in result["probes"].items():
         line = f"  probe {probe}: u = ({u[0]:.5g}, {u[1]:.5g}, {u[2]:.5g}) m"
         if refinement:
             parts = refinement["probes"][probe]
             line += "; extrapolated (" + ", ".join(
                 f"{c['extrapolated']:.5g} ± {c['estimated_error']:.2g}" for c in parts) + ") m"
+            if parts and parts[0].get("order_basis") == "assumed":
+                line += " (order assumed)"
         lines.append(line)
     return lines
 

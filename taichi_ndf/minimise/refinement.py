@@ -6,11 +6,20 @@ coarser level's solution prolonged exactly (`SplineField.refined`), so a finer l
 where the coarser one ended and takes few Newton steps. It reads Π and every probe per level
 and load factor.
 
-`richardson` extrapolates a quantity from its values on the last grids: with three values
-v₀, v₁, v₂ on grids h, h/2, h/4 the observed order is p = log₂((v₁ − v₀)/(v₂ − v₁)) and
-v∞ = v₂ + (v₂ − v₁)/(2ᵖ − 1); the estimated discretisation error of v₂ is |v∞ − v₂|. When the
-differences do not fall monotonically (no asymptotic range yet) the extrapolation is not
-trusted: v∞ = v₂ and the error estimate is |v₂ − v₁|. With two values the order must be given.
+`richardson` extrapolates a quantity from its values on the last grids (one rule for every
+caller: `extrapolate_changes` works on the changes between successive grids, signed for a
+scalar, a norm for a field of positions). With three values v₀, v₁, v₂ on grids h, h/2, h/4
+the observed order is p = log₂((v₁ − v₀)/(v₂ − v₁)) and v∞ = v₂ + (v₂ − v₁)/(2ᵖ − 1); the
+error bar is |v∞ − v₂| (the interval v∞ ± error reaches back to v₂); a warning is logged
+where p is more than a factor `ORDER_FAR` from the expected order. When the differences do not
+fall monotonically (no asymptotic range yet) the extrapolation is not trusted: v∞ = v₂ and the
+error is the larger of the last two changes (chosen after the coverage study, where the last
+change alone missed napkin_clamped_edges' oscillating 5/10/20-span values;
+benchmarks/RESULTS.md). With two values the order cannot be observed: it is assumed (the expected
+order, 2(p − 1) for degree-p splines), the value is extrapolated with it and the error is
+widened to the whole change |v₂ − v₁| between the two grids — a bar that does not rest on the
+assumption (measured: the napkin's two-grid bar at the assumed order 4 was 15× smaller than
+the change; benchmarks/RESULTS.md, "Refinement error bars").
 """
 
 from __future__ import annotations
@@ -64,33 +73,97 @@ class LevelSolution:
     history: list[NewtonIteration] = field(default_factory=list)
 
 
+ORDER_FAR = 2.0  # an observed order outside [expected / ORDER_FAR, expected × ORDER_FAR] warns
+
+
 @dataclass(frozen=True)
 class Extrapolation:
-    """A refinement-extrapolated value, the estimated error of the finest value, and the
-    observed order (None: not trusted or assumed)."""
+    """A refinement-extrapolated value and its error bar (the interval value ± error should
+    hold the converged value), the order it used, and how it was found: basis "observed"
+    (three or more grids), "assumed" (two grids: `order` is the expected one) or "not
+    converging" (differences not falling: value = the finest value, order None). grids: how
+    many values; warning: a one-line caution (observed order far from the expected) or None."""
 
     value: float
     error: float
     order: float | None
+    basis: str = "observed"
+    grids: int = 3
+    expected: float | None = None
+    warning: str | None = None
+
+    @property
+    def assumed(self) -> bool:
+        return self.basis == "assumed"
+
+    def describe(self, unit: str = "") -> str:
+        """'v ± e unit (how)', the way every output shows the value."""
+        unit = f" {unit}" if unit else ""
+        return f"{self.value:.6g} ± {self.error:.2g}{unit} ({self.how()})"
+
+    def how(self) -> str:
+        """How the value was found, in words (shown beside it everywhere)."""
+        if self.basis == "assumed":
+            return (f"order {self.order:g} assumed from {self.grids} grids, error = the change "
+                    "between them")
+        if self.basis == "not converging":
+            return (f"{self.grids} grids, differences not falling: finest value, error = the "
+                    "larger of the last two changes")
+        expected = "" if self.expected is None else f", expected {self.expected:g}"
+        return f"observed order {self.order:.2f} from {self.grids} grids{expected}"
+
+    def to_dict(self) -> dict:
+        return {"extrapolated": self.value, "estimated_error": self.error, "order": self.order,
+                "order_basis": self.basis, "grids": self.grids,
+                "expected_order": self.expected, "warning": self.warning,
+                "text": self.describe()}
+
+
+def extrapolate_changes(changes: list[float], order: float | None = None
+                        ) -> tuple[float | None, float, str, str | None]:
+    """The order, the error bar of the finest value's extrapolation, the basis and a warning
+    from the changes between successive grids refined by 2 each (signed differences of a
+    scalar, or norms of a field's differences; module docstring). order: the expected order,
+    assumed with one change and compared with the observed one with two or more. The
+    correction v∞ − v_finest is changes[-1] / (2^order − 1) where the basis is not "not
+    converging"."""
+    if not changes:
+        raise ValueError("richardson needs at least two values, got 1")
+    last = changes[-1]
+    if len(changes) == 1:
+        if order is None:
+            raise ValueError("two values need an assumed order")
+        return order, abs(last), "assumed", None
+    largest = max(abs(c) for c in changes[-2:])
+    if last == 0.0:
+        return None, largest, "not converging", None
+    ratio = changes[-2] / last
+    if not (math.isfinite(ratio) and ratio > 1):
+        return None, largest, "not converging", None
+    observed = math.log2(ratio)
+    warning = None
+    if order is not None and not order / ORDER_FAR <= observed <= order * ORDER_FAR:
+        warning = (f"observed refinement order {observed:.2f} is far from the expected "
+                   f"{order:g}: the grids are not in the asymptotic range (a singularity or "
+                   "an unresolved layer?); the error bar rests on the observed order")
+    return observed, abs(last) / (2.0**observed - 1.0), "observed", warning
 
 
 def richardson(values: list[float], order: float | None = None) -> Extrapolation:
     """Richardson extrapolation of values on grids refined by 2 each (module docstring).
-    order: the assumed convergence order, needed for two values; with three or more the
-    observed order of the last three is used."""
+    order: the expected convergence order, assumed with two values (required then) and
+    compared with the observed order of the last three with three or more."""
     if len(values) < 2:
         raise ValueError(f"richardson needs at least two values, got {len(values)}")
-    v1, v2 = values[-2], values[-1]
-    if len(values) >= 3:
-        v0 = values[-3]
-        ratio = (v1 - v0) / (v2 - v1) if v2 != v1 else math.inf
-        if not (math.isfinite(ratio) and ratio > 1):
-            return Extrapolation(v2, abs(v2 - v1), None)
-        order = math.log2(ratio)
-    elif order is None:
-        raise ValueError("two values need an assumed order")
-    limit = v2 + (v2 - v1) / (2**order - 1)
-    return Extrapolation(limit, abs(limit - v2), order)
+    last = values[-3:]
+    changes = np.diff(last).tolist()
+    used, error, basis, warning = extrapolate_changes(changes, order)
+    finest = values[-1]
+    value = finest if basis == "not converging" else (
+        finest + changes[-1] / (2.0**used - 1.0))
+    if warning is not None:
+        log.warning("%s", warning)
+    return Extrapolation(value, error, used, basis, len(values), order, warning)
 
 
 def held_unknowns(grid, boundary, basis) -> np.ndarray | None:

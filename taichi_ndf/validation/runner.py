@@ -216,7 +216,7 @@ def run_spline_case(case: Case, *, quick: bool = False, scenes_dir: Path = SCENE
                         relative_error=error, tolerance=q.tolerance,
                         passed=None if error is None else error <= q.tolerance,
                         iterations=0, wall_time=wall, samples=0,
-                        newton_steps=len(run.history)))
+                        newton_steps=len(run.history), source=q.source))
         if key is not None and all(key in level for level in per_level):
             convergence[f"{q.name} @ {q.level:g}"] = (
                 list(range(len(per_level))),
