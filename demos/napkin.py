@@ -64,7 +64,8 @@ def corner_sag(result: dict) -> str:
     if refinement:
         z = refinement["probes"]["free_corner"][2]
         sag, error = -z["extrapolated"], z["estimated_error"]
-        bar = f" ± {error:.2g} m (Richardson over {len(z['values'])} grids, {z['order_basis']} order)"
+        bar = (f" ± {error:.2g} m (Richardson over {len(z['values'])} grids, "
+               f"{z['order_basis']} order)")
     else:
         sag, error = -result["probes"]["free_corner"][2], None
         bar = " (one grid or a SIREN: no error bar; the spline path with --refine gives one)"
