@@ -81,9 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init", choices=("baseline", "previous"), default="baseline",
                    help="siren: initial guess of each frame, the baseline's mesh or the "
                    "previous frame (default: %(default)s)")
-    p.add_argument("--no-flow", action="store_true",
-                   help="spline: without the dense optical-flow correspondences "
-                   "(inverse.sft.flow) beside the sparse tracks")
+    p.add_argument("--flow", action="store_true",
+                   help="spline: add dense optical-flow correspondences (inverse.sft.flow) to "
+                   "the sparse tracks (slower; not better on R1, docs/sft_results.md)")
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> dict:
     elif args.field == "spline":
         result = reconstruct_spline(work.template, work.camera, correspondences,
                                     masks=work.masks, pinned=work.pinned, config=config,
-                                    flow=None if args.no_flow else DenseFlow(
+                                    flow=None if not args.flow else DenseFlow(
                                         work.frames, work.camera, work.template.faces,
                                         masks=work.masks))
         vertices, losses, per_frame = result.vertices, result.losses, result.seconds
