@@ -1,5 +1,7 @@
 """The field's chamfer protocol against point clouds, on cases with hand-computable answers."""
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -112,3 +114,27 @@ def test_a_folder_of_meshes_is_not_a_cloud_folder(tmp_path):
     assert not is_cloud_folder(tmp_path / "empty")
     with pytest.raises(InputError, match="no point clouds"):
         cloud_files(tmp_path / "empty")
+
+
+def test_eval_command_line_scores_meshes_against_clouds(tmp_path, capsys):
+    from inverse.cli import sft_eval
+    from taichi_ndf.io import write_obj
+
+    v, q = unit_square()
+    faces = triangulated(q)
+    for i, d in enumerate((0.001, 0.003)):
+        write_obj(tmp_path / "pred" / f"{i:06d}.obj", v, faces)
+        (tmp_path / "gt").mkdir(exist_ok=True)
+        np.save(tmp_path / "gt" / f"point_cloud_{i:03d}.npy",
+                surface_samples(v, faces, count=1000, seed=0) + [0, 0, d])
+    code = sft_eval.main(["--pred", str(tmp_path / "pred"), "--gt", str(tmp_path / "gt"),
+                          "--json", str(tmp_path / "e.json")])
+    printed = capsys.readouterr().out
+    assert code == 0
+    assert "paired 2 frames by frame number: 000000.obj <-> point_cloud_000.npy" in printed
+    report = json.loads((tmp_path / "e.json").read_text())
+    np.testing.assert_allclose(report["per_frame"]["chamfer_x1e4"], [0.02, 0.18], rtol=1e-6)
+    assert report["summary"]["worst_frame"] == 1
+    np.save(tmp_path / "gt" / "point_cloud_002.npy", np.zeros((5, 3)))
+    assert sft_eval.main(["--pred", str(tmp_path / "pred"), "--gt", str(tmp_path / "gt")]) == 2
+    assert "missing predictions [2]" in capsys.readouterr().err

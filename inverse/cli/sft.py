@@ -3,6 +3,7 @@
     ndf-sft --frames F --camera C.json --template T.obj --texture X.png [--masks M]
             [--pinned P] [--gt G] [--method prior|no-prior|baseline] [--field spline|siren]
             --out DIR
+    ndf-sft --capture DIR [--pinned 0,992] [--gt G] ... --out OUT
 
 Methods: ``prior`` (default) fits a displacement field per frame with the Kirchhoff–Love prior,
 ``no-prior`` the same field without it (w_phys = 0), ``baseline`` the per-frame baseline alone
@@ -14,7 +15,10 @@ with Adam, ``inverse.sft.reconstruct``, initialised per frame from the baseline 
 reconstruction, output. Writes ``DIR/meshes/000000.obj`` … (the
 template's connectivity, vertex order and UVs), ``DIR/overlay.mp4`` (the reconstructed mesh's
 projected wireframe drawn over the frames) and ``DIR/result.json``; with ``--gt`` (a folder of
-ground-truth meshes, template vertex order) also the metrics of ``inverse.sft.metrics``.
+ground-truth meshes, template vertex order, or of point clouds) also the metrics of
+``inverse.sft.metrics`` (meshes) or the field's chamfer protocol of ``inverse.sft.chamfer``
+(clouds). ``--capture DIR`` reads a φ-SfT / PGSfT capture folder (``inverse.sft.capture``) and
+prints the conventions it applied (also in result.json); its ground truth is used by default.
 Input conventions: ``docs/sft.md``.
 """
 
@@ -30,11 +34,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from inverse.cli.sft_inputs import (
+    add_input_options,
+    ground_truth_metrics,
+    load_run_inputs,
+    metrics_line,
+)
 from inverse.sft.baseline import mesh_edges, reconstruct_baseline
 from inverse.sft.crop import cropped_to_sheet
 from inverse.sft.flow import DenseFlow
-from inverse.sft.inputs import Camera, InputError, load_inputs
-from inverse.sft.metrics import evaluate_sequence
+from inverse.sft.inputs import Camera, InputError
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
 from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
 from inverse.sft.tracking import track_sequence
@@ -46,7 +55,7 @@ from taichi_ndf.cli.common import (
     machine_description,
     start,
 )
-from taichi_ndf.io import OutputDir, read_mesh, write_obj
+from taichi_ndf.io import OutputDir, write_obj
 from taichi_ndf.render import write_video
 
 OVERLAY_COLOUR = (60, 230, 60)  # BGR
@@ -55,15 +64,7 @@ METHODS = ("prior", "no-prior", "baseline")
 
 def build_parser() -> argparse.ArgumentParser:
     p = ArgumentParser(prog="ndf-sft", description=__doc__.split("\n")[0].strip("`"))
-    p.add_argument("--frames", type=Path, required=True, help="video file or folder of images")
-    p.add_argument("--camera", type=Path, required=True, help="camera JSON (docs/sft.md)")
-    p.add_argument("--template", type=Path, required=True,
-                   help="template mesh with UVs, camera coordinates of frame 0 (OBJ or PLY)")
-    p.add_argument("--texture", type=Path, required=True, help="texture image of the template")
-    p.add_argument("--masks", type=Path, help="folder of per-frame masks (white = sheet)")
-    p.add_argument("--pinned", type=Path, help="pinned vertex indices (JSON list or text)")
-    p.add_argument("--gt", type=Path, help="folder of ground-truth meshes, one per frame in name "
-                   "order, for metrics")
+    add_input_options(p)
     p.add_argument("--out", type=Path, required=True, help="output directory (new or empty "
                    "unless --overwrite)")
     p.add_argument("--method", choices=METHODS, default="prior",
@@ -103,9 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"reconstructed {summary['frames']} frames; seconds per frame: " + ", ".join(
         f"{name} {value:.2f}" for name, value in timings["per_frame"].items()))
     if "metrics" in summary:
-        m = summary["metrics"]
-        print(f"e3D {m['e3d']:.4f}, chamfer x1e4 {m['chamfer_x1e4']:.3f}, normal error "
-              f"{m['normal_deg']:.2f} deg, reprojection {m['reprojection_px']:.3f} px")
+        print(metrics_line(summary["metrics"]))
     print(f"outputs in {args.out}")
     return 0
 
@@ -117,9 +116,10 @@ def run(args: argparse.Namespace) -> dict:
     config = method_config(args)  # the options are checked before any work
     if not 0 < args.fps < math.inf:
         raise InputError(f"--fps must be finite and positive, got {args.fps}")
-    inputs = load_inputs(frames=args.frames, camera=args.camera, template=args.template,
-                         texture=args.texture, masks=args.masks, pinned=args.pinned)
-    gt = _read_ground_truth(args.gt, len(inputs.frames)) if args.gt is not None else None
+    loaded = load_run_inputs(args)
+    inputs = loaded.inputs
+    for line in loaded.conventions:
+        print(f"capture: {line}")
     out = OutputDir(args.out, overwrite=args.overwrite)
     runtime = start(args)
     seconds["load"] = time.perf_counter() - clock
@@ -172,7 +172,10 @@ def run(args: argparse.Namespace) -> dict:
         "frames": n,
         "vertices": len(template.vertices),
         "inputs": {name: None if getattr(args, name) is None else str(getattr(args, name))
-                   for name in ("frames", "camera", "template", "texture", "masks", "pinned")},
+                   for name in ("capture", "frames", "camera", "template", "texture", "masks",
+                                "pinned")},
+        "conventions": list(loaded.conventions),
+        "pinned": None if inputs.pinned is None else inputs.pinned.tolist(),
         "method": args.method,
         "field": None if args.method == "baseline" else args.field,
         "init": args.init if args.field == "siren" and args.method != "baseline" else None,
@@ -187,10 +190,9 @@ def run(args: argparse.Namespace) -> dict:
         "machine": machine_description(runtime),
         "threads": args.threads,
     }
-    if gt is not None:
-        metrics = evaluate_sequence(vertices, gt, template.faces, camera=inputs.camera)
-        summary["metrics"] = metrics.summary()
-        summary["metrics_per_frame"] = metrics.per_frame()
+    if loaded.gt is not None:
+        summary["metrics"], summary["metrics_per_frame"] = ground_truth_metrics(
+            loaded, vertices, template.faces, inputs.camera)
     out.write_json("result.json", summary)
     return summary
 
@@ -227,15 +229,6 @@ def overlay_frames(
         cv2.polylines(image, list(lines), False, OVERLAY_COLOUR, 1, cv2.LINE_AA, shift)
         out.append(image)
     return out
-
-
-def _read_ground_truth(folder: Path, frames: int) -> list[np.ndarray]:
-    if not folder.is_dir():
-        raise InputError(f"ground truth {folder}: expected a folder of meshes")
-    files = [p for p in sorted(folder.iterdir()) if p.suffix.lower() in (".obj", ".ply")]
-    if len(files) != frames:
-        raise InputError(f"ground truth {folder}: {len(files)} meshes for {frames} frames")
-    return [read_mesh(p).vertices for p in files]
 
 
 if __name__ == "__main__":

@@ -1,14 +1,16 @@
-"""``ndf-sft-eval``: accuracy of reconstructed meshes against ground-truth meshes.
+"""``ndf-sft-eval``: accuracy of reconstructed meshes against ground-truth meshes or clouds.
 
     ndf-sft-eval --pred DIR --gt DIR [--camera C.json] [--json OUT]
 
 Both folders hold one mesh per frame (OBJ or PLY); the prediction must keep the ground truth's
-vertex order. Frames are paired by their frame number, the last group of digits of the file
-name (``000012.obj``, ``0012.obj`` and ``frame12.ply`` are frame 12), when every name in both
-folders has one and no number repeats; otherwise by identical file names. Prints how it paired
-them, the means over frames and the evaluation protocol; ``--json`` also writes per-frame
-values and the pairs. Meshes are in camera coordinates
-(world coordinates when the camera JSON has extrinsics); the camera adds the reprojection error.
+vertex order. A ground-truth folder of point clouds (``.npy`` arrays or ``.ply`` without faces,
+``inverse.sft.chamfer``) is scored by the field's chamfer protocol instead: mean, worst frame
+and the largest vertex-to-cloud distance. Frames are paired by their frame number, the last
+group of digits of the file name (``000012.obj``, ``0012.obj`` and ``frame12.ply`` are frame
+12), when every name in both folders has one and no number repeats; otherwise by identical file
+names. Prints how it paired them, the means over frames and the evaluation protocol; ``--json``
+also writes per-frame values and the pairs. Meshes and clouds are in camera coordinates (world
+coordinates when the camera JSON has extrinsics); the camera adds the reprojection error.
 """
 
 from __future__ import annotations
@@ -23,6 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
+from inverse.sft.chamfer import (
+    CLOUD_SUFFIXES,
+    evaluate_against_clouds,
+    is_cloud_folder,
+    load_point_cloud,
+)
 from inverse.sft.inputs import InputError, load_camera
 from inverse.sft.metrics import evaluate_sequence
 from taichi_ndf.cli.common import ArgumentParser, interruptible
@@ -31,13 +39,14 @@ from taichi_ndf.io import read_mesh
 MESH_SUFFIXES = (".obj", ".ply")
 
 
-def mesh_files(folder: Path) -> dict[str, Path]:
-    """Mesh files of a folder by file stem."""
+def mesh_files(folder: Path, suffixes: tuple[str, ...] = MESH_SUFFIXES,
+               what: str = "meshes") -> dict[str, Path]:
+    """Mesh (or other) files of a folder by file stem."""
     if not folder.is_dir():
         raise InputError(f"{folder}: missing folder")
-    files = {p.stem: p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES}
+    files = {p.stem: p for p in folder.iterdir() if p.suffix.lower() in suffixes}
     if not files:
-        raise InputError(f"{folder}: contains no meshes {MESH_SUFFIXES}")
+        raise InputError(f"{folder}: contains no {what} {suffixes}")
     return files
 
 
@@ -58,10 +67,13 @@ def _listing(keys: list) -> str:
     return f"{keys[:5]}{'…' if len(keys) > 5 else ''}"
 
 
-def paired_meshes(pred_dir: Path, gt_dir: Path) -> tuple[list[tuple[str, Path, Path]], str]:
+def paired_meshes(pred_dir: Path, gt_dir: Path, *,
+                  clouds: bool = False) -> tuple[list[tuple[str, Path, Path]], str]:
     """(ground-truth name, prediction, ground truth) for every frame in frame order, and how
-    they were paired: "frame number" or "file name" (module docstring)."""
-    pred, gt = mesh_files(pred_dir), mesh_files(gt_dir)
+    they were paired: "frame number" or "file name" (module docstring). With `clouds` the
+    ground truth is point clouds (.npy / .ply)."""
+    pred = mesh_files(pred_dir)
+    gt = mesh_files(gt_dir, CLOUD_SUFFIXES, "point clouds") if clouds else mesh_files(gt_dir)
     pred_numbers, gt_numbers = _by_number(pred), _by_number(gt)
     if pred_numbers is not None and gt_numbers is not None:
         pred, gt, how = pred_numbers, gt_numbers, "frame number"
@@ -79,10 +91,13 @@ def paired_meshes(pred_dir: Path, gt_dir: Path) -> tuple[list[tuple[str, Path, P
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="ndf-sft-eval",
-        description="Shape-from-template accuracy: e3D, chamfer, normal and reprojection error.",
+        description="Shape-from-template accuracy: e3D, chamfer, normal and reprojection error "
+        "against meshes; the field's chamfer protocol against point clouds.",
     )
     parser.add_argument("--pred", required=True, type=Path, help="folder of predicted meshes")
-    parser.add_argument("--gt", required=True, type=Path, help="folder of ground-truth meshes")
+    parser.add_argument("--gt", required=True, type=Path,
+                        help="folder of ground-truth meshes, or of point clouds (.npy / .ply: "
+                        "the field's chamfer protocol)")
     parser.add_argument("--camera", type=Path, help="camera JSON (adds reprojection error)")
     parser.add_argument("--json", type=Path, help="write summary and per-frame values here")
     return parser
@@ -94,6 +109,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         camera = load_camera(args.camera) if args.camera else None
+        if is_cloud_folder(args.gt):
+            return _against_clouds(args, camera)
         pairs, how = paired_meshes(args.pred, args.gt)
         pred, gt = [], []
         faces = gt_faces = None
@@ -114,16 +131,41 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (InputError, ValueError, OSError) as err:
         print(f"ndf-sft-eval: error: {err}", file=sys.stderr)
         return 2
+    metrics = evaluate_sequence(pred, gt, faces, camera=camera, gt_faces=gt_faces)
+    _report(args, pairs, how, metrics, ("frames", "e3d", "e3d_procrustes", "chamfer_x1e4",
+                                        "normal_deg", "reprojection_px"))
+    return 0
+
+
+def _against_clouds(args: argparse.Namespace, camera) -> int:
+    """Predicted meshes against point clouds: the field's chamfer protocol."""
+    pairs, how = paired_meshes(args.pred, args.gt, clouds=True)
+    to_camera = camera.to_camera if camera is not None else np.asarray
+    pred, clouds, faces = [], [], None
+    for name, pred_path, gt_path in pairs:
+        mesh = read_mesh(pred_path)
+        faces = mesh.faces if faces is None else faces
+        if not np.array_equal(mesh.faces, faces):
+            raise InputError(f"{name}: connectivity differs from the first frame's")
+        pred.append(to_camera(mesh.vertices))
+        clouds.append(to_camera(load_point_cloud(gt_path)))
+    metrics = evaluate_against_clouds(pred, faces, clouds)
+    _report(args, pairs, how, metrics, ("frames", "chamfer_x1e4", "chamfer_x1e4_worst",
+                                        "worst_frame", "max_vertex_distance_m",
+                                        "max_vertex_distance_frame"))
+    return 0
+
+
+def _report(args, pairs, how, metrics, keys) -> None:
     first, last = pairs[0], pairs[-1]
     print(f"paired {len(pairs)} frames by {how}: {first[1].name} <-> {first[2].name}"
           + (f" ... {last[1].name} <-> {last[2].name}" if len(pairs) > 1 else ""))
-    metrics = evaluate_sequence(pred, gt, faces, camera=camera, gt_faces=gt_faces)
     summary = metrics.summary()
-    for key in ("frames", "e3d", "e3d_procrustes", "chamfer_x1e4", "normal_deg",
-                "reprojection_px"):
+    for key in keys:
         value = summary[key]
         if value is not None:
-            print(f"{key:>16}: {value:.6g}" if isinstance(value, float) else f"{key:>16}: {value}")
+            print(f"{key:>26}: {value:.6g}" if isinstance(value, float)
+                  else f"{key:>26}: {value}")
     print(f"protocol: {summary['protocol']}")
     if args.json:
         report = {"summary": summary, "per_frame": metrics.per_frame(),
@@ -131,7 +173,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                   "pairs": [[p.name, g.name] for _, p, g in pairs]}
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=2) + "\n")
-    return 0
 
 
 if __name__ == "__main__":
