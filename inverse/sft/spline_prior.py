@@ -91,7 +91,7 @@ class SplinePriorConfig:
     physics_weight: float = 1e-2
     material: str = "cloth"
     membrane_factor: float = 1.0
-    span_edges: float = 2.0
+    span_edges: float = 3.0
     degree: int = 3
     quadrature_points: int | None = 3
     silhouette_weight: float = 1.0
