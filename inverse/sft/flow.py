@@ -29,7 +29,7 @@ import numpy as np
 
 from inverse.sft.camera import Camera
 from inverse.sft.correspondences import FrameCorrespondences
-from inverse.sft.image import bilinear, contrast_normalised, sample_mask, to_gray
+from inverse.sft.image import bilinear, contrast_normalised, eroded, sample_mask, to_gray
 from inverse.sft.surface import SurfaceLocator
 from taichi_ndf.render import rasterize
 
@@ -129,7 +129,7 @@ class DenseFlow:
         keep &= (target[:, 0] >= 0) & (target[:, 0] <= cam.width - 1)
         keep &= (target[:, 1] >= 0) & (target[:, 1] <= cam.height - 1)
         if self.masks is not None:
-            keep &= sample_mask(self._region(t), target)
+            keep &= sample_mask(eroded(self.masks[t], cfg.mask_margin), target)
         n = int(keep.sum())
         return FrameCorrespondences(
             face=face[keep], bary=bary[keep], xy=target[keep],
@@ -143,13 +143,6 @@ class DenseFlow:
             crop = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
         return contrast_normalised(crop)
 
-    def _region(self, t: int) -> np.ndarray:
-        mask = self.masks[t]
-        margin = self.config.mask_margin
-        if margin <= 0:
-            return mask
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
-        return cv2.erode(mask.astype(np.uint8), kernel) > 0
 
 
 def merged(sparse: FrameCorrespondences, dense: FrameCorrespondences) -> FrameCorrespondences:
