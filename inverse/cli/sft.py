@@ -42,6 +42,8 @@ from inverse.cli.sft_inputs import (
 )
 from inverse.cli.sft_material import add_material_options, check_held_corners, material_config
 from inverse.sft.baseline import mesh_edges, reconstruct_baseline
+from inverse.sft.crop import cropped_to_sheet
+from inverse.sft.flow import DenseFlow
 from inverse.sft.inputs import Camera, InputError
 from inverse.sft.material_from_video import estimate_material, summary_line
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
@@ -85,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--init", choices=("baseline", "previous"), default="baseline",
                    help="siren: initial guess of each frame, the baseline's mesh or the "
                    "previous frame (default: %(default)s)")
+    p.add_argument("--flow", action="store_true",
+                   help="spline: add dense optical-flow correspondences (inverse.sft.flow) to "
+                   "the sparse tracks (slower; not better on R1, docs/sft_results.md)")
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
@@ -130,28 +135,33 @@ def run(args: argparse.Namespace) -> dict:
     runtime = start(args)
     seconds["load"] = time.perf_counter() - clock
 
+    # Tracking and fit on the part of the frames where the sheet is (exact, faster).
+    work = cropped_to_sheet(inputs)
     clock = time.perf_counter()
-    correspondences, _ = track_sequence(inputs.frames, inputs.template, inputs.texture,
-                                        inputs.camera, masks=inputs.masks)
+    correspondences, _ = track_sequence(work.frames, work.template, work.texture,
+                                        work.camera, masks=work.masks)
     seconds["tracking"] = time.perf_counter() - clock
 
     baseline = None
     if args.method == "baseline" or (args.field == "siren" and args.init == "baseline"):
         clock = time.perf_counter()
-        baseline = reconstruct_baseline(inputs.template, inputs.camera, correspondences,
-                                        pinned=inputs.pinned)
+        baseline = reconstruct_baseline(work.template, work.camera, correspondences,
+                                        pinned=work.pinned)
         seconds["baseline"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
     if args.method == "baseline":
         vertices, losses, per_frame = baseline.vertices, None, baseline.seconds
     elif args.field == "spline":
-        result = reconstruct_spline(inputs.template, inputs.camera, correspondences,
-                                    masks=inputs.masks, pinned=inputs.pinned, config=config)
+        result = reconstruct_spline(work.template, work.camera, correspondences,
+                                    masks=work.masks, pinned=work.pinned, config=config,
+                                    flow=None if not args.flow else DenseFlow(
+                                        work.frames, work.camera, work.template.faces,
+                                        masks=work.masks))
         vertices, losses, per_frame = result.vertices, result.losses, result.seconds
     else:
-        result = reconstruct(inputs.template, inputs.camera, correspondences,
-                             masks=inputs.masks, pinned=inputs.pinned,
+        result = reconstruct(work.template, work.camera, correspondences,
+                             masks=work.masks, pinned=work.pinned,
                              initial=None if baseline is None else baseline.vertices,
                              config=config)
         vertices, losses, per_frame = result.vertices, result.losses, result.seconds

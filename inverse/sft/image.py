@@ -41,6 +41,15 @@ def inside(xy: np.ndarray, shape: tuple[int, ...], *, margin: float) -> np.ndarr
     )
 
 
+def eroded(mask: np.ndarray, margin: int) -> np.ndarray:
+    """The mask (bool (h, w)) shrunk by `margin` [px] (an elliptic kernel), bool; as it is
+    for margin <= 0."""
+    if margin <= 0:
+        return np.asarray(mask, dtype=bool)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+    return cv2.erode(np.asarray(mask, dtype=np.uint8), kernel) > 0
+
+
 def sample_mask(mask: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """The mask's value (n,) at the nearest pixel of each of xy (n, 2), clamped to the image."""
     h, w = mask.shape

@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from inverse.sft.correspondences import FrameCorrespondences, TrackingTimings
-from inverse.sft.image import contrast_normalised, inside, sample_mask, to_gray
+from inverse.sft.image import contrast_normalised, eroded, inside, sample_mask, to_gray
 from inverse.sft.inputs import Camera, Template
 from inverse.sft.matching import TextureMatcher, local_affine, patch_ncc, prefiltered_texture
 from inverse.sft.surface import surface_positions, view_locator
@@ -354,11 +354,7 @@ class Tracker:
 
     def _region(self, mask: np.ndarray) -> np.ndarray:
         """Mask shrunk by mask_margin so corners and tracks keep off its boundary."""
-        margin = self.config.mask_margin
-        if margin <= 0:
-            return mask.astype(bool)
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
-        return cv2.erode(mask.astype(np.uint8), kernel) > 0
+        return eroded(mask, self.config.mask_margin)
 
     def _track_hull(self, shape: tuple[int, int]) -> np.ndarray:
         hull = np.zeros(shape, np.uint8)
