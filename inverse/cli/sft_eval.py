@@ -26,7 +26,7 @@ import numpy as np
 from inverse.sft.inputs import InputError, load_camera
 from inverse.sft.metrics import evaluate_sequence
 from taichi_ndf.cli.common import ArgumentParser, interruptible
-from taichi_ndf.io import read_mesh
+from taichi_ndf.io import atomic_path, read_mesh
 
 MESH_SUFFIXES = (".obj", ".ply")
 
@@ -129,8 +129,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         report = {"summary": summary, "per_frame": metrics.per_frame(),
                   "frames": [name for name, _, _ in pairs], "paired_by": how,
                   "pairs": [[p.name, g.name] for _, p, g in pairs]}
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        with atomic_path(args.json) as temporary:  # never a half-written file
+            temporary.write_text(json.dumps(report, indent=2) + "\n")
     return 0
 
 

@@ -84,9 +84,9 @@ def main(argv: list[str] | None = None) -> int:
         if not exports_on_template(scene.model):
             check_export_memory(scene.output.resolution, "output.resolution",
                                 frames=scene.output.frames or len(solver.load_steps))
-        runtime = start(args)
         with staged_run(args.out, overwrite=args.overwrite, resume=args.resume,
-                        products=RUN_FILES) as out:
+                        products=RUN_FILES) as out:  # claimed before the runtime starts
+            runtime = start(args)
             result = simulate(scene, out, solver=solver, resume=args.resume,
                               machine=machine_description(runtime),
                               report=lambda line: print(line, flush=True))
