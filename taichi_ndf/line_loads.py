@@ -55,14 +55,21 @@ class LineLoad:
         return LineLoad(self.path, tuple(factor * v for v in self.force), self.nodes)
 
 
-def edge_path(edge: str, bounds) -> tuple[tuple[float, float], tuple[float, float]]:
+def edge_path(edge: str, bounds, periodic: tuple[bool, bool] = (False, False)
+              ) -> tuple[tuple[float, float], tuple[float, float]]:
     """The edge `xi1_min`, `xi1_max`, `xi2_min` or `xi2_max` of the rectangle `bounds` as a
-    segment in ξ (in the direction of the other coordinate)."""
+    segment in ξ (in the direction of the other coordinate). periodic: the domain's periodic
+    flags; an edge across a periodic coordinate is refused (ValueError): it is the seam, an
+    interior line, not an edge."""
     (lo1, hi1), (lo2, hi2) = bounds
     ends = {"xi1_min": ((lo1, lo2), (lo1, hi2)), "xi1_max": ((hi1, lo2), (hi1, hi2)),
             "xi2_min": ((lo1, lo2), (hi1, lo2)), "xi2_max": ((lo1, hi2), (hi1, hi2))}
     if edge not in ends:
         raise ValueError(f"edge must be one of {tuple(ends)}, got {edge!r}")
+    k = 0 if edge.startswith("xi1") else 1
+    if periodic[k]:
+        raise ValueError(f"edge {edge!r}: ξ{k + 1} is periodic, so the domain has no such edge "
+                         "(for a load along the seam give it as a path)")
     return ends[edge]
 
 

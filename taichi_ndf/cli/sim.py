@@ -11,6 +11,7 @@ from taichi_ndf.cli.common import ArgumentParser, add_runtime_options, machine_d
 from taichi_ndf.io import incomplete_path, staged_run
 from taichi_ndf.io.memory import check_export_memory
 from taichi_ndf.outputs import exports_on_template
+from taichi_ndf.run_size import check_run_size
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
 from taichi_ndf.spline_grid import SplinePlan
@@ -81,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.samples is not None:
             overrides["samples"] = args.samples
         solver = dataclasses.replace(solver, **overrides)
+        check_run_size(scene, solver, itemsize=8 if args.precision == "f64" else 4)
         if not exports_on_template(scene.model):
             check_export_memory(scene.output.resolution, "output.resolution",
                                 frames=scene.output.frames or len(solver.load_steps))
