@@ -1,33 +1,39 @@
 """The memory a scene's sizes imply (spline grids and their levels, the contact check grid, a
-SIREN's width and sample counts), refused before any work when the machine does not have it.
+SIREN's width and sample counts), refused before any work where the machine cannot hold it.
 
-Each estimate is a count of the data a run keeps times the bytes measured per item
-(`benchmarks/run_sizes.py`, one `ndf-sim` process per size, peak RSS growth between two sizes;
-the table is in benchmarks/RESULTS.md, "Run sizes"), compared with the memory available now
-(`io.memory.available_memory`). Time is not refused: on every size measured the memory binds
-long before a run's time would (one Newton iteration on 147 456 Gauss points, 3.3 GB, takes
-about 2 min on the 2-core test machine); the refusal states the seconds per Newton iteration
-the measurement implies, so an absurd grid reads as absurd in both.
+Each estimate is a count of the points a solve keeps data for times the bytes measured per
+point (`benchmarks/run_sizes.py`: one `ndf-sim` process per size, peak RSS growth between two
+sizes; the table is in benchmarks/RESULTS.md, "Run sizes"). A contact check point can join
+every sample set of the solve (`contact.check_points`: the points that come close carry the
+barrier), so each of the check_resolution² points is counted as one more Gauss point or
+sample. The ceiling is the machine's physical memory (`io.memory.physical_memory`): more is
+refused (ValueError, one line with the estimate); more than is available now (other processes
+hold the rest) is a logged warning, since that changes from one moment to the next.
+Time is not refused: on every size measured the memory binds first (one Newton iteration on
+147 456 Gauss points, 3.3 GB, took about 2 min on the loaded 2-core test machine); the
+refusal states the seconds per Newton iteration the measurement implies.
 """
 
 from __future__ import annotations
 
-from taichi_ndf.io.memory import available_memory
+import logging
 
-__all__ = ["check_run_size", "contact_memory", "siren_memory", "spline_gauss_points",
-           "spline_memory"]
+from taichi_ndf.io.memory import available_memory, physical_memory
+
+__all__ = ["check_run_size", "siren_memory", "spline_gauss_points", "spline_memory"]
+
+log = logging.getLogger(__name__)
 
 # Spline field, projected Newton: peak RSS growth per Gauss point of the finest grid, 1 299 ->
 # 3 310 MiB from 48² to 96² cubic spans (36 864 -> 147 456 Gauss points, 4 × 4 per span, f64,
-# banded Cholesky; Gauss points, local bases and Jacobians (N, 6, 48), the 18 × 18 Hessian
-# blocks and their central differences, the assembly's scatter). f32 runs keep the Hessian
-# work in f64 and are counted the same.
+# banded Cholesky; per point: local basis and Jacobian jets (N, 6, 48), the 18 × 18 Hessian
+# block and its central differences, the assembly's products). f32 runs keep the Hessian
+# work in f64 and are counted the same. A 1024² contact check grid on 8 × 8 spans, most of
+# it close to the obstacle, held 18.8 GB when stopped: 1.05e6 points × 19 kB = 19.9 GB.
 BYTES_PER_GAUSS_POINT = 19_000
 # Wall time per Gauss point of one Newton iteration at 96² spans (272 s for the run's two
 # iterations and its start, machine loaded ~16 on 2 cores): an indication only.
 SECONDS_PER_GAUSS_POINT = 1e-3
-# Contact check grid (check_resolution² points): peak RSS growth per grid point.
-BYTES_PER_CHECK_POINT = 1_500
 # SIREN: values kept per sample, neuron and sine layer for the backward (pre-activation and
 # activation jets, cos: 13 values, plus scratch): 21 measured at 128 × 3 (131 MB over start-up
 # with 4096 samples, f32, benchmarks/RESULTS.md "field step"), 16 at 512 × 5.
@@ -44,14 +50,10 @@ def spline_gauss_points(plan) -> int:
     return spans[0] * spans[1] * q * q
 
 
-def spline_memory(plan) -> int:
-    """Estimated peak bytes of solving `plan`'s finest grid by projected Newton."""
-    return spline_gauss_points(plan) * BYTES_PER_GAUSS_POINT
-
-
-def contact_memory(resolution: int) -> int:
-    """Estimated peak bytes of a contact check grid of `resolution`² points."""
-    return resolution * resolution * BYTES_PER_CHECK_POINT
+def spline_memory(plan, extra_points: int = 0) -> int:
+    """Estimated peak bytes of solving `plan`'s finest grid by projected Newton, with
+    `extra_points` more points in the assembly (contact check points)."""
+    return (spline_gauss_points(plan) + extra_points) * BYTES_PER_GAUSS_POINT
 
 
 def siren_memory(field, samples: int, itemsize: int) -> int:
@@ -66,39 +68,43 @@ def _gib(n: float) -> str:
     return f"{n / 2**30:.3g} GiB"
 
 
-def _refuse_beyond(need: int, what: str, advice: str) -> None:
+def _check(need: int, what: str, advice: str) -> None:
+    total = physical_memory()
+    if total is not None and need > total:
+        raise ValueError(f"{what} needs about {_gib(need)} of memory, more than this machine's "
+                         f"{_gib(total)}; {advice}")
     have = available_memory()
     if have is not None and need > have:
-        raise ValueError(f"{what} needs about {_gib(need)} of memory, this machine has "
-                         f"{_gib(have)} available; {advice}")
+        log.warning("%s needs about %s of memory, more than the %s available now (other "
+                    "processes hold the rest): the run may swap or run out", what, _gib(need),
+                    _gib(have))
 
 
 def check_run_size(scene, solver, *, itemsize: int = 4) -> None:
     """Raise ValueError (one line with the estimate) if a size of `scene` solved with `solver`
-    (a `SolverConfig`) needs more memory than this machine has available. itemsize: bytes per
-    value of the run's precision (4: f32, 8: f64)."""
+    (a `SolverConfig`) needs more memory than this machine has; warn if more than is available
+    now. itemsize: bytes per value of the run's precision (4: f32, 8: f64)."""
     from taichi_ndf.spline_grid import SplinePlan
 
     field = scene.field
+    contact = scene.model.contact
+    check_points = 0 if contact is None else contact.check_resolution ** 2
+    grid = ("" if contact is None else f" and a contact check grid of "
+            f"{contact.check_resolution}² points (contact.check_resolution)")
     if isinstance(field, SplinePlan):
         points = spline_gauss_points(field)
         spans = [n * 2 ** (field.levels - 1) for n in field.config.spans]
         levels = "" if field.levels == 1 else f" ({field.levels} levels)"
-        seconds = points * SECONDS_PER_GAUSS_POINT
-        _refuse_beyond(spline_memory(field),
-                       f"spline field: the finest grid{levels} of {spans[0]} × {spans[1]} spans "
-                       f"({points:.3g} Gauss points, ~{seconds:.2g} s per Newton iteration)",
-                       "choose fewer spans, a longer span_length or fewer levels / --refine")
+        seconds = (points + check_points) * SECONDS_PER_GAUSS_POINT
+        _check(spline_memory(field, check_points),
+               f"spline field: the finest grid{levels} of {spans[0]} × {spans[1]} spans "
+               f"({points:.3g} Gauss points){grid}, ~{seconds:.2g} s per Newton iteration,",
+               "choose fewer spans, a longer span_length, fewer levels / --refine or a "
+               "smaller check_resolution")
     else:
         samples = max(solver.samples, solver.monitor_samples,
                       solver.newton_samples if solver.newton_iterations else 0)
-        _refuse_beyond(siren_memory(field, samples, itemsize),
-                       f"SIREN field {field.width} wide × {field.hidden_layers} layers on "
-                       f"{samples} samples", "choose a narrower field or fewer samples")
-    contact = scene.model.contact
-    if contact is not None:
-        _refuse_beyond(contact_memory(contact.check_resolution),
-                       f"contact.check_resolution = {contact.check_resolution} "
-                       f"({contact.check_resolution ** 2:.3g} check points)",
-                       "choose a smaller check_resolution")
-
+        _check(siren_memory(field, samples + check_points, itemsize),
+               f"SIREN field {field.width} wide × {field.hidden_layers} layers on {samples} "
+               f"samples{grid}", "choose a narrower field, fewer samples or a smaller "
+               "check_resolution")
