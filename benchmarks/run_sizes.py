@@ -51,6 +51,7 @@ hidden_layers = 3
 [training]
 iterations = 3
 samples = {samples}
+monitor_samples = {samples}
 lbfgs_iterations = 0
 """
 
@@ -85,23 +86,29 @@ def family(name, texts, counts, unit, folder):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--families", default="spline,contact,siren",
+                        help="comma-separated subset of spline, contact, siren")
     args = parser.parse_args()
+    families = args.families.split(",")
     spans = (8, 48, 96) if args.quick else (8, 64, 128, 192)
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
-        family("spline, cubic, 4 x 4 Gauss points per span, 2 Newton iterations",
-               [SPLINE.format(n=n, iterations=2) for n in spans],
-               [16 * n * n for n in spans], "Gauss point", folder)
+        if "spline" in families:
+            family("spline, cubic, 4 x 4 Gauss points per span, 2 Newton iterations",
+                   [SPLINE.format(n=n, iterations=2) for n in spans],
+                   [16 * n * n for n in spans], "Gauss point", folder)
         # A check point close to the obstacle joins the solve's points (~19 kB each): 1024²
         # held 18.8 GB; keep the grid small.
         resolutions = (16, 128, 256)
-        family("contact check grid (spline 8 x 8, 2 Newton iterations)",
-               [CONTACT.format(n=8, iterations=2, resolution=r) for r in resolutions],
-               [r * r for r in resolutions], "check point", folder)
+        if "contact" in families:
+            family("contact check grid (spline 8 x 8, 2 Newton iterations)",
+                   [CONTACT.format(n=8, iterations=2, resolution=r) for r in resolutions],
+                   [r * r for r in resolutions], "check point", folder)
         widths = ((16, 1024), (128, 4096), (256, 16384))
-        family("SIREN, 3 hidden layers, 3 Adam iterations",
-               [SIREN.format(width=w, samples=s) for w, s in widths],
-               [w * s for w, s in widths], "sample x width", folder)
+        if "siren" in families:
+            family("SIREN, 3 hidden layers, 3 Adam iterations",
+                   [SIREN.format(width=w, samples=s) for w, s in widths],
+                   [w * s for w, s in widths], "sample x width", folder)
 
 
 if __name__ == "__main__":

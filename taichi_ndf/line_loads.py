@@ -24,6 +24,12 @@ from taichi_ndf.checks import finite_vector
 Vector3 = tuple[float, float, float]
 
 
+# Most Gauss–Legendre nodes per segment: numpy's leggauss builds an n × n companion matrix
+# (8 n² bytes: 10⁹ nodes ran the fuzz test out of memory while the scene was read), and 24
+# nodes already give a circle's resultant to 1e-12.
+MAX_NODES = 1000
+
+
 @dataclass(frozen=True)
 class LineLoad:
     """Force per unit reference length `force` [N/m] along the polyline `path` in ξ (two or
@@ -48,8 +54,10 @@ class LineLoad:
                 raise ValueError(f"line load path has two equal consecutive points {a}")
         object.__setattr__(self, "path", points)
         object.__setattr__(self, "force", finite_vector("line load force", self.force, 3, "N/m"))
-        if isinstance(self.nodes, bool) or not isinstance(self.nodes, int) or self.nodes < 1:
-            raise ValueError(f"line load nodes must be an integer >= 1, got {self.nodes!r}")
+        if (isinstance(self.nodes, bool) or not isinstance(self.nodes, int)
+                or not 1 <= self.nodes <= MAX_NODES):
+            raise ValueError(f"line load nodes must be an integer in [1, {MAX_NODES}], got "
+                             f"{self.nodes!r}")
 
     def scaled(self, factor: float) -> LineLoad:
         return LineLoad(self.path, tuple(factor * v for v in self.force), self.nodes)

@@ -42,10 +42,20 @@ VALUES_PER_SAMPLE_NEURON = 21
 VALUES_PER_WEIGHT = 4
 
 
+# Levels beyond which the finest grid is counted as this many levels (its memory is then past
+# any machine's by far; the count stays an exact integer and its message a float).
+MAX_COUNTED_LEVELS = 100
+
+
+def _finest_spans(plan) -> list[int]:
+    """Spans per direction of the finest grid (each level halves every span)."""
+    return [n * 2 ** (min(plan.levels, MAX_COUNTED_LEVELS) - 1) for n in plan.config.spans]
+
+
 def spline_gauss_points(plan) -> int:
-    """Gauss points of the finest grid of `plan` (a `SplinePlan`), counted without building it:
-    each level halves every span."""
-    spans = [n * 2 ** (plan.levels - 1) for n in plan.config.spans]
+    """Gauss points of the finest grid of `plan` (a `SplinePlan`), counted without building it
+    (more than MAX_COUNTED_LEVELS levels count as that many)."""
+    spans = _finest_spans(plan)
     q = plan.quadrature_points or plan.config.degree + 1
     return spans[0] * spans[1] * q * q
 
@@ -93,12 +103,12 @@ def check_run_size(scene, solver, *, itemsize: int = 4) -> None:
             f"{contact.check_resolution}² points (contact.check_resolution)")
     if isinstance(field, SplinePlan):
         points = spline_gauss_points(field)
-        spans = [n * 2 ** (field.levels - 1) for n in field.config.spans]
+        spans = [f"{n:.3g}" if n > 10**6 else str(n) for n in _finest_spans(field)]
         levels = "" if field.levels == 1 else f" ({field.levels} levels)"
-        seconds = (points + check_points) * SECONDS_PER_GAUSS_POINT
+        seconds = float(points + check_points) * SECONDS_PER_GAUSS_POINT
         _check(spline_memory(field, check_points),
                f"spline field: the finest grid{levels} of {spans[0]} × {spans[1]} spans "
-               f"({points:.3g} Gauss points){grid}, ~{seconds:.2g} s per Newton iteration,",
+               f"({float(points):.3g} Gauss points){grid}, ~{seconds:.2g} s per Newton iteration,",
                "choose fewer spans, a longer span_length, fewer levels / --refine or a "
                "smaller check_resolution")
     else:
