@@ -28,8 +28,9 @@ log = logging.getLogger(__name__)
 # 3 310 MiB from 48² to 96² cubic spans (36 864 -> 147 456 Gauss points, 4 × 4 per span, f64,
 # banded Cholesky; per point: local basis and Jacobian jets (N, 6, 48), the 18 × 18 Hessian
 # block and its central differences, the assembly's products). f32 runs keep the Hessian
-# work in f64 and are counted the same. A 1024² contact check grid on 8 × 8 spans, most of
-# it close to the obstacle, held 18.8 GB when stopped: 1.05e6 points × 19 kB = 19.9 GB.
+# work in f64 and are counted the same. Contact check points close to the obstacle cost about
+# as much: 17-25 kB each from 128² to 256² check points, and a 1024² grid on 8 × 8 spans held
+# 18.8 GB when stopped (1.05e6 points × 19 kB = 19.9 GB).
 BYTES_PER_GAUSS_POINT = 19_000
 # Wall time per Gauss point of one Newton iteration at 96² spans (272 s for the run's two
 # iterations and its start, machine loaded ~16 on 2 cores): an indication only.
