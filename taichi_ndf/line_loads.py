@@ -24,6 +24,12 @@ from taichi_ndf.checks import finite_vector
 Vector3 = tuple[float, float, float]
 
 
+# Most Gauss–Legendre nodes per segment: numpy's leggauss builds an n × n companion matrix
+# (8 n² bytes: 10⁹ nodes ran the fuzz test out of memory while the scene was read), and 24
+# nodes already give a circle's resultant to 1e-12.
+MAX_NODES = 1000
+
+
 @dataclass(frozen=True)
 class LineLoad:
     """Force per unit reference length `force` [N/m] along the polyline `path` in ξ (two or
@@ -48,21 +54,30 @@ class LineLoad:
                 raise ValueError(f"line load path has two equal consecutive points {a}")
         object.__setattr__(self, "path", points)
         object.__setattr__(self, "force", finite_vector("line load force", self.force, 3, "N/m"))
-        if isinstance(self.nodes, bool) or not isinstance(self.nodes, int) or self.nodes < 1:
-            raise ValueError(f"line load nodes must be an integer >= 1, got {self.nodes!r}")
+        if (isinstance(self.nodes, bool) or not isinstance(self.nodes, int)
+                or not 1 <= self.nodes <= MAX_NODES):
+            raise ValueError(f"line load nodes must be an integer in [1, {MAX_NODES}], got "
+                             f"{self.nodes!r}")
 
     def scaled(self, factor: float) -> LineLoad:
         return LineLoad(self.path, tuple(factor * v for v in self.force), self.nodes)
 
 
-def edge_path(edge: str, bounds) -> tuple[tuple[float, float], tuple[float, float]]:
+def edge_path(edge: str, bounds, periodic: tuple[bool, bool] = (False, False)
+              ) -> tuple[tuple[float, float], tuple[float, float]]:
     """The edge `xi1_min`, `xi1_max`, `xi2_min` or `xi2_max` of the rectangle `bounds` as a
-    segment in ξ (in the direction of the other coordinate)."""
+    segment in ξ (in the direction of the other coordinate). periodic: the domain's periodic
+    flags; an edge across a periodic coordinate is refused (ValueError): it is the seam, an
+    interior line, not an edge."""
     (lo1, hi1), (lo2, hi2) = bounds
     ends = {"xi1_min": ((lo1, lo2), (lo1, hi2)), "xi1_max": ((hi1, lo2), (hi1, hi2)),
             "xi2_min": ((lo1, lo2), (hi1, lo2)), "xi2_max": ((lo1, hi2), (hi1, hi2))}
     if edge not in ends:
         raise ValueError(f"edge must be one of {tuple(ends)}, got {edge!r}")
+    k = 0 if edge.startswith("xi1") else 1
+    if periodic[k]:
+        raise ValueError(f"edge {edge!r}: ξ{k + 1} is periodic, so the domain has no such edge "
+                         "(for a load along the seam give it as a path)")
     return ends[edge]
 
 

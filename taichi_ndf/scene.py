@@ -31,6 +31,7 @@ from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.optim import AdamConfig
 from taichi_ndf.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
 from taichi_ndf.render.figure import VIEWS
+from taichi_ndf.run_size import check_run_size
 from taichi_ndf.scene_contact import parse_contact
 from taichi_ndf.scene_field import field_config, newton_training, with_field_type
 from taichi_ndf.scene_schema import SceneError, Table, read_toml
@@ -119,9 +120,14 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
             raise SceneError("training.pseudo_time: not available with [[obstacles]]")
         field = replace(field, conditioning=(TIME_RANGE,))
     top.close()
-    return Scene(name=name, description=description, model=model, field=field, solver=solver,
-                 quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
-                 document=document)
+    scene = Scene(name=name, description=description, model=model, field=field, solver=solver,
+                  quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
+                  document=document)
+    try:
+        check_run_size(scene, solver)  # its sizes fit the memory, before any work
+    except ValueError as err:
+        raise SceneError(str(err)) from None
+    return scene
 
 
 def _section(table: Table, build, *args):
@@ -240,7 +246,7 @@ def _line_load(t: Table, domain) -> LineLoad:
     if t.has("edge") == t.has("path"):
         raise SceneError(f"{t.path}: give exactly one of 'edge' or 'path'")
     if t.has("edge"):
-        path = edge_path(t.string("edge", choices=EDGES), domain.bounds)
+        path = edge_path(t.string("edge", choices=EDGES), domain.bounds, domain.periodic)
     else:
         raw = t._get("path", None)
         if not (isinstance(raw, list) and len(raw) >= 2

@@ -252,6 +252,7 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
     run = solve_spline(scene.model, scene.field, config, start=start, done=done,
                        history=history, on_level=on_level)
     if not run.levels[-1].converged:
+        _refuse_no_step(run)
         log.warning("projected Newton did not converge on the finest grid (see result.json "
                     "history)")
     trajectory = None
@@ -312,6 +313,22 @@ def checkpoint_scene(path: str | os.PathLike, extra: dict) -> Scene:
         return parse_scene(extra["scene"], base_dir=base)
     except SceneError as err:
         raise SceneError(f"{path}: the scene it holds: {err}") from None
+
+
+def _refuse_no_step(run) -> None:
+    """SimulationError where projected Newton, not converged, accepted no step on any grid:
+    the result would be the start (Π = 0 J from the flat sheet). Seen on a free-pinned napkin
+    on 1 × 1 spans: the first Newton step follows the rotation about the pin, which the flat
+    state does not resist (λ² = 3.8e9 J), and no step length of the line search lowers Π."""
+    if any(record.step_length > 0 for record in run.history):
+        return
+    finest = run.levels[-1]
+    decrement = f"λ² = {run.history[-1].decrement:.3g} J, " if run.history else ""
+    raise SimulationError(
+        f"projected Newton took no step on any grid (finest {finest.spans[0]} × "
+        f"{finest.spans[1]} spans; {decrement}no step length lowered Π), so the result would be "
+        f"the start, Π = {finest.energy:.6g} J; try a finer grid (omit [field] spans for the "
+        "grid rule) or more load steps")
 
 
 def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],

@@ -133,15 +133,17 @@ def fake_simulate(scene, out, **kwargs):
     return {"energy": 0.0, "iterations": 0, "wall_time": 0.0, "probes": {}}
 
 
-def sim_refuses_or_accepts(scene_path: Path, folder: Path, existing: bool) -> None:
+def sim_refuses_or_accepts(scene_path: Path, folder: Path, existing: bool,
+                           extra: tuple[str, ...] = ()) -> int:
     """ndf-sim on `scene_path` up to the solve: success, or a one-line refusal that leaves an
-    earlier output directory (`existing`) unchanged and creates none."""
+    earlier output directory (`existing`) unchanged and creates none; returns the exit code
+    the scene alone gets (0 or 2)."""
     out = folder / "run"
     if existing:  # refused as not empty once the scene passes: every check before is run
         out.mkdir()
         (out / "result.json").write_text("previous run")
     with mock.patch.object(sim, "simulate", fake_simulate):
-        code, err = run_tool(sim.main, [str(scene_path), "--out", str(out), *RUNTIME])
+        code, err = run_tool(sim.main, [str(scene_path), "--out", str(out), *extra, *RUNTIME])
     assert_clean(code, err)
     if existing:
         assert code == 2 and (out / "result.json").read_text() == "previous run"
@@ -149,6 +151,7 @@ def sim_refuses_or_accepts(scene_path: Path, folder: Path, existing: bool) -> No
     else:
         assert out.exists() == (code == 0)
     assert not (folder / "run.incomplete").exists()
+    return 0 if existing and "not empty" in err else code
 
 
 @pytest.mark.parametrize("scene", SCENES, ids=[p.stem for p in SCENES])
@@ -180,6 +183,89 @@ def test_mutated_scenes_are_refused_in_one_line(data):
 
 
 NAPKIN_MESH = (ROOT / "data" / "napkin.obj").read_text().splitlines()
+
+
+# A scene with every spline, contact and line-load key set, on a plane and on a cylinder (whose
+# ξ1 is periodic: its "edges" xi1_min / xi1_max do not exist).
+KEYED_PLANE = {
+    "name": "keyed",
+    "geometry": {"type": "plane", "bounds": [[0.0, 1.0], [0.0, 1.0]]},
+    "material": {"preset": "cloth"},
+    "loads": {"gravity": [0.0, 0.0, -9.81],
+              "line": [{"edge": "xi1_max", "force": [0.0, 0.0, -1.0], "nodes": 8},
+                       {"path": [[0.2, 0.5], [0.8, 0.5]], "force": [0.0, 0.0, -1.0]}]},
+    "boundary": {"constraint": [{"type": "clamped_edge", "edge": "xi1_min"}]},
+    "obstacles": [{"type": "sphere", "centre": [0.5, 0.5, -0.3], "radius": 0.2}],
+    "contact": {"check_resolution": 32, "activation_distance": "auto", "stiffness": "auto",
+                "margin": "auto"},
+    "field": {"type": "spline", "degree": 3, "spans": [8, 8], "levels": 1,
+              "quadrature_points": 4},
+    "training": {"method": "newton", "load_steps": [0.5, 1.0], "newton_max_iterations": 5},
+    "output": {"resolution": [8, 8]},
+}
+KEYED_CYLINDER = {**KEYED_PLANE, "geometry": {"type": "cylinder", "radius": 0.1, "length": 0.4},
+                  "boundary": {"constraint": [{"type": "clamped_edge", "edge": "xi2_min"}]},
+                  "loads": {"line": [{"edge": "xi2_max", "force": [0.0, 0.0, -1.0]}]}}
+# Values for those keys: absurd sizes (the memory check), edges, and the odd values.
+SIZE_VALUES = st.sampled_from([[1, 1], [2, 2], [10000, 10000], [2000, 2000], [3, 10**9], 20, 30,
+                               1e-5, 1e-300, 1000000, 10**9, "xi1_min", "xi2_max", "auto"])
+KEYED_TARGETS = [("field", "spans"), ("field", "levels"), ("field", "span_length"),
+                 ("field", "degree"), ("field", "quadrature_points"),
+                 ("contact", "check_resolution"), ("contact", "stiffness"),
+                 ("obstacles", 0, "radius"), ("loads", "line", 0, "edge"),
+                 ("loads", "line", 0, "nodes"), ("loads", "line", 0, "force"),
+                 ("training", "newton_max_iterations"), ("training", "load_steps"),
+                 ("output", "resolution")]
+
+
+@st.composite
+def keyed_scene(draw):
+    """KEYED_PLANE or KEYED_CYLINDER with 1-3 of its spline / contact / line-load keys set to
+    a size or odd value (or deleted), and now and then mutated further."""
+    document = json.loads(json.dumps(draw(st.sampled_from([KEYED_PLANE, KEYED_CYLINDER]))))
+    for _ in range(draw(st.integers(1, 3))):
+        *parents, key = draw(st.sampled_from(KEYED_TARGETS))
+        parent = document
+        try:
+            for step in parents:
+                parent = parent[step]
+            parent[key]  # noqa: B018 - the path exists in this document
+        except (KeyError, IndexError, TypeError):
+            continue
+        if draw(st.integers(0, 5)) == 0:
+            del parent[key]
+        else:
+            parent[key] = copy.deepcopy(draw(st.one_of(SIZE_VALUES, ODD_VALUES)))
+    if key == "span_length" and "spans" in document.get("field", {}):
+        del document["field"]["spans"]  # so that span_length is read
+    return draw(mutated(document)) if draw(st.integers(0, 3)) == 0 else document
+
+
+@fuzz_settings(120)
+@given(document=keyed_scene(), refine=st.sampled_from([None, "1", "3", "30", "0", "-1"]),
+       existing=st.booleans())
+def test_spline_contact_and_line_load_keys_are_refused_in_one_line(document, refine,
+                                                                   existing):
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        scene = folder / "keyed.toml"
+        scene.write_text(toml_text(document))
+        extra = () if refine is None else ("--refine", refine)
+        accepted = sim_refuses_or_accepts(scene, folder, existing, extra) == 0
+    assert not (accepted and periodic_edge_load(document)), "a load on a periodic edge passed"
+
+
+def periodic_edge_load(document: dict) -> bool:
+    """Whether `document` is a cylinder (ξ1 periodic) with a line load on an edge of ξ1."""
+    def table(value, key):
+        item = value.get(key) if isinstance(value, dict) else None
+        return item if isinstance(item, (dict, list)) else {}
+
+    lines = table(table(document, "loads"), "line")
+    return table(document, "geometry").get("type") == "cylinder" and any(
+        isinstance(line, dict) and str(line.get("edge", "")).startswith("xi1")
+        for line in (lines if isinstance(lines, list) else []))
+
 
 
 @st.composite

@@ -126,7 +126,8 @@ def test_mesh_writers_validate_their_inputs(tmp_path):
 def test_output_dir_refuses_non_empty_directory(tmp_path):
     run = OutputDir(tmp_path / "runs" / "a")
     assert run.path.is_dir()
-    OutputDir(tmp_path / "runs" / "a")  # empty: reusable
+    run.release()
+    OutputDir(tmp_path / "runs" / "a").release()  # empty: reusable
     run.write_json("result.json", {"energy": 1.5})
     with pytest.raises(FileExistsError, match="not empty"):
         OutputDir(tmp_path / "runs" / "a")

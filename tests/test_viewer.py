@@ -57,3 +57,22 @@ def test_frames_and_colours(tmp_path):
                                                           axis=1))
     finally:
         viewer.stop()
+
+
+def test_a_taken_port_prints_the_port_actually_bound(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("viser", reason="viser (pip install 'taichi-ndf[viewer]') is missing")
+    run = fake_run(tmp_path)
+
+    def interrupt(_seconds):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(view.time, "sleep", interrupt)  # served, then Ctrl-C at once
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert view.main([str(run), "--port", str(port)]) == 0
+    out = capsys.readouterr().out
+    bound = int(out.split("http://127.0.0.1:")[1].split()[0])
+    assert bound != port and f"port {port} was taken" in out, out
+    assert f"ssh -L {bound}:127.0.0.1:{bound} HOST" in out and f"{port}:127" not in out, out

@@ -49,6 +49,7 @@ from taichi_ndf.cli.common import (
 from taichi_ndf.io import read_mesh
 from taichi_ndf.io.grid import grid_mesh
 from taichi_ndf.io.output_dir import OutputDir, check_output_dir
+from taichi_ndf.io.run_lock import RunLock
 from taichi_ndf.render import save_png
 from taichi_ndf.scene import SceneError, load_scene
 
@@ -217,10 +218,11 @@ def run(args, runtime) -> dict:
         raise InputError(f"--noise must be >= 0 (metres), got {args.noise}")
     if args.spans is not None and min(args.spans) < 1:
         raise InputError(f"--spans must be two integers >= 1, got {args.spans}")
-    check_output_dir(args.out, args.overwrite)  # refused before any work
+    lock = RunLock(args.out)  # a directory another run holds is refused before any work,
+    check_output_dir(args.out, args.overwrite)  # and so is a non-empty one without --overwrite
     observations = _observations(args.observed, model, scene.output.resolution,
                                  args.point_cloud)
-    out = OutputDir(args.out, overwrite=args.overwrite)
+    out = OutputDir(args.out, overwrite=args.overwrite, lock=lock)
     resolution = scene.output.resolution
     grid = grid_mesh(model.surface.domain.bounds, resolution,
                      periodic=model.surface.domain.periodic)

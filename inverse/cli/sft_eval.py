@@ -34,7 +34,7 @@ from inverse.sft.chamfer import (
 from inverse.sft.inputs import InputError, load_camera
 from inverse.sft.metrics import evaluate_sequence
 from taichi_ndf.cli.common import ArgumentParser, description, interruptible
-from taichi_ndf.io import read_mesh
+from taichi_ndf.io import atomic_path, read_mesh
 
 MESH_SUFFIXES = (".obj", ".ply")
 
@@ -174,8 +174,8 @@ def _report(args, pairs, how, metrics, keys) -> None:
         report = {"summary": summary, "per_frame": metrics.per_frame(),
                   "frames": [name for name, _, _ in pairs], "paired_by": how,
                   "pairs": [[p.name, g.name] for _, p, g in pairs]}
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        with atomic_path(args.json) as temporary:  # never a half-written file
+            temporary.write_text(json.dumps(report, indent=2) + "\n")
 
 
 if __name__ == "__main__":

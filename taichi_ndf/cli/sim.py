@@ -68,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     from taichi_ndf.io import incomplete_path, staged_run
     from taichi_ndf.io.memory import check_export_memory
     from taichi_ndf.outputs import exports_on_template
+    from taichi_ndf.run_size import check_run_size
     from taichi_ndf.scene_schema import SceneError
     from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
 
@@ -94,12 +95,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.samples is not None:
             overrides["samples"] = args.samples
         solver = dataclasses.replace(solver, **overrides)
+        check_run_size(scene, solver, itemsize=8 if args.precision == "f64" else 4)
         if not exports_on_template(scene.model):
             check_export_memory(scene.output.resolution, "output.resolution",
                                 frames=scene.output.frames or len(solver.load_steps))
-        runtime = start(args)
         with shown("ndf-sim"), staged_run(args.out, overwrite=args.overwrite,
                                           resume=args.resume, products=RUN_FILES) as out:
+            runtime = start(args)  # the directory is claimed before the runtime starts
             result = simulate(scene, out, solver=solver, resume=args.resume,
                               machine=machine_description(runtime),
                               report=lambda line: print(line, flush=True))

@@ -50,10 +50,11 @@ def main(argv: list[str] | None = None) -> int:
     except (MissingExtra, ValueError, FileNotFoundError, OSError) as err:
         print(f"ndf-view: error: {err}", file=sys.stderr)
         return 2
-    print(f"ndf-view: {run.name} at {viewer.url}  (Ctrl-C stops)", flush=True)
+    taken = "" if viewer.port == args.port else f"; port {args.port} was taken"
+    print(f"ndf-view: {run.name} at {viewer.url}  (Ctrl-C stops{taken})", flush=True)
     if args.host == "127.0.0.1":
-        print(f"  on a remote machine: ssh -L {args.port}:127.0.0.1:{args.port} HOST, then open "
-              f"http://127.0.0.1:{args.port}", flush=True)
+        print(f"  on a remote machine: ssh -L {viewer.port}:127.0.0.1:{viewer.port} HOST, then "
+              f"open http://127.0.0.1:{viewer.port}", flush=True)
     try:
         while True:
             time.sleep(1.0)

@@ -1,5 +1,7 @@
 """Run directories that are never silently reused nor mixed, and atomic file writes."""
 
+from __future__ import annotations
+
 import json
 import logging
 import os
@@ -8,6 +10,8 @@ import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+from taichi_ndf.io.run_lock import RunLock
 
 __all__ = ["OutputDir", "atomic_path", "check_output_dir", "incomplete_path", "staged_run"]
 
@@ -46,16 +50,27 @@ def check_output_dir(path: str | os.PathLike, overwrite: bool = False) -> None:
 
 
 class OutputDir:
-    """A run's output directory: created if missing, refused if it already holds files.
+    """A run's output directory: created if missing, refused if it already holds files or
+    another live run holds it (`RunLock`: ``<path>.lock``, held until `release()`, the end of a
+    ``with`` block, the object's collection or the process's end).
 
     path: the directory; its parents are created.
     overwrite: allow a non-empty directory (files written again are replaced, others are kept;
         this is also how a run is resumed in place).
+    lock: the claim to hold; None: claim `path` here (`staged_run` passes the claim of the
+        final directory it stages).
     """
 
-    def __init__(self, path: str | os.PathLike, *, overwrite: bool = False):
+    def __init__(self, path: str | os.PathLike, *, overwrite: bool = False,
+                 lock: RunLock | None = None):
         self.path = Path(path)
-        check_output_dir(self.path, overwrite)
+        self.lock = RunLock(self.path) if lock is None else lock
+        try:
+            check_output_dir(self.path, overwrite)
+        except BaseException:
+            if lock is None:
+                self.lock.release()
+            raise
         if self.path.is_dir() and any(self.path.iterdir()):
             logger.warning("writing into non-empty output directory %s", self.path)
         self.path.mkdir(parents=True, exist_ok=True)
@@ -79,6 +94,16 @@ class OutputDir:
     def write_json(self, name: str, data) -> Path:
         """Write strict JSON (NaN and infinity are refused: they are not JSON) atomically."""
         return self.write_text(name, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+    def release(self) -> None:
+        """Let other runs claim the directory (`RunLock.release`)."""
+        self.lock.release()
+
+    def __enter__(self) -> OutputDir:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
 
     def __repr__(self) -> str:
         return f"OutputDir({str(self.path)!r})"
@@ -104,9 +129,17 @@ def staged_run(path: str | os.PathLike, *, overwrite: bool = False, resume: bool
     resume: continue from ``<path>.incomplete`` if it holds checkpoint.pt, else from the
         complete run in `path` (copied into the staging folder first); FileNotFoundError if
         neither has a checkpoint.
-    A fresh run (no `resume`) removes an earlier incomplete attempt.
+    A fresh run (no `resume`) removes an earlier incomplete attempt, never that of a live run:
+    the run claims `path` (`RunLock`) before it looks at either folder, and holds the claim
+    until the run is in place (OutputLockedError while another live run holds it).
     """
     path = Path(path)
+    with RunLock(path) as lock:
+        yield from _staged(path, overwrite, resume, products, lock)
+
+
+def _staged(path: Path, overwrite: bool, resume: bool, products: tuple[str, ...],
+            lock: RunLock) -> Iterator[OutputDir]:
     stage = incomplete_path(path)
     check_output_dir(path, overwrite or resume)
     if stage.exists() and not stage.is_dir():
@@ -125,7 +158,7 @@ def staged_run(path: str | os.PathLike, *, overwrite: bool = False, resume: bool
         shutil.rmtree(stage)
     stage.mkdir(parents=True, exist_ok=True)
     try:
-        yield OutputDir(stage, overwrite=True)
+        yield OutputDir(stage, overwrite=True, lock=lock)
     except BaseException:
         if not any(stage.iterdir()):
             stage.rmdir()  # nothing was written: no attempt to keep

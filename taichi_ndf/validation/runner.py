@@ -17,6 +17,7 @@ from taichi_ndf.callbacks import DivergenceGuard
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import EndMomentTerm, Objective
+from taichi_ndf.run_size import check_run_size
 from taichi_ndf.scene import Scene, load_scene
 from taichi_ndf.scene_field import field_for_solver
 from taichi_ndf.solver import Solver, SolverConfig
@@ -185,6 +186,7 @@ def run_spline_case(case: Case, *, quick: bool = False, scenes_dir: Path = SCENE
     own = _own_spline(case, scenes_dir)
     scene, model, plan = load_case_scene(case, scenes_dir, None if own else "spline")
     plan = dataclasses.replace(plan, levels=1 if quick else levels)
+    check_run_size(dataclasses.replace(scene, field=plan), scene.solver)
     config = dataclasses.replace(scene.solver, progress=False)
     objective = _objective(case, model)
     names = [p.name for p in model.probes]

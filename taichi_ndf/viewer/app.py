@@ -37,14 +37,16 @@ class RunViewer:
     """A viser server showing one run; `url` is where a browser opens it.
 
     host: the interface to listen on (127.0.0.1: this machine only; reach a remote one with
-    `ssh -L PORT:127.0.0.1:PORT`, or listen on 0.0.0.0); port: the TCP port.
+    `ssh -L PORT:127.0.0.1:PORT`, or listen on 0.0.0.0); port: the TCP port asked for; `port`
+    after construction: the one bound (the next free one when that was taken).
     """
 
     def __init__(self, run: RunFiles, *, host: str = "127.0.0.1", port: int = 8080):
         viser = require_viewer()
         self.run = run
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
-        self.url = f"http://{host}:{self.server.get_port()}"
+        self.port = self.server.get_port()  # viser takes the next free port if `port` is taken
+        self.url = f"http://{host}:{self.port}"
         size = float(np.ptp(run.deformed, axis=0).max())
         scene, gui = self.server.scene, self.server.gui
         scene.set_up_direction(tuple(float(v) for v in run.up))
