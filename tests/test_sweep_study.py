@@ -82,6 +82,20 @@ def test_a_bad_study_file_is_one_line_naming_the_key(tmp_path, capsys, text, key
     assert not (tmp_path / "out").exists()
 
 
+def test_several_grids_one_after_the_other(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('job = "calibration"\n[[grids]]\ncase = ["strip"]\nnoise = [0.0]\n'
+                    'seed = [0]\n[[grids]]\ncase = ["strip"]\nnoise = [0.01, 0.02]\n'
+                    'seed = [1, 2]\n')
+    study = load_study(path)
+    assert [(p.parameters["noise"], p.parameters["seed"]) for p in study.points] == [
+        (0.0, 0), (0.01, 1), (0.01, 2), (0.02, 1), (0.02, 2)]
+    path.write_text('job = "calibration"\n[[grids]]\ncase = ["strip"]\n[[grids]]\n'
+                    'seed = [1]\n')
+    with pytest.raises(StudyError, match="grids: key 'case' is missing"):
+        load_study(path)
+
+
 def test_a_job_without_a_base_file_and_its_unknown_options(tmp_path):
     path = tmp_path / "s.toml"
     path.write_text('job = "calibration"\n[axes]\ncase = ["strip"]\nnoise_level = [0.1]\n')

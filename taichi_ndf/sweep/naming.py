@@ -7,12 +7,12 @@ import json
 import re
 
 MAX_LENGTH = 120  # characters; longer names end in a hash of the parameters instead
-_UNSAFE = re.compile(r"[^A-Za-z0-9.,+=-]+")
+_UNSAFE = re.compile(r"[^A-Za-z0-9._,+=-]+")
 
 
 def value_text(value) -> str:
     """A parameter value as a file-name fragment: floats round-trip (repr), lists joined by
-    commas, a path by its file name, other characters than [A-Za-z0-9.,+=-] as '-'."""
+    commas, a path by its file name, other characters than [A-Za-z0-9._,+=-] as '-'."""
     if isinstance(value, bool):
         text = str(value).lower()
     elif isinstance(value, float):

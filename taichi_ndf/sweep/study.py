@@ -16,6 +16,16 @@ or, instead of [axes], a list of points, each a table of the same keys:
     material = "silk"
     "loads.gravity" = [0, 0, -4.9]
 
+or several grids, their points one after the other (each [[grids]] table like [axes], all
+with the same keys):
+
+    [[grids]]
+    noise = [0.0]
+    seed = [0]
+    [[grids]]
+    noise = [0.005, 0.02]
+    seed = [1, 2, 3]
+
 docs/sweeps.md documents every key. Errors raise `StudyError` naming the key.
 """
 
@@ -104,26 +114,24 @@ def _parse(document: dict, path: Path) -> Study:
         job.check_option(key, "options")
         job.check_value(key, value, "options")
     options = job.resolve_paths(options, path.parent)
-    if top.has("axes") == top.has("points"):
-        raise StudyError("axes: give either [axes] (a full grid) or [[points]] (a list), not "
-                         f"{'both' if top.has('axes') else 'neither'}")
-    if top.has("axes"):
-        axes_table = flatten(top.table("axes").data)
-        for key, values in axes_table.items():
-            if not isinstance(values, list) or not values:
-                raise StudyError(f"axes.{key}: expected a non-empty list of values, got "
-                                 f"{values!r}")
-        axes = tuple(axes_table)
-        rows = [dict(zip(axes, combo, strict=True))
-                for combo in itertools.product(*axes_table.values())]
-    else:
+    given = [k for k in ("axes", "grids", "points") if top.has(k)]
+    if len(given) != 1:
+        raise StudyError(f"{(given or ['axes'])[-1]}: give one of [axes] (a full grid), "
+                         f"[[grids]] (several) or [[points]] (a list), not "
+                         f"{' and '.join(given) or 'none'}")
+    if given[0] == "points":
         rows = [flatten(t.data) for t in top.tables("points")]
         axes = tuple(dict.fromkeys(k for row in rows for k in row))
-        for i, row in enumerate(rows):
-            missing = [k for k in axes if k not in row]
-            if missing:
-                raise StudyError(f"points[{i}]: key {missing[0]!r} is missing (every point "
-                                 "names the same keys)")
+    else:
+        grids = ([top.table("axes")] if given[0] == "axes" else top.tables("grids"))
+        rows = [row for grid in grids for row in _grid(flatten(grid.data), grid.path)]
+        axes = tuple(flatten(grids[0].data)) if grids else ()
+    for i, row in enumerate(rows):
+        missing = [k for k in axes if k not in row] or [k for k in row if k not in axes]
+        if missing:
+            where = f"points[{i}]" if given[0] == "points" else given[0]
+            raise StudyError(f"{where}: key {missing[0]!r} is missing (every point names the "
+                             "same keys)")
     for key in axes:
         job.check_option(key, "axes")
         if key in options:
@@ -131,7 +139,7 @@ def _parse(document: dict, path: Path) -> Study:
                              "not both")
     for i, row in enumerate(rows):
         for key, value in row.items():
-            job.check_value(key, value, "axes" if top.has("axes") else f"points[{i}]")
+            job.check_value(key, value, given[0] if given[0] != "points" else f"points[{i}]")
     rows = [job.resolve_paths(row, path.parent) for row in rows]
     top.close()
     study = Study(name=name, job=job, base=base, options=options, axes=axes,
@@ -139,6 +147,15 @@ def _parse(document: dict, path: Path) -> Study:
     if job.scene_keys:
         _check_scenes(study)
     return study
+
+
+def _grid(table: dict, where: str) -> list[dict]:
+    """Every combination of a grid table's value lists, the first key slowest."""
+    for key, values in table.items():
+        if not isinstance(values, list) or not values:
+            raise StudyError(f"{where}.{key}: expected a non-empty list of values, got "
+                             f"{values!r}")
+    return [dict(zip(table, combo, strict=True)) for combo in itertools.product(*table.values())]
 
 
 def _check_scenes(study: Study) -> None:
