@@ -5,53 +5,32 @@ Ray head (skipped where Ray is not installed), a study interrupted (Ctrl-C) and 
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import pytest
+from test_cli import SMALL_NAPKIN
 
 from taichi_ndf.cli import sweep
 from taichi_ndf.sweep.table import TIMES, read_csv
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# A 16-wide SIREN napkin, 3 Adam iterations, an 8 x 8 output grid: ~9 s of CPU per run,
-# most of it start-up (imports, Taichi's cached kernels) and the outputs.
-SCENE = """
-name = "sweep_napkin"
-[geometry]
-type = "plane"
-bounds = [[0.0, 1.0], [0.0, 1.0]]
-[material]
-preset = "cloth"
-[loads]
-gravity = [0.0, 0.0, -9.81]
-[[boundary.constraint]]
-type = "pinned_point"
-xi = [0.0, 0.0]
-[field]
-width = 16
-[training]
-iterations = 3
-samples = 256
-monitor_every = 3
-monitor_samples = 256
-seed = 7
-[[probes]]
-name = "free_corner"
-xi = [1.0, 1.0]
-[output]
-resolution = [8, 8]
-"""
-
+# tests/test_cli.py's small napkin (a 16-wide SIREN, a 16 x 16 output grid), 3 Adam
+# iterations, seed 7 (set for every run by the study's [options]): ~9 s of CPU per run, most of
+# it start-up (imports, Taichi's cached kernels) and the outputs.
 STUDY = """
 job = "scene"
 base = "scene.toml"
 [options]
 precision = "f64"
+"training.iterations" = 3
+"training.seed" = 7
 [axes]
 "material.stiffness_scale" = [1.0, 2.0]
 loads.gravity = [[0.0, 0.0, -9.81], [0.0, 0.0, -4.9], [0.0, -2.0, -9.81]]
@@ -60,7 +39,7 @@ loads.gravity = [[0.0, 0.0, -9.81], [0.0, 0.0, -4.9], [0.0, -2.0, -9.81]]
 
 def write_study(folder: Path) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "scene.toml").write_text(SCENE)
+    (folder / "scene.toml").write_text(SMALL_NAPKIN.format(lr=1e-3))
     (folder / "study.toml").write_text(STUDY)
     return folder / "study.toml"
 
@@ -114,8 +93,10 @@ def test_ray_gives_the_same_table(pool_study, tmp_path, monkeypatch):
     study, rows = pool_study
     # Node IP 127.0.0.1: with it every Ray server listens on 127.0.0.1 only.
     monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+    # A short session folder: Ray's socket paths must fit in 107 bytes.
+    session = tempfile.mkdtemp(prefix="ndf-ray-", dir="/tmp")
     context = ray.init(_node_ip_address="127.0.0.1", include_dashboard=False, num_cpus=2,
-                       log_to_driver=False, _temp_dir=str(tmp_path / "ray"))
+                       log_to_driver=False, _temp_dir=session)
     try:
         address = context.address_info["gcs_address"]
         assert address.startswith("127.0.0.1:")
@@ -123,6 +104,7 @@ def test_ray_gives_the_same_table(pool_study, tmp_path, monkeypatch):
                               capture_output=True, text=True, env=environment(), timeout=900)
     finally:
         ray.shutdown()
+        shutil.rmtree(session, ignore_errors=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert comparable(read_csv(tmp_path / "out" / "results.csv")) == comparable(rows)
 

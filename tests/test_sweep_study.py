@@ -156,3 +156,15 @@ def test_every_job_names_a_tool_module():
 
     for job in JOBS.values():
         assert importlib.util.find_spec(job.module) is not None, job.module
+
+
+def test_ndf_sim_set_refuses_a_bad_key_in_one_line(tmp_path, capsys):
+    from taichi_ndf.cli import sim
+
+    for assignment, message in [("material.preset=silk", "not a TOML value"),
+                                ("loads.gravty=[0, 0, -1]", "unknown key(s) 'gravty'")]:
+        assert sim.main([str(NAPKIN), "--out", str(tmp_path / "run"), "--set",
+                         assignment]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("ndf-sim: error: ") and message in err and "\n" not in err
+    assert not (tmp_path / "run").exists()

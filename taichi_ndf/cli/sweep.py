@@ -19,7 +19,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from taichi_ndf.cli.common import ArgumentParser
+from taichi_ndf.cli.common import ArgumentParser, interruptible
 from taichi_ndf.sweep.plot import summary_plot
 from taichi_ndf.sweep.ray_engine import EngineError
 from taichi_ndf.sweep.run import RunSpec
@@ -87,6 +87,7 @@ def _line(row: dict) -> str:
     return ", ".join(shown[:3]) + f" ({times})"
 
 
+@interruptible("ndf-sweep")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
