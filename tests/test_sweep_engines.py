@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -87,23 +88,33 @@ def test_local_pool_sweep(pool_study):
     assert again.returncode == 0 and "6 finished before (skipped), 0 to run" in again.stdout
 
 
-def test_ray_gives_the_same_table(pool_study, tmp_path, monkeypatch):
-    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install "
-                              "'taichi-ndf[ray]')")
+def test_ray_gives_the_same_table(pool_study, tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'taichi-ndf[ray]')")
     study, rows = pool_study
-    # Node IP 127.0.0.1: with it every Ray server listens on 127.0.0.1 only.
-    monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
-    # A short session folder: Ray's socket paths must fit in 107 bytes.
+    # A head of its own, in its own session (stopped with its process group), listening on
+    # 127.0.0.1 only: Ray replaces a loopback --node-ip-address by the machine's address
+    # unless RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 (read when ray is imported). A short session
+    # folder: Ray's socket paths must fit in 107 bytes.
     session = tempfile.mkdtemp(prefix="ndf-ray-", dir="/tmp")
-    context = ray.init(_node_ip_address="127.0.0.1", include_dashboard=False, num_cpus=2,
-                       log_to_driver=False, _temp_dir=session)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**environment(), "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
+           "RAY_AUTH_MODE": "disabled"}  # no token: the head is reachable from here only
+    ray_cli = Path(sys.executable).with_name("ray")
+    head = subprocess.Popen([str(ray_cli), "start", "--head", "--block",
+                             "--node-ip-address=127.0.0.1", f"--port={port}",
+                             "--include-dashboard=false", "--disable-usage-stats",
+                             "--num-cpus=2", f"--temp-dir={session}"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
     try:
-        address = context.address_info["gcs_address"]
-        assert address.startswith("127.0.0.1:")
-        done = subprocess.run(sweep_command(study, tmp_path / "out", "--ray", address),
-                              capture_output=True, text=True, env=environment(), timeout=900)
+        done = subprocess.run(sweep_command(study, tmp_path / "out", "--ray",
+                                            f"127.0.0.1:{port}"),
+                              capture_output=True, text=True, env=env, timeout=1500)
     finally:
-        ray.shutdown()
+        os.killpg(head.pid, signal.SIGKILL)  # `ray start --block` ignores SIGTERM
+        head.wait(timeout=60)
         shutil.rmtree(session, ignore_errors=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert comparable(read_csv(tmp_path / "out" / "results.csv")) == comparable(rows)

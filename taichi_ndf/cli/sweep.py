@@ -1,6 +1,6 @@
 """`ndf-sweep STUDY.toml --out DIR`: run every point of a study, one run directory each.
 
-    ndf-sweep STUDY.toml --out DIR [--workers N | --ray auto|local|ADDRESS] [--retry-failed]
+    ndf-sweep STUDY.toml --out DIR [--workers N | --ray auto|ADDRESS] [--retry-failed]
               [--parquet] [-v]
 
 Writes DIR/runs/NAME/ (the tool's usual outputs, NAME made of the point's parameters),
@@ -36,11 +36,10 @@ def build_parser() -> argparse.ArgumentParser:
     engine.add_argument("--workers", type=int, default=1,
                         help="local engine: runs at once, each one process of one thread "
                         "(default 1)")
-    engine.add_argument("--ray", metavar="auto|local|ADDRESS",
+    engine.add_argument("--ray", metavar="auto|ADDRESS",
                         help="run on Ray (the optional extra `ray`): auto = the cluster this "
-                        "machine joined with `ray start`, local = a private one on this "
-                        "machine, or a cluster address HOST:PORT; DIR must be on a file "
-                        "system every node mounts at the same path")
+                        "machine joined with `ray start`, or a cluster address HOST:PORT; "
+                        "DIR must be on a file system every node mounts at the same path")
     p.add_argument("--retry-failed", action="store_true",
                    help="redo the runs that failed or diverged before (default: keep their "
                    "rows)")

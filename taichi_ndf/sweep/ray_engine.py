@@ -4,15 +4,14 @@ Each run is a task of one CPU that calls `run.execute` on whichever node Ray pic
 comes back to this process, which writes the results table. The run directories are written
 by the node that runs them, at the same path: OUT must be on a file system every node mounts
 at the same place (docs/sweeps.md). ``auto`` joins the cluster this machine is part of
-(``ray start`` ran here), ``local`` starts a private one-machine Ray here (listening on
-127.0.0.1 only), anything else is a cluster's address (``HOST:PORT`` or ``ray://HOST:PORT``).
+(``ray start`` ran here), anything else is a cluster's address (``HOST:PORT`` or
+``ray://HOST:PORT``).
 Ray is the optional extra ``ray``.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Callable, Iterable
 
 from taichi_ndf.sweep.run import RunInterrupted, RunSpec, execute
@@ -44,13 +43,8 @@ def _remote_execute(spec: RunSpec) -> dict:
 def connect(address: str) -> None:
     """ray.init for `address` (module docstring); EngineError with one line if it fails."""
     ray = require_ray()
-    if address == "local":
-        os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # node IP 127.0.0.1
-        kwargs = {"include_dashboard": False, "_node_ip_address": "127.0.0.1"}
-    else:
-        kwargs = {"address": address}
     try:
-        ray.init(log_to_driver=False, configure_logging=False, **kwargs)
+        ray.init(address=address, log_to_driver=False, configure_logging=False)
     except (ConnectionError, RuntimeError, ValueError) as err:
         raise EngineError(f"--ray {address}: cannot connect: {str(err).splitlines()[0]}") \
             from None

@@ -28,6 +28,7 @@ from taichi_ndf.sweep.provenance import machine, package_commit
 
 ONE_THREAD = {"TI_CPU_MAX_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
               "OPENBLAS_NUM_THREADS": "1"}
+_CODE_ROOT = str(Path(__file__).resolve().parents[2])  # the folder holding taichi_ndf/
 _DIVERGED = re.compile(r"non-finite|diverg|\bnan\b", re.IGNORECASE)
 _INTERRUPTED = (130, -signal.SIGINT, -signal.SIGTERM)
 
@@ -98,7 +99,9 @@ def execute(spec: RunSpec) -> dict:
     run_dir, log = Path(spec.run_dir), Path(spec.log)
     clear_attempt(run_dir)
     log.parent.mkdir(parents=True, exist_ok=True)
-    env = {**os.environ, **ONE_THREAD}
+    # The tool runs the code this process runs (a Ray worker's checkout, not another copy).
+    path = os.pathsep.join(filter(None, [_CODE_ROOT, os.environ.get("PYTHONPATH")]))
+    env = {**os.environ, **ONE_THREAD, "PYTHONPATH": path}
     started = time.perf_counter()
     with open(f"{log}.out", "w") as out, open(f"{log}.err", "w") as err:
         process = subprocess.Popen(spec.command, stdout=out, stderr=err, env=env,

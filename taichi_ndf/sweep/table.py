@@ -65,7 +65,8 @@ class ResultsTable:
     def columns(self) -> list[str]:
         named = set(LEADING) | set(self.axes) | set(STATUS) | set(TRAILING)
         outputs = [k for i in sorted(self.rows) for k in self.rows[i] if k not in named]
-        return [*LEADING, *self.axes, *STATUS, *dict.fromkeys(outputs), *TRAILING]
+        return [*LEADING, *self.axes, *STATUS, *dict.fromkeys(outputs),
+                *(k for k in TRAILING if k not in self.axes)]
 
     def records(self) -> list[dict]:
         """The rows in study order as cells, every column present ('' where a row lacks it)."""
