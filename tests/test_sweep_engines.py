@@ -120,6 +120,12 @@ def test_ray_gives_the_same_table(pool_study, tmp_path):
     assert comparable(read_csv(tmp_path / "out" / "results.csv")) == comparable(rows)
 
 
+def default_sigint() -> None:
+    """In the child: SIGINT as a terminal delivers it (a test run in the background of a
+    non-interactive shell inherits SIGINT ignored, and so would its children)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def wait_for_rows(out: Path, count: int, process: subprocess.Popen) -> None:
     deadline = time.monotonic() + 600
     while len(list((out / "rows").glob("*.json"))) < count:
@@ -134,7 +140,7 @@ def test_stopped_and_killed_study_resumes_to_the_same_table(pool_study, tmp_path
     # Ctrl-C (SIGINT to the process group, as a terminal sends it) after the first run.
     process = subprocess.Popen(sweep_command(study, out, "--workers", "2"), env=environment(),
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)
+                               start_new_session=True, preexec_fn=default_sigint)
     wait_for_rows(out, 1, process)
     os.killpg(process.pid, signal.SIGINT)
     _, err = process.communicate(timeout=300)
