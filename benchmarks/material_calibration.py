@@ -27,14 +27,7 @@ import numpy as np
 import torch
 
 import taichi_ndf
-from inverse.material.calibration import CASES, Calibration, calibrate
-from inverse.material.newton_fit import newton_estimate
-
-
-def newton(observations, unknowns):
-    result = newton_estimate(observations, unknowns)
-    e = result.estimate
-    return e.values, e.standard_errors, result.fisher_errors, result.discretisation
+from inverse.material.calibration import CASES, Calibration, calibrate, newton_fit
 
 
 def rows(cal: Calibration, names: list[str]) -> list[dict]:
@@ -101,7 +94,7 @@ def main() -> None:
               f"{accuracy})")
         names = [u.name for u in case.unknowns]
         for noise in [0.0, *args.noise]:
-            cal = calibrate(case, newton, noise, args.draws)
+            cal = calibrate(case, newton_fit, noise, args.draws)
             for r in rows(cal, names):
                 r["observation_error_m"] = case.observation_error
                 r["observation_order"] = case.observation_order

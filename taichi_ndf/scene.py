@@ -34,6 +34,7 @@ from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.run_size import check_run_size
 from taichi_ndf.scene_contact import parse_contact
 from taichi_ndf.scene_field import field_config, newton_training, with_field_type
+from taichi_ndf.scene_overrides import apply_overrides
 from taichi_ndf.scene_schema import SceneError, Table, read_toml
 from taichi_ndf.scene_schema import checked as _check
 from taichi_ndf.shell.materials import (
@@ -76,11 +77,13 @@ class Scene:
 
 
 def load_scene(path: str | Path, *, material: str | None = None,
-               field: str | None = None) -> Scene:
+               field: str | None = None, overrides: dict[str, object] | None = None) -> Scene:
     """Read and validate a scene file; relative paths inside it are relative to the file.
 
     material: a preset name that replaces the scene's [material] table.
     field: "siren" or "spline" to solve the scene with that field (`with_field_type`).
+    overrides: scene keys set after those two, {"loads.gravity": [0, 0, -5], ...}
+    (`taichi_ndf.scene_overrides`; `ndf-sim --set`).
     """
     path = Path(path)
     document = read_toml(path, "scene file")
@@ -88,6 +91,8 @@ def load_scene(path: str | Path, *, material: str | None = None,
         document["material"] = {"preset": material}
     if field is not None:
         document = with_field_type(document, field)
+    if overrides:
+        document = apply_overrides(document, overrides)
     return parse_scene(document, base_dir=path.parent, path=path)
 
 

@@ -221,23 +221,36 @@ class Calibration:
             return (inside & finite).sum(axis=0) / finite.sum(axis=0)
 
 
+def newton_fit(observations: list[Observation], unknowns: list[Unknown]) -> tuple:
+    """The calibrated estimator: `newton_estimate` with its defaults (grid rule, cubic, band
+    2, grids h and h/2) -> (values, standard errors, Fisher part, discretisation part)."""
+    from inverse.material.newton_fit import newton_estimate
+
+    result = newton_estimate(observations, unknowns)
+    e = result.estimate
+    return e.values, e.standard_errors, result.fisher_errors, result.discretisation
+
+
+def fit_draw(case: Case, estimator: Callable[[list[Observation], list[Unknown]], tuple],
+             noise: float, seed: int) -> Draw:
+    """One fit of the case's observation with noise `noise` drawn with `seed` (seed 0: the
+    noise-free observation), timed (wall and this process's CPU time)."""
+    observation = case.observation.with_noise(noise, seed=seed) if seed else case.observation
+    started, cpu = time.perf_counter(), time.process_time()
+    values, errors, fisher, part = estimator([observation], case.unknowns)
+    draw = Draw(seed, np.asarray(values), np.asarray(errors), np.asarray(fisher),
+                np.asarray(part), time.perf_counter() - started, time.process_time() - cpu)
+    log.info("%s noise %g seed %d: %s ± %s (Fisher %s; forward model %s; %.1f s, CPU %.1f s)",
+             case.name, noise, seed, draw.values.tolist(), draw.errors.tolist(),
+             draw.fisher.tolist(), draw.model_part.tolist(), draw.seconds, draw.cpu_seconds)
+    return draw
+
+
 def calibrate(case: Case, estimator: Callable[[list[Observation], list[Unknown]], tuple],
               noise: float, draws: int) -> Calibration:
     """Fit `draws` noisy copies of the case's observation (seeds 1..draws; noise 0: one
     noise-free fit). estimator(observations, unknowns) -> (values, standard errors, Fisher
     part, forward-model part), absolute."""
     seeds = [0] if noise == 0 else list(range(1, draws + 1))
-    out = []
-    for seed in seeds:
-        observation = case.observation.with_noise(noise, seed=seed) if seed else \
-            case.observation
-        started, cpu = time.perf_counter(), time.process_time()
-        values, errors, fisher, part = estimator([observation], case.unknowns)
-        out.append(Draw(seed, np.asarray(values), np.asarray(errors), np.asarray(fisher),
-                        np.asarray(part), time.perf_counter() - started,
-                        time.process_time() - cpu))
-        log.info("%s noise %g seed %d: %s ± %s (Fisher %s; forward model %s; %.1f s, CPU %.1f s)",
-                 case.name, noise, seed, out[-1].values.tolist(), out[-1].errors.tolist(),
-                 out[-1].fisher.tolist(), out[-1].model_part.tolist(), out[-1].seconds,
-                 out[-1].cpu_seconds)
-    return Calibration(case.name, noise, case.truth, out)
+    return Calibration(case.name, noise, case.truth,
+                       [fit_draw(case, estimator, noise, seed) for seed in seeds])

@@ -28,6 +28,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, help="samples per iteration (overrides scene)")
     p.add_argument("--material", help="replace the scene's material by a preset (cloth, "
                    "denim, cotton_polyester, ...: docs/scenes.md, \"Material presets\")")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a scene key before the scene is validated, VALUE in TOML "
+                   "(repeatable): --set material.stiffness_scale=0.5 --set "
+                   "'loads.gravity=[0, 0, -5]' (docs/scenes.md)")
     p.add_argument("--field", choices=("siren", "spline"),
                    help="solve with this field type: spline = a B-spline field solved by "
                    "projected Newton on the grid rule's grid (docs/scenes.md); keeps the "
@@ -69,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     from taichi_ndf.io.memory import check_export_memory
     from taichi_ndf.outputs import exports_on_template
     from taichi_ndf.run_size import check_run_size
+    from taichi_ndf.scene_overrides import parse_assignment
     from taichi_ndf.scene_schema import SceneError
     from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
 
@@ -76,7 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from taichi_ndf.scene import load_scene, trains_the_field
 
-        scene = load_scene(args.scene, material=args.material, field=args.field)
+        scene_keys = dict(parse_assignment(text) for text in args.set)
+        scene = load_scene(args.scene, material=args.material, field=args.field,
+                           overrides=scene_keys)
         solver = scene.quick_solver if args.quick else scene.solver
         if args.refine is not None:
             scene = refined_scene(scene, args.refine)
