@@ -12,7 +12,8 @@ Measured (2026-12-03, f32, 2-core VM at load 2–5): 64 s CPU (46 s wall); Π �
 32 × 32 spans, extrapolated −1.6569 ± 0.017 J (observed order 0.84 from 3 grids, expected 4:
 the point pin); the corner hangs 1.4376 ± 0.0013 m, 1.66 % beyond √2 m. The spline path is
 the default because it reaches the lower Π: the SIREN's 800 Adam iterations end at
-−1.4604 J, 9.8 % above the spline's 8 × 8 grid (−1.6030 J; benchmarks/RESULTS.md, comparison table, 2026-12-03, load 23).
+−1.4604 J, 9.8 % above the spline's 8 × 8 grid (−1.6030 J; benchmarks/RESULTS.md,
+comparison table, 2026-12-03, load 23).
 
 Any further option goes to `ndf-sim` (e.g. --material canvas, --overwrite, --arch cuda).
 """
