@@ -76,22 +76,28 @@ def add_runtime_options(parser: argparse.ArgumentParser, *, precision: str = "f3
                         f"{precision})")
     parser.add_argument("--seed", type=_seed, default=seed, help=seed_help)
     parser.add_argument("--threads", type=_positive_int, default=1,
-                        help="torch CPU threads (default 1: Taichi's kernels run on their own "
-                        "pool of all cores, and torch's spinning OpenMP threads competing with it "
-                        "were measured 5-20x slower on a 2-core CPU)")
+                        help="CPU threads of torch and of numpy's and scipy's BLAS (default 1: "
+                        "Taichi's kernels run on their own pool of all cores, and torch's and "
+                        "BLAS's spinning threads competing with it were measured 5-20x and 1.7x "
+                        "slower on a 2-core CPU)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
 
 
 def start(args: argparse.Namespace):
-    """Logging, torch's thread count and the Taichi runtime (`taichi_ndf.runtime.Runtime`)
-    from the runtime options."""
+    """Logging, the thread count of torch and of numpy's and scipy's BLAS, and the Taichi
+    runtime (`taichi_ndf.runtime.Runtime`) from the runtime options."""
     import torch
+    from threadpoolctl import threadpool_limits
 
     import taichi_ndf
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(args.threads)
+    # numpy and scipy each load an OpenBLAS that starts one thread per core: beside Taichi's
+    # pool they spin for the cores (ndf-sft on φ-SfT R1, 2 cores: 2.59 -> 1.53 s CPU per frame,
+    # 116 -> 84 s wall with one BLAS thread; the same meshes).
+    threadpool_limits(args.threads)
     return taichi_ndf.init(arch=args.arch, precision=args.precision,
                            seed=0 if args.seed is None else args.seed)
 
