@@ -61,17 +61,23 @@ def test_every_solving_tool_has_overwrite_and_precision():
 
 
 def test_the_summary_gives_the_extrapolated_values_with_their_errors():
+    from taichi_ndf.minimise.refinement import richardson
+
+    def study(values):
+        return {"values": values, **richardson(values, order=4.0).to_dict()}
+
     result = {"energy": -1.6, "iterations": 12, "wall_time": 3.0,
               "probes": {"corner": [0.1, 0.2, -1.4]},
-              "refinement": {"energy": {"values": [-1.5, -1.6], "extrapolated": -1.62,
-                                        "estimated_error": 0.003},
-                             "probes": {"corner": [
-                                 {"extrapolated": 0.11, "estimated_error": 0.001},
-                                 {"extrapolated": 0.21, "estimated_error": 0.002},
-                                 {"extrapolated": -1.43, "estimated_error": 0.004}]}}}
+              "refinement": {"energy": study([-1.5, -1.6]),
+                             "probes": {"corner": [study([0.12, 0.11]), study([0.22, 0.21]),
+                                                   study([-1.42, -1.43])]}}}
     lines = sim.summary_lines("napkin", result)
-    assert lines[1] == "  Π extrapolated over 2 grids: -1.62 ± 0.003 J"
-    assert "extrapolated (0.11 ± 0.001, 0.21 ± 0.002, -1.43 ± 0.004) m" in lines[2]
+    energy = result["refinement"]["energy"]
+    assert lines[1] == f"  refinement over 2 grids: Π → {energy['text']} J"
+    assert "assumed" in lines[1] and "± 0.1" in lines[1]  # two grids: the whole change
+    # order 4 assumed: v + (v - v_coarse) / 15, error = the whole change
+    assert "extrapolated (0.10933 ± 0.01, 0.20933 ± 0.01, -1.4307 ± 0.01) m (order assumed)" \
+        in lines[2]
     assert len(sim.summary_lines("napkin", {**result, "refinement": None})) == 2
 
 

@@ -37,6 +37,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from test_cli import RUNTIME, small_napkin
 
+from taichi_ndf import simulation
 from taichi_ndf.cli import export, sim
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -142,7 +143,7 @@ def sim_refuses_or_accepts(scene_path: Path, folder: Path, existing: bool,
     if existing:  # refused as not empty once the scene passes: every check before is run
         out.mkdir()
         (out / "result.json").write_text("previous run")
-    with mock.patch.object(sim, "simulate", fake_simulate):
+    with mock.patch.object(simulation, "simulate", fake_simulate):
         code, err = run_tool(sim.main, [str(scene_path), "--out", str(out), *extra, *RUNTIME])
     assert_clean(code, err)
     if existing:
@@ -157,7 +158,7 @@ def sim_refuses_or_accepts(scene_path: Path, folder: Path, existing: bool,
 @pytest.mark.parametrize("scene", SCENES, ids=[p.stem for p in SCENES])
 def test_shipped_scenes_pass_the_command_line_checks(tmp_path, scene):
     out = tmp_path / "run"
-    with mock.patch.object(sim, "simulate", fake_simulate):
+    with mock.patch.object(simulation, "simulate", fake_simulate):
         code, err = run_tool(sim.main, [str(scene), "--out", str(out), *RUNTIME])
     assert code == 0, err
 

@@ -139,7 +139,7 @@ def summary_lines(name: str, result: dict) -> list[str]:
              f"in {result['wall_time']:.1f} s"]
     if refinement:
         e = refinement["energy"]
-        lines.append(f"  refinement over {len(refinement['spans'])} grids: Π → {e['text']} J")
+        lines.append(f"  refinement over {len(e['values'])} grids: Π → {e['text']} J")
         if e.get("warning"):
             lines.append(f"  warning: {e['warning']}")
     for probe, u in result["probes"].items():
