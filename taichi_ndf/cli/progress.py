@@ -1,6 +1,6 @@
 """How the command-line tools show `taichi_ndf.progress` reports: on a terminal a tqdm bar
 per stage (its steps, the reported values, elapsed time; a stage inside another draws below
-it and disappears when done); otherwise one line per finished stage on stderr (stages at most
+it and disappears when done); otherwise one line per finished stage on stdout (stages at most
 one deep: a line per grid level, load step or fit, not per equilibrium inside a fit)."""
 
 from __future__ import annotations
@@ -15,11 +15,16 @@ from taichi_ndf import progress
 
 class ProgressDisplay:
     """A `taichi_ndf.progress` listener (see the module docstring). stream: where it writes
-    (default stderr); terminal: draw bars (default: whether the stream is a terminal)."""
+    (default: stderr where that is a terminal, else stdout); terminal: draw bars (default:
+    whether the stream is a terminal)."""
 
     def __init__(self, prog: str, *, stream=None, terminal: bool | None = None):
         self.prog = prog
-        self.stream = sys.stderr if stream is None else stream
+        if stream is None:  # bars on a terminal's stderr; off a terminal the stage lines are
+            # part of the run's record, on stdout, so that stderr holds only warnings and the
+            # one line that names a failure
+            stream = sys.stderr if sys.stderr.isatty() else sys.stdout
+        self.stream = stream
         self.terminal = self.stream.isatty() if terminal is None else terminal
         self.bars: dict[str, object] = {}  # stage name -> its open tqdm bar
 
