@@ -12,7 +12,7 @@ from inverse.sft.degradations import CLEAN, Degradations
 from inverse.sft.inputs import load_inputs
 from inverse.sft.synth import SynthConfig, flat_sheet, generate, write_sequence
 from taichi_ndf.io import read_mesh
-from taichi_ndf.render import uv_to_texture_pixels
+from taichi_ndf.render import texture_pixels_to_uv, uv_to_texture_pixels
 
 SMALL = dict(frames=3, image_size=(160, 120), focal=150.0, texture_size=(256, 192),
              cells=(8, 6), supersample=2)
@@ -153,3 +153,11 @@ def test_command_line_writes_a_sequence(tmp_path):
     settings = json.loads((tmp_path / "cli" / "synth.json").read_text())
     assert settings["config"]["sequence"] == "fold"
     assert settings["command"].startswith("python -m inverse.sft.synth --out")
+
+
+def test_texture_pixels_to_uv_inverts_the_uv_convention():
+    # texel (col, row) of a W x H texture has its centre at ((col + ½)/W, 1 − (row + ½)/H)
+    assert np.allclose(texture_pixels_to_uv([[0.0, 0.0], [3.0, 1.0]], 4, 2),
+                       [[0.125, 0.75], [0.875, 0.25]])
+    uv = np.random.default_rng(0).random((50, 2))
+    assert np.allclose(texture_pixels_to_uv(uv_to_texture_pixels(uv, 640, 480), 640, 480), uv)

@@ -53,6 +53,7 @@ from inverse.sft.inputs import (
 )
 from inverse.sft.limits import check_image_folder_memory
 from taichi_ndf.io import read_mesh
+from taichi_ndf.render import texture_pixels_to_uv
 
 log = logging.getLogger(__name__)
 
@@ -123,9 +124,7 @@ def best_axes(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
 def projected_uvs(vertices: np.ndarray, camera: Camera) -> np.ndarray:
     """UVs (V, 2) of vertices (V, 3) [m] in a texture that is the camera's own image: pixel
     (x, y) (centres at integers) is UV ((x + ½) / W, 1 − (y + ½) / H) (docs/sft.md §1)."""
-    xy = camera.project(vertices)
-    return np.column_stack([(xy[:, 0] + 0.5) / camera.width,
-                            1.0 - (xy[:, 1] + 0.5) / camera.height])
+    return texture_pixels_to_uv(camera.project(vertices), camera.width, camera.height)
 
 
 def load_capture(folder: str | Path, *, pinned: Sequence[int] | None = None) -> Capture:

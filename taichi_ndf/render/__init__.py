@@ -16,7 +16,11 @@ from taichi_ndf.render.raster import (
     supersampled_intrinsics,
 )
 from taichi_ndf.render.shaded import colormap, render_shaded
-from taichi_ndf.render.textured import render_textured, uv_to_texture_pixels
+from taichi_ndf.render.textured import (
+    render_textured,
+    texture_pixels_to_uv,
+    uv_to_texture_pixels,
+)
 from taichi_ndf.render.video import count_video_frames, write_video
 
 __all__ = [
@@ -27,6 +31,7 @@ __all__ = [
     "downsample",
     "supersampled_intrinsics",
     "render_textured",
+    "texture_pixels_to_uv",
     "uv_to_texture_pixels",
     "Camera",
     "frame_mesh",

@@ -21,6 +21,16 @@ def uv_to_texture_pixels(uvs: np.ndarray, texture_width: int, texture_height: in
     return np.stack([x, y], axis=-1)
 
 
+def texture_pixels_to_uv(pixels: np.ndarray, texture_width: int,
+                         texture_height: int) -> np.ndarray:
+    """UVs (..., 2) of texture pixel coordinates (..., 2): the inverse of
+    `uv_to_texture_pixels` (same conventions)."""
+    pixels = np.asarray(pixels, dtype=np.float64)
+    u = (pixels[..., 0] + 0.5) / texture_width
+    v = 1.0 - (pixels[..., 1] + 0.5) / texture_height
+    return np.stack([u, v], axis=-1)
+
+
 def render_textured(
     points_cam: np.ndarray,
     faces: np.ndarray,
