@@ -79,15 +79,15 @@ def napkin_siren(count: int, callbacks=()):
     import dataclasses
 
     from taichi_ndf.field import NeuralField
+    from taichi_ndf.output_scale import field_for_run
     from taichi_ndf.scene import load_scene
-    from taichi_ndf.scene_field import field_for_solver
     from taichi_ndf.solver import Solver
 
     scene = load_scene(NAPKIN)
     config = dataclasses.replace(scene.solver, iterations=count, progress=False,
                                  monitor_every=count, checkpoint_every=0)
-    field = NeuralField(field_for_solver(scene.field, scene.document, scene.model, config),
-                        seed=config.seed)
+    field = NeuralField(field_for_run(scene.field, scene.output_scale_estimate, scene.model,
+                                      config), seed=config.seed)
     return Solver(scene.model, field, config).run(callbacks=callbacks)
 
 

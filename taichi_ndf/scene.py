@@ -28,15 +28,15 @@ from taichi_ndf.geometry import Annulus, Cone, Cylinder, CylindricalRoof, Hemisp
 from taichi_ndf.line_loads import LineLoad, edge_path
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
-from taichi_ndf.optim import AdamConfig
 from taichi_ndf.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
 from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.run_size import check_run_size
 from taichi_ndf.scene_contact import parse_contact
-from taichi_ndf.scene_field import field_config, newton_training, with_field_type
+from taichi_ndf.scene_field import field_config, with_field_type
 from taichi_ndf.scene_overrides import apply_overrides
 from taichi_ndf.scene_schema import SceneError, Table, read_toml
 from taichi_ndf.scene_schema import checked as _check
+from taichi_ndf.scene_training import training
 from taichi_ndf.shell.materials import (
     PRESETS,
     ClydeFabric,
@@ -74,6 +74,10 @@ class Scene:
     output: OutputConfig
     path: Path
     document: dict  # the parsed TOML, for result.json
+    # The output-scale estimate a SIREN's [field] names ("auto", "equilibrium", "linear",
+    # "dimensional": `scaling.SCALE_ESTIMATES`), made when a run starts where it solves
+    # (`output_scale.field_for_run`); None: a number given, or a spline field.
+    output_scale_estimate: str | None = None
 
 
 def load_scene(path: str | Path, *, material: str | None = None,
@@ -108,8 +112,8 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     probes = tuple(Probe(t.string("name"), t.vector("xi", 2)) for t in top.tables("probes"))
     model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
     model = replace(model, contact=parse_contact(top, model, base_dir))
-    field = _section(top.table("field", optional=True), field_config, model)
-    solver, quick = _section(top.table("training", optional=True), _training,
+    field, estimate = _section(top.table("field", optional=True), field_config, model)
+    solver, quick = _section(top.table("training", optional=True), training,
                              isinstance(field, SplinePlan))
     output = _section(top.table("output", optional=True), _output, solver.pseudo_time)
     if solver.pseudo_time and isinstance(field, SplinePlan):
@@ -127,7 +131,7 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     top.close()
     scene = Scene(name=name, description=description, model=model, field=field, solver=solver,
                   quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
-                  document=document)
+                  document=document, output_scale_estimate=estimate)
     try:
         check_run_size(scene, solver)  # its sizes fit the memory, before any work
     except ValueError as err:
@@ -300,88 +304,6 @@ def _boundary(t: Table, surface) -> BoundaryConditions:
             raise SceneError(f"{t.key('frame')}: expected three 3-vectors [e_x, e_y, e_z]")
         kwargs["frame"] = frame
     return BoundaryConditions(constraints, surface.domain, surface=surface, **kwargs)
-
-
-def _adam(t: Table) -> dict:
-    lr = t.number("learning_rate", 1e-3, positive=True)
-    return {"lr": lr,
-            "schedule": t.string("schedule", "exponential",
-                                 choices=("constant", "exponential", "cosine")),
-            "final_ratio": t.number("final_learning_rate_ratio", 0.1, positive=True),
-            "grad_clip": t.number("grad_clip", None)}
-
-
-def trains_the_field(config: SolverConfig) -> bool:
-    """Whether `config` runs any optimisation at all (Adam, L-BFGS or Newton iterations)."""
-    return config.iterations > 0 or config.lbfgs_iterations > 0 or config.newton_iterations > 0
-
-
-def adam_config(lr: float, schedule: str, final_ratio: float, grad_clip: float | None,
-                total_steps: int) -> AdamConfig:
-    """Adam whose learning rate falls from `lr` to `final_ratio`·lr over `total_steps`
-    (exponentially or along a cosine), or stays constant."""
-    total_steps = max(int(total_steps), 1)
-    return AdamConfig(lr=lr, schedule=schedule, decay_rate=min(final_ratio, 1.0),
-                      decay_steps=total_steps, total_steps=total_steps,
-                      min_lr=min(final_ratio, 1.0) * lr, grad_clip=grad_clip)
-
-
-def _solver(t: Table, adam: dict, defaults: SolverConfig | None = None) -> SolverConfig:
-    d = defaults or SolverConfig()
-    steps = t.numbers("load_steps", d.load_steps)
-    iterations = t.integer("iterations", d.iterations, minimum=0)
-    config = SolverConfig(
-        iterations=iterations,
-        samples=t.integer("samples", d.samples, minimum=16),
-        adam=adam_config(**adam, total_steps=iterations * len(steps)),
-        load_steps=steps,
-        monitor_every=t.integer("monitor_every", d.monitor_every, minimum=1),
-        monitor_samples=t.integer("monitor_samples", d.monitor_samples, minimum=16),
-        checkpoint_every=t.integer("checkpoint_every", d.checkpoint_every, minimum=0),
-        lbfgs_iterations=t.integer("lbfgs_iterations", d.lbfgs_iterations, minimum=0),
-        newton_iterations=t.integer("newton_iterations", d.newton_iterations, minimum=0),
-        newton_every=t.integer("newton_every", d.newton_every, minimum=0),
-        newton_samples=t.integer("newton_samples", d.newton_samples, minimum=16),
-        seed=t.integer("seed", d.seed),
-    )
-    if not trains_the_field(config):
-        raise SceneError(f"{t.key('iterations')}: must be >= 1 (or lbfgs_iterations or "
-                         "newton_iterations > 0): nothing would train the field")
-    return config
-
-
-def _training(t: Table, spline: bool) -> tuple[SolverConfig, SolverConfig]:
-    method = t.string("method", "newton" if spline else "adam", choices=("adam", "newton"))
-    if method == "newton":
-        if not spline:
-            raise SceneError(f"{t.key('method')}: \"newton\" (projected Newton) needs [field] "
-                             "type = \"spline\"; a SIREN field trains with \"adam\" (and its "
-                             "last-layer Newton phases: newton_iterations)")
-        return newton_training(t)
-    adam = _adam(t)
-    quick_table = t.table("quick", optional=True)
-    solver = _solver(t, adam)
-    # The pseudo-time keys shape the field (an extra input), so [training.quick] has none.
-    pseudo_time = t.boolean("pseudo_time", False)
-    start = t.number("pseudo_time_start", 0.0, nonnegative=True)
-    if t.has("pseudo_time_start") and not pseudo_time:
-        raise SceneError(f"{t.key('pseudo_time_start')}: needs pseudo_time = true")
-    if start >= solver.load_steps[0]:
-        raise SceneError(f"{t.key('pseudo_time_start')}: must be below the first load step "
-                         f"{solver.load_steps[0]}, got {start}")
-    if pseudo_time and solver.newton_iterations:
-        raise SceneError(f"{t.key('pseudo_time')}: not available with newton_iterations > 0 "
-                         f"(the last-layer Newton solver has no pseudo-time input)")
-    solver = replace(solver, pseudo_time=pseudo_time, pseudo_time_start=start)
-    quick_defaults = replace(solver, iterations=min(solver.iterations, 30),
-                             samples=min(solver.samples, 512), monitor_every=10,
-                             monitor_samples=min(solver.monitor_samples, 2048),
-                             lbfgs_iterations=0, checkpoint_every=0)
-    quick = _check(lambda: replace(_solver(quick_table, adam, quick_defaults),
-                                   pseudo_time=pseudo_time, pseudo_time_start=start),
-                   quick_table.path)
-    quick_table.close()
-    return solver, quick
 
 
 def _output(t: Table, pseudo_time: bool) -> OutputConfig:

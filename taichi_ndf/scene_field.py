@@ -1,45 +1,28 @@
-"""The [field] table of a scene (a SIREN or a spline field), the [training] table of a
-projected-Newton run, and the field-type switch of `ndf-sim --field` (docs/scenes.md)."""
+"""The [field] table of a scene (a SIREN or a spline field) and the field-type switch of
+`ndf-sim --field` (docs/scenes.md)."""
 
 from __future__ import annotations
 
-import logging
 import math
-from dataclasses import replace
-from itertools import pairwise
 
 from taichi_ndf.field import FieldConfig, SplineConfig
 from taichi_ndf.model import ShellModel
 from taichi_ndf.pseudo_time import DEFAULT_FRAMES
+from taichi_ndf.scaling import SCALE_ESTIMATES, characteristic_displacement
 from taichi_ndf.scene_schema import SceneError, Table
 from taichi_ndf.spline_grid import SplinePlan, auto_span_length, spans_for
-from taichi_ndf.training import LINEAR_SOLVERS, NEWTON_MAX_ITERATIONS, SolverConfig
-
-log = logging.getLogger(__name__)
 
 SIREN_KEYS = ("width", "hidden_layers", "omega0", "output_scale")
 SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
 FIELD_TYPES = ("siren", "spline")
-# output_scale estimates (`scaling`), each falling back to the cheaper ones after it; "auto"
-# is AUTO_ESTIMATE: the equilibrium one, the displacement of a coarse projected-Newton solve
-# (docs/scenes.md, "Field output scale": measured against the dimensional guess, which is off
-# by up to 260× on a cantilever). A longer Adam step (lr × scale) than the dimensional one made
-# flag and napkin_handles diverge; the learning-rate backoff (`taichi_ndf.backoff`) answers that.
-SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
-AUTO_ESTIMATE = "equilibrium"
-# The estimates that need a solve at run start, in the order tried for each name; the
-# dimensional estimate, set when the scene is read, is what remains if all of them fail.
-RUNTIME_ESTIMATES = {"equilibrium": ("equilibrium", "linear"), "linear": ("linear",),
-                     "dimensional": ()}
-# Fewer Adam iterations in all (a --quick smoke test: 1-15 per load step) keep the dimensional
-# estimate: the estimate's solve (0.4-40 s, 106 s with a mesh obstacle) would cost more than
-# the run.
-MIN_ESTIMATE_ITERATIONS = 100
-ESTIMATE_FUNCTIONS = {"equilibrium": "equilibrium_displacement",
-                      "linear": "linear_displacement"}
 
 
-def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
+def field_config(t: Table, model: ShellModel) -> tuple[FieldConfig | SplinePlan, str | None]:
+    """The [field] table: a SIREN's configuration or a spline field's grids, and the
+    output-scale estimate the SIREN names (one of `scaling.SCALE_ESTIMATES`; None: a number
+    given, or a spline field). An estimated scale holds the dimensional estimate
+    (`scaling.characteristic_displacement`, no solve); those that solve are made when a run
+    starts (`taichi_ndf.output_scale.field_for_run`)."""
     kind = t.string("type", "siren", choices=FIELD_TYPES)
     foreign = SPLINE_KEYS if kind == "siren" else SIREN_KEYS
     for key in foreign:
@@ -48,11 +31,10 @@ def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
                              f"not used with field.type = {kind!r}")
     domain = model.surface.domain
     if kind == "spline":
-        return _spline(t, model)
+        return _spline(t, model), None
     scale = t._get("output_scale", "auto")
-    if scale in SCALE_ESTIMATES:
-        from taichi_ndf.scaling import characteristic_displacement
-
+    estimate = scale if scale in SCALE_ESTIMATES else None
+    if estimate is not None:
         scale = characteristic_displacement(model)
     elif isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
         raise SceneError(f"{t.key('output_scale')}: expected one of "
@@ -62,35 +44,7 @@ def field_config(t: Table, model: ShellModel) -> FieldConfig | SplinePlan:
                        hidden_layers=t.integer("hidden_layers", 3, minimum=1),
                        omega0=t.number("omega0", 30.0, positive=True),
                        domain=domain.bounds, periodic=domain.periodic,
-                       output_scale=float(scale))
-
-
-def field_for_solver(field: FieldConfig, document: dict, model: ShellModel,
-                     config: SolverConfig) -> FieldConfig:
-    """The SIREN configuration a run with `config` trains. A scene is read without a runtime,
-    so an estimated `output_scale` holds the dimensional estimate until the run starts; where
-    Adam trains the field for at least MIN_ESTIMATE_ITERATIONS iterations over all load steps,
-    "equilibrium" and "linear" (and "auto", which is AUTO_ESTIMATE) become their estimate of
-    `model` (`scaling`; each falls back to the next cheaper one, "equilibrium" -> "linear" ->
-    "dimensional", with a logged warning naming why). Elsewhere (last-layer Newton only: the
-    output layer absorbs the scale; a short smoke test) the dimensional estimate is kept."""
-    table = document.get("field", {})
-    name = table.get("output_scale", "auto") if isinstance(table, dict) else "auto"
-    if (name not in SCALE_ESTIMATES
-            or config.iterations * len(config.load_steps) < MIN_ESTIMATE_ITERATIONS):
-        return field
-    from taichi_ndf import scaling
-
-    chain = (*RUNTIME_ESTIMATES[AUTO_ESTIMATE if name == "auto" else name], "dimensional")
-    for estimate, fallback in pairwise(chain):
-        try:
-            scale = getattr(scaling, ESTIMATE_FUNCTIONS[estimate])(model)
-        except (ValueError, RuntimeError) as err:
-            log.warning("output_scale = %r: the %s estimate failed (%s); trying the %s "
-                        "estimate", name, estimate, err, fallback)
-            continue
-        return replace(field, output_scale=scale)
-    return field  # the dimensional estimate, set when the scene was read
+                       output_scale=float(scale)), estimate
 
 
 def _spline(t: Table, model: ShellModel) -> SplinePlan:
@@ -129,34 +83,6 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
     points = t.integer("quadrature_points", degree + 1, minimum=1)
     return SplinePlan(config, levels=t.integer("levels", 1, minimum=1),
                       quadrature_points=points)
-
-
-NEWTON_KEYS = ("method", "load_steps", "seed", "newton_max_iterations", "newton_tolerance",
-               "linear_solver")
-
-
-def newton_training(t: Table) -> tuple[SolverConfig, SolverConfig]:
-    for key in sorted(t.data):
-        if key not in NEWTON_KEYS:
-            raise SceneError(f"{t.key(key)}: not used by method = \"newton\" (its keys: "
-                             f"{', '.join(NEWTON_KEYS)})")
-    solver = SolverConfig(
-        method="newton", load_steps=t.numbers("load_steps", (1.0,)), seed=t.integer("seed", 0),
-        newton_max_iterations=t.integer("newton_max_iterations", NEWTON_MAX_ITERATIONS,
-                                        minimum=1),
-        newton_tolerance=_tolerance(t),
-        linear_solver=t.string("linear_solver", "auto", choices=LINEAR_SOLVERS))
-    return solver, replace(solver, max_levels=1)
-
-
-def _tolerance(t: Table) -> float | None:
-    if not t.has("newton_tolerance"):
-        return None
-    value = t._get("newton_tolerance", None)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1:
-        raise SceneError(f"{t.key('newton_tolerance')}: expected a number in (0, 1) (λ²/2 "
-                         f"relative to |Π|), got {value!r}")
-    return float(value)
 
 
 def with_field_type(document: dict, kind: str) -> dict:

@@ -18,6 +18,7 @@ from taichi_ndf.extras import MissingExtra
 from taichi_ndf.field import NeuralField, SplineField
 from taichi_ndf.io import OutputDir, read_mesh
 from taichi_ndf.io.run_files import read_run, up_direction
+from taichi_ndf.output_scale import field_for_run
 from taichi_ndf.outputs import (
     DeformedMesh,
     deformed_mesh,
@@ -33,7 +34,6 @@ from taichi_ndf.outputs import (
 )
 from taichi_ndf.pseudo_time import frame_times
 from taichi_ndf.scene import Scene, parse_scene
-from taichi_ndf.scene_field import field_for_solver
 from taichi_ndf.scene_schema import SceneError
 from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
 from taichi_ndf.spline_grid import SplinePlan
@@ -86,7 +86,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         stored = read_checkpoint(out.file("checkpoint.pt"))["architecture"]
         field_config = dataclasses.replace(scene.field, output_scale=stored.output_scale)
     else:
-        field_config = field_for_solver(scene.field, scene.document, scene.model, config)
+        field_config = field_for_run(scene.field, scene.output_scale_estimate, scene.model,
+                                     config)
     field = NeuralField(field_config, seed=seed)
     step_frames = len(config.load_steps) > 1 and not config.pseudo_time
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh

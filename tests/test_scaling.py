@@ -1,5 +1,6 @@
-"""output_scale estimates (`taichi_ndf.scaling`) against solved displacements, and which
-estimate a run gets (`scene_field.field_for_solver`)."""
+"""output_scale estimates (`taichi_ndf.scaling`: dimensional; `taichi_ndf.output_scale`: the
+two that solve) against solved displacements, which estimate the scene reader names, and
+which a run gets (`output_scale.field_for_run`)."""
 
 import dataclasses
 import logging
@@ -7,14 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from taichi_ndf import scaling
-from taichi_ndf.scaling import (
-    characteristic_displacement,
+from taichi_ndf import output_scale
+from taichi_ndf.output_scale import (
+    MIN_ESTIMATE_ITERATIONS,
     equilibrium_displacement,
+    field_for_run,
     linear_displacement,
 )
-from taichi_ndf.scene import load_scene
-from taichi_ndf.scene_field import MIN_ESTIMATE_ITERATIONS, field_for_solver
+from taichi_ndf.scaling import characteristic_displacement
+from taichi_ndf.scene import load_scene, parse_scene
 from taichi_ndf.validation import CASES, SCENES_DIR
 
 SHIPPED = Path(__file__).resolve().parents[1] / "scenes"
@@ -67,51 +69,62 @@ def test_the_equilibrium_estimate_of_a_cloth_drape(scene, solved):
     assert not 1 / 1.5 < characteristic_displacement(model) / solved < 1.5
 
 
+def test_which_estimate_the_scene_names():
+    """The reader solves nothing: an estimated scale is the dimensional estimate, and the
+    scene names the estimate ("auto" where [field] gives none, None for a number or a spline
+    field) for the run to make."""
+    scene = load_scene(SCENES_DIR / "scordelis_lo_roof.toml")
+    assert scene.field.output_scale == characteristic_displacement(scene.model)
+    for name in ("auto", "equilibrium", "linear", "dimensional"):
+        named = with_scale(scene, name)
+        assert named.output_scale_estimate == name
+        assert named.field == scene.field
+    plain = {**scene.document, "field": {k: v for k, v in scene.document["field"].items()
+                                         if k != "output_scale"}}
+    assert parse_scene(plain, base_dir=SCENES_DIR).output_scale_estimate == "auto"
+    given = with_scale(scene, 0.5)
+    assert given.output_scale_estimate is None and given.field.output_scale == 0.5
+    spline = load_scene(SCENES_DIR / "scordelis_lo_roof.toml", field="spline")
+    assert spline.output_scale_estimate is None
+
+
 def test_which_estimate_a_run_gets():
-    """Read without a runtime, an estimated scale is the dimensional estimate; a run that
-    trains with Adam takes the equilibrium estimate ("equilibrium") or the linear one
-    ("linear"); "auto" (the default) is the equilibrium estimate; "dimensional", an explicit
+    """A run that trains with Adam takes the equilibrium estimate ("equilibrium") or the
+    linear one ("linear"); "auto" is the equilibrium estimate; "dimensional", an explicit
     number and a Newton-only run keep the scale read, and so does a run of fewer than
     MIN_ESTIMATE_ITERATIONS Adam iterations (a smoke test)."""
     scene = load_scene(SCENES_DIR / "scordelis_lo_roof.toml")
     assert scene.solver.iterations == 0
-    assert scene.field.output_scale == characteristic_displacement(scene.model)
     adam = dataclasses.replace(scene.solver, iterations=MIN_ESTIMATE_ITERATIONS)
-    equilibrium = with_scale(scene, "equilibrium")
-    assert field_for_solver(scene.field, equilibrium, scene.model, scene.solver) == scene.field
+    field, model = scene.field, scene.model
+    assert field_for_run(field, "equilibrium", model, scene.solver) == field
     smoke = dataclasses.replace(scene.solver, iterations=MIN_ESTIMATE_ITERATIONS - 1)
-    assert field_for_solver(scene.field, equilibrium, scene.model, smoke) == scene.field
-    trained = field_for_solver(scene.field, equilibrium, scene.model, adam)
-    assert trained == dataclasses.replace(
-        scene.field, output_scale=equilibrium_displacement(scene.model))
-    assert field_for_solver(scene.field, with_scale(scene, "auto"), scene.model,
-                            adam) == trained
-    plain = {**scene.document, "field": {k: v for k, v in scene.document["field"].items()
-                                         if k != "output_scale"}}
-    assert field_for_solver(scene.field, plain, scene.model, adam) == trained
-    linear = field_for_solver(scene.field, with_scale(scene, "linear"), scene.model, adam)
-    assert linear.output_scale == pytest.approx(linear_displacement(scene.model), rel=1e-12)
-    for kept in ("dimensional", 0.5):
-        assert field_for_solver(scene.field, with_scale(scene, kept), scene.model,
-                                adam) == scene.field
+    assert field_for_run(field, "equilibrium", model, smoke) == field
+    trained = field_for_run(field, "equilibrium", model, adam)
+    assert trained == dataclasses.replace(field, output_scale=equilibrium_displacement(model))
+    assert field_for_run(field, "auto", model, adam) == trained
+    linear = field_for_run(field, "linear", model, adam)
+    assert linear.output_scale == pytest.approx(linear_displacement(model), rel=1e-12)
+    for kept in ("dimensional", None):
+        assert field_for_run(field, kept, model, adam) == field
 
 
 def with_scale(scene, value):
-    return {**scene.document, "field": {**scene.document["field"], "output_scale": value}}
+    document = {**scene.document, "field": {**scene.document["field"], "output_scale": value}}
+    return parse_scene(document, base_dir=scene.path.parent, path=scene.path)
 
 
 def test_a_failed_estimate_falls_back_to_the_next_with_a_warning(monkeypatch, caplog):
     scene = load_scene(SCENES_DIR / "scordelis_lo_roof.toml")
     adam = dataclasses.replace(scene.solver, iterations=MIN_ESTIMATE_ITERATIONS)
-    document = with_scale(scene, "equilibrium")
 
     def refuse(model):
         raise ValueError("refused for the test")
 
-    monkeypatch.setattr(scaling, "equilibrium_displacement", refuse)
-    with caplog.at_level(logging.WARNING, logger="taichi_ndf.scene_field"):
-        fallen = field_for_solver(scene.field, document, scene.model, adam)
+    monkeypatch.setattr(output_scale, "equilibrium_displacement", refuse)
+    with caplog.at_level(logging.WARNING, logger="taichi_ndf.output_scale"):
+        fallen = field_for_run(scene.field, "equilibrium", scene.model, adam)
     assert fallen.output_scale == pytest.approx(linear_displacement(scene.model), rel=1e-12)
     assert "the equilibrium estimate failed (refused for the test)" in caplog.text
-    monkeypatch.setattr(scaling, "linear_displacement", refuse)
-    assert field_for_solver(scene.field, document, scene.model, adam) == scene.field
+    monkeypatch.setattr(output_scale, "linear_displacement", refuse)
+    assert field_for_run(scene.field, "equilibrium", scene.model, adam) == scene.field

@@ -79,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
 
     staging = incomplete_path(args.out)
     try:
-        from taichi_ndf.scene import load_scene, trains_the_field
+        from taichi_ndf.scene import load_scene
+        from taichi_ndf.scene_training import trains_the_field
 
         scene_keys = dict(parse_assignment(text) for text in args.set)
         scene = load_scene(args.scene, material=args.material, field=args.field,

@@ -17,9 +17,9 @@ from taichi_ndf.callbacks import DivergenceGuard
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import EndMomentTerm, Objective
+from taichi_ndf.output_scale import field_for_run
 from taichi_ndf.run_size import check_run_size
 from taichi_ndf.scene import Scene, load_scene
-from taichi_ndf.scene_field import field_for_solver
 from taichi_ndf.solver import Solver, SolverConfig
 from taichi_ndf.validation.catalogue import LINEARISATION, SCENES_DIR, Case, Readings
 
@@ -122,7 +122,7 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
         config = dataclasses.replace(config, seed=seed)
     config = dataclasses.replace(config, progress=False)
     # "auto" output scale with Adam: the linear estimate of the case's (scaled) model.
-    field_config = field_for_solver(field_config, scene.document, model, config)
+    field_config = field_for_run(field_config, scene.output_scale_estimate, model, config)
     field_ = NeuralField(field_config, seed=config.seed)
     run = Solver(model, field_, config, objective=_objective(case, model))
     dtype = field_.parameters[0].dtype
