@@ -17,7 +17,8 @@ state (docs/scenes.md, "Learning-rate backoff"). A non-finite Π or gradient bet
 is the divergence guard's (`taichi_ndf.callbacks`), which stops the run.
 
 The best state is part of the solver's `State` (a checkpoint keeps it), so a resumed run backs
-off exactly as an uninterrupted one.
+off exactly as an uninterrupted one. `should_back_off`, `back_to_best` and `keep_if_best` act
+on that `State` and the field it trains (`taichi_ndf.solver` calls them at its records).
 """
 
 from __future__ import annotations
@@ -66,3 +67,36 @@ def climbed(energy: float, reference: float, recorded: list[float],
     if not math.isfinite(energy):
         return True
     return energy - reference > factor * max(abs(e) for e in recorded)
+
+
+def should_back_off(state, load_factor: float, energy: float) -> bool:
+    """Whether Π [J] on the monitor samples at `load_factor` has climbed too far (`climbed`)
+    above the `state`'s best state at that load factor, with backoffs left (MAX_BACKOFFS)."""
+    best = state.best
+    if best is None or best.load_factor != load_factor or state.backoffs >= MAX_BACKOFFS:
+        return False
+    return climbed(energy, best.energy, [best.energy, *state.energies_at(load_factor)])
+
+
+def back_to_best(state, field) -> None:
+    """The field's parameters and Adam's moments back to `state.best`, the learning rate
+    halved (`Adam.lr_scale`; the schedule goes on from the current step), the backoff
+    counted."""
+    best, optimiser = state.best, state.optimiser
+    flat = field.get_flat()
+    field.set_flat(best.parameters.to(device=flat.device, dtype=flat.dtype))
+    step, scale = optimiser.step_count, optimiser.lr_scale
+    optimiser.load_state_dict(best.optimiser)
+    optimiser.step_count, optimiser.lr_scale = step, 0.5 * scale
+    state.backoffs += 1
+
+
+def keep_if_best(state, field, load_factor: float, energy: float) -> None:
+    """The field's parameters and Adam's moments become `state.best` where Π [J] is finite
+    and the lowest at `load_factor` (a best state at another load factor is replaced)."""
+    best = state.best
+    if math.isfinite(energy) and (best is None or best.load_factor != load_factor
+                                  or energy < best.energy):
+        state.best = BestState(iteration=state.iteration, load_factor=load_factor,
+                               energy=energy, parameters=field.get_flat().detach().clone(),
+                               optimiser=state.optimiser.state_dict())

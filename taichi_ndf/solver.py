@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf import progress
-from taichi_ndf.backoff import MAX_BACKOFFS, BestState, climbed
+from taichi_ndf.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_back_off
 from taichi_ndf.callbacks import DivergenceError
 from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.field import NeuralField
@@ -220,7 +220,7 @@ class Solver:
             if newton and done_in_step == 0:
                 self.newton(lam)
             if done_in_step == 0 and cfg.iterations > 0:  # the step's start: backoff's first best
-                self._keep_if_best(lam, self._monitor_energy(lam))
+                keep_if_best(state, self.field, lam, self._monitor_energy(lam))
             with progress.stage(f"Adam, load {lam:.4g}", cfg.iterations):
                 shown = {}
                 for _ in range(done_in_step, cfg.iterations):
@@ -336,7 +336,7 @@ class Solver:
 
     def _record(self, lam: float, gnorm: float, t0: float) -> MonitorRecord:
         energy = self._monitor_energy(lam)
-        if self._climbed(lam, energy):
+        if should_back_off(self.state, lam, energy):
             energy = self._back_off(lam, energy)
         _call(self._callbacks, "on_record", self, energy, gnorm, lam)
         record = MonitorRecord(
@@ -344,46 +344,26 @@ class Solver:
             learning_rate=self.state.optimiser.learning_rate,
             probes=self.probe_displacements(lam), wall_time=time.perf_counter() - t0)
         self.state.history.append(record)
-        self._keep_if_best(lam, energy)
+        keep_if_best(self.state, self.field, lam, energy)
         return record
 
     def _monitor_energy(self, lam: float) -> float:
         return self.energy_and_gradient(self.monitor_samples(), lam, grad=False).total
 
     # -- learning-rate backoff (`taichi_ndf.backoff`) ---------------------------------------------
-    def _climbed(self, lam: float, energy: float) -> bool:
-        best = self.state.best
-        if best is None or best.load_factor != lam or self.state.backoffs >= MAX_BACKOFFS:
-            return False
-        return climbed(energy, best.energy, [best.energy, *self.state.energies_at(lam)])
-
     def _back_off(self, lam: float, energy: float) -> float:
         """The field and Adam's moments back to the best state at this load factor, the
         learning rate halved; returns Π of the restored field on the monitor samples."""
         state, best = self.state, self.state.best
-        flat = self.field.get_flat()
-        self.field.set_flat(best.parameters.to(device=flat.device, dtype=flat.dtype))
-        optimiser = state.optimiser
-        step, scale = optimiser.step_count, optimiser.lr_scale
-        optimiser.load_state_dict(best.optimiser)
-        optimiser.step_count, optimiser.lr_scale = step, 0.5 * scale  # the schedule goes on
-        state.backoffs += 1
+        back_to_best(state, self.field)
         self._refresh_contact(lam)
         restored = self._monitor_energy(lam)
         log.warning("Adam's Π climbed to %.6g J at iteration %d (best %.6g J at iteration %d, "
                     "load factor %g): back to that state, learning rate halved to %.3g "
                     "(backoff %d of at most %d)", energy, state.iteration, best.energy,
-                    best.iteration, lam, optimiser.learning_rate, state.backoffs, MAX_BACKOFFS)
+                    best.iteration, lam, state.optimiser.learning_rate, state.backoffs,
+                    MAX_BACKOFFS)
         return restored
-
-    def _keep_if_best(self, lam: float, energy: float) -> None:
-        best = self.state.best
-        if math.isfinite(energy) and (best is None or best.load_factor != lam
-                                      or energy < best.energy):
-            self.state.best = BestState(
-                iteration=self.state.iteration, load_factor=lam, energy=energy,
-                parameters=self.field.get_flat().detach().clone(),
-                optimiser=self.state.optimiser.state_dict())
 
     def _lbfgs(self, lam: float) -> None:
         """Deterministic L-BFGS polish on a fixed, large sample set (of (ξ, t) in a
