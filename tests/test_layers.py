@@ -31,17 +31,18 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                  "taichi_ndf.render")),
     # The problem and its plain specifications: surface, field, shell, boundary conditions,
     # loads, samples, operator, model, objective terms (contact's barrier included), the
-    # dimensional scale, the training and grid specifications, the saved state.
+    # dimensional scales, the training (with Adam's) and grid specifications.
     ("model", ("taichi_ndf.geometry", "taichi_ndf.field", "taichi_ndf.shell",
                "taichi_ndf.boundary", "taichi_ndf.loads", "taichi_ndf.line_loads",
                "taichi_ndf.sampling", "taichi_ndf.quadrature", "taichi_ndf.pseudo_time",
                "taichi_ndf.operator", "taichi_ndf.model", "taichi_ndf.objective",
                "taichi_ndf.contact", "taichi_ndf.scaling", "taichi_ndf.optim",
-               "taichi_ndf.backoff", "taichi_ndf.checkpoint", "taichi_ndf.state",
-               "taichi_ndf.training", "taichi_ndf.spline_grid", "taichi_ndf.callbacks")),
-    # Minimisers of Π at one load factor on one discretisation, and contact's Newton hook.
+               "taichi_ndf.training", "taichi_ndf.spline_grid")),
+    # Minimisers of Π at one load factor on one discretisation, contact's Newton hook, and
+    # what a minimisation changes and saves: state, checkpoint, backoff, callbacks.
     ("minimise", ("taichi_ndf.minimise", "taichi_ndf.minimisers", "taichi_ndf.newton",
-                  "taichi_ndf.contact.newton_contact")),
+                  "taichi_ndf.contact.newton_contact", "taichi_ndf.state",
+                  "taichi_ndf.checkpoint", "taichi_ndf.backoff", "taichi_ndf.callbacks")),
     # Solve drivers: continuation over load steps and grid levels, the estimates that solve.
     ("solve", ("taichi_ndf.solver", "taichi_ndf.spline_solver", "taichi_ndf.output_scale")),
     # Scene reading: TOML into a plain specification (model, field, training, output).
@@ -161,7 +162,7 @@ def _upward() -> dict[tuple[str, str], str]:
             if layer_of(b) > layer_of(a)}
 
 
-def test_the_graph_is_read():
+def test_the_graph_is_read(tmp_path):
     """The parser sees the imports it must: top-level, function-local, relative."""
     assert "taichi_ndf.model" in GRAPH["taichi_ndf.scene"]
     assert "taichi_ndf.runtime" in GRAPH["taichi_ndf"]  # inside __getattr__
@@ -170,6 +171,15 @@ def test_the_graph_is_read():
     # a package's __init__ runs first: an edge to it, but not from its own modules
     assert "taichi_ndf.contact" in GRAPH["taichi_ndf.simulation"]
     assert "taichi_ndf.contact" not in GRAPH["taichi_ndf.contact.config"]
+    # relative imports, as written in a module and in a package's __init__
+    source = tmp_path / "module.py"
+    source.write_text("from .conditions import BoundaryConditions\nfrom . import frame\n"
+                      "from .. import jets\n")
+    assert set(_imports("taichi_ndf.boundary.fold", source, False)) == {
+        "taichi_ndf.boundary.conditions", "taichi_ndf.boundary.frame", "taichi_ndf.jets"}
+    init = tmp_path / "__init__.py"
+    init.write_text("from .fold import Fold\n")
+    assert set(_imports("taichi_ndf.boundary", init, True)) == {"taichi_ndf.boundary.fold"}
     assert _cycles({"a": {"b": 1}, "b": {"c": 1}, "c": {"a": 1}, "d": {"a": 1}}) == [
         ["a", "b", "c"]]
 
