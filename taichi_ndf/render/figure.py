@@ -159,7 +159,7 @@ def render_figure(
         fine = np.clip(np.rint(fine), 0, 255).astype(np.uint8)
         pictures.append(downsample(fine.reshape(fine_h, fine_w, 3), raster.supersample))
     image = np.concatenate(pictures + ([] if bar is None else [bar]), axis=1)
-    if width is not None and image.shape[1] < width:  # the views' integer division left a few columns
+    if width is not None and image.shape[1] < width:  # the integer division left a few columns
         pad = np.full((height, width - image.shape[1], 3), BACKGROUND_BGR, dtype=np.uint8)
         image = np.concatenate([image, pad], axis=1)
     return image
