@@ -60,6 +60,19 @@ def test_every_solving_tool_has_overwrite_and_precision():
     assert "--overwrite" in PARSERS["ndf-sft-eval"]().format_help()
 
 
+def test_one_precision_default_across_the_tools():
+    required = {"ndf-sim": ["s.toml", "--out", "o"], "ndf-export": ["r", "--out", "m.obj"],
+                "ndf-validate": ["--out", "o"],
+                "ndf-fit-material": ["s.toml", "--observed", "o.obj", "--estimate", "bending",
+                                     "--out", "d"],
+                "ndf-sft": ["--frames", "f", "--camera", "c", "--template", "t", "--texture",
+                            "x", "--out", "o"]}
+    for tool, argv in required.items():
+        parser = PARSERS[tool]()
+        assert parser.parse_args(argv).precision == common.DEFAULT_PRECISION == "f64", tool
+        assert f"(default: {common.DEFAULT_PRECISION}" in " ".join(parser.format_help().split())
+
+
 def test_the_summary_gives_the_extrapolated_values_with_their_errors():
     from taichi_ndf.minimise.refinement import richardson
 

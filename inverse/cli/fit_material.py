@@ -94,7 +94,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: estimated from the observation's scatter about local planes")
     p.add_argument("--quick", action="store_true", help="short training, for smoke tests")
     add_runtime_options(p)
-    p.set_defaults(precision="f64")
     return p
 
 

@@ -72,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
     add_material_options(p)
-    add_runtime_options(p, precision="f64")
+    add_runtime_options(p)
     return p
 
 

@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"folder of the case scene files (default: {SCENES_DIR})")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
-    add_runtime_options(p, precision="f64", seed=None,
+    add_runtime_options(p, seed=None,
                         seed_help="random seed (default: each scene's)")
     return p
 
