@@ -79,8 +79,9 @@ class RunViewer:
                 side="double", cast_shadow=False)
             self.ghost.on_update(lambda _: setattr(self._reference, "visible",
                                                    self.ghost.value))
-        for k, obstacle in enumerate(run.obstacles):
-            scene.add_mesh_simple(f"/obstacles/{k}", obstacle.vertices, obstacle.faces,
+        names = run.obstacle_names or tuple(str(k) for k in range(len(run.obstacles)))
+        for name, obstacle in zip(names, run.obstacles, strict=True):
+            scene.add_mesh_simple(f"/obstacles/{name}", obstacle.vertices, obstacle.faces,
                                   color=OBSTACLE_RGB, side="double")
         self.probes = [handle for probe in run.probes for handle in (
             scene.add_icosphere(f"/probes/{probe.name}", radius=0.02 * size, color=PROBE_RGB,
