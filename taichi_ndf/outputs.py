@@ -158,12 +158,13 @@ def write_probe_points(out: OutputDir, model: ShellModel, displacements: dict) -
 def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0, 1.0),
                  views: tuple[str, ...] = ("iso",), obstacles=()) -> None:
     """The deformed surface coloured by bending strain from `views` side by side (default a
-    three-quarter view), with its ground shadow, the obstacles (vertices, faces) drawn in grey
-    and a colour bar; 640 x 600 pixels per view."""
+    three-quarter view from the side that shows it largest), with its ground shadow, the
+    obstacles (vertices, faces) drawn in grey and a colour bar; 600 pixels high, each view as
+    wide as its framed shape needs (300 to 800 pixels)."""
     image = render_figure(mesh.deformed, mesh.faces, scalars=mesh.bending_strain,
                           scalar_label=QUANTITIES["bending_strain"], up=up, views=views,
                           obstacles=tuple(Obstacle(v, f) for v, f in obstacles),
-                          width=160 + 640 * len(views), height=600)
+                          width=None, height=600)
     save_png(out.file(name), image)
 
 
@@ -215,9 +216,11 @@ def write_trajectory_mesh(out: OutputDir, index: int, mesh: DeformedMesh) -> Non
 def write_trajectory_video(out: OutputDir, frames: list[tuple[np.ndarray, np.ndarray]], *,
                            fps: float = 4.0) -> None:
     """trajectory.mp4: renders of the deformed frames (vertices [m] (V, 3), faces (F, 3)), in
-    order, all from one camera that frames every one of them."""
-    from taichi_ndf.render import frame_mesh
+    order, all from one camera that frames every one of them, from the side that shows the
+    last frame largest (`widest_azimuth`)."""
+    from taichi_ndf.render import frame_mesh, widest_azimuth
 
-    camera = frame_mesh(np.concatenate([v for v, _ in frames]), width=800, height=600)
+    camera = frame_mesh(np.concatenate([v for v, _ in frames]), width=800, height=600,
+                        azimuth_deg=widest_azimuth(*frames[-1]))
     write_video(out.file("trajectory.mp4"),
                 [render_shaded(v, f, camera=camera) for v, f in frames], fps)

@@ -60,6 +60,19 @@ def test_every_solving_tool_has_overwrite_and_precision():
     assert "--overwrite" in PARSERS["ndf-sft-eval"]().format_help()
 
 
+def test_one_precision_default_across_the_tools():
+    required = {"ndf-sim": ["s.toml", "--out", "o"], "ndf-export": ["r", "--out", "m.obj"],
+                "ndf-validate": ["--out", "o"],
+                "ndf-fit-material": ["s.toml", "--observed", "o.obj", "--estimate", "bending",
+                                     "--out", "d"],
+                "ndf-sft": ["--frames", "f", "--camera", "c", "--template", "t", "--texture",
+                            "x", "--out", "o"]}
+    for tool, argv in required.items():
+        parser = PARSERS[tool]()
+        assert parser.parse_args(argv).precision == common.DEFAULT_PRECISION == "f64", tool
+        assert f"(default: {common.DEFAULT_PRECISION}" in " ".join(parser.format_help().split())
+
+
 def test_the_summary_gives_the_extrapolated_values_with_their_errors():
     from taichi_ndf.minimise.refinement import richardson
 
@@ -138,3 +151,25 @@ def test_render_time_draws_a_trajectory_frame(spline_run, tmp_path, capsys):
     assert [s["load_factor"] for s in result["load_steps"]] == [0.5, 1.0]
     tip = [s["probes"]["tip"] for s in result["load_steps"]]
     assert abs(tip[1][2]) > abs(tip[0][2]) > 0  # the tip sags further at the full load
+
+
+def test_help_of_every_tool_imports_neither_torch_nor_taichi():
+    """`--help` of every [project.scripts] entry point, in a fresh interpreter: the parsed
+    command line leaves torch, Taichi (or quadrants) and scipy unimported (they cost 2-5 s)."""
+    import subprocess
+    import sys
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    scripts = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]
+    heavy = ("torch", "taichi", "quadrants", "scipy")
+    for tool, target in scripts.items():
+        module, function = target.split(":")
+        code = (f"import sys, contextlib, io\nfrom {module} import {function}\n"
+                "with contextlib.redirect_stdout(io.StringIO()):\n"
+                f"    try:\n        {function}(['--help'])\n    except SystemExit:\n        pass\n"
+                f"print(sorted(m for m in {heavy!r} if m in sys.modules))")
+        done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True,
+                              text=True, timeout=120)
+        assert done.returncode == 0, (tool, done.stderr)
+        assert done.stdout.strip() == "[]", (tool, done.stdout)

@@ -135,3 +135,47 @@ def test_render_cli(tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
         render.main([str(run), "--size", "big"])
     assert stop.value.code == 2 and "WIDTHxHEIGHT" in capsys.readouterr().err
+
+
+def hanging_sheet(n: int = 12):
+    """A 1 m sheet hanging flat in the vertical plane x + y = 0 (normal (1, 1, 0) / √2): the
+    fixed diagonal view (azimuth -45°) sees it edge-on."""
+    grid = grid_mesh(((-0.5, 0.5), (0.0, 1.0)), n)
+    s, depth = grid.xi[:, 0], grid.xi[:, 1]
+    return np.stack([s / np.sqrt(2.0), -s / np.sqrt(2.0), -depth], axis=1), grid.faces
+
+
+def test_default_view_faces_a_hanging_sheet_and_keeps_it_in_frame():
+    from taichi_ndf.render.camera import frame_mesh, widest_azimuth
+    from taichi_ndf.render.raster import rasterize
+
+    vertices, faces = hanging_sheet()
+    azimuth = widest_azimuth(vertices, faces)
+    assert abs((azimuth - 45.0 + 90.0) % 180.0 - 90.0) <= 30.0  # near the face's normal
+
+    def covered(camera, size=64):
+        return rasterize(camera.to_camera(vertices), faces, camera.intrinsics(size, size),
+                         size, size).mask.mean()
+
+    edge_on = covered(frame_mesh(vertices, width=64, height=64, azimuth_deg=-45.0))
+    chosen = covered(frame_mesh(vertices, width=64, height=64, azimuth_deg=azimuth))
+    assert edge_on < 0.1 < 0.3 < chosen  # the old fixed view: a sliver
+
+    image = render_figure(vertices, faces, width=None, height=240, shadow=False)
+    surface = ~is_background(image)
+    assert surface.mean() > 0.3  # not a sliver in its frame
+    border = np.concatenate([surface[0], surface[-1], surface[:, 0], surface[:, -1]])
+    assert not border.any()  # the whole sheet inside the picture, with a margin
+    # A level sheet looks alike from everywhere: the preferred diagonal stays.
+    level, level_faces, _ = sheet()
+    assert widest_azimuth(level * [1.0, 1.0, 0.0], level_faces) == -45.0
+
+
+def test_fitted_width_follows_the_shape():
+    vertices, faces = hanging_sheet()
+    tall = vertices * [0.3, 0.3, 1.0]
+    image = render_figure(tall, faces, width=None, height=300, shadow=False)
+    assert 150 <= image.shape[1] < 300  # narrower than square, never below half the height
+    wide, wide_faces, _ = sheet()
+    image = render_figure(wide * [3.0, 1.0, 1.0], wide_faces, width=None, height=300)
+    assert image.shape[1] == 400  # 4:3 at most

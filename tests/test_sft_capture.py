@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from inverse.cli import sft
-from inverse.cli.sft_inputs import pinned_option
+from inverse.cli.sft_options import pinned_option
 from inverse.sft.camera import write_camera
 from inverse.sft.capture import load_capture, projected_uvs
 from inverse.sft.chamfer import chamfer_to_cloud, max_vertex_distance, triangulated

@@ -78,10 +78,29 @@ def test_stage_holds_the_run_obj_files_exactly(run):
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, rtol=1e-6)
 
 
+def bound_colour(mesh) -> list[float]:
+    """The diffuse colour of the UsdPreviewSurface bound to a mesh."""
+    from pxr import UsdShade
+
+    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
+    shader = material.ComputeSurfaceSource()[0]
+    assert shader.GetIdAttr().Get() == "UsdPreviewSurface"
+    return list(shader.GetInput("diffuseColor").Get())
+
+
+def test_display_material_and_frame_rate(run):
+    stage = Usd.Stage.Open(str(run / "result.usdc"))
+    deformed = UsdGeom.Mesh(stage.GetPrimAtPath("/World/deformed"))
+    assert bound_colour(deformed) == pytest.approx([95 / 255, 150 / 255, 205 / 255])
+    assert stage.GetFramesPerSecond() == stage.GetTimeCodesPerSecond() == 4.0
+
+
 def test_render_png_has_the_scene_views(run):
     import cv2
 
-    assert cv2.imread(str(run / "render.png")).shape == (600, 160 + 2 * 640, 3)
+    # 600 pixels high; each view 300-800 wide (fitted to the framed shape), then the colour bar.
+    height, width, _ = cv2.imread(str(run / "render.png")).shape
+    assert height == 600 and 2 * 300 < width < 2 * 800 + 200
 
 
 def test_strain_primvars_equal_the_ply_values(run):
@@ -109,9 +128,10 @@ def test_export_cli_writes_obstacles_and_refuses_to_overwrite(run, tmp_path, cap
         out = tmp_path / "run.usda"
         assert export.main([str(run), "--format", "usd", "--out", str(out)]) == 0
         stage = Usd.Stage.Open(str(out))
-        post = UsdGeom.Mesh(stage.GetPrimAtPath("/World/obstacles/obstacle_0"))
+        post = UsdGeom.Mesh(stage.GetPrimAtPath("/World/obstacles/post"))  # its scene name
         np.testing.assert_array_equal(np.array(post.GetPointsAttr().Get()),
                                       as_f32([[0, 0, -2], [1, 0, -2], [0, 1, -2]]))
+        assert bound_colour(post) == pytest.approx([160 / 255] * 3)  # the renders' grey
         assert export.main([str(run / "checkpoint.pt"), "--format", "usd", "--out",
                             str(out)]) == 2
         assert "exists; pass --overwrite" in capsys.readouterr().err

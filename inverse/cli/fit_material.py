@@ -8,56 +8,24 @@ of the unknowns. An observation whose vertex count equals the scene's exported t
 ([output] resolution) is taken in template vertex order (correspondence); with
 `--point-cloud` the points are fitted without correspondence (point-to-surface distance).
 Writes DIR/estimate.json and DIR/overlay.png (observed points over the fitted shape).
+The fit itself is `inverse.cli.fit_material_run` (imported after the command line is read, so
+--help imports neither torch nor Taichi).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import logging
 import sys
 from pathlib import Path
 
-import numpy as np
-import torch
-
-from inverse.material import (
-    Observation,
-    ResidualConfig,
-    parse_unknowns,
-    residual_estimate,
-    template_xi,
-)
-from inverse.material.bilevel import BilevelConfig, bilevel_estimate
-from inverse.material.conditioned import ConditionedConfig, to_values
-from inverse.material.goodness import forward_model_error, goodness_of_fit, observation_noise
-from inverse.material.identifiability import finite_or_none
-from inverse.material.implicit import ImplicitConfig
-from inverse.material.implicit_fit import implicit_estimate
-from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
-from inverse.material.report import estimate_document, overlay_image
-from inverse.material.spline_equilibrium import SplineModelConfig
 from taichi_ndf.cli.common import (
     ArgumentParser,
     add_runtime_options,
     description,
     finite_float,
     interruptible,
-    machine_description,
     start,
 )
-from taichi_ndf.io import read_mesh
-from taichi_ndf.io.grid import grid_mesh
-from taichi_ndf.io.output_dir import OutputDir, check_output_dir
-from taichi_ndf.io.run_lock import RunLock
-from taichi_ndf.render import save_png
-from taichi_ndf.scene import SceneError, load_scene
-
-log = logging.getLogger(__name__)
-
-
-class InputError(ValueError):
-    """Bad command-line input, reported without a traceback."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -126,164 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: estimated from the observation's scatter about local planes")
     p.add_argument("--quick", action="store_true", help="short training, for smoke tests")
     add_runtime_options(p)
-    p.set_defaults(precision="f64")
     return p
-
-
-def _observations(paths, model, resolution, point_cloud: bool) -> list[Observation]:
-    xi = template_xi(model, resolution)
-    out = []
-    for path in paths:
-        try:
-            mesh = read_mesh(path)
-        except FileNotFoundError as err:
-            raise InputError(str(err)) from None
-        except Exception as err:  # trimesh raises many kinds on a malformed file
-            raise InputError(f"cannot read observation {path}: {err}") from None
-        points = torch.from_numpy(np.asarray(mesh.vertices, dtype=np.float64))
-        if not torch.isfinite(points).all():
-            bad = int((~torch.isfinite(points).all(dim=1)).sum())
-            raise InputError(f"observation {path}: {bad} vertices are not finite (NaN or "
-                             "infinity)")
-        if point_cloud:
-            out.append(Observation(model, points, None))
-            continue
-        if len(points) != len(xi):
-            raise InputError(
-                f"observation {path} has {len(points)} vertices but the template grid of the "
-                f"scene ([output] resolution {list(resolution)}) has {len(xi)}: give meshes in "
-                f"template vertex order, or pass --point-cloud")
-        out.append(Observation(model, points, xi))
-    return out
-
-
-def _implicit(args, observations, unknowns):
-    """The implicit-function estimate with the command line's settings."""
-    width = args.width or (64 if args.quick else ImplicitConfig.width)
-    samples = args.samples or (2048 if args.quick else ImplicitConfig.samples)
-    try:
-        config = ImplicitConfig(width=width, samples=samples,
-                                seeds=tuple(args.seeds or (2, 3)),
-                                boundary_length=2.0 if args.band is None else args.band)
-        return implicit_estimate(observations, unknowns, config)
-    except ValueError as err:
-        raise InputError(str(err)) from None
-
-
-def _newton(args, observations, unknowns):
-    """The Newton estimate with the command line's settings."""
-    try:
-        model = SplineModelConfig(spans=tuple(args.spans) if args.spans else None,
-                                  boundary_length=2.0 if args.band is None else args.band)
-        return newton_estimate(observations, unknowns, NewtonEstimateConfig(model=model))
-    except ValueError as err:
-        raise InputError(str(err)) from None
-
-
-def _add_fits(document: dict, result, unknowns, part: str, fits: str) -> None:
-    """The standard error's parts (`fisher` and the forward model's `part`) per unknown and
-    every forward model's fit (under `fits`) of an `OuterResult`, into the document; a fit's
-    `converged` is true only where the outer iteration and every equilibrium solve in it
-    converged."""
-    document["standard_error_parts"] = {
-        u.name: {"fisher": finite_or_none(f), part: finite_or_none(m)}
-        for u, f, m in zip(unknowns, result.fisher_errors, result.model_errors, strict=True)}
-    document[fits] = [
-        {**f.label, "values": f.values.tolist(), "outer_iterations": f.iterations,
-         "newton_steps": f.newton_steps,
-         "converged": bool(f.converged and f.solves_converged),
-         "outer_converged": f.converged, "unconverged_solves": f.unconverged_solves,
-         "stable": f.stable, "time_s": f.time} for f in result.fits]
-
-
-def run(args, runtime) -> dict:
-    try:
-        scene = load_scene(args.scene)
-    except SceneError as err:
-        raise InputError(str(err)) from None
-    try:
-        model, unknowns = parse_unknowns(",".join(args.estimate), scene.model)
-    except ValueError as err:
-        raise InputError(str(err)) from None
-    if args.iterations is not None and args.iterations < 1:
-        raise InputError(f"--iterations must be >= 1, got {args.iterations}")
-    if args.newton < 0:
-        raise InputError(f"--newton must be >= 0, got {args.newton}")
-    if args.band is not None and not args.band > 0:
-        raise InputError(f"--band must be positive, got {args.band}")
-    for name in ("width", "samples"):
-        if getattr(args, name) is not None and getattr(args, name) < 1:
-            raise InputError(f"--{name} must be >= 1, got {getattr(args, name)}")
-    if args.noise is not None and not args.noise >= 0:
-        raise InputError(f"--noise must be >= 0 (metres), got {args.noise}")
-    if args.spans is not None and min(args.spans) < 1:
-        raise InputError(f"--spans must be two integers >= 1, got {args.spans}")
-    lock = RunLock(args.out)  # a directory another run holds is refused before any work,
-    check_output_dir(args.out, args.overwrite)  # and so is a non-empty one without --overwrite
-    observations = _observations(args.observed, model, scene.output.resolution,
-                                 args.point_cloud)
-    out = OutputDir(args.out, overwrite=args.overwrite, lock=lock)
-    resolution = scene.output.resolution
-    grid = grid_mesh(model.surface.domain.bounds, resolution,
-                     periodic=model.surface.domain.periodic)
-    grid_xi = torch.from_numpy(grid.xi)
-    noise, noise_source = observation_noise(observations, args.noise)
-
-    def goodness(estimate, fits=()):
-        return goodness_of_fit(estimate.residuals, len(unknowns), noise, noise_source,
-                               forward_model_error(fits))
-
-    if args.method == "residual":
-        estimate = residual_estimate(observations, unknowns, ResidualConfig(samples=16384))
-        document = estimate_document(estimate, model, notes=estimate.notes)
-        fitted = estimate.shapes[0].positions(grid_xi).numpy()
-    elif args.method in ("newton", "implicit"):
-        newton = args.method == "newton"
-        result = (_newton if newton else _implicit)(args, observations, unknowns)
-        estimate = result.estimate
-        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes,
-                                     goodness=goodness(estimate, result.fits))
-        _add_fits(document, result, unknowns,
-                  *(("discretisation", "grids") if newton else ("feature_spread",
-                                                               "feature_bases")))
-        fitted = result.fitted_positions(0, grid_xi).numpy()
-    else:
-        iterations = args.iterations or (300 if args.quick else 1000)
-        field = ConditionedConfig(
-            width=scene.field.width, hidden_layers=scene.field.hidden_layers,
-            omega0=scene.field.omega0, output_scale=scene.field.output_scale,
-            iterations=iterations, samples=512 if args.quick else 1024,
-            lbfgs_iterations=iterations, lbfgs_samples=2048 if args.quick else 4096,
-            newton_iterations=args.newton, boundary_length=args.band, seed=args.seed)
-        try:
-            config = BilevelConfig(decades=args.decades, field=field,
-                                   centre_on_residual=args.box_centre == "residual")
-        except ValueError as err:
-            raise InputError(str(err)) from None
-        try:
-            result = bilevel_estimate(observations, unknowns, config)
-        except ValueError as err:
-            raise InputError(str(err)) from None
-        estimate = result.estimate
-        document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes,
-                                     goodness=goodness(estimate))
-        lower = to_values(unknowns, [lo for lo, _ in result.ranges])
-        upper = to_values(unknowns, [hi for _, hi in result.ranges])
-        document["search_box"] = {u.name: [lo, hi]
-                                  for u, lo, hi in zip(unknowns, lower, upper, strict=True)}
-        document["search_box_centre"] = {
-            "source": result.box_centre,
-            "values": {u.name: v for u, v in zip(unknowns, result.box_centre_values,
-                                                 strict=True)}}
-        fitted = result.fitted_positions(0, grid_xi).numpy()
-    document["scene"] = str(scene.path)
-    document["observed"] = [str(p) for p in args.observed]
-    document["start"] = {u.name: u.value(model) for u in unknowns}
-    document["machine"] = machine_description(runtime)
-    out.file("estimate.json").write_text(json.dumps(document, indent=2))
-    save_png(out.file("overlay.png"),
-             overlay_image(fitted, grid.faces, observations[0].points.numpy()))
-    return document
 
 
 def parse_args(argv: list[str] | None):
@@ -302,6 +113,8 @@ def parse_args(argv: list[str] | None):
 @interruptible("ndf-fit-material")
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    from inverse.cli.fit_material_run import InputError, run
+
     runtime = start(args)
     try:
         document = run(args, runtime)

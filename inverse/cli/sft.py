@@ -19,49 +19,27 @@ ground-truth meshes, template vertex order, or of point clouds) also the metrics
 ``inverse.sft.metrics`` (meshes) or the field's chamfer protocol of ``inverse.sft.chamfer``
 (clouds). ``--capture DIR`` reads a φ-SfT / PGSfT capture folder (``inverse.sft.capture``) and
 prints the conventions it applied (also in result.json); its ground truth is used by default.
-Input conventions: ``docs/sft.md``.
+Input conventions: ``docs/sft.md``. The work itself is ``inverse.cli.sft_run``, imported
+once the command line is read (``--help`` imports neither torch nor Taichi).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import math
 import sys
-import time
 from pathlib import Path
 
-import cv2
-import numpy as np
-
-from inverse.cli.sft_inputs import (
-    add_input_options,
-    ground_truth_metrics,
-    load_run_inputs,
-    metrics_line,
-)
-from inverse.cli.sft_material import add_material_options, check_held_corners, material_config
-from inverse.sft.baseline import mesh_edges, reconstruct_baseline
-from inverse.sft.crop import cropped_to_sheet
-from inverse.sft.flow import DenseFlow
-from inverse.sft.inputs import Camera, InputError
-from inverse.sft.material_from_video import estimate_material, summary_line
-from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
-from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
-from inverse.sft.tracking import track_sequence
+from inverse.cli.sft_material import add_material_options
+from inverse.cli.sft_options import add_input_options
+from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 from taichi_ndf.cli.common import (
     ArgumentParser,
     add_runtime_options,
     description,
     finite_float,
     interruptible,
-    machine_description,
-    start,
 )
-from taichi_ndf.io import OutputDir, write_obj
-from taichi_ndf.render import write_video
 
-OVERLAY_COLOUR = (60, 230, 60)  # BGR
 METHODS = ("prior", "no-prior", "baseline")
 
 
@@ -94,13 +72,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
     add_material_options(p)
-    add_runtime_options(p, precision="f64")
+    add_runtime_options(p)
     return p
 
 
 @interruptible("ndf-sft")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from inverse.cli.sft_inputs import metrics_line
+    from inverse.cli.sft_run import run
+    from inverse.sft.errors import InputError
+    from inverse.sft.material_from_video import summary_line
+
     try:
         summary = run(args)
     except (InputError, FileExistsError, ValueError, RuntimeError) as err:
@@ -115,136 +98,6 @@ def main(argv: list[str] | None = None) -> int:
         print(summary_line(summary["material"]))
     print(f"outputs in {args.out}")
     return 0
-
-
-def run(args: argparse.Namespace) -> dict:
-    """The whole pipeline; returns the summary written to result.json."""
-    seconds: dict[str, float] = {}
-    clock = time.perf_counter()
-    config = method_config(args)  # the options are checked before any work
-    if not 0 < args.fps < math.inf:
-        raise InputError(f"--fps must be finite and positive, got {args.fps}")
-    material = material_config(args)
-    loaded = load_run_inputs(args)
-    inputs = loaded.inputs
-    held = None if material is None else check_held_corners(args, inputs.template,
-                                                             inputs.pinned)
-    for line in loaded.conventions:
-        print(f"capture: {line}")
-    out = OutputDir(args.out, overwrite=args.overwrite)
-    runtime = start(args)
-    seconds["load"] = time.perf_counter() - clock
-
-    # Tracking and fit on the part of the frames where the sheet is (exact, faster).
-    work = cropped_to_sheet(inputs)
-    clock = time.perf_counter()
-    correspondences, _ = track_sequence(work.frames, work.template, work.texture,
-                                        work.camera, masks=work.masks)
-    seconds["tracking"] = time.perf_counter() - clock
-
-    baseline = None
-    if args.method == "baseline" or (args.field == "siren" and args.init == "baseline"):
-        clock = time.perf_counter()
-        baseline = reconstruct_baseline(work.template, work.camera, correspondences,
-                                        pinned=work.pinned)
-        seconds["baseline"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
-    if args.method == "baseline":
-        vertices, losses, per_frame = baseline.vertices, None, baseline.seconds
-    elif args.field == "spline":
-        result = reconstruct_spline(work.template, work.camera, correspondences,
-                                    masks=work.masks, pinned=work.pinned, config=config,
-                                    flow=None if not args.flow else DenseFlow(
-                                        work.frames, work.camera, work.template.faces,
-                                        masks=work.masks))
-        vertices, losses, per_frame = result.vertices, result.losses, result.seconds
-    else:
-        result = reconstruct(work.template, work.camera, correspondences,
-                             masks=work.masks, pinned=work.pinned,
-                             initial=None if baseline is None else baseline.vertices,
-                             config=config)
-        vertices, losses, per_frame = result.vertices, result.losses, result.seconds
-    if args.method != "baseline":
-        seconds["reconstruction"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
-    template = inputs.template
-    for i, frame_vertices in enumerate(vertices):
-        write_obj(out.file(f"meshes/{i:06d}.obj"), frame_vertices, template.faces,
-                  uvs=template.uvs)
-    write_video(out.file("overlay.mp4"),
-                overlay_frames(inputs.frames, vertices, template.faces, inputs.camera),
-                args.fps)
-    seconds["output"] = time.perf_counter() - clock
-
-    n = len(inputs.frames)
-    summary = {
-        "frames": n,
-        "vertices": len(template.vertices),
-        "inputs": {name: None if getattr(args, name) is None else str(getattr(args, name))
-                   for name in ("capture", "frames", "camera", "template", "texture", "masks",
-                                "pinned")},
-        "conventions": list(loaded.conventions),
-        "pinned": None if inputs.pinned is None else inputs.pinned.tolist(),
-        "method": args.method,
-        "field": None if args.method == "baseline" else args.field,
-        "init": args.init if args.field == "siren" and args.method != "baseline" else None,
-        "config": None if config is None else dataclasses.asdict(config),
-        "correspondences_per_frame": [len(c) for c in correspondences],
-        "final_loss_terms": losses,
-        "timings": {
-            "total": seconds,
-            "per_frame": {name: value / n for name, value in seconds.items()},
-            "method_per_frame": per_frame,
-        },
-        "machine": machine_description(runtime),
-        "threads": args.threads,
-    }
-    if loaded.gt is not None:
-        summary["metrics"], summary["metrics_per_frame"] = ground_truth_metrics(
-            loaded, vertices, template.faces, inputs.camera)
-    if material is not None:
-        clock = time.perf_counter()
-        summary["material"] = estimate_material(vertices, template.faces, held, material)
-        seconds["material"] = time.perf_counter() - clock
-        summary["timings"]["per_frame"]["material"] = seconds["material"] / n
-    out.write_json("result.json", summary)
-    return summary
-
-
-def method_config(args: argparse.Namespace) -> SplinePriorConfig | ReconstructionConfig | None:
-    """The reconstruction settings of the chosen method and field (None for the baseline);
-    raises ValueError for options that do not fit them."""
-    if args.method == "baseline":
-        return None
-    if args.field == "spline" and args.precision != "f64":
-        raise ValueError("--field spline needs --precision f64 (its Hessian blocks are central "
-                         "differences)")
-    kind = SplinePriorConfig if args.field == "spline" else ReconstructionConfig
-    weight = kind.physics_weight if args.physics_weight is None else args.physics_weight
-    if args.method == "no-prior":
-        weight = 0.0
-    if kind is SplinePriorConfig:
-        return SplinePriorConfig(physics_weight=weight)
-    return ReconstructionConfig(physics_weight=weight, steps=args.iterations, seed=args.seed)
-
-
-def overlay_frames(
-    frames: list[np.ndarray], vertices: list[np.ndarray], faces: np.ndarray, camera: Camera
-) -> list[np.ndarray]:
-    """Frames (BGR uint8) with the projected wireframe of each frame's mesh drawn over them."""
-    edges = mesh_edges(faces)
-    shift = 4  # sub-pixel line positions, 1/16 px
-    out = []
-    for frame, v in zip(frames, vertices, strict=True):
-        image = frame.copy()
-        # Pixel centres are at integers (docs/sft.md), as in OpenCV's drawing functions.
-        pixels = np.rint(camera.project(v) * (1 << shift)).astype(np.int32)
-        lines = pixels[edges]
-        cv2.polylines(image, list(lines), False, OVERLAY_COLOUR, 1, cv2.LINE_AA, shift)
-        out.append(image)
-    return out
 
 
 if __name__ == "__main__":

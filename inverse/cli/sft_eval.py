@@ -11,6 +11,7 @@ group of digits of the file name (``000012.obj``, ``0012.obj`` and ``frame12.ply
 names. Prints how it paired them, the means over frames and the evaluation protocol; ``--json``
 also writes per-frame values and the pairs. Meshes and clouds are in camera coordinates (world
 coordinates when the camera JSON has extrinsics); the camera adds the reprojection error.
+The metrics (torch) are imported once the command line is read: --help stays light.
 """
 
 from __future__ import annotations
@@ -25,14 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inverse.sft.chamfer import (
-    CLOUD_SUFFIXES,
-    evaluate_against_clouds,
-    is_cloud_folder,
-    load_point_cloud,
-)
-from inverse.sft.inputs import InputError, load_camera
-from inverse.sft.metrics import evaluate_sequence
+from inverse.sft.errors import InputError
 from taichi_ndf.cli.common import ArgumentParser, description, interruptible
 from taichi_ndf.io import atomic_path, read_mesh
 
@@ -72,6 +66,8 @@ def paired_meshes(pred_dir: Path, gt_dir: Path, *,
     """(ground-truth name, prediction, ground truth) for every frame in frame order, and how
     they were paired: "frame number" or "file name" (module docstring). With `clouds` the
     ground truth is point clouds (.npy / .ply)."""
+    from inverse.sft.chamfer import CLOUD_SUFFIXES
+
     pred = mesh_files(pred_dir)
     gt = mesh_files(gt_dir, CLOUD_SUFFIXES, "point clouds") if clouds else mesh_files(gt_dir)
     pred_numbers, gt_numbers = _by_number(pred), _by_number(gt)
@@ -107,6 +103,10 @@ def build_parser() -> argparse.ArgumentParser:
 @interruptible("ndf-sft-eval")
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from inverse.sft.chamfer import is_cloud_folder
+    from inverse.sft.inputs import load_camera
+    from inverse.sft.metrics import evaluate_sequence
+
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         if args.json is not None and args.json.exists() and not args.overwrite:
@@ -142,6 +142,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _against_clouds(args: argparse.Namespace, camera) -> int:
     """Predicted meshes against point clouds: the field's chamfer protocol."""
+    from inverse.sft.chamfer import evaluate_against_clouds, load_point_cloud
+
     pairs, how = paired_meshes(args.pred, args.gt, clouds=True)
     to_camera = camera.to_camera if camera is not None else np.asarray
     pred, clouds, faces = [], [], None

@@ -1,16 +1,16 @@
-"""The input side of ``ndf-sft``: its input options, loading and checking the inputs (or a
-capture folder, ``inverse.sft.capture``) before any expensive work, and the ground truth
-(meshes or point clouds) with its metrics."""
+"""The input side of ``ndf-sft``: loading and checking the inputs (or a capture folder,
+``inverse.sft.capture``) before any expensive work, and the ground truth (meshes or point
+clouds) with its metrics. Its options are ``inverse.cli.sft_options`` (light, for --help)."""
 
 from __future__ import annotations
 
 import argparse
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from inverse.cli.sft_options import CONTRACT_OPTIONS
 from inverse.sft.capture import load_capture
 from inverse.sft.chamfer import (
     cloud_files,
@@ -34,36 +34,6 @@ from inverse.sft.inputs import (
 from inverse.sft.limits import check_frames_memory, check_texture_memory
 from inverse.sft.metrics import evaluate_sequence
 from taichi_ndf.io import read_mesh
-
-CONTRACT_OPTIONS = ("frames", "camera", "template", "texture")
-
-
-def pinned_option(text: str) -> list[int] | Path:
-    """``--pinned``: a comma-separated list of vertex indices (``0,992``) or a file."""
-    if re.fullmatch(r"\s*\d+(\s*,\s*\d+)*\s*", text):
-        return [int(v) for v in text.split(",")]
-    return Path(text)
-
-
-def add_input_options(p: argparse.ArgumentParser) -> None:
-    """The input options of ``ndf-sft``: the contract's files or one capture folder."""
-    p.add_argument("--capture", type=Path,
-                   help="a capture folder in the φ-SfT / PGSfT layout (frames/, masks/, "
-                   "template/*.obj, camera.json, ground_truth/, pinned file): axes, UVs and "
-                   "texture found by the tool and stated (docs/sft.md §7); replaces --frames, "
-                   "--camera, --template, --texture, --masks")
-    p.add_argument("--frames", type=Path, help="video file or folder of images")
-    p.add_argument("--camera", type=Path, help="camera JSON (docs/sft.md)")
-    p.add_argument("--template", type=Path,
-                   help="template mesh with UVs, camera coordinates of frame 0 (OBJ or PLY)")
-    p.add_argument("--texture", type=Path, help="texture image of the template")
-    p.add_argument("--masks", type=Path, help="folder of per-frame masks (white = sheet)")
-    p.add_argument("--pinned", type=pinned_option,
-                   help="held vertex indices: a list like 0,992 or a file (JSON list or text); "
-                   "with --capture it overrides the capture's pinned file")
-    p.add_argument("--gt", type=Path, help="ground truth for metrics: a folder of meshes (the "
-                   "template's vertex order) or of point clouds (.npy / .ply, the field's "
-                   "chamfer protocol); with --capture its ground_truth/ by default")
 
 
 @dataclass(frozen=True)

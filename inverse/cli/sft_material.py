@@ -13,9 +13,8 @@ import argparse
 
 import numpy as np
 
-from inverse.sft.hanging import SheetGrid
-from inverse.sft.inputs import InputError
-from inverse.sft.material_from_video import MaterialFromVideoConfig
+from inverse.sft.errors import InputError
+from inverse.sft.settings import MaterialFromVideoConfig
 from taichi_ndf.cli.common import finite_float
 
 DEFAULTS = MaterialFromVideoConfig()
@@ -78,6 +77,8 @@ def check_held_corners(args: argparse.Namespace, template, pinned) -> tuple[int,
         raise InputError("--estimate-material needs the two held corners: --held-corners A B "
                          f"or exactly two --pinned vertices (got "
                          f"{0 if pinned is None else len(pinned)})")
+    from inverse.sft.hanging import SheetGrid
+
     try:
         SheetGrid.from_template(np.asarray(template.vertices), np.asarray(template.faces), held)
     except ValueError as err:

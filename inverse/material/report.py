@@ -8,7 +8,7 @@ import numpy as np
 from inverse.material.goodness import GoodnessOfFit
 from inverse.material.identifiability import finite_or_none
 from inverse.material.residual import Estimate, bending_length
-from taichi_ndf.render import frame_mesh, render_shaded
+from taichi_ndf.render import frame_mesh, render_shaded, widest_azimuth
 
 OBSERVED_BGR = (40, 40, 220)
 
@@ -68,7 +68,8 @@ def overlay_image(fitted_vertices: np.ndarray, faces: np.ndarray, observed: np.n
 
     fitted_vertices: (V, 3) [m]; faces: (F, 3); observed: (M, 3) [m]."""
     both = np.concatenate([fitted_vertices, observed])
-    camera = frame_mesh(both, width=width, height=height)
+    camera = frame_mesh(both, width=width, height=height,
+                        azimuth_deg=widest_azimuth(fitted_vertices, faces))
     image = np.ascontiguousarray(render_shaded(fitted_vertices, faces, camera=camera,
                                                width=width, height=height))
     cam = camera.to_camera(observed)

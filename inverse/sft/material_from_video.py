@@ -30,7 +30,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -41,67 +40,12 @@ from inverse.material.outer_fit import OuterConfig
 from inverse.material.report import estimate_document
 from inverse.material.spline_equilibrium import SplineModelConfig
 from inverse.material.unknowns import parse_unknowns
-from inverse.sft.hanging import STANDARD_GRAVITY, SheetGrid, hanging_across, hanging_model
-from taichi_ndf.shell.materials import LinearIsotropic
+from inverse.sft.hanging import SheetGrid, hanging_across, hanging_model
+from inverse.sft.settings import FABRIC_BENDING_LENGTH, MaterialFromVideoConfig
 
 log = logging.getLogger(__name__)
 
 QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not quasi-static
-
-# Bending length of measured fabrics (Feng et al., TOG 2022, 251 fabrics) [m] and areal
-# density [kg/m²]: 5th, 50th and 95th percentile.
-FABRIC_BENDING_LENGTH = (0.011, 0.020, 0.033)
-FABRIC_AREAL_DENSITY = (0.041, 0.197, 0.487)
-
-
-@dataclass(frozen=True)
-class MaterialFromVideoConfig:
-    """Settings of the estimate.
-
-    areal_density: stated ρ_A [kg/m²] that turns B / (ρ_A g) into B (default: the median of
-    measured fabrics); gravity: (3,) [m/s²] in camera coordinates (default: down the image);
-    start_bending_length: c of the start value [m]; membrane_stiffness: D [N/m] (held unless
-    estimate_membrane); poisson_ratio: ν; frames: number of frames used, evenly spread over the
-    sequence (0: all); spans: the coarse grid (the fine grid halves it); band: the handles'
-    band (fraction of the domain); fps: frame rate of the video [1/s], for the quasi-static
-    check; max_iterations: outer Levenberg–Marquardt iterations per grid."""
-
-    areal_density: float = FABRIC_AREAL_DENSITY[1]
-    gravity: tuple[float, float, float] = (0.0, STANDARD_GRAVITY, 0.0)
-    start_bending_length: float = FABRIC_BENDING_LENGTH[1]
-    membrane_stiffness: float = 300.0
-    poisson_ratio: float = 0.25
-    estimate_membrane: bool = False
-    frames: int = 8
-    spans: tuple[int, int] = (6, 6)
-    band: float = 0.1
-    fps: float = 30.0
-    max_iterations: int = 12
-
-    def __post_init__(self):
-        for name in ("areal_density", "start_bending_length", "membrane_stiffness", "fps"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
-        g = np.asarray(self.gravity, dtype=np.float64)
-        if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.linalg.norm(g) > 0:
-            raise ValueError(f"gravity must be a non-zero 3-vector [m/s²], got {self.gravity!r}")
-        if isinstance(self.frames, bool) or not isinstance(self.frames, int) or \
-                (self.frames != 0 and self.frames < 2):
-            raise ValueError(f"frames must be 0 (all) or >= 2, got {self.frames!r}")
-        if len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans):
-            raise ValueError(f"spans must be two positive integers, got {self.spans!r}")
-        if not 0 < self.band < 0.5:
-            raise ValueError(f"band must be in (0, 0.5), got {self.band!r}")
-
-    @property
-    def start_material(self) -> LinearIsotropic:
-        g = float(np.linalg.norm(self.gravity))
-        return LinearIsotropic(
-            membrane_stiffness=self.membrane_stiffness,
-            bending_stiffness=self.areal_density * g * self.start_bending_length ** 3,
-            poisson_ratio=self.poisson_ratio, areal_density=self.areal_density)
-
 
 def chosen_frames(count: int, used: int) -> list[int]:
     """`used` frame indices evenly spread over `count` frames (all when used is 0 or more)."""

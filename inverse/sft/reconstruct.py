@@ -49,6 +49,7 @@ from inverse.sft.data_terms import (
     silhouette_distance,
 )
 from inverse.sft.inputs import Camera, Template, mean_edge_length
+from inverse.sft.settings import ReconstructionConfig
 from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
@@ -59,56 +60,9 @@ from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.optim import Adam, AdamConfig
 from taichi_ndf.sampling import sample_surface
-from taichi_ndf.shell.materials import LinearIsotropic, preset
+from taichi_ndf.shell.materials import preset
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class ReconstructionConfig:
-    """Weights and solver settings of the physics-regularised reconstruction.
-
-    physics_weight: w_phys (0 switches the prior off); material: preset name of a linear
-    isotropic material (its ν and thickness set the prior's shape, see the module docstring);
-    silhouette_weight: w_sil [px² per px²]; temporal_weight: w_temp; huber_px: reprojection
-    error [px] beyond which the penalty grows linearly; width, hidden_layers, omega0: the SIREN;
-    output_scale: field output per network unit, as a fraction of √A; energy_samples: Monte-Carlo
-    samples of Π_int per step; steps: Adam steps per frame; lr, min_lr: cosine learning-rate
-    schedule per frame; init_steps: steps fitting the field to the initial guess of each frame
-    (when one is given); seed: field initialisation and energy samples.
-    """
-
-    physics_weight: float = 1e-2
-    material: str = "cloth"
-    silhouette_weight: float = 1.0
-    temporal_weight: float = 1.0
-    huber_px: float = 2.0
-    width: int = 64
-    hidden_layers: int = 3
-    omega0: float = 10.0
-    output_scale: float = 0.1
-    energy_samples: int = 512
-    steps: int = 100
-    lr: float = 5e-4
-    min_lr: float = 5e-5
-    init_steps: int = 100
-    seed: int = 0
-
-    def __post_init__(self):
-        for name in ("physics_weight", "silhouette_weight", "temporal_weight", "init_steps"):
-            if not 0 <= getattr(self, name) < math.inf:
-                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
-        for name in ("huber_px", "omega0", "output_scale", "lr", "energy_samples", "steps",
-                     "width", "hidden_layers"):
-            if not 0 < getattr(self, name) < math.inf:
-                raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
-        if not 0 <= self.min_lr <= self.lr:
-            raise ValueError(f"min_lr must be in [0, lr], got {self.min_lr}")
-        if not isinstance(preset(self.material), LinearIsotropic):
-            raise ValueError(
-                f"material {self.material!r} is not linear isotropic; the prior uses a fixed "
-                "linear material (e.g. 'cloth')"
-            )
 
 
 @dataclass

@@ -50,6 +50,7 @@ from inverse.sft.data_terms import silhouette_distance
 from inverse.sft.flow import DenseFlow, merged
 from inverse.sft.inputs import Camera, Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
+from inverse.sft.settings import SplinePriorConfig
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
@@ -63,59 +64,13 @@ from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.shell.hessian import sample_hessians
-from taichi_ndf.shell.materials import LinearIsotropic, preset
+from taichi_ndf.shell.materials import preset
 from taichi_ndf.spline_grid import spans_for
 
 log = logging.getLogger(__name__)
 
 DTYPE = torch.float64  # the Hessian blocks are central differences: float64 only
 JETS_SHAPE = (jets.CHANNELS, 3)
-
-
-@dataclass(frozen=True)
-class SplinePriorConfig:
-    """Weights and solver settings of the spline reconstruction.
-
-    physics_weight: w_phys (0 switches the prior off); material: preset name of a linear
-    isotropic material (ν and thickness set the prior's shape); membrane_factor: multiplies
-    the material's membrane stiffness (inextensibility against bending); span_edges: knot span
-    length in template mean edge lengths; degree: spline degree (3 or 4); quadrature_points:
-    Gauss points per span and direction (None: degree + 1; 3 measured as accurate as 4 for
-    cubics here at half the Hessian cost); silhouette_weight: w_sil; temporal_weight: w_temp;
-    huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
-    Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
-    decrease λ²/2 is below this fraction of E; extrapolate: start each frame from the
-    constant-velocity extrapolation of the coefficients (else from the last frame's).
-    """
-
-    physics_weight: float = 1e-2
-    material: str = "cloth"
-    membrane_factor: float = 1.0
-    span_edges: float = 3.0
-    degree: int = 3
-    quadrature_points: int | None = 3
-    silhouette_weight: float = 1.0
-    temporal_weight: float = 0.1
-    huber_px: float = 2.0
-    max_iterations: int = 8
-    tolerance: float = 1e-2
-    extrapolate: bool = False
-
-    def __post_init__(self):
-        for name in ("physics_weight", "silhouette_weight", "temporal_weight"):
-            if not 0 <= getattr(self, name) < math.inf:
-                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
-        for name in ("span_edges", "huber_px", "tolerance", "membrane_factor"):
-            if not 0 < getattr(self, name) < math.inf:
-                raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
-        if self.max_iterations < 1:
-            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
-        if self.degree not in (3, 4):
-            raise ValueError(f"degree must be 3 or 4, got {self.degree}")
-        if not isinstance(preset(self.material), LinearIsotropic):
-            raise ValueError(
-                f"material {self.material!r} is not linear isotropic; the prior uses a fixed "
-                "linear material (e.g. 'cloth')")
 
 
 @dataclass

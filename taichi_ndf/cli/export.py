@@ -40,7 +40,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time", type=finite_float, default=1.0,
                    help="load factor t in [0, 1] of a pseudo-time field's path (default 1)")
     add_runtime_options(p)
-    p.set_defaults(precision="f64")
     return p
 
 

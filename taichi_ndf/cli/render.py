@@ -36,8 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "view)")
     p.add_argument("--colour", choices=tuple(QUANTITIES), default="bending_strain",
                    help="per-vertex quantity shown (default: bending_strain)")
-    p.add_argument("--size", type=image_size, default=(800, 600),
-                   help="image size WIDTHxHEIGHT in pixels (default: 800x600)")
+    p.add_argument("--size", type=image_size, default=None,
+                   help="image size WIDTHxHEIGHT in pixels (default: 600 pixels high, each "
+                   "view as wide as its framed shape needs, 300 to 800 pixels, as render.png)")
     p.add_argument("--time", type=finite_float, default=None, metavar="T",
                    help="the trajectory frame at load factor (or pseudo-time) T instead of the "
                    "final state (coloured by displacement: the other quantities are stored for "
@@ -64,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
             raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
         run = read_run(args.run)
         deformed, scalars = frame_at(run, args.time, args.colour)
-        width, height = args.size
+        width, height = args.size or (None, 600)
         image = render_figure(
             deformed, run.faces, scalars=scalars,
             scalar_label=QUANTITIES[args.colour], views=tuple(args.view), up=run.up,
@@ -74,7 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         print(f"ndf-render: error: {err}", file=sys.stderr)
         return 2
-    print(f"wrote {out} ({width}x{height}, {', '.join(args.view)}, {args.colour})")
+    print(f"wrote {out} ({image.shape[1]}x{image.shape[0]}, {', '.join(args.view)}, "
+          f"{args.colour})")
     return 0
 
 

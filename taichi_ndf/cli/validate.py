@@ -18,7 +18,6 @@ from taichi_ndf.cli.common import (
 )
 from taichi_ndf.io import OutputDir
 from taichi_ndf.scene_schema import SceneError
-from taichi_ndf.solver import DivergenceError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -43,16 +42,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"folder of the case scene files (default: {SCENES_DIR})")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
-    add_runtime_options(p, precision="f64", seed=None,
+    add_runtime_options(p, seed=None,
                         seed_help="random seed (default: each scene's)")
     return p
 
 
 @interruptible("ndf-validate")
 def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from taichi_ndf.callbacks import DivergenceError
     from taichi_ndf.validation import CASES, load_case, run_case, write_report
 
-    args = build_parser().parse_args(argv)
     unknown = [c for c in args.cases if c not in CASES and not c.endswith(".toml")]
     if unknown:
         print(f"ndf-validate: error: unknown case(s) {', '.join(unknown)}; choose from "

@@ -12,10 +12,14 @@ scale and orient it right):
     /World/reference            Mesh: the undeformed surface (purpose "guide")
     /World/probes               Points: the probes at their final positions, names in
                                 customData
-    /World/obstacles/obstacle_k Mesh: the scene's obstacles, when it has any
+    /World/obstacles/NAME       Mesh: the scene's obstacles by their scene names, when it has any
+    /World/Looks/surface        Material (UsdPreviewSurface, steel blue as render.png) bound to
+                                the deformed and reference meshes; /World/Looks/obstacle (grey)
+                                bound to the obstacles
 
 Positions and UVs are stored as float32, the values of the run's OBJ files rounded to float32;
-time code k is trajectory frame k (trajectory/step_k.obj).
+time code k is trajectory frame k (trajectory/step_k.obj), FRAMES_PER_SECOND time codes and
+frames per second (so Blender plays it at the rate the stage states).
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ from taichi_ndf.extras import require
 from taichi_ndf.io.normals import vertex_normals
 from taichi_ndf.io.output_dir import atomic_path
 from taichi_ndf.io.run_files import QUANTITIES, RunFiles
+from taichi_ndf.render.figure import OBSTACLE_BGR
+from taichi_ndf.render.shaded import SURFACE_BGR
 
 __all__ = ["require_usd", "write_run_usd", "FRAMES_PER_SECOND"]
 
@@ -43,7 +49,7 @@ def require_usd():
 def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
     """Write `run` as a USD stage at `path` (.usdc binary, .usda text or .usd), atomically."""
     require_usd()
-    from pxr import Sdf, Usd, UsdGeom, Vt
+    from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
     path = Path(path)
     if path.suffix not in (".usd", ".usdc", ".usda"):
@@ -74,6 +80,7 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
             stage.SetStartTimeCode(0)
             stage.SetEndTimeCode(len(run.frames) - 1)
             stage.SetTimeCodesPerSecond(FRAMES_PER_SECOND)
+            stage.SetFramesPerSecond(FRAMES_PER_SECOND)
         primvars = UsdGeom.PrimvarsAPI(deformed)
         if run.uv is not None:
             st = primvars.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
@@ -86,19 +93,47 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
                 np.ascontiguousarray(run.quantity(name), dtype=np.float32)))
             primvar.GetAttr().SetDocumentation(f"{QUANTITIES[name]} at the final state")
 
+        surface = _display_material(stage, "/World/Looks/surface", SURFACE_BGR)
+        _bind(deformed, surface)
         if run.reference is not None:
             reference = _mesh(stage, "/World/reference", run.reference, run.faces)
             reference.CreatePurposeAttr(UsdGeom.Tokens.guide)
+            _bind(reference, surface)
         if run.probes:
             probes = UsdGeom.Points.Define(stage, "/World/probes")
             probes.CreatePointsAttr(_vec3(np.array([p.deformed for p in run.probes])))
             probes.GetPrim().SetCustomDataByKey("names", Vt.StringArray([p.name
                                                                          for p in run.probes]))
-        for k, obstacle in enumerate(run.obstacles):
-            _mesh(stage, f"/World/obstacles/obstacle_{k}", obstacle.vertices, obstacle.faces)
+        if run.obstacles:
+            grey = _display_material(stage, "/World/Looks/obstacle", OBSTACLE_BGR)
+        names = run.obstacle_names or tuple(f"obstacle_{k}" for k in range(len(run.obstacles)))
+        for name, obstacle in zip(names, run.obstacles, strict=True):
+            mesh = _mesh(stage, f"/World/obstacles/{Tf.MakeValidIdentifier(name)}",
+                         obstacle.vertices, obstacle.faces)
+            _bind(mesh, grey)
         stage.GetRootLayer().Save()
         del stage
     return path
+
+
+def _display_material(stage, path: str, bgr):
+    """A UsdPreviewSurface material of one diffuse colour (BGR in [0, 255], as the renders)."""
+    from pxr import Gf, Sdf, UsdShade
+
+    rgb = Gf.Vec3f(*(float(c) / 255.0 for c in reversed(np.asarray(bgr, dtype=np.float64))))
+    material = UsdShade.Material.Define(stage, path)
+    shader = UsdShade.Shader.Define(stage, f"{path}/preview")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(rgb)
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.6)
+    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return material
+
+
+def _bind(mesh, material) -> None:
+    from pxr import UsdShade
+
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
 
 
 def _vec3(array: np.ndarray):

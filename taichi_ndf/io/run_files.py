@@ -57,7 +57,8 @@ class RunFiles:
     reference: undeformed positions (V, 3) or None (runs written before reference.obj existed);
     scalars: per-vertex quantities of mesh.ply by name (V,); frames: the trajectory, in order
     (empty without one); history: (iterations, Π [J]) of the monitor; up: unit vector against
-    gravity (z without gravity); obstacles: meshes of the scene's obstacles.
+    gravity (z without gravity); obstacles: meshes of the scene's obstacles, named in
+    obstacle_names (their scene names: the stems of obstacles/<name>.obj).
     """
 
     path: Path
@@ -72,6 +73,7 @@ class RunFiles:
     probes: tuple[Probe, ...]
     up: np.ndarray
     obstacles: tuple[MeshData, ...] = field(default_factory=tuple)
+    obstacle_names: tuple[str, ...] = field(default_factory=tuple)
 
     def quantity(self, name: str) -> np.ndarray:
         """Per-vertex values (V,) of one of QUANTITIES."""
@@ -125,13 +127,15 @@ def read_run(path: str | os.PathLike) -> RunFiles:
                    for t, f in zip(factors, frame_files, strict=True))
     history = result.get("history", [])
     gravity = result.get("resolved", {}).get("scene_file", {}).get("loads", {}).get("gravity")
+    obstacle_files = sorted((path / "obstacles").glob("*.obj"))
     return RunFiles(
         path=path, name=str(result.get("scene", path.name)), deformed=mesh.vertices,
         faces=mesh.faces, uv=mesh.uvs, reference=reference, scalars=scalars, frames=frames,
         history=(np.array([h["iteration"] for h in history], dtype=np.float64),
                  np.array([h["energy"] for h in history], dtype=np.float64)),
         probes=_read_probes(path / "probes.json"), up=up_direction(gravity),
-        obstacles=tuple(read_mesh(f) for f in sorted((path / "obstacles").glob("*.obj"))))
+        obstacles=tuple(read_mesh(f) for f in obstacle_files),
+        obstacle_names=tuple(f.stem for f in obstacle_files))
 
 
 def _same_topology(other: MeshData, mesh: MeshData, name: str) -> np.ndarray:

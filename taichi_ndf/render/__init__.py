@@ -4,7 +4,7 @@ Camera convention (OpenCV): x right, y down, z forward; pixel (u, v) = K @ (X/Z,
 pixel centres at integer coordinates. See `taichi_ndf.render.raster`.
 """
 
-from taichi_ndf.render.camera import Camera, frame_mesh
+from taichi_ndf.render.camera import Camera, frame_mesh, widest_azimuth
 from taichi_ndf.render.image_file import save_png
 from taichi_ndf.render.plot import plot_curves
 from taichi_ndf.render.raster import (
@@ -35,6 +35,7 @@ __all__ = [
     "uv_to_texture_pixels",
     "Camera",
     "frame_mesh",
+    "widest_azimuth",
     "render_shaded",
     "colormap",
     "plot_curves",

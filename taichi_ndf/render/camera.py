@@ -4,7 +4,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Camera", "frame_mesh"]
+from taichi_ndf.render.raster import rasterize
+
+__all__ = ["Camera", "frame_mesh", "ground_axes", "widest_azimuth"]
 
 
 def _unit(vector, name: str) -> np.ndarray:
@@ -56,6 +58,74 @@ class Camera:
         )
 
 
+PREFERRED_AZIMUTH_DEG = -45.0  # a diagonal in front and to the side, as in Blender's default view
+AZIMUTH_STEP_DEG = 15.0  # candidates of `widest_azimuth`
+AREA_TOLERANCE = 0.1  # `widest_azimuth`: views this close to the widest count as wide
+
+
+def ground_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """East and north unit vectors completing the unit vector `up` to a right-handed frame
+    (east: the world axis least aligned with up, made normal to it)."""
+    reference = np.eye(3)[np.argmin(np.abs(up))]
+    east = _unit(reference - (reference @ up) * up, "east")
+    return east, np.cross(up, east)
+
+
+def _toward_eye(up: np.ndarray, elevation_deg, azimuth_deg) -> np.ndarray:
+    """Unit vectors (..., 3) from the target towards the eye: `elevation_deg` above the ground
+    plane, `azimuth_deg` around `up` from east."""
+    east, north = ground_axes(up)
+    el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
+    horizontal = np.cos(az)[..., None] * east + np.sin(az)[..., None] * north
+    return np.cos(el)[..., None] * horizontal + np.sin(el)[..., None] * up
+
+
+def widest_azimuth(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    up=(0.0, 0.0, 1.0),
+    elevation_deg: float = 30.0,
+    preferred_deg: float = PREFERRED_AZIMUTH_DEG,
+) -> float:
+    """The azimuth [deg] from which a camera at `elevation_deg` sees the surface (vertices
+    (V, 3) [m], faces (F, 3)) largest: of the candidates every AZIMUTH_STEP_DEG, those whose
+    silhouette area is within AREA_TOLERANCE (relative) of the largest, the one nearest
+    `preferred_deg`.
+
+    The silhouette (pixels covered, 64 x 64, from a distant camera at one distance for all
+    candidates, so nearly a parallel projection), not the summed face areas: folded layers
+    count once, as the eye sees them. A level sheet or a cylinder about `up` looks alike from
+    everywhere and keeps the preferred view; a sheet hanging in a vertical plane is seen from
+    its face instead of edge-on.
+    """
+    points = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    finite = points[np.all(np.isfinite(points), axis=1)]
+    if not len(finite) or not len(faces):
+        return float(preferred_deg)
+    up = _unit(up, "up")
+    centre = 0.5 * (finite.min(axis=0) + finite.max(axis=0))
+    radius = max(float(np.linalg.norm(finite - centre, axis=1).max()), 1e-9)
+    fov_deg, side = 10.0, 64
+    distance = radius / np.sin(np.radians(fov_deg) / 2.0)
+    candidates = preferred_deg + np.arange(0.0, 360.0, AZIMUTH_STEP_DEG)
+    cover = []
+    for azimuth in candidates:
+        toward_eye = _toward_eye(up, np.float64(elevation_deg), np.float64(azimuth))
+        camera = Camera(eye=tuple(centre + distance * toward_eye), target=tuple(centre),
+                        up=tuple(up), fov_y_deg=fov_deg)
+        raster = rasterize(camera.to_camera(points), faces, camera.intrinsics(side, side),
+                           side, side)
+        cover.append(raster.mask.mean())
+    cover = np.array(cover)
+    if cover.max() <= 0:
+        return float(preferred_deg)
+    wide = cover >= (1.0 - AREA_TOLERANCE) * cover.max()
+    away = np.abs((candidates - preferred_deg + 180.0) % 360.0 - 180.0)
+    return float(candidates[wide][np.argmin(away[wide])])
+
+
 def frame_mesh(
     vertices: np.ndarray,
     *,
@@ -63,7 +133,7 @@ def frame_mesh(
     height: int,
     up=(0.0, 0.0, 1.0),
     elevation_deg: float = 30.0,
-    azimuth_deg: float = -45.0,
+    azimuth_deg: float = PREFERRED_AZIMUTH_DEG,
     fov_y_deg: float = 30.0,
     margin: float = 0.08,
 ) -> Camera:
@@ -71,20 +141,17 @@ def frame_mesh(
 
     The viewing direction comes down at ``elevation_deg`` above the plane normal to ``up``, from
     ``azimuth_deg`` around ``up`` (0 = the world axis least aligned with up, -45 = a diagonal
-    in front and to the side, as in Blender's default view). The distance and a sideways shift
-    are chosen so that all points fill the image, leaving ``margin`` (fraction of the half
-    field of view) free on the tighter side.
+    in front and to the side, as in Blender's default view; `widest_azimuth` picks the one that
+    shows a surface largest). The distance and a sideways shift are chosen so that all points
+    fill the image, leaving ``margin`` (fraction of the half field of view) free on the tighter
+    side.
     """
     points = np.asarray(vertices, dtype=np.float64)
     points = points[np.all(np.isfinite(points), axis=1)]
     if not len(points):
         raise ValueError("no finite vertices to frame")
     up = _unit(up, "up")
-    reference = np.eye(3)[np.argmin(np.abs(up))]
-    east = _unit(reference - (reference @ up) * up, "east")
-    north = np.cross(up, east)
-    el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
-    toward_eye = np.cos(el) * (np.cos(az) * east + np.sin(az) * north) + np.sin(el) * up
+    toward_eye = _toward_eye(up, np.float64(elevation_deg), np.float64(azimuth_deg))
 
     centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
     probe = Camera(eye=tuple(centre + toward_eye), target=tuple(centre), up=tuple(up))

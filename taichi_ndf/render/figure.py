@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from taichi_ndf.render.camera import frame_mesh
+from taichi_ndf.render.camera import frame_mesh, ground_axes, widest_azimuth
 from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
 from taichi_ndf.render.shaded import (
     BACKGROUND_BGR,
@@ -21,13 +21,17 @@ from taichi_ndf.render.shaded import (
     welded_normals,
 )
 
-__all__ = ["VIEWS", "RANGE_PERCENTILES", "Obstacle", "render_figure", "shadow_points"]
+__all__ = ["VIEWS", "RANGE_PERCENTILES", "VIEW_ASPECT", "Obstacle", "render_figure",
+           "fitted_width", "shadow_points"]
 
 # Named views: (elevation above the ground [deg], azimuth around up [deg]) for `frame_mesh`
-# (azimuth 0 looks from the world axis least aligned with up; with z up that is +x).
-VIEWS = {"iso": (30.0, -45.0), "front": (8.0, -90.0), "side": (8.0, 0.0), "top": (89.99, -90.0)}
+# (azimuth 0 looks from the world axis least aligned with up; with z up that is +x). The
+# three-quarter view's azimuth None: `widest_azimuth` of the surface, the diagonal -45 unless
+# another side shows the shape at least 10 % larger (a sheet hanging in a vertical plane).
+VIEWS = {"iso": (30.0, None), "front": (8.0, -90.0), "side": (8.0, 0.0), "top": (89.99, -90.0)}
 
 RANGE_PERCENTILES = (1.0, 99.0)  # default colour range of the scalars
+VIEW_ASPECT = (0.5, 4.0 / 3.0)  # width / height of a view fitted to its shape (width=None)
 OBSTACLE_BGR = np.array([160.0, 160.0, 160.0])
 _SHADOW_DARKNESS = 0.35  # fraction of the background's brightness a full shadow removes
 # Direction towards the light, in the ground frame (east, north, up): high, slightly to the side.
@@ -42,18 +46,10 @@ class Obstacle:
     faces: np.ndarray
 
 
-def _ground_frame(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """East and north unit vectors completing `up` (the same axes as `frame_mesh`)."""
-    reference = np.eye(3)[np.argmin(np.abs(up))]
-    east = reference - (reference @ up) * up
-    east /= np.linalg.norm(east)
-    return east, np.cross(up, east)
-
-
 def shadow_points(points: np.ndarray, up, ground_height: float) -> np.ndarray:
     """Points (N, 3) projected along the light onto the ground plane {x . up = ground_height}."""
     up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
-    east, north = _ground_frame(up)
+    east, north = ground_axes(up)
     light = _LIGHT_TILT[0] * east + _LIGHT_TILT[1] * north + _LIGHT_TILT[2] * up
     light /= np.linalg.norm(light)
     height = points @ up - ground_height
@@ -70,13 +66,17 @@ def render_figure(
     obstacles: tuple[Obstacle, ...] = (),
     views: tuple[str, ...] = ("iso",),
     up=(0.0, 0.0, 1.0),
-    width: int = 800,
+    width: int | None = 800,
     height: int = 600,
     shadow: bool = True,
     supersample: int = 3,
 ) -> np.ndarray:
     """The surface (V, 3) [m] with faces (F, 3) side by side from each of `views` (names in
     VIEWS), uint8 BGR (height, width, 3).
+
+    width: of the whole image, shared equally by the views; None: each view as wide as the
+        framed shape's extent needs (its width-to-height ratio, clipped to VIEW_ASPECT), so a
+        tall hanging sheet is not a narrow strip in a wide frame.
 
     scalars: per-vertex values (V,) coloured with viridis and shown on a colour bar labelled
         `scalar_label` (give the units); without them the surface is steel blue.
@@ -98,8 +98,8 @@ def render_figure(
         scalars = vertex_scalars(scalars, len(vertices))
         scalar_range = scalar_range or colour_range(scalars, RANGE_PERCENTILES)
         bar = colour_bar(scalar_range, scalar_label, height)
-    view_width = (width - (0 if bar is None else bar.shape[1])) // len(views)
-    if view_width < 16 or height < 16:
+    bar_width = 0 if bar is None else bar.shape[1]
+    if width is not None and ((width - bar_width) // len(views) < 16 or height < 16):
         raise ValueError(f"a {width}x{height} image leaves no room for {len(views)} view(s)"
                          + ("" if bar is None else " and the colour bar"))
 
@@ -123,6 +123,13 @@ def render_figure(
     pictures = []
     for view in views:
         elevation, azimuth = VIEWS[view]
+        if azimuth is None:
+            azimuth = widest_azimuth(vertices, faces, up=up, elevation_deg=elevation)
+        if width is None:
+            view_width = fitted_width(all_points, height, up=up, elevation_deg=elevation,
+                                      azimuth_deg=azimuth)
+        else:
+            view_width = (width - bar_width) // len(views)
         camera = frame_mesh(all_points, width=view_width, height=height, up=tuple(up),
                             elevation_deg=elevation, azimuth_deg=azimuth)
         points_cam = camera.to_camera(all_points)
@@ -152,7 +159,20 @@ def render_figure(
         fine = np.clip(np.rint(fine), 0, 255).astype(np.uint8)
         pictures.append(downsample(fine.reshape(fine_h, fine_w, 3), raster.supersample))
     image = np.concatenate(pictures + ([] if bar is None else [bar]), axis=1)
-    if image.shape[1] < width:  # the views' integer division left a few columns
+    if width is not None and image.shape[1] < width:  # the integer division left a few columns
         pad = np.full((height, width - image.shape[1], 3), BACKGROUND_BGR, dtype=np.uint8)
         image = np.concatenate([image, pad], axis=1)
     return image
+
+
+def fitted_width(points: np.ndarray, height: int, **view) -> int:
+    """Width [pixels] of a view `height` pixels high that the points (N, 3) [m], framed by
+    `frame_mesh` from `view` (up, elevation_deg, azimuth_deg), fill as they fill the height:
+    their projected width-to-height ratio, clipped to VIEW_ASPECT."""
+    camera = frame_mesh(points, width=height, height=height, **view)
+    projected = camera.to_camera(points)
+    projected = projected[:, :2] / projected[:, 2:3]
+    extent = np.ptp(projected, axis=0)
+    ratio = extent[0] / max(extent[1], 1e-12)
+    lo, hi = VIEW_ASPECT
+    return int(round(height * min(max(ratio, lo), hi)))

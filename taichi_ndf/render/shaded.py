@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 
 from taichi_ndf.io.normals import vertex_normals
-from taichi_ndf.render.camera import Camera, frame_mesh
+from taichi_ndf.render.camera import Camera, frame_mesh, widest_azimuth
 from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
 
 __all__ = ["render_shaded", "colormap", "colour_bar", "colour_range", "vertex_scalars",
@@ -48,7 +48,8 @@ def render_shaded(
     vertices: world positions [m], shape (V, 3); faces: triangles (F, 3).
     scalars: optional per-vertex values (V,) shown with the viridis colour map and a colour bar
         (labelled ``scalar_label``) on the right; ``scalar_range`` defaults to their finite range.
-    camera: defaults to `frame_mesh` (looking down at 30 degrees from a diagonal, z up).
+    camera: defaults to `frame_mesh` (looking down at 30 degrees, z up) from `widest_azimuth`
+        (a diagonal unless another side shows the surface larger).
     supersample: sub-pixels per pixel along each axis, for antialiased edges.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -63,7 +64,8 @@ def render_shaded(
         view_width = width
 
     if camera is None:
-        camera = frame_mesh(vertices, width=view_width, height=height)
+        camera = frame_mesh(vertices, width=view_width, height=height,
+                            azimuth_deg=widest_azimuth(vertices, faces))
     points_cam = camera.to_camera(vertices)
     raster = rasterize(
         points_cam,

@@ -38,10 +38,12 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from taichi_ndf.model import ShellModel
+if TYPE_CHECKING:  # annotations only: the catalogue (and ndf-validate --help) stays light
+    from taichi_ndf.model import ShellModel
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "validation" / "scenes"
 CASES_DIR = SCENES_DIR.parent / "cases"

@@ -15,7 +15,7 @@ import numpy as np
 from taichi_ndf.extras import require
 from taichi_ndf.io.run_files import QUANTITIES, RunFiles
 from taichi_ndf.render import plot_curves
-from taichi_ndf.render.camera import frame_mesh
+from taichi_ndf.render.camera import frame_mesh, widest_azimuth
 from taichi_ndf.render.figure import RANGE_PERCENTILES
 from taichi_ndf.render.shaded import SURFACE_BGR, colormap, colour_bar, colour_range
 
@@ -50,7 +50,8 @@ class RunViewer:
         size = float(np.ptp(run.deformed, axis=0).max())
         scene, gui = self.server.scene, self.server.gui
         scene.set_up_direction(tuple(float(v) for v in run.up))
-        camera = frame_mesh(run.deformed, width=4, height=3, up=tuple(run.up))
+        camera = frame_mesh(run.deformed, width=4, height=3, up=tuple(run.up),
+                            azimuth_deg=widest_azimuth(run.deformed, run.faces, up=run.up))
         self.server.initial_camera.position = tuple(camera.eye)
         self.server.initial_camera.look_at = tuple(camera.target)
         self.server.initial_camera.up = tuple(float(v) for v in run.up)
@@ -78,8 +79,9 @@ class RunViewer:
                 side="double", cast_shadow=False)
             self.ghost.on_update(lambda _: setattr(self._reference, "visible",
                                                    self.ghost.value))
-        for k, obstacle in enumerate(run.obstacles):
-            scene.add_mesh_simple(f"/obstacles/{k}", obstacle.vertices, obstacle.faces,
+        names = run.obstacle_names or tuple(str(k) for k in range(len(run.obstacles)))
+        for name, obstacle in zip(names, run.obstacles, strict=True):
+            scene.add_mesh_simple(f"/obstacles/{name}", obstacle.vertices, obstacle.faces,
                                   color=OBSTACLE_RGB, side="double")
         self.probes = [handle for probe in run.probes for handle in (
             scene.add_icosphere(f"/probes/{probe.name}", radius=0.02 * size, color=PROBE_RGB,

@@ -1,0 +1,176 @@
+"""Settings of the shape-from-template tools: the spline prior's (`spline_prior`), the SIREN
+reconstruction's (`reconstruct`) and the material estimate's from a video
+(`material_from_video`), frozen dataclasses checked on construction.
+
+Apart from their modules so that `ndf-sft --help` shows their defaults without importing torch
+or Taichi (the material presets are imported where a check needs them).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from taichi_ndf.shell.fabrics import FENG_2022_PERCENTILES, STANDARD_GRAVITY
+
+if TYPE_CHECKING:
+    from taichi_ndf.shell.materials import LinearIsotropic
+
+__all__ = ["SplinePriorConfig", "ReconstructionConfig", "MaterialFromVideoConfig",
+           "FABRIC_BENDING_LENGTH", "FABRIC_AREAL_DENSITY"]
+
+# Bending length of measured fabrics (Feng et al., TOG 2022, 251 fabrics) [m] and areal
+# density [kg/m²]: 5th, 50th and 95th percentile.
+FABRIC_BENDING_LENGTH = FENG_2022_PERCENTILES["bending_length"]
+FABRIC_AREAL_DENSITY = FENG_2022_PERCENTILES["areal_density"]
+
+
+@dataclass(frozen=True)
+class SplinePriorConfig:
+    """Weights and solver settings of the spline reconstruction.
+
+    physics_weight: w_phys (0 switches the prior off); material: preset name of a linear
+    isotropic material (ν and thickness set the prior's shape); membrane_factor: multiplies
+    the material's membrane stiffness (inextensibility against bending); span_edges: knot span
+    length in template mean edge lengths; degree: spline degree (3 or 4); quadrature_points:
+    Gauss points per span and direction (None: degree + 1; 3 measured as accurate as 4 for
+    cubics here at half the Hessian cost); silhouette_weight: w_sil; temporal_weight: w_temp;
+    huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
+    Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
+    decrease λ²/2 is below this fraction of E; extrapolate: start each frame from the
+    constant-velocity extrapolation of the coefficients (else from the last frame's).
+    """
+
+    physics_weight: float = 1e-2
+    material: str = "cloth"
+    membrane_factor: float = 1.0
+    span_edges: float = 3.0
+    degree: int = 3
+    quadrature_points: int | None = 3
+    silhouette_weight: float = 1.0
+    temporal_weight: float = 0.1
+    huber_px: float = 2.0
+    max_iterations: int = 8
+    tolerance: float = 1e-2
+    extrapolate: bool = False
+
+    def __post_init__(self):
+        for name in ("physics_weight", "silhouette_weight", "temporal_weight"):
+            if not 0 <= getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
+        for name in ("span_edges", "huber_px", "tolerance", "membrane_factor"):
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if self.degree not in (3, 4):
+            raise ValueError(f"degree must be 3 or 4, got {self.degree}")
+        from taichi_ndf.shell.materials import LinearIsotropic, preset
+
+        if not isinstance(preset(self.material), LinearIsotropic):
+            raise ValueError(
+                f"material {self.material!r} is not linear isotropic; the prior uses a fixed "
+                "linear material (e.g. 'cloth')")
+
+
+@dataclass(frozen=True)
+class ReconstructionConfig:
+    """Weights and solver settings of the physics-regularised reconstruction.
+
+    physics_weight: w_phys (0 switches the prior off); material: preset name of a linear
+    isotropic material (its ν and thickness set the prior's shape, see the module docstring);
+    silhouette_weight: w_sil [px² per px²]; temporal_weight: w_temp; huber_px: reprojection
+    error [px] beyond which the penalty grows linearly; width, hidden_layers, omega0: the SIREN;
+    output_scale: field output per network unit, as a fraction of √A; energy_samples: Monte-Carlo
+    samples of Π_int per step; steps: Adam steps per frame; lr, min_lr: cosine learning-rate
+    schedule per frame; init_steps: steps fitting the field to the initial guess of each frame
+    (when one is given); seed: field initialisation and energy samples.
+    """
+
+    physics_weight: float = 1e-2
+    material: str = "cloth"
+    silhouette_weight: float = 1.0
+    temporal_weight: float = 1.0
+    huber_px: float = 2.0
+    width: int = 64
+    hidden_layers: int = 3
+    omega0: float = 10.0
+    output_scale: float = 0.1
+    energy_samples: int = 512
+    steps: int = 100
+    lr: float = 5e-4
+    min_lr: float = 5e-5
+    init_steps: int = 100
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("physics_weight", "silhouette_weight", "temporal_weight", "init_steps"):
+            if not 0 <= getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
+        for name in ("huber_px", "omega0", "output_scale", "lr", "energy_samples", "steps",
+                     "width", "hidden_layers"):
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
+        if not 0 <= self.min_lr <= self.lr:
+            raise ValueError(f"min_lr must be in [0, lr], got {self.min_lr}")
+        from taichi_ndf.shell.materials import LinearIsotropic, preset
+
+        if not isinstance(preset(self.material), LinearIsotropic):
+            raise ValueError(
+                f"material {self.material!r} is not linear isotropic; the prior uses a fixed "
+                "linear material (e.g. 'cloth')"
+            )
+
+
+@dataclass(frozen=True)
+class MaterialFromVideoConfig:
+    """Settings of the estimate.
+
+    areal_density: stated ρ_A [kg/m²] that turns B / (ρ_A g) into B (default: the median of
+    measured fabrics); gravity: (3,) [m/s²] in camera coordinates (default: down the image);
+    start_bending_length: c of the start value [m]; membrane_stiffness: D [N/m] (held unless
+    estimate_membrane); poisson_ratio: ν; frames: number of frames used, evenly spread over the
+    sequence (0: all); spans: the coarse grid (the fine grid halves it); band: the handles'
+    band (fraction of the domain); fps: frame rate of the video [1/s], for the quasi-static
+    check; max_iterations: outer Levenberg–Marquardt iterations per grid."""
+
+    areal_density: float = FABRIC_AREAL_DENSITY[1]
+    gravity: tuple[float, float, float] = (0.0, STANDARD_GRAVITY, 0.0)
+    start_bending_length: float = FABRIC_BENDING_LENGTH[1]
+    membrane_stiffness: float = 300.0
+    poisson_ratio: float = 0.25
+    estimate_membrane: bool = False
+    frames: int = 8
+    spans: tuple[int, int] = (6, 6)
+    band: float = 0.1
+    fps: float = 30.0
+    max_iterations: int = 12
+
+    def __post_init__(self):
+        for name in ("areal_density", "start_bending_length", "membrane_stiffness", "fps"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        g = np.asarray(self.gravity, dtype=np.float64)
+        if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.linalg.norm(g) > 0:
+            raise ValueError(f"gravity must be a non-zero 3-vector [m/s²], got {self.gravity!r}")
+        if isinstance(self.frames, bool) or not isinstance(self.frames, int) or \
+                (self.frames != 0 and self.frames < 2):
+            raise ValueError(f"frames must be 0 (all) or >= 2, got {self.frames!r}")
+        if len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans):
+            raise ValueError(f"spans must be two positive integers, got {self.spans!r}")
+        if not 0 < self.band < 0.5:
+            raise ValueError(f"band must be in (0, 0.5), got {self.band!r}")
+
+    @property
+    def start_material(self) -> LinearIsotropic:
+        from taichi_ndf.shell.materials import LinearIsotropic
+
+        g = float(np.linalg.norm(self.gravity))
+        return LinearIsotropic(
+            membrane_stiffness=self.membrane_stiffness,
+            bending_stiffness=self.areal_density * g * self.start_bending_length ** 3,
+            poisson_ratio=self.poisson_ratio, areal_density=self.areal_density)
