@@ -123,7 +123,7 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     if solver.pseudo_time:
         if model.contact is not None:
             raise SceneError("training.pseudo_time: not available with [[obstacles]]")
-        field = replace(field, conditioning=(TIME_RANGE,))
+        field = replace(field, conditioning=(TIME_RANGE,), pseudo_time=True)
     top.close()
     scene = Scene(name=name, description=description, model=model, field=field, solver=solver,
                   quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
