@@ -63,7 +63,7 @@ class DisplacementOperator:
     def __init__(self, field, boundary: BoundaryConditions | None):
         self.field = field
         self.boundary = _unfolded_for(field, boundary)
-        self._last: tuple[torch.Tensor, float | torch.Tensor] | None = None
+        self._last: tuple | None = None   # ξ, t and the pseudo-time factor of the last jets
 
     @property
     def frame(self) -> bool:
@@ -107,6 +107,14 @@ class DisplacementOperator:
                              "conditioned field (pseudo-time or material inputs)")
         return self.evaluation_points(xi)
 
+    def _time_factor(self, conditioning: torch.Tensor | None) -> torch.Tensor | None:
+        """A pseudo-time field's factor t (M, 1, 1) on its raw output (`FieldConfig.pseudo_time`:
+        u(ξ, 0) = 0, the path starts at rest exactly); None for any other field."""
+        if conditioning is None or not getattr(getattr(self.field, "config", None),
+                                               "pseudo_time", False):
+            return None
+        return conditioning[:, :1].reshape(-1, 1, 1)
+
     def _compose(self, xi: torch.Tensor, raw: torch.Tensor, t) -> torch.Tensor:
         return raw if self.boundary is None else self.boundary.compose(xi, raw, t=t)
 
@@ -117,15 +125,20 @@ class DisplacementOperator:
         motions (one number or one per sample); conditioning: the field's extra inputs (N, k).
         Keeps what `backward` needs (the field's tape, ξ and t) until the next call."""
         raw = self.field.jets(self._points(xi, conditioning), conditioning)
-        self._last = (xi, t)
+        factor = self._time_factor(conditioning)
+        if factor is not None:
+            raw = raw * factor.to(raw.dtype)
+        self._last = (xi, t, factor)
         return self._compose(xi, raw, t)
 
     def backward(self, grad_u_jets: torch.Tensor) -> None:
         """Fill the field's gradients from dL/du_jets (N, 6, 3) of the last `jets` call."""
         if self._last is None:
             raise RuntimeError("backward needs a preceding jets call")
-        xi, t = self._last
+        xi, t, factor = self._last
         grad = self.raw_gradient(xi, grad_u_jets, t=t)
+        if factor is not None:
+            grad = grad * factor.to(grad.dtype)
         self.field.backward(grad.to(self.field.parameters[0].dtype))
 
     def raw_gradient(self, xi: torch.Tensor, grad_u_jets: torch.Tensor,
@@ -140,6 +153,9 @@ class DisplacementOperator:
                      conditioning: torch.Tensor | None = None) -> torch.Tensor:
         """Displacement u (N, 3) [m] at ξ (no tape kept: for outputs and probes)."""
         values = self.field.evaluate(self._points(xi, conditioning), conditioning)
+        factor = self._time_factor(conditioning)
+        if factor is not None:
+            values = values * factor[:, 0].to(values.dtype)
         return self._compose(xi, jets.constant(values), t)[:, jets.VALUE]
 
     def prescribed(self, xi: torch.Tensor, *, t: float | torch.Tensor = 1.0,
@@ -197,4 +213,7 @@ class DisplacementOperator:
         basis[:, :, :width] = features.permute(1, 0, 2)
         basis[:, jets.VALUE, width] = 1.0  # the bias enters the value channel only
         basis *= self.field.config.output_scale
+        factor = self._time_factor(conditioning)
+        if factor is not None:
+            basis *= factor.to(basis.dtype)
         return u, self.jacobian(xi.to(u.dtype), basis)

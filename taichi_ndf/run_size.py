@@ -20,7 +20,8 @@ import logging
 
 from taichi_ndf.io.memory import available_memory, physical_memory
 
-__all__ = ["check_run_size", "siren_memory", "spline_gauss_points", "spline_memory"]
+__all__ = ["check_run_size", "check_siren_size", "check_spline_size", "siren_memory",
+           "spline_gauss_points", "spline_memory"]
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +92,33 @@ def _check(need: int, what: str, advice: str) -> None:
                     _gib(have))
 
 
+def check_spline_size(plan, *, check_points: int = 0, grid: str = "",
+                      advice: str = "choose fewer spans, a longer span_length, fewer levels / "
+                                    "--refine or a smaller check_resolution") -> None:
+    """Raise ValueError (one line with the estimate) if solving `plan`'s finest grid (a
+    `SplinePlan`, with `check_points` contact check points, described by `grid`) needs more
+    memory than this machine has; warn if more than is available now."""
+    points = spline_gauss_points(plan)
+    spans = [f"{n:.3g}" if n > 10**6 else str(n) for n in _finest_spans(plan)]
+    levels = "" if plan.levels == 1 else f" ({plan.levels} levels)"
+    seconds = float(points + check_points) * SECONDS_PER_GAUSS_POINT
+    _check(spline_memory(plan, check_points),
+           f"spline field: the finest grid{levels} of {spans[0]} × {spans[1]} spans "
+           f"({float(points):.3g} Gauss points){grid}, ~{seconds:.2g} s per Newton iteration,",
+           advice)
+
+
+def check_siren_size(field, samples: int, itemsize: int, *, check_points: int = 0,
+                     grid: str = "", advice: str = "choose a narrower field, fewer samples or "
+                                                   "a smaller check_resolution") -> None:
+    """Raise ValueError (one line with the estimate) if training the SIREN `field` (a
+    `FieldConfig`) on `samples` points (+ `check_points`) of `itemsize` bytes needs more memory
+    than this machine has; warn if more than is available now."""
+    _check(siren_memory(field, samples + check_points, itemsize),
+           f"SIREN field {field.width} wide × {field.hidden_layers} layers on {samples} "
+           f"samples{grid}", advice)
+
+
 def check_run_size(scene, solver, *, itemsize: int = 4) -> None:
     """Raise ValueError (one line with the estimate) if a size of `scene` solved with `solver`
     (a `SolverConfig`) needs more memory than this machine has; warn if more than is available
@@ -103,19 +131,8 @@ def check_run_size(scene, solver, *, itemsize: int = 4) -> None:
     grid = ("" if contact is None else f" and a contact check grid of "
             f"{contact.check_resolution}² points (contact.check_resolution)")
     if isinstance(field, SplinePlan):
-        points = spline_gauss_points(field)
-        spans = [f"{n:.3g}" if n > 10**6 else str(n) for n in _finest_spans(field)]
-        levels = "" if field.levels == 1 else f" ({field.levels} levels)"
-        seconds = float(points + check_points) * SECONDS_PER_GAUSS_POINT
-        _check(spline_memory(field, check_points),
-               f"spline field: the finest grid{levels} of {spans[0]} × {spans[1]} spans "
-               f"({float(points):.3g} Gauss points){grid}, ~{seconds:.2g} s per Newton iteration,",
-               "choose fewer spans, a longer span_length, fewer levels / --refine or a "
-               "smaller check_resolution")
+        check_spline_size(field, check_points=check_points, grid=grid)
     else:
         samples = max(solver.samples, solver.monitor_samples,
                       solver.newton_samples if solver.newton_iterations else 0)
-        _check(siren_memory(field, samples + check_points, itemsize),
-               f"SIREN field {field.width} wide × {field.hidden_layers} layers on {samples} "
-               f"samples{grid}", "choose a narrower field, fewer samples or a smaller "
-               "check_resolution")
+        check_siren_size(field, samples, itemsize, check_points=check_points, grid=grid)

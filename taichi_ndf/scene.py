@@ -127,7 +127,7 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     if solver.pseudo_time:
         if model.contact is not None:
             raise SceneError("training.pseudo_time: not available with [[obstacles]]")
-        field = replace(field, conditioning=(TIME_RANGE,))
+        field = replace(field, conditioning=(TIME_RANGE,), pseudo_time=True)
     top.close()
     scene = Scene(name=name, description=description, model=model, field=field, solver=solver,
                   quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
@@ -185,8 +185,8 @@ def _geometry(t: Table, base_dir: Path):
                              f"(finite numbers), got {b!r}")
         return Plane(bounds=tuple(tuple(float(v) for v in p) for p in b), **placement)
     if kind == "cylinder":
-        return Cylinder(radius=t.number("radius", positive=True),
-                        length=t.number("length", positive=True), **placement)
+        return Cylinder(radius=t.number("radius", positive=True), length=t.number(
+            "length", positive=True), angle=math.radians(t.number("angle_deg", 360.0)), **placement)
     if kind == "cone":
         return Cone(bottom_radius=t.number("bottom_radius", positive=True),
                     top_radius=t.number("top_radius", positive=True),
@@ -204,7 +204,8 @@ def _geometry(t: Table, base_dir: Path):
                        slit=t.boolean("slit", False), **placement)
     return Hemisphere(radius=t.number("radius", positive=True),
                       hole_half_angle=math.radians(t.number("hole_half_angle_deg", 0.0)),
-                      rim_angle=math.radians(t.number("rim_angle_deg", 90.0)), **placement)
+                      rim_angle=math.radians(t.number("rim_angle_deg", 90.0)),
+                      azimuth=math.radians(t.number("azimuth_deg", 360.0)), **placement)
 
 
 def _material(t: Table):

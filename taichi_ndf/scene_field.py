@@ -69,7 +69,7 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
               or not (math.isfinite(length) and length > 0)):
             raise SceneError(f"{t.key('span_length')}: expected \"auto\" or a positive length "
                              f"[m], got {length!r}")
-        spans = spans_for(surface, float(length))
+        spans = spans_for(surface, float(length), model.loads)
     domain = surface.domain
     # Even across the symmetry planes by its coefficients (not by folded coordinates, which
     # coarsen the grid at the planes: SplineConfig.even_ends).

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from taichi_ndf import progress
+from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard
 from taichi_ndf.checkpoint import read_checkpoint
 from taichi_ndf.contact.config import contact_summary, write_obstacles
@@ -75,6 +76,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         raise ValueError("the solver configuration and the scene disagree on pseudo_time (the "
                          "scene's field has a pseudo-time input only with it)")
     seed = config.seed if seed is None else seed
+    warn_rigid_motions(scene.model, newton=isinstance(scene.field, SplinePlan)
+                       or config.newton_iterations > 0)
     if resume:
         _check_same_scene(out.file("checkpoint.pt"), scene)
     if isinstance(scene.field, SplinePlan):

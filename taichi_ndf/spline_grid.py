@@ -10,7 +10,9 @@ Gauss points of one span must resolve the ramp of a vanishing factor (a clamped 
 five times its band found energies far below the true minimum, from quadrature error alone).
 The band term binds none of the validation cases (their bands are ≥ 1.3 spans wide), but it
 does bind the napkin variants with edges and handles (ℓ = 0.1: 10 spans per side). A given
-span length L gives ⌈length_i / L⌉ spans per direction.
+span length L gives ⌈length_i / L⌉ spans per direction, along a periodic direction rounded up
+to a multiple of the order of the concentrated loads' symmetry (`load_symmetry`: two opposite
+loads on a cylinder, an even count), so that symmetric loads meet a symmetric grid.
 """
 
 from __future__ import annotations
@@ -87,14 +89,53 @@ def auto_span_length(surface, thickness: float, band: float | None = None) -> fl
     return length if band is None else min(length, band * min(lengths))
 
 
-def spans_for(surface, span_length: float) -> tuple[int, int]:
-    """Knot spans per direction of spans at most `span_length` [m] long."""
+def spans_for(surface, span_length: float, loads=None) -> tuple[int, int]:
+    """Knot spans per direction of spans at most `span_length` [m] long; with `loads`, a
+    periodic direction's count rounded up to a multiple of the loads' symmetry order along it
+    (`load_symmetry`), so that the grid maps onto itself wherever the loads do."""
     if not (math.isfinite(span_length) and span_length > 0):
         raise ValueError(f"span_length must be a positive length [m], got {span_length!r}")
     lengths, _ = surface_scales(surface, 1.0)
-    return tuple(max(1, math.ceil(length / span_length - 1e-9)) for length in lengths)
+    spans = [max(1, math.ceil(length / span_length - 1e-9)) for length in lengths]
+    if loads is not None:
+        spans = [m * math.ceil(n / m) for n, m in zip(spans, load_symmetry(surface, loads),
+                                                     strict=True)]
+    return tuple(spans)
 
 
-def grid_spans(surface, thickness: float, band: float | None = None) -> tuple[int, int]:
-    """The grid rule's spans (module docstring)."""
-    return spans_for(surface, auto_span_length(surface, thickness, band))
+def load_symmetry(surface, loads) -> tuple[int, int]:
+    """Per direction, the order m of the concentrated loads' symmetry along a periodic
+    coordinate: the largest m for which a shift of ξ_d by period / m maps the point loads
+    (position and size of the force) and the vertices of the line loads' paths (with the size
+    of their force per length) onto themselves; 1 for an open direction or without such loads
+    (distributed loads are uniform along the surface and never break a shift). The pinched
+    cylinder's two opposite loads have m = 2: on the grid rule's 63 spans around, the two load
+    points moved 2.8 % apart."""
+    marks = [(p.xi, math.hypot(*p.force)) for p in loads.point_loads]
+    marks += [(xi, math.hypot(*line.force)) for line in loads.line_loads for xi in line.path]
+    orders = []
+    for d, (lo, hi) in enumerate(surface.domain.bounds):
+        if not surface.domain.periodic[d] or not marks:
+            orders.append(1)
+            continue
+        period, other = hi - lo, 1 - d
+        tol = 1e-9 * period
+
+        def same(a, b, d=d, other=other, period=period, tol=tol):
+            gap = (a[0][d] - b[0][d]) % period
+            return (min(gap, period - gap) <= tol and abs(a[0][other] - b[0][other]) <= tol
+                    * max(1.0, abs(a[0][other])) and math.isclose(a[1], b[1], rel_tol=1e-9))
+
+        def maps(m, d=d, period=period, same=same):
+            shifted = [((*(x + period / m if k == d else x for k, x in enumerate(xi)),), f)
+                       for xi, f in marks]
+            return all(any(same(a, b) for b in marks) for a in shifted)
+
+        orders.append(max(m for m in range(1, len(marks) + 1) if maps(m)))
+    return tuple(orders)
+
+
+def grid_spans(surface, thickness: float, band: float | None = None, loads=None
+               ) -> tuple[int, int]:
+    """The grid rule's spans (module docstring; `loads`: `spans_for`)."""
+    return spans_for(surface, auto_span_length(surface, thickness, band), loads)

@@ -4,6 +4,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from inverse.cli.fit_material import main
 from taichi_ndf.io import write_obj
@@ -83,3 +85,62 @@ def test_end_to_end_writes_estimate_and_overlay(tmp_path):
     value = document["parameters"]["bending_stiffness"]["value"]
     assert abs(value / (0.2 * 9.81 * 0.2**3) - 1) < 0.1
     assert (tmp_path / "run" / "estimate" / "overlay.png").stat().st_size > 0
+
+
+class WorkStarted(Exception):
+    """Raised by the stubbed estimators: the command got past its checks into the work."""
+
+
+def _stubbed(monkeypatch):
+    import inverse.cli.fit_material as fit
+
+    def started(*args, **kwargs):
+        raise WorkStarted
+
+    for name in ("newton_estimate", "implicit_estimate", "bilevel_estimate", "_observations"):
+        monkeypatch.setattr(fit, name, started)
+
+
+@pytest.mark.parametrize("method, options, message", [
+    ("newton", ["--spans", "20000", "20000"], "finest grid (2 levels) of 40000 × 40000 spans"),
+    ("implicit", ["--width", "100000", "--samples", "100000"],
+     "SIREN field 100000 wide × 2 layers on 100000 samples"),
+])
+def test_absurd_sizes_are_refused_before_any_work(tmp_path, capsys, monkeypatch, method,
+                                                  options, message):
+    """The fit's largest solve against the machine's memory, the check ndf-sim makes
+    (taichi_ndf.run_size), before the observations are read: on main --spans 20000 20000 read
+    them and started the fit."""
+    _stubbed(monkeypatch)
+    code, err = _run(capsys, "--observed", str(tmp_path / "o.obj"), "--estimate", "bending",
+                     "--method", method, "--out", str(tmp_path / "out"), *options)
+    assert code == 2, err
+    (line,) = err.strip().splitlines()
+    assert message in line and "GiB of memory" in line and "choose" in line
+
+
+@settings(max_examples=25, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(method=st.sampled_from(["newton", "implicit", "bilevel"]),
+       spans=st.integers(1, 10**5), width=st.integers(1, 10**6), samples=st.integers(1, 10**7))
+def test_fuzzed_sizes_are_refused_in_one_line_or_reach_the_work(tmp_path_factory, monkeypatch,
+                                                                 method, spans, width, samples):
+    """Sizes either pass the memory check (the stubbed fit is reached) or are refused in one
+    line with the estimate, exit 2, no traceback."""
+    import contextlib
+    import io
+
+    _stubbed(monkeypatch)
+    out = tmp_path_factory.mktemp("fit") / "out"
+    err = io.StringIO()
+    argv = ["--scene", SCENE, "--observed", str(out.parent / "o.obj"), "--estimate", "bending",
+            "--method", method, "--out", str(out), "--spans", str(spans), str(spans),
+            "--width", str(width), "--samples", str(samples)]
+    with contextlib.redirect_stderr(err):
+        try:
+            code = main(argv)
+        except WorkStarted:
+            return
+    assert code == 2
+    (line,) = err.getvalue().strip().splitlines()
+    assert "needs about" in line and "GiB" in line

@@ -14,6 +14,7 @@ import torch
 
 from taichi_ndf.field import NeuralField
 from taichi_ndf.loads import Loads
+from taichi_ndf.outputs import deformed_mesh
 from taichi_ndf.pseudo_time import (
     POINT_REPEATS,
     conditioning,
@@ -94,6 +95,19 @@ def test_rim_of_the_shipped_path_scene_turns_by_t_times_the_angle():
         x, y = 0.1 * np.cos(theta.numpy()), 0.1 * np.sin(theta.numpy())
         expected = np.stack((c * x - s * y - x, s * x + c * y - y, 0 * x), 1)
         np.testing.assert_allclose(u, expected, rtol=0, atol=1e-14, err_msg=f"t={t}")
+
+
+def test_the_path_starts_at_rest():
+    """t = 0: no load, no prescribed motion, so the equilibrium is the reference; the operator
+    multiplies a pseudo-time field's output by t, so the first frame is at rest exactly for
+    any weights (on main the trained sleeve_twist_path's first frame moved 16.5 mm)."""
+    scene = load_scene(SCENES / "sleeve_twist_path.toml")
+    assert scene.field.pseudo_time
+    field = NeuralField(dataclasses.replace(scene.field, width=16), seed=1)  # any field
+    first = deformed_mesh(scene.model, field, (24, 12), load_factor=0.0, pseudo_time=True)
+    assert float(np.abs(first.deformed - first.reference).max()) == 0.0
+    later = deformed_mesh(scene.model, field, (24, 12), load_factor=0.5, pseudo_time=True)
+    assert float(np.abs(later.deformed - later.reference).max()) > 1e-3
 
 
 def test_samples_over_time_are_stratified_and_average_point_loads():
@@ -192,6 +206,6 @@ def test_solver_refuses_a_field_without_the_time_input():
     doc = document("membrane_stretch")
     doc["training"]["pseudo_time"] = True
     scene = parse_scene(doc, base_dir=SCENES)
-    plain = dataclasses.replace(scene.field, conditioning=())
+    plain = dataclasses.replace(scene.field, conditioning=(), pseudo_time=False)
     with pytest.raises(ValueError, match="conditioning"):
         Solver(scene.model, NeuralField(plain), scene.solver)

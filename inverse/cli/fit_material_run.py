@@ -26,12 +26,15 @@ from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.report import estimate_document, overlay_image
 from inverse.material.spline_equilibrium import SplineModelConfig
 from taichi_ndf.cli.common import machine_description
+from taichi_ndf.field import FieldConfig
 from taichi_ndf.io import read_mesh
 from taichi_ndf.io.grid import grid_mesh
 from taichi_ndf.io.output_dir import OutputDir, check_output_dir
 from taichi_ndf.io.run_lock import RunLock
 from taichi_ndf.render import save_png
+from taichi_ndf.run_size import check_siren_size, check_spline_size
 from taichi_ndf.scene import SceneError, load_scene
+from taichi_ndf.spline_grid import SplinePlan
 
 log = logging.getLogger(__name__)
 
@@ -69,8 +72,7 @@ def _observations(paths, model, resolution, point_cloud: bool) -> list[Observati
 
 def _implicit(args, observations, unknowns):
     """The implicit-function estimate with the command line's settings."""
-    width = args.width or (64 if args.quick else ImplicitConfig.width)
-    samples = args.samples or (2048 if args.quick else ImplicitConfig.samples)
+    width, samples = _implicit_sizes(args)
     try:
         config = ImplicitConfig(width=width, samples=samples,
                                 seeds=tuple(args.seeds or (2, 3)),
@@ -80,12 +82,46 @@ def _implicit(args, observations, unknowns):
         raise InputError(str(err)) from None
 
 
+def _implicit_sizes(args) -> tuple[int, int]:
+    """The implicit method's feature width and Newton samples."""
+    return (args.width or (64 if args.quick else ImplicitConfig.width),
+            args.samples or (2048 if args.quick else ImplicitConfig.samples))
+
+
+def _newton_config(args) -> NewtonEstimateConfig:
+    """The Newton estimate's settings from the command line."""
+    model = SplineModelConfig(spans=tuple(args.spans) if args.spans else None,
+                              boundary_length=2.0 if args.band is None else args.band)
+    return NewtonEstimateConfig(model=model)
+
+
+def _bilevel_samples(args) -> tuple[int, int]:
+    """The bilevel method's Adam and L-BFGS samples."""
+    return (512, 2048) if args.quick else (1024, 4096)
+
+
+def _check_sizes(args, scene, model, itemsize: int) -> None:
+    """The memory of the method's largest solve against the machine's, before any work
+    (`taichi_ndf.run_size`, the check ndf-sim makes); ValueError in one line beyond it."""
+    if args.method == "newton":
+        config = _newton_config(args)
+        plan = SplinePlan(config.model.grid(model), levels=config.levels,
+                          quadrature_points=config.model.quadrature_points)
+        check_spline_size(plan, advice="choose fewer --spans")
+    elif args.method == "implicit":
+        width, samples = _implicit_sizes(args)
+        field = FieldConfig(width=width, hidden_layers=ImplicitConfig.hidden_layers)
+        check_siren_size(field, samples, itemsize, advice="choose a smaller --width or fewer "
+                                                          "--samples")
+    elif args.method == "bilevel" and isinstance(scene.field, FieldConfig):
+        check_siren_size(scene.field, max(_bilevel_samples(args)), itemsize,
+                         advice="choose a narrower [field] in the scene")
+
+
 def _newton(args, observations, unknowns):
     """The Newton estimate with the command line's settings."""
     try:
-        model = SplineModelConfig(spans=tuple(args.spans) if args.spans else None,
-                                  boundary_length=2.0 if args.band is None else args.band)
-        return newton_estimate(observations, unknowns, NewtonEstimateConfig(model=model))
+        return newton_estimate(observations, unknowns, _newton_config(args))
     except ValueError as err:
         raise InputError(str(err)) from None
 
@@ -128,6 +164,10 @@ def run(args, runtime) -> dict:
         raise InputError(f"--noise must be >= 0 (metres), got {args.noise}")
     if args.spans is not None and min(args.spans) < 1:
         raise InputError(f"--spans must be two integers >= 1, got {args.spans}")
+    try:
+        _check_sizes(args, scene, model, runtime.dtype.itemsize)
+    except ValueError as err:
+        raise InputError(str(err)) from None
     lock = RunLock(args.out)  # a directory another run holds is refused before any work,
     check_output_dir(args.out, args.overwrite)  # and so is a non-empty one without --overwrite
     observations = _observations(args.observed, model, scene.output.resolution,
@@ -162,8 +202,8 @@ def run(args, runtime) -> dict:
         field = ConditionedConfig(
             width=scene.field.width, hidden_layers=scene.field.hidden_layers,
             omega0=scene.field.omega0, output_scale=scene.field.output_scale,
-            iterations=iterations, samples=512 if args.quick else 1024,
-            lbfgs_iterations=iterations, lbfgs_samples=2048 if args.quick else 4096,
+            iterations=iterations, samples=_bilevel_samples(args)[0],
+            lbfgs_iterations=iterations, lbfgs_samples=_bilevel_samples(args)[1],
             newton_iterations=args.newton, boundary_length=args.band, seed=args.seed)
         try:
             config = BilevelConfig(decades=args.decades, field=field,

@@ -65,6 +65,9 @@ class FieldConfig:
     conditioning: (lo, hi) range of each extra input (material parameter, pseudo-time),
         mapped to [-1, 1]; these inputs carry no ξ-derivatives.
     output_scale: factor on the linear output [m per network unit].
+    pseudo_time: the one conditioning input is the pseudo-time t of a quasistatic path, and
+        the displacement operator multiplies the field's output by t, so the path starts at
+        rest exactly (u(ξ, 0) = 0, the reference: no load, no prescribed motion at t = 0).
     """
 
     width: int = 128
@@ -75,6 +78,7 @@ class FieldConfig:
     periodic: tuple[bool, bool] = (False, False)
     conditioning: tuple[tuple[float, float], ...] = ()
     output_scale: float = 1.0
+    pseudo_time: bool = False
 
     def __post_init__(self):
         for name in ("width", "hidden_layers", "out_dim"):
@@ -91,6 +95,9 @@ class FieldConfig:
             _finite_range(f"conditioning[{i}]", p) for i, p in enumerate(self.conditioning)
         )
         object.__setattr__(self, "conditioning", conditioning)
+        if self.pseudo_time not in (False, True) or (self.pseudo_time and len(conditioning) != 1):
+            raise ValueError(f"pseudo_time needs exactly one conditioning input (t), got "
+                             f"pseudo_time={self.pseudo_time!r} with {len(conditioning)}")
 
     @property
     def in_dim(self) -> int:

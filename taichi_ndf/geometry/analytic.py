@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf.geometry.domain import Bounds, ParameterDomain
-from taichi_ndf.geometry.surface import PlacedSurface, require_positive
+from taichi_ndf.geometry.surface import PlacedSurface, require_positive, require_turn
 
 
 def _stack(*channels: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
@@ -52,21 +52,27 @@ class Plane(PlacedSurface):
 class Cylinder(PlacedSurface):
     """Closed circular cylinder about the local z axis.
 
-    r(θ, z) = (R cos θ, R sin θ, z): ξ¹ = θ ∈ [0, 2π) is the angle [rad], periodic; ξ² = z ∈
-    [0, length] is the axial position [m]. radius R [m], length [m]. Normal a₃ points outwards.
+    r(θ, z) = (R cos θ, R sin θ, z): ξ¹ = θ ∈ [0, angle] is the angle [rad], periodic for a
+    whole turn (angle = 2π, the default), else a part of the cylinder with edges at θ = 0 and
+    θ = angle (where symmetry planes cut it: a quarter or octant model); ξ² = z ∈ [0, length]
+    is the axial position [m]. radius R [m], length [m]. Normal a₃ points outwards.
     """
 
     radius: float = 1.0
     length: float = 1.0
+    angle: float = 2 * math.pi
 
     def __post_init__(self):
         super().__post_init__()
         require_positive(self, "radius", "m")
         require_positive(self, "length", "m")
+        require_turn(self, "angle")
 
     @property
     def domain(self) -> ParameterDomain:
-        return ParameterDomain(((0.0, 2 * math.pi), (0.0, self.length)), periodic=(True, False))
+        full = self.angle >= 2 * math.pi * (1 - 1e-12)
+        return ParameterDomain(((0.0, 2 * math.pi if full else self.angle),
+                                (0.0, self.length)), periodic=(full, False))
 
     def local_jets(self, xi: torch.Tensor) -> torch.Tensor:
         c, s = torch.cos(xi[:, 0]), torch.sin(xi[:, 0])
@@ -167,16 +173,14 @@ class Annulus(PlacedSurface):
         if require_positive(self, "outer_radius", "m") <= inner:
             raise ValueError(f"outer_radius must exceed inner_radius {inner}, got "
                              f"{self.outer_radius}")
-        angle = require_positive(self, "angle", "rad")
-        if angle > 2 * math.pi * (1 + 1e-12):
-            raise ValueError(f"angle must be at most 2π (one turn) [rad], got {angle}")
+        full = require_turn(self, "angle")
         start = float(self.start_angle)
         if not math.isfinite(start):
             raise ValueError(f"start_angle must be a finite number [rad], got {start}")
         object.__setattr__(self, "start_angle", start)
         if not isinstance(self.slit, bool):
             raise ValueError(f"slit must be true or false, got {self.slit!r}")
-        if self.slit and angle < 2 * math.pi * (1 - 1e-12):
+        if self.slit and not full:
             raise ValueError("slit applies to a full annulus (angle = 2π); a sector has its "
                              "two radial edges already")
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf.geometry.domain import ParameterDomain
-from taichi_ndf.geometry.surface import PlacedSurface, require_positive
+from taichi_ndf.geometry.surface import PlacedSurface, require_positive, require_turn
 
 # Power series of sin(√u)/√u and cos(√u): 25 terms reach round-off for u ≤ π² (any cap).
 _SERIES_TERMS = 25
@@ -35,8 +35,10 @@ class Hemisphere(PlacedSurface):
 
     The chart depends on the hole, because polar coordinates are singular at the pole:
 
-    - with a hole (hole_half_angle > 0): polar chart, ξ¹ = φ ∈ [0, 2π) the azimuth [rad],
-      periodic; ξ² = λ the elevation above the equator [rad], λ ∈ [π/2 − rim_angle,
+    - with a hole (hole_half_angle > 0): polar chart, ξ¹ = φ ∈ [0, azimuth] the azimuth
+      [rad], periodic for a whole turn (azimuth = 2π, the default), else a part with edges at
+      φ = 0 and φ = azimuth, on which symmetry planes cut the shell (a quarter model);
+      ξ² = λ the elevation above the equator [rad], λ ∈ [π/2 − rim_angle,
       π/2 − hole_half_angle]; r = R (cos λ cos φ, cos λ sin φ, sin λ).
     - without a hole: azimuthal-equidistant chart, regular at the pole: ξ = (x, y) [m] on the
       disk |ξ| ≤ R·rim_angle, where |ξ| is the arclength from the pole along a meridian and
@@ -47,6 +49,7 @@ class Hemisphere(PlacedSurface):
     radius: float = 1.0
     hole_half_angle: float = 0.0
     rim_angle: float = math.pi / 2
+    azimuth: float = 2 * math.pi
 
     def __post_init__(self):
         super().__post_init__()
@@ -58,6 +61,10 @@ class Hemisphere(PlacedSurface):
         if not (math.isfinite(hole) and 0.0 <= hole < rim):
             raise ValueError(f"hole_half_angle must be in [0, rim_angle={rim}) [rad], got {hole}")
         object.__setattr__(self, "hole_half_angle", hole)
+        if not require_turn(self, "azimuth") and hole == 0.0:
+            raise ValueError("azimuth below 2π needs the polar chart, i.e. a polar hole "
+                             "(hole_half_angle > 0): the chart without a hole has no azimuth "
+                             "edges")
 
     @property
     def chart(self) -> str:
@@ -68,7 +75,9 @@ class Hemisphere(PlacedSurface):
     def domain(self) -> ParameterDomain:
         if self.chart == "polar":
             elevation = (math.pi / 2 - self.rim_angle, math.pi / 2 - self.hole_half_angle)
-            return ParameterDomain(((0.0, 2 * math.pi), elevation), periodic=(True, False))
+            full = self.azimuth >= 2 * math.pi * (1 - 1e-12)
+            return ParameterDomain(((0.0, 2 * math.pi if full else self.azimuth), elevation),
+                                   periodic=(full, False))
         rho = self.radius * self.rim_angle
         return ParameterDomain(
             ((-rho, rho), (-rho, rho)),

@@ -85,3 +85,14 @@ def require_positive(surface: ReferenceSurface, name: str, unit: str) -> float:
         raise ValueError(f"{name} must be a finite positive number [{unit}], got {value}")
     object.__setattr__(surface, name, value)
     return value
+
+
+def require_turn(surface: ReferenceSurface, name: str) -> bool:
+    """Check that the attribute `name` of a frozen surface is an angle in (0, 2π] [rad] and
+    store it as a float; returns whether it is a whole turn (a periodic coordinate). A part of a
+    turn has two edges, on which symmetry planes can cut a closed shell (quarter and octant
+    models)."""
+    angle = require_positive(surface, name, "rad")
+    if angle > 2 * math.pi * (1 + 1e-12):
+        raise ValueError(f"{name} must be at most 2π (one turn) [rad], got {angle}")
+    return angle >= 2 * math.pi * (1 - 1e-12)

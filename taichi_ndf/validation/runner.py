@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.callbacks import DivergenceGuard
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.model import ShellModel
@@ -121,6 +122,7 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
     if seed is not None:
         config = dataclasses.replace(config, seed=seed)
     config = dataclasses.replace(config, progress=False)
+    warn_rigid_motions(model, newton=config.newton_iterations > 0)
     # "auto" output scale with Adam: the linear estimate of the case's (scaled) model.
     field_config = field_for_run(field_config, scene.output_scale_estimate, model, config)
     field_ = NeuralField(field_config, seed=config.seed)
@@ -188,6 +190,7 @@ def run_spline_case(case: Case, *, quick: bool = False, scenes_dir: Path = SCENE
     plan = dataclasses.replace(plan, levels=1 if quick else levels)
     check_run_size(dataclasses.replace(scene, field=plan), scene.solver)
     config = dataclasses.replace(scene.solver, progress=False)
+    warn_rigid_motions(model)
     objective = _objective(case, model)
     names = [p.name for p in model.probes]
     unit = LINEARISATION if case.linear else 1.0
