@@ -20,7 +20,7 @@ import torch
 
 from taichi_ndf.minimise.assembly import Assembly
 from taichi_ndf.minimise.linear_solve import _positive_pivots as positive_pivots
-from taichi_ndf.minimise.projected_newton import hessian_blocks
+from taichi_ndf.minimise.newton import hessian_blocks
 from taichi_ndf.shell.hessian import Potential, flat_blocks, jet_steps
 
 
@@ -28,7 +28,7 @@ def exact_hessian(assembly: Assembly, potential: Potential, coefficients: torch.
                   length: float = 1.0, fd_step: float = 1e-5) -> sp.csr_matrix:
     """K = Σ Jᵀ H J (3n × 3n, CSR) of the exact, unprojected per-point blocks at `coefficients`
     (n, 3); the assembly linearised at the potential's load factor; length, fd_step as
-    `ProjectedNewtonConfig` / `jet_steps`."""
+    `NewtonConfig` / `jet_steps`."""
     samples = assembly.samples
     u = assembly.displacement(coefficients)
     steps = jet_steps(samples.r_jets, u, length, fd_step)
