@@ -134,9 +134,9 @@ def newton_steps(count: int, spans: int = 16) -> dict:
         laps.append(clock.lap())
         return False
 
-    linear = SplineLinearisation(assembly, fixed=gauge_unknowns(model.boundary, basis),
-                                 length=math.sqrt(surface.domain.rectangle_area))
-    minimise(linear, Objective.of_model(model).potential(1.0), field.coefficients,
+    linearisation = SplineLinearisation(assembly, fixed=gauge_unknowns(model.boundary, basis),
+                                        length=math.sqrt(surface.domain.rectangle_area))
+    minimise(linearisation, Objective.of_model(model).potential(1.0), field.coefficients,
              NewtonConfig(max_iterations=count), on_step=on_step)
     return _first_and_steady("newton", laps)
 

@@ -148,8 +148,8 @@ def newton_check(model, start: SplineField, spans: int, tolerances) -> None:
         for t in tolerances]
     for name, solver in runs:
         started, cpu = time.perf_counter(), time.process_time()
-        linear = SplineLinearisation(assembly, fixed=fixed, solver=solver, length=length)
-        solution = minimise(linear, potential, field.coefficients, NEWTON)
+        linearisation = SplineLinearisation(assembly, fixed=fixed, solver=solver, length=length)
+        solution = minimise(linearisation, potential, field.coefficients, NEWTON)
         total, cpu = time.perf_counter() - started, time.process_time() - cpu
         solve = sum(h.time_solve for h in solution.history)
         print(f"| {name} | {len(solution.history)} | {solve:.2f} | {total:.2f} | {cpu:.2f} | "

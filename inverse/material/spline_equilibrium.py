@@ -156,8 +156,10 @@ class SplineEquilibrium:
         self.assembly.at_load(self.operator, load_factor)
         with progress.stage(f"equilibrium {self.label}, load {load_factor:.3g}",
                             self.newton.max_iterations):
-            linear = SplineLinearisation(self.assembly, fixed=self.fixed, length=self.length)
-            solution = minimise(linear, potential, start, self.newton, load_factor=load_factor)
+            linearisation = SplineLinearisation(self.assembly, fixed=self.fixed,
+                                                length=self.length)
+            solution = minimise(linearisation, potential, start, self.newton,
+                                load_factor=load_factor)
         self.newton_steps += len(solution.history)
         if not solution.converged:
             self.unconverged_solves += 1

@@ -225,8 +225,8 @@ class SplinePriorReconstructor:
         if cfg.extrapolate and self._previous is not None:
             start = 2.0 * start - self._previous
         self._previous = self.field.coefficients.clone()
-        linear = SplineLinearisation(assembly, fixed=fixed, length=self.length)
-        solution = minimise(linear, potential, start, self.newton)
+        linearisation = SplineLinearisation(assembly, fixed=fixed, length=self.length)
+        solution = minimise(linearisation, potential, start, self.newton)
         self.field.coefficients.copy_(solution.parameters)
         u = assembly.displacement(solution.parameters)
         parts = data.parts(u)

@@ -183,9 +183,9 @@ class NewtonContact:
                     change = float((capacity - lagged).abs().max())
                     lag_changed = change > LAG_TOLERANCE * float(capacity.abs().max())
                 lagged = capacity
-            linear = SplineLinearisation(assembly, fixed=fixed, solver=linear_solver,
-                                         length=length)
-            solution = minimise(linear, potential, c, config, load_factor=t,
+            linearisation = SplineLinearisation(assembly, fixed=fixed, solver=linear_solver,
+                                                length=length)
+            solution = minimise(linearisation, potential, c, config, load_factor=t,
                                 feasible=feasible, on_step=refresh)
             history += solution.history
             c = solution.parameters

@@ -234,10 +234,10 @@ def solve_levels(field_, boundary: BoundaryConditions,
                                 (newton or NewtonConfig()).max_iterations):
                 if contact is None:
                     assembly.at_load(operator, t)
-                    linear = SplineLinearisation(assembly, fixed=fixed, solver=solver,
-                                                 length=length)
-                    solution = minimise(linear, objective.potential(t), coefficients, newton,
-                                        load_factor=t)
+                    linearisation = SplineLinearisation(assembly, fixed=fixed, solver=solver,
+                                                        length=length)
+                    solution = minimise(linearisation, objective.potential(t), coefficients,
+                                        newton, load_factor=t)
                 else:  # from the previous load step's state (finer level: this one's, prolonged)
                     solution = contact.solve(
                         operator, samples, objective, coefficients, newton,
