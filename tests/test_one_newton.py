@@ -5,38 +5,32 @@ import math
 
 import pytest
 import torch
+from test_projected_newton import _large_deflection_strip
 
-from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
 from taichi_ndf.field.spline import SplineConfig, SplineField
-from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.linearisation import DenseLinearisation, SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.shell.materials import LinearIsotropic
 
 DT = torch.float64
+LOAD_FACTOR = 0.3
 
 
 def _strip():
-    """A cantilever strip (10 × 1, 4 × 1 cubic spans: 21 coefficients) under an end shear that
-    rotates its tip by about 30°: nonlinear, several Newton steps from the flat strip."""
-    bounds = ((0.0, 10.0), (0.0, 1.0))
-    surface = Plane(bounds=bounds)
-    boundary = BoundaryConditions([ClampedEdge(edge="xi1_min")], domain=surface.domain,
-                                  surface=surface, length=2.0)
-    loads = Loads(point_loads=[PointLoad(xi=(10.0, y), force=(0.0, 0.0, 0.3))
-                               for y in (0.25, 0.5, 0.75)])
-    material = LinearIsotropic.from_young(1.2e6, 0.0, 0.1, 1.0)
-    field = SplineField(SplineConfig(spans=(4, 1), domain=bounds), dtype=DT)
-    samples = span_quadrature(surface, field.config, loads, dtype=DT)
-    operator = DisplacementOperator(field, boundary)
+    """The large-deflection strip (`_large_deflection_strip`) on 4 × 1 cubic spans (21
+    coefficients) at load factor 0.3, which rotates its tip by about 30°: nonlinear, 25 Newton
+    steps from the flat strip."""
+    model = _large_deflection_strip()
+    surface = model.surface
+    field = SplineField(SplineConfig(spans=(4, 1), domain=surface.domain.bounds), dtype=DT)
+    samples = span_quadrature(surface, field.config, model.loads, dtype=DT)
+    operator = DisplacementOperator(field, model.boundary)
     assembly = Assembly(samples, local_basis_at(operator, samples.xi),
-                        field.coefficients.shape[0]).at_load(operator, 1.0)
-    potential = Objective(ShellEnergyTerm(material, loads)).potential(1.0)
+                        field.coefficients.shape[0]).at_load(operator, LOAD_FACTOR)
+    potential = Objective(ShellEnergyTerm(model.material, model.loads)).potential(LOAD_FACTOR)
     return assembly, potential, math.sqrt(surface.domain.rectangle_area)
 
 
@@ -66,8 +60,8 @@ def test_dense_and_sparse_linearisations_take_the_same_newton_steps():
     assert torch.allclose(dense.displacement(start.t() + 0.01), sparse.displacement(start + 0.01),
                           rtol=1e-13, atol=1e-15)
     config = NewtonConfig(decrement_tolerance=1e-14)
-    by_sparse = minimise(sparse, potential, start, config)
-    by_dense = minimise(dense, potential, start.t(), config)
+    by_sparse = minimise(sparse, potential, start, config, load_factor=LOAD_FACTOR)
+    by_dense = minimise(dense, potential, start.t(), config, load_factor=LOAD_FACTOR)
     assert by_sparse.converged and by_dense.converged
     assert len(by_sparse.history) == len(by_dense.history) >= 10
     lengths = {h.step_length for h in by_sparse.history}
