@@ -112,7 +112,8 @@ def newton_steps(count: int, spans: int = 16) -> dict:
     from the flat sheet): the first (compilation included), the median of the others."""
     from taichi_ndf.field.spline import SplineConfig, SplineField
     from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
-    from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, minimise
+    from taichi_ndf.minimise.linearisation import SplineLinearisation
+    from taichi_ndf.minimise.newton import NewtonConfig, minimise
     from taichi_ndf.objective import Objective
     from taichi_ndf.operator import DisplacementOperator
     from taichi_ndf.quadrature import span_quadrature
@@ -133,10 +134,10 @@ def newton_steps(count: int, spans: int = 16) -> dict:
         laps.append(clock.lap())
         return False
 
-    minimise(assembly, Objective.of_model(model).potential(1.0), field.coefficients,
-             ProjectedNewtonConfig(max_iterations=count), fixed=gauge_unknowns(model.boundary,
-                                                                                basis),
-             length=math.sqrt(surface.domain.rectangle_area), on_step=on_step)
+    linearisation = SplineLinearisation(assembly, fixed=gauge_unknowns(model.boundary, basis),
+                                        length=math.sqrt(surface.domain.rectangle_area))
+    minimise(linearisation, Objective.of_model(model).potential(1.0), field.coefficients,
+             NewtonConfig(max_iterations=count), on_step=on_step)
     return _first_and_steady("newton", laps)
 
 

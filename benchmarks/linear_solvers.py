@@ -33,7 +33,8 @@ import taichi_ndf
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig, damped_solve
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, minimise
+from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.minimise.refinement import held_unknowns, solve_levels
 from taichi_ndf.objective import Objective
 from taichi_ndf.operator import DisplacementOperator
@@ -42,7 +43,7 @@ from taichi_ndf.scene import load_scene
 from taichi_ndf.shell.hessian import flat_blocks, indefinite_blocks, jet_steps, project_psd
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "napkin.toml"
-NEWTON = ProjectedNewtonConfig(decrement_tolerance=1e-4)
+NEWTON = NewtonConfig(decrement_tolerance=1e-4)
 
 
 def start_field(model, spans: int) -> SplineField:
@@ -147,8 +148,8 @@ def newton_check(model, start: SplineField, spans: int, tolerances) -> None:
         for t in tolerances]
     for name, solver in runs:
         started, cpu = time.perf_counter(), time.process_time()
-        solution = minimise(assembly, potential, field.coefficients, NEWTON, length=length,
-                            fixed=fixed, linear_solver=solver)
+        linearisation = SplineLinearisation(assembly, fixed=fixed, solver=solver, length=length)
+        solution = minimise(linearisation, potential, field.coefficients, NEWTON)
         total, cpu = time.perf_counter() - started, time.process_time() - cpu
         solve = sum(h.time_solve for h in solution.history)
         print(f"| {name} | {len(solution.history)} | {solve:.2f} | {total:.2f} | {cpu:.2f} | "

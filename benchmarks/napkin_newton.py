@@ -34,7 +34,7 @@ import taichi_ndf
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
 from taichi_ndf.minimise.linear_solve import damped_solve
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
+from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective
 from taichi_ndf.operator import DisplacementOperator
@@ -56,8 +56,8 @@ REFERENCE = -1.3318
 SPLIT = ("energy", "hessian", "assembly", "solve")
 
 
-def solve(model, levels: int, coarsest: int, config: ProjectedNewtonConfig,
-          coarse_config: ProjectedNewtonConfig | None = None, on_level=None):
+def solve(model, levels: int, coarsest: int, config: NewtonConfig,
+          coarse_config: NewtonConfig | None = None, on_level=None):
     surface = model.surface
     field = SplineField(SplineConfig(spans=(coarsest, coarsest), degree=3,
                                      domain=surface.domain.bounds))
@@ -128,8 +128,8 @@ def main() -> None:
     parser.add_argument("--reference", type=float, default=REFERENCE,
                         help="the extrapolated Π∞ [J] the gap is measured against")
     parser.add_argument("--precision", choices=("f32", "f64"), default="f64")
-    parser.add_argument("--hessian", choices=PROJECTIONS, default=ProjectedNewtonConfig.hessian,
-                        help="Hessian modification of projected Newton (ProjectedNewtonConfig)")
+    parser.add_argument("--hessian", choices=PROJECTIONS, default=NewtonConfig.hessian,
+                        help="Hessian modification of projected Newton (NewtonConfig)")
     parser.add_argument("--verbose", action="store_true", help="log every Newton iteration")
     parser.add_argument("--parts", action="store_true",
                         help="time each part of a Newton step at the finest grid")
@@ -140,7 +140,7 @@ def main() -> None:
     taichi_ndf.init(arch="cpu", precision=args.precision)
     model = load_scene(SCENE).model
     f64 = args.precision == "f64"
-    config = ProjectedNewtonConfig(fd_step=1e-5 if f64 else 3e-3,
+    config = NewtonConfig(fd_step=1e-5 if f64 else 3e-3,
                                    decrement_tolerance=args.tolerance,
                                    gradient_tolerance=1e-10 if f64 else 1e-5,
                                    floor_tolerance=1e-8 if f64 else 1e-6,
@@ -148,7 +148,7 @@ def main() -> None:
     coarse = None if args.coarse_tolerance is None else dataclasses.replace(
         config, decrement_tolerance=args.coarse_tolerance)
     started = time.perf_counter()
-    solve(model, 1, 2, ProjectedNewtonConfig(max_iterations=2))  # compile / load kernels
+    solve(model, 1, 2, NewtonConfig(max_iterations=2))  # compile / load kernels
     compile_seconds = time.perf_counter() - started
     started, cpu = time.perf_counter(), time.process_time()
     level_cpu = []

@@ -2,7 +2,7 @@
 
 One configuration for every case: cubic B-splines, 4 × 4 Gauss–Legendre points per knot span
 (`span_quadrature`),
-`ProjectedNewtonConfig()` defaults, the scene's load steps; the coarsest grid follows one rule
+`NewtonConfig()` defaults, the scene's load steps; the coarsest grid follows one rule
 from the geometry (`taichi_ndf.spline_grid.grid_spans`, `span_length = "auto"` of a scene),
 then two exact dyadic refinements (three grids), each solved
 from the coarser solution prolonged. Reported per case and quantity: the value on each grid,
@@ -27,7 +27,7 @@ import torch
 import taichi_ndf
 from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig, SplineField
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig
+from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import EndMomentTerm, Objective
 from taichi_ndf.quadrature import span_quadrature
@@ -39,7 +39,7 @@ SCENE_DIR = Path(__file__).resolve().parents[1] / "scenes"
 DEGREE = 3
 
 
-def run_validation_case(name: str, levels: int, config: ProjectedNewtonConfig) -> dict:
+def run_validation_case(name: str, levels: int, config: NewtonConfig) -> dict:
     case = CASES[name]
     scene, model, _ = load_case_scene(case)
     surface = model.surface
@@ -85,7 +85,7 @@ def run_validation_case(name: str, levels: int, config: ProjectedNewtonConfig) -
             "energy": energies, "wall": wall, "rows": rows}
 
 
-def run_napkin(levels: int, coarsest: int, config: ProjectedNewtonConfig) -> dict:
+def run_napkin(levels: int, coarsest: int, config: NewtonConfig) -> dict:
     """The napkin (scenes/napkin.toml, free pin) from coarsest × coarsest spans through
     `levels` grids: Π per level, the cumulative time, and the first level within 1 % of the
     Π extrapolated from the last three."""
@@ -144,7 +144,7 @@ def main() -> None:
     taichi_ndf.init(arch="cpu", precision=args.precision)
     out = []
     if args.napkin:
-        config = ProjectedNewtonConfig(fd_step=1e-4 if args.precision == "f64" else 3e-3,
+        config = NewtonConfig(fd_step=1e-4 if args.precision == "f64" else 3e-3,
                                        decrement_tolerance=args.napkin_tolerance)
         out.append(run_napkin(args.napkin_levels, args.napkin_coarsest, config))
         print(json.dumps(out[-1], default=float))
@@ -152,7 +152,7 @@ def main() -> None:
     for name in [c for c in args.cases.split(",") if c]:
         if name not in CASES:
             raise SystemExit(f"unknown case {name!r}; choose from {', '.join(CASES)}")
-        result = run_validation_case(name, args.levels, ProjectedNewtonConfig())
+        result = run_validation_case(name, args.levels, NewtonConfig())
         out.append(result)
         print(json.dumps(result, default=float))
     if args.json:

@@ -2,9 +2,10 @@
 
 Each takes `evaluate(grad) -> Π [J]`, which evaluates the objective on the minimiser's samples
 and, if `grad`, fills the field's gradients (`Solver.energy_and_gradient` with fixed
-arguments); they know nothing of samples, loads or files. The last-layer Newton minimiser is
-`taichi_ndf.newton.solve_last_layer` (it needs the objective's per-sample Hessian blocks and
-the displacement operator's output-layer Jacobian rather than `evaluate`).
+arguments); they know nothing of samples, loads or files. The Newton minimiser is
+`taichi_ndf.minimise.newton.minimise` (it needs the objective's per-point Hessian blocks and a
+linearisation of the displacement rather than `evaluate`; a SIREN's output layer:
+`taichi_ndf.minimise.last_layer.solve_last_layer`).
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from taichi_ndf import jets
 from taichi_ndf.field import FieldConfig, SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import Assembly, displacement_at, local_basis_at
 from taichi_ndf.minimise.linear_solve import damped_solve
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, hessian_blocks
+from taichi_ndf.minimise.newton import NewtonConfig, hessian_blocks
 from taichi_ndf.minimise.refinement import held_unknowns
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective
@@ -164,7 +164,7 @@ def linear_displacement(model: ShellModel) -> float:
     if float(gradient.abs().max()) == 0.0:
         return characteristic_displacement(model)
     steps = jet_steps(samples.r_jets, u, math.sqrt(domain.rectangle_area),
-                      ProjectedNewtonConfig().fd_step)
+                      NewtonConfig().fd_step)
     blocks, _ = project_psd(flat_blocks(hessian_blocks(potential, samples, u, steps)))
     step, _ = damped_solve(assembly.hessian(blocks), -gradient.double().cpu().numpy(), 0.0,
                            fixed)

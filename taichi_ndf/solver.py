@@ -5,10 +5,10 @@ boundary conditions, evaluates Π and its gradient (Taichi autodiff), chains it 
 weights (the field's hand-written adjoint) and takes an Adam step. Loads may be applied in
 increments (continuation): each load factor is solved in turn, warm-started from the previous.
 
-Optionally, last-layer Newton phases (`taichi_ndf.newton`) solve the output layer exactly on a
-fixed sample set: at the start of each load step, every `newton_every` Adam iterations and at
-the end of the step. Adam improves the features (hidden layers), Newton the combination of
-them — first-order steps alone crawl on stiff shells.
+Optionally, last-layer Newton phases (`taichi_ndf.minimise.last_layer`) solve the output layer
+exactly on a fixed sample set: at the start of each load step, every `newton_every` Adam
+iterations and at the end of the step. Adam improves the features (hidden layers), Newton the
+combination of them — first-order steps alone crawl on stiff shells.
 
 At every monitor record a Π that climbed an order of magnitude above anything recorded at
 the load factor sends the field and Adam's moments back to the best state and halves the
@@ -21,10 +21,10 @@ that widens the range of t. The monitor reports Π at t = λ.
 
 Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chains gradients
 back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
-(`taichi_ndf.minimisers`, `taichi_ndf.newton`) change the state (`taichi_ndf.state`); this
-module draws the sample sets and drives the continuation over load steps. Checkpoints and the
-divergence guard are callbacks the application installs (`taichi_ndf.callbacks`); progress
-goes to `taichi_ndf.progress` (a stage per load step).
+(`taichi_ndf.minimisers`, `taichi_ndf.minimise.last_layer`) change the state
+(`taichi_ndf.state`); this module draws the sample sets and drives the continuation over load
+steps. Checkpoints and the divergence guard are callbacks the application installs
+(`taichi_ndf.callbacks`); progress goes to `taichi_ndf.progress` (a stage per load step).
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ from taichi_ndf.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_
 from taichi_ndf.callbacks import DivergenceError
 from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.field import NeuralField
+from taichi_ndf.minimise.last_layer import last_layer_config, solve_last_layer
 from taichi_ndf.minimisers import adam_iteration, lbfgs
 from taichi_ndf.model import ShellModel
-from taichi_ndf.newton import NewtonConfig, solve_last_layer
 from taichi_ndf.objective import Objective
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.pseudo_time import TIME_RANGE, conditioning, samples_over_time
@@ -183,9 +183,9 @@ class Solver:
         if self.contact is not None:
             samples = self.contact.augment(samples)
             potential = self._contact_filter(potential, samples, load_factor)
-        result = solve_last_layer(self.operator, potential, samples,
-                                  load_factor,
-                                  NewtonConfig(iterations=self.config.newton_iterations))
+        result = solve_last_layer(
+            self.operator, potential, samples, load_factor,
+            last_layer_config(max_iterations=self.config.newton_iterations))
         self.state.newton_steps += result.steps
         self._refresh_contact(load_factor)
 

@@ -25,7 +25,7 @@ import torch
 from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
-from taichi_ndf.minimise.projected_newton import NewtonIteration, ProjectedNewtonConfig
+from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration
 from taichi_ndf.minimise.refinement import LevelSolution, richardson, solve_levels
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective
@@ -96,17 +96,17 @@ class SplineRun:
                 "energy": extrapolate([lv.energy for lv in self.levels]), "probes": probes}
 
 
-def newton_config(config: SolverConfig, dtype: torch.dtype) -> ProjectedNewtonConfig:
+def newton_config(config: SolverConfig, dtype: torch.dtype) -> NewtonConfig:
     """Projected-Newton settings of a run: the FD step and the stopping tolerances suit the
     precision (float32: Π is summed over thousands of points, so its rounding floor is about
     1e-6 |Π|; the float64 defaults would never stop); a run's `newton_tolerance` looser than
     that floor replaces the decrement tolerance."""
     if dtype == torch.float64:
-        newton = ProjectedNewtonConfig(max_iterations=config.newton_max_iterations)
+        newton = NewtonConfig(max_iterations=config.newton_max_iterations)
     else:
-        newton = ProjectedNewtonConfig(max_iterations=config.newton_max_iterations,
-                                       fd_step=3e-3, decrement_tolerance=1e-7,
-                                       gradient_tolerance=1e-5, floor_tolerance=1e-6)
+        newton = NewtonConfig(max_iterations=config.newton_max_iterations, fd_step=3e-3,
+                              decrement_tolerance=1e-7, gradient_tolerance=1e-5,
+                              floor_tolerance=1e-6)
     if config.newton_tolerance is None or config.newton_tolerance <= newton.decrement_tolerance:
         return newton
     return dataclasses.replace(newton, decrement_tolerance=config.newton_tolerance)

@@ -9,17 +9,12 @@ from taichi_ndf.boundary import BoundaryConditions, HingedEdge
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads
-from taichi_ndf.newton import (
-    NewtonConfig,
-    output_jacobian,
-    parameter_gradient,
-    parameter_hessian,
-    sample_hessians,
-    solve_last_layer,
-)
+from taichi_ndf.minimise.last_layer import last_layer_config, output_jacobian, solve_last_layer
+from taichi_ndf.minimise.linearisation import parameter_gradient, parameter_hessian
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import sample_surface
 from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.shell.hessian import sample_hessians
 from taichi_ndf.shell.materials import LinearIsotropic
 
 LOAD_FACTOR = 1.0
@@ -93,21 +88,21 @@ def test_hessian_blocks_are_symmetric_and_match_second_differences_of_the_energy
 def test_one_newton_step_reaches_the_minimum_over_the_last_layer(plate):
     field, boundary, samples, potential = plate
     first = solve_last_layer(DisplacementOperator(field, boundary), potential, samples, LOAD_FACTOR,
-                             NewtonConfig(iterations=1))
-    assert first.energy_after < first.energy_before
+                             last_layer_config(max_iterations=1))
+    assert first.energy < first.energy_before
     gradient = _theta_gradient_by_backward(field, boundary, samples, potential)
     again = solve_last_layer(DisplacementOperator(field, boundary), potential, samples, LOAD_FACTOR,
-                             NewtonConfig(iterations=3))
+                             last_layer_config(max_iterations=3))
     # Π no longer decreases (beyond the damping of near-null feature combinations: 1e-5) and
     # dΠ/dθ vanishes at the Galerkin optimum.
-    assert again.energy_after >= first.energy_after - 1e-5 * abs(first.energy_after)
+    assert again.energy >= first.energy - 1e-5 * abs(first.energy)
     u, jacobian = output_jacobian(DisplacementOperator(field, boundary), samples.xi, LOAD_FACTOR)
     hessian = parameter_hessian(jacobian, sample_hessians(
         potential, samples, u, steps=1e-4 * u.pow(2).mean(dim=(0, 2)).sqrt()))
     # Newton decrement gᵀH⁻¹g, relative to the energy: the optimum within rounding.
     decrement = float(gradient.reshape(-1) @ torch.linalg.lstsq(
         hessian, gradient.reshape(-1, 1)).solution[:, 0])
-    assert math.isfinite(decrement) and abs(decrement) < 1e-5 * abs(first.energy_after)
+    assert math.isfinite(decrement) and abs(decrement) < 1e-5 * abs(first.energy)
 
 
 def test_newton_optimum_with_point_loads_obeys_the_work_theorem():
@@ -133,13 +128,13 @@ def test_newton_optimum_with_point_loads_obeys_the_work_theorem():
 
     operator = DisplacementOperator(field, boundary)
     result = solve_last_layer(operator, potential, samples, LOAD_FACTOR,
-                              NewtonConfig(iterations=3))
+                              last_layer_config(max_iterations=3))
     u = boundary.compose(samples.xi, field.jets(samples.xi), t=LOAD_FACTOR)
     work = float((samples.point_force * u[:, 0]).sum())
     internal = potential(samples, u, False).internal
     assert work > 0
     assert internal == pytest.approx(0.5 * work, rel=1e-6)
-    assert result.energy_after == pytest.approx(-0.5 * work, rel=1e-6)
+    assert result.energy == pytest.approx(-0.5 * work, rel=1e-6)
 
 
 def test_conditioned_field_reaches_the_galerkin_optimum_at_every_stiffness():
@@ -171,19 +166,19 @@ def test_conditioned_field_reaches_the_galerkin_optimum_at_every_stiffness():
                         seed=3, dtype=torch.float64)
     operator = DisplacementOperator(field, boundary)
     result = solve_last_layer(operator, conditioned_potential, samples, LOAD_FACTOR,
-                              NewtonConfig(iterations=3), conditioning=z)
+                              last_layer_config(max_iterations=3), conditioning=z)
     u = boundary.compose(samples.xi, field.jets(samples.xi, z), t=LOAD_FACTOR)
     evaluated = conditioned_potential(samples, u, False)
     work = evaluated.internal - evaluated.total  # Π = U − W
     assert work > 0
     assert evaluated.internal == pytest.approx(0.5 * work, rel=1e-6)
-    assert result.energy_after == pytest.approx(-0.5 * work, rel=1e-6)
+    assert result.energy == pytest.approx(-0.5 * work, rel=1e-6)
 
     plain = NeuralField(FieldConfig(width=64, hidden_layers=2, omega0=3.0, output_scale=1e-6,
                                     domain=surface.domain.bounds), seed=3, dtype=torch.float64)
     solve_last_layer(DisplacementOperator(plain, boundary),
                      lambda s, u, grad: energy.evaluate(s, u, grad=grad),
-                     samples, LOAD_FACTOR, NewtonConfig(iterations=3))
+                     samples, LOAD_FACTOR, last_layer_config(max_iterations=3))
     centre = torch.tensor([[0.5, 0.5]], dtype=torch.float64)
     reference = float(boundary.compose(centre, plain.jets(centre))[0, 0, 2])
     assert reference > 0

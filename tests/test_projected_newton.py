@@ -13,7 +13,7 @@ from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.geometry import Plane
 from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, _longer_step
+from taichi_ndf.minimise.newton import NewtonConfig, _longer_step
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.operator import DisplacementOperator
@@ -183,7 +183,7 @@ def test_square_plate_within_one_percent_on_an_8_by_8_grid():
 def test_newton_converges_quadratically_on_a_large_deflection():
     """The large-deflection strip (`_large_deflection_strip`): the final Newton decrements
     fall quadratically."""
-    (solution,), = _solve(_large_deflection_strip(), (6, 1), (0.5,), ProjectedNewtonConfig(
+    (solution,), = _solve(_large_deflection_strip(), (6, 1), (0.5,), NewtonConfig(
         decrement_tolerance=1e-15), probes={"tip": (10.0, 0.5)})
     decrements = [h.decrement / abs(solution.energy) for h in solution.history]
     assert solution.converged
@@ -214,7 +214,7 @@ def test_a_solve_stopped_by_a_loose_decrement_tolerance_is_converged():
     """A decrement tolerance (a run's newton_tolerance) far above the rounding floor ends the
     solve before the step, converged."""
     tolerance = 1e-4
-    (solution,), = _solve(_large_deflection_strip(), (6, 1), (0.5,), ProjectedNewtonConfig(
+    (solution,), = _solve(_large_deflection_strip(), (6, 1), (0.5,), NewtonConfig(
         decrement_tolerance=tolerance, floor_tolerance=1e-14))
     last = solution.history[-1]
     assert last.step_length == 0.0
@@ -244,7 +244,7 @@ def test_a_full_step_is_lengthened_only_where_the_quadratic_model_underestimates
     # A rejected (infeasible) longer trial keeps the step accepted so far.
     assert _longer_step(lambda a: -2 * a if a < 4 else math.inf, 0.0, -2.0, 2.0, 4) == 2.0
     with pytest.raises(ValueError, match="longer_steps"):
-        ProjectedNewtonConfig(longer_steps=-1)
+        NewtonConfig(longer_steps=-1)
 
 
 def test_longer_steps_take_fewer_newton_steps_on_the_draped_napkin():
@@ -253,7 +253,7 @@ def test_longer_steps_take_fewer_newton_steps_on_the_draped_napkin():
     model = load_scene(SCENES / "napkin.toml", material="cloth").model  # as measured
     steps, energies = {}, {}
     for longer in (0, 4):
-        config = ProjectedNewtonConfig(decrement_tolerance=1e-10, longer_steps=longer)
+        config = NewtonConfig(decrement_tolerance=1e-10, longer_steps=longer)
         (solution,), = _solve(model, (8, 8), (1.0,), config, probes={"free": (1.0, 1.0)})
         assert solution.converged
         longer_taken = sum(h.step_length > 1 for h in solution.history)
@@ -326,7 +326,7 @@ def test_clamped_projection_needs_fewer_newton_steps_than_mirrored_on_a_draped_f
     model = load_scene(SCENES / "flag.toml").model
     steps, energies = {}, {}
     for mode in ("clamp", "abs"):
-        config = ProjectedNewtonConfig(hessian=mode, decrement_tolerance=1e-10,
+        config = NewtonConfig(hessian=mode, decrement_tolerance=1e-10,
                                        max_iterations=200)
         (solution,), = _solve(model, (4, 3), (1.0,), config)
         assert solution.converged

@@ -17,13 +17,13 @@ input is the force component itself [N]). A point load acts at one ξ, so it get
 of the force of that z: their sum estimates the mean over z of the load potential −P(z)·u(ξ_P, z)
 as the area samples estimate the mean of the strain energy.
 
-Optionally a last-layer Newton (Galerkin) phase follows Adam (`taichi_ndf.newton`): on one
-fixed set of (ξ, z) samples the output layer, which combines features of ξ and z, is solved
-exactly for the mean over z of the weighted Π. Adam alone (and the L-BFGS polish) leaves
-the field short of equilibrium on these slender, membrane-stiff sheets; after the Newton
-phase what remains is the error of the basis and of the quadrature of its sample set
-(docs/inverse_material.md). A Newton basis wants a wide field, a low ω₀ and a wide boundary
-band (`boundary_length`, docs/validation.md).
+Optionally a last-layer Newton (Galerkin) phase follows Adam
+(`taichi_ndf.minimise.last_layer`): on one fixed set of (ξ, z) samples the output layer, which
+combines features of ξ and z, is solved exactly for the mean over z of the weighted Π. Adam
+alone (and the L-BFGS polish) leaves the field short of equilibrium on these slender,
+membrane-stiff sheets; after the Newton phase what remains is the error of the basis and of
+the quadrature of its sample set (docs/inverse_material.md). A Newton basis wants a wide
+field, a low ω₀ and a wide boundary band (`boundary_length`, docs/validation.md).
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ from inverse.material.unknowns import Unknown, apply
 from taichi_ndf import jets
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.loads import Loads
+from taichi_ndf.minimise.last_layer import last_layer_config, solve_last_layer
 from taichi_ndf.minimisers import lbfgs
 from taichi_ndf.model import ShellModel
-from taichi_ndf.newton import NewtonConfig, solve_last_layer
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.optim import Adam, AdamConfig
@@ -177,7 +177,7 @@ class ConditionedEquilibrium:
         self.operator = model.operator(self.field)
         self.history: list[tuple[int, float]] = []
         self.training_time = 0.0
-        self.newton_result = None  # NewtonResult of the Newton phase, if any
+        self.newton_result = None  # NewtonSolution of the Newton phase, if any
 
     # -- per-sample stiffness -------------------------------------------------------------------
     def stiffness(self, z: torch.Tensor) -> torch.Tensor:
@@ -340,7 +340,7 @@ class ConditionedEquilibrium:
                                               stiffness=self.stiffness(z)))
         return solve_last_layer(self.operator, objective.potential(1.0),
                                 samples, 1.0,
-                                NewtonConfig(iterations=cfg.newton_iterations),
+                                last_layer_config(max_iterations=cfg.newton_iterations),
                                 conditioning=z)
 
     # -- evaluation -----------------------------------------------------------------------------

@@ -2,8 +2,8 @@
 
 Inner problem, for given unknowns θ: a plain (unconditioned) `NeuralField` whose hidden layers
 are fixed, untrained SIREN features; its output layer a*(θ) is solved by last-layer Newton
-(`taichi_ndf.newton.solve_last_layer`) on one fixed set of scrambled-Sobol area samples plus a
-zero-weight sample per point load, so that g(a*, θ) = ∇_a Π(a*; θ) = 0 (the Galerkin
+(`taichi_ndf.minimise.last_layer.solve_last_layer`) on one fixed set of scrambled-Sobol area
+samples plus a zero-weight sample per point load, so that g(a*, θ) = ∇_a Π(a*; θ) = 0 (the Galerkin
 equilibrium over the span of the features). The first solve goes through `load_steps` from the
 reference state; later solves warm-start from the previous a* moved by the first-order
 prediction (da*/dz) Δz.
@@ -11,7 +11,7 @@ prediction (da*/dz) Δz.
 Gradient: Π is linear in every unknown (Π = Π_known + Σ_j θ_j T_j, `unknowns`), so
 ∂g/∂θ_j = Jᵀ dT_j/du (`term_gradients`; J the output-layer Jacobian of the displacement jets),
 and the implicit-function theorem gives da*/dθ_j = −H⁻¹ ∂g/∂θ_j with H = d²Π/da² at a*
-(`newton.output_hessian`). In the coordinates z of the outer problem (z = ln θ for positive
+(`last_layer.output_hessian`). In the coordinates z of the outer problem (z = ln θ for positive
 unknowns, so ∂/∂z_j = θ_j ∂/∂θ_j; the value itself for signed ones: forces [N], gravity
 [m/s²], ...) the observed positions x(ξ_k) = X(ξ_k) + u(ξ_k) are affine in a, so
 dx/dz = J_obs da*/dz exactly. Without correspondence (point clouds) the residual is the signed
@@ -33,15 +33,15 @@ import torch
 from inverse.material.unknowns import Unknown, apply, term_gradients
 from taichi_ndf import checks, jets
 from taichi_ndf.field import FieldConfig, NeuralField
-from taichi_ndf.model import ShellModel
-from taichi_ndf.newton import (
-    NewtonConfig,
-    damped_step,
+from taichi_ndf.minimise.last_layer import (
+    last_layer_config,
     output_hessian,
     output_jacobian,
-    parameter_gradient,
     solve_last_layer,
 )
+from taichi_ndf.minimise.linearisation import damped_step, parameter_gradient
+from taichi_ndf.minimise.newton import NewtonConfig
+from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.sampling import SurfaceSamples, sobol, unit_to_domain, with_point_loads
 
@@ -197,8 +197,8 @@ class ImplicitEquilibrium:
         return samples, Objective(ShellEnergyTerm(loaded.material, loads)).potential(load_factor)
 
     def _newton(self, iterations: int | None = None) -> NewtonConfig:
-        return NewtonConfig(iterations=iterations or self.config.newton_iterations,
-                            relative_decrease=self.config.relative_decrease)
+        return last_layer_config(max_iterations=iterations or self.config.newton_iterations,
+                                 relative_decrease=self.config.relative_decrease)
 
     def solve(self, values, *, prediction: torch.Tensor | None = None,
               from_reference: bool = False) -> int:

@@ -2,7 +2,7 @@
 
 For given unknowns θ the equilibrium coefficients C*(θ) of a B-spline displacement field
 (`SplineField`) minimise Π(C; θ) on the span quadrature of its grid, by projected Newton
-(`minimise.projected_newton.minimise`): the first solve from the undeformed state through
+(`minimise.newton.minimise`): the first solve from the undeformed state through
 `load_steps`, later ones warm-started from the previous C* moved by the first-order prediction
 (dC*/dz) Δz, or from a given start (e.g. a coarser grid's solution prolonged).
 
@@ -34,7 +34,8 @@ from taichi_ndf.minimise.assembly import (
     linearised,
     local_basis_at,
 )
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, minimise
+from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.minimise.refinement import held_unknowns
 from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
 from taichi_ndf.model import ShellModel
@@ -118,7 +119,7 @@ class SplineEquilibrium:
         self._model_order = torch.argsort(self.assembly.order)
         self._point_rows = self._model_order[len(original) - len(model.loads.point_loads):]
         self.length = math.sqrt(model.surface.domain.rectangle_area)
-        self.newton = ProjectedNewtonConfig(max_iterations=config.newton_iterations)
+        self.newton = NewtonConfig(max_iterations=config.newton_iterations)
         self.coefficients = torch.zeros(grid.num_coefficients, 3, dtype=torch.float64)
         self.values: np.ndarray | None = None
         self.newton_steps = 0
@@ -155,14 +156,16 @@ class SplineEquilibrium:
         self.assembly.at_load(self.operator, load_factor)
         with progress.stage(f"equilibrium {self.label}, load {load_factor:.3g}",
                             self.newton.max_iterations):
-            solution = minimise(self.assembly, potential, start, self.newton,
-                                load_factor=load_factor, length=self.length, fixed=self.fixed)
+            linearisation = SplineLinearisation(self.assembly, fixed=self.fixed,
+                                                length=self.length)
+            solution = minimise(linearisation, potential, start, self.newton,
+                                load_factor=load_factor)
         self.newton_steps += len(solution.history)
         if not solution.converged:
             self.unconverged_solves += 1
             log.warning("spline equilibrium %s: Newton did not converge at θ = %s (load %.3g)",
                         self.label, np.asarray(values).tolist(), load_factor)
-        return solution.coefficients
+        return solution.parameters
 
     def solve(self, values, *, prediction: torch.Tensor | None = None,
               from_reference: bool = False, start: torch.Tensor | None = None) -> None:

@@ -19,7 +19,7 @@ fill its rectangle) and E_ref = B / 2 the bending energy of the template bent to
 curvature 1/√A, so Π_int / E_ref is dimensionless (as in `inverse.sft.reconstruct`).
 
 Solver: the project's projected Newton over the spline coefficients
-(`taichi_ndf.minimise.projected_newton.minimise` on an `Assembly` of the quadrature points, the
+(`taichi_ndf.minimise.newton.minimise` on an `Assembly` of the quadrature points, the
 tracked points and the vertices): the shell's per-point Hessian blocks (central differences of
 its Taichi gradient, projected to PSD) plus the data terms' Gauss–Newton blocks JᵀWJ, summed by
 `Objective.hessian_blocks` term by term, assembled sparse in coefficient space and solved with
@@ -58,7 +58,8 @@ from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.loads import Loads
 from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
-from taichi_ndf.minimise.projected_newton import ProjectedNewtonConfig, minimise
+from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.quadrature import span_quadrature
@@ -120,7 +121,7 @@ class SplinePriorReconstructor:
         self.rest = torch.from_numpy(template.vertices).double()
         self.length = math.sqrt(self.surface.domain.rectangle_area)
         self._previous = None  # the coefficients of the frame before the last
-        self.newton = ProjectedNewtonConfig(
+        self.newton = NewtonConfig(
             max_iterations=cfg.max_iterations, decrement_tolerance=cfg.tolerance,
             gradient_tolerance=1e-8, floor_tolerance=cfg.tolerance)
         log.info("spline prior: %d x %d spans, %d coefficients, %d quadrature points", *spans,
@@ -179,10 +180,10 @@ class SplinePriorReconstructor:
         if cfg.extrapolate and self._previous is not None:
             start = 2.0 * start - self._previous
         self._previous = self.field.coefficients.clone()
-        solution = minimise(assembly, potential, start,
-                            self.newton, length=self.length, fixed=fixed)
-        self.field.coefficients.copy_(solution.coefficients)
-        u = assembly.displacement(solution.coefficients)
+        linearisation = SplineLinearisation(assembly, fixed=fixed, length=self.length)
+        solution = minimise(linearisation, potential, start, self.newton)
+        self.field.coefficients.copy_(solution.parameters)
+        u = assembly.displacement(solution.parameters)
         parts = data.parts(u)
         if self.shell is not None:
             result = self.shell.result(assembly.samples, u)

@@ -33,7 +33,8 @@ from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.contact.config import FRICTION_SMOOTHING, ContactConfig
 from taichi_ndf.contact.friction import FrictionTerm
 from taichi_ndf.minimise.assembly import Assembly, displacement_at, linearised, local_basis_at
-from taichi_ndf.minimise.projected_newton import NewtonSolution, minimise
+from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.newton import NewtonSolution, minimise
 from taichi_ndf.objective import Objective
 from taichi_ndf.sampling import SurfaceSamples
 
@@ -182,11 +183,12 @@ class NewtonContact:
                     change = float((capacity - lagged).abs().max())
                     lag_changed = change > LAG_TOLERANCE * float(capacity.abs().max())
                 lagged = capacity
-            solution = minimise(assembly, potential, c, config, load_factor=t, length=length,
-                                fixed=fixed, feasible=feasible, on_step=refresh,
-                                linear_solver=linear_solver)
+            linearisation = SplineLinearisation(assembly, fixed=fixed, solver=linear_solver,
+                                                length=length)
+            solution = minimise(linearisation, potential, c, config, load_factor=t,
+                                feasible=feasible, on_step=refresh)
             history += solution.history
-            c = solution.coefficients
+            c = solution.parameters
             refresh(c)
             added = points.count - count
             log.debug("contact round at λ=%.3g: %d Newton steps, %d check points added "

@@ -42,11 +42,8 @@ from taichi_ndf.minimise.assembly import (
     local_basis_at,
 )
 from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig
-from taichi_ndf.minimise.projected_newton import (
-    NewtonIteration,
-    ProjectedNewtonConfig,
-    minimise,
-)
+from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration, minimise
 from taichi_ndf.objective import Objective
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
@@ -182,8 +179,8 @@ def solve_levels(field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples],
                  objective: Objective, *, levels: int,
                  load_steps: tuple[float, ...] = (1.0,),
-                 config: ProjectedNewtonConfig | None = None,
-                 coarse_config: ProjectedNewtonConfig | None = None,
+                 config: NewtonConfig | None = None,
+                 coarse_config: NewtonConfig | None = None,
                  probes: dict[str, tuple[float, float]] | None = None,
                  length: float = 1.0,
                  on_level: Callable[[int, object, list[LevelSolution]], None] | None = None,
@@ -234,19 +231,20 @@ def solve_levels(field_, boundary: BoundaryConditions,
                 coefficients = torch.sparse.mm(prolongation,
                                                results[-1][k].coefficients.to(dtype))
             with progress.stage(f"Newton level {level} ({nx} × {ny} spans), load {t:.4g}",
-                                (newton or ProjectedNewtonConfig()).max_iterations):
+                                (newton or NewtonConfig()).max_iterations):
                 if contact is None:
                     assembly.at_load(operator, t)
-                    solution = minimise(assembly, objective.potential(t), coefficients, newton,
-                                        load_factor=t, length=length, fixed=fixed,
-                                        linear_solver=solver)
+                    linearisation = SplineLinearisation(assembly, fixed=fixed, solver=solver,
+                                                        length=length)
+                    solution = minimise(linearisation, objective.potential(t), coefficients,
+                                        newton, load_factor=t)
                 else:  # from the previous load step's state (finer level: this one's, prolonged)
                     solution = contact.solve(
                         operator, samples, objective, coefficients, newton,
                         load_factor=t, start_load_factor=t if level else (
                             load_steps[k - 1] if k else 0.0), length=length, fixed=fixed,
                         linear_solver=solver)
-            coefficients = solution.coefficients
+            coefficients = solution.parameters
             u = displacement_at(operator, probe_xi, coefficients, t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(probes)}
             seconds = time.perf_counter() - started + (setup if k == 0 else 0.0)

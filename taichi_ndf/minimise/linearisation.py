@@ -1,0 +1,176 @@
+"""The two linearisations Newton runs over (`taichi_ndf.minimise.newton.Linearisation`).
+
+`DenseLinearisation`: U = U₀ + J P with a dense Jacobian per component, J (3, N, 6, p), and
+parameters P (3, p), component k acting only on u_k — a SIREN's output layer
+(`last_layer.output_linearisation`), or any small field written out densely. K is a dense
+matrix (3p × 3p, unknowns component × p + parameter) and the damped solve a Cholesky
+factorisation of the Jacobi-scaled K + μ I (`damped_step`).
+
+`SplineLinearisation`: a local-support field's coefficients C (n, 3) on an `Assembly` (sparse
+J, K in CSR, unknowns coefficient × 3 + component), with held unknowns (gauge freedoms), the
+sparse direct or multigrid solve (`linear_solve`) and the spline's FD step rule (`jet_steps`).
+
+Both solve (K + μ D) d = −g with D the diagonal of K (the dense one as D^½ (D^-½ K D^-½ + μ I)
+D^½, the same matrix).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+
+from taichi_ndf.minimise.assembly import Assembly
+from taichi_ndf.minimise.linear_solve import LinearSolver, damped_solve
+from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
+
+# Least damping of the dense solve, relative to the mean diagonal of the Jacobi-scaled K:
+# nearly collinear features and zero-energy motions (rigid modes) would otherwise take steps
+# made of rounding noise.
+EIGEN_CUTOFF = 1e-14
+
+
+def parameter_gradient(jacobian: torch.Tensor, grad_u_jets: torch.Tensor) -> torch.Tensor:
+    """dΠ/dP, shape (3, p), from dΠ/du_jets (N, 6, 3) and J (3, N, 6, p)."""
+    return torch.einsum("knca,nck->ka", jacobian, grad_u_jets)
+
+
+def parameter_hessian(jacobian: torch.Tensor, hessians: torch.Tensor) -> torch.Tensor:
+    """d²Π/dP², shape (3p, 3p), from J (3, N, 6, p) and the per-point blocks (N, 6, 3, 6, 3):
+    exact, since u is affine in P."""
+    _, n, channels, p = jacobian.shape
+    blocks = {}
+    for k in range(COMPONENTS):
+        flat_k = jacobian[k].reshape(n * channels, p)
+        for m in range(k, COMPONENTS):  # the blocks below the diagonal are transposes
+            block = hessians[:, :, k, :, m]  # (N, 6, 6)
+            # Σ_d h[n, c, d] J[n, d, a] as six broadcast products: batched 6 × 6 GEMMs are
+            # ~50 × slower on the CPU.
+            weighted = sum(block[:, :, d, None] * jacobian[m][:, d, None, :]
+                           for d in range(channels))
+            blocks[k, m] = flat_k.t() @ weighted.reshape(n * channels, p)
+            blocks[m, k] = blocks[k, m].t()
+    return torch.cat([torch.cat([blocks[k, m] for m in range(COMPONENTS)], dim=1)
+                      for k in range(COMPONENTS)], dim=0)
+
+
+def _scaled_system(hessian: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The Jacobi scaling s = |diag K|^-½ and the symmetrised scaled matrix s K s."""
+    diag = hessian.diagonal().abs()
+    scale = 1.0 / torch.sqrt(torch.clamp(diag, min=float(diag.max()) * 1e-30 + 1e-300))
+    scaled = scale[:, None] * hessian * scale[None, :]
+    return scale, 0.5 * (scaled + scaled.t())
+
+
+def damped_step(hessian: torch.Tensor, gradient: torch.Tensor, damping: float) -> torch.Tensor:
+    """Levenberg–Marquardt step −(K + μ)⁻¹ g on the Jacobi-scaled K, μ = damping × its mean
+    diagonal (at least EIGEN_CUTOFF ×), raised until the Cholesky factorisation succeeds
+    (negative curvature). gradient: flat (3p,)."""
+    scale, scaled = _scaled_system(hessian)
+    mu = max(damping, EIGEN_CUTOFF) * float(scaled.diagonal().mean())
+    eye = torch.eye(scaled.shape[0], dtype=scaled.dtype, device=scaled.device)
+    while True:
+        factor, info = torch.linalg.cholesky_ex(scaled + mu * eye)
+        if int(info) == 0:
+            break
+        mu *= 10
+    solution = torch.cholesky_solve((scale * gradient)[:, None], factor)[:, 0]
+    return -scale * solution
+
+
+class DenseLinearisation:
+    """U(P) = U₀ + Σ_a J[k, :, :, a] P[k, a] per component k (module docstring).
+
+    samples: the points; offset U₀ (N, 6, 3) [m]; jacobian J (3, N, 6, p); origin: the
+    parameter values P = 0 stands for (3, p) (e.g. the output layer θ₀ when P is its change;
+    zeros when P is absolute), for the FD step rule."""
+
+    def __init__(self, samples: SurfaceSamples, offset: torch.Tensor, jacobian: torch.Tensor,
+                 origin: torch.Tensor | None = None):
+        self.samples, self.offset, self.jacobian = samples, offset, jacobian
+        self.origin = (jacobian.new_zeros(jacobian.shape[0], jacobian.shape[3])
+                       if origin is None else origin)
+
+    def displacement(self, parameters: torch.Tensor) -> torch.Tensor:
+        return self.offset + torch.einsum("knca,ka->nck", self.jacobian, parameters)
+
+    def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
+        return parameter_gradient(self.jacobian, grad_u_jets)
+
+    def fd_steps(self, u_jets: torch.Tensor, parameters: torch.Tensor,
+                 relative: float) -> torch.Tensor:
+        """`relative` × each channel's RMS of u, or the RMS a typical change of the
+        parameters would make where the displacement vanishes."""
+        rms_u = u_jets.pow(2).mean(dim=(0, 2)).sqrt()
+        rms_theta = (self.origin + parameters).pow(2).mean().sqrt()
+        rms_j = self.jacobian.pow(2).mean(dim=(0, 1, 3)).sqrt()
+        scale = torch.maximum(rms_u, rms_j * rms_theta)
+        return relative * torch.where(scale > 0, scale, torch.ones_like(scale))
+
+    def hessian(self, blocks: torch.Tensor) -> torch.Tensor:
+        n = blocks.shape[0]
+        channels = JET_SIZE // COMPONENTS
+        return parameter_hessian(self.jacobian,
+                                 blocks.reshape(n, channels, COMPONENTS, channels, COMPONENTS))
+
+    def solve(self, matrix: torch.Tensor, gradient: torch.Tensor, damping: float, *,
+              require_definite: bool = False) -> tuple[torch.Tensor, float] | None:
+        """`damped_step` (its μ raised internally; the damping given is returned); with
+        require_definite None unless the Cholesky factorisation at that damping succeeds."""
+        flat = gradient.reshape(-1)
+        if require_definite:
+            scale, scaled = _scaled_system(matrix)
+            mu = max(damping, EIGEN_CUTOFF) * float(scaled.diagonal().mean())
+            eye = torch.eye(scaled.shape[0], dtype=scaled.dtype, device=scaled.device)
+            factor, info = torch.linalg.cholesky_ex(scaled + mu * eye)
+            if int(info) != 0:
+                return None
+            step = -scale * torch.cholesky_solve((scale * flat)[:, None], factor)[:, 0]
+        else:
+            step = damped_step(matrix, flat, damping)
+        return step.reshape(gradient.shape), damping
+
+
+class SplineLinearisation:
+    """A local-support field's coefficients C (n, 3) on an `Assembly` linearised at the load
+    factor (`Assembly.at_load`; module docstring).
+
+    fixed: unknowns (coefficient × 3 + component) held at 0 change; solver: the Newton
+    systems' solve with `damped_solve`'s contract (`LinearSolver.for_grid`: multigrid on
+    large grids; None: `damped_solve`); length: a length of the parameter domain [ξ units]
+    for the FD steps (`jet_steps`)."""
+
+    def __init__(self, assembly: Assembly, *, fixed: np.ndarray | None = None,
+                 solver: LinearSolver | None = None, length: float = 1.0):
+        self.assembly, self.fixed, self.length = assembly, fixed, length
+        self._solve = solver or damped_solve
+
+    @property
+    def samples(self) -> SurfaceSamples:
+        return self.assembly.samples
+
+    def displacement(self, parameters: torch.Tensor) -> torch.Tensor:
+        return self.assembly.displacement(parameters)
+
+    def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
+        gradient = self.assembly.gradient(grad_u_jets)
+        if self.fixed is not None:
+            gradient.reshape(-1)[torch.from_numpy(self.fixed).to(gradient.device)] = 0.0
+        return gradient
+
+    def fd_steps(self, u_jets: torch.Tensor, parameters: torch.Tensor,
+                 relative: float) -> torch.Tensor:
+        return jet_steps(self.samples.r_jets, u_jets, self.length, relative)
+
+    def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
+        return self.assembly.hessian(blocks)
+
+    def solve(self, matrix: sp.csr_matrix, gradient: torch.Tensor, damping: float, *,
+              require_definite: bool = False) -> tuple[torch.Tensor, float] | None:
+        rhs = -gradient.reshape(-1).double().cpu().numpy()
+        result = self._solve(matrix, rhs, damping, self.fixed, require_definite=require_definite)
+        if result is None:
+            return None
+        step, damping = result
+        return torch.from_numpy(step).to(gradient).reshape(gradient.shape), damping

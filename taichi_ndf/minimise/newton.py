@@ -1,0 +1,358 @@
+"""Newton minimisation of Π over the parameters of a linearised displacement: the one Newton.
+
+The displacement jets at fixed points are affine in the parameters P, U = U₀ + J P (a
+`Linearisation`: dense for a SIREN's output layer, `last_layer`; sparse for a spline's
+coefficients, `SplineLinearisation`). Π = Σ_q e_q(U_q) is a sum of per-point terms, so its
+Hessian over the jets is one 18 × 18 block per point and, U being affine in P,
+g = Jᵀ ∂Π/∂U and K = Jᵀ H J exactly. Per iteration from P:
+1. Π and g (`Linearisation.gradient`: held unknowns zero);
+2. per-point Hessian blocks (`point_blocks`): the potential's own (`Objective.hessian_blocks`:
+   the shell's through its strains, `taichi_ndf.shell.strain_hessian`) or central differences
+   of its gradient, with the linearisation's step per jet channel (`Linearisation.fd_steps`);
+3. K = Jᵀ H J (`Linearisation.hessian`) — with `project`: of the exact blocks when that K is
+   positive definite (checked by its factorisation: a stable state may have indefinite
+   blocks, and the exact Newton step then converges quadratically), else of the blocks
+   projected to positive semi-definite (`project_psd`: screened and projected only then; the
+   first iteration and the iteration after a failed attempt skip it and screen: far from the
+   minimum attempts fail in a row and each costs an assembly and a factorisation);
+4. d from (K + μ D) d = −g (`Linearisation.solve`: the dense Jacobi-scaled Cholesky or the
+   sparse direct / multigrid solve, D the diagonal of K; μ = 0 unless the system is singular
+   or a line search failed: then raised tenfold, from at least `retry_damping`);
+5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(P + α d) ≤ Π(P) + c α gᵀd
+   (and, with a `feasible` test, the trial is feasible: contact never steps into an obstacle);
+   a full step that lowered Π clearly more than the quadratic model predicts is doubled while
+   Π keeps falling (`_longer_step`: the model overestimates the curvature along d).
+Stops, without taking that step, when the Newton decrement λ² = −gᵀd satisfies
+λ²/2 ≤ decrement_tolerance × |Π| (λ²/2 estimates Π − Π* near the minimum), when
+‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: the gradient at the start), or when the last step lowered
+Π by at most relative_decrease × |Π|. Each iteration is logged (Π, λ², α, μ and the time
+split: energy, Hessian, assembly, solve) and returned as a `NewtonIteration` record.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any, Protocol
+
+import torch
+
+from taichi_ndf import progress
+from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.shell.hessian import (
+    PROJECTIONS,
+    Potential,
+    flat_blocks,
+    project_psd,
+    sample_hessians,
+)
+
+log = logging.getLogger(__name__)
+
+# A full step that lowered Π by more than this × the quadratic model's ½λ² is tried longer.
+LONGER_STEP_RATIO = 1.25
+
+
+class Linearisation(Protocol):
+    """Displacement jets U(P) = U₀ + J P (N, 6, 3) [m] at fixed points, affine in parameters P
+    (a tensor of the linearisation's own shape), with the products Newton needs."""
+
+    samples: SurfaceSamples  # the points, in the linearisation's order
+
+    def displacement(self, parameters: torch.Tensor) -> torch.Tensor:
+        """U (N, 6, 3) [m] at parameters P."""
+
+    def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
+        """dΠ/dP = Jᵀ dΠ/dU (P's shape) from dΠ/dU (N, 6, 3); held unknowns 0."""
+
+    def fd_steps(self, u_jets: torch.Tensor, parameters: torch.Tensor,
+                 relative: float) -> torch.Tensor:
+        """Central-difference step per jet channel (6,) of the Hessian blocks at U(P)."""
+
+    def hessian(self, blocks: torch.Tensor) -> Any:
+        """K = Jᵀ H J (dense torch matrix or scipy sparse) from blocks H (N, 18, 18)."""
+
+    def solve(self, matrix: Any, gradient: torch.Tensor, damping: float, *,
+              require_definite: bool = False) -> tuple[torch.Tensor, float] | None:
+        """d = −(K + μ D)⁻¹ g (P's shape; held unknowns 0) and the damping to go on with;
+        with require_definite None unless K + μ D is positive definite."""
+
+
+@dataclass(frozen=True)
+class NewtonConfig:
+    """Settings of Newton. The defaults are projected Newton's on a spline's coefficients;
+    `last_layer.LAST_LAYER` holds a SIREN output layer's.
+
+    max_iterations: most Newton iterations (per load step).
+    decrement_tolerance: stop when λ²/2 ≤ this × |Π| (λ² = −gᵀd, the Newton decrement).
+    gradient_tolerance: stop when ‖g‖ ≤ this × ‖g₀‖.
+    relative_decrease: stop when the last step lowered Π by at most this × |Π| (0: never).
+    fd_step: central-difference step of the Hessian blocks relative to each jet channel's scale
+        (`Linearisation.fd_steps`); 1e-5 suits float64 on a spline (1e-4 left a 1e-4 relative
+        error in the bending part of a thin cylinder's Hessian, h/R = 0.01: the membrane terms'
+        truncation error), about 3e-3 float32.
+    floor_tolerance: also stop, after taking the step, when the line search had to shorten a
+        step whose decrement is already below this × |Π|: the rounding floor of Π and of the
+        solve is reached.
+    armijo: sufficient-decrease constant c of the line search.
+    halvings: most step halvings of one line search.
+    line_searches: most line searches per iteration (the damping raised before each retry).
+    retry_damping: least damping μ after a failed line search (a damping decayed below it
+        returns to 0).
+    project: make the Newton matrix positive definite where it is not (off: plain Newton with
+        damping, for convex problems).
+    longer_steps: most doublings of an accepted full step (`_longer_step`) when it lowered Π
+        by clearly more than the quadratic model predicts; 0: never longer than the Newton
+        step.
+    hessian: how an indefinite block is projected (`project_psd`) when the exact K is not
+        definite: "clamp" (default) sets its negative eigenvalues to 0, "abs" mirrors them.
+        Measured (benchmarks/RESULTS.md): clamp took fewer or as many Newton steps as abs and
+        as the exact K shifted by μ diag K until definite (Levenberg–Marquardt), on the
+        napkin and the flag.
+    """
+
+    max_iterations: int = 100
+    decrement_tolerance: float = 1e-12
+    gradient_tolerance: float = 1e-10
+    relative_decrease: float = 0.0
+    fd_step: float = 1e-5
+    floor_tolerance: float = 1e-8
+    armijo: float = 1e-4
+    halvings: int = 30
+    line_searches: int = 6
+    retry_damping: float = 1e-8
+    project: bool = True
+    hessian: str = "clamp"
+    longer_steps: int = 4
+
+    def __post_init__(self):
+        if self.hessian not in PROJECTIONS:
+            raise ValueError(f"hessian must be one of {PROJECTIONS}, got {self.hessian!r}")
+        for name in ("max_iterations", "halvings", "line_searches"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("decrement_tolerance", "gradient_tolerance", "floor_tolerance"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not 0 <= self.relative_decrease < 1:
+            raise ValueError(f"relative_decrease must be in [0, 1), got {self.relative_decrease}")
+        if not 0 < self.fd_step < 1:
+            raise ValueError(f"fd_step must be in (0, 1), got {self.fd_step}")
+        if not 0 < self.armijo < 0.5:
+            raise ValueError(f"armijo must be in (0, 0.5), got {self.armijo}")
+        if not (math.isfinite(self.retry_damping) and self.retry_damping > 0):
+            raise ValueError(f"retry_damping must be finite and > 0, got {self.retry_damping}")
+        if self.longer_steps < 0:
+            raise ValueError(f"longer_steps must be >= 0, got {self.longer_steps}")
+
+
+@dataclass
+class NewtonIteration:
+    """One Newton iteration: Π [J] before the step, the decrement λ² = −gᵀd [J], the accepted
+    step length α (0: none; above 1: a lengthened full step), the damping μ, the number of
+    indefinite blocks projected (0 also when the exact K was definite and used), ‖g‖, and
+    seconds spent on energy + gradient, Hessian blocks, assembly and the linear solve."""
+
+    load_factor: float
+    iteration: int
+    energy: float
+    decrement: float
+    step_length: float
+    damping: float
+    projected_blocks: int
+    gradient_norm: float
+    time_energy: float
+    time_hessian: float
+    time_assembly: float
+    time_solve: float
+
+
+@dataclass
+class NewtonSolution:
+    """The parameters reached (the linearisation's shape), Π [J] there, whether a stopping
+    test was met, and the iterations."""
+
+    parameters: torch.Tensor
+    energy: float
+    converged: bool
+    history: list[NewtonIteration] = field(default_factory=list)
+
+    @property
+    def steps(self) -> int:
+        """Accepted Newton steps."""
+        return sum(h.step_length > 0 for h in self.history)
+
+    @property
+    def energy_before(self) -> float:
+        """Π [J] at the start."""
+        return self.history[0].energy if self.history else self.energy
+
+
+def hessian_blocks(potential: Potential, samples, u_jets: torch.Tensor, steps: torch.Tensor
+                   ) -> torch.Tensor:
+    """Per-point Hessian blocks (N, 6, 3, 6, 3): the potential's own `hessian_blocks` (an
+    `Objective.potential`: term by term) where it has one, else central differences of its
+    gradient."""
+    own = getattr(potential, "hessian_blocks", None)
+    if own is not None:
+        return own(samples, u_jets, steps=steps)
+    return sample_hessians(potential, samples, u_jets, steps=steps)
+
+
+def point_blocks(linearisation: Linearisation, potential: Potential, parameters: torch.Tensor,
+                 u_jets: torch.Tensor, fd_step: float) -> torch.Tensor:
+    """The exact (unprojected) per-point blocks (N, 18, 18) at U(P) = u_jets, with the
+    linearisation's FD steps `fd_step` × each channel's scale (`hessian_blocks`)."""
+    steps = linearisation.fd_steps(u_jets, parameters, fd_step)
+    return flat_blocks(hessian_blocks(potential, linearisation.samples, u_jets, steps))
+
+
+def _longer_step(energy_at: Callable[[float], float], start: float, full: float,
+                 decrement: float, doublings: int) -> float:
+    """The step length from α = 1 (accepted, Π = `full`; Π = `start` at α = 0): doubled while Π
+    keeps falling, at most `doublings` times, when the full step lowered Π by more than
+    LONGER_STEP_RATIO × ½λ² — the model overestimates the curvature along d (a projected K, or
+    far from the minimum: a draped cloth's soft folds), so d is too short."""
+    alpha, best = 1.0, full
+    if not start - full > LONGER_STEP_RATIO * 0.5 * decrement:
+        return alpha
+    for _ in range(doublings):
+        trial = energy_at(2 * alpha)
+        if not (math.isfinite(trial) and trial < best):
+            break
+        alpha, best = 2 * alpha, trial
+    return alpha
+
+
+def minimise(linearisation: Linearisation, potential: Potential, start: torch.Tensor,
+             config: NewtonConfig | None = None, *, load_factor: float = 1.0,
+             feasible: Callable[[torch.Tensor, torch.Tensor], bool] | None = None,
+             on_step: Callable[[torch.Tensor], bool] | None = None,
+             report: bool = True) -> NewtonSolution:
+    """Minimise Π(P) = potential(U(P)) by Newton from parameters `start` (module docstring).
+
+    linearisation: U(P) at the potential's load factor; potential: Π at the linearisation's
+    samples. load_factor: recorded in the iterations. feasible(P, P_trial): False rejects a
+    line-search trial (halved like an Armijo failure; contact: a step that could enter an
+    obstacle). on_step(P): called with each accepted iterate; True stops the minimisation
+    there, not converged (contact: the caller adds quadrature points and solves again).
+    report: each iteration goes to the innermost progress stage and the log at INFO; False:
+    the log at DEBUG only (short solves inside another stage: a SIREN's Newton phases).
+    """
+    config = config or NewtonConfig()
+    samples = linearisation.samples
+    c = start.detach().clone()
+    history: list[NewtonIteration] = []
+    # The first iteration screens the blocks instead of trying the exact K (a start from a
+    # coarser grid or the flat sheet is rarely a definite state; a definite one costs a screen)
+    damping, converged, first_norm, exact_failed = 0.0, False, None, True
+    previous = None  # Π before the last accepted step
+
+    def _trial_energy(step, a):  # Π at P + a d; inf where `feasible` rejects it
+        if feasible is not None and not feasible(c, c + a * step):
+            return math.inf
+        return potential(samples, linearisation.displacement(c + a * step), False).total
+
+    for iteration in range(config.max_iterations):
+        started = time.perf_counter()
+        u = linearisation.displacement(c)
+        current = potential(samples, u, True)
+        gradient = linearisation.gradient(current.grad_u_jets)
+        norm = float(gradient.norm())
+        first_norm = norm if first_norm is None else first_norm
+        t_energy = time.perf_counter() - started
+        if norm <= config.gradient_tolerance * first_norm or norm == 0.0 or (
+                config.relative_decrease > 0 and previous is not None and
+                previous - current.total <= config.relative_decrease * abs(current.total)):
+            converged = True
+            break
+        started = time.perf_counter()
+        blocks = point_blocks(linearisation, potential, c, u, config.fd_step)
+        t_hessian = time.perf_counter() - started
+        t_assembly = t_solve = 0.0
+        first_step = matrix = None  # (step, damping) of a factorisation checked definite
+        if config.project and damping == 0.0 and not exact_failed:
+            # The exact K may be definite although some blocks are not (a stable state under
+            # compression): then its Newton step converges quadratically.
+            started = time.perf_counter()
+            matrix = linearisation.hessian(blocks)
+            t_assembly += time.perf_counter() - started
+            started = time.perf_counter()
+            first_step = linearisation.solve(matrix, gradient, 0.0, require_definite=True)
+            exact_failed = first_step is None
+            t_solve += time.perf_counter() - started
+        else:  # after a failed attempt the next iteration goes straight to the projected K
+            exact_failed = False
+        projected = 0
+        if first_step is None:
+            if config.project:
+                started = time.perf_counter()
+                blocks, projected = project_psd(blocks, mode=config.hessian)
+                t_hessian += time.perf_counter() - started
+            if matrix is None or projected:
+                started = time.perf_counter()
+                matrix = linearisation.hessian(blocks)
+                t_assembly += time.perf_counter() - started
+        alpha, small = 0.0, False
+        for _attempt in range(config.line_searches):
+            started = time.perf_counter()
+            if first_step is not None:
+                (step, damping), first_step = first_step, None
+            else:
+                step, damping = linearisation.solve(matrix, gradient, damping)
+            t_solve += time.perf_counter() - started
+            decrement = float(-(gradient * step).sum())
+            small = 0.5 * abs(decrement) <= config.decrement_tolerance * abs(current.total)
+            if small:
+                break  # converged: the step would change Π by less than the tolerance
+            if decrement < 0:  # K (nearly) singular along d, e.g. a flat sheet's rigid
+                damping = max(10 * damping, config.retry_damping)  # rotations: damp, again
+                continue
+            started = time.perf_counter()
+            alpha = 1.0
+            for _ in range(config.halvings):
+                trial = _trial_energy(step, alpha)
+                if math.isfinite(trial) and (
+                        trial <= current.total - config.armijo * alpha * decrement):
+                    break
+                alpha *= 0.5
+            else:
+                alpha = 0.0
+            if alpha == 1.0 and config.longer_steps:
+                alpha = _longer_step(partial(_trial_energy, step), current.total, trial,
+                                     decrement, config.longer_steps)
+            t_energy += time.perf_counter() - started
+            if alpha > 0:
+                break
+            damping = max(10 * damping, config.retry_damping)
+        history.append(NewtonIteration(load_factor, iteration, current.total, decrement, alpha,
+                                       damping, projected, norm, t_energy, t_hessian,
+                                       t_assembly, t_solve))
+        log.log(logging.INFO if report else logging.DEBUG,
+                "Newton %2d at λ=%.3g: Π %.12g J, λ² %.3e, α %.3g, μ %.1e, %d projected, "
+                "time energy %.3f hessian %.3f assembly %.3f solve %.3f s", iteration,
+                load_factor, current.total, decrement, alpha, damping, projected, t_energy,
+                t_hessian, t_assembly, t_solve)
+        if report:
+            progress.report(iteration + 1, **{"Π": current.total, "λ²": decrement})
+        near = 0.5 * abs(decrement) <= config.floor_tolerance * abs(current.total)
+        if alpha == 0.0:  # stopped on the decrement tolerance, or no step decreased Π
+            converged = small or near
+            break
+        c = c + alpha * step
+        previous = current.total
+        if on_step is not None and on_step(c):
+            break
+        if alpha < 1.0 and near:  # the quadratic model no longer predicts Π: rounding floor
+            converged = True
+            break
+        damping = damping / 10 if alpha >= 1.0 else damping
+        if damping < config.retry_damping:
+            damping = 0.0
+    energy = potential(samples, linearisation.displacement(c), False).total
+    return NewtonSolution(parameters=c, energy=energy, converged=converged, history=history)
