@@ -92,7 +92,7 @@ class WorkStarted(Exception):
 
 
 def _stubbed(monkeypatch):
-    import inverse.cli.fit_material as fit
+    import inverse.cli.fit_material_run as fit
 
     def started(*args, **kwargs):
         raise WorkStarted
