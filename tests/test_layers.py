@@ -40,7 +40,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                "taichi_ndf.training", "taichi_ndf.spline_grid")),
     # Minimisers of Π at one load factor on one discretisation, contact's Newton hook, and
     # what a minimisation changes and saves: state, checkpoint, backoff, callbacks.
-    ("minimise", ("taichi_ndf.minimise", "taichi_ndf.minimisers", "taichi_ndf.newton",
+    ("minimise", ("taichi_ndf.minimise", "taichi_ndf.minimisers",
                   "taichi_ndf.contact.newton_contact", "taichi_ndf.state",
                   "taichi_ndf.checkpoint", "taichi_ndf.backoff", "taichi_ndf.callbacks")),
     # Solve drivers: continuation over load steps and grid levels, the estimates that solve.
