@@ -14,7 +14,7 @@ process and its threads) side by side, with the load average before and after.
                 iterations) and of every validation case (spline path, one grid) on both
                 backends, and their relative difference (acceptance: 1e-12)
 
-    OMP_NUM_THREADS=1 nice -n 10 python benchmarks/backends.py [--quick]
+    OMP_NUM_THREADS=1 nice -n 10 python benchmarks/backends.py [--quick] [--fast-math]
         [--tasks steps napkin energies] [--cases square_plate ...]
 
 Needs both backends in one environment: pip install -e '.[quadrants]' (quadrants 1.3.3 and
@@ -60,14 +60,14 @@ class Clock:
         return out
 
 
-def _init(precision: str = "f64") -> dict:
+def _init(precision: str = "f64", fast_math: bool = False) -> dict:
     import torch
 
     import taichi_ndf
 
     torch.set_num_threads(1)
     clock = Clock()
-    runtime = taichi_ndf.init(arch="cpu", precision=precision, seed=0)
+    runtime = taichi_ndf.init(arch="cpu", precision=precision, seed=0, fast_math=fast_math)
     wall, cpu = clock.lap()
     return {"backend": taichi_ndf.runtime.machine_description(runtime)["backend"],
             "init_s": wall, "init_cpu_s": cpu}
@@ -189,7 +189,7 @@ def energies(cases: list[str], siren_steps: int) -> dict:
 
 
 def child(args: argparse.Namespace) -> None:
-    result = _init()
+    result = _init(fast_math=args.fast_math)
     if args.child == "steps":
         result |= siren_steps(args.siren_steps)
         result |= newton_steps(args.newton_steps)
@@ -203,7 +203,8 @@ def child(args: argparse.Namespace) -> None:
 
 def run_child(task: str, backend: str, cache: str, args: argparse.Namespace) -> dict:
     command = [sys.executable, __file__, "--child", task, "--siren-steps", str(args.siren_steps),
-               "--newton-steps", str(args.newton_steps), "--cases", *args.cases]
+               "--newton-steps", str(args.newton_steps), "--cases", *args.cases,
+               *(["--fast-math"] if args.fast_math else [])]
     env = {**os.environ, "TAICHI_NDF_BACKEND": backend, "TAICHI_NDF_CACHE": cache,
            "OMP_NUM_THREADS": "1",
            "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
@@ -239,6 +240,9 @@ def main() -> None:
     parser.add_argument("--cases", nargs="*", default=None,
                         help="validation cases of the energies task (default: all; --quick: "
                         f"{', '.join(QUICK_CASES)})")
+    parser.add_argument("--fast-math", action="store_true",
+                        help="both backends with the compiler's fast math on (taichi_ndf.init's "
+                        "fast_math; off by default)")
     parser.add_argument("--siren-steps", type=int, default=None)
     parser.add_argument("--newton-steps", type=int, default=None)
     parser.add_argument("--child", choices=TASKS, help=argparse.SUPPRESS)
@@ -254,8 +258,9 @@ def main() -> None:
         return
     if args.quick:
         args.tasks = [t for t in args.tasks if t != "napkin"]
-    print(f"machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}; wall / CPU "
-          "seconds; load = 1-minute load average before / after each process\n")
+    print(f"machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}; fast math "
+          f"{'on' if args.fast_math else 'off'}; wall / CPU seconds; load = 1-minute load "
+          "average before / after each process\n")
     with tempfile.TemporaryDirectory() as work:
         backends = args.backends
         caches = {b: str(Path(work) / b) for b in backends}

@@ -132,6 +132,7 @@ class Runtime:
     seed: int = 0
     debug: bool = False
     backend: str = "taichi"
+    fast_math: bool = False
 
     def __post_init__(self):
         _check_backend(self.backend)
@@ -170,7 +171,7 @@ def cache_dir() -> Path:
 
 
 def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *,
-         debug: bool = False, backend: str | None = None) -> Runtime:
+         debug: bool = False, backend: str | None = None, fast_math: bool = False) -> Runtime:
     """Initialise Taichi for this process and seed torch, numpy and Python's RNG.
 
     arch: one of `arches(backend)`: "cpu" (the x64 backend), "cuda", "vulkan", "metal", "gpu",
@@ -179,10 +180,14 @@ def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *,
     debug: Taichi debug mode (bounds checks, autodiff validation); slow.
     backend: "taichi" or "quadrants" (default `selected_backend()`); must be the bound one if
     a kernel module was imported already.
+    fast_math: let the compiler reassociate and contract floating-point operations (Taichi's
+    own default). Off: IEEE arithmetic, so both backends give the same Π in f64 (with it on
+    they differed by 1.1e-12 relative on the pinched hemisphere, and Π of the undeformed shell
+    came out 1.7e-18 J instead of 0); the cost measured in benchmarks/RESULTS.md ("Fast math").
     """
     global _current
     wanted = Runtime(arch=arch, precision=precision, seed=seed, debug=debug,
-                     backend=_check_backend(backend or selected_backend()))
+                     backend=_check_backend(backend or selected_backend()), fast_math=fast_math)
     if _current is not None:
         if _current == wanted:
             return _current
@@ -205,6 +210,7 @@ def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *,
         offline_cache_file_path=str(path),
         ad_stack_size=512,
         log_level=ti.WARN,
+        fast_math=fast_math,
     )
     import torch
 
@@ -243,4 +249,4 @@ def machine_description(runtime: Runtime) -> dict:
     return {"python": platform.python_version(), "platform": platform.platform(),
             "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
             "backend": f"{runtime.backend} {backend_version(language(runtime.backend))}",
-            "arch": runtime.arch, "precision": runtime.precision}
+            "arch": runtime.arch, "precision": runtime.precision, "fast_math": runtime.fast_math}
