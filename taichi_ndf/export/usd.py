@@ -10,8 +10,9 @@ scale and orient it right):
                                 membrane_strain, bending_strain, energy_density (final state),
                                 and ndf:loadFactor (time-sampled)
     /World/reference            Mesh: the undeformed surface (purpose "guide")
-    /World/probes               Points: the probes at their final positions, names in
-                                customData
+    /World/probes               Points: the probes (time-sampled over the frames as
+                                `RunFiles.probe_positions` places them; the default value
+                                their final positions), names in customData
     /World/obstacles/NAME       Mesh: the scene's obstacles by their scene names, when it has any
     /World/Looks/surface        Material (UsdPreviewSurface, steel blue as render.png) bound to
                                 the deformed and reference meshes; /World/Looks/obstacle (grey)
@@ -101,7 +102,9 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
             _bind(reference, surface)
         if run.probes:
             probes = UsdGeom.Points.Define(stage, "/World/probes")
-            probes.CreatePointsAttr(_vec3(np.array([p.deformed for p in run.probes])))
+            probe_points = probes.CreatePointsAttr(_vec3(run.probe_positions()[0]))
+            for k in range(len(run.frames)):
+                probe_points.Set(_vec3(run.probe_positions(k)[0]), Usd.TimeCode(k))
             probes.GetPrim().SetCustomDataByKey("names", Vt.StringArray([p.name
                                                                          for p in run.probes]))
         if run.obstacles:
