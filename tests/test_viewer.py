@@ -156,3 +156,22 @@ def test_frame_out_of_range_exits_2(tmp_path, capsys):
     pytest.importorskip("viser", reason="viser (pip install 'taichi-ndf[viewer]') is missing")
     assert view.main([str(fake_run(tmp_path, frames=2)), "--frame", "2", "--port", "0"]) == 2
     assert "frame 2 is not one of the run's 2 trajectory frames" in capsys.readouterr().err
+
+
+def test_run_without_reference_shows_probes_at_the_final_frame_only(tmp_path):
+    pytest.importorskip("viser", reason="viser (pip install 'taichi-ndf[viewer]') is missing")
+    from taichi_ndf.viewer.app import RunViewer
+
+    path = fake_run(tmp_path, frames=2)
+    (path / "reference.obj").unlink()  # a run written before reference.obj existed
+    viewer = RunViewer(read_run(path), port=0, frame=0)
+    try:
+        assert "final frame only" in viewer.note.content and not viewer.probes
+        viewer.frame.value = 1
+        (sphere, label), = viewer.probes
+        assert sphere.visible and label.visible
+        np.testing.assert_allclose(sphere.position, [1.0, 1.0, 0.3])
+        viewer.frame.value = 0
+        assert not sphere.visible and not label.visible
+    finally:
+        viewer.stop()

@@ -183,15 +183,25 @@ class RunViewer:
         self.colour_bar.image = np.ascontiguousarray(bar)
         self.colour_bar.visible = values is not None
         index = None if self.frame is None else int(self.frame.value)
-        positions, exact = self.run.probe_positions(index)
+        try:
+            positions, exact = self.run.probe_positions(index)
+        except ValueError:  # an old run without reference.obj: final positions only
+            positions, exact = None, True
+            note += "; probes are known at the final frame only"
         if not exact:
             note += "; probes interpolated on the frame's mesh"
         self.note.content = note
         self._draw_probes(positions)
 
-    def _draw_probes(self, positions: np.ndarray) -> None:
-        """Each probe as a red sphere with its name at `positions` (P, 3) [m]."""
+    def _draw_probes(self, positions: np.ndarray | None) -> None:
+        """Each probe as a red sphere with its name at `positions` (P, 3) [m]; None hides
+        them."""
         scene = self.server.scene
+        if positions is None:
+            for handles in self.probes:
+                for handle in handles:
+                    handle.visible = False
+            return
         if not self.probes:
             for probe, position in zip(self.run.probes, positions, strict=True):
                 self.probes.append((
@@ -203,6 +213,7 @@ class RunViewer:
         for handles, position in zip(self.probes, positions, strict=True):
             for handle in handles:
                 handle.position = tuple(float(v) for v in position)
+                handle.visible = True
 
     def stop(self) -> None:
         self.server.stop()
