@@ -2,7 +2,7 @@
 Chromium (driven over its DevTools protocol) opens it at the first of three trajectory frames,
 and its screenshot must show the mesh (not a blank page) filling at least half the canvas, the
 probe (red) on that frame, and the convergence plot (uPlot, Π and the Newton decrement) whole
-in the window.
+in the window; after "fit to view" (framed for the browser's own canvas) the mesh fills more.
 
 Needs the [viewer] extra and Chromium (Debian: apt-get install chromium; .ci/run installs it).
 Bounded: the viewer must start within 60 s and the mesh appear within 150 s (software WebGL on
@@ -157,6 +157,13 @@ PLOT = """(() => {
           window: window.innerHeight, canvases: p.querySelectorAll('canvas').length};
 })()"""
 
+CLICK_FIT = """(() => {
+  const b = [...document.querySelectorAll('button')].find(e => e.innerText.trim() == 'fit to view');
+  if (!b) return false;
+  b.click();
+  return true;
+})()"""
+
 
 def newton_history(run: Path) -> None:
     """Give the fake run a projected-Newton history: a decrement per iteration (one of them
@@ -205,6 +212,13 @@ def test_viewer_shows_the_mesh_in_headless_chromium(tmp_path):
         assert "Π [J]" in plot["text"] and "log₁₀ λ² [J]" in plot["text"], plot
         assert plot["canvases"] >= 1 and plot["height"] > 100, plot
         assert 0 <= plot["top"] and plot["bottom"] <= plot["window"], plot  # whole, not cut off
+        assert browser.evaluate(CLICK_FIT), "no 'fit to view' button"
+        time.sleep(3.0)  # the camera moves on the server's next message
+        fitted = browser.screenshot()
+        assert fitted is not None
+        cv2.imwrite(str(tmp_path / "fitted.png"), fitted)
+        # fitted to the canvas's own aspect: the frame spans ~84 % of it on the tighter side
+        assert mesh_extent(fitted, canvas) > 0.7, tmp_path / "fitted.png"
     finally:
         if browser is not None:
             browser.close()
