@@ -105,6 +105,7 @@ def test_render_png_has_the_scene_views(run):
 
 def test_strain_primvars_equal_the_ply_values(run):
     from taichi_ndf.io import read_mesh
+    from taichi_ndf.io.run_files import read_run
 
     stage = Usd.Stage.Open(str(run / "result.usdc"))
     primvars = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/deformed"))
@@ -118,6 +119,12 @@ def test_strain_primvars_equal_the_ply_values(run):
     np.testing.assert_array_equal(displacement, as_f32(expected))
     probes = stage.GetPrimAtPath("/World/probes")
     assert list(probes.GetCustomDataByKey("names")) == ["free_corner"]
+    points = UsdGeom.Points(probes).GetPointsAttr()
+    run_files = read_run(run)
+    assert points.GetTimeSamples() == [0.0, 1.0]  # the probes move with the frames
+    for k in range(2):
+        np.testing.assert_array_equal(np.array(points.Get(Usd.TimeCode(k))),
+                                      as_f32(run_files.probe_positions(k)[0]))
 
 
 def test_export_cli_writes_obstacles_and_refuses_to_overwrite(run, tmp_path, capsys):

@@ -1,8 +1,10 @@
 """`ndf-view RUN_DIR [--port 8080]`: look at a run in a web browser (needs the [viewer] extra).
 
 Shows the deformed mesh coloured by displacement, membrane strain, bending strain or energy
-density with a colour bar, the reference surface as a ghost, probes, obstacles, a slider over
-the trajectory frames and the Π history. Serves until interrupted (Ctrl-C).
+density with a colour bar, the reference surface as a ghost, probes on every frame, obstacles
+by their scene names, a slider over the trajectory frames, a camera framing the mesh ("fit to
+view") and a plot of Π and the Newton decrement per iteration. Serves until interrupted
+(Ctrl-C).
 """
 
 from __future__ import annotations
@@ -29,6 +31,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1",
                    help="interface to listen on (default 127.0.0.1, this machine only: from "
                    "elsewhere use ssh -L PORT:127.0.0.1:PORT; 0.0.0.0 listens on all)")
+    p.add_argument("--frame", type=int, default=None,
+                   help="trajectory frame shown first (0 = the first load step, -1 = the "
+                   "last; default the last)")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
     return p
 
@@ -46,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
                             format="%(levelname)s %(name)s: %(message)s")
         require_viewer()
         run = read_run(args.run)
-        viewer = RunViewer(run, host=args.host, port=args.port)
+        viewer = RunViewer(run, host=args.host, port=args.port, frame=args.frame)
     except (MissingExtra, ValueError, FileNotFoundError, OSError) as err:
         print(f"ndf-view: error: {err}", file=sys.stderr)
         return 2

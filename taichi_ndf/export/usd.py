@@ -10,8 +10,9 @@ scale and orient it right):
                                 membrane_strain, bending_strain, energy_density (final state),
                                 and ndf:loadFactor (time-sampled)
     /World/reference            Mesh: the undeformed surface (purpose "guide")
-    /World/probes               Points: the probes at their final positions, names in
-                                customData
+    /World/probes               Points: the probes (time-sampled over the frames as
+                                `RunFiles.probe_positions` places them; the default value
+                                their final positions), names in customData
     /World/obstacles/NAME       Mesh: the scene's obstacles by their scene names, when it has any
     /World/Looks/surface        Material (UsdPreviewSurface, steel blue as render.png) bound to
                                 the deformed and reference meshes; /World/Looks/obstacle (grey)
@@ -19,7 +20,9 @@ scale and orient it right):
 
 Positions and UVs are stored as float32, the values of the run's OBJ files rounded to float32;
 time code k is trajectory frame k (trajectory/step_k.obj), FRAMES_PER_SECOND time codes and
-frames per second (so Blender plays it at the rate the stage states).
+frames per second. Blender 5.0's importer maps time code k to its frame k and sets the frame
+range, but keeps the scene's own frame rate (24 fps unless changed); it imports the reference
+(a guide) only with its "Guide" option (tests/test_usd_blender.py).
 """
 
 from __future__ import annotations
@@ -93,6 +96,7 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
                 np.ascontiguousarray(run.quantity(name), dtype=np.float32)))
             primvar.GetAttr().SetDocumentation(f"{QUANTITIES[name]} at the final state")
 
+        UsdGeom.Scope.Define(stage, "/World/Looks")
         surface = _display_material(stage, "/World/Looks/surface", SURFACE_BGR)
         _bind(deformed, surface)
         if run.reference is not None:
@@ -101,10 +105,13 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
             _bind(reference, surface)
         if run.probes:
             probes = UsdGeom.Points.Define(stage, "/World/probes")
-            probes.CreatePointsAttr(_vec3(np.array([p.deformed for p in run.probes])))
+            probe_points = probes.CreatePointsAttr(_vec3(run.probe_positions()[0]))
+            for k in range(len(run.frames) if run.reference is not None else 0):
+                probe_points.Set(_vec3(run.probe_positions(k)[0]), Usd.TimeCode(k))
             probes.GetPrim().SetCustomDataByKey("names", Vt.StringArray([p.name
                                                                          for p in run.probes]))
         if run.obstacles:
+            UsdGeom.Xform.Define(stage, "/World/obstacles")  # a group importers parent under
             grey = _display_material(stage, "/World/Looks/obstacle", OBSTACLE_BGR)
         names = run.obstacle_names or tuple(f"obstacle_{k}" for k in range(len(run.obstacles)))
         for name, obstacle in zip(names, run.obstacles, strict=True):
