@@ -45,7 +45,7 @@ FORMAT_VERSION = 1
 # What a run writes into its directory (see `simulate`): replaced as a whole by the next run.
 RUN_FILES = ("mesh.obj", "mesh.ply", "reference.obj", "probes.json", "render.png", "energy.png",
              "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4",
-             "obstacles")
+             "obstacles", "progress.jsonl")
 # Grid cells per coordinate (256² points) of the clearance to the obstacles in result.json.
 CONTACT_GRID = (255, 255)
 # Scene sections a resumed run may change: how long and how it trains, what it writes.

@@ -71,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     # Imported after parsing: --help and a bad option answer without loading torch or Taichi.
     from taichi_ndf.io import incomplete_path, staged_run
     from taichi_ndf.io.memory import check_export_memory
+    from taichi_ndf.io.progress_log import PROGRESS_FILE, logged_progress
     from taichi_ndf.outputs import exports_on_template
     from taichi_ndf.run_size import check_run_size
     from taichi_ndf.scene_overrides import parse_assignment
@@ -108,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
             check_export_memory(scene.output.resolution, "output.resolution",
                                 frames=scene.output.frames or len(solver.load_steps))
         with shown("ndf-sim"), staged_run(args.out, overwrite=args.overwrite,
-                                          resume=args.resume, products=RUN_FILES) as out:
+                                          resume=args.resume, products=RUN_FILES) as out, \
+                logged_progress(out.file(PROGRESS_FILE)):
             runtime = start(args)  # the directory is claimed before the runtime starts
             result = simulate(scene, out, solver=solver, resume=args.resume,
                               machine=machine_description(runtime),

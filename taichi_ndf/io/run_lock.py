@@ -26,7 +26,7 @@ try:
 except ImportError:  # not POSIX: the recorded holder's liveness is the only check
     fcntl = None
 
-__all__ = ["OutputLockedError", "RunLock", "lock_path"]
+__all__ = ["OutputLockedError", "RunLock", "held_by_a_live_run", "lock_path"]
 
 logger = logging.getLogger(__name__)
 
@@ -40,6 +40,17 @@ def lock_path(path: str | os.PathLike) -> Path:
     """The lock file of the output directory `path`: ``<path>.lock`` beside it."""
     path = Path(path)
     return path.with_name(path.name + ".lock")
+
+
+def held_by_a_live_run(path: str | os.PathLike) -> bool:
+    """Whether a run that still runs on this host holds the claim of output directory `path`
+    (its lock file names a live process). Reads only: takes no lock, so it cannot refuse a run
+    that is starting."""
+    try:
+        holder = json.loads(lock_path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return isinstance(holder, dict) and _alive(holder)
 
 
 def _start_time(pid: int) -> str | None:

@@ -21,6 +21,7 @@ from taichi_ndf.io.run_files import QUANTITIES, RunFiles
 from taichi_ndf.render.camera import frame_mesh, widest_azimuth
 from taichi_ndf.render.figure import RANGE_PERCENTILES
 from taichi_ndf.render.shaded import SURFACE_BGR, colormap, colour_bar, colour_range
+from taichi_ndf.viewer.convergence import add_convergence_plot
 
 __all__ = ["require_viewer", "RunViewer"]
 
@@ -31,7 +32,6 @@ OBSTACLE_RGB = (120, 120, 120)
 PROBE_RGB = (220, 40, 40)
 FOV_DEG = 40.0  # the viewer's vertical field of view (viser's default, 75, shows the mesh small)
 OPENING_ASPECT = 4 / 3  # canvas width / height assumed before a browser reports its own
-PI_RGB, DECREMENT_RGB = "#1f77b4", "#d62728"
 
 
 def require_viewer():
@@ -123,27 +123,11 @@ class RunViewer:
                 c.camera.look_at = tuple(camera.target)
 
     def _history_plot(self, gui):
-        """Π [J] per iteration and, for projected Newton, log₁₀ of the Newton decrement λ² [J] on a
-        second axis (rows without a positive λ² left as gaps)."""
+        """The run's convergence plot (`viewer.convergence`): Π and, for projected Newton, the
+        Newton decrement per iteration."""
         iterations, energies = self.run.history
-        data = [iterations, energies]
-        series = [{"label": "iteration"}, {"label": "Π [J]", "stroke": PI_RGB, "scale": "Pi"}]
-        axes = [{"label": "iteration"},
-                {"label": "Π [J]", "scale": "Pi", "stroke": PI_RGB, "size": 60}]
-        scales = {"x": {"time": False}, "Pi": {"auto": True}}
-        if len(self.run.decrements) == len(iterations):
-            decrements = self.run.decrements
-            with np.errstate(divide="ignore", invalid="ignore"):
-                data.append(np.where(decrements > 0, np.log10(decrements), np.nan))
-            series.append({"label": "log₁₀ λ² [J]", "stroke": DECREMENT_RGB,
-                           "scale": "decrement"})
-            axes.append({"label": "log₁₀ λ² [J]", "scale": "decrement",
-                         "side": 1, "stroke": DECREMENT_RGB, "size": 50,
-                         "grid": {"show": False}})
-            scales["decrement"] = {"auto": True}
-        return gui.add_uplot(tuple(np.asarray(d, dtype=np.float64) for d in data),
-                             tuple(series), title="convergence", axes=tuple(axes),
-                             scales=scales, aspect=1.2, padding=(12, 8, 0, 0))
+        decrements = self.run.decrements if len(self.run.decrements) == len(iterations) else None
+        return add_convergence_plot(gui, iterations, energies, decrements)
 
     def frame_state(self) -> tuple[np.ndarray, np.ndarray | None, str]:
         """Positions (V, 3) of the selected frame, its values of the chosen quantity (or None)
