@@ -4,6 +4,7 @@ visibility test, the frame-0 allowance, and the term's value, gradient and Gauss
 import numpy as np
 import pytest
 import torch
+from test_sft_spline_prior import assert_gradient_matches
 
 from inverse.sft.data_terms import silhouette_distance
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
@@ -113,15 +114,7 @@ def test_outline_gradient_and_blocks_match_central_differences():
     u[:, jets.VALUE] = torch.from_numpy(np.random.default_rng(0).normal(0, 0.002, (4, 3)))
     value, grad = term.evaluate(None, u)
     blocks = term.hessian_blocks(None, u, steps=None)[:, jets.VALUE, :, jets.VALUE, :]
-    step = 1e-7
-    for point in range(1, 4):
-        for c in range(3):
-            plus, minus = u.clone(), u.clone()
-            plus[point, jets.VALUE, c] += step
-            minus[point, jets.VALUE, c] -= step
-            fd = (term.evaluate(None, plus, grad=False)[0]
-                  - term.evaluate(None, minus, grad=False)[0]) / (2 * step)
-            assert grad[point, jets.VALUE, c].item() == pytest.approx(fd, rel=1e-4, abs=1e-6)
+    assert_gradient_matches(term, u, grad, range(1, 4))
     # Gauss–Newton: 2 s rowᵀrow, positive semi-definite, rank one where active.
     assert torch.all(torch.linalg.eigvalsh(blocks) >= -1e-9)
     assert torch.linalg.matrix_rank(blocks[1]) == 1
