@@ -12,12 +12,19 @@ energy ignores them):
     E_data(u) = Σ_i w_i ρ(‖π(X_i + u_i) − p_i‖)                 reprojection [px²]
               + w_sil / n · Σ_v D(π(X_v + u_v))²                silhouette [px²] (with a mask)
               + w_temp / (n h²) · Σ_v ‖X_v + u_v − x̂_v‖²        smooth motion [px²-equivalent]
+              + w_out / n · Σ_{v ∈ ∂} min(0, D(π(X_v + u_v)) − o_v)²   outline [px²] (with a mask)
 
 with w_i the confidences normalised to sum 1, ρ the Huber penalty (quadratic up to huber_px,
 linearised for Gauss–Newton by iteratively reweighted least squares as in the baseline), π the
 pinhole projection, D the distance [px] outside the silhouette's outline (0 inside;
 `inverse.sft.data_terms.silhouette_residual`), x̂_v = 2 x_{t−1} − x_{t−2} the
-constant-velocity prediction of vertex v and h the template's mean edge length.
+constant-velocity prediction of vertex v and h the template's mean edge length. The outline
+term acts on the template's border vertices ∂ only: D signed (negative inside the mask), o_v ≤ 0
+the depth inside the mask that vertex v is allowed (`outline_offsets`: its own depth in frame
+0), so a border vertex that has slid deeper into the silhouette than the template's own
+outline lay in frame 0 is pulled back out to it, while inside the allowance it is free. The
+silhouette term alone is one-sided (it only pulls vertices in), so a sheet whose outline
+retreats inside the mask is not told.
 """
 
 from __future__ import annotations
@@ -49,7 +56,9 @@ class Reprojection:
 class VertexTerms:
     """Template vertices X_v (n, 3) [m]: motion towards `predicted` (n, 3) [m] with weight
     w_temp over the squared mean edge length h² [m²]; silhouette distance image (h, w) [px]
-    (None: no silhouette term) with weight w_sil: `inverse.sft.data_terms.silhouette_distance`."""
+    (None: no silhouette term) with weight w_sil: `inverse.sft.data_terms.silhouette_distance`;
+    outline_offset: (n,) [px], the signed distance o_v ≤ 0 a border vertex may reach inside the
+    mask, −inf for the other vertices (None: no outline term), with weight w_out."""
 
     rest: torch.Tensor
     predicted: torch.Tensor
@@ -57,6 +66,8 @@ class VertexTerms:
     mean_edge: float
     distance: torch.Tensor | None = None
     silhouette_weight: float = 0.0
+    outline_offset: torch.Tensor | None = None
+    outline_weight: float = 0.0
 
 
 class LeastSquaresData:
@@ -75,6 +86,9 @@ class LeastSquaresData:
         self.motion_scale = vertex_terms.motion_weight / (
             len(vertex_terms.rest) * vertex_terms.mean_edge**2)
         self.silhouette_scale = vertex_terms.silhouette_weight / len(vertex_terms.rest)
+        self.outline_scale = 0.0
+        if vertex_terms.outline_offset is not None and vertex_terms.distance is not None:
+            self.outline_scale = vertex_terms.outline_weight / len(vertex_terms.rest)
         if vertex_terms.distance is not None:
             gy, gx = np.gradient(vertex_terms.distance.numpy())
             self.distance_gradient = (torch.from_numpy(gx), torch.from_numpy(gy))
@@ -92,6 +106,9 @@ class LeastSquaresData:
         if self.vertex.distance is not None:
             d = silhouette_residual(self.vertex.distance, self._vertex_pixels(u))
             out["silhouette"] = float((d**2).mean())
+        if self.outline_scale > 0:
+            d = self._outline_residual(self._vertex_pixels(u))
+            out["outline"] = float((d**2).mean())
         return out
 
     def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
@@ -114,6 +131,19 @@ class LeastSquaresData:
 
     def _vertex_pixels(self, u: torch.Tensor) -> torch.Tensor:
         return self.camera.project(self.vertex.rest + u[self.vertices], min_depth=MIN_DEPTH)
+
+    def _outline_residual(self, pixels: torch.Tensor) -> torch.Tensor:
+        """min(0, D − o) [px] (n,): how much deeper inside the mask than allowed."""
+        depth = bilinear_differentiable(self.vertex.distance, pixels)
+        return (depth - self.vertex.outline_offset).clamp_max(0.0)
+
+    def _distance_rows(self, points: torch.Tensor, active: torch.Tensor) -> torch.Tensor:
+        """d D(π(x)) / dx (n, 3) at the vertices where `active` (n,) is set, 0 elsewhere."""
+        pixels = self.camera.project(points, min_depth=MIN_DEPTH)
+        slope = active.to(points.dtype)[:, None] * torch.stack(
+            [bilinear_differentiable(g, pixels) for g in self.distance_gradient], 1)  # dD/dpx
+        return torch.einsum("nr,nri->ni", slope,
+                            self.camera.projection_jacobian(points, min_depth=MIN_DEPTH))
 
     def _evaluate(self, u_jets: torch.Tensor, *, grad: bool, blocks: bool):
         dtype = u_jets.dtype
@@ -152,15 +182,23 @@ class LeastSquaresData:
             pixels = self.camera.project(points, min_depth=MIN_DEPTH)
             d = silhouette_residual(vt.distance, pixels)
             value = value + self.silhouette_scale * (d**2).sum()
-            outside = (d > 0).to(d.dtype)[:, None]  # inside, D = 0 is flat
-            slope = outside * torch.stack([bilinear_differentiable(g, pixels)
-                                           for g in self.distance_gradient], 1)  # dD/dpixel
-            row = torch.einsum("nr,nri->ni", slope,
-                               self.camera.projection_jacobian(points, min_depth=MIN_DEPTH))
+            row = self._distance_rows(points, d > 0)  # inside, D = 0 is flat
             if grad:
                 gradient[self.vertices] += 2.0 * self.silhouette_scale * d[:, None] * row
             if blocks:
                 hessian[self.vertices] += 2.0 * self.silhouette_scale * (
+                    row[:, :, None] * row[:, None, :])
+
+        # Outline: border vertices no deeper inside the mask than allowed, Gauss–Newton.
+        if self.outline_scale > 0:
+            points = vt.rest + u[self.vertices]
+            d = self._outline_residual(self.camera.project(points, min_depth=MIN_DEPTH))
+            value = value + self.outline_scale * (d**2).sum()
+            row = self._distance_rows(points, d < 0)
+            if grad:
+                gradient[self.vertices] += 2.0 * self.outline_scale * d[:, None] * row
+            if blocks:
+                hessian[self.vertices] += 2.0 * self.outline_scale * (
                     row[:, :, None] * row[:, None, :])
 
         full_grad = full_blocks = None

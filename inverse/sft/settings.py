@@ -37,7 +37,9 @@ class SplinePriorConfig:
     the material's membrane stiffness (inextensibility against bending); span_edges: knot span
     length in template mean edge lengths; degree: spline degree (3 or 4); quadrature_points:
     Gauss points per span and direction (None: degree + 1; 3 measured as accurate as 4 for
-    cubics here at half the Hessian cost); silhouette_weight: w_sil; temporal_weight: w_temp;
+    cubics here at half the Hessian cost); silhouette_weight: w_sil; outline_weight: w_out,
+    the visible border vertices held no deeper inside the mask than in frame 0
+    (`inverse.sft.outline`; needs masks and w_sil > 0); temporal_weight: w_temp;
     huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
     Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
     decrease λ²/2 is below this fraction of E; extrapolate: start each frame from the
@@ -51,6 +53,7 @@ class SplinePriorConfig:
     degree: int = 3
     quadrature_points: int | None = 3
     silhouette_weight: float = 1.0
+    outline_weight: float = 1.0
     temporal_weight: float = 0.1
     huber_px: float = 2.0
     max_iterations: int = 8
@@ -58,7 +61,7 @@ class SplinePriorConfig:
     extrapolate: bool = False
 
     def __post_init__(self):
-        for name in ("physics_weight", "silhouette_weight", "temporal_weight"):
+        for name in ("physics_weight", "silhouette_weight", "outline_weight", "temporal_weight"):
             if not 0 <= getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
         for name in ("span_edges", "huber_px", "tolerance", "membrane_factor"):

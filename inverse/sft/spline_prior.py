@@ -11,7 +11,8 @@ chamfer ×1e4 0.273 against 0.247 there) and minimises
     E(C) = E_data(u) + w_phys · Π_int(u) / E_ref
 
 E_data the least-squares data terms of `inverse.sft.least_squares` (robust reprojection of the
-tracked points, silhouette of the template vertices with masks, smooth motion towards the
+tracked points, silhouette of the template vertices with masks, the outline of the visible
+border vertices against the mask (`inverse.sft.outline`), smooth motion towards the
 constant-velocity prediction), Π_int the Kirchhoff–Love internal energy of a fixed linear
 isotropic material over the template (membrane + bending; `sheet_quadrature`: exact
 Gauss–Legendre on the spline's knot spans, one point per triangle where the UV chart does not
@@ -50,6 +51,7 @@ from inverse.sft.data_terms import silhouette_distance
 from inverse.sft.flow import DenseFlow, merged
 from inverse.sft.inputs import Camera, Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
+from inverse.sft.outline import outline_allowance, outline_offsets
 from inverse.sft.settings import SplinePriorConfig
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
@@ -90,7 +92,8 @@ class SplinePriorReconstructor:
     """Holds the spline field, the template's quadrature and the per-frame solve."""
 
     def __init__(self, template: Template, camera: Camera, *,
-                 pinned: np.ndarray | None = None, config: SplinePriorConfig | None = None):
+                 pinned: np.ndarray | None = None, config: SplinePriorConfig | None = None,
+                 first_mask: np.ndarray | None = None):
         self.config = cfg = config or SplinePriorConfig()
         self.template = template
         self.camera = camera
@@ -121,6 +124,11 @@ class SplinePriorReconstructor:
         self.rest = torch.from_numpy(template.vertices).double()
         self.length = math.sqrt(self.surface.domain.rectangle_area)
         self._previous = None  # the coefficients of the frame before the last
+        # How deep inside the mask each visible border vertex may lie (frame 0's outline).
+        self.outline = None
+        if first_mask is not None and cfg.outline_weight > 0 and cfg.silhouette_weight > 0:
+            self.outline = outline_allowance(template.vertices, template.faces, camera,
+                                             first_mask, tolerance=self.mean_edge)
         self.newton = NewtonConfig(
             max_iterations=cfg.max_iterations, decrement_tolerance=cfg.tolerance,
             gradient_tolerance=1e-8, floor_tolerance=cfg.tolerance)
@@ -163,16 +171,20 @@ class SplinePriorReconstructor:
 
         previous = torch.from_numpy(history[-1])
         before = torch.from_numpy(history[-2]) if len(history) > 1 else previous
-        distance = None
+        distance = offsets = None
         if mask is not None and cfg.silhouette_weight > 0:
             distance = silhouette_distance(mask)
+            if self.outline is not None:
+                offsets = outline_offsets(self.outline, history[-1], self.template.faces,
+                                          tolerance=self.mean_edge)
         data = LeastSquaresData(
             self.camera, tracks,
             Reprojection(track_rest, torch.from_numpy(correspondences.xy),
                          torch.from_numpy(correspondences.confidence), cfg.huber_px),
             vertex_rows,
             VertexTerms(self.rest, 2.0 * previous - before, cfg.temporal_weight,
-                        self.mean_edge, distance, cfg.silhouette_weight))
+                        self.mean_edge, distance, cfg.silhouette_weight, offsets,
+                        cfg.outline_weight))
         potential = (_DataOnly(data) if self.shell is None
                      else Objective(self.shell, (data,)).potential(1.0))
         fixed = None if self.conditions is None else gauge_unknowns(self.conditions, basis)
@@ -264,7 +276,8 @@ def reconstruct_spline(template: Template, camera: Camera,
     template positions; flow: dense flow correspondences (`inverse.sft.flow`) added to each
     frame's tracks, carried from the frame before's reconstruction.
     """
-    solver = SplinePriorReconstructor(template, camera, pinned=pinned, config=config)
+    solver = SplinePriorReconstructor(template, camera, pinned=pinned, config=config,
+                                      first_mask=None if masks is None else masks[0])
     vertices = [template.vertices.copy()]
     seconds, cpu_seconds, iterations, losses = [0.0], [0.0], [0], [{}]
     for i in range(1, len(correspondences)):
