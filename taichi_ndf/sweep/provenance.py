@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 import platform
 import subprocess
@@ -27,6 +28,19 @@ def package_commit() -> str:
     except (OSError, subprocess.CalledProcessError):
         return f"taichi-ndf {taichi_ndf.__version__}"
     return f"{commit}+dirty" if dirty else commit
+
+
+@functools.cache
+def code_version() -> str:
+    """`package_commit`, and for a checkout with uncommitted changes to tracked files a hash
+    of them (``COMMIT+dirty-HASH`` of ``git diff HEAD``): two checkouts that run different
+    code get different versions (the key of the study cache, `taichi_ndf.sweep.cache`)."""
+    commit = package_commit()
+    if not commit.endswith("+dirty"):
+        return commit
+    diff = subprocess.run(["git", "-C", str(_PACKAGE), "diff", "HEAD"], capture_output=True,
+                          check=True).stdout
+    return f"{commit}-{hashlib.sha256(diff).hexdigest()[:12]}"
 
 
 @functools.cache
