@@ -79,11 +79,15 @@ def specs(study: Study, out: Path, todo: list[int]) -> list[RunSpec]:
     return out_specs
 
 
+_SHOWN = ("value_", "estimate_", "best_fit_")  # the outputs a progress line shows
+
+
 def _line(row: dict) -> str:
     if row["status"] != "ok":
         return f"{row['status']}: {row['reason']}"
     shown = [f"{k} = {v:.6g}" for k, v in row.items()
-             if k in ("energy_J",) or k.startswith("value_") or k.startswith("estimate_")]
+             if isinstance(v, int | float) and not isinstance(v, bool)
+             and (k in ("energy_J", "mean_e3d") or k.startswith(_SHOWN))]
     times = f"{row.get('wall_s', 0):.1f} s, CPU {row.get('cpu_s', 0):.1f} s"
     return ", ".join(shown[:3]) + f" ({times})"
 

@@ -153,10 +153,15 @@ def _scene_outputs(result: dict) -> dict:
 
 
 def _fit_outputs(estimate: dict) -> dict:
+    """Per unknown: the estimate and its standard error where the fit determines it (else
+    ''), whether it does, and the best-fit value of a fit whose model does not explain the
+    data (`inverse.material.report`)."""
     out = {}
     for name, entry in estimate["parameters"].items():
         out[f"estimate_{name}"] = entry.get("value", "")
         out[f"standard_error_{name}"] = entry.get("standard_error", "")
+        out[f"determined_{name}"] = entry.get("determined", "")
+        out[f"best_fit_{name}"] = entry.get("best_fit_value", "")
     out["misfit"] = estimate.get("misfit", "")
     out["iterations"] = estimate.get("iterations", "")
     return out
