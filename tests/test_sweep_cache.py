@@ -126,3 +126,39 @@ def test_calibration_runs_get_the_study_cache(tmp_path):
     assert run[run.index("--case-cache") + 1] == str(tmp_path / "cache")
     scene = JOBS["scene"].command(Path("s.toml"), {}, tmp_path / "r", cache=tmp_path / "c")
     assert "--case-cache" not in scene
+
+
+def test_code_version_changes_with_the_code_not_the_docs(tmp_path, monkeypatch):
+    import subprocess
+
+    from taichi_ndf.sweep import provenance
+
+    def git(*args):
+        subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True)
+
+    (tmp_path / "taichi_ndf").mkdir()
+    (tmp_path / "taichi_ndf" / "x.py").write_text("a = 1\n")
+    (tmp_path / "README.md").write_text("docs\n")
+    git("init", "-q")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "c")
+    monkeypatch.setattr(provenance, "_PACKAGE", tmp_path / "taichi_ndf")
+
+    def version():
+        provenance.package_commit.cache_clear()
+        provenance.code_version.cache_clear()
+        return provenance.code_version()
+
+    try:
+        clean = version()
+        assert "+" not in clean and len(clean) == 12
+        (tmp_path / "README.md").write_text("other docs\n")
+        assert version() == clean
+        (tmp_path / "taichi_ndf" / "x.py").write_text("a = 2\n")
+        edited = version()
+        assert edited.startswith(clean + "+dirty-")
+        (tmp_path / "taichi_ndf" / "x.py").write_text("a = 3\n")
+        assert version() not in (clean, edited)
+    finally:
+        provenance.package_commit.cache_clear()
+        provenance.code_version.cache_clear()

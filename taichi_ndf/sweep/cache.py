@@ -2,12 +2,12 @@
 
 A run that needs a costly input every other run of its kind needs too (the solved observation
 of a calibration case) looks it up in ``OUT/cache/`` (the folder `ndf-sweep` passes the job's
-tool): one ``.npz`` file per key, named ``LABEL-HASH.npz`` with HASH the SHA-256 of the key
-(plain data naming everything the arrays depend on, the code among it:
-`taichi_ndf.sweep.provenance.code_version`). A file is written
-whole to a temporary sibling and moved into place (`taichi_ndf.io.atomic_path`), so runs that
-build the same entry at once each write a complete file, the last one stays, and no run reads
-a half-written one. A loaded file must hold the key it was asked for (else it is not used).
+tool): one ``.npz`` file per key, named ``LABEL-HASH.npz`` with HASH the SHA-256 of the key,
+plain data naming everything the arrays depend on (the code among it:
+`taichi_ndf.sweep.provenance.code_version`). A file is written whole to a temporary sibling
+and moved into place (`taichi_ndf.io.atomic_path`), so runs that build the same entry at once
+each write a complete file, the last one stays, and no run reads a half-written one. A loaded
+file must hold the key it was asked for (else it is not used).
 """
 
 from __future__ import annotations
