@@ -168,3 +168,26 @@ def test_ndf_sim_set_refuses_a_bad_key_in_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert err.startswith("ndf-sim: error: ") and message in err and "\n" not in err
     assert not (tmp_path / "run").exists()
+
+
+def test_fit_outputs_of_determined_and_rejected_fits_and_their_progress_lines(tmp_path):
+    """A fit whose model does not explain the data has no value (inverse.material.report):
+    its row gives determined False and the best-fit value, and the progress line shows it
+    (a quick-simulated observation of the cantilever strip made both crash before)."""
+    run = tmp_path / "run"
+    run.mkdir()
+    rejected = {"parameters": {"bending_stiffness": {
+        "unit": "N·m", "determined": False, "status": "the model does not explain the data",
+        "best_fit_value": 180.66}}, "misfit": 1e-5, "iterations": 13}
+    (run / "estimate.json").write_text(json.dumps(rejected))
+    row = JOBS["fit_material"].outputs(run)
+    assert row["estimate_bending_stiffness"] == "" and row["best_fit_bending_stiffness"] == 180.66
+    assert row["determined_bending_stiffness"] is False
+    line = sweep._line({"status": "ok", **row, "wall_s": 1.0, "cpu_s": 1.0})
+    assert line.startswith("best_fit_bending_stiffness = 180.66 (")
+    determined = {"parameters": {"bending_stiffness": {
+        "unit": "N·m", "determined": True, "value": 7.4e-4, "standard_error": None}}}
+    (run / "estimate.json").write_text(json.dumps(determined))
+    row = JOBS["fit_material"].outputs(run)
+    assert row["estimate_bending_stiffness"] == 7.4e-4 and row["best_fit_bending_stiffness"] == ""
+    assert sweep._line({"status": "ok", **row}).startswith("estimate_bending_stiffness = ")

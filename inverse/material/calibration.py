@@ -53,6 +53,9 @@ from taichi_ndf.validation.elastica import cantilever
 
 log = logging.getLogger(__name__)
 
+# A case's solved observation: positions (M, 3) [m], Richardson order, error [m] (or None).
+Solved = tuple[torch.Tensor, float | None, float | None]
+
 SCENES = Path(__file__).resolve().parents[2] / "scenes" / "inverse"
 
 
@@ -72,6 +75,12 @@ class Case:
     observation_error: float | None = None
     observation_order: float | None = None
 
+    def solved(self) -> Solved:
+        """What the case's builder computed: the noise-free observed positions (M, 3) [m],
+        its Richardson order and error [m] (None for the strip); the builder given it
+        (``solved=``) makes the same case without solving again (a study's cache)."""
+        return self.observation.points, self.observation_order, self.observation_error
+
 
 def _grid_points(bounds, counts) -> torch.Tensor:
     (lo1, hi1), (lo2, hi2) = bounds
@@ -82,17 +91,22 @@ def _grid_points(bounds, counts) -> torch.Tensor:
 def strip_case(length: float = 0.15, width: float = 0.03, density: float = 0.35,
                bending_length: float = 0.06, membrane: float = 300.0,
                clamp_degrees: float = 20.0, points: tuple[int, int] = (31, 7),
-               start_factor: float = 10.0) -> Case:
-    """The heavy-elastica strip (module docstring); the clamp tilted up by `clamp_degrees`."""
+               start_factor: float = 10.0, solved: Solved | None = None) -> Case:
+    """The heavy-elastica strip (module docstring); the clamp tilted up by `clamp_degrees`.
+    solved: the observation of an earlier build of the same case (`Case.solved`); None:
+    solve the elastica here."""
     g = 9.81
     bending = density * g * bending_length**3
     angle = math.radians(clamp_degrees)
     gravity = (-g * math.sin(angle), 0.0, -g * math.cos(angle))
-    positions, _ = cantilever(length, bending, membrane, (density * gravity[0],
-                                                          density * gravity[2]))
     xi = _grid_points(((0.0, length), (0.0, width)), points)
-    xz = positions(xi[:, 0].numpy())
-    observed = torch.tensor(np.stack([xz[:, 0], xi[:, 1].numpy(), xz[:, 1]], axis=1))
+    if solved is None:
+        positions, _ = cantilever(length, bending, membrane, (density * gravity[0],
+                                                              density * gravity[2]))
+        xz = positions(xi[:, 0].numpy())
+        observed = torch.tensor(np.stack([xz[:, 0], xi[:, 1].numpy(), xz[:, 1]], axis=1))
+    else:
+        observed = solved[0]
     surface = Plane(bounds=((0.0, length), (0.0, width)))
     model = ShellModel(surface, LinearIsotropic(membrane, start_factor * bending, 0.0, density),
                        Loads(gravity=gravity),
@@ -146,18 +160,23 @@ def converged_observation(model: ShellModel, unknowns: list[Unknown], truth, poi
     return solutions[-1], order, error
 
 
-def flap_case(spans: tuple[int, int] = (40, 40)) -> Case:
-    """The orthotropic flap (module docstring)."""
+def flap_case(spans: tuple[int, int] = (40, 40), solved: Solved | None = None) -> Case:
+    """The orthotropic flap (module docstring). solved: the observation of an earlier build
+    of the same case (`Case.solved`); None: solve it here (`converged_observation`)."""
     model, unknowns = parse_unknowns("scale", load_scene(SCENES / "orthotropic_flap.toml").model)
     truth = np.array([0.1])
     xi = _grid_points(model.surface.domain.bounds, (21, 21))
-    observed, order, error = converged_observation(model, unknowns, truth, xi, spans)
+    if solved is None:
+        solved = converged_observation(model, unknowns, truth, xi, spans)
+    observed, order, error = solved
     return Case("flap", model, unknowns, truth, Observation(model, observed, xi),
                 f"quartic spline {spans[0]} × {spans[1]} spans, band 1", error, order)
 
 
-def point_load_case(spans: tuple[int, int] = (40, 8)) -> Case:
-    """The strip with an unknown tip load (module docstring)."""
+def point_load_case(spans: tuple[int, int] = (40, 8), solved: Solved | None = None) -> Case:
+    """The strip with an unknown tip load (module docstring). solved: the observation of an
+    earlier build of the same case (`Case.solved`); None: solve it here
+    (`converged_observation`)."""
     scene = load_scene(SCENES / "cantilever_strip.toml")
     bending = 0.2 * 9.81 * 0.2**3
     truth = np.array([0.004, 0.003, -0.010])
@@ -166,7 +185,9 @@ def point_load_case(spans: tuple[int, int] = (40, 8)) -> Case:
     loads = dataclasses.replace(model.loads, point_loads=(PointLoad((0.2, 0.02), tuple(truth)),))
     model, unknowns = parse_unknowns("point_load:0", model.with_loads(loads))
     xi = _grid_points(model.surface.domain.bounds, (41, 9))
-    observed, order, error = converged_observation(model, unknowns, truth, xi, spans)
+    if solved is None:
+        solved = converged_observation(model, unknowns, truth, xi, spans)
+    observed, order, error = solved
     start_loads = dataclasses.replace(
         model.loads, point_loads=(PointLoad((0.2, 0.02), (0.0, 0.0, -0.020)),))
     start_model = model.with_loads(start_loads)

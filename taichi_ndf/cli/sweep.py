@@ -5,7 +5,8 @@
 
 Writes DIR/runs/NAME/ (the tool's usual outputs, NAME made of the point's parameters),
 DIR/logs/NAME.out|.err, DIR/rows/NAME.json, DIR/results.csv (updated as runs finish),
-DIR/summary.png (one- and two-axis studies) and DIR/study.json. Running it again with the
+DIR/summary.png (one- and two-axis studies), DIR/study.json and, for a job that shares
+set-up between its runs, DIR/cache/. Running it again with the
 same study and DIR resumes: finished runs (failed ones too, unless --retry-failed) are skipped,
 unfinished ones redone. docs/sweeps.md.
 """
@@ -70,18 +71,23 @@ def specs(study: Study, out: Path, todo: list[int]) -> list[RunSpec]:
         point = study.points[i]
         keys = {**study.options, **point.parameters}
         run_dir = out / "runs" / point.name
+        command = study.job.command(study.base, keys, run_dir, cache=out / "cache")
         out_specs.append(RunSpec(
             index=i, name=point.name, parameters=point.parameters, seed=keys.get("seed"),
-            job=study.job.kind, command=tuple(study.job.command(study.base, keys, run_dir)),
+            job=study.job.kind, command=tuple(command),
             run_dir=str(run_dir), log=str(out / "logs" / point.name)))
     return out_specs
+
+
+_SHOWN = ("value_", "estimate_", "best_fit_")  # the outputs a progress line shows
 
 
 def _line(row: dict) -> str:
     if row["status"] != "ok":
         return f"{row['status']}: {row['reason']}"
     shown = [f"{k} = {v:.6g}" for k, v in row.items()
-             if k in ("energy_J",) or k.startswith("value_") or k.startswith("estimate_")]
+             if isinstance(v, int | float) and not isinstance(v, bool)
+             and (k in ("energy_J", "mean_e3d") or k.startswith(_SHOWN))]
     times = f"{row.get('wall_s', 0):.1f} s, CPU {row.get('cpu_s', 0):.1f} s"
     return ", ".join(shown[:3]) + f" ({times})"
 

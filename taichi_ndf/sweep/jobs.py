@@ -11,7 +11,8 @@ Every run is a subprocess of an existing tool (``python -m MODULE ... --out RUN`
   RUN/result.json (with ``gt``).
 - ``calibration``: one noisy fit of a calibration case (`inverse.cli.calibration_draw`; keys
   case, noise, seed, flap_spans). Outputs: RUN/draw.json's estimate, standard error and its
-  parts per unknown.
+  parts per unknown. Its runs share the study's cache of solved cases (``--case-cache
+  OUT/cache``, `taichi_ndf.sweep.cache`): each case is solved once per study.
 """
 
 from __future__ import annotations
@@ -74,7 +75,8 @@ class Job:
     option names and value types; scene_keys: other keys are scene keys (``--set``);
     base_option: how the base file is passed ("" positional, None: no base file);
     path_options: options whose (relative) paths are relative to the study file; result: the
-    file of RUN the outputs are read from."""
+    file of RUN the outputs are read from; cache_option: the tool's option naming the study's
+    cache folder (OUT/cache, `taichi_ndf.sweep.cache`), None for a tool without one."""
 
     kind: str
     module: str
@@ -83,6 +85,7 @@ class Job:
     scene_keys: bool = False
     base_option: str | None = None
     path_options: tuple[str, ...] = field(default_factory=tuple)
+    cache_option: str | None = None
 
     def check_option(self, key: str, where: str) -> None:
         """StudyError-ready SceneError for an unknown key (naming it and where it is)."""
@@ -113,8 +116,10 @@ class Job:
                             if isinstance(value, list) else str((folder / value).resolve()))
         return out
 
-    def command(self, base: Path | None, parameters: dict, out: Path) -> list[str]:
-        """The run's command line: the tool, its base file, the options, ``--out out``."""
+    def command(self, base: Path | None, parameters: dict, out: Path,
+                cache: Path | None = None) -> list[str]:
+        """The run's command line: the tool, its base file, the options, the study's cache
+        folder `cache` (for a tool with a `cache_option`), ``--out out``."""
         argv = [sys.executable, "-m", self.module]
         if self.base_option == "":
             argv.append(str(base))
@@ -125,6 +130,8 @@ class Job:
                 argv += option_arguments(key, value)
             else:
                 argv += ["--set", f"{key}={toml_value(value)}"]
+        if self.cache_option is not None and cache is not None:
+            argv += [self.cache_option, str(cache)]
         return [*argv, "--out", str(out)]
 
     def outputs(self, run: Path) -> dict:
@@ -146,10 +153,15 @@ def _scene_outputs(result: dict) -> dict:
 
 
 def _fit_outputs(estimate: dict) -> dict:
+    """Per unknown: the estimate and its standard error where the fit determines it (else
+    ''), whether it does, and the best-fit value of a fit whose model does not explain the
+    data (`inverse.material.report`)."""
     out = {}
     for name, entry in estimate["parameters"].items():
         out[f"estimate_{name}"] = entry.get("value", "")
         out[f"standard_error_{name}"] = entry.get("standard_error", "")
+        out[f"determined_{name}"] = entry.get("determined", "")
+        out[f"best_fit_{name}"] = entry.get("best_fit_value", "")
     out["misfit"] = estimate.get("misfit", "")
     out["iterations"] = estimate.get("iterations", "")
     return out
@@ -182,5 +194,5 @@ JOBS = {
                path_options=("frames", "camera", "template", "texture", "masks", "pinned",
                              "gt")),
     "calibration": Job("calibration", "inverse.cli.calibration_draw", CALIBRATION_OPTIONS,
-                       "draw.json"),
+                       "draw.json", cache_option="--case-cache"),
 }
