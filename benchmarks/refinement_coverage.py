@@ -81,7 +81,7 @@ CASES = {
                    default=1),
     "napkin_interior_line": Case("scenes/napkin_interior_line.toml", (10, 10), 4, ("energy",),
                                  (0,), "in", default=0),
-    # Out of sample: chosen 2026-12-03 13:00 UTC before any of their results were seen.
+    # Out of sample: chosen 2026-12-03 12:50 UTC before any of their results were seen.
     "square_plate_quarter": Case("validation/scenes/square_plate_quarter.toml", (4, 4), 5,
                                  ("energy", "centre:2"), (0,), "out", default=1),
     "cantilever_shear_first_load": Case("validation/scenes/cantilever_shear.toml", (4, 1), 5,
