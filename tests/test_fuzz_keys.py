@@ -87,10 +87,30 @@ def set_keys(draw, document: dict, targets, values) -> dict:
     return draw(mutated(document)) if draw(st.integers(0, 4)) == 0 else document
 
 
+TURN_ANGLES = st.sampled_from([45.0, 90.0, 180.0, 270.0, 359.999, 360.0, 360.0001, 720.0,
+                               -90.0, 0, 1e-300, None])
+
+
 @st.composite
 def turn_scene(draw):
-    return set_keys(draw, draw(st.sampled_from([TURN_CYLINDER, TURN_HEMISPHERE])),
-                    TURN_TARGETS, TURN_VALUES)
+    """TURN_CYLINDER or TURN_HEMISPHERE turned by a drawn angle (None: the key left out, a
+    whole turn), the plane on ξ¹_max named to fit it (x at odd multiples of 90°, else y),
+    the planes now and then left out, then keys set as `set_keys` does."""
+    document = json.loads(json.dumps(draw(st.sampled_from([TURN_CYLINDER, TURN_HEMISPHERE]))))
+    geometry = document["geometry"]
+    key = "angle_deg" if geometry["type"] == "cylinder" else "azimuth_deg"
+    angle = draw(TURN_ANGLES)
+    if angle is None:
+        del geometry[key]
+    else:
+        geometry[key] = angle
+    constraints = document["boundary"]["constraint"]
+    if draw(st.integers(0, 2)) == 0:
+        constraints[:] = [c for c in constraints if c["type"] != "symmetry_plane"]
+    for c in constraints:
+        if c.get("edge") == "xi1_max":
+            c["normal"] = "x" if round((360.0 if angle is None else angle) / 90) % 2 else "y"
+    return set_keys(draw, document, TURN_TARGETS, TURN_VALUES)
 
 
 def turn_degrees(document: dict) -> float | None:
