@@ -22,7 +22,14 @@ from pathlib import Path
 
 from hypothesis import event, given
 from hypothesis import strategies as st
-from test_fuzz import ODD_VALUES, fuzz_settings, mutated, sim_refuses_or_accepts, toml_text
+from test_fuzz import (
+    ODD_VALUES,
+    fuzz_settings,
+    mutated,
+    set_keys,
+    sim_refuses_or_accepts,
+    toml_text,
+)
 
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.scene import parse_scene
@@ -67,24 +74,22 @@ TURN_TARGETS = [("geometry", "angle_deg"), ("geometry", "azimuth_deg"),
                 ("loads", "line", 0, "edge")]
 
 
-def set_keys(draw, document: dict, targets, values) -> dict:
-    """`document` (copied) with 0-3 of `targets` set to drawn `values` (mostly) or odd ones,
-    or deleted, and now and then mutated further (tests/test_fuzz.py's `mutated`)."""
-    document = json.loads(json.dumps(document))
-    for _ in range(draw(st.integers(0, 3))):
-        *parents, key = draw(st.sampled_from(targets))
-        parent = document
-        try:
-            for step in parents:
-                parent = parent[step]
-            parent[key]  # noqa: B018 - the path exists in this document
-        except (KeyError, IndexError, TypeError):
-            continue
-        if draw(st.integers(0, 5)) == 0:
-            del parent[key]
-        else:
-            parent[key] = draw(values if draw(st.integers(0, 3)) else ODD_VALUES)
+def drawn_keys(draw, document: dict, targets, values) -> dict:
+    """`document` with 0-3 of `targets` set to drawn `values` (three in four) or odd ones, or
+    deleted (tests/test_fuzz.py's `set_keys`), now and then mutated further."""
+    document, _ = set_keys(draw, document, targets, st.one_of(values, values, values,
+                                                              ODD_VALUES), counts=(0, 3))
     return draw(mutated(document)) if draw(st.integers(0, 4)) == 0 else document
+
+
+def accepted(document: dict, existing: bool) -> bool:
+    """Whether ndf-sim accepts `document` (tests/test_fuzz.py's `sim_refuses_or_accepts`:
+    else a one-line refusal that leaves an earlier output directory unchanged)."""
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        scene = folder / "scene.toml"
+        scene.write_text(toml_text(document))
+        return sim_refuses_or_accepts(scene, folder, existing) == 0
 
 
 TURN_ANGLES = st.sampled_from([45.0, 90.0, 180.0, 270.0, 359.999, 360.0, 360.0001, 720.0,
@@ -110,7 +115,7 @@ def turn_scene(draw):
     for c in constraints:
         if c.get("edge") == "xi1_max":
             c["normal"] = "x" if round((360.0 if angle is None else angle) / 90) % 2 else "y"
-    return set_keys(draw, document, TURN_TARGETS, TURN_VALUES)
+    return drawn_keys(draw, document, TURN_TARGETS, TURN_VALUES)
 
 
 def turn_degrees(document: dict) -> float | None:
@@ -137,12 +142,7 @@ def on_a_xi1_edge(document: dict) -> bool:
 @fuzz_settings(80)
 @given(document=turn_scene(), existing=st.booleans())
 def test_part_of_a_turn_keys_are_refused_in_one_line(document, existing):
-    with tempfile.TemporaryDirectory() as folder:
-        folder = Path(folder)
-        scene = folder / "turn.toml"
-        scene.write_text(toml_text(document))
-        accepted = sim_refuses_or_accepts(scene, folder, existing) == 0
-    if not accepted:
+    if not accepted(document, existing):
         return
     degrees = turn_degrees(document)
     event(f"accepted, {degrees}°")
@@ -168,8 +168,8 @@ OBSTACLE = [{"type": "sphere", "centre": [0.5, 0.5, -0.3], "radius": 0.2}]
 
 @st.composite
 def pseudo_time_scene(draw):
-    document = set_keys(draw, draw(st.sampled_from([PSEUDO, PSEUDO_SPLINE])), PSEUDO_TARGETS,
-                        PSEUDO_VALUES)
+    document = drawn_keys(draw, draw(st.sampled_from([PSEUDO, PSEUDO_SPLINE])),
+                          PSEUDO_TARGETS, PSEUDO_VALUES)
     if draw(st.integers(0, 4)) == 0:
         document["obstacles"] = OBSTACLE
     return document
@@ -178,12 +178,7 @@ def pseudo_time_scene(draw):
 @fuzz_settings(60)
 @given(document=pseudo_time_scene(), existing=st.booleans())
 def test_pseudo_time_keys_are_refused_in_one_line(document, existing):
-    with tempfile.TemporaryDirectory() as folder:
-        folder = Path(folder)
-        scene = folder / "path.toml"
-        scene.write_text(toml_text(document))
-        accepted = sim_refuses_or_accepts(scene, folder, existing) == 0
-    if not accepted:
+    if not accepted(document, existing):
         return
     training = document.get("training", {})
     field = document.get("field", {})
