@@ -86,7 +86,7 @@ CASES = {
                                  ("energy", "centre:2"), (0,), "out", default=1),
     "cantilever_shear_first_load": Case("validation/scenes/cantilever_shear.toml", (4, 1), 5,
                                         ("tip:2",), (0,), "out", load_step=0),
-    # Added 13:40 UTC, before any result of this study was looked at (the cases above were
+    # Added 13:38 UTC, before any result of this study was looked at (the cases above were
     # still running on the overloaded machine): the same load path at t = 0.5.
     "cantilever_shear_mid_load": Case("validation/scenes/cantilever_shear.toml", (4, 1), 5,
                                       ("tip:2",), (0,), "out", load_step=2),
