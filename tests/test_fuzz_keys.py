@@ -20,7 +20,7 @@ import math
 import tempfile
 from pathlib import Path
 
-from hypothesis import event, given
+from hypothesis import event, example, given
 from hypothesis import strategies as st
 from test_fuzz import (
     ODD_VALUES,
@@ -139,8 +139,25 @@ def on_a_xi1_edge(document: dict) -> bool:
                for item in items("boundary", "constraint") + items("loads", "line"))
 
 
+def whole_turn(document: dict, degrees: float | None) -> dict:
+    """`document` turned by `degrees` (None: the key left out), the ξ¹_max plane named y."""
+    document = json.loads(json.dumps(document))
+    key = "angle_deg" if document["geometry"]["type"] == "cylinder" else "azimuth_deg"
+    document["geometry"].pop(key)
+    if degrees is not None:
+        document["geometry"][key] = degrees
+    for c in document["boundary"]["constraint"]:
+        if c.get("edge") == "xi1_max":
+            c["normal"] = "y"
+    return document
+
+
 @fuzz_settings(80)
 @given(document=turn_scene(), existing=st.booleans())
+@example(document=whole_turn(TURN_CYLINDER, None), existing=False)  # planes on a closed shell
+@example(document=whole_turn(TURN_HEMISPHERE, 360.0), existing=False)
+@example(document={**whole_turn(TURN_CYLINDER, 720.0), "boundary": {"constraint": [
+    TURN_CYLINDER["boundary"]["constraint"][0]]}}, existing=False)  # two turns, no planes
 def test_part_of_a_turn_keys_are_refused_in_one_line(document, existing):
     if not accepted(document, existing):
         return
@@ -177,6 +194,9 @@ def pseudo_time_scene(draw):
 
 @fuzz_settings(60)
 @given(document=pseudo_time_scene(), existing=st.booleans())
+@example(document={**PSEUDO, "training": {**PSEUDO["training"], "pseudo_time": False}},
+         existing=False)  # frames without the pseudo-time path
+@example(document={**PSEUDO, "obstacles": OBSTACLE}, existing=False)
 def test_pseudo_time_keys_are_refused_in_one_line(document, existing):
     if not accepted(document, existing):
         return
