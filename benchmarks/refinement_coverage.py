@@ -3,17 +3,22 @@
 Each case is a shipped scene or a validation scene solved on a spline field (cubic, the scene's
 load steps, float64, projected Newton to its default tolerance) on `levels` grids from a given
 coarsest grid, each dyadically refined from the last (`solve_spline`, the `ndf-sim --refine`
-path). For a quantity (Π or a probe component at the last load step) it reads:
+path). For a quantity (Π or a probe component, at the last load step unless the case names
+another) it reads:
 
-- the three-grid bar (`richardson` on grids 0, 1, 2, and for the napkin also 1, 2, 3 — the
-  demo's 8 / 16 / 32): value ± error from the observed order;
-- the two-grid bar on grids 1, 2 (order 2(p − 1) = 4 assumed, error = the change) and, for
-  comparison, the rule it replaces (error = |v∞ − v₂| at the assumed order);
-- the fine-grid reference: the finest grid's value (4× or 2× finer than the bar's finest) with
-  its own error from `richardson` on the last three grids.
+- the three-grid bar (`richardson` on three successive grids, one row per window: the first
+  grid of the three): value ± error from the observed order;
+- the two-grid bar on the last two grids of the window (order 2(p − 1) = 4 assumed, error =
+  the change) and, for comparison, the rule it replaced (error = |v∞ − v₂| at that order);
+- the fine-grid reference: the finest grid's value (2× or 4× finer than the window's finest)
+  with its own error from `richardson` on the last three grids.
 
-A bar covers when |reference − value| ≤ error. The table goes into benchmarks/RESULTS.md
-("Refinement error bars"). Long (about 20–40 minutes on one shared core): run under nice.
+A bar covers when |reference − value| ≤ error; `bar / error` is the bar over the actual
+distance |reference − value| (< 1: a miss; large: a bar far wider than needed). Cases have a
+sample: "in" (the cases the rule was designed on, 2026-12-03) or "out" (chosen afterwards,
+before their results were seen, to check the rule out of sample). `default` windows are the
+grid rule's grids with `--refine` (3 levels): the bar `ndf-sim --field spline --refine` shows.
+Long (minutes to an hour on one shared core): run under nice.
 
     nice python benchmarks/refinement_coverage.py [--cases napkin,square_plate] [--json out]
 """
@@ -24,7 +29,9 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -37,115 +44,212 @@ from taichi_ndf.spline_solver import solve_spline
 ROOT = Path(__file__).resolve().parents[1]
 ORDER = 4.0  # 2(p − 1) for cubic splines
 
-# name: (scene file, coarsest spans, levels, quantities, bar windows (first grid of three))
+
+@dataclass(frozen=True)
+class Case:
+    """scene file, coarsest spans, number of levels, quantities ("energy" or "probe:component"),
+    windows (first grid of each three-grid bar that counts), sample ("in" / "out"), the
+    window that is the grid rule's `--refine` default (None: not among these grids), and
+    the load step read (index into the scene's load steps; -1: the last)."""
+
+    scene: str
+    spans: tuple[int, int]
+    levels: int
+    quantities: tuple[str, ...]
+    windows: tuple[int, ...]
+    sample: str
+    default: int | None = None
+    load_step: int = -1
+
+
 CASES = {
-    "napkin": ("scenes/napkin.toml", (4, 4), 5, ("energy", "free_corner:2"), (0, 1)),
-    "napkin_coarse": ("scenes/napkin.toml", (2, 2), 5, ("energy", "free_corner:2"), (0, 1)),
-    "napkin_clamped_edges": ("scenes/napkin_clamped_edges.toml", (5, 5), 5, ("energy",), (0,)),
-    "membrane_stretch": ("scenes/membrane_stretch.toml", (2, 2), 5, ("energy", "centre:0"),
-                         (0,)),
-    "bowl": ("scenes/bowl.toml", (2, 2), 5, ("energy",), (0,)),
-    "square_plate": ("validation/scenes/square_plate.toml", (2, 2), 5,
-                     ("energy", "centre:2"), (0,)),
-    "cantilever_shear": ("validation/scenes/cantilever_shear.toml", (4, 1), 5, ("tip:2",),
-                         (0,)),
-    "scordelis_lo_roof": ("validation/scenes/scordelis_lo_roof.toml", (4, 5), 5,
-                          ("free_edge_mid:2",), (0,)),
+    # In sample: the cases of the 2026-12-03 study the rule was designed on.
+    "square_plate": Case("validation/scenes/square_plate.toml", (2, 2), 5,
+                         ("energy", "centre:2"), (0,), "in"),
+    "membrane_stretch": Case("scenes/membrane_stretch.toml", (2, 2), 5,
+                             ("energy", "centre:0"), (0,), "in"),
+    "cantilever_shear": Case("validation/scenes/cantilever_shear.toml", (4, 1), 5, ("tip:2",),
+                             (0,), "in"),
+    "napkin_clamped_edges": Case("scenes/napkin_clamped_edges.toml", (5, 5), 5, ("energy",),
+                                 (0,), "in"),
+    "bowl": Case("scenes/bowl.toml", (2, 2), 5, ("energy",), (0,), "in"),
+    "scordelis_lo_roof": Case("validation/scenes/scordelis_lo_roof.toml", (4, 5), 5,
+                              ("free_edge_mid:2",), (0,), "in"),
+    "napkin_coarse": Case("scenes/napkin.toml", (2, 2), 5, ("energy", "free_corner:2"), (0,),
+                          "in"),
+    "napkin": Case("scenes/napkin.toml", (4, 4), 5, ("energy", "free_corner:2"), (0, 1), "in",
+                   default=1),
+    "napkin_interior_line": Case("scenes/napkin_interior_line.toml", (10, 10), 4, ("energy",),
+                                 (0,), "in", default=0),
+    # Out of sample: chosen 2026-12-03 12:50 UTC before any of their results were seen.
+    "square_plate_quarter": Case("validation/scenes/square_plate_quarter.toml", (4, 4), 5,
+                                 ("energy", "centre:2"), (0,), "out", default=1),
+    "cantilever_shear_first_load": Case("validation/scenes/cantilever_shear.toml", (4, 1), 5,
+                                        ("tip:2",), (0,), "out", load_step=0),
+    # Added 13:38 UTC, before any result of this study was looked at (the cases above were
+    # still running on the overloaded machine): the same load path at t = 0.5.
+    "cantilever_shear_mid_load": Case("validation/scenes/cantilever_shear.toml", (4, 1), 5,
+                                      ("tip:2",), (0,), "out", load_step=2),
+    "pinched_cylinder_octant": Case("validation/scenes/pinched_cylinder_octant.toml", (8, 5),
+                                    5, ("load_0:0",), (0,), "out", default=1),
+    "flag": Case("scenes/flag.toml", (15, 10), 4, ("energy", "fly_bottom:1", "fly_bottom:2"),
+                 (0,), "out", default=0),
+    "napkin_interior_point": Case("scenes/napkin_interior_point.toml", (10, 10), 4,
+                                  ("energy", "corner:2"), (0,), "out", default=0),
+    # For the --refine default only (the scene is in sample; its grid rule's grids).
+    "cantilever_shear_default": Case("validation/scenes/cantilever_shear.toml", (8, 1), 4,
+                                     ("tip:2",), (), "in", default=0),
+    "square_plate_default": Case("validation/scenes/square_plate.toml", (8, 8), 4,
+                                 ("energy", "centre:2"), (), "in", default=0),
 }
 
 
-def read(level, quantity: str) -> float:
+def read(step: dict, quantity: str) -> float:
     if quantity == "energy":
-        return level.energy
+        return step["energy"]
     name, component = quantity.split(":")
-    return level.probes[name][int(component)]
+    return step["probes"][name][int(component)]
 
 
 def covers(bar, reference: float) -> bool:
     return abs(reference - bar.value) <= bar.error
 
 
+def bar_row(values: list[float], first: int, spans: list, quantity: str) -> dict:
+    """The bars of the window starting at grid `first` against the finest value."""
+    reference = values[-1]
+    ref_bar = richardson(values[-3:], order=ORDER)
+    three = richardson(values[first:first + 3], order=ORDER)
+    two = richardson(values[first + 1:first + 3], order=ORDER)
+    old_error = abs(two.value - values[first + 2])  # the replaced two-grid rule
+    distance = abs(reference - three.value)
+    return {
+        "quantity": quantity, "first": first, "grids": spans[first:first + 3],
+        "values": values[first:first + 3],
+        "three": three.to_dict(), "three_covers": covers(three, reference),
+        "bar_over_error": three.error / distance if distance > 0 else math.inf,
+        "two": two.to_dict(), "two_covers": covers(two, reference),
+        "old_two_error": old_error, "old_two_covers": abs(reference - two.value) <= old_error,
+        "reference": reference, "reference_spans": spans[-1],
+        "reference_error": ref_bar.error, "reference_how": ref_bar.how(),
+        "reference_ratio": spans[-1][0] // spans[first + 2][0],
+    }
+
+
 def run_case(name: str) -> dict:
-    path, spans, levels, quantities, windows = CASES[name]
-    scene = load_scene(ROOT / path, field="spline")
-    plan = dataclasses.replace(scene.field, levels=levels,
-                               config=dataclasses.replace(scene.field.config, spans=spans))
+    case = CASES[name]
+    scene = load_scene(ROOT / case.scene, field="spline")
+    plan = dataclasses.replace(scene.field, levels=case.levels,
+                               config=dataclasses.replace(scene.field.config, spans=case.spans))
     solver = dataclasses.replace(scene.solver, max_levels=0)
+    steps: list[dict] = []  # per level: the chosen load step's Π and probes
     started, cpu = time.perf_counter(), time.process_time()
-    run = solve_spline(scene.model, plan, solver)
+
+    def on_level(run) -> None:
+        steps.append(run.load_steps[case.load_step])
+        log.warning("%s: level %d (%s spans) done, %.0f s", name, len(steps) - 1,
+                    run.levels[-1].spans, time.perf_counter() - started)
+
+    run = solve_spline(scene.model, plan, solver, on_level=on_level)
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
-    rows = []
-    for q in quantities:
-        values = [read(lv, q) for lv in run.levels]
-        reference = values[-1]
-        ref_bar = richardson(values[-3:], order=ORDER)
-        for first in windows:
-            three = richardson(values[first:first + 3], order=ORDER)
-            two = richardson(values[first + 1:first + 3], order=ORDER)
-            old_error = abs(two.value - values[first + 2])  # the replaced two-grid rule
-            rows.append({
-                "quantity": q, "grids": [list(run.levels[k].spans)
-                                         for k in range(first, first + 3)],
-                "values": values[first:first + 3],
-                "three": three.to_dict(), "three_covers": covers(three, reference),
-                "two": two.to_dict(), "two_covers": covers(two, reference),
-                "old_two_error": old_error,
-                "old_two_covers": abs(reference - two.value) <= old_error,
-                "reference": reference, "reference_spans": list(run.levels[-1].spans),
-                "reference_error": ref_bar.error, "reference_how": ref_bar.how(),
-                "reference_ratio": (run.levels[-1].spans[0]
-                                    // run.levels[first + 2].spans[0]),
-            })
-    return {"case": name, "scene": path, "spans": [list(lv.spans) for lv in run.levels],
-            "all_values": {q: [read(lv, q) for lv in run.levels] for q in quantities},
+    spans = [list(lv.spans) for lv in run.levels]
+    values = {q: [read(s, q) for s in steps] for q in case.quantities}
+    rows = [dict(bar_row(values[q], first, spans, q), default=(first == case.default))
+            for q in case.quantities for first in case.windows]
+    defaults = ([] if case.default is None else
+                [bar_row(values[q], case.default, spans, q) for q in case.quantities])
+    return {"case": name, "scene": case.scene, "sample": case.sample, "spans": spans,
+            "load_factor": steps[-1]["load_factor"], "all_values": values,
             "converged": [lv.converged for lv in run.levels],
             "iterations": [lv.iterations for lv in run.levels],
             "seconds": [lv.seconds for lv in run.levels], "wall": wall, "cpu": cpu,
-            "rows": rows}
+            "rows": rows, "default_rows": defaults}
+
+
+YES = {True: "yes", False: "**no**"}
+
+
+def bar_text(row: dict) -> str:
+    t = row["three"]
+    order = ("not monotone" if t["order_basis"] == "not converging"
+             else f"p = {t['order']:.2f}")
+    return f"{t['extrapolated']:.6g} ± {t['estimated_error']:.2g} ({order})"
+
+
+def grids_text(row: dict) -> str:
+    return " / ".join(f"{g[0]}×{g[1]}" for g in row["grids"])
+
+
+def prescribed(row: dict) -> bool:
+    """A quantity equal on every grid (a prescribed motion): not counted."""
+    values = row["values"] + [row["reference"]]
+    return max(values) - min(values) <= 1e-12 * max(abs(v) for v in values)
 
 
 def table(results: list[dict]) -> str:
-    lines = ["| case | quantity | grids | 3 grids: value ± bar (order) | covers | "
-             "2 grids, order 4 assumed: value ± change | covers | old 2-grid bar | covers | "
-             "reference (spans) ± its error | converged | wall / CPU [s] |",
-             "|" + "---|" * 12]
-    yes = {True: "yes", False: "**no**"}
+    lines = ["| sample | case | quantity | grids | 3 grids: value ± bar (order) | covers | "
+             "bar / distance | 2 grids, order 4 assumed: value ± change | covers | "
+             "old 2-grid bar | covers | reference (spans) ± its error | converged | "
+             "wall / CPU [s] |", "|" + "---|" * 14]
     for r in results:
         for row in r["rows"]:
-            t, w = row["three"], row["two"]
-            order = ("not monotone" if t["order_basis"] == "not converging"
-                     else f"p = {t['order']:.2f}")
-            grids = " / ".join(str(g[0]) + "×" + str(g[1]) for g in row["grids"])
+            w = row["two"]
             lines.append(
-                f"| {r['case']} | {row['quantity']} | {grids} | {t['extrapolated']:.6g} ± "
-                f"{t['estimated_error']:.2g} ({order}) | {yes[row['three_covers']]} | "
+                f"| {r['sample']} | {r['case']} | {row['quantity']} | {grids_text(row)} | "
+                f"{bar_text(row)} | {YES[row['three_covers']]} | "
+                f"{row['bar_over_error']:.3g} | "
                 f"{w['extrapolated']:.6g} ± {w['estimated_error']:.2g} | "
-                f"{yes[row['two_covers']]} | ± {row['old_two_error']:.2g} | "
-                f"{yes[row['old_two_covers']]} | {row['reference']:.6g} "
+                f"{YES[row['two_covers']]} | ± {row['old_two_error']:.2g} | "
+                f"{YES[row['old_two_covers']]} | {row['reference']:.6g} "
                 f"({'×'.join(map(str, row['reference_spans']))}) ± "
                 f"{row['reference_error']:.2g} | {'yes' if all(r['converged']) else 'no'} | "
                 f"{r['wall']:.0f} / {r['cpu']:.0f} |")
-    rows = [row for r in results for row in r["rows"]]
     lines.append("")
-    lines.append(f"three-grid bars covering the reference: "
-                 f"{sum(row['three_covers'] for row in rows)} of {len(rows)}; two-grid "
-                 f"(change): {sum(row['two_covers'] for row in rows)} of {len(rows)}; old "
-                 f"two-grid rule: {sum(row['old_two_covers'] for row in rows)} of {len(rows)}")
+    for sample in ("in", "out"):
+        rows = [row for r in results if r["sample"] == sample for row in r["rows"]
+                if not prescribed(row)]
+        if rows:
+            lines.append(f"{sample} sample (prescribed quantities left out): three-grid bars "
+                         f"covering the reference "
+                         f"{sum(row['three_covers'] for row in rows)} of {len(rows)}; two-grid "
+                         f"(change) {sum(row['two_covers'] for row in rows)} of {len(rows)}; "
+                         f"old two-grid rule {sum(row['old_two_covers'] for row in rows)} of "
+                         f"{len(rows)}")
+    defaults = [(r, row) for r in results for row in r["default_rows"]
+                if CASES[r["case"]].default is not None]
+    if defaults:
+        lines += ["", "`--refine` default grids (the grid rule's, 3 levels):", "",
+                  "| case | quantity | grids | value ± bar (order) | covers | bar / distance | "
+                  "reference (spans) ± its error |", "|" + "---|" * 7]
+        lines += [f"| {r['case']} | {row['quantity']} | {grids_text(row)} | {bar_text(row)} | "
+                  f"{YES[row['three_covers']]} | {row['bar_over_error']:.3g} | "
+                  f"{row['reference']:.6g} ({'×'.join(map(str, row['reference_spans']))}) ± "
+                  f"{row['reference_error']:.2g} |" for r, row in defaults]
     return "\n".join(lines)
+
+
+log = logging.getLogger("refinement_coverage")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--table", type=Path, nargs="+", default=None, metavar="JSON",
+                        help="print the table of stored results and exit (no solve)")
     args = parser.parse_args()
+    if args.table:
+        print(table([r for p in args.table for r in json.loads(p.read_text())]))
+        return
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
     torch.set_num_threads(1)
     taichi_ndf.init(arch="cpu", precision="f64")
+    names = [c for c in args.cases.split(",") if c]
+    unknown = [n for n in names if n not in CASES]
+    if unknown:
+        raise SystemExit(f"unknown case {unknown[0]!r}; choose from {', '.join(CASES)}")
     results = []
-    for name in [c for c in args.cases.split(",") if c]:
-        if name not in CASES:
-            raise SystemExit(f"unknown case {name!r}; choose from {', '.join(CASES)}")
+    for name in names:
         results.append(run_case(name))
         print(json.dumps(results[-1], default=float), flush=True)
         if args.json:

@@ -219,13 +219,13 @@ KEYED_TARGETS = [("field", "spans"), ("field", "levels"), ("field", "span_length
                  ("output", "resolution")]
 
 
-@st.composite
-def keyed_scene(draw):
-    """KEYED_PLANE or KEYED_CYLINDER with 1-3 of its spline / contact / line-load keys set to
-    a size or odd value (or deleted), and now and then mutated further."""
-    document = json.loads(json.dumps(draw(st.sampled_from([KEYED_PLANE, KEYED_CYLINDER]))))
-    for _ in range(draw(st.integers(1, 3))):
-        *parents, key = draw(st.sampled_from(KEYED_TARGETS))
+def set_keys(draw, document: dict, targets, values, counts=(1, 3)) -> tuple[dict, str | None]:
+    """`document` (copied) with `counts` (least, most) of the key paths `targets` set to a
+    value drawn from `values` or (one in six) deleted; returns it and the last key drawn."""
+    document = json.loads(json.dumps(document))
+    key = None
+    for _ in range(draw(st.integers(*counts))):
+        *parents, key = draw(st.sampled_from(targets))
         parent = document
         try:
             for step in parents:
@@ -236,7 +236,16 @@ def keyed_scene(draw):
         if draw(st.integers(0, 5)) == 0:
             del parent[key]
         else:
-            parent[key] = copy.deepcopy(draw(st.one_of(SIZE_VALUES, ODD_VALUES)))
+            parent[key] = copy.deepcopy(draw(values))
+    return document, key
+
+
+@st.composite
+def keyed_scene(draw):
+    """KEYED_PLANE or KEYED_CYLINDER with 1-3 of its spline / contact / line-load keys set to
+    a size or odd value (or deleted), and now and then mutated further."""
+    document, key = set_keys(draw, draw(st.sampled_from([KEYED_PLANE, KEYED_CYLINDER])),
+                             KEYED_TARGETS, st.one_of(SIZE_VALUES, ODD_VALUES))
     if key == "span_length" and "spans" in document.get("field", {}):
         del document["field"]["spans"]  # so that span_length is read
     return draw(mutated(document)) if draw(st.integers(0, 3)) == 0 else document

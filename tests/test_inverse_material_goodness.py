@@ -50,7 +50,7 @@ def test_estimated_noise_recovers_the_scatter_of_a_curved_sheet():
     assert sigma == pytest.approx(5e-4, rel=0.15)
 
 
-def _strip(*, tilt_degrees=0.0, thickness_factor=1.0, sideways_g=0.0, bending=B_TRUE):
+def strip_model(*, tilt_degrees=0.0, thickness_factor=1.0, sideways_g=0.0, bending=B_TRUE):
     """The cantilever strip (scenes/inverse/cantilever_strip.toml) with a known tip load:
     optionally tilted at the clamp (gravity rotated in the x–z plane), of another thickness
     with E and the mass density known (D = E h and ρ_A = ρ h scale with h; B = E h³/12 is the
@@ -69,11 +69,10 @@ def _strip(*, tilt_degrees=0.0, thickness_factor=1.0, sideways_g=0.0, bending=B_
     return model.with_material(material).with_loads(loads), scene.output.resolution
 
 
-@pytest.fixture(scope="module")
-def observed():
+def observed_strip() -> Observation:
     """The right model's equilibrium on a quartic 20 × 4 grid (not the estimator's cubic ones)
-    at 41 × 9 points, with noise."""
-    model, _ = _strip()
+    at 41 × 9 points, with noise (also benchmarks/wrong_model_fits.py's observation)."""
+    model, _ = strip_model()
     model, unknowns = parse_unknowns("bending", model)
     s, y = np.meshgrid(np.linspace(0, 0.2, 41), np.linspace(0, 0.04, 9))
     xi = torch.tensor(np.stack([s.ravel(), y.ravel()], axis=1))
@@ -81,11 +80,16 @@ def observed():
     return Observation(model, points, xi).with_noise(NOISE, seed=3)
 
 
-def _fit(observed, **wrong):
+@pytest.fixture(scope="module")
+def observed():
+    return observed_strip()
+
+
+def fit_strip(observed, **wrong):
     """Fit B on the (possibly wrong) scene. A clamp tilted by α tilts the scene's strip: its
     own frame (e₁ = (cos α, 0, sin α), e₃ = (−sin α, 0, cos α)) sees gravity rotated and the
     observed points rotated by −α about the clamp line."""
-    model, _ = _strip(bending=10 * B_TRUE, **wrong)
+    model, _ = strip_model(bending=10 * B_TRUE, **wrong)
     model, unknowns = parse_unknowns("bending", model)
     a = math.radians(wrong.get("tilt_degrees", 0.0))
     frame = torch.tensor([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0],
@@ -100,7 +104,7 @@ def _fit(observed, **wrong):
 
 @pytest.mark.slow  # four Newton estimates: about 4 min on 2 loaded cores
 def test_the_right_model_explains_the_data(observed):
-    result, fit, document = _fit(observed)
+    result, fit, document = fit_strip(observed)
     assert fit.explains, fit.statement()
     noise = NOISE * observed.size
     assert fit.noise == pytest.approx(noise, rel=0.2)  # estimated from the scatter
@@ -121,7 +125,7 @@ def test_a_wrong_model_is_flagged(observed, wrong):
     strip in its plane by ≈ 7.5 mm through D = E h, which the unknown B cannot correct);
     gravity with a sideways component of 0.5 g. (Measured: 1.5× the weight alone, D kept, is
     absorbed by B: residual rms 0.410 against 0.406 mm for the right model, not flagged.)"""
-    _, fit, document = _fit(observed, **wrong)
+    _, fit, document = fit_strip(observed, **wrong)
     assert not fit.explains, fit.statement()
     entry = document["parameters"]["bending_stiffness"]
     assert not entry["determined"] and entry["status"] == REJECTED
@@ -135,7 +139,7 @@ def test_a_fit_whose_solves_did_not_converge_is_not_converged(observed):
     from inverse.material.newton_fit import NewtonEstimateConfig
     from inverse.material.spline_equilibrium import SplineModelConfig
 
-    model, _ = _strip(bending=10 * B_TRUE)
+    model, _ = strip_model(bending=10 * B_TRUE)
     model, unknowns = parse_unknowns("bending", model)
     observation = Observation(model, observed.points, observed.xi)
     config = NewtonEstimateConfig(model=SplineModelConfig(newton_iterations=1), levels=1)

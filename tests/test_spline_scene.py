@@ -185,6 +185,12 @@ def test_two_grids_say_order_assumed_and_bar_the_whole_change(tmp_path, capsys):
     assert energy["estimated_error"] == pytest.approx(change, rel=1e-12)
     assert "order 4 assumed from 2 grids" in energy["text"]
     assert "order 4 assumed from 2 grids" in printed and "Π →" in printed
+    # and every probe: the flag's --refine 2 probe bar was 15× smaller than its change
+    tip = json.loads((out / "result.json").read_text())["refinement"]["probes"]["tip"][2]
+    assert tip["order_basis"] == "assumed"
+    assert tip["estimated_error"] == pytest.approx(abs(tip["values"][1] - tip["values"][0]),
+                                                   rel=1e-12)
+    assert tip["estimated_error"] > 0
 
 
 def test_refine_without_a_count_solves_three_grids_with_the_observed_order(tmp_path):
