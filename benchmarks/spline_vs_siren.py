@@ -153,6 +153,8 @@ def _row(scene: str, field: str, r: dict | None, gap: str) -> str:
     else:
         its = f"{r['iterations']} (fixed; dimensional output scale)"
     quick = " (quick)" if r.get("quick") else ""
+    if r.get("precision") == "f64":  # e.g. the gallery's runs (docs/make_gallery.py)
+        quick += " (f64)"
     if _stale(scene, r):
         quick += f" **stale: run with material {r.get('material')}, rerun**"
     return (f"| {scene} | {label}{quick} | {r['energy']:.6g} | {gap} | {r['wall']:.0f} | "

@@ -8,12 +8,13 @@ scene at its trajectory frames) into DIR/<scene> (default /tmp/ndf-gallery-runs)
 each (`benchmarks/spline_vs_siren.run_one`: Π, iterations, convergence, wall and CPU time, load);
 a run directory that already holds a result.json and its record DIR/<scene>.json is reused.
 From each run's own files (no field evaluation) it writes docs/gallery/<scene>.png (the
-render: views side by side, coloured by bending strain, obstacles, ground shadow),
+render: three-quarter and front view, coloured by displacement, obstacles, ground shadow),
 <scene>_energy.png (Π history, refinement panel) and <scene>.mp4 (the trajectory, H.264, where
 the run has more than one frame), and docs/gallery/overview.png (every scene, the README's
-first image). The converged runs' spline rows also go into the comparison store of
-benchmarks/spline_vs_siren.py (marked f64). --quick: the scenes' [training.quick] settings, a
-smoke test of this script (the page then says so; nothing is stored).
+first image). The converged runs' spline rows (and their renders) also go into the
+comparison of benchmarks/spline_vs_siren.py (marked f64 there). --quick: the scenes'
+[training.quick] settings, a smoke test of this script (the page then says so; nothing is
+stored).
 """
 
 from __future__ import annotations
@@ -85,7 +86,10 @@ def pictures(name: str, run_dir: Path) -> dict:
                                    pseudo_time=pseudo, size=VIDEO_SIZE)
         write_video(PICTURES / f"{name}.mp4", frames, FPS)
         written["video"] = f"{name}.mp4"
+    # the shape alone, steel blue; a scene with obstacles from the front, where the
+    # three-quarter view from above hides them under the sheet
     tile = render_figure(run.deformed, run.faces, up=run.up, obstacles=obstacles,
+                         views=("front",) if obstacles else ("iso",),
                          width=TILE[0], height=TILE[1])
     cv2.putText(tile, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (40, 40, 40), 1,
                 cv2.LINE_AA)
@@ -157,7 +161,11 @@ def write_gallery(records: dict, args) -> int:
         store = json.loads(comparison.STORE.read_text()) if comparison.STORE.is_file() else {}
         for name, record in records.items():
             store.setdefault(name, {})["spline"] = record
+            if record["status"] == "ok":  # the comparison page's render of this row
+                comparison.render(args.runs / name, comparison.RENDERS / f"{name}_spline.png")
         comparison.STORE.write_text(json.dumps(store, indent=1, sort_keys=True) + "\n")
+        print("comparison store updated: rebuild its table with "
+              "`python benchmarks/spline_vs_siren.py --table-only`")
     print(f"wrote docs/gallery.md and {len(tiles) + 1} pictures in {PICTURES}")
     return 0
 

@@ -24,11 +24,11 @@ def _records(history) -> list[dict]:
 
 
 def segments(history) -> list[tuple[int, int, float, int]]:
-    """The solves of a history (records or dicts with iteration, load_factor, optional level):
+    """The solves of a history (records or dicts with iteration, optional load_factor and level):
     (first index, end index, load factor, level) of each run of records at one load factor on
     one grid level, in order."""
     records = _records(history)
-    keys = [(r.get("level", 0), r["load_factor"]) for r in records]
+    keys = [(r.get("level", 0), r.get("load_factor", 1.0)) for r in records]
     out, start = [], 0
     for k in range(1, len(keys) + 1):
         if k == len(keys) or keys[k] != keys[start]:
