@@ -350,9 +350,9 @@ def _refuse_no_step(run) -> None:
 def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],
                           frames: dict[int, DeformedMesh], history) -> dict:
     """Every finished load step's state ("states", for trajectory.mp4) and its summary for
-    result.json. Steps that
-    finished before a resume are read back from their OBJ files; the energy of each step is
-    the last monitor record at its load factor (the checkpoint keeps the history)."""
+    result.json. Steps that finished before a resume are read back from their OBJ files; the
+    energy of each step is the last monitor record at its load factor (the checkpoint keeps
+    the history)."""
     states, factors, energy = [], [], []
     for index, load_factor in enumerate(load_steps):
         if index in frames:
