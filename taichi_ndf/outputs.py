@@ -194,15 +194,22 @@ def write_trajectory_mesh(out: OutputDir, index: int, mesh: DeformedMesh) -> Non
 
 def write_trajectory_video(out: OutputDir, states: list[np.ndarray], faces: np.ndarray,
                            load_factors: list[float], *, reference: np.ndarray, up,
-                           obstacles=None, pseudo_time: bool = False) -> None:
+                           obstacles=None, pseudo_time: bool = False) -> bool:
     """trajectory.mp4 (H.264): the deformed `states` (positions (V, 3) [m] on `faces`) in
     order, coloured by displacement from `reference` on one colour range, with `obstacles`
     per state (meshes (vertices, faces) at that state) and a load-factor (or pseudo-time)
-    label, all from one camera that frames every state (`render.trajectory`)."""
+    label, all from one camera that frames every state (`render.trajectory`). Where no H.264
+    encoder is found the run keeps its other outputs: a warning names the cause and the
+    video is left out (returns False)."""
     from taichi_ndf.render.trajectory import FPS, trajectory_frames
 
     groups = None if obstacles is None else [tuple(Obstacle(v, f) for v, f in group)
                                              for group in obstacles]
-    write_video(out.file("trajectory.mp4"),
-                trajectory_frames(states, faces, load_factors, reference=reference,
-                                  obstacles=groups, up=up, pseudo_time=pseudo_time), FPS)
+    frames = trajectory_frames(states, faces, load_factors, reference=reference,
+                               obstacles=groups, up=up, pseudo_time=pseudo_time)
+    try:
+        write_video(out.file("trajectory.mp4"), frames, FPS)
+    except RuntimeError as err:
+        log.warning("trajectory.mp4 not written: %s", err)
+        return False
+    return True

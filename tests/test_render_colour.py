@@ -151,3 +151,20 @@ def test_trajectory_frames_have_colour_obstacles_label_and_one_camera():
     assert np.array_equal(frames[1], first)
     with pytest.raises(ValueError, match="one load factor per state"):
         trajectory_frames(states, grid.faces, [1.0], reference=reference)
+
+
+def test_a_run_without_an_h264_encoder_keeps_its_outputs_and_says_why(tmp_path, monkeypatch,
+                                                                       caplog):
+    import sys
+
+    from taichi_ndf.io.output_dir import OutputDir
+    from taichi_ndf.outputs import write_trajectory_video
+
+    grid = grid_mesh(((0.0, 1.0), (0.0, 1.0)), 4)
+    reference = np.column_stack([grid.xi, np.zeros(len(grid.xi))])
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # not installed
+    with OutputDir(tmp_path / "run") as out:
+        assert not write_trajectory_video(out, [reference, reference + 0.1], grid.faces,
+                                          [0.5, 1.0], reference=reference, up=(0.0, 0.0, 1.0))
+    assert "trajectory.mp4 not written: H.264 video needs imageio-ffmpeg" in caplog.text
+    assert not (tmp_path / "run" / "trajectory.mp4").exists()
