@@ -156,6 +156,12 @@ def write_gallery(records: dict, args) -> int:
             "scenes in `scenes/inverse/` are start points of the material estimator "
             "(`ndf-fit-material`, docs/inverse_material.md), not shown here.", "",
             "![all scenes](gallery/overview.png)", ""] + rows
+    missing = [s for s in comparison.shipped_scenes() if s not in records]
+    if missing:
+        page += ["### Not in this gallery", "",
+                 "Shipped scenes whose run this page was not made from (`--scenes` left them "
+                 "out, e.g. their converged run had not finished): " + ", ".join(missing)
+                 + ". `python docs/make_gallery.py` runs them.", ""]
     (ROOT / "docs" / "gallery.md").write_text("\n".join(page) + "\n")
     if not args.quick:
         store = json.loads(comparison.STORE.read_text()) if comparison.STORE.is_file() else {}
