@@ -6,9 +6,10 @@ Per scene and field: Π reached [J], the relative gap (Π_spline − Π_SIREN) /
 (negative: the spline found the lower energy), wall time [s] of the whole process (start,
 compilation, solve, outputs), the solve time result.json reports, the peak resident memory
 [MiB] of the child process (ru_maxrss of its own rusage from `os.wait4`, Linux: KiB; the
-high-water mark of that process alone), iterations (Adam: the fixed count; Newton: all
-iterations and whether every load step converged; the JSON store also keeps the last Newton
-steps and how many iterations used the projected Hessian). A scene whose spline run is refused
+high-water mark of that process alone; its CPU time, user + system, is stored too),
+iterations (Adam: the fixed count; Newton: all iterations and whether every load step
+converged; the JSON store also keeps the last Newton steps and how many iterations used the
+projected Hessian). A scene whose spline run is refused
 (exit 2, e.g. obstacles: contact is not on the Newton path yet) is listed as refused.
 
 Results are kept per (scene, field) in benchmarks/spline_vs_siren.json, so a subset can be
@@ -81,6 +82,7 @@ def run_one(scene: str, field: str, out: Path, precision: str, quick: bool) -> d
     stderr = process.stderr.read().decode(errors="replace")
     _, status, usage = os.wait4(process.pid, 0)
     record = {"wall": time.perf_counter() - started, "peak_mib": usage.ru_maxrss / 1024,
+              "cpu": usage.ru_utime + usage.ru_stime,
               "load": [round(load_before, 2), round(os.getloadavg()[0], 2)],
               "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
               "commit": _commit(), "precision": precision, "quick": quick,
@@ -151,6 +153,8 @@ def _row(scene: str, field: str, r: dict | None, gap: str) -> str:
     else:
         its = f"{r['iterations']} (fixed; dimensional output scale)"
     quick = " (quick)" if r.get("quick") else ""
+    if r.get("precision") == "f64":  # e.g. the gallery's runs (docs/make_gallery.py)
+        quick += " (f64)"
     if _stale(scene, r):
         quick += f" **stale: run with material {r.get('material')}, rerun**"
     return (f"| {scene} | {label}{quick} | {r['energy']:.6g} | {gap} | {r['wall']:.0f} | "

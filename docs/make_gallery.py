@@ -1,105 +1,199 @@
-"""Make docs/gallery.md and its pictures: one render of every shipped scene (scenes/*.toml).
+"""Make docs/gallery.md and its pictures from converged runs of every shipped scene.
 
-    python docs/make_gallery.py [--runs DIR] [--full]
+    python docs/make_gallery.py [--runs DIR] [--scenes a,b] [--runs-only] [--quick]
 
-Each scene runs with `ndf-sim --quick` (its [training.quick] settings; --full: the whole
-training) into DIR/<scene> (default /tmp/ndf-gallery-runs); a run directory that already holds a
-result.json is reused. Pictures: docs/gallery/<scene>.png (three-quarter view coloured by
-displacement, ground shadow, colour bar) and docs/gallery/overview.png (all of them, for the
-README).
+Each scene of scenes/*.toml is solved by `ndf-sim SCENE --field spline` (projected Newton to
+its convergence test on the grid rule's grid, float64, the scene's load steps; a pseudo-time
+scene at its trajectory frames) into DIR/<scene> (default /tmp/ndf-gallery-runs), one process
+each (`benchmarks/spline_vs_siren.run_one`: Π, iterations, convergence, wall and CPU time, load);
+a run directory that already holds a result.json and its record DIR/<scene>.json is reused.
+From each run's own files (no field evaluation) it writes docs/gallery/<scene>.png (the
+render: three-quarter and front view, coloured by displacement, obstacles, ground shadow),
+<scene>_energy.png (Π history, refinement panel) and <scene>.mp4 (the trajectory, H.264, where
+the run has more than one frame), and docs/gallery/overview.png (every scene, the README's
+first image). The converged runs' spline rows (and their renders) also go into the
+comparison of benchmarks/spline_vs_siren.py (marked f64 there). --quick: the scenes'
+[training.quick] settings, a smoke test of this script (the page then says so; nothing is
+stored).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tomllib
 from pathlib import Path
 
-import cv2
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from benchmarks import spline_vs_siren as comparison  # noqa: E402
 from taichi_ndf.io.run_files import QUANTITIES, read_run  # noqa: E402
-from taichi_ndf.render import save_png  # noqa: E402
+from taichi_ndf.render import save_png, write_video  # noqa: E402
+from taichi_ndf.render.energy_plot import energy_figure  # noqa: E402
 from taichi_ndf.render.figure import Obstacle, render_figure  # noqa: E402
+from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
 
-PICTURE = (480, 360)  # width, height [pixels] of one scene's picture
+SCENES = ROOT / "scenes"
+PICTURES = ROOT / "docs" / "gallery"
+TILE = (400, 320)  # width, height [pixels] of one scene in the overview
 COLUMNS = 4  # of the overview
-COLOUR = "displacement"
+COLOUR = "displacement"  # of the scene pictures (render.png itself: bending strain)
+VIDEO_SIZE = (640, 480)
 
 
-def run_scene(scene: Path, out: Path, full: bool) -> None:
-    if (out / "result.json").is_file():
-        return
-    command = [sys.executable, "-m", "taichi_ndf.cli.sim", str(scene), "--out", str(out),
-               "--overwrite"] + ([] if full else ["--quick"])
-    print(" ".join(command[1:]), flush=True)
-    subprocess.run(command, check=True, cwd=ROOT)
+def run_scene(name: str, runs: Path, quick: bool) -> dict:
+    """The record of scene `name`'s run (run_one's), running it unless it is stored."""
+    out, record_file = runs / name, runs / f"{name}.json"
+    if (out / "result.json").is_file() and record_file.is_file():
+        return json.loads(record_file.read_text())
+    if out.exists() and any(out.iterdir()):
+        raise SystemExit(f"{out} holds an earlier run without its record; remove it")
+    print(f"{name}: ndf-sim --field spline{' --quick' if quick else ''}", flush=True)
+    record = comparison.run_one(name, "spline", out, "f64", quick)
+    record_file.write_text(json.dumps(record, indent=1) + "\n")
+    state = record["status"] if record["status"] != "ok" else (
+        f"Π {record['energy']:.6g} J, {record['iterations']} iterations, "
+        f"{'converged' if record['converged'] else 'NOT converged'}")
+    print(f"{name}: {state}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU, "
+          f"load {record['load']}", flush=True)
+    return record
 
 
-def picture(run_dir: Path) -> np.ndarray:
+def pictures(name: str, run_dir: Path) -> dict:
+    """docs/gallery/<name>.png, <name>_energy.png and (several states) <name>.mp4 from the
+    run's files; returns the overview tile and what was written."""
     run = read_run(run_dir)
+    result = json.loads((run_dir / "result.json").read_text())
+    obstacles = tuple(Obstacle(o.vertices, o.faces) for o in run.obstacles)
     colour = COLOUR if COLOUR in run.available() else "bending_strain"
-    return render_figure(run.deformed, run.faces, scalars=run.quantity(colour),
-                         scalar_label=QUANTITIES[colour], up=run.up,
-                         obstacles=tuple(Obstacle(o.vertices, o.faces) for o in run.obstacles),
-                         width=PICTURE[0], height=PICTURE[1])
+    image = render_figure(run.deformed, run.faces, scalars=run.quantity(colour),
+                          scalar_label=QUANTITIES[colour], up=run.up, obstacles=obstacles,
+                          views=("iso", "front"), width=None, height=480)
+    save_png(PICTURES / f"{name}.png", image)
+    save_png(PICTURES / f"{name}_energy.png",
+             energy_figure(result["history"], result.get("refinement")))
+    written = {"picture": f"{name}.png", "energy": f"{name}_energy.png", "video": None}
+    if len(run.frames) > 1 and run.reference is not None:
+        pseudo = (result.get("trajectory") or {}).get("source") == "pseudo_time"
+        frames = trajectory_frames([f.vertices for f in run.frames], run.faces,
+                                   [f.load_factor for f in run.frames], reference=run.reference,
+                                   obstacles=[obstacles] * len(run.frames), up=run.up,
+                                   pseudo_time=pseudo, size=VIDEO_SIZE)
+        write_video(PICTURES / f"{name}.mp4", frames, FPS)
+        written["video"] = f"{name}.mp4"
+    # the shape alone, steel blue; a scene with obstacles from the front, where the
+    # three-quarter view from above hides them under the sheet
+    tile = render_figure(run.deformed, run.faces, up=run.up, obstacles=obstacles,
+                         views=("front",) if obstacles else ("iso",),
+                         width=TILE[0], height=TILE[1])
+    cv2.putText(tile, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (40, 40, 40), 1,
+                cv2.LINE_AA)
+    return {**written, "tile": tile, "colour": colour}
 
 
-def overview(images: list[np.ndarray], names: list[str]) -> np.ndarray:
-    """Thumbnails at half size with their scene names, COLUMNS per row."""
-    w, h = PICTURE[0] // 2, PICTURE[1] // 2
-    tiles = []
-    for image, name in zip(images, names, strict=True):
-        tile = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
-        cv2.putText(tile, name, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (40, 40, 40), 1,
-                    cv2.LINE_AA)
-        tiles.append(tile)
+def overview(tiles: list[np.ndarray]) -> np.ndarray:
+    """The tiles, COLUMNS per row, blank tiles filling the last row."""
     blank = np.full_like(tiles[0], 235)
-    tiles += [blank] * (-len(tiles) % COLUMNS)
+    tiles = tiles + [blank] * (-len(tiles) % COLUMNS)
     rows = [np.concatenate(tiles[i:i + COLUMNS], axis=1) for i in range(0, len(tiles), COLUMNS)]
     return np.concatenate(rows, axis=0)
+
+
+def describe(record: dict) -> str:
+    """Π, iterations, convergence, times and load of one run, for the page."""
+    if record["status"] != "ok":
+        return f"{record['status']}: {record.get('message', '')}"
+    state = "converged" if record.get("converged") else "**NOT converged**"
+    spans = " × ".join(str(s) for s in record.get("spans", []))
+    return (f"Π = {record['energy']:.6g} J; {record['iterations']} Newton iterations, {state} "
+            f"({spans} spans); {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU at load "
+            f"{record['load'][0]:.1f}–{record['load'][1]:.1f} ({record['date']}, "
+            f"{record['commit']})")
+
+
+def write_gallery(records: dict, args) -> int:
+    """The pictures, overview.png, docs/gallery.md and (converged runs) the comparison store's
+    spline rows."""
+    PICTURES.mkdir(exist_ok=True)
+    rows, tiles = [], []
+    for name, record in records.items():
+        document = tomllib.loads((SCENES / f"{name}.toml").read_text())
+        heading = f"### {name}\n\n{document.get('description', '')}  \n" \
+                  f"material `{document.get('material', {}).get('preset', 'custom')}`; " \
+                  f"`ndf-sim scenes/{name}.toml --field spline" \
+                  f"{' --quick' if args.quick else ''}`: {describe(record)}\n"
+        if record["status"] != "ok":
+            rows.append(heading)
+            continue
+        made = pictures(name, args.runs / name)
+        tiles.append(made.pop("tile"))
+        rows.append(heading + f"\n![{name}](gallery/{made['picture']})\n"
+                    f"![{name}: energy](gallery/{made['energy']})\n"
+                    + (f"\n[trajectory video (H.264)](gallery/{made['video']})\n"
+                       if made["video"] else ""))
+        print(f"{name}: pictures written", flush=True)
+    save_png(PICTURES / "overview.png", overview(tiles))
+    training = ("`--quick` runs (the scenes' `[training.quick]` settings: smoke runs, NOT "
+                "converged results)" if args.quick else "converged runs")
+    page = ["# Gallery", "",
+            f"Every shipped scene (`scenes/*.toml`) from {training} of the spline field solved "
+            "by projected Newton (`ndf-sim SCENE --field spline`: the grid rule's grid, one "
+            "level, float64, the scene's load steps), pictures drawn from each run's own files "
+            "by `python docs/make_gallery.py` (which runs the scenes too; about 20 minutes of "
+            "CPU on a 2-core machine). Per scene: the final state from the three-quarter and "
+            f"the front view coloured by {QUANTITIES[COLOUR]} (bending strain where a run has "
+            "no reference mesh) on its 1st–99th percentile (the colour bar states what it "
+            "clips), obstacles in grey, ground shadow; the energy plot (Π over the Newton "
+            "iterations with the load-step and grid-level boundaries, each solve's distance "
+            "to its final Π); and where the run has several states (load steps, pseudo-time "
+            "frames) the trajectory video. Times were measured on a 2-core VM shared with "
+            "other sessions, so they are upper bounds; CPU time is the figure to read. The "
+            "scenes in `scenes/inverse/` are start points of the material estimator "
+            "(`ndf-fit-material`, docs/inverse_material.md), not shown here.", "",
+            "![all scenes](gallery/overview.png)", ""] + rows
+    missing = [s for s in comparison.shipped_scenes() if s not in records]
+    if missing:
+        page += ["### Not in this gallery", "",
+                 "Shipped scenes whose run this page was not made from (`--scenes` left them "
+                 "out, e.g. their converged run had not finished): " + ", ".join(missing)
+                 + ". `python docs/make_gallery.py` runs them.", ""]
+    (ROOT / "docs" / "gallery.md").write_text("\n".join(page) + "\n")
+    if not args.quick:
+        store = json.loads(comparison.STORE.read_text()) if comparison.STORE.is_file() else {}
+        for name, record in records.items():
+            store.setdefault(name, {})["spline"] = record
+            if record["status"] == "ok":  # the comparison page's render of this row
+                comparison.render(args.runs / name, comparison.RENDERS / f"{name}_spline.png")
+        comparison.STORE.write_text(json.dumps(store, indent=1, sort_keys=True) + "\n")
+        print("comparison store updated: rebuild its table with "
+              "`python benchmarks/spline_vs_siren.py --table-only`")
+    print(f"wrote docs/gallery.md and {len(tiles) + 1} pictures in {PICTURES}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--runs", type=Path, default=Path("/tmp/ndf-gallery-runs"))
-    p.add_argument("--full", action="store_true", help="full training instead of --quick")
+    p.add_argument("--scenes", default=None,
+                   help="comma-separated scene names (default: every scenes/*.toml)")
+    p.add_argument("--runs-only", action="store_true", help="run the scenes, draw nothing")
+    p.add_argument("--quick", action="store_true",
+                   help="[training.quick] settings: a smoke test of this script")
     args = p.parse_args(argv)
-    pictures_dir = ROOT / "docs" / "gallery"
-    pictures_dir.mkdir(exist_ok=True)
-    rows, images, names = [], [], []
-    for scene in sorted((ROOT / "scenes").glob("*.toml")):
-        name = scene.stem
-        run_scene(scene, args.runs / name, args.full)
-        image = picture(args.runs / name)
-        save_png(pictures_dir / f"{name}.png", image)
-        images.append(image)
-        names.append(name)
-        result = json.loads((args.runs / name / "result.json").read_text())
-        description = tomllib.loads(scene.read_text()).get("description", "")
-        rows.append(f"### {name}\n\n{description}  \n`ndf-sim scenes/{name}.toml"
-                    f"{'' if args.full else ' --quick'}`: {result['iterations']} iterations, "
-                    f"{result['wall_time']:.0f} s\n\n![{name}](gallery/{name}.png)\n")
-    save_png(pictures_dir / "overview.png", overview(images, names))
-    training = ("full training" if args.full else "`--quick` runs (the scenes' "
-                "`[training.quick]` settings: short smoke runs, not converged results)")
-    page = ["# Gallery", "",
-            f"Every shipped scene (`scenes/*.toml`), from {training}, rendered by `ndf-render`'s "
-            f"renderer: three-quarter view, coloured by {QUANTITIES[COLOUR]} (bending strain "
-            "where a run has no reference mesh), ground shadow. Made by `python "
-            "docs/make_gallery.py`; the wall times are of that run on a shared 2-core CPU. "
-            "The scenes in `scenes/inverse/` are start points of the material estimator "
-            "(`ndf-fit-material`, docs/inverse_material.md), not shown here.", "",
-            "![all scenes](gallery/overview.png)", ""] + rows
-    (ROOT / "docs" / "gallery.md").write_text("\n".join(page))
-    print(f"wrote docs/gallery.md and {len(images) + 1} pictures in {pictures_dir}")
-    return 0
+    names = comparison.shipped_scenes() if args.scenes is None else args.scenes.split(",")
+    for name in names:
+        if not (SCENES / f"{name}.toml").is_file():
+            p.error(f"--scenes: no scene {name!r} in {SCENES}")
+    args.runs.mkdir(parents=True, exist_ok=True)
+    records = {name: run_scene(name, args.runs, args.quick) for name in names}
+    if args.runs_only:
+        return 0
+    return write_gallery(records, args)
 
 
 if __name__ == "__main__":

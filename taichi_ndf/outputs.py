@@ -20,7 +20,7 @@ from taichi_ndf.io.run_files import QUANTITIES
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import ShellEnergyTerm
 from taichi_ndf.pseudo_time import conditioning
-from taichi_ndf.render import plot_curves, render_shaded, save_png, write_video
+from taichi_ndf.render import save_png, write_video
 from taichi_ndf.render.figure import Obstacle, render_figure
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.kinematics import strains
@@ -170,36 +170,15 @@ def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0,
 
 def write_energy_plot(out: OutputDir, name: str, history, refinement: dict | None = None
                       ) -> None:
-    """Π over iterations and |Π − Π_final| / |Π_final| on a log axis; with `refinement` (a
-    spline run on several grids: `SplineRun.refinement`) also Π per grid level with its
-    Richardson-extrapolated value, its error bar and how the order was found ("order assumed"
-    with two grids)."""
+    """Π over iterations (load-step and grid-level boundaries marked), each solve's distance
+    to its final Π on a log axis and, with `refinement` (a spline run on several grids:
+    `SplineRun.refinement`), Π per grid level with its Richardson-extrapolated value and error
+    bar (`taichi_ndf.render.energy_plot`)."""
     if not history:
         return
-    it = np.array([h.iteration for h in history], dtype=np.float64)
-    energy = np.array([h.energy for h in history], dtype=np.float64)
-    gap = np.abs(energy - energy[-1]) / max(abs(energy[-1]), 1e-300)
-    top = plot_curves({"potential energy": (it, energy)}, title="Total potential energy",
-                      xlabel="iteration", ylabel="Pi [J]", height=400)
-    bottom = plot_curves({"|Pi - Pi_final| / |Pi_final|": (it[:-1], gap[:-1])},
-                         title="Relative distance to the final energy", xlabel="iteration",
-                         ylabel="relative gap", log_y=True, height=400)
-    panels = [top, bottom]
-    if refinement is not None:
-        values = np.array(refinement["energy"]["values"], dtype=np.float64)
-        level = np.arange(len(values), dtype=np.float64)
-        energy = refinement["energy"]
-        limit = np.full_like(level, energy["extrapolated"])
-        bar = energy["estimated_error"]
-        how = ("order assumed" if energy.get("order_basis") == "assumed"
-               else energy.get("order_basis", "observed"))
-        panels.append(plot_curves(
-            {"Pi per grid level": (level, values),
-             f"Richardson ({how}) {energy['extrapolated']:.6g} +- {bar:.2g}": (level, limit),
-             "+ error bar": (level, limit + bar), "- error bar": (level, limit - bar)},
-            title=f"Refinement: Pi on each grid (spans doubled per level; {how})",
-            xlabel="grid level", ylabel="Pi [J]", height=400))
-    save_png(out.file(name), np.concatenate(panels, axis=0))
+    from taichi_ndf.render.energy_plot import energy_figure
+
+    save_png(out.file(name), energy_figure(history, refinement))
 
 
 def trajectory_mesh_name(index: int) -> str:
@@ -213,14 +192,24 @@ def write_trajectory_mesh(out: OutputDir, index: int, mesh: DeformedMesh) -> Non
     write_obj(out.file(trajectory_mesh_name(index)), mesh.deformed, mesh.faces, uvs=mesh.uv)
 
 
-def write_trajectory_video(out: OutputDir, frames: list[tuple[np.ndarray, np.ndarray]], *,
-                           fps: float = 4.0) -> None:
-    """trajectory.mp4: renders of the deformed frames (vertices [m] (V, 3), faces (F, 3)), in
-    order, all from one camera that frames every one of them, from the side that shows the
-    last frame largest (`widest_azimuth`)."""
-    from taichi_ndf.render import frame_mesh, widest_azimuth
+def write_trajectory_video(out: OutputDir, states: list[np.ndarray], faces: np.ndarray,
+                           load_factors: list[float], *, reference: np.ndarray, up,
+                           obstacles=None, pseudo_time: bool = False) -> bool:
+    """trajectory.mp4 (H.264): the deformed `states` (positions (V, 3) [m] on `faces`) in
+    order, coloured by displacement from `reference` on one colour range, with `obstacles`
+    per state (meshes (vertices, faces) at that state) and a load-factor (or pseudo-time)
+    label, all from one camera that frames every state (`render.trajectory`). Where no H.264
+    encoder is found the run keeps its other outputs: a warning names the cause and the
+    video is left out (returns False)."""
+    from taichi_ndf.render.trajectory import FPS, trajectory_frames
 
-    camera = frame_mesh(np.concatenate([v for v, _ in frames]), width=800, height=600,
-                        azimuth_deg=widest_azimuth(*frames[-1]))
-    write_video(out.file("trajectory.mp4"),
-                [render_shaded(v, f, camera=camera) for v, f in frames], fps)
+    groups = None if obstacles is None else [tuple(Obstacle(v, f) for v, f in group)
+                                             for group in obstacles]
+    frames = trajectory_frames(states, faces, load_factors, reference=reference,
+                               obstacles=groups, up=up, pseudo_time=pseudo_time)
+    try:
+        write_video(out.file("trajectory.mp4"), frames, FPS)
+    except RuntimeError as err:
+        log.warning("trajectory.mp4 not written: %s", err)
+        return False
+    return True

@@ -118,21 +118,22 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         trajectory = _load_step_trajectory(out, config.load_steps, frames, result.history)
     if config.pseudo_time:  # the whole path from the one field, at any number of frames
         times = frame_times(config.pseudo_time_start, scene.output.frames)
-        energy, pictures = [], []
+        energy, states = [], []
         for index, t in enumerate(times):
             mesh = deformed_mesh(scene.model, field, scene.output.resolution, load_factor=t,
                                  pseudo_time=True)
             write_trajectory_mesh(out, index, mesh)
-            pictures.append((mesh.deformed, mesh.faces))
+            states.append(mesh.deformed)
             energy.append(run.energy_and_gradient(run.monitor_samples(), t, grad=False).total)
-        write_trajectory_video(out, pictures)
-        trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy}
+        trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy,
+                      "states": states}
     contact, obstacle_meshes = None, ()
     if scene.model.contact is not None:
         contact, obstacle_meshes = _contact_outputs(scene, out, field, run.contact,
                                                     rejected_steps=run.rejected_steps)
     _write_field_outputs(scene, out, field, result.probes, result.history,
-                         pseudo_time=config.pseudo_time, obstacles=obstacle_meshes)
+                         pseudo_time=config.pseudo_time, obstacles=obstacle_meshes,
+                         trajectory=trajectory)
     summary = _summary(scene, config, seed, result.energy, result.iterations, result.wall_time,
                        result.probes, trajectory, field_config.to_dict(), machine,
                        result.history, contact)
@@ -156,10 +157,11 @@ def _contact_outputs(scene: Scene, out: OutputDir, field, points, **counts
 
 def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, history, *,
                          pseudo_time: bool = False, refinement: dict | None = None,
-                         obstacles: tuple = ()) -> None:
+                         obstacles: tuple = (), trajectory: dict | None = None) -> None:
     """mesh.obj/.ply, reference.obj, probes.json, render.png and energy.png of the final
-    field (a progress stage of five steps)."""
-    with progress.stage("outputs: mesh, render, energy plot", 5):
+    field, and trajectory.mp4 of a `trajectory` (its "states", taken out of it here) with the
+    obstacles at each state's load factor (a progress stage of six steps)."""
+    with progress.stage("outputs: mesh, render, energy plot, video", 6):
         mesh = deformed_mesh(scene.model, field, scene.output.resolution,
                              pseudo_time=pseudo_time)
         for name, values in mesh.scalars().items():
@@ -175,6 +177,16 @@ def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, hist
         progress.report(4)
         write_energy_plot(out, "energy.png", history, refinement)
         progress.report(5)
+        states = trajectory.pop("states", None) if trajectory else None
+        if states:
+            contact = scene.model.contact
+            write_trajectory_video(
+                out, states, mesh.faces, trajectory["load_factors"], reference=mesh.reference,
+                up=up_direction(scene.model.loads.gravity), pseudo_time=pseudo_time,
+                obstacles=None if contact is None else [
+                    tuple(o.triangles(t) for o in contact.obstacles)
+                    for t in trajectory["load_factors"]])
+        progress.report(6)
 
 
 def _summary(scene: Scene, config: SolverConfig, seed: int, energy: float, iterations: int,
@@ -268,7 +280,7 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
         contact, obstacle_meshes = _contact_outputs(scene, out, run.field, run.contact.points,
                                                     newton_rounds=run.contact.rounds)
     _write_field_outputs(scene, out, run.field, run.probes, run.history, refinement=refinement,
-                         obstacles=obstacle_meshes)
+                         obstacles=obstacle_meshes, trajectory=trajectory)
     summary = _summary(scene, config, seed, run.energy, len(run.history), run.wall_time,
                        run.probes, trajectory, {**scene.field.to_dict(),
                                                 "finest_spans": list(run.field.config.spans)},
@@ -337,27 +349,26 @@ def _refuse_no_step(run) -> None:
 
 def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],
                           frames: dict[int, DeformedMesh], history) -> dict:
-    """trajectory.mp4 of every finished load step and its summary for result.json. Steps that
-    finished before a resume are read back from their OBJ files; the energy of each step is
-    the last monitor record at its load factor (the checkpoint keeps the history)."""
-    pictures, factors, energy = [], [], []
+    """Every finished load step's state ("states", for trajectory.mp4) and its summary for
+    result.json. Steps that finished before a resume are read back from their OBJ files; the
+    energy of each step is the last monitor record at its load factor (the checkpoint keeps
+    the history)."""
+    states, factors, energy = [], [], []
     for index, load_factor in enumerate(load_steps):
         if index in frames:
-            mesh = frames[index]
-            pictures.append((mesh.deformed, mesh.faces))
+            states.append(frames[index].deformed)
         else:
             path = out.file(trajectory_mesh_name(index))
             if not path.exists():
                 log.warning("trajectory frame of load step %d (load factor %g) is missing "
                             "(%s); the trajectory leaves it out", index, load_factor, path)
                 continue
-            saved = read_mesh(path)
-            pictures.append((saved.vertices, saved.faces))
+            states.append(read_mesh(path).vertices)
         factors.append(load_factor)
         energy.append(next(h.energy for h in reversed(history)
                            if h.load_factor == load_factor))
-    write_trajectory_video(out, pictures)
-    return {"source": "load_steps", "load_factors": factors, "energy": energy}
+    return {"source": "load_steps", "load_factors": factors, "energy": energy,
+            "states": states}
 
 
 def _plain(value):

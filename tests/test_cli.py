@@ -268,7 +268,13 @@ def test_resume_keeps_the_trajectory_of_load_steps_finished_before_the_interrupt
                                                             rel=1e-9)
     assert first.read_bytes() == written_before
     assert first.read_bytes() == (tmp_path / "whole" / "trajectory" / "step_000.obj").read_bytes()
-    assert (tmp_path / "cut" / "trajectory.mp4").stat().st_size > 0
+    # the resumed run's video shows both load steps, in H.264, each for a while
+    from taichi_ndf.render.trajectory import FPS, HOLD_SECONDS, frame_repeats
+    from taichi_ndf.render.video import video_info
+
+    info = video_info(tmp_path / "cut" / "trajectory.mp4")
+    assert info["codec"].startswith("h264")
+    assert info["frames"] == 2 * frame_repeats(2) + round(HOLD_SECONDS * FPS)
 
 
 def test_threads_option_sets_torch_threads_and_refuses_zero(tmp_path, capsys):

@@ -18,8 +18,8 @@ from taichi_ndf.render import (
     save_png,
     write_video,
 )
-from taichi_ndf.render.plot import _nice_ticks
 from taichi_ndf.render.shaded import BACKGROUND_BGR
+from taichi_ndf.render.video import video_info
 
 K = np.array([[200.0, 0.0, 159.5], [0.0, 200.0, 119.5], [0.0, 0.0, 1.0]])
 W, H = 320, 240
@@ -234,9 +234,18 @@ def test_plot_curves_draws_axes_curves_and_legend():
     assert image.shape == (500, 800, 3)
 
 
-def test_nice_ticks():
-    assert _nice_ticks(0.0, 1.0, target=5) == [0.0, 0.2, 0.4, 0.6, 0.8, 1.0]
-    assert _nice_ticks(-0.03, 0.07) == [-0.02, 0.0, 0.02, 0.04, 0.06]
+def test_plot_curves_integer_axis_gets_integer_ticks_and_markers():
+    from taichi_ndf.render.plot import integer_axis
+
+    assert integer_axis([0, 1, 2, 3]) and not integer_axis([0, 0.5, 1])
+    assert not integer_axis(np.arange(100))  # an iteration axis is not marked point by point
+    image = plot_curves({"Π per level": ([0, 1, 2], [-1.2, -1.25, -1.26])}, title="levels",
+                        xlabel="grid level", ylabel=r"$\Pi$ [J]", width=400, height=300)
+    blue = np.all(np.abs(image.astype(int) - (180, 119, 31)) < 8, axis=-1)
+    # a marker is a filled disc: some rows hold a run of >= 7 blue pixels (a 1.8 px line not)
+    runs = [np.diff(np.flatnonzero(np.diff(np.r_[0, row, 0]))).max(initial=0)
+            for row in blue.astype(int)]
+    assert max(runs[::1]) >= 7
 
 
 def test_save_png_round_trip(tmp_path):
@@ -248,14 +257,26 @@ def test_save_png_round_trip(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"]
 
 
-def test_video_round_trip(tmp_path):
+def test_video_round_trip_is_h264(tmp_path):
     frames = [np.full((48, 63, 3), 8 * k, dtype=np.uint8) for k in range(12)]
     assert write_video(tmp_path / "v.mp4", iter(frames), fps=10) == 12
     assert count_video_frames(tmp_path / "v.mp4") == 12
-    capture = cv2.VideoCapture(str(tmp_path / "v.mp4"))
+    info = video_info(tmp_path / "v.mp4")
+    assert info["codec"].startswith("h264") and info["size"] == (64, 48)  # odd width padded
+    assert info["fps"] == pytest.approx(10.0)
+    capture = cv2.VideoCapture(str(tmp_path / "v.mp4"))  # OpenCV (the SfT reader) decodes it
     ok, first = capture.read()
     capture.release()
-    assert ok and first.shape == (48, 64, 3)  # odd width padded for MPEG-4
+    assert ok and first.shape == (48, 64, 3)
     with pytest.raises(ValueError, match="frame 1"):
         write_video(tmp_path / "w.mp4", [frames[0], np.zeros((10, 10, 3), np.uint8)], fps=10)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
+
+
+def test_video_without_imageio_ffmpeg_says_what_is_missing(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import fails
+    with pytest.raises(RuntimeError, match="H.264 video needs imageio-ffmpeg"):
+        write_video(tmp_path / "v.mp4", [np.zeros((8, 8, 3), np.uint8)], fps=4)
+    assert not list(tmp_path.iterdir())

@@ -67,7 +67,12 @@ def test_every_scene_has_expectations():
 
 @pytest.mark.parametrize("path", SCENES, ids=lambda p: p.stem)
 def test_scene_runs_quick_with_finite_outputs(path, tmp_path):
-    scene = small(load_scene(path))
+    # Contact scenes in the soft `cloth` preset: in their measured fabrics the equilibrium
+    # output scale is ~7x smaller (napkin_sphere: 0.041 m in cotton_polyester against 0.306 m,
+    # measured 2026-12-03), so the 10 quick Adam iterations lower its corners ~9 mm instead of
+    # ~50 mm and this test's narrow network may not reach the contact activation distance
+    # (0 check points). The converged contact runs of the measured fabrics: docs/gallery.md.
+    scene = small(load_scene(path, material="cloth" if path.stem in CONTACT else None))
     solver = dataclasses.replace(scene.quick_solver, progress=False)
     out = tmp_path / "run"
     result = simulate(scene, OutputDir(out), solver=solver)

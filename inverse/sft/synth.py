@@ -203,7 +203,7 @@ def write_sequence(
     """Write the sequence as the SfT input contract plus ground truth (layout in module doc).
 
     frame_format: "jpg" (the JPEG round-trip bytes themselves, so files hold exactly the
-    degraded frames; needs a JPEG degradation), "png" (lossless) or "mp4" (mp4v codec, lossy).
+    degraded frames; needs a JPEG degradation), "png" (lossless) or "mp4" (H.264, lossy).
     settings: generation settings recorded in synth.json.
     """
     if frame_format not in FRAME_FORMATS:

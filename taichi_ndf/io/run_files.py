@@ -22,9 +22,9 @@ __all__ = ["QUANTITIES", "Frame", "Probe", "RunFiles", "read_run", "up_direction
 # Colourable per-vertex quantities: name -> label with units (colour bars, viewer, USD docs).
 QUANTITIES = {
     "displacement": "|u| [m]",
-    "membrane_strain": "|eps| [-]",
-    "bending_strain": "|kappa| [1/m]",
-    "energy_density": "Psi [J/m^2]",
+    "membrane_strain": "|ε| [–]",
+    "bending_strain": "|κ| [1/m]",
+    "energy_density": "Ψ [J/m²]",
 }
 
 

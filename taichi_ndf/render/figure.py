@@ -9,13 +9,11 @@ import cv2
 import numpy as np
 
 from taichi_ndf.render.camera import frame_mesh, ground_axes, widest_azimuth
+from taichi_ndf.render.colour import ROBUST_PERCENTILES, colormap, colour_bar, colour_scale
 from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
 from taichi_ndf.render.shaded import (
     BACKGROUND_BGR,
     SURFACE_BGR,
-    colormap,
-    colour_bar,
-    colour_range,
     lambert_intensity,
     vertex_scalars,
     welded_normals,
@@ -30,7 +28,7 @@ __all__ = ["VIEWS", "RANGE_PERCENTILES", "VIEW_ASPECT", "Obstacle", "render_figu
 # another side shows the shape at least 10 % larger (a sheet hanging in a vertical plane).
 VIEWS = {"iso": (30.0, None), "front": (8.0, -90.0), "side": (8.0, 0.0), "top": (89.99, -90.0)}
 
-RANGE_PERCENTILES = (1.0, 99.0)  # default colour range of the scalars
+RANGE_PERCENTILES = ROBUST_PERCENTILES  # default colour range of the scalars
 VIEW_ASPECT = (0.5, 4.0 / 3.0)  # width / height of a view fitted to its shape (width=None)
 OBSTACLE_BGR = np.array([160.0, 160.0, 160.0])
 _SHADOW_DARKNESS = 0.35  # fraction of the background's brightness a full shadow removes
@@ -70,6 +68,8 @@ def render_figure(
     height: int = 600,
     shadow: bool = True,
     supersample: int = 3,
+    frame_points: np.ndarray | None = None,
+    azimuth_deg: float | None = None,
 ) -> np.ndarray:
     """The surface (V, 3) [m] with faces (F, 3) side by side from each of `views` (names in
     VIEWS), uint8 BGR (height, width, 3).
@@ -82,10 +82,15 @@ def render_figure(
         `scalar_label` (give the units); without them the surface is steel blue.
     scalar_range: the values at the ends of the colour map; by default the 1st and 99th
         percentiles (a singular point, such as a pinned corner, then does not wash out the rest;
-        values beyond are drawn in the end colours).
+        values beyond are drawn in the end colours, and the colour bar states how many and
+        their extremes).
     obstacles: rigid meshes drawn in grey (they cast shadows too).
     up: the world direction shown upwards (against gravity); the ground plane lies just below
         the lowest point of the surface and the obstacles, normal to it.
+    frame_points: points (N, 3) [m] the camera frames and the ground lies below, instead of
+        the surface and obstacles (frames of a video: all of its frames, so the camera stays);
+    azimuth_deg: the azimuth of every view (default: each view's own, `widest_azimuth` for
+        the three-quarter view).
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -96,7 +101,7 @@ def render_figure(
     bar = None
     if scalars is not None:
         scalars = vertex_scalars(scalars, len(vertices))
-        scalar_range = scalar_range or colour_range(scalars, RANGE_PERCENTILES)
+        scalar_range = colour_scale(scalars, RANGE_PERCENTILES, value_range=scalar_range)
         bar = colour_bar(scalar_range, scalar_label, height)
     bar_width = 0 if bar is None else bar.shape[1]
     if width is not None and ((width - bar_width) // len(views) < 16 or height < 16):
@@ -107,12 +112,16 @@ def render_figure(
     parts = [(vertices, faces, 0)] + [(np.asarray(o.vertices, dtype=np.float64),
                                        np.asarray(o.faces, dtype=np.int64), 1) for o in obstacles]
     solid = np.concatenate([p[0] for p in parts])
+    if frame_points is not None:
+        solid = np.asarray(frame_points, dtype=np.float64).reshape(-1, 3)
     size = max(float(np.ptp(solid, axis=0).max()), 1e-9)
     ground = float((solid @ up).min()) - 0.02 * size
     if shadow:
         parts += [(shadow_points(p[0], up, ground + 1e-3 * size), p[1], 2) for p in parts]
     offsets = np.cumsum([0] + [len(p[0]) for p in parts])
     all_points = np.concatenate([p[0] for p in parts])
+    framed = all_points if frame_points is None else np.concatenate(
+        [solid, shadow_points(solid, up, ground) if shadow else solid[:0]])
     all_faces = np.concatenate([p[1] + o for p, o in zip(parts, offsets, strict=False)])
     face_part = np.concatenate([np.full(len(p[1]), p[2]) for p in parts])
     vertex_scalar = np.full(len(all_points), np.nan)
@@ -123,14 +132,15 @@ def render_figure(
     pictures = []
     for view in views:
         elevation, azimuth = VIEWS[view]
+        azimuth = azimuth if azimuth_deg is None else azimuth_deg
         if azimuth is None:
             azimuth = widest_azimuth(vertices, faces, up=up, elevation_deg=elevation)
         if width is None:
-            view_width = fitted_width(all_points, height, up=up, elevation_deg=elevation,
+            view_width = fitted_width(framed, height, up=up, elevation_deg=elevation,
                                       azimuth_deg=azimuth)
         else:
             view_width = (width - bar_width) // len(views)
-        camera = frame_mesh(all_points, width=view_width, height=height, up=tuple(up),
+        camera = frame_mesh(framed, width=view_width, height=height, up=tuple(up),
                             elevation_deg=elevation, azimuth_deg=azimuth)
         points_cam = camera.to_camera(all_points)
         raster = rasterize(points_cam, all_faces, camera.intrinsics(view_width, height),

@@ -1,10 +1,10 @@
 """Shaded renders of a surface mesh, optionally coloured by a per-vertex scalar."""
 
-import cv2
 import numpy as np
 
 from taichi_ndf.io.normals import vertex_normals
 from taichi_ndf.render.camera import Camera, frame_mesh, widest_azimuth
+from taichi_ndf.render.colour import colormap, colour_bar, colour_range, colour_scale
 from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
 
 __all__ = ["render_shaded", "colormap", "colour_bar", "colour_range", "vertex_scalars",
@@ -13,22 +13,14 @@ __all__ = ["render_shaded", "colormap", "colour_bar", "colour_range", "vertex_sc
 
 BACKGROUND_BGR = (235, 235, 235)
 SURFACE_BGR = np.array([205.0, 150.0, 95.0])  # steel blue
-_MISSING_BGR = np.array([128.0, 128.0, 128.0])  # scalar is NaN
-_TEXT_BGR = (40, 40, 40)
-_AMBIENT = 0.3
-# Light direction in camera axes (x right, y down, z forward): from above-left, behind the viewer.
-_TOWARD_LIGHT = np.array([-0.4, -0.6, -1.0]) / np.linalg.norm([-0.4, -0.6, -1.0])
-_VIRIDIS = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cv2.COLORMAP_VIRIDIS)[:, 0]
-
-
-def colormap(values: np.ndarray, value_range: tuple[float, float]) -> np.ndarray:
-    """Viridis BGR colours in [0, 255] (float) of ``values`` over ``value_range``; NaN is grey."""
-    lo, hi = value_range
-    span = hi - lo if hi > lo else 1.0
-    t = np.clip((np.asarray(values, dtype=np.float64) - lo) / span, 0.0, 1.0)
-    finite = np.isfinite(t)
-    index = np.rint(np.where(finite, t, 0.0) * 255).astype(np.int64)
-    return np.where(finite[..., None], _VIRIDIS[index].astype(np.float64), _MISSING_BGR)
+# Soft studio lighting, directions towards the lights in camera axes (x right, y down,
+# z forward): a key light from above-left behind the viewer with a wrapped falloff (the
+# terminator a soft gradient, not a hard edge), a dim fill from the right, and an ambient
+# term brighter for surfaces facing up (a sky) than down. The weights sum to 1 (full light).
+_KEY = np.array([-0.4, -0.6, -1.0]) / np.linalg.norm([-0.4, -0.6, -1.0])
+_FILL = np.array([0.7, -0.1, -1.0]) / np.linalg.norm([0.7, -0.1, -1.0])
+_KEY_WEIGHT, _FILL_WEIGHT, _AMBIENT, _SKY = 0.55, 0.15, 0.22, 0.08
+_WRAP = 0.35  # key light reaches this far (in n·l) behind the terminator
 
 
 def render_shaded(
@@ -47,7 +39,8 @@ def render_shaded(
 
     vertices: world positions [m], shape (V, 3); faces: triangles (F, 3).
     scalars: optional per-vertex values (V,) shown with the viridis colour map and a colour bar
-        (labelled ``scalar_label``) on the right; ``scalar_range`` defaults to their finite range.
+        (labelled ``scalar_label``) on the right; ``scalar_range`` defaults to their 1st to
+        99th percentile (`colour_scale`; the bar states what lies beyond).
     camera: defaults to `frame_mesh` (looking down at 30 degrees, z up) from `widest_azimuth`
         (a diagonal unless another side shows the surface larger).
     supersample: sub-pixels per pixel along each axis, for antialiased edges.
@@ -55,7 +48,7 @@ def render_shaded(
     vertices = np.asarray(vertices, dtype=np.float64)
     if scalars is not None:
         scalars = vertex_scalars(scalars, len(vertices))
-        scalar_range = scalar_range or colour_range(scalars)
+        scalar_range = colour_scale(scalars, value_range=scalar_range)
         bar = colour_bar(scalar_range, scalar_label, height)
         view_width = width - bar.shape[1]
         if view_width < 16:
@@ -99,16 +92,6 @@ def vertex_scalars(scalars, count: int) -> np.ndarray:
     return scalars
 
 
-def colour_range(values: np.ndarray, percentiles=(0.0, 100.0)) -> tuple[float, float]:
-    """The values at the ends of the colour map: these percentiles of the finite values (their
-    minimum and maximum by default), (0, 1) when there is none."""
-    finite = values[np.isfinite(values)]
-    if not len(finite):
-        return 0.0, 1.0
-    lo, hi = np.percentile(finite, percentiles)
-    return float(lo), float(hi)
-
-
 def welded_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Vertex normals (V, 3) in which vertices at the same position share their normal, so
     duplicated seams shade smoothly."""
@@ -119,13 +102,17 @@ def welded_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def lambert_intensity(normal: np.ndarray, view_ray: np.ndarray) -> np.ndarray:
-    """Ambient + Lambert brightness in [0, 1] (M,) of points with normals (M, 3) seen along
-    view rays (M, 3), both in camera axes; two-sided (normals turned towards the viewer)."""
+    """Soft diffuse brightness in [0, 1] (M,) of points with normals (M, 3) seen along view
+    rays (M, 3), both in camera axes: wrapped key light, fill light, sky-tinted ambient
+    (module constants); two-sided (normals turned towards the viewer)."""
     facing = np.sign(np.einsum("mc,mc->m", normal, view_ray))
     normal = normal * -np.where(facing == 0, 1.0, facing)[:, None]
     length = np.linalg.norm(normal, axis=1, keepdims=True)
     normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
-    return _AMBIENT + (1.0 - _AMBIENT) * np.clip(normal @ _TOWARD_LIGHT, 0.0, 1.0)
+    key = np.clip((normal @ _KEY + _WRAP) / (1.0 + _WRAP), 0.0, 1.0)
+    fill = np.clip(normal @ _FILL, 0.0, 1.0)
+    sky = 0.5 * (1.0 - normal[:, 1])  # 1 facing up (camera -y), 0 facing down
+    return _AMBIENT + _SKY * sky + _KEY_WEIGHT * key + _FILL_WEIGHT * fill
 
 
 def _weld_tolerance(vertices: np.ndarray) -> float:
@@ -133,30 +120,3 @@ def _weld_tolerance(vertices: np.ndarray) -> float:
     finite = vertices[np.all(np.isfinite(vertices), axis=1)]
     extent = np.ptp(finite, axis=0).max() if len(finite) else 0.0
     return 1e-9 * extent if extent > 0 else 1.0
-
-
-def colour_bar(value_range, label: str, height: int) -> np.ndarray:
-    """A panel (height, w, 3) with a vertical viridis bar, its end and middle values, a label."""
-    font, scale, thickness = cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1
-    lo, hi = value_range
-    ticks = [(hi, 0.0), (0.5 * (lo + hi), 0.5), (lo, 1.0)]
-    texts = [f"{value:.3g}" for value, _ in ticks]
-    text_w = max(cv2.getTextSize(t, font, scale, thickness)[0][0] for t in texts)
-    label_w = cv2.getTextSize(label, font, scale, thickness)[0][0] if label else 0
-    bar_w, pad = 16, 10
-    panel_w = max(pad + bar_w + 6 + text_w + pad, label_w + 2 * pad)
-    panel = np.full((height, panel_w, 3), BACKGROUND_BGR, dtype=np.uint8)
-
-    top, bottom = int(0.2 * height), int(0.8 * height)
-    fraction = np.linspace(1.0, 0.0, bottom - top)
-    column = colormap(lo + fraction * (hi - lo), (lo, hi)).astype(np.uint8)
-    panel[top:bottom, pad : pad + bar_w] = column[:, None, :]
-    cv2.rectangle(panel, (pad, top), (pad + bar_w - 1, bottom - 1), _TEXT_BGR, 1)
-    for text, (_, position) in zip(texts, ticks, strict=True):
-        y = int(round(top + position * (bottom - 1 - top)))
-        cv2.putText(
-            panel, text, (pad + bar_w + 6, y + 5), font, scale, _TEXT_BGR, thickness, cv2.LINE_AA
-        )
-    if label:
-        cv2.putText(panel, label, (pad, top - 12), font, scale, _TEXT_BGR, thickness, cv2.LINE_AA)
-    return panel

@@ -1,0 +1,73 @@
+"""Frames of a trajectory video: each state of a run (load steps or pseudo-time frames) coloured
+by its displacement on one colour range, with the obstacles and the ground shadow, from one
+camera that frames every state, and a label with the load factor (or pseudo-time)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from taichi_ndf.render.camera import widest_azimuth
+from taichi_ndf.render.colour import ROBUST_PERCENTILES, colour_scale
+from taichi_ndf.render.figure import VIEWS, Obstacle, render_figure
+
+__all__ = ["trajectory_frames", "frame_repeats", "MIN_SECONDS", "FPS"]
+
+FPS = 4.0  # frames per second of a trajectory video
+MIN_SECONDS = 3.0  # a short trajectory's states are repeated so that the video lasts this long
+HOLD_SECONDS = 1.0  # the last state is held this long at the end
+_INK = (40, 40, 40)
+
+
+def frame_repeats(states: int, fps: float = FPS) -> int:
+    """How many video frames show each state so that `states` of them last MIN_SECONDS."""
+    return max(1, math.ceil(MIN_SECONDS * fps / max(states, 1)))
+
+
+def trajectory_frames(
+    states: Sequence[np.ndarray],
+    faces: np.ndarray,
+    load_factors: Sequence[float],
+    *,
+    reference: np.ndarray,
+    obstacles: Sequence[Sequence[Obstacle]] | None = None,
+    up=(0.0, 0.0, 1.0),
+    pseudo_time: bool = False,
+    size: tuple[int, int] = (800, 600),
+    fps: float = FPS,
+) -> list[np.ndarray]:
+    """The video frames (uint8 BGR, `size` = (width, height)) of `states` (positions (V, 3)
+    [m] on `faces`) at `load_factors`: coloured by |u| = |x − reference| [m] on the 1st–99th
+    percentile of every state's values together (the colour bar states what it clips),
+    `obstacles` per state (their meshes at that state), each state repeated `frame_repeats`
+    times and the last held HOLD_SECONDS longer."""
+    if len(states) != len(load_factors) or not len(states):
+        raise ValueError(f"need one load factor per state, got {len(load_factors)} for "
+                         f"{len(states)} states")
+    obstacles = [()] * len(states) if obstacles is None else list(obstacles)
+    reference = np.asarray(reference, dtype=np.float64)
+    displacement = [np.linalg.norm(np.asarray(s, dtype=np.float64) - reference, axis=1)
+                    for s in states]
+    scale = colour_scale(np.concatenate(displacement), ROBUST_PERCENTILES)
+    every = np.concatenate([np.asarray(s, dtype=np.float64).reshape(-1, 3) for s in states]
+                           + [np.asarray(o.vertices).reshape(-1, 3) for group in obstacles
+                              for o in group])
+    azimuth = widest_azimuth(states[-1], faces, up=up, elevation_deg=VIEWS["iso"][0])
+    word = "t" if pseudo_time else "load factor"
+    width, height = size
+    pictures = []
+    for k, (state, values, factor) in enumerate(zip(states, displacement, load_factors,
+                                                    strict=True)):
+        image = render_figure(state, faces, scalars=values, scalar_label="|u| [m]",
+                              scalar_range=scale.range, obstacles=tuple(obstacles[k]), up=up,
+                              width=width, height=height, frame_points=every,
+                              azimuth_deg=azimuth)
+        label = f"{word} {factor:.3g}" + ("" if pseudo_time else
+                                           f"  (step {k + 1} of {len(states)})")
+        cv2.putText(image, label, (14, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.7, _INK, 2,
+                    cv2.LINE_AA)
+        pictures += [image] * frame_repeats(len(states), fps)
+    return pictures + [pictures[-1]] * int(round(HOLD_SECONDS * fps))

@@ -1,0 +1,170 @@
+"""Colour ranges, colour bars, soft lighting, the energy figure and trajectory video frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from taichi_ndf.io import grid_mesh
+from taichi_ndf.render.colour import (
+    BAR_TICKS,
+    ColourScale,
+    bar_ticks,
+    colormap,
+    colour_bar,
+    colour_range,
+    colour_scale,
+)
+from taichi_ndf.render.energy_plot import energy_figure, segments
+from taichi_ndf.render.figure import Obstacle, render_figure
+from taichi_ndf.render.shaded import BACKGROUND_BGR, lambert_intensity
+from taichi_ndf.render.trajectory import frame_repeats, trajectory_frames
+
+
+def test_a_spike_does_not_set_the_colour_range_and_is_stated():
+    """A pinned corner's singular value (one vertex of 1e6) would wash out every other vertex
+    with a min-max range; the 1st-99th percentile keeps the rest spread, and the note says
+    what the bar clips."""
+    values = np.r_[np.linspace(0.0, 1.0, 999), 1e6]
+    scale = colour_scale(values)
+    assert 0.0 < scale.lo < 0.02 and 0.98 < scale.hi < 1.0
+    assert scale.above == pytest.approx(0.011, abs=0.002) and scale.maximum == 1e6
+    note = scale.clipped_note()
+    assert "1st–99th percentile" in note and "max 1e+06" in note and "min 0" in note
+    colours = colormap(values[:-1], scale)
+    assert len(np.unique(colours, axis=0)) > 200  # the 999 ordinary values use the whole map
+    assert colour_range(values) == (0.0, 1e6)  # the plain min-max range, kept for callers
+    hand = colour_scale(values, value_range=(0.0, 2e6))
+    assert hand.clipped_note() == "" and hand.percentiles is None
+    assert colour_scale([np.nan, np.inf]).range == (0.0, 1.0)
+    with pytest.raises(ValueError, match="finite lo <= hi"):
+        ColourScale(1.0, 0.0)
+
+
+@pytest.mark.parametrize("lo, hi", [(0.0, 1.0), (0.0086, 0.9933), (3.85, 13.9),
+                                     (-0.071, 0.0), (1e-7, 3.3e-5), (-50430.4, -46347.2),
+                                     (2.4236, 2.4237)])
+def test_colour_bar_ticks_are_5_to_7_round_values_inside_the_range(lo, hi):
+    ticks = bar_ticks(lo, hi)
+    assert BAR_TICKS[0] <= len(ticks) <= BAR_TICKS[1], ticks
+    span = hi - lo
+    assert min(ticks) >= lo - 1e-9 * span and max(ticks) <= hi + 1e-9 * span
+    steps = np.diff(ticks)
+    np.testing.assert_allclose(steps, steps[0], rtol=1e-6)
+
+
+def test_random_ranges_always_get_5_to_7_ticks():
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        lo = rng.normal() * 10 ** rng.uniform(-5, 5)
+        hi = lo + 10 ** rng.uniform(-6, 6)
+        assert BAR_TICKS[0] <= len(bar_ticks(lo, hi)) <= BAR_TICKS[1], (lo, hi)
+
+
+def test_colour_bar_panel_has_the_bar_and_grows_with_the_note():
+    plain = colour_bar((0.0, 1.0), "|κ| [1/m]", 300)
+    noted = colour_bar(colour_scale(np.r_[np.linspace(0, 1, 999), 1e6]), "|κ| [1/m]", 300)
+    assert plain.shape[0] == noted.shape[0] == 300 and noted.shape[1] > plain.shape[1]
+    column = plain[:, 8 + 8]  # the middle of the 16-pixel bar at x = 8
+    hues = {tuple(c // 40) for c in column[60:240]}
+    assert len(hues) > 4  # viridis runs along the bar
+    assert (plain < 100).all(axis=-1).sum() > 100  # dark text: ticks and the label
+
+
+def test_soft_lighting_has_no_hard_terminator(monkeypatch):
+    from taichi_ndf.render import shaded
+
+    key = shaded._KEY
+    side = np.cross(key, [1.0, 0.0, 0.0])
+    side /= np.linalg.norm(side)
+    angles = np.linspace(0.0, np.pi / 2, 50)  # from facing the key light to its terminator
+    normals = np.cos(angles)[:, None] * key + np.sin(angles)[:, None] * side
+    rays = np.tile([0.0, 0.0, 1.0], (50, 1))
+    light = lambert_intensity(normals, rays)
+    assert np.all((0 <= light) & (light <= 1)) and light[0] == light.max()
+    assert light.min() > 0.2  # ambient, sky and fill: no black
+    monkeypatch.setattr(shaded, "_KEY_WEIGHT", 0.0)
+    without_key = lambert_intensity(normals, rays)
+    assert light[-1] - without_key[-1] > 0.1  # the wrapped key light still reaches 90°
+
+
+def test_render_figure_colours_by_robust_range_and_states_the_clipping():
+    grid = grid_mesh(((0.0, 1.0), (0.0, 1.0)), 20)
+    vertices = np.column_stack([grid.xi, 0.2 * grid.xi[:, 0] ** 2])
+    scalars = grid.xi[:, 0].copy()
+    scalars[0] = 1e4  # a singular vertex
+    image = render_figure(vertices, grid.faces, scalars=scalars, scalar_label="|κ| [1/m]",
+                          width=500, height=300, shadow=False)
+    bar = colour_bar(colour_scale(scalars), "|κ| [1/m]", 300)
+    surface = image[:, : 500 - bar.shape[1]]
+    painted = surface[np.any(surface != BACKGROUND_BGR, axis=-1)]
+    assert len(np.unique(painted // 16, axis=0)) > 20  # not one colour for all but the spike
+
+
+def history(levels=((0, (4, 4)), (1, (8, 8))), loads=(0.5, 1.0), per=6):
+    records, iteration = [], 0
+    for level, spans in levels:
+        for factor in loads:
+            for k in range(per):
+                records.append({"iteration": iteration, "load_factor": factor, "level": level,
+                                "spans": list(spans), "energy": -factor * (1 - 0.5 ** k)})
+                iteration += 1
+    return records
+
+
+def test_segments_split_the_history_at_load_steps_and_levels():
+    assert segments(history()) == [(0, 6, 0.5, 0), (6, 12, 1.0, 0), (12, 18, 0.5, 1),
+                                   (18, 24, 1.0, 1)]
+    assert segments([{"iteration": 0, "load_factor": 1.0, "energy": 0.0}]) == [(0, 1, 1.0, 0)]
+
+
+def test_energy_figure_panels_and_boundaries():
+    refinement = {"spans": [[4, 4], [8, 8], [16, 16]],
+                  "energy": {"values": [-1.0, -1.1, -1.12], "extrapolated": -1.125,
+                             "estimated_error": 0.004, "order": 2.3, "order_basis": "observed"}}
+    two = energy_figure(history())
+    three = energy_figure(history(), refinement)
+    assert two.shape[1] == three.shape[1] and three.shape[0] == 3 * two.shape[0] // 2
+    # the level boundary is a solid dark vertical line through the top panel's plot area
+    top = two[: two.shape[0] // 2]
+    dark_columns = (top < 140).all(axis=-1).sum(axis=0)
+    assert (dark_columns > 0.4 * top.shape[0]).sum() >= 3  # two axis spines and the boundary
+    with pytest.raises(ValueError, match="no history"):
+        energy_figure([])
+
+
+def test_trajectory_frames_have_colour_obstacles_label_and_one_camera():
+    grid = grid_mesh(((0.0, 1.0), (0.0, 1.0)), 10)
+    reference = np.column_stack([grid.xi, np.zeros(len(grid.xi))])
+    states = [reference + [0, 0, -0.3 * t] * grid.xi[:, :1] for t in (0.5, 1.0)]
+    block = Obstacle(np.array([[0.2, 0.2, 0.1], [0.4, 0.2, 0.1], [0.2, 0.4, 0.1],
+                               [0.2, 0.2, 0.3]]),
+                     np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    frames = trajectory_frames(states, grid.faces, [0.5, 1.0], reference=reference,
+                               obstacles=[(block,), (block,)], size=(320, 240))
+    repeats = frame_repeats(2)
+    assert repeats == 6 and len(frames) == 2 * repeats + 4  # 3 s of 2 states, 1 s held
+    first, last = frames[0], frames[-1]
+    assert first.shape == (240, 320, 3)
+    assert (np.ptp(last.astype(int), axis=-1) < 4).sum() > 200  # the grey obstacle
+    assert not np.array_equal(first[:40, :200], last[:40, :200])  # "step 1 of 2" / "2 of 2"
+    assert np.array_equal(frames[1], first)
+    with pytest.raises(ValueError, match="one load factor per state"):
+        trajectory_frames(states, grid.faces, [1.0], reference=reference)
+
+
+def test_a_run_without_an_h264_encoder_keeps_its_outputs_and_says_why(tmp_path, monkeypatch,
+                                                                       caplog):
+    import sys
+
+    from taichi_ndf.io.output_dir import OutputDir
+    from taichi_ndf.outputs import write_trajectory_video
+
+    grid = grid_mesh(((0.0, 1.0), (0.0, 1.0)), 4)
+    reference = np.column_stack([grid.xi, np.zeros(len(grid.xi))])
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # not installed
+    with OutputDir(tmp_path / "run") as out:
+        assert not write_trajectory_video(out, [reference, reference + 0.1], grid.faces,
+                                          [0.5, 1.0], reference=reference, up=(0.0, 0.0, 1.0))
+    assert "trajectory.mp4 not written: H.264 video needs imageio-ffmpeg" in caplog.text
+    assert not (tmp_path / "run" / "trajectory.mp4").exists()
