@@ -50,9 +50,11 @@ def _dense_of(sparse: SplineLinearisation) -> DenseLinearisation:
 
 def test_dense_and_sparse_linearisations_take_the_same_newton_steps():
     """The same iterations, step lengths (halved, full and doubled ones) and projections; Π
-    along the way equal to 1e-8 relative (measured ≤ 1.6e-9: the dense solve's least damping,
-    1e-14 of the Jacobi-scaled K, and the two factorisations' rounding, carried through 25
-    nonlinear steps), the minimum to 1e-13."""
+    along the way equal to 1e-8 relative (the dense solve's least damping, 1e-14 of the
+    Jacobi-scaled K, and the two factorisations' rounding, carried through 25 nonlinear steps:
+    measured ≤ 1.6e-9 with the compiler's fast math, ≤ 6.7e-9 with IEEE arithmetic, the default
+    since 2026-12-03, whose decrements then differ by up to 3.2e-5 relative in the last steps),
+    the minimum to 1e-13."""
     assembly, potential, length = _strip()
     sparse = SplineLinearisation(assembly, length=length)
     dense = _dense_of(sparse)
@@ -69,7 +71,7 @@ def test_dense_and_sparse_linearisations_take_the_same_newton_steps():
     for s, d in zip(by_sparse.history, by_dense.history, strict=True):
         assert (s.step_length, s.projected_blocks) == (d.step_length, d.projected_blocks)
         assert d.energy == pytest.approx(s.energy, rel=1e-8, abs=1e-300)
-        assert d.decrement == pytest.approx(s.decrement, rel=1e-5, abs=1e-12 * abs(s.energy))
+        assert d.decrement == pytest.approx(s.decrement, rel=1e-4, abs=1e-12 * abs(s.energy))
     scale = float(by_sparse.parameters.abs().max())
     assert torch.allclose(by_dense.parameters.t(), by_sparse.parameters, rtol=0, atol=1e-9 * scale)
     assert by_dense.energy == pytest.approx(by_sparse.energy, rel=1e-13)

@@ -373,7 +373,8 @@ def test_9_every_imported_package_is_a_base_dependency():
     """Module-level imports need a base dependency; an import inside a function (an optional
     feature, imported lazily with a message naming its extra) a base dependency or an extra."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    distributions = {"cv2": "opencv-python-headless", "pxr": "usd-core"}
+    distributions = {"cv2": "opencv-python-headless", "pxr": "usd-core",
+                     "imageio_ffmpeg": "imageio-ffmpeg"}
     base = _requirement_names(project["dependencies"])
     extras = set().union(*(_requirement_names(v) for k, v in
                            project["optional-dependencies"].items() if k != "dev"))
