@@ -4,6 +4,7 @@ stage off a terminal, and each long-running tool on a pseudo-terminal showing it
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import io
 import logging
@@ -11,6 +12,7 @@ import os
 import pty
 import re
 import select
+import signal
 import struct
 import subprocess
 import sys
@@ -115,16 +117,25 @@ sys.exit(main(sys.argv[1:]))
 def _first_progress(command: list[str], pattern: str, timeout: float) -> tuple[float, str]:
     """Run `command` on a pseudo-terminal; seconds from its "SOLVE STARTS" marker to the first
     output matching `pattern`, and the output so far. The process is killed then."""
+    (seconds,), text = _progress_times(command, [pattern], timeout)
+    return seconds, text
+
+
+def _progress_times(command: list[str], patterns: list[str],
+                    timeout: float) -> tuple[list[float], str]:
+    """Run `command` on a pseudo-terminal; for each of `patterns`, the seconds from the
+    command's "SOLVE STARTS" marker to the first output matching it, and the output so far.
+    The command and every process it started are killed once all have matched."""
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(command, stdin=slave, stdout=slave, stderr=slave, env=env,
-                            cwd=ROOT, close_fds=True)
+                            cwd=ROOT, close_fds=True, start_new_session=True)
     os.close(slave)
-    text, started, found = "", None, None
+    text, started, found = "", None, {}
     deadline = time.monotonic() + timeout
     try:
-        while time.monotonic() < deadline and found is None:
+        while time.monotonic() < deadline and len(found) < len(patterns):
             ready, _, _ = select.select([master], [], [], 0.1)
             if not ready:
                 if proc.poll() is not None:
@@ -138,15 +149,18 @@ def _first_progress(command: list[str], pattern: str, timeout: float) -> tuple[f
             now = time.monotonic()
             if started is None and "SOLVE STARTS" in text:
                 started, text = now, text.split("SOLVE STARTS", 1)[1]
-            if started is not None and re.search(pattern, text):
-                found = now - started
+            if started is not None:
+                found.update({p: now - started for p in patterns
+                              if p not in found and re.search(p, text)})
     finally:
-        proc.kill()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)  # a sweep's workers too
         proc.wait()
         os.close(master)
     assert started is not None, f"the tool never started:\n{text}"
-    assert found is not None, f"no progress matching {pattern!r} in {timeout} s:\n{text}"
-    return found, text
+    missing = [p for p in patterns if p not in found]
+    assert not missing, f"no progress matching {missing} in {timeout} s:\n{text}"
+    return [found[p] for p in patterns], text
 
 
 @pytest.mark.parametrize("path", ["spline", "adam"])

@@ -35,6 +35,7 @@ import torch
 
 from inverse.sft.correspondences import FrameCorrespondences
 from inverse.sft.inputs import Camera, Template, mean_edge_length, mesh_edges
+from taichi_ndf import progress
 
 log = logging.getLogger(__name__)
 
@@ -251,7 +252,7 @@ def reconstruct_baseline(
     solver = BaselineReconstructor(template, camera, pinned=pinned, config=config)
     vertices = [template.vertices.copy()]
     iterations, seconds = [0], [0.0]
-    for i in range(1, len(correspondences)):
+    for i in progress.counted(range(1, len(correspondences)), "SfT baseline, frames"):
         start = time.perf_counter()
         fitted, n_iter = solver.fit(correspondences[i], vertices[-1], vertices[-1])
         seconds.append(time.perf_counter() - start)

@@ -53,7 +53,7 @@ from inverse.sft.inputs import Camera, Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.outline import outline_allowance, outline_offsets
 from inverse.sft.settings import SplinePriorConfig
-from taichi_ndf import jets
+from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import SplineConfig, SplineField
@@ -280,7 +280,7 @@ def reconstruct_spline(template: Template, camera: Camera,
                                       first_mask=None if masks is None else masks[0])
     vertices = [template.vertices.copy()]
     seconds, cpu_seconds, iterations, losses = [0.0], [0.0], [0], [{}]
-    for i in range(1, len(correspondences)):
+    for i in progress.counted(range(1, len(correspondences)), "SfT reconstruction, frames"):
         start, cpu = time.perf_counter(), time.process_time()
         seen = correspondences[i]
         if flow is not None:
