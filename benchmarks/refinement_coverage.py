@@ -153,6 +153,19 @@ def bar_row(values: list[float], first: int, spans: list, quantity: str) -> dict
     }
 
 
+def bar_rows(result: dict) -> tuple[list[dict], list[dict]]:
+    """The rows of a case (its windows) and of its `--refine` default window, from its stored
+    values per level with the current `richardson` (so a stored run is re-read under whatever
+    rule the library has now)."""
+    case = CASES[result["case"]]
+    values, spans = result["all_values"], result["spans"]
+    rows = [dict(bar_row(values[q], first, spans, q), default=(first == case.default))
+            for q in case.quantities for first in case.windows]
+    defaults = ([] if case.default is None else
+                [bar_row(values[q], case.default, spans, q) for q in case.quantities])
+    return rows, defaults
+
+
 def run_case(name: str) -> dict:
     case = CASES[name]
     scene = load_scene(ROOT / case.scene, field="spline", material=case.material,
@@ -170,18 +183,15 @@ def run_case(name: str) -> dict:
 
     run = solve_spline(scene.model, plan, solver, on_level=on_level)
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
-    spans = [list(lv.spans) for lv in run.levels]
-    values = {q: [read(s, q) for s in steps] for q in case.quantities}
-    rows = [dict(bar_row(values[q], first, spans, q), default=(first == case.default))
-            for q in case.quantities for first in case.windows]
-    defaults = ([] if case.default is None else
-                [bar_row(values[q], case.default, spans, q) for q in case.quantities])
-    return {"case": name, "scene": case.scene, "sample": case.sample, "spans": spans,
-            "load_factor": steps[-1]["load_factor"], "all_values": values,
-            "converged": [lv.converged for lv in run.levels],
-            "iterations": [lv.iterations for lv in run.levels],
-            "seconds": [lv.seconds for lv in run.levels], "wall": wall, "cpu": cpu,
-            "rows": rows, "default_rows": defaults}
+    result = {"case": name, "scene": case.scene, "sample": case.sample,
+              "spans": [list(lv.spans) for lv in run.levels],
+              "load_factor": steps[-1]["load_factor"],
+              "all_values": {q: [read(s, q) for s in steps] for q in case.quantities},
+              "converged": [lv.converged for lv in run.levels],
+              "iterations": [lv.iterations for lv in run.levels],
+              "seconds": [lv.seconds for lv in run.levels], "wall": wall, "cpu": cpu}
+    result["rows"], result["default_rows"] = bar_rows(result)
+    return result
 
 
 YES = {True: "yes", False: "**no**"}
@@ -189,8 +199,13 @@ YES = {True: "yes", False: "**no**"}
 
 def bar_text(row: dict) -> str:
     t = row["three"]
-    order = ("not monotone" if t["order_basis"] == "not converging"
-             else f"p = {t['order']:.2f}")
+    basis = t["order_basis"]
+    if basis == "observed":
+        order = f"p = {t['order']:.2f}"
+    elif basis == "unreliable":  # this rule's words
+        order = "unreliable: " + t["order_reason"].replace(" monotonically", "")
+    else:  # the rule before 2026-12-03 17:40 UTC: "not converging"
+        order = "not monotone"
     return f"{t['extrapolated']:.6g} ± {t['estimated_error']:.2g} ({order})"
 
 
@@ -205,6 +220,8 @@ def prescribed(row: dict) -> bool:
 
 
 def table(results: list[dict]) -> str:
+    for r in results:
+        r["rows"], r["default_rows"] = bar_rows(r)
     lines = ["| sample | case | quantity | grids | 3 grids: value ± bar (order) | covers | "
              "bar / distance | 2 grids, order 4 assumed: value ± change | covers | "
              "old 2-grid bar | covers | reference (spans) ± its error | converged | "
@@ -254,7 +271,8 @@ def main() -> None:
     parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--table", type=Path, nargs="+", default=None, metavar="JSON",
-                        help="print the table of stored results and exit (no solve)")
+                        help="print the table of stored results (their values per level "
+                        "re-read with the current rule) and exit (no solve)")
     args = parser.parse_args()
     if args.table:
         print(table([r for p in args.table for r in json.loads(p.read_text())]))
