@@ -113,7 +113,7 @@ CASES = {
                                     overrides=(("loads.pressure", 5.0),)),
     "pinched_hemisphere_quarter": Case("validation/scenes/pinched_hemisphere_quarter.toml",
                                        (4, 4), 5, ("out_0:0", "in_90:1"), (0,), "out2"),
-    # Added 17:37 UTC in place of cantilever_moment, whose scene states no load (its end
+    # Added 17:34 UTC in place of cantilever_moment, whose scene states no load (its end
     # moment is the validation runner's; every level reads 0, so it is not counted), before any
     # result of these two was seen, after the rule was written.
     "napkin_clamped_edges_silk": Case("scenes/napkin_clamped_edges.toml", (3, 3), 5,
