@@ -15,9 +15,13 @@ another) it reads:
 
 A bar covers when |reference − value| ≤ error; `bar / error` is the bar over the actual
 distance |reference − value| (< 1: a miss; large: a bar far wider than needed). Cases have a
-sample: "in" (the cases the rule was designed on, 2026-12-03) or "out" (chosen afterwards,
-before their results were seen, to check the rule out of sample). `default` windows are the
-grid rule's grids with `--refine` (3 levels): the bar `ndf-sim --field spline --refine` shows.
+sample: "in" (the cases the rule was designed on, 2026-12-03), "out" (chosen afterwards,
+before their results were seen, to check the rule out of sample) or "out2" (chosen at 17:30
+UTC before their results and before the guarded rule of `richardson`, which was shaped on
+"in" and "out"). `--table` re-reads stored runs with the library's current rule; main's rule
+on the same values: the same command with PYTHONPATH at an export of main's taichi_ndf.
+`default` windows are the grid rule's grids with `--refine` (3 levels): the bar
+`ndf-sim --field spline --refine` shows.
 Long (minutes to an hour on one shared core): run under nice.
 
     nice python benchmarks/refinement_coverage.py [--cases napkin,square_plate] [--json out]
