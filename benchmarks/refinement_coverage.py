@@ -126,6 +126,8 @@ CASES = {
     # For the --refine default only (the scene is in sample; its grid rule's grids).
     "cantilever_shear_default": Case("validation/scenes/cantilever_shear.toml", (8, 1), 4,
                                      ("tip:2",), (), "in", default=0),
+    "scordelis_lo_roof_default": Case("validation/scenes/scordelis_lo_roof.toml", (14, 20), 4,
+                                      ("free_edge_mid:2",), (), "in", default=0),
     "square_plate_default": Case("validation/scenes/square_plate.toml", (8, 8), 4,
                                  ("energy", "centre:2"), (), "in", default=0),
 }
