@@ -9,9 +9,10 @@ against the inextensible limit.
     python demos/napkin.py --quick    # a short run, to check the installation
 
 Measured (2026-12-03, the default f64, 2-core VM at load 1-4): 55 s CPU (86 s wall); Π
-−1.64003 J on 32 × 32 spans, extrapolated −1.6568 ± 0.017 J (observed order 0.84 from 3 grids,
-expected 4: the point pin); the corner hangs 1.4377 ± 0.0013 m, 1.66 % beyond √2 m (f32, load
-2: 43 s CPU, the same to four digits). The spline path is
+−1.64003 J on 32 × 32 spans, extrapolated −1.6568 ± 0.021 J (observed order 0.84 from 3 grids,
+expected 4: the point pin); the corner hangs 1.4377 ± 0.0016 m, 1.66 % beyond √2 m (f32, load
+2: 43 s CPU, the same to four digits; the bars are the guarded rule's, 1.25 × the correction,
+recomputed from that run's values). The spline path is
 the default because it reaches the lower Π: the SIREN's 800 Adam iterations end at
 −1.4604 J, 9.8 % above the spline's 8 × 8 grid (−1.6030 J; benchmarks/RESULTS.md,
 comparison table, 2026-12-03, load 23).

@@ -5,10 +5,11 @@ undeformed state through the load steps, each finer grid (exact dyadic refinemen
 step from the coarser solution prolonged (`minimise.refinement.solve_levels`). Reports per level
 Π, every probe and the seconds taken, and per Newton iteration Π, the decrement, the step
 length and the time split; with several levels the Richardson-extrapolated Π and probes and
-their error bars (`richardson`: an observed order from three or more levels, warned where far
-from the expected 2·(p − 1) — the energy-norm rate of degree-p splines for a fourth-order
-problem; with two levels that order assumed, said so, and the error widened to the change
-between the levels).
+their error bars (`richardson`: an observed order from three or more levels, trusted only
+between 0.5 and the expected 2·(p − 1) — the energy-norm rate of degree-p splines for a
+fourth-order problem — else "order unreliable" and 3 × the range of the last three values;
+with two levels that order assumed, said so, and the error widened to the change between the
+levels).
 """
 
 from __future__ import annotations
@@ -82,7 +83,7 @@ class SplineRun:
     def refinement(self, degree: int) -> dict | None:
         """Π and every probe component per level with the Richardson value, its error bar and
         how it was found (`Extrapolation.to_dict`: order, order_basis "observed" / "assumed" /
-        "not converging", warning, text); None with one level."""
+        "unreliable", order_reason, warning, text); None with one level."""
         if len(self.levels) < 2:
             return None
         order = 2.0 * (degree - 1)

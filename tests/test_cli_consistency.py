@@ -92,6 +92,15 @@ def test_the_summary_gives_the_extrapolated_values_with_their_errors():
     assert "extrapolated (0.10933 ± 0.01, 0.20933 ± 0.01, -1.4307 ± 0.01) m (order assumed)" \
         in lines[2]
     assert len(sim.summary_lines("napkin", {**result, "refinement": None})) == 2
+    # three grids whose changes do not fall: "order unreliable" on the Π line and the probe's
+    three = {**result, "refinement": {
+        "energy": study([-1.5, -1.6, -1.4]),
+        "probes": {"corner": [study([0.1, 0.2, 0.15]), study([0.2, 0.21, 0.215]),
+                              study([-1.4, -1.3, -1.45])]}}}
+    lines = sim.summary_lines("napkin", three)
+    assert "order unreliable" in lines[1] and "± 0.6" in lines[1]  # 3 × the range 0.2
+    assert "warning: refinement order unreliable" in lines[2]
+    assert lines[3].endswith("(order unreliable)")
 
 
 SCENE = """

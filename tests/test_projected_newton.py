@@ -282,13 +282,71 @@ def test_richardson_recovers_the_limit_and_order_of_a_power_law():
     result = richardson(values)
     assert result.order == pytest.approx(3.0, rel=1e-9)
     assert result.value == pytest.approx(2.0, rel=1e-12)
-    assert result.error == pytest.approx(0.5 * 0.25**3, rel=1e-9)
+    assert result.error == pytest.approx(1.25 * 0.5 * 0.25**3, rel=1e-9)  # Roache's Fs 1.25
     stalled = richardson([1.0, 1.1, 1.05])  # differences not falling: no extrapolation
-    assert stalled.order is None and stalled.value == 1.05
-    assert stalled.error == pytest.approx(0.1)  # the larger of the last two changes
+    assert stalled.order is None and stalled.value == 1.05 and stalled.unreliable
+    assert stalled.error == pytest.approx(0.3)  # 3 × the range of the three values
     assert richardson([1.0, 1.5], order=1.0).value == pytest.approx(2.0)
     with pytest.raises(ValueError, match="assumed order"):
         richardson([1.0, 1.5])
+
+
+def _power_sums(limit: float, terms: list[tuple[float, float]]) -> list[float]:
+    """limit + Σ c h^q on the grids h = 1, 1/2, 1/4: a sequence whose limit and asymptotic
+    order (the smallest q) are known."""
+    return [limit + sum(c * h**q for c, q in terms) for h in (1.0, 0.5, 0.25)]
+
+
+@pytest.mark.parametrize("order", [0.6, 1.0, 2.0, 3.0, 4.0])
+def test_a_power_law_of_a_reasonable_order_is_extrapolated_and_covered(order):
+    values = _power_sums(-1.3, [(0.2, order)])
+    result = richardson(values, order=4.0)
+    assert result.basis == "observed" and result.order == pytest.approx(order, rel=1e-6)
+    assert abs(result.value - (-1.3)) <= result.error
+    assert result.error == pytest.approx(1.25 * abs(result.value - values[-1]), rel=1e-9)
+
+
+def test_a_near_zero_change_between_the_last_grids_is_not_read_as_a_high_order():
+    """Issue 35 (cantilever_shear: 6.5e-6 then 6.4e-9, observed order 10, bar 76 000× too
+    small): order 0.7 with a pre-asymptotic h⁴ term of the opposite sign that makes the last
+    two grids agree. main's rule extrapolated at order 10.5 and its bar missed the limit by
+    5 orders of magnitude; the guarded rule calls the order unreliable and the bar covers."""
+    a = 0.01
+    b = -a * (0.5**0.7 - 0.25**0.7) / (0.5**4 - 0.25**4) * (1 + 1e-2)
+    values = _power_sums(2.0, [(a, 0.7), (b, 4.0)])
+    assert abs(values[2] - values[1]) < 1e-3 * abs(values[1] - values[0])  # near-zero change
+    result = richardson(values, order=4.0)
+    assert abs(result.value - 2.0) <= result.error  # main: 3.6e-3 away, bar 1.7e-8
+    assert result.unreliable and "above the expected 4" in result.reason
+    assert "order unreliable" in result.describe() and "order unreliable" in result.warning
+    assert result.value == values[-1]
+    assert result.error == pytest.approx(3 * abs(values[2] - values[0]), rel=1e-9)
+    assert result.to_dict()["order_basis"] == "unreliable"
+
+
+def test_growing_differences_are_bounded_by_the_range_not_the_last_change():
+    """Issue 35 (the napkin in cotton_polyester on 2/4/8 spans: changes −0.017, −0.030, bar
+    0.8× short): order 0.5 with a pre-asymptotic h² term, so the changes grow. main's bar, the
+    larger of the two changes, misses the limit; 3 × the range covers."""
+    values = _power_sums(-1.65, [(0.117, 0.5), (-0.023, 2.0)])
+    d1, d2 = np.diff(values)
+    assert d1 * d2 > 0 and abs(d2) > abs(d1)  # same sign, growing
+    assert abs(values[-1] - (-1.65)) > max(abs(d1), abs(d2))  # main's bar falls short
+    result = richardson(values, order=4.0)
+    assert abs(result.value - (-1.65)) <= result.error
+    assert result.unreliable and result.reason == "changes not falling monotonically"
+
+
+@pytest.mark.parametrize("values, reason", [
+    ([1.309746478, 1.30975294, 1.309752946], "rounding level"),  # cantilever_shear, t = 0.1
+    ([1.0 + 0.3 * h**0.3 for h in (1.0, 0.5, 0.25)], "below 0.5"),
+    ([1.0, 1.2, 1.1], "not falling"),  # oscillating
+])
+def test_unreliable_orders_say_why_and_fall_back_to_three_times_the_range(values, reason):
+    result = richardson(values, order=4.0)
+    assert result.unreliable and reason in result.reason and result.value == values[-1]
+    assert result.error == pytest.approx(3 * (max(values) - min(values)), rel=1e-12)
+    assert f"({result.reason})" in result.describe()
 
 
 def test_two_grid_richardson_says_order_assumed_and_widens_the_bar_to_the_change():
@@ -314,7 +372,7 @@ def test_richardson_warns_where_the_observed_order_is_far_from_the_expected(capl
     assert result.warning is not None and "0.77" in result.warning and "4" in result.warning
     assert result.value == pytest.approx(1.0, abs=1e-9)
     assert "observed order 0.77" in result.describe()
-    assert any("far from the expected" in r.message for r in caplog.records)
+    assert any("far below the expected" in r.message for r in caplog.records)
     assert richardson([2.0 + h**4 for h in (1.0, 0.5, 0.25)], order=4.0).warning is None
 
 

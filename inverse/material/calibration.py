@@ -137,12 +137,14 @@ def position_refinement(coarse, medium, fine) -> tuple[float, float]:
     positions at the same points) on grids h, h/2 and h/4: Richardson's rule
     (`taichi_ndf.minimise.refinement.extrapolate_changes`) on the changes
     d₁ = max‖x_{h/2} − x_h‖ and d₂ = max‖x_{h/4} − x_{h/2}‖, so the error of x_{h/4} is
-    d₂ / (2^p − 1) in the asymptotic range; (nan, d₂) where d₂ ≥ d₁ (not converging: the
-    larger change is the bar)."""
+    d₂ / (2^p − 1) in the asymptotic range, and the bar 1.25 times that; where the order is
+    unreliable (d₂ ≥ d₁ or p < 0.5) the bar is 3 (d₁ + d₂), and the order nan where the
+    changes do not fall. No rounding check: positions are not what converges, and these solves
+    are float64."""
     d1 = float(np.linalg.norm(np.asarray(medium) - np.asarray(coarse), axis=1).max())
     d2 = float(np.linalg.norm(np.asarray(fine) - np.asarray(medium), axis=1).max())
-    order, error, _, _ = extrapolate_changes([d1, d2])
-    return (math.nan if order is None else order), error
+    estimate = extrapolate_changes([d1, d2])
+    return (math.nan if estimate.order is None else estimate.order), estimate.error
 
 
 def converged_observation(model: ShellModel, unknowns: list[Unknown], truth, points,

@@ -40,8 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="spline field: solve on K successively refined grids (default 3; "
                    "replaces [field] levels) and report Π and every probe per level with the "
                    "Richardson-extrapolated value and its error bar: from the observed order "
-                   "with K >= 3; with K = 2 the order is assumed and the bar is the change "
-                   "between the two grids")
+                   "with K >= 3 (where that order is unreliable, said so: the finest value "
+                   "with 3 x the range of the last three); with K = 2 the order is assumed "
+                   "and the bar is the change between the two grids")
     p.add_argument("--quick", action="store_true",
                    help="a short run with the scene's [training.quick] settings (smoke test)")
     p.add_argument("--resume", action="store_true",
@@ -151,8 +152,9 @@ def summary_lines(name: str, result: dict) -> list[str]:
             parts = refinement["probes"][probe]
             line += "; extrapolated (" + ", ".join(
                 f"{c['extrapolated']:.5g} ± {c['estimated_error']:.2g}" for c in parts) + ") m"
-            if parts and parts[0].get("order_basis") == "assumed":
-                line += " (order assumed)"
+            bases = sorted({c.get("order_basis") for c in parts} & {"assumed", "unreliable"})
+            if bases:
+                line += f" (order {' / '.join(bases)})"
         lines.append(line)
     return lines
 

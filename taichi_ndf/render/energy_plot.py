@@ -124,7 +124,7 @@ def _refinement_panel(axes, refinement: dict) -> None:
     elif basis == "assumed":
         how = f"order {energy.get('order', 0):g} assumed"
     else:
-        how = basis
+        how = f"order {basis}"
     axes.fill_between([-0.3, len(values) - 0.7], value - bar, value + bar, color=PALETTE[1],
                       alpha=0.18, linewidth=0, label="error bar")
     axes.axhline(value, color=PALETTE[1], linestyle="--", linewidth=1.4,
