@@ -212,7 +212,8 @@ def renders(store: dict) -> str:
                 cells.append(f"![{scene}, {LABELS[field]}]"
                              f"({image.relative_to(GALLERY.parent).as_posix()})")
             else:
-                cells.append("not run" if r is None else r["status"])
+                cells.append("not run" if r is None else
+                             "no render" if r["status"] == "ok" else r["status"])
         lines.append(f"| {scene} | {' | '.join(cells)} |")
     return "\n".join(lines)
 

@@ -46,6 +46,7 @@ from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
 
 SCENES = ROOT / "scenes"
 PICTURES = ROOT / "docs" / "gallery"
+CAPTIONS = ROOT / "docs" / "gallery_captions.toml"  # what each picture shows, written by eye
 TILE = (400, 320)  # width, height [pixels] of one scene in the overview
 COLUMNS = 4  # of the overview
 COLOUR = "displacement"  # of the scene pictures (render.png itself: bending strain)
@@ -190,6 +191,7 @@ def write_gallery(records: dict, args) -> int:
     PICTURES.mkdir(exist_ok=True)
     rows, tiles = [], []
     left_out = left_out_reasons(records, args.leave_out)
+    captions = tomllib.loads(CAPTIONS.read_text()) if CAPTIONS.is_file() else {}
     for name, record in records.items():
         if name in left_out:
             continue
@@ -200,7 +202,9 @@ def write_gallery(records: dict, args) -> int:
                   f"{' --quick' if args.quick else ''}`: {describe(record)}\n"
         made = pictures(name, args.runs / record.get("run", name))
         tiles.append(made.pop("tile"))
-        rows.append(heading + f"\n![{name}](gallery/{made['picture']})\n"
+        caption = captions.get(name, "not described yet: look at the pictures and say what "
+                               f"they show in {CAPTIONS.relative_to(ROOT)}")
+        rows.append(heading + f"\n{caption}\n\n![{name}](gallery/{made['picture']})\n"
                     f"![{name}: energy](gallery/{made['energy']})\n"
                     + (f"\n[trajectory video (H.264)](gallery/{made['video']})\n"
                        if made["video"] else ""))
@@ -237,12 +241,16 @@ def write_gallery(records: dict, args) -> int:
         page += [""]
     (ROOT / "docs" / "gallery.md").write_text("\n".join(page) + "\n")
     if not args.quick:
+        for name, record in records.items():  # the comparison page's render of each row
+            target = comparison.RENDERS / f"{name}_spline.png"
+            if name in left_out:  # no picture of a state this page does not show
+                target.unlink(missing_ok=True)
+            else:
+                comparison.render(args.runs / record.get("run", name), target)
+        # read just before writing: benchmarks/spline_vs_siren.py may have stored meanwhile
         store = json.loads(comparison.STORE.read_text()) if comparison.STORE.is_file() else {}
         for name, record in records.items():
             store.setdefault(name, {})["spline"] = record
-            if record["status"] == "ok" and name not in args.leave_out:  # its render there
-                comparison.render(args.runs / record.get("run", name),
-                                  comparison.RENDERS / f"{name}_spline.png")
         comparison.STORE.write_text(json.dumps(store, indent=1, sort_keys=True) + "\n")
         print("comparison store updated: rebuild its table with "
               "`python benchmarks/spline_vs_siren.py --table-only`")
