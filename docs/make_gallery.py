@@ -47,7 +47,7 @@ from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
 SCENES = ROOT / "scenes"
 PICTURES = ROOT / "docs" / "gallery"
 CAPTIONS = ROOT / "docs" / "gallery_captions.toml"  # what each picture shows, written by eye
-TILE = (400, 320)  # width, height [pixels] of one scene in the overview
+TILE = (320, 256)  # width, height [pixels] of one scene in the overview
 COLUMNS = 4  # of the overview
 COLOUR = "displacement"  # of the scene pictures (render.png itself: bending strain)
 VIDEO_SIZE = (640, 480)
