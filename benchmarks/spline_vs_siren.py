@@ -62,19 +62,21 @@ def _commit() -> str:
 
 def scene_material(scene: str) -> str:
     """The scene's [material] table as compact JSON: a stored run whose material differs is
-    marked stale in the table (and gets no gap)."""
+    shown in the table and on the renders page as not rerun, without its numbers."""
     import tomllib
 
     table = tomllib.loads((SCENES / f"{scene}.toml").read_text()).get("material", {})
     return json.dumps(table, sort_keys=True, separators=(",", ":"))
 
 
-def run_one(scene: str, field: str, out: Path, precision: str, quick: bool) -> dict:
-    """One ndf-sim process: Π, times, peak memory, iterations (or why it did not run)."""
+def run_one(scene: str, field: str, out: Path, precision: str, quick: bool,
+            extra: tuple[str, ...] = ()) -> dict:
+    """One ndf-sim process: Π, times, peak memory, iterations (or why it did not run).
+    extra: further ndf-sim arguments (e.g. --resume)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     command = [sys.executable, "-m", "taichi_ndf.cli.sim", str(SCENES / f"{scene}.toml"),
                "--out", str(out), "--precision", precision, "--arch", "cpu", *FIELDS[field],
-               *(["--quick"] if quick else [])]
+               *(["--quick"] if quick else []), *extra]
     load_before = os.getloadavg()[0]
     started = time.perf_counter()
     process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL,
@@ -155,8 +157,12 @@ def _row(scene: str, field: str, r: dict | None, gap: str) -> str:
     quick = " (quick)" if r.get("quick") else ""
     if r.get("precision") == "f64":  # e.g. the gallery's runs (docs/make_gallery.py)
         quick += " (f64)"
-    if _stale(scene, r):
-        quick += f" **stale: run with material {r.get('material')}, rerun**"
+    if r.get("start"):  # a gallery run re-solved from a perturbed state
+        quick += f" (from {r['start']})"
+    if _stale(scene, r):  # its numbers belong to another material: not shown
+        return (f"| {scene} | {label} | not rerun since the scene's material became "
+                f"`{scene_material(scene)}` (the stored run of {r['date']} used "
+                f"`{r.get('material')}`) | | | | | |")
     return (f"| {scene} | {label}{quick} | {r['energy']:.6g} | {gap} | {r['wall']:.0f} | "
             f"{r['solve']:.0f} | {r['peak_mib']:.0f} | {its} |")
 
@@ -200,11 +206,14 @@ def renders(store: dict) -> str:
         for field in FIELDS:
             r = store.get(scene, {}).get(field)
             image = RENDERS / f"{scene}_{field}.png"
-            if r is not None and r["status"] == "ok" and image.is_file():
+            if r is not None and _stale(scene, r):
+                cells.append("not rerun on the scene's material")
+            elif r is not None and r["status"] == "ok" and image.is_file():
                 cells.append(f"![{scene}, {LABELS[field]}]"
                              f"({image.relative_to(GALLERY.parent).as_posix()})")
             else:
-                cells.append("not run" if r is None else r["status"])
+                cells.append("not run" if r is None else
+                             "no render" if r["status"] == "ok" else r["status"])
         lines.append(f"| {scene} | {' | '.join(cells)} |")
     return "\n".join(lines)
 

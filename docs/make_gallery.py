@@ -12,15 +12,20 @@ render: three-quarter and front view, coloured by displacement, obstacles, groun
 <scene>_energy.png (Π history, refinement panel) and <scene>.mp4 (the trajectory, H.264, where
 the run has more than one frame), and docs/gallery/overview.png (every scene, the README's
 first image). The converged runs' spline rows (and their renders) also go into the
-comparison of benchmarks/spline_vs_siren.py (marked f64 there). --quick: the scenes'
-[training.quick] settings, a smoke test of this script (the page then says so; nothing is
-stored).
+comparison of benchmarks/spline_vs_siren.py (marked f64 there). A run that did not converge
+gets no pictures: the page lists it under "Not in this gallery" with its Newton record, as it
+lists each `--leave-out SCENE=REASON` (a run looked at and found not to show the physical
+state, e.g. a symmetric equilibrium that a perturbation leaves). --note TEXT: a paragraph on
+where the runs came from. --quick: the scenes' [training.quick] settings, a smoke test of this
+script (the page then says so; nothing is stored).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import shutil
 import sys
 import tomllib
 from pathlib import Path
@@ -30,6 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+import torch  # noqa: E402
 
 from benchmarks import spline_vs_siren as comparison  # noqa: E402
 from taichi_ndf.io.run_files import QUANTITIES, read_run  # noqa: E402
@@ -40,10 +46,12 @@ from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
 
 SCENES = ROOT / "scenes"
 PICTURES = ROOT / "docs" / "gallery"
-TILE = (400, 320)  # width, height [pixels] of one scene in the overview
+CAPTIONS = ROOT / "docs" / "gallery_captions.toml"  # what each picture shows, written by eye
+TILE = (320, 256)  # width, height [pixels] of one scene in the overview
 COLUMNS = 4  # of the overview
 COLOUR = "displacement"  # of the scene pictures (render.png itself: bending strain)
 VIDEO_SIZE = (640, 480)
+FOLD_AMPLITUDE = 0.03  # [m] of the radial fold perturbation at the open end (--folds)
 
 
 def run_scene(name: str, runs: Path, quick: bool) -> dict:
@@ -61,6 +69,49 @@ def run_scene(name: str, runs: Path, quick: bool) -> dict:
         f"{'converged' if record['converged'] else 'NOT converged'}")
     print(f"{name}: {state}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU, "
           f"load {record['load']}", flush=True)
+    return record
+
+
+def add_folds(checkpoint: Path, folds: int, amplitude: float = FOLD_AMPLITUDE) -> None:
+    """Add a `folds`-fold radial perturbation to a spline run's displacement coefficients in
+    place: amplitude · cos(folds θ) (cos θ, sin θ, 0) [m] per coefficient, θ the periodic ξ₁,
+    weighted (1 − j/(m₂ − 1))² along ξ₂ (largest at ξ₂ = 0, the skirt's hem; the boundary
+    factor keeps a held edge held)."""
+    payload = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    architecture = payload["architecture"]
+    if payload["field_type"] != "spline" or not architecture["periodic"][0]:
+        raise SystemExit(f"--folds: {checkpoint} is not a spline field periodic in ξ₁")
+    coefficients = payload["parameters"]["coefficients"]
+    m1 = architecture["spans"][0]  # periodic: one coefficient per span; index j1·m2 + j2
+    m2 = coefficients.shape[0] // m1
+    theta = 2 * math.pi * torch.arange(m1, dtype=coefficients.dtype) / m1
+    weight = ((m2 - 1 - torch.arange(m2, dtype=coefficients.dtype)) / (m2 - 1)) ** 2
+    radial = amplitude * torch.cos(folds * theta)[:, None] * weight[None, :]
+    grid = coefficients.view(m1, m2, coefficients.shape[1])
+    grid[..., 0] += radial * torch.cos(theta)[:, None]
+    grid[..., 1] += radial * torch.sin(theta)[:, None]
+    torch.save(payload, checkpoint)
+
+
+def refold(name: str, folds: int, runs: Path, start: dict) -> dict:
+    """The record of scene `name` re-solved (ndf-sim --resume) from its converged run plus a
+    `folds`-fold perturbation (`add_folds`), in DIR/<name>_folds<K>; reused when stored."""
+    label = f"{name}_folds{folds}"
+    out, record_file = runs / label, runs / f"{label}.json"
+    if (out / "result.json").is_file() and record_file.is_file():
+        return json.loads(record_file.read_text())
+    if start["status"] != "ok" or not start.get("converged"):
+        raise SystemExit(f"--folds {name}: its own run did not converge; nothing to perturb")
+    shutil.rmtree(out, ignore_errors=True)
+    shutil.copytree(runs / name, out)
+    add_folds(out / "checkpoint.pt", folds)
+    print(f"{name}: re-solved from its run plus {folds} folds", flush=True)
+    record = comparison.run_one(name, "spline", out, "f64", False, extra=("--resume",))
+    record.update(run=label, start=(
+        f"its symmetric solution, Π {start['energy']:.6g} J after {start['iterations']} "
+        f"iterations and {start['cpu']:.0f} s CPU, plus a {folds}-fold radial perturbation of "
+        f"{100 * FOLD_AMPLITUDE:.0f} cm at the hem"))
+    record_file.write_text(json.dumps(record, indent=1) + "\n")
     return record
 
 
@@ -110,10 +161,28 @@ def describe(record: dict) -> str:
         return f"{record['status']}: {record.get('message', '')}"
     state = "converged" if record.get("converged") else "**NOT converged**"
     spans = " × ".join(str(s) for s in record.get("spans", []))
+    commit = "commit not recorded" if record["commit"] == "unknown" else record["commit"]
+    start = f"; re-solved (`--resume`) from {record['start']}" if record.get("start") else ""
     return (f"Π = {record['energy']:.6g} J; {record['iterations']} Newton iterations, {state} "
-            f"({spans} spans); {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU at load "
-            f"{record['load'][0]:.1f}–{record['load'][1]:.1f} ({record['date']}, "
-            f"{record['commit']})")
+            f"({spans} spans){start}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU "
+            f"at load {record['load'][0]:.1f}–{record['load'][1]:.1f} ({record['date']}, "
+            f"{commit})")
+
+
+def left_out_reasons(records: dict, leave_out: dict[str, str]) -> dict[str, str]:
+    """Why each scene gets no pictures: its run failed or did not converge (with the last
+    Newton step's λ²/2), or the reason given by --leave-out."""
+    reasons = {}
+    for name, record in records.items():
+        if name in leave_out:
+            reasons[name] = leave_out[name]
+        elif record["status"] != "ok":
+            reasons[name] = f"the run {record['status']}: {record.get('message', '')}"
+        elif not record.get("converged"):
+            tail = record.get("newton_tail") or [[None, float("nan")]]
+            reasons[name] = (f"not converged: {describe(record)}; the last Newton step's "
+                             f"λ² = {tail[-1][1]:.2g} J")
+    return reasons
 
 
 def write_gallery(records: dict, args) -> int:
@@ -121,18 +190,21 @@ def write_gallery(records: dict, args) -> int:
     spline rows."""
     PICTURES.mkdir(exist_ok=True)
     rows, tiles = [], []
+    left_out = left_out_reasons(records, args.leave_out)
+    captions = tomllib.loads(CAPTIONS.read_text()) if CAPTIONS.is_file() else {}
     for name, record in records.items():
+        if name in left_out:
+            continue
         document = tomllib.loads((SCENES / f"{name}.toml").read_text())
         heading = f"### {name}\n\n{document.get('description', '')}  \n" \
                   f"material `{document.get('material', {}).get('preset', 'custom')}`; " \
                   f"`ndf-sim scenes/{name}.toml --field spline" \
                   f"{' --quick' if args.quick else ''}`: {describe(record)}\n"
-        if record["status"] != "ok":
-            rows.append(heading)
-            continue
-        made = pictures(name, args.runs / name)
+        made = pictures(name, args.runs / record.get("run", name))
         tiles.append(made.pop("tile"))
-        rows.append(heading + f"\n![{name}](gallery/{made['picture']})\n"
+        caption = captions.get(name, "not described yet: look at the pictures and say what "
+                               f"they show in {CAPTIONS.relative_to(ROOT)}")
+        rows.append(heading + f"\n{caption}\n\n![{name}](gallery/{made['picture']})\n"
                     f"![{name}: energy](gallery/{made['energy']})\n"
                     + (f"\n[trajectory video (H.264)](gallery/{made['video']})\n"
                        if made["video"] else ""))
@@ -141,11 +213,13 @@ def write_gallery(records: dict, args) -> int:
     training = ("`--quick` runs (the scenes' `[training.quick]` settings: smoke runs, NOT "
                 "converged results)" if args.quick else "converged runs")
     page = ["# Gallery", "",
-            f"Every shipped scene (`scenes/*.toml`) from {training} of the spline field solved "
+            f"The shipped scenes (`scenes/*.toml`; those without pictures are listed at the "
+            f"end with the reason) from {training} of the spline field solved "
             "by projected Newton (`ndf-sim SCENE --field spline`: the grid rule's grid, one "
             "level, float64, the scene's load steps), pictures drawn from each run's own files "
-            "by `python docs/make_gallery.py` (which runs the scenes too; about 20 minutes of "
-            "CPU on a 2-core machine). Per scene: the final state from the three-quarter and "
+            "by `python docs/make_gallery.py` (which runs the scenes too: these runs took "
+            f"{sum(r.get('cpu', 0) for r in records.values()) / 60:.0f} minutes of CPU). "
+            "Per scene: the final state from the three-quarter and "
             f"the front view coloured by {QUANTITIES[COLOUR]} (bending strain where a run has "
             "no reference mesh) on its 1st–99th percentile (the colour bar states what it "
             "clips), obstacles in grey, ground shadow; the energy plot (Π over the Newton "
@@ -155,20 +229,28 @@ def write_gallery(records: dict, args) -> int:
             "other sessions, so they are upper bounds; CPU time is the figure to read. The "
             "scenes in `scenes/inverse/` are start points of the material estimator "
             "(`ndf-fit-material`, docs/inverse_material.md), not shown here.", "",
+            *([args.note, ""] if args.note else []),
             "![all scenes](gallery/overview.png)", ""] + rows
     missing = [s for s in comparison.shipped_scenes() if s not in records]
-    if missing:
-        page += ["### Not in this gallery", "",
-                 "Shipped scenes whose run this page was not made from (`--scenes` left them "
-                 "out, e.g. their converged run had not finished): " + ", ".join(missing)
-                 + ". `python docs/make_gallery.py` runs them.", ""]
+    if missing or left_out:
+        page += ["### Not in this gallery", ""]
+        page += [f"- **{name}**: {reason}" for name, reason in left_out.items()]
+        if missing:
+            page += ["- " + ", ".join(missing) + ": not run for this page (`--scenes` left "
+                     "them out); `python docs/make_gallery.py` runs them."]
+        page += [""]
     (ROOT / "docs" / "gallery.md").write_text("\n".join(page) + "\n")
     if not args.quick:
+        for name, record in records.items():  # the comparison page's render of each row
+            target = comparison.RENDERS / f"{name}_spline.png"
+            if name in left_out:  # no picture of a state this page does not show
+                target.unlink(missing_ok=True)
+            else:
+                comparison.render(args.runs / record.get("run", name), target)
+        # read just before writing: benchmarks/spline_vs_siren.py may have stored meanwhile
         store = json.loads(comparison.STORE.read_text()) if comparison.STORE.is_file() else {}
         for name, record in records.items():
             store.setdefault(name, {})["spline"] = record
-            if record["status"] == "ok":  # the comparison page's render of this row
-                comparison.render(args.runs / name, comparison.RENDERS / f"{name}_spline.png")
         comparison.STORE.write_text(json.dumps(store, indent=1, sort_keys=True) + "\n")
         print("comparison store updated: rebuild its table with "
               "`python benchmarks/spline_vs_siren.py --table-only`")
@@ -184,13 +266,34 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--runs-only", action="store_true", help="run the scenes, draw nothing")
     p.add_argument("--quick", action="store_true",
                    help="[training.quick] settings: a smoke test of this script")
+    p.add_argument("--leave-out", action="append", default=[], metavar="SCENE=REASON",
+                   help="draw no pictures of SCENE; the page gives REASON (repeatable)")
+    p.add_argument("--note", default="", help="a paragraph on where the runs came from")
+    p.add_argument("--folds", action="append", default=[], metavar="SCENE=K",
+                   help="show SCENE re-solved from its run plus a K-fold radial perturbation "
+                   "(a scene whose symmetric start stays on a symmetric equilibrium)")
     args = p.parse_args(argv)
     names = comparison.shipped_scenes() if args.scenes is None else args.scenes.split(",")
+    leave_out = {}
+    for item in args.leave_out:
+        name, _, reason = item.partition("=")
+        if not reason.strip() or name not in names:
+            p.error(f"--leave-out {item!r}: expected SCENE=REASON with SCENE among the scenes")
+        leave_out[name] = reason.strip()
+    args.leave_out = leave_out
+    folds = {}
+    for item in args.folds:
+        name, _, count = item.partition("=")
+        if name not in names or not count.isdigit() or int(count) < 1:
+            p.error(f"--folds {item!r}: expected SCENE=K with SCENE among the scenes, K >= 1")
+        folds[name] = int(count)
     for name in names:
         if not (SCENES / f"{name}.toml").is_file():
             p.error(f"--scenes: no scene {name!r} in {SCENES}")
     args.runs.mkdir(parents=True, exist_ok=True)
     records = {name: run_scene(name, args.runs, args.quick) for name in names}
+    for name, count in folds.items():
+        records[name] = refold(name, count, args.runs, records[name])
     if args.runs_only:
         return 0
     return write_gallery(records, args)

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
+import torch
 from test_render_figure import fake_run
 
 from taichi_ndf.render.video import video_info
@@ -40,3 +42,37 @@ def test_pictures_energy_plot_video_and_overview_of_a_run(tmp_path, monkeypatch)
     two_rows = module.overview([tile] * 5)
     assert two_rows.shape[0] == 2 * module.TILE[1]
     assert np.all(two_rows[module.TILE[1]:, module.TILE[0]:] == 235)
+
+
+def test_add_folds_perturbs_the_periodic_direction_radially(tmp_path):
+    module = gallery()
+    m1, m2 = 8, 5
+    payload = {"field_type": "spline",
+               "architecture": {"spans": [m1, 2], "periodic": [True, False]},
+               "parameters": {"coefficients": torch.zeros(m1 * m2, 3, dtype=torch.float64)}}
+    torch.save(payload, tmp_path / "checkpoint.pt")
+    module.add_folds(tmp_path / "checkpoint.pt", 2)
+    grid = torch.load(tmp_path / "checkpoint.pt")["parameters"]["coefficients"].view(m1, m2, 3)
+    radial = grid[..., 0] * torch.cos(2 * torch.pi * torch.arange(m1) / m1)[:, None] \
+        + grid[..., 1] * torch.sin(2 * torch.pi * torch.arange(m1) / m1)[:, None]
+    # two folds: out at θ = 0 and π, in at π/2 and 3π/2; largest at ξ₂ = 0, none at the far end
+    assert radial[0, 0] == pytest.approx(module.FOLD_AMPLITUDE)
+    assert radial[2, 0] == pytest.approx(-module.FOLD_AMPLITUDE)
+    assert radial[4, 0] == pytest.approx(module.FOLD_AMPLITUDE)
+    assert torch.all(radial[:, -1] == 0) and torch.all(grid[..., 2] == 0)
+    payload["architecture"]["periodic"] = [False, False]
+    torch.save(payload, tmp_path / "open.pt")
+    with pytest.raises(SystemExit, match="periodic"):
+        module.add_folds(tmp_path / "open.pt", 2)
+
+
+def test_unconverged_and_left_out_runs_get_reasons_not_pictures():
+    module = gallery()
+    run = {"status": "ok", "energy": 0.1, "iterations": 3, "converged": True, "spans": [4, 4],
+           "wall": 1.0, "cpu": 1.0, "load": [1.0, 1.0], "date": "d", "commit": "c"}
+    records = {"a": run, "b": {**run, "converged": False, "newton_tail": [[0.1, 2e-9, 1.0, 0]]},
+               "c": run, "d": {"status": "failed", "message": "boom"}}
+    reasons = module.left_out_reasons(records, {"c": "a saddle"})
+    assert set(reasons) == {"b", "c", "d"}
+    assert reasons["b"].startswith("not converged") and "2e-09" in reasons["b"]
+    assert reasons["c"] == "a saddle" and "boom" in reasons["d"]

@@ -57,7 +57,8 @@ def test_a_run_with_another_material_is_marked_stale_and_has_no_gap():
             if k[0] == "napkin"}
     siren = next(line for line in _rows(module.table(store)).values()
                  if line.startswith("| napkin | SIREN"))
-    assert "stale: run with material" in siren and "rerun" in siren
+    assert "not rerun since the scene's material became" in siren and "cloth" in siren
+    assert "| -1 |" not in siren  # its Π (-1 J) is not shown
     assert "(materials differ)" in rows["napkin"] and "-2.00 %" not in rows["napkin"]
 
 
@@ -90,9 +91,12 @@ def test_sections_are_replaced_between_the_markers(tmp_path, monkeypatch):
     monkeypatch.setattr(module, "RENDERS", tmp_path / "images")
     (tmp_path / "images").mkdir()
     (tmp_path / "images" / "napkin_siren.png").write_bytes(b"png")
-    gallery = module.renders(STORE)
+    store = _current(STORE, module)
+    gallery = module.renders(store)
     assert "(images/napkin_siren.png)" in gallery
-    assert "| napkin_sphere | ok | refused |" in gallery  # a row without its image file
+    assert "| napkin_sphere | no render | refused |" in gallery  # a row without its image
+    store["napkin"]["siren"]["material"] = '{"preset":"cloth"}'
+    assert "| napkin | not rerun on the scene's material |" in module.renders(store)
     assert "| flag | not run |" in gallery
 
 
