@@ -10,10 +10,11 @@ hold two small blobs) must at least be from the cloud: each mask pixel farther t
 cloud-point spacings (in the image) from every projected cloud point is uncovered; a sheet
 point X seen at that pixel is at least |X| sin α from any cloud point, α the angle between its
 ray and the nearest covered pixel's ray, with |X| taken at that cloud point's depth. The
-largest of these over the mask (less its outermost `--outline` pixels, the mask's own
-uncertainty) is the floor: a lower bound of the largest distance of any mask-filling surface
-(the sheet can hide further along the rays, so it is not the best achievable score, which
-can only be higher). With `--result` (an `ndf-sft` output folder) the reconstruction's
+largest of these over the mask, less its outermost `--outline` pixels (the mask's own
+uncertainty; the whole mask's figure is printed beside it), is the floor: a lower bound of
+the largest distance of any mask-filling surface (the sheet can hide further along the rays,
+so it is not the best achievable score, which can only be higher). With `--result` (an
+`ndf-sft` output folder) the reconstruction's
 largest vertex-to-cloud distance per frame is printed beside it.
 
 Camera: the capture's camera.json (fx, fy, cx, cy); clouds ground_truth/*.npy in camera
@@ -79,19 +80,23 @@ def main() -> None:
     clouds = sorted((args.data / "ground_truth").glob("*.npy"))
     masks = sorted((args.data / "masks").glob("*.png"))
     meshes = sorted((args.result / "meshes").glob("*.obj")) if args.result else []
-    print("| frame | floor [mm] | uncovered mask | reconstruction's largest distance [mm] |")
-    print("|---|---|---|---|")
+    print(f"| frame | floor [mm], mask less {args.outline} px | floor [mm], whole mask | "
+          "uncovered mask | reconstruction's largest distance [mm] |")
+    print("|---|---|---|---|---|")
     floors, reached = [], []
     for i, (cloud_path, mask_path) in enumerate(zip(clouds, masks, strict=False)):
         cloud = np.load(cloud_path).astype(np.float64)
-        row = frame_floor(cloud, sheet_mask(mask_path), camera, args.outline)
+        mask = sheet_mask(mask_path)
+        row = frame_floor(cloud, mask, camera, args.outline)
+        whole = frame_floor(cloud, mask, camera, 0)["floor_m"] if args.outline else row["floor_m"]
         floors.append(row["floor_m"])
         largest = ""
         if i < len(meshes):
             vertices = np.asarray(read_mesh(meshes[i]).vertices, dtype=np.float64)
             reached.append(float(cKDTree(cloud).query(vertices)[0].max()))
             largest = f"{1e3 * reached[-1]:.1f}"
-        print(f"| {i} | {1e3 * row['floor_m']:.1f} | {100 * row['uncovered']:.1f} % | "
+        print(f"| {i} | {1e3 * row['floor_m']:.1f} | {1e3 * whole:.1f} | "
+              f"{100 * row['uncovered']:.1f} % | "
               f"{largest} |", flush=True)
     worst = int(np.argmax(floors))
     print(f"\nfloor: largest {1e3 * floors[worst]:.1f} mm (frame {worst}), median "
