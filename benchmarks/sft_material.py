@@ -1,12 +1,15 @@
 """Material from video on the synthetic hanging sheet: truth vs estimate, per noise draw.
 
     python benchmarks/sft_material.py --work DIR [--seeds 0 1 2] [--frames 12] [--source sft]
+        [--degree 4] [--spans 6 6] [--rest flat|frame0] [--estimate-membrane]
 
 For each seed: a hanging-sheet sequence (`inverse.sft.hanging_synth`, true bending length
 2 cm, ρ_A = 0.2 kg/m²; the seed sets texture, background and image noise) is rendered, then
 either reconstructed by `ndf-sft` (default spline prior; --source sft) or taken as the ground
 truth with Gaussian vertex noise (--source gt --vertex-noise σ), and the material is estimated
-from the meshes (`material_from_video.estimate_material`, stated ρ_A = 0.2). Prints one row per
+from the meshes (`material_from_video.estimate_material`, stated ρ_A = 0.2; the flat sheet's
+size from the known flat template, `--rest flat`, or from the reconstructed frame 0, which
+gravity has stretched, `--rest frame0`). Prints one row per
 seed: estimated c and B with standard error, error against the truth, |error| / s.e., rms
 misfit, CPU and wall seconds of the estimate. Figures: benchmarks/RESULTS.md.
 """
@@ -53,9 +56,11 @@ def one(seed: int, args) -> dict:
                     for v in meshes(data / "gt")]
     grid, _, held = template_grid(truth)
     config = MaterialFromVideoConfig(areal_density=truth.areal_density, frames=args.used,
-                                     spans=tuple(args.spans))
+                                     spans=tuple(args.spans), degree=args.degree,
+                                     estimate_membrane=args.estimate_membrane)
+    rest = np.column_stack([grid.xi, np.zeros(len(grid.xi))]) if args.rest == "flat" else None
     cpu, wall = time.process_time(), time.perf_counter()
-    material = estimate_material(vertices, grid.faces, held, config)
+    material = estimate_material(vertices, grid.faces, held, config, rest=rest)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     c, b = material["bending_length"], material["bending_stiffness"]
     row = {"seed": seed, "c": c and c["value"], "c_se": c and c["standard_error"],
@@ -77,6 +82,10 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=12)
     p.add_argument("--used", type=int, default=6, help="frames used by the estimate")
     p.add_argument("--spans", type=int, nargs=2, default=(6, 6))
+    p.add_argument("--degree", type=int, choices=(3, 4), default=4)
+    p.add_argument("--rest", choices=("flat", "frame0"), default="flat",
+                   help="the flat sheet's size: the flat template's or the reconstructed frame 0's")
+    p.add_argument("--estimate-membrane", action="store_true", help="fit D beside B")
     p.add_argument("--source", choices=("sft", "gt"), default="sft")
     p.add_argument("--vertex-noise", type=float, default=1e-3, help="gt: σ per coordinate [m]")
     args = p.parse_args()

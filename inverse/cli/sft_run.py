@@ -120,7 +120,8 @@ def run(args: argparse.Namespace) -> dict:
             loaded, vertices, template.faces, inputs.camera)
     if material is not None:
         clock = time.perf_counter()
-        summary["material"] = estimate_material(vertices, template.faces, held, material)
+        summary["material"] = estimate_material(vertices, template.faces, held, material,
+                                                rest=template.vertices)
         seconds["material"] = time.perf_counter() - clock
         summary["timings"]["per_frame"]["material"] = seconds["material"] / n
     out.write_json("result.json", summary)

@@ -83,15 +83,18 @@ def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
 
 
 def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple[int, int],
-                      config: MaterialFromVideoConfig | None = None) -> dict:
+                      config: MaterialFromVideoConfig | None = None, *,
+                      rest: np.ndarray | None = None) -> dict:
     """Estimate the material from per-frame vertex positions (module docstring).
 
-    vertices: per frame (V, 3) [m], template order, camera coordinates (frame 0 gives the
-    flat sheet's size); faces: (F, 3) template faces; held: the two held corner vertices.
+    vertices: per frame (V, 3) [m], template order, camera coordinates; faces: (F, 3)
+    template faces; held: the two held corner vertices; rest: (V, 3) [m] the template's own
+    vertices, whose grid-line lengths give the flat sheet's size (the template is the
+    unstretched sheet; None: the reconstructed frame 0, which gravity has stretched).
     Returns the report (`report`'s keys)."""
     config = config or MaterialFromVideoConfig()
     t0 = time.perf_counter()
-    grid = SheetGrid.from_template(vertices[0], faces, held)
+    grid = SheetGrid.from_template(vertices[0] if rest is None else rest, faces, held)
     frames = chosen_frames(len(vertices), config.frames)
     observations = frame_observations(vertices, grid, config, frames)
     spec = "bending,stretch" if config.estimate_membrane else "bending"
@@ -101,7 +104,7 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
         [material.membrane_stiffness] if config.estimate_membrane else [])
     newton = NewtonEstimateConfig(
         model=SplineModelConfig(spans=tuple(int(s) for s in config.spans),
-                                boundary_length=None),
+                                degree=config.degree, boundary_length=None),
         outer=OuterConfig(max_iterations=config.max_iterations, max_step=1.0),
         start_from_observations=True)
     result = newton_estimate(observations, unknowns, newton, start=start)
@@ -111,8 +114,12 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     per_frame = _per_frame_rms(fit.residuals, observations)
     accelerations = corner_accelerations(vertices, grid.held, config.fps)
     g = float(np.linalg.norm(config.gravity))
+    grids = [{"spans": list(f.label["spans"]), "degree": config.degree,
+              "bending_stiffness": float(f.values[0]),
+              "rms_m": math.sqrt(float(f.residuals @ f.residuals) / (len(f.residuals) // 3))}
+             for f in result.fits]
     return report(document, grid, frames, per_frame, accelerations / g, config,
-                  time.perf_counter() - t0,
+                  time.perf_counter() - t0, grids,
                   stable=all(f.stable for f in result.fits),
                   converged=all(f.converged for f in result.fits))
 
@@ -125,7 +132,7 @@ def _per_frame_rms(residuals: np.ndarray, observations: list[Observation]) -> np
 
 def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.ndarray,
            acceleration_over_g: np.ndarray, config: MaterialFromVideoConfig, seconds: float,
-           *, stable: bool, converged: bool) -> dict:
+           grids: list[dict], *, stable: bool, converged: bool) -> dict:
     """The "material" entry of result.json: value, s.e., bending length, identifiability,
     goodness of fit, where it falls among measured fabrics, and the quasi-static check."""
     bending = document["parameters"]["bending_stiffness"]
@@ -160,6 +167,7 @@ def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.nda
             "largest_corner_acceleration_over_g": float(acceleration_over_g.max(initial=0.0)),
             "frames_above_limit": moving, "limit_over_g": QUASI_STATIC_LIMIT,
             "fps": config.fps},
+        "grids": grids,
         "frames_used": frames, "sheet_size_m": list(grid.size),
         "stable": stable, "converged": converged, "seconds": seconds,
         "estimate": document,

@@ -136,7 +136,8 @@ class MaterialFromVideoConfig:
     measured fabrics); gravity: (3,) [m/s²] in camera coordinates (default: down the image);
     start_bending_length: c of the start value [m]; membrane_stiffness: D [N/m] (held unless
     estimate_membrane); poisson_ratio: ν; frames: number of frames used, evenly spread over the
-    sequence (0: all); spans: the coarse grid (the fine grid halves it); band: the handles'
+    sequence (0: all); spans: the coarse grid (the fine grid halves it); degree: the
+    splines' degree (3 or 4); band: the handles'
     band (fraction of the domain); fps: frame rate of the video [1/s], for the quasi-static
     check; max_iterations: outer Levenberg–Marquardt iterations per grid."""
 
@@ -148,6 +149,7 @@ class MaterialFromVideoConfig:
     estimate_membrane: bool = False
     frames: int = 8
     spans: tuple[int, int] = (6, 6)
+    degree: int = 3
     band: float = 0.1
     fps: float = 30.0
     max_iterations: int = 12
@@ -165,6 +167,8 @@ class MaterialFromVideoConfig:
             raise ValueError(f"frames must be 0 (all) or >= 2, got {self.frames!r}")
         if len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans):
             raise ValueError(f"spans must be two positive integers, got {self.spans!r}")
+        if self.degree not in (3, 4):
+            raise ValueError(f"degree must be 3 or 4, got {self.degree!r}")
         if not 0 < self.band < 0.5:
             raise ValueError(f"band must be in (0, 0.5), got {self.band!r}")
 
