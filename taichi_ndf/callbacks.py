@@ -1,11 +1,15 @@
 """What the application layer hooks into a solve: checkpoint writing and the divergence
-guard. The solver itself does no I/O (its progress goes to `taichi_ndf.progress`).
+guard. The solvers themselves do no I/O (their progress goes to `taichi_ndf.progress`).
 
+The same callbacks serve both solve paths: the Adam driver (`taichi_ndf.solver.Solver`) and
+the projected-Newton driver (`taichi_ndf.spline_solver.solve_spline`, whose `SplineRun` is the
+`solver` here). Either has `.field`, `.state` (`taichi_ndf.state.State`) and `.config`.
 A callback has any of `on_start(solver)`, `on_step(solver, energy, grad_norm)` (before each
-Adam step), `on_iteration(solver, record)` (record: the `MonitorRecord` of this iteration or
-None), `on_record(solver, energy, grad_norm, load_factor)` (Π on the monitor samples, before
-the record is kept), `on_polish(solver, before, after)` (Π around an L-BFGS polish),
-`on_load_step(solver, load_factor)` and `on_end(solver)`. A hook may raise to stop the solve.
+Adam step), `on_iteration(solver, record)` (after each Adam iteration; record: its
+`MonitorRecord` or None), `on_record(solver, energy, grad_norm, load_factor)` (Π before the
+record is kept: Adam's monitor samples, every Newton iteration), `on_polish(solver, before,
+after)` (Π around an L-BFGS polish), `on_load_step(solver, load_factor)`, `on_level(solver)`
+(after each Newton grid level) and `on_end(solver)`. A hook may raise to stop the solve.
 """
 
 from __future__ import annotations
@@ -18,8 +22,16 @@ from taichi_ndf.backoff import climbed
 BLOW_UP_FACTOR = 1e3
 
 
+def call(callbacks, hook: str, *args) -> None:
+    """Call `hook(*args)` on every callback that has it, in order."""
+    for callback in callbacks:
+        method = getattr(callback, hook, None)
+        if method is not None:
+            method(*args)
+
+
 class DivergenceError(RuntimeError):
-    """Training produced a non-finite energy or gradient; the last good state was kept."""
+    """A solve produced a non-finite energy or gradient; the last good state was kept."""
 
 
 class DivergenceGuard:
@@ -35,7 +47,7 @@ class DivergenceGuard:
         self._good = None
 
     def on_start(self, solver) -> None:
-        self._good = solver.field.get_flat().clone()
+        self._good = (solver.field, solver.field.get_flat().clone())
 
     def on_step(self, solver, energy: float, grad_norm: float) -> None:
         """Before an optimiser step: Π and ‖∇Π‖ must be finite."""
@@ -51,7 +63,7 @@ class DivergenceGuard:
         """At a monitor record: Π finite and not blown up; then the state is the good one."""
         if not math.isfinite(energy) or self._blown_up(solver, energy, load_factor):
             self.fail(solver, energy, grad_norm)
-        self._good = solver.field.get_flat().clone()
+        self._good = (solver.field, solver.field.get_flat().clone())
 
     @staticmethod
     def _blown_up(solver, energy: float, load_factor: float) -> bool:
@@ -61,21 +73,33 @@ class DivergenceGuard:
         return bool(seen) and climbed(energy, seen[0], seen, BLOW_UP_FACTOR)
 
     def fail(self, solver, energy: float, grad_norm: float):
-        if self._good is not None:
-            solver.field.set_flat(self._good)
+        if self._good is not None:  # the field of that time (a Newton run's: its level's)
+            field, flat = self._good
+            field.set_flat(flat)
         saved = self.checkpoint_path is not None and Path(self.checkpoint_path).is_file()
         where = f" (checkpoint {self.checkpoint_path})" if saved else ""
         history = solver.state.history
         last = history[-1].iteration if history else 0
         raise DivergenceError(
-            f"training diverged at iteration {solver.state.iteration}: Π = {energy}, "
+            f"{_what(solver)} diverged at iteration {solver.state.iteration}: Π = {energy}, "
             f"‖∇Π‖ = {grad_norm}; the field was reset to its last good state from iteration "
-            f"{last}{where}. Lower the learning rate or the load step.")
+            f"{last}{where}. {_advice(solver)}")
+
+
+def _what(solver) -> str:
+    return "projected Newton" if solver.state.method == "newton" else "training"
+
+
+def _advice(solver) -> str:
+    if solver.state.method == "newton":
+        return "Use more load steps or a finer coarsest grid."
+    return "Lower the learning rate or the load step."
 
 
 class CheckpointWriter:
-    """Writes the solver's state to `path` every `solver.config.checkpoint_every` iterations
-    (0: never in between) and at the end; `extra` (e.g. the scene) goes with it."""
+    """Writes the solver's state to `path` every `solver.config.checkpoint_every` Adam
+    iterations (0: never in between), after each Newton grid level and at the end; `extra`
+    (e.g. the scene) goes with it."""
 
     def __init__(self, path: str | Path, extra: dict | None = None):
         self.path = Path(path)
@@ -85,6 +109,9 @@ class CheckpointWriter:
         every = solver.config.checkpoint_every
         if every and solver.state.iteration % every == 0:
             solver.state.save(self.path, self.extra)
+
+    def on_level(self, solver) -> None:
+        solver.state.save(self.path, self.extra)
 
     def on_end(self, solver) -> None:
         solver.state.save(self.path, self.extra)

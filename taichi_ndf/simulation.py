@@ -12,7 +12,7 @@ from pathlib import Path
 from taichi_ndf import progress
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard
-from taichi_ndf.checkpoint import read_checkpoint
+from taichi_ndf.checkpoint import CheckpointError, read_checkpoint
 from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
@@ -224,33 +224,26 @@ def _finish(scene: Scene, out: OutputDir, summary: dict) -> dict:
 def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resume: bool,
                      machine: dict | None, seed: int,
                      report: Callable[[str], None] | None) -> dict:
-    """`simulate` for a spline field solved by projected Newton (`spline_solver`): a
-    checkpoint after every grid level (the field and the levels' summaries; --resume goes on
-    from the last finished level), result.json with the per-iteration Newton history and, with
-    several levels, the refinement study."""
-    from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
-    from taichi_ndf.spline_solver import LevelSummary, NewtonRecord, solve_spline
+    """`simulate` for a spline field solved by projected Newton (`spline_solver`): the same
+    callbacks as the Adam path (`DivergenceGuard`, `CheckpointWriter`: a checkpoint after
+    every grid level, the `State` of the run; --resume goes on from the last finished level),
+    result.json with the per-iteration Newton history and, with several levels, the
+    refinement study."""
+    from taichi_ndf.spline_solver import solve_spline
+    from taichi_ndf.state import State
 
     checkpoint = out.file("checkpoint.pt")
-    start, done, history = None, None, None
-    extra = {"scene": scene.document, "scene_dir": str(scene.path.parent.resolve())}
+    state = None
     if resume:
-        stored = load_checkpoint(checkpoint)
-        if not isinstance(stored.extra.get("levels"), list):
-            raise SimulationError(f"--resume: {checkpoint} holds no spline levels; it was not "
-                                  "written by a method = \"newton\" run")
-        start = stored.field
-        done = [LevelSummary(**{**d, "spans": tuple(d["spans"])})
-                for d in stored.extra["levels"]]
-        history = [NewtonRecord(**{**h, "spans": tuple(h["spans"])})
-                   for h in stored.extra["history"]]
+        state = State.newton(None)
+        try:
+            state.restore(checkpoint)
+        except CheckpointError as err:
+            raise SimulationError(f"--resume: {err}") from err
     step_frames = len(config.load_steps) > 1
     frames: dict[int, DeformedMesh] = {}
 
     def on_level(run) -> None:
-        save_checkpoint(checkpoint, run.field, extra={
-            **extra, "levels": [dataclasses.asdict(lv) for lv in run.levels],
-            "history": [dataclasses.asdict(h) for h in run.history]})
         if config.progress and report is not None:
             last = run.levels[-1]
             report(f"level {last.level} ({last.spans[0]} × {last.spans[1]} spans): "
@@ -265,8 +258,13 @@ def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resu
                                               load_factor=t)
                 write_trajectory_mesh(out, index, frames[index])
 
-    run = solve_spline(scene.model, scene.field, config, start=start, done=done,
-                       history=history, on_level=on_level)
+    callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {
+        "scene": scene.document, "scene_dir": str(scene.path.parent.resolve())})]
+    try:
+        run = solve_spline(scene.model, scene.field, config, state=state, callbacks=callbacks,
+                           on_level=on_level)
+    except DivergenceError as err:
+        raise SimulationError(str(err)) from err
     if not run.levels[-1].converged:
         _refuse_no_step(run)
         log.warning("projected Newton did not converge on the finest grid (see result.json "

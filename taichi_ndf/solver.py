@@ -38,7 +38,7 @@ import torch
 
 from taichi_ndf import progress
 from taichi_ndf.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_back_off
-from taichi_ndf.callbacks import DivergenceError
+from taichi_ndf.callbacks import DivergenceError, call
 from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimise.last_layer import last_layer_config, solve_last_layer
@@ -211,7 +211,7 @@ class Solver:
         self._callbacks = callbacks = tuple(callbacks)
         if self.contact is not None and state.iteration == 0 and state.newton_steps == 0:
             self._feasible_start(cfg.load_steps[start_step])
-        _call(callbacks, "on_start", self)
+        call(callbacks, "on_start", self)
         newton = cfg.newton_iterations > 0
         for step in range(start_step, len(cfg.load_steps)):
             state.load_step, lam = step, cfg.load_steps[step]
@@ -231,7 +231,7 @@ class Solver:
                     if state.iteration % cfg.monitor_every == 0:
                         record = self._record(lam, gnorm, t0)
                         shown = {"Π": record.energy, "‖∇Π‖": record.grad_norm}
-                    _call(callbacks, "on_iteration", self, record)
+                    call(callbacks, "on_iteration", self, record)
                     in_step = state.iteration - step * cfg.iterations
                     progress.report(in_step, **shown)
                     if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
@@ -246,11 +246,11 @@ class Solver:
                 self._record(lam, state.optimiser.gradient_norm(), t0)
             log.info("load factor %.4g: Π = %.8g J after %d iterations", lam,
                      state.history[-1].energy, state.iteration)
-            _call(callbacks, "on_load_step", self, lam)
+            call(callbacks, "on_load_step", self, lam)
             if on_load_step is not None:
                 on_load_step(lam)
         state.load_step = len(cfg.load_steps)
-        _call(callbacks, "on_end", self)
+        call(callbacks, "on_end", self)
         return SolveResult(energy=state.history[-1].energy, iterations=state.iteration,
                            wall_time=time.perf_counter() - t0, history=state.history,
                            probes=self.probe_displacements(cfg.load_steps[-1]),
@@ -332,13 +332,13 @@ class Solver:
             self.contact.refresh(self._displacement(lam), lam)
 
     def _check_step(self, energy: float, grad_norm: float) -> None:
-        _call(self._callbacks, "on_step", self, energy, grad_norm)
+        call(self._callbacks, "on_step", self, energy, grad_norm)
 
     def _record(self, lam: float, gnorm: float, t0: float) -> MonitorRecord:
         energy = self._monitor_energy(lam)
         if should_back_off(self.state, lam, energy):
             energy = self._back_off(lam, energy)
-        _call(self._callbacks, "on_record", self, energy, gnorm, lam)
+        call(self._callbacks, "on_record", self, energy, gnorm, lam)
         record = MonitorRecord(
             iteration=self.state.iteration, load_factor=lam, energy=energy, grad_norm=gnorm,
             learning_rate=self.state.optimiser.learning_rate,
@@ -375,12 +375,6 @@ class Solver:
             samples, times = self.monitor_samples(), None
         before, after = lbfgs(self.field, self.evaluator(samples, lam, times),
                               self.config.lbfgs_iterations)
-        _call(self._callbacks, "on_polish", self, before, after)
+        call(self._callbacks, "on_polish", self, before, after)
         log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)
 
-
-def _call(callbacks, hook: str, *args) -> None:
-    for callback in callbacks:
-        method = getattr(callback, hook, None)
-        if method is not None:
-            method(*args)

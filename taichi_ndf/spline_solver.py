@@ -19,58 +19,56 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Any
 
 import torch
 
+from taichi_ndf.callbacks import call
 from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
-from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration
+from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import LevelSolution, richardson, solve_levels
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.spline_grid import SplinePlan
+from taichi_ndf.state import LevelSummary, NewtonRecord, State
 from taichi_ndf.training import SolverConfig
+
+__all__ = ["LevelSummary", "NewtonRecord", "SplineRun", "newton_config", "solve_spline"]
 
 log = logging.getLogger(__name__)
 
 
 @dataclass
-class NewtonRecord(NewtonIteration):
-    """One projected-Newton iteration of a run with its place: its grid level and spans;
-    `iteration` counts over all levels and load steps."""
-
-    level: int = 0
-    spans: tuple[int, int] = (0, 0)
-
-
-@dataclass
-class LevelSummary:
-    """The final load step on one grid: Π [J], probes (displacement [m] by name), Newton
-    iterations and seconds over all its load steps, whether every load step converged."""
-
-    level: int
-    spans: tuple[int, int]
-    energy: float
-    probes: dict[str, list[float]]
-    iterations: int
-    seconds: float
-    converged: bool
-
-
-@dataclass
 class SplineRun:
-    field: SplineField  # the finest grid with its final coefficients
-    levels: list[LevelSummary]
-    history: list[NewtonRecord] = field(default_factory=list)
+    """A projected-Newton run so far: its `State` (method "newton": the field of the last
+    finished level, the levels' summaries, every Newton iteration) and settings — what the
+    callbacks (`taichi_ndf.callbacks`) see as `solver` on this path."""
+
+    state: State
+    config: SolverConfig
     wall_time: float = 0.0
     # (load factor, coefficients (n, 3)) of every load step solved on the last level
-    steps: list[tuple[float, torch.Tensor]] = field(default_factory=list)
+    steps: list[tuple[float, torch.Tensor]] = dataclasses.field(default_factory=list)
     # per load step of the last level: load factor, Π [J], probes (displacement [m] by name)
-    load_steps: list[dict] = field(default_factory=list)
+    load_steps: list[dict] = dataclasses.field(default_factory=list)
     contact: NewtonContact | None = None  # with obstacles: the check points, κ, rounds
+
+    @property
+    def field(self) -> SplineField:
+        """The last finished grid with its final coefficients."""
+        return self.state.field
+
+    @property
+    def levels(self) -> list[LevelSummary]:
+        return self.state.levels
+
+    @property
+    def history(self) -> list[NewtonRecord]:
+        return self.state.history
 
     @property
     def energy(self) -> float:
@@ -114,56 +112,70 @@ def newton_config(config: SolverConfig, dtype: torch.dtype) -> NewtonConfig:
 
 
 def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
-                 objective: Objective | None = None, start: SplineField | None = None,
-                 done: list[LevelSummary] | None = None,
-                 history: list[NewtonRecord] | None = None,
+                 objective: Objective | None = None, state: State | None = None,
+                 callbacks: tuple[Any, ...] | list[Any] = (),
                  on_level: Callable[[SplineRun], None] | None = None) -> SplineRun:
     """Solve the model on the plan's grids (at most `config.max_levels` of them when > 0).
 
-    start: a resumed run's field (the last finished level, at the last load step) with the
-    summaries `done` of its levels and its `history`; the remaining levels are solved at the
+    state: a resumed run's (`State.restore`, method "newton": the last finished level's field
+    at the last load step, its levels and history); the remaining levels are solved at the
     last load factor from it. With obstacles (`model.contact`) each load step is solved by
-    `NewtonContact.solve` (which adds the contact terms to the objective). on_level(run): after
-    each level, the run so far (its field: that level's grid).
+    `NewtonContact.solve` (which adds the contact terms to the objective).
+    callbacks (`taichi_ndf.callbacks`, each hook optional, called with the `SplineRun`):
+    on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_load_step(run,
+    load factor) and on_level(run) after each level (its field: that level's grid), on_end.
+    on_level(run): after each level too, after the callbacks.
     """
     objective = objective or Objective.of_model(model)
     surface = model.surface
 
     levels = plan.levels if not config.max_levels else min(plan.levels, config.max_levels)
-    done = list(done or [])
     load_steps = tuple(config.load_steps)
-    if start is None:
-        first, grid = 0, SplineField(plan.config)
+    if state is None or not state.levels:
+        first = 0
+        grid = SplineField(plan.config) if state is None or state.field is None else state.field
+        state = state or State.newton(grid)
+        state.field = grid
     else:  # re-solved (one Newton step: converged) and refined from there
-        first, grid, load_steps = len(done) - 1, start, load_steps[-1:]
-        done = done[:-1]
+        first, grid, load_steps = len(state.levels) - 1, state.field, load_steps[-1:]
+        state.levels = state.levels[:-1]
     contact = None
     if model.contact is not None:
         contact = NewtonContact(model.contact, model, grid.coefficients.dtype)
-    run = SplineRun(grid, done, list(history or []), contact=contact)
+    run = SplineRun(state, config, contact=contact)
     if first + 1 > levels:
         raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "
                          "this run solves")
     probes = {p.name: p.xi for p in model.probes}
     newton = newton_config(config, grid.coefficients.dtype)
     started = time.perf_counter()
+    callbacks = tuple(callbacks)
+    call(callbacks, "on_start", run)
+
+    def iterated(level: int, spans: tuple[int, int], record) -> None:
+        values = dataclasses.asdict(record)
+        values.update(iteration=len(state.history), level=level + first, spans=spans)
+        call(callbacks, "on_record", run, record.energy, record.gradient_norm,
+              record.load_factor)
+        state.history.append(NewtonRecord(**values))
+        state.iteration = len(state.history)
+
+    def stepped(load_factor: float) -> None:
+        state.load_step = config.load_steps.index(load_factor)
+        call(callbacks, "on_load_step", run, load_factor)
 
     def finished(level: int, field_: SplineField, solutions: list[LevelSolution]) -> None:
         level += first
         field_.coefficients.copy_(solutions[-1].coefficients)
-        for s in solutions:
-            for h in s.history:
-                values = dataclasses.asdict(h)
-                values.update(iteration=len(run.history), level=level, spans=s.spans)
-                run.history.append(NewtonRecord(**values))
         last = solutions[-1]
         summary = LevelSummary(level, last.spans, last.energy,
                                {k: v.tolist() for k, v in last.probes.items()},
                                sum(len(s.history) for s in solutions),
                                sum(s.seconds for s in solutions),
                                all(s.converged for s in solutions))
-        run.levels.append(summary)
-        run.field = field_
+        state.levels.append(summary)
+        state.field = field_
+        state.load_step = len(config.load_steps)
         run.steps = [(s.load_factor, s.coefficients) for s in solutions]
         run.load_steps = [{"load_factor": s.load_factor, "energy": s.energy,
                            "probes": {k: v.tolist() for k, v in s.probes.items()},
@@ -172,6 +184,7 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         log.info("level %d (%d × %d spans): Π %.10g J, %d Newton iterations, %.2f s%s", level,
                  *last.spans, last.energy, summary.iterations, summary.seconds,
                  "" if summary.converged else " (not converged)")
+        call(callbacks, "on_level", run)
         if on_level is not None:
             on_level(run)
 
@@ -182,6 +195,9 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                  objective, levels=levels - first, load_steps=load_steps, config=newton,
                  probes=probes, length=math.sqrt(surface.domain.rectangle_area),
                  on_level=finished, contact=contact,
-                 linear=LinearSolverConfig(kind=config.linear_solver))
+                 linear=LinearSolverConfig(kind=config.linear_solver),
+                 on_iteration=iterated, on_load_step=stepped)
     run.wall_time = time.perf_counter() - started
+    call(callbacks, "on_end", run)
     return run
+

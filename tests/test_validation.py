@@ -337,8 +337,14 @@ def test_a_case_scene_with_its_own_spline_field_is_solved_with_it(tmp_path, monk
                               "read": [{"probe": "centre", "component": "z"}]}]}
     case = parse_case(document, base_dir=tmp_path)
     called = []
-    monkeypatch.setattr(runner, "run_spline_case", lambda case, **kw: called.append(kw) or "ok")
-    assert runner.run_case(case, scenes_dir=tmp_path) == "ok" and called
+
+    def solved(scene, model, plan, *args, **kw):
+        called.append(plan)
+        raise RuntimeError("solved")
+    monkeypatch.setattr(runner, "_solve_spline", solved)
+    with pytest.raises(RuntimeError, match="solved"):
+        runner.run_case(case, scenes_dir=tmp_path)
+    assert len(called) == 1 and called[0].config.spans == (4, 4)
     _, _, plan = load_case_scene(case, tmp_path, None)
     assert plan.config.spans == (4, 4)
     assert runner._own_spline(case, tmp_path)

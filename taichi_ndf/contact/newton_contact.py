@@ -123,13 +123,14 @@ class NewtonContact:
 
     def solve(self, operator, quadrature, objective: Objective, coefficients: torch.Tensor,
               config, *, load_factor: float, start_load_factor: float, length: float = 1.0,
-              fixed=None, linear_solver=None) -> NewtonSolution:
+              fixed=None, linear_solver=None, on_iteration=None) -> NewtonSolution:
         """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
 
         operator: the grid's `DisplacementOperator`; quadrature: its Gauss-point samples;
         objective: Π without the contact terms (`ContactPotential` adds them);
         start_load_factor: the load factor of the starting coefficients (friction's
-        start-of-step positions); config, length, fixed, linear_solver: as `minimise`."""
+        start-of-step positions); config, length, fixed, linear_solver, on_iteration: as
+        `minimise`."""
         t = load_factor
         potential = ContactPotential(objective, self.terms, t)
         points = self.points
@@ -186,7 +187,8 @@ class NewtonContact:
             linearisation = SplineLinearisation(assembly, fixed=fixed, solver=linear_solver,
                                                 length=length)
             solution = minimise(linearisation, potential, c, config, load_factor=t,
-                                feasible=feasible, on_step=refresh)
+                                feasible=feasible, on_step=refresh,
+                                on_iteration=on_iteration)
             history += solution.history
             c = solution.parameters
             refresh(c)

@@ -233,6 +233,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
              config: NewtonConfig | None = None, *, load_factor: float = 1.0,
              feasible: Callable[[torch.Tensor, torch.Tensor], bool] | None = None,
              on_step: Callable[[torch.Tensor], bool] | None = None,
+             on_iteration: Callable[[NewtonIteration], None] | None = None,
              report: bool = True) -> NewtonSolution:
     """Minimise Π(P) = potential(U(P)) by Newton from parameters `start` (module docstring).
 
@@ -241,6 +242,8 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
     line-search trial (halved like an Armijo failure; contact: a step that could enter an
     obstacle). on_step(P): called with each accepted iterate; True stops the minimisation
     there, not converged (contact: the caller adds quadrature points and solves again).
+    on_iteration(record): called with each iteration's record before its step is taken (the
+    application's callbacks: the divergence guard, checkpoints); it may raise to stop.
     report: each iteration goes to the innermost progress stage and the log at INFO; False:
     the log at DEBUG only (short solves inside another stage: a SIREN's Newton phases).
     """
@@ -340,6 +343,8 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
                 t_hessian, t_assembly, t_solve)
         if report:
             progress.report(iteration + 1, **{"Π": current.total, "λ²": decrement})
+        if on_iteration is not None:
+            on_iteration(history[-1])
         near = 0.5 * abs(decrement) <= config.floor_tolerance * abs(current.total)
         if alpha == 0.0:  # stopped on the decrement tolerance, or no step decreased Π
             converged = small or near

@@ -256,7 +256,10 @@ def solve_levels(field_, boundary: BoundaryConditions,
                  probes: dict[str, tuple[float, float]] | None = None,
                  length: float = 1.0,
                  on_level: Callable[[int, object, list[LevelSolution]], None] | None = None,
-                 contact=None, linear: LinearSolverConfig | None = None
+                 contact=None, linear: LinearSolverConfig | None = None,
+                 on_iteration: Callable[[int, tuple[int, int], NewtonIteration], None]
+                 | None = None,
+                 on_load_step: Callable[[float], None] | None = None
                  ) -> list[list[LevelSolution]]:
     """Solve on `levels` grids, the field's and its dyadic refinements (module docstring).
 
@@ -271,7 +274,9 @@ def solve_levels(field_, boundary: BoundaryConditions,
     load step. contact: a `taichi_ndf.contact.newton_contact.NewtonContact` that solves each
     load step with its check points, its terms and a penetration-free line search. linear:
     the linear solver's settings (`LinearSolver.for_grid` per level: multigrid over the
-    level's own dyadic hierarchy on large grids). Returns [level][load step] solutions.
+    level's own dyadic hierarchy on large grids). on_iteration(level, spans, record): every
+    Newton iteration (`minimise`'s); on_load_step(load factor): after each load step of each
+    level. Returns [level][load step] solutions.
     """
     if levels < 1:
         raise ValueError(f"levels must be >= 1, got {levels}")
@@ -297,6 +302,9 @@ def solve_levels(field_, boundary: BoundaryConditions,
         per_load: list[LevelSolution] = []
         coefficients = grid.coefficients.detach().clone()
         newton = config if coarse_config is None or level == levels - 1 else coarse_config
+        iterated = None if on_iteration is None else (
+            lambda record, level=level, spans=grid.config.spans: on_iteration(level, spans,
+                                                                              record))
         for k, t in enumerate(load_steps):
             started = time.perf_counter()
             if level:
@@ -309,13 +317,13 @@ def solve_levels(field_, boundary: BoundaryConditions,
                     linearisation = SplineLinearisation(assembly, fixed=fixed, solver=solver,
                                                         length=length)
                     solution = minimise(linearisation, objective.potential(t), coefficients,
-                                        newton, load_factor=t)
+                                        newton, load_factor=t, on_iteration=iterated)
                 else:  # from the previous load step's state (finer level: this one's, prolonged)
                     solution = contact.solve(
                         operator, samples, objective, coefficients, newton,
                         load_factor=t, start_load_factor=t if level else (
                             load_steps[k - 1] if k else 0.0), length=length, fixed=fixed,
-                        linear_solver=solver)
+                        linear_solver=solver, on_iteration=iterated)
             coefficients = solution.parameters
             u = displacement_at(operator, probe_xi, coefficients, t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(probes)}
@@ -326,6 +334,8 @@ def solve_levels(field_, boundary: BoundaryConditions,
             log.info("level %d (%d × %d spans), load %.4g: Π %.10g J in %d Newton steps, "
                      "%.2f s", level, *grid.config.spans, t, solution.energy,
                      len(solution.history), seconds)
+            if on_load_step is not None:
+                on_load_step(t)
         results.append(per_load)
         if on_level is not None:
             on_level(level, grid, per_load)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from taichi_ndf import jets
+from taichi_ndf import jets, runtime
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.callbacks import DivergenceGuard
 from taichi_ndf.field import FieldConfig, NeuralField
@@ -88,27 +88,43 @@ def _own_spline(case: Case, scenes_dir: Path) -> bool:
     return isinstance(load_scene(Path(scenes_dir) / case.scene).field, SplinePlan)
 
 
+@dataclass
+class CaseSolve:
+    """What one solve of a case gives its table, whichever the field: the probe readings
+    (displacement [m] by name, linearised units undone) per load factor of the final field,
+    the convergence series per load factor (its axis: Adam iterations or grid levels, and the
+    readings along it), the counts for the rows, the wall time [s] and the settings."""
+
+    final: dict[float, Readings]
+    series: dict[float, tuple[list[int], list[Readings]]]
+    iterations: int  # Adam iterations, all load steps (0 on the Newton path)
+    newton_steps: int  # last-layer Newton steps, or projected-Newton iterations
+    samples: int  # per Adam iteration (0 on the Newton path)
+    newton_samples: int
+    wall_time: float
+    solver: dict
+
+
 def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = None,
              iterations: int | None = None, scenes_dir: Path = SCENES_DIR,
              seed: int | None = None, field: str | None = None,
              levels: int = SPLINE_LEVELS) -> CaseResult:
-    """Train the case's field and read its quantities.
+    """Solve the case and read its quantities (one table for both fields).
 
-    quick: use the scene's [training.quick] settings; solver: explicit settings instead.
-    iterations: Adam iterations per load step (overrides the settings).
-    seed: field initialisation and sampling seed (default: the scene's).
+    quick: use the scene's [training.quick] settings (the spline path: one grid); solver:
+    explicit settings instead (SIREN). iterations: Adam iterations per load step (overrides
+    the settings). seed: field initialisation and sampling seed (default: the scene's).
     field: "spline" to solve the case with a spline field by projected Newton on `levels`
-    grids (`run_spline_case`), "siren" with the SIREN; None: the field the case's scene
-    names (its `[field] type`), as `ndf-sim` does.
+    grids (`_solve_spline`), "siren" with the SIREN by Adam (`_solve_siren`); None: the field
+    the case's scene names (its `[field] type`), as `ndf-sim` does.
     """
-    if field is None:
-        field = "spline" if _own_spline(case, scenes_dir) else "siren"
-    if field == "spline":
-        if iterations is not None:
-            raise ValueError("--iterations sets Adam; the spline path solves by projected "
-                             "Newton")
-        return run_spline_case(case, quick=quick, scenes_dir=scenes_dir, levels=levels)
-    scene, model, field_config = load_case_scene(case, scenes_dir, field)
+    own = _own_spline(case, scenes_dir)
+    field = field or ("spline" if own else "siren")
+    if field == "spline" and iterations is not None:
+        raise ValueError("--iterations sets Adam; the spline path solves by projected Newton")
+    # A scene with its own spline field keeps its keys (spans, degree, quadrature points).
+    scene, model, field_config = load_case_scene(
+        case, scenes_dir, None if field == "spline" and own else field)
     names = [p.name for p in model.probes]
     for q in case.quantities:
         missing = [p for p in q.probes if p not in names]
@@ -116,123 +132,118 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
             raise ValueError(f"case {case.name}: quantity {q.name} reads probe(s) "
                              f"{', '.join(missing)} that the scene {case.scene} does not "
                              f"define (its probes: {', '.join(names) or 'none'})")
-    config = solver or (scene.quick_solver if quick else scene.solver)
-    if iterations is not None:
-        config = config.with_iterations(iterations)
-    if seed is not None:
-        config = dataclasses.replace(config, seed=seed)
-    config = dataclasses.replace(config, progress=False)
-    warn_rigid_motions(model, newton=config.newton_iterations > 0)
-    # "auto" output scale with Adam: the linear estimate of the case's (scaled) model.
-    field_config = field_for_run(field_config, scene.output_scale_estimate, model, config)
-    field_ = NeuralField(field_config, seed=config.seed)
-    run = Solver(model, field_, config, objective=_objective(case, model))
-    dtype = field_.parameters[0].dtype
-    xi = torch.tensor([p.xi for p in model.probes], dtype=dtype)
-    positions = model.surface.jets(xi)[:, jets.VALUE]
-    reference_positions = {n: positions[k].double().numpy() for k, n in enumerate(names)}
+    objective = _objective(case, model)
     unit = LINEARISATION if case.linear else 1.0
-    at_level: dict[float, Readings] = {}
-
-    def readings(probes: dict[str, list[float]]) -> Readings:
-        return {n: np.asarray(v, dtype=np.float64) / unit for n, v in probes.items()}
-
-    def on_load_step(load_factor: float) -> None:
-        at_level[load_factor] = readings(run.probe_displacements(load_factor))
-
-    start = time.perf_counter()
-    result = run.run(callbacks=[DivergenceGuard()], on_load_step=on_load_step)
-    wall = time.perf_counter() - start
+    if field == "spline":
+        solved, load_steps = _solve_spline(scene, model, field_config, objective, unit,
+                                           levels=1 if quick else levels)
+    else:
+        config = solver or (scene.quick_solver if quick else scene.solver)
+        if iterations is not None:
+            config = config.with_iterations(iterations)
+        if seed is not None:
+            config = dataclasses.replace(config, seed=seed)
+        solved, load_steps = _solve_siren(scene, model, field_config, objective, unit, config)
+    solved.solver["load_scale"] = case.load_scale
+    positions = _reference_positions(model, runtime.current().dtype)  # the fields' dtype
     rows, convergence = [], {}
     for q in case.quantities:
-        key = _level_key(q.level, config.load_steps)
-        computed = None if key is None else q.read(at_level[key], reference_positions)
+        key = _level_key(q.level, load_steps)
+        computed = None if key is None else q.read(solved.final[key], positions)
         error = None if computed is None else abs(computed - q.reference) / abs(q.reference)
         rows.append(Row(case=case.name, quantity=q.name, description=q.description,
                         level=q.level, computed=computed, reference=q.reference,
                         relative_error=error, tolerance=q.tolerance,
                         passed=None if error is None else error <= q.tolerance,
-                        iterations=result.iterations, wall_time=wall, samples=config.samples,
-                        newton_steps=result.newton_steps,
-                        newton_samples=config.newton_samples if config.newton_iterations else 0,
-                        source=q.source))
-        if key is not None:
-            records = [h for h in result.history if h.load_factor == key]
+                        iterations=solved.iterations, wall_time=solved.wall_time,
+                        samples=solved.samples, newton_steps=solved.newton_steps,
+                        newton_samples=solved.newton_samples, source=q.source))
+        if key is not None and key in solved.series:
+            axis, readings = solved.series[key]
             convergence[f"{q.name} @ {q.level:g}"] = (
-                [h.iteration for h in records],
-                [q.read(readings(h.probes), reference_positions) for h in records])
-    log.info("%s: %d iterations in %.1f s", case.name, result.iterations, wall)
-    return CaseResult(case=case, rows=rows, convergence=convergence,
-                      solver={"iterations_per_step": config.iterations,
-                              "samples": config.samples,
-                              "load_steps": list(config.load_steps),
-                              "lbfgs_iterations": config.lbfgs_iterations,
-                              "newton_iterations": config.newton_iterations,
-                              "newton_every": config.newton_every,
-                              "newton_samples": config.newton_samples,
-                              "learning_rate": config.adam.lr,
-                              "field": field_config.to_dict(),
-                              "load_scale": case.load_scale})
+                list(axis), [q.read(r, positions) for r in readings])
+    log.info("%s (%s): %d iterations, %d Newton steps in %.1f s", case.name, field,
+             solved.iterations, solved.newton_steps, solved.wall_time)
+    return CaseResult(case=case, rows=rows, convergence=convergence, solver=solved.solver)
 
 
-def run_spline_case(case: Case, *, quick: bool = False, scenes_dir: Path = SCENES_DIR,
-                    levels: int = SPLINE_LEVELS) -> CaseResult:
+def _solve_siren(scene: Scene, model: ShellModel, field_config, objective: Objective,
+                 unit: float, config: SolverConfig) -> tuple[CaseSolve, tuple[float, ...]]:
+    """The case's SIREN trained by Adam (`Solver`, the divergence guard as its callback):
+    readings after each load step, the monitor history as the convergence series."""
+    config = dataclasses.replace(config, progress=False)
+    warn_rigid_motions(model, newton=config.newton_iterations > 0)
+    # "auto" output scale with Adam: the linear estimate of the case's (scaled) model.
+    field_config = field_for_run(field_config, scene.output_scale_estimate, model, config)
+    run = Solver(model, NeuralField(field_config, seed=config.seed), config,
+                 objective=objective)
+    final: dict[float, Readings] = {}
+
+    def readings(probes: dict[str, list[float]]) -> Readings:
+        return {n: np.asarray(v, dtype=np.float64) / unit for n, v in probes.items()}
+
+    def on_load_step(load_factor: float) -> None:
+        final[load_factor] = readings(run.probe_displacements(load_factor))
+
+    start = time.perf_counter()
+    result = run.run(callbacks=[DivergenceGuard()], on_load_step=on_load_step)
+    wall = time.perf_counter() - start
+    series = {t: ([h.iteration for h in records], [readings(h.probes) for h in records])
+              for t in config.load_steps
+              for records in [[h for h in result.history if h.load_factor == t]]}
+    return CaseSolve(
+        final, series, result.iterations, result.newton_steps, config.samples,
+        config.newton_samples if config.newton_iterations else 0, wall,
+        {"iterations_per_step": config.iterations, "samples": config.samples,
+         "load_steps": list(config.load_steps), "lbfgs_iterations": config.lbfgs_iterations,
+         "newton_iterations": config.newton_iterations, "newton_every": config.newton_every,
+         "newton_samples": config.newton_samples, "learning_rate": config.adam.lr,
+         "field": field_config.to_dict()}), config.load_steps
+
+
+def _solve_spline(scene: Scene, model: ShellModel, plan, objective: Objective, unit: float,
+                  *, levels: int) -> tuple[CaseSolve, tuple[float, ...]]:
     """The case with one default spline configuration (`ndf-sim --field spline`: cubic, the
-    grid rule, Gauss points p + 1, projected-Newton defaults) on `levels` grids (quick: one).
-    Quantities are read on the finest grid; the convergence plot shows them per grid level."""
+    grid rule, Gauss points p + 1, projected-Newton defaults) on `levels` grids, solved by
+    `solve_spline` with the divergence guard as its callback: readings on the finest grid,
+    the convergence series per grid level."""
     from taichi_ndf.minimise.assembly import displacement_at
     from taichi_ndf.operator import DisplacementOperator
     from taichi_ndf.spline_solver import solve_spline
 
-    # A scene with its own spline field keeps its keys (spans, degree, quadrature points).
-    own = _own_spline(case, scenes_dir)
-    scene, model, plan = load_case_scene(case, scenes_dir, None if own else "spline")
-    plan = dataclasses.replace(plan, levels=1 if quick else levels)
+    plan = dataclasses.replace(plan, levels=levels)
     check_run_size(dataclasses.replace(scene, field=plan), scene.solver)
     config = dataclasses.replace(scene.solver, progress=False)
     warn_rigid_motions(model)
-    objective = _objective(case, model)
     names = [p.name for p in model.probes]
-    unit = LINEARISATION if case.linear else 1.0
-    positions = {}
     per_level: list[dict[float, Readings]] = []
 
     def on_level(run) -> None:
         operator = DisplacementOperator(run.field, model.boundary)
         dtype = run.field.coefficients.dtype
         xi = torch.tensor([p.xi for p in model.probes], dtype=dtype).reshape(-1, 2)
-        if not positions:
-            r = model.surface.jets(xi)[:, jets.VALUE]
-            positions.update({n: r[k].double().numpy() for k, n in enumerate(names)})
         per_level.append({t: {n: u[k].double().numpy() / unit for k, n in enumerate(names)}
                           for t, c in run.steps
                           for u in [displacement_at(operator, xi, c, t)[:, jets.VALUE]]})
 
     start = time.perf_counter()
-    run = solve_spline(model, plan, config, objective=objective, on_level=on_level)
+    run = solve_spline(model, plan, config, objective=objective,
+                       callbacks=[DivergenceGuard()], on_level=on_level)
     wall = time.perf_counter() - start
-    rows, convergence = [], {}
-    for q in case.quantities:
-        key = _level_key(q.level, config.load_steps)
-        computed = None if key is None else q.read(per_level[-1][key], positions)
-        error = None if computed is None else abs(computed - q.reference) / abs(q.reference)
-        rows.append(Row(case=case.name, quantity=q.name, description=q.description,
-                        level=q.level, computed=computed, reference=q.reference,
-                        relative_error=error, tolerance=q.tolerance,
-                        passed=None if error is None else error <= q.tolerance,
-                        iterations=0, wall_time=wall, samples=0,
-                        newton_steps=len(run.history), source=q.source))
-        if key is not None and all(key in level for level in per_level):
-            convergence[f"{q.name} @ {q.level:g}"] = (
-                list(range(len(per_level))),
-                [q.read(level[key], positions) for level in per_level])
-    log.info("%s (spline): %d Newton iterations in %.1f s", case.name, len(run.history), wall)
-    return CaseResult(case=case, rows=rows, convergence=convergence,
-                      solver={"method": "newton", "convergence_axis": "grid level",
-                              "load_steps": list(config.load_steps),
-                              "spans": [list(lv.spans) for lv in run.levels],
-                              "newton_iterations": len(run.history),
-                              "field": plan.to_dict(), "load_scale": case.load_scale})
+    series = {t: (list(range(len(per_level))), [level[t] for level in per_level])
+              for t in per_level[-1] if all(t in level for level in per_level)}
+    return CaseSolve(
+        per_level[-1], series, 0, len(run.history), 0, 0, wall,
+        {"method": "newton", "convergence_axis": "grid level",
+         "load_steps": list(config.load_steps), "spans": [list(lv.spans) for lv in run.levels],
+         "newton_iterations": len(run.history), "field": plan.to_dict()}), config.load_steps
+
+
+def _reference_positions(model: ShellModel, dtype) -> dict[str, np.ndarray]:
+    """Each probe's undeformed position (3,) [m] by name."""
+    xi = torch.tensor([p.xi for p in model.probes], dtype=dtype).reshape(-1, 2)
+    r = model.surface.jets(xi)[:, jets.VALUE]
+    return {p.name: r[k].double().numpy() for k, p in enumerate(model.probes)}
 
 
 def _objective(case: Case, model: ShellModel) -> Objective:
