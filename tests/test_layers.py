@@ -82,12 +82,33 @@ def _ancestors(name: str) -> list[str]:
     return [".".join(parts[:k]) for k in range(1, len(parts))]
 
 
+def _dynamic(node: ast.AST, tree: ast.Module) -> list[str]:
+    """The modules an `importlib.import_module(...)` call names: a string, or an f-string
+    "prefix.{...}" whose placeholder is looked up in a module-level dict of names (the lazy
+    `__getattr__` of `taichi_ndf.shell` and `taichi_ndf.validation`): the prefix joined to each
+    string value of those dicts that makes a module, else every module under the prefix."""
+    if not (isinstance(node, ast.Call) and node.args
+            and getattr(node.func, "attr", getattr(node.func, "id", None)) == "import_module"):
+        return []
+    name = node.args[0]
+    if isinstance(name, ast.Constant) and isinstance(name.value, str):
+        return [name.value]
+    if not (isinstance(name, ast.JoinedStr) and isinstance(name.values[0], ast.Constant)):
+        return []
+    prefix = name.values[0].value
+    values = {v.value for d in ast.walk(tree) if isinstance(d, ast.Dict)
+              for v in d.values if isinstance(v, ast.Constant) and isinstance(v.value, str)}
+    named = [prefix + v for v in sorted(values) if prefix + v in MODULES]
+    return named or [m for m in MODULES if m.startswith(prefix)]
+
+
 def _imports(name: str, path: Path, init: bool) -> dict[str, int]:
     """The project modules `name` imports -> the first line that does."""
     package = name if init else name.rpartition(".")[0]
     targets: dict[str, int] = {}
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        named = []
+    tree = ast.parse(path.read_text(), str(path))
+    for node in ast.walk(tree):
+        named = _dynamic(node, tree)
         if isinstance(node, ast.Import):
             named = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -168,6 +189,10 @@ def test_the_graph_is_read(tmp_path):
     assert "taichi_ndf.runtime" in GRAPH["taichi_ndf"]  # inside __getattr__
     assert "taichi_ndf.boundary" in GRAPH["taichi_ndf.model"]
     assert "taichi_ndf.boundary.conditions" in GRAPH["taichi_ndf.boundary"]
+    # importlib.import_module in a lazy __getattr__: the modules its dict names, no others
+    assert "taichi_ndf.shell.materials" in GRAPH["taichi_ndf.shell"]
+    assert "taichi_ndf.shell.hessian" not in GRAPH["taichi_ndf.shell"]
+    assert "taichi_ndf.validation.runner" in GRAPH["taichi_ndf.validation"]
     # a package's __init__ runs first: an edge to it, but not from its own modules
     assert "taichi_ndf.contact" in GRAPH["taichi_ndf.simulation"]
     assert "taichi_ndf.contact" not in GRAPH["taichi_ndf.contact.config"]
