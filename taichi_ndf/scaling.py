@@ -1,7 +1,7 @@
-"""Dimensional scales of a model, without solving anything: the load per area, a material's
-representative stiffnesses, the largest prescribed displacement, and the dimensional estimate
-of the displacement (`characteristic_displacement`), with the names a scene gives the
-output-scale estimates of a SIREN field (`SCALE_ESTIMATES`).
+"""Dimensional scales of a model, without solving anything: the load per area, the largest
+prescribed displacement, and the dimensional estimate of the displacement
+(`characteristic_displacement`, from the material's `small_strain_stiffness`), with the
+names a scene gives the output-scale estimates of a SIREN field (`SCALE_ESTIMATES`).
 
 The estimates that solve (a linear solve, a coarse nonlinear equilibrium) and the choice
 among them at run start are in `taichi_ndf.output_scale` (the solve layer); the contact
@@ -16,7 +16,6 @@ import torch
 from taichi_ndf.boundary import ClampedEdge, Handle, HingedEdge, RimRotation
 from taichi_ndf.line_loads import quadrature
 from taichi_ndf.model import ShellModel
-from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, OrthotropicStVK
 
 # output_scale estimates a scene may name: "equilibrium" and "linear" solve at run start
 # (`taichi_ndf.output_scale`), each falling back to the cheaper ones after it; "dimensional"
@@ -27,18 +26,6 @@ from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, Orthotropic
 # the learning-rate backoff (`taichi_ndf.backoff`) answers that.
 SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
 AUTO_ESTIMATE = "equilibrium"
-
-
-def membrane_and_bending_stiffness(material) -> tuple[float, float]:
-    """Representative (D [N/m], B [N·m]) of any material law at small strain."""
-    if isinstance(material, ClydeFabric):
-        material = material.small_strain()
-    if isinstance(material, LinearIsotropic):
-        return material.membrane_stiffness, material.bending_stiffness
-    if isinstance(material, OrthotropicStVK):
-        return (0.5 * (material.a11 + material.a22),
-                0.5 * (material.warp_bending + material.weft_bending))
-    raise TypeError(f"unknown material type {type(material).__name__}")
 
 
 def load_per_area(model: ShellModel) -> float:
@@ -73,7 +60,7 @@ def characteristic_displacement(model: ShellModel) -> float:
     per unit area (point and line loads spread over the surface); at least the largest prescribed
     displacement; 1e-3 L if nothing loads the shell."""
     length = model.characteristic_length()
-    d, b = membrane_and_bending_stiffness(model.material)
+    d, b = model.material.small_strain_stiffness()
     f = load_per_area(model)
     prescribed = prescribed_displacement(model)
     if f == 0.0:

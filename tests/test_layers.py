@@ -12,12 +12,14 @@ of them (except A's own packages, already being imported).
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("taichi_ndf", "inverse")
+DOC = ROOT / "docs" / "architecture.md"
 MAX_LINES = 400
 
 # The layer order, lowest first (docs/architecture.md, "Layers"). A module belongs to the
@@ -82,12 +84,33 @@ def _ancestors(name: str) -> list[str]:
     return [".".join(parts[:k]) for k in range(1, len(parts))]
 
 
+def _dynamic(node: ast.AST, tree: ast.Module) -> list[str]:
+    """The modules an `importlib.import_module(...)` call names: a string, or an f-string
+    "prefix.{...}" whose placeholder is looked up in a module-level dict of names (the lazy
+    `__getattr__` of `taichi_ndf.shell` and `taichi_ndf.validation`): the prefix joined to each
+    string value of those dicts that makes a module, else every module under the prefix."""
+    if not (isinstance(node, ast.Call) and node.args
+            and getattr(node.func, "attr", getattr(node.func, "id", None)) == "import_module"):
+        return []
+    name = node.args[0]
+    if isinstance(name, ast.Constant) and isinstance(name.value, str):
+        return [name.value]
+    if not (isinstance(name, ast.JoinedStr) and isinstance(name.values[0], ast.Constant)):
+        return []
+    prefix = name.values[0].value
+    values = {v.value for d in ast.walk(tree) if isinstance(d, ast.Dict)
+              for v in d.values if isinstance(v, ast.Constant) and isinstance(v.value, str)}
+    named = [prefix + v for v in sorted(values) if prefix + v in MODULES]
+    return named or [m for m in MODULES if m.startswith(prefix)]
+
+
 def _imports(name: str, path: Path, init: bool) -> dict[str, int]:
     """The project modules `name` imports -> the first line that does."""
     package = name if init else name.rpartition(".")[0]
     targets: dict[str, int] = {}
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        named = []
+    tree = ast.parse(path.read_text(), str(path))
+    for node in ast.walk(tree):
+        named = _dynamic(node, tree)
         if isinstance(node, ast.Import):
             named = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -168,6 +191,10 @@ def test_the_graph_is_read(tmp_path):
     assert "taichi_ndf.runtime" in GRAPH["taichi_ndf"]  # inside __getattr__
     assert "taichi_ndf.boundary" in GRAPH["taichi_ndf.model"]
     assert "taichi_ndf.boundary.conditions" in GRAPH["taichi_ndf.boundary"]
+    # importlib.import_module in a lazy __getattr__: the modules its dict names, no others
+    assert "taichi_ndf.shell.materials" in GRAPH["taichi_ndf.shell"]
+    assert "taichi_ndf.shell.hessian" not in GRAPH["taichi_ndf.shell"]
+    assert "taichi_ndf.validation.runner" in GRAPH["taichi_ndf.validation"]
     # a package's __init__ runs first: an edge to it, but not from its own modules
     assert "taichi_ndf.contact" in GRAPH["taichi_ndf.simulation"]
     assert "taichi_ndf.contact" not in GRAPH["taichi_ndf.contact.config"]
@@ -227,3 +254,68 @@ def test_no_module_over_400_lines(package):
             if name.split(".")[0] == package
             and (n := len(path.read_text().splitlines())) > MAX_LINES}
     assert not long, f"modules over {MAX_LINES} lines (split along concepts): {long}"
+
+
+def _doc_table(heading: str) -> list[list[str]]:
+    """The rows (cells) of the first table under `## heading` in docs/architecture.md."""
+    section = DOC.read_text().split(f"\n## {heading}\n", 1)[1].split("\n## ", 1)[0]
+    rows = [line.strip().strip("|").split(" | ") for line in section.splitlines()
+            if line.startswith("| ")]
+    return [[cell.strip() for cell in row] for row in rows[1:]]  # without the header
+
+
+def test_the_documented_layers_are_layers():
+    """docs/architecture.md's "Layers" table names the layers of LAYERS, in order, each with
+    the same modules (written without `taichi_ndf.`)."""
+    documented = [(row[0], sorted(n if n.startswith("inverse") else f"taichi_ndf.{n}"
+                                  for n in re.findall(r"`([^`]+)`", row[1])))
+                  for row in _doc_table("Layers")]
+    expected = [(name, sorted(p for p in prefixes if p != "taichi_ndf"))
+                for name, prefixes in LAYERS]
+    assert documented == expected
+
+
+def test_the_module_table_lists_every_module_with_its_layer():
+    rows = {re.fullmatch(r"`(.+)`", row[0]).group(1): row[1] for row in _doc_table("Modules")}
+    listed = {str(path.relative_to(ROOT)): LAYERS[layer_of(name)][0]
+              for name, (path, _) in MODULES.items()}
+    assert sorted(set(listed) - set(rows)) == [], "modules without a row"
+    assert sorted(set(rows) - set(listed)) == [], "rows of no module"
+    wrong = {m: (rows[m], layer) for m, layer in listed.items() if rows[m] != layer}
+    assert not wrong, f"documented layer != LAYERS': {wrong}"
+
+
+def _defined_names() -> set[str]:
+    """Every name the code defines (functions, classes, assigned names and attributes,
+    arguments, dataclass fields), every module's name, and the words of its strings."""
+    names = set()
+    for name, (path, _) in MODULES.items():
+        names.update(name.split("."))
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                names.add(node.name)
+            elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+                names.add(node.id)
+            elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+                names.add(node.attr)
+            elif isinstance(node, ast.arg):
+                names.add(node.arg)
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                names.update(re.findall(r"\w+", node.value))
+    return names
+
+
+def test_the_main_api_names_exist():
+    """Every code name in docs/architecture.md's "Main APIs" table (`name`, `a.b(...)`,
+    `.method`) is defined in the code: a removed or renamed function fails here."""
+    defined, missing = _defined_names(), []
+    for row in _doc_table("Main APIs"):
+        for token in re.findall(r"`([^`]+)`", " | ".join(row)):
+            head = token.split("(")[0]
+            name = re.match(r"\.?([A-Za-z_][\w.]*)", token)
+            if (name is None or " " in head or "-" in head or token.endswith((".py", "/"))
+                    or token.startswith("ti.")):  # commands, files, the Taichi language
+                continue
+            if name.group(1).rstrip(".").split(".")[-1] not in defined:
+                missing.append(token)
+    assert not missing, f"names in the Main APIs table that the code does not define: {missing}"

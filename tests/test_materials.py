@@ -246,3 +246,18 @@ def test_napkin_of_the_measured_fabric_hangs_within_2_percent_of_inextensible(tm
     z = json.loads((out / "result.json").read_text())["refinement"]["probes"]["free_corner"][2]
     sag, error = -z["extrapolated"], z["estimated_error"]
     assert abs(sag / math.sqrt(2) - 1) + error / math.sqrt(2) <= 0.02, (sag, error)
+
+
+def test_small_strain_stiffness_of_every_law():
+    """The representative (D, B) the dimensional scales use, one method per law."""
+    from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, OrthotropicStVK, preset
+
+    iso = LinearIsotropic(100.0, 2e-4, 0.3, 0.1)
+    assert iso.small_strain_stiffness() == (100.0, 2e-4)
+    h = 1e-3
+    orth = OrthotropicStVK.isotropic(100.0, 0.3, h, 0.1)
+    d, b = orth.small_strain_stiffness()
+    assert d == pytest.approx(100.0) and b == pytest.approx(100.0 * h * h / 12)
+    canvas = preset("canvas")
+    assert isinstance(canvas, ClydeFabric)
+    assert canvas.small_strain_stiffness() == canvas.small_strain().small_strain_stiffness()

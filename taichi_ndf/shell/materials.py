@@ -85,6 +85,11 @@ class Material(ABC):
         return self.with_stiffness(**{n: factor * getattr(self, n) for n in self.stiffness_names})
 
     @abstractmethod
+    def small_strain_stiffness(self) -> tuple[float, float]:
+        """Representative (membrane D [N/m], bending B [N·m]) at small strain (the dimensional
+        scales of `taichi_ndf.scaling`)."""
+
+    @abstractmethod
     def law_parameters(self) -> list[float]:
         """Non-stiffness parameters of the Taichi law, packed in the order the law reads them."""
 
@@ -140,6 +145,9 @@ class LinearIsotropic(Material):
     def young_modulus(self) -> float:
         """Equivalent Young's modulus E = D (1 − ν²) / h [Pa]."""
         return self.membrane_stiffness * (1 - self.poisson_ratio**2) / self.thickness
+
+    def small_strain_stiffness(self) -> tuple[float, float]:
+        return self.membrane_stiffness, self.bending_stiffness
 
     def law_parameters(self) -> list[float]:
         return [self.poisson_ratio]
@@ -209,6 +217,10 @@ class OrthotropicStVK(Material):
         return cls(a11=d, a12=nu * d, a22=d, G12=(1 - nu) * d, thickness=thickness,
                    areal_density=areal_density)
 
+    def small_strain_stiffness(self) -> tuple[float, float]:
+        """The mean of warp and weft: ((a11 + a22) / 2, (warp + weft bending) / 2)."""
+        return 0.5 * (self.a11 + self.a22), 0.5 * (self.warp_bending + self.weft_bending)
+
     def law_parameters(self) -> list[float]:
         return [self.thickness, self.weft_thickness]
 
@@ -270,6 +282,9 @@ class ClydeFabric(Material):
         return OrthotropicStVK(a11=s * self.a11, a12=s * self.a12, a22=s * self.a22,
                                G12=s * self.G12, thickness=self.thickness,
                                areal_density=self.areal_density)
+
+    def small_strain_stiffness(self) -> tuple[float, float]:
+        return self.small_strain().small_strain_stiffness()
 
     def law_parameters(self) -> list[float]:
         mu, alpha = [], []
