@@ -131,13 +131,12 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
 
     levels = plan.levels if not config.max_levels else min(plan.levels, config.max_levels)
     load_steps = tuple(config.load_steps)
-    if state is None or not state.levels:
-        first = 0
-        grid = SplineField(plan.config) if state is None or state.field is None else state.field
-        state = state or State.newton(grid)
-        state.field = grid
-    else:  # re-solved (one Newton step: converged) and refined from there
-        first, grid, load_steps = len(state.levels) - 1, state.field, load_steps[-1:]
+    state = state or State.newton(None)
+    if state.field is None:
+        state.field = SplineField(plan.config)
+    first, grid = 0, state.field
+    if state.levels:  # resumed: the last level re-solved (one Newton step) and refined
+        first, load_steps = len(state.levels) - 1, load_steps[-1:]
         state.levels = state.levels[:-1]
     contact = None
     if model.contact is not None:
