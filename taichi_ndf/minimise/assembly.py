@@ -18,7 +18,9 @@ the gradient and Hessian blocks are turned to the frame, `operator.to_frame`,
 
 exactly (U is affine in the coefficients). The point-local part of K is scattered into a CSR
 pattern computed once per grid (a `np.bincount` per Newton step); the couplings through the
-shared pin set are summed densely (3n × 3k) and added as a sparse block.
+shared pin set are summed densely (3n × 3k) and added as a sparse block. A term that joins
+two points (`taichi_ndf.objective.couplings`: a seam's stitches) adds A_pᵀ H_p A_p per pair,
+A_p the Jacobian of both points' jets, scattered as a sparse matrix of its own.
 
 Unknowns are ordered coefficient × 3 + component.
 """
@@ -34,6 +36,7 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
+from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, used_entries
@@ -283,9 +286,48 @@ class Assembly:
             out.index_add_(2, self._group[extra], per_point.permute(2, 4, 0, 1, 3))
         return out
 
-    def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
+    def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None
+                ) -> sp.csr_matrix:
         """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18) (index
-        channel × 3 + component)."""
+        channel × 3 + component), plus the pair blocks of terms that couple points
+        (`coupled_hessian`; their points in this assembly's order)."""
+        matrix = self._point_hessian(blocks)
+        return matrix if couplings is None else (matrix + self.coupled_hessian(couplings)).tocsr()
+
+    def coupled_hessian(self, couplings: Couplings) -> sp.csr_matrix:
+        """Σ_p A_pᵀ H_p A_p (3n × 3n, CSR, float64) of pair blocks H_p (`Couplings`), A_p the
+        Jacobian of both points' jets over the coefficients acting at either (and the pin's)."""
+        ends = couplings.endpoint_blocks()  # (P, 2, 6, 3, 2, 6, 3)
+        count = len(couplings)
+        # to the boundary frame's components, each endpoint pair's 18 × 18 block alike
+        ends = self._operator.blocks_to_frame(
+            ends.permute(0, 1, 4, 2, 3, 5, 6).reshape(count * 4, jets.CHANNELS * COMPONENTS,
+                                                      jets.CHANNELS * COMPONENTS)
+        ).reshape(count, 2, 2, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
+        jacobians, dofs = [], []
+        for end in range(2):
+            rows = couplings.points[:, end].to(self.jacobian.device)
+            jacobian = self.jacobian[:, rows]  # (3, P, 6, k)
+            index = _dofs(self.basis.index[rows])  # (P, 3k)
+            if self.pin_jacobian is not None:
+                jacobian = torch.cat((jacobian, self.pin_jacobian[:, rows]), dim=3)
+                index = np.concatenate((index, np.broadcast_to(self.pin_dofs,
+                                                               (count, self.pin_dofs.size))), 1)
+            jacobians.append(jacobian)
+            dofs.append(index)
+        matrix = sp.csr_matrix((self.size, self.size))
+        for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            block = _contract(jacobians[a], _weighted(ends[:, a, b].to(self.jacobian.dtype),
+                                                      jacobians[b]))
+            shape = (count, dofs[a].shape[1], dofs[b].shape[1])
+            matrix = matrix + sp.coo_matrix((
+                block.reshape(shape).double().cpu().numpy().ravel(),
+                (np.broadcast_to(dofs[a][:, :, None], shape).ravel(),
+                 np.broadcast_to(dofs[b][:, None, :], shape).ravel())), shape=matrix.shape)
+        return matrix.tocsr()
+
+    def _point_hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
+        """Σ Jᵀ H J of the per-point blocks H (N, 18, 18) (`hessian`)."""
         n = blocks.shape[0]
         blocks = self._operator.blocks_to_frame(blocks).reshape(
             n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)

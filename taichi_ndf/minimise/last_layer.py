@@ -30,7 +30,13 @@ import torch
 
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimise.linearisation import DenseLinearisation
-from taichi_ndf.minimise.newton import NewtonConfig, NewtonSolution, minimise, point_blocks
+from taichi_ndf.minimise.newton import (
+    NewtonConfig,
+    NewtonSolution,
+    coupled_blocks,
+    minimise,
+    point_blocks,
+)
 from taichi_ndf.operator import DisplacementOperator
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import Potential
@@ -92,7 +98,8 @@ def output_hessian(operator: DisplacementOperator, potential: Potential,
     linear = output_linearisation(operator, samples, load_factor, conditioning)
     zero = torch.zeros_like(linear.origin)
     blocks = point_blocks(linear, potential, zero, linear.offset, config.fd_step)
-    return linear.offset, linear.jacobian, linear.hessian(blocks)
+    couplings = coupled_blocks(potential, linear.samples, linear.offset)
+    return linear.offset, linear.jacobian, linear.hessian(blocks, couplings)
 
 
 def solve_last_layer(operator: DisplacementOperator, potential: Potential,

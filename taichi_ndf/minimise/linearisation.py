@@ -22,6 +22,7 @@ import torch
 
 from taichi_ndf.minimise.assembly import Assembly
 from taichi_ndf.minimise.linear_solve import LinearSolver, damped_solve
+from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
 
@@ -53,6 +54,22 @@ def parameter_hessian(jacobian: torch.Tensor, hessians: torch.Tensor) -> torch.T
             blocks[m, k] = blocks[k, m].t()
     return torch.cat([torch.cat([blocks[k, m] for m in range(COMPONENTS)], dim=1)
                       for k in range(COMPONENTS)], dim=0)
+
+
+def coupled_parameter_hessian(jacobian: torch.Tensor, couplings: Couplings) -> torch.Tensor:
+    """Σ_p A_pᵀ H_p A_p, shape (3p, 3p), of pair blocks H_p (`Couplings`) with J (3, N, 6, p):
+    the Hessian of terms that couple pairs of points over the parameters."""
+    ends = couplings.endpoint_blocks().to(jacobian.dtype)  # (P, 2, 6, 3, 2, 6, 3)
+    first = jacobian[:, couplings.points[:, 0]]
+    second = jacobian[:, couplings.points[:, 1]]
+    pair = (first, second)
+    comps, _, _, p = jacobian.shape
+    total = jacobian.new_zeros(comps, p, comps, p)
+    for a in range(2):
+        for b in range(2):
+            total += torch.einsum("kqia,qikjm,mqjb->kamb", pair[a], ends[:, a, :, :, b],
+                                  pair[b])
+    return total.reshape(comps * p, comps * p)
 
 
 def _scaled_system(hessian: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -108,11 +125,15 @@ class DenseLinearisation:
         scale = torch.maximum(rms_u, rms_j * rms_theta)
         return relative * torch.where(scale > 0, scale, torch.ones_like(scale))
 
-    def hessian(self, blocks: torch.Tensor) -> torch.Tensor:
+    def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None
+                ) -> torch.Tensor:
         n = blocks.shape[0]
         channels = JET_SIZE // COMPONENTS
-        return parameter_hessian(self.jacobian,
-                                 blocks.reshape(n, channels, COMPONENTS, channels, COMPONENTS))
+        matrix = parameter_hessian(self.jacobian,
+                                   blocks.reshape(n, channels, COMPONENTS, channels, COMPONENTS))
+        if couplings is None:
+            return matrix
+        return matrix + coupled_parameter_hessian(self.jacobian, couplings)
 
     def solve(self, matrix: torch.Tensor, gradient: torch.Tensor, damping: float, *,
               require_definite: bool = False) -> tuple[torch.Tensor, float] | None:
@@ -163,8 +184,9 @@ class SplineLinearisation:
                  relative: float) -> torch.Tensor:
         return jet_steps(self.samples.r_jets, u_jets, self.length, relative)
 
-    def hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
-        return self.assembly.hessian(blocks)
+    def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None
+                ) -> sp.csr_matrix:
+        return self.assembly.hessian(blocks, couplings)
 
     def solve(self, matrix: sp.csr_matrix, gradient: torch.Tensor, damping: float, *,
               require_definite: bool = False) -> tuple[torch.Tensor, float] | None:

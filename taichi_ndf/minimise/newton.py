@@ -9,6 +9,8 @@ g = Jᵀ ∂Π/∂U and K = Jᵀ H J exactly. Per iteration from P:
 2. per-point Hessian blocks (`point_blocks`): the potential's own (`Objective.hessian_blocks`:
    the shell's through its strains, `taichi_ndf.shell.strain_hessian`) or central differences
    of its gradient, with the linearisation's step per jet channel (`Linearisation.fd_steps`);
+   — and, for terms that join points (a seam's stitches), blocks between pairs of points
+   (`coupled_blocks`, `taichi_ndf.objective.couplings`);
 3. K = Jᵀ H J (`Linearisation.hessian`) — with `project`: of the exact blocks when that K is
    positive definite (checked by its factorisation: a stable state may have indefinite
    blocks, and the exact Newton step then converges quadratically), else of the blocks
@@ -42,6 +44,7 @@ from typing import Any, Protocol
 import torch
 
 from taichi_ndf import progress
+from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import (
     PROJECTIONS,
@@ -73,8 +76,9 @@ class Linearisation(Protocol):
                  relative: float) -> torch.Tensor:
         """Central-difference step per jet channel (6,) of the Hessian blocks at U(P)."""
 
-    def hessian(self, blocks: torch.Tensor) -> Any:
-        """K = Jᵀ H J (dense torch matrix or scipy sparse) from blocks H (N, 18, 18)."""
+    def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None) -> Any:
+        """K = Jᵀ H J (dense torch matrix or scipy sparse) from blocks H (N, 18, 18) and the
+        pair blocks of terms that couple points (`Couplings`, None: none)."""
 
     def solve(self, matrix: Any, gradient: torch.Tensor, damping: float, *,
               require_definite: bool = False) -> tuple[torch.Tensor, float] | None:
@@ -204,6 +208,13 @@ def hessian_blocks(potential: Potential, samples, u_jets: torch.Tensor, steps: t
     return sample_hessians(potential, samples, u_jets, steps=steps)
 
 
+def coupled_blocks(potential: Potential, samples, u_jets: torch.Tensor) -> Couplings | None:
+    """The potential's Hessian entries between pairs of points (`Objective.coupled_blocks`),
+    None where it has none."""
+    own = getattr(potential, "coupled_blocks", None)
+    return None if own is None else own(samples, u_jets)
+
+
 def point_blocks(linearisation: Linearisation, potential: Potential, parameters: torch.Tensor,
                  u_jets: torch.Tensor, fd_step: float) -> torch.Tensor:
     """The exact (unprojected) per-point blocks (N, 18, 18) at U(P) = u_jets, with the
@@ -276,6 +287,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
             break
         started = time.perf_counter()
         blocks = point_blocks(linearisation, potential, c, u, config.fd_step)
+        couplings = coupled_blocks(potential, samples, u)
         t_hessian = time.perf_counter() - started
         t_assembly = t_solve = 0.0
         first_step = matrix = None  # (step, damping) of a factorisation checked definite
@@ -283,7 +295,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
             # The exact K may be definite although some blocks are not (a stable state under
             # compression): then its Newton step converges quadratically.
             started = time.perf_counter()
-            matrix = linearisation.hessian(blocks)
+            matrix = linearisation.hessian(blocks, couplings)
             t_assembly += time.perf_counter() - started
             started = time.perf_counter()
             first_step = linearisation.solve(matrix, gradient, 0.0, require_definite=True)
@@ -296,10 +308,13 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
             if config.project:
                 started = time.perf_counter()
                 blocks, projected = project_psd(blocks, mode=config.hessian)
+                if couplings is not None:
+                    couplings, pairs = couplings.projected(config.hessian)
+                    projected += pairs
                 t_hessian += time.perf_counter() - started
             if matrix is None or projected:
                 started = time.perf_counter()
-                matrix = linearisation.hessian(blocks)
+                matrix = linearisation.hessian(blocks, couplings)
                 t_assembly += time.perf_counter() - started
         alpha, small = 0.0, False
         for _attempt in range(config.line_searches):

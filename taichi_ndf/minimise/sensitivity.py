@@ -21,18 +21,19 @@ import torch
 from taichi_ndf.minimise.assembly import Assembly
 from taichi_ndf.minimise.linear_solve import _positive_pivots as positive_pivots
 from taichi_ndf.minimise.linearisation import SplineLinearisation
-from taichi_ndf.minimise.newton import point_blocks
+from taichi_ndf.minimise.newton import coupled_blocks, point_blocks
 from taichi_ndf.shell.hessian import Potential
 
 
 def exact_hessian(assembly: Assembly, potential: Potential, coefficients: torch.Tensor, *,
                   length: float = 1.0, fd_step: float = 1e-5) -> sp.csr_matrix:
-    """K = Σ Jᵀ H J (3n × 3n, CSR) of the exact, unprojected per-point blocks at `coefficients`
-    (n, 3); the assembly linearised at the potential's load factor; length, fd_step as
-    `NewtonConfig` / `jet_steps` (Newton's own blocks: `point_blocks`)."""
+    """K = Σ Jᵀ H J (3n × 3n, CSR) of the exact, unprojected per-point (and pair) blocks at
+    `coefficients` (n, 3); the assembly linearised at the potential's load factor; length,
+    fd_step as `NewtonConfig` / `jet_steps` (Newton's own blocks: `point_blocks`)."""
     linearisation = SplineLinearisation(assembly, length=length)
     u = assembly.displacement(coefficients)
-    return assembly.hessian(point_blocks(linearisation, potential, coefficients, u, fd_step))
+    return assembly.hessian(point_blocks(linearisation, potential, coefficients, u, fd_step),
+                            coupled_blocks(potential, assembly.samples, u))
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ from typing import Protocol
 
 import torch
 
+from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.objective.terms import ShellEnergyTerm
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult
@@ -19,6 +20,11 @@ class Term(Protocol):
     evaluate(samples, u_jets (N, 6, 3) [m], load_factor, *, grad) -> (value [J], dΠ/du_jets
     (N, 6, 3) or None). load_factor: one number or one per sample (N,) (a pseudo-time field);
     the samples carry unscaled point forces and the term applies the load factor.
+
+    Optional: hessian_blocks(samples, u_jets, load_factor, *, steps) -> its per-point blocks
+    (N, 6, 3, 6, 3) (without it: central differences of its gradient); coupled_hessian(samples,
+    u_jets, load_factor) -> `Couplings`, its Hessian entries between pairs of points (a term
+    with couplings gets no central differences: `taichi_ndf.objective.couplings`).
     """
 
     def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
@@ -72,17 +78,28 @@ class Objective:
         """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3), not projected: the sum of
         each term's own `hessian_blocks(samples, u_jets, load_factor, steps=steps)` where the
         term has one, else central differences of that term's gradient (`sample_hessians`,
-        steps (6,) per jet channel)."""
+        steps (6,) per jet channel) — except for a term with couplings, whose Hessian is in
+        `coupled_blocks`."""
         total = None
         for term in (self.shell, *self.extra):
             own = getattr(term, "hessian_blocks", None)
             if own is not None:
                 blocks = own(samples, u_jets, load_factor, steps=steps)
+            elif hasattr(term, "coupled_hessian"):  # its Hessian is all in its couplings
+                continue
             else:
                 blocks = sample_hessians(_term_potential(term, load_factor), samples, u_jets,
                                          steps=steps)
             total = blocks if total is None else total + blocks
         return total
+
+    def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                       load_factor: float | torch.Tensor = 1.0) -> Couplings | None:
+        """The Hessian entries between pairs of points of the terms that have them
+        (`coupled_hessian`), joined; None where no term has any."""
+        return Couplings.join(term.coupled_hessian(samples, u_jets, load_factor)
+                              for term in (self.shell, *self.extra)
+                              if hasattr(term, "coupled_hessian"))
 
 
 def _term_potential(term: Term, load_factor):
@@ -118,3 +135,8 @@ class FixedLoadPotential:
                        steps: torch.Tensor) -> torch.Tensor:
         """Per-point Hessian blocks (N, 6, 3, 6, 3) (`Objective.hessian_blocks`)."""
         return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
+
+    def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor
+                       ) -> Couplings | None:
+        """Hessian entries between pairs of points (`Objective.coupled_blocks`)."""
+        return self.objective.coupled_blocks(samples, u_jets, self.load_factor)

@@ -1,4 +1,5 @@
-"""Energy terms of the objective: the shell's potential energy and the end moment's work."""
+"""Energy terms of the objective: the shell's potential energy, the end moment's work and the
+stitches of a seam (a term whose Hessian couples pairs of points)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.loads import Loads
+from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
 from taichi_ndf.shell.strain_hessian import strain_energy_hessians
@@ -89,3 +91,55 @@ class EndMomentTerm:
         """Mean end rotation θ_end [rad] of the strip."""
         energy, _ = self.evaluate(samples, u_jets, 1.0, grad=False)
         return -energy * self.width / self.moment
+
+
+class StitchTerm:
+    """Zero-length springs joining pairs of sample points, the stitches of a seam:
+    Π_s = ½ k Σ_p |x_a + u_a − x_b − u_b|², x the rest positions, u the displacements of the
+    pair's two points (a_p, b_p), k [N/m] per stitch. Not scaled by the load factor (a seam is
+    part of the material, not a load). Its Hessian couples the two points of each stitch
+    (`coupled_hessian`; `taichi_ndf.objective.couplings`).
+
+    pairs: (P, 2) int64 row numbers of the stitched points in the samples the term is
+    evaluated on (for an `Assembly`, in its own order: `Assembly.order`)."""
+
+    def __init__(self, pairs: torch.Tensor, stiffness: float):
+        if pairs.dim() != 2 or pairs.shape[1] != 2 or pairs.dtype != torch.int64:
+            raise ValueError(f"StitchTerm: pairs must be (P, 2) int64, got "
+                             f"{tuple(pairs.shape)} {pairs.dtype}")
+        if not (math.isfinite(stiffness) and stiffness > 0):
+            raise ValueError(f"StitchTerm: stiffness must be finite and > 0, got {stiffness!r}")
+        self.pairs = pairs
+        self.stiffness = float(stiffness)
+
+    def gaps(self, samples: SurfaceSamples, u_jets: torch.Tensor) -> torch.Tensor:
+        """x_a + u_a − x_b − u_b (P, 3) [m] of every stitch."""
+        x = samples.r_jets[:, jets.VALUE] + u_jets[:, jets.VALUE]
+        return x[self.pairs[:, 0]] - x[self.pairs[:, 1]]
+
+    def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                 load_factor: float | torch.Tensor = 1.0, *, grad: bool = True
+                 ) -> tuple[float, torch.Tensor | None]:
+        """Π_s [J] and dΠ_s/du_jets (N, 6, 3)."""
+        gap = self.gaps(samples, u_jets)
+        value = 0.5 * self.stiffness * float((gap * gap).sum())
+        if not grad:
+            return value, None
+        gradient = torch.zeros_like(u_jets)
+        force = self.stiffness * gap.to(u_jets.dtype)
+        gradient[:, jets.VALUE].index_add_(0, self.pairs[:, 0], force)
+        gradient[:, jets.VALUE].index_add_(0, self.pairs[:, 1], -force)
+        return value, gradient
+
+    def coupled_hessian(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                        load_factor: float | torch.Tensor = 1.0) -> Couplings:
+        """The stitches' pair blocks: k [[I, −I], [−I, I]] on the two value channels (exact:
+        Π_s is quadratic)."""
+        count = self.pairs.shape[0]
+        blocks = u_jets.new_zeros(count, 2, jets.CHANNELS, 3, 2, jets.CHANNELS, 3)
+        eye = self.stiffness * torch.eye(3, dtype=u_jets.dtype, device=u_jets.device)
+        for a in range(2):
+            for b in range(2):
+                blocks[:, a, jets.VALUE, :, b, jets.VALUE, :] = eye if a == b else -eye
+        return Couplings(self.pairs, blocks.reshape(count, 2 * 3 * jets.CHANNELS,
+                                                    2 * 3 * jets.CHANNELS))
