@@ -4,8 +4,9 @@ Defaults (`MaterialFromVideoConfig`): quartic splines on 7 × 7 / 14 × 14 spans
 stiffness D estimated beside B unless `--membrane-stiffness` states it, the flat sheet's size
 from the template unless `--sheet-size` states it. The held corners are `--held-corners A B`
 (default: the two `--pinned` vertices, when the corners do not move); the template must be a
-regular vertex grid with them at the two ends of one grid edge (`inverse.sft.hanging.SheetGrid`). Everything is
-checked before tracking; a bad option is an `InputError` (exit 2). The estimate itself is
+regular vertex grid with them at the two ends of one grid edge
+(`inverse.sft.hanging.SheetGrid`). Everything is checked before tracking; a bad option is an
+`InputError` (exit 2). The estimate itself is
 `inverse.sft.material_from_video.estimate_material` on the reconstructed meshes.
 """
 
