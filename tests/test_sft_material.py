@@ -33,19 +33,46 @@ def test_sheet_grid_of_both_index_orders():
         SheetGrid.from_template(vertices, grid.faces, (0, 34))
 
 
+def test_defaults_are_the_measured_settings():
+    """The estimate's defaults are the settings measured to recover B (quartic splines on
+    7 × 7 / 14 × 14 spans, D estimated beside B, the flat size from the template), and the
+    command line sets each of them."""
+    config = MaterialFromVideoConfig()
+    assert (config.degree, config.spans, config.membrane_stiffness, config.sheet_size) == \
+        (4, (7, 7), None, None)
+    assert config.estimate_membrane
+    held = MaterialFromVideoConfig(membrane_stiffness=100.0)
+    assert not held.estimate_membrane and held.start_material.membrane_stiffness == 100.0
+    from inverse.cli.sft import build_parser
+    from inverse.cli.sft_material import material_config
+
+    base = ["--frames", "f", "--camera", "c", "--template", "t", "--texture", "x", "--out", "o",
+            "--estimate-material"]
+    parser = build_parser()
+    assert material_config(parser.parse_args(base)) == MaterialFromVideoConfig()
+    set_ = material_config(parser.parse_args(base + [
+        "--material-degree", "3", "--material-spans", "5", "6", "--membrane-stiffness", "250",
+        "--sheet-size", "0.3", "0.2"]))
+    assert (set_.degree, set_.spans, set_.membrane_stiffness, set_.sheet_size) == \
+        (3, (5, 6), 250.0, (0.3, 0.2))
+    grid = grid_mesh(((0.0, 0.3), (0.0, 0.2)), (6, 4))
+    sheet = SheetGrid.from_template(np.column_stack([grid.xi, np.zeros(len(grid.xi))]),
+                                    grid.faces, (0, 6)).with_size((0.6, 0.1))
+    assert sheet.size == (0.6, 0.1) and np.allclose(sheet.xi, grid.xi * [2.0, 0.5])
+
+
 @pytest.mark.slow
 def test_coarse_hanging_sheet_bending_length_recovered():
     """Three frames of a 0.3 m sheet (c = 5 cm, ρ_A = 0.2 kg/m², D = 100 N/m) held at its
-    moving top corners, solved on 12 × 12 quartic spans; estimated on 7 × 7 / 14 × 14 quartic
-    spans (another grid: no inverse crime) from a start of c = 2 cm with the stated areal
-    density, the flat sheet from the template, B and D both unknown: B within 5 % and within
-    2 standard errors (measured −1.5 % ± 8.1 %, D 101.7 ± 4.3 N/m; benchmarks/RESULTS.md,
-    Material from video)."""
+    moving top corners, solved on 12 × 12 quartic spans; estimated at the defaults (quartic
+    7 × 7 / 14 × 14 spans, another grid: no inverse crime; B and D both unknown) from a start
+    of c = 2 cm with the stated areal density, the flat sheet from the template: B within 5 %
+    and within 2 standard errors (measured −1.5 % ± 8.1 %, D 101.7 ± 4.3 N/m;
+    benchmarks/RESULTS.md, Material from video)."""
     truth = HangingConfig(frames=3, cells=(12, 12), bending_length=0.05, spans=(12, 12))
     shapes = equilibrium_shapes(truth)
     grid, _, held = template_grid(truth)
-    config = MaterialFromVideoConfig(areal_density=0.2, frames=0, spans=(7, 7), degree=4,
-                                     estimate_membrane=True)
+    config = MaterialFromVideoConfig(areal_density=0.2, frames=0)
     flat = np.column_stack([grid.xi, np.zeros(len(grid.xi))])
     material = estimate_material(shapes, grid.faces, held, config, rest=flat)
     b = material["bending_stiffness"]
@@ -55,6 +82,8 @@ def test_coarse_hanging_sheet_bending_length_recovered():
     assert abs(b["value"] - true_b) < 0.05 * true_b
     assert abs(b["value"] - true_b) < 2 * b["standard_error"]
     assert [g["spans"] for g in material["grids"]] == [[7, 7], [14, 14]]
+    d = material["membrane_stiffness"]
+    assert not d["held"] and abs(d["value"] - 100.0) < 2 * d["standard_error"]
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -65,6 +94,15 @@ def test_coarse_hanging_sheet_bending_length_recovered():
      "areal_density must be positive"),
     (["--estimate-material", "--held-corners", "0", "4", "--material-frames", "1"],
      "frames must be 0"),
+    (["--material-spans", "7", "7"], "--material-spans needs --estimate-material"),
+    (["--estimate-material", "--held-corners", "0", "4", "--material-degree", "5"],
+     "degree must be 3 or 4"),
+    (["--estimate-material", "--held-corners", "0", "4", "--membrane-stiffness", "0"],
+     "membrane_stiffness must be positive"),
+    (["--estimate-material", "--held-corners", "0", "4", "--sheet-size", "0.3", "-1"],
+     "sheet_size must be positive"),
+    (["--estimate-material", "--held-corners", "0", "4", "--membrane-stiffness", "nan"],
+     "must be finite"),
 ])
 def test_cli_rejects_bad_material_options(tmp_path, capsys, extra, message):
     """Each bad option: exit 2 and one line naming it, before tracking (no output folder)."""
@@ -81,9 +119,12 @@ def test_cli_rejects_bad_material_options(tmp_path, capsys, extra, message):
     (tmp_path / "camera.json").write_text(json.dumps(
         {"fx": 150.0, "fy": 150.0, "cx": 79.5, "cy": 59.5, "width": 160, "height": 120}))
     out = tmp_path / "out"
-    code = main(["--frames", str(frames), "--camera", str(tmp_path / "camera.json"),
-                 "--template", str(tmp_path / "template.obj"),
-                 "--texture", str(tmp_path / "texture.png"), "--out", str(out), *extra])
+    try:  # a value argparse refuses exits from the parser, the others return 2
+        code = main(["--frames", str(frames), "--camera", str(tmp_path / "camera.json"),
+                     "--template", str(tmp_path / "template.obj"),
+                     "--texture", str(tmp_path / "texture.png"), "--out", str(out), *extra])
+    except SystemExit as exit_:
+        code = exit_.code
     err = capsys.readouterr().err
     assert code == 2
     assert message in err and len(err.strip().splitlines()) == 1

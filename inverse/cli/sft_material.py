@@ -1,9 +1,12 @@
 """`ndf-sft --estimate-material`: the options of the material estimate and their checks.
 
-The held corners are `--held-corners A B` (default: the two `--pinned` vertices, when the
-corners do not move); the template must be a regular vertex grid
-with them at the two ends of one grid edge (`inverse.sft.hanging.SheetGrid`). Everything is
-checked before tracking; a bad option is an `InputError` (exit 2). The estimate itself is
+Defaults (`MaterialFromVideoConfig`): quartic splines on 7 × 7 / 14 × 14 spans, the membrane
+stiffness D estimated beside B unless `--membrane-stiffness` states it, the flat sheet's size
+from the template unless `--sheet-size` states it. The held corners are `--held-corners A B`
+(default: the two `--pinned` vertices, when the corners do not move); the template must be a
+regular vertex grid with them at the two ends of one grid edge
+(`inverse.sft.hanging.SheetGrid`). Everything is checked before tracking; a bad option is an
+`InputError` (exit 2). The estimate itself is
 `inverse.sft.material_from_video.estimate_material` on the reconstructed meshes.
 """
 
@@ -20,6 +23,10 @@ from taichi_ndf.cli.common import finite_float
 DEFAULTS = MaterialFromVideoConfig()
 
 
+def _text(values) -> str:
+    return " ".join(f"{v:g}" for v in values)
+
+
 def add_material_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("material from the video (--estimate-material)")
     g.add_argument("--estimate-material", action="store_true",
@@ -28,26 +35,33 @@ def add_material_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--held-corners", type=int, nargs=2, metavar=("A", "B"),
                    help="template vertices of the two held corners, which may move (default: "
                    "the two --pinned vertices)")
-    g.add_argument("--areal-density", type=finite_float, default=DEFAULTS.areal_density,
+    g.add_argument("--areal-density", type=finite_float,
                    help="stated areal density [kg/m²] that turns B/(ρ g) into B (default: "
-                   "%(default)s, the median of measured fabrics)")
-    g.add_argument("--gravity", type=finite_float, nargs=3, default=DEFAULTS.gravity,
-                   metavar=("GX", "GY", "GZ"),
-                   help="gravity [m/s²] in camera coordinates (default: %(default)s, down "
-                   "the image)")
-    g.add_argument("--material-frames", type=int, default=DEFAULTS.frames,
-                   help="frames used, evenly spread (0: all; default: %(default)s)")
-    g.add_argument("--material-spans", type=int, nargs=2, default=DEFAULTS.spans,
-                   metavar=("N1", "N2"),
-                   help="coarse spline grid of the equilibria; the fine grid halves it "
-                   "(default: %(default)s)")
+                   f"{DEFAULTS.areal_density:g}, the median of measured fabrics)")
+    g.add_argument("--gravity", type=finite_float, nargs=3, metavar=("GX", "GY", "GZ"),
+                   help="gravity [m/s²] in camera coordinates (default: "
+                   f"{_text(DEFAULTS.gravity)}, down the image)")
+    g.add_argument("--material-frames", type=int,
+                   help=f"frames used, evenly spread (0: all; default: {DEFAULTS.frames})")
+    g.add_argument("--material-spans", type=int, nargs=2, metavar=("N1", "N2"),
+                   help="coarse spline grid of the equilibria; the fine grid has twice its "
+                   f"spans (default: {_text(DEFAULTS.spans)})")
+    g.add_argument("--material-degree", type=int,
+                   help="spline degree of the equilibria, 3 or 4 (default: "
+                   f"{DEFAULTS.degree}; cubic measured undetermined on the same grids)")
+    g.add_argument("--membrane-stiffness", type=finite_float, metavar="D",
+                   help="hold the membrane stiffness at this stated D [N/m] (default: D is "
+                   "estimated beside B; a wrong held D biases B, docs/sft.md)")
+    g.add_argument("--sheet-size", type=finite_float, nargs=2, metavar=("W", "H"),
+                   help="size of the flat sheet [m], W along the held edge, when known "
+                   "(default: the template's grid-line lengths; a template that is a hanging "
+                   "frame carries its stretch)")
 
 
 def material_config(args: argparse.Namespace) -> MaterialFromVideoConfig | None:
     """The estimate's settings (None without --estimate-material); InputError when an option
     is invalid or given without --estimate-material."""
-    given = [name for name in ("areal_density", "gravity", "material_frames", "material_spans")
-             if getattr(args, name) != getattr(DEFAULTS, _FIELD.get(name, name))]
+    given = [name for name in _FIELD if getattr(args, name) is not None]
     if args.held_corners is not None:
         given.insert(0, "held_corners")
     if not args.estimate_material:
@@ -55,15 +69,23 @@ def material_config(args: argparse.Namespace) -> MaterialFromVideoConfig | None:
             raise InputError(f"--{given[0].replace('_', '-')} needs --estimate-material")
         return None
     try:
-        return MaterialFromVideoConfig(areal_density=args.areal_density,
-                                       gravity=tuple(args.gravity),
-                                       frames=args.material_frames,
-                                       spans=tuple(args.material_spans), fps=args.fps)
+        return MaterialFromVideoConfig(fps=args.fps, **{
+            field: _value(args, name) for name, field in _FIELD.items()
+            if getattr(args, name) is not None})
     except ValueError as err:
         raise InputError(f"--estimate-material: {err}") from None
 
 
-_FIELD = {"material_frames": "frames", "material_spans": "spans"}
+# command-line option (argparse dest) -> MaterialFromVideoConfig field
+_FIELD = {"areal_density": "areal_density", "gravity": "gravity",
+          "material_frames": "frames", "material_spans": "spans",
+          "material_degree": "degree", "membrane_stiffness": "membrane_stiffness",
+          "sheet_size": "sheet_size"}
+
+
+def _value(args: argparse.Namespace, name: str):
+    value = getattr(args, name)
+    return tuple(value) if isinstance(value, list) else value
 
 
 def check_held_corners(args: argparse.Namespace, template, pinned) -> tuple[int, int]:

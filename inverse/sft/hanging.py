@@ -88,6 +88,13 @@ class SheetGrid:
         xi[grid.ravel(), 1] = (j.ravel() / (n2 - 1)) * height
         return cls(xi=xi, size=(width, height), held=held, shape=(n1, n2), index=grid)
 
+    def with_size(self, size: tuple[float, float]) -> SheetGrid:
+        """The same grid on a flat sheet of the stated size (W, H) [m] (W along the held
+        edge): ξ scaled along each direction."""
+        scale = np.array([float(size[0]) / self.size[0], float(size[1]) / self.size[1]])
+        return SheetGrid(xi=self.xi * scale, size=(float(size[0]), float(size[1])),
+                         held=self.held, shape=self.shape, index=self.index)
+
 def _grid_columns(faces: np.ndarray, n: int) -> int:
     """Vertices per row of a row-major grid mesh, from its edges' index differences."""
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])

@@ -17,8 +17,15 @@ method's (eigen-analysis of the Fisher matrix).
 
 Identifiability: under gravity alone the shape fixes the stiffness only relative to the weight:
 B / (ρ_A g), i.e. the bending length c = (B / (ρ_A g))^(1/3). B itself follows from a stated
-areal density ρ_A (`areal_density`). D enters as D / (ρ_A g) and is nearly unobservable for a
-nearly inextensible sheet: it is held at `membrane_stiffness` unless `estimate_membrane`.
+areal density ρ_A (`areal_density`). D enters as D / (ρ_A g): it is estimated beside B unless
+a `membrane_stiffness` is stated (then held there). Measured on a synthetic hanging sheet
+(benchmarks/RESULTS.md, Material from video): at D = 100 N/m the sheet stretches 0.4 % under
+its weight, and the shape between the held corners depends on it enough that a held D of
+300 N/m put B 87 % low; estimated, D came out 101.7 ± 4.3 N/m and B within 1.5 %.
+
+The flat sheet's size is the template's grid-line lengths (the template file's own vertices,
+`rest`; a template that is itself a hanging frame carries that frame's stretch) unless
+`sheet_size` states it.
 
 Quasi-static check: the held corners' accelerations (second differences of the reconstructed
 corner positions at the frame rate) over g; a frame whose corners accelerate by more than
@@ -89,12 +96,15 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
 
     vertices: per frame (V, 3) [m], template order, camera coordinates; faces: (F, 3)
     template faces; held: the two held corner vertices; rest: (V, 3) [m] the template's own
-    vertices, whose grid-line lengths give the flat sheet's size (the template is the
-    unstretched sheet; None: the reconstructed frame 0, which gravity has stretched).
+    vertices, whose grid-line lengths give the flat sheet's size unless `config.sheet_size`
+    states it (exact for a flat template; a template that is a hanging frame carries that
+    frame's stretch; None: the reconstructed frame 0, which gravity has stretched).
     Returns the report (`report`'s keys)."""
     config = config or MaterialFromVideoConfig()
-    t0 = time.perf_counter()
+    t0, cpu = time.perf_counter(), time.process_time()
     grid = SheetGrid.from_template(vertices[0] if rest is None else rest, faces, held)
+    if config.sheet_size is not None:
+        grid = grid.with_size(config.sheet_size)
     frames = chosen_frames(len(vertices), config.frames)
     observations = frame_observations(vertices, grid, config, frames)
     spec = "bending,stretch" if config.estimate_membrane else "bending"
@@ -116,10 +126,12 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     g = float(np.linalg.norm(config.gravity))
     grids = [{"spans": list(f.label["spans"]), "degree": config.degree,
               "bending_stiffness": float(f.values[0]),
+              **({"membrane_stiffness": float(f.values[1])} if config.estimate_membrane
+                 else {}),
               "rms_m": math.sqrt(float(f.residuals @ f.residuals) / (len(f.residuals) // 3))}
              for f in result.fits]
     return report(document, grid, frames, per_frame, accelerations / g, config,
-                  time.perf_counter() - t0, grids,
+                  (time.perf_counter() - t0, time.process_time() - cpu), grids,
                   stable=all(f.stable for f in result.fits),
                   converged=all(f.converged for f in result.fits))
 
@@ -131,7 +143,8 @@ def _per_frame_rms(residuals: np.ndarray, observations: list[Observation]) -> np
 
 
 def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.ndarray,
-           acceleration_over_g: np.ndarray, config: MaterialFromVideoConfig, seconds: float,
+           acceleration_over_g: np.ndarray, config: MaterialFromVideoConfig,
+           seconds: tuple[float, float],
            grids: list[dict], *, stable: bool, converged: bool) -> dict:
     """The "material" entry of result.json: value, s.e., bending length, identifiability,
     goodness of fit, where it falls among measured fabrics, and the quasi-static check."""
@@ -147,14 +160,17 @@ def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.nda
         "bending_length": None if length is None else {
             "value": length["value"], "standard_error": length["standard_error"],
             "unit": "m"},
+        "membrane_stiffness": _membrane(document, config),
         "identifiability": (
             "gravity is the only load: the shape determines B / (ρ_A g), i.e. the bending "
             "length c = (B / (ρ_A g))^(1/3); B is given at the stated areal density "
             f"ρ_A = {config.areal_density:g} kg/m² (B scales with it)"
-            + ("; the membrane stiffness D was estimated too (see parameters)"
+            + ("; the membrane stiffness D was estimated beside B (it enters as "
+               "D / (ρ_A g), so it too is given at the stated ρ_A)"
                if config.estimate_membrane else
-               f"; the membrane stiffness is held at D = {config.membrane_stiffness:g} N/m "
-               "(nearly unobservable for a nearly inextensible sheet)")),
+               f"; the membrane stiffness is held at the stated D = "
+               f"{config.membrane_stiffness:g} N/m (a wrong held D biases B: "
+               "benchmarks/RESULTS.md, Material from video)")),
         "goodness_of_fit": {
             "rms_m": rms, "rms_over_sheet_size": rms / math.hypot(*grid.size),
             "per_frame_rms_m": per_frame.tolist(),
@@ -169,10 +185,22 @@ def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.nda
             "fps": config.fps},
         "grids": grids,
         "frames_used": frames, "sheet_size_m": list(grid.size),
-        "stable": stable, "converged": converged, "seconds": seconds,
+        "stable": stable, "converged": converged, "seconds": seconds[0],
+        "cpu_seconds": seconds[1],
         "estimate": document,
     }
     return out
+
+
+def _membrane(document: dict, config: MaterialFromVideoConfig) -> dict:
+    """D's entry: the estimate (value and s.e. when determined) or the stated, held value."""
+    if not config.estimate_membrane:
+        return {"value": config.membrane_stiffness, "standard_error": None, "unit": "N/m",
+                "held": True}
+    entry = document["parameters"]["membrane_stiffness"]
+    return {"value": entry.get("value"), "standard_error": entry.get("standard_error"),
+            "unit": "N/m", "held": False, "determined": entry["determined"],
+            "at_areal_density": config.areal_density}
 
 
 def fabric_position(length: float) -> str:
@@ -193,7 +221,14 @@ def summary_line(material: dict) -> str:
     if c is None or b["value"] is None:
         return (f"material: bending stiffness undetermined (rms misfit "
                 f"{1e3 * fit['rms_m']:.2f} mm)")
+    d = material["membrane_stiffness"]
+    if d["held"]:
+        membrane = f"D held at {d['value']:g} N/m"
+    elif d["value"] is None:
+        membrane = "D undetermined"
+    else:
+        membrane = f"D = {d['value']:.4g} ± {d['standard_error']:.2g} N/m"
     return (f"material: bending length {100 * c['value']:.3f} ± {100 * c['standard_error']:.3f}"
             f" cm ({material['fabric_percentile']}); B = {b['value']:.4g} ± "
-            f"{b['standard_error']:.2g} N·m at ρ_A = {b['at_areal_density']:g} kg/m²; rms "
-            f"misfit {1e3 * fit['rms_m']:.2f} mm")
+            f"{b['standard_error']:.2g} N·m at ρ_A = {b['at_areal_density']:g} kg/m²; "
+            f"{membrane}; rms misfit {1e3 * fit['rms_m']:.2f} mm")

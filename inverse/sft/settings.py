@@ -26,6 +26,15 @@ __all__ = ["SplinePriorConfig", "ReconstructionConfig", "MaterialFromVideoConfig
 # density [kg/m²]: 5th, 50th and 95th percentile.
 FABRIC_BENDING_LENGTH = FENG_2022_PERCENTILES["bending_length"]
 FABRIC_AREAL_DENSITY = FENG_2022_PERCENTILES["areal_density"]
+# Start value of an estimated membrane stiffness D [N/m] (measured: from 300 N/m the estimate
+# reached 101.7 ± 4.3 N/m against a true 100 N/m).
+MEMBRANE_START = 300.0
+
+
+def _positive(name: str, value) -> None:
+    if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value)
+                                       and value > 0):
+        raise ValueError(f"{name} must be positive and finite, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -134,31 +143,41 @@ class MaterialFromVideoConfig:
 
     areal_density: stated ρ_A [kg/m²] that turns B / (ρ_A g) into B (default: the median of
     measured fabrics); gravity: (3,) [m/s²] in camera coordinates (default: down the image);
-    start_bending_length: c of the start value [m]; membrane_stiffness: D [N/m] (held unless
-    estimate_membrane); poisson_ratio: ν; frames: number of frames used, evenly spread over the
-    sequence (0: all); spans: the coarse grid (the fine grid halves it); degree: the
-    splines' degree (3 or 4); band: the handles'
-    band (fraction of the domain); fps: frame rate of the video [1/s], for the quasi-static
-    check; max_iterations: outer Levenberg–Marquardt iterations per grid."""
+    start_bending_length: c of the start value [m]; membrane_stiffness: D [N/m] held at this
+    stated value, or None (default) to estimate D beside B from a start of
+    `MEMBRANE_START` (a held D that is wrong was the largest error measured: −87 % in B at a
+    held 300 N/m against a true 100 N/m; benchmarks/RESULTS.md, Material from video);
+    poisson_ratio: ν; frames: number of frames used, evenly spread over the sequence (0: all);
+    spans: the coarse grid (the fine grid halves its spans); degree: the splines' degree
+    (3 or 4; default 4, cubic splines on the same grids measured undetermined);
+    sheet_size: (W, H) [m] of the flat sheet, W along the held edge, when it is known (e.g.
+    measured with a ruler), or None (default) for the template's grid-line lengths; band:
+    the handles' band (fraction of the domain); fps: frame rate of the video [1/s], for the
+    quasi-static check; max_iterations: outer Levenberg–Marquardt iterations per grid."""
 
     areal_density: float = FABRIC_AREAL_DENSITY[1]
     gravity: tuple[float, float, float] = (0.0, STANDARD_GRAVITY, 0.0)
     start_bending_length: float = FABRIC_BENDING_LENGTH[1]
-    membrane_stiffness: float = 300.0
+    membrane_stiffness: float | None = None
     poisson_ratio: float = 0.25
-    estimate_membrane: bool = False
     frames: int = 8
-    spans: tuple[int, int] = (6, 6)
-    degree: int = 3
+    spans: tuple[int, int] = (7, 7)
+    degree: int = 4
+    sheet_size: tuple[float, float] | None = None
     band: float = 0.1
     fps: float = 30.0
     max_iterations: int = 12
 
     def __post_init__(self):
-        for name in ("areal_density", "start_bending_length", "membrane_stiffness", "fps"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        for name in ("areal_density", "start_bending_length", "fps"):
+            _positive(name, getattr(self, name))
+        if self.membrane_stiffness is not None:
+            _positive("membrane_stiffness", self.membrane_stiffness)
+        if self.sheet_size is not None:
+            if len(self.sheet_size) != 2:
+                raise ValueError(f"sheet_size must be (W, H) [m], got {self.sheet_size!r}")
+            for value in self.sheet_size:
+                _positive("sheet_size", value)
         g = np.asarray(self.gravity, dtype=np.float64)
         if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.linalg.norm(g) > 0:
             raise ValueError(f"gravity must be a non-zero 3-vector [m/s²], got {self.gravity!r}")
@@ -173,11 +192,17 @@ class MaterialFromVideoConfig:
             raise ValueError(f"band must be in (0, 0.5), got {self.band!r}")
 
     @property
+    def estimate_membrane(self) -> bool:
+        """Whether D is estimated beside B (no membrane stiffness stated)."""
+        return self.membrane_stiffness is None
+
+    @property
     def start_material(self) -> LinearIsotropic:
         from taichi_ndf.shell.materials import LinearIsotropic
 
         g = float(np.linalg.norm(self.gravity))
         return LinearIsotropic(
-            membrane_stiffness=self.membrane_stiffness,
+            membrane_stiffness=(MEMBRANE_START if self.membrane_stiffness is None
+                                else self.membrane_stiffness),
             bending_stiffness=self.areal_density * g * self.start_bending_length ** 3,
             poisson_ratio=self.poisson_ratio, areal_density=self.areal_density)
