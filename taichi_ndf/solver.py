@@ -22,9 +22,10 @@ that widens the range of t. The monitor reports Π at t = λ.
 Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chains gradients
 back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
 (`taichi_ndf.minimisers`, `taichi_ndf.minimise.last_layer`) change the state
-(`taichi_ndf.state`); this module draws the sample sets and drives the continuation over load
-steps. Checkpoints and the divergence guard are callbacks the application installs
-(`taichi_ndf.callbacks`); progress goes to `taichi_ndf.progress` (a stage per load step).
+(`taichi_ndf.state`); this module draws the sample sets and solves one load step, which the
+continuation loop (`taichi_ndf.continuation`) calls for each load step in turn. Checkpoints
+and the divergence guard are callbacks the application installs (`taichi_ndf.callbacks`);
+progress goes to `taichi_ndf.progress` (a stage per load step).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from taichi_ndf import progress
 from taichi_ndf.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_back_off
 from taichi_ndf.callbacks import DivergenceError, call
 from taichi_ndf.contact.check_points import ContactPoints
+from taichi_ndf.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimise.last_layer import last_layer_config, solve_last_layer
 from taichi_ndf.minimisers import adam_iteration, lbfgs
@@ -102,6 +104,7 @@ class Solver:
         self._monitor = None
         self._newton_samples = None
         self._callbacks = ()
+        self._t0 = time.perf_counter()  # the start of `run` (monitor records' wall time)
         self.contact = None
         self.rejected_steps = 0  # Adam steps the contact filter rejected
         if model.contact is not None:
@@ -200,61 +203,69 @@ class Solver:
         u = self.operator.displacement(xi, t=load_factor, conditioning=cond)
         return {p.name: [float(v) for v in u[k]] for k, p in enumerate(self.model.probes)}
 
-    # -- continuation over the load steps ------------------------------------------------------
+    # -- continuation over the load steps (`taichi_ndf.continuation`) --------------------------
     def run(self, *, callbacks=(), on_load_step=None) -> SolveResult:
         """Minimise Π for every load step from the state's; `callbacks` (`taichi_ndf.callbacks`:
         progress, checkpoints, the divergence guard) see every iteration, and
         `on_load_step(load_factor)` is called after each step."""
         cfg, state = self.config, self.state
-        start_step = min(state.load_step, len(cfg.load_steps) - 1)  # a finished run goes on
-        t0 = time.perf_counter()
+        _, start_step = resume_point(state, len(cfg.load_steps))  # a finished run goes on
+        self._t0 = time.perf_counter()
         self._callbacks = callbacks = tuple(callbacks)
         if self.contact is not None and state.iteration == 0 and state.newton_steps == 0:
             self._feasible_start(cfg.load_steps[start_step])
-        call(callbacks, "on_start", self)
-        newton = cfg.newton_iterations > 0
-        for step in range(start_step, len(cfg.load_steps)):
-            state.load_step, lam = step, cfg.load_steps[step]
-            done_in_step = max(state.iteration - step * cfg.iterations, 0)
-            self._refresh_contact(lam)
-            if newton and done_in_step == 0:
-                self.newton(lam)
-            if done_in_step == 0 and cfg.iterations > 0:  # the step's start: backoff's first best
-                keep_if_best(state, self.field, lam, self._monitor_energy(lam))
-            with progress.stage(f"Adam, load {lam:.4g}", cfg.iterations):
-                shown = {}
-                for _ in range(done_in_step, cfg.iterations):
-                    samples, times = self.training_samples(cfg.samples, lam, state.generator)
-                    gnorm = self._adam_step(samples, lam, times)
-                    state.iteration += 1
-                    record = None
-                    if state.iteration % cfg.monitor_every == 0:
-                        record = self._record(lam, gnorm, t0)
-                        shown = {"Π": record.energy, "‖∇Π‖": record.grad_norm}
-                    call(callbacks, "on_iteration", self, record)
-                    in_step = state.iteration - step * cfg.iterations
-                    progress.report(in_step, **shown)
-                    if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
-                            and in_step < cfg.iterations:
-                        self.newton(lam)
-            if newton and cfg.iterations > 0:
-                self.newton(lam)
-            if cfg.lbfgs_iterations:
-                self._lbfgs(lam)
-            recorded = state.history and state.history[-1].iteration == state.iteration
-            if cfg.lbfgs_iterations or newton or not recorded:
-                self._record(lam, state.optimiser.gradient_norm(), t0)
-            log.info("load factor %.4g: Π = %.8g J after %d iterations", lam,
-                     state.history[-1].energy, state.iteration)
-            call(callbacks, "on_load_step", self, lam)
-            if on_load_step is not None:
-                on_load_step(lam)
-        state.load_step = len(cfg.load_steps)
-        call(callbacks, "on_end", self)
+        if on_load_step is not None:
+            callbacks = (*callbacks, Hook("on_load_step", on_load_step))
+        solve_over(Stages(solve=self._solve_load_step, before_end=self._finished),
+                   cfg.load_steps, first_step=start_step, callbacks=callbacks, subject=self)
         return SolveResult(energy=state.history[-1].energy, iterations=state.iteration,
-                           wall_time=time.perf_counter() - t0, history=state.history,
+                           wall_time=time.perf_counter() - self._t0, history=state.history,
                            probes=self.probe_displacements(cfg.load_steps[-1]),
                            newton_steps=state.newton_steps, backoffs=state.backoffs)
+
+    def _solve_load_step(self, load_step: Step, _start=None) -> None:
+        """One load step: a last-layer Newton phase at its start (with `newton_iterations`),
+        its Adam iterations (with Newton phases every `newton_every`), a Newton phase and the
+        L-BFGS polish at its end, and a monitor record; from where the state stands (a resumed
+        run: within the step)."""
+        cfg, state, t0 = self.config, self.state, self._t0
+        step, lam = load_step.index, load_step.load_factor
+        state.load_step = step
+        newton = cfg.newton_iterations > 0
+        done_in_step = max(state.iteration - step * cfg.iterations, 0)
+        self._refresh_contact(lam)
+        if newton and done_in_step == 0:
+            self.newton(lam)
+        if done_in_step == 0 and cfg.iterations > 0:  # the step's start: backoff's first best
+            keep_if_best(state, self.field, lam, self._monitor_energy(lam))
+        with progress.stage(f"Adam, load {lam:.4g}", cfg.iterations):
+            shown = {}
+            for _ in range(done_in_step, cfg.iterations):
+                samples, times = self.training_samples(cfg.samples, lam, state.generator)
+                gnorm = self._adam_step(samples, lam, times)
+                state.iteration += 1
+                record = None
+                if state.iteration % cfg.monitor_every == 0:
+                    record = self._record(lam, gnorm, t0)
+                    shown = {"Π": record.energy, "‖∇Π‖": record.grad_norm}
+                call(self._callbacks, "on_iteration", self, record)
+                in_step = state.iteration - step * cfg.iterations
+                progress.report(in_step, **shown)
+                if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
+                        and in_step < cfg.iterations:
+                    self.newton(lam)
+        if newton and cfg.iterations > 0:
+            self.newton(lam)
+        if cfg.lbfgs_iterations:
+            self._lbfgs(lam)
+        recorded = state.history and state.history[-1].iteration == state.iteration
+        if cfg.lbfgs_iterations or newton or not recorded:
+            self._record(lam, state.optimiser.gradient_norm(), t0)
+        log.info("load factor %.4g: Π = %.8g J after %d iterations", lam,
+                 state.history[-1].energy, state.iteration)
+
+    def _finished(self) -> None:
+        self.state.load_step = len(self.config.load_steps)
 
     # -- contact: penetration filter and dense check ----------------------------------------------
     def _adam_step(self, samples, lam: float, times) -> float:

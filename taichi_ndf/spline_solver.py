@@ -1,15 +1,15 @@
 """A model solved by projected Newton over a spline field, coarse to fine (`method = "newton"`).
 
-The continuation driver of the spline path (the Adam path's is `solver.py`): level 0 from the
+The spline path's driver (the Adam path's is `solver.py`), on the one continuation loop
+(`taichi_ndf.continuation`) with the stages `minimise.refinement.GridLevels`: level 0 from the
 undeformed state through the load steps, each finer grid (exact dyadic refinement) at each load
-step from the coarser solution prolonged (`minimise.refinement.solve_levels`). Reports per level
-Π, every probe and the seconds taken, and per Newton iteration Π, the decrement, the step
-length and the time split; with several levels the Richardson-extrapolated Π and probes and
-their error bars (`richardson`: an observed order from three or more levels, trusted only
-between 0.5 and the expected 2·(p − 1) — the energy-norm rate of degree-p splines for a
-fourth-order problem — else "order unreliable" and 3 × the range of the last three values;
-with two levels that order assumed, said so, and the error widened to the change between the
-levels).
+step from the coarser solution prolonged. Reports per level Π, every probe and the seconds
+taken, and per Newton iteration Π, the decrement, the step length and the time split; with
+several levels the Richardson-extrapolated Π and probes and their error bars (`richardson`: an
+observed order from three or more levels, trusted only between 0.5 and the expected 2·(p − 1)
+— the energy-norm rate of degree-p splines for a fourth-order problem — else "order
+unreliable" and 3 × the range of the last three values; with two levels that order assumed,
+said so, and the error widened to the change between the levels).
 """
 
 from __future__ import annotations
@@ -26,10 +26,11 @@ import torch
 
 from taichi_ndf.callbacks import call
 from taichi_ndf.contact.newton_contact import NewtonContact
+from taichi_ndf.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.newton import NewtonConfig
-from taichi_ndf.minimise.refinement import LevelSolution, richardson, solve_levels
+from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective
 from taichi_ndf.quadrature import span_quadrature
@@ -134,10 +135,10 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     state = state or State.newton(None)
     if state.field is None:
         state.field = SplineField(plan.config)
-    first, grid = 0, state.field
-    if state.levels:  # resumed: the last level re-solved (one Newton step) and refined
-        first, load_steps = len(state.levels) - 1, load_steps[-1:]
-        state.levels = state.levels[:-1]
+    grid = state.field
+    # resumed: the last level re-solved at the last load step (one Newton step) and refined
+    first, first_step = resume_point(state, len(load_steps))
+    state.levels = state.levels[:first]
     contact = None
     if model.contact is not None:
         contact = NewtonContact(model.contact, model, grid.coefficients.dtype)
@@ -148,23 +149,20 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     probes = {p.name: p.xi for p in model.probes}
     newton = newton_config(config, grid.coefficients.dtype)
     started = time.perf_counter()
-    callbacks = tuple(callbacks)
-    call(callbacks, "on_start", run)
 
     def iterated(level: int, spans: tuple[int, int], record) -> None:
         values = dataclasses.asdict(record)
-        values.update(iteration=len(state.history), level=level + first, spans=spans)
+        values.update(iteration=len(state.history), level=level, spans=spans)
         call(callbacks, "on_record", run, record.energy, record.gradient_norm,
               record.load_factor)
         state.history.append(NewtonRecord(**values))
         state.iteration = len(state.history)
 
-    def stepped(load_factor: float) -> None:
-        state.load_step = config.load_steps.index(load_factor)
-        call(callbacks, "on_load_step", run, load_factor)
+    def stepped(step: Step, solution: LevelSolution) -> None:
+        state.load_step = step.index
 
-    def finished(level: int, field_: SplineField, solutions: list[LevelSolution]) -> None:
-        level += first
+    def finished(level: int, solutions: list[LevelSolution]) -> None:
+        field_ = grids.grid
         field_.coefficients.copy_(solutions[-1].coefficients)
         last = solutions[-1]
         summary = LevelSummary(level, last.spans, last.energy,
@@ -183,20 +181,22 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         log.info("level %d (%d × %d spans): Π %.10g J, %d Newton iterations, %.2f s%s", level,
                  *last.spans, last.energy, summary.iterations, summary.seconds,
                  "" if summary.converged else " (not converged)")
-        call(callbacks, "on_level", run)
-        if on_level is not None:
-            on_level(run)
+
+    def ended() -> None:
+        run.wall_time = time.perf_counter() - started
 
     points = plan.quadrature_points
-    solve_levels(grid, model.boundary,
-                 lambda f: span_quadrature(surface, f.config, model.loads, points=points,
-                                           dtype=f.coefficients.dtype),
-                 objective, levels=levels - first, load_steps=load_steps, config=newton,
-                 probes=probes, length=math.sqrt(surface.domain.rectangle_area),
-                 on_level=finished, contact=contact,
-                 linear=LinearSolverConfig(kind=config.linear_solver),
-                 on_iteration=iterated, on_load_step=stepped)
-    run.wall_time = time.perf_counter() - started
-    call(callbacks, "on_end", run)
+    grids = GridLevels(grid, model.boundary,
+                       lambda f: span_quadrature(surface, f.config, model.loads, points=points,
+                                                 dtype=f.coefficients.dtype),
+                       objective, levels=levels, config=newton, probes=probes,
+                       length=math.sqrt(surface.domain.rectangle_area), contact=contact,
+                       linear=LinearSolverConfig(kind=config.linear_solver),
+                       on_iteration=iterated, first_level=first)
+    callbacks = tuple(callbacks)
+    if on_level is not None:  # after the callbacks
+        callbacks = (*callbacks, Hook("on_level", lambda: on_level(run)))
+    solve_over(Stages(grids.solve, grids.start, grids.enter_level, stepped, finished, ended),
+               load_steps, levels=levels, first_level=first, first_step=first_step,
+               callbacks=callbacks, subject=run)
     return run
-

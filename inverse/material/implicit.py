@@ -32,6 +32,7 @@ import torch
 
 from inverse.material.unknowns import Unknown, apply, term_gradients
 from taichi_ndf import checks, jets
+from taichi_ndf.continuation import Stages, Step, solve_over
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.minimise.last_layer import (
     last_layer_config,
@@ -200,6 +201,15 @@ class ImplicitEquilibrium:
         return last_layer_config(max_iterations=iterations or self.config.newton_iterations,
                                  relative_decrease=self.config.relative_decrease)
 
+    def _load_step(self, values):
+        """`solve(step, start)` of the continuation loop (`taichi_ndf.continuation`): the
+        last layer solved at the step's load factor from where it stands; its Newton steps."""
+        def solve(step: Step, _start=None) -> int:
+            samples, potential = self._system(values, step.load_factor)
+            return solve_last_layer(self.operator, potential, samples, step.load_factor,
+                                    self._newton()).steps
+        return solve
+
     def solve(self, values, *, prediction: torch.Tensor | None = None,
               from_reference: bool = False) -> int:
         """Solve for θ = values; returns the Newton steps taken. From the reference state
@@ -214,10 +224,8 @@ class ImplicitEquilibrium:
             return 0
         if self.values is None or from_reference:
             self.set_state([torch.zeros_like(p) for p in self.field.output_layer()], None)
-            for factor in self.config.load_steps:
-                samples, potential = self._system(values, factor)
-                steps += solve_last_layer(self.operator, potential, samples,
-                                          factor, self._newton()).steps
+            steps += sum(solve_over(Stages(self._load_step(values)),
+                                    self.config.load_steps)[0])
             if self._first is None:
                 self._first = (values, self.state())
         else:

@@ -27,6 +27,7 @@ import torch
 
 from inverse.material.unknowns import Unknown, apply, term_gradients
 from taichi_ndf import checks, jets, progress
+from taichi_ndf.continuation import Stages, solve_over
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import (
     Assembly,
@@ -182,9 +183,11 @@ class SplineEquilibrium:
                 np.array_equal(values, self._first[0]):
             self.coefficients = self._first[1].clone()
         elif self.values is None or from_reference:
-            c = torch.zeros_like(self.coefficients)
-            for factor in self.config.load_steps:
-                c = self._minimise(values, c, factor)
+            reference = torch.zeros_like(self.coefficients)  # the first step's start
+            c = solve_over(Stages(
+                lambda step, start: self._minimise(values, start, step.load_factor),
+                lambda step, previous, _coarser: reference if previous is None else previous),
+                self.config.load_steps)[0][-1]
             self.coefficients = c
             if self._first is None:
                 self._first = (values, c.clone())

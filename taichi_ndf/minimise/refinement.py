@@ -53,6 +53,7 @@ import torch
 
 from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.continuation import Stages, Step, solve_over
 from taichi_ndf.minimise.assembly import (
     Assembly,
     displacement_at,
@@ -247,6 +248,103 @@ def held_unknowns(grid, boundary, basis) -> np.ndarray | None:
     return np.concatenate(held) if held else None
 
 
+class GridLevels:
+    """The stages of a coarse-to-fine projected-Newton solve (`taichi_ndf.continuation`):
+    each level's grid (the field's, then its dyadic refinements), quadrature, assembly and
+    linear solver; a load step's start (the previous step's solution, the level's field at
+    the first; on a finer level the coarser solution at the same load factor, prolonged
+    exactly); its Newton solve and readings (`LevelSolution`). `grid`: the current level's
+    field (its coefficients: the level's starting point). Settings as `solve_levels`';
+    first_level: the level the run starts on (`field_`'s)."""
+
+    def __init__(self, field_, boundary: BoundaryConditions,
+                 samples_for: Callable[[object], SurfaceSamples], objective: Objective, *,
+                 levels: int, config: NewtonConfig | None = None,
+                 coarse_config: NewtonConfig | None = None,
+                 probes: dict[str, tuple[float, float]] | None = None, length: float = 1.0,
+                 contact=None, linear: LinearSolverConfig | None = None,
+                 on_iteration: Callable[[int, tuple[int, int], NewtonIteration], None]
+                 | None = None, first_level: int = 0):
+        self.grid, self.boundary, self.samples_for = field_, boundary, samples_for
+        self.objective, self.levels, self.first_level = objective, levels, first_level
+        self.config, self.coarse_config, self.length = config, coarse_config, length
+        self.contact, self.linear, self.on_iteration = contact, linear, on_iteration
+        self.probes = probes or {}
+        self.dtype = field_.coefficients.dtype
+        self.probe_xi = torch.tensor(list(self.probes.values()),
+                                     dtype=self.dtype).reshape(-1, 2)
+        self._prolongation = None
+
+    def enter_level(self, level: int) -> None:
+        """The level's grid (refined from the previous one past the first level), its
+        quadrature points, basis, assembly, held unknowns and linear solver."""
+        if level > self.first_level:
+            self._prolongation = self.grid.prolongation()  # coarse -> this level
+            self.grid = self.grid.refined()
+        grid, boundary = self.grid, self.boundary
+        started = time.perf_counter()
+        nx, ny = grid.config.spans
+        with progress.stage(f"Newton level {level - self.first_level} ({nx} × {ny} spans): "
+                            "quadrature, basis"):
+            self.samples = self.samples_for(grid)
+            self.operator = DisplacementOperator(grid, boundary)
+            basis = local_basis_at(self.operator, self.samples.xi)
+            self.assembly = None if self.contact else Assembly(self.samples, basis,
+                                                               grid.coefficients.shape[0])
+            self.fixed = held_unknowns(grid, boundary, basis)
+            self.solver = LinearSolver.for_grid(grid.config, self.linear)
+        self._setup = time.perf_counter() - started  # counted in the level's first step
+        last = level == self.levels - 1
+        self.newton = self.config if self.coarse_config is None or last else self.coarse_config
+        self.iterated = None if self.on_iteration is None else (
+            lambda record, level=level, spans=grid.config.spans: self.on_iteration(
+                level, spans, record))
+
+    def start(self, step: Step, previous: LevelSolution | None,
+              coarser: LevelSolution | None) -> tuple[torch.Tensor, float, float]:
+        """The step's starting coefficients (n, 3), the load factor they were solved at (0:
+        the level's own field at the run's first level) and the time the step started."""
+        started = time.perf_counter()
+        if coarser is not None:
+            coefficients = torch.sparse.mm(self._prolongation,
+                                           coarser.coefficients.to(self.dtype))
+            return coefficients, step.load_factor, started
+        if previous is not None:
+            return previous.coefficients, previous.load_factor, started
+        return self.grid.coefficients.detach().clone(), 0.0, started
+
+    def solve(self, step: Step, start: tuple[torch.Tensor, float, float]) -> LevelSolution:
+        """Projected Newton at the step's load factor from `start` (`minimise`, or
+        `NewtonContact.solve` with obstacles); the solution, Π, the probes' readings."""
+        coefficients, start_load_factor, started = start
+        grid, t, newton = self.grid, step.load_factor, self.newton
+        nx, ny = grid.config.spans
+        shown = step.level - self.first_level  # labels count this run's levels (as before)
+        with progress.stage(f"Newton level {shown} ({nx} × {ny} spans), load {t:.4g}",
+                            (newton or NewtonConfig()).max_iterations):
+            if self.contact is None:
+                self.assembly.at_load(self.operator, t)
+                linearisation = SplineLinearisation(self.assembly, fixed=self.fixed,
+                                                    solver=self.solver, length=self.length)
+                solution = minimise(linearisation, self.objective.potential(t), coefficients,
+                                    newton, load_factor=t, on_iteration=self.iterated)
+            else:  # from the previous load step's state (finer level: this one's, prolonged)
+                solution = self.contact.solve(
+                    self.operator, self.samples, self.objective, coefficients, newton,
+                    load_factor=t, start_load_factor=start_load_factor, length=self.length,
+                    fixed=self.fixed, linear_solver=self.solver, on_iteration=self.iterated)
+        coefficients = solution.parameters
+        u = displacement_at(self.operator, self.probe_xi, coefficients, t)[:, jets.VALUE]
+        readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
+        seconds = time.perf_counter() - started + self._setup
+        self._setup = 0.0
+        log.info("level %d (%d × %d spans), load %.4g: Π %.10g J in %d Newton steps, "
+                 "%.2f s", shown, *grid.config.spans, t, solution.energy,
+                 len(solution.history), seconds)
+        return LevelSolution(grid.config.spans, t, solution.energy, readings, coefficients,
+                             solution.converged, seconds, solution.history)
+
+
 def solve_levels(field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples],
                  objective: Objective, *, levels: int,
@@ -261,7 +359,8 @@ def solve_levels(field_, boundary: BoundaryConditions,
                  | None = None,
                  on_load_step: Callable[[float], None] | None = None
                  ) -> list[list[LevelSolution]]:
-    """Solve on `levels` grids, the field's and its dyadic refinements (module docstring).
+    """Solve on `levels` grids, the field's and its dyadic refinements (module docstring),
+    by the continuation loop (`taichi_ndf.continuation.solve_over`) over `GridLevels`.
 
     field_: a `SplineField` (its coefficients are the level-0 starting point; not changed).
     samples_for(field): the quadrature points of a field's grid (point forces unscaled).
@@ -280,63 +379,12 @@ def solve_levels(field_, boundary: BoundaryConditions,
     """
     if levels < 1:
         raise ValueError(f"levels must be >= 1, got {levels}")
-    probes = probes or {}
-    dtype = field_.coefficients.dtype
-    probe_xi = torch.tensor(list(probes.values()), dtype=dtype).reshape(-1, 2)
-    results: list[list[LevelSolution]] = []
-    grid, prolongation = field_, None
-    for level in range(levels):
-        if level:
-            prolongation = grid.prolongation()  # coarse -> this level
-            grid = grid.refined()
-        started = time.perf_counter()
-        nx, ny = grid.config.spans
-        with progress.stage(f"Newton level {level} ({nx} × {ny} spans): quadrature, basis"):
-            samples = samples_for(grid)
-            operator = DisplacementOperator(grid, boundary)
-            basis = local_basis_at(operator, samples.xi)
-            assembly = None if contact else Assembly(samples, basis, grid.coefficients.shape[0])
-            fixed = held_unknowns(grid, boundary, basis)
-            solver = LinearSolver.for_grid(grid.config, linear)
-        setup = time.perf_counter() - started
-        per_load: list[LevelSolution] = []
-        coefficients = grid.coefficients.detach().clone()
-        newton = config if coarse_config is None or level == levels - 1 else coarse_config
-        iterated = None if on_iteration is None else (
-            lambda record, level=level, spans=grid.config.spans: on_iteration(level, spans,
-                                                                              record))
-        for k, t in enumerate(load_steps):
-            started = time.perf_counter()
-            if level:
-                coefficients = torch.sparse.mm(prolongation,
-                                               results[-1][k].coefficients.to(dtype))
-            with progress.stage(f"Newton level {level} ({nx} × {ny} spans), load {t:.4g}",
-                                (newton or NewtonConfig()).max_iterations):
-                if contact is None:
-                    assembly.at_load(operator, t)
-                    linearisation = SplineLinearisation(assembly, fixed=fixed, solver=solver,
-                                                        length=length)
-                    solution = minimise(linearisation, objective.potential(t), coefficients,
-                                        newton, load_factor=t, on_iteration=iterated)
-                else:  # from the previous load step's state (finer level: this one's, prolonged)
-                    solution = contact.solve(
-                        operator, samples, objective, coefficients, newton,
-                        load_factor=t, start_load_factor=t if level else (
-                            load_steps[k - 1] if k else 0.0), length=length, fixed=fixed,
-                        linear_solver=solver, on_iteration=iterated)
-            coefficients = solution.parameters
-            u = displacement_at(operator, probe_xi, coefficients, t)[:, jets.VALUE]
-            readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(probes)}
-            seconds = time.perf_counter() - started + (setup if k == 0 else 0.0)
-            per_load.append(LevelSolution(grid.config.spans, t, solution.energy, readings,
-                                          coefficients, solution.converged, seconds,
-                                          solution.history))
-            log.info("level %d (%d × %d spans), load %.4g: Π %.10g J in %d Newton steps, "
-                     "%.2f s", level, *grid.config.spans, t, solution.energy,
-                     len(solution.history), seconds)
-            if on_load_step is not None:
-                on_load_step(t)
-        results.append(per_load)
-        if on_level is not None:
-            on_level(level, grid, per_load)
-    return results
+    grids = GridLevels(field_, boundary, samples_for, objective, levels=levels, config=config,
+                       coarse_config=coarse_config, probes=probes, length=length,
+                       contact=contact, linear=linear, on_iteration=on_iteration)
+    after_step = None if on_load_step is None else (
+        lambda step, solution: on_load_step(step.load_factor))
+    after_level = None if on_level is None else (
+        lambda level, solutions: on_level(level, grids.grid, solutions))
+    return solve_over(Stages(grids.solve, grids.start, grids.enter_level, after_step,
+                             after_level), load_steps, levels=levels)

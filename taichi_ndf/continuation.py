@@ -1,0 +1,117 @@
+"""The one continuation loop: over grid levels × load steps, for every solve path.
+
+A solve of a quasistatic problem goes through its load factors in turn (load continuation)
+and, for a field with a grid hierarchy, through successively refined grids (coarse to fine).
+`solve_over` owns that loop; a solve path gives it what differs (`Stages`):
+
+- `solve(step, start)`: minimise Π at one load step from its start; returns the step's result
+  (a spline level's `LevelSolution`, a last-layer solve's step count, ...);
+- `start(step, previous, coarser)`: where a step starts, from the result of the previous step
+  on the same level (None at the run's first step on it) and the result of the same step on
+  the coarser level (None on the run's first level; a spline prolongs it onto the finer
+  grid). Without it the start is None: the state lives in place (a SIREN's weights);
+- `enter_level(level)`: set a level up (refine the grid, its quadrature and assembly);
+- `after_step(step, result)`, `after_level(level, results)`, `before_end()`: the path's
+  bookkeeping (its `State`, its log lines), run before the callbacks see the state.
+
+The callbacks (`taichi_ndf.callbacks`, called with `subject`, the object they see as
+`solver`) are called here for both paths: on_start before the first step, on_load_step(solver,
+load factor) after each step, on_level(solver) after each grid level (only where the field has
+grid levels: `levels` given), on_end after the last. The per-iteration hooks (on_step,
+on_record, on_iteration, on_polish) come from inside a step's minimiser.
+
+A resumed run (`resume_point`) starts at the state's load step (Adam) or re-solves its last
+finished level (Newton); `first_step` applies on every level of the run, so the finer levels of
+a resumed Newton run solve the same load steps as the level it resumed on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from taichi_ndf.callbacks import call
+
+__all__ = ["Hook", "Stages", "Step", "resume_point", "solve_over"]
+
+
+@dataclass(frozen=True)
+class Step:
+    """Where the loop is: the grid level (0: the coarsest; 0 for a field without levels), the
+    index of the load step in the load steps and its load factor."""
+
+    level: int
+    index: int
+    load_factor: float
+
+
+@dataclass(frozen=True)
+class Stages:
+    """What a solve path gives the loop (module docstring); every hook but `solve` may be
+    None."""
+
+    solve: Callable[[Step, Any], Any]
+    start: Callable[[Step, Any, Any], Any] | None = None
+    enter_level: Callable[[int], None] | None = None
+    after_step: Callable[[Step, Any], None] | None = None
+    after_level: Callable[[int, list], None] | None = None
+    before_end: Callable[[], None] | None = None
+
+
+def solve_over(stages: Stages, load_steps: Sequence[float], *, levels: int | None = None,
+               first_level: int = 0, first_step: int = 0, callbacks: Sequence[Any] = (),
+               subject: Any = None) -> list[list[Any]]:
+    """Solve every load step from `first_step` on, on every grid level from `first_level`
+    below `levels` (None: a field without grid levels, one pass and no on_level), calling the
+    stages and the callbacks (module docstring). Returns the results per level of this run,
+    per load step solved."""
+    if levels is not None and not 0 <= first_level < levels:
+        raise ValueError(f"first_level must be in [0, {levels}), got {first_level}")
+    if not 0 <= first_step < len(load_steps):
+        raise ValueError(f"first_step must be in [0, {len(load_steps)}), got {first_step}")
+    call(callbacks, "on_start", subject)
+    results: list[list[Any]] = []
+    for level in range(first_level, first_level + 1 if levels is None else levels):
+        if stages.enter_level is not None:
+            stages.enter_level(level)
+        coarser = results[-1] if results else None
+        per_step: list[Any] = []
+        for index in range(first_step, len(load_steps)):
+            step = Step(level, index, load_steps[index])
+            start = None if stages.start is None else stages.start(
+                step, per_step[-1] if per_step else None,
+                None if coarser is None else coarser[len(per_step)])
+            result = stages.solve(step, start)
+            per_step.append(result)
+            if stages.after_step is not None:
+                stages.after_step(step, result)
+            call(callbacks, "on_load_step", subject, step.load_factor)
+        results.append(per_step)
+        if levels is not None:
+            if stages.after_level is not None:
+                stages.after_level(level, per_step)
+            call(callbacks, "on_level", subject)
+    if stages.before_end is not None:
+        stages.before_end()
+    call(callbacks, "on_end", subject)
+    return results
+
+
+def resume_point(state, load_steps: int) -> tuple[int, int]:
+    """(first level, first load step) of a run from `state` (`taichi_ndf.state.State`) over
+    `load_steps` load steps: an Adam state goes on at its load step (a finished one re-runs its
+    last); a Newton state with finished levels re-solves its last level at the last load step
+    (and refines from there), a fresh one starts at (0, 0)."""
+    if state.method == "newton":
+        return (len(state.levels) - 1, load_steps - 1) if state.levels else (0, 0)
+    return 0, min(state.load_step, load_steps - 1)
+
+
+class Hook:
+    """A plain function as a callback, called after the callbacks before it: `Hook(
+    "on_load_step", f)` calls f(load_factor) where the loop calls on_load_step(solver,
+    load_factor) (the solver left out)."""
+
+    def __init__(self, name: str, function: Callable[..., None]):
+        setattr(self, name, lambda _solver, *args: function(*args))
