@@ -44,7 +44,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # what a minimisation changes and saves: state, checkpoint, backoff, callbacks.
     ("minimise", ("taichi_ndf.minimise", "taichi_ndf.minimisers",
                   "taichi_ndf.contact.newton_contact", "taichi_ndf.state",
-                  "taichi_ndf.checkpoint", "taichi_ndf.backoff", "taichi_ndf.callbacks")),
+                  "taichi_ndf.checkpoint", "taichi_ndf.backoff", "taichi_ndf.callbacks",
+                  "taichi_ndf.continuation")),
     # Solve drivers: continuation over load steps and grid levels, the estimates that solve.
     ("solve", ("taichi_ndf.solver", "taichi_ndf.spline_solver", "taichi_ndf.output_scale")),
     # Scene reading: TOML into a plain specification (model, field, training, output).
