@@ -6,7 +6,6 @@ import pytest
 import torch
 from test_sft_spline_prior import assert_gradient_matches
 
-from inverse.sft.data_terms import silhouette_distance
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.outline import (
     FREE,
@@ -15,6 +14,7 @@ from inverse.sft.outline import (
     outline_offsets,
     visible_vertices,
 )
+from inverse.sft.silhouette import silhouette_distance
 from inverse.sft.synth import default_camera
 from taichi_ndf import jets
 

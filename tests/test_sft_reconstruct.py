@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from inverse.cli import sft as sft_cli
-from inverse.sft.data_terms import silhouette_distance, silhouette_residual
 from inverse.sft.deformations import Pose, cylindrical_bend
 from inverse.sft.inputs import Template
 from inverse.sft.metrics import relative_error
 from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
+from inverse.sft.silhouette import silhouette_distance, silhouette_residual
 from inverse.sft.surface import surface_positions
 from inverse.sft.synth import SynthConfig, default_camera, flat_sheet, generate, write_sequence
 from inverse.sft.tracking import FrameCorrespondences

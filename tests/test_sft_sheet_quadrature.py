@@ -6,7 +6,7 @@ import torch
 
 from inverse.sft.inputs import Template
 from inverse.sft.spline_prior import SplinePriorConfig, SplinePriorReconstructor
-from inverse.sft.synth import default_camera, flat_sheet
+from inverse.sft.synth import flat_sheet
 
 
 def sheet():
@@ -17,8 +17,7 @@ def sheet():
 
 def reconstructor(uvs, vertices, faces):
     template = Template(vertices=vertices, faces=faces, uvs=uvs)
-    return SplinePriorReconstructor(template, default_camera(160, 120, focal=150.0),
-                                    config=SplinePriorConfig())
+    return SplinePriorReconstructor(template, config=SplinePriorConfig())
 
 
 def chart_area(uvs, faces):

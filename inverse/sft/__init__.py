@@ -4,9 +4,10 @@ Modules, in pipeline order (conventions and the evaluation protocol: ``docs/sft.
 ``inputs`` (input contract, loading, validation), ``surface`` (template surface points as
 (face, barycentric)), ``tracking`` (texture registration and Lucas–Kanade tracks),
 ``baseline`` (per-frame reprojection + inextensibility + smoothness least squares),
-``spline_prior`` with ``least_squares`` (the physics-regularised reconstruction: a spline
-field per frame by Gauss–Newton, the default), ``reconstruct`` with ``data_terms`` (the same
-with a SIREN field and Adam), ``metrics`` (e3D, chamfer, normal
+``sequential`` with ``least_squares`` and ``silhouette`` (the physics-regularised
+reconstruction frame by frame, with its one data term, for either field), ``spline_prior`` (a
+spline field by Gauss–Newton, the default) and ``reconstruct`` (a SIREN field by Adam),
+``metrics`` (e3D, chamfer, normal
 and reprojection errors), ``chamfer`` (the field's protocol against point clouds); input
 checks before any work: ``input_checks`` (template, UVs, clouds against frame 0) and ``limits``
 (image sizes from headers against memory); real captures: ``capture`` (the φ-SfT / PGSfT

@@ -1,5 +1,6 @@
-"""The data terms of the spline SfT fit (`inverse.sft.spline_prior`) as one objective term
-with Gauss–Newton Hessian blocks.
+"""The data terms of the SfT fit, for either field, as one objective term with Gauss–Newton
+Hessian blocks: Newton minimises them on the spline field (`inverse.sft.spline_prior`), Adam
+takes their value and gradient on the SIREN (`inverse.sft.reconstruct`).
 
 Every data term is a (robust) least-squares function of the displacement value u at its own
 points, so it enters the objective's term interface (`taichi_ndf.objective.Term`): its value
@@ -17,7 +18,7 @@ energy ignores them):
 with w_i the confidences normalised to sum 1, ρ the Huber penalty (quadratic up to huber_px,
 linearised for Gauss–Newton by iteratively reweighted least squares as in the baseline), π the
 pinhole projection, D the distance [px] outside the silhouette's outline (0 inside;
-`inverse.sft.data_terms.silhouette_residual`), x̂_v = 2 x_{t−1} − x_{t−2} the
+`inverse.sft.silhouette.silhouette_residual`), x̂_v = 2 x_{t−1} − x_{t−2} the
 constant-velocity prediction of vertex v and h the template's mean edge length. The outline
 term acts on the template's border vertices ∂ only: D signed (negative inside the mask), o_v ≤ 0
 the depth inside the mask that vertex v is allowed (`outline_offsets`: its own depth in frame
@@ -35,11 +36,13 @@ import numpy as np
 import torch
 
 from inverse.sft.camera import Camera
-from inverse.sft.data_terms import MIN_DEPTH, bilinear_differentiable, huber, silhouette_residual
+from inverse.sft.silhouette import bilinear_differentiable, silhouette_residual
 from taichi_ndf import jets
 from taichi_ndf.sampling import SurfaceSamples
 
 COMPONENTS = 3
+# Depth [m] below which projected points are clamped (a bad step must not divide by ~0).
+MIN_DEPTH = 1e-6
 
 
 @dataclass(frozen=True)
@@ -56,7 +59,7 @@ class Reprojection:
 class VertexTerms:
     """Template vertices X_v (n, 3) [m]: motion towards `predicted` (n, 3) [m] with weight
     w_temp over the squared mean edge length h² [m²]; silhouette distance image (h, w) [px]
-    (None: no silhouette term) with weight w_sil: `inverse.sft.data_terms.silhouette_distance`;
+    (None: no silhouette term) with weight w_sil: `inverse.sft.silhouette.silhouette_distance`;
     outline_offset: (n,) [px], the signed distance o_v ≤ 0 a border vertex may reach inside the
     mask, −inf for the other vertices (None: no outline term), with weight w_out."""
 
@@ -210,3 +213,9 @@ class LeastSquaresData:
                                       dtype=dtype)
             full_blocks[:, jets.VALUE, :, jets.VALUE, :] = hessian.to(dtype)
         return float(value), full_grad, full_blocks
+
+
+def huber(residual: torch.Tensor, delta: float) -> torch.Tensor:
+    """Huber penalty (n,) [px²] of residuals (n, 2) [px]: r² up to δ, 2δr − δ² beyond."""
+    r = torch.sqrt((residual**2).sum(dim=1) + 1e-24)
+    return torch.where(r <= delta, r**2, 2.0 * delta * r - delta**2)

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from inverse.sft.camera import Camera
-from inverse.sft.data_terms import bilinear_differentiable, silhouette_distance
+from inverse.sft.silhouette import bilinear_differentiable, silhouette_distance
 
 # No allowance: the outline term ignores the vertex.
 FREE = -np.inf

@@ -23,34 +23,34 @@ the one number w_phys, chosen once on a tuning sequence and never per sequence.
 
 Sequential warm starts rather than one field over (ξ, t): each step then costs as much as one
 frame, the cost per frame does not grow with the sequence, and a frame is done before the next
-one is read. Pinned vertices are exact: u = φ N with ``PinnedPoint`` conditions at their UVs.
-Gradients: the data terms (`inverse.sft.data_terms`) by torch autograd with respect to u at
-their points, the prior by the objective's ``ShellEnergyTerm``; both enter the displacement
-operator's ``backward`` in one batch of jets.
+one is read (the frame loop: `inverse.sft.sequential`, shared with the spline field). Pinned
+vertices are exact: u = φ N with ``PinnedPoint`` conditions at their UVs. Gradients: the data
+terms are the spline fit's (`inverse.sft.least_squares`, analytic value and gradient with
+respect to u at their points; the silhouette's slope is the bilinear sample of the distance
+image's central differences), the prior the objective's ``ShellEnergyTerm``; both enter the
+displacement operator's ``backward`` in one batch of jets.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from inverse.sft.correspondences import FrameCorrespondences
-from inverse.sft.data_terms import (
-    DataTerms,
-    MotionTerm,
-    ReprojectionTerm,
-    SilhouetteTerm,
-    silhouette_distance,
-)
 from inverse.sft.inputs import Camera, Template, mean_edge_length
+from inverse.sft.sequential import (
+    DataWeights,
+    FittedFrame,
+    FrameData,
+    ReconstructionResult,
+    reconstruct_frames,
+)
 from inverse.sft.settings import ReconstructionConfig
-from taichi_ndf import jets, progress
+from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import FieldConfig, NeuralField
@@ -65,29 +65,25 @@ from taichi_ndf.shell.materials import preset
 log = logging.getLogger(__name__)
 
 
-@dataclass
-class ReconstructionResult:
-    """Vertices per frame [m] (n, 3), template order; seconds per frame; final loss terms."""
-
-    vertices: list[np.ndarray]
-    seconds: list[float]
-    losses: list[dict[str, float]] = field(default_factory=list)
-
-
 class FieldReconstructor:
-    """Holds the field, the reference surface, the prior and the per-frame optimisation."""
+    """Holds the field, the reference surface, the prior and the per-frame optimisation (a
+    `inverse.sft.sequential.FrameFit`, without the outline term).
+
+    initial: per-frame initial guesses of the vertices [m] (n, 3) (e.g. the baseline's) that
+    each frame's field is first fitted to, or None."""
 
     def __init__(
         self,
         template: Template,
-        camera: Camera,
         *,
         pinned: np.ndarray | None = None,
+        initial: Sequence[np.ndarray] | None = None,
         config: ReconstructionConfig | None = None,
     ):
         self.config = cfg = config or ReconstructionConfig()
+        self.weights = DataWeights(cfg.huber_px, cfg.temporal_weight, cfg.silhouette_weight)
         self.template = template
-        self.camera = camera
+        self.initial = initial
         self.surface = MeshSurface(template.vertices, template.faces, template.uvs,
                                    name="template")
         tri = template.vertices[template.faces]
@@ -125,64 +121,39 @@ class FieldReconstructor:
 
     # -- one frame ---------------------------------------------------------------------------
 
-    def fit_frame(
-        self,
-        correspondences: FrameCorrespondences,
-        history: Sequence[np.ndarray],
-        *,
-        mask: np.ndarray | None = None,
-        initial: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, dict[str, float]]:
-        """Vertices [m] (n, 3) of one frame and its final loss terms.
-
-        history: the previous one or two frames' vertices (latest last), for the motion term;
-        initial: an initial guess of this frame's vertices (e.g. the baseline's), or None.
-        """
+    def fit_frame(self, frame: FrameData) -> FittedFrame:
+        """One frame's vertices, its final loss terms (at the last step) and Adam steps."""
         cfg = self.config
-        if initial is not None and cfg.init_steps:
-            self._fit_to(initial)
-        faces = self.template.faces[correspondences.face]
-        bary = torch.from_numpy(correspondences.bary)
-        track_xi = (bary[:, :, None] * torch.from_numpy(self.template.uvs[faces])).sum(1)
-        track_rest = (bary[:, :, None] * self.rest[torch.from_numpy(faces)]).sum(1)
-        previous = torch.from_numpy(history[-1])
-        before = torch.from_numpy(history[-2]) if len(history) > 1 else previous
-        n_tracks = len(track_xi)
-        tracks, vertices = slice(0, n_tracks), slice(n_tracks, None)
-        terms = [
-            ("reprojection", ReprojectionTerm(
-                track_rest, torch.from_numpy(correspondences.xy),
-                torch.from_numpy(correspondences.confidence), self.camera, cfg.huber_px),
-             1.0, tracks),
-            ("motion", MotionTerm(self.rest, 2.0 * previous - before, self.mean_edge),
-             cfg.temporal_weight, vertices)]
-        if mask is not None and cfg.silhouette_weight > 0:
-            terms.append(("silhouette",
-                          SilhouetteTerm(self.rest, silhouette_distance(mask), self.camera),
-                          cfg.silhouette_weight, vertices))
-        data = DataTerms(terms)
+        if self.initial is not None and cfg.init_steps:
+            self._fit_to(self.initial[frame.index])
+        track_xi = frame.track_xi.to(self.ftype)
+        n_tracks, n_vertices = len(track_xi), len(self.vertex_xi)
+        data = frame.data_term(torch.arange(n_tracks),
+                               torch.arange(n_tracks, n_tracks + n_vertices))
         lam = cfg.physics_weight / self.energy_reference
 
         optimiser = Adam(self.field.parameters, self.field.gradients, config=AdamConfig(
             lr=cfg.lr, schedule="cosine", total_steps=cfg.steps, min_lr=cfg.min_lr))
         parts: dict[str, float] = {}
-        for _ in range(cfg.steps):
+        for step in range(cfg.steps):
             samples = sample_surface(self.surface, cfg.energy_samples, generator=self.generator,
                                      dtype=self.ftype)
             n_energy = len(samples)
-            xi = torch.cat([samples.xi, track_xi.to(self.ftype), self.vertex_xi])
+            xi = torch.cat([samples.xi, track_xi, self.vertex_xi])
             u_jets = self.operator.jets(xi)
             grad = torch.zeros_like(u_jets, dtype=torch.float64)
 
-            _, grad[n_energy:, jets.VALUE], parts = data.evaluate(
-                u_jets[n_energy:, jets.VALUE].double())
+            at_data = u_jets[n_energy:].double()
+            _, grad[n_energy:] = data.evaluate(None, at_data)
+            if step == cfg.steps - 1:
+                parts = data.parts(at_data)
             if lam > 0:
                 result = self.prior.evaluate(samples, u_jets[:n_energy])
                 grad[:n_energy] = lam * result.grad_u_jets.double()
                 parts["energy"] = result.internal / self.energy_reference
             self.operator.backward(grad)
             optimiser.step()
-        return self.vertices(), parts
+        return FittedFrame(self.vertices(), parts, cfg.steps)
 
     def _fit_to(self, target: np.ndarray) -> None:
         """Fit u at the template vertices to target − template (least squares, Adam)."""
@@ -209,25 +180,11 @@ def reconstruct(
     initial: Sequence[np.ndarray] | None = None,
     config: ReconstructionConfig | None = None,
 ) -> ReconstructionResult:
-    """Vertices for every frame (frame 0 = template), fitted frame by frame with warm starts.
+    """Vertices for every frame (frame 0 = template), fitted frame by frame with warm starts
+    (`inverse.sft.sequential.reconstruct_frames`).
 
     masks: per-frame silhouettes (bool (h, w)) or None; pinned: vertex indices held at their
     template positions; initial: per-frame initial guesses (e.g. the baseline's vertices).
     """
-    solver = FieldReconstructor(template, camera, pinned=pinned, config=config)
-    vertices = [template.vertices.copy()]
-    seconds, losses = [0.0], [{}]
-    for i in progress.counted(range(1, len(correspondences)), "SfT reconstruction, frames"):
-        start = time.perf_counter()
-        fitted, terms = solver.fit_frame(
-            correspondences[i], vertices[-2:],
-            mask=None if masks is None else masks[i],
-            initial=None if initial is None else initial[i],
-        )
-        seconds.append(time.perf_counter() - start)
-        vertices.append(fitted)
-        losses.append(terms)
-        log.debug("frame %d: %.2f s, %s", i, seconds[-1], terms)
-    log.info("reconstruction: %d frames, %.2f s per frame", len(vertices),
-             np.mean(seconds[1:]) if len(seconds) > 1 else 0.0)
-    return ReconstructionResult(vertices=vertices, seconds=seconds, losses=losses)
+    fit = FieldReconstructor(template, pinned=pinned, initial=initial, config=config)
+    return reconstruct_frames(template, camera, correspondences, fit, masks=masks)

@@ -39,21 +39,25 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from inverse.sft.correspondences import FrameCorrespondences
-from inverse.sft.data_terms import silhouette_distance
-from inverse.sft.flow import DenseFlow, merged
+from inverse.sft.flow import DenseFlow
 from inverse.sft.inputs import Camera, Template, mean_edge_length
-from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
-from inverse.sft.outline import outline_allowance, outline_offsets
+from inverse.sft.least_squares import LeastSquaresData
+from inverse.sft.sequential import (
+    DataWeights,
+    FittedFrame,
+    FrameData,
+    ReconstructionResult,
+    reconstruct_frames,
+)
 from inverse.sft.settings import SplinePriorConfig
-from taichi_ndf import jets, progress
+from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import SplineConfig, SplineField
@@ -76,31 +80,19 @@ DTYPE = torch.float64  # the Hessian blocks are central differences: float64 onl
 JETS_SHAPE = (jets.CHANNELS, 3)
 
 
-@dataclass
-class SplinePriorResult:
-    """Vertices per frame [m] (n, 3), template order; wall and process CPU seconds (all
-    threads) and Newton iterations per frame; final data-term values per frame."""
-
-    vertices: list[np.ndarray]
-    seconds: list[float]
-    cpu_seconds: list[float]
-    iterations: list[int]
-    losses: list[dict[str, float]] = field(default_factory=list)
-
-
 class SplinePriorReconstructor:
-    """Holds the spline field, the template's quadrature and the per-frame solve."""
+    """Holds the spline field, the template's quadrature and the per-frame solve (a
+    `inverse.sft.sequential.FrameFit`)."""
 
-    def __init__(self, template: Template, camera: Camera, *,
-                 pinned: np.ndarray | None = None, config: SplinePriorConfig | None = None,
-                 first_mask: np.ndarray | None = None):
+    def __init__(self, template: Template, *, pinned: np.ndarray | None = None,
+                 config: SplinePriorConfig | None = None):
         self.config = cfg = config or SplinePriorConfig()
-        self.template = template
-        self.camera = camera
+        self.weights = DataWeights(cfg.huber_px, cfg.temporal_weight, cfg.silhouette_weight,
+                                   cfg.outline_weight)
         self.surface = MeshSurface(template.vertices, template.faces, template.uvs,
                                    name="template")
-        self.mean_edge = mean_edge_length(template.vertices, template.faces)
-        spans = spans_for(self.surface, cfg.span_edges * self.mean_edge)
+        mean_edge = mean_edge_length(template.vertices, template.faces)
+        spans = spans_for(self.surface, cfg.span_edges * mean_edge)
         self.field = SplineField(SplineConfig(spans, degree=cfg.degree,
                                               domain=self.surface.domain.bounds), dtype=DTYPE)
         self.quadrature = sheet_quadrature(self.surface, self.field.config, template,
@@ -124,11 +116,6 @@ class SplinePriorReconstructor:
         self.rest = torch.from_numpy(template.vertices).double()
         self.length = math.sqrt(self.surface.domain.rectangle_area)
         self._previous = None  # the coefficients of the frame before the last
-        # How deep inside the mask each visible border vertex may lie (frame 0's outline).
-        self.outline = None
-        if first_mask is not None and cfg.outline_weight > 0 and cfg.silhouette_weight > 0:
-            self.outline = outline_allowance(template.vertices, template.faces, camera,
-                                             first_mask, tolerance=self.mean_edge)
         self.newton = NewtonConfig(
             max_iterations=cfg.max_iterations, decrement_tolerance=cfg.tolerance,
             gradient_tolerance=1e-8, floor_tolerance=cfg.tolerance)
@@ -147,44 +134,19 @@ class SplinePriorReconstructor:
             self.field.coefficients.copy_(coefficients)
         return (self.rest + self.operator.displacement(self.vertex_xi).double()).numpy()
 
-    def fit_frame(self, correspondences: FrameCorrespondences, history: Sequence[np.ndarray],
-                  *, mask: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, float], int]:
-        """Vertices [m] (n, 3) of one frame, its final data-term values and Newton iterations.
-
-        history: the previous one or two frames' vertices (latest last): the motion term's
-        prediction; the solve starts from the field's current coefficients (the last frame).
-        """
+    def fit_frame(self, frame: FrameData) -> FittedFrame:
+        """One frame's vertices, final data-term values and Newton iterations; the solve
+        starts from the field's current coefficients (the last frame's)."""
         cfg = self.config
-        faces = self.template.faces[correspondences.face]
-        bary = torch.from_numpy(correspondences.bary)
-        track_xi = (bary[:, :, None] * torch.from_numpy(self.template.uvs[faces])).sum(1)
-        track_rest = (bary[:, :, None] * self.rest[torch.from_numpy(faces)]).sum(1)
-        samples = self.quadrature.joined(self._samples_at(track_xi.to(DTYPE))).joined(
+        samples = self.quadrature.joined(self._samples_at(frame.track_xi.to(DTYPE))).joined(
             self.vertex_samples)
         basis = local_basis_at(self.operator, samples.xi)
         assembly = Assembly(samples, basis, self.field.config.num_coefficients).at_load(
             self.operator, 1.0)
         position = torch.empty_like(assembly.order)
         position[assembly.order] = torch.arange(len(assembly.order))
-        n_q, n_t = len(self.quadrature), len(track_xi)
-        tracks, vertex_rows = position[n_q:n_q + n_t], position[n_q + n_t:]
-
-        previous = torch.from_numpy(history[-1])
-        before = torch.from_numpy(history[-2]) if len(history) > 1 else previous
-        distance = offsets = None
-        if mask is not None and cfg.silhouette_weight > 0:
-            distance = silhouette_distance(mask)
-            if self.outline is not None:
-                offsets = outline_offsets(self.outline, history[-1], self.template.faces,
-                                          tolerance=self.mean_edge)
-        data = LeastSquaresData(
-            self.camera, tracks,
-            Reprojection(track_rest, torch.from_numpy(correspondences.xy),
-                         torch.from_numpy(correspondences.confidence), cfg.huber_px),
-            vertex_rows,
-            VertexTerms(self.rest, 2.0 * previous - before, cfg.temporal_weight,
-                        self.mean_edge, distance, cfg.silhouette_weight, offsets,
-                        cfg.outline_weight))
+        n_q, n_t = len(self.quadrature), len(frame.track_xi)
+        data = frame.data_term(position[n_q:n_q + n_t], position[n_q + n_t:])
         potential = (_DataOnly(data) if self.shell is None
                      else Objective(self.shell, (data,)).potential(1.0))
         fixed = None if self.conditions is None else gauge_unknowns(self.conditions, basis)
@@ -200,7 +162,7 @@ class SplinePriorReconstructor:
         if self.shell is not None:
             result = self.shell.result(assembly.samples, u)
             parts["energy"] = result.internal / (cfg.physics_weight)  # Π_int / E_ref
-        return self.vertices(), parts, len(solution.history)
+        return FittedFrame(self.vertices(), parts, len(solution.history))
 
 
 def sheet_quadrature(surface: MeshSurface, config: SplineConfig, template: Template, *,
@@ -269,30 +231,13 @@ def reconstruct_spline(template: Template, camera: Camera,
                        masks: Sequence[np.ndarray] | None = None,
                        pinned: np.ndarray | None = None,
                        config: SplinePriorConfig | None = None,
-                       flow: DenseFlow | None = None) -> SplinePriorResult:
-    """Vertices for every frame (frame 0 = template), solved frame by frame with warm starts.
+                       flow: DenseFlow | None = None) -> ReconstructionResult:
+    """Vertices for every frame (frame 0 = template), solved frame by frame with warm starts
+    (`inverse.sft.sequential.reconstruct_frames`).
 
     masks: per-frame silhouettes (bool (h, w)) or None; pinned: vertex indices held at their
     template positions; flow: dense flow correspondences (`inverse.sft.flow`) added to each
     frame's tracks, carried from the frame before's reconstruction.
     """
-    solver = SplinePriorReconstructor(template, camera, pinned=pinned, config=config,
-                                      first_mask=None if masks is None else masks[0])
-    vertices = [template.vertices.copy()]
-    seconds, cpu_seconds, iterations, losses = [0.0], [0.0], [0], [{}]
-    for i in progress.counted(range(1, len(correspondences)), "SfT reconstruction, frames"):
-        start, cpu = time.perf_counter(), time.process_time()
-        seen = correspondences[i]
-        if flow is not None:
-            seen = merged(seen, flow.correspondences(i, vertices[-1]))
-        fitted, parts, n_iter = solver.fit_frame(
-            seen, vertices[-2:], mask=None if masks is None else masks[i])
-        seconds.append(time.perf_counter() - start)
-        cpu_seconds.append(time.process_time() - cpu)
-        vertices.append(fitted)
-        iterations.append(n_iter)
-        losses.append(parts)
-        log.debug("frame %d: %.2f s, %d iterations, %s", i, seconds[-1], n_iter, parts)
-    log.info("spline prior: %d frames, %.2f s per frame", len(vertices),
-             np.mean(seconds[1:]) if len(seconds) > 1 else 0.0)
-    return SplinePriorResult(vertices, seconds, cpu_seconds, iterations, losses)
+    fit = SplinePriorReconstructor(template, pinned=pinned, config=config)
+    return reconstruct_frames(template, camera, correspondences, fit, masks=masks, flow=flow)

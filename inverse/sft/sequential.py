@@ -1,0 +1,166 @@
+"""Shape-from-template frame by frame, for either displacement field: the one per-frame driver.
+
+Frame 0 is the template (the input contract gives it). For every frame t > 0 the driver
+gathers what the frame tells about the sheet (`FrameData`): the tracked surface points with
+their pixels and confidences (with `flow`, the dense-flow correspondences carried from frame
+t − 1's reconstruction added: `inverse.sft.flow`), the constant-velocity prediction
+x̂ = 2 x_{t−1} − x_{t−2} of the vertices for the motion term, with a mask the silhouette's
+distance image, and with the outline term the allowance of the border vertices that frame
+t − 1's reconstruction shows (`inverse.sft.outline`). A `FrameFit` then minimises its field's
+prior plus the one data term of `inverse.sft.least_squares` (`FrameData.data_term`) from its
+own last state, the previous frame (warm start): the spline field by Newton
+(`inverse.sft.spline_prior`) or the SIREN by Adam (`inverse.sft.reconstruct`). The driver
+times each frame (wall and process CPU) and reports progress.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from inverse.sft.camera import Camera
+from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.flow import DenseFlow, merged
+from inverse.sft.inputs import Template, mean_edge_length
+from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
+from inverse.sft.outline import outline_allowance, outline_offsets
+from inverse.sft.silhouette import silhouette_distance
+from taichi_ndf import progress
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DataWeights:
+    """The data term's settings: huber_px [px], the reprojection error beyond which its penalty
+    grows linearly; the weights w_temp (motion), w_sil (silhouette, with masks) and w_out
+    (outline; needs masks and w_sil > 0; 0: no outline term)."""
+
+    huber_px: float
+    temporal_weight: float
+    silhouette_weight: float
+    outline_weight: float = 0.0
+
+
+@dataclass(frozen=True)
+class FrameData:
+    """What frame `index` tells about the sheet, on the template (n vertices X (n, 3) [m],
+    `rest`, float64; mean edge length h [m]): the m tracked surface points' UVs ξ (m, 2) and
+    template positions (m, 3) [m], their pixels (m, 2) [px] and confidences (m,); the vertices'
+    predicted positions x̂ (n, 3) [m]; the mask's `silhouette_distance` (h, w) [px] or None;
+    the outline offsets (n,) [px] (`outline_offsets`) or None."""
+
+    index: int
+    camera: Camera
+    rest: torch.Tensor
+    mean_edge: float
+    weights: DataWeights
+    track_xi: torch.Tensor
+    track_rest: torch.Tensor
+    pixels: torch.Tensor
+    confidence: torch.Tensor
+    predicted: torch.Tensor
+    distance: torch.Tensor | None
+    outline_offset: torch.Tensor | None
+
+    def data_term(self, tracks: torch.Tensor, vertices: torch.Tensor) -> LeastSquaresData:
+        """The frame's data term on a batch of points where rows `tracks` (m,) are the tracked
+        points and rows `vertices` (n,) the template vertices (int64)."""
+        w = self.weights
+        return LeastSquaresData(
+            self.camera, tracks,
+            Reprojection(self.track_rest, self.pixels, self.confidence, w.huber_px),
+            vertices,
+            VertexTerms(self.rest, self.predicted, w.temporal_weight, self.mean_edge,
+                        self.distance, w.silhouette_weight, self.outline_offset,
+                        w.outline_weight))
+
+
+@dataclass(frozen=True)
+class FittedFrame:
+    """One frame's vertices [m] (n, 3), template order; its final loss terms; the
+    minimiser's iterations (Newton iterations or Adam steps)."""
+
+    vertices: np.ndarray
+    losses: dict[str, float]
+    iterations: int
+
+
+class FrameFit(Protocol):
+    """The field-specific minimisation of one frame, from the field's last state."""
+
+    weights: DataWeights
+
+    def fit_frame(self, frame: FrameData) -> FittedFrame: ...
+
+
+@dataclass
+class ReconstructionResult:
+    """Vertices per frame [m] (n, 3), template order; wall and process CPU seconds (all
+    threads) and iterations per frame; final loss terms per frame (frame 0: the template,
+    0 s, no terms)."""
+
+    vertices: list[np.ndarray]
+    seconds: list[float]
+    cpu_seconds: list[float]
+    iterations: list[int]
+    losses: list[dict[str, float]] = field(default_factory=list)
+
+
+def reconstruct_frames(template: Template, camera: Camera,
+                       correspondences: Sequence[FrameCorrespondences], fit: FrameFit, *,
+                       masks: Sequence[np.ndarray] | None = None,
+                       flow: DenseFlow | None = None) -> ReconstructionResult:
+    """Vertices for every frame (frame 0 = template), fitted frame by frame by `fit`.
+
+    masks: per-frame silhouettes (bool (h, w)) or None; flow: dense flow correspondences added
+    to each frame's tracks, carried from the frame before's reconstruction.
+    """
+    weights = fit.weights
+    rest = torch.from_numpy(template.vertices).double()
+    mean_edge = mean_edge_length(template.vertices, template.faces)
+    # How deep inside the mask each visible border vertex may lie (frame 0's outline).
+    allowance = None
+    if masks is not None and weights.outline_weight > 0 and weights.silhouette_weight > 0:
+        allowance = outline_allowance(template.vertices, template.faces, camera, masks[0],
+                                      tolerance=mean_edge)
+    result = ReconstructionResult([template.vertices.copy()], [0.0], [0.0], [0], [{}])
+    for i in progress.counted(range(1, len(correspondences)), "SfT reconstruction, frames"):
+        start, cpu = time.perf_counter(), time.process_time()
+        seen = correspondences[i]
+        if flow is not None:
+            seen = merged(seen, flow.correspondences(i, result.vertices[-1]))
+        history = result.vertices[-2:]
+        distance = offsets = None
+        if masks is not None and weights.silhouette_weight > 0:
+            distance = silhouette_distance(masks[i])
+            if allowance is not None:
+                offsets = outline_offsets(allowance, history[-1], template.faces,
+                                          tolerance=mean_edge)
+        faces = template.faces[seen.face]
+        bary = torch.from_numpy(seen.bary)
+        previous = torch.from_numpy(history[-1])
+        before = torch.from_numpy(history[-2]) if len(history) > 1 else previous
+        frame = FrameData(
+            index=i, camera=camera, rest=rest, mean_edge=mean_edge, weights=weights,
+            track_xi=(bary[:, :, None] * torch.from_numpy(template.uvs[faces])).sum(1),
+            track_rest=(bary[:, :, None] * rest[torch.from_numpy(faces)]).sum(1),
+            pixels=torch.from_numpy(seen.xy), confidence=torch.from_numpy(seen.confidence),
+            predicted=2.0 * previous - before, distance=distance, outline_offset=offsets)
+        fitted = fit.fit_frame(frame)
+        result.seconds.append(time.perf_counter() - start)
+        result.cpu_seconds.append(time.process_time() - cpu)
+        result.vertices.append(fitted.vertices)
+        result.iterations.append(fitted.iterations)
+        result.losses.append(fitted.losses)
+        log.debug("frame %d: %.2f s, %d iterations, %s", i, result.seconds[-1],
+                  fitted.iterations, fitted.losses)
+    log.info("SfT reconstruction: %d frames, %.2f s per frame", len(result.vertices),
+             np.mean(result.seconds[1:]) if len(result.seconds) > 1 else 0.0)
+    return result

@@ -1,0 +1,41 @@
+"""The mask as a signed distance image, sampled differentiably at projected points: what the
+silhouette and outline terms of `inverse.sft.least_squares` and the outline allowance of
+`inverse.sft.outline` measure."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import torch
+
+
+def bilinear_differentiable(image: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples (n,) of an (h, w) image at pixels xy (n, 2), clamped to the image;
+    differentiable in xy (torch; `inverse.sft.image.bilinear` samples numpy images fast)."""
+    h, w = image.shape
+    x = xy[:, 0].clamp(0, w - 1.001)
+    y = xy[:, 1].clamp(0, h - 1.001)
+    x0, y0 = x.detach().floor().long(), y.detach().floor().long()
+    fx, fy = x - x0, y - y0
+    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx
+    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def silhouette_distance(mask: np.ndarray) -> torch.Tensor:
+    """Signed distance [px] of every pixel centre to the silhouette's outline, float64 (h, w):
+    positive outside the mask, negative on it. The outline runs half-way between the centres of
+    mask and non-mask pixels (centres at integer coordinates, as the renderer's; a mask pixel
+    is one at least half covered), so a point on the true outline samples ≈ 0 bilinearly.
+    (The distance to the nearest mask pixel centre, 0 on the mask, samples ≈ 0.5 px there: it
+    charged every outline vertex of the true surface and pulled the outline inwards.)"""
+    mask = np.asarray(mask, dtype=bool)
+    outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return torch.from_numpy(np.where(mask, 0.5 - inside, outside - 0.5).astype(np.float64))
+
+
+def silhouette_residual(distance: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
+    """Distance [px] (n,) of pixels xy (n, 2) outside the silhouette (0 inside): the
+    `silhouette_distance` image sampled bilinearly, clamped at 0 (differentiable)."""
+    return bilinear_differentiable(distance, xy).clamp_min(0.0)

@@ -1,0 +1,80 @@
+"""The frame-by-frame driver (inverse.sft.sequential) hands each field the same frame: tracks
+on the template, the constant-velocity prediction, the silhouette and the outline offsets."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from test_sft_reconstruct import bent_pair, exact_tracks
+
+from inverse.sft.sequential import DataWeights, FittedFrame, reconstruct_frames
+from inverse.sft.surface import surface_positions
+from inverse.sft.synth import default_camera
+
+STEP = np.array([0.0, 0.0, 0.01])  # what the fake fit moves the sheet per frame [m]
+
+
+@dataclass
+class Recorder:
+    """A FrameFit that records the frames it is given and moves the sheet by STEP per frame."""
+
+    rest: np.ndarray
+    weights: DataWeights
+    frames: list = field(default_factory=list)
+
+    def fit_frame(self, frame):
+        self.frames.append(frame)
+        return FittedFrame(self.rest + frame.index * STEP, {"index": frame.index}, 1)
+
+
+def run(weights, masks=None, frames=3):
+    camera = default_camera()
+    template, bent = bent_pair()
+    tracks = [exact_tracks(template, bent, camera, seed=i) for i in range(frames)]
+    fit = Recorder(template.vertices, weights)
+    return template, tracks, fit, reconstruct_frames(template, camera, tracks, fit, masks=masks)
+
+
+def test_frames_carry_tracks_and_the_constant_velocity_prediction():
+    template, tracks, fit, result = run(DataWeights(2.0, 0.1, 1.0, 1.0))
+    assert [f.index for f in fit.frames] == [1, 2]
+    np.testing.assert_array_equal(result.vertices[0], template.vertices)
+    np.testing.assert_array_equal(result.vertices[2], template.vertices + 2 * STEP)
+    assert result.iterations == [0, 1, 1] and result.losses[1:] == [{"index": 1}, {"index": 2}]
+    assert len(result.seconds) == len(result.cpu_seconds) == 3
+    first, second = fit.frames
+    # Frame 1 has one frame of history: the prediction is frame 0; frame 2: 2 x_1 - x_0.
+    np.testing.assert_allclose(first.predicted.numpy(), template.vertices)
+    np.testing.assert_allclose(second.predicted.numpy(), template.vertices + 2 * STEP,
+                               atol=1e-15)
+    seen = tracks[2]
+    np.testing.assert_allclose(second.track_rest.numpy(), surface_positions(
+        template.vertices, template.faces, seen.face, seen.bary), atol=1e-15)
+    np.testing.assert_array_equal(second.pixels.numpy(), seen.xy)
+    assert second.track_xi.shape == (len(seen.face), 2)
+    assert second.distance is None and second.outline_offset is None  # no masks
+
+
+def test_masks_give_the_silhouette_and_outline_only_when_weighted():
+    camera = default_camera()
+    masks = [np.ones((camera.height, camera.width), bool)] * 3
+    _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0), masks=masks)
+    assert all(f.distance is not None and f.outline_offset is not None for f in fit.frames)
+    _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0), masks=masks)  # the SIREN's: no outline
+    assert all(f.distance is not None and f.outline_offset is None for f in fit.frames)
+    _, _, fit, _ = run(DataWeights(2.0, 0.1, 0.0, 1.0), masks=masks)
+    assert all(f.distance is None and f.outline_offset is None for f in fit.frames)
+
+
+def test_the_data_term_sits_on_the_rows_the_fit_names():
+    _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0))
+    frame = fit.frames[0]
+    m, n = len(frame.track_xi), len(frame.rest)
+    term = frame.data_term(torch.arange(n, n + m), torch.arange(n))  # vertices first
+    u = torch.zeros(n + m, 6, 3, dtype=torch.float64)
+    value, gradient = term.evaluate(None, u)
+    swapped = frame.data_term(torch.arange(m), torch.arange(m, m + n))
+    u_swapped = torch.zeros_like(u)
+    value_swapped, gradient_swapped = swapped.evaluate(None, u_swapped)
+    assert value == value_swapped
+    torch.testing.assert_close(gradient[:n], gradient_swapped[m:], rtol=0, atol=0)
