@@ -113,6 +113,8 @@ class SirenDiscretisation:
         """Adam's result is checked as it trains (the divergence guard, backoffs)."""
 
     def probes(self, field: NeuralField, load_factor: float) -> Probes:
+        """field: the one being trained (`on_load_step` gives no other): read through the
+        solver's operator (with a pseudo-time field, at t = load_factor)."""
         return self.solver.probe_displacements(load_factor)
 
     def energy_at(self, load_factor: float) -> float:
