@@ -12,6 +12,8 @@ hold the rest) is a logged warning, since that changes from one moment to the ne
 Time is not refused: on every size measured the memory binds first (one Newton iteration on
 147 456 Gauss points, 3.3 GB, took about 2 min on the loaded 2-core test machine); the
 refusal states the seconds per Newton iteration the measurement implies.
+Which estimate applies is the field type's: its discretisation's `check_size` at run start
+(`taichi_ndf.discretise`), the scene reader's when a scene is read.
 """
 
 from __future__ import annotations
@@ -20,8 +22,8 @@ import logging
 
 from taichi_ndf.io.memory import available_memory, physical_memory
 
-__all__ = ["check_run_size", "check_siren_size", "check_spline_size", "siren_memory",
-           "spline_gauss_points", "spline_memory"]
+__all__ = ["check_siren_size", "check_spline_size", "contact_check_points", "siren_memory",
+           "siren_samples", "spline_gauss_points", "spline_memory"]
 
 log = logging.getLogger(__name__)
 
@@ -119,20 +121,18 @@ def check_siren_size(field, samples: int, itemsize: int, *, check_points: int = 
            f"samples{grid}", advice)
 
 
-def check_run_size(scene, solver, *, itemsize: int = 4) -> None:
-    """Raise ValueError (one line with the estimate) if a size of `scene` solved with `solver`
-    (a `SolverConfig`) needs more memory than this machine has; warn if more than is available
-    now. itemsize: bytes per value of the run's precision (4: f32, 8: f64)."""
-    from taichi_ndf.spline_grid import SplinePlan
+def contact_check_points(contact) -> dict:
+    """The contact check grid's part of an estimate: `check_points` (check_resolution² points,
+    0 without obstacles) and `grid`, its words in the message; keyword arguments of
+    `check_spline_size` and `check_siren_size`. contact: the model's `ContactConfig` or None."""
+    if contact is None:
+        return {"check_points": 0, "grid": ""}
+    return {"check_points": contact.check_resolution ** 2,
+            "grid": f" and a contact check grid of {contact.check_resolution}² points "
+                    "(contact.check_resolution)"}
 
-    field = scene.field
-    contact = scene.model.contact
-    check_points = 0 if contact is None else contact.check_resolution ** 2
-    grid = ("" if contact is None else f" and a contact check grid of "
-            f"{contact.check_resolution}² points (contact.check_resolution)")
-    if isinstance(field, SplinePlan):
-        check_spline_size(field, check_points=check_points, grid=grid)
-    else:
-        samples = max(solver.samples, solver.monitor_samples,
-                      solver.newton_samples if solver.newton_iterations else 0)
-        check_siren_size(field, samples, itemsize, check_points=check_points, grid=grid)
+
+def siren_samples(solver) -> int:
+    """The most samples one evaluation of a SIREN run with `solver` (a `SolverConfig`) holds."""
+    return max(solver.samples, solver.monitor_samples,
+               solver.newton_samples if solver.newton_iterations else 0)

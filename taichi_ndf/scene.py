@@ -30,7 +30,12 @@ from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.model import Probe, ShellModel
 from taichi_ndf.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
 from taichi_ndf.render.figure import VIEWS
-from taichi_ndf.run_size import check_run_size
+from taichi_ndf.run_size import (
+    check_siren_size,
+    check_spline_size,
+    contact_check_points,
+    siren_samples,
+)
 from taichi_ndf.scene_contact import parse_contact
 from taichi_ndf.scene_field import field_config, with_field_type
 from taichi_ndf.scene_overrides import apply_overrides
@@ -132,8 +137,12 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     scene = Scene(name=name, description=description, model=model, field=field, solver=solver,
                   quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
                   document=document, output_scale_estimate=estimate)
-    try:
-        check_run_size(scene, solver)  # its sizes fit the memory, before any work
+    try:  # its sizes fit the memory, before any work (at run start: `Discretisation.check_size`)
+        contact = contact_check_points(model.contact)
+        if isinstance(field, SplinePlan):
+            check_spline_size(field, **contact)
+        else:
+            check_siren_size(field, siren_samples(solver), 4, **contact)
     except ValueError as err:
         raise SceneError(str(err)) from None
     return scene

@@ -14,12 +14,11 @@ from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard
 from taichi_ndf.checkpoint import CheckpointError, read_checkpoint
 from taichi_ndf.contact.config import contact_summary, write_obstacles
+from taichi_ndf.discretise import SolveRefused, of_scene
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
-from taichi_ndf.field import NeuralField, SplineField
 from taichi_ndf.io import OutputDir, read_mesh
 from taichi_ndf.io.run_files import read_run, up_direction
-from taichi_ndf.output_scale import field_for_run
 from taichi_ndf.outputs import (
     DeformedMesh,
     deformed_mesh,
@@ -36,8 +35,7 @@ from taichi_ndf.outputs import (
 from taichi_ndf.pseudo_time import frame_times
 from taichi_ndf.scene import Scene, parse_scene
 from taichi_ndf.scene_schema import SceneError
-from taichi_ndf.solver import DivergenceError, Solver, SolverConfig
-from taichi_ndf.spline_grid import SplinePlan
+from taichi_ndf.solver import DivergenceError, SolverConfig
 
 log = logging.getLogger(__name__)
 
@@ -76,68 +74,59 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         raise ValueError("the solver configuration and the scene disagree on pseudo_time (the "
                          "scene's field has a pseudo-time input only with it)")
     seed = config.seed if seed is None else seed
-    warn_rigid_motions(scene.model, newton=isinstance(scene.field, SplinePlan)
-                       or config.newton_iterations > 0)
+    discretisation = of_scene(scene)
+    warn_rigid_motions(scene.model, newton=discretisation.uses_newton(config))
+    checkpoint = out.file("checkpoint.pt")
     if resume:
-        _check_same_scene(out.file("checkpoint.pt"), scene)
-    if isinstance(scene.field, SplinePlan):
-        if config.method != "newton":
-            raise ValueError("a spline field is solved with [training] method = \"newton\"")
-        return _simulate_spline(scene, out, config, resume=resume, machine=machine, seed=seed,
-                                report=report)
-    if resume:  # the output scale the run started with ("auto" is not estimated again)
-        stored = read_checkpoint(out.file("checkpoint.pt"))["architecture"]
-        field_config = dataclasses.replace(scene.field, output_scale=stored.output_scale)
-    else:
-        field_config = field_for_run(scene.field, scene.output_scale_estimate, scene.model,
-                                     config)
-    field = NeuralField(field_config, seed=seed)
+        _check_same_scene(checkpoint, scene)
+    try:
+        discretisation.start(config, seed=seed, resume_from=checkpoint if resume else None)
+    except CheckpointError as err:
+        raise SimulationError(f"--resume: {err}") from err
     step_frames = len(config.load_steps) > 1 and not config.pseudo_time
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
 
-    def on_load_step(load_factor: float) -> None:
+    def on_load_step(load_factor: float, field) -> None:
         if step_frames:  # written at once: a resumed run reads the finished steps back
             index = config.load_steps.index(load_factor)
             frames[index] = deformed_mesh(scene.model, field, scene.output.resolution,
                                           load_factor=load_factor)
             write_trajectory_mesh(out, index, frames[index])
 
-    checkpoint = out.file("checkpoint.pt")
-    run = Solver(scene.model, field, config)
-    if resume:
-        run.state.restore(checkpoint)
     callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {"scene": scene.document,
                                                "scene_dir": str(scene.path.parent.resolve())})]
     try:
-        result = run.run(callbacks=callbacks, on_load_step=on_load_step)
-    except DivergenceError as err:
+        solution = discretisation.solve(config, callbacks=callbacks, on_load_step=on_load_step,
+                                        report=report)
+        discretisation.check_solution(solution)
+    except (DivergenceError, SolveRefused) as err:
         raise SimulationError(str(err)) from err
 
     trajectory = None
     if step_frames:
-        trajectory = _load_step_trajectory(out, config.load_steps, frames, result.history)
+        trajectory = _load_step_trajectory(out, config.load_steps, frames, solution.history)
     if config.pseudo_time:  # the whole path from the one field, at any number of frames
         times = frame_times(config.pseudo_time_start, scene.output.frames)
         energy, states = [], []
         for index, t in enumerate(times):
-            mesh = deformed_mesh(scene.model, field, scene.output.resolution, load_factor=t,
-                                 pseudo_time=True)
+            mesh = deformed_mesh(scene.model, solution.field, scene.output.resolution,
+                                 load_factor=t, pseudo_time=True)
             write_trajectory_mesh(out, index, mesh)
             states.append(mesh.deformed)
-            energy.append(run.energy_and_gradient(run.monitor_samples(), t, grad=False).total)
+            energy.append(discretisation.energy_at(t))
         trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy,
                       "states": states}
     contact, obstacle_meshes = None, ()
-    if scene.model.contact is not None:
-        contact, obstacle_meshes = _contact_outputs(scene, out, field, run.contact,
-                                                    rejected_steps=run.rejected_steps)
-    _write_field_outputs(scene, out, field, result.probes, result.history,
-                         pseudo_time=config.pseudo_time, obstacles=obstacle_meshes,
-                         trajectory=trajectory)
-    summary = _summary(scene, config, seed, result.energy, result.iterations, result.wall_time,
-                       result.probes, trajectory, field_config.to_dict(), machine,
-                       result.history, contact)
-    summary["backoffs"] = result.backoffs  # learning-rate backoffs (`taichi_ndf.backoff`)
+    if solution.contact is not None:
+        contact, obstacle_meshes = _contact_outputs(scene, out, solution.field, solution.contact,
+                                                    **solution.contact_counts)
+    _write_field_outputs(scene, out, solution.field, solution.probes, solution.history,
+                         pseudo_time=config.pseudo_time, refinement=solution.refinement,
+                         obstacles=obstacle_meshes, trajectory=trajectory)
+    summary = _summary(scene, config, seed, solution.energy, solution.iterations,
+                       solution.wall_time, solution.probes, trajectory, solution.field_document,
+                       machine, solution.history, contact)
+    summary.update(solution.document)  # e.g. Adam's backoffs, a spline's levels
     return _finish(scene, out, summary)
 
 
@@ -221,74 +210,6 @@ def _finish(scene: Scene, out: OutputDir, summary: dict) -> dict:
     return summary
 
 
-def _simulate_spline(scene: Scene, out: OutputDir, config: SolverConfig, *, resume: bool,
-                     machine: dict | None, seed: int,
-                     report: Callable[[str], None] | None) -> dict:
-    """`simulate` for a spline field solved by projected Newton (`spline_solver`): the same
-    callbacks as the Adam path (`DivergenceGuard`, `CheckpointWriter`: a checkpoint after
-    every grid level, the `State` of the run; --resume goes on from the last finished level),
-    result.json with the per-iteration Newton history and, with several levels, the
-    refinement study."""
-    from taichi_ndf.spline_solver import solve_spline
-    from taichi_ndf.state import State
-
-    checkpoint = out.file("checkpoint.pt")
-    state = None
-    if resume:
-        state = State.newton(None)
-        try:
-            state.restore(checkpoint)
-        except CheckpointError as err:
-            raise SimulationError(f"--resume: {err}") from err
-    step_frames = len(config.load_steps) > 1
-    frames: dict[int, DeformedMesh] = {}
-
-    def on_level(run) -> None:
-        if config.progress and report is not None:
-            last = run.levels[-1]
-            report(f"level {last.level} ({last.spans[0]} × {last.spans[1]} spans): "
-                   f"Π = {last.energy:.8g} J, {last.iterations} Newton iterations, "
-                   f"{last.seconds:.1f} s")
-        if step_frames:
-            for t, coefficients in run.steps:
-                index = config.load_steps.index(t)
-                field = SplineField(run.field.config)
-                field.coefficients.copy_(coefficients)
-                frames[index] = deformed_mesh(scene.model, field, scene.output.resolution,
-                                              load_factor=t)
-                write_trajectory_mesh(out, index, frames[index])
-
-    callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {
-        "scene": scene.document, "scene_dir": str(scene.path.parent.resolve())})]
-    try:
-        run = solve_spline(scene.model, scene.field, config, state=state, callbacks=callbacks,
-                           on_level=on_level)
-    except DivergenceError as err:
-        raise SimulationError(str(err)) from err
-    if not run.levels[-1].converged:
-        _refuse_no_step(run)
-        log.warning("projected Newton did not converge on the finest grid (see result.json "
-                    "history)")
-    trajectory = None
-    if step_frames:
-        trajectory = _load_step_trajectory(out, config.load_steps, frames, run.history)
-    refinement = run.refinement(scene.field.config.degree)
-    contact, obstacle_meshes = None, ()
-    if run.contact is not None:
-        contact, obstacle_meshes = _contact_outputs(scene, out, run.field, run.contact.points,
-                                                    newton_rounds=run.contact.rounds)
-    _write_field_outputs(scene, out, run.field, run.probes, run.history, refinement=refinement,
-                         obstacles=obstacle_meshes, trajectory=trajectory)
-    summary = _summary(scene, config, seed, run.energy, len(run.history), run.wall_time,
-                       run.probes, trajectory, {**scene.field.to_dict(),
-                                                "finest_spans": list(run.field.config.spans)},
-                       machine, run.history, contact)
-    summary["levels"] = [dataclasses.asdict(lv) for lv in run.levels]
-    summary["load_steps"] = run.load_steps  # Π and probes per load step, finest grid
-    summary["refinement"] = refinement
-    return _finish(scene, out, summary)
-
-
 def _check_same_scene(checkpoint: Path, scene: Scene) -> None:
     """Refuse to resume from a checkpoint of another scene (naming the sections that differ);
     only [training] and [output] may change."""
@@ -327,22 +248,6 @@ def checkpoint_scene(path: str | os.PathLike, extra: dict) -> Scene:
         return parse_scene(extra["scene"], base_dir=base)
     except SceneError as err:
         raise SceneError(f"{path}: the scene it holds: {err}") from None
-
-
-def _refuse_no_step(run) -> None:
-    """SimulationError where projected Newton, not converged, accepted no step on any grid:
-    the result would be the start (Π = 0 J from the flat sheet). Seen on a free-pinned napkin
-    on 1 × 1 spans: the first Newton step follows the rotation about the pin, which the flat
-    state does not resist (λ² = 3.8e9 J), and no step length of the line search lowers Π."""
-    if any(record.step_length > 0 for record in run.history):
-        return
-    finest = run.levels[-1]
-    decrement = f"λ² = {run.history[-1].decrement:.3g} J, " if run.history else ""
-    raise SimulationError(
-        f"projected Newton took no step on any grid (finest {finest.spans[0]} × "
-        f"{finest.spans[1]} spans; {decrement}no step length lowered Π), so the result would be "
-        f"the start, Π = {finest.energy:.6g} J; try a finer grid (omit [field] spans for the "
-        "grid rule) or more load steps")
 
 
 def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],

@@ -33,25 +33,28 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                  "taichi_ndf.render")),
     # The problem and its plain specifications: surface, field, shell, boundary conditions,
     # loads, samples, operator, model, objective terms (contact's barrier included), the
-    # dimensional scales, the training (with Adam's) and grid specifications.
+    # dimensional scales, the training (with Adam's) and grid specifications, the memory
+    # they imply.
     ("model", ("taichi_ndf.geometry", "taichi_ndf.field", "taichi_ndf.shell",
                "taichi_ndf.boundary", "taichi_ndf.loads", "taichi_ndf.line_loads",
                "taichi_ndf.sampling", "taichi_ndf.quadrature", "taichi_ndf.pseudo_time",
                "taichi_ndf.operator", "taichi_ndf.model", "taichi_ndf.objective",
                "taichi_ndf.contact", "taichi_ndf.scaling", "taichi_ndf.optim",
-               "taichi_ndf.training", "taichi_ndf.spline_grid")),
+               "taichi_ndf.training", "taichi_ndf.spline_grid", "taichi_ndf.run_size")),
     # Minimisers of Π at one load factor on one discretisation, contact's Newton hook, and
     # what a minimisation changes and saves: state, checkpoint, backoff, callbacks.
     ("minimise", ("taichi_ndf.minimise", "taichi_ndf.minimisers",
                   "taichi_ndf.contact.newton_contact", "taichi_ndf.state",
                   "taichi_ndf.checkpoint", "taichi_ndf.backoff", "taichi_ndf.callbacks",
                   "taichi_ndf.continuation")),
-    # Solve drivers: continuation over load steps and grid levels, the estimates that solve.
-    ("solve", ("taichi_ndf.solver", "taichi_ndf.spline_solver", "taichi_ndf.output_scale")),
+    # Solve drivers: continuation over load steps and grid levels, the estimates that solve,
+    # and the discretisations (one per field type) that the tools solve through.
+    ("solve", ("taichi_ndf.solver", "taichi_ndf.spline_solver", "taichi_ndf.output_scale",
+               "taichi_ndf.discretise")),
     # Scene reading: TOML into a plain specification (model, field, training, output).
     ("scene", ("taichi_ndf.scene", "taichi_ndf.scene_schema", "taichi_ndf.scene_contact",
-               "taichi_ndf.scene_field", "taichi_ndf.scene_training", "taichi_ndf.scene_overrides",
-               "taichi_ndf.run_size")),
+               "taichi_ndf.scene_field", "taichi_ndf.scene_training",
+               "taichi_ndf.scene_overrides")),
     # The applications: a scene run with its outputs, the tools, benchmarks, studies, viewers.
     ("app", ("taichi_ndf.simulation", "taichi_ndf.outputs", "taichi_ndf.cli",
              "taichi_ndf.validation", "taichi_ndf.sweep", "taichi_ndf.export",

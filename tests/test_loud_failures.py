@@ -39,7 +39,7 @@ def test_a_line_load_on_a_periodic_edge_is_refused_in_one_line(tmp_path, capsys)
 
 
 def test_a_spline_run_that_takes_no_newton_step_is_an_error_not_pi_0(tmp_path, capsys):
-    """The free-pinned napkin on 1 × 1 spans (`simulation._refuse_no_step`)."""
+    """The free-pinned napkin on 1 × 1 spans (`SplineDiscretisation.check_solution`)."""
     scene = spline_scene(tmp_path, "spans = [1, 1]").read_text().replace(
         'xi = [0.0, 0.0]\n', 'xi = [0.0, 0.0]\nrotation = "free"\n', 1)
     scene = write_scene(tmp_path, scene, "one_span.toml")

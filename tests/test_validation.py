@@ -338,13 +338,13 @@ def test_a_case_scene_with_its_own_spline_field_is_solved_with_it(tmp_path, monk
     case = parse_case(document, base_dir=tmp_path)
     called = []
 
-    def solved(scene, model, plan, *args, **kw):
-        called.append(plan)
+    def solved(discretisation, model, config, unit):
+        called.append(discretisation)
         raise RuntimeError("solved")
-    monkeypatch.setattr(runner, "_solve_spline", solved)
+    monkeypatch.setattr(runner, "_solve", solved)
     with pytest.raises(RuntimeError, match="solved"):
         runner.run_case(case, scenes_dir=tmp_path)
-    assert len(called) == 1 and called[0].config.spans == (4, 4)
+    assert len(called) == 1 and called[0].name == "spline"
+    assert called[0].spec.config.spans == (4, 4) and called[0].spec.levels == runner.SPLINE_LEVELS
     _, _, plan = load_case_scene(case, tmp_path, None)
     assert plan.config.spans == (4, 4)
-    assert runner._own_spline(case, tmp_path)

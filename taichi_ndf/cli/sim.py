@@ -56,25 +56,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def refined_scene(scene, levels: int):
-    """The scene with its spline field solved on `levels` grids (--refine)."""
-    from taichi_ndf.spline_grid import SplinePlan
+    """The scene with its field solved on `levels` grids (--refine; ValueError where the
+    field has no grids)."""
+    from taichi_ndf.discretise import of_scene
 
-    if not isinstance(scene.field, SplinePlan):
-        raise ValueError("--refine needs a spline field ([field] type = \"spline\" or "
-                         "--field spline)")
-    if levels < 1:
-        raise ValueError(f"--refine must be >= 1, got {levels}")
-    return dataclasses.replace(scene, field=dataclasses.replace(scene.field, levels=levels))
+    return dataclasses.replace(scene, field=of_scene(scene).refined(levels).spec)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # Imported after parsing: --help and a bad option answer without loading torch or Taichi.
+    from taichi_ndf.discretise import of_scene
     from taichi_ndf.io import incomplete_path, staged_run
     from taichi_ndf.io.memory import check_export_memory
     from taichi_ndf.io.progress_log import PROGRESS_FILE, logged_progress
     from taichi_ndf.outputs import exports_on_template
-    from taichi_ndf.run_size import check_run_size
     from taichi_ndf.scene_overrides import parse_assignment
     from taichi_ndf.scene_schema import SceneError
     from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
@@ -105,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.samples is not None:
             overrides["samples"] = args.samples
         solver = dataclasses.replace(solver, **overrides)
-        check_run_size(scene, solver, itemsize=8 if args.precision == "f64" else 4)
+        of_scene(scene).check_size(solver, itemsize=8 if args.precision == "f64" else 4)
         if not exports_on_template(scene.model):
             check_export_memory(scene.output.resolution, "output.resolution",
                                 frames=scene.output.frames or len(solver.load_steps))

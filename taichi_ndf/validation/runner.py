@@ -15,13 +15,11 @@ import torch
 from taichi_ndf import jets, runtime
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.callbacks import DivergenceGuard
-from taichi_ndf.field import FieldConfig, NeuralField
+from taichi_ndf.discretise import Discretisation, discretisation
 from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import EndMomentTerm, Objective
-from taichi_ndf.output_scale import field_for_run
-from taichi_ndf.run_size import check_run_size
 from taichi_ndf.scene import Scene, load_scene
-from taichi_ndf.solver import Solver, SolverConfig
+from taichi_ndf.solver import SolverConfig
 from taichi_ndf.validation.catalogue import LINEARISATION, SCENES_DIR, Case, Readings
 
 log = logging.getLogger(__name__)
@@ -75,17 +73,10 @@ def load_case_scene(case: Case, scenes_dir: Path = SCENES_DIR, field: str | None
     if case.linear:
         loads = loads.scaled(1 / LINEARISATION)
         model = model.with_material(model.material.scaled(LINEARISATION**-2))
-    if case.linear and isinstance(field_config, FieldConfig):
-        field_config = dataclasses.replace(
-            field_config, output_scale=field_config.output_scale * LINEARISATION)
+    if case.linear:  # a SIREN's output scale follows the displacements' unit
+        field_config = discretisation(field_config, model).with_displacement_unit(
+            LINEARISATION).spec
     return scene, model.with_loads(loads), field_config
-
-
-def _own_spline(case: Case, scenes_dir: Path) -> bool:
-    """Whether the case's scene itself asks for a spline field ([field] type = "spline")."""
-    from taichi_ndf.spline_grid import SplinePlan
-
-    return isinstance(load_scene(Path(scenes_dir) / case.scene).field, SplinePlan)
 
 
 @dataclass
@@ -115,16 +106,12 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
     explicit settings instead (SIREN). iterations: Adam iterations per load step (overrides
     the settings). seed: field initialisation and sampling seed (default: the scene's).
     field: "spline" to solve the case with a spline field by projected Newton on `levels`
-    grids (`_solve_spline`), "siren" with the SIREN by Adam (`_solve_siren`); None: the field
-    the case's scene names (its `[field] type`), as `ndf-sim` does.
+    grids, "siren" with the SIREN by Adam; None: the field the case's scene names (its
+    `[field] type`, with its own keys), as `ndf-sim` does. The field's discretisation
+    (`taichi_ndf.discretise`, `Discretisation.for_case`) chooses its settings and solves it.
     """
-    own = _own_spline(case, scenes_dir)
-    field = field or ("spline" if own else "siren")
-    if field == "spline" and iterations is not None:
-        raise ValueError("--iterations sets Adam; the spline path solves by projected Newton")
-    # A scene with its own spline field keeps its keys (spans, degree, quadrature points).
-    scene, model, field_config = load_case_scene(
-        case, scenes_dir, None if field == "spline" and own else field)
+    # None: the scene's own field (with its keys, e.g. a spline's spans), as `ndf-sim` does
+    scene, model, field_config = load_case_scene(case, scenes_dir, field)
     names = [p.name for p in model.probes]
     for q in case.quantities:
         missing = [p for p in q.probes if p not in names]
@@ -134,16 +121,11 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
                              f"define (its probes: {', '.join(names) or 'none'})")
     objective = _objective(case, model)
     unit = LINEARISATION if case.linear else 1.0
-    if field == "spline":
-        solved, load_steps = _solve_spline(scene, model, field_config, objective, unit,
-                                           levels=1 if quick else levels)
-    else:
-        config = solver or (scene.quick_solver if quick else scene.solver)
-        if iterations is not None:
-            config = config.with_iterations(iterations)
-        if seed is not None:
-            config = dataclasses.replace(config, seed=seed)
-        solved, load_steps = _solve_siren(scene, model, field_config, objective, unit, config)
+    case_discretisation, config = discretisation(
+        field_config, model, objective=objective, estimate=scene.output_scale_estimate
+    ).for_case(scene.solver, scene.quick_solver, quick=quick, solver=solver,
+               iterations=iterations, seed=seed, levels=levels)
+    solved, load_steps = _solve(case_discretisation, model, config, unit)
     solved.solver["load_scale"] = case.load_scale
     positions = _reference_positions(model, runtime.current().dtype)  # the fields' dtype
     rows, convergence = [], {}
@@ -162,81 +144,38 @@ def run_case(case: Case, *, quick: bool = False, solver: SolverConfig | None = N
             axis, readings = solved.series[key]
             convergence[f"{q.name} @ {q.level:g}"] = (
                 list(axis), [q.read(r, positions) for r in readings])
-    log.info("%s (%s): %d iterations, %d Newton steps in %.1f s", case.name, field,
+    log.info("%s (%s): %d iterations, %d Newton steps in %.1f s", case.name,
+             case_discretisation.name,
              solved.iterations, solved.newton_steps, solved.wall_time)
     return CaseResult(case=case, rows=rows, convergence=convergence, solver=solved.solver)
 
 
-def _solve_siren(scene: Scene, model: ShellModel, field_config, objective: Objective,
-                 unit: float, config: SolverConfig) -> tuple[CaseSolve, tuple[float, ...]]:
-    """The case's SIREN trained by Adam (`Solver`, the divergence guard as its callback):
-    readings after each load step, the monitor history as the convergence series."""
+def _solve(case: Discretisation, model: ShellModel, config: SolverConfig, unit: float
+           ) -> tuple[CaseSolve, tuple[float, ...]]:
+    """The case solved on its discretisation with the divergence guard as the callback:
+    readings (linearised units undone) after each load step of the final field (a spline:
+    of the finest grid), and the convergence series per load factor (Adam: the monitor
+    records; a spline: the grid levels)."""
     config = dataclasses.replace(config, progress=False)
-    warn_rigid_motions(model, newton=config.newton_iterations > 0)
-    # "auto" output scale with Adam: the linear estimate of the case's (scaled) model.
-    field_config = field_for_run(field_config, scene.output_scale_estimate, model, config)
-    run = Solver(model, NeuralField(field_config, seed=config.seed), config,
-                 objective=objective)
+    case.check_size(config)
+    warn_rigid_motions(model, newton=case.uses_newton(config))
+    case.start(config, seed=config.seed)
     final: dict[float, Readings] = {}
 
     def readings(probes: dict[str, list[float]]) -> Readings:
         return {n: np.asarray(v, dtype=np.float64) / unit for n, v in probes.items()}
 
-    def on_load_step(load_factor: float) -> None:
-        final[load_factor] = readings(run.probe_displacements(load_factor))
+    def on_load_step(load_factor: float, field) -> None:
+        final[load_factor] = readings(case.probes(field, load_factor))
 
     start = time.perf_counter()
-    result = run.run(callbacks=[DivergenceGuard()], on_load_step=on_load_step)
+    solution = case.solve(config, callbacks=[DivergenceGuard()], on_load_step=on_load_step)
     wall = time.perf_counter() - start
-    series = {t: ([h.iteration for h in records], [readings(h.probes) for h in records])
-              for t in config.load_steps
-              for records in [[h for h in result.history if h.load_factor == t]]}
+    series = {t: (axis, [readings(p) for p in probes])
+              for t, (axis, probes) in solution.convergence.items()}
     return CaseSolve(
-        final, series, result.iterations, result.newton_steps, config.samples,
-        config.newton_samples if config.newton_iterations else 0, wall,
-        {"iterations_per_step": config.iterations, "samples": config.samples,
-         "load_steps": list(config.load_steps), "lbfgs_iterations": config.lbfgs_iterations,
-         "newton_iterations": config.newton_iterations, "newton_every": config.newton_every,
-         "newton_samples": config.newton_samples, "learning_rate": config.adam.lr,
-         "field": field_config.to_dict()}), config.load_steps
-
-
-def _solve_spline(scene: Scene, model: ShellModel, plan, objective: Objective, unit: float,
-                  *, levels: int) -> tuple[CaseSolve, tuple[float, ...]]:
-    """The case with one default spline configuration (`ndf-sim --field spline`: cubic, the
-    grid rule, Gauss points p + 1, projected-Newton defaults) on `levels` grids, solved by
-    `solve_spline` with the divergence guard as its callback: readings on the finest grid,
-    the convergence series per grid level."""
-    from taichi_ndf.minimise.assembly import displacement_at
-    from taichi_ndf.operator import DisplacementOperator
-    from taichi_ndf.spline_solver import solve_spline
-
-    plan = dataclasses.replace(plan, levels=levels)
-    check_run_size(dataclasses.replace(scene, field=plan), scene.solver)
-    config = dataclasses.replace(scene.solver, progress=False)
-    warn_rigid_motions(model)
-    names = [p.name for p in model.probes]
-    per_level: list[dict[float, Readings]] = []
-
-    def on_level(run) -> None:
-        operator = DisplacementOperator(run.field, model.boundary)
-        dtype = run.field.coefficients.dtype
-        xi = torch.tensor([p.xi for p in model.probes], dtype=dtype).reshape(-1, 2)
-        per_level.append({t: {n: u[k].double().numpy() / unit for k, n in enumerate(names)}
-                          for t, c in run.steps
-                          for u in [displacement_at(operator, xi, c, t)[:, jets.VALUE]]})
-
-    start = time.perf_counter()
-    run = solve_spline(model, plan, config, objective=objective,
-                       callbacks=[DivergenceGuard()], on_level=on_level)
-    wall = time.perf_counter() - start
-    series = {t: (list(range(len(per_level))), [level[t] for level in per_level])
-              for t in per_level[-1] if all(t in level for level in per_level)}
-    return CaseSolve(
-        per_level[-1], series, 0, len(run.history), 0, 0, wall,
-        {"method": "newton", "convergence_axis": "grid level",
-         "load_steps": list(config.load_steps), "spans": [list(lv.spans) for lv in run.levels],
-         "newton_iterations": len(run.history), "field": plan.to_dict()}), config.load_steps
+        final, series, solution.adam_iterations, solution.newton_steps, solution.samples,
+        solution.newton_samples, wall, solution.settings), config.load_steps
 
 
 def _reference_positions(model: ShellModel, dtype) -> dict[str, np.ndarray]:

@@ -1,0 +1,40 @@
+"""Discretisations of the displacement field (`Discretisation`): one object per field type
+that the tools solve, size, resume and report through. `discretisation` is the one place
+that tells field types apart: a third field type (adaptive grids, several patches) is one
+class here and one entry in DISCRETISATIONS."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from taichi_ndf.discretise.protocol import Discretisation, Solution, SolveRefused
+from taichi_ndf.discretise.siren import SirenDiscretisation
+from taichi_ndf.discretise.spline import SplineDiscretisation
+from taichi_ndf.field import FieldConfig
+from taichi_ndf.model import ShellModel
+from taichi_ndf.objective import Objective
+from taichi_ndf.spline_grid import SplinePlan
+
+__all__ = ["DISCRETISATIONS", "Discretisation", "SirenDiscretisation", "Solution",
+           "SolveRefused", "SplineDiscretisation", "discretisation", "of_scene"]
+
+# The field specification's type -> its discretisation.
+DISCRETISATIONS: dict[type, type] = {FieldConfig: SirenDiscretisation,
+                                     SplinePlan: SplineDiscretisation}
+
+
+def discretisation(spec: Any, model: ShellModel, *, objective: Objective | None = None,
+                   estimate: str | None = None) -> Discretisation:
+    """The discretisation of the field specification `spec` (a `FieldConfig` or a
+    `SplinePlan`) on `model`. objective: what is minimised (None: Π of the model); estimate:
+    a SIREN's output-scale estimate made at run start (`Scene.output_scale_estimate`)."""
+    kind = DISCRETISATIONS.get(type(spec))
+    if kind is None:
+        raise TypeError(f"no discretisation of a {type(spec).__name__} (known: "
+                        f"{', '.join(t.__name__ for t in DISCRETISATIONS)})")
+    return kind(spec, model, objective=objective, estimate=estimate)
+
+
+def of_scene(scene) -> Discretisation:
+    """The discretisation of a `Scene`'s field on its model."""
+    return discretisation(scene.field, scene.model, estimate=scene.output_scale_estimate)

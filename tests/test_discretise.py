@@ -1,0 +1,102 @@
+"""One discretisation object per field type from one factory (`taichi_ndf.discretise`):
+the classes implement the whole protocol, the factory is keyed on the field specification,
+and what exists for one field type only (grids to refine, an output scale) is answered by
+its class. The solves through it are covered end to end by test_simulation,
+test_spline_scene and test_validation (the same Π as before the protocol, to all digits)."""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+from test_cli import SMALL_NAPKIN, write_scene
+
+from taichi_ndf.discretise import (
+    DISCRETISATIONS,
+    Discretisation,
+    SirenDiscretisation,
+    SplineDiscretisation,
+    discretisation,
+    of_scene,
+)
+from taichi_ndf.discretise.protocol import Solution
+from taichi_ndf.scene import load_scene
+
+
+@pytest.fixture
+def scenes(tmp_path):
+    path = write_scene(tmp_path, SMALL_NAPKIN.format(lr=1e-3))
+    return load_scene(path), load_scene(path, field="spline")
+
+
+def _protocol_methods() -> set[str]:
+    return {name for name, member in vars(Discretisation).items()
+            if inspect.isfunction(member) and not name.startswith("_")}
+
+
+@pytest.mark.parametrize("kind", sorted(DISCRETISATIONS.values(), key=lambda k: k.name),
+                         ids=lambda k: k.name)
+def test_every_discretisation_implements_the_whole_protocol(kind):
+    missing = {name for name in _protocol_methods() if not callable(getattr(kind, name, None))}
+    assert not missing, f"{kind.__name__} lacks {sorted(missing)}"
+    for name in _protocol_methods():  # the same keyword arguments as the protocol
+        assert (inspect.signature(getattr(kind, name)).parameters.keys()
+                == inspect.signature(getattr(Discretisation, name)).parameters.keys()), name
+    assert kind.name in ("siren", "spline")
+
+
+def test_the_factory_is_keyed_on_the_field_specification(scenes):
+    siren, spline = scenes
+    assert isinstance(of_scene(siren), SirenDiscretisation)
+    assert isinstance(of_scene(spline), SplineDiscretisation)
+    assert of_scene(spline).spec is spline.field and of_scene(siren).model is siren.model
+    assert of_scene(spline).uses_newton(spline.solver)
+    assert not of_scene(siren).uses_newton(siren.solver)  # SMALL_NAPKIN: Adam only
+    with pytest.raises(TypeError, match="no discretisation of a dict"):
+        discretisation({}, siren.model)
+
+
+def test_refinement_exists_on_grids_only(scenes):
+    siren, spline = scenes
+    assert of_scene(spline).refined(3).spec.levels == 3
+    assert of_scene(spline).refined(3).spec.config == spline.field.config
+    with pytest.raises(ValueError, match="--refine must be >= 1"):
+        of_scene(spline).refined(0)
+    with pytest.raises(ValueError, match="--refine needs a spline field"):
+        of_scene(siren).refined(3)
+
+
+def test_a_linearised_unit_scales_a_siren_output_only(scenes):
+    siren, spline = scenes
+    scaled = of_scene(siren).with_displacement_unit(1e3)
+    assert scaled.spec.output_scale == siren.field.output_scale * 1e3
+    assert of_scene(spline).with_displacement_unit(1e3).spec is spline.field
+
+
+def test_case_settings(scenes):
+    siren, spline = scenes
+    d, config = of_scene(siren).for_case(siren.solver, siren.quick_solver, quick=False,
+                                         solver=None, iterations=3, seed=5, levels=3)
+    assert config.iterations == 3 and config.seed == 5 and d.spec == siren.field
+    d, config = of_scene(spline).for_case(spline.solver, spline.quick_solver, quick=True,
+                                          solver=None, iterations=None, seed=5, levels=3)
+    assert d.spec.levels == 1 and config == spline.solver
+    with pytest.raises(ValueError, match="--iterations sets Adam"):
+        of_scene(spline).for_case(spline.solver, spline.quick_solver, quick=False,
+                                  solver=None, iterations=3, seed=None, levels=3)
+
+
+def test_sizes_are_the_field_types_own(scenes, monkeypatch):
+    siren, spline = scenes
+    monkeypatch.setattr("taichi_ndf.run_size.physical_memory", lambda: 1)
+    with pytest.raises(ValueError, match="spline field: the finest grid"):
+        of_scene(spline).check_size(spline.solver)
+    with pytest.raises(ValueError, match="SIREN field 16 wide"):
+        of_scene(siren).check_size(siren.solver, itemsize=8)
+
+
+def test_a_solution_has_defaults_for_the_parts_one_field_type_lacks():
+    solution = Solution(field=None, energy=0.0, iterations=0, wall_time=0.0, history=[],
+                        probes={}, field_document={})
+    assert solution.document == {} and solution.refinement is None
+    assert solution.contact is None and solution.convergence == {}
