@@ -118,3 +118,34 @@ def test_outline_gradient_and_blocks_match_central_differences():
     # Gauss–Newton: 2 s rowᵀrow, positive semi-definite, rank one where active.
     assert torch.all(torch.linalg.eigvalsh(blocks) >= -1e-9)
     assert torch.linalg.matrix_rank(blocks[1]) == 1
+
+
+def silhouette_term(slope):
+    """Three vertices outside a silhouette whose distance image is rough (random values), so
+    the interpolant's own slope and the image's central differences differ."""
+    camera = default_camera(160, 120, focal=150.0)
+    distance = torch.from_numpy(np.random.default_rng(3).uniform(1.0, 6.0, (120, 160)))
+    pixels = np.array([[50.3, 40.6], [81.7, 62.2], [120.45, 90.8]])
+    depth = 0.5
+    rest = torch.from_numpy(np.column_stack([(pixels - [camera.cx, camera.cy])
+                                             / [camera.fx, camera.fy] * depth,
+                                             np.full(3, depth)]))
+    term = LeastSquaresData(
+        camera, torch.arange(1),
+        Reprojection(rest[:1], camera.project(rest[:1]), torch.ones(1), 2.0),
+        torch.arange(1, 4), VertexTerms(rest, rest, 0.0, 0.01, distance, 1.0), slope=slope)
+    return term, torch.zeros(4, jets.CHANNELS, 3, dtype=torch.float64)
+
+
+def test_the_interpolant_slope_is_the_gradient_of_the_value_the_image_slope_is_not():
+    """Adam's slope ("interpolant") is the value's own gradient; Newton's ("image": smooth
+    central differences) is not, on a rough image — which is why the SIREN fit takes the
+    first and the spline fit the second."""
+    term, u = silhouette_term("interpolant")
+    _, grad = term.evaluate(None, u)
+    assert_gradient_matches(term, u, grad, range(1, 4))
+    image_term, _ = silhouette_term("image")
+    _, image_grad = image_term.evaluate(None, u)
+    assert not torch.allclose(image_grad, grad, rtol=1e-2)
+    with pytest.raises(ValueError, match="slope"):
+        silhouette_term("autograd")

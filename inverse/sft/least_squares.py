@@ -76,10 +76,21 @@ class VertexTerms:
 class LeastSquaresData:
     """Reprojection at rows `tracks`, motion and silhouette at rows `vertices` of the samples
     (int64 index tensors, one row per track / vertex, in their order); the `Term` protocol plus
-    Gauss–Newton `hessian_blocks`. Float64 throughout."""
+    Gauss–Newton `hessian_blocks`. Float64 throughout.
+
+    slope: the distance image's slope dD/dpx in the silhouette and outline rows. "image" (for
+    Newton): the bilinear sample of the image's central differences, smooth across pixel
+    edges, so the Gauss–Newton rows do not jump from one pixel to the next. "interpolant" (for
+    a first-order minimiser, Adam): the exact derivative of the bilinear interpolant that the
+    value samples, so the gradient is the value's own (piecewise constant per pixel)."""
+
+    SLOPES = ("image", "interpolant")
 
     def __init__(self, camera: Camera, tracks: torch.Tensor, reprojection: Reprojection,
-                 vertices: torch.Tensor, vertex_terms: VertexTerms):
+                 vertices: torch.Tensor, vertex_terms: VertexTerms, *, slope: str = "image"):
+        if slope not in self.SLOPES:
+            raise ValueError(f"slope must be one of {self.SLOPES}, not {slope!r}")
+        self.slope = slope
         self.camera = camera
         self.tracks, self.vertices = tracks, vertices
         self.reprojection = reprojection
@@ -143,8 +154,15 @@ class LeastSquaresData:
     def _distance_rows(self, points: torch.Tensor, active: torch.Tensor) -> torch.Tensor:
         """d D(π(x)) / dx (n, 3) at the vertices where `active` (n,) is set, 0 elsewhere."""
         pixels = self.camera.project(points, min_depth=MIN_DEPTH)
-        slope = active.to(points.dtype)[:, None] * torch.stack(
-            [bilinear_differentiable(g, pixels) for g in self.distance_gradient], 1)  # dD/dpx
+        if self.slope == "interpolant":
+            pixels = pixels.detach().requires_grad_(True)
+            with torch.enable_grad():
+                bilinear_differentiable(self.vertex.distance, pixels).sum().backward()
+            image_slope = pixels.grad
+        else:
+            image_slope = torch.stack(
+                [bilinear_differentiable(g, pixels) for g in self.distance_gradient], 1)
+        slope = active.to(points.dtype)[:, None] * image_slope  # dD/dpx
         return torch.einsum("nr,nri->ni", slope,
                             self.camera.projection_jacobian(points, min_depth=MIN_DEPTH))
 

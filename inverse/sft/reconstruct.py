@@ -128,8 +128,9 @@ class FieldReconstructor:
             self._fit_to(self.initial[frame.index])
         track_xi = frame.track_xi.to(self.ftype)
         n_tracks, n_vertices = len(track_xi), len(self.vertex_xi)
+        # Adam follows the gradient of the value it computes: the interpolant's own slope.
         data = frame.data_term(torch.arange(n_tracks),
-                               torch.arange(n_tracks, n_tracks + n_vertices))
+                               torch.arange(n_tracks, n_tracks + n_vertices), slope="interpolant")
         lam = cfg.physics_weight / self.energy_reference
 
         optimiser = Adam(self.field.parameters, self.field.gradients, config=AdamConfig(

@@ -69,9 +69,11 @@ class FrameData:
     distance: torch.Tensor | None
     outline_offset: torch.Tensor | None
 
-    def data_term(self, tracks: torch.Tensor, vertices: torch.Tensor) -> LeastSquaresData:
+    def data_term(self, tracks: torch.Tensor, vertices: torch.Tensor, *,
+                  slope: str = "image") -> LeastSquaresData:
         """The frame's data term on a batch of points where rows `tracks` (m,) are the tracked
-        points and rows `vertices` (n,) the template vertices (int64)."""
+        points and rows `vertices` (n,) the template vertices (int64); slope: the distance
+        image's slope, "image" for Newton, "interpolant" for Adam (`LeastSquaresData`)."""
         w = self.weights
         return LeastSquaresData(
             self.camera, tracks,
@@ -79,7 +81,7 @@ class FrameData:
             vertices,
             VertexTerms(self.rest, self.predicted, w.temporal_weight, self.mean_edge,
                         self.distance, w.silhouette_weight, self.outline_offset,
-                        w.outline_weight))
+                        w.outline_weight), slope=slope)
 
 
 @dataclass(frozen=True)
