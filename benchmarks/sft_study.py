@@ -32,8 +32,9 @@ import torch
 import taichi_ndf
 from inverse.sft.baseline import reconstruct_baseline
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
-from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
-from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
+from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.reconstruct import ReconstructionConfig
+from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
 
@@ -104,17 +105,10 @@ def study(sequence: str, seed: int, args: argparse.Namespace) -> list[dict]:
     weights = [("prior", config.physics_weight)] + ([("no-prior", 0.0)] if args.no_prior else [])
     for name, weight in weights:
         settings = dataclasses.replace(config, physics_weight=weight)
-        clock, cpu = time.perf_counter(), time.process_time()
-        if args.field == "spline":
-            result = reconstruct_spline(data["template"], data["camera"], data["tracks"],
-                                        masks=data["masks"], config=settings)
-            wall, cpu = float(np.mean(result.seconds[1:])), float(np.mean(result.cpu_seconds[1:]))
-        else:
-            result = reconstruct(data["template"], data["camera"], data["tracks"],
-                                 masks=data["masks"], initial=data["baseline"], config=settings)
-            solved = len(result.vertices) - 1
-            wall = (time.perf_counter() - clock) / solved
-            cpu = (time.process_time() - cpu) / solved
+        result = reconstruct_sequence(
+            data["template"], data["camera"], data["tracks"], settings, masks=data["masks"],
+            initial=data["baseline"] if args.field == "siren" else None)
+        wall, cpu = float(np.mean(result.seconds[1:])), float(np.mean(result.cpu_seconds[1:]))
         rows.append(row(name, data, result.vertices, wall, cpu))
     for r in rows:
         r.update(sequence=sequence, seed=seed, field=args.field, tracking_s=data["tracking_s"],

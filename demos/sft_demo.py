@@ -27,8 +27,9 @@ import torch
 import taichi_ndf
 from inverse.sft.baseline import reconstruct_baseline
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
-from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
-from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
+from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.reconstruct import ReconstructionConfig
+from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
 
@@ -97,15 +98,11 @@ def run(synth: SynthConfig, config: SplinePriorConfig | ReconstructionConfig) ->
     for name, weight in (("field, no prior", 0.0), ("field + KL prior", config.physics_weight)):
         settings = dataclasses.replace(config, physics_weight=weight)
         clock = time.perf_counter()
-        if isinstance(settings, SplinePriorConfig):
-            vertices = reconstruct_spline(sequence.template, sequence.camera, correspondences,
-                                          masks=sequence.masks, config=settings).vertices
-            stages = {"tracking": tracking}
-        else:
-            vertices = reconstruct(sequence.template, sequence.camera, correspondences,
-                                   masks=sequence.masks, initial=baseline,
-                                   config=settings).vertices
-            stages = {"tracking": tracking, "baseline": baseline_time}
+        siren = isinstance(settings, ReconstructionConfig)  # fitted to the baseline first
+        vertices = reconstruct_sequence(sequence.template, sequence.camera, correspondences,
+                                        settings, masks=sequence.masks,
+                                        initial=baseline if siren else None).vertices
+        stages = {"tracking": tracking, **({"baseline": baseline_time} if siren else {})}
         stages["reconstruction"] = (time.perf_counter() - clock) / n
         rows.append(row(name, vertices, stages))
     return rows

@@ -12,7 +12,8 @@ from inverse.cli import sft as sft_cli
 from inverse.sft.deformations import Pose, cylindrical_bend
 from inverse.sft.inputs import Template
 from inverse.sft.metrics import relative_error
-from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
+from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.silhouette import silhouette_distance, silhouette_residual
 from inverse.sft.surface import surface_positions
 from inverse.sft.synth import SynthConfig, default_camera, flat_sheet, generate, write_sequence
@@ -49,7 +50,7 @@ def test_recovers_bent_sheet_from_tracks():
     camera = default_camera()
     template, bent = bent_pair()
     tracks = [exact_tracks(template, v, camera) for v in (template.vertices, bent)]
-    result = reconstruct(template, camera, tracks, config=TINY)
+    result = reconstruct_sequence(template, camera, tracks, TINY)
     assert len(result.vertices) == 2
     assert result.vertices[1].shape == template.vertices.shape
     np.testing.assert_array_equal(result.vertices[0], template.vertices)
@@ -65,9 +66,9 @@ def test_pinned_vertices_stay_at_the_template():
     template, bent = bent_pair()
     pinned = np.array([0, 5])
     tracks = [exact_tracks(template, v, camera) for v in (template.vertices, bent)]
-    result = reconstruct(template, camera, tracks, pinned=pinned,
-                         config=ReconstructionConfig(width=16, energy_samples=64, steps=5,
-                                                     init_steps=0))
+    result = reconstruct_sequence(template, camera, tracks, pinned=pinned,
+                                  config=ReconstructionConfig(width=16, energy_samples=64,
+                                                              steps=5, init_steps=0))
     moved = np.linalg.norm(result.vertices[1] - template.vertices, axis=1)
     assert moved[pinned].max() < 1e-12
     assert moved.max() > 1e-4

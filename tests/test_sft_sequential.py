@@ -4,10 +4,13 @@ on the template, the constant-velocity prediction, the silhouette and the outlin
 from dataclasses import dataclass, field
 
 import numpy as np
+import pytest
 import torch
 from test_sft_reconstruct import bent_pair, exact_tracks
 
+from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.sequential import DataWeights, FittedFrame, reconstruct_frames
+from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.surface import surface_positions
 from inverse.sft.synth import default_camera
 
@@ -78,3 +81,18 @@ def test_the_data_term_sits_on_the_rows_the_fit_names():
     value_swapped, gradient_swapped = swapped.evaluate(None, u_swapped)
     assert value == value_swapped
     torch.testing.assert_close(gradient[:n], gradient_swapped[m:], rtol=0, atol=0)
+
+
+def test_one_entry_picks_the_field_from_its_settings():
+    """`reconstruct_sequence` solves on the field its settings name and refuses what it cannot
+    use: unknown settings, initial guesses for the spline field."""
+    camera = default_camera()
+    template, bent = bent_pair()
+    tracks = [exact_tracks(template, v, camera) for v in (template.vertices, bent)]
+    with pytest.raises(TypeError, match="no SfT field"):
+        reconstruct_sequence(template, camera, tracks, DataWeights(2.0, 0.1, 0.0))
+    with pytest.raises(ValueError, match="initial guesses"):
+        reconstruct_sequence(template, camera, tracks, SplinePriorConfig(),
+                             initial=[template.vertices, bent])
+    result = reconstruct_sequence(template, camera, tracks, SplinePriorConfig(max_iterations=2))
+    assert len(result.vertices) == 2 and result.iterations[1] > 0

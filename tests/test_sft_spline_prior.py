@@ -16,7 +16,8 @@ from inverse.sft.inputs import mesh_edges
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.metrics import relative_error
 from inverse.sft.silhouette import silhouette_distance
-from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
+from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.synth import default_camera, flat_sheet
 from taichi_ndf import jets
 
@@ -106,7 +107,7 @@ def bent():
 
 def test_recovers_bent_sheet_from_tracks(bent):
     camera, template, target, tracks = bent
-    result = reconstruct_spline(template, camera, tracks, config=JUMP)
+    result = reconstruct_sequence(template, camera, tracks, config=JUMP)
     np.testing.assert_array_equal(result.vertices[0], template.vertices)
     before = relative_error(template.vertices, target)
     after = relative_error(result.vertices[1], target)
@@ -119,8 +120,8 @@ def test_recovers_bent_sheet_from_tracks(bent):
 def test_without_the_prior_depth_is_free(bent):
     """Exact tracks fit either way, but only the prior fixes the depth between them."""
     camera, template, target, tracks = bent
-    prior = reconstruct_spline(template, camera, tracks, config=JUMP).vertices[1]
-    free = reconstruct_spline(template, camera, tracks, config=dataclasses.replace(
+    prior = reconstruct_sequence(template, camera, tracks, config=JUMP).vertices[1]
+    free = reconstruct_sequence(template, camera, tracks, config=dataclasses.replace(
         JUMP, physics_weight=0.0)).vertices[1]
     assert relative_error(prior, target) < relative_error(free, target)
 
@@ -128,7 +129,7 @@ def test_without_the_prior_depth_is_free(bent):
 def test_pinned_vertices_stay_at_the_template(bent):
     camera, template, _, tracks = bent
     pinned = np.array([0, 5])
-    result = reconstruct_spline(template, camera, tracks, pinned=pinned,
+    result = reconstruct_sequence(template, camera, tracks, pinned=pinned,
                                 config=SplinePriorConfig(max_iterations=2))
     moved = np.linalg.norm(result.vertices[1] - template.vertices, axis=1)
     assert moved[pinned].max() < 1e-9

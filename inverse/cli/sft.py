@@ -66,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="siren: initial guess of each frame, the baseline's mesh or the "
                    "previous frame (default: %(default)s)")
     p.add_argument("--flow", action="store_true",
-                   help="spline: add dense optical-flow correspondences (inverse.sft.flow) to "
+                   help="add dense optical-flow correspondences (inverse.sft.flow) to "
                    "the sparse tracks (slower; not better on R1, docs/sft_results.md)")
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",

@@ -21,8 +21,9 @@ from inverse.sft.crop import cropped_to_sheet
 from inverse.sft.flow import DenseFlow
 from inverse.sft.inputs import Camera, InputError
 from inverse.sft.material_from_video import estimate_material
-from inverse.sft.reconstruct import ReconstructionConfig, reconstruct
-from inverse.sft.spline_prior import SplinePriorConfig, reconstruct_spline
+from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.reconstruct import ReconstructionConfig
+from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.tracking import track_sequence
 from taichi_ndf.cli.common import machine_description, start
 from taichi_ndf.io import OutputDir, write_obj
@@ -66,18 +67,12 @@ def run(args: argparse.Namespace) -> dict:
     clock = time.perf_counter()
     if args.method == "baseline":
         vertices, losses, per_frame = baseline.vertices, None, baseline.seconds
-    elif args.field == "spline":
-        result = reconstruct_spline(work.template, work.camera, correspondences,
-                                    masks=work.masks, pinned=work.pinned, config=config,
-                                    flow=None if not args.flow else DenseFlow(
-                                        work.frames, work.camera, work.template.faces,
-                                        masks=work.masks))
-        vertices, losses, per_frame = result.vertices, result.losses, result.seconds
     else:
-        result = reconstruct(work.template, work.camera, correspondences,
-                             masks=work.masks, pinned=work.pinned,
-                             initial=None if baseline is None else baseline.vertices,
-                             config=config)
+        result = reconstruct_sequence(
+            work.template, work.camera, correspondences, config, masks=work.masks,
+            pinned=work.pinned, initial=None if baseline is None else baseline.vertices,
+            flow=None if not args.flow else DenseFlow(work.frames, work.camera,
+                                                      work.template.faces, masks=work.masks))
         vertices, losses, per_frame = result.vertices, result.losses, result.seconds
     if args.method != "baseline":
         seconds["reconstruction"] = time.perf_counter() - clock

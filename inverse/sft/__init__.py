@@ -5,7 +5,8 @@ Modules, in pipeline order (conventions and the evaluation protocol: ``docs/sft.
 (face, barycentric)), ``tracking`` (texture registration and Lucas–Kanade tracks),
 ``baseline`` (per-frame reprojection + inextensibility + smoothness least squares),
 ``sequential`` with ``least_squares`` and ``silhouette`` (the physics-regularised
-reconstruction frame by frame, with its one data term, for either field), ``spline_prior`` (a
+reconstruction frame by frame, with its one data term, for either field; ``frame_fits``:
+``reconstruct_sequence``, the one entry, the field named by its settings), ``spline_prior`` (a
 spline field by Gauss–Newton, the default) and ``reconstruct`` (a SIREN field by Adam),
 ``metrics`` (e3D, chamfer, normal
 and reprojection errors), ``chamfer`` (the field's protocol against point clouds); input

@@ -170,22 +170,3 @@ class FieldReconstructor:
             self.operator.backward(grad)
             optimiser.step()
 
-
-def reconstruct(
-    template: Template,
-    camera: Camera,
-    correspondences: Sequence[FrameCorrespondences],
-    *,
-    masks: Sequence[np.ndarray] | None = None,
-    pinned: np.ndarray | None = None,
-    initial: Sequence[np.ndarray] | None = None,
-    config: ReconstructionConfig | None = None,
-) -> ReconstructionResult:
-    """Vertices for every frame (frame 0 = template), fitted frame by frame with warm starts
-    (`inverse.sft.sequential.reconstruct_frames`).
-
-    masks: per-frame silhouettes (bool (h, w)) or None; pinned: vertex indices held at their
-    template positions; initial: per-frame initial guesses (e.g. the baseline's vertices).
-    """
-    fit = FieldReconstructor(template, pinned=pinned, initial=initial, config=config)
-    return reconstruct_frames(template, camera, correspondences, fit, masks=masks)

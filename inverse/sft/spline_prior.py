@@ -225,19 +225,3 @@ class _Value:
     total: float
     grad_u_jets: torch.Tensor | None
 
-
-def reconstruct_spline(template: Template, camera: Camera,
-                       correspondences: Sequence[FrameCorrespondences], *,
-                       masks: Sequence[np.ndarray] | None = None,
-                       pinned: np.ndarray | None = None,
-                       config: SplinePriorConfig | None = None,
-                       flow: DenseFlow | None = None) -> ReconstructionResult:
-    """Vertices for every frame (frame 0 = template), solved frame by frame with warm starts
-    (`inverse.sft.sequential.reconstruct_frames`).
-
-    masks: per-frame silhouettes (bool (h, w)) or None; pinned: vertex indices held at their
-    template positions; flow: dense flow correspondences (`inverse.sft.flow`) added to each
-    frame's tracks, carried from the frame before's reconstruction.
-    """
-    fit = SplinePriorReconstructor(template, pinned=pinned, config=config)
-    return reconstruct_frames(template, camera, correspondences, fit, masks=masks, flow=flow)

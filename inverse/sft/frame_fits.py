@@ -1,0 +1,53 @@
+"""Shape-from-template on either displacement field through one call: the field is the one
+its settings name (`SplinePriorConfig`: a B-spline field solved by Newton,
+`inverse.sft.spline_prior`; `ReconstructionConfig`: a SIREN trained by Adam,
+`inverse.sft.reconstruct`). `FRAME_FITS` is the one place that tells the two apart; both run
+on the one frame-by-frame driver `inverse.sft.sequential.reconstruct_frames`."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from inverse.sft.camera import Camera
+from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.flow import DenseFlow
+from inverse.sft.inputs import Template
+from inverse.sft.reconstruct import FieldReconstructor, ReconstructionConfig
+from inverse.sft.sequential import ReconstructionResult, reconstruct_frames
+from inverse.sft.spline_prior import SplinePriorConfig, SplinePriorReconstructor
+
+# The settings' type -> the field's per-frame fit (a `FrameFit`).
+FRAME_FITS: dict[type, type] = {SplinePriorConfig: SplinePriorReconstructor,
+                                ReconstructionConfig: FieldReconstructor}
+
+
+def reconstruct_sequence(template: Template, camera: Camera,
+                         correspondences: Sequence[FrameCorrespondences],
+                         config: SplinePriorConfig | ReconstructionConfig, *,
+                         masks: Sequence[np.ndarray] | None = None,
+                         pinned: np.ndarray | None = None,
+                         initial: Sequence[np.ndarray] | None = None,
+                         flow: DenseFlow | None = None) -> ReconstructionResult:
+    """Vertices [m] for every frame (frame 0 = the template), fitted frame by frame from the
+    previous frame on the field that `config` names.
+
+    masks: per-frame silhouettes (bool (h, w)) or None; pinned: vertex indices held at their
+    template positions; initial: per-frame guesses (e.g. the baseline's vertices) that a SIREN
+    is first fitted to in each frame (ValueError on the spline field, which starts from the
+    previous frame's solution); flow: dense-flow correspondences (`inverse.sft.flow`) added to
+    each frame's tracks, carried from the frame before's reconstruction.
+    """
+    kind = FRAME_FITS.get(type(config))
+    if kind is None:
+        raise TypeError(f"no SfT field for settings of type {type(config).__name__} (known: "
+                        f"{', '.join(t.__name__ for t in FRAME_FITS)})")
+    if initial is None:
+        fit = kind(template, pinned=pinned, config=config)
+    elif kind is FieldReconstructor:
+        fit = kind(template, pinned=pinned, initial=initial, config=config)
+    else:
+        raise ValueError("initial guesses are for the SIREN field; the spline field starts "
+                         "each frame from the previous frame's solution")
+    return reconstruct_frames(template, camera, correspondences, fit, masks=masks, flow=flow)
