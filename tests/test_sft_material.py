@@ -129,3 +129,62 @@ def test_cli_rejects_bad_material_options(tmp_path, capsys, extra, message):
     assert code == 2
     assert message in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+class _Stub:
+    """A forward model whose equilibrium is `positions` and whose sensitivity to the one
+    outer coordinate is `sensitivity` (the interface `outer_fit.residuals` reads)."""
+
+    def __init__(self, positions, sensitivity):
+        import torch
+
+        self.field = type("F", (), {"parameters": [torch.zeros(1, dtype=torch.float64)]})()
+        self._x, self._dx = positions, sensitivity
+
+    def positions(self, xi):
+        return self._x
+
+    def position_sensitivity(self, xi, sensitivity):
+        return self._dx
+
+
+def test_ray_rows_leave_the_depth_out_of_the_residual():
+    """`observed="ray"`: a reconstruction's error along the camera rays (depth) does not reach
+    the residuals or their Jacobian, an error across them does; with all three coordinates
+    (the old residual) the depth error is in the residual. The material fit therefore cannot
+    move B to explain a depth bias."""
+    import torch
+
+    from inverse.material.observations import Observation, ray_rows
+    from inverse.material.outer_fit import residuals
+    from inverse.sft.hanging import hanging_across, hanging_model
+
+    gen = torch.Generator().manual_seed(0)
+    truth = torch.rand((20, 3), generator=gen, dtype=torch.float64) * 0.3 + \
+        torch.tensor([-0.15, -0.15, 0.8], dtype=torch.float64)
+    rows = ray_rows(truth)
+    ray = truth / truth.norm(dim=1, keepdim=True)
+    assert torch.allclose(torch.einsum("mkj,mlj->mkl", rows, rows),
+                          torch.eye(2, dtype=torch.float64).expand(20, 2, 2), atol=1e-12)
+    assert torch.einsum("mkj,mj->mk", rows, ray).abs().max() < 1e-12
+    depth_bias = truth + 0.002 * (1 + truth[:, :1]) * ray  # smooth, along the rays only
+    corners = truth[:2].numpy()
+    model = hanging_model((0.3, 0.3), MaterialFromVideoConfig().start_material, corners,
+                          hanging_across(corners, np.array([0.0, 9.81, 0.0])),
+                          np.array([0.0, 9.81, 0.0]))
+    xi = torch.full((20, 2), 0.1, dtype=torch.float64)
+    dx = torch.rand((20, 3, 1), generator=gen, dtype=torch.float64)
+    stub = _Stub(truth, dx)
+    r3, j3 = residuals(stub, Observation(model, depth_bias, xi), 8, torch.zeros(1))
+    assert np.abs(r3).max() > 1e-3 and j3.shape == (60, 1)
+    r2, j2 = residuals(stub, Observation(model, depth_bias, xi, rows), 8, torch.zeros(1))
+    assert r2.shape == (40,) and np.abs(r2).max() < 1e-12
+    assert np.allclose(j2.reshape(20, 2), torch.einsum("mkj,mj->mk", rows, dx[..., 0]).numpy())
+    across = truth + 0.002 * rows[:, 0]
+    r2, _ = residuals(stub, Observation(model, across, xi, rows), 8, None)
+    assert np.allclose(np.abs(r2.reshape(20, 2)), [[0.002, 0.0]] * 20, atol=1e-12)
+    assert Observation(model, depth_bias, xi, rows).components == 2
+    with pytest.raises(ValueError, match="need correspondence"):
+        Observation(model, depth_bias, None, rows)
+    with pytest.raises(ValueError, match="observed must be one of"):
+        MaterialFromVideoConfig(observed="depth")

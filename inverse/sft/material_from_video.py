@@ -12,8 +12,11 @@ frames at once by the Newton method of `ndf-fit-material` (`newton_fit.newton_es
 frame's shape is the cloth's own equilibrium (spline field + projected Newton) under gravity
 with its corners held where the video puts them, B is found by Levenberg–Marquardt with
 implicit-function Jacobians over the frames' equilibria, on two grids; its standard error
-combines the Fisher error and the two grids' difference; the identifiability statement is that
-method's (eigen-analysis of the Fisher matrix).
+combines the noise part — the larger of the Fisher error and the cluster-robust (sandwich)
+error with one cluster per frame, since a reconstruction's error is smooth and its held
+corners are shared by the whole frame, so residuals are not independent — and the two grids'
+difference; the identifiability statement is that method's (eigen-analysis of the Fisher
+matrix).
 
 Identifiability: under gravity alone the shape fixes the stiffness only relative to the weight:
 B / (ρ_A g), i.e. the bending length c = (B / (ρ_A g))^(1/3). B itself follows from a stated
@@ -42,7 +45,7 @@ import numpy as np
 import torch
 
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
-from inverse.material.observations import Observation
+from inverse.material.observations import Observation, ray_rows
 from inverse.material.outer_fit import OuterConfig
 from inverse.material.report import estimate_document
 from inverse.material.spline_equilibrium import SplineModelConfig
@@ -85,7 +88,9 @@ def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
         corners = points[list(grid.held)]
         across = hanging_across(corners, gravity)
         model = hanging_model(grid.size, material, corners, across, gravity, band=config.band)
-        observations.append(Observation(model, torch.from_numpy(points), xi))
+        observed = torch.from_numpy(points)
+        rows = ray_rows(observed) if config.observed == "ray" else None
+        observations.append(Observation(model, observed, xi, rows))
     return observations
 
 
@@ -116,7 +121,7 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
         model=SplineModelConfig(spans=tuple(int(s) for s in config.spans),
                                 degree=config.degree, boundary_length=None),
         outer=OuterConfig(max_iterations=config.max_iterations, max_step=1.0),
-        start_from_observations=True)
+        start_from_observations=True, clustered=True)
     result = newton_estimate(observations, unknowns, newton, start=start)
     document = estimate_document(result.estimate, observations[0].model, ratios=result.ratios,
                                  notes=result.notes)
@@ -124,20 +129,40 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     per_frame = _per_frame_rms(fit.residuals, observations)
     accelerations = corner_accelerations(vertices, grid.held, config.fps)
     g = float(np.linalg.norm(config.gravity))
+    points = sum(len(o.points) for o in observations)
     grids = [{"spans": list(f.label["spans"]), "degree": config.degree,
               "bending_stiffness": float(f.values[0]),
               **({"membrane_stiffness": float(f.values[1])} if config.estimate_membrane
                  else {}),
-              "rms_m": math.sqrt(float(f.residuals @ f.residuals) / (len(f.residuals) // 3))}
+              "rms_m": math.sqrt(float(f.residuals @ f.residuals) / points)}
              for f in result.fits]
-    return report(document, grid, frames, per_frame, accelerations / g, config,
-                  (time.perf_counter() - t0, time.process_time() - cpu), grids,
-                  stable=all(f.stable for f in result.fits),
-                  converged=all(f.converged for f in result.fits))
+    out = report(document, grid, frames, per_frame, accelerations / g, config,
+                 (time.perf_counter() - t0, time.process_time() - cpu), grids,
+                 stable=all(f.stable for f in result.fits),
+                 converged=all(f.converged for f in result.fits))
+    out["bending_stiffness"]["standard_error_parts"] = error_parts(result, 0)
+    return out
+
+
+def error_parts(result, index: int) -> dict:
+    """Unknown `index`'s standard error parts [its unit]: the Fisher error (independent
+    residuals), the noise part used (the larger of it and the cluster-robust error over the
+    frames) and the discretisation part (the two grids' difference)."""
+    fit = result.fits[-1]
+    value = float(fit.values[index])
+    jacobian = fit.jacobian  # in z = ln θ: relative errors
+    dof = max(len(fit.residuals) - jacobian.shape[1], 1)
+    sigma2 = float(fit.residuals @ fit.residuals) / dof
+    try:
+        fisher = math.sqrt(sigma2 * float(np.linalg.inv(jacobian.T @ jacobian)[index, index]))
+    except np.linalg.LinAlgError:
+        fisher = math.inf
+    return {"fisher": fisher * value, "noise": float(result.fisher_errors[index]),
+            "discretisation": float(result.model_errors[index])}
 
 
 def _per_frame_rms(residuals: np.ndarray, observations: list[Observation]) -> np.ndarray:
-    sizes = [3 * len(o.points) for o in observations]
+    sizes = [o.components * len(o.points) for o in observations]
     parts = np.split(residuals, np.cumsum(sizes)[:-1])
     return np.array([math.sqrt(float(p @ p) / (len(p) // 3)) for p in parts])
 
@@ -176,8 +201,12 @@ def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.nda
             "per_frame_rms_m": per_frame.tolist(),
             "worst_frame": int(frames[int(np.argmax(per_frame))]),
             "worst_frame_rms_m": float(per_frame.max()),
-            "meaning": "rms 3-D distance between each used frame's fitted equilibrium and "
-                       "its reconstructed vertices"},
+            "observed": config.observed,
+            "meaning": ("rms 3-D distance between each used frame's fitted equilibrium and "
+                        "its reconstructed vertices" if config.observed == "3d" else
+                        "rms distance, perpendicular to each vertex's camera ray (what the "
+                        "image observed; depth left out), between each used frame's fitted "
+                        "equilibrium and its reconstructed vertices")},
         "fabric_percentile": None if length is None else fabric_position(length["value"]),
         "quasi_static": {
             "largest_corner_acceleration_over_g": float(acceleration_over_g.max(initial=0.0)),
