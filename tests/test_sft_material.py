@@ -41,6 +41,7 @@ def test_defaults_are_the_measured_settings():
     assert (config.degree, config.spans, config.membrane_stiffness, config.sheet_size) == \
         (4, (7, 7), None, None)
     assert config.estimate_membrane
+    assert (config.observed, config.sheet_size_from) == ("3d", "equilibrium")
     held = MaterialFromVideoConfig(membrane_stiffness=100.0)
     assert not held.estimate_membrane and held.start_material.membrane_stiffness == 100.0
     from inverse.cli.sft import build_parser
@@ -52,9 +53,11 @@ def test_defaults_are_the_measured_settings():
     assert material_config(parser.parse_args(base)) == MaterialFromVideoConfig()
     set_ = material_config(parser.parse_args(base + [
         "--material-degree", "3", "--material-spans", "5", "6", "--membrane-stiffness", "250",
-        "--sheet-size", "0.3", "0.2"]))
+        "--sheet-size", "0.3", "0.2", "--material-observed", "ray", "--sheet-size-from",
+        "template"]))
     assert (set_.degree, set_.spans, set_.membrane_stiffness, set_.sheet_size) == \
         (3, (5, 6), 250.0, (0.3, 0.2))
+    assert (set_.observed, set_.sheet_size_from) == ("ray", "template")
     grid = grid_mesh(((0.0, 0.3), (0.0, 0.2)), (6, 4))
     sheet = SheetGrid.from_template(np.column_stack([grid.xi, np.zeros(len(grid.xi))]),
                                     grid.faces, (0, 6)).with_size((0.6, 0.1))
@@ -188,3 +191,39 @@ def test_ray_rows_leave_the_depth_out_of_the_residual():
         Observation(model, depth_bias, None, rows)
     with pytest.raises(ValueError, match="observed must be one of"):
         MaterialFromVideoConfig(observed="depth")
+
+
+def test_clustered_error_counts_a_shared_error_once_per_frame():
+    """Residuals that share an error within each observation (a reconstruction's smooth
+    error, the frame's held corners) are one draw per observation: the cluster-robust error
+    is several times the Fisher error, which counts every residual as independent; with
+    independent residuals the two agree (within the spread of 40 clusters)."""
+    from inverse.material.outer_fit import clustered_std
+
+    rng = np.random.default_rng(0)
+    frames, points = 40, 200
+    jacobian = rng.standard_normal((frames * points, 1)) + 1.0
+    clusters = [np.arange(f * points, (f + 1) * points) for f in range(frames)]
+
+    def fisher(r):
+        return np.sqrt(r @ r / (len(r) - 1) / float((jacobian.T @ jacobian)[0, 0]))
+
+    independent = rng.standard_normal(frames * points)
+    assert 0.7 < clustered_std(jacobian, independent, clusters)[0] / fisher(independent) < 1.3
+    shared = np.repeat(rng.standard_normal(frames), points) + 0.1 * independent
+    assert clustered_std(jacobian, shared, clusters)[0] > 5 * fisher(shared)
+
+
+def test_planar_template_is_the_flat_sheet():
+    """`sheet_size_from="equilibrium"` unstretches only a template that is a hanging shape:
+    a planar template (in any orientation) is the flat sheet itself."""
+    from inverse.sft.material_from_video import planar
+
+    grid = grid_mesh(((0.0, 0.3), (0.0, 0.2)), (6, 4))
+    flat = np.column_stack([grid.xi, np.zeros(len(grid.xi))])
+    rotation = np.linalg.qr(np.random.default_rng(1).standard_normal((3, 3)))[0]
+    assert planar(flat) and planar(flat @ rotation.T + [0.1, 0.2, 0.8])
+    sagging = flat + np.column_stack([0 * grid.xi, 0.01 * np.sin(np.pi * grid.xi[:, 0] / 0.3)])
+    assert not planar(sagging)
+    with pytest.raises(ValueError, match="sheet_size_from must be one of"):
+        MaterialFromVideoConfig(sheet_size_from="frame0")

@@ -56,6 +56,11 @@ from inverse.sft.settings import FABRIC_BENDING_LENGTH, MaterialFromVideoConfig
 log = logging.getLogger(__name__)
 
 QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not quasi-static
+# The flat size from a template that is frame 0's shape (`unstretched_grid`): passes at most,
+# and the relative size change below which they stop.
+SIZE_PASSES = 3
+SIZE_TOLERANCE = 2e-5
+PLANAR_TOLERANCE = 1e-4  # a template within this fraction of its diagonal of a plane is flat
 
 def chosen_frames(count: int, used: int) -> list[int]:
     """`used` frame indices evenly spread over `count` frames (all when used is 0 or more)."""
@@ -107,7 +112,8 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     Returns the report (`report`'s keys)."""
     config = config or MaterialFromVideoConfig()
     t0, cpu = time.perf_counter(), time.process_time()
-    grid = SheetGrid.from_template(vertices[0] if rest is None else rest, faces, held)
+    template = np.asarray(vertices[0] if rest is None else rest, dtype=np.float64)
+    grid = SheetGrid.from_template(template, faces, held)
     if config.sheet_size is not None:
         grid = grid.with_size(config.sheet_size)
     frames = chosen_frames(len(vertices), config.frames)
@@ -117,12 +123,15 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     material = config.start_material
     start = [material.bending_stiffness] + (
         [material.membrane_stiffness] if config.estimate_membrane else [])
-    newton = NewtonEstimateConfig(
-        model=SplineModelConfig(spans=tuple(int(s) for s in config.spans),
-                                degree=config.degree, boundary_length=None),
-        outer=OuterConfig(max_iterations=config.max_iterations, max_step=1.0),
-        start_from_observations=True, clustered=True)
-    result = newton_estimate(observations, unknowns, newton, start=start)
+    size_from = "stated" if config.sheet_size is not None else config.sheet_size_from
+    if size_from == "equilibrium" and planar(template):
+        size_from = "template"  # a flat template is the flat sheet: nothing to unstretch
+    passes = []
+    if size_from == "equilibrium":
+        grid, start, passes = unstretched_grid(vertices, faces, grid, config, frames,
+                                               unknowns, start)
+        observations = frame_observations(vertices, grid, config, frames)
+    result = newton_estimate(observations, unknowns, _newton(config, 2), start=start)
     document = estimate_document(result.estimate, observations[0].model, ratios=result.ratios,
                                  notes=result.notes)
     fit = result.fits[-1]
@@ -141,7 +150,53 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
                  stable=all(f.stable for f in result.fits),
                  converged=all(f.converged for f in result.fits))
     out["bending_stiffness"]["standard_error_parts"] = error_parts(result, 0)
+    out["sheet_size_from"] = size_from
+    out["sheet_size_passes"] = passes
     return out
+
+
+def _newton(config: MaterialFromVideoConfig, levels: int) -> NewtonEstimateConfig:
+    return NewtonEstimateConfig(
+        model=SplineModelConfig(spans=tuple(int(s) for s in config.spans),
+                                degree=config.degree, boundary_length=None),
+        outer=OuterConfig(max_iterations=config.max_iterations, max_step=1.0),
+        levels=levels, start_from_observations=True, clustered=True)
+
+
+def planar(vertices: np.ndarray) -> bool:
+    """Whether the vertices lie in one plane (within PLANAR_TOLERANCE of their diagonal)."""
+    centred = vertices - vertices.mean(axis=0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    return float(np.abs(centred @ normal).max()) <= PLANAR_TOLERANCE * diagonal
+
+
+def unstretched_grid(vertices, faces, grid: SheetGrid, config: MaterialFromVideoConfig,
+                     frames: list[int], unknowns, start: list[float]):
+    """The flat sheet's size when the template is the sheet's shape in frame 0 (as SfT
+    templates are): the template's grid-line lengths are the flat sheet's stretched by that
+    frame's equilibrium, so the size is updated by the fixed point
+    size ← size · (template's lengths / the fitted frame-0 equilibrium's lengths), each pass
+    a fit on the coarse grid from the previous pass's values, until the size changes by less
+    than SIZE_TOLERANCE (at most SIZE_PASSES). Returns the grid, the last values (the start
+    of the final fit) and per pass the size and the fitted values."""
+    measured = np.array(grid.size)
+    passes = []
+    for _ in range(SIZE_PASSES):
+        observations = frame_observations(vertices, grid, config, frames)
+        coarse = newton_estimate(observations, unknowns, _newton(config, 1), start=start)
+        start = [float(v) for v in coarse.fits[-1].values]
+        shape = coarse.fitted_positions(frames.index(0), torch.from_numpy(grid.xi))
+        lengths = np.array(SheetGrid.from_template(shape.detach().numpy(), faces,
+                                                   grid.held).size)
+        size = np.array(grid.size) * measured / lengths
+        change = float(np.abs(size / np.array(grid.size) - 1).max())
+        passes.append({"size_m": size.tolist(), "values": start, "change": change})
+        log.info("flat size from the template: %s (change %.2g)", size.tolist(), change)
+        grid = grid.with_size(tuple(float(v) for v in size))
+        if change < SIZE_TOLERANCE:
+            break
+    return grid, start, passes
 
 
 def error_parts(result, index: int) -> dict:
