@@ -26,9 +26,17 @@ a `membrane_stiffness` is stated (then held there). Measured on a synthetic hang
 its weight, and the shape between the held corners depends on it enough that a held D of
 300 N/m put B 87 % low; estimated, D came out 101.7 ± 4.3 N/m and B within 1.5 %.
 
-The flat sheet's size is the template's grid-line lengths (the template file's own vertices,
-`rest`; a template that is itself a hanging frame carries that frame's stretch) unless
-`sheet_size` states it.
+The flat sheet's size: `sheet_size` when stated; else from the template's grid-line lengths
+(the template file's own vertices, `rest`): a planar template is the flat sheet; a template
+that is frame 0's hanging shape (as SfT templates are) carries that frame's stretch under
+gravity, which `unstretched_grid` removes with the fitted frame-0 equilibrium
+(`sheet_size_from="equilibrium"`, default; measured: +15 % in B taken as it is, −0.55 %
+unstretched, benchmarks/RESULTS.md).
+
+What is compared (`observed`): all three coordinates of each vertex ("3d", default), or the
+two directions across its camera ray ("ray", the camera centre at the origin of the camera
+coordinates) — measured worse on a sheet facing the camera, whose bending is seen along the
+rays (benchmarks/RESULTS.md, Material from video, 2026-12-06).
 
 Quasi-static check: the held corners' accelerations (second differences of the reconstructed
 corner positions at the frame rate) over g; a frame whose corners accelerate by more than
