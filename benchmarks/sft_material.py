@@ -3,7 +3,8 @@
     python benchmarks/sft_material.py --work DIR [--seeds 0 1 2] [--frames 12] [--used 6]
         [--cells 24 24] [--bending-length 0.02] [--truth-spans 12 12] [--source sft|gt]
         [--vertex-noise 0.001] [--rest template|flat|frame0]
-        [--degree 4] [--spans 7 7] [--membrane-stiffness D]
+        [--degree 4] [--spans 7 7] [--membrane-stiffness D] [--observed 3d|ray]
+        [--noise isotropic|ray] [--sheet-size-from template|equilibrium]
 
 For each seed: a hanging-sheet sequence (`inverse.sft.hanging_synth`: a 0.3 m sheet of the
 given template cells and true bending length, ρ_A = 0.2 kg/m², D = 100 N/m, solved on
@@ -14,13 +15,16 @@ then the material is estimated with the estimate's defaults (`MaterialFromVideoC
   --areal-density 0.2` on the rendered frames (default spline prior); the template is frame
   0's true shape (hanging, stretched by gravity), so the flat size is the template's
   (`--rest template`) unless `--rest flat` states the sheet's true size (`--sheet-size`);
-- `--source gt`: the true meshes with Gaussian vertex noise (`--vertex-noise σ`, 0: noise-free)
+- `--source gt`: the true meshes with Gaussian vertex noise (`--vertex-noise σ`, 0: noise-free;
+  `--noise ray`: along each vertex's camera ray only, a monocular depth error)
   given to `material_from_video.estimate_material`, the flat size from the flat template
   (`--rest flat`, default here), frame 0's truth (`--rest template`) or the noisy frame 0
   (`--rest frame0`).
 Prints one row per seed: estimated c and B with standard error, error against the truth,
-|error| / s.e., D, rms misfit, CPU and wall seconds of the estimate (the estimate alone, not
-the reconstruction). Figures: benchmarks/RESULTS.md ("Material from video").
+|error| / s.e. (in brackets: over the s.e. with the Fisher error as its noise part, before
+the cluster-robust error over the frames), D, rms misfit, CPU and wall seconds of the
+estimate (the estimate alone, not the reconstruction). Figures: benchmarks/RESULTS.md
+("Material from video").
 """
 
 from __future__ import annotations
@@ -54,7 +58,8 @@ def truth_config(seed: int, args) -> HangingConfig:
 def material_options(args) -> dict:
     """The estimate's settings that the command line sets (the rest: the defaults)."""
     given = {"spans": args.spans and tuple(args.spans), "degree": args.degree,
-             "membrane_stiffness": args.membrane_stiffness}
+             "membrane_stiffness": args.membrane_stiffness, "observed": args.observed,
+             "sheet_size_from": args.sheet_size_from}
     return {k: v for k, v in given.items() if v is not None}
 
 
@@ -69,6 +74,10 @@ def by_ndf_sft(data: Path, truth: HangingConfig, held, args, out: Path) -> dict:
         extra += ["--membrane-stiffness", str(args.membrane_stiffness)]
     if args.rest == "flat":
         extra += ["--sheet-size", *map(str, truth.sheet_size)]
+    if args.observed:
+        extra += ["--material-observed", args.observed]
+    if args.sheet_size_from:
+        extra += ["--sheet-size-from", args.sheet_size_from]
     code = ndf_sft(["--frames", str(data / "frames"), "--camera", str(data / "camera.json"),
                     "--template", str(data / "template.obj"), "--texture",
                     str(data / "texture.png"), "--masks", str(data / "masks"), "--gt",
@@ -80,6 +89,22 @@ def by_ndf_sft(data: Path, truth: HangingConfig, held, args, out: Path) -> dict:
     return json.loads((out / "result.json").read_text())["material"]
 
 
+def suffix(args) -> str:
+    """Output names' tail: the observed components and the noise's kind when set."""
+    return (f"_{args.observed}" if args.observed else "") + \
+        (f"_{args.sheet_size_from}" if args.sheet_size_from else "") + \
+        (f"_{args.noise}" if args.source == "gt" and args.noise != "isotropic" else "")
+
+
+def noise_direction(points: np.ndarray, rng, kind: str) -> np.ndarray:
+    """Unit-σ noise per vertex: isotropic (σ per coordinate) or along each vertex's camera ray
+    (σ along the ray from the camera centre, the origin: a monocular depth error)."""
+    if kind == "isotropic":
+        return rng.standard_normal(points.shape)
+    ray = points / np.linalg.norm(points, axis=1, keepdims=True)
+    return ray * rng.standard_normal((len(points), 1))
+
+
 def one(seed: int, args) -> dict:
     truth = truth_config(seed, args)
     tag = f"c{args.bending_length:g}_cells{args.cells[0]}x{args.cells[1]}_f{args.frames}_{seed}"
@@ -88,11 +113,13 @@ def one(seed: int, args) -> dict:
         write(truth, data, overwrite=True)
     grid, _, held = template_grid(truth)
     if args.source == "sft":
-        material = by_ndf_sft(data, truth, held, args, args.work / f"sft_{tag}_{args.rest}")
+        out = args.work / f"sft_{tag}_{args.rest}{suffix(args)}"
+        material = by_ndf_sft(data, truth, held, args, out)
     else:
         rng = np.random.default_rng(seed)
         truth_meshes = meshes(data / "gt")
-        vertices = [v + args.vertex_noise * rng.standard_normal(v.shape) for v in truth_meshes]
+        vertices = [v + args.vertex_noise * noise_direction(v, rng, args.noise)
+                    for v in truth_meshes]
         config = MaterialFromVideoConfig(areal_density=truth.areal_density, frames=args.used,
                                          **material_options(args))
         rest = {"flat": np.column_stack([grid.xi, np.zeros(len(grid.xi))]),
@@ -110,7 +137,11 @@ def one(seed: int, args) -> dict:
     if b["value"] is not None:
         row["B_error"] = b["value"] / row["B_true"] - 1
         row["z"] = abs(b["value"] - row["B_true"]) / b["standard_error"]
-    (args.work / f"material_{args.source}_{tag}_{args.rest}.json").write_text(
+        parts = b.get("standard_error_parts")
+        if parts:  # the s.e. before the cluster-robust part: Fisher and grids in quadrature
+            row["z_fisher"] = abs(b["value"] - row["B_true"]) / np.hypot(
+                parts["fisher"], parts["discretisation"])
+    (args.work / f"material_{args.source}_{tag}_{args.rest}{suffix(args)}.json").write_text(
         json.dumps(material, indent=2))
     return row
 
@@ -122,8 +153,9 @@ def line(r: dict) -> str:
     tail = f"{d} | {grids} | {r['rms_mm']:.2f} | {r['cpu_s']:.0f} | {r['wall_s']:.0f} |"
     if r["B"] is None:
         return f"| {r['seed']} | undetermined | | | | {tail}"
+    z_fisher = f" ({r['z_fisher']:.2f})" if "z_fisher" in r else ""
     return (f"| {r['seed']} | {100 * r['c']:.3f} ± {100 * r['c_se']:.3f} | {r['B']:.4g} ± "
-            f"{r['B_se']:.2g} | {100 * r['B_error']:+.2f} % | {r['z']:.2f} | {tail}")
+            f"{r['B_se']:.2g} | {100 * r['B_error']:+.2f} % | {r['z']:.2f}{z_fisher} | {tail}")
 
 
 def main() -> None:
@@ -144,6 +176,13 @@ def main() -> None:
     p.add_argument("--rest", choices=("template", "flat", "frame0"),
                    help="the flat sheet's size (module docstring; default: gt flat, "
                    "sft template)")
+    p.add_argument("--observed", choices=("3d", "ray"),
+                   help="what the fit compares of each vertex (default: the estimate's)")
+    p.add_argument("--sheet-size-from", choices=("template", "equilibrium"),
+                   help="the flat size without a stated one (default: the estimate's)")
+    p.add_argument("--noise", choices=("isotropic", "ray"), default="isotropic",
+                   help="gt: vertex noise isotropic (σ per coordinate) or along the camera "
+                   "rays (σ along each ray)")
     p.add_argument("--source", choices=("sft", "gt"), default="sft")
     p.add_argument("--vertex-noise", type=float, default=1e-3, help="gt: σ per coordinate [m]")
     args = p.parse_args()
@@ -153,10 +192,11 @@ def main() -> None:
     args.work.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
     taichi_ndf.init(arch="cpu", precision="f64")
-    print(f"source {args.source}, rest {args.rest}, truth c = {args.bending_length} m, cells "
+    print(f"source {args.source}, rest {args.rest}, observed {args.observed or 'default'}, "
+          f"noise {args.noise}, truth c = {args.bending_length} m, cells "
           f"{tuple(args.cells)}, {args.frames} frames, used {args.used}, settings "
           f"{material_options(args) or 'the defaults'}")
-    print("| seed | c [cm] ± s.e. | B [N·m] ± s.e. | B error | abs(err)/s.e. | D [N/m] "
+    print("| seed | c [cm] ± s.e. | B [N·m] ± s.e. | B error | abs(err)/s.e. (Fisher) | D [N/m] "
           "| B per grid | rms misfit [mm] | CPU s | wall s |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:

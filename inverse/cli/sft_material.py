@@ -17,7 +17,7 @@ import argparse
 import numpy as np
 
 from inverse.sft.errors import InputError
-from inverse.sft.settings import MaterialFromVideoConfig
+from inverse.sft.settings import OBSERVED, SHEET_SIZE_FROM, MaterialFromVideoConfig
 from taichi_ndf.cli.common import finite_float
 
 DEFAULTS = MaterialFromVideoConfig()
@@ -52,6 +52,15 @@ def add_material_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--membrane-stiffness", type=finite_float, metavar="D",
                    help="hold the membrane stiffness at this stated D [N/m] (default: D is "
                    "estimated beside B; a wrong held D biases B, docs/sft.md)")
+    g.add_argument("--material-observed", choices=OBSERVED,
+                   help="what of each reconstructed vertex the fit compares: 3d (all three "
+                   "coordinates) or ray (the two directions across its camera ray, the depth "
+                   f"left to the physics; default: {DEFAULTS.observed})")
+    g.add_argument("--sheet-size-from", choices=SHEET_SIZE_FROM,
+                   help="without --sheet-size: the flat size from the template's grid-line "
+                   "lengths as they are (template) or unstretched by the fitted equilibrium of "
+                   "frame 0, whose shape the template is (equilibrium; a planar template is "
+                   f"taken as it is; default: {DEFAULTS.sheet_size_from})")
     g.add_argument("--sheet-size", type=finite_float, nargs=2, metavar=("W", "H"),
                    help="size of the flat sheet [m], W along the held edge, when known "
                    "(default: the template's grid-line lengths; a template that is a hanging "
@@ -80,7 +89,8 @@ def material_config(args: argparse.Namespace) -> MaterialFromVideoConfig | None:
 _FIELD = {"areal_density": "areal_density", "gravity": "gravity",
           "material_frames": "frames", "material_spans": "spans",
           "material_degree": "degree", "membrane_stiffness": "membrane_stiffness",
-          "sheet_size": "sheet_size"}
+          "sheet_size": "sheet_size", "material_observed": "observed",
+          "sheet_size_from": "sheet_size_from"}
 
 
 def _value(args: argparse.Namespace, name: str):

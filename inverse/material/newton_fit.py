@@ -7,7 +7,8 @@ on h/2 from the estimate of h, the first solve of h/2 from the coarse equilibriu
 exactly. The estimate is the fine grid's.
 
 Standard error (`outer_fit.combine`): the noise part is the Fisher / Gauss–Newton standard
-error of the fine fit (its Jacobian, the residual variance at the estimate); the forward
+error of the fine fit (its Jacobian, the residual variance at the estimate; with `clustered`
+the larger of it and the cluster-robust error, one cluster per observation); the forward
 model's part is the difference of the two grids' estimates |z_{h/2} − z_h| (normalised
 coordinates), an over-estimate of the fine grid's error for any convergence order ≥ 1 in the
 asymptotic range. They are combined in quadrature.
@@ -47,12 +48,16 @@ class NewtonEstimateConfig:
     start_from_observations: the first grid's first solve starts from the least-squares fit
     of each observation's points (`SplineEquilibrium.fitted_state`; needs correspondence)
     instead of going from the undeformed state through the load steps: the equilibrium
-    branch next to the observed shape, and fewer Newton steps."""
+    branch next to the observed shape, and fewer Newton steps; clustered: the noise part of
+    the standard error is the larger of the Fisher and the cluster-robust error with one
+    cluster per observation (`outer_fit.clustered_std`: residuals correlated within an
+    observation, as a reconstruction's smooth error and its held corners make them)."""
 
     model: SplineModelConfig = field(default_factory=SplineModelConfig)
     outer: OuterConfig = field(default_factory=OuterConfig)
     levels: int = 2
     start_from_observations: bool = False
+    clustered: bool = False
 
     def __post_init__(self):
         if isinstance(self.levels, bool) or not isinstance(self.levels, int) or \
@@ -128,8 +133,13 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
             notes.append(f"grid {f.label['spans']}: the fitted equilibrium is unstable (its "
                          "Hessian K is not positive definite): the estimate describes a "
                          "saddle of the energy, not a state the sheet would rest in")
+    clusters = None
+    if config.clustered:
+        ends = np.cumsum([o.components * len(o.points) for o in observations])
+        clusters = [np.arange(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
     result = combine(observations, unknowns, z, fits[-1], discretisation, "newton",
-                     sum(f.iterations for f in fits), time.perf_counter() - t0)
+                     sum(f.iterations for f in fits), time.perf_counter() - t0,
+                     clusters=clusters)
     estimate = result.estimate
     return NewtonResult(estimate, fits, equilibria, result.fisher, result.model,
                         ratios=result.ratios, notes=notes + result.notes,

@@ -22,11 +22,18 @@ class Observation:
     xi: surface coordinates of each point, shape (M, 2), when the points correspond to known
         template points (a mesh in the template's vertex order); None for a point cloud
         without correspondence (fitted by point-to-surface distance).
+    rows: which components of each point were observed, shape (M, k, 3), k ≤ 3: the fit's
+        residuals of point m are rows[m] @ (x(ξ_m) − p_m) (needs xi); None: all three
+        coordinates. E.g. a monocular reconstruction, accurate across the camera ray and
+        poor along it, observes the two directions perpendicular to each point's ray
+        (`ray_rows`). Honoured by the outer fit of the implicit-function estimates
+        (`outer_fit.residuals`: the Newton and the implicit methods).
     """
 
     model: ShellModel
     points: torch.Tensor
     xi: torch.Tensor | None = None
+    rows: torch.Tensor | None = None
 
     def __post_init__(self):
         if self.points.ndim != 2 or self.points.shape[1] != 3 or len(self.points) < 3:
@@ -39,6 +46,22 @@ class Observation:
                                  f"got {tuple(self.xi.shape)}")
             if not bool(self.model.surface.domain.contains(self.xi).all()):
                 raise ValueError("some xi lie outside the reference surface's parameter domain")
+        if self.rows is not None:
+            if self.xi is None:
+                raise ValueError("rows (observed components) need correspondence (xi)")
+            if self.rows.ndim != 3 or self.rows.shape[0] != len(self.points) or \
+                    self.rows.shape[2] != 3 or not 1 <= self.rows.shape[1] <= 3:
+                raise ValueError(f"rows must have shape ({len(self.points)}, k <= 3, 3), "
+                                 f"got {tuple(self.rows.shape)}")
+            if not bool(torch.isfinite(self.rows).all()):
+                raise ValueError("rows contain non-finite values")
+
+    @property
+    def components(self) -> int:
+        """Residual entries per point: k of `rows`, 3 with correspondence, 1 without."""
+        if self.rows is not None:
+            return int(self.rows.shape[1])
+        return 3 if self.xi is not None else 1
 
     @property
     def size(self) -> float:
@@ -53,11 +76,28 @@ class Observation:
             raise ValueError(f"noise fraction must be >= 0, got {fraction}")
         gen = torch.Generator().manual_seed(seed)
         noise = torch.randn(self.points.shape, generator=gen, dtype=self.points.dtype)
-        return Observation(self.model, self.points + fraction * self.size * noise, self.xi)
+        return Observation(self.model, self.points + fraction * self.size * noise, self.xi,
+                           self.rows)
 
     def without_correspondence(self) -> Observation:
-        """The same points as a point cloud (correspondence dropped)."""
+        """The same points as a point cloud (correspondence and `rows` dropped)."""
         return Observation(self.model, self.points, None)
+
+
+def ray_rows(points: torch.Tensor, centre=(0.0, 0.0, 0.0)) -> torch.Tensor:
+    """(M, 2, 3): for each point an orthonormal pair of directions perpendicular to the camera
+    ray from `centre` through it — the components a monocular view observes (to first order
+    the reprojection error times depth); the component along the ray, the depth, is left
+    out."""
+    ray = points - torch.as_tensor(centre, dtype=points.dtype)
+    ray = ray / ray.norm(dim=1, keepdim=True)
+    # a helper axis not parallel to the ray: the coordinate axis least aligned with it
+    helper = torch.zeros_like(ray)
+    helper[torch.arange(len(ray)), ray.abs().argmin(dim=1)] = 1.0
+    first = torch.linalg.cross(ray, helper, dim=1)
+    first = first / first.norm(dim=1, keepdim=True)
+    second = torch.linalg.cross(ray, first, dim=1)
+    return torch.stack([first, second], dim=1)
 
 
 def template_xi(model: ShellModel, resolution: tuple[int, int]) -> torch.Tensor:

@@ -13,7 +13,8 @@ box: every iterate is an exact re-solve), each step capped at `max_step` in norm
 coordinates (ln θ; a signed unknown over the magnitude of its vector group at the start) and
 accepted only if the misfit falls. Stops on a relative step below `tolerance`, or when no
 damped step lowers the misfit. Residuals: x*(ξ_k) − p_k with correspondence, else the signed
-distance n · (x(ξ_k) − p_k) at the closest point ξ_k.
+distance n · (x(ξ_k) − p_k) at the closest point ξ_k; an observation with `rows` gives
+rows_k (x*(ξ_k) − p_k), the components it observed.
 
 Uncertainty (`combine`): the Fisher matrix JᵀJ/σ² of the final Jacobian (σ² from the residual
 at the estimate; the Gauss–Newton covariance, `identifiability.analyse`) gives the noise part;
@@ -77,10 +78,16 @@ def residuals(equilibrium, observation: Observation, grid: int,
     points = observation.points.to(equilibrium.field.parameters[0].dtype)
     if observation.xi is not None:
         xi = observation.xi
-        r = (equilibrium.positions(xi) - points).reshape(-1)
+        r = equilibrium.positions(xi) - points
+        rows = None if observation.rows is None else observation.rows.to(points.dtype)
+        if rows is not None:
+            r = torch.einsum("mkj,mj->mk", rows, r)
+        r = r.reshape(-1)
         if sensitivity is None:
             return r.numpy(), None
         dx = equilibrium.position_sensitivity(xi, sensitivity)
+        if rows is not None:
+            dx = torch.einsum("mkj,mjn->mkn", rows, dx)
         return r.numpy(), dx.reshape(-1, dx.shape[-1]).numpy()
     xi = closest_surface_points(equilibrium, None, points, grid)
     x = equilibrium.position_jets(xi)
@@ -248,12 +255,32 @@ class Combined:
     notes: list[str]
 
 
+def clustered_std(jacobian: np.ndarray, residuals: np.ndarray,
+                  clusters: list[np.ndarray]) -> np.ndarray:
+    """Cluster-robust (sandwich) standard deviations of the least-squares estimate:
+    (JᵀJ)⁻¹ (Σ_c J_cᵀ r_c r_cᵀ J_c) (JᵀJ)⁻¹ · G / (G − 1) over G clusters of residual rows.
+    Unlike the Fisher error it does not assume independent residuals: residuals correlated
+    within a cluster (one observation's shared boundary conditions, a reconstruction's smooth
+    error) count as one draw per cluster. inf where JᵀJ is singular."""
+    g = len(clusters)
+    normal = jacobian.T @ jacobian
+    try:
+        inverse = np.linalg.inv(normal)
+    except np.linalg.LinAlgError:
+        return np.full(jacobian.shape[1], np.inf)
+    scores = np.stack([jacobian[c].T @ residuals[c] for c in clusters])
+    covariance = inverse @ (scores.T @ scores) @ inverse * g / max(g - 1, 1)
+    return np.sqrt(np.maximum(np.diag(covariance), 0.0))
+
+
 def combine(observations: list[Observation], unknowns: list[Unknown], z: np.ndarray,
             final: ForwardFit, model_part: np.ndarray, method: str, iterations: int,
-            elapsed: float) -> Combined:
+            elapsed: float, *, clusters: list[np.ndarray] | None = None) -> Combined:
     """The estimate at z with the Fisher standard error of `final`'s residuals and Jacobian
     and the forward model's part `model_part` (normalised coordinates: relative for positive
-    unknowns, over the vector group's magnitude for signed ones) in quadrature."""
+    unknowns, over the vector group's magnitude for signed ones) in quadrature. clusters:
+    residual rows that share their errors (e.g. one per observation): the noise part is then
+    the larger of the Fisher and the cluster-robust error (`clustered_std`)."""
     names = [u.name for u in unknowns]
     positive = np.array([u.positive for u in unknowns])
     values = np.array(to_values(unknowns, z))
@@ -264,6 +291,16 @@ def combine(observations: list[Observation], unknowns: list[Unknown], z: np.ndar
     sigma2 = float(r @ r) / dof
     ident = analyse(final.jacobian * norm, sigma2, names, positive.tolist())
     fisher_std = ident.std.copy()
+    notes = []
+    if clusters is not None and len(clusters) >= 2:
+        robust = clustered_std(final.jacobian * norm, r, clusters)
+        if np.any(robust > fisher_std):
+            notes.append(f"the noise part of the standard error is the cluster-robust "
+                         f"(sandwich) error over {len(clusters)} observations where it exceeds "
+                         f"the Fisher error (residuals correlated within an observation): "
+                         + ", ".join(f"{n} {f:.3g} -> {max(f, b):.3g}" for n, f, b in
+                                     zip(names, fisher_std, robust, strict=True)))
+        fisher_std = np.maximum(fisher_std, robust)
     combined = np.sqrt(fisher_std**2 + model_part**2)
     ident = Identifiability(ident.fisher, ident.eigenvalues, ident.eigenvectors, combined,
                             [bool(c < UNDETERMINED_STD) for c in combined], ident.combinations)
@@ -271,7 +308,8 @@ def combine(observations: list[Observation], unknowns: list[Unknown], z: np.ndar
     rms = rms_point_distance(r, observations)
     estimate = Estimate(unknowns, values, errors, ident, rms, iterations, elapsed, method,
                         residuals=np.asarray(r))
-    ratios, notes = gravity_ratios(observations, unknowns, values, ident)
+    ratios, ratio_notes = gravity_ratios(observations, unknowns, values, ident)
+    notes = list(ratio_notes) + notes
     fisher = np.where(np.isfinite(fisher_std), fisher_std * scale, np.inf)
     log.info("%s estimate: %s ± %s (rms misfit %.3g m, %.1f s)", method,
              dict(zip(names, values.tolist(), strict=True)), errors.tolist(), rms, elapsed)

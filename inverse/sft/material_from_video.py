@@ -12,8 +12,11 @@ frames at once by the Newton method of `ndf-fit-material` (`newton_fit.newton_es
 frame's shape is the cloth's own equilibrium (spline field + projected Newton) under gravity
 with its corners held where the video puts them, B is found by Levenberg–Marquardt with
 implicit-function Jacobians over the frames' equilibria, on two grids; its standard error
-combines the Fisher error and the two grids' difference; the identifiability statement is that
-method's (eigen-analysis of the Fisher matrix).
+combines the noise part — the larger of the Fisher error and the cluster-robust (sandwich)
+error with one cluster per frame, since a reconstruction's error is smooth and its held
+corners are shared by the whole frame, so residuals are not independent — and the two grids'
+difference; the identifiability statement is that method's (eigen-analysis of the Fisher
+matrix).
 
 Identifiability: under gravity alone the shape fixes the stiffness only relative to the weight:
 B / (ρ_A g), i.e. the bending length c = (B / (ρ_A g))^(1/3). B itself follows from a stated
@@ -23,9 +26,17 @@ a `membrane_stiffness` is stated (then held there). Measured on a synthetic hang
 its weight, and the shape between the held corners depends on it enough that a held D of
 300 N/m put B 87 % low; estimated, D came out 101.7 ± 4.3 N/m and B within 1.5 %.
 
-The flat sheet's size is the template's grid-line lengths (the template file's own vertices,
-`rest`; a template that is itself a hanging frame carries that frame's stretch) unless
-`sheet_size` states it.
+The flat sheet's size: `sheet_size` when stated; else from the template's grid-line lengths
+(the template file's own vertices, `rest`): a planar template is the flat sheet; a template
+that is frame 0's hanging shape (as SfT templates are) carries that frame's stretch under
+gravity, which `unstretched_grid` removes with the fitted frame-0 equilibrium
+(`sheet_size_from="equilibrium"`, default; measured: +15 % in B taken as it is, −0.55 %
+unstretched, benchmarks/RESULTS.md).
+
+What is compared (`observed`): all three coordinates of each vertex ("3d", default), or the
+two directions across its camera ray ("ray", the camera centre at the origin of the camera
+coordinates) — measured worse on a sheet facing the camera, whose bending is seen along the
+rays (benchmarks/RESULTS.md, Material from video, 2026-12-06).
 
 Quasi-static check: the held corners' accelerations (second differences of the reconstructed
 corner positions at the frame rate) over g; a frame whose corners accelerate by more than
@@ -42,7 +53,7 @@ import numpy as np
 import torch
 
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
-from inverse.material.observations import Observation
+from inverse.material.observations import Observation, ray_rows
 from inverse.material.outer_fit import OuterConfig
 from inverse.material.report import estimate_document
 from inverse.material.spline_equilibrium import SplineModelConfig
@@ -53,6 +64,11 @@ from inverse.sft.settings import FABRIC_BENDING_LENGTH, MaterialFromVideoConfig
 log = logging.getLogger(__name__)
 
 QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not quasi-static
+# The flat size from a template that is frame 0's shape (`unstretched_grid`): passes at most,
+# and the relative size change below which they stop.
+SIZE_PASSES = 3
+SIZE_TOLERANCE = 2e-5
+PLANAR_TOLERANCE = 1e-4  # a template within this fraction of its diagonal of a plane is flat
 
 def chosen_frames(count: int, used: int) -> list[int]:
     """`used` frame indices evenly spread over `count` frames (all when used is 0 or more)."""
@@ -85,7 +101,9 @@ def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
         corners = points[list(grid.held)]
         across = hanging_across(corners, gravity)
         model = hanging_model(grid.size, material, corners, across, gravity, band=config.band)
-        observations.append(Observation(model, torch.from_numpy(points), xi))
+        observed = torch.from_numpy(points)
+        rows = ray_rows(observed) if config.observed == "ray" else None
+        observations.append(Observation(model, observed, xi, rows))
     return observations
 
 
@@ -102,7 +120,8 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     Returns the report (`report`'s keys)."""
     config = config or MaterialFromVideoConfig()
     t0, cpu = time.perf_counter(), time.process_time()
-    grid = SheetGrid.from_template(vertices[0] if rest is None else rest, faces, held)
+    template = np.asarray(vertices[0] if rest is None else rest, dtype=np.float64)
+    grid = SheetGrid.from_template(template, faces, held)
     if config.sheet_size is not None:
         grid = grid.with_size(config.sheet_size)
     frames = chosen_frames(len(vertices), config.frames)
@@ -112,32 +131,101 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     material = config.start_material
     start = [material.bending_stiffness] + (
         [material.membrane_stiffness] if config.estimate_membrane else [])
-    newton = NewtonEstimateConfig(
-        model=SplineModelConfig(spans=tuple(int(s) for s in config.spans),
-                                degree=config.degree, boundary_length=None),
-        outer=OuterConfig(max_iterations=config.max_iterations, max_step=1.0),
-        start_from_observations=True)
-    result = newton_estimate(observations, unknowns, newton, start=start)
+    size_from = "stated" if config.sheet_size is not None else config.sheet_size_from
+    if size_from == "equilibrium" and planar(template):
+        size_from = "template"  # a flat template is the flat sheet: nothing to unstretch
+    passes = []
+    if size_from == "equilibrium":
+        grid, start, passes = unstretched_grid(vertices, faces, grid, config, frames,
+                                               unknowns, start)
+        observations = frame_observations(vertices, grid, config, frames)
+    result = newton_estimate(observations, unknowns, _newton(config, 2), start=start)
     document = estimate_document(result.estimate, observations[0].model, ratios=result.ratios,
                                  notes=result.notes)
     fit = result.fits[-1]
     per_frame = _per_frame_rms(fit.residuals, observations)
     accelerations = corner_accelerations(vertices, grid.held, config.fps)
     g = float(np.linalg.norm(config.gravity))
+    points = sum(len(o.points) for o in observations)
     grids = [{"spans": list(f.label["spans"]), "degree": config.degree,
               "bending_stiffness": float(f.values[0]),
               **({"membrane_stiffness": float(f.values[1])} if config.estimate_membrane
                  else {}),
-              "rms_m": math.sqrt(float(f.residuals @ f.residuals) / (len(f.residuals) // 3))}
+              "rms_m": math.sqrt(float(f.residuals @ f.residuals) / points)}
              for f in result.fits]
-    return report(document, grid, frames, per_frame, accelerations / g, config,
-                  (time.perf_counter() - t0, time.process_time() - cpu), grids,
-                  stable=all(f.stable for f in result.fits),
-                  converged=all(f.converged for f in result.fits))
+    out = report(document, grid, frames, per_frame, accelerations / g, config,
+                 (time.perf_counter() - t0, time.process_time() - cpu), grids,
+                 stable=all(f.stable for f in result.fits),
+                 converged=all(f.converged for f in result.fits))
+    out["bending_stiffness"]["standard_error_parts"] = error_parts(result, 0)
+    out["sheet_size_from"] = size_from
+    out["sheet_size_passes"] = passes
+    return out
+
+
+def _newton(config: MaterialFromVideoConfig, levels: int) -> NewtonEstimateConfig:
+    return NewtonEstimateConfig(
+        model=SplineModelConfig(spans=tuple(int(s) for s in config.spans),
+                                degree=config.degree, boundary_length=None),
+        outer=OuterConfig(max_iterations=config.max_iterations, max_step=1.0),
+        levels=levels, start_from_observations=True, clustered=True)
+
+
+def planar(vertices: np.ndarray) -> bool:
+    """Whether the vertices lie in one plane (within PLANAR_TOLERANCE of their diagonal)."""
+    centred = vertices - vertices.mean(axis=0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    return float(np.abs(centred @ normal).max()) <= PLANAR_TOLERANCE * diagonal
+
+
+def unstretched_grid(vertices, faces, grid: SheetGrid, config: MaterialFromVideoConfig,
+                     frames: list[int], unknowns, start: list[float]):
+    """The flat sheet's size when the template is the sheet's shape in frame 0 (as SfT
+    templates are): the template's grid-line lengths are the flat sheet's stretched by that
+    frame's equilibrium, so the size is updated by the fixed point
+    size ← size · (template's lengths / the fitted frame-0 equilibrium's lengths), each pass
+    a fit on the coarse grid from the previous pass's values, until the size changes by less
+    than SIZE_TOLERANCE (at most SIZE_PASSES). Returns the grid, the last values (the start
+    of the final fit) and per pass the size and the fitted values."""
+    measured = np.array(grid.size)
+    passes = []
+    for _ in range(SIZE_PASSES):
+        observations = frame_observations(vertices, grid, config, frames)
+        coarse = newton_estimate(observations, unknowns, _newton(config, 1), start=start)
+        start = [float(v) for v in coarse.fits[-1].values]
+        shape = coarse.fitted_positions(frames.index(0), torch.from_numpy(grid.xi))
+        lengths = np.array(SheetGrid.from_template(shape.detach().numpy(), faces,
+                                                   grid.held).size)
+        size = np.array(grid.size) * measured / lengths
+        change = float(np.abs(size / np.array(grid.size) - 1).max())
+        passes.append({"size_m": size.tolist(), "values": start, "change": change})
+        log.info("flat size from the template: %s (change %.2g)", size.tolist(), change)
+        grid = grid.with_size(tuple(float(v) for v in size))
+        if change < SIZE_TOLERANCE:
+            break
+    return grid, start, passes
+
+
+def error_parts(result, index: int) -> dict:
+    """Unknown `index`'s standard error parts [its unit]: the Fisher error (independent
+    residuals), the noise part used (the larger of it and the cluster-robust error over the
+    frames) and the discretisation part (the two grids' difference)."""
+    fit = result.fits[-1]
+    value = float(fit.values[index])
+    jacobian = fit.jacobian  # in z = ln θ: relative errors
+    dof = max(len(fit.residuals) - jacobian.shape[1], 1)
+    sigma2 = float(fit.residuals @ fit.residuals) / dof
+    try:
+        fisher = math.sqrt(sigma2 * float(np.linalg.inv(jacobian.T @ jacobian)[index, index]))
+    except np.linalg.LinAlgError:
+        fisher = math.inf
+    return {"fisher": fisher * value, "noise": float(result.fisher_errors[index]),
+            "discretisation": float(result.model_errors[index])}
 
 
 def _per_frame_rms(residuals: np.ndarray, observations: list[Observation]) -> np.ndarray:
-    sizes = [3 * len(o.points) for o in observations]
+    sizes = [o.components * len(o.points) for o in observations]
     parts = np.split(residuals, np.cumsum(sizes)[:-1])
     return np.array([math.sqrt(float(p @ p) / (len(p) // 3)) for p in parts])
 
@@ -176,8 +264,12 @@ def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.nda
             "per_frame_rms_m": per_frame.tolist(),
             "worst_frame": int(frames[int(np.argmax(per_frame))]),
             "worst_frame_rms_m": float(per_frame.max()),
-            "meaning": "rms 3-D distance between each used frame's fitted equilibrium and "
-                       "its reconstructed vertices"},
+            "observed": config.observed,
+            "meaning": ("rms 3-D distance between each used frame's fitted equilibrium and "
+                        "its reconstructed vertices" if config.observed == "3d" else
+                        "rms distance, perpendicular to each vertex's camera ray (what the "
+                        "image observed; depth left out), between each used frame's fitted "
+                        "equilibrium and its reconstructed vertices")},
         "fabric_percentile": None if length is None else fabric_position(length["value"]),
         "quasi_static": {
             "largest_corner_acceleration_over_g": float(acceleration_over_g.max(initial=0.0)),

@@ -29,6 +29,10 @@ FABRIC_AREAL_DENSITY = FENG_2022_PERCENTILES["areal_density"]
 # Start value of an estimated membrane stiffness D [N/m] (measured: from 300 N/m the estimate
 # reached 101.7 ± 4.3 N/m against a true 100 N/m).
 MEMBRANE_START = 300.0
+# What the material fit compares of each reconstructed vertex (MaterialFromVideoConfig.observed)
+OBSERVED = ("3d", "ray")
+# Where the flat size comes from without a stated one (MaterialFromVideoConfig.sheet_size_from)
+SHEET_SIZE_FROM = ("template", "equilibrium")
 
 
 def _positive(name: str, value) -> None:
@@ -153,7 +157,15 @@ class MaterialFromVideoConfig:
     sheet_size: (W, H) [m] of the flat sheet, W along the held edge, when it is known (e.g.
     measured with a ruler), or None (default) for the template's grid-line lengths; band:
     the handles' band (fraction of the domain); fps: frame rate of the video [1/s], for the
-    quasi-static check; max_iterations: outer Levenberg–Marquardt iterations per grid."""
+    quasi-static check; max_iterations: outer Levenberg–Marquardt iterations per grid;
+    observed: what of each reconstructed vertex the fit compares — "3d" (all three
+    coordinates) or "ray" (the two directions perpendicular to its camera ray, i.e. what the
+    image observed; the depth is left to the physics; `observations.ray_rows`);
+    sheet_size_from: without `sheet_size`, the flat size from the template — "template" (its
+    grid-line lengths as they are) or "equilibrium" (the template is the sheet's shape in
+    frame 0, as SfT templates are: its lengths divided by the stretch of the fitted frame-0
+    equilibrium, `material_from_video.unstretched_grid`; a planar template is the flat sheet
+    and is taken as it is)."""
 
     areal_density: float = FABRIC_AREAL_DENSITY[1]
     gravity: tuple[float, float, float] = (0.0, STANDARD_GRAVITY, 0.0)
@@ -167,6 +179,8 @@ class MaterialFromVideoConfig:
     band: float = 0.1
     fps: float = 30.0
     max_iterations: int = 12
+    observed: str = "3d"
+    sheet_size_from: str = "equilibrium"
 
     def __post_init__(self):
         for name in ("areal_density", "start_bending_length", "fps"):
@@ -190,6 +204,11 @@ class MaterialFromVideoConfig:
             raise ValueError(f"degree must be 3 or 4, got {self.degree!r}")
         if not 0 < self.band < 0.5:
             raise ValueError(f"band must be in (0, 0.5), got {self.band!r}")
+        if self.sheet_size_from not in SHEET_SIZE_FROM:
+            raise ValueError(f"sheet_size_from must be one of {SHEET_SIZE_FROM}, got "
+                             f"{self.sheet_size_from!r}")
+        if self.observed not in OBSERVED:
+            raise ValueError(f"observed must be one of {OBSERVED}, got {self.observed!r}")
 
     @property
     def estimate_membrane(self) -> bool:
