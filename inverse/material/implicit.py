@@ -17,7 +17,9 @@ unknowns, so ∂/∂z_j = θ_j ∂/∂θ_j; the value itself for signed ones: fo
 dx/dz = J_obs da*/dz exactly. Without correspondence (point clouds) the residual is the signed
 distance n · (x(ξ_k) − p_k) at the closest point ξ_k (as `bilevel`), its derivative n · dx/dz.
 
-The outer problem (Levenberg–Marquardt over z) is `inverse.material.outer_fit`, the
+What is the same for every field type (the solves over the load steps and warm starts, θ's
+point forces, the sensitivity's columns, the positions) is `inverse.material.equilibrium`;
+the outer problem (Levenberg–Marquardt over z) is `inverse.material.outer_fit`, the
 uncertainty over feature bases `inverse.material.implicit_fit`.
 """
 

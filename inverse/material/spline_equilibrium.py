@@ -13,6 +13,8 @@ dC*/dθ_j = −K⁻¹ ∂g/∂θ_j with K of the exact blocks at C*, factorised 
 `stable` is False. In the outer coordinates z (ln θ for positive unknowns, the value for
 signed ones) a column is multiplied by θ_j for a positive unknown. Observed positions
 x(ξ) = X(ξ) + u(ξ) are affine in C, so dx/dz = J_obs dC*/dz exactly (the composition at ξ).
+What is the same for every field type (the solves, θ's point forces, the sensitivity's
+columns, the positions) is `inverse.material.equilibrium`.
 """
 
 from __future__ import annotations
