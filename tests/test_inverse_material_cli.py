@@ -64,6 +64,22 @@ def test_bilevel_refuses_load_unknowns(tmp_path, capsys):
     assert code == 2 and "residual method" in err
 
 
+def test_bilevel_refuses_a_spline_field(tmp_path, capsys):
+    """The conditioned field is a SIREN with the scene's [field] architecture: a spline scene
+    is refused in one line (on main: AttributeError 'SplinePlan' object has no attribute
+    'width', after the observations were read)."""
+    text = Path(SCENE).read_text()
+    field, probes = text.index("[field]"), text.index("[[probes]]")
+    scene = tmp_path / "strip_spline.toml"
+    scene.write_text(text[:field] + '[field]\ntype = "spline"\n\n' + text[probes:])
+    obs = _mesh(tmp_path / "o.obj", np.eye(3))
+    code = main([str(scene), "--observed", obs, "--point-cloud", "--estimate", "bending",
+                 "--method", "bilevel", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "is not a SIREN" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "out").exists()
+
+
 def test_negative_newton_steps_and_band(tmp_path, capsys):
     obs = _mesh(tmp_path / "o.obj", np.eye(3))
     for option, value in (("--newton", "-1"), ("--band", "0")):

@@ -113,9 +113,22 @@ def _check_sizes(args, scene, model, itemsize: int) -> None:
         field = FieldConfig(width=width, hidden_layers=ImplicitConfig.hidden_layers)
         check_siren_size(field, samples, itemsize, advice="choose a smaller --width or fewer "
                                                           "--samples")
-    elif args.method == "bilevel" and isinstance(scene.field, FieldConfig):
+    elif args.method == "bilevel":  # a SIREN field: `_conditioned` refused any other
         check_siren_size(scene.field, max(_bilevel_samples(args)), itemsize,
                          advice="choose a narrower [field] in the scene")
+
+
+def _conditioned(args, scene) -> ConditionedConfig:
+    """The bilevel method's conditioned field: the scene's SIREN architecture with the
+    command line's training (InputError where the scene's field is not a SIREN)."""
+    iterations = args.iterations or (300 if args.quick else 1000)
+    try:
+        return ConditionedConfig.of_field(
+            scene.field, iterations=iterations, samples=_bilevel_samples(args)[0],
+            lbfgs_iterations=iterations, lbfgs_samples=_bilevel_samples(args)[1],
+            newton_iterations=args.newton, boundary_length=args.band, seed=args.seed)
+    except ValueError as err:
+        raise InputError(str(err)) from None
 
 
 def _newton(args, observations, unknowns):
@@ -164,6 +177,7 @@ def run(args, runtime) -> dict:
         raise InputError(f"--noise must be >= 0 (metres), got {args.noise}")
     if args.spans is not None and min(args.spans) < 1:
         raise InputError(f"--spans must be two integers >= 1, got {args.spans}")
+    field = _conditioned(args, scene) if args.method == "bilevel" else None
     try:
         _check_sizes(args, scene, model, runtime.dtype.itemsize)
     except ValueError as err:
@@ -198,13 +212,6 @@ def run(args, runtime) -> dict:
                                                                "feature_bases")))
         fitted = result.fitted_positions(0, grid_xi).numpy()
     else:
-        iterations = args.iterations or (300 if args.quick else 1000)
-        field = ConditionedConfig(
-            width=scene.field.width, hidden_layers=scene.field.hidden_layers,
-            omega0=scene.field.omega0, output_scale=scene.field.output_scale,
-            iterations=iterations, samples=_bilevel_samples(args)[0],
-            lbfgs_iterations=iterations, lbfgs_samples=_bilevel_samples(args)[1],
-            newton_iterations=args.newton, boundary_length=args.band, seed=args.seed)
         try:
             config = BilevelConfig(decades=args.decades, field=field,
                                    centre_on_residual=args.box_centre == "residual")

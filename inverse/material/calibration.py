@@ -39,7 +39,8 @@ import numpy as np
 import torch
 
 from inverse.material.observations import Observation
-from inverse.material.spline_equilibrium import SplineEquilibrium, SplineModelConfig
+from inverse.material.forward_model import forward_model
+from inverse.material.spline_equilibrium import SplineModelConfig
 from inverse.material.unknowns import Unknown, parse_unknowns
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
 from taichi_ndf.field import SplineConfig
@@ -127,7 +128,7 @@ def solved_observation(model: ShellModel, unknowns: list[Unknown], truth, points
     domain = model.surface.domain
     grid = SplineConfig(spans=spans, degree=degree, domain=domain.bounds,
                         periodic=domain.periodic)
-    equilibrium = SplineEquilibrium(model, unknowns, config, grid)
+    equilibrium = forward_model(grid, model, unknowns, config)
     equilibrium.solve(truth)
     return equilibrium.positions(points)
 

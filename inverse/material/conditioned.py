@@ -122,6 +122,20 @@ class ConditionedConfig:
             raise ValueError(f"final_learning_rate_ratio must be in (0, 1], got "
                              f"{self.final_learning_rate_ratio!r}")
 
+    @classmethod
+    def of_field(cls, spec, **settings) -> ConditionedConfig:
+        """The training `settings` of a conditioned field with the architecture of the SIREN
+        specification `spec` (width, hidden_layers, omega0, output_scale). ValueError where
+        `spec` is not a SIREN's: a conditioned field is a network taking θ as input, and a
+        spline field has no such input."""
+        if not isinstance(spec, FieldConfig):
+            raise ValueError("--method bilevel trains a material-conditioned SIREN with the "
+                             "scene's [field] architecture, but the scene's [field] is not a "
+                             "SIREN: give one (type = \"siren\") or use --method newton or "
+                             "implicit")
+        return cls(width=spec.width, hidden_layers=spec.hidden_layers, omega0=spec.omega0,
+                   output_scale=spec.output_scale, **settings)
+
 
 def to_values(unknowns: list[Unknown], z) -> list[float]:
     """Parameter values θ from coordinates z: exp for positive unknowns, z itself for signed."""

@@ -17,22 +17,23 @@ unknowns, so ∂/∂z_j = θ_j ∂/∂θ_j; the value itself for signed ones: fo
 dx/dz = J_obs da*/dz exactly. Without correspondence (point clouds) the residual is the signed
 distance n · (x(ξ_k) − p_k) at the closest point ξ_k (as `bilevel`), its derivative n · dx/dz.
 
-The outer problem (Levenberg–Marquardt over z) is `inverse.material.outer_fit`, the
+What is the same for every field type (the solves over the load steps and warm starts, θ's
+point forces, the sensitivity's columns, the positions) is `inverse.material.equilibrium`;
+the outer problem (Levenberg–Marquardt over z) is `inverse.material.outer_fit`, the
 uncertainty over feature bases `inverse.material.implicit_fit`.
 """
 
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from inverse.material.unknowns import Unknown, apply, term_gradients
+from inverse.material.equilibrium import Equilibrium
+from inverse.material.unknowns import Unknown
 from taichi_ndf import checks, jets
-from taichi_ndf.continuation import Stages, Step, solve_over
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.minimise.last_layer import (
     last_layer_config,
@@ -43,11 +44,9 @@ from taichi_ndf.minimise.last_layer import (
 from taichi_ndf.minimise.linearisation import damped_step, parameter_gradient
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.model import ShellModel
-from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.sampling import SurfaceSamples, sobol, unit_to_domain, with_point_loads
 
 log = logging.getLogger(__name__)
-
 
 
 @dataclass(frozen=True)
@@ -121,6 +120,13 @@ class ImplicitConfig:
             raise ValueError(f"relative_decrease must be in [0, 1), got "
                              f"{self.relative_decrease!r}")
 
+    def features(self, model: ShellModel, width: int | None = None) -> FieldConfig:
+        """The fixed features (`width`, else this width) on `model`'s domain."""
+        domain = model.surface.domain
+        return FieldConfig(width=width or self.width, hidden_layers=self.hidden_layers,
+                           omega0=self.omega0, domain=domain.bounds, periodic=domain.periodic,
+                           output_scale=self.output_scale)
+
     def bases(self) -> list[tuple[int, int]]:
         """(seed, width) of every feature basis."""
         widths = self.widths or (self.width,) * len(self.seeds)
@@ -137,143 +143,95 @@ def sobol_samples(model: ShellModel, n: int, seed: int, dtype=torch.float64) -> 
     return with_point_loads(model.surface, xi, weight, model.loads)
 
 
-class ImplicitEquilibrium:
+class ImplicitEquilibrium(Equilibrium):
     """The Galerkin equilibrium of `model` with the unknowns set to θ, on fixed features, and
-    its sensitivity da*/dz (module docstring).
+    its sensitivity da*/dz (module docstring): `Equilibrium` on a SIREN's output layer a.
 
     model: the observation's model (unknowns at their scene values; a `scale` unknown is
-    relative to its material); seed, width: the feature basis."""
+    relative to its material); seed, width: the feature basis; features: the fixed features'
+    field specification (None: `config.features(model, width)`)."""
+
+    field_type = FieldConfig
 
     def __init__(self, model: ShellModel, unknowns: list[Unknown], config: ImplicitConfig,
-                 seed: int, width: int | None = None):
-        if config.boundary_length is not None:
-            model = model.with_boundary_length(config.boundary_length)
-        self.model = model
-        self.unknowns = list(unknowns)
+                 seed: int, width: int | None = None, *, features: FieldConfig | None = None):
+        super().__init__(model, unknowns, boundary_length=config.boundary_length,
+                         load_steps=config.load_steps)
+        model = self.model
         self.config = config
         self.seed = seed
-        self.label = {"seed": int(seed), "width": int(width or config.width)}
-        domain = model.surface.domain
-        self.field = NeuralField(FieldConfig(
-            width=width or config.width, hidden_layers=config.hidden_layers,
-            omega0=config.omega0, domain=domain.bounds, periodic=domain.periodic,
-            output_scale=config.output_scale), seed=seed)
-        dtype = self.field.parameters[0].dtype
+        features = features or config.features(model, width)
+        self.label = {"seed": int(seed), "width": int(features.width)}
+        self.field = NeuralField(features, seed=seed)
         with torch.no_grad():  # the reference state: the first solve starts from u = 0
             for p in self.field.output_layer():
                 p.zero_()
         self.operator = model.operator(self.field)
-        self.samples = sobol_samples(model, config.samples, seed, dtype)
-        self.values: np.ndarray | None = None  # θ of the current solution
-        self.newton_steps = 0
-        self.solve_time = 0.0
-        self._first: tuple[np.ndarray, list[torch.Tensor]] | None = None
+        self.samples = sobol_samples(model, config.samples, seed, self.dtype)
+        self.point_rows = slice(len(self.samples) - len(model.loads.point_loads), None)
 
-    # -- state of the output layer --------------------------------------------------------------
+    @classmethod
+    def of_field(cls, spec: FieldConfig, model: ShellModel, unknowns: list[Unknown],
+                 config: ImplicitConfig, *, seed: int = 0) -> ImplicitEquilibrium:
+        """On the fixed features `spec` (`ImplicitConfig.features`) of seed `seed`."""
+        return cls(model, unknowns, config, seed, features=spec)
+
+    # -- the output layer a = (weight | bias), (3, width + 1) -------------------------------------
     def state(self) -> list[torch.Tensor]:
         return [p.clone() for p in self.field.output_layer()]
 
-    def set_state(self, state: list[torch.Tensor], values) -> None:
+    def _set_parameters(self, state: list[torch.Tensor]) -> None:
         with torch.no_grad():
             for p, saved in zip(self.field.output_layer(), state, strict=True):
                 p.copy_(saved)
-        self.values = None if values is None else np.array(values, dtype=np.float64)
+
+    def _reference(self) -> list[torch.Tensor]:
+        return [torch.zeros_like(p) for p in self.field.output_layer()]
+
+    def _shifted(self, prediction: torch.Tensor | None) -> list[torch.Tensor]:
+        weight, bias = self.state()
+        if prediction is not None:
+            weight.add_(prediction[:, :-1])
+            bias.add_(prediction[:, -1])
+        return [weight, bias]
 
     def predicted_change(self, sensitivity: torch.Tensor, dz: np.ndarray) -> torch.Tensor:
         """First-order change (3, width + 1) of the output layer for a step dz (p,) in z."""
         return torch.einsum("kaj,j->ka", sensitivity, torch.from_numpy(dz))
 
-    # -- inner problem --------------------------------------------------------------------------
-    def _system(self, values, load_factor: float):
-        """The samples with θ's (unscaled) point forces and the potential of θ at a load
-        factor (the objective scales the loads)."""
-        loaded = apply(self.model, self.unknowns, values)
-        loads = loaded.loads
-        samples = self.samples
-        if loads.point_loads:
-            forces = samples.point_force.clone()
-            forces[-len(loads.point_loads):] = torch.tensor(
-                [p.force for p in loads.point_loads], dtype=forces.dtype)
-            samples = samples.with_point_force(forces)
-        return samples, Objective(ShellEnergyTerm(loaded.material, loads)).potential(load_factor)
-
     def _newton(self, iterations: int | None = None) -> NewtonConfig:
         return last_layer_config(max_iterations=iterations or self.config.newton_iterations,
                                  relative_decrease=self.config.relative_decrease)
 
-    def _load_step(self, values):
-        """`solve(step, start)` of the continuation loop (`taichi_ndf.continuation`): the
-        last layer solved at the step's load factor from where it stands; its Newton steps."""
-        def solve(step: Step, _start=None) -> int:
-            samples, potential = self._system(values, step.load_factor)
-            return solve_last_layer(self.operator, potential, samples, step.load_factor,
-                                    self._newton()).steps
-        return solve
+    def _minimise(self, values, potential, start: list[torch.Tensor], load_factor: float, *,
+                  warm: bool) -> list[torch.Tensor]:
+        """Last-layer Newton from `start`: at most `resolve_iterations` steps warm, else
+        `newton_iterations` (capped, not run to rounding: `ImplicitConfig`)."""
+        self._set_parameters(start)
+        newton = self._newton(self.config.resolve_iterations if warm else None)
+        self.newton_steps += solve_last_layer(self.operator, potential, self.samples,
+                                              load_factor, newton).steps
+        return self.state()
 
-    def solve(self, values, *, prediction: torch.Tensor | None = None,
-              from_reference: bool = False) -> int:
-        """Solve for θ = values; returns the Newton steps taken. From the reference state
-        through `load_steps` the first time (or with `from_reference`), the result kept and
-        reused when asked for the same θ again; otherwise warm-started from the current a*
-        plus `prediction` (3, width + 1)."""
-        values = np.array(values, dtype=np.float64)
-        t0 = time.perf_counter()
-        steps = 0
-        if self._first is not None and np.array_equal(values, self._first[0]):
-            self.set_state(self._first[1], values)
-            return 0
-        if self.values is None or from_reference:
-            self.set_state([torch.zeros_like(p) for p in self.field.output_layer()], None)
-            steps += sum(solve_over(Stages(self._load_step(values)),
-                                    self.config.load_steps)[0])
-            if self._first is None:
-                self._first = (values, self.state())
-        else:
-            if prediction is not None:
-                weight, bias = self.field.output_layer()
-                with torch.no_grad():
-                    weight.add_(prediction[:, :-1])
-                    bias.add_(prediction[:, -1])
-            samples, potential = self._system(values, 1.0)
-            steps += solve_last_layer(self.operator, potential, samples, 1.0,
-                                      self._newton(self.config.resolve_iterations)).steps
-        self.values = values
-        self.newton_steps += steps
-        self.solve_time += time.perf_counter() - t0
-        return steps
-
-    def sensitivity(self) -> torch.Tensor:
-        """da*/dz at the current solution, shape (3, width + 1, p): column j is
-        −H⁻¹ Jᵀ dT_j/du, times θ_j for a positive unknown (z_j = ln θ_j)."""
-        if self.values is None:
-            raise RuntimeError("solve before asking for the sensitivity")
-        samples, potential = self._system(self.values, 1.0)
-        u, jacobian, hessian = output_hessian(self.operator, potential,
-                                              samples, 1.0, self._newton())
-        columns, _ = term_gradients(self.model, self.unknowns, samples, u)
+    def _linearised(self, potential):
+        u, jacobian, hessian = output_hessian(self.operator, potential, self.samples, 1.0,
+                                              self._newton())
         shape = (jacobian.shape[0], jacobian.shape[3])
-        out = []
-        for unknown, value, column in zip(self.unknowns, self.values, columns, strict=True):
-            dg = parameter_gradient(jacobian, column).reshape(-1)
-            if unknown.positive:
-                dg = dg * float(value)
-            out.append(damped_step(hessian, dg, 0.0).reshape(shape))
-        return torch.stack(out, dim=-1)
+
+        def solve(dg: list[torch.Tensor]) -> torch.Tensor:
+            return torch.stack([damped_step(hessian, g, 0.0).reshape(shape) for g in dg],
+                               dim=-1)
+
+        return (self.samples, u,
+                lambda column: parameter_gradient(jacobian, column).reshape(-1), solve)
 
     # -- observation space ----------------------------------------------------------------------
-    def position_jets(self, xi: torch.Tensor, z=None) -> torch.Tensor:
-        """Jets (N, 6, 3) of the current equilibrium positions [m] (z: ignored, for the
-        interface of `bilevel.closest_surface_points`)."""
-        xi = xi.to(self.field.parameters[0].dtype)
-        return self.model.surface.jets(xi) + self.model.displacement_jets(self.field, xi)
-
-    def positions(self, xi: torch.Tensor, z=None) -> torch.Tensor:
-        """Current equilibrium positions (N, 3) [m] at ξ (N, 2)."""
-        return self.position_jets(xi)[:, jets.VALUE]
+    def displacement_jets(self, xi: torch.Tensor) -> torch.Tensor:
+        return self.model.displacement_jets(self.field, xi)
 
     def position_sensitivity(self, xi: torch.Tensor, sensitivity: torch.Tensor
                              ) -> torch.Tensor:
         """dx/dz (N, 3, p) at ξ from da*/dz (`sensitivity`): x is affine in a."""
-        xi = xi.to(self.field.parameters[0].dtype)
+        xi = xi.to(self.dtype)
         _, jacobian = output_jacobian(self.operator, xi, 1.0)
         return torch.einsum("kna,kaj->nkj", jacobian[:, :, jets.VALUE], sensitivity)

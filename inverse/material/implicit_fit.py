@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from inverse.material.conditioned import to_values
+from inverse.material.forward_model import forward_model
 from inverse.material.implicit import ImplicitConfig, ImplicitEquilibrium
 from inverse.material.observations import Observation
 from inverse.material.outer_fit import OuterConfig, OuterResult, combine, fit, start_values
@@ -53,7 +54,8 @@ def implicit_estimate(observations: list[Observation], unknowns: list[Unknown],
     positive = np.array([u.positive for u in unknowns])
     bases = config.bases()
     if equilibria is None:
-        equilibria = [[ImplicitEquilibrium(obs.model, unknowns, config, seed, width)
+        equilibria = [[forward_model(config.features(obs.model, width), obs.model, unknowns,
+                                     config, seed=seed)
                        for obs in observations] for seed, width in bases]
     elif len(equilibria) != len(bases) or any(len(e) != len(observations) for e in equilibria):
         raise ValueError(f"need one forward model per basis ({len(bases)}) and observation "

@@ -13,21 +13,22 @@ dC*/dθ_j = −K⁻¹ ∂g/∂θ_j with K of the exact blocks at C*, factorised 
 `stable` is False. In the outer coordinates z (ln θ for positive unknowns, the value for
 signed ones) a column is multiplied by θ_j for a positive unknown. Observed positions
 x(ξ) = X(ξ) + u(ξ) are affine in C, so dx/dz = J_obs dC*/dz exactly (the composition at ξ).
+What is the same for every field type (the solves, θ's point forces, the sensitivity's
+columns, the positions) is `inverse.material.equilibrium`.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from inverse.material.unknowns import Unknown, apply, term_gradients
+from inverse.material.equilibrium import Equilibrium
+from inverse.material.unknowns import Unknown
 from taichi_ndf import checks, jets, progress
-from taichi_ndf.continuation import Stages, solve_over
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import (
     Assembly,
@@ -40,7 +41,6 @@ from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.minimise.refinement import held_unknowns
 from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
 from taichi_ndf.model import ShellModel
-from taichi_ndf.objective import Objective
 from taichi_ndf.quadrature import span_quadrature
 from taichi_ndf.spline_grid import auto_span_length, spans_for
 
@@ -94,18 +94,20 @@ class SplineModelConfig:
                             periodic=domain.periodic)
 
 
-class SplineEquilibrium:
-    """The equilibrium of `model` with the unknowns set to θ on one spline grid, and dC*/dz.
+class SplineEquilibrium(Equilibrium):
+    """The equilibrium of `model` with the unknowns set to θ on one spline grid, and dC*/dz:
+    `Equilibrium` on a spline's coefficients C (n, 3).
 
     model: the observation's model (unknowns at their scene values); grid: the field's
     configuration (`SplineModelConfig.grid`, or a refinement of it)."""
 
+    field_type = SplineConfig
+
     def __init__(self, model: ShellModel, unknowns: list[Unknown], config: SplineModelConfig,
                  grid: SplineConfig):
-        if config.boundary_length is not None:
-            model = model.with_boundary_length(config.boundary_length)
-        self.model = model
-        self.unknowns = list(unknowns)
+        super().__init__(model, unknowns, boundary_length=config.boundary_length,
+                         load_steps=config.load_steps)
+        model = self.model
         self.config = config
         self.field = SplineField(grid, dtype=torch.float64)
         self.label = {"spans": list(grid.spans), "degree": grid.degree}
@@ -118,42 +120,46 @@ class SplineEquilibrium:
         # the assembly's row of each original sample (`Assembly.order` is the inverse):
         # term_gradients and the point forces index the original order (point loads last)
         self._model_order = torch.argsort(self.assembly.order)
-        self._point_rows = self._model_order[len(original) - len(model.loads.point_loads):]
+        self.point_rows = self._model_order[len(original) - len(model.loads.point_loads):]
         self.length = math.sqrt(model.surface.domain.rectangle_area)
         self.newton = NewtonConfig(max_iterations=config.newton_iterations)
         self.coefficients = torch.zeros(grid.num_coefficients, 3, dtype=torch.float64)
-        self.values: np.ndarray | None = None
-        self.newton_steps = 0
-        self.unconverged_solves = 0  # inner Newton solves stopped before their tolerance
-        self.solve_time = 0.0
-        self.stable = True
-        self._first: tuple[np.ndarray, torch.Tensor] | None = None
 
-    # -- state ----------------------------------------------------------------------------------
+    @classmethod
+    def of_field(cls, spec: SplineConfig, model: ShellModel, unknowns: list[Unknown],
+                 config: SplineModelConfig, *, seed: int = 0) -> SplineEquilibrium:
+        """On the grid `spec` (seed: no meaning here)."""
+        return cls(model, unknowns, config, spec)
+
+    # -- the coefficients C ---------------------------------------------------------------------
+    @property
+    def samples(self):
+        """The assembly's samples (in its order)."""
+        return self.assembly.samples
+
+    @samples.setter
+    def samples(self, samples) -> None:
+        self.assembly.samples = samples
+
     def state(self) -> torch.Tensor:
         return self.coefficients.clone()
 
-    def set_state(self, state: torch.Tensor, values) -> None:
+    def _set_parameters(self, state: torch.Tensor) -> None:
         self.coefficients = state.clone()
-        self.values = None if values is None else np.array(values, dtype=np.float64)
+
+    def _reference(self) -> torch.Tensor:
+        return torch.zeros_like(self.coefficients)
+
+    def _shifted(self, prediction: torch.Tensor | None) -> torch.Tensor:
+        return self.coefficients if prediction is None else self.coefficients + prediction
 
     def predicted_change(self, sensitivity: torch.Tensor, dz: np.ndarray) -> torch.Tensor:
         """First-order change of the state (n, 3) for a step dz (p,) in the outer coordinates."""
         return torch.einsum("ncj,j->nc", sensitivity, torch.from_numpy(dz))
 
-    # -- inner problem --------------------------------------------------------------------------
-    def _potential(self, values, load_factor: float):
-        """Π of θ at a load factor; sets the samples' (unscaled) point forces of θ."""
-        loaded = apply(self.model, self.unknowns, values)
-        if loaded.loads.point_loads:
-            forces = self.assembly.samples.point_force.clone()
-            forces[self._point_rows] = torch.tensor(
-                [p.force for p in loaded.loads.point_loads], dtype=forces.dtype)
-            self.assembly.samples = self.assembly.samples.with_point_force(forces)
-        return loaded, Objective.of_model(loaded).potential(load_factor)
-
-    def _minimise(self, values, start: torch.Tensor, load_factor: float) -> torch.Tensor:
-        _, potential = self._potential(values, load_factor)
+    def _minimise(self, values, potential, start: torch.Tensor, load_factor: float, *,
+                  warm: bool) -> torch.Tensor:
+        """Projected Newton from `start` (warm or not: at most `newton_iterations`)."""
         self.assembly.at_load(self.operator, load_factor)
         with progress.stage(f"equilibrium {self.label}, load {load_factor:.3g}",
                             self.newton.max_iterations):
@@ -168,40 +174,8 @@ class SplineEquilibrium:
                         self.label, np.asarray(values).tolist(), load_factor)
         return solution.parameters
 
-    def solve(self, values, *, prediction: torch.Tensor | None = None,
-              from_reference: bool = False, start: torch.Tensor | None = None) -> None:
-        """Solve for θ = values: from `start` (n, 3) at load 1 when given, else from the
-        undeformed state through `load_steps` the first time (or with `from_reference`; the
-        result kept and reused when asked for the same θ again), else warm-started from the
-        current C* plus `prediction`."""
-        values = np.array(values, dtype=np.float64)
-        t0 = time.perf_counter()
-        if start is not None:
-            self.coefficients = self._minimise(values, start, 1.0)
-            self._first = (values, self.coefficients.clone())
-        elif self._first is not None and (from_reference or self.values is None) and \
-                np.array_equal(values, self._first[0]):
-            self.coefficients = self._first[1].clone()
-        elif self.values is None or from_reference:
-            reference = torch.zeros_like(self.coefficients)  # the first step's start
-            c = solve_over(Stages(
-                lambda step, start: self._minimise(values, start, step.load_factor),
-                lambda step, previous, _coarser: reference if previous is None else previous),
-                self.config.load_steps)[0][-1]
-            self.coefficients = c
-            if self._first is None:
-                self._first = (values, c.clone())
-        else:
-            start = self.coefficients if prediction is None else self.coefficients + prediction
-            self.coefficients = self._minimise(values, start, 1.0)
-        self.values = values
-        self.solve_time += time.perf_counter() - t0
-
-    def sensitivity(self) -> torch.Tensor:
-        """dC*/dz (n, 3, p) at the current solution (module docstring); sets `stable`."""
-        if self.values is None:
-            raise RuntimeError("solve before asking for the sensitivity")
-        _, potential = self._potential(self.values, 1.0)
+    def _linearised(self, potential):
+        """K of the exact blocks at C*, factorised once for all unknowns; sets `stable`."""
         self.assembly.at_load(self.operator, 1.0)
         matrix = exact_hessian(self.assembly, potential, self.coefficients, length=self.length,
                                fd_step=self.newton.fd_step)
@@ -210,19 +184,21 @@ class SplineEquilibrium:
         u = self.assembly.displacement(self.coefficients)
         in_order = type(samples)(samples.xi[order], samples.r_jets[order], samples.weight[order],
                                  samples.point_force[order])
-        columns, _ = term_gradients(self.model, self.unknowns, in_order, u[order])
-        dg = []
-        for unknown, value, column in zip(self.unknowns, self.values, columns, strict=True):
+
+        def pull_back(column: torch.Tensor) -> torch.Tensor:
             back = torch.empty_like(column)
             back[order] = column
-            g = self.assembly.gradient(back)
-            dg.append(g * float(value) if unknown.positive else g)
-        result = sensitivity(matrix, torch.stack(dg, dim=-1), self.fixed)
-        if not result.definite and self.stable:
-            log.warning("spline equilibrium %s at θ = %s: K is not positive definite — the "
-                        "equilibrium is unstable", self.label, self.values.tolist())
-        self.stable = result.definite
-        return result.derivative
+            return self.assembly.gradient(back)
+
+        def solve(dg: list[torch.Tensor]) -> torch.Tensor:
+            result = sensitivity(matrix, torch.stack(dg, dim=-1), self.fixed)
+            if not result.definite and self.stable:
+                log.warning("spline equilibrium %s at θ = %s: K is not positive definite — "
+                            "the equilibrium is unstable", self.label, self.values.tolist())
+            self.stable = result.definite
+            return result.derivative
+
+        return in_order, u[order], pull_back, solve
 
     def fitted_state(self, xi: torch.Tensor, points: torch.Tensor, *,
                      ridge: float = 1e-10) -> torch.Tensor:
@@ -253,16 +229,8 @@ class SplineEquilibrium:
         return state
 
     # -- observation space ----------------------------------------------------------------------
-    def position_jets(self, xi: torch.Tensor, z=None) -> torch.Tensor:
-        """Jets (N, 6, 3) of the current equilibrium positions [m] (z: ignored, for the
-        interface of `bilevel.closest_surface_points`)."""
-        xi = xi.to(torch.float64)
-        return self.model.surface.jets(xi) + displacement_at(self.operator, xi,
-                                                             self.coefficients, 1.0)
-
-    def positions(self, xi: torch.Tensor, z=None) -> torch.Tensor:
-        """Current equilibrium positions (N, 3) [m] at ξ (N, 2)."""
-        return self.position_jets(xi)[:, jets.VALUE]
+    def displacement_jets(self, xi: torch.Tensor) -> torch.Tensor:
+        return displacement_at(self.operator, xi, self.coefficients, 1.0)
 
     def position_sensitivity(self, xi: torch.Tensor, sensitivity: torch.Tensor) -> torch.Tensor:
         """dx/dz (N, 3, p) at ξ from dC*/dz (`sensitivity`): x is affine in C."""
