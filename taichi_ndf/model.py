@@ -33,7 +33,9 @@ class Probe:
 @dataclass(frozen=True)
 class ShellModel:
     """Reference surface + material + loads + boundary conditions (+ probes, + rigid
-    obstacles: contact, a `taichi_ndf.contact.ContactConfig` or None)."""
+    obstacles: contact, a `taichi_ndf.contact.ContactConfig` or None, + further energy terms:
+    terms, `taichi_ndf.objective.Term`s that `Objective.of_model` adds to the shell's
+    potential energy, e.g. an elastic foundation)."""
 
     surface: ReferenceSurface
     material: object
@@ -41,6 +43,7 @@ class ShellModel:
     boundary: BoundaryConditions
     probes: tuple[Probe, ...] = field(default_factory=tuple)
     contact: object = None
+    terms: tuple = field(default_factory=tuple)
 
     def __post_init__(self):
         names = [p.name for p in self.probes]

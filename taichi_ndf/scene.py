@@ -41,6 +41,7 @@ from taichi_ndf.scene_field import field_config, with_field_type
 from taichi_ndf.scene_overrides import apply_overrides
 from taichi_ndf.scene_schema import SceneError, Table, read_toml
 from taichi_ndf.scene_schema import checked as _check
+from taichi_ndf.scene_terms import parse_terms
 from taichi_ndf.scene_training import training
 from taichi_ndf.shell.materials import (
     PRESETS,
@@ -116,7 +117,7 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     boundary = _section(top.table("boundary", optional=True), _boundary, surface)
     probes = tuple(Probe(t.string("name"), t.vector("xi", 2)) for t in top.tables("probes"))
     model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
-    model = replace(model, contact=parse_contact(top, model, base_dir))
+    model = replace(model, contact=parse_contact(top, model, base_dir), terms=parse_terms(top))
     field, estimate = _section(top.table("field", optional=True), field_config, model)
     solver, quick = _section(top.table("training", optional=True), training,
                              isinstance(field, SplinePlan))

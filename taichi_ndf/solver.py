@@ -31,7 +31,6 @@ progress goes to `taichi_ndf.progress` (a stage per load step).
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass
 
@@ -182,13 +181,16 @@ class Solver:
     def newton(self, load_factor: float) -> None:
         """A last-layer Newton phase on the fixed Newton samples at this load factor."""
         samples = self.newton_samples()
-        potential = self.objective.potential(load_factor)
+        potential, allowed = self.objective.potential(load_factor), None
         if self.contact is not None:
             samples = self.contact.augment(samples)
-            potential = self._contact_filter(potential, samples, load_factor)
+            allowed = self._contact_filter(samples, load_factor)
+            # Π alone, without its terms' own Hessian blocks: with contact the phases' blocks
+            # are central differences of the whole gradient (as when the filter wrapped Π)
+            potential = _value_and_gradient(potential)
         result = solve_last_layer(
             self.operator, potential, samples, load_factor,
-            last_layer_config(max_iterations=self.config.newton_iterations))
+            last_layer_config(max_iterations=self.config.newton_iterations), allowed=allowed)
         self.state.newton_steps += result.steps
         self._refresh_contact(load_factor)
 
@@ -278,15 +280,14 @@ class Solver:
             return adam_iteration(self.state.optimiser, evaluate, check=self._check_step)[1]
         contact = self.contact
         before = self.field.get_flat().clone()
-        start = contact.filter_positions(self._displacement(lam), samples)
-        start_gap = contact.point_gaps(start, lam)
+        step = contact.step_from(contact.filter_positions(self._displacement(lam), samples), lam,
+                                 both_ends=True)
         _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=self._check_step)
         after = self.field.get_flat().clone()
         for halving in range(FILTER_HALVINGS + 1):
             end = contact.filter_positions(self._displacement(lam), samples)
             end_gap = contact.point_gaps(end, lam)
-            if contact.step_allowed(start, start_gap, end, lam, both_ends=True,
-                                    end_gap=end_gap):
+            if step.allows(end, end_gap=end_gap):
                 contact.flag(end_gap)
                 return gnorm
             if halving < FILTER_HALVINGS:
@@ -305,22 +306,16 @@ class Solver:
         keep = self.contact.checked(samples)
         return samples.r_jets[keep, 0] + self._displacement(lam)(samples.xi[keep])
 
-    def _contact_filter(self, potential, samples, lam: float):
-        """`potential` whose value (grad=False: the Newton line search's trials) is +inf
-        where the filter refuses the step from the current field (`step_allowed`): the line
-        search then rejects it."""
+    def _contact_filter(self, samples, lam: float):
+        """`allowed(samples, u_jets) -> bool` of a Newton phase's line search
+        (`solve_last_layer`): the filter's test of the step from the current field to the
+        trial's displacement (`step_allowed`, both ends)."""
         keep = self.contact.checked(samples)
-        start = self._positions(samples, lam)
-        start_gap = self.contact.point_gaps(start, lam)
+        step = self.contact.step_from(self._positions(samples, lam), lam, both_ends=True)
 
-        def filtered(trial_samples, u_jets, grad):
-            result = potential(trial_samples, u_jets, grad)
-            if not grad:
-                end = trial_samples.r_jets[keep, 0] + u_jets[keep, 0]
-                if not self.contact.step_allowed(start, start_gap, end, lam, both_ends=True):
-                    result.total = math.inf
-            return result
-        return filtered
+        def allowed(trial_samples, u_jets) -> bool:
+            return step.allows(trial_samples.r_jets[keep, 0] + u_jets[keep, 0])
+        return allowed
 
     def _feasible_start(self, lam: float) -> None:
         """A fresh field whose initial displacement makes the dense grid touch an obstacle
@@ -389,3 +384,9 @@ class Solver:
         call(self._callbacks, "on_polish", self, before, after)
         log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)
 
+
+
+def _value_and_gradient(potential):
+    """`potential` as a plain (samples, u_jets, grad) -> EnergyResult callable, without its
+    `hessian_blocks` / `coupled_blocks` (Newton then differences its gradient)."""
+    return lambda samples, u_jets, grad: potential(samples, u_jets, grad)

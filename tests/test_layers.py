@@ -54,7 +54,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # Scene reading: TOML into a plain specification (model, field, training, output).
     ("scene", ("taichi_ndf.scene", "taichi_ndf.scene_schema", "taichi_ndf.scene_contact",
                "taichi_ndf.scene_field", "taichi_ndf.scene_training",
-               "taichi_ndf.scene_overrides")),
+               "taichi_ndf.scene_overrides", "taichi_ndf.scene_terms")),
     # The applications: a scene run with its outputs, the tools, benchmarks, studies, viewers.
     ("app", ("taichi_ndf.simulation", "taichi_ndf.outputs", "taichi_ndf.cli",
              "taichi_ndf.validation", "taichi_ndf.sweep", "taichi_ndf.export",

@@ -142,7 +142,6 @@ class NewtonContact:
         checked = PointMap(operator, checked_xi, t)
         on_grid = slice(int(area.sum()), None)
         start = coefficients
-        cache: dict = {}
         last: dict = {}
 
         def refresh(c: torch.Tensor) -> bool:
@@ -156,11 +155,7 @@ class NewtonContact:
             points.flag(points.point_gaps(grid_r + u, t), LOOK_AHEAD * moved)
             return points.count > before
 
-        def feasible(c: torch.Tensor, trial: torch.Tensor) -> bool:
-            if cache.get("c") is not c:
-                x = checked_r + checked(c)
-                cache.update(c=c, x=x, gap=points.point_gaps(x, t))
-            return points.step_allowed(cache["x"], cache["gap"], checked_r + checked(trial), t)
+        feasible = points.feasible(lambda c: checked_r + checked(c), t)
 
         refresh(start)
         history, c, solution, lagged = [], coefficients, None, None

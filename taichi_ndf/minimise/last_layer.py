@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Callable
 
 import torch
 
@@ -105,16 +106,24 @@ def output_hessian(operator: DisplacementOperator, potential: Potential,
 def solve_last_layer(operator: DisplacementOperator, potential: Potential,
                      samples: SurfaceSamples, load_factor: float,
                      config: NewtonConfig | None = None, *,
-                     conditioning: torch.Tensor | None = None) -> NewtonSolution:
+                     conditioning: torch.Tensor | None = None,
+                     allowed: Callable[[SurfaceSamples, torch.Tensor], bool] | None = None
+                     ) -> NewtonSolution:
     """Minimise Π (potential: the objective at a load factor, `Objective.potential`) over the
     output layer of the operator's field on fixed samples (`minimise` over
     `output_linearisation`, settings `LAST_LAYER` by default); updates W_out and b_out in
     place. The solution's parameters are the change of the output layer (3, width + 1).
 
-    conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring)."""
+    conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring).
+    allowed(samples, u_jets) -> bool: whether a line-search trial may reach the displacement
+    jets u_jets (N, 6, 3) at the samples (contact's penetration test, `minimise`'s
+    `feasible`); None: every trial may."""
     linear = output_linearisation(operator, samples, load_factor, conditioning)
+    feasible = None if allowed is None else (
+        lambda _c, trial: allowed(linear.samples, linear.displacement(trial)))
     solution = minimise(linear, potential, torch.zeros_like(linear.origin),
-                        config or LAST_LAYER, load_factor=load_factor, report=False)
+                        config or LAST_LAYER, load_factor=load_factor, feasible=feasible,
+                        report=False)
     weight, bias = operator.field.output_layer()
     with torch.no_grad():
         weight.add_(solution.parameters[:, :-1])

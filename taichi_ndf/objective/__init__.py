@@ -8,6 +8,7 @@ only the objective, so a new term (contact, inertia, seams) needs no new solver.
 
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.objective.objective import Objective, Term
-from taichi_ndf.objective.terms import EndMomentTerm, ShellEnergyTerm, StitchTerm
+from taichi_ndf.objective.terms import EndMomentTerm, FoundationTerm, ShellEnergyTerm, StitchTerm
 
-__all__ = ["Objective", "Term", "Couplings", "ShellEnergyTerm", "EndMomentTerm", "StitchTerm"]
+__all__ = ["Objective", "Term", "Couplings", "ShellEnergyTerm", "EndMomentTerm", "StitchTerm",
+           "FoundationTerm"]

@@ -45,8 +45,9 @@ class Objective:
 
     @classmethod
     def of_model(cls, model) -> Objective:
-        """The potential energy of a `ShellModel`: its material under its loads."""
-        return cls(ShellEnergyTerm(model.material, model.loads))
+        """The potential energy of a `ShellModel`: its material under its loads, plus the
+        model's further terms (`ShellModel.terms`, e.g. an elastic foundation)."""
+        return cls(ShellEnergyTerm(model.material, model.loads), model.terms)
 
     def with_terms(self, *terms: Term) -> Objective:
         """The objective with further terms added."""

@@ -1,5 +1,5 @@
-"""Energy terms of the objective: the shell's potential energy, the end moment's work and the
-stitches of a seam (a term whose Hessian couples pairs of points)."""
+"""Energy terms of the objective: the shell's potential energy, the end moment's work, the
+stitches of a seam (a term whose Hessian couples pairs of points) and an elastic foundation."""
 
 from __future__ import annotations
 
@@ -143,3 +143,49 @@ class StitchTerm:
                 blocks[:, a, jets.VALUE, :, b, jets.VALUE, :] = eye if a == b else -eye
         return Couplings(self.pairs, blocks.reshape(count, 2 * 3 * jets.CHANNELS,
                                                     2 * 3 * jets.CHANNELS))
+
+
+class FoundationTerm:
+    """An elastic (Winkler) foundation: springs anchoring every point of the surface to its
+    rest position, Π_f = ½ k ∫ |u|² dA = ½ k Σ w √a |u|² over the samples (w the parameter-area
+    weights, √a the reference area element), k [N/m³] the foundation modulus (pressure per
+    displacement). Not scaled by the load factor (a support, not a load). A flat plate with
+    free edges under a uniform pressure p settles by the translation u = p/k along the
+    normal: the strains stay zero."""
+
+    def __init__(self, stiffness: float):
+        if not (math.isfinite(stiffness) and stiffness > 0):
+            raise ValueError(f"FoundationTerm: stiffness must be finite and > 0, got "
+                             f"{stiffness!r}")
+        self.stiffness = float(stiffness)
+
+    def _density(self, samples: SurfaceSamples, dtype: torch.dtype) -> torch.Tensor:
+        """k w √a (N,) [N/m]: each sample's spring constant."""
+        r = samples.r_jets
+        sqrt_a = torch.linalg.cross(r[:, jets.D1], r[:, jets.D2], dim=-1).norm(dim=-1)
+        return (self.stiffness * samples.weight * sqrt_a).to(dtype)
+
+    def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                 load_factor: float | torch.Tensor = 1.0, *, grad: bool = True
+                 ) -> tuple[float, torch.Tensor | None]:
+        """Π_f [J] and dΠ_f/du_jets (N, 6, 3)."""
+        spring = self._density(samples, u_jets.dtype)
+        u = u_jets[:, jets.VALUE]
+        value = 0.5 * float((spring * (u * u).sum(dim=1)).sum())
+        if not grad:
+            return value, None
+        gradient = torch.zeros_like(u_jets)
+        gradient[:, jets.VALUE] = spring[:, None] * u
+        return value, gradient
+
+    def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                       load_factor: float | torch.Tensor = 1.0, *,
+                       steps: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-point blocks (N, 6, 3, 6, 3): k w √a I on the value channel (exact: Π_f is
+        quadratic)."""
+        n = u_jets.shape[0]
+        blocks = u_jets.new_zeros(n, jets.CHANNELS, 3, jets.CHANNELS, 3)
+        eye = torch.eye(3, dtype=u_jets.dtype, device=u_jets.device)
+        blocks[:, jets.VALUE, :, jets.VALUE, :] = self._density(samples, u_jets.dtype)[:, None,
+                                                                                        None] * eye
+        return blocks
