@@ -79,9 +79,9 @@ def napkin_siren(count: int, callbacks=()):
     import dataclasses
 
     from taichi_ndf.field import NeuralField
-    from taichi_ndf.output_scale import field_for_run
-    from taichi_ndf.scene import load_scene
-    from taichi_ndf.solver import Solver
+    from taichi_ndf.scene.reader import load_scene
+    from taichi_ndf.solve.output_scale import field_for_run
+    from taichi_ndf.solve.solver import Solver
 
     scene = load_scene(NAPKIN)
     config = dataclasses.replace(scene.solver, iterations=count, progress=False,
@@ -115,9 +115,9 @@ def newton_steps(count: int, spans: int = 16) -> dict:
     from taichi_ndf.minimise.linearisation import SplineLinearisation
     from taichi_ndf.minimise.newton import NewtonConfig, minimise
     from taichi_ndf.objective import Objective
-    from taichi_ndf.operator import DisplacementOperator
-    from taichi_ndf.quadrature import span_quadrature
-    from taichi_ndf.scene import load_scene
+    from taichi_ndf.problem.operator import DisplacementOperator
+    from taichi_ndf.problem.quadrature import span_quadrature
+    from taichi_ndf.scene.reader import load_scene
 
     model = load_scene(NAPKIN).model
     surface = model.surface
@@ -167,8 +167,8 @@ def energies(cases: list[str], siren_steps: int) -> dict:
     iterations of its SIREN, and each validation case's spline solve on one grid."""
     import dataclasses
 
-    from taichi_ndf.scene import load_scene
-    from taichi_ndf.spline_solver import solve_spline
+    from taichi_ndf.scene.reader import load_scene
+    from taichi_ndf.solve.spline_solver import solve_spline
     from taichi_ndf.validation import CASES, load_case_scene
     from taichi_ndf.validation.runner import _objective
 

@@ -78,7 +78,7 @@ def reset_peak_rss() -> None:
 class TaichiNDF:
     def __init__(self, case: Case, xi: torch.Tensor, seed: int):
         from taichi_ndf.field import FieldConfig, NeuralField
-        from taichi_ndf.optim import Adam
+        from taichi_ndf.problem.optim import Adam
 
         config = FieldConfig(width=case.width, hidden_layers=case.hidden_layers)
         self.field = NeuralField(config, seed=seed)

@@ -25,8 +25,8 @@ import torch
 import taichi_ndf
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.geometry.analytic import Plane, _stack
-from taichi_ndf.scene import load_scene
-from taichi_ndf.spline_solver import solve_spline
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.solve.spline_solver import solve_spline
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "napkin_interior_line.toml"
 B, W = 0.9, 0.05  # the grading: depth and width (fraction of the side) of g's dip at the line

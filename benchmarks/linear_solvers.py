@@ -37,9 +37,9 @@ from taichi_ndf.minimise.linearisation import SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.minimise.refinement import held_unknowns, solve_levels
 from taichi_ndf.objective import Objective
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.shell.hessian import flat_blocks, indefinite_blocks, jet_steps, project_psd
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "napkin.toml"

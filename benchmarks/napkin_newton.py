@@ -37,9 +37,9 @@ from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.shell.hessian import (
     PROJECTIONS,
     flat_blocks,

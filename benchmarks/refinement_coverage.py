@@ -42,8 +42,8 @@ import torch
 
 import taichi_ndf
 from taichi_ndf.minimise.refinement import richardson
-from taichi_ndf.scene import load_scene
-from taichi_ndf.spline_solver import solve_spline
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.solve.spline_solver import solve_spline
 
 ROOT = Path(__file__).resolve().parents[1]
 ORDER = 4.0  # 2(p − 1) for cubic splines

@@ -1,5 +1,5 @@
 """Peak memory and time of the sizes a scene sets, for the before-work size checks
-(`taichi_ndf.run_size`): spline grids (bytes per Gauss point, seconds per Newton iteration),
+(`taichi_ndf.problem.run_size`): spline grids (bytes per Gauss point, seconds per Newton iteration),
 the contact check grid (bytes per check point) and SIREN training (bytes per sample × width).
 
 Each case is `ndf-sim` in its own process; peak: ru_maxrss of that process (`os.wait4`, Linux

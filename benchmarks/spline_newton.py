@@ -3,7 +3,7 @@
 One configuration for every case: cubic B-splines, 4 × 4 Gauss–Legendre points per knot span
 (`span_quadrature`),
 `NewtonConfig()` defaults, the scene's load steps; the coarsest grid follows one rule
-from the geometry (`taichi_ndf.spline_grid.grid_spans`, `span_length = "auto"` of a scene),
+from the geometry (`taichi_ndf.problem.spline_grid.grid_spans`, `span_length = "auto"` of a scene),
 then two exact dyadic refinements (three grids), each solved
 from the coarser solution prolonged. Reported per case and quantity: the value on each grid,
 the Richardson-extrapolated value with its estimated error, and the error of the finest grid
@@ -30,9 +30,9 @@ from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import EndMomentTerm, Objective
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.scene import load_scene
-from taichi_ndf.spline_grid import grid_spans
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.problem.spline_grid import grid_spans
+from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.validation import CASES, LINEARISATION, load_case_scene
 
 SCENE_DIR = Path(__file__).resolve().parents[1] / "scenes"

@@ -42,10 +42,10 @@ def solve(scene_path: Path, iteration_factor: float, precision: str, monitor_eve
     torch.set_num_threads(threads)
 
     taichi_ndf.init(arch="cpu", precision=precision, seed=0)
-    from taichi_ndf.callbacks import DivergenceGuard
     from taichi_ndf.field import NeuralField
-    from taichi_ndf.scene import load_scene
-    from taichi_ndf.solver import Solver
+    from taichi_ndf.minimise.callbacks import DivergenceGuard
+    from taichi_ndf.scene.reader import load_scene
+    from taichi_ndf.solve.solver import Solver
 
     scene = load_scene(scene_path)
     config = scene.solver.with_iterations(round(scene.solver.iterations * iteration_factor))

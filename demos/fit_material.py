@@ -27,7 +27,7 @@ from inverse.material import Observation, apply, parse_unknowns, template_xi
 from inverse.material.calibration import converged_observation
 from taichi_ndf.io import write_obj
 from taichi_ndf.io.grid import grid_mesh
-from taichi_ndf.scene import load_scene
+from taichi_ndf.scene.reader import load_scene
 
 SCENE = Path(__file__).parents[1] / "scenes" / "inverse" / "cantilever_strip.toml"
 B_TRUE = 0.2 * 9.81 * 0.2**3

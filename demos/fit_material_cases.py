@@ -8,7 +8,7 @@ Two cases (docs/inverse_material.md, "Results"):
   bending stiffness and a point load F = (4, 3, -10) mN at the middle of the free end;
   estimates the load's 3-vector by the bilevel method from the start (0, 0, -20) mN.
 
-The observation is solved once with `taichi_ndf.solver.Solver` and cached in the output
+The observation is solved once with `taichi_ndf.solve.solver.Solver` and cached in the output
 folder: either with the scene's field (`--solve` Adam + `--solve-lbfgs` L-BFGS iterations on
 `--monitor-samples` samples) or, with `--solve-newton N`, by last-layer Newton alone (at most N
 steps per load step of `--load-steps`, on `--solve-newton-samples` samples; field
@@ -60,9 +60,9 @@ from inverse.material.conditioned import ConditionedConfig
 from inverse.material.implicit import ImplicitConfig
 from inverse.material.implicit_fit import implicit_estimate
 from taichi_ndf.field import NeuralField
-from taichi_ndf.loads import PointLoad
-from taichi_ndf.scene import load_scene
-from taichi_ndf.solver import Solver
+from taichi_ndf.problem.loads import PointLoad
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.solve.solver import Solver
 
 SCENES = Path(__file__).parents[1] / "scenes" / "inverse"
 FORCE = (0.004, 0.003, -0.010)

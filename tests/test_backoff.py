@@ -1,5 +1,6 @@
-"""The learning-rate backoff (`taichi_ndf.backoff`): when Adam's monitored Π climbs an order of
-magnitude above anything recorded, the best state comes back and the learning rate halves."""
+"""The learning-rate backoff (`taichi_ndf.minimise.backoff`): when Adam's monitored Π climbs an
+order of magnitude above anything recorded, the best state comes back and the learning rate
+halves."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import math
 import pytest
 from test_cli import SMALL_NAPKIN, interrupt_after_saving, run_sim, write_scene
 
-from taichi_ndf.backoff import CLIMB_FACTOR, climbed
+from taichi_ndf.minimise.backoff import CLIMB_FACTOR, climbed
 
 
 def test_a_climb_is_an_order_of_magnitude_above_anything_recorded():

@@ -14,8 +14,8 @@ import torch
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge, SymmetryPlane
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.validation import SCENES_DIR, load_case, run_case
 
 F64 = torch.float64
@@ -67,7 +67,7 @@ def test_the_composition_in_a_turned_frame_is_the_aligned_one_turned():
 
 
 def test_the_last_layer_newton_refuses_a_frame(tmp_path):
-    from taichi_ndf.scene_schema import SceneError
+    from taichi_ndf.scene.schema import SceneError
 
     with pytest.raises(ValueError, match="frame"):
         quarter_plate(TURNED).output_layer_jacobian(torch.zeros(3, 2, dtype=F64))
@@ -132,14 +132,14 @@ def root_stretch(clamp: list) -> float:
     on its far edge (linear regime: D = 100 N/m, ν = 0), solved on the spline path."""
     from taichi_ndf import jets
     from taichi_ndf.field import SplineConfig
-    from taichi_ndf.line_loads import LineLoad
-    from taichi_ndf.loads import Loads
     from taichi_ndf.minimise.assembly import displacement_at
-    from taichi_ndf.model import ShellModel
+    from taichi_ndf.problem.line_loads import LineLoad
+    from taichi_ndf.problem.loads import Loads
+    from taichi_ndf.problem.model import ShellModel
+    from taichi_ndf.problem.spline_grid import SplinePlan
+    from taichi_ndf.problem.training import SolverConfig
     from taichi_ndf.shell.materials import LinearIsotropic
-    from taichi_ndf.spline_grid import SplinePlan
-    from taichi_ndf.spline_solver import solve_spline
-    from taichi_ndf.training import SolverConfig
+    from taichi_ndf.solve.spline_solver import solve_spline
 
     strip = Plane(bounds=((0.0, 2.0), (0.0, 1.0)))
     model = ShellModel(
@@ -169,7 +169,7 @@ def test_a_clamp_in_the_edges_frame_leaves_the_stretch_across_the_edge_free():
     ("[[1, 0, 0], [0, 1, 0], [0, 0, -1]]", "right-handed"),
 ])
 def test_a_bad_boundary_frame_names_the_key(tmp_path, frame, match):
-    from taichi_ndf.scene_schema import SceneError
+    from taichi_ndf.scene.schema import SceneError
 
     text = (SCENES_DIR / "square_plate_quarter.toml").read_text()
     (tmp_path / "bad.toml").write_text(text.replace("[boundary]\n",

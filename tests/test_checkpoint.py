@@ -3,9 +3,9 @@
 import pytest
 import torch
 
-from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
 from taichi_ndf.field import FieldConfig, NeuralField
-from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.minimise.checkpoint import load_checkpoint, save_checkpoint
+from taichi_ndf.problem.optim import Adam, AdamConfig
 
 F64 = torch.float64
 CONFIG = FieldConfig(width=12, hidden_layers=2, periodic=(True, False), conditioning=((0, 2),))
@@ -102,7 +102,7 @@ def test_failed_save_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
 
 
 def test_state_round_trip_restores_weights_moments_generator_and_counters(tmp_path):
-    from taichi_ndf.state import MonitorRecord, State
+    from taichi_ndf.minimise.state import MonitorRecord, State
 
     field, adam, _, _ = trained()
     generator = torch.Generator().manual_seed(5)
@@ -127,7 +127,7 @@ def test_state_round_trip_restores_weights_moments_generator_and_counters(tmp_pa
 
 
 def test_restoring_a_missing_state_names_the_path(tmp_path):
-    from taichi_ndf.state import State
+    from taichi_ndf.minimise.state import State
 
     field, _, _, _ = trained()
     state = State.initial(field, AdamConfig(), seed=0)

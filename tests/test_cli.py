@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from taichi_ndf.checkpoint import load_checkpoint
 from taichi_ndf.cli import export, sim
-from taichi_ndf.state import State
+from taichi_ndf.minimise.checkpoint import load_checkpoint
+from taichi_ndf.minimise.state import State
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNTIME = ["--precision", "f64"]  # the test session's runtime (tests/conftest.py)

@@ -11,7 +11,7 @@ from taichi_ndf import jets
 from taichi_ndf.contact import ContactPoints, ContactTerm, GroundPlane, MeshObstacle, Sphere
 from taichi_ndf.contact.barrier import FLOOR_RATIO, barrier
 from taichi_ndf.geometry import Plane
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.sampling import sample_surface
 
 F64 = torch.float64
 TORUS = Path(__file__).resolve().parents[1] / "data" / "torus.obj"

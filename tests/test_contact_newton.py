@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.app.simulation import simulate
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.cli import sim
 from taichi_ndf.contact import ContactConfig, ContactTerm, GroundPlane, Sphere
@@ -19,16 +20,15 @@ from taichi_ndf.contact.friction import FrictionTerm, smoothed_friction
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.geometry import Plane
 from taichi_ndf.io import OutputDir
-from taichi_ndf.loads import Loads
-from taichi_ndf.model import Probe, ShellModel
-from taichi_ndf.sampling import sample_surface
-from taichi_ndf.scene import load_scene
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import Probe, ShellModel
+from taichi_ndf.problem.sampling import sample_surface
+from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.problem.training import SolverConfig
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.scene.schema import SceneError
 from taichi_ndf.shell.materials import preset
-from taichi_ndf.simulation import simulate
-from taichi_ndf.spline_grid import SplinePlan
-from taichi_ndf.spline_solver import solve_spline
-from taichi_ndf.training import SolverConfig
+from taichi_ndf.solve.spline_solver import solve_spline
 
 F64 = torch.float64
 SCENES = Path(__file__).resolve().parents[1] / "scenes"

@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 import torch
 
+from taichi_ndf.app.outputs import deformed_mesh
 from taichi_ndf.boundary import BoundaryConditions, PinnedPoint
 from taichi_ndf.cli import sim
 from taichi_ndf.contact import ContactConfig, ContactPoints, ContactTerm, GroundPlane, Sphere
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads
-from taichi_ndf.model import Probe, ShellModel
-from taichi_ndf.outputs import deformed_mesh
-from taichi_ndf.scene import load_scene
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import Probe, ShellModel
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.scene.schema import SceneError
 from taichi_ndf.shell.materials import preset
-from taichi_ndf.solver import Solver, SolverConfig
+from taichi_ndf.solve.solver import Solver, SolverConfig
 
 F64 = torch.float64
 SCENES = Path(__file__).resolve().parents[1] / "scenes"

@@ -13,15 +13,15 @@ from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads
 from taichi_ndf.minimise import newton as newton_module
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.linearisation import SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Couplings, Objective, ShellEnergyTerm, StitchTerm
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.problem.sampling import SurfaceSamples
 
 DT = torch.float64
 

@@ -20,7 +20,7 @@ from taichi_ndf.discretise import (
     of_scene,
 )
 from taichi_ndf.discretise.protocol import Solution
-from taichi_ndf.scene import load_scene
+from taichi_ndf.scene.reader import load_scene
 
 
 @pytest.fixture
@@ -88,7 +88,7 @@ def test_case_settings(scenes):
 
 def test_sizes_are_the_field_types_own(scenes, monkeypatch):
     siren, spline = scenes
-    monkeypatch.setattr("taichi_ndf.run_size.physical_memory", lambda: 1)
+    monkeypatch.setattr("taichi_ndf.problem.run_size.physical_memory", lambda: 1)
     with pytest.raises(ValueError, match="spline field: the finest grid"):
         of_scene(spline).check_size(spline.solver)
     with pytest.raises(ValueError, match="SIREN field 16 wide"):

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from taichi_ndf.geometry import Cone, Cylinder, Hemisphere, Plane
-from taichi_ndf.loads import Loads
-from taichi_ndf.sampling import SurfaceSamples, sample_surface
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.sampling import SurfaceSamples, sample_surface
 from taichi_ndf.shell import (
     LinearIsotropic,
     OrthotropicStVK,

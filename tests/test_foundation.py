@@ -15,13 +15,13 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads
 from taichi_ndf.objective import FoundationTerm, Objective
-from taichi_ndf.sampling import sample_surface
-from taichi_ndf.scene import parse_scene
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.sampling import sample_surface
+from taichi_ndf.scene.reader import parse_scene
+from taichi_ndf.scene.schema import SceneError
 from taichi_ndf.shell.hessian import sample_hessians
-from taichi_ndf.spline_solver import solve_spline
+from taichi_ndf.solve.spline_solver import solve_spline
 
 PLATE = {
     "name": "foundation",

@@ -10,13 +10,13 @@ from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, PinnedPoint
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads
 from taichi_ndf.minimise.last_layer import output_jacobian, solve_last_layer
-from taichi_ndf.model import Probe, ShellModel
-from taichi_ndf.scene import parse_scene
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import Probe, ShellModel
+from taichi_ndf.scene.reader import parse_scene
+from taichi_ndf.scene.schema import SceneError
 from taichi_ndf.shell.materials import preset
-from taichi_ndf.solver import Solver, SolverConfig
+from taichi_ndf.solve.solver import Solver, SolverConfig
 
 PIN = (0.0, 0.0)
 SURFACE = Plane(bounds=((0.0, 1.0), (0.0, 1.0)))

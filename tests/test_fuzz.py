@@ -37,7 +37,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from test_cli import RUNTIME, small_napkin
 
-from taichi_ndf import simulation
+from taichi_ndf.app import simulation
 from taichi_ndf.cli import export, sim
 
 ROOT = Path(__file__).resolve().parents[1]

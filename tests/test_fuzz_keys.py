@@ -32,8 +32,8 @@ from test_fuzz import (
 )
 
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
-from taichi_ndf.scene import parse_scene
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.scene.reader import parse_scene
+from taichi_ndf.scene.schema import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 

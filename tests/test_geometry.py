@@ -14,7 +14,7 @@ from taichi_ndf.geometry import (
     ParameterDomain,
     Plane,
 )
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.sampling import sample_surface
 
 TILTED = ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))  # local x, y, z -> world z, x, y
 

@@ -1,5 +1,5 @@
 """The grid rule along a periodic direction respects the concentrated loads' symmetry
-(taichi_ndf.spline_grid.load_symmetry): symmetric loads meet a symmetric grid."""
+(taichi_ndf.problem.spline_grid.load_symmetry): symmetric loads meet a symmetric grid."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 from taichi_ndf.geometry import Cylinder, Plane
-from taichi_ndf.loads import Loads, PointLoad
-from taichi_ndf.scene import load_scene
-from taichi_ndf.spline_grid import load_symmetry, spans_for
+from taichi_ndf.problem.loads import Loads, PointLoad
+from taichi_ndf.problem.spline_grid import load_symmetry, spans_for
+from taichi_ndf.scene.reader import load_scene
 
 VALIDATION = Path(__file__).resolve().parents[1] / "validation" / "scenes"
 

@@ -17,7 +17,7 @@ from test_inverse_material_elastica import cantilever
 from inverse.material import Observation, parse_unknowns
 from inverse.material.bilevel import BilevelConfig, bilevel_estimate, search_box
 from inverse.material.conditioned import ConditionedConfig
-from taichi_ndf.scene import load_scene
+from taichi_ndf.scene.reader import load_scene
 
 SCENE = Path(__file__).parents[1] / "scenes" / "inverse" / "cantilever_strip.toml"
 LENGTH, WIDTH, RHO, G, C = 0.2, 0.04, 0.2, 9.81, 0.2

@@ -136,8 +136,8 @@ def _stubbed(monkeypatch):
 def test_absurd_sizes_are_refused_before_any_work(tmp_path, capsys, monkeypatch, method,
                                                   options, message):
     """The fit's largest solve against the machine's memory, the check ndf-sim makes
-    (taichi_ndf.run_size), before the observations are read: on main --spans 20000 20000 read
-    them and started the fit."""
+    (taichi_ndf.problem.run_size), before the observations are read: on main --spans 20000 20000
+    read them and started the fit."""
     _stubbed(monkeypatch)
     code, err = _run(capsys, "--observed", str(tmp_path / "o.obj"), "--estimate", "bending",
                      "--method", method, "--out", str(tmp_path / "out"), *options)

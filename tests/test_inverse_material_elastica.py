@@ -28,8 +28,8 @@ def heavy_elastica_observation(start_material):
 
     from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
     from taichi_ndf.geometry import Plane
-    from taichi_ndf.loads import Loads
-    from taichi_ndf.model import ShellModel
+    from taichi_ndf.problem.loads import Loads
+    from taichi_ndf.problem.model import ShellModel
 
     bending = RHO * G * BENDING_LENGTH**3
     positions, _ = cantilever(LENGTH, bending, MEMBRANE, (0.0, -RHO * G))

@@ -6,8 +6,8 @@ from inverse.material import Observation, fit_shape
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads
-from taichi_ndf.model import ShellModel
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.shell.materials import preset
 
 

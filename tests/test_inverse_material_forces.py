@@ -11,8 +11,8 @@ from test_inverse_material_elastica import cantilever
 from inverse.material import Observation, ResidualConfig, parse_unknowns, residual_estimate
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads
-from taichi_ndf.model import ShellModel
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.shell.materials import LinearIsotropic
 
 GRAVITY = (9.81 * math.sin(math.radians(20.0)), 0.0, -9.81 * math.cos(math.radians(20.0)))

@@ -21,8 +21,8 @@ from inverse.material.goodness import (
 )
 from inverse.material.newton_fit import newton_estimate
 from inverse.material.report import REJECTED, estimate_document
-from taichi_ndf.loads import PointLoad
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.loads import PointLoad
+from taichi_ndf.scene.reader import load_scene
 
 B_TRUE = 0.2 * 9.81 * 0.2**3
 TIP_LOAD = (0.004, 0.003, -0.010)

@@ -19,8 +19,8 @@ from inverse.material.implicit import ImplicitConfig, ImplicitEquilibrium
 from inverse.material.implicit_fit import implicit_estimate
 from taichi_ndf.io import write_obj
 from taichi_ndf.io.grid import grid_mesh
-from taichi_ndf.loads import PointLoad
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.loads import PointLoad
+from taichi_ndf.scene.reader import load_scene
 
 SCENE = Path(__file__).parents[1] / "scenes" / "inverse" / "cantilever_strip.toml"
 B_TRUE = 0.2 * 9.81 * 0.2**3

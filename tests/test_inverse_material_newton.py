@@ -16,9 +16,9 @@ from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig, ConditionedEquilibrium
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.field import NeuralField
-from taichi_ndf.loads import PointLoad
-from taichi_ndf.scene import load_scene
-from taichi_ndf.solver import Solver
+from taichi_ndf.problem.loads import PointLoad
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.solve.solver import Solver
 
 SCENES = Path(__file__).parents[1] / "scenes" / "inverse"
 LENGTH, WIDTH, RHO, G = 0.2, 0.04, 0.2, 9.81

@@ -18,8 +18,8 @@ from inverse.material.conditioned import (
     to_coordinates,
     to_values,
 )
-from taichi_ndf.loads import PointLoad
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.loads import PointLoad
+from taichi_ndf.scene.reader import load_scene
 
 SCENE = Path(__file__).parents[1] / "scenes" / "inverse" / "cantilever_strip.toml"
 B_TRUE = 0.2 * 9.81 * 0.2**3
@@ -78,8 +78,8 @@ def test_point_load_unknown_acts_at_its_own_sample_beside_line_load_nodes():
     """Line-load nodes are zero-weight samples too; the point-load unknown's unit force must
     act at the point load's own sample (the last), not at the first zero-weight row."""
     from inverse.material.unknowns import term_gradients
-    from taichi_ndf.line_loads import LineLoad
-    from taichi_ndf.sampling import with_point_loads
+    from taichi_ndf.problem.line_loads import LineLoad
+    from taichi_ndf.problem.sampling import with_point_loads
 
     _, model = _model((0.0, 0.0, -0.02))
     line = LineLoad(path=((0.2, 0.0), (0.2, 0.04)), force=(0.0, 0.0, -0.1), nodes=4)

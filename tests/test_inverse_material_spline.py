@@ -21,8 +21,8 @@ from inverse.material.identifiability import UNDETERMINED_STD
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.residual import MAX_RELATIVE_RESIDUAL
 from inverse.material.spline_equilibrium import SplineEquilibrium, SplineModelConfig
-from taichi_ndf.loads import PointLoad
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.loads import PointLoad
+from taichi_ndf.scene.reader import load_scene
 
 SCENE = Path(__file__).parents[1] / "scenes" / "inverse" / "cantilever_strip.toml"
 B_TRUE = 0.2 * 9.81 * 0.2**3

@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from taichi_ndf.geometry import Cylinder, Plane
-from taichi_ndf.line_loads import LineLoad, edge_path, quadrature
-from taichi_ndf.loads import Loads
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.line_loads import LineLoad, edge_path, quadrature
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.sampling import sample_surface
 from taichi_ndf.shell import ShellEnergy, preset
 
 F64 = torch.float64
@@ -98,7 +98,7 @@ def test_the_material_conditioned_field_refuses_line_loads():
     from inverse.material.conditioned import ConditionedEquilibrium
     from inverse.material.unknowns import parse_unknowns
     from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
-    from taichi_ndf.model import ShellModel
+    from taichi_ndf.problem.model import ShellModel
     from taichi_ndf.shell.materials import LinearIsotropic
 
     plane = Plane()

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from taichi_ndf.geometry import Cylinder, Plane
-from taichi_ndf.loads import Loads, PointLoad
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.loads import Loads, PointLoad
+from taichi_ndf.problem.sampling import sample_surface
 from taichi_ndf.shell import ShellEnergy, preset
 
 

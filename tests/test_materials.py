@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from taichi_ndf.geometry import Cone, Hemisphere, Plane
-from taichi_ndf.loads import Loads
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.sampling import sample_surface
 from taichi_ndf.shell import (
     ClydeFabric,
     LinearIsotropic,

@@ -17,10 +17,10 @@ from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig, d
 from taichi_ndf.minimise.multigrid import VCycle, active_unknowns, spline_prolongations
 from taichi_ndf.minimise.refinement import held_unknowns, solve_levels
 from taichi_ndf.objective import Objective
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.scene import load_scene
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.scene.schema import SceneError
 from taichi_ndf.shell.hessian import flat_blocks, indefinite_blocks, jet_steps, project_psd
 
 DT = torch.float64

@@ -8,11 +8,11 @@ import torch
 from taichi_ndf.boundary import BoundaryConditions, HingedEdge
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads
 from taichi_ndf.minimise.last_layer import last_layer_config, output_jacobian, solve_last_layer
 from taichi_ndf.minimise.linearisation import parameter_gradient, parameter_hessian
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.sampling import sample_surface
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.hessian import sample_hessians
 from taichi_ndf.shell.materials import LinearIsotropic

@@ -1,4 +1,4 @@
-"""The Newton path runs the same callbacks as the Adam path (`taichi_ndf.callbacks`): the
+"""The Newton path runs the same callbacks as the Adam path (`taichi_ndf.minimise.callbacks`): the
 divergence guard, the checkpoint writer (one `State` format with a method tag), Ctrl-C with a
 resumable checkpoint, exact resume."""
 
@@ -9,13 +9,13 @@ import json
 import pytest
 import torch
 
-from taichi_ndf.callbacks import CheckpointWriter, DivergenceError, DivergenceGuard
-from taichi_ndf.checkpoint import CheckpointError, load_checkpoint
 from taichi_ndf.cli import sim
+from taichi_ndf.minimise.callbacks import CheckpointWriter, DivergenceError, DivergenceGuard
+from taichi_ndf.minimise.checkpoint import CheckpointError, load_checkpoint
+from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective
-from taichi_ndf.scene import load_scene
-from taichi_ndf.spline_solver import solve_spline
-from taichi_ndf.state import State
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.solve.spline_solver import solve_spline
 from tests.test_spline_scene import RUNTIME, write
 
 THREE = '[field]\ntype = "spline"\nspans = [4, 2]\nlevels = 3'

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.objective import EndMomentTerm, Objective, ShellEnergyTerm
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.loads import Loads, PointLoad
+from taichi_ndf.problem.sampling import sample_surface
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.hessian import sample_hessians
 from taichi_ndf.shell.materials import LinearIsotropic

@@ -12,8 +12,8 @@ from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.linearisation import DenseLinearisation, SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective, ShellEnergyTerm
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.quadrature import span_quadrature
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
 
 DT = torch.float64
 LOAD_FACTOR = 0.3

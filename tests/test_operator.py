@@ -8,7 +8,7 @@ import torch
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, PinnedPoint, SymmetryPlane
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
-from taichi_ndf.operator import DisplacementOperator
+from taichi_ndf.problem.operator import DisplacementOperator
 
 F64 = torch.float64
 SURFACE = Plane(bounds=((0.0, 1.0), (0.0, 1.0)))

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.problem.optim import Adam, AdamConfig
 
 F64 = torch.float64
 SHAPES = [(4, 3), (4,), (2, 4)]

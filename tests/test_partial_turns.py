@@ -11,7 +11,7 @@ import pytest
 
 from taichi_ndf.boundary.rigid_motions import free_motions, rigid_motion_findings
 from taichi_ndf.geometry import Cylinder, Hemisphere
-from taichi_ndf.scene import load_scene
+from taichi_ndf.scene.reader import load_scene
 
 VALIDATION = Path(__file__).resolve().parents[1] / "validation" / "scenes"
 QUARTER = VALIDATION / "pinched_hemisphere_quarter.toml"

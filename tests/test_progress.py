@@ -107,7 +107,7 @@ ADAM = ("width = 16", "iterations = 100000\nsamples = 256")
 # Imports done before the marker: the 5 s measure the tool's own start and its solve.
 WRAPPER = """
 import sys, taichi, torch
-import taichi_ndf.scene, taichi_ndf.simulation
+import taichi_ndf.scene.reader, taichi_ndf.app.simulation
 from {module} import main
 print("SOLVE STARTS", flush=True)
 sys.exit(main(sys.argv[1:]))

@@ -41,7 +41,7 @@ def test_ndf_sft_shows_tracking_then_reconstruction_progress(tmp_path):
 def test_ndf_fit_material_shows_progress_within_5_s(tmp_path):
     from taichi_ndf.io import write_obj
     from taichi_ndf.io.grid import grid_mesh
-    from taichi_ndf.scene import load_scene
+    from taichi_ndf.scene.reader import load_scene
 
     scene_file = ROOT / "scenes" / "inverse" / "cantilever_strip.toml"
     scene = load_scene(scene_file)

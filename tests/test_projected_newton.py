@@ -11,18 +11,18 @@ import torch
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge, PinnedPoint
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.newton import NewtonConfig, _longer_step
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective, ShellEnergyTerm
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.loads import Loads, PointLoad
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.hessian import flat_blocks, jet_steps, project_psd, sample_hessians
 from taichi_ndf.shell.materials import LinearIsotropic, OrthotropicStVK, preset
-from taichi_ndf.spline_solver import solve_spline
+from taichi_ndf.solve.spline_solver import solve_spline
 from taichi_ndf.validation import CASES, LINEARISATION, load_case_scene
 
 DT = torch.float64

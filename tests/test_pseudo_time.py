@@ -12,19 +12,19 @@ import numpy as np
 import pytest
 import torch
 
+from taichi_ndf.app.outputs import deformed_mesh
 from taichi_ndf.field import NeuralField
-from taichi_ndf.loads import Loads
-from taichi_ndf.outputs import deformed_mesh
-from taichi_ndf.pseudo_time import (
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.pseudo_time import (
     POINT_REPEATS,
     conditioning,
     frame_times,
     samples_over_time,
 )
-from taichi_ndf.sampling import sample_surface, stratified_uniform
-from taichi_ndf.scene import load_scene, parse_scene
-from taichi_ndf.scene_schema import SceneError
-from taichi_ndf.solver import Solver
+from taichi_ndf.problem.sampling import sample_surface, stratified_uniform
+from taichi_ndf.scene.reader import load_scene, parse_scene
+from taichi_ndf.scene.schema import SceneError
+from taichi_ndf.solve.solver import Solver
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"

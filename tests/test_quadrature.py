@@ -5,8 +5,8 @@ import torch
 
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.geometry import Hemisphere, Plane
-from taichi_ndf.loads import Loads
-from taichi_ndf.quadrature import gauss_legendre, span_points, span_quadrature
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.quadrature import gauss_legendre, span_points, span_quadrature
 
 F64 = torch.float64
 BOUNDS = ((-1.0, 2.0), (0.5, 1.5))

@@ -24,9 +24,9 @@ from test_cli import (
     write_scene,
 )
 
-from taichi_ndf.checkpoint import CheckpointError, load_checkpoint
 from taichi_ndf.cli import export
 from taichi_ndf.io import read_mesh, write_obj
+from taichi_ndf.minimise.checkpoint import CheckpointError, load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,7 +50,7 @@ def one_line(err: str) -> str:
                          ids=["out-of-memory", "ctrl-c"])
 def test_1_failed_output_writing_keeps_the_previous_complete_run(tmp_path, monkeypatch, capsys,
                                                                  failure, code):
-    import taichi_ndf.simulation as simulation
+    import taichi_ndf.app.simulation as simulation
 
     scene = small_napkin(tmp_path)
     out = tmp_path / "run"
@@ -118,7 +118,7 @@ def _damaged(kind: str, good: Path, tmp_path: Path) -> Path:
     elif kind == "foreign":
         import torch
 
-        torch.save({"kind": "taichi_ndf.checkpoint", "format_version": 1,
+        torch.save({"kind": "taichi_ndf.minimise.checkpoint", "format_version": 1,
                     "architecture": {"width": "wide"}}, path)
     return path
 

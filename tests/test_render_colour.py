@@ -157,8 +157,8 @@ def test_a_run_without_an_h264_encoder_keeps_its_outputs_and_says_why(tmp_path, 
                                                                        caplog):
     import sys
 
+    from taichi_ndf.app.outputs import write_trajectory_video
     from taichi_ndf.io.output_dir import OutputDir
-    from taichi_ndf.outputs import write_trajectory_video
 
     grid = grid_mesh(((0.0, 1.0), (0.0, 1.0)), 4)
     reference = np.column_stack([grid.xi, np.zeros(len(grid.xi))])

@@ -106,8 +106,8 @@ def test_read_run_and_quantities(tmp_path):
 def test_scene_views_option_is_checked(tmp_path):
     from test_cli import SMALL_NAPKIN
 
-    from taichi_ndf.scene import parse_scene
-    from taichi_ndf.scene_schema import SceneError
+    from taichi_ndf.scene.reader import parse_scene
+    from taichi_ndf.scene.schema import SceneError
 
     def views(text):
         document = tomllib.loads(SMALL_NAPKIN.format(lr=1e-3).replace(

@@ -17,7 +17,7 @@ from taichi_ndf.boundary.rigid_motions import (
     rigid_motion_findings,
     warn_rigid_motions,
 )
-from taichi_ndf.scene import load_scene
+from taichi_ndf.scene.reader import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"

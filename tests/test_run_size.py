@@ -1,5 +1,5 @@
 """Sizes a scene or a command line sets are checked against the memory they imply before any
-work (`taichi_ndf.run_size`): refused in one line with the estimate, exit code 2."""
+work (`taichi_ndf.problem.run_size`): refused in one line with the estimate, exit code 2."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from test_cli import SMALL_NAPKIN, run_sim, write_scene
 
-from taichi_ndf.run_size import BYTES_PER_GAUSS_POINT, spline_gauss_points
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.run_size import BYTES_PER_GAUSS_POINT, spline_gauss_points
+from taichi_ndf.scene.reader import load_scene
 
 SPLINE = SMALL_NAPKIN.replace("width = 16", 'type = "spline"\n{field}').replace(
     "[training]\niterations = 10\nsamples = 256\nlearning_rate = {lr}\nmonitor_every = 5\n"
@@ -65,10 +65,10 @@ def test_the_estimate_counts_the_finest_grid_and_the_check_points(tmp_path, monk
     plan = load_scene(scene).field
     assert spline_gauss_points(plan) == (8 * 4) * (4 * 4) * 16
     need = (spline_gauss_points(plan) + 10 * 10) * BYTES_PER_GAUSS_POINT
-    monkeypatch.setattr("taichi_ndf.run_size.physical_memory", lambda: need - 1)
+    monkeypatch.setattr("taichi_ndf.problem.run_size.physical_memory", lambda: need - 1)
     with pytest.raises(ValueError, match="32 × 16 spans .* check grid of 10² points"):
         load_scene(scene)
-    monkeypatch.setattr("taichi_ndf.run_size.physical_memory", lambda: need)
-    monkeypatch.setattr("taichi_ndf.run_size.available_memory", lambda: need - 1)
+    monkeypatch.setattr("taichi_ndf.problem.run_size.physical_memory", lambda: need)
+    monkeypatch.setattr("taichi_ndf.problem.run_size.available_memory", lambda: need - 1)
     load_scene(scene)  # more than is available now: a warning, not a refusal
     assert "more than the" in caplog.text and "available now" in caplog.text

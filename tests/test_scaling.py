@@ -1,6 +1,6 @@
-"""output_scale estimates (`taichi_ndf.scaling`: dimensional; `taichi_ndf.output_scale`: the
-two that solve) against solved displacements, which estimate the scene reader names, and
-which a run gets (`output_scale.field_for_run`)."""
+"""output_scale estimates (`taichi_ndf.problem.scaling`: dimensional;
+`taichi_ndf.solve.output_scale`: the two that solve) against solved displacements, which estimate
+the scene reader names, and which a run gets (`output_scale.field_for_run`)."""
 
 import dataclasses
 import logging
@@ -8,15 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from taichi_ndf import output_scale
-from taichi_ndf.output_scale import (
+from taichi_ndf.problem.scaling import characteristic_displacement
+from taichi_ndf.scene.reader import load_scene, parse_scene
+from taichi_ndf.solve import output_scale
+from taichi_ndf.solve.output_scale import (
     MIN_ESTIMATE_ITERATIONS,
     equilibrium_displacement,
     field_for_run,
     linear_displacement,
 )
-from taichi_ndf.scaling import characteristic_displacement
-from taichi_ndf.scene import load_scene, parse_scene
 from taichi_ndf.validation import CASES, SCENES_DIR
 
 SHIPPED = Path(__file__).resolve().parents[1] / "scenes"
@@ -123,7 +123,7 @@ def test_a_failed_estimate_falls_back_to_the_next_with_a_warning(monkeypatch, ca
         raise ValueError("refused for the test")
 
     monkeypatch.setattr(output_scale, "equilibrium_displacement", refuse)
-    with caplog.at_level(logging.WARNING, logger="taichi_ndf.output_scale"):
+    with caplog.at_level(logging.WARNING, logger="taichi_ndf.solve.output_scale"):
         fallen = field_for_run(scene.field, "equilibrium", scene.model, adam)
     assert fallen.output_scale == pytest.approx(linear_displacement(scene.model), rel=1e-12)
     assert "the equilibrium estimate failed (refused for the test)" in caplog.text

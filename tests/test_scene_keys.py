@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from taichi_ndf.scene import parse_scene
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.scene.reader import parse_scene
+from taichi_ndf.scene.schema import SceneError
 
 BASE = {
     "name": "t",
@@ -117,7 +117,7 @@ def test_slit_annular_plate_with_a_line_load_solves_end_to_end():
     along the force, and the outer corner more than the inner one (measured Π −1.5e-6 J,
     u_z 0.0065 at A and 0.0088 at B with width 64)."""
     from taichi_ndf.field import NeuralField
-    from taichi_ndf.solver import Solver
+    from taichi_ndf.solve.solver import Solver
 
     two_pi = 2 * math.pi
     scene = parse(

@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 import torch
 
-from taichi_ndf.checkpoint import load_checkpoint
+from taichi_ndf.app.simulation import simulate
 from taichi_ndf.field import NeuralField
 from taichi_ndf.io import OutputDir
-from taichi_ndf.pseudo_time import conditioning, frame_times
-from taichi_ndf.scene import Scene, load_scene
-from taichi_ndf.simulation import simulate
-from taichi_ndf.solver import Solver
+from taichi_ndf.minimise.checkpoint import load_checkpoint
+from taichi_ndf.problem.pseudo_time import conditioning, frame_times
+from taichi_ndf.scene.reader import Scene, load_scene
+from taichi_ndf.solve.solver import Solver
 
 SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 FABRICS = ("canvas", "cotton", "silk")

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
+from taichi_ndf.app.outputs import deformed_mesh
 from taichi_ndf.field import NeuralField
-from taichi_ndf.outputs import deformed_mesh
-from taichi_ndf.scene import load_scene, parse_scene
-from taichi_ndf.solver import Solver
+from taichi_ndf.scene.reader import load_scene, parse_scene
+from taichi_ndf.solve.solver import Solver
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from taichi_ndf.checkpoint import load_checkpoint, save_checkpoint
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.field.bspline import piece_coefficients
-from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.minimise.checkpoint import load_checkpoint, save_checkpoint
+from taichi_ndf.problem.optim import Adam, AdamConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 F64 = torch.float64
@@ -417,9 +417,9 @@ def test_basis_has_the_documented_size():
 def test_export_of_a_spline_checkpoint_at_any_resolution(tmp_path):
     import numpy as np
 
+    from taichi_ndf.app.outputs import deformed_mesh
     from taichi_ndf.cli import export
-    from taichi_ndf.outputs import deformed_mesh
-    from taichi_ndf.scene import load_scene
+    from taichi_ndf.scene.reader import load_scene
 
     scene_path = ROOT / "scenes" / "napkin.toml"  # a free pin: the field is also read at ξ₀
     scene = load_scene(scene_path)
@@ -448,9 +448,9 @@ def test_export_of_a_spline_checkpoint_at_any_resolution(tmp_path):
 def test_adam_solver_runs_unchanged_on_a_spline_field(tmp_path):
     import dataclasses
 
-    from taichi_ndf.callbacks import CheckpointWriter
-    from taichi_ndf.scene import load_scene
-    from taichi_ndf.solver import Solver
+    from taichi_ndf.minimise.callbacks import CheckpointWriter
+    from taichi_ndf.scene.reader import load_scene
+    from taichi_ndf.solve.solver import Solver
 
     scene = load_scene(ROOT / "scenes" / "napkin.toml")
     domain = scene.model.surface.domain

@@ -15,8 +15,8 @@ from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.geometry import Plane
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.objective import Objective
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.spline_solver import solve_spline
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.solve.spline_solver import solve_spline
 from taichi_ndf.validation import CASES_DIR, LINEARISATION, load_case, load_case_scene
 
 F64 = torch.float64

@@ -12,10 +12,10 @@ import pytest
 import torch
 
 from taichi_ndf.cli import export, sim
-from taichi_ndf.scene import load_scene
-from taichi_ndf.scene_schema import SceneError
-from taichi_ndf.spline_grid import SplinePlan, grid_spans
-from taichi_ndf.spline_solver import newton_config
+from taichi_ndf.problem.spline_grid import SplinePlan, grid_spans
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.scene.schema import SceneError
+from taichi_ndf.solve.spline_solver import newton_config
 
 RUNTIME = ["--precision", "f64"]
 

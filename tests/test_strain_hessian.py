@@ -8,9 +8,9 @@ import torch
 
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.geometry import Cylinder, Plane
-from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.objective import Objective, ShellEnergyTerm
-from taichi_ndf.quadrature import span_quadrature
+from taichi_ndf.problem.loads import Loads, PointLoad
+from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.shell.hessian import jet_steps, sample_hessians
 from taichi_ndf.shell.materials import LinearIsotropic, OrthotropicStVK, preset
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from taichi_ndf.cli import sweep
-from taichi_ndf.scene import load_scene
-from taichi_ndf.scene_overrides import apply_overrides, parse_assignment
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.scene.overrides import apply_overrides, parse_assignment
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.scene.schema import SceneError
 from taichi_ndf.sweep.jobs import JOBS, toml_value
 from taichi_ndf.sweep.naming import run_name, short_keys
 from taichi_ndf.sweep.plot import summary_plot

@@ -17,8 +17,8 @@ from taichi_ndf.boundary import (
 from taichi_ndf.boundary.fold import Fold
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Annulus, Plane
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.validation import CASES, SCENES_DIR, run_case
 
 F64 = torch.float64

@@ -14,11 +14,11 @@ import torch
 
 from taichi_ndf.cli.validate import main as validate_main
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads
 from taichi_ndf.objective import EndMomentTerm
-from taichi_ndf.sampling import sample_surface
-from taichi_ndf.scene import load_scene
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.sampling import sample_surface
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.scene.schema import SceneError
 from taichi_ndf.shell.energy import ShellEnergy, function_jets
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.validation import (

@@ -31,10 +31,10 @@ from taichi_ndf.io import read_mesh
 from taichi_ndf.io.grid import grid_mesh
 from taichi_ndf.io.output_dir import OutputDir, check_output_dir
 from taichi_ndf.io.run_lock import RunLock
+from taichi_ndf.problem.run_size import check_siren_size, check_spline_size
+from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.render import save_png
-from taichi_ndf.run_size import check_siren_size, check_spline_size
-from taichi_ndf.scene import SceneError, load_scene
-from taichi_ndf.spline_grid import SplinePlan
+from taichi_ndf.scene.reader import SceneError, load_scene
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +102,7 @@ def _bilevel_samples(args) -> tuple[int, int]:
 
 def _check_sizes(args, scene, model, itemsize: int) -> None:
     """The memory of the method's largest solve against the machine's, before any work
-    (`taichi_ndf.run_size`, the check ndf-sim makes); ValueError in one line beyond it."""
+    (`taichi_ndf.problem.run_size`, the check ndf-sim makes); ValueError in one line beyond it."""
     if args.method == "newton":
         config = _newton_config(args)
         plan = SplinePlan(config.model.grid(model), levels=config.levels,

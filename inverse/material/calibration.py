@@ -38,17 +38,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from inverse.material.observations import Observation
 from inverse.material.forward_model import forward_model
+from inverse.material.observations import Observation
 from inverse.material.spline_equilibrium import SplineModelConfig
 from inverse.material.unknowns import Unknown, parse_unknowns
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.geometry import Plane
-from taichi_ndf.loads import Loads, PointLoad
 from taichi_ndf.minimise.refinement import extrapolate_changes
-from taichi_ndf.model import ShellModel
-from taichi_ndf.scene import load_scene
+from taichi_ndf.problem.loads import Loads, PointLoad
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.validation.elastica import cantilever
 

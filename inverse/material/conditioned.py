@@ -6,9 +6,9 @@ that z (`ShellEnergy.evaluate(..., stiffness=...)`). Π is a sum over samples, s
 objective is the mean over z of Π(u(·, z); z), whose minimiser is the equilibrium u*(·, z) for
 every z in the box: after one training, x*(θ) is a cheap, smooth function of θ for the outer
 (misfit) problem. The training loop is built from the solver's pieces: the displacement
-operator (`taichi_ndf.operator`: jets, boundary conditions and their adjoint), the shell
-energy, Adam and the one L-BFGS (`taichi_ndf.minimisers`); it differs from
-`taichi_ndf.solver.Solver` in the conditioning inputs, the per-sample stiffness and the
+operator (`taichi_ndf.problem.operator`: jets, boundary conditions and their adjoint), the shell
+energy, Adam and the one L-BFGS (`taichi_ndf.minimise.minimisers`); it differs from
+`taichi_ndf.solve.solver.Solver` in the conditioning inputs, the per-sample stiffness and the
 per-z weights, so the loop is written here rather than as a hook in the solver.
 
 Point-load components can be conditioning inputs too (signed, so in linear coordinates: the
@@ -39,21 +39,21 @@ import torch
 from inverse.material.unknowns import Unknown, apply
 from taichi_ndf import jets
 from taichi_ndf.field import FieldConfig, NeuralField
-from taichi_ndf.loads import Loads
 from taichi_ndf.minimise.last_layer import last_layer_config, solve_last_layer
-from taichi_ndf.minimisers import lbfgs
-from taichi_ndf.model import ShellModel
+from taichi_ndf.minimise.minimisers import lbfgs
 from taichi_ndf.objective import Objective, ShellEnergyTerm
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.optim import Adam, AdamConfig
-from taichi_ndf.sampling import (
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.optim import Adam, AdamConfig
+from taichi_ndf.problem.sampling import (
     SurfaceSamples,
     sample_surface,
     sobol,
     stratified_uniform,
     unit_to_domain,
 )
-from taichi_ndf.scaling import characteristic_displacement
+from taichi_ndf.problem.scaling import characteristic_displacement
 from taichi_ndf.shell.energy import ShellEnergy
 
 log = logging.getLogger(__name__)

@@ -3,7 +3,7 @@ unknowns set to θ on one discretisation of the displacement field, and its sens
 outer coordinates z (ln θ for positive unknowns, the value for signed ones).
 
 `Equilibrium` is written once for every field type: the solves (from the reference state
-through the load steps on the one continuation loop, `taichi_ndf.continuation.solve_over`;
+through the load steps on the one continuation loop, `taichi_ndf.minimise.continuation.solve_over`;
 warm-started from the current solution plus the first-order prediction; from a given start;
 the first solution kept and reused), θ's loads and point forces on the samples, the
 sensitivity dP*/dz = −K⁻¹ ∂g/∂z column by column from the unknowns' term gradients
@@ -32,9 +32,9 @@ import torch
 
 from inverse.material.unknowns import Unknown, apply, term_gradients
 from taichi_ndf import jets
-from taichi_ndf.continuation import Stages, solve_over
-from taichi_ndf.model import ShellModel
+from taichi_ndf.minimise.continuation import Stages, solve_over
 from taichi_ndf.objective import Objective
+from taichi_ndf.problem.model import ShellModel
 
 # The pull-back of dΠ/du_jets (N, 6, 3) at the samples to the parameters, and the solve of
 # K dP = ∂g/∂z for the columns (one per unknown): (samples, u at them in the model's order,

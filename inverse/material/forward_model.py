@@ -10,7 +10,7 @@ from inverse.material.equilibrium import Equilibrium
 from inverse.material.implicit import ImplicitEquilibrium
 from inverse.material.spline_equilibrium import SplineEquilibrium
 from inverse.material.unknowns import Unknown
-from taichi_ndf.model import ShellModel
+from taichi_ndf.problem.model import ShellModel
 
 # The field specification's type (`FieldConfig`: fixed SIREN features; `SplineConfig`: a
 # grid) -> its equilibrium.

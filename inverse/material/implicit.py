@@ -43,8 +43,8 @@ from taichi_ndf.minimise.last_layer import (
 )
 from taichi_ndf.minimise.linearisation import damped_step, parameter_gradient
 from taichi_ndf.minimise.newton import NewtonConfig
-from taichi_ndf.model import ShellModel
-from taichi_ndf.sampling import SurfaceSamples, sobol, unit_to_domain, with_point_loads
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.sampling import SurfaceSamples, sobol, unit_to_domain, with_point_loads
 
 log = logging.getLogger(__name__)
 

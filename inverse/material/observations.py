@@ -9,7 +9,7 @@ import torch
 
 from taichi_ndf.io import read_mesh
 from taichi_ndf.io.grid import grid_mesh
-from taichi_ndf.model import ShellModel
+from taichi_ndf.problem.model import ShellModel
 
 
 @dataclass(frozen=True)

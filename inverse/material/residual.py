@@ -43,7 +43,7 @@ from inverse.material.identifiability import Identifiability, analyse
 from inverse.material.observations import Observation
 from inverse.material.shape_fit import FittedShape, fit_shape
 from inverse.material.unknowns import Unknown, residual_samples, term_gradients
-from taichi_ndf.operator import DisplacementOperator
+from taichi_ndf.problem.operator import DisplacementOperator
 
 log = logging.getLogger(__name__)
 

@@ -40,9 +40,9 @@ from taichi_ndf.minimise.linearisation import SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.minimise.refinement import held_unknowns
 from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
-from taichi_ndf.model import ShellModel
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.spline_grid import auto_span_length, spans_for
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.problem.spline_grid import auto_span_length, spans_for
 
 log = logging.getLogger(__name__)
 

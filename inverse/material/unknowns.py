@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from taichi_ndf.loads import Loads, PointLoad
-from taichi_ndf.model import ShellModel
-from taichi_ndf.sampling import SurfaceSamples, with_point_loads
+from taichi_ndf.problem.loads import Loads, PointLoad
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.materials import LinearIsotropic
 

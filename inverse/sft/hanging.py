@@ -29,8 +29,8 @@ import numpy as np
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import Handle
 from taichi_ndf.geometry.analytic import Plane
-from taichi_ndf.loads import Loads
-from taichi_ndf.model import ShellModel
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import ShellModel
 
 STANDARD_GRAVITY = 9.81  # m/s²
 

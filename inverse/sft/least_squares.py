@@ -38,7 +38,7 @@ import torch
 from inverse.sft.camera import Camera
 from inverse.sft.silhouette import bilinear_differentiable, silhouette_residual
 from taichi_ndf import jets
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 
 COMPONENTS = 3
 # Depth [m] below which projected points are clamped (a bad step must not divide by ~0).

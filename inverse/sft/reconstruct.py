@@ -55,11 +55,11 @@ from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import MeshSurface
-from taichi_ndf.loads import Loads
 from taichi_ndf.objective import Objective, ShellEnergyTerm
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.optim import Adam, AdamConfig
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.optim import Adam, AdamConfig
+from taichi_ndf.problem.sampling import sample_surface
 from taichi_ndf.shell.materials import preset
 
 log = logging.getLogger(__name__)

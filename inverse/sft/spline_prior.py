@@ -62,17 +62,17 @@ from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.geometry import MeshSurface
-from taichi_ndf.loads import Loads
 from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
 from taichi_ndf.minimise.linearisation import SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective, ShellEnergyTerm
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.sampling import SurfaceSamples, with_point_loads
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
+from taichi_ndf.problem.spline_grid import spans_for
 from taichi_ndf.shell.hessian import sample_hessians
 from taichi_ndf.shell.materials import preset
-from taichi_ndf.spline_grid import spans_for
 
 log = logging.getLogger(__name__)
 

@@ -184,7 +184,7 @@ def _grid_xi(domain) -> torch.Tensor:
 def _load_points(model) -> tuple[np.ndarray, dict]:
     """The loads of `model` as forces at reference points: the points x (N, 3) [m] and the
     forces (N, 3) [N] of each kind of load (name -> forces)."""
-    from taichi_ndf.line_loads import quadrature
+    from taichi_ndf.problem.line_loads import quadrature
 
     surface, loads = model.surface, model.loads
     domain = surface.domain

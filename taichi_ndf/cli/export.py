@@ -68,11 +68,11 @@ def main(argv: list[str] | None = None) -> int:
         if not 0.0 <= args.time <= 1.0:
             raise ValueError(f"--time must be in [0, 1], got {args.time}")
         start(args)
-        from taichi_ndf.checkpoint import load_checkpoint
+        from taichi_ndf.app.outputs import deformed_mesh, exports_on_template
+        from taichi_ndf.app.simulation import checkpoint_scene
         from taichi_ndf.io import write_obj, write_ply
         from taichi_ndf.io.memory import check_export_memory
-        from taichi_ndf.outputs import deformed_mesh, exports_on_template
-        from taichi_ndf.simulation import checkpoint_scene
+        from taichi_ndf.minimise.checkpoint import load_checkpoint
 
         checkpoint = load_checkpoint(args.checkpoint)
         scene = checkpoint_scene(args.checkpoint, checkpoint.extra)

@@ -66,19 +66,19 @@ def refined_scene(scene, levels: int):
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # Imported after parsing: --help and a bad option answer without loading torch or Taichi.
+    from taichi_ndf.app.outputs import exports_on_template
+    from taichi_ndf.app.simulation import RUN_FILES, SimulationError, simulate
     from taichi_ndf.discretise import of_scene
     from taichi_ndf.io import incomplete_path, staged_run
     from taichi_ndf.io.memory import check_export_memory
     from taichi_ndf.io.progress_log import PROGRESS_FILE, logged_progress
-    from taichi_ndf.outputs import exports_on_template
-    from taichi_ndf.scene_overrides import parse_assignment
-    from taichi_ndf.scene_schema import SceneError
-    from taichi_ndf.simulation import RUN_FILES, SimulationError, simulate
+    from taichi_ndf.scene.overrides import parse_assignment
+    from taichi_ndf.scene.schema import SceneError
 
     staging = incomplete_path(args.out)
     try:
-        from taichi_ndf.scene import load_scene
-        from taichi_ndf.scene_training import trains_the_field
+        from taichi_ndf.scene.reader import load_scene
+        from taichi_ndf.scene.training import trains_the_field
 
         scene_keys = dict(parse_assignment(text) for text in args.set)
         scene = load_scene(args.scene, material=args.material, field=args.field,

@@ -17,7 +17,7 @@ from taichi_ndf.cli.common import (
     start,
 )
 from taichi_ndf.io import OutputDir
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.scene.schema import SceneError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
 @interruptible("ndf-validate")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from taichi_ndf.callbacks import DivergenceError
+    from taichi_ndf.minimise.callbacks import DivergenceError
     from taichi_ndf.validation import CASES, load_case, run_case, write_report
 
     unknown = [c for c in args.cases if c not in CASES and not c.endswith(".toml")]

@@ -22,7 +22,7 @@ import math
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 
 FLOOR_RATIO = 1e-3
 

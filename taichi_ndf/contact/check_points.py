@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from taichi_ndf.contact.barrier import ContactTerm
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 
 log = logging.getLogger(__name__)
 

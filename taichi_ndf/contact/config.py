@@ -8,8 +8,8 @@ Rules (docs/contact.md):
   √A.
 - barrier stiffness κ [N/m³]: by default the one that carries the scene's load per area q at a
   gap of ĝ/2 when the whole load rests on the obstacle: κ |b'(ĝ/2)| = q with |b'(ĝ/2)| =
-  (ln 2 + 1/2) ĝ, q = `taichi_ndf.scaling.load_per_area` (|ρ_A g + body force| + |pressure| +
-  Σ|P_k| / A). A scene without loads
+  (ln 2 + 1/2) ĝ, q = `taichi_ndf.problem.scaling.load_per_area` (|ρ_A g + body force| + |pressure|
+  + Σ|P_k| / A). A scene without loads
   (driven by prescribed motions only) must give κ.
 - friction: the Coulomb coefficient μ ≥ 0 of each obstacle (0: frictionless); its smoothing
   distance ε = FRICTION_SMOOTHING × ĝ (`taichi_ndf.contact.friction`).
@@ -24,7 +24,7 @@ import torch
 
 from taichi_ndf.boundary import Handle, PinnedPoint
 from taichi_ndf.contact.barrier import ContactTerm, barrier_slope_at_half
-from taichi_ndf.scaling import load_per_area
+from taichi_ndf.problem.scaling import load_per_area
 
 ACTIVATION_FRACTION = 5e-3
 MARGIN_FRACTION = 0.1

@@ -25,7 +25,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.contact.barrier import ContactTerm, barrier
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 
 
 def smoothed_friction(y: torch.Tensor, smoothing: float

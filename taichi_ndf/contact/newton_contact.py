@@ -36,7 +36,7 @@ from taichi_ndf.minimise.assembly import Assembly, displacement_at, linearised, 
 from taichi_ndf.minimise.linearisation import SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonSolution, minimise
 from taichi_ndf.objective import Objective
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 
 log = logging.getLogger(__name__)
 

@@ -11,9 +11,9 @@ from taichi_ndf.discretise.protocol import Discretisation, Solution, SolveRefuse
 from taichi_ndf.discretise.siren import SirenDiscretisation
 from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.field import FieldConfig
-from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective
-from taichi_ndf.spline_grid import SplinePlan
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.spline_grid import SplinePlan
 
 __all__ = ["DISCRETISATIONS", "Discretisation", "SirenDiscretisation", "Solution",
            "SolveRefused", "SplineDiscretisation", "discretisation", "of_scene"]

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
-from taichi_ndf.training import SolverConfig
+from taichi_ndf.problem.training import SolverConfig
 
 # Probe displacements [m] by probe name, each (x, y, z).
 Probes = dict[str, list[float]]
@@ -39,8 +39,8 @@ class Solution:
     field: the final field (its parameters at the last load factor; a spline: the finest grid).
     energy: Π [J] at the last load factor. iterations: Adam iterations, or projected-Newton
     iterations over all levels and load steps. wall_time: [s] of the solve. history: the
-    monitor records (Adam) or the Newton iterations (`taichi_ndf.state`). probes: displacement
-    [m] by name at the last load factor. field_document: result.json's resolved field.
+    monitor records (Adam) or the Newton iterations (`taichi_ndf.minimise.state`). probes:
+    displacement [m] by name at the last load factor. field_document: result.json's resolved field.
     document: result.json's parts only this discretisation has (Adam: "backoffs"; spline:
     "levels", "load_steps", "refinement"), in their order. refinement: the Richardson study
     over the grids (None: one grid, or no grids). contact: the contact check points
@@ -82,7 +82,7 @@ class Discretisation(Protocol):
 
     def check_size(self, config: SolverConfig, *, itemsize: int = 4) -> None:
         """ValueError (one line with the estimate) where solving it with `config` needs more
-        memory than the machine has (`taichi_ndf.run_size`); itemsize: bytes per value."""
+        memory than the machine has (`taichi_ndf.problem.run_size`); itemsize: bytes per value."""
 
     def refined(self, levels: int) -> Discretisation:
         """The same on `levels` successively refined grids (ValueError where none exist)."""
@@ -105,7 +105,7 @@ class Discretisation(Protocol):
               on_load_step: OnLoadStep | None = None,
               report: Callable[[str], None] | None = None) -> Solution:
         """Minimise over the load steps from the started state; `callbacks`
-        (`taichi_ndf.callbacks`) see every iteration; `report` takes one line per finished
+        (`taichi_ndf.minimise.callbacks`) see every iteration; `report` takes one line per finished
         stage worth a line (a spline's grid levels) where `config.progress`.
         DivergenceError from the divergence guard."""
 

@@ -8,15 +8,15 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
-from taichi_ndf.checkpoint import read_checkpoint
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution
 from taichi_ndf.field import FieldConfig, NeuralField
-from taichi_ndf.model import ShellModel
+from taichi_ndf.minimise.checkpoint import read_checkpoint
 from taichi_ndf.objective import Objective
-from taichi_ndf.output_scale import field_for_run
-from taichi_ndf.run_size import check_siren_size, contact_check_points, siren_samples
-from taichi_ndf.solver import Solver
-from taichi_ndf.training import SolverConfig
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.run_size import check_siren_size, contact_check_points, siren_samples
+from taichi_ndf.problem.training import SolverConfig
+from taichi_ndf.solve.output_scale import field_for_run
+from taichi_ndf.solve.solver import Solver
 
 
 class SirenDiscretisation:

@@ -15,14 +15,14 @@ from taichi_ndf import jets
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
-from taichi_ndf.model import ShellModel
+from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.run_size import check_spline_size, contact_check_points
-from taichi_ndf.spline_grid import SplinePlan
-from taichi_ndf.spline_solver import SplineRun, solve_spline
-from taichi_ndf.state import State
-from taichi_ndf.training import SolverConfig
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.run_size import check_spline_size, contact_check_points
+from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.problem.training import SolverConfig
+from taichi_ndf.solve.spline_solver import SplineRun, solve_spline
 
 log = logging.getLogger(__name__)
 

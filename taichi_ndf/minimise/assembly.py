@@ -37,8 +37,8 @@ from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
 from taichi_ndf.objective.couplings import Couplings
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, used_entries
 
 # Points per batch of the Hessian products (bounds the (chunk, 3k, 3k) temporaries).

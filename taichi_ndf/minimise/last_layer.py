@@ -38,8 +38,8 @@ from taichi_ndf.minimise.newton import (
     minimise,
     point_blocks,
 )
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import Potential
 
 log = logging.getLogger(__name__)

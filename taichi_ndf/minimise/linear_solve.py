@@ -49,8 +49,8 @@ from taichi_ndf.minimise.multigrid import (
     conjugate_gradients,
     spline_prolongations,
 )
+from taichi_ndf.problem.training import LINEAR_SOLVERS
 from taichi_ndf.shell.hessian import COMPONENTS
-from taichi_ndf.training import LINEAR_SOLVERS
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,7 @@ import torch
 from taichi_ndf.minimise.assembly import Assembly
 from taichi_ndf.minimise.linear_solve import LinearSolver, damped_solve
 from taichi_ndf.objective.couplings import Couplings
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
 
 # Least damping of the dense solve, relative to the mean diagonal of the Jacobi-scaled K:

@@ -45,7 +45,7 @@ import torch
 
 from taichi_ndf import progress
 from taichi_ndf.objective.couplings import Couplings
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import (
     PROJECTIONS,
     Potential,

@@ -53,19 +53,19 @@ import torch
 
 from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
-from taichi_ndf.continuation import Stages, Step, solve_over
 from taichi_ndf.minimise.assembly import (
     Assembly,
     displacement_at,
     gauge_unknowns,
     local_basis_at,
 )
+from taichi_ndf.minimise.continuation import Stages, Step, solve_over
 from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig
 from taichi_ndf.minimise.linearisation import SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration, minimise
 from taichi_ndf.objective import Objective
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS
 
 log = logging.getLogger(__name__)
@@ -249,7 +249,7 @@ def held_unknowns(grid, boundary, basis) -> np.ndarray | None:
 
 
 class GridLevels:
-    """The stages of a coarse-to-fine projected-Newton solve (`taichi_ndf.continuation`):
+    """The stages of a coarse-to-fine projected-Newton solve (`taichi_ndf.minimise.continuation`):
     each level's grid (the field's, then its dyadic refinements), quadrature, assembly and
     linear solver; a load step's start (the previous step's solution, the level's field at
     the first; on a finer level the coarser solution at the same load factor, prolonged
@@ -360,7 +360,7 @@ def solve_levels(field_, boundary: BoundaryConditions,
                  on_load_step: Callable[[float], None] | None = None
                  ) -> list[list[LevelSolution]]:
     """Solve on `levels` grids, the field's and its dyadic refinements (module docstring),
-    by the continuation loop (`taichi_ndf.continuation.solve_over`) over `GridLevels`.
+    by the continuation loop (`taichi_ndf.minimise.continuation.solve_over`) over `GridLevels`.
 
     field_: a `SplineField` (its coefficients are the level-0 starting point; not changed).
     samples_for(field): the quadrature points of a field's grid (point forces unscaled).

@@ -9,7 +9,7 @@ import torch
 
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.objective.terms import ShellEnergyTerm
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult
 from taichi_ndf.shell.hessian import sample_hessians
 

@@ -8,9 +8,9 @@ import math
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.loads import Loads
 from taichi_ndf.objective.couplings import Couplings
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
 from taichi_ndf.shell.strain_hessian import strain_energy_hessians
 
@@ -18,8 +18,8 @@ from taichi_ndf.shell.strain_hessian import strain_energy_hessians
 class ShellEnergyTerm:
     """Strain energy and the work of the distributed loads and point forces at a load factor
     (physics.md §4; `ShellEnergy`): the loads and the samples' point forces (carried unscaled,
-    `taichi_ndf.sampling`) are scaled by a number, or each sample's work by its own factor (N,)
-    for a pseudo-time field. The one place the load factor multiplies the loads.
+    `taichi_ndf.problem.sampling`) are scaled by a number, or each sample's work by its own factor
+    (N,) for a pseudo-time field. The one place the load factor multiplies the loads.
 
     stiffness: optional per-sample stiffness (N, K) of a material-conditioned field (fixed
     samples) or None (the material's values)."""

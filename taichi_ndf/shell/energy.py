@@ -18,9 +18,9 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.geometry import ReferenceSurface
-from taichi_ndf.loads import Loads
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.sampling import SurfaceSamples, sample_surface
 from taichi_ndf.runtime import ti
-from taichi_ndf.sampling import SurfaceSamples, sample_surface
 from taichi_ndf.shell.kinematics import (
     bending_strain,
     deformed_geometry,
@@ -117,7 +117,7 @@ class ShellEnergy:
         if not isinstance(material, Material):
             raise TypeError(f"material must be a taichi_ndf material, got {type(material)}")
         if not isinstance(loads, Loads):
-            raise TypeError(f"loads must be a taichi_ndf.loads.Loads, got {type(loads)}")
+            raise TypeError(f"loads must be a taichi_ndf.problem.loads.Loads, got {type(loads)}")
         self.material = material
         self.loads = loads
 

@@ -27,7 +27,7 @@ from collections.abc import Callable
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult
 
 COMPONENTS = 3

@@ -87,7 +87,7 @@ class Material(ABC):
     @abstractmethod
     def small_strain_stiffness(self) -> tuple[float, float]:
         """Representative (membrane D [N/m], bending B [N·m]) at small strain (the dimensional
-        scales of `taichi_ndf.scaling`)."""
+        scales of `taichi_ndf.problem.scaling`)."""
 
     @abstractmethod
     def law_parameters(self) -> list[float]:

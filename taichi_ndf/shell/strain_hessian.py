@@ -33,8 +33,8 @@ import functools
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.runtime import ti
-from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import law_inputs
 from taichi_ndf.shell.kinematics import jet_channel, mat2, reference_geometry, strains, vec3
 from taichi_ndf.shell.law_terms import LAW_TERMS, strain_energy_density

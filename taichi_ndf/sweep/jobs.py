@@ -3,7 +3,7 @@
 Every run is a subprocess of an existing tool (``python -m MODULE ... --out RUN``):
 - ``scene``: ``ndf-sim BASE`` (`taichi_ndf.cli.sim`). Keys named like one of its options
   (`SIM_OPTIONS`: material, field, seed, iters, ...) are passed as that option; every other
-  key is a scene key, passed as ``--set KEY=VALUE`` (`taichi_ndf.scene_overrides`). Outputs:
+  key is a scene key, passed as ``--set KEY=VALUE`` (`taichi_ndf.scene.overrides`). Outputs:
   RUN/result.json's Π, probe displacements, iterations, convergence and seed.
 - ``fit_material``: ``ndf-fit-material`` (`inverse.cli.fit_material`); keys are its options.
   Outputs: RUN/estimate.json's values and standard errors, misfit, iterations.
@@ -23,7 +23,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.scene.schema import SceneError
 
 # Option name -> accepted Python types of its value (TOML); bool options are flags.
 _RUNTIME = {"precision": (str,), "seed": (int,), "arch": (str,), "threads": (int,)}

@@ -35,7 +35,7 @@ import itertools
 from dataclasses import dataclass
 from pathlib import Path
 
-from taichi_ndf.scene_schema import SceneError, Table, read_toml
+from taichi_ndf.scene.schema import SceneError, Table, read_toml
 from taichi_ndf.sweep.jobs import JOBS, Job
 from taichi_ndf.sweep.points import Point, points_of
 
@@ -160,7 +160,7 @@ def _grid(table: dict, where: str) -> list[dict]:
 
 def _check_scenes(study: Study) -> None:
     """Parse the base scene with every point's keys (the checks of ndf-sim, before any run)."""
-    from taichi_ndf.scene import load_scene
+    from taichi_ndf.scene.reader import load_scene
 
     for point in study.points:
         keys = {**study.options, **point.parameters}

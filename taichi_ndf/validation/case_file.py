@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from taichi_ndf.scene_schema import SceneError, Table, checked, read_toml
+from taichi_ndf.scene.schema import SceneError, Table, checked, read_toml
 from taichi_ndf.validation.catalogue import (
     CASES_DIR,
     SCENES_DIR,

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # annotations only: the catalogue (and ndf-validate --help) stays light
-    from taichi_ndf.model import ShellModel
+    from taichi_ndf.problem.model import ShellModel
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "validation" / "scenes"
 CASES_DIR = SCENES_DIR.parent / "cases"

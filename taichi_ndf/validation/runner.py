@@ -14,12 +14,12 @@ import torch
 
 from taichi_ndf import jets, runtime
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
-from taichi_ndf.callbacks import DivergenceGuard
 from taichi_ndf.discretise import Discretisation, discretisation
-from taichi_ndf.model import ShellModel
+from taichi_ndf.minimise.callbacks import DivergenceGuard
 from taichi_ndf.objective import EndMomentTerm, Objective
-from taichi_ndf.scene import Scene, load_scene
-from taichi_ndf.solver import SolverConfig
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.scene.reader import Scene, load_scene
+from taichi_ndf.solve.solver import SolverConfig
 from taichi_ndf.validation.catalogue import LINEARISATION, SCENES_DIR, Case, Readings
 
 log = logging.getLogger(__name__)

@@ -14,7 +14,7 @@ and, for a field with a grid hierarchy, through successively refined grids (coar
 - `after_step(step, result)`, `after_level(level, results)`, `before_end()`: the path's
   bookkeeping (its `State`, its log lines), run before the callbacks see the state.
 
-The callbacks (`taichi_ndf.callbacks`, called with `subject`, the object they see as
+The callbacks (`taichi_ndf.minimise.callbacks`, called with `subject`, the object they see as
 `solver`) are called here for both paths: on_start before the first step, on_load_step(solver,
 load factor) after each step, on_level(solver) after each grid level (only where the field has
 grid levels: `levels` given), on_end after the last. The per-iteration hooks (on_step,
@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from taichi_ndf.callbacks import call
+from taichi_ndf.minimise.callbacks import call
 
 __all__ = ["Hook", "Stages", "Step", "resume_point", "solve_over"]
 
@@ -99,7 +99,7 @@ def solve_over(stages: Stages, load_steps: Sequence[float], *, levels: int | Non
 
 
 def resume_point(state, load_steps: int) -> tuple[int, int]:
-    """(first level, first load step) of a run from `state` (`taichi_ndf.state.State`) over
+    """(first level, first load step) of a run from `state` (`taichi_ndf.minimise.state.State`) over
     `load_steps` load steps: an Adam state goes on at its load step (a finished one re-runs its
     last); a Newton state with finished levels re-solves its last level at the last load step
     (and refines from there), a fresh one starts at (0, 0)."""

@@ -9,7 +9,7 @@ new scene-reachable term is its class (`objective/terms.py`) and one reader here
 from __future__ import annotations
 
 from taichi_ndf.objective.terms import FoundationTerm
-from taichi_ndf.scene_schema import Table, checked
+from taichi_ndf.scene.schema import Table, checked
 
 
 def _foundation(t: Table) -> FoundationTerm:

@@ -17,12 +17,12 @@ from taichi_ndf import jets
 from taichi_ndf.io import grid_mesh, write_obj, write_ply
 from taichi_ndf.io.output_dir import OutputDir
 from taichi_ndf.io.run_files import QUANTITIES
-from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import ShellEnergyTerm
-from taichi_ndf.pseudo_time import conditioning
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.pseudo_time import conditioning
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.render import save_png, write_video
 from taichi_ndf.render.figure import Obstacle, render_figure
-from taichi_ndf.sampling import SurfaceSamples
 from taichi_ndf.shell.kinematics import strains
 
 log = logging.getLogger(__name__)

@@ -6,11 +6,11 @@ from __future__ import annotations
 import math
 
 from taichi_ndf.field import FieldConfig, SplineConfig
-from taichi_ndf.model import ShellModel
-from taichi_ndf.pseudo_time import DEFAULT_FRAMES
-from taichi_ndf.scaling import SCALE_ESTIMATES, characteristic_displacement
-from taichi_ndf.scene_schema import SceneError, Table
-from taichi_ndf.spline_grid import SplinePlan, auto_span_length, spans_for
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.pseudo_time import DEFAULT_FRAMES
+from taichi_ndf.problem.scaling import SCALE_ESTIMATES, characteristic_displacement
+from taichi_ndf.problem.spline_grid import SplinePlan, auto_span_length, spans_for
+from taichi_ndf.scene.schema import SceneError, Table
 
 SIREN_KEYS = ("width", "hidden_layers", "omega0", "output_scale")
 SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
@@ -22,7 +22,7 @@ def field_config(t: Table, model: ShellModel) -> tuple[FieldConfig | SplinePlan,
     output-scale estimate the SIREN names (one of `scaling.SCALE_ESTIMATES`; None: a number
     given, or a spline field). An estimated scale holds the dimensional estimate
     (`scaling.characteristic_displacement`, no solve); those that solve are made when a run
-    starts (`taichi_ndf.output_scale.field_for_run`)."""
+    starts (`taichi_ndf.solve.output_scale.field_for_run`)."""
     kind = t.string("type", "siren", choices=FIELD_TYPES)
     foreign = SPLINE_KEYS if kind == "siren" else SIREN_KEYS
     for key in foreign:

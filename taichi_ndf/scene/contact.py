@@ -14,7 +14,7 @@ from taichi_ndf.contact import (
     Sphere,
 )
 from taichi_ndf.contact.config import DEFAULT_CHECK_RESOLUTION
-from taichi_ndf.scene_schema import SceneError, Table, checked
+from taichi_ndf.scene.schema import SceneError, Table, checked
 
 OBSTACLES = ("plane", "sphere", "box", "capsule", "cylinder", "mesh")
 ZERO = (0.0, 0.0, 0.0)

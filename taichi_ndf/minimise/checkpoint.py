@@ -17,12 +17,12 @@ from pathlib import Path
 import torch
 
 from taichi_ndf.field import FieldConfig, NeuralField, SplineConfig, SplineField
-from taichi_ndf.optim import Adam
+from taichi_ndf.problem.optim import Adam
 
 log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
-KIND = "taichi_ndf.checkpoint"
+KIND = "taichi_ndf.minimise.checkpoint"
 # Field types by checkpoint tag: (field class, its config class). A checkpoint without a
 # "field_type" (written before spline fields existed) holds a SIREN field.
 FIELD_TYPES = {"siren": (NeuralField, FieldConfig), "spline": (SplineField, SplineConfig)}

@@ -4,7 +4,7 @@ Each of the n1 × n2 knot spans of the field's domain gets q1 × q2 tensor-produ
 Gauss–Legendre points (default q = p + 1 per direction for degree p) with parameter-area
 weights h1 h2 w_a w_b, so Σ w f integrates every polynomial of degree ≤ 2q − 1 in each
 coordinate exactly over each span, and the weights add up to the area of the domain. The energy
-multiplies by √a itself, as with the Monte-Carlo samples of `sampling.py`, which stay the
+multiplies by √a itself, as with the Monte-Carlo samples of `problem/sampling.py`, which stay the
 choice for Adam.
 
 Masked domains (`ParameterDomain.inside`): the points outside the mask are dropped and the
@@ -23,9 +23,9 @@ import torch
 
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.geometry import ReferenceSurface
-from taichi_ndf.loads import Loads
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.runtime import current
-from taichi_ndf.sampling import SurfaceSamples, with_point_loads
 
 
 def gauss_legendre(points: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -15,7 +15,7 @@ import copy
 import re
 import tomllib
 
-from taichi_ndf.scene_schema import SceneError
+from taichi_ndf.scene.schema import SceneError
 
 _SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
 

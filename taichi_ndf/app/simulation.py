@@ -10,16 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from taichi_ndf import progress
-from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
-from taichi_ndf.callbacks import CheckpointWriter, DivergenceGuard
-from taichi_ndf.checkpoint import CheckpointError, read_checkpoint
-from taichi_ndf.contact.config import contact_summary, write_obstacles
-from taichi_ndf.discretise import SolveRefused, of_scene
-from taichi_ndf.export.usd import require_usd, write_run_usd
-from taichi_ndf.extras import MissingExtra
-from taichi_ndf.io import OutputDir, read_mesh
-from taichi_ndf.io.run_files import read_run, up_direction
-from taichi_ndf.outputs import (
+from taichi_ndf.app.outputs import (
     DeformedMesh,
     deformed_mesh,
     surface_points,
@@ -32,10 +23,19 @@ from taichi_ndf.outputs import (
     write_trajectory_mesh,
     write_trajectory_video,
 )
-from taichi_ndf.pseudo_time import frame_times
-from taichi_ndf.scene import Scene, parse_scene
-from taichi_ndf.scene_schema import SceneError
-from taichi_ndf.solver import DivergenceError, SolverConfig
+from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
+from taichi_ndf.contact.config import contact_summary, write_obstacles
+from taichi_ndf.discretise import SolveRefused, of_scene
+from taichi_ndf.export.usd import require_usd, write_run_usd
+from taichi_ndf.extras import MissingExtra
+from taichi_ndf.io import OutputDir, read_mesh
+from taichi_ndf.io.run_files import read_run, up_direction
+from taichi_ndf.minimise.callbacks import CheckpointWriter, DivergenceGuard
+from taichi_ndf.minimise.checkpoint import CheckpointError, read_checkpoint
+from taichi_ndf.problem.pseudo_time import frame_times
+from taichi_ndf.scene.reader import Scene, parse_scene
+from taichi_ndf.scene.schema import SceneError
+from taichi_ndf.solve.solver import DivergenceError, SolverConfig
 
 log = logging.getLogger(__name__)
 

@@ -25,24 +25,26 @@ from taichi_ndf.boundary import (
 )
 from taichi_ndf.field import FieldConfig
 from taichi_ndf.geometry import Annulus, Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
-from taichi_ndf.line_loads import LineLoad, edge_path
-from taichi_ndf.loads import Loads, PointLoad
-from taichi_ndf.model import Probe, ShellModel
-from taichi_ndf.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
-from taichi_ndf.render.figure import VIEWS
-from taichi_ndf.run_size import (
+from taichi_ndf.problem.line_loads import LineLoad, edge_path
+from taichi_ndf.problem.loads import Loads, PointLoad
+from taichi_ndf.problem.model import Probe, ShellModel
+from taichi_ndf.problem.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
+from taichi_ndf.problem.run_size import (
     check_siren_size,
     check_spline_size,
     contact_check_points,
     siren_samples,
 )
-from taichi_ndf.scene_contact import parse_contact
-from taichi_ndf.scene_field import field_config, with_field_type
-from taichi_ndf.scene_overrides import apply_overrides
-from taichi_ndf.scene_schema import SceneError, Table, read_toml
-from taichi_ndf.scene_schema import checked as _check
-from taichi_ndf.scene_terms import parse_terms
-from taichi_ndf.scene_training import training
+from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.problem.training import SolverConfig
+from taichi_ndf.render.figure import VIEWS
+from taichi_ndf.scene.contact import parse_contact
+from taichi_ndf.scene.field import field_config, with_field_type
+from taichi_ndf.scene.overrides import apply_overrides
+from taichi_ndf.scene.schema import SceneError, Table, read_toml
+from taichi_ndf.scene.schema import checked as _check
+from taichi_ndf.scene.terms import parse_terms
+from taichi_ndf.scene.training import training
 from taichi_ndf.shell.materials import (
     PRESETS,
     ClydeFabric,
@@ -50,8 +52,6 @@ from taichi_ndf.shell.materials import (
     OrthotropicStVK,
     preset,
 )
-from taichi_ndf.spline_grid import SplinePlan
-from taichi_ndf.training import SolverConfig
 
 GEOMETRIES = ("plane", "cylinder", "cone", "roof", "hemisphere", "annulus", "mesh")
 CONSTRAINTS = ("clamped_edge", "hinged_edge", "pinned_point", "handle", "interior_line",
@@ -93,7 +93,7 @@ def load_scene(path: str | Path, *, material: str | None = None,
     material: a preset name that replaces the scene's [material] table.
     field: "siren" or "spline" to solve the scene with that field (`with_field_type`).
     overrides: scene keys set after those two, {"loads.gravity": [0, 0, -5], ...}
-    (`taichi_ndf.scene_overrides`; `ndf-sim --set`).
+    (`taichi_ndf.scene.overrides`; `ndf-sim --set`).
     """
     path = Path(path)
     document = read_toml(path, "scene file")

@@ -12,19 +12,19 @@ combination of them — first-order steps alone crawl on stiff shells.
 
 At every monitor record a Π that climbed an order of magnitude above anything recorded at
 the load factor sends the field and Adam's moments back to the best state and halves the
-learning rate (`taichi_ndf.backoff`).
+learning rate (`taichi_ndf.minimise.backoff`).
 
 With `pseudo_time` the field takes the load factor t as an extra input and is trained over all
-t at once (`taichi_ndf.pseudo_time`): every area sample draws its own t in
+t at once (`taichi_ndf.problem.pseudo_time`): every area sample draws its own t in
 [pseudo_time_start, λ] for the current load step λ, so several load steps act as a curriculum
 that widens the range of t. The monitor reports Π at t = λ.
 
-Roles: the displacement operator (`taichi_ndf.operator`) gives the jets and chains gradients
+Roles: the displacement operator (`taichi_ndf.problem.operator`) gives the jets and chains gradients
 back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
-(`taichi_ndf.minimisers`, `taichi_ndf.minimise.last_layer`) change the state
-(`taichi_ndf.state`); this module draws the sample sets and solves one load step, which the
-continuation loop (`taichi_ndf.continuation`) calls for each load step in turn. Checkpoints
-and the divergence guard are callbacks the application installs (`taichi_ndf.callbacks`);
+(`taichi_ndf.minimise.minimisers`, `taichi_ndf.minimise.last_layer`) change the state
+(`taichi_ndf.minimise.state`); this module draws the sample sets and solves one load step, which the
+continuation loop (`taichi_ndf.minimise.continuation`) calls for each load step in turn. Checkpoints
+and the divergence guard are callbacks the application installs (`taichi_ndf.minimise.callbacks`);
 progress goes to `taichi_ndf.progress` (a stage per load step).
 """
 
@@ -37,21 +37,21 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf import progress
-from taichi_ndf.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_back_off
-from taichi_ndf.callbacks import DivergenceError, call
 from taichi_ndf.contact.check_points import ContactPoints
-from taichi_ndf.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.field import NeuralField
+from taichi_ndf.minimise.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_back_off
+from taichi_ndf.minimise.callbacks import DivergenceError, call
+from taichi_ndf.minimise.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.minimise.last_layer import last_layer_config, solve_last_layer
-from taichi_ndf.minimisers import adam_iteration, lbfgs
-from taichi_ndf.model import ShellModel
+from taichi_ndf.minimise.minimisers import adam_iteration, lbfgs
+from taichi_ndf.minimise.state import MonitorRecord, State
 from taichi_ndf.objective import Objective
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.pseudo_time import TIME_RANGE, conditioning, samples_over_time
-from taichi_ndf.sampling import sample_surface
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.pseudo_time import TIME_RANGE, conditioning, samples_over_time
+from taichi_ndf.problem.sampling import sample_surface
+from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.shell.energy import EnergyResult
-from taichi_ndf.state import MonitorRecord, State
-from taichi_ndf.training import SolverConfig
 
 __all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverConfig"]
 
@@ -73,7 +73,7 @@ class SolveResult:
     history: list[MonitorRecord]
     probes: dict[str, list[float]]
     newton_steps: int = 0
-    backoffs: int = 0  # learning-rate backoffs (`taichi_ndf.backoff`)
+    backoffs: int = 0  # learning-rate backoffs (`taichi_ndf.minimise.backoff`)
 
 
 class Solver:
@@ -205,11 +205,11 @@ class Solver:
         u = self.operator.displacement(xi, t=load_factor, conditioning=cond)
         return {p.name: [float(v) for v in u[k]] for k, p in enumerate(self.model.probes)}
 
-    # -- continuation over the load steps (`taichi_ndf.continuation`) --------------------------
+    # -- continuation over the load steps (`taichi_ndf.minimise.continuation`) ---------------------
     def run(self, *, callbacks=(), on_load_step=None) -> SolveResult:
-        """Minimise Π for every load step from the state's; `callbacks` (`taichi_ndf.callbacks`:
-        progress, checkpoints, the divergence guard) see every iteration, and
-        `on_load_step(load_factor)` is called after each step."""
+        """Minimise Π for every load step from the state's; `callbacks`
+        (`taichi_ndf.minimise.callbacks`: progress, checkpoints, the divergence guard) see every
+        iteration, and `on_load_step(load_factor)` is called after each step."""
         cfg, state = self.config, self.state
         _, start_step = resume_point(state, len(cfg.load_steps))  # a finished run goes on
         self._t0 = time.perf_counter()
@@ -356,7 +356,7 @@ class Solver:
     def _monitor_energy(self, lam: float) -> float:
         return self.energy_and_gradient(self.monitor_samples(), lam, grad=False).total
 
-    # -- learning-rate backoff (`taichi_ndf.backoff`) ---------------------------------------------
+    # -- learning-rate backoff (`taichi_ndf.minimise.backoff`) -------------------------------------
     def _back_off(self, lam: float, energy: float) -> float:
         """The field and Adam's moments back to the best state at this load factor, the
         learning rate halved; returns Π of the restored field on the monitor samples."""

@@ -1,7 +1,7 @@
 """The training specification of a quasistatic solve: a plain frozen configuration.
 
-Scene files produce it (`taichi_ndf.scene`) without importing the solver; the solver
-(`taichi_ndf.solver`) consumes it.
+Scene files produce it (`taichi_ndf.scene.reader`) without importing the solver; the solver
+(`taichi_ndf.solve.solver`) consumes it.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from taichi_ndf import checks
-from taichi_ndf.optim import AdamConfig
+from taichi_ndf.problem.optim import AdamConfig
 
 METHODS = ("adam", "newton")
 LINEAR_SOLVERS = ("auto", "direct", "multigrid")  # projected Newton's (`linear_solve`)

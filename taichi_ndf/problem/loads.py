@@ -5,7 +5,7 @@ the material's areal density ρ_A, a uniform body force b, and a uniform pressur
 normal a₃ of the *reference* surface (a dead load: its direction does not follow the
 deformation; positive p pushes along a₃, i.e. outwards on the closed analytic surfaces).
 Point loads P_k [N] act at surface coordinates ξ_k; line loads q [N/m] along curves in ξ
-(`taichi_ndf.line_loads`). All loads are dead loads and conservative:
+(`taichi_ndf.problem.line_loads`). All loads are dead loads and conservative:
 Π_ext = −∫ f·u √a dξ − Σ_k P_k·u(ξ_k) − Σ_lines ∫ q·u dℓ.
 """
 
@@ -18,7 +18,7 @@ import torch
 
 from taichi_ndf.checks import finite_vector
 from taichi_ndf.geometry import ParameterDomain
-from taichi_ndf.line_loads import LineLoad
+from taichi_ndf.problem.line_loads import LineLoad
 
 Vector3 = tuple[float, float, float]
 

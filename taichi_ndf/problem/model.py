@@ -15,8 +15,8 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.geometry import ReferenceSurface
-from taichi_ndf.loads import Loads
-from taichi_ndf.operator import DisplacementOperator
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.operator import DisplacementOperator
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ integral in joules; the energy multiplies by √a itself, so the weights never c
 (uniform in parameter space, weighted by √a once). Each point load adds one sample of weight 0
 that carries its force, unscaled: the objective multiplies it by the load factor
 (`taichi_ndf.objective.ShellEnergyTerm`); a line load adds its Gauss nodes the same way
-(`taichi_ndf.line_loads`), before the point-load samples.
+(`taichi_ndf.problem.line_loads`), before the point-load samples.
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import torch
 
-from taichi_ndf import line_loads
 from taichi_ndf.geometry import ReferenceSurface
-from taichi_ndf.loads import Loads
+from taichi_ndf.problem import line_loads
+from taichi_ndf.problem.loads import Loads
 from taichi_ndf.runtime import current
 
 

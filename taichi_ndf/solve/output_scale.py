@@ -30,15 +30,19 @@ from taichi_ndf.minimise.assembly import Assembly, displacement_at, local_basis_
 from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.minimise.newton import NewtonConfig, hessian_blocks
 from taichi_ndf.minimise.refinement import held_unknowns
-from taichi_ndf.model import ShellModel
 from taichi_ndf.objective import Objective
-from taichi_ndf.operator import DisplacementOperator
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.scaling import AUTO_ESTIMATE, characteristic_displacement, prescribed_displacement
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.problem.scaling import (
+    AUTO_ESTIMATE,
+    characteristic_displacement,
+    prescribed_displacement,
+)
+from taichi_ndf.problem.spline_grid import SplinePlan, grid_spans
+from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.shell.hessian import flat_blocks, jet_steps, project_psd
-from taichi_ndf.spline_grid import SplinePlan, grid_spans
-from taichi_ndf.spline_solver import solve_spline
-from taichi_ndf.training import SolverConfig
+from taichi_ndf.solve.spline_solver import solve_spline
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 import torch
 
-from taichi_ndf.optim import Adam
+from taichi_ndf.problem.optim import Adam
 
 log = logging.getLogger(__name__)
 

@@ -4,7 +4,7 @@ prescribed displacement, and the dimensional estimate of the displacement
 names a scene gives the output-scale estimates of a SIREN field (`SCALE_ESTIMATES`).
 
 The estimates that solve (a linear solve, a coarse nonlinear equilibrium) and the choice
-among them at run start are in `taichi_ndf.output_scale` (the solve layer); the contact
+among them at run start are in `taichi_ndf.solve.output_scale` (the solve layer); the contact
 barrier's default stiffness takes `load_per_area` (`contact.config`).
 """
 
@@ -14,16 +14,16 @@ import numpy as np
 import torch
 
 from taichi_ndf.boundary import ClampedEdge, Handle, HingedEdge, RimRotation
-from taichi_ndf.line_loads import quadrature
-from taichi_ndf.model import ShellModel
+from taichi_ndf.problem.line_loads import quadrature
+from taichi_ndf.problem.model import ShellModel
 
 # output_scale estimates a scene may name: "equilibrium" and "linear" solve at run start
-# (`taichi_ndf.output_scale`), each falling back to the cheaper ones after it; "dimensional"
+# (`taichi_ndf.solve.output_scale`), each falling back to the cheaper ones after it; "dimensional"
 # is `characteristic_displacement`. "auto" is AUTO_ESTIMATE: the equilibrium one, the
 # displacement of a coarse projected-Newton solve (docs/scenes.md, "Field output scale":
 # measured against the dimensional guess, which is off by up to 260× on a cantilever). A
 # longer Adam step (lr × scale) than the dimensional one made flag and napkin_handles diverge;
-# the learning-rate backoff (`taichi_ndf.backoff`) answers that.
+# the learning-rate backoff (`taichi_ndf.minimise.backoff`) answers that.
 SCALE_ESTIMATES = ("auto", "equilibrium", "linear", "dimensional")
 AUTO_ESTIMATE = "equilibrium"
 

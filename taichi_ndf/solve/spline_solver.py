@@ -1,8 +1,8 @@
 """A model solved by projected Newton over a spline field, coarse to fine (`method = "newton"`).
 
-The spline path's driver (the Adam path's is `solver.py`), on the one continuation loop
-(`taichi_ndf.continuation`) with the stages `minimise.refinement.GridLevels`: level 0 from the
-undeformed state through the load steps, each finer grid (exact dyadic refinement) at each load
+The spline path's driver (the Adam path's is `solve/solver.py`), on the one continuation loop
+(`taichi_ndf.minimise.continuation`) with the stages `minimise.refinement.GridLevels`: level 0 from
+the undeformed state through the load steps, each finer grid (exact dyadic refinement) at each load
 step from the coarser solution prolonged. Reports per level Π, every probe and the seconds
 taken, and per Newton iteration Π, the decrement, the step length and the time split; with
 several levels the Richardson-extrapolated Π and probes and their error bars (`richardson`: an
@@ -24,19 +24,19 @@ from typing import Any
 
 import torch
 
-from taichi_ndf.callbacks import call
 from taichi_ndf.contact.newton_contact import NewtonContact
-from taichi_ndf.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.field import SplineField
+from taichi_ndf.minimise.callbacks import call
+from taichi_ndf.minimise.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson
-from taichi_ndf.model import ShellModel
+from taichi_ndf.minimise.state import LevelSummary, NewtonRecord, State
 from taichi_ndf.objective import Objective
-from taichi_ndf.quadrature import span_quadrature
-from taichi_ndf.spline_grid import SplinePlan
-from taichi_ndf.state import LevelSummary, NewtonRecord, State
-from taichi_ndf.training import SolverConfig
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.problem.training import SolverConfig
 
 __all__ = ["LevelSummary", "NewtonRecord", "SplineRun", "newton_config", "solve_spline"]
 
@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 class SplineRun:
     """A projected-Newton run so far: its `State` (method "newton": the field of the last
     finished level, the levels' summaries, every Newton iteration) and settings — what the
-    callbacks (`taichi_ndf.callbacks`) see as `solver` on this path."""
+    callbacks (`taichi_ndf.minimise.callbacks`) see as `solver` on this path."""
 
     state: State
     config: SolverConfig
@@ -122,7 +122,7 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     at the last load step, its levels and history); the remaining levels are solved at the
     last load factor from it. With obstacles (`model.contact`) each load step is solved by
     `NewtonContact.solve` (which adds the contact terms to the objective).
-    callbacks (`taichi_ndf.callbacks`, each hook optional, called with the `SplineRun`):
+    callbacks (`taichi_ndf.minimise.callbacks`, each hook optional, called with the `SplineRun`):
     on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_load_step(run,
     load factor) and on_level(run) after each level (its field: that level's grid), on_end.
     on_level(run): after each level too, after the callbacks.

@@ -1,16 +1,16 @@
 """The state of a minimisation: everything that changes while Π is minimised.
 
 One `State` for both solve paths, tagged by its `method`:
-- "adam" (a SIREN, `taichi_ndf.solver`): the field's parameters (the field itself), the
+- "adam" (a SIREN, `taichi_ndf.solve.solver`): the field's parameters (the field itself), the
   optimiser's moments, the sampling random-number generator, the iteration and load-step
   counters, the monitor history (`MonitorRecord`) and the best monitored state of the
-  learning-rate backoff (`taichi_ndf.backoff`);
-- "newton" (a spline by projected Newton, `taichi_ndf.spline_solver`): the field of the last
+  learning-rate backoff (`taichi_ndf.minimise.backoff`);
+- "newton" (a spline by projected Newton, `taichi_ndf.solve.spline_solver`): the field of the last
   finished grid level, the per-iteration history (`NewtonRecord`) and the finished levels'
   summaries (`LevelSummary`); no optimiser, no generator.
 The model and the objective are immutable and live elsewhere, so a state saved with `save`
 and read back with `restore` continues a run where it stopped (checkpoint file I/O, with the
-field type and the method as tags: `taichi_ndf.checkpoint`).
+field type and the method as tags: `taichi_ndf.minimise.checkpoint`).
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import torch
 
-from taichi_ndf.backoff import BestState
-from taichi_ndf.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from taichi_ndf.minimise.backoff import BestState
+from taichi_ndf.minimise.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from taichi_ndf.minimise.newton import NewtonIteration
-from taichi_ndf.optim import Adam, AdamConfig
+from taichi_ndf.problem.optim import Adam, AdamConfig
 
 log = logging.getLogger(__name__)
 

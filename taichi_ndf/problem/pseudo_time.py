@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from taichi_ndf.sampling import SurfaceSamples, stratified_uniform
+from taichi_ndf.problem.sampling import SurfaceSamples, stratified_uniform
 
 # Range of the pseudo-time input: the network sees 2t − 1 ∈ [−1, 1].
 TIME_RANGE = (0.0, 1.0)

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from taichi_ndf.optim import AdamConfig
-from taichi_ndf.scene_schema import SceneError, Table
-from taichi_ndf.scene_schema import checked as _check
-from taichi_ndf.training import LINEAR_SOLVERS, NEWTON_MAX_ITERATIONS, SolverConfig
+from taichi_ndf.problem.optim import AdamConfig
+from taichi_ndf.problem.training import LINEAR_SOLVERS, NEWTON_MAX_ITERATIONS, SolverConfig
+from taichi_ndf.scene.schema import SceneError, Table
+from taichi_ndf.scene.schema import checked as _check
 
 
 def training(t: Table, spline: bool) -> tuple[SolverConfig, SolverConfig]:

@@ -1,9 +1,9 @@
 """What the application layer hooks into a solve: checkpoint writing and the divergence
 guard. The solvers themselves do no I/O (their progress goes to `taichi_ndf.progress`).
 
-The same callbacks serve both solve paths: the Adam driver (`taichi_ndf.solver.Solver`) and
-the projected-Newton driver (`taichi_ndf.spline_solver.solve_spline`, whose `SplineRun` is the
-`solver` here). Either has `.field`, `.state` (`taichi_ndf.state.State`) and `.config`.
+The same callbacks serve both solve paths: the Adam driver (`taichi_ndf.solve.solver.Solver`) and
+the projected-Newton driver (`taichi_ndf.solve.spline_solver.solve_spline`, whose `SplineRun` is the
+`solver` here). Either has `.field`, `.state` (`taichi_ndf.minimise.state.State`) and `.config`.
 A callback has any of `on_start(solver)`, `on_step(solver, energy, grad_norm)` (before each
 Adam step), `on_iteration(solver, record)` (after each Adam iteration; record: its
 `MonitorRecord` or None), `on_record(solver, energy, grad_norm, load_factor)` (Π before the
@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from taichi_ndf.backoff import climbed
+from taichi_ndf.minimise.backoff import climbed
 
 BLOW_UP_FACTOR = 1e3
 
@@ -37,7 +37,7 @@ class DivergenceError(RuntimeError):
 class DivergenceGuard:
     """Refuses non-finite Π or gradients and a Π far above anything seen at a load factor;
     then resets the field to its last monitored good state and raises `DivergenceError`.
-    A callback: installed by the application (`taichi_ndf.simulation`, the validation
+    A callback: installed by the application (`taichi_ndf.app.simulation`, the validation
     runner); a solve without it does not stop on divergence.
 
     checkpoint_path: named in the error message (where the last checkpoint lies), or None."""

@@ -14,11 +14,11 @@ step so long that Π climbs an order of magnitude above anything recorded is not
 minimiser should keep. Gentler rules (wait for a second climbed record; back off at once only
 at two orders of magnitude) were measured and let Adam come back from a climb into a worse
 state (docs/scenes.md, "Learning-rate backoff"). A non-finite Π or gradient between records
-is the divergence guard's (`taichi_ndf.callbacks`), which stops the run.
+is the divergence guard's (`taichi_ndf.minimise.callbacks`), which stops the run.
 
 The best state is part of the solver's `State` (a checkpoint keeps it), so a resumed run backs
 off exactly as an uninterrupted one. `should_back_off`, `back_to_best` and `keep_if_best` act
-on that `State` and the field it trains (`taichi_ndf.solver` calls them at its records).
+on that `State` and the field it trains (`taichi_ndf.solve.solver` calls them at its records).
 """
 
 from __future__ import annotations

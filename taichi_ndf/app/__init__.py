@@ -1,0 +1,1 @@
+"""A scene run with its outputs: the application layer's library part."""

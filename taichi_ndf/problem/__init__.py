@@ -1,0 +1,1 @@
+"""The problem and its plain specifications: model, loads, operator, scales."""

@@ -1,0 +1,1 @@
+"""Scene reading: TOML into a plain specification, solving nothing."""
