@@ -80,6 +80,23 @@ def test_bilevel_refuses_a_spline_field(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_bilevel_refuses_a_scene_with_further_energy_terms(tmp_path, capsys):
+    """The conditioned field's energy is the shell's alone: a scene whose [[terms]] add a
+    foundation is refused in one line rather than fitted without it."""
+    text = Path(SCENE).read_text()
+    probes = text.index("[[probes]]")
+    scene = tmp_path / "strip_foundation.toml"
+    scene.write_text(text[:probes] + '[[terms]]\ntype = "foundation"\nstiffness = 1.0e3\n\n'
+                     + text[probes:])
+    obs = _mesh(tmp_path / "o.obj", np.eye(3))
+    code = main([str(scene), "--observed", obs, "--point-cloud", "--estimate", "bending",
+                 "--method", "bilevel", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "[[terms]]" in err and "FoundationTerm" in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "out").exists()
+
+
 def test_negative_newton_steps_and_band(tmp_path, capsys):
     obs = _mesh(tmp_path / "o.obj", np.eye(3))
     for option, value in (("--newton", "-1"), ("--band", "0")):

@@ -178,6 +178,11 @@ def run(args, runtime) -> dict:
     if args.spans is not None and min(args.spans) < 1:
         raise InputError(f"--spans must be two integers >= 1, got {args.spans}")
     field = _conditioned(args, scene) if args.method == "bilevel" else None
+    if field is not None and scene.model.terms:  # its per-sample energy is the shell's alone
+        raise InputError("--method bilevel trains its conditioned field on the shell energy "
+                         "alone and would leave out the scene's [[terms]] "
+                         f"({', '.join(type(t).__name__ for t in scene.model.terms)}): use "
+                         "--method newton or implicit")
     try:
         _check_sizes(args, scene, model, runtime.dtype.itemsize)
     except ValueError as err:
