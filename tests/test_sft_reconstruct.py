@@ -10,9 +10,9 @@ import torch
 
 from inverse.cli import sft as sft_cli
 from inverse.sft.deformations import Pose, cylindrical_bend
+from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.inputs import Template
 from inverse.sft.metrics import relative_error
-from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.silhouette import silhouette_distance, silhouette_residual
 from inverse.sft.surface import surface_positions

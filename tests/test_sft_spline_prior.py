@@ -12,11 +12,11 @@ from test_sft_reconstruct import bent_pair, exact_tracks, small_sequence
 from inverse.cli import sft as sft_cli
 from inverse.sft.camera import Camera
 from inverse.sft.deformations import CornerLift, Wave
+from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.inputs import mesh_edges
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.metrics import relative_error
 from inverse.sft.silhouette import silhouette_distance
-from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.synth import default_camera, flat_sheet
 from taichi_ndf import jets

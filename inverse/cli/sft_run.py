@@ -19,9 +19,9 @@ from inverse.cli.sft_material import check_held_corners, material_config
 from inverse.sft.baseline import mesh_edges, reconstruct_baseline
 from inverse.sft.crop import cropped_to_sheet
 from inverse.sft.flow import DenseFlow
+from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.inputs import Camera, InputError
 from inverse.sft.material_from_video import estimate_material
-from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.tracking import track_sequence

@@ -40,14 +40,11 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from inverse.sft.correspondences import FrameCorrespondences
-from inverse.sft.inputs import Camera, Template, mean_edge_length
+from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.sequential import (
     DataWeights,
     FittedFrame,
     FrameData,
-    ReconstructionResult,
-    reconstruct_frames,
 )
 from inverse.sft.settings import ReconstructionConfig
 from taichi_ndf import jets

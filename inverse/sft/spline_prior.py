@@ -39,22 +39,17 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from inverse.sft.correspondences import FrameCorrespondences
-from inverse.sft.flow import DenseFlow
-from inverse.sft.inputs import Camera, Template, mean_edge_length
+from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData
 from inverse.sft.sequential import (
     DataWeights,
     FittedFrame,
     FrameData,
-    ReconstructionResult,
-    reconstruct_frames,
 )
 from inverse.sft.settings import SplinePriorConfig
 from taichi_ndf import jets
