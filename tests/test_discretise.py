@@ -20,6 +20,9 @@ from taichi_ndf.discretise import (
     of_scene,
 )
 from taichi_ndf.discretise.protocol import Solution
+from taichi_ndf.field import FieldConfig, NeuralField
+from taichi_ndf.problem.field_types import FIELD_TYPES, of_field, of_spec
+from taichi_ndf.scene.field import READERS
 from taichi_ndf.scene.reader import load_scene
 
 
@@ -42,7 +45,19 @@ def test_every_discretisation_implements_the_whole_protocol(kind):
     for name in _protocol_methods():  # the same keyword arguments as the protocol
         assert (inspect.signature(getattr(kind, name)).parameters.keys()
                 == inspect.signature(getattr(Discretisation, name)).parameters.keys()), name
-    assert kind.name in ("siren", "spline")
+    assert kind.name in FIELD_TYPES and FIELD_TYPES[kind.name] is kind.field_type
+
+
+def test_one_registry_of_field_types_for_every_layer():
+    """Each field type of `FIELD_TYPES` has its [field] reader, its discretisation (keyed on
+    its specification class) and a checkpoint tag that round-trips its field class."""
+    assert set(READERS) == set(FIELD_TYPES)
+    assert {kind.field_type.name for kind in DISCRETISATIONS.values()} == set(FIELD_TYPES)
+    for spec, kind in DISCRETISATIONS.items():
+        assert kind.field_type.spec is spec
+    assert of_field(NeuralField(FieldConfig(width=8, hidden_layers=1))).name == "siren"
+    with pytest.raises(TypeError, match="no field type of a dict"):
+        of_spec({})
 
 
 def test_the_factory_is_keyed_on_the_field_specification(scenes):

@@ -74,6 +74,9 @@ class Discretisation(Protocol):
     Built cheaply (nothing solved, no runtime needed) so that tools can ask sizes and settings
     before a run starts; `start` then makes the field, `solve` minimises over it."""
 
+    # Its field type (`taichi_ndf.problem.field_types`: the field and specification classes,
+    # the checkpoint tag, the scene's default method and keys, the size check).
+    field_type: ClassVar[Any]
     name: ClassVar[str]  # the field type as scenes and --field name it: "siren", "spline"
     spec: Any  # the field specification (`FieldConfig`, `SplinePlan`)
 

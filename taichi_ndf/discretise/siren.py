@@ -12,8 +12,9 @@ from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.minimise.checkpoint import read_checkpoint
 from taichi_ndf.objective import Objective
+from taichi_ndf.problem.field_types import SIREN, FieldType
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.run_size import check_siren_size, contact_check_points, siren_samples
+from taichi_ndf.problem.run_size import contact_check_points
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.output_scale import field_for_run
 from taichi_ndf.solve.solver import Solver
@@ -26,7 +27,8 @@ class SirenDiscretisation:
     scene's name of an output scale estimated at run start (`Scene.output_scale_estimate`;
     None: a number given)."""
 
-    name: ClassVar[str] = "siren"
+    field_type: ClassVar[FieldType] = SIREN
+    name: ClassVar[str] = SIREN.name
 
     def __init__(self, spec: FieldConfig, model: ShellModel, *,
                  objective: Objective | None = None, estimate: str | None = None):
@@ -45,8 +47,7 @@ class SirenDiscretisation:
         return config.newton_iterations > 0
 
     def check_size(self, config: SolverConfig, *, itemsize: int = 4) -> None:
-        check_siren_size(self.spec, siren_samples(config), itemsize,
-                         **contact_check_points(self.model.contact))
+        SIREN.check_size(self.spec, config, itemsize, **contact_check_points(self.model.contact))
 
     def refined(self, levels: int) -> SirenDiscretisation:
         raise ValueError("--refine needs a spline field ([field] type = \"spline\" or "

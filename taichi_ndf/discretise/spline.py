@@ -17,9 +17,10 @@ from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective
+from taichi_ndf.problem.field_types import SPLINE, FieldType
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.run_size import check_spline_size, contact_check_points
+from taichi_ndf.problem.run_size import contact_check_points
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import SplineRun, solve_spline
@@ -33,7 +34,8 @@ class SplineDiscretisation:
     objective: what is minimised (None: Π of the model); estimate: unused (a spline's
     coefficients carry any scale)."""
 
-    name: ClassVar[str] = "spline"
+    field_type: ClassVar[FieldType] = SPLINE
+    name: ClassVar[str] = SPLINE.name
 
     def __init__(self, spec: SplinePlan, model: ShellModel, *,
                  objective: Objective | None = None, estimate: str | None = None):
@@ -49,7 +51,7 @@ class SplineDiscretisation:
     def check_size(self, config: SolverConfig, *, itemsize: int = 4) -> None:
         """The finest grid's Gauss points (f32 runs keep the Hessian work in f64: counted
         the same)."""
-        check_spline_size(self.spec, **contact_check_points(self.model.contact))
+        SPLINE.check_size(self.spec, config, itemsize, **contact_check_points(self.model.contact))
 
     def refined(self, levels: int) -> SplineDiscretisation:
         if levels < 1:
