@@ -115,3 +115,30 @@ def test_a_solution_has_defaults_for_the_parts_one_field_type_lacks():
                         probes={}, field_document={})
     assert solution.document == {} and solution.refinement is None
     assert solution.contact is None and solution.convergence == {}
+
+
+def test_a_solver_can_be_written_against_the_protocol(scenes):
+    """The displacement jets of the current parameters at the evaluation points are the
+    linearisation's at the current parameters (a SIREN: no change of its output layer; a
+    spline: its coefficients), before and after a solve."""
+    import torch
+
+    for scene in scenes:
+        d = of_scene(scene)
+        config = scene.quick_solver if d.name == "siren" else scene.solver
+        d.start(config, seed=0)
+        started = None
+        for solved in (False, True):
+            if solved:
+                d.solve(config)
+            samples = d.evaluation_points()
+            u = d.displacement(samples.xi, 1.0)
+            assert u.shape == (len(samples.xi), 6, 3)
+            if solved:  # the solution's parameters, not those started from
+                assert not torch.equal(u, started)
+            started = u
+            linear = d.linearisation(samples, 1.0)
+            current = (torch.zeros(3, scene.field.width + 1, dtype=u.dtype)
+                       if d.name == "siren" else d.field.coefficients)
+            torch.testing.assert_close(linear.displacement(current), u, rtol=1e-10,
+                                       atol=1e-12)
