@@ -11,6 +11,7 @@ import inspect
 import pytest
 from test_cli import SMALL_NAPKIN, write_scene
 
+from taichi_ndf.cli import sim, validate
 from taichi_ndf.discretise import (
     DISCRETISATIONS,
     Discretisation,
@@ -142,3 +143,11 @@ def test_a_solver_can_be_written_against_the_protocol(scenes):
                        if d.name == "siren" else d.field.coefficients)
             torch.testing.assert_close(linear.displacement(current), u, rtol=1e-10,
                                        atol=1e-12)
+
+
+@pytest.mark.parametrize("tool", [sim, validate], ids=["ndf-sim", "ndf-validate"])
+def test_the_tools_offer_every_field_type(tool):
+    """`--field` lists its choices literally (so that --help imports neither torch nor
+    Taichi): they must be the registry's."""
+    (action,) = [a for a in tool.build_parser()._actions if "--field" in a.option_strings]
+    assert tuple(action.choices) == tuple(FIELD_TYPES)
