@@ -11,6 +11,7 @@ import inspect
 import pytest
 from test_cli import SMALL_NAPKIN, write_scene
 
+from taichi_ndf.cli import sim, validate
 from taichi_ndf.discretise import (
     DISCRETISATIONS,
     Discretisation,
@@ -20,6 +21,9 @@ from taichi_ndf.discretise import (
     of_scene,
 )
 from taichi_ndf.discretise.protocol import Solution
+from taichi_ndf.field import FieldConfig, NeuralField
+from taichi_ndf.problem.field_types import FIELD_TYPES, of_field, of_spec
+from taichi_ndf.scene.field import READERS
 from taichi_ndf.scene.reader import load_scene
 
 
@@ -42,7 +46,19 @@ def test_every_discretisation_implements_the_whole_protocol(kind):
     for name in _protocol_methods():  # the same keyword arguments as the protocol
         assert (inspect.signature(getattr(kind, name)).parameters.keys()
                 == inspect.signature(getattr(Discretisation, name)).parameters.keys()), name
-    assert kind.name in ("siren", "spline")
+    assert kind.name in FIELD_TYPES and FIELD_TYPES[kind.name] is kind.field_type
+
+
+def test_one_registry_of_field_types_for_every_layer():
+    """Each field type of `FIELD_TYPES` has its [field] reader, its discretisation (keyed on
+    its specification class) and a checkpoint tag that round-trips its field class."""
+    assert set(READERS) == set(FIELD_TYPES)
+    assert {kind.field_type.name for kind in DISCRETISATIONS.values()} == set(FIELD_TYPES)
+    for spec, kind in DISCRETISATIONS.items():
+        assert kind.field_type.spec is spec
+    assert of_field(NeuralField(FieldConfig(width=8, hidden_layers=1))).name == "siren"
+    with pytest.raises(TypeError, match="no field type of a dict"):
+        of_spec({})
 
 
 def test_the_factory_is_keyed_on_the_field_specification(scenes):
@@ -100,3 +116,38 @@ def test_a_solution_has_defaults_for_the_parts_one_field_type_lacks():
                         probes={}, field_document={})
     assert solution.document == {} and solution.refinement is None
     assert solution.contact is None and solution.convergence == {}
+
+
+def test_a_solver_can_be_written_against_the_protocol(scenes):
+    """The displacement jets of the current parameters at the evaluation points are the
+    linearisation's at the current parameters (a SIREN: no change of its output layer; a
+    spline: its coefficients), before and after a solve."""
+    import torch
+
+    for scene in scenes:
+        d = of_scene(scene)
+        config = scene.quick_solver if d.name == "siren" else scene.solver
+        d.start(config, seed=0)
+        started = None
+        for solved in (False, True):
+            if solved:
+                d.solve(config)
+            samples = d.evaluation_points()
+            u = d.displacement(samples.xi, 1.0)
+            assert u.shape == (len(samples.xi), 6, 3)
+            if solved:  # the solution's parameters, not those started from
+                assert not torch.equal(u, started)
+            started = u
+            linear = d.linearisation(samples, 1.0)
+            current = (torch.zeros(3, scene.field.width + 1, dtype=u.dtype)
+                       if d.name == "siren" else d.field.coefficients)
+            torch.testing.assert_close(linear.displacement(current), u, rtol=1e-10,
+                                       atol=1e-12)
+
+
+@pytest.mark.parametrize("tool", [sim, validate], ids=["ndf-sim", "ndf-validate"])
+def test_the_tools_offer_every_field_type(tool):
+    """`--field` lists its choices literally (so that --help imports neither torch nor
+    Taichi): they must be the registry's."""
+    (action,) = [a for a in tool.build_parser()._actions if "--field" in a.option_strings]
+    assert tuple(action.choices) == tuple(FIELD_TYPES)

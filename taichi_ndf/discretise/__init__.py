@@ -1,7 +1,8 @@
 """Discretisations of the displacement field (`Discretisation`): one object per field type
-that the tools solve, size, resume and report through. `discretisation` is the one place
-that tells field types apart: a third field type (adaptive grids, several patches) is one
-class here and one entry in DISCRETISATIONS."""
+that the tools solve, size, resume and report through. `discretisation` picks the class by
+the field type of the specification (`problem.field_types.FIELD_TYPES`, which each class
+names as its `field_type`): a third field type (adaptive grids, several patches) is one class
+here and one entry in DISCRETISATIONS."""
 
 from __future__ import annotations
 
@@ -10,17 +11,15 @@ from typing import Any
 from taichi_ndf.discretise.protocol import Discretisation, Solution, SolveRefused
 from taichi_ndf.discretise.siren import SirenDiscretisation
 from taichi_ndf.discretise.spline import SplineDiscretisation
-from taichi_ndf.field import FieldConfig
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.spline_grid import SplinePlan
 
 __all__ = ["DISCRETISATIONS", "Discretisation", "SirenDiscretisation", "Solution",
            "SolveRefused", "SplineDiscretisation", "discretisation", "of_scene"]
 
-# The field specification's type -> its discretisation.
-DISCRETISATIONS: dict[type, type] = {FieldConfig: SirenDiscretisation,
-                                     SplinePlan: SplineDiscretisation}
+# The field specification's class -> its discretisation (one per field type).
+DISCRETISATIONS: dict[type, type] = {kind.field_type.spec: kind for kind in (
+    SirenDiscretisation, SplineDiscretisation)}
 
 
 def discretisation(spec: Any, model: ShellModel, *, objective: Objective | None = None,

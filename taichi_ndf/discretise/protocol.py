@@ -19,6 +19,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
+import torch
+
+from taichi_ndf.minimise.newton import Linearisation
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.problem.training import SolverConfig
 
 # Probe displacements [m] by probe name, each (x, y, z).
@@ -74,6 +78,9 @@ class Discretisation(Protocol):
     Built cheaply (nothing solved, no runtime needed) so that tools can ask sizes and settings
     before a run starts; `start` then makes the field, `solve` minimises over it."""
 
+    # Its field type (`taichi_ndf.problem.field_types`: the field and specification classes,
+    # the checkpoint tag, the scene's default method and keys, the size check).
+    field_type: ClassVar[Any]
     name: ClassVar[str]  # the field type as scenes and --field name it: "siren", "spline"
     spec: Any  # the field specification (`FieldConfig`, `SplinePlan`)
 
@@ -117,3 +124,21 @@ class Discretisation(Protocol):
 
     def energy_at(self, load_factor: float) -> float:
         """Π [J] of the solved field at a load factor (a pseudo-time field's path)."""
+
+    # What a solver written against the protocol minimises over (after `start`): the fixed
+    # points where its Newton evaluates Π, the displacement jets of the current parameters,
+    # and their linearisation about them.
+    def evaluation_points(self) -> SurfaceSamples:
+        """The fixed points of its Newton solve: a SIREN's last-layer Newton samples (its Adam
+        iterations draw theirs afresh), a spline's Gauss points per knot span of its grid."""
+
+    def displacement(self, xi: torch.Tensor, load_factor: float) -> torch.Tensor:
+        """Displacement jets (N, 6, 3) [m] at ξ (N, 2) of the current parameters (those
+        started from, after `solve` the solution's) at a load factor."""
+
+    def linearisation(self, samples: SurfaceSamples, load_factor: float) -> Linearisation:
+        """U(P) = U₀ + J P at `samples` about the current parameters
+        (`taichi_ndf.minimise.newton.Linearisation`): a SIREN's output layer
+        (`DenseLinearisation`, P the change of (W_out | b_out), (3, width + 1), from the
+        current one), a spline's coefficients (`SplineLinearisation`, P the coefficients
+        (n, 3), the boundary's held unknowns fixed)."""

@@ -8,12 +8,18 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
+import torch
+
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.minimise.checkpoint import read_checkpoint
+from taichi_ndf.minimise.last_layer import output_linearisation
+from taichi_ndf.minimise.linearisation import DenseLinearisation
 from taichi_ndf.objective import Objective
+from taichi_ndf.problem.field_types import SIREN, FieldType
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.run_size import check_siren_size, contact_check_points, siren_samples
+from taichi_ndf.problem.run_size import contact_check_points
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.output_scale import field_for_run
 from taichi_ndf.solve.solver import Solver
@@ -26,7 +32,8 @@ class SirenDiscretisation:
     scene's name of an output scale estimated at run start (`Scene.output_scale_estimate`;
     None: a number given)."""
 
-    name: ClassVar[str] = "siren"
+    field_type: ClassVar[FieldType] = SIREN
+    name: ClassVar[str] = SIREN.name
 
     def __init__(self, spec: FieldConfig, model: ShellModel, *,
                  objective: Objective | None = None, estimate: str | None = None):
@@ -45,8 +52,7 @@ class SirenDiscretisation:
         return config.newton_iterations > 0
 
     def check_size(self, config: SolverConfig, *, itemsize: int = 4) -> None:
-        check_siren_size(self.spec, siren_samples(config), itemsize,
-                         **contact_check_points(self.model.contact))
+        SIREN.check_size(self.spec, config, itemsize, **contact_check_points(self.model.contact))
 
     def refined(self, levels: int) -> SirenDiscretisation:
         raise ValueError("--refine needs a spline field ([field] type = \"spline\" or "
@@ -121,3 +127,20 @@ class SirenDiscretisation:
         """Π on the fixed monitor samples (with a pseudo-time field: its state at that t)."""
         run = self.solver
         return run.energy_and_gradient(run.monitor_samples(), load_factor, grad=False).total
+
+    def evaluation_points(self) -> SurfaceSamples:
+        return self.solver.newton_samples()
+
+    def displacement(self, xi: torch.Tensor, load_factor: float) -> torch.Tensor:
+        self._no_pseudo_time()
+        return self.solver.operator.jets(xi, t=load_factor)
+
+    def linearisation(self, samples: SurfaceSamples, load_factor: float
+                      ) -> DenseLinearisation:
+        self._no_pseudo_time()
+        return output_linearisation(self.solver.operator, samples, load_factor)
+
+    def _no_pseudo_time(self) -> None:
+        if self.spec.pseudo_time:
+            raise ValueError("a pseudo-time field's jets take its time input: use its "
+                             "Solver (energy_and_gradient)")

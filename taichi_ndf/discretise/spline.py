@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
@@ -14,12 +15,18 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.field import SplineField
-from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.minimise.assembly import Assembly, displacement_at, local_basis_at
+from taichi_ndf.minimise.linear_solve import LinearSolver
+from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.refinement import held_unknowns
 from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective
+from taichi_ndf.problem.field_types import SPLINE, FieldType
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.run_size import check_spline_size, contact_check_points
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.problem.run_size import contact_check_points
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import SplineRun, solve_spline
@@ -33,7 +40,8 @@ class SplineDiscretisation:
     objective: what is minimised (None: Π of the model); estimate: unused (a spline's
     coefficients carry any scale)."""
 
-    name: ClassVar[str] = "spline"
+    field_type: ClassVar[FieldType] = SPLINE
+    name: ClassVar[str] = SPLINE.name
 
     def __init__(self, spec: SplinePlan, model: ShellModel, *,
                  objective: Objective | None = None, estimate: str | None = None):
@@ -49,7 +57,7 @@ class SplineDiscretisation:
     def check_size(self, config: SolverConfig, *, itemsize: int = 4) -> None:
         """The finest grid's Gauss points (f32 runs keep the Hessian work in f64: counted
         the same)."""
-        check_spline_size(self.spec, **contact_check_points(self.model.contact))
+        SPLINE.check_size(self.spec, config, itemsize, **contact_check_points(self.model.contact))
 
     def refined(self, levels: int) -> SplineDiscretisation:
         if levels < 1:
@@ -157,3 +165,37 @@ class SplineDiscretisation:
     def energy_at(self, load_factor: float) -> float:
         raise ValueError("a spline field has no pseudo-time path: its Π per load step is in "
                          "the solution's document (\"load_steps\")")
+
+    @property
+    def field(self) -> SplineField:
+        """The current grid with its coefficients: the solution's after `solve`, else the
+        checkpoint's or the plan's first grid (zero coefficients) that `start` made."""
+        if self.run is not None:
+            return self.run.field
+        if self.state is not None:
+            return self.state.field
+        return SplineField(self.spec.config)
+
+    def evaluation_points(self) -> SurfaceSamples:
+        field = self.field
+        return span_quadrature(self.model.surface, field.config, self.model.loads,
+                               points=self.spec.quadrature_points,
+                               dtype=field.coefficients.dtype)
+
+    def displacement(self, xi: torch.Tensor, load_factor: float) -> torch.Tensor:
+        field = self.field
+        operator = DisplacementOperator(field, self.model.boundary)
+        return displacement_at(operator, xi, field.coefficients, load_factor)
+
+    def linearisation(self, samples: SurfaceSamples, load_factor: float
+                      ) -> SplineLinearisation:
+        """Assembled as a grid level of `solve_spline` is (`minimise.refinement.GridLevels`),
+        with the default linear solver of its grid; length: the domain's √area [m]."""
+        field, boundary = self.field, self.model.boundary
+        operator = DisplacementOperator(field, boundary)
+        basis = local_basis_at(operator, samples.xi)
+        assembly = Assembly(samples, basis, field.coefficients.shape[0]).at_load(
+            operator, load_factor)
+        return SplineLinearisation(assembly, fixed=held_unknowns(field, boundary, basis),
+                                   solver=LinearSolver.for_grid(field.config),
+                                   length=math.sqrt(self.model.surface.domain.rectangle_area))

@@ -16,16 +16,18 @@ from pathlib import Path
 
 import torch
 
-from taichi_ndf.field import FieldConfig, NeuralField, SplineConfig, SplineField
+from taichi_ndf.field import NeuralField, SplineField
+from taichi_ndf.problem.field_types import FIELD_TYPES, of_field
 from taichi_ndf.problem.optim import Adam
 
 log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
 KIND = "taichi_ndf.minimise.checkpoint"
-# Field types by checkpoint tag: (field class, its config class). A checkpoint without a
-# "field_type" (written before spline fields existed) holds a SIREN field.
-FIELD_TYPES = {"siren": (NeuralField, FieldConfig), "spline": (SplineField, SplineConfig)}
+# A checkpoint is tagged with its field type's name (`problem.field_types.FIELD_TYPES`: the
+# field class and its architecture class); one without a "field_type" (written before spline
+# fields existed) holds a SIREN field.
+UNTAGGED = "siren"
 
 
 class CheckpointError(ValueError):
@@ -72,13 +74,6 @@ def _to_cpu(value):
     return value
 
 
-def _field_type(field) -> str:
-    for tag, (cls, _) in FIELD_TYPES.items():
-        if isinstance(field, cls):
-            return tag
-    raise TypeError(f"cannot checkpoint a {type(field).__name__}; fields: {list(FIELD_TYPES)}")
-
-
 def save_checkpoint(
     path: str | os.PathLike,
     field: NeuralField | SplineField,
@@ -94,7 +89,7 @@ def save_checkpoint(
     payload = {
         "kind": KIND,
         "format_version": FORMAT_VERSION,
-        "field_type": _field_type(field),
+        "field_type": of_field(field).name,
         "architecture": field.config.to_dict(),
         "parameters": _to_cpu(field.state_dict()),
         "optimiser": None if optimiser is None else _to_cpu(optimiser.state_dict()),
@@ -127,8 +122,8 @@ def _architecture_mismatch(stored, ours) -> list[str]:
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict:
-    """The checked contents of a checkpoint file: a dict with ``field_type`` ("siren" or
-    "spline"), ``architecture`` (its FieldConfig or SplineConfig),
+    """The checked contents of a checkpoint file: a dict with ``field_type`` (a name of
+    `FIELD_TYPES`: "siren", "spline"), ``architecture`` (its config: FieldConfig, SplineConfig),
     ``parameters`` (name -> finite tensor), ``optimiser`` (dict or None), ``extra`` (dict) and
     ``format_version``.
 
@@ -155,11 +150,11 @@ def read_checkpoint(path: str | os.PathLike) -> dict:
     if version != FORMAT_VERSION:
         raise CheckpointError(
             f"{path}: checkpoint format {version!r}, this version reads {FORMAT_VERSION}")
-    tag = payload.get("field_type", "siren")
+    tag = payload.get("field_type", UNTAGGED)
     if tag not in FIELD_TYPES:
         raise CheckpointError(f"{path}: unknown field type {tag!r}; known: {list(FIELD_TYPES)}")
     try:
-        architecture = FIELD_TYPES[tag][1].from_dict(payload["architecture"])
+        architecture = FIELD_TYPES[tag].config.from_dict(payload["architecture"])
         parameters = payload["parameters"]
         if not isinstance(parameters, dict) or not all(
                 isinstance(v, torch.Tensor) for v in parameters.values()):
@@ -194,7 +189,7 @@ def load_checkpoint(
     """
     contents = read_checkpoint(path)
     stored = contents["architecture"]
-    field_class = FIELD_TYPES[contents["field_type"]][0]
+    field_class = FIELD_TYPES[contents["field_type"]].field
     if field is None:
         field = field_class(stored)
     else:

@@ -4,34 +4,38 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 from taichi_ndf.field import FieldConfig, SplineConfig
+from taichi_ndf.problem.field_types import DEFAULT, FIELD_TYPES
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.pseudo_time import DEFAULT_FRAMES
 from taichi_ndf.problem.scaling import SCALE_ESTIMATES, characteristic_displacement
 from taichi_ndf.problem.spline_grid import SplinePlan, auto_span_length, spans_for
 from taichi_ndf.scene.schema import SceneError, Table
 
-SIREN_KEYS = ("width", "hidden_layers", "omega0", "output_scale")
-SPLINE_KEYS = ("degree", "spans", "span_length", "levels", "quadrature_points")
-FIELD_TYPES = ("siren", "spline")
+
+def field_config(t: Table, model: ShellModel) -> tuple[Any, str | None]:
+    """The [field] table: the specification of its field type (`FIELD_TYPES`; a SIREN's
+    `FieldConfig`, a spline field's `SplinePlan`) read by that type's entry in `READERS`, and
+    the output-scale estimate a SIREN names (one of `scaling.SCALE_ESTIMATES`; None: a number
+    given, or another field type). A key of another field type is refused by name."""
+    kind = t.string("type", DEFAULT, choices=tuple(FIELD_TYPES))
+    own = FIELD_TYPES[kind].keys
+    for other in FIELD_TYPES.values():
+        for key in other.keys:
+            if key not in own and t.has(key):
+                raise SceneError(f"{t.key(key)}: a {other.label} key, not used with "
+                                 f"field.type = {kind!r}")
+    return READERS[kind](t, model)
 
 
-def field_config(t: Table, model: ShellModel) -> tuple[FieldConfig | SplinePlan, str | None]:
-    """The [field] table: a SIREN's configuration or a spline field's grids, and the
-    output-scale estimate the SIREN names (one of `scaling.SCALE_ESTIMATES`; None: a number
-    given, or a spline field). An estimated scale holds the dimensional estimate
+def _siren(t: Table, model: ShellModel) -> tuple[FieldConfig, str | None]:
+    """A SIREN's configuration. An estimated output scale holds the dimensional estimate
     (`scaling.characteristic_displacement`, no solve); those that solve are made when a run
     starts (`taichi_ndf.solve.output_scale.field_for_run`)."""
-    kind = t.string("type", "siren", choices=FIELD_TYPES)
-    foreign = SPLINE_KEYS if kind == "siren" else SIREN_KEYS
-    for key in foreign:
-        if t.has(key):
-            raise SceneError(f"{t.key(key)}: a {'spline' if kind == 'siren' else 'SIREN'} key, "
-                             f"not used with field.type = {kind!r}")
     domain = model.surface.domain
-    if kind == "spline":
-        return _spline(t, model), None
     scale = t._get("output_scale", "auto")
     estimate = scale if scale in SCALE_ESTIMATES else None
     if estimate is not None:
@@ -47,7 +51,8 @@ def field_config(t: Table, model: ShellModel) -> tuple[FieldConfig | SplinePlan,
                        output_scale=float(scale)), estimate
 
 
-def _spline(t: Table, model: ShellModel) -> SplinePlan:
+def _spline(t: Table, model: ShellModel) -> tuple[SplinePlan, None]:
+    """A spline field's grids (the grid rule's spans where [field] gives none)."""
     degree = t.integer("degree", 3)
     if degree not in (3, 4):
         raise SceneError(f"{t.key('degree')}: must be 3 (cubic) or 4 (quartic), got {degree}")
@@ -82,7 +87,13 @@ def _spline(t: Table, model: ShellModel) -> SplinePlan:
                           periodic=domain.periodic, even_ends=even)
     points = t.integer("quadrature_points", degree + 1, minimum=1)
     return SplinePlan(config, levels=t.integer("levels", 1, minimum=1),
-                      quadrature_points=points)
+                      quadrature_points=points), None
+
+
+# [field] type -> the reader of its keys: (table, model) -> (specification, output-scale
+# estimate or None). One entry per type of `FIELD_TYPES`.
+READERS: dict[str, Callable[[Table, ShellModel], tuple[Any, str | None]]] = {
+    "siren": _siren, "spline": _spline}
 
 
 def with_field_type(document: dict, kind: str) -> dict:
@@ -95,20 +106,21 @@ def with_field_type(document: dict, kind: str) -> dict:
     if kind not in FIELD_TYPES:
         raise SceneError(f"field type must be one of {list(FIELD_TYPES)}, got {kind!r}")
     current = document.get("field", {})
-    if isinstance(current, dict) and current.get("type", "siren") == kind:
+    if isinstance(current, dict) and current.get("type", DEFAULT) == kind:
         return document
     training = document.get("training", {})
     training = training if isinstance(training, dict) else {}
     kept = {k: training[k] for k in ("load_steps", "seed") if k in training}
-    if kind == "spline" and training.get("pseudo_time") is True:
-        return _path_as_load_steps(document, kept)
+    if not FIELD_TYPES[kind].pseudo_time and training.get("pseudo_time") is True:
+        return _path_as_load_steps(document, kept, kind)
     return {**document, "field": {"type": kind},
-            "training": {**kept, "method": "newton" if kind == "spline" else "adam"}}
+            "training": {**kept, "method": FIELD_TYPES[kind].method}}
 
 
-def _path_as_load_steps(document: dict, kept: dict) -> dict:
-    """A pseudo-time scene solved with a spline field: its trajectory frames (t evenly spaced
-    from pseudo_time_start to 1) become load steps (t = 0, the undeformed state, left out),
+def _path_as_load_steps(document: dict, kept: dict, kind: str) -> dict:
+    """A pseudo-time scene solved with a field type `kind` without a pseudo-time input (a
+    spline): its trajectory frames (t evenly spaced from pseudo_time_start to 1) become load
+    steps (t = 0, the undeformed state, left out),
     so the run writes the same trajectory, one frame per load step solved."""
     output = document.get("output", {})
     output = output if isinstance(output, dict) else {}
@@ -122,5 +134,5 @@ def _path_as_load_steps(document: dict, kept: dict) -> dict:
     steps = [start + (1.0 - start) * k / (frames - 1) for k in range(frames)]
     kept["load_steps"] = [t for t in steps if t > 0]
     rest = {k: v for k, v in output.items() if k != "frames"}
-    return {**document, "field": {"type": "spline"}, "output": rest,
-            "training": {**kept, "method": "newton"}}
+    return {**document, "field": {"type": kind}, "output": rest,
+            "training": {**kept, "method": FIELD_TYPES[kind].method}}

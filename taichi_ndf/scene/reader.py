@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 from taichi_ndf.boundary import (
     EDGES,
@@ -25,17 +26,12 @@ from taichi_ndf.boundary import (
 )
 from taichi_ndf.field import FieldConfig
 from taichi_ndf.geometry import Annulus, Cone, Cylinder, CylindricalRoof, Hemisphere, Plane
+from taichi_ndf.problem.field_types import of_spec
 from taichi_ndf.problem.line_loads import LineLoad, edge_path
 from taichi_ndf.problem.loads import Loads, PointLoad
 from taichi_ndf.problem.model import Probe, ShellModel
 from taichi_ndf.problem.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
-from taichi_ndf.problem.run_size import (
-    check_siren_size,
-    check_spline_size,
-    contact_check_points,
-    siren_samples,
-)
-from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.problem.run_size import contact_check_points
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.scene.contact import parse_contact
@@ -74,7 +70,9 @@ class Scene:
     name: str
     description: str
     model: ShellModel
-    field: FieldConfig | SplinePlan  # a SIREN's configuration, or a spline field's grids
+    # The specification of its field type (`problem.field_types.FIELD_TYPES`): a SIREN's
+    # `FieldConfig`, a spline field's `SplinePlan`.
+    field: Any
     solver: SolverConfig
     quick_solver: SolverConfig
     output: OutputConfig
@@ -91,7 +89,8 @@ def load_scene(path: str | Path, *, material: str | None = None,
     """Read and validate a scene file; relative paths inside it are relative to the file.
 
     material: a preset name that replaces the scene's [material] table.
-    field: "siren" or "spline" to solve the scene with that field (`with_field_type`).
+    field: a field type's name ("siren", "spline": `FIELD_TYPES`) to solve the scene with
+    that field (`with_field_type`).
     overrides: scene keys set after those two, {"loads.gravity": [0, 0, -5], ...}
     (`taichi_ndf.scene.overrides`; `ndf-sim --set`).
     """
@@ -119,12 +118,13 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
     model = replace(model, contact=parse_contact(top, model, base_dir), terms=parse_terms(top))
     field, estimate = _section(top.table("field", optional=True), field_config, model)
+    kind = of_spec(field)
     solver, quick = _section(top.table("training", optional=True), training,
-                             isinstance(field, SplinePlan))
+                             kind.method == "newton")
     output = _section(top.table("output", optional=True), _output, solver.pseudo_time)
-    if solver.pseudo_time and isinstance(field, SplinePlan):
-        raise SceneError("training.pseudo_time: needs a SIREN field (a spline field has no "
-                         "pseudo-time input)")
+    if solver.pseudo_time and not kind.pseudo_time:
+        raise SceneError(f"training.pseudo_time: needs a SIREN field (a {kind.label} field has "
+                         "no pseudo-time input)")
     if (isinstance(field, FieldConfig) and model.boundary.frame is not None
             and (solver.newton_iterations or quick.newton_iterations)):
         raise SceneError("training.newton_iterations: the last-layer Newton phases do not "
@@ -139,11 +139,7 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
                   quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
                   document=document, output_scale_estimate=estimate)
     try:  # its sizes fit the memory, before any work (at run start: `Discretisation.check_size`)
-        contact = contact_check_points(model.contact)
-        if isinstance(field, SplinePlan):
-            check_spline_size(field, **contact)
-        else:
-            check_siren_size(field, siren_samples(solver), 4, **contact)
+        kind.check_size(field, solver, 4, **contact_check_points(model.contact))
     except ValueError as err:
         raise SceneError(str(err)) from None
     return scene
