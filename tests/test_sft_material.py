@@ -35,11 +35,11 @@ def test_sheet_grid_of_both_index_orders():
 
 def test_defaults_are_the_measured_settings():
     """The estimate's defaults are the settings measured to recover B (quartic splines on
-    7 × 7 / 14 × 14 spans, D estimated beside B, the flat size from the template), and the
-    command line sets each of them."""
+    grids chosen from the bending length, D estimated beside B, the flat size from the
+    template), and the command line sets each of them."""
     config = MaterialFromVideoConfig()
     assert (config.degree, config.spans, config.membrane_stiffness, config.sheet_size) == \
-        (4, (7, 7), None, None)
+        (4, None, None, None)
     assert config.estimate_membrane
     assert (config.observed, config.sheet_size_from) == ("3d", "equilibrium")
     held = MaterialFromVideoConfig(membrane_stiffness=100.0)
@@ -62,6 +62,34 @@ def test_defaults_are_the_measured_settings():
     sheet = SheetGrid.from_template(np.column_stack([grid.xi, np.zeros(len(grid.xi))]),
                                     grid.faces, (0, 6)).with_size((0.6, 0.1))
     assert sheet.size == (0.6, 0.1) and np.allclose(sheet.xi, grid.xi * [2.0, 0.5])
+
+
+def test_grid_from_the_bending_length():
+    """The coarse grid's spans are at most 1.5 c long, 7 to 16 per side: a 0.3 m sheet of
+    c = 5 cm or 3 cm keeps the 7 × 7 measured on them, the median fabric's c = 2 cm gets
+    10 × 10 (7 × 7 left B undetermined even on noise-free truth meshes), a softer sheet is
+    capped with a note. The choice follows the guess, then the coarse estimate, and is
+    refined only when the estimate asks for a finer grid; stated spans are kept."""
+    from inverse.sft.material_grid import GridChoice, spans_for_bending_length
+
+    size = (0.3, 0.3)
+    assert spans_for_bending_length(size, 0.05) == ((7, 7), False)
+    assert spans_for_bending_length(size, 0.03) == ((7, 7), False)
+    assert spans_for_bending_length(size, 0.02) == ((10, 10), False)
+    assert spans_for_bending_length((0.6, 0.3), 0.02) == ((16, 10), True)
+    weight = 0.2 * 9.81
+    choice = GridChoice(MaterialFromVideoConfig(areal_density=0.2,
+                                                start_bending_length=0.02), 9.81)
+    assert choice.first(size) == (10, 10)
+    assert choice.next(size, weight * 0.05 ** 3, "coarse estimate") == (7, 7)
+    assert choice.next(size, weight * 0.04 ** 3, "estimate", only_finer=(7, 7)) is None
+    assert choice.next(size, weight * 0.015 ** 3, "estimate", only_finer=(7, 7)) == (14, 14)
+    assert [s["spans"] for s in choice.steps] == [[10, 10], [7, 7], [7, 7], [14, 14]]
+    assert not choice.notes
+    choice.next(size, weight * 0.005 ** 3, "estimate")
+    assert "capped at 16" in choice.notes[0]
+    stated = GridChoice(MaterialFromVideoConfig(spans=(5, 6)), 9.81)
+    assert stated.first(size) == (5, 6) and stated.next(size, 1e-6, "estimate") is None
 
 
 @pytest.mark.slow

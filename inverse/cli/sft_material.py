@@ -1,6 +1,8 @@
 """`ndf-sft --estimate-material`: the options of the material estimate and their checks.
 
-Defaults (`MaterialFromVideoConfig`): quartic splines on 7 × 7 / 14 × 14 spans, the membrane
+Defaults (`MaterialFromVideoConfig`): quartic splines on a grid and its refinement chosen from
+the bending length (`inverse.sft.material_grid`; 7 × 7 / 14 × 14 for c ≥ 2.9 cm on a 0.3 m
+sheet), the membrane
 stiffness D estimated beside B unless `--membrane-stiffness` states it, the flat sheet's size
 from the template unless `--sheet-size` states it. The held corners are `--held-corners A B`
 (default: the two `--pinned` vertices, when the corners do not move); the template must be a
@@ -45,7 +47,8 @@ def add_material_options(p: argparse.ArgumentParser) -> None:
                    help=f"frames used, evenly spread (0: all; default: {DEFAULTS.frames})")
     g.add_argument("--material-spans", type=int, nargs=2, metavar=("N1", "N2"),
                    help="coarse spline grid of the equilibria; the fine grid has twice its "
-                   f"spans (default: {_text(DEFAULTS.spans)})")
+                   "spans (default: chosen from the bending length, spans of at most 1.5 c, "
+                   "7 to 16 per side; inverse.sft.material_grid)")
     g.add_argument("--material-degree", type=int,
                    help="spline degree of the equilibria, 3 or 4 (default: "
                    f"{DEFAULTS.degree}; cubic measured undetermined on the same grids)")

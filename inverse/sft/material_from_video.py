@@ -59,6 +59,7 @@ from inverse.material.report import estimate_document
 from inverse.material.spline_equilibrium import SplineModelConfig
 from inverse.material.unknowns import parse_unknowns
 from inverse.sft.hanging import SheetGrid, hanging_across, hanging_model
+from inverse.sft.material_grid import GridChoice
 from inverse.sft.settings import FABRIC_BENDING_LENGTH, MaterialFromVideoConfig
 
 log = logging.getLogger(__name__)
@@ -134,18 +135,30 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     size_from = "stated" if config.sheet_size is not None else config.sheet_size_from
     if size_from == "equilibrium" and planar(template):
         size_from = "template"  # a flat template is the flat sheet: nothing to unstretch
+    g = float(np.linalg.norm(config.gravity))
+    choice = GridChoice(config, g)
+    spans = choice.first(grid.size)
     passes = []
     if size_from == "equilibrium":
         grid, start, passes = unstretched_grid(vertices, faces, grid, config, frames,
-                                               unknowns, start)
+                                               unknowns, start, spans)
         observations = frame_observations(vertices, grid, config, frames)
-    result = newton_estimate(observations, unknowns, _newton(config, 2), start=start)
+    elif choice.chosen:  # a coarse first estimate for the grid
+        coarse = newton_estimate(observations, unknowns, _newton(config, spans, 1),
+                                 start=start)
+        start = [float(v) for v in coarse.fits[-1].values]
+    spans = choice.next(grid.size, start[0], "coarse estimate") or spans
+    result = newton_estimate(observations, unknowns, _newton(config, spans, 2), start=start)
+    finer_spans = choice.next(grid.size, float(result.fits[-1].values[0]), "estimate",
+                              only_finer=spans)
+    if finer_spans and result.fits[-1].converged:  # refine once: the estimate's c asks
+        result = newton_estimate(observations, unknowns, _newton(config, finer_spans, 2),
+                                 start=[float(v) for v in result.fits[-1].values])
     document = estimate_document(result.estimate, observations[0].model, ratios=result.ratios,
-                                 notes=result.notes)
+                                 notes=result.notes + choice.notes)
     fit = result.fits[-1]
     per_frame = _per_frame_rms(fit.residuals, observations)
     accelerations = corner_accelerations(vertices, grid.held, config.fps)
-    g = float(np.linalg.norm(config.gravity))
     points = sum(len(o.points) for o in observations)
     grids = [{"spans": list(f.label["spans"]), "degree": config.degree,
               "bending_stiffness": float(f.values[0]),
@@ -160,12 +173,14 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     out["bending_stiffness"]["standard_error_parts"] = error_parts(result, 0)
     out["sheet_size_from"] = size_from
     out["sheet_size_passes"] = passes
+    out["grid_choice"] = choice.steps
     return out
 
 
-def _newton(config: MaterialFromVideoConfig, levels: int) -> NewtonEstimateConfig:
+def _newton(config: MaterialFromVideoConfig, spans: tuple[int, int],
+            levels: int) -> NewtonEstimateConfig:
     return NewtonEstimateConfig(
-        model=SplineModelConfig(spans=tuple(int(s) for s in config.spans),
+        model=SplineModelConfig(spans=tuple(int(s) for s in spans),
                                 degree=config.degree, boundary_length=None),
         outer=OuterConfig(max_iterations=config.max_iterations, max_step=1.0),
         levels=levels, start_from_observations=True, clustered=True)
@@ -180,19 +195,21 @@ def planar(vertices: np.ndarray) -> bool:
 
 
 def unstretched_grid(vertices, faces, grid: SheetGrid, config: MaterialFromVideoConfig,
-                     frames: list[int], unknowns, start: list[float]):
+                     frames: list[int], unknowns, start: list[float],
+                     spans: tuple[int, int]):
     """The flat sheet's size when the template is the sheet's shape in frame 0 (as SfT
     templates are): the template's grid-line lengths are the flat sheet's stretched by that
     frame's equilibrium, so the size is updated by the fixed point
     size ← size · (template's lengths / the fitted frame-0 equilibrium's lengths), each pass
-    a fit on the coarse grid from the previous pass's values, until the size changes by less
+    a fit on the coarse grid `spans` from the previous pass's values, until the size changes by less
     than SIZE_TOLERANCE (at most SIZE_PASSES). Returns the grid, the last values (the start
     of the final fit) and per pass the size and the fitted values."""
     measured = np.array(grid.size)
     passes = []
     for _ in range(SIZE_PASSES):
         observations = frame_observations(vertices, grid, config, frames)
-        coarse = newton_estimate(observations, unknowns, _newton(config, 1), start=start)
+        coarse = newton_estimate(observations, unknowns, _newton(config, spans, 1),
+                                 start=start)
         start = [float(v) for v in coarse.fits[-1].values]
         shape = coarse.fitted_positions(frames.index(0), torch.from_numpy(grid.xi))
         lengths = np.array(SheetGrid.from_template(shape.detach().numpy(), faces,

@@ -152,7 +152,10 @@ class MaterialFromVideoConfig:
     `MEMBRANE_START` (a held D that is wrong was the largest error measured: −87 % in B at a
     held 300 N/m against a true 100 N/m; benchmarks/RESULTS.md, Material from video);
     poisson_ratio: ν; frames: number of frames used, evenly spread over the sequence (0: all);
-    spans: the coarse grid (the fine grid halves its spans); degree: the splines' degree
+    spans: the coarse grid (the fine grid halves its spans), or None (default) to choose it
+    from the bending length — spans of at most 1.5 c, at least 7 and at most 16 per side,
+    from the guess `start_bending_length`, then from the coarse and the final estimate
+    (`material_grid`); degree: the splines' degree
     (3 or 4; default 4, cubic splines on the same grids measured undetermined);
     sheet_size: (W, H) [m] of the flat sheet, W along the held edge, when it is known (e.g.
     measured with a ruler), or None (default) for the template's grid-line lengths; band:
@@ -173,7 +176,7 @@ class MaterialFromVideoConfig:
     membrane_stiffness: float | None = None
     poisson_ratio: float = 0.25
     frames: int = 8
-    spans: tuple[int, int] = (7, 7)
+    spans: tuple[int, int] | None = None
     degree: int = 4
     sheet_size: tuple[float, float] | None = None
     band: float = 0.1
@@ -198,7 +201,8 @@ class MaterialFromVideoConfig:
         if isinstance(self.frames, bool) or not isinstance(self.frames, int) or \
                 (self.frames != 0 and self.frames < 2):
             raise ValueError(f"frames must be 0 (all) or >= 2, got {self.frames!r}")
-        if len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans):
+        if self.spans is not None and (
+                len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans)):
             raise ValueError(f"spans must be two positive integers, got {self.spans!r}")
         if self.degree not in (3, 4):
             raise ValueError(f"degree must be 3 or 4, got {self.degree!r}")
