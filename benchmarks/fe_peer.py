@@ -160,7 +160,7 @@ def ours(case: PeerCase, level: int, work: Path, timeout: float) -> dict:
     if tuple(field["spans"]) != spans:
         row["warning"] = f"solved on {field['spans']}, asked {list(spans)}"
     coefficients = 1
-    for n, periodic in zip(field["spans"], field["periodic"]):
+    for n, periodic in zip(field["spans"], field["periodic"], strict=True):
         coefficients *= n if periodic else n + field["degree"]
     row["unknowns"] = coefficients * field["out_dim"]
     return row

@@ -6,8 +6,8 @@ and KratosLinearSolversApplication 10.4.4 (pip); not imported by the package or 
 
 CASE: roof | cylinder | cantilever; NX × NY: quads of a structured mesh, NX along the first
 surface coordinate of the case's scene (roof: the arc φ, cylinder: θ, cantilever: x), NY
-along the second (y / z / y). Element ShellThinElementCorotational3D4N (Kirchhoff–Love, corotational),
-LinearElasticPlaneStress2DLaw, Eigen's SparseLU, one element integration as Kratos ships it.
+along the second (y / z / y). Element ShellThinElementCorotational3D4N (thin, corotational),
+LinearElasticPlaneStress2DLaw, Eigen's SparseLU (LinearSolversApplication).
 The same geometry, material, loads and supports as the scenes in validation/scenes/:
 
 - roof (scordelis_lo_roof.toml): R = 25, L = 50, φ ∈ [−40°, 40°], h = 0.25, E = 4.32e8, ν = 0,
@@ -23,9 +23,11 @@ The same geometry, material, loads and supports as the scenes in validation/scen
   above). Linear static. Reads the mean inward radial displacement under the two loads.
 - cantilever (cantilever_shear.toml): plate [0, 10] × [0, 1], h = 0.1, E = 1.2e6, ν = 0,
   clamped at x = 0 (displacements and rotations), a dead vertical force 4 λ spread along
-  x = 10 by the trapezoidal rule over the edge nodes; Newton–Raphson over the load factors
-  (the scene's steps, each split into SUBSTEPS equal increments), displacement criterion
-  1e-10 relative. Reads W = u_z and −U = −u_x at (10, 0.5) at each load factor.
+  x = 10 by the trapezoidal rule over the edge nodes; Newton–Raphson over the scene's load
+  factors 0.1, 0.25, 0.5, 0.75, 1 (each step from the last converged state; SUBSTEPS = 4
+  increments per step gave the same values to 1e-13 with 117 Newton iterations against 34
+  on 20 × 2 quads), displacement criterion 1e-10 relative. Reads W = u_z and −U = −u_x at
+  (10, 0.5) at each load factor.
 
 Prints one JSON line: {"case", "mesh", "dofs" (free unknowns), "values": {label: value},
 "newton_iterations", "seconds": {"setup", "solve"}}.
@@ -41,7 +43,7 @@ import time
 CASES = ("roof", "cylinder", "cantilever")
 CANTILEVER_STEPS = (0.1, 0.25, 0.5, 0.75, 1.0)  # cantilever_shear.toml's load_steps
 READ_STEPS = (0.1, 0.5, 1.0)  # the load factors its case file reads
-SUBSTEPS = 4  # increments per scene load step (Newton from the last converged state)
+SUBSTEPS = 1  # increments per scene load step (Newton from the last converged state)
 
 
 def _model(KM, SMA, thickness: float, young: float, poisson: float, density: float):
@@ -86,7 +88,8 @@ def _grid(mp, props, points, nx: int, ny: int, periodic_x: bool):
 
 def _add_dofs(KM, mp) -> None:
     for c in "XYZ":
-        KM.VariableUtils().AddDof(getattr(KM, f"DISPLACEMENT_{c}"), getattr(KM, f"REACTION_{c}"), mp)
+        KM.VariableUtils().AddDof(getattr(KM, f"DISPLACEMENT_{c}"),
+                                  getattr(KM, f"REACTION_{c}"), mp)
         KM.VariableUtils().AddDof(getattr(KM, f"ROTATION_{c}"),
                                   getattr(KM, f"REACTION_MOMENT_{c}"), mp)
 
@@ -102,9 +105,8 @@ def _point_load(SMA, mp, props, cid: int, node_id: int, force) -> None:
 
 
 def _strategy(KM, SMA, mp, nonlinear: bool):
-    from KratosMultiphysics import python_linear_solver_factory
-
     import KratosMultiphysics.LinearSolversApplication  # noqa: F401  (registers sparse_lu)
+    from KratosMultiphysics import python_linear_solver_factory
 
     solver = python_linear_solver_factory.ConstructSolver(
         KM.Parameters('{"solver_type": "sparse_lu"}'))
