@@ -70,7 +70,7 @@ CASES = {
                      {"-u_z @ 1": 0.30053}),
     "cylinder": PeerCase("pinched_cylinder", (63, 20), (32, 16), (1, 2, 3), (1, 2, 3, 4),
                          {"u_r @ 1": 1.8268e-5}),
-    "cantilever": PeerCase("cantilever_shear", (8, 1), (20, 2), (1, 2, 3), (1, 2, 3, 4),
+    "cantilever": PeerCase("cantilever_shear", (8, 1), (10, 2), (1, 2, 3), (1, 2, 3, 4),
                            {"W @ 0.1": 1.3098, "-U @ 0.1": 0.10354, "W @ 0.5": 4.9347,
                             "-U @ 0.5": 1.6065, "W @ 1": 6.6999, "-U @ 1": 3.2895}),
 }
