@@ -20,10 +20,10 @@ KratosMultiphysics==10.4.4 KratosStructuralMechanicsApplication==10.4.4
 KratosLinearSolversApplication==10.4.4).
 
 Per run: unknowns, the values, their error against the published reference (the case file)
-and against the converged value (CONVERGED below), CPU seconds of the whole child command
-(user + sys from os.wait4), wall, peak RSS, and the solve's own seconds (ours: the solve
-wall of results.json; Kratos: assembly + solve). Then per case: CPU to ≤ 1 % of the reference
-(every quantity) and to ≤ 0.1 % of the converged value for each code, and the ratio.
+and against the converged value (CASES below), CPU seconds of the whole child command (user +
+sys from os.wait4), wall, peak RSS, and the solve's own wall seconds (ours: results.json's
+wall_time; Kratos: assembly + solve). Then per case: CPU to ≤ 1 % of the reference (every
+quantity) and to ≤ 0.1 % of the converged value for each code, and the ratio.
 """
 
 from __future__ import annotations
@@ -211,7 +211,7 @@ def errors(row: dict, refs: dict[str, float], converged: dict[str, float]) -> No
 def table(rows: list[dict], labels: list[str]) -> str:
     """The Markdown table of one case's runs."""
     head = ["code", "level", "mesh", "unknowns", *labels, "max err ref %", "max err conv %",
-            "CPU s", "wall s", "peak RSS MB", "solve s"]
+            "CPU s", "wall s", "peak RSS MB", "solve wall s"]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         def pct(x):
