@@ -261,12 +261,14 @@ def summary_table(items: list[dict]) -> str:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
+    p.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES),
+                   help="cases to run (default: all three)")
     p.add_argument("--levels", nargs="+", type=int, metavar="K",
                    help="levels to run in both codes (default: each code's list per case: "
                    + "; ".join(f"{n} ours {list(c.our_levels)}, Kratos {list(c.kratos_levels)}"
                                for n, c in CASES.items()) + ")")
-    p.add_argument("--codes", nargs="+", choices=["ours", "kratos"], default=["ours", "kratos"])
+    p.add_argument("--codes", nargs="+", choices=["ours", "kratos"], default=["ours", "kratos"],
+                   help="codes to run (default: both)")
     p.add_argument("--json", type=Path, metavar="PATH", help="also write the tables as JSON")
     p.add_argument("--keep", type=Path, metavar="DIR",
                    help="keep the runs' logs and outputs in DIR (default: a temporary folder)")
