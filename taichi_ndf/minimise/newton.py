@@ -25,7 +25,11 @@ g = Jᵀ ∂Π/∂U and K = Jᵀ H J exactly. Per iteration from P:
    a full step that lowered Π clearly more than the quadratic model predicts is doubled while
    Π keeps falling (`_longer_step`: the model overestimates the curvature along d).
 Stops, without taking that step, when the Newton decrement λ² = −gᵀd satisfies
-λ²/2 ≤ decrement_tolerance × |Π| (λ²/2 estimates Π − Π* near the minimum), when
+λ²/2 ≤ decrement_tolerance × |Π| (λ²/2 estimates Π − Π* near the minimum), or — given the
+coarser grid's Π (`coarse_energy`, a coarse-to-fine solve) — λ²/2 ≤ discretisation_fraction ×
+|Π − Π_coarse| (the change from the coarser grid estimates the discretisation error of Π; both
+are squares of energy-norm errors, so Newton's error in the energy norm is then at most
+√discretisation_fraction of that change: no polishing to the rounding floor), when
 ‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: the gradient at the start), or when the last step lowered
 Π by at most relative_decrease × |Π|. Each iteration is logged (Π, λ², α, μ and the time
 split: energy, Hessian, assembly, solve) and returned as a `NewtonIteration` record.
@@ -112,6 +116,8 @@ class NewtonConfig:
     longer_steps: most doublings of an accepted full step (`_longer_step`) when it lowered Π
         by clearly more than the quadratic model predicts; 0: never longer than the Newton
         step.
+    discretisation_fraction: given the coarser grid's Π (`minimise`'s coarse_energy), also stop
+        when λ²/2 ≤ this × |Π − Π_coarse| (module docstring); 0: the exact-tolerance mode.
     hessian: how an indefinite block is projected (`project_psd`) when the exact K is not
         definite: "clamp" (default) sets its negative eigenvalues to 0, "abs" mirrors them.
         Measured (benchmarks/RESULTS.md): clamp took fewer or as many Newton steps as abs and
@@ -123,6 +129,7 @@ class NewtonConfig:
     decrement_tolerance: float = 1e-12
     gradient_tolerance: float = 1e-10
     relative_decrease: float = 0.0
+    discretisation_fraction: float = 1e-3
     fd_step: float = 1e-5
     floor_tolerance: float = 1e-8
     armijo: float = 1e-4
@@ -143,6 +150,9 @@ class NewtonConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not 0 <= self.discretisation_fraction < 1:
+            raise ValueError("discretisation_fraction must be in [0, 1), got "
+                             f"{self.discretisation_fraction!r}")
         if not 0 <= self.relative_decrease < 1:
             raise ValueError(f"relative_decrease must be in [0, 1), got {self.relative_decrease}")
         if not 0 < self.fd_step < 1:
@@ -223,6 +233,15 @@ def point_blocks(linearisation: Linearisation, potential: Potential, parameters:
     return flat_blocks(hessian_blocks(potential, linearisation.samples, u_jets, steps))
 
 
+def _tolerance(config: NewtonConfig, energy: float, coarse_energy: float | None) -> float:
+    """The stopping bound [J] on λ²/2 at Π = energy: decrement_tolerance × |Π|, or
+    discretisation_fraction × |Π − Π_coarse| where that is larger (module docstring)."""
+    bound = config.decrement_tolerance * abs(energy)
+    if coarse_energy is None or not config.discretisation_fraction:
+        return bound
+    return max(bound, config.discretisation_fraction * abs(energy - coarse_energy))
+
+
 def _longer_step(energy_at: Callable[[float], float], start: float, full: float,
                  decrement: float, doublings: int) -> float:
     """The step length from α = 1 (accepted, Π = `full`; Π = `start` at α = 0): doubled while Π
@@ -245,7 +264,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
              feasible: Callable[[torch.Tensor, torch.Tensor], bool] | None = None,
              on_step: Callable[[torch.Tensor], bool] | None = None,
              on_iteration: Callable[[NewtonIteration], None] | None = None,
-             report: bool = True) -> NewtonSolution:
+             report: bool = True, coarse_energy: float | None = None) -> NewtonSolution:
     """Minimise Π(P) = potential(U(P)) by Newton from parameters `start` (module docstring).
 
     linearisation: U(P) at the potential's load factor; potential: Π at the linearisation's
@@ -257,6 +276,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
     application's callbacks: the divergence guard, checkpoints); it may raise to stop.
     report: each iteration goes to the innermost progress stage and the log at INFO; False:
     the log at DEBUG only (short solves inside another stage: a SIREN's Newton phases).
+    coarse_energy: Π [J] of the coarser grid's solution at this load factor (module docstring).
     """
     config = config or NewtonConfig()
     samples = linearisation.samples
@@ -325,7 +345,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
                 step, damping = linearisation.solve(matrix, gradient, damping)
             t_solve += time.perf_counter() - started
             decrement = float(-(gradient * step).sum())
-            small = 0.5 * abs(decrement) <= config.decrement_tolerance * abs(current.total)
+            small = 0.5 * abs(decrement) <= _tolerance(config, current.total, coarse_energy)
             if small:
                 break  # converged: the step would change Π by less than the tolerance
             if decrement < 0:  # K (nearly) singular along d, e.g. a flat sheet's rigid

@@ -301,22 +301,26 @@ class GridLevels:
                 level, spans, record))
 
     def start(self, step: Step, previous: LevelSolution | None,
-              coarser: LevelSolution | None) -> tuple[torch.Tensor, float, float]:
+              coarser: LevelSolution | None
+              ) -> tuple[torch.Tensor, float, float, float | None]:
         """The step's starting coefficients (n, 3), the load factor they were solved at (0:
-        the level's own field at the run's first level) and the time the step started."""
+        the level's own field at the run's first level), the time the step started and the
+        coarser grid's Π [J] at this load factor (None on the first level: Newton's
+        discretisation stopping test, `NewtonConfig.discretisation_fraction`)."""
         started = time.perf_counter()
         if coarser is not None:
             coefficients = torch.sparse.mm(self._prolongation,
                                            coarser.coefficients.to(self.dtype))
-            return coefficients, step.load_factor, started
+            return coefficients, step.load_factor, started, coarser.energy
         if previous is not None:
-            return previous.coefficients, previous.load_factor, started
-        return self.grid.coefficients.detach().clone(), 0.0, started
+            return previous.coefficients, previous.load_factor, started, None
+        return self.grid.coefficients.detach().clone(), 0.0, started, None
 
-    def solve(self, step: Step, start: tuple[torch.Tensor, float, float]) -> LevelSolution:
+    def solve(self, step: Step, start: tuple[torch.Tensor, float, float, float | None]
+              ) -> LevelSolution:
         """Projected Newton at the step's load factor from `start` (`minimise`, or
         `NewtonContact.solve` with obstacles); the solution, Π, the probes' readings."""
-        coefficients, start_load_factor, started = start
+        coefficients, start_load_factor, started, coarse_energy = start
         grid, t, newton = self.grid, step.load_factor, self.newton
         nx, ny = grid.config.spans
         shown = step.level - self.first_level  # labels count this run's levels (as before)
@@ -327,7 +331,8 @@ class GridLevels:
                 linearisation = SplineLinearisation(self.assembly, fixed=self.fixed,
                                                     solver=self.solver, length=self.length)
                 solution = minimise(linearisation, self.objective.potential(t), coefficients,
-                                    newton, load_factor=t, on_iteration=self.iterated)
+                                    newton, load_factor=t, on_iteration=self.iterated,
+                                    coarse_energy=coarse_energy)
             else:  # from the previous load step's state (finer level: this one's, prolonged)
                 solution = self.contact.solve(
                     self.operator, self.samples, self.objective, coefficients, newton,
