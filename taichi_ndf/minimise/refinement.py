@@ -339,8 +339,10 @@ class GridLevels:
                     load_factor=t, start_load_factor=start_load_factor, length=self.length,
                     fixed=self.fixed, linear_solver=self.solver, on_iteration=self.iterated)
         coefficients = solution.parameters
-        u = displacement_at(self.operator, self.probe_xi, coefficients, t)[:, jets.VALUE]
-        readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
+        readings = {}
+        if self.probes:  # none: nothing to read (a free pin's composition needs a point)
+            u = displacement_at(self.operator, self.probe_xi, coefficients, t)[:, jets.VALUE]
+            readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
         seconds = time.perf_counter() - started + self._setup
         self._setup = 0.0
         log.info("level %d (%d × %d spans), load %.4g: Π %.10g J in %d Newton steps, "
