@@ -255,7 +255,8 @@ class GridLevels:
     the first; on a finer level the coarser solution at the same load factor, prolonged
     exactly); its Newton solve and readings (`LevelSolution`). `grid`: the current level's
     field (its coefficients: the level's starting point). Settings as `solve_levels`';
-    first_level: the level the run starts on (`field_`'s)."""
+    first_level: the level the run starts on (`field_`'s); first_coarse: a resumed run's
+    coarser Π there (its Newton stops as the whole run's did: `start`)."""
 
     def __init__(self, field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples], objective: Objective, *,
@@ -264,8 +265,9 @@ class GridLevels:
                  probes: dict[str, tuple[float, float]] | None = None, length: float = 1.0,
                  contact=None, linear: LinearSolverConfig | None = None,
                  on_iteration: Callable[[int, tuple[int, int], NewtonIteration], None]
-                 | None = None, first_level: int = 0):
+                 | None = None, first_level: int = 0, first_coarse: float | None = None):
         self.grid, self.boundary, self.samples_for = field_, boundary, samples_for
+        self.first_coarse = first_coarse
         self.objective, self.levels, self.first_level = objective, levels, first_level
         self.config, self.coarse_config, self.length = config, coarse_config, length
         self.contact, self.linear, self.on_iteration = contact, linear, on_iteration
@@ -314,7 +316,7 @@ class GridLevels:
             return coefficients, step.load_factor, started, coarser.energy
         if previous is not None:
             return previous.coefficients, previous.load_factor, started, None
-        return self.grid.coefficients.detach().clone(), 0.0, started, None
+        return self.grid.coefficients.detach().clone(), 0.0, started, self.first_coarse
 
     def solve(self, step: Step, start: tuple[torch.Tensor, float, float, float | None]
               ) -> LevelSolution:
@@ -340,7 +342,7 @@ class GridLevels:
                     fixed=self.fixed, linear_solver=self.solver, on_iteration=self.iterated)
         coefficients = solution.parameters
         readings = {}
-        if self.probes:  # none: nothing to read (a free pin's composition needs a point)
+        if self.probes:  # (a free pin's composition needs a point)
             u = displacement_at(self.operator, self.probe_xi, coefficients, t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
         seconds = time.perf_counter() - started + self._setup
