@@ -43,7 +43,7 @@ def test_a_linear_case_takes_one_newton_step_per_finer_level(case):
         assert len(polished.history) > len(solution.history)
         # Newton's error, far below the change from the coarser grid
         change = abs(polished.energy - exact[level - 1][0].energy)
-        assert abs(solution.energy - polished.energy) <= 1e-3 * change
+        assert abs(solution.energy - polished.energy) <= config.discretisation_fraction * change
 
 
 def test_the_first_level_has_no_estimate_and_polishes():
