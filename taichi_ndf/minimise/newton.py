@@ -28,10 +28,9 @@ Stops, without taking that step, when the Newton decrement λ² = −gᵀd satis
 λ²/2 ≤ decrement_tolerance × |Π| (λ²/2 estimates Π − Π* near the minimum), or, given the
 coarser grid's Π (`coarse_energy`), λ²/2 ≤ discretisation_fraction × |Π − Π_coarse| (that
 change estimates the discretisation error of Π; both are squared energy-norm errors: no
-polishing to the rounding floor), when
-‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: the gradient at the start), or when the last step lowered
-Π by at most relative_decrease × |Π|. Each iteration is logged (Π, λ², α, μ and the time
-split: energy, Hessian, assembly, solve) and returned as a `NewtonIteration` record.
+polishing to the rounding floor), when ‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: at the start),
+or when the last step lowered Π by at most relative_decrease × |Π|. Each iteration is logged
+(Π, λ², α, μ, time: energy, Hessian, assembly, solve) and returned as a `NewtonIteration`.
 """
 
 from __future__ import annotations
