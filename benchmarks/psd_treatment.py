@@ -18,6 +18,7 @@ of its second step).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -63,16 +64,16 @@ def main() -> None:
     torch.set_num_threads(1)
     taichi_ndf.init(arch="cpu", precision="f64")
     cases = scenes()
-    for _, model, spans, _, config in cases:  # compile / load the kernels
+    for _, model, spans, _, _ in cases:  # compile / load the kernels
         _solve(model, spans, 1, NewtonConfig(max_iterations=1))
     print("| scene | treatment | Newton iterations | projected blocks | Π finest [J] | "
           "CPU [s] |")
     print("|---|---|---|---|---|---|")
     for name, model, spans, levels, config in cases:
         for treatment in args.treatments:
-            config = NewtonConfig(**{**config.__dict__, "hessian": treatment})
+            settings = dataclasses.replace(config, hessian=treatment)
             started = time.process_time()
-            results = _solve(model, spans, levels, config)
+            results = _solve(model, spans, levels, settings)
             cpu = time.process_time() - started
             history = [h for level in results for s in level for h in s.history]
             projected = sum(h.projected_blocks for h in history)
