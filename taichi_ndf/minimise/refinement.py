@@ -255,7 +255,8 @@ class GridLevels:
     the first; on a finer level the coarser solution at the same load factor, prolonged
     exactly); its Newton solve and readings (`LevelSolution`). `grid`: the current level's
     field (its coefficients: the level's starting point). Settings as `solve_levels`';
-    first_level: the level the run starts on (`field_`'s)."""
+    first_level: the level the run starts on (`field_`'s); first_coarse: a resumed run's
+    coarser Π there (its Newton stops as the whole run's did: `start`)."""
 
     def __init__(self, field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples], objective: Objective, *,
@@ -264,8 +265,9 @@ class GridLevels:
                  probes: dict[str, tuple[float, float]] | None = None, length: float = 1.0,
                  contact=None, linear: LinearSolverConfig | None = None,
                  on_iteration: Callable[[int, tuple[int, int], NewtonIteration], None]
-                 | None = None, first_level: int = 0):
+                 | None = None, first_level: int = 0, first_coarse: float | None = None):
         self.grid, self.boundary, self.samples_for = field_, boundary, samples_for
+        self.first_coarse = first_coarse
         self.objective, self.levels, self.first_level = objective, levels, first_level
         self.config, self.coarse_config, self.length = config, coarse_config, length
         self.contact, self.linear, self.on_iteration = contact, linear, on_iteration
@@ -301,22 +303,26 @@ class GridLevels:
                 level, spans, record))
 
     def start(self, step: Step, previous: LevelSolution | None,
-              coarser: LevelSolution | None) -> tuple[torch.Tensor, float, float]:
+              coarser: LevelSolution | None
+              ) -> tuple[torch.Tensor, float, float, float | None]:
         """The step's starting coefficients (n, 3), the load factor they were solved at (0:
-        the level's own field at the run's first level) and the time the step started."""
+        the level's own field at the run's first level), the time the step started and the
+        coarser grid's Π [J] at this load factor (None on the first level: Newton's
+        discretisation stopping test, `NewtonConfig.discretisation_fraction`)."""
         started = time.perf_counter()
         if coarser is not None:
             coefficients = torch.sparse.mm(self._prolongation,
                                            coarser.coefficients.to(self.dtype))
-            return coefficients, step.load_factor, started
+            return coefficients, step.load_factor, started, coarser.energy
         if previous is not None:
-            return previous.coefficients, previous.load_factor, started
-        return self.grid.coefficients.detach().clone(), 0.0, started
+            return previous.coefficients, previous.load_factor, started, None
+        return self.grid.coefficients.detach().clone(), 0.0, started, self.first_coarse
 
-    def solve(self, step: Step, start: tuple[torch.Tensor, float, float]) -> LevelSolution:
+    def solve(self, step: Step, start: tuple[torch.Tensor, float, float, float | None]
+              ) -> LevelSolution:
         """Projected Newton at the step's load factor from `start` (`minimise`, or
         `NewtonContact.solve` with obstacles); the solution, Π, the probes' readings."""
-        coefficients, start_load_factor, started = start
+        coefficients, start_load_factor, started, coarse_energy = start
         grid, t, newton = self.grid, step.load_factor, self.newton
         nx, ny = grid.config.spans
         shown = step.level - self.first_level  # labels count this run's levels (as before)
@@ -327,15 +333,18 @@ class GridLevels:
                 linearisation = SplineLinearisation(self.assembly, fixed=self.fixed,
                                                     solver=self.solver, length=self.length)
                 solution = minimise(linearisation, self.objective.potential(t), coefficients,
-                                    newton, load_factor=t, on_iteration=self.iterated)
+                                    newton, load_factor=t, on_iteration=self.iterated,
+                                    coarse_energy=coarse_energy)
             else:  # from the previous load step's state (finer level: this one's, prolonged)
                 solution = self.contact.solve(
                     self.operator, self.samples, self.objective, coefficients, newton,
                     load_factor=t, start_load_factor=start_load_factor, length=self.length,
                     fixed=self.fixed, linear_solver=self.solver, on_iteration=self.iterated)
         coefficients = solution.parameters
-        u = displacement_at(self.operator, self.probe_xi, coefficients, t)[:, jets.VALUE]
-        readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
+        readings = {}
+        if self.probes:  # (a free pin's composition needs a point)
+            u = displacement_at(self.operator, self.probe_xi, coefficients, t)[:, jets.VALUE]
+            readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
         seconds = time.perf_counter() - started + self._setup
         self._setup = 0.0
         log.info("level %d (%d × %d spans), load %.4g: Π %.10g J in %d Newton steps, "

@@ -11,7 +11,7 @@ from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.objective.terms import ShellEnergyTerm
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult
-from taichi_ndf.shell.hessian import sample_hessians
+from taichi_ndf.shell.hessian import JET_SIZE, project_psd, sample_hessians
 
 
 class Term(Protocol):
@@ -74,23 +74,29 @@ class Objective:
         return FixedLoadPotential(self, load_factor)
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
-                       load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor
-                       ) -> torch.Tensor:
+                       load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor,
+                       psd: bool = False) -> torch.Tensor:
         """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3), not projected: the sum of
         each term's own `hessian_blocks(samples, u_jets, load_factor, steps=steps)` where the
         term has one, else central differences of that term's gradient (`sample_hessians`,
         steps (6,) per jet channel) — except for a term with couplings, whose Hessian is in
-        `coupled_blocks`."""
+        `coupled_blocks`. psd: positive semi-definite instead, the shell's through its strains
+        (`ShellEnergyTerm.hessian_blocks`' psd), the other terms' clamped (`project_psd`)."""
         total = None
         for term in (self.shell, *self.extra):
             own = getattr(term, "hessian_blocks", None)
-            if own is not None:
+            if own is not None and psd and term is self.shell:
+                blocks = own(samples, u_jets, load_factor, steps=steps, psd=True)
+            elif own is not None:
                 blocks = own(samples, u_jets, load_factor, steps=steps)
             elif hasattr(term, "coupled_hessian"):  # its Hessian is all in its couplings
                 continue
             else:
                 blocks = sample_hessians(_term_potential(term, load_factor), samples, u_jets,
                                          steps=steps)
+            if psd and term is not self.shell:
+                blocks = project_psd(blocks.reshape(blocks.shape[0], JET_SIZE, JET_SIZE)
+                                     )[0].reshape(blocks.shape)
             total = blocks if total is None else total + blocks
         return total
 
@@ -136,6 +142,13 @@ class FixedLoadPotential:
                        steps: torch.Tensor) -> torch.Tensor:
         """Per-point Hessian blocks (N, 6, 3, 6, 3) (`Objective.hessian_blocks`)."""
         return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
+
+    def psd_hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
+                           steps: torch.Tensor) -> torch.Tensor:
+        """Positive semi-definite per-point blocks (N, 6, 3, 6, 3) (`Objective.hessian_blocks`'
+        psd: projected Newton's "strain" treatment)."""
+        return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps,
+                                             psd=True)
 
     def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor
                        ) -> Couplings | None:

@@ -48,13 +48,14 @@ class ShellEnergyTerm:
         return result.total, result.grad_u_jets
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
-                       load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor
-                       ) -> torch.Tensor:
+                       load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor,
+                       psd: bool = False) -> torch.Tensor:
         """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3) through the strains
         (`strain_energy_hessians`; the loads are linear in u: the load factor adds nothing).
-        steps (6,): the jet channels' central-difference steps (`jet_steps`)."""
+        steps (6,): the jet channels' central-difference steps (`jet_steps`). psd: positive
+        semi-definite by construction instead (`strain_energy_hessians`' psd)."""
         return strain_energy_hessians(self.material, samples, u_jets, steps=steps,
-                                      stiffness=self.stiffness)
+                                      stiffness=self.stiffness, psd=psd)
 
 
 class EndMomentTerm:

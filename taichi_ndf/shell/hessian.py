@@ -135,13 +135,15 @@ def indefinite_blocks(blocks: torch.Tensor, rows: slice | torch.Tensor | None = 
     return torch.nonzero(info != 0).flatten()
 
 
-PROJECTIONS = ("abs", "clamp")
+# "strain": the blocks through the strains (`strain_hessian`, psd); blocks given alone: clamp.
+PROJECTIONS = ("abs", "clamp", "strain")
 
 
 def project_psd(blocks: torch.Tensor, bad: torch.Tensor | None = None, mode: str = "clamp"
                 ) -> tuple[torch.Tensor, int]:
     """Blocks (N, m, m) projected to positive semi-definite, and how many were indefinite.
-    mode "abs": negative eigenvalues replaced by their absolute values; "clamp": by 0. Only
+    mode "abs": negative eigenvalues replaced by their absolute values; "clamp" (and
+    "strain", for blocks without their strains): by 0. Only
     the indefinite blocks (`indefinite_blocks`, or `bad` if given) are eigen-decomposed
     (module docstring)."""
     if mode not in PROJECTIONS:

@@ -192,7 +192,8 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                        objective, levels=levels, config=newton, probes=probes,
                        length=math.sqrt(surface.domain.rectangle_area), contact=contact,
                        linear=LinearSolverConfig(kind=config.linear_solver),
-                       on_iteration=iterated, first_level=first)
+                       on_iteration=iterated, first_level=first,
+                       first_coarse=state.levels[first - 1].energy if first else None)
     callbacks = tuple(callbacks)
     if on_level is not None:  # after the callbacks
         callbacks = (*callbacks, Hook("on_level", lambda: on_level(run)))
