@@ -23,7 +23,6 @@ Any further option goes to `ndf-sim` (e.g. --material canvas, --overwrite, --arc
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -50,9 +49,10 @@ def main(argv: list[str] | None = None) -> int:
     field = [] if args.siren else ["--field", "spline", "--refine", "1" if args.quick else "3"]
     cli_args = [str(SCENE), "--out", str(args.out), *(["--quick"] if args.quick else []),
                 *field, *rest]
-    status = sim.main(cli_args)
+    # The corner's sag is printed as soon as the solve is done, before ndf-sim writes the
+    # meshes, render and plot (seconds of CPU: benchmarks/RESULTS.md, "Start-up").
+    status = sim.main(cli_args, on_result=lambda result: print(corner_sag(result), flush=True))
     if status == 0:
-        print(corner_sag(json.loads((args.out / "result.json").read_text())))
         print(f"open {args.out / 'render.png'} (render), {args.out / 'energy.png'} (energy), "
               f"{args.out / 'mesh.ply'} (mesh with strains) and {args.out / 'result.json'}")
     return status
