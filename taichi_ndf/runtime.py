@@ -114,14 +114,16 @@ def language(backend: str | None = None) -> ModuleType:
     return _language
 
 
-# Taichi's Python front end spends most of a warm start in two helpers (benchmarks/RESULTS.md,
-# "Start-up", 2026-12-06): every @ti.kernel/@ti.func asks `inspect.getframeinfo` whether it is
-# defined in a class body (which scans every module in sys.modules per decorator: ~150 of them
-# here), and every AST node of a kernel being compiled formats an underlined, text-wrapped
-# source excerpt for error messages (textwrap on ~50 000 nodes before the first Newton
-# iteration), even when the offline cache then supplies the machine code. Both are replaced by
-# what they compute, read from `linecache`: the same class test, and file, line, function and
-# source line of the node without the ^^^ underline (kept under `init(debug=True)`).
+# Taichi's Python front end spends much of a warm start (the offline cache supplies the
+# machine code, but each kernel is still turned into IR in Python to find its cache key) in
+# three helpers (benchmarks/RESULTS.md, "Start-up", 2026-12-06): every @ti.kernel/@ti.func asks
+# `inspect.getframeinfo` whether it is defined in a class body (a scan of every module in
+# sys.modules per decorator, ~150 decorators here); every AST node of a kernel formats an
+# underlined, text-wrapped source excerpt for error messages (~50 000 nodes before the first
+# Newton iteration of a spline run); and a ti.func's source is read and tokenised again at
+# each call site. Replaced by what they compute: the same class test from `linecache`; file,
+# line, function and source line of the node without the ^^^ underline (Taichi's own under
+# `init(debug=True)`); each function's source read once per process.
 _FULL_POSITIONS: dict[str, object] = {}  # backend -> its own get_pos_info
 
 
@@ -144,6 +146,26 @@ def _quick_class_check(backend: str) -> None:
         return any(pattern.match(line) for pattern in patterns)
 
     kernel_impl._inside_class = _inside_class
+    if backend == "taichi":  # each ti.func's source, read again at each call site compiled
+        for name in ("getsourcelines", "getsourcefile"):
+            setattr(kernel_impl, name, _remembered(getattr(kernel_impl, name)))
+
+
+def _remembered(read):
+    """`read(function)` (a source file or its lines, which do not change within a process)
+    once per function."""
+    known: dict = {}
+
+    def remembered(function):
+        try:
+            found = known[function]
+        except KeyError:
+            found = known[function] = read(function)
+        except TypeError:  # not hashable
+            return read(function)
+        return (list(found[0]), found[1]) if isinstance(found, tuple) else found
+
+    return remembered
 
 
 def _source_positions(backend: str, *, full: bool) -> None:

@@ -92,3 +92,27 @@ def test_debug_gets_taichis_own_positions_back(taichi_runtime):
         assert context.get_pos_info is not quick
     finally:
         runtime._source_positions(backend, full=runtime.current().debug)
+
+
+def test_a_functions_source_is_read_once_however_often_it_is_compiled(taichi_runtime,
+                                                                      monkeypatch):
+    _taichi_only()
+    reads = []
+    getsourcelines = inspect.getsourcelines
+    monkeypatch.setattr(inspect, "getsourcelines", lambda obj: (
+        reads.append(getattr(obj, "__name__", obj)), getsourcelines(obj))[1])
+
+    @ti.func
+    def square(x):
+        return x * x
+
+    @ti.kernel
+    def fourth(x: ti.f64) -> ti.f64:
+        return square(square(x))
+
+    @ti.kernel
+    def sum_of_squares(x: ti.f64, y: ti.f64) -> ti.f64:
+        return square(x) + square(y)
+
+    assert fourth(2.0) == 16.0 and sum_of_squares(1.0, 2.0) == 5.0
+    assert reads.count("square") == 1
