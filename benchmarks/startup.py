@@ -48,6 +48,10 @@ def commands(out: Path) -> dict[str, tuple[list[str], str]]:
         "sim napkin --field spline": (
             ["-m", "taichi_ndf.cli.sim", str(SCENES / "napkin.toml"), "--field", "spline",
              "--out", str(out / "s_napkin")], "napkin: Π"),
+        "sim membrane_stretch, 4 load steps": (  # outputs with a trajectory video
+            ["-m", "taichi_ndf.cli.sim", str(SCENES / "membrane_stretch.toml"), "--field",
+             "spline", "--quick", "--set", "training.load_steps=[0.25, 0.5, 0.75, 1.0]",
+             "--out", str(out / "s_stretch")], "membrane_stretch: Π"),
         "demos/napkin.py": (
             [str(ROOT / "demos" / "napkin.py"), "--out", str(out / "d_napkin")],
             "free corner"),
@@ -112,6 +116,35 @@ class _Lines:
         return getattr(self.stream, name)
 
 
+OUTPUT_WRITERS = ("deformed_mesh", "write_mesh_files", "write_reference_mesh",
+                  "write_probe_points", "write_render", "write_energy_plot",
+                  "write_trajectory_mesh", "write_trajectory_video", "_finish")
+
+
+def _time_outputs(marks: _Marks) -> None:
+    """Mark the CPU each output writer of `simulate` takes ("output NAME", the CPU seconds of
+    the call as its text), and the checkpoint writes."""
+    from taichi_ndf.app import simulation
+    from taichi_ndf.minimise import callbacks
+
+    def timed(name, function):
+        def run(*args, **kwargs):
+            start = cpu_seconds()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                marks.add(f"output {name}", f"{cpu_seconds() - start:.4f}")
+
+        return run
+
+    for name in OUTPUT_WRITERS:
+        setattr(simulation, name, timed(name, getattr(simulation, name)))
+    writer = callbacks.CheckpointWriter
+    for name in ("on_level", "on_end", "on_iteration"):
+        if hasattr(writer, name):
+            setattr(writer, name, timed(f"checkpoint.{name}", getattr(writer, name)))
+
+
 def child(marks_path: Path, started: float, stop_at_newton: bool, target: list[str]) -> int:
     from taichi_ndf import progress
 
@@ -123,6 +156,8 @@ def child(marks_path: Path, started: float, stop_at_newton: bool, target: list[s
         marks.profiler = cProfile.Profile()
         marks.profiler.enable()
     sys.stdout = _Lines(sys.stdout, marks)
+    if os.environ.get("STARTUP_OUTPUTS"):
+        _time_outputs(marks)
     with progress.listening(marks.progress):
         try:
             if target[0] == "-m":
@@ -145,11 +180,15 @@ def child(marks_path: Path, started: float, stop_at_newton: bool, target: list[s
 
 # --- the parent ----------------------------------------------------------------------------
 
-def run(target: list[str], cache: Path, workdir: Path, *, stop_at_newton: bool) -> dict:
-    """One child run; its marks, exit code and whole-process CPU (children included)."""
+def run(target: list[str], cache: Path, workdir: Path, *, stop_at_newton: bool,
+        outputs: bool = False) -> dict:
+    """One child run; its marks, exit code and whole-process CPU (children included);
+    `outputs`: with the CPU of each output writer marked."""
     marks_path = workdir / f"marks_{time.monotonic_ns()}.json"
     env = dict(os.environ, TAICHI_NDF_CACHE=str(cache), OMP_NUM_THREADS="1",
                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    if outputs:
+        env["STARTUP_OUTPUTS"] = "1"
     started = time.time()
     process = subprocess.Popen(
         [sys.executable, str(Path(__file__).resolve()), "--child", str(marks_path),
@@ -166,6 +205,16 @@ def run(target: list[str], cache: Path, workdir: Path, *, stop_at_newton: bool) 
               file=sys.stderr)
     return {"marks": marks, "code": code, "cpu": usage.ru_utime + usage.ru_stime, "wall": wall,
             "maxrss_mb": usage.ru_maxrss / 1024, "stdout": output}
+
+
+def output_costs(marks: list[dict]) -> dict[str, tuple[int, float]]:
+    """Output writer -> (calls, CPU seconds) from a run's "output NAME" marks."""
+    costs: dict[str, tuple[int, float]] = {}
+    for mark in marks:
+        if mark["what"].startswith("output "):
+            calls, cpu = costs.get(mark["what"][7:], (0, 0.0))
+            costs[mark["what"][7:]] = (calls + 1, cpu + float(mark["text"]))
+    return costs
 
 
 def first(marks: list[dict], what: str, text: str = "") -> dict | None:
@@ -216,6 +265,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="run each command to its end (result line and outputs), not only "
                         "to the first Newton iteration")
     parser.add_argument("--repeat", type=int, default=1, help="warm runs per command")
+    parser.add_argument("--outputs", action="store_true",
+                        help="with --full: also the CPU of each output writer (last warm run)")
+    parser.add_argument("--args", nargs="*", default=[], metavar="ARG",
+                        help="further arguments for every command (e.g. --precision=f32)")
     parser.add_argument("--out", type=Path, help="folder of the runs (default: a temporary one)")
     args, target = parser.parse_known_args(argv)
     if args.child:
@@ -230,6 +283,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{os.cpu_count()} CPUs, {sys.executable}")
     if wanted is None or "help" in wanted:
         print("\n".join(help_table(workdir, max(args.repeat, 3))))
+    costs: dict[str, dict] = {}
     rows = ["| command | cache | CPU / wall s to 1st Newton iteration | "
             "CPU / wall s to result line | process CPU / wall s | peak MB |",
             "|---|---|---|---|---|---|"]
@@ -240,7 +294,9 @@ def main(argv: list[str] | None = None) -> int:
         for label in ["cold", *["warm"] * args.repeat]:
             for path in workdir.glob("[vsd]_*"):  # each run writes a new output folder
                 subprocess.run(["rm", "-rf", str(path)], check=False)
-            result = run(target, cache, workdir, stop_at_newton=not args.full)
+            result = run([*target, *args.args], cache, workdir, stop_at_newton=not args.full,
+                         outputs=args.outputs)
+            costs[name] = output_costs(result["marks"])
             line = first(result["marks"], "line", result_text) if args.full else None
             process = (f"{result['cpu']:.2f} / {result['wall']:.2f}" if args.full
                        else "(stopped)")
@@ -248,6 +304,11 @@ def main(argv: list[str] | None = None) -> int:
                         f"{_cell(line)} | {process} | {result['maxrss_mb']:.0f} |")
             print(rows[-1], file=sys.stderr, flush=True)
     print("\n" + "\n".join(rows))
+    if args.outputs:
+        print("\n| command | output | calls | CPU s |\n|---|---|---|---|")
+        for name, cost in costs.items():
+            for output, (calls, cpu) in cost.items():
+                print(f"| {name} | {output} | {calls} | {cpu:.3f} |")
     print(f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} at the end")
     return 0
 
