@@ -78,3 +78,21 @@ def test_the_napkin_demo_prints_its_sag_from_the_handed_over_result(monkeypatch,
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] == demo.corner_sag(result)
     assert lines[0].startswith("free corner 1.4300 m below the pin")
+
+
+def test_the_soft_shadow_is_the_full_resolution_blur_within_its_tolerance():
+    import cv2
+    import numpy as np
+
+    from taichi_ndf.render.figure import soft_shadow
+
+    coverage = np.zeros((600, 900))  # a 3x supersampled 200 x 300 image: a sheet's shadow
+    rows, cols = np.mgrid[:600, :900]
+    coverage[(rows - 350) ** 2 / 150**2 + (cols - 420) ** 2 / 300**2 < 1] = 1.0
+    coverage[100:200, 600:700] = 1.0  # and a square
+    sigma = 0.01 * 600
+    full = cv2.GaussianBlur(coverage, (0, 0), sigma)
+    soft = soft_shadow(coverage, sigma, 3)
+    assert soft.shape == coverage.shape and soft.dtype == np.float64
+    assert np.abs(soft - full).max() < 0.02  # of a shadow 0.35 deep: < 2 of 255 grey levels
+    assert np.abs(soft - full).mean() < 1e-3
