@@ -103,7 +103,7 @@ def language(backend: str | None = None) -> ModuleType:
     wanted = _check_backend(backend or selected_backend())
     if _language is None:
         _language = importlib.import_module(_installed(wanted))
-        _quick_class_check(wanted)
+        _lighter_front_end(wanted)
         log.info("Taichi language: %s %s", wanted, backend_version(_language))
     elif _language.__name__ != wanted:
         raise RuntimeError(
@@ -127,9 +127,10 @@ def language(backend: str | None = None) -> ModuleType:
 _FULL_POSITIONS: dict[str, object] = {}  # backend -> its own get_pos_info
 
 
-def _quick_class_check(backend: str) -> None:
+def _lighter_front_end(backend: str) -> None:
     """Taichi's `_inside_class` (is the decorated function in a class body?) from the source
-    line by `linecache` instead of `inspect.getframeinfo`; the same answer."""
+    line by `linecache` instead of `inspect.getframeinfo`, the same answer; and on taichi,
+    each function's source read once (`_remembered`)."""
     try:
         kernel_impl = importlib.import_module(f"{backend}.lang.kernel_impl")
         patterns = kernel_impl._KERNEL_CLASS_STACKFRAME_STMT_RES
