@@ -8,7 +8,9 @@ against the inextensible limit.
     python demos/napkin.py --siren    # the SIREN field trained by Adam (~2–3 min on a CPU)
     python demos/napkin.py --quick    # a short run, to check the installation
 
-Measured (2026-12-03, the default f64, 2-core VM at load 1-4): 55 s CPU (86 s wall); Π
+Measured (2026-12-03, the default f64, 2-core VM at load 1-4): 55 s CPU (86 s wall); on
+2026-12-06 the corner's sag is printed before the outputs, after 40 s CPU with a warm Taichi
+kernel cache (51 s on a first run; benchmarks/RESULTS.md, "Start-up"); Π
 −1.64003 J on 32 × 32 spans, extrapolated −1.6568 ± 0.021 J (observed order 0.84 from 3 grids,
 expected 4: the point pin); the corner hangs 1.4377 ± 0.0016 m, 1.66 % beyond √2 m (f32, load
 2: 43 s CPU, the same to four digits; the bars are the guarded rule's, 1.25 × the correction,
@@ -23,7 +25,6 @@ Any further option goes to `ndf-sim` (e.g. --material canvas, --overwrite, --arc
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -50,9 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     field = [] if args.siren else ["--field", "spline", "--refine", "1" if args.quick else "3"]
     cli_args = [str(SCENE), "--out", str(args.out), *(["--quick"] if args.quick else []),
                 *field, *rest]
-    status = sim.main(cli_args)
+    # The corner's sag is printed as soon as the solve is done, before ndf-sim writes the
+    # meshes, render and plot (seconds of CPU: benchmarks/RESULTS.md, "Start-up").
+    status = sim.main(cli_args, on_result=lambda result: print(corner_sag(result), flush=True))
     if status == 0:
-        print(corner_sag(json.loads((args.out / "result.json").read_text())))
         print(f"open {args.out / 'render.png'} (render), {args.out / 'energy.png'} (energy), "
               f"{args.out / 'mesh.ply'} (mesh with strains) and {args.out / 'result.json'}")
     return status

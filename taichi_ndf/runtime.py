@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import linecache
 import logging
 import os
 import platform
 import random
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -101,6 +103,7 @@ def language(backend: str | None = None) -> ModuleType:
     wanted = _check_backend(backend or selected_backend())
     if _language is None:
         _language = importlib.import_module(_installed(wanted))
+        _lighter_front_end(wanted)
         log.info("Taichi language: %s %s", wanted, backend_version(_language))
     elif _language.__name__ != wanted:
         raise RuntimeError(
@@ -109,6 +112,88 @@ def language(backend: str | None = None) -> ModuleType:
             f"{BACKEND_VARIABLE}={wanted} or call init(backend={wanted!r}) before importing "
             "taichi_ndf's kernel modules")
     return _language
+
+
+# Taichi's Python front end spends much of a warm start (the offline cache supplies the
+# machine code, but each kernel is still turned into IR in Python to find its cache key) in
+# three helpers (benchmarks/RESULTS.md, "Start-up", 2026-12-06): every @ti.kernel/@ti.func asks
+# `inspect.getframeinfo` whether it is defined in a class body (a scan of every module in
+# sys.modules per decorator, ~150 decorators here); every AST node of a kernel formats an
+# underlined, text-wrapped source excerpt for error messages (~50 000 nodes before the first
+# Newton iteration of a spline run); and a ti.func's source is read and tokenised again at
+# each call site. Replaced by what they compute: the same class test from `linecache`; file,
+# line, function and source line of the node without the ^^^ underline (Taichi's own under
+# `init(debug=True)`); each function's source read once per process.
+_FULL_POSITIONS: dict[str, object] = {}  # backend -> its own get_pos_info
+
+
+def _lighter_front_end(backend: str) -> None:
+    """Taichi's `_inside_class` (is the decorated function in a class body?) from the source
+    line by `linecache` instead of `inspect.getframeinfo`, the same answer; and on taichi,
+    each function's source read once (`_remembered`)."""
+    try:
+        kernel_impl = importlib.import_module(f"{backend}.lang.kernel_impl")
+        patterns = kernel_impl._KERNEL_CLASS_STACKFRAME_STMT_RES
+    except (ImportError, AttributeError):
+        log.debug("%s: no _inside_class to replace", backend)
+        return
+
+    def _inside_class(level_of_class_stackframe: int) -> bool:
+        try:
+            frame = sys._getframe(level_of_class_stackframe)
+        except ValueError:
+            return False
+        line = linecache.getline(frame.f_code.co_filename, frame.f_lineno).strip()
+        return any(pattern.match(line) for pattern in patterns)
+
+    kernel_impl._inside_class = _inside_class
+    if backend == "taichi":  # each ti.func's source, read again at each call site compiled
+        for name in ("getsourcelines", "getsourcefile"):
+            setattr(kernel_impl, name, _remembered(getattr(kernel_impl, name)))
+
+
+def _remembered(read):
+    """`read(function)` (a source file or its lines, which do not change within a process)
+    once per function."""
+    known: dict = {}
+
+    def remembered(function):
+        try:
+            found = known[function]
+        except KeyError:
+            found = known[function] = read(function)
+        except TypeError:  # not hashable
+            return read(function)
+        return (list(found[0]), found[1]) if isinstance(found, tuple) else found
+
+    return remembered
+
+
+def _source_positions(backend: str, *, full: bool) -> None:
+    """Taichi's source position of an AST node (for its compile error messages): its own
+    underlined excerpt with `full`, else file, line, function and the node's first source
+    line."""
+    if backend != "taichi":  # quadrants builds its positions its own (memoised) way
+        return
+    try:
+        utils = importlib.import_module(f"{backend}.lang.ast.ast_transformer_utils")
+        context = utils.ASTTransformerContext
+    except (ImportError, AttributeError):
+        log.debug("%s: no get_pos_info to replace", backend)
+        return
+    own = _FULL_POSITIONS.setdefault(backend, context.get_pos_info)
+    if full:
+        context.get_pos_info = own
+        return
+
+    def get_pos_info(self, node) -> str:
+        try:
+            return (f'File "{self.file}", line {node.lineno + self.lineno_offset}, in '
+                    f"{self.func.func.__name__}:\n{self.src[node.lineno - 1]}\n")
+        except (AttributeError, IndexError, TypeError):
+            return own(self, node)
+
+    context.get_pos_info = get_pos_info
 
 
 def backend_version(module: ModuleType) -> str:
@@ -201,6 +286,7 @@ def init(arch: str = "cpu", precision: str = "f64", seed: int = 0, *,
     fp = ti.f64 if precision == "f64" else ti.f32
     path = cache_dir() / wanted.backend
     path.mkdir(parents=True, exist_ok=True)
+    _source_positions(wanted.backend, full=debug)
     ti.init(
         arch=ti_arch,
         default_fp=fp,

@@ -56,13 +56,19 @@ class SimulationError(RuntimeError):
 
 def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None,
              resume: bool = False, machine: dict | None = None, seed: int | None = None,
-             report: Callable[[str], None] | None = None) -> dict:
+             report: Callable[[str], None] | None = None,
+             on_result: Callable[[dict], None] | None = None, pictures: bool = True) -> dict:
     """Solve `scene` and write mesh.obj/.ply, reference.obj, probes.json, render.png,
     energy.png, checkpoint.pt, result.json (result.usdc with `[output] usd`; and trajectory/ +
     trajectory.mp4 with several load steps, or with a pseudo-time field at `output.frames`
     pseudo-times) into `out`.
     report: where a spline run's one-line summary of each finished grid level goes when the
     solver configuration asks for progress (the command line passes `print`); None: nowhere.
+    on_result: called once the solve is done, before any output is written (they cost
+    seconds: benchmarks/RESULTS.md, "Start-up"), with the result so far: "energy",
+    "iterations", "wall_time", "probes" and the discretisation's own keys ("refinement", ...).
+    pictures: False leaves out render.png, energy.png and trajectory.mp4 (the meshes, probes,
+    checkpoint and result.json are written all the same).
     Returns the result dictionary also written to result.json."""
     config = solver or scene.solver
     if scene.output.usd:  # before the solve, not after it
@@ -101,6 +107,10 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         discretisation.check_solution(solution)
     except (DivergenceError, SolveRefused) as err:
         raise SimulationError(str(err)) from err
+    if on_result is not None:
+        on_result({"energy": solution.energy, "iterations": solution.iterations,
+                   "wall_time": solution.wall_time, "probes": solution.probes,
+                   **solution.document})
 
     trajectory = None
     if step_frames:
@@ -122,7 +132,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
                                                     **solution.contact_counts)
     _write_field_outputs(scene, out, solution.field, solution.probes, solution.history,
                          pseudo_time=config.pseudo_time, refinement=solution.refinement,
-                         obstacles=obstacle_meshes, trajectory=trajectory)
+                         obstacles=obstacle_meshes, trajectory=trajectory, pictures=pictures)
     summary = _summary(scene, config, seed, solution.energy, solution.iterations,
                        solution.wall_time, solution.probes, trajectory, solution.field_document,
                        machine, solution.history, contact)
@@ -146,11 +156,14 @@ def _contact_outputs(scene: Scene, out: OutputDir, field, points, **counts
 
 def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, history, *,
                          pseudo_time: bool = False, refinement: dict | None = None,
-                         obstacles: tuple = (), trajectory: dict | None = None) -> None:
+                         obstacles: tuple = (), trajectory: dict | None = None,
+                         pictures: bool = True) -> None:
     """mesh.obj/.ply, reference.obj, probes.json, render.png and energy.png of the final
     field, and trajectory.mp4 of a `trajectory` (its "states", taken out of it here) with the
-    obstacles at each state's load factor (a progress stage of six steps)."""
-    with progress.stage("outputs: mesh, render, energy plot, video", 6):
+    obstacles at each state's load factor (a progress stage of six steps); without
+    `pictures` the meshes and probes only."""
+    name = "outputs: mesh, render, energy plot, video" if pictures else "outputs: mesh"
+    with progress.stage(name, 6):
         mesh = deformed_mesh(scene.model, field, scene.output.resolution,
                              pseudo_time=pseudo_time)
         for name, values in mesh.scalars().items():
@@ -161,12 +174,14 @@ def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, hist
         write_reference_mesh(out, mesh)
         write_probe_points(out, scene.model, probes)
         progress.report(3)
+        states = trajectory.pop("states", None) if trajectory else None
+        if not pictures:
+            return
         write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
                      views=scene.output.views, obstacles=obstacles)
         progress.report(4)
         write_energy_plot(out, "energy.png", history, refinement)
         progress.report(5)
-        states = trajectory.pop("states", None) if trajectory else None
         if states:
             contact = scene.model.contact
             write_trajectory_video(

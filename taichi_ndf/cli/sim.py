@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from taichi_ndf.cli.common import (
@@ -50,6 +51,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "finished one from DIR/checkpoint.pt, e.g. with more --iterations)")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")
+    p.add_argument("--no-pictures", dest="pictures", action="store_false",
+                   help="leave out render.png, energy.png and trajectory.mp4 (seconds of CPU "
+                   "after the result is printed; the meshes, probes, checkpoint and "
+                   "result.json are written all the same)")
     add_runtime_options(p, seed=None, seed_help="random seed (default: the scene's "
                         "[training] seed, 0 if none)")
     return p
@@ -63,7 +68,11 @@ def refined_scene(scene, levels: int):
     return dataclasses.replace(scene, field=of_scene(scene).refined(levels).spec)
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *,
+         on_result: Callable[[dict], None] | None = None) -> int:
+    """Run the tool; `on_result` (e.g. a demo's own result line) is called with the result
+    right after the summary is printed: once the solve is done, before the outputs are
+    written (`simulate`)."""
     args = build_parser().parse_args(argv)
     # Imported after parsing: --help and a bad option answer without loading torch or Taichi.
     from taichi_ndf.app.outputs import exports_on_template
@@ -76,6 +85,15 @@ def main(argv: list[str] | None = None) -> int:
     from taichi_ndf.scene.schema import SceneError
 
     staging = incomplete_path(args.out)
+    shown_result = []
+
+    def show(result: dict) -> None:  # the result before the outputs (they cost seconds)
+        for line in summary_lines(scene.name, result):
+            print(line, flush=True)
+        if on_result is not None:
+            on_result(result)
+        shown_result.append(True)
+
     try:
         from taichi_ndf.scene.reader import load_scene
         from taichi_ndf.scene.training import trains_the_field
@@ -111,7 +129,8 @@ def main(argv: list[str] | None = None) -> int:
             runtime = start(args)  # the directory is claimed before the runtime starts
             result = simulate(scene, out, solver=solver, resume=args.resume,
                               machine=machine_description(runtime),
-                              report=lambda line: print(line, flush=True))
+                              report=lambda line: print(line, flush=True),
+                              on_result=show, pictures=args.pictures)
     except (SceneError, SimulationError, FileExistsError, FileNotFoundError, ValueError) as err:
         print(f"ndf-sim: error: {err}", file=sys.stderr)
         return 2
@@ -125,8 +144,8 @@ def main(argv: list[str] | None = None) -> int:
                  if (staging / "checkpoint.pt").is_file() else "no checkpoint was written yet")
         print(f"ndf-sim: interrupted; {where}", file=sys.stderr)
         return 130
-    for line in summary_lines(scene.name, result):
-        print(line)
+    if not shown_result:
+        show(result)
     print(f"outputs in {args.out}")
     return 0
 

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import trimesh
 
 from taichi_ndf.contact.obstacles import Obstacle, _motion
 from taichi_ndf.runtime import ti
@@ -126,6 +125,7 @@ class MeshObstacle(Obstacle):
                              f"(F, 3), got {vertices.shape} and {faces.shape}")
         if not np.isfinite(vertices).all():
             raise ValueError(f"{self.name}: non-finite vertex coordinates")
+        import trimesh  # on first use: ~0.9 s of imports (scipy, networkx)
         mesh = trimesh.Trimesh(vertices, faces, process=True)
         if not mesh.is_watertight:
             raise ValueError(f"{self.name}: the mesh is not closed (it has boundary edges or "
@@ -144,6 +144,7 @@ class MeshObstacle(Obstacle):
             raise FileNotFoundError(f"obstacle mesh not found: {path}")
         if not (math.isfinite(scale) and scale > 0):
             raise ValueError(f"{name or path.stem}: scale must be > 0, got {scale!r}")
+        import trimesh
         mesh = trimesh.load(path, force="mesh", process=False)
         vertices = np.asarray(mesh.vertices) * scale + np.asarray(offset, dtype=np.float64)
         return cls(name=name or path.stem, vertices=vertices, faces=np.asarray(mesh.faces),

