@@ -51,7 +51,8 @@ def test_plate_resting_on_a_plane_ends_at_the_offset_height_without_bending():
     mesh = deformed_mesh(model, field, (16, 16))
     heights = mesh.deformed[:, 2]
     assert float(heights.max() - heights.min()) < 0.04 * activation, np.ptp(heights)
-    assert solver.contact.count == len(solver.contact.grid_xi)  # the whole plate is in contact
+    points = solver.contact.points
+    assert points.count == len(points.grid_xi)  # the whole plate is in contact
 
 
 def test_filter_refuses_a_step_that_could_cross_an_obstacle():

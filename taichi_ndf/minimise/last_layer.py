@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable
 
 import torch
 
+from taichi_ndf.contact.hook import ContactHook
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimise.linearisation import DenseLinearisation
 from taichi_ndf.minimise.newton import (
@@ -107,20 +107,27 @@ def solve_last_layer(operator: DisplacementOperator, potential: Potential,
                      samples: SurfaceSamples, load_factor: float,
                      config: NewtonConfig | None = None, *,
                      conditioning: torch.Tensor | None = None,
-                     allowed: Callable[[SurfaceSamples, torch.Tensor], bool] | None = None
-                     ) -> NewtonSolution:
+                     contact: ContactHook | None = None) -> NewtonSolution:
     """Minimise Π (potential: the objective at a load factor, `Objective.potential`) over the
     output layer of the operator's field on fixed samples (`minimise` over
     `output_linearisation`, settings `LAST_LAYER` by default); updates W_out and b_out in
     place. The solution's parameters are the change of the output layer (3, width + 1).
 
     conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring).
-    allowed(samples, u_jets) -> bool: whether a line-search trial may reach the displacement
-    jets u_jets (N, 6, 3) at the samples (contact's penetration test, `minimise`'s
-    `feasible`); None: every trial may."""
+    contact: the run's `ContactHook` (samples: with its check points): a line-search trial
+    is feasible where the hook's step test allows the step from the phase's starting field
+    on the checked points (`ContactPoints.checked`); None: every trial is."""
     linear = output_linearisation(operator, samples, load_factor, conditioning)
-    feasible = None if allowed is None else (
-        lambda _c, trial: allowed(linear.samples, linear.displacement(trial)))
+    feasible = None
+    if contact is not None:
+        keep = contact.points.checked(linear.samples)
+        r = linear.samples.r_jets[keep, 0]
+        kept = None if conditioning is None else conditioning[keep]
+        start = operator.displacement(linear.samples.xi[keep], t=load_factor, conditioning=kept)
+        check = contact.check(r + start, load_factor)
+
+        def feasible(_state: torch.Tensor, trial: torch.Tensor) -> bool:
+            return check.allows(r + linear.displacement(trial)[keep, 0])
     solution = minimise(linear, potential, torch.zeros_like(linear.origin),
                         config or LAST_LAYER, load_factor=load_factor, feasible=feasible,
                         report=False)
