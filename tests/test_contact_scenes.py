@@ -12,7 +12,14 @@ import torch
 from taichi_ndf.app.outputs import deformed_mesh
 from taichi_ndf.boundary import BoundaryConditions, PinnedPoint
 from taichi_ndf.cli import sim
-from taichi_ndf.contact import ContactConfig, ContactPoints, ContactTerm, GroundPlane, Sphere
+from taichi_ndf.contact import (
+    ContactConfig,
+    ContactHook,
+    ContactPoints,
+    ContactTerm,
+    GroundPlane,
+    Sphere,
+)
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
 from taichi_ndf.problem.loads import Loads
@@ -74,7 +81,7 @@ def test_filter_refuses_a_step_that_could_cross_an_obstacle():
     assert not points.step_allowed(inside, stray, inside + 0.001 * down, 1.0)
 
 
-def test_filter_with_both_ends_lets_a_point_at_a_tiny_gap_move_away_but_not_cross():
+def test_filter_counts_both_ends_lets_a_point_at_a_tiny_gap_move_away_but_not_cross():
     surface = Plane(bounds=((-0.1, 0.1), (-0.1, 0.1)))
     term = ContactTerm([Sphere(centre=(0.0, 0.0, -0.5), radius=0.5)], offset=0.0,
                        activation=1e-3, stiffness=1.0)
@@ -83,25 +90,21 @@ def test_filter_with_both_ends_lets_a_point_at_a_tiny_gap_move_away_but_not_cros
     gaps = points.point_gaps(start, 1.0)
     up = torch.tensor([0.0, 0.0, 1.0], dtype=F64)
     side = torch.tensor([1.0, 0.0, 0.0], dtype=F64)
-    away = start + 2e-5 * up
-    assert not points.step_allowed(start, gaps, away, 1.0)  # one-sided: moved > its gap
-    assert points.step_allowed(start, gaps, away, 1.0, both_ends=True)
+    assert points.step_allowed(start, gaps, start + 2e-5 * up, 1.0)  # moved 8 × its gap
     # sliding along the sphere by much more than the two gaps, or into it: refused
-    assert not points.step_allowed(start, gaps, start + 1e-4 * side, 1.0, both_ends=True)
-    assert not points.step_allowed(start, gaps, start - 1e-5 * up, 1.0, both_ends=True)
+    assert not points.step_allowed(start, gaps, start + 1e-4 * side, 1.0)
+    assert not points.step_allowed(start, gaps, start - 1e-5 * up, 1.0)
     # a jump clean through the sphere ends outside with a large end gap, but the path
     # crosses it: |end - start| = 1.2 m against gaps 0.002 + 0.198
     high = torch.tensor([[0.05, 0.0, 0.002]], dtype=F64)
     through = high - 1.2 * up
     assert float(points.point_gaps(through, 1.0)[0]) > 0
-    assert not points.step_allowed(high, points.point_gaps(high, 1.0), through, 1.0,
-                                   both_ends=True)
+    assert not points.step_allowed(high, points.point_gaps(high, 1.0), through, 1.0)
 
 
-
-def test_the_siren_path_filters_with_both_ends(monkeypatch):
-    """Adam's filter and the last-layer Newton's use the two-sided test (the one-sided one
-    froze napkin_sphere at output_scale 0.452: docs/scenes.md, "Field output scale")."""
+def test_the_siren_path_asks_the_contact_hook(monkeypatch):
+    """Adam's steps go through the hook's policy (`accept`) and the last-layer Newton's
+    trials through its step test (`check`), from one hook made at the solver's start."""
     surface = Plane(bounds=((0.0, 0.2), (0.0, 0.2)))
     material = preset("cloth")
     bare = ShellModel(surface, material, Loads(gravity=(0.0, 0.0, -9.81)),
@@ -114,15 +117,21 @@ def test_the_siren_path_filters_with_both_ends(monkeypatch):
     config = SolverConfig(iterations=2, samples=64, newton_iterations=1, newton_samples=64,
                           monitor_samples=64, progress=False)
     calls = []
-    original = ContactPoints.step_allowed
+    for name in ("accept", "check", "feasible_start"):
+        original = getattr(ContactHook, name)
 
-    def spy(self, *args, **kwargs):
-        calls.append(kwargs.get("both_ends", False))
-        return original(self, *args, **kwargs)
+        def spy(self, *args, _name=name, _original=original, **kwargs):
+            calls.append((_name, id(self)))
+            return _original(self, *args, **kwargs)
+        monkeypatch.setattr(ContactHook, name, spy)
+    solver = Solver(model, field, config)
+    solver.run()
+    names = [n for n, _ in calls]
+    assert names.count("feasible_start") == 1 and names.count("accept") == 2, names
+    # a check per Adam step (2) and per Newton phase (start and end of the load step)
+    assert names.count("check") == 4, names
+    assert {h for _, h in calls} == {id(solver.contact)}
 
-    monkeypatch.setattr(ContactPoints, "step_allowed", spy)
-    Solver(model, field, config).run()
-    assert calls and all(calls), calls
 
 NAPKIN = SCENES / "napkin_sphere.toml"
 

@@ -15,27 +15,39 @@ from taichi_ndf.geometry import Plane
 UP = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
 
 
-def _hook(*, both_ends: bool = False, halvings: int = 10) -> ContactHook:
+def _hook(*, halvings: int = 10) -> ContactHook:
     term = ContactTerm([GroundPlane(point=(0.0, 0.0, -0.1))], offset=0.0, activation=0.01,
                        stiffness=1.0)
     return ContactHook(ContactPoints(term, Plane(((0.0, 1.0), (0.0, 1.0))), 4),
-                       both_ends=both_ends, halvings=halvings)
+                       halvings=halvings)
 
 
 def test_a_step_check_answers_as_step_allowed():
-    for both_ends in (False, True):
-        hook = _hook(both_ends=both_ends)
-        points = hook.points
-        start = points.grid_r.clone()  # 0.1 m above the ground
-        check = hook.check(start, 1.0)
-        for drop in (0.05, 0.099, 0.15, -0.3):
-            end = start - drop * UP
-            expected = points.step_allowed(start, points.point_gaps(start, 1.0), end, 1.0,
-                                           both_ends=both_ends)
-            assert check.allows(end) == expected
-        # 0.099 m down is allowed, 0.15 m (through the ground) is not
-        assert check.allows(start - 0.099 * UP)
-        assert not check.allows(start - 0.15 * UP)
+    hook = _hook()
+    points = hook.points
+    start = points.grid_r.clone()  # 0.1 m above the ground
+    check = hook.check(start, 1.0)
+    for drop in (0.05, 0.099, 0.15, -0.3):
+        end = start - drop * UP
+        expected = points.step_allowed(start, points.point_gaps(start, 1.0), end, 1.0)
+        assert check.allows(end) == expected
+    # 0.099 m down is allowed, 0.15 m (through the ground) is not
+    assert check.allows(start - 0.099 * UP)
+    assert not check.allows(start - 0.15 * UP)
+
+
+def test_the_line_search_lets_a_point_at_a_tiny_gap_move_away():
+    """One rule on both paths: projected Newton's `feasible` counts the end's gap too, as
+    Adam's halvings do (a one-sided test refused this step: moved 20 µm > its gap 2.5 µm)."""
+    hook = _hook()
+    ground = hook.points.grid_r - (0.1 - 2.5e-6) * UP  # every point 2.5 µm above the ground
+
+    def positions(state):
+        return ground + state * UP
+    feasible = hook.feasible(positions, 1.0)
+    start = torch.tensor(0.0, dtype=torch.float64)
+    assert feasible(start, torch.tensor(2e-5, dtype=torch.float64))  # away: allowed
+    assert not feasible(start, torch.tensor(-1e-5, dtype=torch.float64))  # into it: refused
 
 
 def test_feasible_takes_parameter_states_and_evaluates_each_start_once():
