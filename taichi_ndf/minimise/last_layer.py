@@ -114,20 +114,15 @@ def solve_last_layer(operator: DisplacementOperator, potential: Potential,
     place. The solution's parameters are the change of the output layer (3, width + 1).
 
     conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring).
-    contact: the run's `ContactHook` (samples: with its check points): a line-search trial
-    is feasible where the hook's step test allows the step from the phase's starting field
-    on the checked points (`ContactPoints.checked`); None: every trial is."""
+    contact: the run's `ContactHook` (samples: with its check points): its line-search test
+    `feasible` on the checked points (`ContactPoints.checked`), each trial from the current
+    iterate, as in projected Newton; None: every trial is feasible."""
     linear = output_linearisation(operator, samples, load_factor, conditioning)
     feasible = None
     if contact is not None:
         keep = contact.points.checked(linear.samples)
         r = linear.samples.r_jets[keep, 0]
-        kept = None if conditioning is None else conditioning[keep]
-        start = operator.displacement(linear.samples.xi[keep], t=load_factor, conditioning=kept)
-        check = contact.check(r + start, load_factor)
-
-        def feasible(_state: torch.Tensor, trial: torch.Tensor) -> bool:
-            return check.allows(r + linear.displacement(trial)[keep, 0])
+        feasible = contact.feasible(lambda p: r + linear.displacement(p)[keep, 0], load_factor)
     solution = minimise(linear, potential, torch.zeros_like(linear.origin),
                         config or LAST_LAYER, load_factor=load_factor, feasible=feasible,
                         report=False)
