@@ -135,3 +135,33 @@ def test_look_ahead_adds_the_points_that_could_come_close_by_the_next_steps():
     # moved 2 cm to a gap of 8 cm: within ĝ + 4 × 2 cm = 9 cm → added
     assert refresh(torch.tensor(0.02, dtype=torch.float64))
     assert hook.points.count == len(hook.points.grid_xi)
+
+
+def test_the_end_gaps_are_evaluated_only_for_the_points_that_need_them():
+    """`step_allowed` without the caller's end gaps evaluates them only for the points that
+    moved by their start gap or more, and answers as the rule written out in full."""
+    hook = _hook()
+    points = hook.points
+    evaluated = []
+    gaps = points.point_gaps
+
+    def counting(x, load_factor):
+        evaluated.append(len(x))
+        return gaps(x, load_factor)
+    points.point_gaps = counting
+    start = points.grid_r.clone()  # 0.1 m above the ground
+    start_gap = gaps(start, 1.0)
+    assert points.step_allowed(start, start_gap, start - 0.05 * UP, 1.0)
+    assert evaluated == []  # every point moved by less than its start gap
+    end = start.clone()
+    end[3] += 0.3 * UP  # one point 0.3 m away from the ground: allowed by its end gap
+    assert points.step_allowed(start, start_gap, end, 1.0)
+    assert evaluated == [1]
+    generator, answers = torch.Generator().manual_seed(0), []
+    for _ in range(50):
+        end = start + 0.05 * torch.randn(start.shape, generator=generator, dtype=start.dtype)
+        moved = (end - start).norm(dim=1)
+        full = bool((moved < start_gap + gaps(end, 1.0).clamp(min=0.0)).all())
+        answers.append(points.step_allowed(start, start_gap, end, 1.0))
+        assert answers[-1] == full
+    assert 0 < sum(answers) < len(answers)  # both answers occur (20 of 50 allowed)

@@ -139,14 +139,20 @@ class ContactPoints:
         it 20 µm away: docs/contact.md). No point ends deeper inside than the deepest stray
         point started.
 
-        end_gap: the points' gaps at `end` (`point_gaps`) where the caller has them."""
+        end_gap: the points' gaps at `end` (`point_gaps`) where the caller has them; else
+        computed here only for the points that moved by their start gap or more (and for all
+        where a point started inside): the same answer, without the gaps of every trial (a
+        torus: 70 ms per evaluation of sheet_torus's 48² grid)."""
         moved = (end - start).norm(dim=1)
         outside = start_gap > 0
-        if end_gap is None:
+        far = outside & (moved >= start_gap)  # allowed only by their gap at the end
+        if end_gap is None and not bool(outside.all()):
             end_gap = self.point_gaps(end, load_factor)
-        bound = start_gap[outside] + end_gap[outside].clamp(min=0.0)
-        if bool((moved[outside] >= bound).any()):
-            return False
+        if bool(far.any()):
+            end_far = end_gap[far] if end_gap is not None else self.point_gaps(end[far],
+                                                                              load_factor)
+            if bool((moved[far] >= start_gap[far] + end_far.clamp(min=0.0)).any()):
+                return False
         if bool(outside.all()):
             return True
         return float(end_gap.min()) > float(start_gap.min())
