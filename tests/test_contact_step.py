@@ -15,39 +15,27 @@ from taichi_ndf.geometry import Plane
 UP = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
 
 
-def _hook(*, halvings: int = 10) -> ContactHook:
+def _hook(*, both_ends: bool = False, halvings: int = 10) -> ContactHook:
     term = ContactTerm([GroundPlane(point=(0.0, 0.0, -0.1))], offset=0.0, activation=0.01,
                        stiffness=1.0)
     return ContactHook(ContactPoints(term, Plane(((0.0, 1.0), (0.0, 1.0))), 4),
-                       halvings=halvings)
+                       both_ends=both_ends, halvings=halvings)
 
 
 def test_a_step_check_answers_as_step_allowed():
-    hook = _hook()
-    points = hook.points
-    start = points.grid_r.clone()  # 0.1 m above the ground
-    check = hook.check(start, 1.0)
-    for drop in (0.05, 0.099, 0.15, -0.3):
-        end = start - drop * UP
-        expected = points.step_allowed(start, points.point_gaps(start, 1.0), end, 1.0)
-        assert check.allows(end) == expected
-    # 0.099 m down is allowed, 0.15 m (through the ground) is not
-    assert check.allows(start - 0.099 * UP)
-    assert not check.allows(start - 0.15 * UP)
-
-
-def test_the_line_search_lets_a_point_at_a_tiny_gap_move_away():
-    """One rule on both paths: projected Newton's `feasible` counts the end's gap too, as
-    Adam's halvings do (a one-sided test refused this step: moved 20 µm > its gap 2.5 µm)."""
-    hook = _hook()
-    ground = hook.points.grid_r - (0.1 - 2.5e-6) * UP  # every point 2.5 µm above the ground
-
-    def positions(state):
-        return ground + state * UP
-    feasible = hook.feasible(positions, 1.0)
-    start = torch.tensor(0.0, dtype=torch.float64)
-    assert feasible(start, torch.tensor(2e-5, dtype=torch.float64))  # away: allowed
-    assert not feasible(start, torch.tensor(-1e-5, dtype=torch.float64))  # into it: refused
+    for both_ends in (False, True):
+        hook = _hook(both_ends=both_ends)
+        points = hook.points
+        start = points.grid_r.clone()  # 0.1 m above the ground
+        check = hook.check(start, 1.0)
+        for drop in (0.05, 0.099, 0.15, -0.3):
+            end = start - drop * UP
+            expected = points.step_allowed(start, points.point_gaps(start, 1.0), end, 1.0,
+                                           both_ends=both_ends)
+            assert check.allows(end) == expected
+        # 0.099 m down is allowed, 0.15 m (through the ground) is not
+        assert check.allows(start - 0.099 * UP)
+        assert not check.allows(start - 0.15 * UP)
 
 
 def test_feasible_takes_parameter_states_and_evaluates_each_start_once():
@@ -138,8 +126,9 @@ def test_look_ahead_adds_the_points_that_could_come_close_by_the_next_steps():
 
 
 def test_the_end_gaps_are_evaluated_only_for_the_points_that_need_them():
-    """`step_allowed` without the caller's end gaps evaluates them only for the points that
-    moved by their start gap or more, and answers as the rule written out in full."""
+    """`step_allowed(..., both_ends=True)` without the caller's end gaps evaluates them only
+    for the points that moved by their start gap or more, and answers as the rule written out
+    in full."""
     hook = _hook()
     points = hook.points
     evaluated = []
@@ -151,17 +140,17 @@ def test_the_end_gaps_are_evaluated_only_for_the_points_that_need_them():
     points.point_gaps = counting
     start = points.grid_r.clone()  # 0.1 m above the ground
     start_gap = gaps(start, 1.0)
-    assert points.step_allowed(start, start_gap, start - 0.05 * UP, 1.0)
+    assert points.step_allowed(start, start_gap, start - 0.05 * UP, 1.0, both_ends=True)
     assert evaluated == []  # every point moved by less than its start gap
     end = start.clone()
     end[3] += 0.3 * UP  # one point 0.3 m away from the ground: allowed by its end gap
-    assert points.step_allowed(start, start_gap, end, 1.0)
+    assert points.step_allowed(start, start_gap, end, 1.0, both_ends=True)
     assert evaluated == [1]
     generator, answers = torch.Generator().manual_seed(0), []
     for _ in range(50):
         end = start + 0.05 * torch.randn(start.shape, generator=generator, dtype=start.dtype)
         moved = (end - start).norm(dim=1)
         full = bool((moved < start_gap + gaps(end, 1.0).clamp(min=0.0)).all())
-        answers.append(points.step_allowed(start, start_gap, end, 1.0))
+        answers.append(points.step_allowed(start, start_gap, end, 1.0, both_ends=True))
         assert answers[-1] == full
     assert 0 < sum(answers) < len(answers)  # both answers occur (20 of 50 allowed)

@@ -127,32 +127,40 @@ class ContactPoints:
         return self.term.gaps(x, load_factor)[0].min(dim=1).values
 
     def step_allowed(self, start: torch.Tensor, start_gap: torch.Tensor, end: torch.Tensor,
-                     load_factor: float, *, end_gap: torch.Tensor | None = None) -> bool:
+                     load_factor: float, *, both_ends: bool = False,
+                     end_gap: torch.Tensor | None = None) -> bool:
         """The filter's test of a step that moves the checked points from `start` to `end`
-        (M, 3) [m] (`start_gap` (M,): their gaps at the start), the one rule of both paths:
-        every point outside moves by less than its gap at the start plus its gap at the end
-        (0 where it ends inside). The signed distance is 1-Lipschitz, so along the straight
-        path between them the gap is at least max(g_start − |x − start|, g_end − |x − end|)
-        > 0: it stays outside and cannot tunnel through an obstacle, while a point at a tiny
-        gap may move away from the obstacle by more than that gap (a one-sided test, moved <
-        g_start, refused every step of a point left at 2.5 µm whose smallest Adam step moved
-        it 20 µm away: docs/contact.md). No point ends deeper inside than the deepest stray
-        point started.
+        (M, 3) [m] (`start_gap` (M,): their gaps at the start): every point outside moves
+        by less than its gap — the signed distance is 1-Lipschitz, so it stays outside and
+        cannot tunnel through an obstacle — and no point ends deeper inside than the deepest
+        stray point started.
+
+        both_ends: a point outside may instead move by less than its gap at the start plus
+        its gap at the end: along the straight path between them the gap is at least
+        max(g_start − |x − start|, g_end − |x − end|) > 0 (1-Lipschitz again), so it still
+        cannot enter or tunnel, but a point at a tiny gap may move away from the obstacle by
+        more than that gap (the one-sided test refuses every step of a point left at 2.5 µm
+        whose smallest Adam step moves it 20 µm away: docs/contact.md). The SIREN path uses
+        it; projected Newton the one-sided test (both_ends on that path moved tablecloth_box's
+        spline solve to another equilibrium, Π 11 % higher: benchmarks/RESULTS.md).
 
         end_gap: the points' gaps at `end` (`point_gaps`) where the caller has them; else
-        computed here only for the points that moved by their start gap or more (and for all
-        where a point started inside): the same answer, without the gaps of every trial (a
-        torus: 70 ms per evaluation of sheet_torus's 48² grid)."""
+        computed here only where the test needs them: for the points that moved by their
+        start gap or more (both_ends), and for all where a point started inside (a torus: 70
+        ms per evaluation of sheet_torus's 48² grid)."""
         moved = (end - start).norm(dim=1)
         outside = start_gap > 0
-        far = outside & (moved >= start_gap)  # allowed only by their gap at the end
-        if end_gap is None and not bool(outside.all()):
-            end_gap = self.point_gaps(end, load_factor)
+        far = outside & (moved >= start_gap)  # refused, or allowed by their gap at the end
         if bool(far.any()):
+            if not both_ends:
+                return False
             end_far = end_gap[far] if end_gap is not None else self.point_gaps(end[far],
                                                                               load_factor)
             if bool((moved[far] >= start_gap[far] + end_far.clamp(min=0.0)).any()):
                 return False
         if bool(outside.all()):
             return True
+        if end_gap is None:
+            end_gap = self.point_gaps(end, load_factor)
         return float(end_gap.min()) > float(start_gap.min())
+

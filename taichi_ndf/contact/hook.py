@@ -6,7 +6,7 @@ it, and nothing else, about contact:
 - `feasible_start(displacement, t, restart)`: the grid evaluated at the starting state; where
   it touches an obstacle, `restart()` (a SIREN: its output layer set to zero) and again;
 - `check(start, t)`: the test of steps from one state of the checked points (a `StepCheck`,
-  the start's gaps computed once; `ContactPoints.step_allowed`, one rule for both paths);
+  the start's gaps computed once), with the run's rule (`both_ends`);
 - `feasible(positions, t)`: the same test between two parameter states, the `feasible(P,
   P_trial)` of a Newton line search (`taichi_ndf.minimise.newton.minimise`);
 - `accept(check, before, after, move, positions)`: the acceptance policy of a step that has
@@ -43,33 +43,36 @@ class StepCheck:
     start: torch.Tensor
     start_gap: torch.Tensor
     load_factor: float
+    both_ends: bool
 
     def allows(self, end: torch.Tensor, *, end_gap: torch.Tensor | None = None) -> bool:
         """Whether the step to `end` (M, 3) [m] is allowed (`ContactPoints.step_allowed`;
         end_gap: the gaps at `end` where the caller has them)."""
         return self.points.step_allowed(self.start, self.start_gap, end, self.load_factor,
-                                        end_gap=end_gap)
+                                        both_ends=self.both_ends, end_gap=end_gap)
 
 
 class ContactHook:
     """The contact of one run, as every minimiser asks it (module docstring).
 
-    points: the `ContactPoints`; halvings: most halvings of a refused step (`accept`)."""
+    points: the `ContactPoints`; both_ends: the step test's rule (`step_allowed`);
+    halvings: most halvings of a refused step (`accept`)."""
 
-    def __init__(self, points: ContactPoints, *, halvings: int = HALVINGS):
+    def __init__(self, points: ContactPoints, *, both_ends: bool, halvings: int = HALVINGS):
         if halvings < 0:
             raise ValueError(f"halvings must be >= 0, got {halvings}")
         self.points = points
+        self.both_ends = both_ends
         self.halvings = halvings
 
     @classmethod
-    def of_model(cls, model, dtype: torch.dtype) -> ContactHook:
+    def of_model(cls, model, dtype: torch.dtype, *, both_ends: bool) -> ContactHook:
         """The hook of `model`'s contact (a `ContactConfig`, checked against the model: no
         obstacle at the reference surface or a pin), its grid in `dtype`."""
         config = model.contact
         config.check(model)
         return cls(ContactPoints(config.term(), model.surface, config.check_resolution,
-                                 dtype=dtype))
+                                 dtype=dtype), both_ends=both_ends)
 
     @property
     def term(self):
@@ -79,7 +82,7 @@ class ContactHook:
     def check(self, start: torch.Tensor, load_factor: float) -> StepCheck:
         """The test of steps from the checked points' positions `start` (M, 3) [m]."""
         return StepCheck(self.points, start, self.points.point_gaps(start, load_factor),
-                         load_factor)
+                         load_factor, self.both_ends)
 
     def feasible(self, positions: Callable[[torch.Tensor], torch.Tensor], load_factor: float
                  ) -> Callable[[torch.Tensor, torch.Tensor], bool]:

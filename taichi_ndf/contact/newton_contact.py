@@ -108,7 +108,7 @@ class NewtonContact:
 
     def __init__(self, config: ContactConfig, model, dtype: torch.dtype):
         self.config = config
-        self.hook = ContactHook.of_model(model, dtype)
+        self.hook = ContactHook.of_model(model, dtype, both_ends=False)
         self.friction = None
         if config.has_friction:
             self.friction = FrictionTerm(self.points.term, config.friction,

@@ -109,7 +109,8 @@ class Solver:
             if model.contact.has_friction:
                 raise ValueError("obstacle friction is solved on the spline + projected-Newton "
                                  "path only ([field] type = \"spline\" or --field spline)")
-            self.contact = ContactHook.of_model(model, field.parameters[0].dtype)
+            self.contact = ContactHook.of_model(model, field.parameters[0].dtype,
+                                                both_ends=True)
             self.objective = self.objective.with_terms(self.contact.term)
 
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
