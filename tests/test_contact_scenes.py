@@ -12,7 +12,14 @@ import torch
 from taichi_ndf.app.outputs import deformed_mesh
 from taichi_ndf.boundary import BoundaryConditions, PinnedPoint
 from taichi_ndf.cli import sim
-from taichi_ndf.contact import ContactConfig, ContactPoints, ContactTerm, GroundPlane, Sphere
+from taichi_ndf.contact import (
+    ContactConfig,
+    ContactHook,
+    ContactPoints,
+    ContactTerm,
+    GroundPlane,
+    Sphere,
+)
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.geometry import Plane
 from taichi_ndf.problem.loads import Loads
@@ -51,7 +58,8 @@ def test_plate_resting_on_a_plane_ends_at_the_offset_height_without_bending():
     mesh = deformed_mesh(model, field, (16, 16))
     heights = mesh.deformed[:, 2]
     assert float(heights.max() - heights.min()) < 0.04 * activation, np.ptp(heights)
-    assert solver.contact.count == len(solver.contact.grid_xi)  # the whole plate is in contact
+    points = solver.contact.points
+    assert points.count == len(points.grid_xi)  # the whole plate is in contact
 
 
 def test_filter_refuses_a_step_that_could_cross_an_obstacle():
@@ -97,10 +105,10 @@ def test_filter_with_both_ends_lets_a_point_at_a_tiny_gap_move_away_but_not_cros
                                    both_ends=True)
 
 
-
-def test_the_siren_path_filters_with_both_ends(monkeypatch):
-    """Adam's filter and the last-layer Newton's use the two-sided test (the one-sided one
-    froze napkin_sphere at output_scale 0.452: docs/scenes.md, "Field output scale")."""
+def test_the_siren_path_asks_the_contact_hook(monkeypatch):
+    """Adam's steps go through the hook's policy (`accept`) and the last-layer Newton's
+    line search through its `feasible` (the test projected Newton takes, each trial from the
+    current iterate), from one hook made at the solver's start."""
     surface = Plane(bounds=((0.0, 0.2), (0.0, 0.2)))
     material = preset("cloth")
     bare = ShellModel(surface, material, Loads(gravity=(0.0, 0.0, -9.81)),
@@ -113,15 +121,26 @@ def test_the_siren_path_filters_with_both_ends(monkeypatch):
     config = SolverConfig(iterations=2, samples=64, newton_iterations=1, newton_samples=64,
                           monitor_samples=64, progress=False)
     calls = []
-    original = ContactPoints.step_allowed
+    for name in ("accept", "check", "feasible", "feasible_start"):
+        original = getattr(ContactHook, name)
 
-    def spy(self, *args, **kwargs):
-        calls.append(kwargs.get("both_ends", False))
-        return original(self, *args, **kwargs)
+        def spy(self, *args, _name=name, _original=original, **kwargs):
+            calls.append((_name, id(self)))
+            return _original(self, *args, **kwargs)
+        monkeypatch.setattr(ContactHook, name, spy)
+    solver = Solver(model, field, config)
+    solver.run()
+    names = [n for n, _ in calls]
+    assert names.count("feasible_start") == 1 and names.count("accept") == 2, names
+    # a Newton phase at the start and at the end of the load step; a check per Adam step (2)
+    # and per Newton iterate a line search started from (at least one a phase)
+    assert names.count("feasible") == 2, names
+    assert names.count("check") >= 4, names
+    assert {h for _, h in calls} == {id(solver.contact)}
+    # the two-sided rule on this path (the one-sided one froze napkin_sphere at output_scale
+    # 0.452: docs/scenes.md, "Field output scale")
+    assert solver.contact.both_ends
 
-    monkeypatch.setattr(ContactPoints, "step_allowed", spy)
-    Solver(model, field, config).run()
-    assert calls and all(calls), calls
 
 NAPKIN = SCENES / "napkin_sphere.toml"
 

@@ -6,17 +6,15 @@ per surface) that ever came within the activation distance; they are appended to
 sample set with shell weight 0 and a barrier weight (the trapezoidal rule on the grid), and
 they alone carry the barrier (the area samples get barrier weight 0): the contact forces are
 a fixed grid quadrature, free of the sampling noise. `refresh` evaluates the whole grid after
-accepted steps; `step_allowed` is the line-search filter's test on the area samples and the check
+accepted steps; `step_allowed` is the filter's test on the area samples and the check
 points: a step in which one of them could cross an obstacle is rejected. Every minimiser asks
-it through `step_from` (a `StepCheck` from one state of the checked points: the Adam step's
-halvings, a SIREN Newton phase's trials) or `feasible` (the test between two parameter states
-that projected Newton's line search takes).
+it through the run's `taichi_ndf.contact.hook.ContactHook` (`check`, `feasible`, `accept`).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import torch
 
@@ -124,25 +122,6 @@ class ContactPoints:
             keep = keep | (samples.barrier_weight > 0)
         return keep
 
-    def step_from(self, start: torch.Tensor, load_factor: float, *, both_ends: bool = False
-                  ) -> StepCheck:
-        """The penetration test of steps from the checked points' positions `start` (M, 3)
-        [m] (their gaps computed once here; `step_allowed`)."""
-        return StepCheck(self, start, self.point_gaps(start, load_factor), load_factor,
-                         both_ends)
-
-    def feasible(self, positions, load_factor: float):
-        """`feasible(P, P_trial) -> bool`, the line search's test of a step between two
-        parameter states (`taichi_ndf.minimise.newton.minimise`): `positions(P) -> x (M, 3)`
-        [m] of the checked points; the step's start is evaluated once per state P."""
-        cache: dict = {}
-
-        def feasible(state: torch.Tensor, trial: torch.Tensor) -> bool:
-            if cache.get("state") is not state:
-                cache.update(state=state, check=self.step_from(positions(state), load_factor))
-            return cache["check"].allows(positions(trial))
-        return feasible
-
     def point_gaps(self, x: torch.Tensor, load_factor: float) -> torch.Tensor:
         """Each point's smallest gap over the obstacles (N,) [m]."""
         return self.term.gaps(x, load_factor)[0].min(dim=1).values
@@ -161,37 +140,27 @@ class ContactPoints:
         max(g_start − |x − start|, g_end − |x − end|) > 0 (1-Lipschitz again), so it still
         cannot enter or tunnel, but a point at a tiny gap may move away from the obstacle by
         more than that gap (the one-sided test refuses every step of a point left at 2.5 µm
-        whose smallest Adam step moves it 20 µm away: docs/contact.md).
+        whose smallest Adam step moves it 20 µm away: docs/contact.md). The SIREN path uses
+        it; projected Newton the one-sided test (both_ends on that path moved tablecloth_box's
+        spline solve to another equilibrium, Π 11 % higher: benchmarks/RESULTS.md).
 
-        end_gap: the points' gaps at `end` (`point_gaps`) where the caller has them; computed
-        here where the test needs them."""
+        end_gap: the points' gaps at `end` (`point_gaps`) where the caller has them; else
+        computed here only where the test needs them: for the points that moved by their
+        start gap or more (both_ends), and for all where a point started inside (a torus: 70
+        ms per evaluation of sheet_torus's 48² grid)."""
         moved = (end - start).norm(dim=1)
         outside = start_gap > 0
-        if end_gap is None and (both_ends or not bool(outside.all())):
-            end_gap = self.point_gaps(end, load_factor)
-        bound = start_gap[outside]
-        if both_ends:
-            bound = bound + end_gap[outside].clamp(min=0.0)
-        if bool((moved[outside] >= bound).any()):
-            return False
+        far = outside & (moved >= start_gap)  # refused, or allowed by their gap at the end
+        if bool(far.any()):
+            if not both_ends:
+                return False
+            end_far = end_gap[far] if end_gap is not None else self.point_gaps(end[far],
+                                                                              load_factor)
+            if bool((moved[far] >= start_gap[far] + end_far.clamp(min=0.0)).any()):
+                return False
         if bool(outside.all()):
             return True
+        if end_gap is None:
+            end_gap = self.point_gaps(end, load_factor)
         return float(end_gap.min()) > float(start_gap.min())
 
-
-@dataclass(frozen=True)
-class StepCheck:
-    """The penetration test of steps from one state of the checked points
-    (`ContactPoints.step_from`): start (M, 3) [m] and their gaps start_gap (M,) [m]."""
-
-    points: ContactPoints
-    start: torch.Tensor
-    start_gap: torch.Tensor
-    load_factor: float
-    both_ends: bool
-
-    def allows(self, end: torch.Tensor, *, end_gap: torch.Tensor | None = None) -> bool:
-        """Whether the step to `end` (M, 3) [m] is allowed (`ContactPoints.step_allowed`;
-        end_gap: the gaps at `end` where the caller has them)."""
-        return self.points.step_allowed(self.start, self.start_gap, end, self.load_factor,
-                                        both_ends=self.both_ends, end_gap=end_gap)

@@ -1,19 +1,21 @@
 """Contact on the spline + projected-Newton path (`method = "newton"`; docs/contact.md).
 
 Each load step on each grid (`NewtonContact.solve`) runs in rounds:
-1. the dense check grid (`ContactPoints`, check_resolution² points) is evaluated at the current
-   coefficients; its points within the activation distance ĝ become check points for good;
+1. the dense check grid (check_resolution² points of the run's `ContactHook`) is evaluated
+   at the current coefficients; its points within the activation distance ĝ become check
+   points for good;
 2. the quadrature is the fixed Gauss points (shell energy and loads, barrier weight 0) and
    the check points (the barrier with the grid's trapezoidal weights, shell weight 0), as on
    the SIREN path; an `Assembly` is built on them and projected Newton minimises
    Π + Π_c (+ friction) there, with the barrier's PSD blocks in K;
 3. the line search rejects a trial in which a Gauss point or *any* point of the dense grid
-   could enter an obstacle (`ContactPoints.step_allowed`: each point outside moves by less
-   than its gap, so, the signed distance being 1-Lipschitz, it cannot enter or tunnel);
+   could enter an obstacle (the hook's `feasible`, `ContactPoints.step_allowed`: each point
+   outside moves by less than its gap, so, the signed distance being 1-Lipschitz, it cannot
+   enter or tunnel);
 4. after each accepted Newton iterate the grid is evaluated again (and κ raised if a point
-   came closer than ĝ/10); when points came within ĝ (or within ĝ + LOOK_AHEAD × their last
-   move: they could by the next steps), Newton stops there, they are added, the Assembly is
-   rebuilt and the next round goes on from that state.
+   came closer than ĝ/10; the hook's `look_ahead`); when points came within ĝ (or within
+   ĝ + LOOK_AHEAD × their last move: they could by the next steps), Newton stops there,
+   they are added, the Assembly is rebuilt and the next round goes on from that state.
 Rounds end when Newton converged and no point was added (and, with friction, the lagged
 normal forces changed by less than LAG_TOLERANCE of their largest), at most MAX_ROUNDS.
 
@@ -29,9 +31,9 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.contact.check_points import ContactPoints
 from taichi_ndf.contact.config import FRICTION_SMOOTHING, ContactConfig
 from taichi_ndf.contact.friction import FrictionTerm
+from taichi_ndf.contact.hook import ContactHook
 from taichi_ndf.minimise.assembly import Assembly, displacement_at, linearised, local_basis_at
 from taichi_ndf.minimise.linearisation import SplineLinearisation
 from taichi_ndf.minimise.newton import NewtonSolution, minimise
@@ -41,7 +43,6 @@ from taichi_ndf.problem.sampling import SurfaceSamples
 log = logging.getLogger(__name__)
 
 MAX_ROUNDS = 50
-LOOK_AHEAD = 4.0
 LAG_TOLERANCE = 1e-3
 
 
@@ -106,15 +107,18 @@ class NewtonContact:
     reference surface or a pin); dtype: of the solve."""
 
     def __init__(self, config: ContactConfig, model, dtype: torch.dtype):
-        config.check(model)
         self.config = config
-        self.points = ContactPoints(config.term(), model.surface, config.check_resolution,
-                                    dtype=dtype)
+        self.hook = ContactHook.of_model(model, dtype, both_ends=False)
         self.friction = None
         if config.has_friction:
             self.friction = FrictionTerm(self.points.term, config.friction,
                                          FRICTION_SMOOTHING * config.activation)
         self.rounds = 0  # Newton rounds over all load steps and levels
+
+    @property
+    def points(self):
+        """The hook's `ContactPoints` (the check grid and the check points so far)."""
+        return self.hook.points
 
     @property
     def terms(self) -> tuple:
@@ -135,27 +139,16 @@ class NewtonContact:
         potential = ContactPotential(objective, self.terms, t)
         points = self.points
         dtype = coefficients.dtype
-        grid_xi, grid_r = points.grid_xi.to(dtype), points.grid_r.to(dtype)
+        grid_xi = points.grid_xi.to(dtype)
         area = quadrature.weight > 0
         checked_xi = torch.cat((quadrature.xi[area], grid_xi))
-        checked_r = torch.cat((quadrature.r_jets[area, jets.VALUE], grid_r))
+        checked_r = torch.cat((quadrature.r_jets[area, jets.VALUE], points.grid_r.to(dtype)))
         checked = PointMap(operator, checked_xi, t)
         on_grid = slice(int(area.sum()), None)
         start = coefficients
-        last: dict = {}
-
-        def refresh(c: torch.Tensor) -> bool:
-            """Evaluate the grid at c; True when points were added: those within ĝ plus
-            LOOK_AHEAD × how far they moved since the last call (so that fewer rounds are
-            needed while a sheet wraps an obstacle)."""
-            before = points.count
-            u = checked(c)[on_grid]
-            moved = 0.0 if "u" not in last else (u - last["u"]).norm(dim=1)
-            last["u"] = u
-            points.flag(points.point_gaps(grid_r + u, t), LOOK_AHEAD * moved)
-            return points.count > before
-
-        feasible = points.feasible(lambda c: checked_r + checked(c), t)
+        # after each Newton iterate: the grid's points within ĝ (+ the look-ahead) added
+        refresh = self.hook.look_ahead(lambda c: checked(c)[on_grid], t)
+        feasible = self.hook.feasible(lambda c: checked_r + checked(c), t)
 
         refresh(start)
         history, c, solution, lagged = [], coefficients, None, None

@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable
 
 import torch
 
+from taichi_ndf.contact.hook import ContactHook
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimise.linearisation import DenseLinearisation
 from taichi_ndf.minimise.newton import (
@@ -107,20 +107,22 @@ def solve_last_layer(operator: DisplacementOperator, potential: Potential,
                      samples: SurfaceSamples, load_factor: float,
                      config: NewtonConfig | None = None, *,
                      conditioning: torch.Tensor | None = None,
-                     allowed: Callable[[SurfaceSamples, torch.Tensor], bool] | None = None
-                     ) -> NewtonSolution:
+                     contact: ContactHook | None = None) -> NewtonSolution:
     """Minimise Π (potential: the objective at a load factor, `Objective.potential`) over the
     output layer of the operator's field on fixed samples (`minimise` over
     `output_linearisation`, settings `LAST_LAYER` by default); updates W_out and b_out in
     place. The solution's parameters are the change of the output layer (3, width + 1).
 
     conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring).
-    allowed(samples, u_jets) -> bool: whether a line-search trial may reach the displacement
-    jets u_jets (N, 6, 3) at the samples (contact's penetration test, `minimise`'s
-    `feasible`); None: every trial may."""
+    contact: the run's `ContactHook` (samples: with its check points): its line-search test
+    `feasible` on the checked points (`ContactPoints.checked`), each trial from the current
+    iterate, as in projected Newton; None: every trial is feasible."""
     linear = output_linearisation(operator, samples, load_factor, conditioning)
-    feasible = None if allowed is None else (
-        lambda _c, trial: allowed(linear.samples, linear.displacement(trial)))
+    feasible = None
+    if contact is not None:
+        keep = contact.points.checked(linear.samples)
+        r = linear.samples.r_jets[keep, 0]
+        feasible = contact.feasible(lambda p: r + linear.displacement(p)[keep, 0], load_factor)
     solution = minimise(linear, potential, torch.zeros_like(linear.origin),
                         config or LAST_LAYER, load_factor=load_factor, feasible=feasible,
                         report=False)

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf import progress
-from taichi_ndf.contact.check_points import ContactPoints
+from taichi_ndf.contact.hook import ContactHook
 from taichi_ndf.field import NeuralField
 from taichi_ndf.minimise.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_back_off
 from taichi_ndf.minimise.callbacks import DivergenceError, call
@@ -56,9 +56,6 @@ from taichi_ndf.shell.energy import EnergyResult
 __all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverConfig"]
 
 log = logging.getLogger(__name__)
-
-# Most halvings of an Adam step that makes a checked point penetrate before it is rejected.
-FILTER_HALVINGS = 10
 
 # Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
 MONITOR_SEED_OFFSET = 7919
@@ -104,7 +101,7 @@ class Solver:
         self._newton_samples = None
         self._callbacks = ()
         self._t0 = time.perf_counter()  # the start of `run` (monitor records' wall time)
-        self.contact = None
+        self.contact = None  # with obstacles: the `ContactHook` every phase asks
         self.rejected_steps = 0  # Adam steps the contact filter rejected
         if model.contact is not None:
             if config.pseudo_time:
@@ -112,10 +109,8 @@ class Solver:
             if model.contact.has_friction:
                 raise ValueError("obstacle friction is solved on the spline + projected-Newton "
                                  "path only ([field] type = \"spline\" or --field spline)")
-            model.contact.check(model)
-            self.contact = ContactPoints(model.contact.term(), model.surface,
-                                         model.contact.check_resolution,
-                                         dtype=field.parameters[0].dtype)
+            self.contact = ContactHook.of_model(model, field.parameters[0].dtype,
+                                                both_ends=True)
             self.objective = self.objective.with_terms(self.contact.term)
 
     def energy_and_gradient(self, samples, load_factor: float, *, grad: bool = True,
@@ -126,7 +121,7 @@ class Solver:
         times: the pseudo-time of each sample (N,) of a pseudo-time solve; default: t =
             load_factor at every sample (Π of the field's state at that load factor)."""
         if self.contact is not None:
-            samples = self.contact.augment(samples)
+            samples = self.contact.points.augment(samples)
         xi = samples.xi
         cond = None
         if self.config.pseudo_time:
@@ -181,16 +176,15 @@ class Solver:
     def newton(self, load_factor: float) -> None:
         """A last-layer Newton phase on the fixed Newton samples at this load factor."""
         samples = self.newton_samples()
-        potential, allowed = self.objective.potential(load_factor), None
+        potential = self.objective.potential(load_factor)
         if self.contact is not None:
-            samples = self.contact.augment(samples)
-            allowed = self._contact_filter(samples, load_factor)
+            samples = self.contact.points.augment(samples)
             # Π alone, without its terms' own Hessian blocks: with contact the phases' blocks
             # are central differences of the whole gradient (as when the filter wrapped Π)
             potential = _value_and_gradient(potential)
         result = solve_last_layer(
             self.operator, potential, samples, load_factor,
-            last_layer_config(max_iterations=self.config.newton_iterations), allowed=allowed)
+            last_layer_config(max_iterations=self.config.newton_iterations), contact=self.contact)
         self.state.newton_steps += result.steps
         self._refresh_contact(load_factor)
 
@@ -215,7 +209,8 @@ class Solver:
         self._t0 = time.perf_counter()
         self._callbacks = callbacks = tuple(callbacks)
         if self.contact is not None and state.iteration == 0 and state.newton_steps == 0:
-            self._feasible_start(cfg.load_steps[start_step])
+            lam = cfg.load_steps[start_step]
+            self.contact.feasible_start(self._displacement(lam), lam, self._zero_output_layer)
         if on_load_step is not None:
             callbacks = (*callbacks, Hook("on_load_step", on_load_step))
         solve_over(Stages(solve=self._solve_load_step, before_end=self._finished),
@@ -271,65 +266,36 @@ class Solver:
 
     # -- contact: penetration filter and dense check ----------------------------------------------
     def _adam_step(self, samples, lam: float, times) -> float:
-        """One Adam step (`adam_iteration`); with contact, the step is halved until the
-        filter allows it (`ContactPoints.step_allowed` on the step's area samples and the
-        dense grid), at most FILTER_HALVINGS times, else rejected; the grid points that came
-        close become check points. Returns ‖∇Π‖ before the step."""
+        """One Adam step (`adam_iteration`); with contact, the hook's policy
+        (`ContactHook.accept`: on the step's area samples and the dense grid, halved until
+        allowed, else undone and counted in `rejected_steps`). Returns ‖∇Π‖ before the
+        step."""
         evaluate = self.evaluator(samples, lam, times)
         if self.contact is None:
             return adam_iteration(self.state.optimiser, evaluate, check=self._check_step)[1]
-        contact = self.contact
-        before = self.field.get_flat().clone()
-        step = contact.step_from(contact.filter_positions(self._displacement(lam), samples), lam,
-                                 both_ends=True)
+        contact, field = self.contact, self.field
+
+        def positions() -> torch.Tensor:
+            return contact.points.filter_positions(self._displacement(lam), samples)
+        before = field.get_flat().clone()
+        check = contact.check(positions(), lam)
         _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=self._check_step)
-        after = self.field.get_flat().clone()
-        for halving in range(FILTER_HALVINGS + 1):
-            end = contact.filter_positions(self._displacement(lam), samples)
-            end_gap = contact.point_gaps(end, lam)
-            if step.allows(end, end_gap=end_gap):
-                contact.flag(end_gap)
-                return gnorm
-            if halving < FILTER_HALVINGS:
-                after = 0.5 * (before + after)
-                self.field.set_flat(after)
-        self.field.set_flat(before)
-        self.rejected_steps += 1
+        if not contact.accept(check, before, field.get_flat().clone(), field.set_flat,
+                              positions):
+            self.rejected_steps += 1
         return gnorm
 
     def _displacement(self, lam: float):
         """u(ξ) (N, 3) of the current field at the load factor."""
         return lambda xi: self.operator.displacement(xi, t=lam)
 
-    def _positions(self, samples, lam: float) -> torch.Tensor:
-        """Positions of the checked points of `samples` (`ContactPoints.checked`)."""
-        keep = self.contact.checked(samples)
-        return samples.r_jets[keep, 0] + self._displacement(lam)(samples.xi[keep])
-
-    def _contact_filter(self, samples, lam: float):
-        """`allowed(samples, u_jets) -> bool` of a Newton phase's line search
-        (`solve_last_layer`): the filter's test of the step from the current field to the
-        trial's displacement (`step_allowed`, both ends)."""
-        keep = self.contact.checked(samples)
-        step = self.contact.step_from(self._positions(samples, lam), lam, both_ends=True)
-
-        def allowed(trial_samples, u_jets) -> bool:
-            return step.allows(trial_samples.r_jets[keep, 0] + u_jets[keep, 0])
-        return allowed
-
-    def _feasible_start(self, lam: float) -> None:
-        """A fresh field whose initial displacement makes the dense grid touch an obstacle
-        starts from its output layer set to zero instead (u = the prescribed motions only):
-        the filter needs a state without penetration to start from."""
-        if self.contact.refresh(self._displacement(lam), lam) > 0:
-            return
+    def _zero_output_layer(self) -> None:
+        """The field's output layer set to zero (u = the prescribed motions only): the
+        feasible start where the initial field touches an obstacle."""
         weight, bias = self.field.output_layer()
         with torch.no_grad():
             weight.zero_()
             bias.zero_()
-        gap = self.contact.refresh(self._displacement(lam), lam)
-        log.info("contact: the initial field touched an obstacle; output layer set to zero "
-                 "(smallest gap now %.3g m)", gap)
 
     def _refresh_contact(self, lam: float) -> None:
         """Dense check (with contact): add the grid points that came within the activation
