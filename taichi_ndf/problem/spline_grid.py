@@ -157,7 +157,8 @@ def singular_features(boundary, loads, domain) -> tuple[tuple[float, ...], tuple
     """Per direction, the coordinates ξ_d where the model has a known singular feature: point
     pins and handles (both coordinates), point loads (both), an interior line or line-load
     segment along a coordinate line ξ_d = c (c along d), the ends of an interior segment and
-    of a line load's path (both coordinates). Periodic coordinates wrapped into the domain;
+    of a line load's path (both coordinates); a line load along an edge, and its ends on an
+    edge, give none (a loaded edge is a boundary condition, not a singular point). Periodic coordinates wrapped into the domain;
     oblique whole lines give nothing (a tensor-product grading cannot follow them)."""
     points: list[tuple[float, float]] = []
     lines: list[tuple[int, float]] = []
@@ -171,10 +172,11 @@ def singular_features(boundary, loads, domain) -> tuple[tuple[float, ...], tuple
                 points += [tuple(c.start), tuple(c.end)]
     for p in loads.point_loads:
         points.append(tuple(p.xi))
-    for line in loads.line_loads:
+    for line in loads.line_loads:  # an edge load is a boundary condition: no feature
         for a, b in zip(line.path[:-1], line.path[1:], strict=True):
-            _segment(a, b, lines)
-        points += [tuple(line.path[0]), tuple(line.path[-1])]
+            _segment(a, b, lines, domain)
+        points += [tuple(xi) for xi in (line.path[0], line.path[-1])
+                   if not _on_edge(xi, domain)]
     features: list[list[float]] = [[], []]
     for xi in points:
         for d in range(2):
@@ -189,11 +191,18 @@ def singular_features(boundary, loads, domain) -> tuple[tuple[float, ...], tuple
     return tuple(out)
 
 
-def _segment(a, b, lines: list[tuple[int, float]]) -> None:
-    """A segment along a coordinate line ξ_d = c adds (d, c)."""
+def _segment(a, b, lines: list[tuple[int, float]], domain=None) -> None:
+    """A segment along a coordinate line ξ_d = c adds (d, c); with `domain`, not along an
+    edge."""
     for d in range(2):
-        if a[d] == b[d]:
+        if a[d] == b[d] and not (domain is not None and not domain.periodic[d]
+                                 and a[d] in domain.bounds[d]):
             lines.append((d, float(a[d])))
+
+
+def _on_edge(xi, domain) -> bool:
+    """Whether ξ lies on an edge of the domain (an end of an open direction)."""
+    return any(not domain.periodic[d] and xi[d] in domain.bounds[d] for d in range(2))
 
 
 def graded_config(config: SplineConfig, boundary, loads, domain, *,
