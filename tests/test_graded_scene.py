@@ -119,8 +119,8 @@ def test_a_bad_grading_is_refused_in_one_line(tmp_path, capsys):
     assert sim.main([str(path), "--out", str(tmp_path / "x"), "--precision", "f64"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "field.grading" in err[0]
-    siren = PLATE.format(constraints=HINGED, grading="").replace('type = "spline"\nspans = [6, 6]',
-                                                                 'grading = "features"')
+    siren = PLATE.format(constraints=HINGED, grading="").replace(
+        'type = "spline"\nspans = [12, 12]', 'grading = "features"')
     (tmp_path / "siren.toml").write_text(siren)
     with pytest.raises(SceneError, match="a spline key"):
         load_scene(tmp_path / "siren.toml")

@@ -128,7 +128,8 @@ def test_quadrature_is_exact_for_polynomials_in_eta(periodic, even):
     for k in range(2 * (config.degree + 1)):
         for m in (0, 3, 7):
             value = float((weight * h1**k * dh1 * h2**m * dh2).sum())
-            exact = (b ** (k + 1) - a ** (k + 1)) / (k + 1) * (d ** (m + 1) - c ** (m + 1)) / (m + 1)
+            exact = ((b ** (k + 1) - a ** (k + 1)) / (k + 1)
+                     * (d ** (m + 1) - c ** (m + 1)) / (m + 1))
             assert value == pytest.approx(exact, rel=1e-12, abs=1e-12)
     # The spans are graded in ξ: the Gauss points crowd at the feature ξ² = 0 (GRADING[1]).
     uniform, _ = span_points(SplineConfig(spans=(6, 5), domain=DOMAIN, periodic=periodic,

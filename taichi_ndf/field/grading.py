@@ -64,8 +64,8 @@ class Grading:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
                     math.isfinite(value) and (value > 0 if name == "core" else value >= 0)):
-                raise ValueError(f"Grading: {name} must be a {'positive' if name == 'core' else 'non-negative'} "
-                                 f"number, got {value!r}")
+                sign = "positive" if name == "core" else "non-negative"
+                raise ValueError(f"Grading: {name} must be a {sign} number, got {value!r}")
             object.__setattr__(self, name, float(value))
 
     @classmethod

@@ -158,8 +158,9 @@ def singular_features(boundary, loads, domain) -> tuple[tuple[float, ...], tuple
     pins and handles (both coordinates), point loads (both), an interior line or line-load
     segment along a coordinate line ξ_d = c (c along d), the ends of an interior segment and
     of a line load's path (both coordinates); a line load along an edge, and its ends on an
-    edge, give none (a loaded edge is a boundary condition, not a singular point). Periodic coordinates wrapped into the domain;
-    oblique whole lines give nothing (a tensor-product grading cannot follow them)."""
+    edge, give none (a loaded edge is a boundary condition, not a singular point). Periodic
+    coordinates wrapped into the domain; oblique whole lines give nothing (a tensor-product
+    grading cannot follow them)."""
     points: list[tuple[float, float]] = []
     lines: list[tuple[int, float]] = []
     for c in boundary.constraints:
