@@ -73,6 +73,14 @@ def test_features_of_the_shipped_scenes():
                           field="spline")
     f1, f2 = features(cylinder)  # the two loads, θ = 0 and π (periodic), at z = 300
     assert f1 == pytest.approx((0.0, math.pi)) and f2 == (300.0,)
+    hemisphere = load_scene(ROOT / "validation" / "scenes" / "pinched_hemisphere.toml",
+                            field="spline")
+    # the pin on the hole's rim, λ = the domain's end (0.4 π, rounded up at 12 digits: kept in)
+    f1, f2 = features(hemisphere)
+    assert f2 == (0.0, hemisphere.model.surface.domain.bounds[1][1])
+    assert len(f1) == 5  # the four loads and the pin
+    assert graded_config(hemisphere.field.config, hemisphere.model.boundary,
+                         hemisphere.model.loads, hemisphere.model.surface.domain).graded
 
 
 def test_features_of_segments_and_line_loads(tmp_path):

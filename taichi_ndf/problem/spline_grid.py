@@ -188,7 +188,7 @@ def singular_features(boundary, loads, domain) -> tuple[tuple[float, ...], tuple
     for d, (lo, hi) in enumerate(domain.bounds):
         wrapped = [lo + (f - lo) % (hi - lo) if domain.periodic[d] else min(max(f, lo), hi)
                    for f in features[d]]
-        out.append(tuple(sorted({round(f, 12) for f in wrapped})))
+        out.append(tuple(sorted({min(max(round(f, 12), lo), hi) for f in wrapped})))
     return tuple(out)
 
 
