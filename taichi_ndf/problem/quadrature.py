@@ -16,7 +16,9 @@ spans (unit disk: 1.5 %, 0.15 %, 0.016 % with 4², 16², 64² spans; `tests/test
 Graded knots (`SplineConfig.grading`): the spans are those of η = h(ξ); each span's Gauss
 points in η are mapped to ξ = h⁻¹(η) and their weights divided by h′(ξ) (dξ = dη / h′), so the
 rule integrates exactly every f(ξ) = q(h(ξ)) h′(ξ) with q a polynomial of degree ≤ 2q − 1 per
-span in η, and the weights still add up to the area of the domain.
+span in η. Their sum, ∫ 1/h′ dη by Gauss per span, is the area only to the rule's error on
+1/h′: 7e-9 and 3e-8 relative on the grading rule's 10² and 20² spans of napkin_interior_point,
+up to 5e-4 with the strong test gradings of tests/test_spline_grading.py on 6 × 5 spans.
 
 Point loads add one zero-weight sample each, exactly where they act (`with_point_loads`).
 """
