@@ -112,12 +112,13 @@ def test_the_key_grades_the_spans_and_keeps_the_unknowns(tmp_path):
     assert graded.config.grading[0].core == pytest.approx(1 / 12)
 
 
-def test_a_model_without_features_stays_uniform(tmp_path):
+def test_a_model_without_features_stays_uniform(tmp_path, caplog):
     scene = load_scene(plate(tmp_path))
     model = dataclasses.replace(scene.model, loads=scene.model.loads.scaled(0.0))
     no_points = dataclasses.replace(model.loads, point_loads=())
     config = graded_config(scene.field.config, model.boundary, no_points, model.surface.domain)
     assert config == scene.field.config
+    assert "the knots stay uniform" in caplog.text
 
 
 def test_a_bad_grading_is_refused_in_one_line(tmp_path, capsys):
@@ -156,3 +157,19 @@ def test_graded_knots_resolve_a_point_load_better(tmp_path):
                            abs(-run.probes["load"][2] - w))
     assert errors["features"][0] < 0.5 * errors["uniform"][0]
     assert errors["features"][1] < 0.5 * errors["uniform"][1]
+
+
+def test_a_graded_run_writes_its_grading_and_exports_from_its_checkpoint(tmp_path):
+    from taichi_ndf.cli import export
+
+    out = tmp_path / "run"
+    path = plate(tmp_path, 'grading = "features"\nlevels = 2')
+    assert sim.main([str(path), "--out", str(out), "--precision", "f64"]) == 0
+    text = (out / "result.json").read_text()
+    assert '"grading": "features"' in text  # the scene's key
+    assert '"core"' in text and '"strength"' in text  # the map's parameters, per direction
+    mesh = tmp_path / "mesh.obj"
+    assert export.main([str(out), "--resolution", "8", "8", "--out", str(mesh),
+                        "--precision", "f64"]) == 0
+    vertices = [line for line in mesh.read_text().splitlines() if line.startswith("v ")]
+    assert len(vertices) == 81

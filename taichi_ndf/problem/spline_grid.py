@@ -26,6 +26,7 @@ uniform for the smooth far field). The unknowns are those of the uniform grid.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from dataclasses import dataclass
 
@@ -34,6 +35,8 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.field.grading import Grading, strength_for
+
+log = logging.getLogger(__name__)
 
 SPANS_PER_SIDE = 8
 GRADINGS = ("uniform", "features")  # [field] grading
@@ -212,6 +215,12 @@ def graded_config(config: SplineConfig, boundary, loads, domain, *,
     (`singular_features`; module docstring), a direction without features uniform. The
     map stays with the refined grids (the core is one span of `config`, its coarsest)."""
     features = singular_features(boundary, loads, domain)
+    if not any(features):
+        log.warning("grading = \"features\": the model has no pin, point load or interior "
+                    "line along a coordinate to grade towards; the knots stay uniform")
+    else:
+        log.info("knots graded towards ξ¹ = %s, ξ² = %s", features[0] or "none",
+                 features[1] or "none")
     grading = []
     for d, ((lo, hi), found) in enumerate(zip(config.domain, features, strict=True)):
         if not found:
