@@ -10,6 +10,13 @@ the basis jets of `local_basis`, which is also the Jacobian of the jets with res
 
 The same interface as `NeuralField` (jets/backward/evaluate, flat vectors, state dicts), with no
 conditioning inputs, plus exact dyadic refinement (`refined`, `prolongation`).
+
+Graded knots (`SplineConfig.grading`, `field/grading.py`): per direction a C² monotone map
+η = h(ξ) onto the same interval; the field is the uniform spline S composed with it,
+N(ξ) = S(h₁(ξ¹), h₂(ξ²)), so its knots are uniform in η and graded in ξ. Its basis jets are the
+uniform ones by the chain rule, per point a linear map of the jets (N_ξ = S_η h′,
+N_ξξ = S_ηη h′² + S_η h″, N_ξ¹ξ² = S_η¹η² h₁′ h₂′), so `jets`, `backward` (the transpose) and
+`local_basis` stay exact; refinement is in η and unchanged (the map stays).
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from taichi_ndf.field.config import (
     config_from_dict,
     config_to_dict,
 )
+from taichi_ndf.field.grading import GradedMap, Grading
 from taichi_ndf.field.parameters import FieldParameters, resolve_dtype_device
 from taichi_ndf.jets import CHANNELS
 
@@ -52,6 +60,8 @@ class SplineConfig:
         across the edge vanish up to order p − 1, which every smooth even function satisfies
         (unlike folded coordinates, `taichi_ndf.boundary.fold`, it keeps the grid's
         resolution at the edge). Needs an open direction with at least p spans.
+    grading: per direction a `Grading` (or its dict) or None (uniform knots): the knots
+        graded towards its features (module docstring); kept by `refined`.
     """
 
     spans: tuple[int, int]
@@ -60,6 +70,7 @@ class SplineConfig:
     domain: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 1.0), (0.0, 1.0))
     periodic: tuple[bool, bool] = (False, False)
     even_ends: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
+    grading: tuple[Grading | None, Grading | None] = (None, None)
 
     def __post_init__(self):
         spans = tuple(self.spans) if isinstance(self.spans, (tuple, list)) else None
@@ -74,6 +85,30 @@ class SplineConfig:
             raise ValueError(f"out_dim must be a positive integer, got {self.out_dim!r}")
         check_domain_and_periodic(self)
         self._check_even_ends()
+        self._check_grading()
+
+    def _check_grading(self) -> None:
+        grading = self.grading
+        if not isinstance(grading, (tuple, list)) or len(grading) != 2:
+            raise ValueError(f"grading must be two entries (a Grading or None), got {grading!r}")
+        grading = tuple(Grading.of(g) for g in grading)
+        for d, g in enumerate(grading):
+            lo, hi = self.domain[d]
+            if g is not None and not all(lo <= f <= hi for f in g.features):
+                raise ValueError(f"grading[{d}]: features {g.features} outside the domain "
+                                 f"[{lo}, {hi}] of ξ{d + 1}")
+        object.__setattr__(self, "grading", grading)
+
+    @property
+    def graded(self) -> bool:
+        """Whether the knots are graded along either direction."""
+        return any(g is not None for g in self.grading)
+
+    def graded_maps(self) -> tuple[GradedMap | None, GradedMap | None]:
+        """The map η = h(ξ) per direction (None: uniform)."""
+        return tuple(None if g is None else GradedMap(g, lo, hi, periodic=periodic, even=even)
+                     for g, (lo, hi), periodic, even in zip(
+                         self.grading, self.domain, self.periodic, self.even_ends, strict=True))
 
     def _check_even_ends(self) -> None:
         ends = self.even_ends
@@ -125,7 +160,7 @@ class SplineConfig:
 
     @property
     def spacing(self) -> tuple[float, float]:
-        """Knot spacing h = (hi − lo)/n per direction, in the units of ξ."""
+        """Knot spacing h = (hi − lo)/n per direction, in the units of ξ (of η where graded)."""
         return tuple((hi - lo) / n for (lo, hi), n in zip(self.domain, self.spans, strict=True))
 
     def refined(self) -> SplineConfig:
@@ -133,7 +168,7 @@ class SplineConfig:
         return replace(self, spans=(2 * self.spans[0], 2 * self.spans[1]))
 
     def to_dict(self) -> dict:
-        """Plain dict (lists instead of tuples) for checkpoints and logs."""
+        """Plain dict (lists instead of tuples, a grading as a dict) for checkpoints and logs."""
         return config_to_dict(self)
 
     @classmethod
@@ -152,6 +187,18 @@ class _Tape:
         self.contribution = torch.empty(n, field.config.support, field.config.out_dim,
                                         dtype=field.dtype, device=field.device)
         self.recorded = False
+
+
+def _chain_rule(basis: torch.Tensor, first, second) -> None:
+    """Basis jets (N, 6, k) in η -> in ξ, in place: channels (value, d1, d2, d11, d12, d22);
+    first/second: (h′, h″) (N, 1) per direction, None where uniform."""
+    for d, (dh, ddh) in enumerate((first, second)):
+        if dh is None:
+            continue
+        d1, dd = (1, 3) if d == 0 else (2, 5)
+        basis[:, dd] = basis[:, dd] * dh * dh + basis[:, d1] * ddh
+        basis[:, 4] = basis[:, 4] * dh
+        basis[:, d1] = basis[:, d1] * dh
 
 
 class SplineField(FieldParameters):
@@ -177,6 +224,7 @@ class SplineField(FieldParameters):
         alias = config.alias_map()
         self._alias = (alias.to(self.device)
                        if bool((alias != torch.arange(alias.numel())).any()) else None)
+        self._maps = config.graded_maps()
         self._tape: _Tape | None = None
 
     @property
@@ -210,11 +258,32 @@ class SplineField(FieldParameters):
         """Fill index (N, k) and basis (N, 6, k) at the points xi (N, 2)."""
         if xi.shape[0] > 0:
             config = self.config
+            if config.graded:
+                eta, chain = self._graded(xi)
+            else:
+                eta, chain = xi, None
             bspline.basis_kernel(config.degree)(
-                xi, self._grid, self._matrices, config.spans[0], config.spans[1],
+                eta, self._grid, self._matrices, config.spans[0], config.spans[1],
                 int(config.periodic[0]), int(config.periodic[1]), index, basis)
+            if chain is not None:
+                _chain_rule(basis, *chain)
             if self._alias is not None:
                 index.copy_(self._alias[index])
+
+    def _graded(self, xi: torch.Tensor):
+        """η (N, 2) and the map's derivatives ((h1′, h1″), (h2′, h2″)) (N,) per direction
+        (1 and 0 along a uniform one)."""
+        eta, chain = [], []
+        for d, graded in enumerate(self._maps):
+            if graded is None:
+                eta.append(xi[:, d])
+                chain.append((None, None))
+                continue
+            h, dh, ddh = graded.jets(xi[:, d].cpu())
+            eta.append(h.to(dtype=self.dtype, device=self.device))
+            chain.append((dh.to(dtype=self.dtype, device=self.device)[:, None],
+                          ddh.to(dtype=self.dtype, device=self.device)[:, None]))
+        return torch.stack(eta, dim=1).contiguous(), chain
 
     def _contract(self, index: torch.Tensor, basis: torch.Tensor, channels: int) -> torch.Tensor:
         out = torch.empty(index.shape[0], channels, self.config.out_dim, dtype=self.dtype,

@@ -62,7 +62,8 @@ SIREN = FieldType(name="siren", label="SIREN", field=NeuralField, config=FieldCo
                   pseudo_time=True, check_size=_siren_size)
 SPLINE = FieldType(name="spline", label="spline", field=SplineField, config=SplineConfig,
                    spec=SplinePlan, method="newton",
-                   keys=("degree", "spans", "span_length", "levels", "quadrature_points"),
+                   keys=("degree", "spans", "span_length", "levels", "quadrature_points",
+                         "grading"),
                    pseudo_time=False, check_size=_spline_size)
 
 # Field types by name.

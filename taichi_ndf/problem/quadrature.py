@@ -13,6 +13,13 @@ inside Gauss points represent: exact for spans wholly inside, a staircase along 
 edge. The total weight then differs from the masked area by an amount that shrinks with the
 spans (unit disk: 1.5 %, 0.15 %, 0.016 % with 4², 16², 64² spans; `tests/test_quadrature.py`).
 
+Graded knots (`SplineConfig.grading`): the spans are those of η = h(ξ); each span's Gauss
+points in η are mapped to ξ = h⁻¹(η) and their weights divided by h′(ξ) (dξ = dη / h′), so the
+rule integrates exactly every f(ξ) = q(h(ξ)) h′(ξ) with q a polynomial of degree ≤ 2q − 1 per
+span in η. Their sum, ∫ 1/h′ dη by Gauss per span, is the area only to the rule's error on
+1/h′: 7e-9 and 3e-8 relative on the grading rule's 10² and 20² spans of napkin_interior_point,
+up to 5e-4 with the strong test gradings of tests/test_spline_grading.py on 6 × 5 spans.
+
 Point loads add one zero-weight sample each, exactly where they act (`with_point_loads`).
 """
 
@@ -41,7 +48,8 @@ def span_points(config: SplineConfig, points: int | tuple[int, int] | None = Non
                 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Gauss–Legendre points ξ (n1·n2·q1·q2, 2) of every knot span of `config`'s domain and
     their parameter-area weights, float64, span by span (ξ¹ span major); q per direction from
-    `points` (one number or a pair), by default p + 1."""
+    `points` (one number or a pair), by default p + 1. Graded knots: the spans in η mapped
+    to ξ (module docstring)."""
     points = config.degree + 1 if points is None else points
     points = (points, points) if isinstance(points, int) else tuple(points)
     if len(points) != 2:
@@ -53,6 +61,11 @@ def span_points(config: SplineConfig, points: int | tuple[int, int] | None = Non
         starts = lo + h * torch.arange(n, dtype=torch.float64)
         per_direction.append(((starts[:, None] + h * nodes).reshape(-1),
                               (h * weights).repeat(n)))
+    for d, graded in enumerate(config.graded_maps()):
+        if graded is not None:
+            eta, weight = per_direction[d]
+            x = graded.inverse(eta)
+            per_direction[d] = (x, weight / graded.jets(x)[1])
     (x1, w1), (x2, w2) = per_direction
     # Order the points by span: (span1, span2, node1, node2).
     n1, n2 = config.spans

@@ -12,7 +12,13 @@ from taichi_ndf.problem.field_types import DEFAULT, FIELD_TYPES
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.pseudo_time import DEFAULT_FRAMES
 from taichi_ndf.problem.scaling import SCALE_ESTIMATES, characteristic_displacement
-from taichi_ndf.problem.spline_grid import SplinePlan, auto_span_length, spans_for
+from taichi_ndf.problem.spline_grid import (
+    GRADINGS,
+    SplinePlan,
+    auto_span_length,
+    graded_config,
+    spans_for,
+)
 from taichi_ndf.scene.schema import SceneError, Table
 
 
@@ -51,8 +57,13 @@ def _siren(t: Table, model: ShellModel) -> tuple[FieldConfig, str | None]:
                        output_scale=float(scale)), estimate
 
 
+DEFAULT_GRADING = "uniform"  # [field] grading of a spline field (benchmarks/RESULTS.md)
+
+
 def _spline(t: Table, model: ShellModel) -> tuple[SplinePlan, None]:
-    """A spline field's grids (the grid rule's spans where [field] gives none)."""
+    """A spline field's grids (the grid rule's spans where [field] gives none), their knots
+    uniform or graded towards the model's singular features (`grading`,
+    `spline_grid.graded_config`)."""
     degree = t.integer("degree", 3)
     if degree not in (3, 4):
         raise SceneError(f"{t.key('degree')}: must be 3 (cubic) or 4 (quartic), got {degree}")
@@ -85,6 +96,8 @@ def _spline(t: Table, model: ShellModel) -> tuple[SplinePlan, None]:
                              f"at least {degree} spans (the degree) along it, got {spans[d]}")
     config = SplineConfig(spans=spans, degree=degree, domain=domain.bounds,
                           periodic=domain.periodic, even_ends=even)
+    if t.string("grading", DEFAULT_GRADING, choices=GRADINGS) == "features":
+        config = graded_config(config, model.boundary, model.loads, domain)
     points = t.integer("quadrature_points", degree + 1, minimum=1)
     return SplinePlan(config, levels=t.integer("levels", 1, minimum=1),
                       quadrature_points=points), None
