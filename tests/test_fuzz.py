@@ -200,7 +200,7 @@ KEYED_PLANE = {
     "contact": {"check_resolution": 32, "activation_distance": "auto", "stiffness": "auto",
                 "margin": "auto"},
     "field": {"type": "spline", "degree": 3, "spans": [8, 8], "levels": 1,
-              "quadrature_points": 4},
+              "quadrature_points": 4, "grading": "features"},
     "training": {"method": "newton", "load_steps": [0.5, 1.0], "newton_max_iterations": 5},
     "output": {"resolution": [8, 8]},
 }
@@ -211,7 +211,7 @@ KEYED_CYLINDER = {**KEYED_PLANE, "geometry": {"type": "cylinder", "radius": 0.1,
 SIZE_VALUES = st.sampled_from([[1, 1], [2, 2], [10000, 10000], [2000, 2000], [3, 10**9], 20, 30,
                                1e-5, 1e-300, 1000000, 10**9, "xi1_min", "xi2_max", "auto"])
 KEYED_TARGETS = [("field", "spans"), ("field", "levels"), ("field", "span_length"),
-                 ("field", "degree"), ("field", "quadrature_points"),
+                 ("field", "degree"), ("field", "quadrature_points"), ("field", "grading"),
                  ("contact", "check_resolution"), ("contact", "stiffness"),
                  ("obstacles", 0, "radius"), ("loads", "line", 0, "edge"),
                  ("loads", "line", 0, "nodes"), ("loads", "line", 0, "force"),
