@@ -27,6 +27,7 @@ import logging
 import math
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import torch
 
@@ -69,15 +70,18 @@ def solve(model, levels: int, coarsest: int, config: NewtonConfig,
                         length=math.sqrt(surface.domain.rectangle_area))
 
 
-def step_parts(model, spans: tuple[int, int], coefficients: torch.Tensor) -> list[tuple]:
-    """CPU seconds (median of 3) of each part of a Newton step at these coefficients."""
+def newton_system(model, spans: tuple[int, int], coefficients: torch.Tensor
+                  ) -> SimpleNamespace:
+    """One projected-Newton step's pieces on `spans` at these coefficients (C (n, 3)): the
+    assembly, its samples s, the jets u, Π (potential) and its result, the FD steps, the exact
+    blocks, the indefinite ones (bad) and the projected ones, the matrix K, the right-hand side
+    −g and the held (gauge) unknowns."""
     surface = model.surface
     field = SplineField(SplineConfig(spans=spans, degree=3, domain=surface.domain.bounds))
     samples = span_quadrature(surface, field.config, model.loads)
     operator = DisplacementOperator(field, model.boundary)
     basis = local_basis_at(operator, samples.xi)
     assembly = Assembly(samples, basis, field.coefficients.shape[0]).at_load(operator, 1.0)
-    fixed = gauge_unknowns(model.boundary, basis)
     potential = Objective.of_model(model).potential(1.0)
     s = assembly.samples
     u = assembly.displacement(coefficients)
@@ -86,23 +90,31 @@ def step_parts(model, spans: tuple[int, int], coefficients: torch.Tensor) -> lis
     blocks = flat_blocks(potential.hessian_blocks(s, u, steps=steps))
     bad = indefinite_blocks(blocks)
     projected, _ = project_psd(blocks, bad)
-    matrix = assembly.hessian(projected)
-    rhs = -assembly.gradient(result.grad_u_jets).reshape(-1).numpy()
+    return SimpleNamespace(
+        assembly=assembly, s=s, u=u, potential=potential, result=result, steps=steps,
+        blocks=blocks, bad=bad, projected=projected, matrix=assembly.hessian(projected),
+        rhs=-assembly.gradient(result.grad_u_jets).reshape(-1).numpy(),
+        fixed=gauge_unknowns(model.boundary, basis))
+
+
+def step_parts(model, spans: tuple[int, int], coefficients: torch.Tensor) -> list[tuple]:
+    """CPU seconds (median of 3) of each part of a Newton step at these coefficients."""
+    n = newton_system(model, spans, coefficients)
     parts = [
-        ("displacement U = offset + J C", lambda: assembly.displacement(coefficients)),
-        ("energy + autodiff gradient dΠ/dU", lambda: potential(s, u, True)),
-        ("energy alone (a line-search trial)", lambda: potential(s, u, False)),
-        ("gradient pull-back dΠ/dC", lambda: assembly.gradient(result.grad_u_jets)),
-        ("Hessian blocks through the strains", lambda: potential.hessian_blocks(
-            s, u, steps=steps)),
+        ("displacement U = offset + J C", lambda: n.assembly.displacement(coefficients)),
+        ("energy + autodiff gradient dΠ/dU", lambda: n.potential(n.s, n.u, True)),
+        ("energy alone (a line-search trial)", lambda: n.potential(n.s, n.u, False)),
+        ("gradient pull-back dΠ/dC", lambda: n.assembly.gradient(n.result.grad_u_jets)),
+        ("Hessian blocks through the strains", lambda: n.potential.hessian_blocks(
+            n.s, n.u, steps=n.steps)),
         ("Hessian blocks by central differences (before)", lambda: sample_hessians(
-            potential, s, u, steps=steps)),
-        ("indefinite-block screen (batched Cholesky)", lambda: indefinite_blocks(blocks)),
-        (f"projection ({bad.numel()} of {len(s)} blocks eigen-decomposed)",
-         lambda: project_psd(blocks, bad)),
-        ("assembly K = Σ Jᵀ H J", lambda: assembly.hessian(projected)),
+            n.potential, n.s, n.u, steps=n.steps)),
+        ("indefinite-block screen (batched Cholesky)", lambda: indefinite_blocks(n.blocks)),
+        (f"projection ({n.bad.numel()} of {len(n.s)} blocks eigen-decomposed)",
+         lambda: project_psd(n.blocks, n.bad)),
+        ("assembly K = Σ Jᵀ H J", lambda: n.assembly.hessian(n.projected)),
         ("factorise + solve (damped_solve: banded Cholesky)",
-         lambda: damped_solve(matrix, rhs, 0.0, fixed)),
+         lambda: damped_solve(n.matrix, n.rhs, 0.0, n.fixed)),
     ]
     out = []
     for name, part in parts:

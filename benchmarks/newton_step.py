@@ -28,17 +28,13 @@ import torch
 
 import taichi_ndf
 from taichi_ndf.field.spline import SplineConfig, SplineField
-from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
 from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.minimise.newton import NewtonConfig
-from taichi_ndf.objective import Objective
-from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.scene.reader import load_scene
-from taichi_ndf.shell.hessian import flat_blocks, indefinite_blocks, jet_steps, project_psd
+from taichi_ndf.shell.hessian import indefinite_blocks, project_psd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from napkin_newton import SCENE, solve  # noqa: E402
+from napkin_newton import SCENE, newton_system, solve  # noqa: E402
 
 
 def cpu_ms(part, repeats: int) -> float:
@@ -54,38 +50,23 @@ def cpu_ms(part, repeats: int) -> float:
 
 def parts_at(model, spans: int, coefficients: torch.Tensor, repeats: int) -> dict:
     """CPU ms of each part of a Newton step on `spans`² spans at these coefficients."""
-    surface = model.surface
-    field = SplineField(SplineConfig(spans=(spans, spans), degree=3,
-                                     domain=surface.domain.bounds))
-    samples = span_quadrature(surface, field.config, model.loads)
-    operator = DisplacementOperator(field, model.boundary)
-    basis = local_basis_at(operator, samples.xi)
-    assembly = Assembly(samples, basis, field.coefficients.shape[0]).at_load(operator, 1.0)
-    fixed = gauge_unknowns(model.boundary, basis)
-    potential = Objective.of_model(model).potential(1.0)
-    s = assembly.samples
-    u = assembly.displacement(coefficients)
-    result = potential(s, u, True)
-    steps = jet_steps(s.r_jets, u, math.sqrt(surface.domain.rectangle_area), 1e-5)
-    blocks = flat_blocks(potential.hessian_blocks(s, u, steps=steps))
-    bad = indefinite_blocks(blocks)
-    projected, _ = project_psd(blocks, bad)
-    matrix = assembly.hessian(projected)
-    rhs = -assembly.gradient(result.grad_u_jets).reshape(-1).numpy()
+    n = newton_system(model, (spans, spans), coefficients)
     out = {
-        "unknowns": assembly.size, "points": len(s), "indefinite": int(bad.numel()),
-        "displacement": cpu_ms(lambda: assembly.displacement(coefficients), repeats),
-        "energy + gradient": cpu_ms(lambda: potential(s, u, True), repeats),
-        "pull-back": cpu_ms(lambda: assembly.gradient(result.grad_u_jets), repeats),
-        "blocks (exact)": cpu_ms(lambda: potential.hessian_blocks(s, u, steps=steps), repeats),
-        "screen": cpu_ms(lambda: indefinite_blocks(blocks), repeats),
-        "projection": cpu_ms(lambda: project_psd(blocks, bad), repeats),
-        "assembly": cpu_ms(lambda: assembly.hessian(projected), repeats),
-        "factorise + solve": cpu_ms(lambda: damped_solve(matrix, rhs, 0.0, fixed), repeats),
+        "unknowns": n.assembly.size, "points": len(n.s),
+        "indefinite": int(n.bad.numel()),
+        "displacement": cpu_ms(lambda: n.assembly.displacement(coefficients), repeats),
+        "energy + gradient": cpu_ms(lambda: n.potential(n.s, n.u, True), repeats),
+        "pull-back": cpu_ms(lambda: n.assembly.gradient(n.result.grad_u_jets), repeats),
+        "blocks (exact)": cpu_ms(
+            lambda: n.potential.hessian_blocks(n.s, n.u, steps=n.steps), repeats),
+        "screen": cpu_ms(lambda: indefinite_blocks(n.blocks), repeats),
+        "projection": cpu_ms(lambda: project_psd(n.blocks, n.bad), repeats),
+        "assembly": cpu_ms(lambda: n.assembly.hessian(n.projected), repeats),
+        "factorise + solve": cpu_ms(lambda: damped_solve(n.matrix, n.rhs, 0.0, n.fixed), repeats),
     }
-    if hasattr(potential, "psd_hessian_blocks"):
+    if hasattr(n.potential, "psd_hessian_blocks"):
         out["blocks (PSD, strains)"] = cpu_ms(
-            lambda: potential.psd_hessian_blocks(s, u, steps=steps), repeats)
+            lambda: n.potential.psd_hessian_blocks(n.s, n.u, steps=n.steps), repeats)
     return out
 
 
