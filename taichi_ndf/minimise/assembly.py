@@ -270,12 +270,12 @@ class Assembly:
         k, channels = jacobian.shape[3], jacobian.shape[2]
         m, count = self._per_group, self._groups
         regular = count * m
-        pairs = blocks[:regular].permute(0, 2, 4, 1, 3).contiguous()  # (N, c, d, i, j)
         out = blocks.new_empty(COMPONENTS, COMPONENTS, count, k, k)
         for c in range(COMPONENTS):
             left = jacobian[c, :regular].reshape(count, m * channels, k).transpose(1, 2)
             for d in range(c, COMPONENTS):
-                weighted = torch.bmm(pairs[:, c, d], jacobian[d, :regular])  # (N, ch, k)
+                pair = blocks[:regular, :, c, :, d].contiguous()  # (N, ch, ch): one pair's copy
+                weighted = torch.bmm(pair, jacobian[d, :regular])  # (N, ch, k)
                 torch.bmm(left, weighted.reshape(count, m * channels, k), out=out[c, d])
                 if d != c:
                     out[d, c] = out[c, d].transpose(1, 2)
