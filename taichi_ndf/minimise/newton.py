@@ -328,7 +328,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
                     blocks = point_blocks(linearisation, potential, c, u, config.fd_step, True)
                     projected = blocks.shape[0]
                 else:
-                    blocks, projected = project_psd(blocks, mode=config.hessian)
+                    blocks, projected = project_psd(blocks, mode=config.hessian, overwrite=True)
                 if couplings is not None:
                     couplings, pairs = couplings.projected(config.hessian)
                     projected += pairs
