@@ -87,6 +87,19 @@ def test_projection_mirrors_or_clamps_negative_eigenvalues_and_keeps_definite_bl
         project_psd(blocks, mode="flip")
 
 
+@pytest.mark.parametrize("pad", [0, 3])  # all rows active (a slice), or zero rows (indices)
+def test_projection_in_place_is_the_copy_bit_for_bit_without_a_second_tensor(pad):
+    # Newton projects its blocks in place (issue 28: one (N, 18, 18) array less at the peak).
+    a = torch.randn(6, 18, 18, generator=torch.Generator().manual_seed(1), dtype=DT)
+    blocks = torch.nn.functional.pad(torch.cat((a @ a.transpose(1, 2), a + a.transpose(1, 2))),
+                                     (pad, 0, pad, 0))
+    copied, count = project_psd(blocks, mode="clamp")
+    original = blocks.clone()
+    in_place, count_in_place = project_psd(blocks, mode="clamp", overwrite=True)
+    assert in_place.data_ptr() == blocks.data_ptr() and count_in_place == count == 6
+    assert torch.equal(in_place, copied) and not torch.equal(in_place, original)
+
+
 def _case(boundary_kind):
     bounds = ((0.0, 1.0), (0.0, 1.0))
     surface = Plane(bounds=bounds)
