@@ -11,6 +11,7 @@ import torch
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge, PinnedPoint
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.geometry import Plane
+from taichi_ndf.minimise import assembly as assembly_module
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
 from taichi_ndf.minimise.newton import NewtonConfig, _longer_step
 from taichi_ndf.minimise.refinement import richardson, solve_levels
@@ -87,6 +88,19 @@ def test_projection_mirrors_or_clamps_negative_eigenvalues_and_keeps_definite_bl
         project_psd(blocks, mode="flip")
 
 
+@pytest.mark.parametrize("pad", [0, 3])  # all rows active (a slice), or zero rows (indices)
+def test_projection_in_place_is_the_copy_bit_for_bit_without_a_second_tensor(pad):
+    # Newton projects its blocks in place (issue 28: one (N, 18, 18) array less at the peak).
+    a = torch.randn(6, 18, 18, generator=torch.Generator().manual_seed(1), dtype=DT)
+    blocks = torch.nn.functional.pad(torch.cat((a @ a.transpose(1, 2), a + a.transpose(1, 2))),
+                                     (pad, 0, pad, 0))
+    copied, count = project_psd(blocks, mode="clamp")
+    original = blocks.clone()
+    in_place, count_in_place = project_psd(blocks, mode="clamp", overwrite=True)
+    assert in_place.data_ptr() == blocks.data_ptr() and count_in_place == count == 6
+    assert torch.equal(in_place, copied) and not torch.equal(in_place, original)
+
+
 def _case(boundary_kind):
     bounds = ((0.0, 1.0), (0.0, 1.0))
     surface = Plane(bounds=bounds)
@@ -155,6 +169,22 @@ def test_assembled_hessian_matches_differences_of_the_assembled_gradient(boundar
                         - gradient(c - step.reshape(c.shape))) / (2 * eps)).numpy()
     assert np.abs(matrix - matrix.T).max() <= 1e-12 * np.abs(matrix).max()
     assert np.linalg.norm(matrix - dense) <= 1e-6 * np.linalg.norm(dense)
+
+
+@pytest.mark.parametrize("boundary_kind", ["edges", "free_pin"])
+def test_assembled_hessian_is_the_same_bit_for_bit_in_chunks_of_one_span(boundary_kind,
+                                                                        monkeypatch):
+    # K's per-span sums are taken in chunks of points (issue 28: the temporaries are a
+    # chunk's): chunks of one span each give the same K as one chunk of all spans.
+    _, _, samples, _, assembly, _ = _case(boundary_kind)
+    a = torch.randn(len(samples), 18, 18, generator=torch.Generator().manual_seed(3), dtype=DT)
+    a[:, :3], a[:, :, :3] = 0.0, 0.0  # no value channel: the shell's channels (a view)
+    blocks = a + a.transpose(1, 2)
+    whole = assembly.hessian(blocks)
+    monkeypatch.setattr(assembly_module, "CHUNK", 9)  # 3 × 3 points per span
+    chunked = assembly.hessian(blocks)
+    assert np.array_equal(whole.indices, chunked.indices)
+    assert np.array_equal(whole.data, chunked.data) and np.abs(whole.data).max() > 0
 
 
 # -- projected Newton on the spline field ------------------------------------------------------

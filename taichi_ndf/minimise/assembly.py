@@ -264,21 +264,21 @@ class Assembly:
 
     def _pair_sums(self, jacobian: torch.Tensor, blocks: torch.Tensor) -> torch.Tensor:
         """R[c, d, g] = Σ over the points q of group g of J_c,qᵀ H_q[:, c, :, d] J_d,q, shape
-        (3, 3, G, k, k), for Jacobians (3, N, ch, k) and per-point symmetric blocks
-        (N, ch, 3, ch, 3): per component pair two batched GEMMs, the group's points folded
-        into the inner dimension of the second; R[d, c] = R[c, d]ᵀ."""
-        k, channels = jacobian.shape[3], jacobian.shape[2]
-        m, count = self._per_group, self._groups
-        regular = count * m
-        pairs = blocks[:regular].permute(0, 2, 4, 1, 3).contiguous()  # (N, c, d, i, j)
-        out = blocks.new_empty(COMPONENTS, COMPONENTS, count, k, k)
-        for c in range(COMPONENTS):
-            left = jacobian[c, :regular].reshape(count, m * channels, k).transpose(1, 2)
-            for d in range(c, COMPONENTS):
-                weighted = torch.bmm(pairs[:, c, d], jacobian[d, :regular])  # (N, ch, k)
-                torch.bmm(left, weighted.reshape(count, m * channels, k), out=out[c, d])
-                if d != c:
-                    out[d, c] = out[c, d].transpose(1, 2)
+        (3, 3, G, k, k), for Jacobians (3, N, ch, k), symmetric blocks (N, ch, 3, ch, 3): per
+        chunk of groups and component pair two batched GEMMs, the group's points folded into
+        the inner dimension of the second; R[d, c] = R[c, d]ᵀ."""
+        channels, k, m, count = *jacobian.shape[2:], self._per_group, self._groups
+        out, step = blocks.new_empty(COMPONENTS, COMPONENTS, count, k, k), max(1, CHUNK // m)
+        for start in range(0, count, step):
+            g = slice(start, min(count, start + step))
+            p = slice(g.start * m, g.stop * m)
+            for c in range(COMPONENTS):
+                left = jacobian[c, p].reshape(-1, m * channels, k).transpose(1, 2)
+                for d in range(c, COMPONENTS):
+                    weighted = torch.bmm(blocks[p, :, c, :, d].contiguous(), jacobian[d, p])
+                    torch.bmm(left, weighted.reshape(-1, m * channels, k), out=out[c, d, g])
+                    if d != c:
+                        out[d, c, g] = out[c, d, g].transpose(1, 2)
         if self._extra.stop > self._extra.start:
             extra = self._extra
             per_point = _contract(jacobian[:, extra], _weighted(blocks[extra],

@@ -299,7 +299,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
                 previous - current.total <= config.relative_decrease * abs(current.total)):
             converged = True
             break
-        started = time.perf_counter()
+        started, matrix = time.perf_counter(), None  # free the last K before the blocks
         exact = config.project and damping == 0.0 and not exact_failed  # try the exact K
         strain = config.project and config.hessian == "strain" and hasattr(
             potential, "psd_hessian_blocks")
@@ -307,8 +307,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
             linearisation, potential, c, u, config.fd_step)
         couplings = coupled_blocks(potential, samples, u)
         t_hessian = time.perf_counter() - started
-        t_assembly = t_solve = 0.0
-        first_step = matrix = None  # (step, damping) of a factorisation checked definite
+        t_assembly, t_solve, first_step = 0.0, 0.0, None  # first: (step, μ) of a definite K
         if exact:
             # The exact K may be definite although some blocks are not (a stable state under
             # compression): then its Newton step converges quadratically.
@@ -329,15 +328,16 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
                     blocks = point_blocks(linearisation, potential, c, u, config.fd_step, True)
                     projected = blocks.shape[0]
                 else:
-                    blocks, projected = project_psd(blocks, mode=config.hessian)
+                    blocks, projected = project_psd(blocks, mode=config.hessian, overwrite=True)
                 if couplings is not None:
                     couplings, pairs = couplings.projected(config.hessian)
                     projected += pairs
                 t_hessian += time.perf_counter() - started
             if matrix is None or projected:
-                started = time.perf_counter()
+                started, matrix = time.perf_counter(), None  # free the exact K first
                 matrix = linearisation.hessian(blocks, couplings)
                 t_assembly += time.perf_counter() - started
+        blocks = couplings = None  # K holds what the solves need
         alpha, small = 0.0, False
         for _attempt in range(config.line_searches):
             started = time.perf_counter()

@@ -97,7 +97,8 @@ class Objective:
             if psd and term is not self.shell:
                 blocks = project_psd(blocks.reshape(blocks.shape[0], JET_SIZE, JET_SIZE)
                                      )[0].reshape(blocks.shape)
-            total = blocks if total is None else total + blocks
+            # the first term's blocks are its own new tensor: the others are added in place
+            total = blocks if total is None else total.add_(blocks)
         return total
 
     def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,

@@ -139,9 +139,10 @@ def indefinite_blocks(blocks: torch.Tensor, rows: slice | torch.Tensor | None = 
 PROJECTIONS = ("abs", "clamp", "strain")
 
 
-def project_psd(blocks: torch.Tensor, bad: torch.Tensor | None = None, mode: str = "clamp"
-                ) -> tuple[torch.Tensor, int]:
-    """Blocks (N, m, m) projected to positive semi-definite, and how many were indefinite.
+def project_psd(blocks: torch.Tensor, bad: torch.Tensor | None = None, mode: str = "clamp",
+                *, overwrite: bool = False) -> tuple[torch.Tensor, int]:
+    """Blocks (N, m, m) projected to positive semi-definite, and how many were indefinite;
+    overwrite: projected in place in `blocks` (no copy; for a caller done with the originals).
     mode "abs": negative eigenvalues replaced by their absolute values; "clamp" (and
     "strain", for blocks without their strains): by 0. Only
     the indefinite blocks (`indefinite_blocks`, or `bad` if given) are eigen-decomposed
@@ -156,7 +157,7 @@ def project_psd(blocks: torch.Tensor, bad: torch.Tensor | None = None, mode: str
     values, vectors = torch.linalg.eigh(_part(blocks[bad], rows))
     values = values.abs() if mode == "abs" else values.clamp_min(0.0)
     part = (vectors * values[:, None, :]) @ vectors.transpose(1, 2)
-    projected = blocks.clone()
+    projected = blocks if overwrite else blocks.clone()
     if isinstance(rows, slice):
         projected[:, rows, rows].index_copy_(0, bad, part)
     else:

@@ -50,6 +50,7 @@ from taichi_ndf.shell.materials import Material
 
 mat3 = ti.math.mat3
 STRAINS = 6  # ε₁₁, ε₁₂, ε₂₂, κ₁₁, κ₁₂, κ₂₂
+CHUNK = 4096  # points per batched product Jᵀ (S J): its temporaries are the chunk's
 BENDING_CHANNELS = (jets.D11, jets.D12, jets.D22)
 # Laws whose Ψ is a quadratic form in the strains (law_terms.py: linear isotropic, orthotropic
 # StVK): their law gradient is affine in s.
@@ -227,11 +228,10 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     dtype, device = r_all.dtype, r_all.device
     kernel_stiffness, params = law_inputs(material, count, stiffness, dtype, device)
     active = torch.nonzero(samples.weight != 0).flatten()
-    everywhere = active.numel() == count
-    if everywhere:
-        active = slice(None)
-    elif active.numel() == 0:
+    if active.numel() == 0:
         return r_all.new_zeros(count, jets.CHANNELS, 3, jets.CHANNELS, 3)
+    if int(active[-1]) == active.numel() - 1:  # the first points (the assembly's order puts
+        active = slice(0, active.numel())  # point loads last): views, blocks written in place
     r = r_all[active].contiguous()
     u = u_jets.detach().to(dtype)[active]
     x = r + u
@@ -257,9 +257,15 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     jac = x.new_zeros(x.shape[0], STRAINS, jets.CHANNELS, 3)
     _strain_derivatives(x, stress, jac, jac, False)
     flat = jac.reshape(-1, STRAINS, jets.CHANNELS * 3)
+    out = r_all.new_zeros(count, jets.CHANNELS, 3, jets.CHANNELS, 3)
+    blocks = out[active] if isinstance(active, slice) else out.new_empty(x.shape[0],
+                                                                         *out.shape[1:])
+    square = blocks.view(-1, jets.CHANNELS * 3, jets.CHANNELS * 3)
     # S J first, then a contiguous Jᵀ: 17 against 32 ms as Jᵀ S J (12 544 points, loaded core)
-    blocks = torch.bmm(flat.transpose(1, 2).contiguous(), torch.bmm(stiffness_s, flat)).reshape(
-        -1, jets.CHANNELS, 3, jets.CHANNELS, 3)
+    for start in range(0, flat.shape[0], CHUNK):
+        c = slice(start, start + CHUNK)
+        torch.bmm(flat[c].transpose(1, 2).contiguous(), torch.bmm(stiffness_s[c], flat[c]),
+                  out=square[c])
     if psd:
         membrane = torch.stack((stress[:, 0], 0.5 * stress[:, 1], 0.5 * stress[:, 1],
                                 stress[:, 2]), dim=1).reshape(-1, 2, 2)
@@ -269,8 +275,6 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
             None, None, :, None, :]
     else:
         _strain_derivatives(x, stress, jac, blocks, True)
-    if everywhere:
-        return blocks
-    out = r_all.new_zeros(count, jets.CHANNELS, 3, jets.CHANNELS, 3)
-    out[active] = blocks
+    if not isinstance(active, slice):
+        out[active] = blocks
     return out
