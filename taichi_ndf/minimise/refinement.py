@@ -53,20 +53,16 @@ import torch
 
 from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
-from taichi_ndf.minimise.assembly import (
-    Assembly,
-    displacement_at,
-    gauge_unknowns,
-    local_basis_at,
-)
+from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
-from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig
-from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.linear_solve import LinearSolverConfig
+from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: imported from here)
+    GridLinearisation,
+    held_unknowns,
+)
 from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration, minimise
 from taichi_ndf.objective import Objective
-from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.sampling import SurfaceSamples
-from taichi_ndf.shell.hessian import COMPONENTS
 
 log = logging.getLogger(__name__)
 
@@ -236,18 +232,6 @@ def richardson(values: list[float], order: float | None = None) -> Extrapolation
                          estimate.basis, len(values), order, estimate.warning, estimate.reason)
 
 
-def held_unknowns(grid, boundary, basis) -> np.ndarray | None:
-    """Unknowns held at zero: the gauge of a free pin (`gauge_unknowns`) and the coefficients
-    a mirrored spline never reads (`SplineField.aliased_coefficients`), which no point
-    couples."""
-    held = [gauge_unknowns(boundary, basis)]
-    aliased = grid.aliased_coefficients.numpy()
-    if aliased.size:
-        held.append((aliased[:, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(-1))
-    held = [h for h in held if h is not None]
-    return np.concatenate(held) if held else None
-
-
 class GridLevels:
     """The stages of a coarse-to-fine projected-Newton solve (`taichi_ndf.minimise.continuation`):
     each level's grid (the field's, then its dyadic refinements), quadrature, assembly and
@@ -289,12 +273,10 @@ class GridLevels:
         with progress.stage(f"Newton level {level - self.first_level} ({nx} × {ny} spans): "
                             "quadrature, basis"):
             self.samples = self.samples_for(grid)
-            self.operator = DisplacementOperator(grid, boundary)
-            basis = local_basis_at(self.operator, self.samples.xi)
-            self.assembly = None if self.contact else Assembly(self.samples, basis,
-                                                               grid.coefficients.shape[0])
-            self.fixed = held_unknowns(grid, boundary, basis)
-            self.solver = LinearSolver.for_grid(grid.config, self.linear)
+            self.linearise = GridLinearisation(grid, boundary, length=self.length,
+                                               linear=self.linear or LinearSolverConfig())
+            if self.contact is None:  # with contact: one assembly per round (NewtonContact)
+                self.linearise.assemble(self.samples)
         self._setup = time.perf_counter() - started  # counted in the level's first step
         last = level == self.levels - 1
         self.newton = self.config if self.coarse_config is None or last else self.coarse_config
@@ -329,21 +311,20 @@ class GridLevels:
         with progress.stage(f"Newton level {shown} ({nx} × {ny} spans), load {t:.4g}",
                             (newton or NewtonConfig()).max_iterations):
             if self.contact is None:
-                self.assembly.at_load(self.operator, t)
-                linearisation = SplineLinearisation(self.assembly, fixed=self.fixed,
-                                                    solver=self.solver, length=self.length)
-                solution = minimise(linearisation, self.objective.potential(t), coefficients,
-                                    newton, load_factor=t, on_iteration=self.iterated,
+                solution = minimise(self.linearise.linearisation(t),
+                                    self.objective.potential(t), coefficients, newton,
+                                    load_factor=t, on_iteration=self.iterated,
                                     coarse_energy=coarse_energy)
             else:  # from the previous load step's state (finer level: this one's, prolonged)
                 solution = self.contact.solve(
-                    self.operator, self.samples, self.objective, coefficients, newton,
-                    load_factor=t, start_load_factor=start_load_factor, length=self.length,
-                    fixed=self.fixed, linear_solver=self.solver, on_iteration=self.iterated)
+                    self.linearise, self.samples, self.objective, coefficients, newton,
+                    load_factor=t, start_load_factor=start_load_factor,
+                    on_iteration=self.iterated)
         coefficients = solution.parameters
         readings = {}
         if self.probes:  # (a free pin's composition needs a point)
-            u = displacement_at(self.operator, self.probe_xi, coefficients, t)[:, jets.VALUE]
+            u = displacement_at(self.linearise.operator, self.probe_xi, coefficients,
+                                t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
         seconds = time.perf_counter() - started + self._setup
         self._setup = 0.0

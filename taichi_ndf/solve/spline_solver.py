@@ -29,12 +29,12 @@ from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.callbacks import call
 from taichi_ndf.minimise.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
+from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson
 from taichi_ndf.minimise.state import LevelSummary, NewtonRecord, State
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.problem.training import SolverConfig
 
@@ -187,8 +187,9 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
 
     points = plan.quadrature_points
     grids = GridLevels(grid, model.boundary,
-                       lambda f: span_quadrature(surface, f.config, model.loads, points=points,
-                                                 dtype=f.coefficients.dtype),
+                       lambda f: GridLinearisation.quadrature(
+                           surface, f.config, model.loads, points=points,
+                           dtype=f.coefficients.dtype),
                        objective, levels=levels, config=newton, probes=probes,
                        length=math.sqrt(surface.domain.rectangle_area), contact=contact,
                        linear=LinearSolverConfig(kind=config.linear_solver),
