@@ -94,8 +94,6 @@ class SplineEquilibrium(Equilibrium):
     model: the observation's model (unknowns at their scene values); grid: the field's
     configuration (`SplineModelConfig.grid`, or a refinement of it)."""
 
-    field_type = SplineConfig
-
     def __init__(self, model: ShellModel, unknowns: list[Unknown], config: SplineModelConfig,
                  grid: SplineConfig):
         super().__init__(model, unknowns, boundary_length=config.boundary_length,
