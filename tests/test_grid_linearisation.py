@@ -121,3 +121,33 @@ def test_the_linear_solver_knob(grid):
     assert isinstance(builder.solver, LinearSolver)
     assert builder.linearisation(1.0, samples)._solve is builder.solver
     assert builder.linearisation(0.5)._solve is builder.solver
+
+
+def test_the_spline_driver_takes_its_linearisation_from_the_discretisation(tmp_path,
+                                                                           monkeypatch):
+    """`SplineDiscretisation.solve`'s grid levels are linearised by the discretisation's
+    builder (`linearise`, once per level, with the run's linear solver), and give what the
+    driver's own construction gives, to the last bit."""
+    from test_cli import SMALL_NAPKIN, write_scene
+
+    from taichi_ndf.discretise import SplineDiscretisation, of_scene
+    from taichi_ndf.scene.reader import load_scene
+    from taichi_ndf.solve.spline_solver import solve_spline
+
+    scene = load_scene(write_scene(tmp_path, SMALL_NAPKIN.format(lr=1e-3)), field="spline")
+    d = of_scene(scene)
+    asked = []
+    builder = SplineDiscretisation.linearise
+
+    def counted(self, field, linear=None):
+        asked.append((field.config.spans, linear.kind))
+        return builder(self, field, linear)
+
+    monkeypatch.setattr(SplineDiscretisation, "linearise", counted)
+    d.start(scene.solver, seed=0)
+    solution = d.solve(scene.solver)
+    assert [kind for _, kind in asked] == [scene.solver.linear_solver] * len(d.run.levels)
+    assert [spans for spans, _ in asked] == [tuple(lv.spans) for lv in d.run.levels]
+    own = solve_spline(scene.model, scene.field, scene.solver)
+    assert own.energy == solution.energy
+    assert [lv.iterations for lv in own.levels] == [lv.iterations for lv in d.run.levels]

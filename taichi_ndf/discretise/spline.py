@@ -90,7 +90,8 @@ class SplineDiscretisation:
     def solve(self, config: SolverConfig, *, callbacks: Sequence[Any] = (),
               on_load_step: OnLoadStep | None = None,
               report: Callable[[str], None] | None = None) -> Solution:
-        """`solve_spline`; after each grid level a line to `report` (with
+        """`solve_spline`, whose grid levels take their linearisation from `linearise` (with
+        the run's linear solver); after each grid level a line to `report` (with
         `config.progress`) and on_load_step with a field per load step of that level."""
         per_level: list[dict[float, Probes]] = []
 
@@ -107,8 +108,10 @@ class SplineDiscretisation:
                     field.coefficients.copy_(coefficients)
                     on_load_step(t, field)
 
+        linear = LinearSolverConfig(kind=config.linear_solver)
         run = solve_spline(self.model, self.spec, config, objective=self.objective,
-                           state=self.state, callbacks=callbacks, on_level=on_level)
+                           state=self.state, callbacks=callbacks, on_level=on_level,
+                           linearise=lambda grid: self.linearise(grid, linear))
         self.run = run
         convergence = {t: (list(range(len(per_level))), [level[t] for level in per_level])
                        for t in per_level[-1] if all(t in level for level in per_level)}
@@ -195,9 +198,10 @@ class SplineDiscretisation:
 
     def linearise(self, field: SplineField,
                   linear: LinearSolverConfig | None = None) -> GridLinearisation:
-        """The linearisation builder of a grid of this discretisation (`field`'s): the
-        model's boundary, the domain's √area [m] as the FD length, linear: the linear solver's
-        settings (None: the default's)."""
+        """The linearisation builder of a grid of this discretisation (`field`'s), the one
+        that its solve's grid levels (`solve_spline`, `GridLevels`) and `linearisation` use:
+        the model's boundary, the domain's √area [m] as the FD length, linear: the linear
+        solver's settings (None: the default's)."""
         return GridLinearisation(field, self.model.boundary,
                                  length=math.sqrt(self.model.surface.domain.rectangle_area),
                                  linear=linear or LinearSolverConfig())

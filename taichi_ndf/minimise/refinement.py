@@ -240,7 +240,9 @@ class GridLevels:
     exactly); its Newton solve and readings (`LevelSolution`). `grid`: the current level's
     field (its coefficients: the level's starting point). Settings as `solve_levels`';
     first_level: the level the run starts on (`field_`'s); first_coarse: a resumed run's
-    coarser Π there (its Newton stops as the whole run's did: `start`)."""
+    coarser Π there (its Newton stops as the whole run's did: `start`); linearise(grid): the
+    builder of a level's linearisation (`GridLinearisation`; a discretisation's,
+    `SplineDiscretisation.linearise`), None: on `boundary` with `length` and `linear`."""
 
     def __init__(self, field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples], objective: Objective, *,
@@ -249,12 +251,15 @@ class GridLevels:
                  probes: dict[str, tuple[float, float]] | None = None, length: float = 1.0,
                  contact=None, linear: LinearSolverConfig | None = None,
                  on_iteration: Callable[[int, tuple[int, int], NewtonIteration], None]
-                 | None = None, first_level: int = 0, first_coarse: float | None = None):
+                 | None = None, first_level: int = 0, first_coarse: float | None = None,
+                 linearise: Callable[[object], GridLinearisation] | None = None):
         self.grid, self.boundary, self.samples_for = field_, boundary, samples_for
         self.first_coarse = first_coarse
         self.objective, self.levels, self.first_level = objective, levels, first_level
         self.config, self.coarse_config, self.length = config, coarse_config, length
         self.contact, self.linear, self.on_iteration = contact, linear, on_iteration
+        self.linearise = linearise or (lambda grid: GridLinearisation(
+            grid, boundary, length=length, linear=linear or LinearSolverConfig()))
         self.probes = probes or {}
         self.dtype = field_.coefficients.dtype
         self.probe_xi = torch.tensor(list(self.probes.values()),
@@ -267,16 +272,15 @@ class GridLevels:
         if level > self.first_level:
             self._prolongation = self.grid.prolongation()  # coarse -> this level
             self.grid = self.grid.refined()
-        grid, boundary = self.grid, self.boundary
+        grid = self.grid
         started = time.perf_counter()
         nx, ny = grid.config.spans
         with progress.stage(f"Newton level {level - self.first_level} ({nx} × {ny} spans): "
                             "quadrature, basis"):
             self.samples = self.samples_for(grid)
-            self.linearise = GridLinearisation(grid, boundary, length=self.length,
-                                               linear=self.linear or LinearSolverConfig())
+            self.builder = self.linearise(grid)
             if self.contact is None:  # with contact: one assembly per round (NewtonContact)
-                self.linearise.assemble(self.samples)
+                self.builder.assemble(self.samples)
         self._setup = time.perf_counter() - started  # counted in the level's first step
         last = level == self.levels - 1
         self.newton = self.config if self.coarse_config is None or last else self.coarse_config
@@ -311,19 +315,19 @@ class GridLevels:
         with progress.stage(f"Newton level {shown} ({nx} × {ny} spans), load {t:.4g}",
                             (newton or NewtonConfig()).max_iterations):
             if self.contact is None:
-                solution = minimise(self.linearise.linearisation(t),
+                solution = minimise(self.builder.linearisation(t),
                                     self.objective.potential(t), coefficients, newton,
                                     load_factor=t, on_iteration=self.iterated,
                                     coarse_energy=coarse_energy)
             else:  # from the previous load step's state (finer level: this one's, prolonged)
                 solution = self.contact.solve(
-                    self.linearise, self.samples, self.objective, coefficients, newton,
+                    self.builder, self.samples, self.objective, coefficients, newton,
                     load_factor=t, start_load_factor=start_load_factor,
                     on_iteration=self.iterated)
         coefficients = solution.parameters
         readings = {}
         if self.probes:  # (a free pin's composition needs a point)
-            u = displacement_at(self.linearise.operator, self.probe_xi, coefficients,
+            u = displacement_at(self.builder.operator, self.probe_xi, coefficients,
                                 t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
         seconds = time.perf_counter() - started + self._setup

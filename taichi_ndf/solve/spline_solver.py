@@ -115,7 +115,9 @@ def newton_config(config: SolverConfig, dtype: torch.dtype) -> NewtonConfig:
 def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                  objective: Objective | None = None, state: State | None = None,
                  callbacks: tuple[Any, ...] | list[Any] = (),
-                 on_level: Callable[[SplineRun], None] | None = None) -> SplineRun:
+                 on_level: Callable[[SplineRun], None] | None = None,
+                 linearise: Callable[[SplineField], GridLinearisation] | None = None
+                 ) -> SplineRun:
     """Solve the model on the plan's grids (at most `config.max_levels` of them when > 0).
 
     state: a resumed run's (`State.restore`, method "newton": the last finished level's field
@@ -126,6 +128,10 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_load_step(run,
     load factor) and on_level(run) after each level (its field: that level's grid), on_end.
     on_level(run): after each level too, after the callbacks.
+    linearise(grid): the builder of each grid level's linearisation, the discretisation's
+    (`SplineDiscretisation.linearise`: `SplineDiscretisation.solve` passes it); None: the
+    same construction here (`GridLinearisation` on the model's boundary, the domain's √area
+    as FD length, the run's `linear_solver`).
     """
     objective = objective or Objective.of_model(model)
     surface = model.surface
@@ -194,7 +200,8 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                        length=math.sqrt(surface.domain.rectangle_area), contact=contact,
                        linear=LinearSolverConfig(kind=config.linear_solver),
                        on_iteration=iterated, first_level=first,
-                       first_coarse=state.levels[first - 1].energy if first else None)
+                       first_coarse=state.levels[first - 1].energy if first else None,
+                       linearise=linearise)
     callbacks = tuple(callbacks)
     if on_level is not None:  # after the callbacks
         callbacks = (*callbacks, Hook("on_level", lambda: on_level(run)))
