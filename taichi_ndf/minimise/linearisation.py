@@ -293,7 +293,9 @@ class GridLinearisation:
     def linearisation(self, load_factor: float, samples: SurfaceSamples | None = None
                       ) -> SplineLinearisation:
         """U = U₀ + J C at load factor t on the current assembly, or on a new one at
-        `samples` where given (`assemble`)."""
+        `samples` where given (`assemble`). The linearisations of one assembly share it: the
+        last load factor asked holds for all of them (a grid level's load steps run one
+        after the other)."""
         if samples is not None:
             self.assemble(samples)
         if self.assembly is None:
