@@ -275,7 +275,9 @@ class GridLinearisation:
 
     def assemble(self, samples: SurfaceSamples) -> Assembly:
         """A new assembly on `samples` (reordered: its `samples`, `order`), the grid's current
-        one from now on (a contact round's points replace the last round's)."""
+        one from now on (a contact round's points replace the last round's; the last one is
+        let go first, so that two are not held at once)."""
+        self.assembly = None
         basis = local_basis_at(self.operator, samples.xi)
         self.assembly = Assembly(samples, basis, self.field.config.num_coefficients)
         if not self._fixed_known:
