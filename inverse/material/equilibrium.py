@@ -9,11 +9,12 @@ the first solution kept and reused), θ's loads and point forces on the samples,
 sensitivity dP*/dz = −K⁻¹ ∂g/∂z column by column from the unknowns' term gradients
 (Π = Π_known + Σ_j θ_j T_j, `unknowns.term_gradients`, so ∂g/∂θ_j is the pull-back of
 dT_j/du and a column is multiplied by θ_j for a positive unknown), and the observed positions
-x(ξ) = X(ξ) + u(ξ). What differs between field types is a subclass keyed on the field's
-specification (`field_type`): its parameters P (a SIREN's output layer on fixed features,
-`implicit.ImplicitEquilibrium`; a spline's coefficients, `spline_equilibrium.SplineEquilibrium`),
+x(ξ) = X(ξ) + u(ξ). What differs between field types is a subclass, registered per field
+type in `inverse.material.field_types` (`InverseFieldType.equilibrium`): its parameters P (a SIREN's
+output layer on fixed features, `implicit.ImplicitEquilibrium`; a spline's coefficients,
+`spline_equilibrium.SplineEquilibrium`),
 its samples, its Newton over P, its K and pull-back, and u and du/dP at ξ. `forward_model`
-(`inverse.material.forward_model`) picks the class from the specification.
+(`inverse.material.forward_model`) picks the class from the field's configuration there.
 
 Its interface to the outer fit (`outer_fit`): `solve(values, prediction=, from_reference=,
 start=)`, `state()` / `set_state(state, values)`, `sensitivity()`, `predicted_change(sensitivity,
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch
@@ -49,7 +50,6 @@ class Equilibrium:
     conditions' vanishing factors (None: the model's); load_steps: the load factors of a
     solve from the reference state."""
 
-    field_type: ClassVar[type]  # the field specification this discretisation is built from
     label: dict  # names the forward model in reports
     samples: Any  # `SurfaceSamples` with θ's point forces (the point loads' rows: point_rows)
     point_rows: Any

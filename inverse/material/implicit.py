@@ -151,8 +151,6 @@ class ImplicitEquilibrium(Equilibrium):
     relative to its material); seed, width: the feature basis; features: the fixed features'
     field specification (None: `config.features(model, width)`)."""
 
-    field_type = FieldConfig
-
     def __init__(self, model: ShellModel, unknowns: list[Unknown], config: ImplicitConfig,
                  seed: int, width: int | None = None, *, features: FieldConfig | None = None):
         super().__init__(model, unknowns, boundary_length=config.boundary_length,

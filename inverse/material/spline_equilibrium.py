@@ -30,18 +30,11 @@ from inverse.material.equilibrium import Equilibrium
 from inverse.material.unknowns import Unknown
 from taichi_ndf import checks, jets, progress
 from taichi_ndf.field import SplineConfig, SplineField
-from taichi_ndf.minimise.assembly import (
-    Assembly,
-    displacement_at,
-    linearised,
-    local_basis_at,
-)
-from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
-from taichi_ndf.minimise.refinement import held_unknowns
 from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.problem.spline_grid import auto_span_length, spans_for
 
 log = logging.getLogger(__name__)
@@ -101,8 +94,6 @@ class SplineEquilibrium(Equilibrium):
     model: the observation's model (unknowns at their scene values); grid: the field's
     configuration (`SplineModelConfig.grid`, or a refinement of it)."""
 
-    field_type = SplineConfig
-
     def __init__(self, model: ShellModel, unknowns: list[Unknown], config: SplineModelConfig,
                  grid: SplineConfig):
         super().__init__(model, unknowns, boundary_length=config.boundary_length,
@@ -111,17 +102,17 @@ class SplineEquilibrium(Equilibrium):
         self.config = config
         self.field = SplineField(grid, dtype=torch.float64)
         self.label = {"spans": list(grid.spans), "degree": grid.degree}
-        self.operator = model.operator(self.field)
-        original = span_quadrature(model.surface, grid, model.loads,
-                                   points=config.quadrature_points, dtype=torch.float64)
-        basis = local_basis_at(self.operator, original.xi)
-        self.assembly = Assembly(original, basis, grid.num_coefficients)
-        self.fixed = held_unknowns(self.field, model.boundary, basis)
+        self.grid = GridLinearisation(self.field, model.boundary,
+                                      length=math.sqrt(model.surface.domain.rectangle_area))
+        self.operator = self.grid.operator
+        original = self.grid.quadrature(model.surface, grid, model.loads,
+                                        points=config.quadrature_points, dtype=torch.float64)
+        self.assembly = self.grid.assemble(original)
+        self.fixed = self.grid.fixed
         # the assembly's row of each original sample (`Assembly.order` is the inverse):
         # term_gradients and the point forces index the original order (point loads last)
         self._model_order = torch.argsort(self.assembly.order)
         self.point_rows = self._model_order[len(original) - len(model.loads.point_loads):]
-        self.length = math.sqrt(model.surface.domain.rectangle_area)
         self.newton = NewtonConfig(max_iterations=config.newton_iterations)
         self.coefficients = torch.zeros(grid.num_coefficients, 3, dtype=torch.float64)
 
@@ -160,11 +151,9 @@ class SplineEquilibrium(Equilibrium):
     def _minimise(self, values, potential, start: torch.Tensor, load_factor: float, *,
                   warm: bool) -> torch.Tensor:
         """Projected Newton from `start` (warm or not: at most `newton_iterations`)."""
-        self.assembly.at_load(self.operator, load_factor)
         with progress.stage(f"equilibrium {self.label}, load {load_factor:.3g}",
                             self.newton.max_iterations):
-            linearisation = SplineLinearisation(self.assembly, fixed=self.fixed,
-                                                length=self.length)
+            linearisation = self.grid.linearisation(load_factor)
             solution = minimise(linearisation, potential, start, self.newton,
                                 load_factor=load_factor)
         self.newton_steps += len(solution.history)
@@ -176,8 +165,7 @@ class SplineEquilibrium(Equilibrium):
 
     def _linearised(self, potential):
         """K of the exact blocks at C*, factorised once for all unknowns; sets `stable`."""
-        self.assembly.at_load(self.operator, 1.0)
-        matrix = exact_hessian(self.assembly, potential, self.coefficients, length=self.length,
+        matrix = exact_hessian(self.grid.linearisation(1.0), potential, self.coefficients,
                                fd_step=self.newton.fd_step)
         samples = self.assembly.samples
         order = self._model_order
@@ -207,20 +195,19 @@ class SplineEquilibrium(Equilibrium):
         u is affine in C per component, so one ridge-regularised normal-equation solve per
         component (ridge relative to the mean diagonal)."""
         xi = xi.to(torch.float64)
-        basis = local_basis_at(self.operator, xi)
-        offset, jacobian, pin = linearised(self.operator, xi, basis, 1.0)
-        if pin is not None:
+        at = self.grid.at_points(xi, 1.0)
+        if at.pin is not None:
             raise ValueError("fitted_state does not support a free pin")
         target = self.operator.to_frame(points.to(torch.float64)
                                         - self.model.surface.jets(xi)[:, jets.VALUE])
-        target = target - offset[:, jets.VALUE]
+        target = target - at.offset[:, jets.VALUE]
         n = self.coefficients.shape[0]
-        rows = torch.arange(len(xi)).repeat_interleave(basis.index.shape[1])
+        rows = torch.arange(len(xi)).repeat_interleave(at.index.shape[1])
         state = torch.zeros_like(self.coefficients)
         for c in range(3):
             a = torch.zeros(len(xi), n, dtype=torch.float64)
-            a.index_put_((rows, basis.index.reshape(-1)),
-                         jacobian[c, :, jets.VALUE].reshape(-1), accumulate=True)
+            a.index_put_((rows, at.index.reshape(-1)),
+                         at.jacobian[c, :, jets.VALUE].reshape(-1), accumulate=True)
             normal = a.T @ a
             normal += ridge * float(normal.diagonal().mean()) * torch.eye(n, dtype=normal.dtype)
             state[:, c] = torch.linalg.solve(normal, a.T @ target[:, c])
@@ -234,13 +221,11 @@ class SplineEquilibrium(Equilibrium):
 
     def position_sensitivity(self, xi: torch.Tensor, sensitivity: torch.Tensor) -> torch.Tensor:
         """dx/dz (N, 3, p) at ξ from dC*/dz (`sensitivity`): x is affine in C."""
-        xi = xi.to(torch.float64)
-        basis = local_basis_at(self.operator, xi)
-        _, jacobian, pin = linearised(self.operator, xi, basis, 1.0)
-        value = jacobian[:, :, jets.VALUE]  # (3, N, k)
-        out = torch.einsum("cna,nacj->ncj", value, sensitivity[basis.index])
-        if pin is not None:
-            out = out + torch.einsum("cna,acj->ncj", pin[:, :, jets.VALUE],
-                                     sensitivity[basis.pin_index])
+        at = self.grid.at_points(xi.to(torch.float64), 1.0)
+        value = at.jacobian[:, :, jets.VALUE]  # (3, N, k)
+        out = torch.einsum("cna,nacj->ncj", value, sensitivity[at.index])
+        if at.pin is not None:
+            out = out + torch.einsum("cna,acj->ncj", at.pin[:, :, jets.VALUE],
+                                     sensitivity[at.pin_index])
         # components along the boundary frame's axes -> world (vectors on the last axis)
         return self.operator.to_world(out.transpose(1, 2)).transpose(1, 2)

@@ -1,8 +1,10 @@
 """Shape-from-template on either displacement field through one call: the field is the one
 its settings name (`SplinePriorConfig`: a B-spline field solved by Newton,
 `inverse.sft.spline_prior`; `ReconstructionConfig`: a SIREN trained by Adam,
-`inverse.sft.reconstruct`). `FRAME_FITS` is the one place that tells the two apart; both run
-on the one frame-by-frame driver `inverse.sft.sequential.reconstruct_frames`."""
+`inverse.sft.reconstruct`), looked up in the inverse registry
+(`inverse.material.field_types`, the one place in `inverse` that tells field types apart);
+both run on the one frame-by-frame driver
+`inverse.sft.sequential.reconstruct_frames`."""
 
 from __future__ import annotations
 
@@ -10,17 +12,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from inverse.material.field_types import of_frame_settings
 from inverse.sft.camera import Camera
 from inverse.sft.correspondences import FrameCorrespondences
 from inverse.sft.flow import DenseFlow
 from inverse.sft.inputs import Template
-from inverse.sft.reconstruct import FieldReconstructor, ReconstructionConfig
+from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.sequential import ReconstructionResult, reconstruct_frames
-from inverse.sft.spline_prior import SplinePriorConfig, SplinePriorReconstructor
-
-# The settings' type -> the field's per-frame fit (a `FrameFit`).
-FRAME_FITS: dict[type, type] = {SplinePriorConfig: SplinePriorReconstructor,
-                                ReconstructionConfig: FieldReconstructor}
+from inverse.sft.spline_prior import SplinePriorConfig
 
 
 def reconstruct_sequence(template: Template, camera: Camera,
@@ -39,14 +38,11 @@ def reconstruct_sequence(template: Template, camera: Camera,
     previous frame's solution); flow: dense-flow correspondences (`inverse.sft.flow`) added to
     each frame's tracks, carried from the frame before's reconstruction.
     """
-    kind = FRAME_FITS.get(type(config))
-    if kind is None:
-        raise TypeError(f"no SfT field for settings of type {type(config).__name__} (known: "
-                        f"{', '.join(t.__name__ for t in FRAME_FITS)})")
+    kind = of_frame_settings(config)
     if initial is None:
-        fit = kind(template, pinned=pinned, config=config)
-    elif kind is FieldReconstructor:
-        fit = kind(template, pinned=pinned, initial=initial, config=config)
+        fit = kind.frame_fit(template, pinned=pinned, config=config)
+    elif kind.initial_guesses:
+        fit = kind.frame_fit(template, pinned=pinned, initial=initial, config=config)
     else:
         raise ValueError("initial guesses are for the SIREN field; the spline field starts "
                          "each frame from the previous frame's solution")

@@ -57,13 +57,11 @@ from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.geometry import MeshSurface
-from taichi_ndf.minimise.assembly import Assembly, gauge_unknowns, local_basis_at
-from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.problem.spline_grid import spans_for
 from taichi_ndf.shell.hessian import sample_hessians
@@ -110,6 +108,8 @@ class SplinePriorReconstructor:
         self.vertex_samples = self._samples_at(self.vertex_xi)
         self.rest = torch.from_numpy(template.vertices).double()
         self.length = math.sqrt(self.surface.domain.rectangle_area)
+        # the linearisation of each frame's points (`fit_frame`); the conditions' gauge held
+        self.grid = GridLinearisation(self.field, self.conditions, length=self.length)
         self._previous = None  # the coefficients of the frame before the last
         self.newton = NewtonConfig(
             max_iterations=cfg.max_iterations, decrement_tolerance=cfg.tolerance,
@@ -135,21 +135,18 @@ class SplinePriorReconstructor:
         cfg = self.config
         samples = self.quadrature.joined(self._samples_at(frame.track_xi.to(DTYPE))).joined(
             self.vertex_samples)
-        basis = local_basis_at(self.operator, samples.xi)
-        assembly = Assembly(samples, basis, self.field.config.num_coefficients).at_load(
-            self.operator, 1.0)
+        linearisation = self.grid.linearisation(1.0, samples)
+        assembly = linearisation.assembly
         position = torch.empty_like(assembly.order)
         position[assembly.order] = torch.arange(len(assembly.order))
         n_q, n_t = len(self.quadrature), len(frame.track_xi)
         data = frame.data_term(position[n_q:n_q + n_t], position[n_q + n_t:])
         potential = (_DataOnly(data) if self.shell is None
                      else Objective(self.shell, (data,)).potential(1.0))
-        fixed = None if self.conditions is None else gauge_unknowns(self.conditions, basis)
         start = self.field.coefficients
         if cfg.extrapolate and self._previous is not None:
             start = 2.0 * start - self._previous
         self._previous = self.field.coefficients.clone()
-        linearisation = SplineLinearisation(assembly, fixed=fixed, length=self.length)
         solution = minimise(linearisation, potential, start, self.newton)
         self.field.coefficients.copy_(solution.parameters)
         u = assembly.displacement(solution.parameters)
@@ -174,7 +171,7 @@ def sheet_quadrature(surface: MeshSurface, config: SplineConfig, template: Templ
     its outline.
     """
     if surface.domain.inside is None:
-        return span_quadrature(surface, config, points=points, dtype=DTYPE)
+        return GridLinearisation.quadrature(surface, config, points=points, dtype=DTYPE)
     corners = template.uvs[template.faces]  # (F, 3, 2)
     edge1, edge2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
     area = 0.5 * np.abs(edge1[:, 0] * edge2[:, 1] - edge1[:, 1] * edge2[:, 0])

@@ -34,8 +34,8 @@ from taichi_ndf import jets
 from taichi_ndf.contact.config import FRICTION_SMOOTHING, ContactConfig
 from taichi_ndf.contact.friction import FrictionTerm
 from taichi_ndf.contact.hook import ContactHook
-from taichi_ndf.minimise.assembly import Assembly, displacement_at, linearised, local_basis_at
-from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonSolution, minimise
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.sampling import SurfaceSamples
@@ -48,15 +48,15 @@ LAG_TOLERANCE = 1e-3
 
 class PointMap:
     """Displacement values u (N, 3) [m] at fixed ξ (N, 2) as a function of the coefficients
-    (n, 3) of the operator's field, at a load factor (affine: precomputed once)."""
+    (n, 3) of the grid's field, at a load factor (affine: precomputed once,
+    `GridLinearisation.at_points`)."""
 
-    def __init__(self, operator, xi: torch.Tensor, load_factor: float):
-        basis = local_basis_at(operator, xi)
-        offset, jacobian, pin = linearised(operator, xi, basis, load_factor)
-        self.index, self.pin_index = basis.index, basis.pin_index
-        self.offset = offset[:, jets.VALUE]
-        self.jacobian = jacobian[:, :, jets.VALUE]  # (3, N, k)
-        self.pin = None if pin is None else pin[:, 0, jets.VALUE]  # (3, k)
+    def __init__(self, grid: GridLinearisation, xi: torch.Tensor, load_factor: float):
+        at = grid.at_points(xi, load_factor)
+        self.index, self.pin_index = at.index, at.pin_index
+        self.offset = at.offset[:, jets.VALUE]
+        self.jacobian = at.jacobian[:, :, jets.VALUE]  # (3, N, k)
+        self.pin = None if at.pin is None else at.pin[:, 0, jets.VALUE]  # (3, k)
 
     def __call__(self, coefficients: torch.Tensor) -> torch.Tensor:
         u = self.offset + torch.einsum("cna,nac->nc", self.jacobian,
@@ -125,16 +125,17 @@ class NewtonContact:
         """The energy terms contact adds to the objective (`ContactPotential`)."""
         return (self.points.term,) + (() if self.friction is None else (self.friction,))
 
-    def solve(self, operator, quadrature, objective: Objective, coefficients: torch.Tensor,
-              config, *, load_factor: float, start_load_factor: float, length: float = 1.0,
-              fixed=None, linear_solver=None, on_iteration=None) -> NewtonSolution:
+    def solve(self, grid: GridLinearisation, quadrature, objective: Objective,
+              coefficients: torch.Tensor, config, *, load_factor: float,
+              start_load_factor: float, on_iteration=None) -> NewtonSolution:
         """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
 
-        operator: the grid's `DisplacementOperator`; quadrature: its Gauss-point samples;
-        objective: Π without the contact terms (`ContactPotential` adds them);
-        start_load_factor: the load factor of the starting coefficients (friction's
-        start-of-step positions); config, length, fixed, linear_solver, on_iteration: as
-        `minimise`."""
+        grid: the grid's linearisation builder (its operator, held unknowns, linear solver
+        and FD length; each round assembles it anew on the round's points); quadrature: its
+        Gauss-point samples; objective: Π without the contact terms (`ContactPotential` adds
+        them); start_load_factor: the load factor of the starting coefficients (friction's
+        start-of-step positions); config, on_iteration: as `minimise`."""
+        operator = grid.operator
         t = load_factor
         potential = ContactPotential(objective, self.terms, t)
         points = self.points
@@ -143,7 +144,7 @@ class NewtonContact:
         area = quadrature.weight > 0
         checked_xi = torch.cat((quadrature.xi[area], grid_xi))
         checked_r = torch.cat((quadrature.r_jets[area, jets.VALUE], points.grid_r.to(dtype)))
-        checked = PointMap(operator, checked_xi, t)
+        checked = PointMap(grid, checked_xi, t)
         on_grid = slice(int(area.sum()), None)
         start = coefficients
         # after each Newton iterate: the grid's points within ĝ (+ the look-ahead) added
@@ -155,10 +156,8 @@ class NewtonContact:
         for _round in range(MAX_ROUNDS):
             self.rounds += 1
             count = points.count
-            samples = points.augment(quadrature)
-            assembly = Assembly(samples, local_basis_at(operator, samples.xi),
-                                coefficients.shape[0])
-            assembly.at_load(operator, t)
+            linearisation = grid.linearisation(t, points.augment(quadrature))
+            assembly = linearisation.assembly
             lag_changed = False
             if self.friction is not None:
                 s = assembly.samples
@@ -172,8 +171,6 @@ class NewtonContact:
                     change = float((capacity - lagged).abs().max())
                     lag_changed = change > LAG_TOLERANCE * float(capacity.abs().max())
                 lagged = capacity
-            linearisation = SplineLinearisation(assembly, fixed=fixed, solver=linear_solver,
-                                                length=length)
             solution = minimise(linearisation, potential, c, config, load_factor=t,
                                 feasible=feasible, on_step=refresh,
                                 on_iteration=on_iteration)

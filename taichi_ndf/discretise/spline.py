@@ -15,16 +15,14 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.field import SplineField
-from taichi_ndf.minimise.assembly import Assembly, displacement_at, local_basis_at
-from taichi_ndf.minimise.linear_solve import LinearSolver
-from taichi_ndf.minimise.linearisation import SplineLinearisation
-from taichi_ndf.minimise.refinement import held_unknowns
+from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.minimise.linear_solve import LinearSolverConfig
+from taichi_ndf.minimise.linearisation import GridLinearisation, SplineLinearisation
 from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.field_types import SPLINE, FieldType
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.problem.run_size import contact_check_points
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.problem.spline_grid import SplinePlan
@@ -36,7 +34,8 @@ log = logging.getLogger(__name__)
 
 class SplineDiscretisation:
     """A `SplinePlan` on a model: its parameters are the coefficients (n, 3) of each grid,
-    its energy is evaluated on the Gauss points of every knot span (`span_quadrature`).
+    its energy is evaluated on the Gauss points of every knot span (`span_quadrature`,
+    through `GridLinearisation.quadrature`).
     objective: what is minimised (None: Π of the model); estimate: unused (a spline's
     coefficients carry any scale)."""
 
@@ -91,7 +90,8 @@ class SplineDiscretisation:
     def solve(self, config: SolverConfig, *, callbacks: Sequence[Any] = (),
               on_load_step: OnLoadStep | None = None,
               report: Callable[[str], None] | None = None) -> Solution:
-        """`solve_spline`; after each grid level a line to `report` (with
+        """`solve_spline`, whose grid levels take their linearisation from `linearise` (with
+        the run's linear solver); after each grid level a line to `report` (with
         `config.progress`) and on_load_step with a field per load step of that level."""
         per_level: list[dict[float, Probes]] = []
 
@@ -108,8 +108,10 @@ class SplineDiscretisation:
                     field.coefficients.copy_(coefficients)
                     on_load_step(t, field)
 
+        linear = LinearSolverConfig(kind=config.linear_solver)
         run = solve_spline(self.model, self.spec, config, objective=self.objective,
-                           state=self.state, callbacks=callbacks, on_level=on_level)
+                           state=self.state, callbacks=callbacks, on_level=on_level,
+                           linearise=lambda grid: self.linearise(grid, linear))
         self.run = run
         convergence = {t: (list(range(len(per_level))), [level[t] for level in per_level])
                        for t in per_level[-1] if all(t in level for level in per_level)}
@@ -178,9 +180,9 @@ class SplineDiscretisation:
 
     def evaluation_points(self) -> SurfaceSamples:
         field = self.field
-        return span_quadrature(self.model.surface, field.config, self.model.loads,
-                               points=self.spec.quadrature_points,
-                               dtype=field.coefficients.dtype)
+        return GridLinearisation.quadrature(self.model.surface, field.config, self.model.loads,
+                                            points=self.spec.quadrature_points,
+                                            dtype=field.coefficients.dtype)
 
     def displacement(self, xi: torch.Tensor, load_factor: float) -> torch.Tensor:
         field = self.field
@@ -189,13 +191,17 @@ class SplineDiscretisation:
 
     def linearisation(self, samples: SurfaceSamples, load_factor: float
                       ) -> SplineLinearisation:
-        """Assembled as a grid level of `solve_spline` is (`minimise.refinement.GridLevels`),
-        with the default linear solver of its grid; length: the domain's √area [m]."""
-        field, boundary = self.field, self.model.boundary
-        operator = DisplacementOperator(field, boundary)
-        basis = local_basis_at(operator, samples.xi)
-        assembly = Assembly(samples, basis, field.coefficients.shape[0]).at_load(
-            operator, load_factor)
-        return SplineLinearisation(assembly, fixed=held_unknowns(field, boundary, basis),
-                                   solver=LinearSolver.for_grid(field.config),
-                                   length=math.sqrt(self.model.surface.domain.rectangle_area))
+        """Built as a grid level of `solve_spline` builds it (`minimise.refinement.GridLevels`:
+        the one builder, `GridLinearisation`), with the default linear solver of its grid;
+        length: the domain's √area [m]."""
+        return self.linearise(self.field).linearisation(load_factor, samples)
+
+    def linearise(self, field: SplineField,
+                  linear: LinearSolverConfig | None = None) -> GridLinearisation:
+        """The linearisation builder of a grid of this discretisation (`field`'s), the one
+        that its solve's grid levels (`solve_spline`, `GridLevels`) and `linearisation` use:
+        the model's boundary, the domain's √area [m] as the FD length, linear: the linear
+        solver's settings (None: the default's)."""
+        return GridLinearisation(field, self.model.boundary,
+                                 length=math.sqrt(self.model.surface.domain.rectangle_area),
+                                 linear=linear or LinearSolverConfig())

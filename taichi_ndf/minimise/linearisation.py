@@ -9,6 +9,9 @@ factorisation of the Jacobi-scaled K + μ I (`damped_step`).
 `SplineLinearisation`: a local-support field's coefficients C (n, 3) on an `Assembly` (sparse
 J, K in CSR, unknowns coefficient × 3 + component), with held unknowns (gauge freedoms), the
 sparse direct or multigrid solve (`linear_solve`) and the spline's FD step rule (`jet_steps`).
+`GridLinearisation` is the one place that builds it: span quadrature → local basis →
+`Assembly` → `SplineLinearisation` on one grid, with its held unknowns, linear solver and FD
+length, the assembly kept per grid and rebuilt on new points (a contact round's).
 
 Both solve (K + μ D) d = −g with D the diagonal of K (the dense one as D^½ (D^-½ K D^-½ + μ I)
 D^½, the same matrix).
@@ -16,13 +19,27 @@ D^½, the same matrix).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse as sp
 import torch
 
-from taichi_ndf.minimise.assembly import Assembly
-from taichi_ndf.minimise.linear_solve import LinearSolver, damped_solve
+from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.field.spline import SplineConfig
+from taichi_ndf.geometry import ReferenceSurface
+from taichi_ndf.minimise.assembly import (
+    Assembly,
+    LocalBasis,
+    gauge_unknowns,
+    linearised,
+    local_basis_at,
+)
+from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig, damped_solve
 from taichi_ndf.objective.couplings import Couplings
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
 
@@ -196,3 +213,102 @@ class SplineLinearisation:
             return None
         step, damping = result
         return torch.from_numpy(step).to(gradient).reshape(gradient.shape), damping
+
+
+def held_unknowns(grid, boundary: BoundaryConditions | None, basis: LocalBasis
+                  ) -> np.ndarray | None:
+    """Unknowns held at zero: the gauge of a free pin (`gauge_unknowns`) and the coefficients
+    a mirrored spline never reads (`SplineField.aliased_coefficients`), which no point
+    couples. grid: the `SplineField`; boundary None: no gauge."""
+    held = [None if boundary is None else gauge_unknowns(boundary, basis)]
+    aliased = grid.aliased_coefficients.numpy()
+    if aliased.size:
+        held.append((aliased[:, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(-1))
+    held = [h for h in held if h is not None]
+    return np.concatenate(held) if held else None
+
+
+@dataclass(frozen=True)
+class PointJacobian:
+    """The spline field's displacement jets at fixed points ξ (N, 2), affine in the
+    coefficients C (n, 3): U = offset + Σ_a jacobian[:, :, :, a] C[index[:, a]] (+ the pin's
+    part, the same at every point), components along the boundary frame's axes.
+    index (N, k) int64; offset (N, 6, 3) [m]; jacobian (3, N, 6, k); pin_index (k,) and
+    pin (3, N, 6, k) (an expanded view) with a free pin, else None (`assembly.linearised`)."""
+
+    index: torch.Tensor
+    offset: torch.Tensor
+    jacobian: torch.Tensor
+    pin_index: torch.Tensor | None
+    pin: torch.Tensor | None
+
+
+class GridLinearisation:
+    """The one builder of a spline grid's linearisation (module docstring): span quadrature
+    (`quadrature`) → the local basis at the points (`local_basis_at`) → an `Assembly`
+    (`assemble`: a new one on given points, kept as the grid's current one) → at a load
+    factor a `SplineLinearisation` (`linearisation`) with the grid's held unknowns (`fixed`),
+    linear solver and FD length.
+
+    field: the `SplineField` (its grid; its coefficients are not read); boundary: the
+    conditions (None: none); length: a length of the parameter domain [ξ units] for the FD
+    steps (`jet_steps`); linear: the linear solver's settings (`LinearSolver.for_grid`, one
+    solver per grid, so that multigrid reuses its V-cycle between Newton steps and contact
+    rounds), None: the direct `damped_solve`."""
+
+    def __init__(self, field, boundary: BoundaryConditions | None, *, length: float = 1.0,
+                 linear: LinearSolverConfig | None = None):
+        self.field, self.boundary, self.length = field, boundary, length
+        self.operator = DisplacementOperator(field, boundary)
+        self.solver = None if linear is None else LinearSolver.for_grid(field.config, linear)
+        self.assembly: Assembly | None = None
+        self._fixed: np.ndarray | None = None
+        self._fixed_known = False
+
+    @staticmethod
+    def quadrature(surface: ReferenceSurface, config: SplineConfig, loads: Loads | None = None,
+                   *, points: int | None = None, dtype: torch.dtype | None = None
+                   ) -> SurfaceSamples:
+        """The Gauss points of every knot span of the grid `config` (`span_quadrature`: with
+        a zero-weight sample per point load; dtype default the runtime's)."""
+        return span_quadrature(surface, config, loads, points=points, dtype=dtype)
+
+    def assemble(self, samples: SurfaceSamples) -> Assembly:
+        """A new assembly on `samples` (reordered: its `samples`, `order`), the grid's current
+        one from now on (a contact round's points replace the last round's; the last one is
+        let go first, so that two are not held at once)."""
+        self.assembly = None
+        basis = local_basis_at(self.operator, samples.xi)
+        self.assembly = Assembly(samples, basis, self.field.config.num_coefficients)
+        if not self._fixed_known:
+            self._fixed = held_unknowns(self.field, self.boundary, basis)
+            self._fixed_known = True
+        return self.assembly
+
+    @property
+    def fixed(self) -> np.ndarray | None:
+        """The unknowns held at zero (`held_unknowns`); known after the first `assemble`."""
+        if not self._fixed_known:
+            raise RuntimeError("GridLinearisation.fixed before any assemble")
+        return self._fixed
+
+    def linearisation(self, load_factor: float, samples: SurfaceSamples | None = None
+                      ) -> SplineLinearisation:
+        """U = U₀ + J C at load factor t on the current assembly, or on a new one at
+        `samples` where given (`assemble`). The linearisations of one assembly share it: the
+        last load factor asked holds for all of them (a grid level's load steps run one
+        after the other)."""
+        if samples is not None:
+            self.assemble(samples)
+        if self.assembly is None:
+            raise RuntimeError("GridLinearisation.linearisation before any assemble")
+        self.assembly.at_load(self.operator, load_factor)
+        return SplineLinearisation(self.assembly, fixed=self.fixed, solver=self.solver,
+                                   length=self.length)
+
+    def at_points(self, xi: torch.Tensor, load_factor: float) -> PointJacobian:
+        """The displacement jets at ξ (N, 2) as an affine map of the coefficients, at load
+        factor t (`PointJacobian`; e.g. contact's check points, observed points)."""
+        basis = local_basis_at(self.operator, xi)
+        offset, jacobian, pin = linearised(self.operator, xi, basis, load_factor)
+        return PointJacobian(basis.index, offset, jacobian, basis.pin_index, pin)

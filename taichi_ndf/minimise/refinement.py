@@ -53,20 +53,16 @@ import torch
 
 from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
-from taichi_ndf.minimise.assembly import (
-    Assembly,
-    displacement_at,
-    gauge_unknowns,
-    local_basis_at,
-)
+from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
-from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig
-from taichi_ndf.minimise.linearisation import SplineLinearisation
+from taichi_ndf.minimise.linear_solve import LinearSolverConfig
+from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: imported from here)
+    GridLinearisation,
+    held_unknowns,
+)
 from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration, minimise
 from taichi_ndf.objective import Objective
-from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.sampling import SurfaceSamples
-from taichi_ndf.shell.hessian import COMPONENTS
 
 log = logging.getLogger(__name__)
 
@@ -236,18 +232,6 @@ def richardson(values: list[float], order: float | None = None) -> Extrapolation
                          estimate.basis, len(values), order, estimate.warning, estimate.reason)
 
 
-def held_unknowns(grid, boundary, basis) -> np.ndarray | None:
-    """Unknowns held at zero: the gauge of a free pin (`gauge_unknowns`) and the coefficients
-    a mirrored spline never reads (`SplineField.aliased_coefficients`), which no point
-    couples."""
-    held = [gauge_unknowns(boundary, basis)]
-    aliased = grid.aliased_coefficients.numpy()
-    if aliased.size:
-        held.append((aliased[:, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(-1))
-    held = [h for h in held if h is not None]
-    return np.concatenate(held) if held else None
-
-
 class GridLevels:
     """The stages of a coarse-to-fine projected-Newton solve (`taichi_ndf.minimise.continuation`):
     each level's grid (the field's, then its dyadic refinements), quadrature, assembly and
@@ -256,7 +240,9 @@ class GridLevels:
     exactly); its Newton solve and readings (`LevelSolution`). `grid`: the current level's
     field (its coefficients: the level's starting point). Settings as `solve_levels`';
     first_level: the level the run starts on (`field_`'s); first_coarse: a resumed run's
-    coarser Π there (its Newton stops as the whole run's did: `start`)."""
+    coarser Π there (its Newton stops as the whole run's did: `start`); linearise(grid): the
+    builder of a level's linearisation (`GridLinearisation`; a discretisation's,
+    `SplineDiscretisation.linearise`), None: on `boundary` with `length` and `linear`."""
 
     def __init__(self, field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples], objective: Objective, *,
@@ -265,12 +251,15 @@ class GridLevels:
                  probes: dict[str, tuple[float, float]] | None = None, length: float = 1.0,
                  contact=None, linear: LinearSolverConfig | None = None,
                  on_iteration: Callable[[int, tuple[int, int], NewtonIteration], None]
-                 | None = None, first_level: int = 0, first_coarse: float | None = None):
+                 | None = None, first_level: int = 0, first_coarse: float | None = None,
+                 linearise: Callable[[object], GridLinearisation] | None = None):
         self.grid, self.boundary, self.samples_for = field_, boundary, samples_for
         self.first_coarse = first_coarse
         self.objective, self.levels, self.first_level = objective, levels, first_level
         self.config, self.coarse_config, self.length = config, coarse_config, length
         self.contact, self.linear, self.on_iteration = contact, linear, on_iteration
+        self.linearise = linearise or (lambda grid: GridLinearisation(
+            grid, boundary, length=length, linear=linear or LinearSolverConfig()))
         self.probes = probes or {}
         self.dtype = field_.coefficients.dtype
         self.probe_xi = torch.tensor(list(self.probes.values()),
@@ -283,18 +272,15 @@ class GridLevels:
         if level > self.first_level:
             self._prolongation = self.grid.prolongation()  # coarse -> this level
             self.grid = self.grid.refined()
-        grid, boundary = self.grid, self.boundary
+        grid = self.grid
         started = time.perf_counter()
         nx, ny = grid.config.spans
         with progress.stage(f"Newton level {level - self.first_level} ({nx} × {ny} spans): "
                             "quadrature, basis"):
             self.samples = self.samples_for(grid)
-            self.operator = DisplacementOperator(grid, boundary)
-            basis = local_basis_at(self.operator, self.samples.xi)
-            self.assembly = None if self.contact else Assembly(self.samples, basis,
-                                                               grid.coefficients.shape[0])
-            self.fixed = held_unknowns(grid, boundary, basis)
-            self.solver = LinearSolver.for_grid(grid.config, self.linear)
+            self.builder = self.linearise(grid)
+            if self.contact is None:  # with contact: one assembly per round (NewtonContact)
+                self.builder.assemble(self.samples)
         self._setup = time.perf_counter() - started  # counted in the level's first step
         last = level == self.levels - 1
         self.newton = self.config if self.coarse_config is None or last else self.coarse_config
@@ -329,21 +315,20 @@ class GridLevels:
         with progress.stage(f"Newton level {shown} ({nx} × {ny} spans), load {t:.4g}",
                             (newton or NewtonConfig()).max_iterations):
             if self.contact is None:
-                self.assembly.at_load(self.operator, t)
-                linearisation = SplineLinearisation(self.assembly, fixed=self.fixed,
-                                                    solver=self.solver, length=self.length)
-                solution = minimise(linearisation, self.objective.potential(t), coefficients,
-                                    newton, load_factor=t, on_iteration=self.iterated,
+                solution = minimise(self.builder.linearisation(t),
+                                    self.objective.potential(t), coefficients, newton,
+                                    load_factor=t, on_iteration=self.iterated,
                                     coarse_energy=coarse_energy)
             else:  # from the previous load step's state (finer level: this one's, prolonged)
                 solution = self.contact.solve(
-                    self.operator, self.samples, self.objective, coefficients, newton,
-                    load_factor=t, start_load_factor=start_load_factor, length=self.length,
-                    fixed=self.fixed, linear_solver=self.solver, on_iteration=self.iterated)
+                    self.builder, self.samples, self.objective, coefficients, newton,
+                    load_factor=t, start_load_factor=start_load_factor,
+                    on_iteration=self.iterated)
         coefficients = solution.parameters
         readings = {}
         if self.probes:  # (a free pin's composition needs a point)
-            u = displacement_at(self.operator, self.probe_xi, coefficients, t)[:, jets.VALUE]
+            u = displacement_at(self.builder.operator, self.probe_xi, coefficients,
+                                t)[:, jets.VALUE]
             readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
         seconds = time.perf_counter() - started + self._setup
         self._setup = 0.0

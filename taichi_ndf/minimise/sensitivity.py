@@ -3,10 +3,10 @@
 At a minimiser C*(θ) of Π(C; θ) the gradient g(C*, θ) vanishes; the implicit-function theorem
 gives dC*/dθ_j = −K⁻¹ ∂g/∂θ_j with K = d²Π/dC² at C* — of the EXACT per-point Hessian blocks
 (not projected: the projection is a device of the minimiser's steps, not a property of the
-minimum). K is assembled once (`Assembly.hessian`), factorised once (SuperLU in symmetric mode,
-as `linear_solve`), and every right-hand side is solved with that factor. Its pivots tell
-whether K is positive definite: if it is not, C* is not a strict local minimum (an unstable or
-neutral equilibrium) and the derivatives describe a saddle; the caller must say so.
+minimum). K is assembled once (`SplineLinearisation.hessian`), factorised once (SuperLU in
+symmetric mode, as `linear_solve`), and every right-hand side is solved with that factor. Its
+pivots tell whether K is positive definite: if it is not, C* is not a strict local minimum (an
+unstable or neutral equilibrium) and the derivatives describe a saddle; the caller must say so.
 """
 
 from __future__ import annotations
@@ -18,22 +18,21 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
 
-from taichi_ndf.minimise.assembly import Assembly
 from taichi_ndf.minimise.linear_solve import _positive_pivots as positive_pivots
 from taichi_ndf.minimise.linearisation import SplineLinearisation
 from taichi_ndf.minimise.newton import coupled_blocks, point_blocks
 from taichi_ndf.shell.hessian import Potential
 
 
-def exact_hessian(assembly: Assembly, potential: Potential, coefficients: torch.Tensor, *,
-                  length: float = 1.0, fd_step: float = 1e-5) -> sp.csr_matrix:
+def exact_hessian(linearisation: SplineLinearisation, potential: Potential,
+                  coefficients: torch.Tensor, *, fd_step: float = 1e-5) -> sp.csr_matrix:
     """K = Σ Jᵀ H J (3n × 3n, CSR) of the exact, unprojected per-point (and pair) blocks at
-    `coefficients` (n, 3); the assembly linearised at the potential's load factor; length,
-    fd_step as `NewtonConfig` / `jet_steps` (Newton's own blocks: `point_blocks`)."""
-    linearisation = SplineLinearisation(assembly, length=length)
-    u = assembly.displacement(coefficients)
-    return assembly.hessian(point_blocks(linearisation, potential, coefficients, u, fd_step),
-                            coupled_blocks(potential, assembly.samples, u))
+    `coefficients` (n, 3); the linearisation at the potential's load factor
+    (`GridLinearisation.linearisation`; its FD length and held unknowns: K is over every
+    unknown), fd_step as `NewtonConfig` (Newton's own blocks: `point_blocks`)."""
+    u = linearisation.displacement(coefficients)
+    return linearisation.hessian(point_blocks(linearisation, potential, coefficients, u, fd_step),
+                                 coupled_blocks(potential, linearisation.samples, u))
 
 
 @dataclass(frozen=True)

@@ -26,14 +26,12 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.field import FieldConfig, SplineConfig, SplineField
-from taichi_ndf.minimise.assembly import Assembly, displacement_at, local_basis_at
-from taichi_ndf.minimise.linear_solve import damped_solve
+from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, hessian_blocks
-from taichi_ndf.minimise.refinement import held_unknowns
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.problem.scaling import (
     AUTO_ESTIMATE,
     characteristic_displacement,
@@ -41,7 +39,7 @@ from taichi_ndf.problem.scaling import (
 )
 from taichi_ndf.problem.spline_grid import SplinePlan, grid_spans
 from taichi_ndf.problem.training import SolverConfig
-from taichi_ndf.shell.hessian import flat_blocks, jet_steps, project_psd
+from taichi_ndf.shell.hessian import flat_blocks, project_psd
 from taichi_ndf.solve.spline_solver import solve_spline
 
 log = logging.getLogger(__name__)
@@ -130,7 +128,7 @@ def equilibrium_displacement(model: ShellModel) -> float:
                           newton_tolerance=EQUILIBRIUM_ESTIMATE_TOLERANCE)
     started = time.perf_counter()
     run = solve_spline(model, SplinePlan(config), solver)
-    samples = span_quadrature(model.surface, config, model.loads)
+    samples = GridLinearisation.quadrature(model.surface, config, model.loads)
     operator = DisplacementOperator(run.field, model.boundary)
     u = displacement_at(operator, samples.xi, run.field.coefficients, 1.0)[:, jets.VALUE]
     if not bool(torch.isfinite(u).all()):
@@ -154,25 +152,18 @@ def linear_displacement(model: ShellModel) -> float:
     surface, domain, boundary = model.surface, model.surface.domain, model.boundary
     config = coarse_grid(model, LINEAR_ESTIMATE_SPANS)
     field = SplineField(config)
-    operator = DisplacementOperator(field, boundary)
-    samples = span_quadrature(surface, config, model.loads)
-    basis = local_basis_at(operator, samples.xi)
-    assembly = Assembly(samples, basis, config.num_coefficients).at_load(operator, 0.0)
-    samples = assembly.samples
+    grid = GridLinearisation(field, boundary, length=math.sqrt(domain.rectangle_area))
+    linear = grid.linearisation(0.0, grid.quadrature(surface, config, model.loads))
+    samples = linear.samples
     potential = Objective.of_model(model).potential(1.0)
-    u = assembly.displacement(field.coefficients)
-    gradient = assembly.gradient(potential(samples, u, True).grad_u_jets).reshape(-1)
-    fixed = held_unknowns(field, boundary, basis)
-    if fixed is not None:
-        gradient[torch.from_numpy(fixed)] = 0.0
+    u = linear.displacement(field.coefficients)
+    gradient = linear.gradient(potential(samples, u, True).grad_u_jets)  # held unknowns 0
     if float(gradient.abs().max()) == 0.0:
         return characteristic_displacement(model)
-    steps = jet_steps(samples.r_jets, u, math.sqrt(domain.rectangle_area),
-                      NewtonConfig().fd_step)
+    steps = linear.fd_steps(u, field.coefficients, NewtonConfig().fd_step)
     blocks, _ = project_psd(flat_blocks(hessian_blocks(potential, samples, u, steps)))
-    step, _ = damped_solve(assembly.hessian(blocks), -gradient.double().cpu().numpy(), 0.0,
-                           fixed)
-    moved = assembly.displacement(torch.from_numpy(step).to(u).reshape(-1, 3))
+    step, _ = linear.solve(linear.hessian(blocks), gradient, 0.0)  # damped_solve
+    moved = linear.displacement(step)
     estimate = _bounded(model, samples, moved[:, 0])
     log.info("linear displacement estimate %.4g m (%d x %d spans)", estimate, *config.spans)
     return estimate

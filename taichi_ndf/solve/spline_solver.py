@@ -29,12 +29,12 @@ from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.callbacks import call
 from taichi_ndf.minimise.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
+from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson
 from taichi_ndf.minimise.state import LevelSummary, NewtonRecord, State
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.problem.training import SolverConfig
 
@@ -115,7 +115,9 @@ def newton_config(config: SolverConfig, dtype: torch.dtype) -> NewtonConfig:
 def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                  objective: Objective | None = None, state: State | None = None,
                  callbacks: tuple[Any, ...] | list[Any] = (),
-                 on_level: Callable[[SplineRun], None] | None = None) -> SplineRun:
+                 on_level: Callable[[SplineRun], None] | None = None,
+                 linearise: Callable[[SplineField], GridLinearisation] | None = None
+                 ) -> SplineRun:
     """Solve the model on the plan's grids (at most `config.max_levels` of them when > 0).
 
     state: a resumed run's (`State.restore`, method "newton": the last finished level's field
@@ -126,6 +128,10 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_load_step(run,
     load factor) and on_level(run) after each level (its field: that level's grid), on_end.
     on_level(run): after each level too, after the callbacks.
+    linearise(grid): the builder of each grid level's linearisation, the discretisation's
+    (`SplineDiscretisation.linearise`: `SplineDiscretisation.solve` passes it); None: the
+    same construction here (`GridLinearisation` on the model's boundary, the domain's √area
+    as FD length, the run's `linear_solver`).
     """
     objective = objective or Objective.of_model(model)
     surface = model.surface
@@ -187,13 +193,15 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
 
     points = plan.quadrature_points
     grids = GridLevels(grid, model.boundary,
-                       lambda f: span_quadrature(surface, f.config, model.loads, points=points,
-                                                 dtype=f.coefficients.dtype),
+                       lambda f: GridLinearisation.quadrature(
+                           surface, f.config, model.loads, points=points,
+                           dtype=f.coefficients.dtype),
                        objective, levels=levels, config=newton, probes=probes,
                        length=math.sqrt(surface.domain.rectangle_area), contact=contact,
                        linear=LinearSolverConfig(kind=config.linear_solver),
                        on_iteration=iterated, first_level=first,
-                       first_coarse=state.levels[first - 1].energy if first else None)
+                       first_coarse=state.levels[first - 1].energy if first else None,
+                       linearise=linearise)
     callbacks = tuple(callbacks)
     if on_level is not None:  # after the callbacks
         callbacks = (*callbacks, Hook("on_level", lambda: on_level(run)))
