@@ -102,6 +102,9 @@ def main(argv: list[str] | None = None, *,
         scene = load_scene(args.scene, material=args.material, field=args.field,
                            overrides=scene_keys)
         solver = scene.quick_solver if args.quick else scene.solver
+        if args.refine is not None and scene.dynamics is not None:
+            raise ValueError("--refine: a dynamic run ([dynamics]) solves on one grid, the "
+                             "finest of [field] levels")
         if args.refine is not None:
             scene = refined_scene(scene, args.refine)
             solver = dataclasses.replace(solver, max_levels=0)
