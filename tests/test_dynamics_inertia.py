@@ -1,5 +1,6 @@
-"""The inertia term of a time step (`taichi_ndf.objective.inertia`): its Hessian blocks against
-central differences of its gradient, the consistent mass matrix it assembles on a spline field
+"""The terms of a time step: inertia (`taichi_ndf.objective.inertia`) and stiffness-proportional
+damping (`taichi_ndf.objective.damping`): their Hessian blocks against central differences of
+their gradients, the consistent mass matrix it assembles on a spline field
 (1ᵀM1 per component = ρ_A × area, on a flat and on a curved surface) and the kinetic energy of a
 rigid translation."""
 
@@ -16,6 +17,7 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.discretise import of_scene
 from taichi_ndf.geometry import Plane
+from taichi_ndf.objective.damping import StiffnessDampingTerm
 from taichi_ndf.objective.inertia import InertiaTerm, kinetic_energy, point_masses
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.sampling import sample_surface
@@ -58,6 +60,33 @@ def test_the_hessian_blocks_are_the_central_differences_of_the_gradient():
     value, _ = term.evaluate(samples, u, 1.0, grad=False)
     gap = u[:, jets.VALUE] - target[:, jets.VALUE]
     expected = 0.5 * 2.5e5 * DENSITY * float((samples.weight * (gap ** 2).sum(dim=1)).sum())
+    assert value == pytest.approx(expected, rel=1e-12)
+
+
+def test_the_damping_blocks_are_the_central_differences_of_the_gradient():
+    torch.manual_seed(2)
+    samples = sample_surface(Plane(((0.0, 2.0), (0.0, 1.0))), 16, Loads(),
+                             torch.Generator().manual_seed(1))
+    n = len(samples.xi)
+    root = torch.randn(n, 18, 18, dtype=torch.float64)
+    blocks = (root @ root.transpose(1, 2)).reshape(n, jets.CHANNELS, 3, jets.CHANNELS, 3)
+    u = 0.01 * torch.randn(n, jets.CHANNELS, 3, dtype=torch.float64)
+    target = 0.01 * torch.randn_like(u)
+    term = StiffnessDampingTerm(blocks, 0.7, target)
+
+    def potential(s, u_jets, grad):
+        value, gradient = term.evaluate(s, u_jets, 1.0, grad=grad)
+        return type("R", (), {"total": value, "grad_u_jets": gradient})
+
+    steps = torch.full((jets.CHANNELS,), 1e-4, dtype=torch.float64)
+    exact = term.hessian_blocks(samples, u, 1.0, steps=steps)
+    assert torch.allclose(exact, 0.7 * blocks, rtol=1e-14, atol=0)
+    assert torch.allclose(exact, sample_hessians(potential, samples, u, steps=steps),
+                          rtol=1e-8, atol=1e-8)
+    gap = (u - target).reshape(n, 18)
+    value, _ = term.evaluate(samples, u, 1.0, grad=False)
+    expected = 0.5 * 0.7 * float(torch.einsum("ni,nij,nj->", gap, root @ root.transpose(1, 2),
+                                              gap))
     assert value == pytest.approx(expected, rel=1e-12)
 
 

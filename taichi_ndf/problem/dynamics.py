@@ -19,7 +19,9 @@ class DynamicsConfig:
     time [s] ≥ dt (steps = round(duration / dt), which must be a whole number to 1e-9);
     frame_rate: output frames per second [1/s] (one frame every round(1 / (frame_rate dt))
     steps, at most one per step; None: the first and last state only); mass_damping: the
-    mass-proportional Rayleigh coefficient α [1/s] ≥ 0 (damping force −α M v); halvings: how
+    mass-proportional Rayleigh coefficient α [1/s] ≥ 0 (damping force −α M v);
+    stiffness_damping: the stiffness-proportional one β_R [s] ≥ 0 (force −β_R K₀ v, K₀ the
+    shell's tangent stiffness at the start of each step, made positive semi-definite); halvings: how
     often a step whose Newton solve does not converge may be split in two halves, recursively,
     before the run fails."""
 
@@ -28,6 +30,7 @@ class DynamicsConfig:
     integrator: str = "newmark"
     frame_rate: float | None = None
     mass_damping: float = 0.0
+    stiffness_damping: float = 0.0
     halvings: int = 4
 
     def __post_init__(self):
@@ -53,6 +56,9 @@ class DynamicsConfig:
         if not (math.isfinite(self.mass_damping) and self.mass_damping >= 0):
             raise ValueError(f"mass_damping must be finite and >= 0 [1/s], got "
                              f"{self.mass_damping!r}")
+        if not (math.isfinite(self.stiffness_damping) and self.stiffness_damping >= 0):
+            raise ValueError(f"stiffness_damping must be finite and >= 0 [s], got "
+                             f"{self.stiffness_damping!r}")
         if isinstance(self.halvings, bool) or not isinstance(self.halvings, int) or \
                 self.halvings < 0:
             raise ValueError(f"halvings must be an integer >= 0, got {self.halvings!r}")
@@ -72,4 +78,5 @@ class DynamicsConfig:
     def to_dict(self) -> dict:
         return {"integrator": self.integrator, "dt": self.dt, "duration": self.duration,
                 "frame_rate": self.frame_rate, "mass_damping": self.mass_damping,
+                "stiffness_damping": self.stiffness_damping,
                 "halvings": self.halvings, "steps": self.steps}

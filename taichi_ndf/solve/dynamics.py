@@ -17,10 +17,13 @@ mass-proportional Rayleigh damping [1/s] (force −α M v). A step of length h f
 
 Both inertia parts are one `InertiaTerm` ½ s (x − x*)ᵀ M (x − x*) (its constant dropped):
 s = 1/h² + α/h, x* = x̂ − α V/s (implicit Euler); s = 1/(β h²) + α γ/(β h), x* = x̂ − α ṽ/s
-(Newmark). Each step starts Newton from x̂ at load factor 1 and stops on Newton's own test; a
+(Newmark). Stiffness-proportional damping β_R [s] (force −β_R K₀ v, K₀ the shell's tangent
+stiffness at the step's start, positive semi-definite through the strains) adds the same form
+in K₀, one `StiffnessDampingTerm` ½ c (x − y)ᵀ K₀ (x − y): c = β_R/h, y = C (implicit Euler);
+c = β_R γ/(β h), y = x̂ − β_R ṽ/c (Newmark); and −β_R K₀ V₀ to A₀'s right-hand side. Each step starts Newton from x̂ at load factor 1 and stops on Newton's own test; a
 step whose Newton does not converge is logged and split into two halves (recursively, at
 most `DynamicsConfig.halvings` times; beyond that `DynamicsError`). Not yet: contact and
-friction, prescribed motions in time (refused), stiffness-proportional damping, adjoints.
+friction, prescribed motions in time (refused), adaptive steps, adjoints.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective
+from taichi_ndf.objective.damping import StiffnessDampingTerm
 from taichi_ndf.objective.inertia import InertiaTerm, kinetic_energy
 from taichi_ndf.problem.dynamics import NEWMARK_BETA, NEWMARK_GAMMA, DynamicsConfig
 from taichi_ndf.problem.model import ShellModel
@@ -172,12 +176,24 @@ class TimeStepper:
         gradient = self.linear.gradient(self.potential(self.samples, u, True).grad_u_jets)
         if self.config.mass_damping:
             gradient = gradient + self.config.mass_damping * self._mass_times(velocity)
+        if self.config.stiffness_damping:
+            term = StiffnessDampingTerm(self._stiffness_blocks(displacement),
+                                        self.config.stiffness_damping, self.offset)
+            _, force = term.evaluate(self.samples, self.linear.displacement(velocity))
+            gradient = gradient + self.linear.gradient(force)
         term = InertiaTerm(self.density, 1.0, u)
         mass = self.linear.hessian(flat_blocks(term.hessian_blocks(self.samples, u)))
         solved = self.linear.solve(mass, gradient, 0.0)
         if solved is None:
             raise DynamicsError("the mass matrix could not be factorised")
         return solved[0]
+
+    def _stiffness_blocks(self, displacement: torch.Tensor) -> torch.Tensor:
+        """The shell's per-point tangent-stiffness blocks (N, 6, 3, 6, 3) at coefficients C,
+        positive semi-definite through the strains (K₀ of the stiffness damping)."""
+        u = self.linear.displacement(displacement)
+        steps = self.linear.fd_steps(u, displacement, self.newton.fd_step)
+        return self.objective.shell.hessian_blocks(self.samples, u, 1.0, steps=steps, psd=True)
 
     # --- one step ----------------------------------------------------------------------------
     def step(self, state: Motion, h: float) -> tuple[Motion, object]:
@@ -194,8 +210,17 @@ class TimeStepper:
             v_tilde = v + (1.0 - gamma) * h * a
             scale = 1.0 / (beta * h**2) + alpha * gamma / (beta * h)
             target = predicted - (alpha / scale) * v_tilde
-        inertia = InertiaTerm(self.density, scale, self.linear.displacement(target))
-        solution = minimise(self.linear, self.objective.with_terms(inertia).potential(1.0),
+        terms = [InertiaTerm(self.density, scale, self.linear.displacement(target))]
+        damping = self.config.stiffness_damping
+        if damping:
+            if self.config.integrator == "implicit_euler":
+                coefficient, origin = damping / h, c
+            else:
+                coefficient = damping * gamma / (beta * h)
+                origin = predicted - (damping / coefficient) * v_tilde
+            terms.append(StiffnessDampingTerm(self._stiffness_blocks(c), coefficient,
+                                              self.linear.displacement(origin)))
+        solution = minimise(self.linear, self.objective.with_terms(*terms).potential(1.0),
                             predicted, self.newton, load_factor=1.0, report=False)
         x = solution.parameters
         if self.config.integrator == "implicit_euler":
