@@ -186,7 +186,9 @@ def test_bad_settings_are_refused(settings, message):
 
 def test_frames_and_steps():
     config = DynamicsConfig(dt=0.01, duration=1.0, frame_rate=30.0)
-    assert config.steps == 100 and config.frame_every == 3
+    assert config.steps == 100 and config.frame_every == 3 and config.frames == 1 + 33 + 1
+    assert DynamicsConfig(dt=0.01, duration=1.0, frame_rate=50.0).frames == 51
+    assert DynamicsConfig(dt=0.01, duration=1.0).frames == 2
 
 
 def test_prescribed_motions_are_refused():

@@ -49,12 +49,13 @@ def simulate_dynamics(scene, out: OutputDir, *, solver: SolverConfig | None = No
     dynamics = scene.dynamics
     stepper = TimeStepper(scene.model, scene.field, dynamics,
                           newton=newton_config(config, _dtype()))
-    meshes = []
+    frames, final = [], []  # (time [s], deformed positions (V, 3)) per frame; the last mesh
 
     def on_frame(t: float, field) -> None:
         mesh = deformed_mesh(scene.model, field, scene.output.resolution)
-        write_trajectory_mesh(out, len(meshes), mesh)
-        meshes.append((t, mesh))
+        write_trajectory_mesh(out, len(frames), mesh)
+        frames.append((t, mesh.deformed))
+        final[:] = [mesh]
 
     started = time.perf_counter()
     trajectory = stepper.run(on_frame=on_frame)
@@ -66,8 +67,8 @@ def simulate_dynamics(scene, out: OutputDir, *, solver: SolverConfig | None = No
               "energy": document["potential"][-1], "iterations": iterations,
               "wall_time": wall, "time": trajectory.times[-1], "probes": probes,
               "dynamics": document,
-              "trajectory": {"source": "dynamics", "times": [t for t, _ in meshes],
-                             "energy": [_at(document, t) for t, _ in meshes]},
+              "trajectory": {"source": "dynamics", "times": [t for t, _ in frames],
+                             "energy": [_at(document, t) for t, _ in frames]},
               "resolved": {"field": {**scene.field.to_dict(),
                                      "finest_spans": list(trajectory.spans)},
                            "solver": dataclasses.asdict(config),
@@ -77,7 +78,7 @@ def simulate_dynamics(scene, out: OutputDir, *, solver: SolverConfig | None = No
     if on_result is not None:
         on_result(result)
     with progress.stage("outputs: mesh, render, video" if pictures else "outputs: mesh", 3):
-        final = meshes[-1][1]
+        final = final[0]
         for name, values in final.scalars().items():
             if not all(math.isfinite(float(v)) for v in values):
                 raise ValueError(f"non-finite {name} in the exported mesh")
@@ -89,8 +90,8 @@ def simulate_dynamics(scene, out: OutputDir, *, solver: SolverConfig | None = No
             up = up_direction(scene.model.loads.gravity)
             write_render(out, "render.png", final, up=up, views=scene.output.views)
             progress.report(2)
-            write_trajectory_video(out, [m.deformed for _, m in meshes], final.faces,
-                                   [t for t, _ in meshes], reference=final.reference, up=up,
+            write_trajectory_video(out, [x for _, x in frames], final.faces,
+                                   [t for t, _ in frames], reference=final.reference, up=up,
                                    pseudo_time=True)  # labelled "t", the time [s]
         progress.report(3)
     out.write_json("result.json", result)

@@ -124,8 +124,10 @@ def main(argv: list[str] | None = None, *,
         solver = dataclasses.replace(solver, **overrides)
         of_scene(scene).check_size(solver, itemsize=8 if args.precision == "f64" else 4)
         if not exports_on_template(scene.model):
-            check_export_memory(scene.output.resolution, "output.resolution",
-                                frames=scene.output.frames or len(solver.load_steps))
+            frames = scene.output.frames or len(solver.load_steps)
+            if scene.dynamics is not None:
+                frames = scene.dynamics.frames
+            check_export_memory(scene.output.resolution, "output.resolution", frames=frames)
         with shown("ndf-sim"), staged_run(args.out, overwrite=args.overwrite,
                                           resume=args.resume, products=RUN_FILES) as out, \
                 logged_progress(out.file(PROGRESS_FILE)):

@@ -75,6 +75,12 @@ class DynamicsConfig:
             return None
         return max(1, round(1.0 / (self.frame_rate * self.dt)))
 
+    @property
+    def frames(self) -> int:
+        """The number of output frames: t = 0, every `frame_every` steps and the last."""
+        every = self.frame_every or self.steps
+        return 1 + self.steps // every + (1 if self.steps % every else 0)
+
     def to_dict(self) -> dict:
         return {"integrator": self.integrator, "dt": self.dt, "duration": self.duration,
                 "frame_rate": self.frame_rate, "mass_damping": self.mass_damping,

@@ -171,7 +171,7 @@ class TimeStepper:
 
     def initial_acceleration(self, displacement: torch.Tensor, velocity: torch.Tensor
                              ) -> torch.Tensor:
-        """A₀ from M A₀ = −∇Π(C₀) − α M V₀ (one solve with the mass matrix)."""
+        """A₀ from M A₀ = −∇Π(C₀) − α M V₀ − β_R K₀ V₀ (one solve with the mass matrix)."""
         u = self.linear.displacement(displacement)
         gradient = self.linear.gradient(self.potential(self.samples, u, True).grad_u_jets)
         if self.config.mass_damping:
