@@ -159,6 +159,26 @@ def test_stiffness_proportional_damping_is_the_modal_damping_beta_omega_squared(
     assert damped.records[-1].total < undamped.records[-1].total * 0.99
 
 
+def test_a_halved_step_is_the_same_as_four_steps_of_a_quarter(caplog):
+    # Two Newton iterations (a step and the test that stops) suffice at h = T/80 but not at
+    # T/20 or T/40 (the first iteration's step is projected there: 3 iterations)
+    s = scene(STRIP)
+    h = PERIOD / 20
+    stepper = TimeStepper(s.model, s.field, DynamicsConfig(dt=h, duration=2 * h, halvings=3),
+                          newton=NewtonConfig(max_iterations=2))
+    with caplog.at_level(logging.WARNING, logger="taichi_ndf.solve.dynamics"):
+        halved = stepper.run(velocity=initial_velocity(stepper, first_mode(0.01)))
+    assert [r.substeps for r in halved.records] == [4, 4]
+    assert sum("halved" in r.message for r in caplog.records) == 6
+    assert [r.time for r in halved.records] == pytest.approx([h, 2 * h], rel=1e-15)
+    direct = TimeStepper(s.model, s.field, DynamicsConfig(dt=h / 4, duration=2 * h))
+    straight = direct.run(velocity=initial_velocity(direct, first_mode(0.01)))
+    assert all(r.substeps == 1 for r in straight.records)
+    assert halved.probes["tip"][-1] == pytest.approx(straight.probes["tip"][-1], rel=1e-9,
+                                                     abs=1e-15)
+    assert halved.records[-1].total == pytest.approx(straight.records[-1].total, rel=1e-9)
+
+
 def test_a_step_that_does_not_converge_is_halved_then_refused(caplog):
     s = scene(STRIP)
     config = DynamicsConfig(dt=PERIOD / 20, duration=PERIOD / 20, halvings=2)
