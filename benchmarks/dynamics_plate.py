@@ -22,9 +22,11 @@ Tables:
    at A = L/10 (geometrically nonlinear), and implicit Euler's loss per period against its
    factor (1 + (ωh)²)^(−steps per period);
 4. CPU per step (user + sys of this process, `time.process_time`) and per simulated second,
-   with the Newton iterations per step.
+   with the Newton iterations per step;
+5. Rayleigh damping (α = 0.01 1/s, β_R = 0.02 s) of modes 1 and 2: the energy left after 4
+   periods against the damped oscillator's closed form with ζ_n = α/(2ω_n) + β_R ω_n/2.
 
-    OMP_NUM_THREADS=1 python benchmarks/dynamics_plate.py [--spans 16] [--quick]
+    OMP_NUM_THREADS=1 python benchmarks/dynamics_plate.py [--spans 16] [--quick] [--damping-only]
 """
 
 from __future__ import annotations
@@ -84,13 +86,14 @@ def mode_velocity(mode: int, amplitude: float):
 
 
 def run(spans: int, integrator: str, mode: int, per_period: int, periods: float,
-        amplitude: float = 0.01):
+        amplitude: float = 0.01, mass_damping: float = 0.0, stiffness_damping: float = 0.0):
     """The trajectory, its CPU seconds and wall seconds (the whole run: setup + steps)."""
     scene = parse_scene(copy.deepcopy(document(spans)), base_dir=Path("."))
     period = 2 * math.pi / omega(mode)
     dt = period / per_period
     config = DynamicsConfig(dt=dt, duration=dt * round(periods * per_period),
-                            integrator=integrator)
+                            integrator=integrator, mass_damping=mass_damping,
+                            stiffness_damping=stiffness_damping)
     cpu, wall = time.process_time(), time.perf_counter()
     stepper = TimeStepper(scene.model, scene.field, config)
     trajectory = stepper.run(velocity=initial_velocity(stepper, mode_velocity(mode, amplitude)))
@@ -129,6 +132,42 @@ def cost_row(label: str, trajectory, cpu: float, wall: float) -> str:
             f"{wall:.1f} |")
 
 
+def damped_energy(w: float, zeta: float, t: float) -> float:
+    """(ẋ² + ω² x²)(t) of ẍ + 2ζω ẋ + ω² x = 0 from x = 0, ẋ = 1 (closed form)."""
+    wd = w * math.sqrt(1 - zeta**2)
+    decay = math.exp(-zeta * w * t)
+    x = decay * math.sin(wd * t) / wd
+    v = decay * (math.cos(wd * t) - zeta * w / wd * math.sin(wd * t))
+    return v * v + w * w * x * x
+
+
+def damping_table(spans: int, alpha: float, beta_r: float, periods: float) -> list[str]:
+    """5. Rayleigh damping per mode: the energy left after `periods` periods against the
+    damped oscillator's with ζ_n = α/(2ω_n) + β_R ω_n/2 (Newmark, T/100, A = L/10 000)."""
+    print(f"\n5. Rayleigh damping (α = {alpha:g} 1/s, β_R = {beta_r:g} s; Newmark, T_n/100, "
+          f"tip amplitude 1e-3 m, {periods:g} periods)\n")
+    print("| mode | ζ_n = α/(2ω) + β_R ω/2 | E/E₀ measured | E/E₀ damped oscillator | "
+          "relative difference | ζ from the measured decay |")
+    print("|---|---|---|---|---|---|")
+    costs = []
+    for mode in (1, 2):
+        w = omega(mode)
+        zeta = alpha / (2 * w) + beta_r * w / 2
+        trajectory, cpu, wall = run(spans, "newmark", mode, 100, periods, 1e-3, alpha, beta_r)
+        t = trajectory.times[-1]
+        measured = totals(trajectory)[-1] / totals(trajectory)[0]
+        expected = damped_energy(w, zeta, t)
+        # ζ whose closed form gives the measured ratio (bisection: the ratio falls with ζ)
+        lo, hi = 0.0, 0.5
+        for _ in range(100):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if damped_energy(w, mid, t) > measured else (lo, mid)
+        print(f"| {mode} | {zeta:.5f} | {measured:.6f} | {expected:.6f} | "
+              f"{measured / expected - 1:+.2e} | {0.5 * (lo + hi):.5f} |", flush=True)
+        costs.append(cost_row(f"mode {mode}, Newmark, T/100, Rayleigh", trajectory, cpu, wall))
+    return costs
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spans", type=int, default=16, help="spans along the strip")
@@ -137,6 +176,8 @@ def main() -> None:
     parser.add_argument("--periods", type=float, default=4.0,
                         help="periods simulated for the frequency table")
     parser.add_argument("--quick", action="store_true", help="fewer steps (a smoke run)")
+    parser.add_argument("--damping-only", action="store_true",
+                        help="only table 5 (Rayleigh damping) and its cost")
     args = parser.parse_args()
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
     torch.set_num_threads(1)
@@ -146,6 +187,11 @@ def main() -> None:
     per_period = 20 if args.quick else args.per_period
     periods = 2.0 if args.quick else args.periods
     costs = []
+    if args.damping_only:
+        for row in damping_table(args.spans, 0.01, 0.02, 2.0 if args.quick else 4.0):
+            print(row)
+        print(f"\nload average at end {os.getloadavg()}")
+        return
 
     print("\n1. Bending frequencies (Newmark β = 1/4, γ = 1/2; tip zero crossings)\n")
     print("| mode | analytic f [Hz] | measured f [Hz] | frequency error | steps per period | "
@@ -197,6 +243,8 @@ def main() -> None:
     print("|---|---|---|")
     for n, lost, own in dissipation:
         print(f"| T/{n} | {lost:.4f} | {own:.4f} |")
+
+    costs += damping_table(args.spans, 0.01, 0.02, 2.0 if args.quick else 4.0)
 
     print("\n4. Cost (CPU: user + sys of this process; per step: the steps only)\n")
     print("| run | steps | Newton iterations per step | CPU ms per step | CPU s per simulated "
