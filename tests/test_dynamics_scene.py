@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from taichi_ndf.cli import sim
+from taichi_ndf.io.run_files import read_run
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.scene.schema import SceneError
@@ -135,6 +136,8 @@ def test_ndf_sim_writes_time_energies_and_frames(tmp_path, capsys):
     assert all(math.isfinite(c) and c > 0 for c in (dynamics["cpu_per_step"],
                                                      dynamics["cpu_per_simulated_second"]))
     assert "drop: Π =" in capsys.readouterr().out
+    run = read_run(out)  # what ndf-render, ndf-view and ndf-export read: a frame per time
+    assert [f.load_factor for f in run.frames] == pytest.approx([0.0, 0.01, 0.02])
 
 
 def test_ndf_sim_refuses_in_one_line(tmp_path, capsys):

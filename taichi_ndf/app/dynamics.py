@@ -67,7 +67,10 @@ def simulate_dynamics(scene, out: OutputDir, *, solver: SolverConfig | None = No
               "energy": document["potential"][-1], "iterations": iterations,
               "wall_time": wall, "time": trajectory.times[-1], "probes": probes,
               "dynamics": document,
+              # load_factors: the same times, under the key the run readers take for a
+              # frame's parameter (`io.run_files.read_run`: ndf-render, ndf-view, ndf-export)
               "trajectory": {"source": "dynamics", "times": [t for t, _ in frames],
+                             "load_factors": [t for t, _ in frames],
                              "energy": [_at(document, t) for t, _ in frames]},
               "resolved": {"field": {**scene.field.to_dict(),
                                      "finest_spans": list(trajectory.spans)},
