@@ -2,7 +2,8 @@
 as ½ g t² (Newmark: exactly; implicit Euler: its known lag), the first bending mode of a
 cantilever strip (ν = 0: the Euler–Bernoulli beam) keeps its energy under Newmark and vibrates
 at the scheme's period T (1 + (ωh)²/12), implicit Euler loses the energy fraction
-(1 + (ωh)²)⁻¹ per step, mass-proportional damping takes exp(−α t) of the energy and
+(1 + (ωh)²)⁻¹ per step, a ramped load moves a free plate as each scheme on one point,
+mass-proportional damping takes exp(−α t) of the energy and
 stiffness-proportional damping exp(−β_R ω² t); a step whose
 Newton does not converge is halved and, past the halvings, the run fails; the settings and
 what the path refuses."""
@@ -90,6 +91,30 @@ def test_a_free_plate_falls_as_the_scheme_says(integrator):
             -9.81 * h**2 * n * (n + 1) / 2
         assert u[2] == pytest.approx(expected, rel=1e-8, abs=1e-12)
         assert abs(u[0]) < 1e-12 and abs(u[1]) < 1e-12
+
+
+@pytest.mark.parametrize("integrator", ["newmark", "implicit_euler"])
+def test_a_ramped_load_moves_a_free_plate_as_the_scheme_on_one_point(integrator):
+    s = scene(FREE)
+    h, ramp = 0.01, 0.04
+    config = DynamicsConfig(dt=h, duration=6 * h, integrator=integrator, load_ramp=ramp)
+    trajectory = TimeStepper(s.model, s.field, config).run()
+    # a rigid translation: every point follows the scheme on ẍ = −g λ(t), λ = min(1, t/ramp)
+    x, v, a = 0.0, 0.0, 0.0
+    for n, u in enumerate(trajectory.probes["tip"][1:], start=1):
+        a_new = -9.81 * min(1.0, n * h / ramp)
+        if integrator == "newmark":
+            x, v = x + h * v + 0.25 * h * h * (a + a_new), v + 0.5 * h * (a + a_new)
+        else:
+            v = v + h * a_new
+            x = x + h * v
+        a = a_new
+        assert u[2] == pytest.approx(x, rel=1e-8, abs=1e-14)
+    assert trajectory.probes["tip"][0][2] == 0.0
+    # the exact motion is −g t³/(6 ramp) up to the ramp's end: Newmark within h² of it
+    if integrator == "newmark":
+        exact = -9.81 * (4 * h) ** 3 / (6 * ramp)
+        assert trajectory.probes["tip"][4][2] == pytest.approx(exact, rel=0.05)
 
 
 def test_newmark_keeps_the_energy_and_has_its_period():
@@ -198,6 +223,7 @@ def test_a_step_that_does_not_converge_is_halved_then_refused(caplog):
     ({"dt": 0.1, "duration": 1.0, "mass_damping": -1.0}, "mass_damping must be"),
     ({"dt": 0.1, "duration": 1.0, "stiffness_damping": math.nan}, "stiffness_damping must be"),
     ({"dt": 0.1, "duration": 1.0, "halvings": -1}, "halvings must be"),
+    ({"dt": 0.1, "duration": 1.0, "load_ramp": -1.0}, "load_ramp must be"),
 ])
 def test_bad_settings_are_refused(settings, message):
     with pytest.raises(ValueError, match=message):

@@ -73,10 +73,11 @@ def test_the_keys_make_the_config():
     assert parse(DOCUMENT).dynamics == DynamicsConfig(dt=0.01, duration=0.1)
     document = copy.deepcopy(DOCUMENT)
     document["dynamics"].update(integrator="implicit_euler", frame_rate=25.0,
-                                mass_damping=0.3, stiffness_damping=0.01, halvings=2)
+                                mass_damping=0.3, stiffness_damping=0.01, load_ramp=0.05,
+                                halvings=2)
     assert parse(document).dynamics == DynamicsConfig(
         dt=0.01, duration=0.1, integrator="implicit_euler", frame_rate=25.0,
-        mass_damping=0.3, stiffness_damping=0.01, halvings=2)
+        mass_damping=0.3, stiffness_damping=0.01, load_ramp=0.05, halvings=2)
     del document["dynamics"]
     assert parse(document).dynamics is None
 
@@ -89,6 +90,7 @@ def test_the_keys_make_the_config():
     ({"mass_damping": -0.1}, r"dynamics.mass_damping: must be >= 0"),
     ({"frame_rate": 1000.0}, r"dynamics: frame_rate .* more than one frame per step"),
     ({"stiffness_damping": -0.1}, r"dynamics.stiffness_damping: must be >= 0"),
+    ({"load_ramp": -1.0}, r"dynamics.load_ramp: must be >= 0"),
     ({"step": 0.1}, r"dynamics: unknown key\(s\) 'step'"),
 ])
 def test_bad_values_name_the_key(change, message):

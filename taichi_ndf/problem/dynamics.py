@@ -21,7 +21,9 @@ class DynamicsConfig:
     steps, at most one per step; None: the first and last state only); mass_damping: the
     mass-proportional Rayleigh coefficient α [1/s] ≥ 0 (damping force −α M v);
     stiffness_damping: the stiffness-proportional one β_R [s] ≥ 0 (force −β_R K₀ v, K₀ the
-    shell's tangent stiffness at the start of each step, made positive semi-definite); halvings: how
+    shell's tangent stiffness at the start of each step, made positive semi-definite);
+    load_ramp: the time [s] ≥ 0 over which the loads rise linearly from 0 to their full value,
+    load factor λ(t) = min(1, t / load_ramp) (0: on in full from t = 0); halvings: how
     often a step whose Newton solve does not converge may be split in two halves, recursively,
     before the run fails."""
 
@@ -31,6 +33,7 @@ class DynamicsConfig:
     frame_rate: float | None = None
     mass_damping: float = 0.0
     stiffness_damping: float = 0.0
+    load_ramp: float = 0.0
     halvings: int = 4
 
     def __post_init__(self):
@@ -59,6 +62,8 @@ class DynamicsConfig:
         if not (math.isfinite(self.stiffness_damping) and self.stiffness_damping >= 0):
             raise ValueError(f"stiffness_damping must be finite and >= 0 [s], got "
                              f"{self.stiffness_damping!r}")
+        if not (math.isfinite(self.load_ramp) and self.load_ramp >= 0):
+            raise ValueError(f"load_ramp must be finite and >= 0 [s], got {self.load_ramp!r}")
         if isinstance(self.halvings, bool) or not isinstance(self.halvings, int) or \
                 self.halvings < 0:
             raise ValueError(f"halvings must be an integer >= 0, got {self.halvings!r}")
@@ -67,6 +72,10 @@ class DynamicsConfig:
     def steps(self) -> int:
         """The number of time steps."""
         return round(self.duration / self.dt)
+
+    def load_factor(self, t: float) -> float:
+        """λ(t) = min(1, t / load_ramp) (1 without a ramp) at time t [s]."""
+        return 1.0 if self.load_ramp == 0 else min(1.0, t / self.load_ramp)
 
     @property
     def frame_every(self) -> int | None:
@@ -84,5 +93,5 @@ class DynamicsConfig:
     def to_dict(self) -> dict:
         return {"integrator": self.integrator, "dt": self.dt, "duration": self.duration,
                 "frame_rate": self.frame_rate, "mass_damping": self.mass_damping,
-                "stiffness_damping": self.stiffness_damping,
+                "stiffness_damping": self.stiffness_damping, "load_ramp": self.load_ramp,
                 "halvings": self.halvings, "steps": self.steps}

@@ -11,7 +11,7 @@ from taichi_ndf.scene.schema import SceneError, Table, checked
 def parse_dynamics(top: Table, field, model) -> DynamicsConfig | None:
     """The scene's `DynamicsConfig` (None without a [dynamics] section): integrator, dt [s],
     duration [s], frame_rate [1/s], mass_damping α [1/s], stiffness_damping β_R [s],
-    halvings. SceneError naming the key
+    load_ramp [s], halvings. SceneError naming the key
     for a bad value, and for what the dynamic path does not support yet: a SIREN field (its
     pseudo-time is not physical time) and obstacles."""
     if not top.has("dynamics"):
@@ -23,6 +23,7 @@ def parse_dynamics(top: Table, field, model) -> DynamicsConfig | None:
         frame_rate=t.number("frame_rate", None, positive=True),
         mass_damping=t.number("mass_damping", 0.0, nonnegative=True),
         stiffness_damping=t.number("stiffness_damping", 0.0, nonnegative=True),
+        load_ramp=t.number("load_ramp", 0.0, nonnegative=True),
         halvings=t.integer("halvings", 4, minimum=0)), "dynamics")
     t.close()
     if not isinstance(field, SplinePlan):

@@ -3,8 +3,9 @@ potential with the one projected Newton (`taichi_ndf.minimise.newton.minimise`).
 
 The state lives in the coefficients (n, 3) of one grid (the plan's finest): displacement C
 [m], velocity V [m/s], acceleration A [m/s²], each a field u = U₀ + J P on the Gauss points of
-the spline discretisation (`SplineDiscretisation.linearisation` at load factor 1: the loads
-are on from t = 0). M is the consistent mass matrix of that field (`objective.inertia`), Π
+the spline discretisation (`SplineDiscretisation.linearisation`). The loads act at the load
+factor λ(t) (`DynamicsConfig.load_factor`: 1 from t = 0, or a linear ramp), each step's at its
+end time. M is the consistent mass matrix of that field (`objective.inertia`), Π
 the model's potential energy (strain energy − work of the loads, + its further terms), α the
 mass-proportional Rayleigh damping [1/s] (force −α M v). A step of length h from (C, V, A):
 
@@ -149,7 +150,6 @@ class TimeStepper:
             raise ValueError("dynamics: prescribed boundary motions (handles, rim rotations) "
                              "are not supported by the dynamic path yet")
         self.objective = objective or Objective.of_model(model)
-        self.potential = self.objective.potential(1.0)
         self.density = model.material.areal_density
         self.newton = newton or NewtonConfig()
 
@@ -159,9 +159,10 @@ class TimeStepper:
         rate = self.linear.displacement(velocity) - self.offset
         return kinetic_energy(self.samples, self.density, rate)
 
-    def potential_energy(self, displacement: torch.Tensor) -> float:
-        """Π [J] at coefficients C."""
-        return self.potential(self.samples, self.linear.displacement(displacement), False).total
+    def potential_energy(self, displacement: torch.Tensor, t: float) -> float:
+        """Π [J] at coefficients C and time t [s] (the loads at λ(t))."""
+        potential = self.objective.potential(self.config.load_factor(t))
+        return potential(self.samples, self.linear.displacement(displacement), False).total
 
     def _mass_times(self, velocity: torch.Tensor) -> torch.Tensor:
         """M V (n, 3) (held unknowns 0)."""
@@ -173,7 +174,8 @@ class TimeStepper:
                              ) -> torch.Tensor:
         """A₀ from M A₀ = −∇Π(C₀) − α M V₀ − β_R K₀ V₀ (one solve with the mass matrix)."""
         u = self.linear.displacement(displacement)
-        gradient = self.linear.gradient(self.potential(self.samples, u, True).grad_u_jets)
+        potential = self.objective.potential(self.config.load_factor(0.0))
+        gradient = self.linear.gradient(potential(self.samples, u, True).grad_u_jets)
         if self.config.mass_damping:
             gradient = gradient + self.config.mass_damping * self._mass_times(velocity)
         if self.config.stiffness_damping:
@@ -220,8 +222,9 @@ class TimeStepper:
                 origin = predicted - (damping / coefficient) * v_tilde
             terms.append(StiffnessDampingTerm(self._stiffness_blocks(c), coefficient,
                                               self.linear.displacement(origin)))
-        solution = minimise(self.linear, self.objective.with_terms(*terms).potential(1.0),
-                            predicted, self.newton, load_factor=1.0, report=False)
+        load_factor = self.config.load_factor(state.time + h)  # the loads at the step's end
+        solution = minimise(self.linear, self.objective.with_terms(*terms).potential(
+            load_factor), predicted, self.newton, load_factor=load_factor, report=False)
         x = solution.parameters
         if self.config.integrator == "implicit_euler":
             velocity = (x - c) / h
@@ -265,7 +268,7 @@ class TimeStepper:
         v = zeros.clone() if velocity is None else velocity.to(zeros).clone()
         a = self.initial_acceleration(c, v) if config.integrator == "newmark" else zeros.clone()
         state = Motion(0.0, c, v, a)
-        kinetic, potential = self.kinetic(v), self.potential_energy(c)
+        kinetic, potential = self.kinetic(v), self.potential_energy(c, 0.0)
         trajectory = Trajectory(config, tuple(self.field.config.spans),
                                 StepRecord(0, 0.0, 0, 0, kinetic, potential, kinetic + potential,
                                            0.0, 0.0))
@@ -287,7 +290,7 @@ class TimeStepper:
                 state = Motion(k * config.dt, state.displacement, state.velocity,
                                state.acceleration)  # no rounding drift of the clock
                 kinetic = self.kinetic(state.velocity)
-                potential = self.potential_energy(state.displacement)
+                potential = self.potential_energy(state.displacement, state.time)
                 record = StepRecord(k, state.time, iterations, substeps, kinetic, potential,
                                     kinetic + potential, _cpu() - cpu,
                                     time.perf_counter() - wall)
