@@ -186,7 +186,7 @@ def test_stiffness_proportional_damping_is_the_modal_damping_beta_omega_squared(
 
 def test_a_halved_step_is_the_same_as_four_steps_of_a_quarter(caplog):
     # Two Newton iterations (a step and the test that stops) suffice at h = T/80 but not at
-    # T/20 or T/40 (the first iteration's step is projected there: 3 iterations)
+    # T/20 or T/40 (3 there: the longer step's nonlinearity needs a second Newton step)
     s = scene(STRIP)
     h = PERIOD / 20
     stepper = TimeStepper(s.model, s.field, DynamicsConfig(dt=h, duration=2 * h, halvings=3),
