@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from taichi_ndf import progress
+from taichi_ndf.app.dynamics import simulate_dynamics
 from taichi_ndf.app.outputs import (
     DeformedMesh,
     deformed_mesh,
@@ -71,6 +72,9 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     checkpoint and result.json are written all the same).
     Returns the result dictionary also written to result.json."""
     config = solver or scene.solver
+    if scene.dynamics is not None:  # in physical time: another path with its own outputs
+        return simulate_dynamics(scene, out, solver=config, resume=resume, machine=machine,
+                                 on_result=on_result, pictures=pictures)
     if scene.output.usd:  # before the solve, not after it
         try:
             require_usd()

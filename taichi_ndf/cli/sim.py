@@ -102,6 +102,9 @@ def main(argv: list[str] | None = None, *,
         scene = load_scene(args.scene, material=args.material, field=args.field,
                            overrides=scene_keys)
         solver = scene.quick_solver if args.quick else scene.solver
+        if args.refine is not None and scene.dynamics is not None:
+            raise ValueError("--refine: a dynamic run ([dynamics]) solves on one grid, the "
+                             "finest of [field] levels")
         if args.refine is not None:
             scene = refined_scene(scene, args.refine)
             solver = dataclasses.replace(solver, max_levels=0)
@@ -121,8 +124,10 @@ def main(argv: list[str] | None = None, *,
         solver = dataclasses.replace(solver, **overrides)
         of_scene(scene).check_size(solver, itemsize=8 if args.precision == "f64" else 4)
         if not exports_on_template(scene.model):
-            check_export_memory(scene.output.resolution, "output.resolution",
-                                frames=scene.output.frames or len(solver.load_steps))
+            frames = scene.output.frames or len(solver.load_steps)
+            if scene.dynamics is not None:
+                frames = scene.dynamics.frames
+            check_export_memory(scene.output.resolution, "output.resolution", frames=frames)
         with shown("ndf-sim"), staged_run(args.out, overwrite=args.overwrite,
                                           resume=args.resume, products=RUN_FILES) as out, \
                 logged_progress(out.file(PROGRESS_FILE)):

@@ -35,6 +35,7 @@ from taichi_ndf.problem.run_size import contact_check_points
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.scene.contact import parse_contact
+from taichi_ndf.scene.dynamics import parse_dynamics
 from taichi_ndf.scene.field import field_config, with_field_type
 from taichi_ndf.scene.overrides import apply_overrides
 from taichi_ndf.scene.schema import SceneError, Table, read_toml
@@ -82,6 +83,8 @@ class Scene:
     # "dimensional": `scaling.SCALE_ESTIMATES`), made when a run starts where it solves
     # (`output_scale.field_for_run`); None: a number given, or a spline field.
     output_scale_estimate: str | None = None
+    # A run in physical time (`[dynamics]`, `problem.dynamics.DynamicsConfig`); None: quasistatic.
+    dynamics: Any = None
 
 
 def load_scene(path: str | Path, *, material: str | None = None,
@@ -134,10 +137,11 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
         if model.contact is not None:
             raise SceneError("training.pseudo_time: not available with [[obstacles]]")
         field = replace(field, conditioning=(TIME_RANGE,), pseudo_time=True)
+    dynamics = parse_dynamics(top, field, model)
     top.close()
     scene = Scene(name=name, description=description, model=model, field=field, solver=solver,
                   quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
-                  document=document, output_scale_estimate=estimate)
+                  document=document, output_scale_estimate=estimate, dynamics=dynamics)
     try:  # its sizes fit the memory, before any work (at run start: `Discretisation.check_size`)
         kind.check_size(field, solver, 4, **contact_check_points(model.contact))
     except ValueError as err:

@@ -1,0 +1,97 @@
+"""The specification of a dynamic run: integrator, time step, duration, output frames, damping
+(a scene's `[dynamics]` section; solved by `taichi_ndf.solve.dynamics`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+# implicit_euler: first order, dissipative; newmark: the average-acceleration (trapezoidal)
+# Newmark scheme β = 1/4, γ = 1/2, second order, energy-conserving for linear problems.
+INTEGRATORS = ("implicit_euler", "newmark")
+NEWMARK_BETA = 0.25
+NEWMARK_GAMMA = 0.5
+
+
+@dataclass(frozen=True)
+class DynamicsConfig:
+    """integrator: one of INTEGRATORS; dt: the time step h [s] > 0; duration: the simulated
+    time [s] ≥ dt (steps = round(duration / dt), which must be a whole number to 1e-9);
+    frame_rate: output frames per second [1/s] (one frame every round(1 / (frame_rate dt))
+    steps, at most one per step; None: the first and last state only); mass_damping: the
+    mass-proportional Rayleigh coefficient α [1/s] ≥ 0 (damping force −α M v);
+    stiffness_damping: the stiffness-proportional one β_R [s] ≥ 0 (force −β_R K₀ v, K₀ the
+    shell's tangent stiffness at the start of each step, made positive semi-definite);
+    load_ramp: the time [s] ≥ 0 over which the loads rise linearly from 0 to their full value,
+    load factor λ(t) = min(1, t / load_ramp) (0: on in full from t = 0); halvings: how
+    often a step whose Newton solve does not converge may be split in two halves, recursively,
+    before the run fails."""
+
+    dt: float
+    duration: float
+    integrator: str = "newmark"
+    frame_rate: float | None = None
+    mass_damping: float = 0.0
+    stiffness_damping: float = 0.0
+    load_ramp: float = 0.0
+    halvings: int = 4
+
+    def __post_init__(self):
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
+        for name in ("dt", "duration"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0 [s], got {value!r}")
+        if self.duration < self.dt * (1 - 1e-9):
+            raise ValueError(f"duration ({self.duration} s) must be at least dt ({self.dt} s)")
+        ratio = self.duration / self.dt
+        if abs(ratio - round(ratio)) > 1e-9 * ratio:
+            raise ValueError(f"duration ({self.duration} s) must be a whole number of steps of "
+                             f"dt ({self.dt} s), got {ratio:.6g} steps")
+        if self.frame_rate is not None:
+            if not (math.isfinite(self.frame_rate) and self.frame_rate > 0):
+                raise ValueError(f"frame_rate must be finite and > 0 [1/s], got "
+                                 f"{self.frame_rate!r}")
+            if self.frame_rate * self.dt > 1 + 1e-9:
+                raise ValueError(f"frame_rate ({self.frame_rate} /s) asks for more than one frame "
+                                 f"per step of dt = {self.dt} s")
+        if not (math.isfinite(self.mass_damping) and self.mass_damping >= 0):
+            raise ValueError(f"mass_damping must be finite and >= 0 [1/s], got "
+                             f"{self.mass_damping!r}")
+        if not (math.isfinite(self.stiffness_damping) and self.stiffness_damping >= 0):
+            raise ValueError(f"stiffness_damping must be finite and >= 0 [s], got "
+                             f"{self.stiffness_damping!r}")
+        if not (math.isfinite(self.load_ramp) and self.load_ramp >= 0):
+            raise ValueError(f"load_ramp must be finite and >= 0 [s], got {self.load_ramp!r}")
+        if isinstance(self.halvings, bool) or not isinstance(self.halvings, int) or \
+                self.halvings < 0:
+            raise ValueError(f"halvings must be an integer >= 0, got {self.halvings!r}")
+
+    @property
+    def steps(self) -> int:
+        """The number of time steps."""
+        return round(self.duration / self.dt)
+
+    def load_factor(self, t: float) -> float:
+        """λ(t) = min(1, t / load_ramp) (1 without a ramp) at time t [s]."""
+        return 1.0 if self.load_ramp == 0 else min(1.0, t / self.load_ramp)
+
+    @property
+    def frame_every(self) -> int | None:
+        """Steps between output frames (None: no frame rate: first and last state only)."""
+        if self.frame_rate is None:
+            return None
+        return max(1, round(1.0 / (self.frame_rate * self.dt)))
+
+    @property
+    def frames(self) -> int:
+        """The number of output frames: t = 0, every `frame_every` steps and the last."""
+        every = self.frame_every or self.steps
+        return 1 + self.steps // every + (1 if self.steps % every else 0)
+
+    def to_dict(self) -> dict:
+        return {"integrator": self.integrator, "dt": self.dt, "duration": self.duration,
+                "frame_rate": self.frame_rate, "mass_damping": self.mass_damping,
+                "stiffness_damping": self.stiffness_damping, "load_ramp": self.load_ramp,
+                "halvings": self.halvings, "steps": self.steps}
