@@ -176,5 +176,5 @@ def test_the_siren_solvers_last_layer_newton_minimises_over_the_discretisations_
     assert all(s is d.evaluation_points() for s, _ in asked)  # no contact: the Newton samples
     field = NeuralField(d.field.config, seed=0)
     Solver(scene.model, field, config).run()
-    for mine, theirs in zip(d.field.parameters, field.parameters):
+    for mine, theirs in zip(d.field.parameters, field.parameters, strict=True):
         torch.testing.assert_close(mine, theirs, rtol=0, atol=0)
