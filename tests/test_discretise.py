@@ -151,3 +151,30 @@ def test_the_tools_offer_every_field_type(tool):
     Taichi): they must be the registry's."""
     (action,) = [a for a in tool.build_parser()._actions if "--field" in a.option_strings]
     assert tuple(action.choices) == tuple(FIELD_TYPES)
+
+
+def test_the_siren_solvers_last_layer_newton_minimises_over_the_discretisations_linearisation(
+        scenes):
+    """The Newton phases of a SIREN run take the output layer's linearisation from the
+    discretisation, at its evaluation points (the Newton samples); the field they reach is
+    the one a solver building it itself reaches."""
+    import dataclasses
+
+    import torch
+
+    from taichi_ndf.solve.solver import Solver
+
+    scene = scenes[0]
+    config = dataclasses.replace(scene.quick_solver, newton_iterations=2, newton_samples=64)
+    d = of_scene(scene)
+    asked = []
+    own = d.linearisation
+    d.linearisation = lambda samples, t: asked.append((samples, t)) or own(samples, t)
+    d.start(config, seed=0)
+    d.solve(config)
+    assert asked and all(t == 1.0 for _, t in asked)
+    assert all(s is d.evaluation_points() for s, _ in asked)  # no contact: the Newton samples
+    field = NeuralField(d.field.config, seed=0)
+    Solver(scene.model, field, config).run()
+    for mine, theirs in zip(d.field.parameters, field.parameters, strict=True):
+        torch.testing.assert_close(mine, theirs, rtol=0, atol=0)

@@ -13,6 +13,7 @@ from inverse.sft.sequential import DataWeights, FittedFrame, reconstruct_frames
 from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.surface import surface_positions
 from inverse.sft.synth import default_camera
+from taichi_ndf import progress
 
 STEP = np.array([0.0, 0.0, 0.01])  # what the fake fit moves the sheet per frame [m]
 
@@ -96,3 +97,29 @@ def test_one_entry_picks_the_field_from_its_settings():
                              initial=[template.vertices, bent])
     result = reconstruct_sequence(template, camera, tracks, SplinePriorConfig(max_iterations=2))
     assert len(result.vertices) == 2 and result.iterations[1] > 0
+
+
+def test_the_frames_run_through_the_continuation_loop_with_its_callbacks_and_progress():
+    calls, reports = [], []
+
+    class Seen:
+        def on_start(self, solver):
+            calls.append(("start", solver))
+
+        def on_load_step(self, solver, value):
+            calls.append(("frame", value, len(solver.frames)))
+
+        def on_end(self, solver):
+            calls.append(("end", solver))
+
+    camera = default_camera()
+    template, bent = bent_pair()
+    tracks = [exact_tracks(template, bent, camera, seed=i) for i in range(3)]
+    fit = Recorder(template.vertices, DataWeights(2.0, 0.1, 1.0))
+    with progress.listening(reports.append):
+        reconstruct_frames(template, camera, tracks, fit, callbacks=[Seen()])
+    # After each frame's fit: its index, with the fit (the loop's subject) done with it.
+    assert calls == [("start", fit), ("frame", 1, 1), ("frame", 2, 2), ("end", fit)]
+    frames = [r for r in reports if r.stage == "SfT reconstruction, frames"]
+    assert [(r.step, r.total, r.done) for r in frames] == [(0, 2, False), (1, 2, False),
+                                                           (2, 2, False), (2, 2, True)]

@@ -9,6 +9,7 @@ both run on the one frame-by-frame driver
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,8 @@ def reconstruct_sequence(template: Template, camera: Camera,
                          masks: Sequence[np.ndarray] | None = None,
                          pinned: np.ndarray | None = None,
                          initial: Sequence[np.ndarray] | None = None,
-                         flow: DenseFlow | None = None) -> ReconstructionResult:
+                         flow: DenseFlow | None = None,
+                         callbacks: Sequence[Any] = ()) -> ReconstructionResult:
     """Vertices [m] for every frame (frame 0 = the template), fitted frame by frame from the
     previous frame on the field that `config` names.
 
@@ -36,7 +38,8 @@ def reconstruct_sequence(template: Template, camera: Camera,
     template positions; initial: per-frame guesses (e.g. the baseline's vertices) that a SIREN
     is first fitted to in each frame (ValueError on the spline field, which starts from the
     previous frame's solution); flow: dense-flow correspondences (`inverse.sft.flow`) added to
-    each frame's tracks, carried from the frame before's reconstruction.
+    each frame's tracks, carried from the frame before's reconstruction; callbacks: the solve
+    callbacks of the frame loop (`reconstruct_frames`).
     """
     kind = of_frame_settings(config)
     if initial is None:
@@ -46,4 +49,5 @@ def reconstruct_sequence(template: Template, camera: Camera,
     else:
         raise ValueError("initial guesses are for the SIREN field; the spline field starts "
                          "each frame from the previous frame's solution")
-    return reconstruct_frames(template, camera, correspondences, fit, masks=masks, flow=flow)
+    return reconstruct_frames(template, camera, correspondences, fit, masks=masks, flow=flow,
+                              callbacks=callbacks)

@@ -9,8 +9,10 @@ distance image, and with the outline term the allowance of the border vertices t
 t − 1's reconstruction shows (`inverse.sft.outline`). A `FrameFit` then minimises its field's
 prior plus the one data term of `inverse.sft.least_squares` (`FrameData.data_term`) from its
 own last state, the previous frame (warm start): the spline field by Newton
-(`inverse.sft.spline_prior`) or the SIREN by Adam (`inverse.sft.reconstruct`). The driver
-times each frame (wall and process CPU) and reports progress.
+(`inverse.sft.spline_prior`) or the SIREN by Adam (`inverse.sft.reconstruct`). The frames run
+through the one continuation loop (`taichi_ndf.minimise.continuation.solve_over`, a frame per
+step), which calls the solve callbacks and reports progress per frame; the driver times each
+frame (wall and process CPU).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import logging
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -31,7 +33,7 @@ from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.outline import outline_allowance, outline_offsets
 from inverse.sft.silhouette import silhouette_distance
-from taichi_ndf import progress
+from taichi_ndf.minimise.continuation import Stages, Step, solve_over
 
 log = logging.getLogger(__name__)
 
@@ -118,11 +120,17 @@ class ReconstructionResult:
 def reconstruct_frames(template: Template, camera: Camera,
                        correspondences: Sequence[FrameCorrespondences], fit: FrameFit, *,
                        masks: Sequence[np.ndarray] | None = None,
-                       flow: DenseFlow | None = None) -> ReconstructionResult:
+                       flow: DenseFlow | None = None,
+                       callbacks: Sequence[Any] = ()) -> ReconstructionResult:
     """Vertices for every frame (frame 0 = template), fitted frame by frame by `fit`.
 
-    masks: per-frame silhouettes (bool (h, w)) or None; flow: dense flow correspondences added
-    to each frame's tracks, carried from the frame before's reconstruction.
+    The frames are the steps of the one continuation loop
+    (`taichi_ndf.minimise.continuation.solve_over`, step value: the frame index): a frame
+    starts from the vertices of the frames before it, its fit is the step's solve and its
+    timing and result the bookkeeping after it. masks: per-frame silhouettes (bool (h, w)) or
+    None; flow: dense flow correspondences added to each frame's tracks, carried from the frame
+    before's reconstruction; callbacks: the loop's callbacks (`taichi_ndf.minimise.callbacks`:
+    on_start, on_load_step(fit, frame index) after each frame, on_end), called with `fit`.
     """
     weights = fit.weights
     rest = torch.from_numpy(template.vertices).double()
@@ -133,12 +141,15 @@ def reconstruct_frames(template: Template, camera: Camera,
         allowance = outline_allowance(template.vertices, template.faces, camera, masks[0],
                                       tolerance=mean_edge)
     result = ReconstructionResult([template.vertices.copy()], [0.0], [0.0], [0], [{}])
-    for i in progress.counted(range(1, len(correspondences)), "SfT reconstruction, frames"):
+
+    def solve(step: Step, history: list[np.ndarray]) -> tuple[FittedFrame, float, float]:
+        """Frame `step.value` fitted from `history`, the vertices of the (at most two) frames
+        before it; with its wall and process CPU seconds."""
+        i = int(step.value)
         start, cpu = time.perf_counter(), time.process_time()
         seen = correspondences[i]
         if flow is not None:
-            seen = merged(seen, flow.correspondences(i, result.vertices[-1]))
-        history = result.vertices[-2:]
+            seen = merged(seen, flow.correspondences(i, history[-1]))
         distance = offsets = None
         if masks is not None and weights.silhouette_weight > 0:
             distance = silhouette_distance(masks[i])
@@ -156,13 +167,23 @@ def reconstruct_frames(template: Template, camera: Camera,
             pixels=torch.from_numpy(seen.xy), confidence=torch.from_numpy(seen.confidence),
             predicted=2.0 * previous - before, distance=distance, outline_offset=offsets)
         fitted = fit.fit_frame(frame)
-        result.seconds.append(time.perf_counter() - start)
-        result.cpu_seconds.append(time.process_time() - cpu)
+        return fitted, time.perf_counter() - start, time.process_time() - cpu
+
+    def keep(step: Step, solved: tuple[FittedFrame, float, float]) -> None:
+        fitted, seconds, cpu_seconds = solved
+        result.seconds.append(seconds)
+        result.cpu_seconds.append(cpu_seconds)
         result.vertices.append(fitted.vertices)
         result.iterations.append(fitted.iterations)
         result.losses.append(fitted.losses)
-        log.debug("frame %d: %.2f s, %d iterations, %s", i, result.seconds[-1],
+        log.debug("frame %d: %.2f s, %d iterations, %s", step.value, seconds,
                   fitted.iterations, fitted.losses)
+
+    if len(correspondences) > 1:
+        solve_over(Stages(solve, lambda _step, _previous, _coarser: result.vertices[-2:],
+                          after_step=keep),
+                   range(1, len(correspondences)), callbacks=callbacks, subject=fit,
+                   stage="SfT reconstruction, frames")
     log.info("SfT reconstruction: %d frames, %.2f s per frame", len(result.vertices),
              np.mean(result.seconds[1:]) if len(result.seconds) > 1 else 0.0)
     return result

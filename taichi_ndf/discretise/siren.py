@@ -85,7 +85,8 @@ class SirenDiscretisation:
         else:
             spec = field_for_run(self.spec, self.estimate, self.model, config)
         self.field = NeuralField(spec, seed=seed)
-        self.solver = Solver(self.model, self.field, config, objective=self.objective)
+        self.solver = Solver(self.model, self.field, config, objective=self.objective,
+                             linearise=self.linearisation)
         if resume_from is not None:
             self.solver.state.restore(resume_from)
 
@@ -138,6 +139,8 @@ class SirenDiscretisation:
 
     def linearisation(self, samples: SurfaceSamples, load_factor: float
                       ) -> DenseLinearisation:
+        """The output layer's (`output_linearisation`): what the solver's last-layer Newton
+        phases minimise over."""
         self._no_pseudo_time()
         return output_linearisation(self.solver.operator, samples, load_factor)
 

@@ -1,11 +1,15 @@
-"""The one continuation loop: over grid levels × load steps, for every solve path.
+"""The one continuation loop: over grid levels × steps, for every solve path.
 
 A solve of a quasistatic problem goes through its load factors in turn (load continuation)
-and, for a field with a grid hierarchy, through successively refined grids (coarse to fine).
-`solve_over` owns that loop; a solve path gives it what differs (`Stages`):
+and, for a field with a grid hierarchy, through successively refined grids (coarse to fine);
+a shape-from-template reconstruction goes through its frames in turn, each warm-started from
+the frame before (`inverse.sft.sequential`). `solve_over` owns that loop; a step's value
+(`Step.value`) is a load factor on the forward paths and a frame index for the SfT frames. A
+solve path gives the loop what differs (`Stages`):
 
-- `solve(step, start)`: minimise Π at one load step from its start; returns the step's result
-  (a spline level's `LevelSolution`, a last-layer solve's step count, ...);
+- `solve(step, start)`: minimise at one step (a load step, a frame) from its start; returns
+  the step's result (a spline level's `LevelSolution`, a last-layer solve's step count, a
+  fitted frame, ...);
 - `start(step, previous, coarser)`: where a step starts, from the result of the previous step
   on the same level (None at the run's first step on it) and the result of the same step on
   the coarser level (None on the run's first level; a spline prolongs it onto the finer
@@ -15,10 +19,13 @@ and, for a field with a grid hierarchy, through successively refined grids (coar
   bookkeeping (its `State`, its log lines), run before the callbacks see the state.
 
 The callbacks (`taichi_ndf.minimise.callbacks`, called with `subject`, the object they see as
-`solver`) are called here for both paths: on_start before the first step, on_load_step(solver,
-load factor) after each step, on_level(solver) after each grid level (only where the field has
+`solver`) are called here for every path: on_start before the first step, on_load_step(solver,
+step value) after each step, on_level(solver) after each grid level (only where the field has
 grid levels: `levels` given), on_end after the last. The per-iteration hooks (on_step,
-on_record, on_iteration, on_polish) come from inside a step's minimiser.
+on_record, on_iteration, on_polish) come from inside a step's minimiser. With `stage` named,
+the loop also reports each finished step to a progress stage of that name
+(`taichi_ndf.progress.counted`; the SfT frames); the forward paths report from inside their
+minimisers instead.
 
 A resumed run (`resume_point`) starts at the state's load step (Adam) or re-solves its last
 finished level (Newton); `first_step` applies on every level of the run, so the finer levels of
@@ -31,6 +38,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from taichi_ndf import progress
 from taichi_ndf.minimise.callbacks import call
 
 __all__ = ["Hook", "Stages", "Step", "resume_point", "solve_over"]
@@ -39,11 +47,17 @@ __all__ = ["Hook", "Stages", "Step", "resume_point", "solve_over"]
 @dataclass(frozen=True)
 class Step:
     """Where the loop is: the grid level (0: the coarsest; 0 for a field without levels), the
-    index of the load step in the load steps and its load factor."""
+    index of the step in the loop's steps and its value: a load factor (forward solves, the
+    equilibria of material fitting) or a frame index (the SfT frames)."""
 
     level: int
     index: int
-    load_factor: float
+    value: float
+
+    @property
+    def load_factor(self) -> float:
+        """The value as the load factor of a load step (the forward paths' name for it)."""
+        return self.value
 
 
 @dataclass(frozen=True)
@@ -59,17 +73,18 @@ class Stages:
     before_end: Callable[[], None] | None = None
 
 
-def solve_over(stages: Stages, load_steps: Sequence[float], *, levels: int | None = None,
+def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = None,
                first_level: int = 0, first_step: int = 0, callbacks: Sequence[Any] = (),
-               subject: Any = None) -> list[list[Any]]:
-    """Solve every load step from `first_step` on, on every grid level from `first_level`
-    below `levels` (None: a field without grid levels, one pass and no on_level), calling the
-    stages and the callbacks (module docstring). Returns the results per level of this run,
-    per load step solved."""
+               subject: Any = None, stage: str | None = None) -> list[list[Any]]:
+    """Solve every step (`steps`: their values, load factors or frame indices) from
+    `first_step` on, on every grid level from `first_level` below `levels` (None: a field
+    without grid levels, one pass and no on_level), calling the stages and the callbacks, and
+    with `stage` the progress reports (module docstring). Returns the results per level of
+    this run, per step solved."""
     if levels is not None and not 0 <= first_level < levels:
         raise ValueError(f"first_level must be in [0, {levels}), got {first_level}")
-    if not 0 <= first_step < len(load_steps):
-        raise ValueError(f"first_step must be in [0, {len(load_steps)}), got {first_step}")
+    if not 0 <= first_step < len(steps):
+        raise ValueError(f"first_step must be in [0, {len(steps)}), got {first_step}")
     call(callbacks, "on_start", subject)
     results: list[list[Any]] = []
     for level in range(first_level, first_level + 1 if levels is None else levels):
@@ -77,8 +92,9 @@ def solve_over(stages: Stages, load_steps: Sequence[float], *, levels: int | Non
             stages.enter_level(level)
         coarser = results[-1] if results else None
         per_step: list[Any] = []
-        for index in range(first_step, len(load_steps)):
-            step = Step(level, index, load_steps[index])
+        indices = range(first_step, len(steps))
+        for index in indices if stage is None else progress.counted(indices, stage):
+            step = Step(level, index, steps[index])
             start = None if stages.start is None else stages.start(
                 step, per_step[-1] if per_step else None,
                 None if coarser is None else coarser[len(per_step)])
@@ -86,7 +102,7 @@ def solve_over(stages: Stages, load_steps: Sequence[float], *, levels: int | Non
             per_step.append(result)
             if stages.after_step is not None:
                 stages.after_step(step, result)
-            call(callbacks, "on_load_step", subject, step.load_factor)
+            call(callbacks, "on_load_step", subject, step.value)
         results.append(per_step)
         if levels is not None:
             if stages.after_level is not None:

@@ -109,15 +109,27 @@ def solve_last_layer(operator: DisplacementOperator, potential: Potential,
                      conditioning: torch.Tensor | None = None,
                      contact: ContactHook | None = None) -> NewtonSolution:
     """Minimise Π (potential: the objective at a load factor, `Objective.potential`) over the
-    output layer of the operator's field on fixed samples (`minimise` over
-    `output_linearisation`, settings `LAST_LAYER` by default); updates W_out and b_out in
-    place. The solution's parameters are the change of the output layer (3, width + 1).
+    output layer of the operator's field on fixed samples: `minimise_output_layer` over
+    `output_linearisation`. conditioning: per-sample extra inputs (N, k) of a conditioned
+    field (module docstring); contact: as in `minimise_output_layer`."""
+    linear = output_linearisation(operator, samples, load_factor, conditioning)
+    return minimise_output_layer(operator.field, linear, potential, load_factor, config,
+                                 contact=contact)
 
-    conditioning: per-sample extra inputs (N, k) of a conditioned field (module docstring).
+
+def minimise_output_layer(field: NeuralField, linear: DenseLinearisation,
+                          potential: Potential, load_factor: float,
+                          config: NewtonConfig | None = None, *,
+                          contact: ContactHook | None = None) -> NewtonSolution:
+    """Minimise Π over the output layer of `field` through `linear`, the field's output-layer
+    linearisation at fixed samples about its current output layer (`output_linearisation`,
+    or a discretisation's: `SirenDiscretisation.linearisation`), by the one Newton
+    (`minimise`, settings `LAST_LAYER` by default); updates W_out and b_out in place. The
+    solution's parameters are the change of the output layer (3, width + 1).
+
     contact: the run's `ContactHook` (samples: with its check points): its line-search test
     `feasible` on the checked points (`ContactPoints.checked`), each trial from the current
     iterate, as in projected Newton; None: every trial is feasible."""
-    linear = output_linearisation(operator, samples, load_factor, conditioning)
     feasible = None
     if contact is not None:
         keep = contact.points.checked(linear.samples)
@@ -126,7 +138,7 @@ def solve_last_layer(operator: DisplacementOperator, potential: Potential,
     solution = minimise(linear, potential, torch.zeros_like(linear.origin),
                         config or LAST_LAYER, load_factor=load_factor, feasible=feasible,
                         report=False)
-    weight, bias = operator.field.output_layer()
+    weight, bias = field.output_layer()
     with torch.no_grad():
         weight.add_(solution.parameters[:, :-1])
         bias.add_(solution.parameters[:, -1])

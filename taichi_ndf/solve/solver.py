@@ -21,7 +21,8 @@ that widens the range of t. The monitor reports Π at t = λ.
 
 Roles: the displacement operator (`taichi_ndf.problem.operator`) gives the jets and chains gradients
 back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
-(`taichi_ndf.minimise.minimisers`, `taichi_ndf.minimise.last_layer`) change the state
+(`taichi_ndf.minimise.minimisers`, `taichi_ndf.minimise.last_layer`: over the linearisation
+of the output layer that the discretisation gives, `linearise`) change the state
 (`taichi_ndf.minimise.state`); this module draws the sample sets and solves one load step, which the
 continuation loop (`taichi_ndf.minimise.continuation`) calls for each load step in turn. Checkpoints
 and the divergence guard are callbacks the application installs (`taichi_ndf.minimise.callbacks`);
@@ -32,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -42,20 +44,29 @@ from taichi_ndf.field import NeuralField
 from taichi_ndf.minimise.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_back_off
 from taichi_ndf.minimise.callbacks import DivergenceError, call
 from taichi_ndf.minimise.continuation import Hook, Stages, Step, resume_point, solve_over
-from taichi_ndf.minimise.last_layer import last_layer_config, solve_last_layer
+from taichi_ndf.minimise.last_layer import (
+    last_layer_config,
+    minimise_output_layer,
+    output_linearisation,
+)
+from taichi_ndf.minimise.linearisation import DenseLinearisation
 from taichi_ndf.minimise.minimisers import adam_iteration, lbfgs
 from taichi_ndf.minimise.state import MonitorRecord, State
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.pseudo_time import TIME_RANGE, conditioning, samples_over_time
-from taichi_ndf.problem.sampling import sample_surface
+from taichi_ndf.problem.sampling import SurfaceSamples, sample_surface
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.shell.energy import EnergyResult
 
 __all__ = ["DivergenceError", "MonitorRecord", "SolveResult", "Solver", "SolverConfig"]
 
 log = logging.getLogger(__name__)
+
+# Where the last-layer Newton phases take their linearisation from: (samples, load factor) ->
+# the output layer's `DenseLinearisation` there.
+Linearise = Callable[[SurfaceSamples, float], DenseLinearisation]
 
 # Seed offsets of the fixed sample sets, so that they differ from the training samples' stream.
 MONITOR_SEED_OFFSET = 7919
@@ -78,11 +89,18 @@ class Solver:
     Adam / Newton / L-BFGS phases and the continuation over load steps."""
 
     def __init__(self, model: ShellModel, field: NeuralField, config: SolverConfig, *,
-                 objective: Objective | None = None, state: State | None = None):
+                 objective: Objective | None = None, state: State | None = None,
+                 linearise: Linearise | None = None):
         """objective: what is minimised (default: the model's potential energy,
         `Objective.of_model`), e.g. with the work of an end moment added. state: where to
-        start (default: `State.initial`; a restored one resumes)."""
+        start (default: `State.initial`; a restored one resumes). linearise(samples, load
+        factor): the output layer's linearisation the last-layer Newton phases minimise over
+        (the discretisation's, `SirenDiscretisation.linearisation`; default:
+        `output_linearisation` of this solver's operator)."""
         self.operator = DisplacementOperator(field, model.boundary)
+        self._linearise = linearise or (
+            lambda samples, load_factor: output_linearisation(self.operator, samples,
+                                                              load_factor))
         if config.newton_iterations and self.operator.frame:
             raise ValueError("the last-layer Newton phases (newton_iterations) do not support "
                              "a boundary frame; use Adam or the spline field")
@@ -182,8 +200,8 @@ class Solver:
             # Π alone, without its terms' own Hessian blocks: with contact the phases' blocks
             # are central differences of the whole gradient (as when the filter wrapped Π)
             potential = _value_and_gradient(potential)
-        result = solve_last_layer(
-            self.operator, potential, samples, load_factor,
+        result = minimise_output_layer(
+            self.field, self._linearise(samples, load_factor), potential, load_factor,
             last_layer_config(max_iterations=self.config.newton_iterations), contact=self.contact)
         self.state.newton_steps += result.steps
         self._refresh_contact(load_factor)

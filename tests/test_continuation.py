@@ -1,0 +1,63 @@
+"""The one continuation loop (taichi_ndf.minimise.continuation): its steps' values, starts,
+callbacks and the progress stage it reports to when named."""
+
+import pytest
+
+from taichi_ndf import progress
+from taichi_ndf.minimise.continuation import Stages, Step, solve_over
+
+
+class Calls:
+    def __init__(self):
+        self.seen = []
+
+    def on_start(self, solver):
+        self.seen.append("start")
+
+    def on_load_step(self, solver, value):
+        self.seen.append(value)
+
+    def on_level(self, solver):
+        self.seen.append("level")
+
+    def on_end(self, solver):
+        self.seen.append("end")
+
+
+def test_steps_carry_their_value_start_from_the_previous_and_the_coarser_result():
+    starts = []
+
+    def start(step, previous, coarser):
+        starts.append((step.level, step.index, previous, coarser))
+        return previous
+
+    calls = Calls()
+    results = solve_over(Stages(lambda step, begin: (step.level, step.value),
+                                start=start), [0.5, 1.0], levels=2, callbacks=[calls])
+    assert results == [[(0, 0.5), (0, 1.0)], [(1, 0.5), (1, 1.0)]]
+    assert starts == [(0, 0, None, None), (0, 1, (0, 0.5), None),
+                      (1, 0, None, (0, 0.5)), (1, 1, (1, 0.5), (0, 1.0))]
+    assert calls.seen == ["start", 0.5, 1.0, "level", 0.5, 1.0, "level", "end"]
+    assert Step(0, 1, 0.25).load_factor == 0.25  # the forward paths' name for the value
+
+
+def test_a_named_stage_reports_each_finished_step_and_none_without_it():
+    reports = []
+    with progress.listening(reports.append):
+        solve_over(Stages(lambda step, begin: step.value), [3, 4, 5], first_step=1)
+        assert reports == []
+        kept = []
+        solve_over(Stages(lambda step, begin: step.value,
+                          after_step=lambda step, result: kept.append(len(reports))),
+                   range(1, 4), stage="frames")
+    assert [(r.stage, r.step, r.total, r.done) for r in reports] == [
+        ("frames", 0, 3, False), ("frames", 1, 3, False), ("frames", 2, 3, False),
+        ("frames", 3, 3, False), ("frames", 3, 3, True)]
+    assert kept == [1, 2, 3]  # a step is reported after its bookkeeping
+
+
+def test_bad_first_step_or_level_is_refused():
+    with pytest.raises(ValueError, match="first_step"):
+        solve_over(Stages(lambda step, begin: None), [1.0], first_step=1)
+    with pytest.raises(ValueError, match="first_level"):
+        solve_over(Stages(lambda step, begin: None), [1.0], levels=2, first_level=2)
