@@ -132,35 +132,3 @@ def test_frame0_refuses_a_template_that_does_not_match(fold):
     tracker = Tracker(shifted, fold["texture"], fold["camera"])
     with pytest.raises(RuntimeError, match="agree with the projected template"):
         tracker.start(fold["frames"][0])
-
-
-def bent_tracks(tolerance: float, slid: int | None = None) -> Tracker:
-    """A tracker holding a 10 × 10 grid of tracks 10 px apart whose texture positions follow a
-    bent map, texture = (x + 0.01 y², y) [px] (a strip curling across the image: the map's
-    second derivative 0.02 px⁻¹), optionally with track `slid` 8 px off it; only the state
-    `_consistent` reads is set."""
-    tracker = Tracker.__new__(Tracker)
-    tracker.config = TrackerConfig(outlier_tolerance=tolerance)
-    y, x = np.mgrid[0:100:10, 0:100:10].astype(float)
-    tracker.xy = np.column_stack([x.ravel(), y.ravel()])
-    texture = np.column_stack([tracker.xy[:, 0] + 0.01 * tracker.xy[:, 1] ** 2, tracker.xy[:, 1]])
-    if slid is not None:
-        texture[slid] += (8.0, 0.0)
-    # One texture triangle (0, 0), (1, 0), (0, 1): barycentrics (1 − s − t, s, t) sit at (s, t).
-    tracker.template = Template(vertices=np.zeros((3, 3)), faces=np.array([[0, 1, 2]]),
-                                uvs=np.zeros((3, 2)))
-    tracker.texture_corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    tracker.face = np.zeros(len(texture), np.int64)
-    tracker.bary = np.column_stack([1 - texture.sum(1), texture[:, 0], texture[:, 1]])
-    return tracker
-
-
-def test_consistency_check_keeps_tracks_on_a_bending_strip_and_drops_a_slid_one():
-    # The default tolerance: the bent map's tracks all stay, the slid one goes.
-    assert bent_tracks(TrackerConfig.outlier_tolerance)._consistent().all()
-    kept = bent_tracks(TrackerConfig.outlier_tolerance, slid=44)._consistent()
-    assert np.flatnonzero(~kept).tolist() == [44]
-    # At the earlier 2 px the affine map of the neighbours, an extrapolation at the grid's
-    # sides, is itself off by more than that: good tracks along the sides were dropped.
-    dropped = np.flatnonzero(~bent_tracks(2.0)._consistent())
-    assert len(dropped) >= 10 and set(dropped % 10) <= {0, 9}

@@ -16,8 +16,7 @@ class TrackerConfig:
     forward–backward error limit [px]; rematch_every: frames between texture re-matches (0:
     never); match_ratio: Lowe ratio test; match_tolerance: texture match vs predicted position
     [px]; drift_tolerance: track vs fresh matches [px]; outlier_tolerance: track vs the local
-    map of its neighbours [px] (4: at 2 a strongly curving free edge lost its tracks, docs/sft.md
-    §2); neighbours: tracks in a local affine fit;
+    map of its neighbours [px]; neighbours: tracks in a local affine fit;
     neighbour_radius: farthest neighbour allowed [px]; patch_radius: half size of the NCC patch
     [px]; min_ncc: NCC a seeded corner needs; seed_confidence: base confidence of seeds;
     mask_margin: distance kept from the mask or silhouette boundary [px].
@@ -34,7 +33,7 @@ class TrackerConfig:
     match_ratio: float = 0.75
     match_tolerance: float = 3.0
     drift_tolerance: float = 1.5
-    outlier_tolerance: float = 4.0
+    outlier_tolerance: float = 2.0
     neighbours: int = 8
     neighbour_radius: float = 45.0
     patch_radius: int = 6
