@@ -48,7 +48,7 @@ def track_gaps(vertices: np.ndarray, faces: np.ndarray, seen: FrameCorrespondenc
     A frame's confidence: where this exceeds the field's knot span (`span_edges`), the fit
     has no image point under that part's own coefficients, so its shape there is the prior's
     continuation of the seen parts, not a measurement (on φ-SfT's R1 the free edge in frames
-    34–49, where the reconstruction is up to 46 mm off the cloud; benchmarks/RESULTS.md)."""
+    34–49, where the reconstruction is up to 48 mm off the cloud; benchmarks/RESULTS.md)."""
     if len(seen) == 0:
         return np.full(len(vertices), np.inf)
     points = np.einsum("nk,nkd->nd", seen.bary, vertices[faces[seen.face]])
