@@ -132,6 +132,14 @@ def report(result: dict, cpu: float, wall: float, *, label: str, data: Path, ext
             enumerate(zip(per_frame["chamfer_x1e4"], per_frame["max_vertex_distance_m"],
                           strict=True))]
     lines += ["    " + ", ".join(rows[i:i + 8]) for i in range(0, len(rows), 8)]
+    confidence = result.get("confidence")
+    if confidence:
+        flagged = confidence["frames_with_unobserved_parts"]
+        lines += ["", "Per-frame confidence (result.json `confidence`): frames with vertices "
+                  f"farther than {confidence['reach_mean_edges']:g} mean edge lengths from every "
+                  "tracked point (frame: vertices): "
+                  + (", ".join(f"{i}: {confidence['unobserved_vertices'][i]}" for i in flagged)
+                     if flagged else "none") + "."]
     return "\n".join(lines) + "\n"
 
 

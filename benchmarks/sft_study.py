@@ -3,6 +3,7 @@
 
     python benchmarks/sft_study.py [--sequences roll fold corner wave] [--seeds 0 1]
         [--frames 30] [--field spline|siren] [--cache DIR] [--json OUT]
+        [--tracker NAME=VALUE ...]
 
 For every sequence family and seed: render the sequence (`inverse.sft.synth`, default
 degradations), track it (`inverse.sft.tracking`), reconstruct it with the baseline
@@ -37,6 +38,7 @@ from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
+from inverse.sft.tracking_config import TrackerConfig
 
 COMPARED = ("e3d", "chamfer_x1e4", "normal_deg")
 
@@ -53,19 +55,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-prior", action="store_true", help="also run the field without prior")
     p.add_argument("--cache", type=Path, help="folder for rendered and tracked sequences")
     p.add_argument("--json", type=Path, help="write every row here")
+    p.add_argument("--tracker", nargs="+", default=[], metavar="NAME=VALUE",
+                   help="TrackerConfig fields other than the defaults (e.g. outlier_tolerance=4)")
     return p
 
 
-def prepared(sequence: str, seed: int, frames: int, cache: Path | None) -> dict:
-    """The rendered sequence, its tracks and the baseline (from the cache when there)."""
-    path = None if cache is None else cache / f"{sequence}_{seed}_{frames}.pkl"
+def tracker_config(pairs: list[str]) -> TrackerConfig:
+    """TrackerConfig with NAME=VALUE fields replaced (values of the field's default's type)."""
+    changes = {}
+    for pair in pairs:
+        name, _, value = pair.partition("=")
+        if name not in {f.name for f in dataclasses.fields(TrackerConfig)}:
+            raise SystemExit(f"--tracker: TrackerConfig has no field {name!r}")
+        changes[name] = type(getattr(TrackerConfig, name))(value)
+    return TrackerConfig(**changes)
+
+
+def prepared(sequence: str, seed: int, frames: int, cache: Path | None,
+             tracker: TrackerConfig | None = None) -> dict:
+    """The rendered sequence, its tracks and the baseline (from the cache when there; the
+    cache file names the tracker settings that differ from the defaults)."""
+    tracker = tracker or TrackerConfig()
+    changed = "".join(f"_{f.name}{getattr(tracker, f.name)}" for f in dataclasses.fields(tracker)
+                      if getattr(tracker, f.name) != f.default)
+    path = None if cache is None else cache / f"{sequence}_{seed}_{frames}{changed}.pkl"
     if path is not None and path.exists():
         with path.open("rb") as f:
             return pickle.load(f)
     synth = generate(SynthConfig(sequence=sequence, frames=frames, seed=seed))
     clock = time.perf_counter()
     tracks, _ = track_sequence(synth.frames, synth.template, synth.texture, synth.camera,
-                               masks=synth.masks)
+                               masks=synth.masks, config=tracker)
     tracking = (time.perf_counter() - clock) / frames
     clock, cpu = time.perf_counter(), time.process_time()
     baseline = reconstruct_baseline(synth.template, synth.camera, tracks).vertices
@@ -96,7 +116,7 @@ def row(method: str, data: dict, vertices: list[np.ndarray], wall: float, cpu: f
 
 
 def study(sequence: str, seed: int, args: argparse.Namespace) -> list[dict]:
-    data = prepared(sequence, seed, args.frames, args.cache)
+    data = prepared(sequence, seed, args.frames, args.cache, tracker_config(args.tracker))
     rows = [row("baseline", data, data["baseline"], data["baseline_s"], data["baseline_cpu_s"])]
     config = (SplinePriorConfig() if args.field == "spline"
               else ReconstructionConfig(seed=seed))

@@ -128,6 +128,10 @@ def test_ndf_sft_reads_a_capture_and_scores_against_its_clouds(sequence, tmp_pat
     assert distances[0] == pytest.approx(max_vertex_distance(sequence.vertices[0], cloud),
                                          rel=1e-6)
     assert m["max_vertex_distance_m"] == max(distances)
+    confidence = result["confidence"]
+    assert len(confidence["unobserved_vertices"]) == FRAMES
+    assert confidence["largest_gap_mean_edges"][0] < confidence["reach_mean_edges"]
+    assert "confidence: " in printed
 
 
 def test_capture_and_contract_options_are_not_mixed(sequence, tmp_path, capsys):

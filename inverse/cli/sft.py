@@ -76,6 +76,19 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def confidence_line(confidence: dict, vertices: int) -> str:
+    """One printed line: which frames have parts no tracked point observes."""
+    frames = confidence["frames_with_unobserved_parts"]
+    if not frames:
+        return (f"confidence: every vertex within {confidence['reach_mean_edges']:g} mean edge "
+                "lengths of a tracked point in every frame")
+    most = max(confidence["unobserved_vertices"])
+    return (f"confidence: {len(frames)} frame(s) ({frames[0]}–{frames[-1]}) have vertices farther "
+            f"than {confidence['reach_mean_edges']:g} mean edge lengths from every tracked point "
+            f"(up to {most} of {vertices}): their shape there is the prior's, not measured "
+            "(result.json 'confidence')")
+
+
 @interruptible("ndf-sft")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
@@ -96,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         print(metrics_line(summary["metrics"]))
     if "material" in summary:
         print(summary_line(summary["material"]))
+    print(confidence_line(summary["confidence"], summary["vertices"]))
     print(f"outputs in {args.out}")
     return 0
 

@@ -17,10 +17,11 @@ from inverse.cli.sft_inputs import (
 )
 from inverse.cli.sft_material import check_held_corners, material_config
 from inverse.sft.baseline import mesh_edges, reconstruct_baseline
+from inverse.sft.correspondences import FrameCorrespondences, track_gaps
 from inverse.sft.crop import cropped_to_sheet
 from inverse.sft.flow import DenseFlow
 from inverse.sft.frame_fits import reconstruct_sequence
-from inverse.sft.inputs import Camera, InputError
+from inverse.sft.inputs import Camera, InputError, Template, mean_edge_length
 from inverse.sft.material_from_video import estimate_material
 from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.spline_prior import SplinePriorConfig
@@ -101,6 +102,7 @@ def run(args: argparse.Namespace) -> dict:
         "init": args.init if args.field == "siren" and args.method != "baseline" else None,
         "config": None if config is None else dataclasses.asdict(config),
         "correspondences_per_frame": [len(c) for c in correspondences],
+        "confidence": track_coverage(work.template, correspondences),
         "final_loss_terms": losses,
         "timings": {
             "total": seconds,
@@ -121,6 +123,22 @@ def run(args: argparse.Namespace) -> dict:
         summary["timings"]["per_frame"]["material"] = seconds["material"] / n
     out.write_json("result.json", summary)
     return summary
+
+
+def track_coverage(template: Template, correspondences: list[FrameCorrespondences], *,
+                   reach: float = SplinePriorConfig.span_edges) -> dict:
+    """The per-frame confidence of result.json: per frame the vertices farther than `reach`
+    template mean edge lengths (one knot span of the spline field) from every tracked point,
+    whose shape is the prior's continuation rather than measured, and the largest such
+    distance; the frames that have any."""
+    mean_edge = mean_edge_length(template.vertices, template.faces)
+    gaps = [track_gaps(template.vertices, template.faces, c, mean_edge)
+            for c in correspondences]
+    unobserved = [int((g > reach).sum()) for g in gaps]
+    return {"reach_mean_edges": reach,
+            "unobserved_vertices": unobserved,
+            "largest_gap_mean_edges": [float(g.max()) for g in gaps],
+            "frames_with_unobserved_parts": [i for i, n in enumerate(unobserved) if n]}
 
 
 def method_config(args: argparse.Namespace) -> SplinePriorConfig | ReconstructionConfig | None:

@@ -1,11 +1,13 @@
 """What the SfT tracker hands on: template surface points seen at image pixels, per frame,
-and the tracker's stage timings."""
+the tracker's stage timings, and how far the tracked points leave parts of the sheet
+unobserved (`track_gaps`, a per-frame confidence)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)
@@ -35,3 +37,20 @@ class TrackingTimings:
     matching: float = 0.0
     flow: float = 0.0
     seeding: float = 0.0
+
+
+def track_gaps(vertices: np.ndarray, faces: np.ndarray, seen: FrameCorrespondences,
+               mean_edge: float) -> np.ndarray:
+    """How far each template vertex lies from the nearest tracked surface point of one frame,
+    on the template (3-D distance between template positions), in units of the template's
+    mean edge length `mean_edge` [m]; shape (n,). Inf for every vertex when nothing is seen.
+
+    A frame's confidence: where this exceeds the field's knot span (`span_edges`), the fit
+    has no image point under that part's own coefficients, so its shape there is the prior's
+    continuation of the seen parts, not a measurement (on φ-SfT's R1 the free edge in frames
+    34–49, where the reconstruction is up to 48 mm off the cloud; benchmarks/RESULTS.md)."""
+    if len(seen) == 0:
+        return np.full(len(vertices), np.inf)
+    points = np.einsum("nk,nkd->nd", seen.bary, vertices[faces[seen.face]])
+    distance, _ = cKDTree(points).query(vertices)
+    return distance / mean_edge
