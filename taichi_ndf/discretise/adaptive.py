@@ -73,7 +73,7 @@ class AdaptiveDiscretisation(SplineDiscretisation):
                        f"{unknowns(run.field.config)} unknowns): Π = {last.energy:.8g} J, "
                        f"{last.iterations} Newton iterations, {last.seconds:.1f} s")
             per_level.append({t: self._probes_of(run.field, c, t) for t, c in run.steps})
-            if on_load_step is not None and len(run.levels) <= 2:
+            if on_load_step is not None and len(run.levels) <= 2:  # adaptive: solve_adaptive's
                 for t, coefficients in run.steps:
                     field = SplineField(run.field.config)
                     field.coefficients.copy_(coefficients)

@@ -9,9 +9,10 @@ strain energy density between the last two solves, per knot span).
 
     level 0: the plan's first grid, by load continuation (`solve_spline`);
     level 1: its dyadic refinement (the same grading), each load step from level 0;
-    level k ≥ 2: spans × 2, knots by the indicator of levels k−2 → k−1; started from level
-                 k−1's solution projected onto the new grid (weighted least squares of the
-                 field at the new grid's Gauss points) and solved at the last load factor only;
+    level k ≥ 2: spans × 2, knots by the indicator of levels k−2 → k−1 (at the last load
+                 factor); each load step started from level k−1's solution at that load
+                 factor projected onto the new grid (weighted least squares of the field at
+                 the new grid's Gauss points);
     after each level from 2 on: the guarded three-grid rule (`minimise.refinement.richardson`,
                  the expected order 2(p − 1)) on Π and every probe component over the last
                  three levels; stop where every bar ≤ tolerance × |Π| (Π) and ≤ tolerance ×
@@ -21,9 +22,8 @@ strain energy density between the last two solves, per knot span).
 The spans double per level in η, so h halves as the rule assumes; the knots move between
 levels, so the observed order is that of the adaptive sequence (the rule sees the sequence's
 own convergence: where it is erratic the order is "unreliable" and the bar widens to 3 × the
-range of the last three values). Earlier load steps of the adaptive levels are not re-solved
-(their states are level 1's). Refused: obstacles (contact check points and κ are per grid
-and load path), a resumed run.
+range of the last three values). The estimate is of the last load step. Refused: obstacles
+(contact check points and κ are per grid and load path), a resumed run.
 """
 
 from __future__ import annotations
@@ -165,12 +165,13 @@ def tolerance_met(document: dict, tolerance: float) -> tuple[bool, str]:
 
 
 def solve_on(model: ShellModel, start: SplineField, config: SplineConfig, plan: SplinePlan,
-             solver: SolverConfig, objective: Objective, *, level: int = 0,
+             solver: SolverConfig, objective: Objective, *, level: int = 0, step: int = -1,
              coarse_energy: float | None = None, on_iteration=None
              ) -> tuple[SplineField, LevelSolution]:
-    """One grid `config` solved at the last load factor from `start`'s solution projected
-    onto it (`project`, at its Gauss points): the field (its coefficients: the start) and the
-    solution. coarse_energy: the previous grid's Π (Newton's discretisation stopping test)."""
+    """One grid `config` solved at the load step `step` (index into the load steps; −1: the
+    last) from `start`'s solution there projected onto it (`project`, at its Gauss points):
+    the field (its coefficients: the start) and the solution. coarse_energy: the previous
+    grid's Π at that load factor (Newton's discretisation stopping test)."""
     dtype = start.coefficients.dtype
     field = SplineField(config, dtype=dtype)
     points = span_quadrature(model.surface, config, None, points=plan.quadrature_points,
@@ -186,8 +187,9 @@ def solve_on(model: ShellModel, start: SplineField, config: SplineConfig, plan: 
         linear=LinearSolverConfig(kind=solver.linear_solver), on_iteration=on_iteration,
         first_level=level, first_coarse=coarse_energy)
     grids.enter_level(level)
-    step = Step(level, len(solver.load_steps) - 1, solver.load_steps[-1])
-    return field, grids.solve(step, grids.start(step, None, None))
+    index = step % len(solver.load_steps)
+    at = Step(level, index, solver.load_steps[index])
+    return field, grids.solve(at, grids.start(at, None, None))
 
 
 def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
@@ -197,7 +199,7 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                    ) -> AdaptiveRun:
     """The adaptive loop (module docstring) from `plan.config` (the plan's levels ignored).
     callbacks and on_level as `solve_spline`'s (on_level after every level, adaptive ones
-    too); on_load_step(load factor, field): after each adaptive level's solve."""
+    too); on_load_step(load factor, field): after each load step of each adaptive level."""
     if model.contact is not None:
         raise ValueError(CONTACT_REFUSED)
     objective = objective or Objective.of_model(model)
@@ -267,24 +269,32 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
             break
         level = len(run.levels)
         step_started = time.perf_counter()
-        field, solution = solve_on(model, fine, next_config, plan, config, objective,
-                                   level=level, coarse_energy=run.levels[-1].energy,
-                                   on_iteration=iterated)
-        field.coefficients.copy_(solution.coefficients)
+        solutions = []
+        for index, (t_step, coefficients) in enumerate(run.steps):
+            start = SplineField(fine.config, dtype=dtype)
+            start.coefficients.copy_(coefficients)
+            field, solution = solve_on(model, start, next_config, plan, config, objective,
+                                       level=level, step=index,
+                                       coarse_energy=run.load_steps[index]["energy"],
+                                       on_iteration=iterated)
+            solutions.append(solution)
+            if on_load_step is not None:
+                field.coefficients.copy_(solution.coefficients)
+                on_load_step(t_step, field)
+        field.coefficients.copy_(solutions[-1].coefficients)
         run.state.field = field
+        last = solutions[-1]
         run.state.levels.append(LevelSummary(
-            level, solution.spans, solution.energy,
-            {k: v.tolist() for k, v in solution.probes.items()}, len(solution.history),
-            time.perf_counter() - step_started, solution.converged))
-        run.steps = [(t, solution.coefficients)]
-        run.load_steps = [{"load_factor": t, "energy": solution.energy,
-                           "probes": {k: v.tolist() for k, v in solution.probes.items()},
-                           "converged": solution.converged}]
+            level, last.spans, last.energy, {k: v.tolist() for k, v in last.probes.items()},
+            sum(len(s.history) for s in solutions), time.perf_counter() - step_started,
+            all(s.converged for s in solutions)))
+        run.steps = [(s.load_factor, s.coefficients) for s in solutions]
+        run.load_steps = [{"load_factor": s.load_factor, "energy": s.energy,
+                           "probes": {k: v.tolist() for k, v in s.probes.items()},
+                           "converged": s.converged} for s in solutions]
         run.wall_time = time.perf_counter() - started
         call(callbacks, "on_level", run)
         level_done(run)
-        if on_load_step is not None:
-            on_load_step(t, field)
     record["outcome"] = outcome
     record["met"] = outcome == "tolerance met"
     run.wall_time = time.perf_counter() - started
