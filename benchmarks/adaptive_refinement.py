@@ -35,7 +35,6 @@ import numpy as np
 import torch
 
 import taichi_ndf
-from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.refinement import richardson
 from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.solve.adaptive import AdaptiveConfig, solve_adaptive, solve_on, unknowns
