@@ -108,7 +108,7 @@ def validation_rows(cases, tolerance: float, budget: int) -> None:
             cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
             spans = result.solver.get("spans", [[0, 0]])
             grids = " / ".join(f"{s[0]}×{s[1]}" for s in spans)
-            finest = unknowns(captured[0].run.field.config) if captured else None
+            finest = unknowns(captured[-1].run.field.config) if captured else None
             if finest is None:
                 _, _, plan = runner.load_case_scene(case, field="spline")
                 config = plan.config
@@ -121,7 +121,7 @@ def validation_rows(cases, tolerance: float, budget: int) -> None:
                       f"{finest} | {row.computed:.7g} | {row.reference:.6g} | {error} | "
                       f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
             if label == "adaptive":
-                coverage += case_coverage(case, result, captured[0], LINEARISATION, runner)
+                coverage += case_coverage(case, result, captured[-1], LINEARISATION, runner)
         runner.discretisation = original
     print("\nestimate of the adaptive run (last load) against the fine reference (uniform, 2 × "
           "the final spans per direction, warm-started)\n")
