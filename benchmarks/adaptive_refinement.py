@@ -49,7 +49,9 @@ def cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def napkin_rows(start: int, budget: int, tolerance: float) -> None:
+def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
+                rows: tuple[str, ...] = ("uniform", "adaptive", "adaptive, features first",
+                                         "uniform, features")) -> None:
     print(f"\nnapkin from {start} × {start} spans, Π∞ = {PI_INF} J\n")
     print("| refinement | grids | finest unknowns | Π [J] | Π − Π∞ | estimate ± bar (how) | "
           "holds Π∞ | free corner u_z [m] | CPU [s] | wall [s] | load |")
@@ -58,6 +60,8 @@ def napkin_rows(start: int, budget: int, tolerance: float) -> None:
                                      ("adaptive", "uniform", True),
                                      ("adaptive, features first", "features", True),
                                      ("uniform, features", "features", False)):
+        if label not in rows:
+            continue
         scene = load_scene(ROOT / "scenes" / "napkin.toml", field="spline",
                            overrides={"field.spans": [start, start], "field.grading": grading})
         solver = dataclasses.replace(scene.solver, progress=False)
@@ -66,7 +70,7 @@ def napkin_rows(start: int, budget: int, tolerance: float) -> None:
             run = solve_adaptive(scene.model, scene.field, solver,
                                  AdaptiveConfig(tolerance, budget))
         else:
-            run = solve_spline(scene.model, dataclasses.replace(scene.field, levels=3),
+            run = solve_spline(scene.model, dataclasses.replace(scene.field, levels=levels),
                                dataclasses.replace(solver, max_levels=0))
         cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
         estimate = richardson([lv.energy for lv in run.levels], order=4.0)
@@ -174,6 +178,9 @@ def main() -> None:
     parser.add_argument("--start", type=int, default=6, help="napkin: n × n first spans")
     parser.add_argument("--napkin-budget", type=int, default=3000)
     parser.add_argument("--napkin-tolerance", type=float, default=3e-3)
+    parser.add_argument("--napkin-levels", type=int, default=3, help="uniform: grids")
+    parser.add_argument("--napkin-rows", default="uniform,adaptive,adaptive, features first,"
+                        "uniform, features", help="comma-separated row labels (of the four)")
     parser.add_argument("--tolerance", type=float, default=1e-3)
     parser.add_argument("--budget", type=int, default=20000)
     parser.add_argument("--cases", default="square_plate,cantilever_shear,scordelis_lo_roof")
@@ -186,7 +193,12 @@ def main() -> None:
           f"load {os.getloadavg()[0]:.1f}")
     parts = args.parts.split(",")
     if "napkin" in parts:
-        napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance)
+        labels = args.napkin_rows.split(",")
+        rows = tuple(a if not b.startswith(" ") else a + "," + b
+                     for a, b in zip(labels, labels[1:] + [""], strict=True)
+                     if not a.startswith(" "))
+        napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance, args.napkin_levels,
+                    rows)
     if "validation" in parts:
         validation_rows(args.cases.split(","), args.tolerance, args.budget)
 
