@@ -67,6 +67,20 @@ def test_the_next_grid_is_finer_where_the_indicator_is_large():
     assert float(stronger[1] - stronger[0]) < float(widths[0])
 
 
+def test_no_span_of_the_next_grid_is_wider_than_the_one_it_lies_in():
+    """Where the indicator is tiny the next grid's spans are at most this grid's."""
+    table = Grading((), 1.0, 0.0, density=(6.0, 1.0), at=(0.0, 1.0))
+    config = SplineConfig(spans=(6, 2), grading=(table, None))
+    indicator = torch.full((6, 2), 1e-12, dtype=F64)
+    indicator[-1] = 1e6  # all the error in the last (widest) span
+    old = span_edges(config)[0]
+    new = span_edges(equidistributed(config, indicator, growth=2, order=4.0))[0]
+    for a, b in zip(new[:-1], new[1:], strict=True):
+        mid = (a + b) / 2
+        i = int(torch.searchsorted(old, mid)) - 1
+        assert float(b - a) <= float(old[i + 1] - old[i]) * 1.05
+
+
 def test_a_zero_indicator_keeps_the_direction_uniform():
     config = SplineConfig(spans=(4, 4))
     nxt = equidistributed(config, torch.zeros(4, 4, dtype=F64), growth=2, order=4.0)
