@@ -27,10 +27,13 @@ tabulated at the span centres. Half the spans stay uniform (UNIFORM_SHARE, the s
 features grading keeps uniform: `spline_grid.GRADED_SHARE`), ρ = ½ mean(ρ_ind) + ½ ρ_ind:
 measured on the napkin, the indicator's own density alone (a floor of ¼ of its mean) coarsened
 the far field where the next solution's folds were (benchmarks/RESULTS.md). And no span of the
-next grid is wider than the span of this grid it lies in (`no_coarser`): the square plate's
-64² equidistributed grid, wider than the 32² one near its hinged edges, gave a higher Π than
-the 32² one (−1020.06 against −1021.38 J) and w 0.25 % off against 0.02 %, where the band of
-a vanishing factor needs the span it had. The next grid has
+next grid is wider than the span of this grid it lies in (`no_coarser`: the next grid is
+nowhere coarser than this one). Known weakness (measured, benchmarks/RESULTS.md): |ΔΨ| is
+largest where Ψ is, so on a smooth problem it grades towards the most strained region, not
+the worst resolved: the square plate's 64² equidistributed grid (denser at the centre, 2.45
+against 1.0 units of ξ at the hinged edges) gave Π −1020.06 J against −1021.38 on the 32² one
+and −1021.46 on uniform 64², and w 0.25 % off against 0.02 % (`no_coarser` did not change it).
+The next grid has
 `growth` × the spans per direction, their knots graded by ρ (`taichi_ndf.field.grading`, a
 tabulated density); a direction whose indicator is zero everywhere stays uniform.
 """
