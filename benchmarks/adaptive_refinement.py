@@ -41,6 +41,7 @@ from taichi_ndf.solve.adaptive import AdaptiveConfig, solve_adaptive, solve_on, 
 from taichi_ndf.solve.spline_solver import solve_spline
 
 ROOT = Path(__file__).resolve().parents[1]
+INDICATOR = ["density"]  # the adaptive rows' indicator (--indicator)
 PI_INF = -1.64998  # the napkin's Π∞ [J] (RESULTS.md, "Graded knots", both sequences)
 
 
@@ -68,7 +69,7 @@ def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
         cpu, wall = cpu_seconds(), time.perf_counter()
         if adaptive:
             run = solve_adaptive(scene.model, scene.field, solver,
-                                 AdaptiveConfig(tolerance, budget))
+                                 AdaptiveConfig(tolerance, budget, INDICATOR[0]))
         else:
             run = solve_spline(scene.model, dataclasses.replace(scene.field, levels=levels),
                                dataclasses.replace(solver, max_levels=0))
@@ -90,7 +91,7 @@ def validation_rows(cases, tolerance: float, budget: int) -> None:
     original = runner.discretisation
 
     def adaptive_factory(spec, model, *, objective=None, estimate=None):
-        d = AdaptiveDiscretisation(spec, model, AdaptiveConfig(tolerance, budget),
+        d = AdaptiveDiscretisation(spec, model, AdaptiveConfig(tolerance, budget, INDICATOR[0]),
                                    objective=objective)
         d.for_case = lambda scene_solver, quick_solver, **_: (d, scene_solver)
         captured.append(d)
@@ -183,8 +184,11 @@ def main() -> None:
                         "uniform, features", help="comma-separated row labels (of the four)")
     parser.add_argument("--tolerance", type=float, default=1e-3)
     parser.add_argument("--budget", type=int, default=20000)
+    parser.add_argument("--indicator", default="density",
+                        help="the adaptive rows' indicator (none: dyadic, as uniform)")
     parser.add_argument("--cases", default="square_plate,cantilever_shear,scordelis_lo_roof")
     args = parser.parse_args()
+    INDICATOR[0] = args.indicator
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
     torch.set_num_threads(1)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,

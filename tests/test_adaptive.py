@@ -162,6 +162,18 @@ def test_bad_requests_exit_2_in_one_line(tmp_path, capsys, extra, message):
     assert not (tmp_path / "run").exists()
 
 
+def test_without_an_indicator_the_grids_are_dyadic(tmp_path):
+    """--tolerance alone: 3² → 6² → 12² uniform; the tolerance met, or the budget."""
+    out = tmp_path / "run"
+    assert run_sim("scenes/napkin.toml", "--out", out, "--field", "spline", "--set",
+                   "field.spans=[3,3]", "--tolerance", "1e-3", "--max-unknowns", "700",
+                   "--no-pictures") == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["refinement"]["spans"] == [[3, 3], [6, 6], [12, 12]]
+    assert result["refinement"]["adaptive"]["indicator"] == "none"
+    assert result["resolved"]["field"]["finest_grading"] == [None, None]
+
+
 def test_a_small_adaptive_run_end_to_end(tmp_path):
     """napkin 3² → 6² → 12² (equidistributed, graded) within a budget of 700 unknowns: the
     budget stops it, the estimate over three grids is in result.json and holds the three
@@ -169,7 +181,7 @@ def test_a_small_adaptive_run_end_to_end(tmp_path):
     out = tmp_path / "run"
     status = run_sim("scenes/napkin.toml", "--out", out, "--field", "spline", "--set",
                      "field.spans=[3,3]", "--tolerance", "1e-3", "--max-unknowns", "700",
-                     "--no-pictures")
+                     "--indicator", "density", "--no-pictures")
     assert status == 0
     result = json.loads((out / "result.json").read_text())
     refinement = result["refinement"]

@@ -45,10 +45,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "with 3 x the range of the last three); with K = 2 the order is assumed "
                    "and the bar is the change between the two grids")
     p.add_argument("--tolerance", type=float, metavar="REL",
-                   help="spline field: refine adaptively (knots equidistributed by an error "
-                   "indicator, spans doubled per grid) until the estimated relative error of Π "
-                   "and of every probe is at most REL, or the budget --max-unknowns is spent; "
-                   "the estimate is printed and in result.json (docs/scenes.md)")
+                   help="spline field: refine (spans doubled per grid) until the estimated "
+                   "relative error of Π and of every probe is at most REL, or the budget "
+                   "--max-unknowns is spent; the estimate is printed and in result.json "
+                   "(docs/scenes.md)")
+    p.add_argument("--indicator", choices=("none", "density", "energy_norm"), default="none",
+                   help="--tolerance: place each new grid's knots by equidistributing this "
+                   "error indicator (density: the change of the strain energy density); none "
+                   "(default): dyadic refinement, the grid's grading kept")
     p.add_argument("--max-unknowns", type=int, default=200_000, metavar="N",
                    help="--tolerance: the most unknowns of a grid (default 200000)")
     p.add_argument("--quick", action="store_true",
@@ -119,7 +123,7 @@ def main(argv: list[str] | None = None, *,
 
             if args.refine is not None or args.resume:
                 raise ValueError("--tolerance chooses the grids itself: drop --refine/--resume")
-            adaptive = AdaptiveConfig(args.tolerance, args.max_unknowns)
+            adaptive = AdaptiveConfig(args.tolerance, args.max_unknowns, args.indicator)
         if solver.method == "newton" and (args.iterations is not None or args.samples is not None):
             raise ValueError("--iterations and --samples set Adam; this scene is solved by "
                              "projected Newton ([training] method = \"newton\")")

@@ -3,14 +3,16 @@ issue 33): refine → solve (warm start) → estimate, until the estimated error
 probe is at most the tolerance or the next grid would exceed a budget of unknowns.
 
 A tensor-product spline cannot refine one element, so the grids are r/h-adaptive: each grid
-has GROWTH (2) times the spans per direction of the one before and its knots placed by
-equidistribution of an error indicator (`taichi_ndf.solve.error_indicator`: the change of the
-strain energy density between the last two solves, per knot span).
+has GROWTH (2) times the spans per direction of the one before and, with an indicator
+(`AdaptiveConfig.indicator`), its knots placed by equidistribution of it
+(`taichi_ndf.solve.error_indicator`: the change of the strain energy density between the last
+two solves, per knot span); without one (the default, "none": measured worse than uniform on
+4 of 5 cases) the next grid is the dyadic refinement (the projection is then exact).
 
     level 0: the plan's first grid, by load continuation (`solve_spline`);
     level 1: its dyadic refinement (the same grading), each load step from level 0;
     level k ≥ 2: spans × 2, knots by the indicator of levels k−2 → k−1 (at the last load
-                 factor); each load step started from level k−1's solution at that load
+                 factor) or dyadic; each load step started from level k−1's solution at that load
                  factor projected onto the new grid (weighted least squares of the field at
                  the new grid's Gauss points);
     after each level from 2 on: the guarded three-grid rule (`minimise.refinement.richardson`,
@@ -65,12 +67,16 @@ CONTACT_REFUSED = ("--tolerance: obstacles are not supported on the adaptive pat
 class AdaptiveConfig:
     """tolerance: the relative error wanted of Π and of every probe, in (0, 0.5);
     max_unknowns: the budget, the most unknowns (3 per read coefficient) of a grid;
-    indicator: the error indicator (`error_indicator.INDICATORS`); order: the convergence
+    indicator: the error indicator that places the next grid's knots
+    (`error_indicator.INDICATORS`), or "none" (the default): the next grid is the dyadic
+    refinement of this one (its grading kept; measured, benchmarks/RESULTS.md: the
+    equidistributed grids were worse than uniform ones on the square plate, the roof and
+    both cantilevers, better only on the napkin); order: the convergence
     order q of the equidistribution (`error_indicator.knot_density`), None: `density_order`."""
 
     tolerance: float
     max_unknowns: int = 200_000
-    indicator: str = "density"
+    indicator: str = "none"
     order: float | None = None
 
     def __post_init__(self):
@@ -81,8 +87,9 @@ class AdaptiveConfig:
         m = self.max_unknowns
         if isinstance(m, bool) or not isinstance(m, int) or m < 1:
             raise ValueError(f"--max-unknowns must be a positive integer, got {m!r}")
-        if self.indicator not in INDICATORS:
-            raise ValueError(f"indicator must be one of {INDICATORS}, got {self.indicator!r}")
+        if self.indicator not in ("none", *INDICATORS):
+            raise ValueError(f"--indicator must be one of none, {', '.join(INDICATORS)}, got "
+                             f"{self.indicator!r}")
 
 
 def unknowns(config: SplineConfig) -> int:
@@ -257,11 +264,15 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                 outcome = "tolerance met"
                 break
         coarse, fine = snapshots[-2], snapshots[-1]
-        indicator = span_indicator(objective, samples_for(fine), fine, coarse, model.boundary,
-                                   t, kind=adaptive.indicator, length=length)
-        q = adaptive.order or density_order([lv.energy for lv in run.levels], order)
-        record["levels"][-1]["next_grid_order"] = q
-        next_config = equidistributed(fine.config, indicator, growth=GROWTH, order=q)
+        if adaptive.indicator == "none":
+            next_config = fine.config.refined()
+        else:
+            indicator = span_indicator(objective, samples_for(fine), fine, coarse,
+                                       model.boundary, t, kind=adaptive.indicator,
+                                       length=length)
+            q = adaptive.order or density_order([lv.energy for lv in run.levels], order)
+            record["levels"][-1]["next_grid_order"] = q
+            next_config = equidistributed(fine.config, indicator, growth=GROWTH, order=q)
         if unknowns(next_config) > adaptive.max_unknowns:
             log.warning("--tolerance %g not reached: the next grid (%d × %d spans, %d unknowns) "
                         "is over the budget of %d unknowns", adaptive.tolerance,
