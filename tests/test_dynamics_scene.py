@@ -147,6 +147,7 @@ def test_ndf_sim_refuses_in_one_line(tmp_path, capsys):
     scene.write_text(SCENE)
     for extra, message in ((["--field", "siren"], "dynamics: needs a spline field"),
                            (["--refine", "2"], "--refine: a dynamic run"),
+                           (["--tolerance", "1e-3"], "--tolerance: a dynamic run"),
                            (["--set", "dynamics.dt=-1"], "dynamics.dt: must be > 0")):
         assert sim.main([str(scene), "--out", str(tmp_path / "x"), *extra, *RUNTIME]) == 2
         err = capsys.readouterr().err.strip()

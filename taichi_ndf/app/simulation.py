@@ -27,6 +27,7 @@ from taichi_ndf.app.outputs import (
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.discretise import SolveRefused, of_scene
+from taichi_ndf.discretise.adaptive import adaptive as adaptive_discretisation
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
 from taichi_ndf.io import OutputDir, read_mesh
@@ -36,6 +37,7 @@ from taichi_ndf.minimise.checkpoint import CheckpointError, read_checkpoint
 from taichi_ndf.problem.pseudo_time import frame_times
 from taichi_ndf.scene.reader import Scene, parse_scene
 from taichi_ndf.scene.schema import SceneError
+from taichi_ndf.solve.adaptive import AdaptiveConfig
 from taichi_ndf.solve.solver import DivergenceError, SolverConfig
 
 log = logging.getLogger(__name__)
@@ -58,7 +60,8 @@ class SimulationError(RuntimeError):
 def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None,
              resume: bool = False, machine: dict | None = None, seed: int | None = None,
              report: Callable[[str], None] | None = None,
-             on_result: Callable[[dict], None] | None = None, pictures: bool = True) -> dict:
+             on_result: Callable[[dict], None] | None = None, pictures: bool = True,
+             adaptive: AdaptiveConfig | None = None) -> dict:
     """Solve `scene` and write mesh.obj/.ply, reference.obj, probes.json, render.png,
     energy.png, checkpoint.pt, result.json (result.usdc with `[output] usd`; and trajectory/ +
     trajectory.mp4 with several load steps, or with a pseudo-time field at `output.frames`
@@ -70,6 +73,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     "iterations", "wall_time", "probes" and the discretisation's own keys ("refinement", ...).
     pictures: False leaves out render.png, energy.png and trajectory.mp4 (the meshes, probes,
     checkpoint and result.json are written all the same).
+    adaptive: refine a spline field adaptively to this request (`--tolerance`,
+    `taichi_ndf.discretise.adaptive`) instead of the plan's levels.
     Returns the result dictionary also written to result.json."""
     config = solver or scene.solver
     if scene.dynamics is not None:  # in physical time: another path with its own outputs
@@ -85,6 +90,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
                          "scene's field has a pseudo-time input only with it)")
     seed = config.seed if seed is None else seed
     discretisation = of_scene(scene)
+    if adaptive is not None:
+        discretisation = adaptive_discretisation(discretisation, adaptive)
     warn_rigid_motions(scene.model, newton=discretisation.uses_newton(config))
     checkpoint = out.file("checkpoint.pt")
     if resume:

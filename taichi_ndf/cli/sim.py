@@ -44,6 +44,17 @@ def build_parser() -> argparse.ArgumentParser:
                    "with K >= 3 (where that order is unreliable, said so: the finest value "
                    "with 3 x the range of the last three); with K = 2 the order is assumed "
                    "and the bar is the change between the two grids")
+    p.add_argument("--tolerance", type=float, metavar="REL",
+                   help="spline field: refine (spans doubled per grid) until the estimated "
+                   "relative error of Π and of every probe is at most REL, or the budget "
+                   "--max-unknowns is spent; the estimate is printed and in result.json "
+                   "(docs/scenes.md)")
+    p.add_argument("--indicator", choices=("none", "density", "energy_norm"), default="none",
+                   help="--tolerance: place each new grid's knots by equidistributing this "
+                   "error indicator (density: the change of the strain energy density); none "
+                   "(default): dyadic refinement, the grid's grading kept")
+    p.add_argument("--max-unknowns", type=int, default=200_000, metavar="N",
+                   help="--tolerance: the most unknowns of a grid (default 200000)")
     p.add_argument("--quick", action="store_true",
                    help="a short run with the scene's [training.quick] settings (smoke test)")
     p.add_argument("--resume", action="store_true",
@@ -105,9 +116,20 @@ def main(argv: list[str] | None = None, *,
         if args.refine is not None and scene.dynamics is not None:
             raise ValueError("--refine: a dynamic run ([dynamics]) solves on one grid, the "
                              "finest of [field] levels")
+        if args.tolerance is not None and scene.dynamics is not None:
+            raise ValueError("--tolerance: a dynamic run ([dynamics]) solves on one grid, the "
+                             "finest of [field] levels")
         if args.refine is not None:
             scene = refined_scene(scene, args.refine)
             solver = dataclasses.replace(solver, max_levels=0)
+        adaptive = None
+        if args.tolerance is not None:
+            from taichi_ndf.discretise.adaptive import adaptive as adaptive_discretisation
+            from taichi_ndf.solve.adaptive import AdaptiveConfig
+
+            if args.refine is not None or args.resume:
+                raise ValueError("--tolerance chooses the grids itself: drop --refine/--resume")
+            adaptive = AdaptiveConfig(args.tolerance, args.max_unknowns, args.indicator)
         if solver.method == "newton" and (args.iterations is not None or args.samples is not None):
             raise ValueError("--iterations and --samples set Adam; this scene is solved by "
                              "projected Newton ([training] method = \"newton\")")
@@ -122,7 +144,10 @@ def main(argv: list[str] | None = None, *,
         if args.samples is not None:
             overrides["samples"] = args.samples
         solver = dataclasses.replace(solver, **overrides)
-        of_scene(scene).check_size(solver, itemsize=8 if args.precision == "f64" else 4)
+        sized = of_scene(scene)
+        if adaptive is not None:
+            sized = adaptive_discretisation(sized, adaptive)
+        sized.check_size(solver, itemsize=8 if args.precision == "f64" else 4)
         if not exports_on_template(scene.model):
             frames = scene.output.frames or len(solver.load_steps)
             if scene.dynamics is not None:
@@ -135,7 +160,7 @@ def main(argv: list[str] | None = None, *,
             result = simulate(scene, out, solver=solver, resume=args.resume,
                               machine=machine_description(runtime),
                               report=lambda line: print(line, flush=True),
-                              on_result=show, pictures=args.pictures)
+                              on_result=show, pictures=args.pictures, adaptive=adaptive)
     except (SceneError, SimulationError, FileExistsError, FileNotFoundError, ValueError) as err:
         print(f"ndf-sim: error: {err}", file=sys.stderr)
         return 2
@@ -166,6 +191,10 @@ def summary_lines(name: str, result: dict) -> list[str]:
         lines.append(f"  refinement over {len(e['values'])} grids: Π → {e['text']} J")
         if e.get("warning"):
             lines.append(f"  warning: {e['warning']}")
+        if refinement.get("adaptive"):
+            a = refinement["adaptive"]
+            lines.append(f"  adaptive (tolerance {a['tolerance']:g}): {a['outcome']}; "
+                         f"{a.get('worst', 'no estimate')}")
     for probe, u in result["probes"].items():
         line = f"  probe {probe}: u = ({u[0]:.5g}, {u[1]:.5g}, {u[2]:.5g}) m"
         if refinement:

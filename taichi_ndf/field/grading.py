@@ -23,6 +23,12 @@ the features. Symmetries are those of the density:
   both ends mirrored, distances wrapped with period 2L), so ρ is even about the end, R odd,
   and h odd about it: h″ = 0 there and the composed field stays even.
 
+A tabulated density (`Grading.density` at the points `Grading.at`, the adaptive loop's,
+`taichi_ndf.solve.error_indicator`): ρ(ξ) is the piecewise-linear interpolant of the given
+values (constant past the first and last point), added to the features' part; with the same
+symmetries (ξ wrapped into a periodic domain, reflected across a mirrored end, so ρ is even
+there).
+
 Pure torch, float64: the map is evaluated once per point set.
 """
 
@@ -45,18 +51,32 @@ _GAUSS = 8  # Gauss–Legendre nodes per map span for R = ∫ρ
 class Grading:
     """The graded knots of one direction.
 
-    features: positions in ξ (units of ξ) the knots are graded towards, inside the domain.
+    features: positions in ξ (units of ξ) the knots are graded towards, inside the domain
+        (may be empty with a tabulated density).
     core: ε (units of ξ), positive: the distance within which the spacing is least.
     strength: A ≥ 0: the spacing at a feature is about (1 + A) times below the far one.
+    density, at: a tabulated density (module docstring): values > 0 (relative: only their
+        ratios matter) at increasing points `at` in ξ, as many; empty: ρ = 1 + the features'.
     """
 
     features: tuple[float, ...]
     core: float
     strength: float
+    density: tuple[float, ...] = ()
+    at: tuple[float, ...] = ()
 
     def __post_init__(self):
         features = tuple(float(f) for f in self.features)
-        if not features or not all(math.isfinite(f) for f in features):
+        density = tuple(float(v) for v in self.density)
+        at = tuple(float(x) for x in self.at)
+        if len(density) != len(at) or not all(math.isfinite(v) and v > 0 for v in density) \
+                or not all(math.isfinite(x) for x in at) \
+                or any(b <= a for a, b in zip(at[:-1], at[1:], strict=True)):
+            raise ValueError(f"Grading: density must be positive values at as many increasing "
+                             f"points, got {self.density!r} at {self.at!r}")
+        object.__setattr__(self, "density", density)
+        object.__setattr__(self, "at", at)
+        if (not features and not density) or not all(math.isfinite(f) for f in features):
             raise ValueError(f"Grading: features must be one or more finite positions, got "
                              f"{self.features!r}")
         object.__setattr__(self, "features", tuple(sorted(set(features))))
@@ -105,6 +125,31 @@ def _density_kernel(x: torch.Tensor, images: list[float], period: float | None,
     return total
 
 
+def _tabulated(x: torch.Tensor, grading: Grading, lo: float, hi: float, periodic: bool,
+               even: tuple[str, ...]) -> torch.Tensor:
+    """The tabulated density at x (module docstring): x wrapped (periodic) or reflected
+    (mirrored ends) into [lo, hi], then interpolated linearly, constant past the ends."""
+    at = torch.tensor(grading.at, dtype=torch.float64)
+    values = torch.tensor(grading.density, dtype=torch.float64)
+    if at.numel() == 1:
+        return values[0].expand_as(x).clone()
+    if periodic:  # one wrapped point each side, so the interpolant is periodic
+        period = hi - lo
+        x = lo + torch.remainder(x - lo, period)
+        at = torch.cat((at[-1:] - period, at, at[:1] + period))
+        values = torch.cat((values[-1:], values, values[:1]))
+    else:
+        if "min" in even:
+            x = torch.where(x < lo, 2 * lo - x, x)
+        if "max" in even:
+            x = torch.where(x > hi, 2 * hi - x, x)
+    x = x.clamp(float(at[0]), float(at[-1]))
+    right = torch.searchsorted(at, x.contiguous()).clamp(1, at.numel() - 1)
+    left = right - 1
+    t = (x - at[left]) / (at[right] - at[left])
+    return values[left] + t * (values[right] - values[left])
+
+
 def strength_for(features, core: float, share: float, lo: float, hi: float, *,
                  periodic: bool = False, even: tuple[str, ...] = ()) -> float:
     """A such that the graded part of the density, ∫_lo^hi (ρ − 1), is `share` / (1 − share)
@@ -142,7 +187,9 @@ class GradedMap:
         self.step = step
         # R at the Greville points lo + (j − 1)·step, j = 0 … M + 2, R(lo) = 0.
         nodes, weights = _gauss(m + 2, lo - step, hi + step)
-        rho = 1.0 + grading.strength * _density_kernel(nodes, images, period, grading.core)
+        rho = grading.strength * _density_kernel(nodes, images, period, grading.core)
+        rho = rho + (_tabulated(nodes, grading, lo, hi, periodic, even) if grading.density
+                     else 1.0)
         per_span = (rho * weights).view(m + 2, _GAUSS).sum(dim=1)
         cumulative = torch.cat((torch.zeros(1, dtype=torch.float64), per_span.cumsum(0)))
         cumulative = cumulative - cumulative[1]

@@ -1,0 +1,211 @@
+"""Adaptive refinement to a tolerance (`--tolerance`, issue 33) against uniform refinement,
+spline field + projected Newton, float64, one thread, side by side in one process.
+
+Parts (`--parts`):
+- napkin: scenes/napkin.toml (free pin at a corner) from n × n spans (`--start`): uniform
+  dyadic refinement (`solve_spline`, 3 levels) and the adaptive loop (`solve_adaptive`, from a
+  uniform and from a features-graded first grid) within `--napkin-budget` unknowns; Π against
+  Π∞ = −1.64998 J (benchmarks/RESULTS.md, "Graded knots"), the estimate and whether its bar
+  holds Π∞;
+- validation: the validation cases with `--tolerance` (the adaptive loop through the
+  validation runner, from the grid rule's grid) beside `ndf-validate --field spline` (3
+  uniform grids): each quantity against its published reference, and the adaptive
+  estimate of the quantity at the last load (the guarded three-grid rule over the adaptive
+  sequence) against a fine reference: the case solved on a uniform grid of 2 × the final
+  adaptive spans per direction, warm-started from the final adaptive solution.
+
+CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
+average after it (the machine is shared).
+
+    python benchmarks/adaptive_refinement.py [--parts napkin,validation] [--start 6]
+        [--tolerance 1e-3] [--budget 20000] [--cases a,b]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import resource
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+import taichi_ndf
+from taichi_ndf.minimise.refinement import richardson
+from taichi_ndf.scene.reader import load_scene
+from taichi_ndf.solve.adaptive import AdaptiveConfig, solve_adaptive, solve_on, unknowns
+from taichi_ndf.solve.spline_solver import solve_spline
+
+ROOT = Path(__file__).resolve().parents[1]
+INDICATOR = ["density"]  # the adaptive rows' indicator (--indicator)
+PI_INF = -1.64998  # the napkin's Π∞ [J] (RESULTS.md, "Graded knots", both sequences)
+
+
+def cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
+                rows: tuple[str, ...] = ("uniform", "adaptive", "adaptive, features first",
+                                         "uniform, features")) -> None:
+    print(f"\nnapkin from {start} × {start} spans, Π∞ = {PI_INF} J\n")
+    print("| refinement | grids | finest unknowns | Π [J] | Π − Π∞ | estimate ± bar (how) | "
+          "holds Π∞ | free corner u_z [m] | CPU [s] | wall [s] | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for label, grading, adaptive in (("uniform", "uniform", False),
+                                     ("adaptive", "uniform", True),
+                                     ("adaptive, features first", "features", True),
+                                     ("uniform, features", "features", False)):
+        if label not in rows:
+            continue
+        scene = load_scene(ROOT / "scenes" / "napkin.toml", field="spline",
+                           overrides={"field.spans": [start, start], "field.grading": grading})
+        solver = dataclasses.replace(scene.solver, progress=False)
+        cpu, wall = cpu_seconds(), time.perf_counter()
+        if adaptive:
+            run = solve_adaptive(scene.model, scene.field, solver,
+                                 AdaptiveConfig(tolerance, budget, INDICATOR[0]))
+        else:
+            run = solve_spline(scene.model, dataclasses.replace(scene.field, levels=levels),
+                               dataclasses.replace(solver, max_levels=0))
+        cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
+        estimate = richardson([lv.energy for lv in run.levels], order=4.0)
+        holds = abs(estimate.value - PI_INF) <= estimate.error
+        grids = " / ".join(f"{lv.spans[0]}²" for lv in run.levels)
+        print(f"| {label} | {grids} | {unknowns(run.field.config)} | {run.energy:.6f} | "
+              f"{100 * (run.energy - PI_INF) / abs(PI_INF):+.2f} % | {estimate.describe()} | "
+              f"{'yes' if holds else '**no**'} | {run.probes['free_corner'][2]:.6f} | "
+              f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
+
+
+def validation_rows(cases, tolerance: float, budget: int) -> None:
+    from taichi_ndf.discretise.adaptive import AdaptiveDiscretisation
+    from taichi_ndf.validation import CASES, runner
+    from taichi_ndf.validation.catalogue import LINEARISATION
+
+    original = runner.discretisation
+
+    def adaptive_factory(spec, model, *, objective=None, estimate=None):
+        d = AdaptiveDiscretisation(spec, model, AdaptiveConfig(tolerance, budget, INDICATOR[0]),
+                                   objective=objective)
+        d.for_case = lambda scene_solver, quick_solver, **_: (d, scene_solver)
+        captured.append(d)
+        return d
+
+    print(f"\nvalidation cases: --tolerance {tolerance:g} (budget {budget} unknowns) and 3 "
+          "uniform grids (`ndf-validate --field spline`)\n")
+    print("| case | quantity | load | refinement | grids | finest unknowns | value | "
+          "reference | error | CPU [s] | wall [s] | load avg |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    coverage = []
+    for name in cases:
+        case = CASES[name]
+        for label in ("uniform", "adaptive"):
+            captured: list = []
+            runner.discretisation = original if label == "uniform" else adaptive_factory
+            cpu, wall = cpu_seconds(), time.perf_counter()
+            result = runner.run_case(case, field="spline")
+            cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
+            spans = result.solver.get("spans", [[0, 0]])
+            grids = " / ".join(f"{s[0]}×{s[1]}" for s in spans)
+            finest = unknowns(captured[-1].run.field.config) if captured else None
+            if finest is None:
+                _, _, plan = runner.load_case_scene(case, field="spline")
+                config = plan.config
+                for _ in range(len(spans) - 1):
+                    config = config.refined()
+                finest = unknowns(config)
+            for row in result.rows:
+                error = "—" if row.relative_error is None else f"{100 * row.relative_error:.3f} %"
+                print(f"| {name} | {row.quantity} | {row.level:g} | {label} | {grids} | "
+                      f"{finest} | {row.computed:.7g} | {row.reference:.6g} | {error} | "
+                      f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
+            if label == "adaptive":
+                coverage += case_coverage(case, result, captured[-1], LINEARISATION, runner)
+        runner.discretisation = original
+    print("\nestimate of the adaptive run (last load) against the fine reference (uniform, 2 × "
+          "the final spans per direction, warm-started)\n")
+    print("| case | quantity | adaptive grids | estimate ± bar (how) | fine reference (spans) | "
+          "distance | bar / distance | holds | CPU fine [s] |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for row in coverage:
+        print(row, flush=True)
+
+
+def case_coverage(case, result, discretisation, linearisation, runner) -> list[str]:
+    """Rows: each quantity at the last load factor and Π, the adaptive estimate against a
+    solve on a uniform grid of 2 × the final spans per direction."""
+    run, model = discretisation.run, discretisation.model
+    unit = linearisation if case.linear else 1.0
+    last = run.load_steps[-1]["load_factor"]
+    positions = runner._reference_positions(model, run.field.coefficients.dtype)
+    fine_config = dataclasses.replace(run.field.config,
+                                      spans=tuple(2 * n for n in run.field.config.spans),
+                                      grading=(None, None))
+    cpu = cpu_seconds()
+    _, fine = solve_on(model, run.field, fine_config, discretisation.spec, run.config,
+                       discretisation.objective or runner._objective(case, model),
+                       coarse_energy=run.energy)
+    cpu = cpu_seconds() - cpu
+    fine_readings = {n: np.asarray(v, dtype=np.float64) / unit for n, v in fine.probes.items()}
+    grids = " / ".join(f"{lv.spans[0]}×{lv.spans[1]}" for lv in run.levels)
+    spans = f"{fine_config.spans[0]}×{fine_config.spans[1]}"
+    rows = []
+    quantities = [("Π [J]", [lv.energy for lv in run.levels], fine.energy)]
+    for q in case.quantities:
+        if abs(q.level - last) > 1e-12:
+            continue
+        per_level = [q.read({n: np.asarray(v) / unit for n, v in lv.probes.items()}, positions)
+                     for lv in run.levels]
+        quantities.append((q.name, per_level, q.read(fine_readings, positions)))
+    for name, values, reference in quantities:
+        estimate = richardson(values, order=2.0 * (run.field.config.degree - 1))
+        distance = abs(estimate.value - reference)
+        ratio = estimate.error / distance if distance > 0 else float("inf")
+        rows.append(f"| {case.name} | {name} | {grids} | {estimate.describe()} | "
+                    f"{reference:.7g} ({spans}) | {distance:.2g} | {ratio:.3g} | "
+                    f"{'yes' if estimate.error >= distance else '**no**'} | {cpu:.1f} |")
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--parts", default="napkin,validation")
+    parser.add_argument("--start", type=int, default=6, help="napkin: n × n first spans")
+    parser.add_argument("--napkin-budget", type=int, default=3000)
+    parser.add_argument("--napkin-tolerance", type=float, default=3e-3)
+    parser.add_argument("--napkin-levels", type=int, default=3, help="uniform: grids")
+    parser.add_argument("--napkin-rows", default="uniform,adaptive,adaptive, features first,"
+                        "uniform, features", help="comma-separated row labels (of the four)")
+    parser.add_argument("--tolerance", type=float, default=1e-3)
+    parser.add_argument("--budget", type=int, default=20000)
+    parser.add_argument("--indicator", default="density",
+                        help="the adaptive rows' indicator (none: dyadic, as uniform)")
+    parser.add_argument("--cases", default="square_plate,cantilever_shear,scordelis_lo_roof")
+    args = parser.parse_args()
+    INDICATOR[0] = args.indicator
+    taichi_ndf.init(arch="cpu", precision="f64", seed=0)
+    torch.set_num_threads(1)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                            capture_output=True, text=True).stdout.strip()
+    print(f"commit {commit}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+          f"load {os.getloadavg()[0]:.1f}")
+    parts = args.parts.split(",")
+    if "napkin" in parts:
+        labels = args.napkin_rows.split(",")
+        rows = tuple(a if not b.startswith(" ") else a + "," + b
+                     for a, b in zip(labels, labels[1:] + [""], strict=True)
+                     if not a.startswith(" "))
+        napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance, args.napkin_levels,
+                    rows)
+    if "validation" in parts:
+        validation_rows(args.cases.split(","), args.tolerance, args.budget)
+
+
+if __name__ == "__main__":
+    main()
