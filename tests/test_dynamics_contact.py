@@ -93,3 +93,14 @@ def test_the_step_is_feasible_from_its_start_when_the_prediction_is_inside():
     velocity[:, 2] = -1.0  # a uniform translation: the spline's partition of unity
     trajectory = stepper.run(velocity=velocity)
     assert all(r.gap > 0 for r in trajectory.records)
+
+
+def test_the_shipped_drop_scene_is_a_contact_run_in_time():
+    from taichi_ndf.scene.reader import load_scene
+
+    s = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "napkin_drop_sphere.toml")
+    assert s.dynamics.integrator == "implicit_euler" and s.dynamics.mass_damping > 0
+    assert [o.name for o in s.model.contact.obstacles] == ["sphere"]
+    stepper = TimeStepper(s.model, s.field, s.dynamics)
+    assert stepper.contact is not None
+    assert stepper.gap(torch.zeros_like(stepper.field.coefficients), 0.0) > 0

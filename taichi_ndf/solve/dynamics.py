@@ -187,9 +187,17 @@ class TimeStepper:
         return kinetic_energy(self.samples, self.density, rate)
 
     def potential_energy(self, displacement: torch.Tensor, t: float) -> float:
-        """Π [J] at coefficients C and time t [s] (the loads at λ(t))."""
-        potential = self.objective.potential(self.config.load_factor(t))
-        return potential(self.samples, self.linear.displacement(displacement), False).total
+        """Π [J] at coefficients C and time t [s] (the loads at λ(t)); with contact + the
+        barrier Π_c at the Gauss and check points (as the quasistatic solve's Π; friction is
+        not a potential)."""
+        load_factor = self.config.load_factor(t)
+        if self.contact is None:
+            potential = self.objective.potential(load_factor)
+            return potential(self.samples, self.linear.displacement(displacement), False).total
+        samples = self.contact.points.augment(self.samples)
+        linear = self.grid.linearisation(load_factor, samples)
+        potential = self.objective.with_terms(self.contact.points.term).potential(load_factor)
+        return potential(linear.samples, linear.displacement(displacement), False).total
 
     def _mass_times(self, velocity: torch.Tensor) -> torch.Tensor:
         """M V (n, 3) (held unknowns 0)."""
