@@ -3,7 +3,8 @@
 step, and the Gauss points' heights checked here from the coefficients) and comes to lie on
 it (the barrier holds its weight: without contact it would have fallen ½ g t² ≈ 0.2 m),
 at rest under implicit Euler (Newmark, not dissipative, keeps bouncing on the stiff barrier
-at this step: docs/dynamics.md); stiffness damping with contact is refused."""
+at this step: docs/dynamics.md); the lagged friction of a step decelerates a plate sliding
+on the barrier at μ g; stiffness damping with contact is refused."""
 
 from __future__ import annotations
 
@@ -104,3 +105,27 @@ def test_the_shipped_drop_scene_is_a_contact_run_in_time():
     stepper = TimeStepper(s.model, s.field, s.dynamics)
     assert stepper.contact is not None
     assert stepper.gap(torch.zeros_like(stepper.field.coefficients), 0.0) > 0
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.5])
+def test_friction_in_time_decelerates_a_sliding_plate_at_mu_g(mu):
+    """A plate resting on the barrier (gap 0.6 mm < ĝ) launched along x at 0.2 m/s: without
+    friction it slides on at 0.2 m/s; with μ = 0.5 the lagged friction decelerates it at μ g
+    (implicit Euler: v₁ = v₀ − μ g h, x₁ = h v₁) and it stops within two steps."""
+    document = copy.deepcopy(PLATE)
+    document["obstacles"] = [{"type": "plane", "name": "ground", "point": [0.0, 0.0, -0.0012],
+                              "friction": mu}]
+    s = scene(document)
+    h, v0 = 0.02, 0.2
+    stepper = TimeStepper(s.model, s.field, DynamicsConfig(dt=h, duration=5 * h,
+                                                           integrator="implicit_euler"))
+    velocity = torch.zeros_like(stepper.field.coefficients)
+    velocity[:, 0] = v0
+    trajectory = stepper.run(velocity=velocity)
+    x = [u[0] for u in trajectory.probes["centre"]]
+    assert all(r.gap > 0 for r in trajectory.records)
+    if mu == 0:
+        assert x[-1] == pytest.approx(5 * h * v0, rel=1e-3)
+    else:
+        assert x[1] == pytest.approx(h * (v0 - mu * 9.81 * h), rel=0.05)
+        assert abs(x[-1] - x[2]) < 1e-3 * x[1]  # stuck
