@@ -3,8 +3,10 @@ solve of scenes/napkin_sphere.toml on the same grid (issue 29), from the two run
 
 Run first (float64, the same 10 × 10-span cubic spline grid):
 
-    python -m taichi_ndf.cli.sim scenes/napkin_drop_sphere.toml --precision f64 --no-pictures --out DROP
-    python -m taichi_ndf.cli.sim scenes/napkin_sphere.toml --field spline --quick --precision f64 --out STATIC
+    python -m taichi_ndf.cli.sim scenes/napkin_drop_sphere.toml --precision f64 \
+        --no-pictures --out DROP
+    python -m taichi_ndf.cli.sim scenes/napkin_sphere.toml --field spline --quick \
+        --precision f64 --out STATIC
 
 then `python benchmarks/napkin_drop_check.py DROP STATIC`. Prints:
 1. the run: steps, dt, simulated time, Newton iterations per step (mean, max), substeps, CPU
@@ -34,6 +36,10 @@ ROOT = Path(__file__).resolve().parents[1]
 def vertices(path: Path) -> np.ndarray:
     rows = [line.split()[1:4] for line in path.read_text().splitlines() if line.startswith("v ")]
     return np.array(rows, dtype=np.float64)
+
+
+def _vector(v) -> str:
+    return "—" if v is None else "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
 
 def main(drop: Path, static: Path) -> None:
@@ -68,7 +74,7 @@ def main(drop: Path, static: Path) -> None:
     print("| T at t_end [J] | max T over the last 0.5 s [J] | Π at rest [J] | quasistatic Π [J] | "
           "relative difference |")
     print("|---|---|---|---|---|")
-    last = [k for t, k in zip(d["times"], kinetic) if t >= d["times"][-1] - 0.5]
+    last = [k for t, k in zip(d["times"], kinetic, strict=True) if t >= d["times"][-1] - 0.5]
     print(f"| {kinetic[-1]:.3g} | {max(last):.3g} | {rest:.8g} | {reference:.8g} | "
           f"{(rest - reference) / abs(reference):+.3%} |")
     print()
@@ -76,8 +82,7 @@ def main(drop: Path, static: Path) -> None:
     print("|---|---|---|")
     for name, u in run["probes"].items():
         q = quasi["probes"].get(name)
-        fmt = lambda v: "—" if v is None else "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
-        print(f"| {name} | {fmt(u)} | {fmt(q)} |")
+        print(f"| {name} | {_vector(u)} | {_vector(q)} |")
 
 
 if __name__ == "__main__":

@@ -127,17 +127,18 @@ class NewtonContact:
 
     def solve(self, grid: GridLinearisation, quadrature, objective: Objective,
               coefficients: torch.Tensor, config, *, load_factor: float,
-              start_load_factor: float, on_iteration=None, terms_at=None) -> NewtonSolution:
+              start_load_factor: float, on_iteration=None, terms_at=None,
+              report: bool = True) -> NewtonSolution:
         """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
 
         grid: the grid's linearisation builder (its operator, held unknowns, linear solver
         and FD length; each round assembles it anew on the round's points); quadrature: its
         Gauss-point samples; objective: Π without the contact terms (`ContactPotential` adds
         them); start_load_factor: the load factor of the starting coefficients (friction's
-        start-of-step positions); config, on_iteration: as `minimise`. terms_at(assembly) ->
-        tuple: further terms evaluated, like the contact terms, at every sample of a round's
-        `Assembly` (made per round, in its sample order: a time step's `InertiaTerm`, its
-        target at those samples; `taichi_ndf.solve.dynamics`)."""
+        start-of-step positions); config, on_iteration, report: as `minimise`.
+        terms_at(assembly) -> tuple: further terms evaluated, like the contact terms, at every
+        sample of a round's `Assembly` (made per round, in its sample order: a time step's
+        `InertiaTerm`, its target at those samples; `taichi_ndf.solve.dynamics`)."""
         operator = grid.operator
         t = load_factor
         points = self.points
@@ -177,7 +178,7 @@ class NewtonContact:
                 lagged = capacity
             solution = minimise(linearisation, potential, c, config, load_factor=t,
                                 feasible=feasible, on_step=refresh,
-                                on_iteration=on_iteration)
+                                on_iteration=on_iteration, report=report)
             history += solution.history
             c = solution.parameters
             refresh(c)

@@ -264,7 +264,7 @@ class TimeStepper:
             solution = self.contact.solve(
                 self.grid, self.samples, self.objective, c, self.newton,
                 load_factor=load_factor, start_load_factor=self.config.load_factor(state.time),
-                terms_at=inertia)
+                terms_at=inertia, report=False)
         else:
             solution = minimise(self.linear, self.objective.with_terms(*terms).potential(
                 load_factor), predicted, self.newton, load_factor=load_factor, report=False)
