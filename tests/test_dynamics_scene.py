@@ -101,7 +101,7 @@ def test_bad_values_name_the_key(change, message):
         parse(document)
 
 
-def test_a_siren_field_and_obstacles_are_refused():
+def test_a_siren_field_and_stiffness_damping_with_obstacles_are_refused():
     document = copy.deepcopy(DOCUMENT)
     document["field"] = {"width": 16, "hidden_layers": 1}
     document["training"] = {}
@@ -111,7 +111,9 @@ def test_a_siren_field_and_obstacles_are_refused():
     document["loads"] = {"gravity": [0.0, 0.0, -9.81]}
     document["obstacles"] = [{"type": "sphere", "name": "ball", "centre": [0.5, 0.1, -0.2],
                               "radius": 0.1}]
-    with pytest.raises(SceneError, match=r"dynamics: contact \(\[\[obstacles\]\]\)"):
+    parse(document)  # obstacles with mass damping: solved with contact in every step
+    document["dynamics"]["stiffness_damping"] = 1e-3
+    with pytest.raises(SceneError, match=r"dynamics: stiffness_damping with contact"):
         parse(document)
 
 

@@ -127,17 +127,20 @@ class NewtonContact:
 
     def solve(self, grid: GridLinearisation, quadrature, objective: Objective,
               coefficients: torch.Tensor, config, *, load_factor: float,
-              start_load_factor: float, on_iteration=None) -> NewtonSolution:
+              start_load_factor: float, on_iteration=None, terms_at=None,
+              report: bool = True) -> NewtonSolution:
         """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
 
         grid: the grid's linearisation builder (its operator, held unknowns, linear solver
         and FD length; each round assembles it anew on the round's points); quadrature: its
         Gauss-point samples; objective: Π without the contact terms (`ContactPotential` adds
         them); start_load_factor: the load factor of the starting coefficients (friction's
-        start-of-step positions); config, on_iteration: as `minimise`."""
+        start-of-step positions); config, on_iteration, report: as `minimise`.
+        terms_at(assembly) -> tuple: further terms evaluated, like the contact terms, at every
+        sample of a round's `Assembly` (made per round, in its sample order: a time step's
+        `InertiaTerm`, its target at those samples; `taichi_ndf.solve.dynamics`)."""
         operator = grid.operator
         t = load_factor
-        potential = ContactPotential(objective, self.terms, t)
         points = self.points
         dtype = coefficients.dtype
         grid_xi = points.grid_xi.to(dtype)
@@ -158,6 +161,8 @@ class NewtonContact:
             count = points.count
             linearisation = grid.linearisation(t, points.augment(quadrature))
             assembly = linearisation.assembly
+            extra = () if terms_at is None else tuple(terms_at(assembly))
+            potential = ContactPotential(objective, self.terms + extra, t)
             lag_changed = False
             if self.friction is not None:
                 s = assembly.samples
@@ -173,7 +178,7 @@ class NewtonContact:
                 lagged = capacity
             solution = minimise(linearisation, potential, c, config, load_factor=t,
                                 feasible=feasible, on_step=refresh,
-                                on_iteration=on_iteration)
+                                on_iteration=on_iteration, report=report)
             history += solution.history
             c = solution.parameters
             refresh(c)

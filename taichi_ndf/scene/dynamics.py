@@ -13,7 +13,7 @@ def parse_dynamics(top: Table, field, model) -> DynamicsConfig | None:
     duration [s], frame_rate [1/s], mass_damping α [1/s], stiffness_damping β_R [s],
     load_ramp [s], halvings. SceneError naming the key
     for a bad value, and for what the dynamic path does not support yet: a SIREN field (its
-    pseudo-time is not physical time) and obstacles."""
+    pseudo-time is not physical time) and stiffness damping with obstacles."""
     if not top.has("dynamics"):
         return None
     t = top.table("dynamics")
@@ -29,7 +29,7 @@ def parse_dynamics(top: Table, field, model) -> DynamicsConfig | None:
     if not isinstance(field, SplinePlan):
         raise SceneError("dynamics: needs a spline field ([field] type = \"spline\"); a SIREN "
                          "is solved quasistatically (its pseudo-time is not physical time)")
-    if model.contact is not None:
-        raise SceneError("dynamics: contact ([[obstacles]]) is not supported by the dynamic "
-                         "path yet")
+    if model.contact is not None and config.stiffness_damping:
+        raise SceneError("dynamics: stiffness_damping with contact ([[obstacles]]) is not "
+                         "supported by the dynamic path yet (use mass_damping)")
     return config

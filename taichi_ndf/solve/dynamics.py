@@ -23,8 +23,15 @@ stiffness at the step's start, positive semi-definite through the strains) adds 
 in K₀, one `StiffnessDampingTerm` ½ c (x − y)ᵀ K₀ (x − y): c = β_R/h, y = C (implicit Euler);
 c = β_R γ/(β h), y = x̂ − β_R ṽ/c (Newmark); and −β_R K₀ V₀ to A₀'s right-hand side. Each step starts Newton from x̂ at load factor 1 and stops on Newton's own test; a
 step whose Newton does not converge is logged and split into two halves (recursively, at
-most `DynamicsConfig.halvings` times; beyond that `DynamicsError`). Not yet: contact and
-friction, prescribed motions in time (refused), adaptive steps, adjoints.
+most `DynamicsConfig.halvings` times; beyond that `DynamicsError`).
+
+Contact (`[[obstacles]]`, the model's `ContactConfig`): each step is solved by the spline
+path's `NewtonContact.solve` (the barrier, its lagged friction, the check points kept over the
+steps, the line search bounded by the hook's `feasible`), with the inertia term passed as a
+term at each round's samples (`terms_at`); its Newton starts from the step's start C (x̂
+could be inside an obstacle), and friction lags from C. The smallest gap [m] of the dense
+check grid after each step is recorded (`StepRecord.gap`). Not yet: stiffness damping with
+contact (refused), prescribed motions in time (refused), adaptive steps, adjoints.
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ from dataclasses import dataclass, field
 import torch
 
 from taichi_ndf import jets, progress
+from taichi_ndf.contact.newton_contact import NewtonContact, PointMap
 from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
@@ -81,6 +89,7 @@ class StepRecord:
     total: float
     cpu_seconds: float
     wall_seconds: float
+    gap: float | None = None  # with contact: the dense check grid's smallest gap [m]
 
 
 @dataclass
@@ -116,6 +125,8 @@ class Trajectory:
                 "total": [r.total for r in records],
                 "newton_iterations": [r.newton_iterations for r in self.records],
                 "substeps": [r.substeps for r in self.records],
+                **({"gaps": [r.gap for r in records]} if self.initial.gap is not None
+                   else {}),
                 "frame_times": [t for t, _ in self.frames], "probes": self.probes,
                 "cpu_seconds": self.cpu_seconds,
                 "wall_seconds": sum(r.wall_seconds for r in self.records),
@@ -131,14 +142,14 @@ class TimeStepper:
     """The time steps of a model on the finest grid of a spline plan (module docstring).
 
     newton: Newton's settings per step (None: the float64 defaults); objective: Π (None: the
-    model's). ValueError for what the dynamic path does not support yet: obstacles and
-    prescribed boundary motions."""
+    model's). ValueError for what the dynamic path does not support yet: prescribed boundary
+    motions, stiffness damping with contact."""
 
     def __init__(self, model: ShellModel, plan: SplinePlan, config: DynamicsConfig, *,
                  newton: NewtonConfig | None = None, objective: Objective | None = None):
-        if model.contact is not None:
-            raise ValueError("dynamics: contact ([[obstacles]]) is not supported by the dynamic "
-                             "path yet")
+        if model.contact is not None and config.stiffness_damping:
+            raise ValueError("dynamics: stiffness damping with contact ([[obstacles]]) is not "
+                             "supported by the dynamic path yet")
         finest = SplinePlan(plan.finest(), 1, plan.quadrature_points)
         self.discretisation = SplineDiscretisation(finest, model, objective=objective)
         self.model, self.config = model, config
@@ -152,6 +163,22 @@ class TimeStepper:
         self.objective = objective or Objective.of_model(model)
         self.density = model.material.areal_density
         self.newton = newton or NewtonConfig()
+        self.contact = None
+        if model.contact is not None:
+            self.contact = NewtonContact(model.contact, model, self.offset.dtype)
+            self.grid = self.discretisation.linearise(self.field)
+            self._on_grid = PointMap(self.grid, self.contact.points.grid_xi.to(
+                self.offset.dtype), 1.0)
+
+    def gap(self, displacement: torch.Tensor, t: float) -> float | None:
+        """The smallest gap [m] of the dense check grid at coefficients C (None: no contact);
+        its points within the activation distance become check points."""
+        if self.contact is None:
+            return None
+        points = self.contact.points
+        u = self._on_grid(displacement)
+        return points.flag(points.point_gaps(points.grid_r.to(u.dtype) + u,
+                                             self.config.load_factor(t)))
 
     # --- energies and the mass matrix --------------------------------------------------------
     def kinetic(self, velocity: torch.Tensor) -> float:
@@ -160,9 +187,17 @@ class TimeStepper:
         return kinetic_energy(self.samples, self.density, rate)
 
     def potential_energy(self, displacement: torch.Tensor, t: float) -> float:
-        """Π [J] at coefficients C and time t [s] (the loads at λ(t))."""
-        potential = self.objective.potential(self.config.load_factor(t))
-        return potential(self.samples, self.linear.displacement(displacement), False).total
+        """Π [J] at coefficients C and time t [s] (the loads at λ(t)); with contact + the
+        barrier Π_c at the Gauss and check points (as the quasistatic solve's Π; friction is
+        not a potential)."""
+        load_factor = self.config.load_factor(t)
+        if self.contact is None:
+            potential = self.objective.potential(load_factor)
+            return potential(self.samples, self.linear.displacement(displacement), False).total
+        samples = self.contact.points.augment(self.samples)
+        linear = self.grid.linearisation(load_factor, samples)
+        potential = self.objective.with_terms(self.contact.points.term).potential(load_factor)
+        return potential(linear.samples, linear.displacement(displacement), False).total
 
     def _mass_times(self, velocity: torch.Tensor) -> torch.Tensor:
         """M V (n, 3) (held unknowns 0)."""
@@ -223,8 +258,16 @@ class TimeStepper:
             terms.append(StiffnessDampingTerm(self._stiffness_blocks(c), coefficient,
                                               self.linear.displacement(origin)))
         load_factor = self.config.load_factor(state.time + h)  # the loads at the step's end
-        solution = minimise(self.linear, self.objective.with_terms(*terms).potential(
-            load_factor), predicted, self.newton, load_factor=load_factor, report=False)
+        if self.contact is not None:  # from C: x̂ could be inside an obstacle
+            def inertia(assembly) -> tuple:
+                return (InertiaTerm(self.density, scale, assembly.displacement(target)),)
+            solution = self.contact.solve(
+                self.grid, self.samples, self.objective, c, self.newton,
+                load_factor=load_factor, start_load_factor=self.config.load_factor(state.time),
+                terms_at=inertia, report=False)
+        else:
+            solution = minimise(self.linear, self.objective.with_terms(*terms).potential(
+                load_factor), predicted, self.newton, load_factor=load_factor, report=False)
         x = solution.parameters
         if self.config.integrator == "implicit_euler":
             velocity = (x - c) / h
@@ -269,9 +312,13 @@ class TimeStepper:
         a = self.initial_acceleration(c, v) if config.integrator == "newmark" else zeros.clone()
         state = Motion(0.0, c, v, a)
         kinetic, potential = self.kinetic(v), self.potential_energy(c, 0.0)
+        gap = self.gap(c, 0.0)
+        if gap is not None and gap <= 0:
+            raise ValueError(f"dynamics: the initial state touches an obstacle (smallest gap "
+                             f"{gap:.3g} m)")
         trajectory = Trajectory(config, tuple(self.field.config.spans),
                                 StepRecord(0, 0.0, 0, 0, kinetic, potential, kinetic + potential,
-                                           0.0, 0.0))
+                                           0.0, 0.0, gap))
         trajectory.probes = {k: [u] for k, u in self._probes(c).items()}
 
         def frame(state: Motion) -> None:
@@ -291,9 +338,10 @@ class TimeStepper:
                                state.acceleration)  # no rounding drift of the clock
                 kinetic = self.kinetic(state.velocity)
                 potential = self.potential_energy(state.displacement, state.time)
+                gap = self.gap(state.displacement, state.time)
                 record = StepRecord(k, state.time, iterations, substeps, kinetic, potential,
                                     kinetic + potential, _cpu() - cpu,
-                                    time.perf_counter() - wall)
+                                    time.perf_counter() - wall, gap)
                 trajectory.records.append(record)
                 for name, u in self._probes(state.displacement).items():
                     trajectory.probes[name].append(u)
