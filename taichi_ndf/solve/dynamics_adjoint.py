@@ -85,23 +85,61 @@ def _check(stepper: TimeStepper, parameter: str) -> None:
 
 
 def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
-           velocity: torch.Tensor | None = None) -> list[Motion]:
+           velocity: torch.Tensor | None = None, *, polish: int = 4) -> list[Motion]:
     """The states at t = 0, dt, …, steps × dt from C₀ and V₀ (None: rest, as `run`), each
-    step one `TimeStepper.step`; DynamicsError where a step's Newton does not converge (the
-    adjoint follows unhalved steps only)."""
+    step one `TimeStepper.step` then at most `polish` plain Newton steps on its exact Hessian
+    (`_polish`); DynamicsError where a step's Newton does not converge (the adjoint follows
+    unhalved steps only)."""
     config = stepper.config
     zeros = torch.zeros_like(stepper.field.coefficients)
     c = zeros.clone() if displacement is None else displacement.to(zeros).clone()
     v = zeros.clone() if velocity is None else velocity.to(zeros).clone()
     a = stepper.initial_acceleration(c, v) if config.integrator == "newmark" else zeros.clone()
     states = [Motion(0.0, c, v, a)]
+    step = StepMap.of(config, config.dt)
     for k in range(1, config.steps + 1):
         end, solution = stepper.step(states[-1], config.dt)
         if not solution.converged:
             raise DynamicsError(f"dynamics adjoint: step {k} did not converge (halved steps "
                                 "are not supported)")
-        states.append(Motion(k * config.dt, end.displacement, end.velocity, end.acceleration))
+        x = _polish(stepper, step, states[-1], end.displacement, k * config.dt, polish)
+        velocity, acceleration = step.apply(x, states[-1])
+        states.append(Motion(k * config.dt, x, velocity, acceleration))
     return states
+
+
+def _step_potential(stepper: TimeStepper, step: StepMap, start: Motion, time: float):
+    """The incremental potential of the step from `start` that ends at `time` [s]."""
+    target = (step.target[0] * start.displacement + step.target[1] * start.velocity
+              + step.target[2] * start.acceleration)
+    inertia = InertiaTerm(stepper.density, step.scale, stepper.linear.displacement(target))
+    return stepper.objective.with_terms(inertia).potential(stepper.config.load_factor(time))
+
+
+def _polish(stepper: TimeStepper, step: StepMap, start: Motion, x: torch.Tensor, time: float,
+            limit: int) -> torch.Tensor:
+    """x moved by plain Newton steps x − K⁻¹ g while ‖g‖ falls (at most `limit`). Newton's
+    line search on Π stops at Π's rounding floor, where x is known to about √ε only; the
+    adjoint's g(x) = 0 and central differences of whole runs need x to the rounding of g."""
+    potential = _step_potential(stepper, step, start, time)
+    linear = stepper.linear
+
+    def residual(x):
+        return linear.gradient(potential(stepper.samples, linear.displacement(x), True)
+                               .grad_u_jets)
+
+    g = residual(x)
+    for _ in range(limit):
+        matrix = exact_hessian(linear, potential, x, fd_step=stepper.newton.fd_step)
+        solved = linear.solve(matrix, g, 0.0)
+        if solved is None:
+            break
+        trial = x + solved[0]
+        g_trial = residual(trial)
+        if not float(g_trial.norm()) < float(g.norm()):
+            break
+        x, g = trial, g_trial
+    return x
 
 
 def _mass_times(stepper: TimeStepper, coefficients: torch.Tensor) -> torch.Tensor:
@@ -175,3 +213,28 @@ def _initial_acceleration_derivative(stepper: TimeStepper, parameter: str,
     if solved is None:
         raise DynamicsError("the mass matrix could not be factorised")
     return solved[0]
+
+
+def tangent(stepper: TimeStepper, states: list[Motion], parameter: str) -> list[torch.Tensor]:
+    """dC_k/dθ (n, 3) for every state of `record` (k = 0 … N), forwards: per step
+    K dx = s M dx* − ∂f/∂θ(x), dV' and dA' by the scheme's maps (the tangent of the steps: all
+    the sensitivities a Gauss–Newton fit needs for one parameter; `gradient` is its adjoint)."""
+    _check(stepper, parameter)
+    config = stepper.config
+    step = StepMap.of(config, config.dt)
+    zeros = torch.zeros_like(states[0].displacement)
+    d = (zeros, zeros, _initial_acceleration_derivative(stepper, parameter,
+                                                         states[0].displacement)
+         if config.integrator == "newmark" else zeros)
+    out = [zeros]
+    for end in states[1:]:
+        moved = sum(t * y for t, y in zip(step.target, d, strict=True))
+        rhs = force_derivative(stepper, parameter, end.displacement) \
+            - step.scale * _mass_times(stepper, moved)
+        dx = sensitivity(_step_hessian(stepper, step, end), rhs[..., None],
+                         stepper.linear.fixed).derivative[..., 0]
+        y = (dx, *d)
+        d = (dx, sum(c * t for c, t in zip(step.velocity, y, strict=True)),
+             sum(c * t for c, t in zip(step.acceleration, y, strict=True)))
+        out.append(dx)
+    return out
