@@ -119,3 +119,15 @@ def test_the_tangent_is_the_adjoints_transpose(integrator):
     forward = tangent(st, states, "bending_stiffness")
     assert sum(float((w[k] * forward[k]).sum()) for k in w) == pytest.approx(
         gradient(st, states, "bending_stiffness", w), rel=1e-10)
+
+
+def test_what_the_adjoint_refuses():
+    st = stepper("newmark", 100.0)
+    states = [None]
+    with pytest.raises(ValueError, match="unknown stiffness parameter 'thickness'"):
+        gradient(st, states, "thickness", {})
+    s = parse_scene(copy.deepcopy(STRIP), base_dir=Path("."))
+    damped = TimeStepper(s.model, s.field, DynamicsConfig(dt=0.05, duration=0.1,
+                                                          stiffness_damping=0.01))
+    with pytest.raises(ValueError, match="stiffness-proportional damping"):
+        tangent(damped, states, "bending_stiffness")
