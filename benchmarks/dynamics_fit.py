@@ -1,8 +1,8 @@
 """A bending-stiffness fit to a synthetic trajectory through the adjoint of the time steps
 (issue 29, `taichi_ndf.solve.dynamics_adjoint`).
 
-The strip: L = 4 m, b = 1 m, E = 1.2e6 Pa, h = 0.1 m, ν = 0.3 (B = E h³/12 (1 − ν²)⁻¹... the
-material's `bending_stiffness`, set to B_true = 100 N·m), ρ_A = 1 kg/m², clamped at x = 0,
+The strip: L = 4 m, b = 1 m, E = 1.2e6 Pa, h = 0.1 m, ν = 0.3, the material's
+`bending_stiffness` B set to B_true = 100 N·m, ρ_A = 1 kg/m², clamped at x = 0,
 released from rest in the reference state under gravity (−9.81 m/s² along z), Newmark (β = ¼,
 γ = ½), h = `--dt` s, `--steps` steps, float64. The truth is run on `--truth-spans` spans,
 the fit on `--spans` (a coarser grid than the data's unless equal). Observed: the

@@ -1,7 +1,8 @@
 """The discrete adjoint of the time steps (`taichi_ndf.solve.dynamics_adjoint`): dJ/dB of a
 trajectory quantity against central differences of whole runs (float64, a cantilever strip
 bent and moving at t = 0 under gravity, a few steps, both integrators) within 1e-6 relative
-(issue 29), and the same comparison failing when a term of the adjoint is dropped."""
+(issue 29), the same comparison failing when a term of the adjoint is dropped, the step map as
+the stepper's update, the tangent as the adjoint's transpose, and what the adjoint refuses."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ from taichi_ndf.solve import dynamics_adjoint
 from taichi_ndf.solve.dynamics import TimeStepper, initial_velocity
 from taichi_ndf.solve.dynamics_adjoint import StepMap, gradient, record, tangent
 
-# Cantilever strip L = 4 m, b = 1 m, B = E h³/12 = 100 N·m (ν = 0.3), ρ_A = 1 kg/m², gravity.
+# Cantilever strip L = 4 m, b = 1 m, ν = 0.3, bending_stiffness B set to 100 N·m, ρ_A = 1 kg/m²,
+# gravity.
 STRIP = {
     "name": "strip",
     "geometry": {"type": "plane", "bounds": [[0.0, 4.0], [0.0, 1.0]]},
