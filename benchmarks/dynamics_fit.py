@@ -83,7 +83,7 @@ def fit(problem: Problem, data: torch.Tensor, sigma: float, start: float
     for iteration in range(1, 16):
         stepper = problem.stepper(b)
         states = record(stepper)
-        weights, residual_rate, hessian, slope = {}, [], 0.0, 0.0
+        weights, hessian, slope = {}, 0.0, 0.0
         forward = tangent(stepper, states, "bending_stiffness")
         for i, k in enumerate(problem.frames):
             c = states[k].displacement.clone().requires_grad_(True)

@@ -106,7 +106,7 @@ def test_the_step_map_is_the_steppers_update(integrator, alpha):
     c0, v0 = start(st)
     states = record(st, c0, v0)
     step = StepMap.of(st.config, st.config.dt)
-    for before, after in zip(states, states[1:]):
+    for before, after in zip(states[:-1], states[1:], strict=True):
         velocity, acceleration = step.apply(after.displacement, before)
         assert torch.allclose(velocity, after.velocity, rtol=1e-12, atol=1e-12)
         assert torch.allclose(acceleration, after.acceleration, rtol=1e-12, atol=1e-10)
