@@ -12,8 +12,11 @@ from pathlib import Path
 import pytest
 import torch
 
+from taichi_ndf import jets
+from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
+from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.solve import dynamics_adjoint
 from taichi_ndf.solve.dynamics import TimeStepper, initial_velocity
@@ -133,3 +136,26 @@ def test_what_the_adjoint_refuses():
                                                           stiffness_damping=0.01))
     with pytest.raises(ValueError, match="stiffness-proportional damping"):
         tangent(damped, states, "bending_stiffness")
+
+
+@pytest.mark.parametrize("integrator", ["newmark", "implicit_euler"])
+def test_a_probes_position_at_the_end_against_central_differences(integrator):
+    """J = the tip's z displacement at T (the issue's acceptance quantity)."""
+    tip = torch.tensor([[4.0, 0.5]], dtype=torch.float64)
+
+    def probe(st, coefficients):
+        operator = DisplacementOperator(st.field, st.model.boundary)
+        return displacement_at(operator, tip, coefficients, 1.0)[0, jets.VALUE, 2]
+
+    b, delta = 100.0, 1e-2
+    st = stepper(integrator, b)
+    c0, v0 = start(st)
+    states = record(st, c0, v0)
+    end = states[-1].displacement.clone().requires_grad_(True)
+    (weight,) = torch.autograd.grad(probe(st, end), end)
+    adjoint = gradient(st, states, "bending_stiffness", {len(states) - 1: weight})
+    values = [float(probe(other, record(other, c0, v0)[-1].displacement))
+              for other in (stepper(integrator, b + delta), stepper(integrator, b - delta))]
+    central = (values[0] - values[1]) / (2 * delta)
+    assert abs(central) > 1e-6
+    assert adjoint == pytest.approx(central, rel=1e-6)
