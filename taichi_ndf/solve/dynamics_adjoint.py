@@ -1,0 +1,240 @@
+"""Gradients through time: the discrete adjoint of the time steps (`taichi_ndf.solve.dynamics`)
+with respect to one stiffness parameter θ of the material (e.g. `bending_stiffness` B [N·m]).
+
+A step of h from the state (C, V, A) (coefficients (n, 3)) ends at the minimiser x = C' of
+E(x) = ½ s (x − x*)ᵀ M (x − x*) + Π(x; θ), so g(x) = s M (x − x*) + f(x; θ) = 0 with
+f = ∇Π. Both schemes are linear in the state apart from that solve (`StepMap`):
+x* = t_C C + t_V V + t_A A, V' = Σ v_y y and A' = Σ a_y y over y = (x, C, V, A). For a
+trajectory quantity J(C_0, …, C_N) with ∂J/∂C_k = W_k, backwards from (λ_C, λ_V, λ_A) =
+(W_N, 0, 0) at the last state, per step:
+
+    μ solves K μ = λ_C' + v_x λ_V' + a_x λ_A'    (K = s M + ∂f/∂x at x, EXACT blocks)
+    dJ/dθ −= μᵀ ∂f/∂θ(x)
+    λ_y = W + v_y λ_V' + a_y λ_A' + s t_y M μ     for y = C, V, A (W only for C);
+
+and at t = 0, Newmark's A₀ (M A₀ = −f(C₀) − α M V₀) adds −λ_Aᵀ M⁻¹ ∂f/∂θ(C₀). K is the exact
+Hessian of the step's incremental potential at its converged end (`exact_hessian`, as the
+quasistatic sensitivities; not the projected one Newton steps with); ∂f/∂θ is the pull-back of
+the shell energy's gradient at unit θ (Π is linear in each stiffness parameter,
+`ShellEnergy.evaluate`'s per-sample stiffness). The states are recomputed by `record`, which
+steps like `TimeStepper.run` but keeps every state and refuses a halved step. Not covered:
+stiffness-proportional damping (K₀ depends on C and θ), contact, a custom per-sample
+stiffness; these raise ValueError.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
+from taichi_ndf.objective.inertia import InertiaTerm
+from taichi_ndf.problem.dynamics import NEWMARK_BETA, NEWMARK_GAMMA, DynamicsConfig
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.shell.energy import ShellEnergy
+from taichi_ndf.shell.hessian import flat_blocks
+from taichi_ndf.solve.dynamics import DynamicsError, Motion, TimeStepper
+
+
+@dataclass(frozen=True)
+class StepMap:
+    """The linear maps of one step of h [s]: s [1/s²] the inertia's scale; target (t_C, t_V,
+    t_A): x* = t_C C + t_V V + t_A A; velocity and acceleration (·_x, ·_C, ·_V, ·_A):
+    V' = v_x x + v_C C + v_V V + v_A A and A' likewise (module docstring of `dynamics`)."""
+
+    scale: float
+    target: tuple[float, float, float]
+    velocity: tuple[float, float, float, float]
+    acceleration: tuple[float, float, float, float]
+
+    @classmethod
+    def of(cls, config: DynamicsConfig, h: float) -> StepMap:
+        alpha = config.mass_damping
+        if config.integrator == "implicit_euler":
+            s = 1.0 / h**2 + alpha / h
+            return cls(s, (1.0, h - alpha / s, 0.0), (1 / h, -1 / h, 0.0, 0.0),
+                       (1 / h**2, -1 / h**2, -1 / h, 0.0))
+        beta, gamma = NEWMARK_BETA, NEWMARK_GAMMA
+        s = 1.0 / (beta * h**2) + alpha * gamma / (beta * h)
+        predicted = (1.0, h, (0.5 - beta) * h**2)  # x̂ on (C, V, A)
+        v_tilde = (0.0, 1.0, (1.0 - gamma) * h)  # ṽ on (C, V, A)
+        target = tuple(p - alpha / s * v for p, v in zip(predicted, v_tilde, strict=True))
+        k = 1.0 / (beta * h**2)  # A' = k (x − x̂)
+        acceleration = (k, *(-k * p for p in predicted))
+        velocity = (gamma * h * k, *(v - gamma * h * k * p
+                                     for p, v in zip(predicted, v_tilde, strict=True)))
+        return cls(s, target, velocity, acceleration)
+
+    def apply(self, x: torch.Tensor, state: Motion) -> tuple[torch.Tensor, torch.Tensor]:
+        """(V', A') after the step that ended at x."""
+        y = (x, state.displacement, state.velocity, state.acceleration)
+        return (sum(c * t for c, t in zip(self.velocity, y, strict=True)),
+                sum(c * t for c, t in zip(self.acceleration, y, strict=True)))
+
+
+def _check(stepper: TimeStepper, parameter: str) -> None:
+    if stepper.config.stiffness_damping:
+        raise ValueError("dynamics adjoint: stiffness-proportional damping is not supported")
+    if getattr(stepper.objective.shell, "stiffness", None) is not None:
+        raise ValueError("dynamics adjoint: a per-sample stiffness is not supported")
+    names = stepper.model.material.stiffness_names
+    if parameter not in names:
+        raise ValueError(f"dynamics adjoint: unknown stiffness parameter {parameter!r}; "
+                         f"choose from {names}")
+
+
+def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
+           velocity: torch.Tensor | None = None, *, polish: int = 4) -> list[Motion]:
+    """The states at t = 0, dt, …, steps × dt from C₀ and V₀ (None: rest, as `run`), each
+    step one `TimeStepper.step` then at most `polish` plain Newton steps on its exact Hessian
+    (`_polish`); DynamicsError where a step's Newton does not converge (the adjoint follows
+    unhalved steps only)."""
+    config = stepper.config
+    zeros = torch.zeros_like(stepper.field.coefficients)
+    c = zeros.clone() if displacement is None else displacement.to(zeros).clone()
+    v = zeros.clone() if velocity is None else velocity.to(zeros).clone()
+    a = stepper.initial_acceleration(c, v) if config.integrator == "newmark" else zeros.clone()
+    states = [Motion(0.0, c, v, a)]
+    step = StepMap.of(config, config.dt)
+    for k in range(1, config.steps + 1):
+        end, solution = stepper.step(states[-1], config.dt)
+        if not solution.converged:
+            raise DynamicsError(f"dynamics adjoint: step {k} did not converge (halved steps "
+                                "are not supported)")
+        x = _polish(stepper, step, states[-1], end.displacement, k * config.dt, polish)
+        velocity, acceleration = step.apply(x, states[-1])
+        states.append(Motion(k * config.dt, x, velocity, acceleration))
+    return states
+
+
+def _step_potential(stepper: TimeStepper, step: StepMap, start: Motion, time: float):
+    """The incremental potential of the step from `start` that ends at `time` [s]."""
+    target = (step.target[0] * start.displacement + step.target[1] * start.velocity
+              + step.target[2] * start.acceleration)
+    inertia = InertiaTerm(stepper.density, step.scale, stepper.linear.displacement(target))
+    return stepper.objective.with_terms(inertia).potential(stepper.config.load_factor(time))
+
+
+def _polish(stepper: TimeStepper, step: StepMap, start: Motion, x: torch.Tensor, time: float,
+            limit: int) -> torch.Tensor:
+    """x moved by plain Newton steps x − K⁻¹ g while ‖g‖ falls (at most `limit`). Newton's
+    line search on Π stops at Π's rounding floor, where x is known to about √ε only; the
+    adjoint's g(x) = 0 and central differences of whole runs need x to the rounding of g."""
+    potential = _step_potential(stepper, step, start, time)
+    linear = stepper.linear
+
+    def residual(x):
+        return linear.gradient(potential(stepper.samples, linear.displacement(x), True)
+                               .grad_u_jets)
+
+    g = residual(x)
+    for _ in range(limit):
+        matrix = exact_hessian(linear, potential, x, fd_step=stepper.newton.fd_step)
+        solved = linear.solve(matrix, g, 0.0)
+        if solved is None:
+            break
+        trial = x + solved[0]
+        g_trial = residual(trial)
+        if not float(g_trial.norm()) < float(g.norm()):
+            break
+        x, g = trial, g_trial
+    return x
+
+
+def _mass_times(stepper: TimeStepper, coefficients: torch.Tensor) -> torch.Tensor:
+    """M P (n, 3) for coefficients P (held unknowns 0)."""
+    term = InertiaTerm(stepper.density, 1.0, stepper.offset)
+    _, gradient = term.evaluate(stepper.samples, stepper.linear.displacement(coefficients))
+    return stepper.linear.gradient(gradient)
+
+
+def force_derivative(stepper: TimeStepper, parameter: str, displacement: torch.Tensor
+                     ) -> torch.Tensor:
+    """∂f/∂θ (n, 3) [N/unit of θ] at coefficients C: the gradient of Π's part that θ
+    multiplies (the strain energy at unit θ, every other stiffness 0, no loads)."""
+    material = stepper.model.material
+    samples = stepper.samples
+    dtype = samples.r_jets.dtype
+    unit = torch.zeros(len(samples), len(material.stiffness_names), dtype=dtype)
+    unit[:, material.stiffness_names.index(parameter)] = 1.0
+    unloaded = samples.with_point_force(torch.zeros_like(samples.point_force))
+    result = ShellEnergy(material, Loads()).evaluate(
+        unloaded, stepper.linear.displacement(displacement), stiffness=unit)
+    return stepper.linear.gradient(result.grad_u_jets)
+
+
+def _step_hessian(stepper: TimeStepper, step: StepMap, end: Motion):
+    """K: the exact Hessian (sparse) of the step's incremental potential at its end."""
+    u = stepper.linear.displacement(end.displacement)
+    inertia = InertiaTerm(stepper.density, step.scale, u)  # K does not depend on x*
+    potential = stepper.objective.with_terms(inertia).potential(
+        stepper.config.load_factor(end.time))
+    return exact_hessian(stepper.linear, potential, end.displacement,
+                         fd_step=stepper.newton.fd_step)
+
+
+def gradient(stepper: TimeStepper, states: list[Motion], parameter: str,
+             weights: dict[int, torch.Tensor]) -> float:
+    """dJ/dθ of a trajectory quantity J(C_0, …, C_N) over the states of `record`, weights
+    {k: ∂J/∂C_k (n, 3)} (module docstring); θ a stiffness name of the model's material."""
+    _check(stepper, parameter)
+    config = stepper.config
+    zeros = torch.zeros_like(states[0].displacement)
+    step = StepMap.of(config, config.dt)
+    lam_c = weights.get(len(states) - 1, zeros).clone()
+    lam_v, lam_a = zeros.clone(), zeros.clone()
+    total = 0.0
+    for k in range(len(states) - 1, 0, -1):
+        rhs = lam_c + step.velocity[0] * lam_v + step.acceleration[0] * lam_a
+        matrix = _step_hessian(stepper, step, states[k])
+        mu = -sensitivity(matrix, rhs[..., None], stepper.linear.fixed).derivative[..., 0]
+        total -= float((mu * force_derivative(stepper, parameter,
+                                                states[k].displacement)).sum())
+        coupling = step.scale * _mass_times(stepper, mu)
+        lam_c, lam_v, lam_a = (
+            weights.get(k - 1, zeros) + step.velocity[1] * lam_v
+            + step.acceleration[1] * lam_a + step.target[0] * coupling,
+            step.velocity[2] * lam_v + step.acceleration[2] * lam_a + step.target[1] * coupling,
+            step.velocity[3] * lam_v + step.acceleration[3] * lam_a + step.target[2] * coupling)
+    if config.integrator == "newmark":
+        total += float((lam_a * _initial_acceleration_derivative(
+            stepper, parameter, states[0].displacement)).sum())
+    return total
+
+
+def _initial_acceleration_derivative(stepper: TimeStepper, parameter: str,
+                                     displacement: torch.Tensor) -> torch.Tensor:
+    """dA₀/dθ = −M⁻¹ ∂f/∂θ(C₀) (n, 3)."""
+    u = stepper.linear.displacement(displacement)
+    term = InertiaTerm(stepper.density, 1.0, u)
+    mass = stepper.linear.hessian(flat_blocks(term.hessian_blocks(stepper.samples, u)))
+    solved = stepper.linear.solve(mass, force_derivative(stepper, parameter, displacement), 0.0)
+    if solved is None:
+        raise DynamicsError("the mass matrix could not be factorised")
+    return solved[0]
+
+
+def tangent(stepper: TimeStepper, states: list[Motion], parameter: str) -> list[torch.Tensor]:
+    """dC_k/dθ (n, 3) for every state of `record` (k = 0 … N), forwards: per step
+    K dx = s M dx* − ∂f/∂θ(x), dV' and dA' by the scheme's maps (the tangent of the steps: all
+    the sensitivities a Gauss–Newton fit needs for one parameter; `gradient` is its adjoint)."""
+    _check(stepper, parameter)
+    config = stepper.config
+    step = StepMap.of(config, config.dt)
+    zeros = torch.zeros_like(states[0].displacement)
+    d = (zeros, zeros, _initial_acceleration_derivative(stepper, parameter,
+                                                         states[0].displacement)
+         if config.integrator == "newmark" else zeros)
+    out = [zeros]
+    for end in states[1:]:
+        moved = sum(t * y for t, y in zip(step.target, d, strict=True))
+        rhs = force_derivative(stepper, parameter, end.displacement) \
+            - step.scale * _mass_times(stepper, moved)
+        dx = sensitivity(_step_hessian(stepper, step, end), rhs[..., None],
+                         stepper.linear.fixed).derivative[..., 0]
+        y = (dx, *d)
+        d = (dx, sum(c * t for c, t in zip(step.velocity, y, strict=True)),
+             sum(c * t for c, t in zip(step.acceleration, y, strict=True)))
+        out.append(dx)
+    return out
