@@ -95,3 +95,57 @@ class DynamicsConfig:
                 "frame_rate": self.frame_rate, "mass_damping": self.mass_damping,
                 "stiffness_damping": self.stiffness_damping, "load_ramp": self.load_ramp,
                 "halvings": self.halvings, "steps": self.steps}
+
+
+def combine(coefficients, terms):
+    """Σ c_i t_i: a linear map (coefficients) applied to states (terms, tensors [m, m/s, …])."""
+    return sum(c * t for c, t in zip(coefficients, terms, strict=True))
+
+
+@dataclass(frozen=True)
+class StepMap:
+    """One step of h [s] of the configured scheme as linear maps of the state (C, V, A): the one
+    place the integrators' formulas are written (`taichi_ndf.solve.dynamics` steps with it,
+    `taichi_ndf.solve.dynamics_adjoint` differentiates it).
+
+    The step's end x minimises ½ s |x − x*|²_M + Π(x) with x* = x̂ − (α/s) ṽ, where
+    - implicit Euler: x̂ = C + hV, ṽ = V, s = 1/h² + α/h; V' = (x − C)/h, A' = (V' − V)/h;
+    - Newmark (β, γ): x̂ = C + hV + (½ − β)h²A, ṽ = V + (1 − γ)hA, s = 1/(βh²) + αγ/(βh);
+      A' = (x − x̂)/(βh²), V' = ṽ + γhA'.
+    scale s [1/s²]; rate r [1/s]: s = s₀ + α r, and the stiffness damping's coefficient is β_R r
+    with origin x̂ − ṽ/r; predicted (x̂), carried (ṽ) and target (x*): coefficients on
+    (C, V, A); velocity and acceleration: coefficients on (x, C, V, A)."""
+
+    scale: float
+    rate: float
+    predicted: tuple[float, float, float]
+    carried: tuple[float, float, float]
+    target: tuple[float, float, float]
+    velocity: tuple[float, float, float, float]
+    acceleration: tuple[float, float, float, float]
+
+    @classmethod
+    def of(cls, config: DynamicsConfig, h: float) -> StepMap:
+        alpha = config.mass_damping
+        if config.integrator == "implicit_euler":
+            inertia, rate = 1.0 / h**2, 1.0 / h
+            predicted, carried = (1.0, h, 0.0), (0.0, 1.0, 0.0)
+            velocity = (1.0 / h, -1.0 / h, 0.0, 0.0)
+            acceleration = (1.0 / h**2, -1.0 / h**2, -1.0 / h, 0.0)
+        else:
+            beta, gamma = NEWMARK_BETA, NEWMARK_GAMMA
+            inertia, rate = 1.0 / (beta * h**2), gamma / (beta * h)
+            predicted = (1.0, h, (0.5 - beta) * h**2)
+            carried = (0.0, 1.0, (1.0 - gamma) * h)
+            acceleration = (inertia, *(-inertia * p for p in predicted))
+            velocity = (gamma * h * inertia, *(v - gamma * h * inertia * p
+                                               for p, v in zip(predicted, carried, strict=True)))
+        scale = inertia + alpha * rate
+        target = tuple(p - alpha / scale * v for p, v in zip(predicted, carried, strict=True))
+        return cls(scale, rate, predicted, carried, target, velocity, acceleration)
+
+    def apply(self, x, state):
+        """(V', A') after the step from `state` (its displacement C, velocity V, acceleration
+        A) that ended at x."""
+        y = (x, state.displacement, state.velocity, state.acceleration)
+        return combine(self.velocity, y), combine(self.acceleration, y)

@@ -21,9 +21,12 @@ s = 1/h² + α/h, x* = x̂ − α V/s (implicit Euler); s = 1/(β h²) + α γ/(
 (Newmark). Stiffness-proportional damping β_R [s] (force −β_R K₀ v, K₀ the shell's tangent
 stiffness at the step's start, positive semi-definite through the strains) adds the same form
 in K₀, one `StiffnessDampingTerm` ½ c (x − y)ᵀ K₀ (x − y): c = β_R/h, y = C (implicit Euler);
-c = β_R γ/(β h), y = x̂ − β_R ṽ/c (Newmark); and −β_R K₀ V₀ to A₀'s right-hand side. Each step starts Newton from x̂ at load factor 1 and stops on Newton's own test; a
-step whose Newton does not converge is logged and split into two halves (recursively, at
-most `DynamicsConfig.halvings` times; beyond that `DynamicsError`).
+c = β_R γ/(β h), y = x̂ − β_R ṽ/c (Newmark); and −β_R K₀ V₀ to A₀'s right-hand side. These
+formulas are written once, as the linear maps of `taichi_ndf.problem.dynamics.StepMap` (the
+adjoint, `solve/dynamics_adjoint.py`, differentiates the same maps). Each step starts Newton
+from x̂ at load factor 1 and stops on Newton's own test; a step whose Newton does not
+converge is logged and split into two halves (recursively, at most
+`DynamicsConfig.halvings` times; beyond that `DynamicsError`).
 
 Contact (`[[obstacles]]`, the model's `ContactConfig`): each step is solved by the spline
 path's `NewtonContact.solve` (the barrier, its lagged friction, the check points kept over the
@@ -31,7 +34,8 @@ steps, the line search bounded by the hook's `feasible`), with the inertia term 
 term at each round's samples (`terms_at`); its Newton starts from the step's start C (x̂
 could be inside an obstacle), and friction lags from C. The smallest gap [m] of the dense
 check grid after each step is recorded (`StepRecord.gap`). Not yet: stiffness damping with
-contact (refused), prescribed motions in time (refused), adaptive steps, adjoints.
+contact (refused), prescribed motions in time (refused), adaptive steps, adjoints through
+contact (`solve/dynamics_adjoint.py` refuses it).
 """
 
 from __future__ import annotations
@@ -51,7 +55,7 @@ from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.damping import StiffnessDampingTerm
 from taichi_ndf.objective.inertia import InertiaTerm, kinetic_energy
-from taichi_ndf.problem.dynamics import NEWMARK_BETA, NEWMARK_GAMMA, DynamicsConfig
+from taichi_ndf.problem.dynamics import DynamicsConfig, StepMap, combine
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.shell.hessian import flat_blocks
@@ -235,26 +239,16 @@ class TimeStepper:
     # --- one step ----------------------------------------------------------------------------
     def step(self, state: Motion, h: float) -> tuple[Motion, object]:
         """The state after one step of length h [s] and Newton's solution (module docstring)."""
-        alpha, c, v, a = self.config.mass_damping, state.displacement, state.velocity, \
-            state.acceleration
-        if self.config.integrator == "implicit_euler":
-            predicted = c + h * v
-            scale = 1.0 / h**2 + alpha / h
-            target = predicted - (alpha / scale) * v
-        else:
-            beta, gamma = NEWMARK_BETA, NEWMARK_GAMMA
-            predicted = c + h * v + (0.5 - beta) * h**2 * a
-            v_tilde = v + (1.0 - gamma) * h * a
-            scale = 1.0 / (beta * h**2) + alpha * gamma / (beta * h)
-            target = predicted - (alpha / scale) * v_tilde
+        c, v, a = state.displacement, state.velocity, state.acceleration
+        scheme = StepMap.of(self.config, h)
+        predicted = combine(scheme.predicted, (c, v, a))
+        target = combine(scheme.target, (c, v, a))
+        scale = scheme.scale
         terms = [InertiaTerm(self.density, scale, self.linear.displacement(target))]
         damping = self.config.stiffness_damping
         if damping:
-            if self.config.integrator == "implicit_euler":
-                coefficient, origin = damping / h, c
-            else:
-                coefficient = damping * gamma / (beta * h)
-                origin = predicted - (damping / coefficient) * v_tilde
+            coefficient = damping * scheme.rate
+            origin = predicted - combine(scheme.carried, (c, v, a)) / scheme.rate
             terms.append(StiffnessDampingTerm(self._stiffness_blocks(c), coefficient,
                                               self.linear.displacement(origin)))
         load_factor = self.config.load_factor(state.time + h)  # the loads at the step's end
@@ -269,12 +263,7 @@ class TimeStepper:
             solution = minimise(self.linear, self.objective.with_terms(*terms).potential(
                 load_factor), predicted, self.newton, load_factor=load_factor, report=False)
         x = solution.parameters
-        if self.config.integrator == "implicit_euler":
-            velocity = (x - c) / h
-            acceleration = (velocity - v) / h
-        else:
-            acceleration = (x - predicted) / (beta * h**2)
-            velocity = v_tilde + gamma * h * acceleration
+        velocity, acceleration = scheme.apply(x, state)
         return Motion(state.time + h, x, velocity, acceleration), solution
 
     def advance(self, state: Motion, h: float, depth: int = 0) -> tuple[Motion, int, int]:

@@ -24,53 +24,15 @@ stiffness; these raise ValueError.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 
 from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
 from taichi_ndf.objective.inertia import InertiaTerm
-from taichi_ndf.problem.dynamics import NEWMARK_BETA, NEWMARK_GAMMA, DynamicsConfig
+from taichi_ndf.problem.dynamics import StepMap, combine
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.hessian import flat_blocks
 from taichi_ndf.solve.dynamics import DynamicsError, Motion, TimeStepper
-
-
-@dataclass(frozen=True)
-class StepMap:
-    """The linear maps of one step of h [s]: s [1/s²] the inertia's scale; target (t_C, t_V,
-    t_A): x* = t_C C + t_V V + t_A A; velocity and acceleration (·_x, ·_C, ·_V, ·_A):
-    V' = v_x x + v_C C + v_V V + v_A A and A' likewise (module docstring of `dynamics`)."""
-
-    scale: float
-    target: tuple[float, float, float]
-    velocity: tuple[float, float, float, float]
-    acceleration: tuple[float, float, float, float]
-
-    @classmethod
-    def of(cls, config: DynamicsConfig, h: float) -> StepMap:
-        alpha = config.mass_damping
-        if config.integrator == "implicit_euler":
-            s = 1.0 / h**2 + alpha / h
-            return cls(s, (1.0, h - alpha / s, 0.0), (1 / h, -1 / h, 0.0, 0.0),
-                       (1 / h**2, -1 / h**2, -1 / h, 0.0))
-        beta, gamma = NEWMARK_BETA, NEWMARK_GAMMA
-        s = 1.0 / (beta * h**2) + alpha * gamma / (beta * h)
-        predicted = (1.0, h, (0.5 - beta) * h**2)  # x̂ on (C, V, A)
-        v_tilde = (0.0, 1.0, (1.0 - gamma) * h)  # ṽ on (C, V, A)
-        target = tuple(p - alpha / s * v for p, v in zip(predicted, v_tilde, strict=True))
-        k = 1.0 / (beta * h**2)  # A' = k (x − x̂)
-        acceleration = (k, *(-k * p for p in predicted))
-        velocity = (gamma * h * k, *(v - gamma * h * k * p
-                                     for p, v in zip(predicted, v_tilde, strict=True)))
-        return cls(s, target, velocity, acceleration)
-
-    def apply(self, x: torch.Tensor, state: Motion) -> tuple[torch.Tensor, torch.Tensor]:
-        """(V', A') after the step that ended at x."""
-        y = (x, state.displacement, state.velocity, state.acceleration)
-        return (sum(c * t for c, t in zip(self.velocity, y, strict=True)),
-                sum(c * t for c, t in zip(self.acceleration, y, strict=True)))
 
 
 def _check(stepper: TimeStepper, parameter: str) -> None:
@@ -110,8 +72,7 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
 
 def _step_potential(stepper: TimeStepper, step: StepMap, start: Motion, time: float):
     """The incremental potential of the step from `start` that ends at `time` [s]."""
-    target = (step.target[0] * start.displacement + step.target[1] * start.velocity
-              + step.target[2] * start.acceleration)
+    target = combine(step.target, (start.displacement, start.velocity, start.acceleration))
     inertia = InertiaTerm(stepper.density, step.scale, stepper.linear.displacement(target))
     return stepper.objective.with_terms(inertia).potential(stepper.config.load_factor(time))
 
@@ -228,13 +189,13 @@ def tangent(stepper: TimeStepper, states: list[Motion], parameter: str) -> list[
          if config.integrator == "newmark" else zeros)
     out = [zeros]
     for end in states[1:]:
-        moved = sum(t * y for t, y in zip(step.target, d, strict=True))
+        moved = combine(step.target, d)
         rhs = force_derivative(stepper, parameter, end.displacement) \
             - step.scale * _mass_times(stepper, moved)
         dx = sensitivity(_step_hessian(stepper, step, end), rhs[..., None],
                          stepper.linear.fixed).derivative[..., 0]
         y = (dx, *d)
-        d = (dx, sum(c * t for c, t in zip(step.velocity, y, strict=True)),
-             sum(c * t for c, t in zip(step.acceleration, y, strict=True)))
+        d = (dx, combine(step.velocity, y),
+             combine(step.acceleration, y))
         out.append(dx)
     return out
