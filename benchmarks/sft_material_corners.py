@@ -1,7 +1,8 @@
 """Are the held corners worth fitting? B with each frame's corner positions as unknowns.
 
     python benchmarks/sft_material_corners.py --data W/hang_TAG [--meshes W/sft_TAG/meshes]
-        [--spans 14 14] [--start B] [--max-evaluations 40] [--corners free|ray]
+        [--spans 14 14] [--start B] [--max-evaluations 40] [--corners free|ray|clamped]
+        [--weights W0 W1 ...]
 
 A measurement, not the estimate (issue 27 item 3; benchmarks/RESULTS.md, Material from
 video, 2026-12-06 04:30): `material_from_video` clamps each frame's model at the
@@ -59,10 +60,15 @@ def main() -> None:
     p.add_argument("--spans", type=int, nargs=2, default=(14, 14))
     p.add_argument("--start", type=float, help="start B [N·m] (default: c = 2 cm)")
     p.add_argument("--max-evaluations", type=int, default=40)
-    p.add_argument("--corners", choices=("free", "ray"), default="free",
+    p.add_argument("--weights", type=float, nargs="+",
+                   help="per-frame weights of the residuals (e.g. an estimate's "
+                   "frame_weights; default: 1)")
+    p.add_argument("--corners", choices=("free", "ray", "clamped"), default="free",
                    help="free: each corner's 3 coordinates are unknowns; ray: each corner "
                    "stays on the camera ray through its reconstructed position (what the "
-                   "image observed) and only its distance along the ray is fitted")
+                   "image observed) and only its distance along the ray is fitted; clamped: "
+                   "held where reconstructed (the estimate's model, here on one grid: the "
+                   "reference)")
     args = p.parse_args()
     torch.set_num_threads(1)
     taichi_ndf.init(arch="cpu", precision="f64")
@@ -97,12 +103,14 @@ def main() -> None:
         return (equilibrium.positions(xi) - points).numpy().ravel()
 
     frames = len(observed)
-    per = 6 if args.corners == "free" else 2  # unknowns per frame
+    per = {"free": 6, "ray": 2, "clamped": 0}[args.corners]  # unknowns per frame
     # the reconstructed corners' camera rays (unit, from the camera centre at the origin)
     rays = [o[held] / np.linalg.norm(o[held], axis=1, keepdims=True) for o in observed]
 
     def frame_corners(z, f):
         values = z[2 + per * f: 2 + per * (f + 1)]
+        if args.corners == "clamped":
+            return observed[f][held]
         if args.corners == "free":
             return values.reshape(2, 3)
         return rays[f] * values[:, None]  # each corner on its ray at the fitted distance
@@ -111,13 +119,18 @@ def main() -> None:
         return ([float(np.exp(z[0])), float(np.exp(z[1]))],
                 [frame_corners(z, f) for f in range(frames)])
 
+    weights = np.ones(frames) if args.weights is None else np.asarray(args.weights)
+    if len(weights) != frames:
+        raise SystemExit(f"--weights: {frames} frames, {len(weights)} weights")
+
     def residual(z):
         theta, corners = unpack(z)
-        return np.concatenate([frame_residual(f, corners[f], theta) for f in range(frames)])
+        return np.concatenate([weights[f] * frame_residual(f, corners[f], theta)
+                               for f in range(frames)])
 
     start_b = args.start or truth.areal_density * 9.81 * 0.02 ** 3
     corner_start = [o[held].ravel() if args.corners == "free" else
-                    np.linalg.norm(o[held], axis=1) for o in observed]
+                    np.linalg.norm(o[held], axis=1)[:per] for o in observed]
     z0 = np.concatenate([[np.log(start_b), np.log(config.start_material.membrane_stiffness)],
                          *corner_start])
     rows = 3 * len(xi)
@@ -132,7 +145,8 @@ def main() -> None:
                              xtol=1e-6, ftol=1e-8, max_nfev=args.max_evaluations)
     theta, corners = unpack(solution.x)
     true_b = truth.material.bending_stiffness
-    rms = 1e3 * np.sqrt(np.mean(solution.fun ** 2) * 3)
+    rms = 1e3 * np.sqrt(np.mean((solution.fun.reshape(frames, -1) / weights[:, None]) ** 2)
+                        * 3)
     print(f"spans {tuple(args.spans)}, {'reconstructed' if args.meshes else 'truth'} meshes: "
           f"B {theta[0]:.4g} N·m ({100 * (theta[0] / true_b - 1):+.2f} %), D {theta[1]:.4g} "
           f"N/m, rms misfit {rms:.3f} mm, {solution.nfev} evaluations, "

@@ -4,7 +4,8 @@ Defaults (`MaterialFromVideoConfig`): quartic splines on a grid and its refineme
 the bending length (`inverse.sft.material_grid`; 7 × 7 / 14 × 14 for c ≥ 2.9 cm on a 0.3 m
 sheet), the membrane
 stiffness D estimated beside B unless `--membrane-stiffness` states it, the flat sheet's size
-from the template unless `--sheet-size` states it. The held corners are `--held-corners A B`
+from the template unless `--sheet-size` states it, each frame weighted by the inverse of its
+coarse-grid misfit (`--material-frame-weights`). The held corners are `--held-corners A B`
 (default: the two `--pinned` vertices, when the corners do not move); the template must be a
 regular vertex grid with them at the two ends of one grid edge
 (`inverse.sft.hanging.SheetGrid`). Everything is checked before tracking; a bad option is an
@@ -65,8 +66,8 @@ def add_material_options(p: argparse.ArgumentParser) -> None:
                    "coordinates) or ray (the two directions across its camera ray, the depth "
                    f"left to the physics; default: {DEFAULTS.observed})")
     g.add_argument("--material-frame-weights", choices=FRAME_WEIGHTS,
-                   help="how the frames count in the fit: equal (every vertex alike) or misfit "
-                   "(each frame by the inverse of its coarse-grid rms misfit; default: "
+                   help="how the frames count in the fit: misfit (each frame by the inverse "
+                   "of its coarse-grid rms misfit) or equal (every vertex alike; default: "
                    f"{DEFAULTS.frame_weights})")
     g.add_argument("--sheet-size-from", choices=SHEET_SIZE_FROM,
                    help="without --sheet-size: the flat size from the template's grid-line "

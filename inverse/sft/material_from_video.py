@@ -38,6 +38,15 @@ two directions across its camera ray ("ray", the camera centre at the origin of 
 coordinates) — measured worse on a sheet facing the camera, whose bending is seen along the
 rays (benchmarks/RESULTS.md, Material from video, 2026-12-06).
 
+Frame weights (`frame_weights`): "equal" counts every vertex of every frame alike; "misfit"
+counts each frame by the inverse of its own misfit variance (`misfit_weights`: the rms misfit
+of the coarse-grid fit that precedes the final one — the flat-size passes' last or the
+coarse estimate's), i.e. weighted least squares with one variance per frame, the same
+clusters as the robust error. A frame that the model explains worse — a reconstruction further
+from the truth, a frame that is not an equilibrium — counts less; the template (frame 0 of an
+SfT sequence, the given shape) typically counts most. Measured in benchmarks/RESULTS.md
+(Material from video, 2026-12-06 09:20).
+
 Quasi-static check: the held corners' accelerations (second differences of the reconstructed
 corner positions at the frame rate) over g; a frame whose corners accelerate by more than
 `QUASI_STATIC_LIMIT` g is not an equilibrium, and the report says how many there are.
