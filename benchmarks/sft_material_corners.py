@@ -2,7 +2,7 @@
 
     python benchmarks/sft_material_corners.py --data W/hang_TAG [--meshes W/sft_TAG/meshes]
         [--spans 14 14] [--start B] [--max-evaluations 40] [--corners free|ray|clamped]
-        [--weights W0 W1 ...]
+        [--weights W0 W1 ...] [--template-corners]
 
 A measurement, not the estimate (issue 27 item 3; benchmarks/RESULTS.md, Material from
 video, 2026-12-06 04:30): `material_from_video` clamps each frame's model at the
@@ -63,6 +63,9 @@ def main() -> None:
     p.add_argument("--weights", type=float, nargs="+",
                    help="per-frame weights of the residuals (e.g. an estimate's "
                    "frame_weights; default: 1)")
+    p.add_argument("--template-corners", action="store_true",
+                   help="frame 0's corners held where the template puts them (the given "
+                   "shape), the other frames' fitted")
     p.add_argument("--corners", choices=("free", "ray", "clamped"), default="free",
                    help="free: each corner's 3 coordinates are unknowns; ray: each corner "
                    "stays on the camera ray through its reconstructed position (what the "
@@ -109,7 +112,7 @@ def main() -> None:
 
     def frame_corners(z, f):
         values = z[2 + per * f: 2 + per * (f + 1)]
-        if args.corners == "clamped":
+        if args.corners == "clamped" or (f == 0 and args.template_corners):
             return observed[f][held]
         if args.corners == "free":
             return values.reshape(2, 3)
@@ -137,7 +140,8 @@ def main() -> None:
     sparsity = np.zeros((frames * rows, len(z0)), dtype=int)
     sparsity[:, :2] = 1
     for f in range(frames):
-        sparsity[f * rows:(f + 1) * rows, 2 + per * f: 2 + per * (f + 1)] = 1
+        if not (f == 0 and args.template_corners):  # else those unknowns are unused
+            sparsity[f * rows:(f + 1) * rows, 2 + per * f: 2 + per * (f + 1)] = 1
     cpu = time.process_time()
     solution = least_squares(residual, z0, jac_sparsity=sparsity,
                              x_scale=np.r_[1.0, 1.0, np.full(per * frames, 1e-3)],
