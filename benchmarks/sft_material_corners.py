@@ -23,6 +23,11 @@ distance along the ray is fitted (2 unknowns per frame instead of 6), since a mo
 reconstruction's error is mostly along the rays (measured at the corners: up to 3.3 mm along,
 ≤ 0.9 mm across).
 
+`--template-corners` (10:40): frame 0's corners held at the template (the given shape),
+only the reconstructed frames' corners fitted; `--weights`: per-frame residual weights (the
+estimate's `frame_weights`). With both, the `ndf-sft` c = 5 / 3 cm sequences gave +2.75 % /
++2.50 % (benchmarks/RESULTS.md, Material from video, 2026-12-06 09:16).
+
 --data: a `sft_material.py` work folder's truth sequence (hang_*); --meshes: `ndf-sft`'s
 reconstructed meshes (default: the truth meshes, noise-free). Prints B, its error, D, the rms
 misfit, the corners' distance to the truth before and after, CPU seconds.
