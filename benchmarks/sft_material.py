@@ -5,6 +5,7 @@
         [--vertex-noise 0.001] [--rest template|flat|frame0]
         [--degree 4] [--spans 7 7] [--membrane-stiffness D] [--observed 3d|ray]
         [--noise isotropic|ray] [--sheet-size-from template|equilibrium]
+        [--frame-weights equal|misfit]
 
 For each seed: a hanging-sheet sequence (`inverse.sft.hanging_synth`: a 0.3 m sheet of the
 given template cells and true bending length, ρ_A = 0.2 kg/m², D = 100 N/m, solved on
@@ -59,7 +60,7 @@ def material_options(args) -> dict:
     """The estimate's settings that the command line sets (the rest: the defaults)."""
     given = {"spans": args.spans and tuple(args.spans), "degree": args.degree,
              "membrane_stiffness": args.membrane_stiffness, "observed": args.observed,
-             "sheet_size_from": args.sheet_size_from}
+             "sheet_size_from": args.sheet_size_from, "frame_weights": args.frame_weights}
     return {k: v for k, v in given.items() if v is not None}
 
 
@@ -78,6 +79,8 @@ def by_ndf_sft(data: Path, truth: HangingConfig, held, args, out: Path) -> dict:
         extra += ["--material-observed", args.observed]
     if args.sheet_size_from:
         extra += ["--sheet-size-from", args.sheet_size_from]
+    if args.frame_weights:
+        extra += ["--material-frame-weights", args.frame_weights]
     code = ndf_sft(["--frames", str(data / "frames"), "--camera", str(data / "camera.json"),
                     "--template", str(data / "template.obj"), "--texture",
                     str(data / "texture.png"), "--masks", str(data / "masks"), "--gt",
@@ -93,6 +96,7 @@ def suffix(args) -> str:
     """Output names' tail: the observed components and the noise's kind when set."""
     return (f"_{args.observed}" if args.observed else "") + \
         (f"_{args.sheet_size_from}" if args.sheet_size_from else "") + \
+        (f"_w{args.frame_weights}" if args.frame_weights else "") + \
         (f"_{args.noise}" if args.source == "gt" and args.noise != "isotropic" else "")
 
 
@@ -180,6 +184,8 @@ def main() -> None:
                    help="what the fit compares of each vertex (default: the estimate's)")
     p.add_argument("--sheet-size-from", choices=("template", "equilibrium"),
                    help="the flat size without a stated one (default: the estimate's)")
+    p.add_argument("--frame-weights", choices=("equal", "misfit"),
+                   help="how the frames count in the fit (default: the estimate's)")
     p.add_argument("--noise", choices=("isotropic", "ray"), default="isotropic",
                    help="gt: vertex noise isotropic (σ per coordinate) or along the camera "
                    "rays (σ along each ray)")

@@ -54,10 +54,11 @@ def test_defaults_are_the_measured_settings():
     set_ = material_config(parser.parse_args(base + [
         "--material-degree", "3", "--material-spans", "5", "6", "--membrane-stiffness", "250",
         "--sheet-size", "0.3", "0.2", "--material-observed", "ray", "--sheet-size-from",
-        "template"]))
+        "template", "--material-frame-weights", "equal"]))
     assert (set_.degree, set_.spans, set_.membrane_stiffness, set_.sheet_size) == \
         (3, (5, 6), 250.0, (0.3, 0.2))
     assert (set_.observed, set_.sheet_size_from) == ("ray", "template")
+    assert (config.frame_weights, set_.frame_weights) == ("misfit", "equal")
     grid = grid_mesh(((0.0, 0.3), (0.0, 0.2)), (6, 4))
     sheet = SheetGrid.from_template(np.column_stack([grid.xi, np.zeros(len(grid.xi))]),
                                     grid.faces, (0, 6)).with_size((0.6, 0.1))
@@ -98,8 +99,9 @@ def test_coarse_hanging_sheet_bending_length_recovered():
     moving top corners, solved on 12 × 12 quartic spans; estimated at the defaults (quartic
     7 × 7 / 14 × 14 spans, another grid: no inverse crime; B and D both unknown) from a start
     of c = 2 cm with the stated areal density, the flat sheet from the template: B within 5 %
-    and within 2 standard errors (measured −1.5 % ± 8.1 %, D 101.7 ± 4.3 N/m;
-    benchmarks/RESULTS.md, Material from video)."""
+    and within 2 standard errors (measured −1.5 % ± 8.1 %, D 101.7 ± 4.3 N/m with equal frame
+    weights; +0.65 % ± 3.0 %, D 102.1 ± 6.4 N/m with the misfit weights, the default since
+    2026-12-06 10:20; benchmarks/RESULTS.md, Material from video)."""
     truth = HangingConfig(frames=3, cells=(12, 12), bending_length=0.05, spans=(12, 12))
     shapes = equilibrium_shapes(truth)
     grid, _, held = template_grid(truth)
@@ -275,3 +277,43 @@ def test_planar_template_is_the_flat_sheet():
     assert not planar(sagging)
     with pytest.raises(ValueError, match="sheet_size_from must be one of"):
         MaterialFromVideoConfig(sheet_size_from="frame0")
+
+
+def test_misfit_weights_count_each_frame_by_its_own_misfit():
+    """`frame_weights="misfit"`: each frame's residuals are scaled by σ̄ / σ_f, σ_f its
+    coarse-grid rms misfit — a frame twice as far from the model counts with a quarter of the
+    weight in the squared residuals; σ̄ is their rms, so equal misfits give unit weights;
+    σ_f is floored (a frame that the model fits exactly does not take all the weight). The
+    weights reach the residuals through `Observation.rows` (all three coordinates scaled)."""
+    import torch
+
+    from inverse.material.outer_fit import residuals
+    from inverse.sft.material_from_video import MISFIT_FLOOR, frame_observations, misfit_weights
+
+    w = misfit_weights(np.array([1e-3, 2e-3, 4e-3]))
+    assert np.allclose(w[0] / w[1], 2.0) and np.allclose(w[1] / w[2], 2.0)
+    assert np.isclose(np.sqrt(np.mean((np.array([1e-3, 2e-3, 4e-3]) * w) ** 2)),
+                      np.sqrt(np.mean(np.array([1e-3, 2e-3, 4e-3]) ** 2)))
+    assert np.allclose(misfit_weights(np.full(4, 3e-4)), 1.0)
+    assert np.isfinite(misfit_weights(np.array([0.0, 1e-3]))).all()
+    assert misfit_weights(np.array([0.0, 1e-3]))[0] == \
+        pytest.approx(misfit_weights(np.array([MISFIT_FLOOR, 1e-3]))[0])
+
+    grid_ = grid_mesh(((0.0, 0.3), (0.0, 0.3)), (4, 4))
+    flat = np.column_stack([grid_.xi - 0.15, np.full(len(grid_.xi), 0.6)])
+    sheet = SheetGrid.from_template(flat, grid_.faces, (0, 4))
+    shift = np.array([0.0, 0.0, 1e-3])
+    frames = [flat, flat + shift, flat + 2 * shift]
+    config = MaterialFromVideoConfig(frame_weights="misfit")
+    weighted = frame_observations(frames, sheet, config, [0, 1, 2], np.array([2.0, 1.0, 0.5]))
+    plain = frame_observations(frames, sheet, config, [0, 1, 2])
+    assert all(o.rows is None for o in plain)
+    stub = _Stub(torch.from_numpy(flat), torch.zeros((len(flat), 3, 1), dtype=torch.float64))
+    for k, scale in enumerate([2.0, 1.0, 0.5]):
+        r_w, _ = residuals(stub, weighted[k], 8, None)
+        r_p, _ = residuals(stub, plain[k], 8, None)
+        assert r_w.shape == r_p.shape == (3 * len(flat),)
+        assert np.allclose(r_w, scale * r_p)
+    assert np.abs(residuals(stub, weighted[2], 8, None)[0]).max() == pytest.approx(1e-3)
+    with pytest.raises(ValueError, match="frame_weights must be one of"):
+        MaterialFromVideoConfig(frame_weights="depth")

@@ -4,7 +4,8 @@ Defaults (`MaterialFromVideoConfig`): quartic splines on a grid and its refineme
 the bending length (`inverse.sft.material_grid`; 7 × 7 / 14 × 14 for c ≥ 2.9 cm on a 0.3 m
 sheet), the membrane
 stiffness D estimated beside B unless `--membrane-stiffness` states it, the flat sheet's size
-from the template unless `--sheet-size` states it. The held corners are `--held-corners A B`
+from the template unless `--sheet-size` states it, each frame weighted by the inverse of its
+coarse-grid misfit (`--material-frame-weights`). The held corners are `--held-corners A B`
 (default: the two `--pinned` vertices, when the corners do not move); the template must be a
 regular vertex grid with them at the two ends of one grid edge
 (`inverse.sft.hanging.SheetGrid`). Everything is checked before tracking; a bad option is an
@@ -19,7 +20,12 @@ import argparse
 import numpy as np
 
 from inverse.sft.errors import InputError
-from inverse.sft.settings import OBSERVED, SHEET_SIZE_FROM, MaterialFromVideoConfig
+from inverse.sft.settings import (
+    FRAME_WEIGHTS,
+    OBSERVED,
+    SHEET_SIZE_FROM,
+    MaterialFromVideoConfig,
+)
 from taichi_ndf.cli.common import finite_float
 
 DEFAULTS = MaterialFromVideoConfig()
@@ -59,6 +65,10 @@ def add_material_options(p: argparse.ArgumentParser) -> None:
                    help="what of each reconstructed vertex the fit compares: 3d (all three "
                    "coordinates) or ray (the two directions across its camera ray, the depth "
                    f"left to the physics; default: {DEFAULTS.observed})")
+    g.add_argument("--material-frame-weights", choices=FRAME_WEIGHTS,
+                   help="how the frames count in the fit: misfit (each frame by the inverse "
+                   "of its coarse-grid rms misfit) or equal (every vertex alike; default: "
+                   f"{DEFAULTS.frame_weights})")
     g.add_argument("--sheet-size-from", choices=SHEET_SIZE_FROM,
                    help="without --sheet-size: the flat size from the template's grid-line "
                    "lengths as they are (template) or unstretched by the fitted equilibrium of "
@@ -93,7 +103,7 @@ _FIELD = {"areal_density": "areal_density", "gravity": "gravity",
           "material_frames": "frames", "material_spans": "spans",
           "material_degree": "degree", "membrane_stiffness": "membrane_stiffness",
           "sheet_size": "sheet_size", "material_observed": "observed",
-          "sheet_size_from": "sheet_size_from"}
+          "sheet_size_from": "sheet_size_from", "material_frame_weights": "frame_weights"}
 
 
 def _value(args: argparse.Namespace, name: str):

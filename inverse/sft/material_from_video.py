@@ -38,6 +38,15 @@ two directions across its camera ray ("ray", the camera centre at the origin of 
 coordinates) — measured worse on a sheet facing the camera, whose bending is seen along the
 rays (benchmarks/RESULTS.md, Material from video, 2026-12-06).
 
+Frame weights (`frame_weights`): "equal" counts every vertex of every frame alike; "misfit"
+counts each frame by the inverse of its own misfit variance (`misfit_weights`: the rms misfit
+of the coarse-grid fit that precedes the final one — the flat-size passes' last or the
+coarse estimate's), i.e. weighted least squares with one variance per frame, the same
+clusters as the robust error. A frame that the model explains worse — a reconstruction further
+from the truth, a frame that is not an equilibrium — counts less; the template (frame 0 of an
+SfT sequence, the given shape) typically counts most. Measured in benchmarks/RESULTS.md
+(Material from video, 2026-12-06 09:20).
+
 Quasi-static check: the held corners' accelerations (second differences of the reconstructed
 corner positions at the frame rate) over g; a frame whose corners accelerate by more than
 `QUASI_STATIC_LIMIT` g is not an equilibrium, and the report says how many there are.
@@ -70,6 +79,7 @@ QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not 
 SIZE_PASSES = 3
 SIZE_TOLERANCE = 2e-5
 PLANAR_TOLERANCE = 1e-4  # a template within this fraction of its diagonal of a plane is flat
+MISFIT_FLOOR = 1e-6  # [m] smallest per-frame misfit a frame weight is computed from
 
 def chosen_frames(count: int, used: int) -> list[int]:
     """`used` frame indices evenly spread over `count` frames (all when used is 0 or more)."""
@@ -90,13 +100,14 @@ def corner_accelerations(vertices: list[np.ndarray], held: tuple[int, int],
 
 
 def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
-                       config: MaterialFromVideoConfig, frames: list[int]
-                       ) -> list[Observation]:
-    """One observation per used frame (module docstring)."""
+                       config: MaterialFromVideoConfig, frames: list[int],
+                       weights: np.ndarray | None = None) -> list[Observation]:
+    """One observation per used frame (module docstring); `weights` (one per used frame,
+    dimensionless) scale each frame's residuals (`Observation.rows`)."""
     material = config.start_material
     xi = torch.from_numpy(grid.xi)
     observations = []
-    for f in frames:
+    for k, f in enumerate(frames):
         points = np.asarray(vertices[f], dtype=np.float64)
         gravity = np.asarray(config.gravity, dtype=np.float64)
         corners = points[list(grid.held)]
@@ -104,8 +115,22 @@ def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
         model = hanging_model(grid.size, material, corners, across, gravity, band=config.band)
         observed = torch.from_numpy(points)
         rows = ray_rows(observed) if config.observed == "ray" else None
+        if weights is not None:
+            if rows is None:
+                rows = torch.eye(3, dtype=observed.dtype).expand(len(observed), 3, 3)
+            rows = float(weights[k]) * rows.clone()
         observations.append(Observation(model, observed, xi, rows))
     return observations
+
+
+def misfit_weights(per_frame_rms: np.ndarray) -> np.ndarray:
+    """Per-frame weights w_f = σ̄ / σ_f from each frame's rms misfit σ_f [m] of a first fit
+    (σ̄ their rms, so the weighted residuals keep the scale of metres; σ_f floored at
+    `MISFIT_FLOOR`): a frame's vertices counted with the inverse of its own misfit variance —
+    weighted least squares with one variance per frame, as the cluster-robust error's one
+    cluster per frame."""
+    sigma = np.maximum(np.asarray(per_frame_rms, dtype=np.float64), MISFIT_FLOOR)
+    return float(np.sqrt(np.mean(sigma ** 2))) / sigma
 
 
 def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple[int, int],
@@ -138,15 +163,20 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     g = float(np.linalg.norm(config.gravity))
     choice = GridChoice(config, g)
     spans = choice.first(grid.size)
-    passes = []
+    passes, coarse_rms, weights = [], None, None
     if size_from == "equilibrium":
         grid, start, passes = unstretched_grid(vertices, faces, grid, config, frames,
                                                unknowns, start, spans)
         observations = frame_observations(vertices, grid, config, frames)
-    elif choice.chosen:  # a coarse first estimate for the grid
+        coarse_rms = np.array(passes[-1]["per_frame_rms_m"])
+    elif choice.chosen or config.frame_weights == "misfit":  # a coarse first estimate
         coarse = newton_estimate(observations, unknowns, _newton(config, spans, 1),
                                  start=start)
         start = [float(v) for v in coarse.fits[-1].values]
+        coarse_rms = _per_frame_rms(coarse.fits[-1].residuals, observations)
+    if config.frame_weights == "misfit":
+        weights = misfit_weights(coarse_rms)
+        observations = frame_observations(vertices, grid, config, frames, weights)
     spans = choice.next(grid.size, start[0], "coarse estimate") or spans
     result = newton_estimate(observations, unknowns, _newton(config, spans, 2), start=start)
     finer_spans = choice.next(grid.size, float(result.fits[-1].values[0]), "estimate",
@@ -157,15 +187,16 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     document = estimate_document(result.estimate, observations[0].model, ratios=result.ratios,
                                  notes=result.notes + choice.notes)
     fit = result.fits[-1]
-    per_frame = _per_frame_rms(fit.residuals, observations)
+    unit = np.ones(len(frames)) if weights is None else weights
+    per_frame = _per_frame_rms(fit.residuals, observations) / unit
     accelerations = corner_accelerations(vertices, grid.held, config.fps)
-    points = sum(len(o.points) for o in observations)
     grids = [{"spans": list(f.label["spans"]), "degree": config.degree,
               "bending_stiffness": float(f.values[0]),
               **({"membrane_stiffness": float(f.values[1])} if config.estimate_membrane
                  else {}),
-              "rms_m": math.sqrt(float(f.residuals @ f.residuals) / points)}
+              "rms_m": _rms(_per_frame_rms(f.residuals, observations) / unit, observations)}
              for f in result.fits]
+    document["misfit"] = _rms(per_frame, observations)  # unweighted [m]
     out = report(document, grid, frames, per_frame, accelerations / g, config,
                  (time.perf_counter() - t0, time.process_time() - cpu), grids,
                  stable=all(f.stable for f in result.fits),
@@ -174,6 +205,9 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     out["sheet_size_from"] = size_from
     out["sheet_size_passes"] = passes
     out["grid_choice"] = choice.steps
+    out["frame_weights"] = {"kind": config.frame_weights, "weights": unit.tolist(),
+                            "coarse_per_frame_rms_m": None if coarse_rms is None
+                            else coarse_rms.tolist()}
     return out
 
 
@@ -216,7 +250,9 @@ def unstretched_grid(vertices, faces, grid: SheetGrid, config: MaterialFromVideo
                                                    grid.held).size)
         size = np.array(grid.size) * measured / lengths
         change = float(np.abs(size / np.array(grid.size) - 1).max())
-        passes.append({"size_m": size.tolist(), "values": start, "change": change})
+        passes.append({"size_m": size.tolist(), "values": start, "change": change,
+                       "per_frame_rms_m": _per_frame_rms(coarse.fits[-1].residuals,
+                                                         observations).tolist()})
         log.info("flat size from the template: %s (change %.2g)", size.tolist(), change)
         grid = grid.with_size(tuple(float(v) for v in size))
         if change < SIZE_TOLERANCE:
@@ -242,9 +278,17 @@ def error_parts(result, index: int) -> dict:
 
 
 def _per_frame_rms(residuals: np.ndarray, observations: list[Observation]) -> np.ndarray:
+    """Per observation: rms distance [m] per point (the residuals as they are, weighted)."""
     sizes = [o.components * len(o.points) for o in observations]
     parts = np.split(residuals, np.cumsum(sizes)[:-1])
-    return np.array([math.sqrt(float(p @ p) / (len(p) // 3)) for p in parts])
+    return np.array([math.sqrt(float(p @ p) / len(o.points))
+                     for p, o in zip(parts, observations, strict=True)])
+
+
+def _rms(per_frame: np.ndarray, observations: list[Observation]) -> float:
+    """The rms over all points [m] of per-observation rms values."""
+    counts = np.array([len(o.points) for o in observations], dtype=np.float64)
+    return math.sqrt(float(counts @ np.asarray(per_frame) ** 2) / float(counts.sum()))
 
 
 def report(document: dict, grid: SheetGrid, frames: list[int], per_frame: np.ndarray,
