@@ -24,7 +24,7 @@ from taichi_ndf.solve.solver import Solver
 SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 # Scenes run in physical time ([dynamics], a spline field): not the SIREN smoke runs below
 # (tests/test_dynamics_contact.py).
-DYNAMIC = {"napkin_drop_sphere"}
+DYNAMIC = {"napkin_drop_sphere", "cloth_pendulum", "sheet_slide_box"}
 STATIC = [p for p in SCENES if p.stem not in DYNAMIC]
 FABRICS = ("canvas", "cotton", "silk")
 TEST_WIDTH = 16  # neurons per layer in these smoke tests: the scenes' physics, a cheap field

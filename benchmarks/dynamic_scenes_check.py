@@ -1,0 +1,133 @@
+"""The two shipped dynamic scenes of issue 29's friction work, checked from their runs' outputs.
+
+Run first (float64):
+
+    python -m taichi_ndf.cli.sim scenes/cloth_pendulum.toml --precision f64 --no-pictures \
+        --out PENDULUM
+    python -m taichi_ndf.cli.sim scenes/sheet_slide_box.toml --precision f64 --no-pictures \
+        --out SLIDE
+
+then `python benchmarks/dynamic_scenes_check.py pendulum PENDULUM` and
+`python benchmarks/dynamic_scenes_check.py slide SLIDE`. Prints markdown tables:
+
+- pendulum: the run (steps, Newton iterations, CPU per step and per simulated second), and the
+  energy history every 0.1 s: T, Π, E = T + Π [J], the work of the mass damping
+  W = ∫ α vᵀMv dt = ∫ 2 α T dt (trapezoidal over the steps) and E + W (its change from 0 is
+  the scheme's drift: Newmark conserves E + W exactly only for linear problems), the far
+  corner's height;
+- slide: the run, no penetration from the meshes alone (the smallest signed distance of the
+  mid-surface vertices of every output frame and of the final mesh to the rounded box,
+  computed here from the scene's box), the centre's acceleration along the slope while the
+  whole sheet is on the top (second differences of the centre probe) against
+  g (sin θ − μ cos θ), and when the sheet left the top.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def vertices(path: Path) -> np.ndarray:
+    rows = [line.split()[1:4] for line in path.read_text().splitlines() if line.startswith("v ")]
+    return np.array(rows, dtype=np.float64)
+
+
+def run_table(d: dict) -> None:
+    iterations = np.array(d["newton_iterations"])
+    print("| steps | dt [s] | simulated [s] | Newton it./step mean (max) | substeps | "
+          "CPU [s] | CPU/step [s] | CPU/simulated s [s] |")
+    print("|---|---|---|---|---|---|---|---|")
+    print(f"| {len(iterations)} | {d['dt']:g} | {d['times'][-1]:g} | {iterations.mean():.2f} "
+          f"({iterations.max()}) | {sum(d['substeps'])} | {d['cpu_seconds']:.1f} | "
+          f"{d['cpu_per_step']:.3f} | {d['cpu_per_simulated_second']:.1f} |")
+    print()
+
+
+def pendulum(out: Path) -> None:
+    d = json.loads((out / "result.json").read_text())["dynamics"]
+    run_table(d)
+    t, kinetic, potential = (np.array(d[k]) for k in ("times", "kinetic", "potential"))
+    total = kinetic + potential
+    alpha = d["mass_damping"]
+    rate = 2 * alpha * kinetic  # [W]: α vᵀMv
+    work = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))])
+    corner = np.array(d["probes"]["far_corner"])[:, 2]
+    print("| t [s] | T [J] | Π [J] | E = T + Π [J] | damping work W [J] | E + W [J] | "
+          "(E + W)/max T | far corner u_z [m] |")
+    print("|---|---|---|---|---|---|---|---|")
+    every = max(1, round(0.1 / d["dt"]))
+    for i in range(0, len(t), every):
+        print(f"| {t[i]:.2f} | {kinetic[i]:.4e} | {potential[i]:.4e} | {total[i]:.3e} | "
+              f"{work[i]:.3e} | {total[i] + work[i]:+.3e} | "
+              f"{(total[i] + work[i]) / kinetic.max():+.2e} | {corner[i]:.4f} |")
+    print()
+    print(f"max T = {kinetic.max():.4e} J at t = {t[kinetic.argmax()]:.2f} s; "
+          f"lowest far corner {corner.min():.4f} m at t = {t[corner.argmin()]:.2f} s; "
+          f"max |E + W| = {np.abs(total + work).max():.3e} J")
+
+
+def box_distance(p: np.ndarray, centre, half, rounding) -> np.ndarray:
+    """Signed distance [m] of points p (N, 3) to a rounded axis-aligned box."""
+    q = np.abs(p - np.asarray(centre)) - (np.asarray(half) - rounding)
+    outside = np.linalg.norm(np.clip(q, 0, None), axis=1)
+    inside = np.clip(q.max(axis=1), None, 0)
+    return outside + inside - rounding
+
+
+def slide(out: Path) -> None:
+    result = json.loads((out / "result.json").read_text())
+    d = result["dynamics"]
+    run_table(d)
+    scene = tomllib.loads((ROOT / "scenes" / "sheet_slide_box.toml").read_text())
+    box = scene["obstacles"][0]
+    frames = sorted((out / "trajectory").glob("step_*.obj")) + [out / "mesh.obj"]
+    distances = [float(box_distance(vertices(f), box["centre"], box["half_extents"],
+                                    box["rounding"]).min()) for f in frames]
+    worst = int(np.argmin(distances))
+    print("| frames checked | vertices per frame | min signed distance to the box [m] (frame) | "
+          "check grid's min gap over all steps [m] |")
+    print("|---|---|---|---|")
+    print(f"| {len(frames)} | {len(vertices(frames[0]))} | {min(distances):.4g} "
+          f"({frames[worst].name}) | {min(g for g in d['gaps'] if g is not None):.4g} |")
+    print()
+
+    g = np.array(scene["loads"]["gravity"])
+    theta = math.atan2(g[0], -g[2])
+    mu = box["friction"]
+    expected = np.linalg.norm(g) * (math.sin(theta) - mu * math.cos(theta))
+    t = np.array(d["times"])
+    x0 = scene["geometry"]["bounds"][0]
+    edge = box["centre"][0] + box["half_extents"][0] - box["rounding"]  # the flat top's end
+    centre = np.array(d["probes"]["centre"])[:, 0]
+    downhill = np.array(d["probes"]["downhill_edge"])[:, 0] + x0[1]
+    uphill = np.array(d["probes"]["uphill_edge"])[:, 0] + x0[0]
+    on_top = np.nonzero(downhill < edge)[0]
+    h = d["dt"]
+    second = (centre[2:] - 2 * centre[1:-1] + centre[:-2]) / h**2  # at steps 1 … N−1
+    # after the landing (the first 3 steps) while the downhill edge is on the flat top
+    window = [i for i in range(3, len(t) - 1) if i + 1 in set(on_top)]
+    accel = second[[i - 1 for i in window]]
+    print("| θ [°] | μ | atan μ [°] | g(sin θ − μ cos θ) [m/s²] | centre's acceleration on the "
+          "top, mean (min, max) [m/s²] | steps in the window | relative error of the mean |")
+    print("|---|---|---|---|---|---|---|")
+    print(f"| {math.degrees(theta):.2f} | {mu:g} | {math.degrees(math.atan(mu)):.2f} | "
+          f"{expected:.4f} | {accel.mean():.4f} ({accel.min():.4f}, {accel.max():.4f}) | "
+          f"{window[0]}–{window[-1]} | {(accel.mean() - expected) / expected:+.2%} |")
+    print()
+    left = np.nonzero(uphill > edge + box["rounding"])[0]
+    print(f"downhill edge past the top's edge at t = {t[on_top[-1] + 1]:.2f} s; "
+          f"uphill edge past the box (x > {edge + box['rounding']:.2f} m) at "
+          f"{'t = %.2f s' % t[left[0]] if len(left) else 'never'}; final centre "
+          f"u = {np.array(d['probes']['centre'])[-1].round(4).tolist()} m")
+
+
+if __name__ == "__main__":
+    {"pendulum": pendulum, "slide": slide}[sys.argv[1]](Path(sys.argv[2]))
