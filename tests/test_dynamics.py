@@ -189,14 +189,16 @@ def test_a_halved_step_is_the_same_as_four_steps_of_a_quarter(caplog):
     # T/20 or T/40 (3 there: the longer step's nonlinearity needs a second Newton step)
     s = scene(STRIP)
     h = PERIOD / 20
-    stepper = TimeStepper(s.model, s.field, DynamicsConfig(dt=h, duration=2 * h, halvings=3),
+    stepper = TimeStepper(s.model, s.field, DynamicsConfig(dt=h, duration=2 * h, halvings=3,
+                                                          integrator="newmark"),
                           newton=NewtonConfig(max_iterations=2))
     with caplog.at_level(logging.WARNING, logger="taichi_ndf.solve.dynamics"):
         halved = stepper.run(velocity=initial_velocity(stepper, first_mode(0.01)))
     assert [r.substeps for r in halved.records] == [4, 4]
     assert sum("halved" in r.message for r in caplog.records) == 6
     assert [r.time for r in halved.records] == pytest.approx([h, 2 * h], rel=1e-15)
-    direct = TimeStepper(s.model, s.field, DynamicsConfig(dt=h / 4, duration=2 * h))
+    direct = TimeStepper(s.model, s.field, DynamicsConfig(dt=h / 4, duration=2 * h,
+                                                          integrator="newmark"))
     straight = direct.run(velocity=initial_velocity(direct, first_mode(0.01)))
     assert all(r.substeps == 1 for r in straight.records)
     assert halved.probes["tip"][-1] == pytest.approx(straight.probes["tip"][-1], rel=1e-9,
@@ -206,7 +208,8 @@ def test_a_halved_step_is_the_same_as_four_steps_of_a_quarter(caplog):
 
 def test_a_step_that_does_not_converge_is_halved_then_refused(caplog):
     s = scene(STRIP)
-    config = DynamicsConfig(dt=PERIOD / 20, duration=PERIOD / 20, halvings=2)
+    config = DynamicsConfig(dt=PERIOD / 20, duration=PERIOD / 20, halvings=2,
+                            integrator="newmark")
     stepper = TimeStepper(s.model, s.field, config, newton=NewtonConfig(max_iterations=1))
     with caplog.at_level(logging.WARNING, logger="taichi_ndf.solve.dynamics"), \
             pytest.raises(DynamicsError, match="did not converge .* also after 2 halvings"):

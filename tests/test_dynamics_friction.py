@@ -81,11 +81,11 @@ def test_above_the_friction_angle_it_slides_at_g_sin_minus_mu_cos(mu):
 def test_the_shipped_slide_scene_is_above_its_friction_angle():
     """scenes/sheet_slide_box.toml: a table top tilted (gravity tilted) past atan μ, released
     outside the box; its run is measured in benchmarks/RESULTS.md."""
+    import tomllib
+
     import torch
 
     from taichi_ndf.scene.reader import load_scene
-
-    import tomllib
 
     path = Path(__file__).resolve().parents[1] / "scenes" / "sheet_slide_box.toml"
     s = load_scene(path)

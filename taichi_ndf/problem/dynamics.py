@@ -29,7 +29,7 @@ class DynamicsConfig:
 
     dt: float
     duration: float
-    integrator: str = "newmark"
+    integrator: str = "implicit_euler"
     frame_rate: float | None = None
     mass_damping: float = 0.0
     stiffness_damping: float = 0.0

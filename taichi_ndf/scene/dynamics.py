@@ -19,7 +19,7 @@ def parse_dynamics(top: Table, field, model) -> DynamicsConfig | None:
     t = top.table("dynamics")
     config = checked(lambda: DynamicsConfig(
         dt=t.number("dt", positive=True), duration=t.number("duration", positive=True),
-        integrator=t.string("integrator", "newmark", choices=INTEGRATORS),
+        integrator=t.string("integrator", "implicit_euler", choices=INTEGRATORS),
         frame_rate=t.number("frame_rate", None, positive=True),
         mass_damping=t.number("mass_damping", 0.0, nonnegative=True),
         stiffness_damping=t.number("stiffness_damping", 0.0, nonnegative=True),
