@@ -121,8 +121,7 @@ def _contract(jacobian: torch.Tensor, weighted: torch.Tensor) -> torch.Tensor:
 def _dofs(index: torch.Tensor) -> np.ndarray:
     """Unknown numbers (…, 3k) of coefficient indices (…, k): coefficient × 3 + component."""
     idx = index.cpu().numpy().astype(np.int64)
-    return (idx[..., :, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(
-        *idx.shape[:-1], -1)
+    return (idx[..., :, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(*idx.shape[:-1], -1)
 
 
 def _csr_pattern(groups: np.ndarray, n_coefficients: int
@@ -130,10 +129,10 @@ def _csr_pattern(groups: np.ndarray, n_coefficients: int
     """K's CSR pattern for groups of coefficients acting together (G, k): the position in K's
     data of each entry [c, d, g, a, b] of the per-group sums (3, 3, G, k, k) (`_pair_sums`:
     unknowns (3 groups[g, a] + c, 3 groups[g, b] + d)), the column of each datum (int32) and
-    the row starts (3n + 1, int32). Found on the coefficient pairs (9× fewer keys than the
-    unknown pairs): unknown row 3a + c holds the columns 3b + d of the coefficients b coupled
-    to a, in order, so it starts at 9 start[a] + 3 c count[a] (start, count: of coefficient
-    row a)."""
+    the row starts (3n + 1, int32); positions int32 where K has < 2³¹ entries. Found on the
+    coefficient pairs (9× fewer keys than the unknown pairs): unknown row 3a + c holds the
+    columns 3b + d of the coefficients b coupled to a, in order, so it starts at
+    9 start[a] + 3 c count[a] (start, count: of coefficient row a)."""
     count_groups, k = groups.shape
     n = n_coefficients
     keys = (groups[:, :, None] * n + groups[:, None, :]).ravel()
@@ -142,10 +141,11 @@ def _csr_pattern(groups: np.ndarray, n_coefficients: int
     start = np.concatenate(([0], np.cumsum(per_row)))
     first = start[groups][:, :, None]  # (G, k, 1): start of coefficient row a
     within = pair.reshape(count_groups, k, k) - first  # position of b in row a
-    comps = np.arange(COMPONENTS)
-    scatter = (9 * first + 3 * within)[None, None] + (
-        3 * comps[:, None, None, None, None] * per_row[groups][None, None, :, :, None]
-        + comps[None, :, None, None, None])
+    comps, base, rows = np.arange(COMPONENTS), 9 * first + 3 * within, per_row[groups][..., None]
+    scatter = np.empty((COMPONENTS, COMPONENTS, *base.shape),
+                       np.int32 if 9 * len(pairs) < 2 ** 31 else np.int64)
+    for c, d in np.ndindex(COMPONENTS, COMPONENTS):
+        scatter[c, d] = base + (3 * c * rows + d)
     lengths = np.repeat(3 * per_row, COMPONENTS)  # unknown rows: 3 columns per coefficient
     row_starts = np.concatenate(([0], np.cumsum(lengths)))
     columns3 = (3 * (pairs % n)[:, None] + comps).ravel()  # coefficient row a's at 3 start[a]
@@ -357,8 +357,8 @@ class Assembly:
             dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
             dense.index_add_(0, self._group_dofs, cross.reshape(-1, width))
             pin_pin = self._group_sums(pin_jac, blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
-        data = np.bincount(self._scatter, weights=pairs.double().cpu().numpy().ravel(),
-                           minlength=len(self._columns))
+        data = np.zeros(len(self._columns))  # summed in order, as np.bincount would
+        np.add.at(data, self._scatter, pairs.double().cpu().numpy().ravel())
         matrix = sp.csr_matrix((data, self._columns, self._row_starts),
                                shape=(self.size, self.size))
         if not pin:
