@@ -72,11 +72,12 @@ def test_apply_of_a_broadcast_jacobian_equals_the_one_bmm_form_bit_for_bit():
 def test_a_jacobian_equal_in_the_three_components_is_stored_once():
     """The strip clamped in all components (`test_one_newton._strip`): J is stored once and
     broadcast (stride 0 over the components), and U, g and K equal those of the same assembly
-    with J written out per component, bit for bit."""
+    with J written out per component (and int64 unknown numbers), bit for bit."""
     from test_one_newton import _strip
 
-    assembly, potential, _ = _strip()
+    assembly, _, _ = _strip()
     assert assembly.jacobian.stride(0) == 0
+    assert assembly.point_dofs.dtype == torch.int32  # the gradient's scatter: half of int64
     coefficients = torch.randn(assembly.n_coefficients, 3, dtype=torch.float64,
                                generator=torch.Generator().manual_seed(1)) * 1e-3
     grad_u = torch.randn(len(assembly.samples), 6, 3, dtype=torch.float64,
@@ -87,6 +88,7 @@ def test_a_jacobian_equal_in_the_three_components_is_stored_once():
     once = (assembly.displacement(coefficients), assembly.gradient(grad_u),
             assembly.hessian(blocks))
     assembly.jacobian = assembly.jacobian.contiguous()
+    assembly.point_dofs = assembly.point_dofs.long()
     per_component = (assembly.displacement(coefficients), assembly.gradient(grad_u),
                      assembly.hessian(blocks))
     assert torch.equal(once[0], per_component[0]) and torch.equal(once[1], per_component[1])

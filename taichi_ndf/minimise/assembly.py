@@ -191,7 +191,8 @@ class Assembly:
         self.n_coefficients = int(n_coefficients)
         self.size = COMPONENTS * self.n_coefficients
         device = basis.jets.device  # index tensors live with the data; K is built on the CPU
-        self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel()).to(device)
+        self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel().astype(  # (N 3k): int32
+            np.int32 if self.size < 2 ** 31 else np.int64)).to(device)  # where 3n allows
         self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
         group_dofs = _dofs(groups)  # (G, 3k)
         self._group_dofs = torch.from_numpy(group_dofs.ravel()).to(device)
