@@ -1,10 +1,11 @@
-"""K's sparse pattern in `minimise.assembly` (the per-step scatter of projected Newton)."""
+"""K's sparse pattern and the Jacobian products in `minimise.assembly` (projected Newton)."""
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
+import torch
 
-from taichi_ndf.minimise.assembly import _csr_pattern
+from taichi_ndf.minimise.assembly import _apply, _apply_transpose, _csr_pattern
 
 
 @pytest.mark.parametrize("periodic", [False, True])
@@ -21,7 +22,9 @@ def test_csr_pattern_scatters_group_sums_as_a_coordinate_matrix_does(periodic):
     n, k = rows * cols, groups.shape[1]
     values = rng.standard_normal((3, 3, len(groups), k, k))
     scatter, columns, row_starts = _csr_pattern(groups, n)
-    data = np.bincount(scatter, weights=values.ravel(), minlength=len(columns))
+    assert scatter.dtype == np.int32  # few entries: the positions in int32 (half the memory)
+    data = np.zeros(len(columns))
+    np.add.at(data, scatter, values.ravel())  # as `Assembly._point_hessian` sums them
     ours = sp.csr_matrix((data, columns, row_starts), shape=(3 * n, 3 * n))
     comps = np.arange(3)
     row = 3 * groups[None, None, :, :, None] + comps[:, None, None, None, None]
@@ -34,3 +37,59 @@ def test_csr_pattern_scatters_group_sums_as_a_coordinate_matrix_does(periodic):
     assert np.array_equal(ours.indptr, reference.indptr)
     assert np.array_equal(ours.indices, reference.indices)
     assert np.allclose(ours.data, reference.data, rtol=1e-14, atol=1e-14)
+
+
+def _apply_one_bmm(jacobian, local):
+    """`_apply` as one batched GEMV over all components (its form before J could be stored
+    once): the reference the per-component form must equal bit for bit."""
+    comps, count, channels, k = jacobian.shape
+    out = torch.bmm(jacobian.reshape(comps * count, channels, k),
+                    local.permute(2, 0, 1).reshape(comps * count, k, 1))
+    return out.reshape(comps, count, channels).permute(1, 2, 0)
+
+
+def _apply_transpose_one_bmm(jacobian, grad):
+    comps, count, channels, k = jacobian.shape
+    out = torch.bmm(grad.permute(2, 0, 1).reshape(comps * count, 1, channels),
+                    jacobian.reshape(comps * count, channels, k))
+    return out.reshape(comps, count, k).permute(1, 2, 0)
+
+
+def test_apply_of_a_broadcast_jacobian_equals_the_one_bmm_form_bit_for_bit():
+    """U = J C and Jᵀ g per component, with J (3, N, 6, 16) stored once and broadcast or per
+    component, give exactly the one-GEMM results (no rounding changed)."""
+    gen = torch.Generator().manual_seed(0)
+    one = torch.randn(1, 500, 6, 16, generator=gen, dtype=torch.float64)
+    local = torch.randn(500, 16, 3, generator=gen, dtype=torch.float64)
+    grad = torch.randn(500, 6, 3, generator=gen, dtype=torch.float64)
+    for jacobian in (one.expand(3, -1, -1, -1),
+                     torch.randn(3, 500, 6, 16, generator=gen, dtype=torch.float64)):
+        full = jacobian.contiguous()
+        assert torch.equal(_apply(jacobian, local), _apply_one_bmm(full, local))
+        assert torch.equal(_apply_transpose(jacobian, grad), _apply_transpose_one_bmm(full, grad))
+
+
+def test_a_jacobian_equal_in_the_three_components_is_stored_once():
+    """The strip clamped in all components (`test_one_newton._strip`): J is stored once and
+    broadcast (stride 0 over the components), and U, g and K equal those of the same assembly
+    with J written out per component (and int64 unknown numbers), bit for bit."""
+    from test_one_newton import _strip
+
+    assembly, _, _ = _strip()
+    assert assembly.jacobian.stride(0) == 0
+    assert assembly.point_dofs.dtype == torch.int32  # the gradient's scatter: half of int64
+    coefficients = torch.randn(assembly.n_coefficients, 3, dtype=torch.float64,
+                               generator=torch.Generator().manual_seed(1)) * 1e-3
+    grad_u = torch.randn(len(assembly.samples), 6, 3, dtype=torch.float64,
+                         generator=torch.Generator().manual_seed(2))
+    blocks = torch.randn(len(assembly.samples), 18, 18, dtype=torch.float64,
+                         generator=torch.Generator().manual_seed(3))
+    blocks = blocks + blocks.transpose(1, 2)
+    once = (assembly.displacement(coefficients), assembly.gradient(grad_u),
+            assembly.hessian(blocks))
+    assembly.jacobian = assembly.jacobian.contiguous()
+    assembly.point_dofs = assembly.point_dofs.long()
+    per_component = (assembly.displacement(coefficients), assembly.gradient(grad_u),
+                     assembly.hessian(blocks))
+    assert torch.equal(once[0], per_component[0]) and torch.equal(once[1], per_component[1])
+    assert np.array_equal(once[2].toarray(), per_component[2].toarray())

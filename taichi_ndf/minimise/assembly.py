@@ -83,12 +83,11 @@ def linearised(operator: DisplacementOperator, xi: torch.Tensor, basis: LocalBas
 
 
 def _apply(jacobian: torch.Tensor, local: torch.Tensor) -> torch.Tensor:
-    """U[n, j, c] = Σ_a J[c, n, j, a] C[n, a, c]: Jacobians (3, N, 6, k) of the per-point
-    coefficients local (N, k, 3); shape (N, 6, 3). One batched GEMV (3× faster than einsum)."""
-    comps, count, channels, k = jacobian.shape
-    out = torch.bmm(jacobian.reshape(comps * count, channels, k),
-                    local.permute(2, 0, 1).reshape(comps * count, k, 1))
-    return out.reshape(comps, count, channels).permute(1, 2, 0)
+    """U[n, j, c] = Σ_a J[c, n, j, a] C[n, a, c]: Jacobians (3, N, 6, k) (possibly one
+    broadcast over the components) of the per-point coefficients local (N, k, 3); shape
+    (N, 6, 3). A batched GEMV per component (3× faster than einsum; no copy of a broadcast J)."""
+    return torch.stack([torch.bmm(j, local[:, :, c, None])[..., 0]
+                        for c, j in enumerate(jacobian)], dim=2)
 
 
 def _pin_displacement(pin_jacobian: torch.Tensor, pin_coefficients: torch.Tensor
@@ -99,12 +98,10 @@ def _pin_displacement(pin_jacobian: torch.Tensor, pin_coefficients: torch.Tensor
 
 
 def _apply_transpose(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
-    """G[n, a, c] = Σ_j J[c, n, j, a] g[n, j, c] for Jacobians (3, N, 6, k) and g (N, 6, 3);
-    shape (N, k, 3)."""
-    comps, count, channels, k = jacobian.shape
-    out = torch.bmm(grad.permute(2, 0, 1).reshape(comps * count, 1, channels),
-                    jacobian.reshape(comps * count, channels, k))
-    return out.reshape(comps, count, k).permute(1, 2, 0)
+    """G[n, a, c] = Σ_j J[c, n, j, a] g[n, j, c] for Jacobians (3, N, 6, k) (as `_apply`) and
+    g (N, 6, 3); shape (N, k, 3)."""
+    return torch.stack([torch.bmm(grad[:, None, :, c], j)[:, 0]
+                        for c, j in enumerate(jacobian)], dim=2)
 
 
 def _weighted(blocks: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
@@ -121,8 +118,7 @@ def _contract(jacobian: torch.Tensor, weighted: torch.Tensor) -> torch.Tensor:
 def _dofs(index: torch.Tensor) -> np.ndarray:
     """Unknown numbers (…, 3k) of coefficient indices (…, k): coefficient × 3 + component."""
     idx = index.cpu().numpy().astype(np.int64)
-    return (idx[..., :, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(
-        *idx.shape[:-1], -1)
+    return (idx[..., :, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(*idx.shape[:-1], -1)
 
 
 def _csr_pattern(groups: np.ndarray, n_coefficients: int
@@ -130,10 +126,10 @@ def _csr_pattern(groups: np.ndarray, n_coefficients: int
     """K's CSR pattern for groups of coefficients acting together (G, k): the position in K's
     data of each entry [c, d, g, a, b] of the per-group sums (3, 3, G, k, k) (`_pair_sums`:
     unknowns (3 groups[g, a] + c, 3 groups[g, b] + d)), the column of each datum (int32) and
-    the row starts (3n + 1, int32). Found on the coefficient pairs (9× fewer keys than the
-    unknown pairs): unknown row 3a + c holds the columns 3b + d of the coefficients b coupled
-    to a, in order, so it starts at 9 start[a] + 3 c count[a] (start, count: of coefficient
-    row a)."""
+    the row starts (3n + 1, int32); positions int32 where K has < 2³¹ entries. Found on the
+    coefficient pairs (9× fewer keys than the unknown pairs): unknown row 3a + c holds the
+    columns 3b + d of the coefficients b coupled to a, in order, so it starts at
+    9 start[a] + 3 c count[a] (start, count: of coefficient row a)."""
     count_groups, k = groups.shape
     n = n_coefficients
     keys = (groups[:, :, None] * n + groups[:, None, :]).ravel()
@@ -142,10 +138,11 @@ def _csr_pattern(groups: np.ndarray, n_coefficients: int
     start = np.concatenate(([0], np.cumsum(per_row)))
     first = start[groups][:, :, None]  # (G, k, 1): start of coefficient row a
     within = pair.reshape(count_groups, k, k) - first  # position of b in row a
-    comps = np.arange(COMPONENTS)
-    scatter = (9 * first + 3 * within)[None, None] + (
-        3 * comps[:, None, None, None, None] * per_row[groups][None, None, :, :, None]
-        + comps[None, :, None, None, None])
+    comps, base, rows = np.arange(COMPONENTS), 9 * first + 3 * within, per_row[groups][..., None]
+    scatter = np.empty((COMPONENTS, COMPONENTS, *base.shape),
+                       np.int32 if 9 * len(pairs) < 2 ** 31 else np.int64)
+    for c, d in np.ndindex(COMPONENTS, COMPONENTS):
+        scatter[c, d] = base + (3 * c * rows + d)
     lengths = np.repeat(3 * per_row, COMPONENTS)  # unknown rows: 3 columns per coefficient
     row_starts = np.concatenate(([0], np.cumsum(lengths)))
     columns3 = (3 * (pairs % n)[:, None] + comps).ravel()  # coefficient row a's at 3 start[a]
@@ -194,7 +191,8 @@ class Assembly:
         self.n_coefficients = int(n_coefficients)
         self.size = COMPONENTS * self.n_coefficients
         device = basis.jets.device  # index tensors live with the data; K is built on the CPU
-        self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel()).to(device)
+        self.point_dofs = torch.from_numpy(_dofs(basis.index).ravel().astype(  # (N 3k): int32
+            np.int32 if self.size < 2 ** 31 else np.int64)).to(device)  # where 3n allows
         self.pin_dofs = None if basis.pin_index is None else _dofs(basis.pin_index)
         group_dofs = _dofs(groups)  # (G, 3k)
         self._group_dofs = torch.from_numpy(group_dofs.ravel()).to(device)
@@ -211,6 +209,8 @@ class Assembly:
         self.offset, self.jacobian, self.pin_jacobian = linearised(
             operator, self.samples.xi, self.basis, load_factor)
         self._operator = operator  # its boundary frame turns the per-component parts
+        if all(torch.equal(self.jacobian[0], j) for j in self.jacobian[1:]):  # e.g. all held
+            self.jacobian = self.jacobian[:1].expand(COMPONENTS, -1, -1, -1)  # stored once
         if self.pin_jacobian is not None:
             # the same at every point (an expanded view): read point 0
             used = self.pin_jacobian[:, 0].abs().amax(dim=(0, 2)) > 0
@@ -357,8 +357,8 @@ class Assembly:
             dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
             dense.index_add_(0, self._group_dofs, cross.reshape(-1, width))
             pin_pin = self._group_sums(pin_jac, blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
-        data = np.bincount(self._scatter, weights=pairs.double().cpu().numpy().ravel(),
-                           minlength=len(self._columns))
+        data = np.zeros(len(self._columns))  # summed in order, as np.bincount would
+        np.add.at(data, self._scatter, pairs.double().cpu().numpy().ravel())
         matrix = sp.csr_matrix((data, self._columns, self._row_starts),
                                shape=(self.size, self.size))
         if not pin:
