@@ -30,6 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from dynamic_scenes_check import run_table  # noqa: E402  (the run's table, one place)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -49,13 +52,7 @@ def main(drop: Path, static: Path) -> None:
     scene = tomllib.loads((ROOT / "scenes" / "napkin_drop_sphere.toml").read_text())
     sphere = scene["obstacles"][0]
     centre, radius = np.array(sphere["centre"]), float(sphere["radius"])
-    iterations = np.array(d["newton_iterations"])
-    print("| steps | dt [s] | simulated [s] | Newton it./step mean (max) | substeps | "
-          "CPU [s] | CPU/step [s] | CPU/simulated s [s] |")
-    print("|---|---|---|---|---|---|---|---|")
-    print(f"| {len(iterations)} | {d['dt']:g} | {d['times'][-1]:g} | {iterations.mean():.2f} "
-          f"({iterations.max()}) | {sum(d['substeps'])} | {d['cpu_seconds']:.1f} | "
-          f"{d['cpu_per_step']:.2f} | {d['cpu_per_simulated_second']:.1f} |")
+    run_table(d)
 
     frames = sorted((drop / "trajectory").glob("step_*.obj")) + [drop / "mesh.obj"]
     gaps = [float((np.linalg.norm(vertices(f) - centre, axis=1) - radius).min())
