@@ -27,7 +27,7 @@ import argparse
 import dataclasses
 import os
 import resource
-import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -41,6 +41,10 @@ from taichi_ndf.solve.adaptive import AdaptiveConfig, solve_adaptive, solve_on, 
 from taichi_ndf.solve.spline_solver import solve_spline
 
 ROOT = Path(__file__).resolve().parents[1]
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit  # noqa: E402  (the commit each benchmark states)
+
 INDICATOR = ["density"]  # the adaptive rows' indicator (--indicator)
 PI_INF = -1.64998  # the napkin's Π∞ [J] (RESULTS.md, "Graded knots", both sequences)
 
@@ -191,9 +195,7 @@ def main() -> None:
     INDICATOR[0] = args.indicator
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
     torch.set_num_threads(1)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
-    print(f"commit {commit}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+    print(f"commit {commit()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
           f"load {os.getloadavg()[0]:.1f}")
     parts = args.parts.split(",")
     if "napkin" in parts:

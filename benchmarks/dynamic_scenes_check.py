@@ -125,7 +125,7 @@ def slide(out: Path) -> None:
     left = np.nonzero(uphill > edge + box["rounding"])[0]
     print(f"downhill edge past the top's edge at t = {t[on_top[-1] + 1]:.2f} s; "
           f"uphill edge past the box (x > {edge + box['rounding']:.2f} m) at "
-          f"{'t = %.2f s' % t[left[0]] if len(left) else 'never'}; final centre "
+          f"{f't = {t[left[0]]:.2f} s' if len(left) else 'never'}; final centre "
           f"u = {np.array(d['probes']['centre'])[-1].round(4).tolist()} m")
 
 

@@ -23,7 +23,7 @@ import argparse
 import copy
 import os
 import resource
-import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -37,6 +37,9 @@ from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.solve.dynamics import TimeStepper
 from taichi_ndf.solve.dynamics_adjoint import gradient, record, tangent
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit  # noqa: E402  (the commit each benchmark states)
 
 B_TRUE = 100.0
 POINTS = torch.tensor([[4.0, 0.5], [2.0, 0.5], [4.0, 0.0]], dtype=torch.float64)
@@ -118,9 +121,7 @@ def main() -> None:
         parser.exit(2, "dynamics_fit: seeds, spans, truth-spans >= 1, steps >= 5, dt > 0, "
                        "noise >= 0 and start > 0 required\n")
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()
-    print(f"commit {commit}, load {os.getloadavg()[0]:.2f}, truth {args.truth_spans} spans, "
+    print(f"commit {commit()}, load {os.getloadavg()[0]:.2f}, truth {args.truth_spans} spans, "
           f"fit {args.spans} spans, h = {args.dt} s, {args.steps} Newmark steps, noise "
           f"{args.noise:.0%} of the RMS, start {args.start} × B_true")
     truth = Problem(args.truth_spans, args.dt, args.steps)

@@ -35,7 +35,7 @@ import argparse
 import copy
 import math
 import os
-import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -45,6 +45,9 @@ import taichi_ndf
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.solve.dynamics import TimeStepper, initial_velocity
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit  # noqa: E402  (the commit each benchmark states)
 
 L, B, RHO = 10.0, 100.0, 1.0
 MODES = {1: (1.875104069, 0.734095514), 2: (4.694091133, 1.018467319)}  # β_n L, σ_n
@@ -181,9 +184,7 @@ def main() -> None:
     args = parser.parse_args()
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
     torch.set_num_threads(1)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True, cwd=Path(__file__).parent).stdout.strip()
-    print(f"commit {commit}, load average at start {os.getloadavg()}, spans {args.spans} × 2")
+    print(f"commit {commit()}, load average at start {os.getloadavg()}, spans {args.spans} × 2")
     per_period = 20 if args.quick else args.per_period
     periods = 2.0 if args.quick else args.periods
     costs = []

@@ -40,6 +40,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit as provenance_commit  # noqa: E402  (the commit each benchmark states)
+
 KRATOS_SCRIPT = Path(__file__).resolve().parent / "fe_peer_kratos.py"
 ONE_THREAD = {"TI_CPU_MAX_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
               "OPENBLAS_NUM_THREADS": "1"}
@@ -286,8 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(f"fe_peer: Kratos skipped (not importable: {missing})", flush=True)
     load = os.getloadavg()
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True, cwd=ROOT).stdout.strip()
+    commit = provenance_commit()
     print(f"commit {commit}, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} at start, "
           f"{os.cpu_count()} CPUs", flush=True)
     report = {"commit": commit, "load_start": load, "kratos_skipped": missing, "cases": {}}

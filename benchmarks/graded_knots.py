@@ -24,7 +24,7 @@ import argparse
 import dataclasses
 import os
 import resource
-import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -36,6 +36,10 @@ from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.solve.spline_solver import solve_spline
 
 ROOT = Path(__file__).resolve().parents[1]
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit  # noqa: E402  (the commit each benchmark states)
+
 GRADINGS = ("uniform", "features")
 
 
@@ -125,9 +129,7 @@ def main() -> None:
     args = parser.parse_args()
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
     torch.set_num_threads(1)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
-    print(f"commit {commit}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+    print(f"commit {commit()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
           f"load {os.getloadavg()[0]:.1f}")
     parts = args.parts.split(",")
     if "napkin" in parts:

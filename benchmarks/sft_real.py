@@ -28,6 +28,9 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit as provenance_commit  # noqa: E402  (the commit each benchmark states)
+
 SECTION = "## Shape-from-template on a real capture (φ-SfT R1)"
 # Chamfer x1e4 on R1 as published (NSfT's table for PGSfT; docs in the capture's README).
 PUBLISHED = (("NSfT (ICCV 2025)", 0.66, "~2 s/frame on a V100"),
@@ -101,8 +104,7 @@ def report(result: dict, cpu: float, wall: float, *, label: str, data: Path, ext
     m = result["metrics"]
     n = result["frames"]
     per_frame = result["metrics_per_frame"]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True, check=False).stdout.strip() or "unknown"
+    commit = provenance_commit()
     branch = subprocess.run(["git", "rev-parse", "--abbrev-ref", "HEAD"], capture_output=True,
                             text=True, check=False).stdout.strip() or "unknown"
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")

@@ -36,6 +36,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit  # noqa: E402  (the commit each benchmark states)
+
 SCENES = ROOT / "scenes"
 STORE = ROOT / "benchmarks" / "spline_vs_siren.json"
 RESULTS = ROOT / "benchmarks" / "RESULTS.md"
@@ -51,13 +55,6 @@ RENDER_SIZE = "360x270"
 def shipped_scenes() -> list[str]:
     return [p.stem for p in sorted(SCENES.glob("*.toml"))]
 
-
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-                              capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def scene_material(scene: str) -> str:
@@ -87,7 +84,7 @@ def run_one(scene: str, field: str, out: Path, precision: str, quick: bool,
               "cpu": usage.ru_utime + usage.ru_stime,
               "load": [round(load_before, 2), round(os.getloadavg()[0], 2)],
               "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
-              "commit": _commit(), "precision": precision, "quick": quick,
+              "commit": commit(), "precision": precision, "quick": quick,
               "material": scene_material(scene)}
     code = os.waitstatus_to_exitcode(status)
     if code != 0:

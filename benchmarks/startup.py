@@ -32,6 +32,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit  # noqa: E402  (the commit each benchmark states)
+
 SCENES = ROOT / "scenes"
 TOOLS = ("sim", "validate", "render", "export", "sweep", "view")
 
@@ -241,14 +245,6 @@ def first(marks: list[dict], what: str, text: str = "") -> dict | None:
 
 def _cell(mark: dict | None) -> str:
     return "–" if mark is None else f"{mark['cpu']:.2f} / {mark['wall']:.2f}"
-
-
-def commit() -> str:
-    try:
-        return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-                              capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def help_table(workdir: Path, repeat: int) -> list[str]:
