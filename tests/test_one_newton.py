@@ -77,6 +77,32 @@ def test_dense_and_sparse_linearisations_take_the_same_newton_steps():
     assert by_dense.energy == pytest.approx(by_sparse.energy, rel=1e-13)
 
 
+@pytest.mark.parametrize("dense", [False, True])
+def test_newton_resumed_from_any_iterate_ends_bit_for_bit_where_it_would_have(dense):
+    """`minimise(..., resume=)` from the iterate of each step (`on_iterate`: the parameters,
+    the damping, the exact-K flag, ‖g₀‖, the last Π, the iterations) reaches the same
+    parameters, Π and iterations exactly, on both linearisations; without the damping and
+    the flag (a plain restart from the parameters) it does not."""
+    assembly, potential, length = _strip()
+    linear = SplineLinearisation(assembly, length=length)
+    linear = _dense_of(linear) if dense else linear
+    start = torch.zeros(assembly.n_coefficients, 3, dtype=DT)
+    start = start.t() if dense else start
+    iterates = []
+    whole = minimise(linear, potential, start, load_factor=LOAD_FACTOR,
+                     on_iterate=iterates.append)
+    assert len(iterates) >= 10 and len(iterates) == whole.steps
+    for iterate in iterates[1::4]:
+        resumed = minimise(linear, potential, start, load_factor=LOAD_FACTOR, resume=iterate)
+        assert torch.equal(resumed.parameters, whole.parameters)
+        assert resumed.energy == whole.energy and resumed.converged == whole.converged
+        assert [h.energy for h in resumed.history] == [h.energy for h in whole.history]
+        assert [h.iteration for h in resumed.history] == list(range(len(whole.history)))
+    damped = next(i for i in iterates if i.damping > 0 or not i.exact_failed)
+    restarted = minimise(linear, potential, damped.parameters, load_factor=LOAD_FACTOR)
+    assert not torch.equal(restarted.parameters, whole.parameters)
+
+
 def test_newton_config_validates_its_fields():
     for bad in ({"line_searches": 0}, {"retry_damping": 0.0}, {"relative_decrease": 1.0},
                 {"halvings": 0}, {"max_iterations": 0}, {"hessian": "flip"},

@@ -5,11 +5,13 @@ The same callbacks serve both solve paths: the Adam driver (`taichi_ndf.solve.so
 the projected-Newton driver (`taichi_ndf.solve.spline_solver.solve_spline`, whose `SplineRun` is the
 `solver` here). Either has `.field`, `.state` (`taichi_ndf.minimise.state.State`) and `.config`.
 A callback has any of `on_start(solver)`, `on_step(solver, energy, grad_norm)` (before each
-Adam step), `on_iteration(solver, record)` (after each Adam iteration; record: its
-`MonitorRecord` or None), `on_record(solver, energy, grad_norm, load_factor)` (Π before the
-record is kept: Adam's monitor samples, every Newton iteration), `on_polish(solver, before,
+Adam step), `on_iteration(solver, record)` (after each Adam iteration, record: its
+`MonitorRecord` or None; after each Newton step a load step goes on from, record None),
+`on_record(solver, energy, grad_norm, load_factor)` (Π before the record is kept: Adam's monitor samples, every Newton iteration), `on_polish(solver, before,
 after)` (Π around an L-BFGS polish), `on_load_step(solver, load_factor)`, `on_level(solver)`
-(after each Newton grid level) and `on_end(solver)`. A hook may raise to stop the solve.
+(after each Newton grid level), `on_interrupt(solver)` (Ctrl-C on the Newton path, whose
+state is whole between two iterations) and `on_end(solver)`. A hook may raise to stop the
+solve.
 """
 
 from __future__ import annotations
@@ -97,9 +99,10 @@ def _advice(solver) -> str:
 
 
 class CheckpointWriter:
-    """Writes the solver's state to `path` every `solver.config.checkpoint_every` Adam
-    iterations (0: never in between), after each Newton grid level and at the end; `extra`
-    (e.g. the scene) goes with it."""
+    """Writes the solver's state to `path` every `solver.config.checkpoint_every` iterations
+    (Adam's, or Newton's over all levels and load steps: the iterate inside the level; 0:
+    never in between), after each Newton grid level, on Ctrl-C inside a Newton level and at
+    the end; `extra` (e.g. the scene) goes with it."""
 
     def __init__(self, path: str | Path, extra: dict | None = None):
         self.path = Path(path)
@@ -112,6 +115,11 @@ class CheckpointWriter:
 
     def on_level(self, solver) -> None:
         solver.state.save(self.path, self.extra)
+
+    def on_interrupt(self, solver) -> None:
+        """Ctrl-C: a Newton run's state inside its level (its last iterate), if it has one."""
+        if getattr(solver.state, "inside", None) is not None:
+            solver.state.save(self.path, self.extra)
 
     def on_end(self, solver) -> None:
         solver.state.save(self.path, self.extra)

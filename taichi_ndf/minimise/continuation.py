@@ -27,9 +27,13 @@ the loop also reports each finished step to a progress stage of that name
 (`taichi_ndf.progress.counted`; the SfT frames); the forward paths report from inside their
 minimisers instead.
 
-A resumed run (`resume_point`) starts at the state's load step (Adam) or re-solves its last
-finished level (Newton); `first_step` applies on every level of the run, so the finer levels of
-a resumed Newton run solve the same load steps as the level it resumed on.
+A resumed run (`resume_point`) starts at the state's load step (Adam); a Newton state goes on
+inside the grid level it was saved in (`State.inside`: the level's finished steps are given
+as `done`, the coarser level's results as `coarser`, and the step in progress resumes its
+Newton iterate, `GridLevels`), or, from a checkpoint without it (the end of the last level,
+or one written before it existed), re-solves its last finished level; `first_step` applies on
+every level of the run, so the finer levels of a resumed Newton run solve the same load steps
+as the level it resumed on.
 """
 
 from __future__ import annotations
@@ -75,12 +79,15 @@ class Stages:
 
 def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = None,
                first_level: int = 0, first_step: int = 0, callbacks: Sequence[Any] = (),
-               subject: Any = None, stage: str | None = None) -> list[list[Any]]:
+               subject: Any = None, stage: str | None = None, done: Sequence[Any] = (),
+               coarser: list[Any] | None = None) -> list[list[Any]]:
     """Solve every step (`steps`: their values, load factors or frame indices) from
     `first_step` on, on every grid level from `first_level` below `levels` (None: a field
     without grid levels, one pass and no on_level), calling the stages and the callbacks, and
-    with `stage` the progress reports (module docstring). Returns the results per level of
-    this run, per step solved."""
+    with `stage` the progress reports (module docstring). done: the results of the first
+    level's steps from `first_step` on that are already solved (a run resumed inside a
+    level: they are not solved again); coarser: the results of the level below the first
+    (None: none). Returns the results per level of this run, per step solved."""
     if levels is not None and not 0 <= first_level < levels:
         raise ValueError(f"first_level must be in [0, {levels}), got {first_level}")
     if not 0 <= first_step < len(steps):
@@ -90,9 +97,9 @@ def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = N
     for level in range(first_level, first_level + 1 if levels is None else levels):
         if stages.enter_level is not None:
             stages.enter_level(level)
-        coarser = results[-1] if results else None
-        per_step: list[Any] = []
-        indices = range(first_step, len(steps))
+        coarser = results[-1] if results else coarser
+        per_step: list[Any] = [] if results else list(done)
+        indices = range(first_step + len(per_step), len(steps))
         for index in indices if stage is None else progress.counted(indices, stage):
             step = Step(level, index, steps[index])
             start = None if stages.start is None else stages.start(
@@ -117,8 +124,11 @@ def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = N
 def resume_point(state, load_steps: int) -> tuple[int, int]:
     """(first level, first load step) of a run from `state` (`taichi_ndf.minimise.state.State`) over
     `load_steps` load steps: an Adam state goes on at its load step (a finished one re-runs its
-    last); a Newton state with finished levels re-solves its last level at the last load step
-    (and refines from there), a fresh one starts at (0, 0)."""
+    last); a Newton state inside a grid level goes on there (`State.inside`: its level and its
+    run's first load step), one with finished levels re-solves its last level at the last
+    load step (and refines from there), a fresh one starts at (0, 0)."""
+    if state.method == "newton" and getattr(state, "inside", None) is not None:
+        return state.inside.level, state.inside.first_step
     if state.method == "newton":
         return (len(state.levels) - 1, load_steps - 1) if state.levels else (0, 0)
     return 0, min(state.load_step, load_steps - 1)

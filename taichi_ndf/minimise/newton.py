@@ -46,6 +46,7 @@ from typing import Any, Protocol
 import torch
 
 from taichi_ndf import progress
+from taichi_ndf.minimise.newton_state import NewtonIterate, NewtonIteration
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import (
@@ -160,27 +161,6 @@ class NewtonConfig:
 
 
 @dataclass
-class NewtonIteration:
-    """One Newton iteration: Π [J] before the step, the decrement λ² = −gᵀd [J], the accepted
-    step length α (0: none; above 1: a lengthened full step), the damping μ, the blocks
-    projected (0 also when the exact K was definite and used; "strain": all), ‖g‖, and seconds
-    spent on energy + gradient, Hessian blocks, assembly and the linear solve."""
-
-    load_factor: float
-    iteration: int
-    energy: float
-    decrement: float
-    step_length: float
-    damping: float
-    projected_blocks: int
-    gradient_norm: float
-    time_energy: float
-    time_hessian: float
-    time_assembly: float
-    time_solve: float
-
-
-@dataclass
 class NewtonSolution:
     """The parameters reached (the linearisation's shape), Π [J] there, whether a stopping
     test was met, and the iterations."""
@@ -258,7 +238,9 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
              feasible: Callable[[torch.Tensor, torch.Tensor], bool] | None = None,
              on_step: Callable[[torch.Tensor], bool] | None = None,
              on_iteration: Callable[[NewtonIteration], None] | None = None,
-             report: bool = True, coarse_energy: float | None = None) -> NewtonSolution:
+             report: bool = True, coarse_energy: float | None = None,
+             resume: NewtonIterate | None = None,
+             on_iterate: Callable[[NewtonIterate], None] | None = None) -> NewtonSolution:
     """Minimise Π(P) = potential(U(P)) by Newton from parameters `start` (module docstring).
 
     linearisation: U(P) at the potential's load factor; potential: Π at the linearisation's
@@ -271,22 +253,25 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
     report: each iteration goes to the innermost progress stage and the log at INFO; False:
     the log at DEBUG only (short solves inside another stage: a SIREN's Newton phases).
     coarse_energy: Π [J] of the coarser grid's solution at this load factor (module docstring).
+    resume: Newton's state between two iterations (`NewtonIterate`, from `on_iterate`): go
+    on from there (`start` unused), bit for bit as if it had not stopped. on_iterate(iterate):
+    called after each accepted step that the minimisation goes on from (a checkpoint).
     """
     config = config or NewtonConfig()
     samples = linearisation.samples
-    c = start.detach().clone()
-    history: list[NewtonIteration] = []
     # The first iteration screens the blocks instead of trying the exact K (a start from a
     # coarser grid or the flat sheet is rarely a definite state; a definite one costs a screen)
-    damping, converged, first_norm, exact_failed = 0.0, False, None, True
-    previous = None  # Π before the last accepted step
+    it = resume or NewtonIterate(start)
+    c, history, converged = it.parameters.detach().clone(), list(it.history), False
+    damping, first_norm, exact_failed = it.damping, it.first_norm, it.exact_failed
+    previous = it.previous  # Π before the last accepted step
 
     def _trial_energy(step, a):  # Π at P + a d; inf where `feasible` rejects it
         if feasible is not None and not feasible(c, c + a * step):
             return math.inf
         return potential(samples, linearisation.displacement(c + a * step), False).total
 
-    for iteration in range(config.max_iterations):
+    for iteration in range(it.iteration, config.max_iterations):
         started = time.perf_counter()
         u = linearisation.displacement(c)
         current = potential(samples, u, True)
@@ -396,5 +381,8 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
         damping = damping / 10 if alpha >= 1.0 else damping
         if damping < config.retry_damping:
             damping = 0.0
+        if on_iterate is not None:
+            on_iterate(NewtonIterate(c, iteration + 1, damping, exact_failed, first_norm,
+                                     previous, list(history)))
     energy = potential(samples, linearisation.displacement(c), False).total
     return NewtonSolution(parameters=c, energy=energy, converged=converged, history=history)

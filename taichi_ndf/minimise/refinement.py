@@ -47,6 +47,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import torch
@@ -61,6 +62,7 @@ from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: im
     held_unknowns,
 )
 from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration, minimise
+from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.sampling import SurfaceSamples
 
@@ -242,7 +244,10 @@ class GridLevels:
     first_level: the level the run starts on (`field_`'s); first_coarse: a resumed run's
     coarser Π there (its Newton stops as the whole run's did: `start`); linearise(grid): the
     builder of a level's linearisation (`GridLinearisation`; a discretisation's,
-    `SplineDiscretisation.linearise`), None: on `boundary` with `length` and `linear`."""
+    `SplineDiscretisation.linearise`), None: on `boundary` with `length` and `linear`.
+    Resumed inside the first level: coarse_grid, the grid below it (its prolongation);
+    resume, (step index, `NewtonIterate`): that step's Newton goes on from the iterate.
+    on_iterate(step, iterate): after each Newton step that a load step goes on from."""
 
     def __init__(self, field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples], objective: Objective, *,
@@ -252,8 +257,11 @@ class GridLevels:
                  contact=None, linear: LinearSolverConfig | None = None,
                  on_iteration: Callable[[int, tuple[int, int], NewtonIteration], None]
                  | None = None, first_level: int = 0, first_coarse: float | None = None,
-                 linearise: Callable[[object], GridLinearisation] | None = None):
+                 linearise: Callable[[object], GridLinearisation] | None = None,
+                 coarse_grid=None, resume: tuple[int, NewtonIterate] | None = None,
+                 on_iterate: Callable[[Step, NewtonIterate], None] | None = None):
         self.grid, self.boundary, self.samples_for = field_, boundary, samples_for
+        self.resume, self.on_iterate = resume, on_iterate
         self.first_coarse = first_coarse
         self.objective, self.levels, self.first_level = objective, levels, first_level
         self.config, self.coarse_config, self.length = config, coarse_config, length
@@ -264,7 +272,7 @@ class GridLevels:
         self.dtype = field_.coefficients.dtype
         self.probe_xi = torch.tensor(list(self.probes.values()),
                                      dtype=self.dtype).reshape(-1, 2)
-        self._prolongation = None
+        self._prolongation = None if coarse_grid is None else coarse_grid.prolongation()
 
     def enter_level(self, level: int) -> None:
         """The level's grid (refined from the previous one past the first level), its
@@ -311,6 +319,10 @@ class GridLevels:
         coefficients, start_load_factor, started, coarse_energy = start
         grid, t, newton = self.grid, step.load_factor, self.newton
         nx, ny = grid.config.spans
+        resume = None
+        if self.resume is not None and (step.level, step.index) == (self.first_level,
+                                                                    self.resume[0]):
+            resume, self.resume = self.resume[1], None
         shown = step.level - self.first_level  # labels count this run's levels (as before)
         with progress.stage(f"Newton level {shown} ({nx} × {ny} spans), load {t:.4g}",
                             (newton or NewtonConfig()).max_iterations):
@@ -318,7 +330,9 @@ class GridLevels:
                 solution = minimise(self.builder.linearisation(t),
                                     self.objective.potential(t), coefficients, newton,
                                     load_factor=t, on_iteration=self.iterated,
-                                    coarse_energy=coarse_energy)
+                                    coarse_energy=coarse_energy, resume=resume,
+                                    on_iterate=None if self.on_iterate is None else partial(
+                                        self.on_iterate, step))
             else:  # from the previous load step's state (finer level: this one's, prolonged)
                 solution = self.contact.solve(
                     self.builder, self.samples, self.objective, coefficients, newton,

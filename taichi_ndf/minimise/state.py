@@ -6,8 +6,10 @@ One `State` for both solve paths, tagged by its `method`:
   counters, the monitor history (`MonitorRecord`) and the best monitored state of the
   learning-rate backoff (`taichi_ndf.minimise.backoff`);
 - "newton" (a spline by projected Newton, `taichi_ndf.solve.spline_solver`): the field of the last
-  finished grid level, the per-iteration history (`NewtonRecord`) and the finished levels'
-  summaries (`LevelSummary`); no optimiser, no generator.
+  finished grid level, the per-iteration history (`NewtonRecord`), the finished levels'
+  summaries (`LevelSummary`) and, inside a grid level, where in it the run is (`InsideLevel`:
+  the level's finished load steps, the coarser level's solutions it starts from, Newton's
+  iterate of the load step in progress); no optimiser, no generator.
 The model and the objective are immutable and live elsewhere, so a state saved with `save`
 and read back with `restore` continues a run where it stopped (checkpoint file I/O, with the
 field type and the method as tags: `taichi_ndf.minimise.checkpoint`).
@@ -19,11 +21,13 @@ import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from taichi_ndf.minimise.backoff import BestState
 from taichi_ndf.minimise.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from taichi_ndf.minimise.newton import NewtonIteration
+from taichi_ndf.minimise.newton_state import NewtonIterate, NewtonIteration
+from taichi_ndf.minimise.refinement import LevelSolution
 from taichi_ndf.problem.optim import Adam, AdamConfig
 
 log = logging.getLogger(__name__)
@@ -65,6 +69,60 @@ class LevelSummary:
     converged: bool
 
 
+@dataclass
+class InsideLevel:
+    """Where a Newton run is inside a grid level (`taichi_ndf.solve.spline_solver`): enough to go
+    on bit for bit (`continuation.solve_over`'s done and coarser, `GridLevels`' resume).
+
+    level: the grid level (its grid: the last finished level's refined, or the first grid);
+    first_step: the run's first load step on every level; done: this level's finished load
+    steps; coarser: the coarser level's solutions (None on the run's first level); step: the
+    load step in progress with Newton's `iterate` (None: the next load step starts afresh);
+    records: how many of the state's history records precede it (an interrupt between a
+    record and its iterate drops that record)."""
+
+    level: int
+    first_step: int
+    done: list[LevelSolution]
+    coarser: list[LevelSolution] | None
+    records: int
+    step: int | None = None
+    iterate: NewtonIterate | None = None
+
+    def to_dict(self) -> dict:
+        return {"level": self.level, "first_step": self.first_step, "records": self.records,
+                "done": [_solution_dict(s) for s in self.done],
+                "coarser": None if self.coarser is None else [
+                    _solution_dict(s, history=False) for s in self.coarser],
+                "step": self.step,
+                "iterate": None if self.iterate is None else self.iterate.to_dict()}
+
+    @classmethod
+    def from_dict(cls, values: dict) -> InsideLevel:
+        coarser = values["coarser"]
+        iterate = values["iterate"]
+        return cls(int(values["level"]), int(values["first_step"]),
+                   [_solution(s) for s in values["done"]],
+                   None if coarser is None else [_solution(s) for s in coarser],
+                   int(values["records"]), values["step"],
+                   None if iterate is None else NewtonIterate.from_dict(iterate))
+
+
+def _solution_dict(solution: LevelSolution, history: bool = True) -> dict:
+    """A `LevelSolution` as plain values (history: its iterations, else none)."""
+    values = asdict(solution)
+    values["coefficients"] = solution.coefficients
+    values["probes"] = {k: v.tolist() for k, v in solution.probes.items()}
+    values["history"] = values["history"] if history else []
+    return values
+
+
+def _solution(values: dict) -> LevelSolution:
+    return LevelSolution(**{**values, "spans": tuple(values["spans"]),
+                            "probes": {k: np.array(v) for k, v in values["probes"].items()},
+                            "history": [NewtonIteration(**h) for h in values["history"]]})
+
+
 METHODS = ("adam", "newton")
 
 
@@ -77,6 +135,7 @@ class State:
     load_step: index of the load step in progress (the number of load steps once finished).
     best: the lowest monitored Π at the current load factor and its state (`backoff`).
     backoffs: learning-rate backoffs so far. levels: a Newton run's finished grid levels.
+    inside: where a Newton run is inside a grid level (None: at the end of its last level).
     """
 
     field: object
@@ -90,6 +149,7 @@ class State:
     backoffs: int = 0
     method: str = "adam"
     levels: list[LevelSummary] = field(default_factory=list)
+    inside: InsideLevel | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -111,15 +171,19 @@ class State:
         return cls(field=field, method="newton")
 
     def save(self, path: str | Path, extra: dict | None = None) -> None:
-        """Write the state (and `extra`, e.g. the scene) to a checkpoint file."""
-        values = {**(extra or {}), "method": self.method, "iteration": self.iteration,
+        """Write the state (and `extra`, e.g. the scene) to a checkpoint file; inside a grid
+        level, the history up to the level's iterate."""
+        history = self.history if self.inside is None else self.history[:self.inside.records]
+        values = {**(extra or {}), "method": self.method, "iteration": len(history)
+                  if self.method == "newton" else self.iteration,
                   "load_step": self.load_step, "newton_steps": self.newton_steps,
-                  "history": [asdict(h) for h in self.history], "backoffs": self.backoffs,
+                  "history": [asdict(h) for h in history], "backoffs": self.backoffs,
                   "best": None if self.best is None else self.best.to_dict()}
         if self.generator is not None:
             values["sampling_rng"] = self.generator.get_state()
         if self.method == "newton":
             values["levels"] = [asdict(lv) for lv in self.levels]
+            values["inside"] = None if self.inside is None else self.inside.to_dict()
         save_checkpoint(path, self.field, self.optimiser, extra=values)
 
     def restore(self, path: str | Path) -> dict:
@@ -156,7 +220,12 @@ class State:
                        for d in extra["levels"]]
         self.iteration = len(self.history)
         self.load_step = int(extra.get("load_step", 0))
-        log.info("resumed from %s after %d grid levels", path, len(self.levels))
+        inside = extra.get("inside")  # absent before checkpoints inside a level
+        self.inside = None if inside is None else InsideLevel.from_dict(inside)
+        where = "" if self.inside is None else (
+            f", inside level {self.inside.level} at load step "
+            f"{self.inside.first_step + len(self.inside.done)}")
+        log.info("resumed from %s after %d grid levels%s", path, len(self.levels), where)
         return extra
 
 

@@ -27,12 +27,14 @@ import torch
 from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.callbacks import call
+from taichi_ndf.minimise.checkpoint import CheckpointError
 from taichi_ndf.minimise.continuation import Hook, Stages, Step, resume_point, solve_over
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig
+from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson
-from taichi_ndf.minimise.state import LevelSummary, NewtonRecord, State
+from taichi_ndf.minimise.state import InsideLevel, LevelSummary, NewtonRecord, State
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan
@@ -120,13 +122,18 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                  ) -> SplineRun:
     """Solve the model on the plan's grids (at most `config.max_levels` of them when > 0).
 
-    state: a resumed run's (`State.restore`, method "newton": the last finished level's field
-    at the last load step, its levels and history); the remaining levels are solved at the
-    last load factor from it. With obstacles (`model.contact`) each load step is solved by
-    `NewtonContact.solve` (which adds the contact terms to the objective).
+    state: a resumed run's (`State.restore`, method "newton": the last finished level's field,
+    its levels and history, and where the run was inside a grid level, `State.inside`: it
+    goes on there, bit for bit; without it, the remaining levels are solved at the last load
+    factor from the last level). With obstacles (`model.contact`) each load step is solved
+    by `NewtonContact.solve` (which adds the contact terms to the objective); its rounds'
+    state (check points, κ) is not in a checkpoint, so such a run keeps `State.inside` None
+    (checkpoints per finished level, as before) and refuses a state inside a level.
     callbacks (`taichi_ndf.minimise.callbacks`, each hook optional, called with the `SplineRun`):
-    on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_load_step(run,
-    load factor) and on_level(run) after each level (its field: that level's grid), on_end.
+    on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_iteration(run,
+    None) after each Newton step a load step goes on from (`State.inside` then holds the
+    iterate), on_load_step(run, load factor) and on_level(run) after each level (its field:
+    that level's grid), on_interrupt(run) on Ctrl-C (then re-raised), on_end.
     on_level(run): after each level too, after the callbacks.
     linearise(grid): the builder of each grid level's linearisation, the discretisation's
     (`SplineDiscretisation.linearise`: `SplineDiscretisation.solve` passes it); None: the
@@ -141,10 +148,19 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     state = state or State.newton(None)
     if state.field is None:
         state.field = SplineField(plan.config)
-    grid = state.field
-    # resumed: the last level re-solved at the last load step (one Newton step) and refined
+    inside = state.inside
+    if inside is not None and model.contact is not None:
+        raise CheckpointError(
+            f"the checkpoint was written inside grid level {inside.level}, which a run with "
+            "obstacles cannot resume (contact's rounds are not in it); start the run afresh")
+    # inside a level: the last finished level's grid refined (the first level's: the grid)
+    coarse_grid = None if inside is None or inside.coarser is None else state.field
+    grid = state.field if coarse_grid is None else coarse_grid.refined()
+    # resumed without `inside`: the last level re-solved at the last load step and refined
     first, first_step = resume_point(state, len(load_steps))
     state.levels = state.levels[:first]
+    done = [] if inside is None else list(inside.done)  # this level's finished load steps
+    coarser = None if inside is None else inside.coarser
     contact = None
     if model.contact is not None:
         contact = NewtonContact(model.contact, model, grid.coefficients.dtype)
@@ -164,10 +180,22 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         state.history.append(NewtonRecord(**values))
         state.iteration = len(state.history)
 
+    def within(level: int, step: int | None = None, iterate: NewtonIterate | None = None
+               ) -> InsideLevel | None:  # where the run is, None with contact
+        return None if contact is not None else InsideLevel(
+            level, first_step, list(done), coarser, len(state.history), step, iterate)
+
+    def iterate_kept(step: Step, iterate: NewtonIterate) -> None:
+        state.inside = within(step.level, step.index, iterate)
+        call(callbacks, "on_iteration", run, None)
+
     def stepped(step: Step, solution: LevelSolution) -> None:
         state.load_step = step.index
+        done.append(solution)
+        state.inside = within(step.level)
 
     def finished(level: int, solutions: list[LevelSolution]) -> None:
+        nonlocal coarser
         field_ = grids.grid
         field_.coefficients.copy_(solutions[-1].coefficients)
         last = solutions[-1]
@@ -184,6 +212,9 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                            "probes": {k: v.tolist() for k, v in s.probes.items()},
                            "converged": s.converged} for s in solutions]
         run.wall_time = time.perf_counter() - started
+        coarser = solutions
+        done.clear()
+        state.inside = within(level + 1) if level + 1 < levels else None
         log.info("level %d (%d × %d spans): Π %.10g J, %d Newton iterations, %.2f s%s", level,
                  *last.spans, last.energy, summary.iterations, summary.seconds,
                  "" if summary.converged else " (not converged)")
@@ -201,11 +232,18 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                        linear=LinearSolverConfig(kind=config.linear_solver),
                        on_iteration=iterated, first_level=first,
                        first_coarse=state.levels[first - 1].energy if first else None,
-                       linearise=linearise)
+                       linearise=linearise, coarse_grid=coarse_grid,
+                       resume=None if inside is None or inside.iterate is None else (
+                           inside.step, inside.iterate), on_iterate=iterate_kept)
     callbacks = tuple(callbacks)
     if on_level is not None:  # after the callbacks
         callbacks = (*callbacks, Hook("on_level", lambda: on_level(run)))
-    solve_over(Stages(grids.solve, grids.start, grids.enter_level, stepped, finished, ended),
-               load_steps, levels=levels, first_level=first, first_step=first_step,
-               callbacks=callbacks, subject=run)
+    try:
+        solve_over(Stages(grids.solve, grids.start, grids.enter_level, stepped, finished,
+                          ended), load_steps, levels=levels, first_level=first,
+                   first_step=first_step, callbacks=callbacks, subject=run,
+                   done=list(done), coarser=coarser)
+    except KeyboardInterrupt:
+        call(callbacks, "on_interrupt", run)
+        raise
     return run
