@@ -8,10 +8,10 @@ A callback has any of `on_start(solver)`, `on_step(solver, energy, grad_norm)` (
 Adam step), `on_iteration(solver, record)` (after each Adam iteration, record: its
 `MonitorRecord` or None; after each Newton step a load step goes on from, record None),
 `on_record(solver, energy, grad_norm, load_factor)` (Π before the record is kept: Adam's
-monitor samples, every Newton iteration), `on_polish(solver, before, after)` (Π around an L-BFGS polish), `on_load_step(solver, load_factor)`, `on_level(solver)`
-(after each Newton grid level), `on_interrupt(solver)` (Ctrl-C on the Newton path, whose
-state is whole between two iterations) and `on_end(solver)`. A hook may raise to stop the
-solve.
+monitor samples, every Newton iteration), `on_polish(solver, before, after)` (Π around an
+L-BFGS polish), `on_load_step(solver, load_factor)`, `on_level(solver)` (after each Newton
+grid level), `on_interrupt(solver)` (Ctrl-C on the Newton path, whose state is whole between
+two iterations) and `on_end(solver)`. A hook may raise to stop the solve.
 """
 
 from __future__ import annotations
