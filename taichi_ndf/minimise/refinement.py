@@ -61,7 +61,8 @@ from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: im
     GridLinearisation,
     held_unknowns,
 )
-from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration, minimise
+from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
+from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration
 from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.sampling import SurfaceSamples
@@ -261,7 +262,8 @@ class GridLevels:
                  coarse_grid=None, resume: tuple[int, NewtonIterate] | None = None,
                  on_iterate: Callable[[Step, NewtonIterate], None] | None = None):
         self.grid, self.boundary, self.samples_for = field_, boundary, samples_for
-        self.resume, self.on_iterate = resume, on_iterate
+        self.resume = {} if resume is None else {(first_level, resume[0]): resume[1]}
+        self.on_iterate = on_iterate
         self.first_coarse = first_coarse
         self.objective, self.levels, self.first_level = objective, levels, first_level
         self.config, self.coarse_config, self.length = config, coarse_config, length
@@ -314,26 +316,25 @@ class GridLevels:
 
     def solve(self, step: Step, start: tuple[torch.Tensor, float, float, float | None]
               ) -> LevelSolution:
-        """Projected Newton at the step's load factor from `start` (`minimise`, or
+        """Projected Newton at the step's load factor from `start` (`NewtonMinimiser`, or
         `NewtonContact.solve` with obstacles); the solution, Π, the probes' readings."""
         coefficients, start_load_factor, started, coarse_energy = start
         grid, t, newton = self.grid, step.load_factor, self.newton
         nx, ny = grid.config.spans
-        resume = None
-        if self.resume is not None and (step.level, step.index) == (self.first_level,
-                                                                    self.resume[0]):
-            resume, self.resume = self.resume[1], None
+        resume = self.resume.pop((step.level, step.index), None)  # the first only
         shown = step.level - self.first_level  # labels count this run's levels (as before)
-        with progress.stage(f"Newton level {shown} ({nx} × {ny} spans), load {t:.4g}",
-                            (newton or NewtonConfig()).max_iterations):
-            if self.contact is None:
-                solution = minimise(self.builder.linearisation(t),
-                                    self.objective.potential(t), coefficients, newton,
-                                    load_factor=t, on_iteration=self.iterated,
-                                    coarse_energy=coarse_energy, resume=resume,
-                                    on_iterate=None if self.on_iterate is None else partial(
-                                        self.on_iterate, step))
-            else:  # from the previous load step's state (finer level: this one's, prolonged)
+        stage = (f"Newton level {shown} ({nx} × {ny} spans), load {t:.4g}",
+                 (newton or NewtonConfig()).max_iterations)
+        if self.contact is None:
+            iterate = None if self.on_iterate is None else partial(self.on_iterate, step)
+            solution = run_phases([Phase(
+                NewtonMinimiser(newton, load_factor=t, coarse_energy=coarse_energy,
+                                resume=resume),
+                lambda: (self.builder.linearisation(t), self.objective.potential(t)),
+                lambda: coefficients, Hooks(on_iteration=self.iterated, on_iterate=iterate),
+                stage)])[0]
+        else:  # from the previous load step's state (finer level: this one's, prolonged)
+            with progress.stage(*stage):
                 solution = self.contact.solve(
                     self.builder, self.samples, self.objective, coefficients, newton,
                     load_factor=t, start_load_factor=start_load_factor,

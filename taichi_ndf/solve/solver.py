@@ -19,14 +19,11 @@ t at once (`taichi_ndf.problem.pseudo_time`): every area sample draws its own t 
 [pseudo_time_start, λ] for the current load step λ, so several load steps act as a curriculum
 that widens the range of t. The monitor reports Π at t = λ.
 
-Roles: the displacement operator (`taichi_ndf.problem.operator`) gives the jets and chains gradients
-back; the objective (`taichi_ndf.objective`) gives Π and dΠ/du_jets; the minimisers
-(`taichi_ndf.minimise.minimisers`, `taichi_ndf.minimise.last_layer`: over the linearisation
-of the output layer that the discretisation gives, `linearise`) change the state
-(`taichi_ndf.minimise.state`); this module draws the sample sets and solves one load step, which the
-continuation loop (`taichi_ndf.minimise.continuation`) calls for each load step in turn. Checkpoints
-and the divergence guard are callbacks the application installs (`taichi_ndf.minimise.callbacks`);
-progress goes to `taichi_ndf.progress` (a stage per load step).
+Roles: the operator (`problem.operator`) gives the jets and chains gradients back; the
+objective gives Π and dΠ/du_jets; the minimisers (`minimise.minimisers`: one interface,
+`Minimiser`) change the state (`minimise.state`); this module draws the sample sets and
+solves a load step as a list of phases (`Solver.phases`), which the continuation loop calls
+for each load step. Checkpoints and the divergence guard are callbacks (`minimise.callbacks`).
 """
 
 from __future__ import annotations
@@ -44,13 +41,19 @@ from taichi_ndf.field import NeuralField
 from taichi_ndf.minimise.backoff import MAX_BACKOFFS, back_to_best, keep_if_best, should_back_off
 from taichi_ndf.minimise.callbacks import DivergenceError, call
 from taichi_ndf.minimise.continuation import Hook, Stages, Step, resume_point, solve_over
-from taichi_ndf.minimise.last_layer import (
-    last_layer_config,
-    minimise_output_layer,
-    output_linearisation,
-)
+from taichi_ndf.minimise.last_layer import last_layer_config, output_linearisation
 from taichi_ndf.minimise.linearisation import DenseLinearisation
-from taichi_ndf.minimise.minimisers import adam_iteration, lbfgs
+from taichi_ndf.minimise.minimisers import (
+    AdamMinimiser,
+    Hooks,
+    LBFGSMinimiser,
+    MinimiseResult,
+    OutputLayerNewton,
+    Phase,
+    adam_iteration,
+    run_phases,
+    value_and_gradient,
+)
 from taichi_ndf.minimise.state import MonitorRecord, State
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
@@ -193,18 +196,26 @@ class Solver:
 
     def newton(self, load_factor: float) -> None:
         """A last-layer Newton phase on the fixed Newton samples at this load factor."""
-        samples = self.newton_samples()
-        potential = self.objective.potential(load_factor)
-        if self.contact is not None:
-            samples = self.contact.points.augment(samples)
-            # Π alone, without its terms' own Hessian blocks: with contact the phases' blocks
-            # are central differences of the whole gradient (as when the filter wrapped Π)
-            potential = _value_and_gradient(potential)
-        result = minimise_output_layer(
-            self.field, self._linearise(samples, load_factor), potential, load_factor,
-            last_layer_config(max_iterations=self.config.newton_iterations), contact=self.contact)
-        self.state.newton_steps += result.steps
-        self._refresh_contact(load_factor)
+        run_phases([self._newton_phase(load_factor)])
+
+    def _newton_phase(self, load_factor: float) -> Phase:
+        """`OutputLayerNewton` on the fixed Newton samples (and contact's check points)."""
+        def objective():
+            samples = self.newton_samples()
+            potential = self.objective.potential(load_factor)
+            if self.contact is not None:
+                samples = self.contact.points.augment(samples)
+                # Π alone, without its terms' own Hessian blocks: with contact the phases'
+                # blocks are central differences of the whole gradient
+                potential = value_and_gradient(potential)
+            return self._linearise(samples, load_factor), potential
+
+        def after(result: MinimiseResult) -> None:
+            self.state.newton_steps += result.steps
+            self._refresh_contact(load_factor)
+        newton = OutputLayerNewton(load_factor, last_layer_config(
+            max_iterations=self.config.newton_iterations), contact=self.contact)
+        return Phase(newton, objective, lambda: self.field, after=after)
 
     def probe_displacements(self, load_factor: float) -> dict[str, list[float]]:
         if not self.model.probes:
@@ -239,65 +250,82 @@ class Solver:
                            newton_steps=state.newton_steps, backoffs=state.backoffs)
 
     def _solve_load_step(self, load_step: Step, _start=None) -> None:
-        """One load step: a last-layer Newton phase at its start (with `newton_iterations`),
-        its Adam iterations (with Newton phases every `newton_every`), a Newton phase and the
-        L-BFGS polish at its end, and a monitor record; from where the state stands (a resumed
-        run: within the step)."""
-        cfg, state, t0 = self.config, self.state, self._t0
+        """One load step's phases from where the state stands, then a monitor record."""
+        cfg, state = self.config, self.state
         step, lam = load_step.index, load_step.load_factor
         state.load_step = step
-        newton = cfg.newton_iterations > 0
-        done_in_step = max(state.iteration - step * cfg.iterations, 0)
         self._refresh_contact(lam)
-        if newton and done_in_step == 0:
-            self.newton(lam)
-        if done_in_step == 0 and cfg.iterations > 0:  # the step's start: backoff's first best
-            keep_if_best(state, self.field, lam, self._monitor_energy(lam))
-        with progress.stage(f"Adam, load {lam:.4g}", cfg.iterations):
-            shown = {}
-            for _ in range(done_in_step, cfg.iterations):
-                samples, times = self.training_samples(cfg.samples, lam, state.generator)
-                gnorm = self._adam_step(samples, lam, times)
-                state.iteration += 1
-                record = None
-                if state.iteration % cfg.monitor_every == 0:
-                    record = self._record(lam, gnorm, t0)
-                    shown = {"Π": record.energy, "‖∇Π‖": record.grad_norm}
-                call(self._callbacks, "on_iteration", self, record)
-                in_step = state.iteration - step * cfg.iterations
-                progress.report(in_step, **shown)
-                if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
-                        and in_step < cfg.iterations:
-                    self.newton(lam)
-        if newton and cfg.iterations > 0:
-            self.newton(lam)
-        if cfg.lbfgs_iterations:
-            self._lbfgs(lam)
+        run_phases(self.phases(load_step, max(state.iteration - step * cfg.iterations, 0)))
+        newton = cfg.newton_iterations > 0
         recorded = state.history and state.history[-1].iteration == state.iteration
         if cfg.lbfgs_iterations or newton or not recorded:
-            self._record(lam, state.optimiser.gradient_norm(), t0)
+            self._record(lam, state.optimiser.gradient_norm(), self._t0)
         log.info("load factor %.4g: Π = %.8g J after %d iterations", lam,
                  state.history[-1].energy, state.iteration)
+
+    def phases(self, load_step: Step, done_in_step: int = 0) -> list[Phase]:
+        """The minimisers of a load step with `done_in_step` Adam iterations done: last-layer
+        Newton (with `newton_iterations`), Adam (with Newton every `newton_every`), Newton,
+        the L-BFGS polish."""
+        cfg, lam = self.config, load_step.load_factor
+        newton = cfg.newton_iterations > 0
+        phases = [self._newton_phase(lam)] if newton and done_in_step == 0 else []
+        phases.append(self._adam_phase(load_step, done_in_step))
+        if newton and cfg.iterations > 0:
+            phases.append(self._newton_phase(lam))
+        if cfg.lbfgs_iterations:
+            phases.append(self._lbfgs_phase(lam))
+        return phases
+
+    def _adam_phase(self, load_step: Step, done_in_step: int) -> Phase:
+        """Adam's iterations (`AdamMinimiser`, with the contact policy), each followed by a
+        monitor record every `monitor_every`, on_iteration, progress, Newton phases."""
+        cfg, state = self.config, self.state
+        step, lam = load_step.index, load_step.load_factor
+        newton, shown = cfg.newton_iterations > 0, {}
+
+        def objective():
+            if done_in_step == 0 and cfg.iterations > 0:  # the step's start: the first best
+                keep_if_best(state, self.field, lam, self._monitor_energy(lam))
+            return lambda: self.training_samples(cfg.samples, lam, state.generator)
+
+        def iterated(gnorm: float) -> None:
+            state.iteration += 1
+            record = None
+            if state.iteration % cfg.monitor_every == 0:
+                record = self._record(lam, gnorm, self._t0)
+                shown.update({"Π": record.energy, "‖∇Π‖": record.grad_norm})
+            call(self._callbacks, "on_iteration", self, record)
+            in_step = state.iteration - step * cfg.iterations
+            progress.report(in_step, **shown)
+            if newton and cfg.newton_every and in_step % cfg.newton_every == 0 \
+                    and in_step < cfg.iterations:
+                self.newton(lam)
+        adam = AdamMinimiser(state.optimiser, cfg.iterations, first=done_in_step,
+                             step=lambda drawn, check: self._adam_step(*drawn, lam, check))
+        return Phase(adam, objective, hooks=Hooks(on_step=self._check_step,
+                                                  on_iteration=iterated),
+                     stage=(f"Adam, load {lam:.4g}", cfg.iterations))
 
     def _finished(self) -> None:
         self.state.load_step = len(self.config.load_steps)
 
     # -- contact: penetration filter and dense check ----------------------------------------------
-    def _adam_step(self, samples, lam: float, times) -> float:
-        """One Adam step (`adam_iteration`); with contact, the hook's policy
-        (`ContactHook.accept`: on the step's area samples and the dense grid, halved until
-        allowed, else undone and counted in `rejected_steps`). Returns ‖∇Π‖ before the
-        step."""
+    def _adam_step(self, samples, times, lam: float, check) -> float:
+        """One Adam step (`adam_iteration`, `check(Π, ‖∇Π‖)` before it); with contact, the
+        hook's policy (`ContactHook.accept`: on the step's area samples and the dense grid,
+        halved until allowed, else undone and counted in `rejected_steps`). Returns ‖∇Π‖
+        before the step."""
         evaluate = self.evaluator(samples, lam, times)
         if self.contact is None:
-            return adam_iteration(self.state.optimiser, evaluate, check=self._check_step)[1]
+            return adam_iteration(self.state.optimiser, evaluate, check=check)[1]
         contact, field = self.contact, self.field
 
         def positions() -> torch.Tensor:
             return contact.points.filter_positions(self._displacement(lam), samples)
         before = field.get_flat().clone()
         check = contact.check(positions(), lam)
-        _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=self._check_step)
+        _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=check)
         if not contact.accept(check, before, field.get_flat().clone(), field.set_flat,
                               positions):
             self.rejected_steps += 1
@@ -355,22 +383,18 @@ class Solver:
                     MAX_BACKOFFS)
         return restored
 
-    def _lbfgs(self, lam: float) -> None:
-        """Deterministic L-BFGS polish on a fixed, large sample set (of (ξ, t) in a
-        pseudo-time solve)."""
-        if self.config.pseudo_time:
-            gen = torch.Generator().manual_seed(self.config.seed + MONITOR_SEED_OFFSET)
-            samples, times = self.training_samples(self.config.monitor_samples, lam, gen)
-        else:
-            samples, times = self.monitor_samples(), None
-        before, after = lbfgs(self.field, self.evaluator(samples, lam, times),
-                              self.config.lbfgs_iterations)
-        call(self._callbacks, "on_polish", self, before, after)
-        log.info("L-BFGS polish: Π %.8g -> %.8g J", before, after)
+    def _lbfgs_phase(self, lam: float) -> Phase:
+        """L-BFGS polish on a fixed, large sample set (of (ξ, t) in a pseudo-time solve)."""
+        def objective():
+            if self.config.pseudo_time:
+                gen = torch.Generator().manual_seed(self.config.seed + MONITOR_SEED_OFFSET)
+                samples, times = self.training_samples(self.config.monitor_samples, lam, gen)
+            else:
+                samples, times = self.monitor_samples(), None
+            return self.evaluator(samples, lam, times)
 
-
-
-def _value_and_gradient(potential):
-    """`potential` as a plain (samples, u_jets, grad) -> EnergyResult callable, without its
-    `hessian_blocks` / `coupled_blocks` (Newton then differences its gradient)."""
-    return lambda samples, u_jets, grad: potential(samples, u_jets, grad)
+        def after(result: MinimiseResult) -> None:
+            call(self._callbacks, "on_polish", self, result.energy_before, result.energy)
+            log.info("L-BFGS polish: Π %.8g -> %.8g J", result.energy_before, result.energy)
+        return Phase(LBFGSMinimiser(self.config.lbfgs_iterations), objective,
+                     lambda: self.field, after=after)
