@@ -311,21 +311,21 @@ class Solver:
         self.state.load_step = len(self.config.load_steps)
 
     # -- contact: penetration filter and dense check ----------------------------------------------
-    def _adam_step(self, samples, times, lam: float, check) -> float:
-        """One Adam step (`adam_iteration`, `check(Π, ‖∇Π‖)` before it); with contact, the
+    def _adam_step(self, samples, times, lam: float, guard) -> float:
+        """One Adam step (`adam_iteration`, `guard(Π, ‖∇Π‖)` before it); with contact, the
         hook's policy (`ContactHook.accept`: on the step's area samples and the dense grid,
         halved until allowed, else undone and counted in `rejected_steps`). Returns ‖∇Π‖
         before the step."""
         evaluate = self.evaluator(samples, lam, times)
         if self.contact is None:
-            return adam_iteration(self.state.optimiser, evaluate, check=check)[1]
+            return adam_iteration(self.state.optimiser, evaluate, check=guard)[1]
         contact, field = self.contact, self.field
 
         def positions() -> torch.Tensor:
             return contact.points.filter_positions(self._displacement(lam), samples)
         before = field.get_flat().clone()
         check = contact.check(positions(), lam)
-        _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=check)
+        _, gnorm = adam_iteration(self.state.optimiser, evaluate, check=guard)
         if not contact.accept(check, before, field.get_flat().clone(), field.set_flat,
                               positions):
             self.rejected_steps += 1
