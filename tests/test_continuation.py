@@ -41,6 +41,29 @@ def test_steps_carry_their_value_start_from_the_previous_and_the_coarser_result(
     assert Step(0, 1, 0.25).load_factor == 0.25  # the forward paths' name for the value
 
 
+def test_a_level_resumed_with_its_done_steps_and_the_coarser_results_goes_on_there():
+    """`done` (the first level's finished steps) are not solved again but are the previous
+    result and part of the level's results; `coarser` is the level below's."""
+    starts, solved = [], []
+
+    def start(step, previous, coarser):
+        starts.append((step.level, step.index, previous, coarser))
+
+    def solve(step, begin):
+        solved.append((step.level, step.index))
+        return (step.level, step.value)
+
+    calls = Calls()
+    results = solve_over(Stages(solve, start=start), [0.25, 0.5, 1.0], levels=3, first_level=1,
+                         callbacks=[calls], done=[(1, 0.25)],
+                         coarser=[(0, 0.25), (0, 0.5), (0, 1.0)])
+    assert solved == [(1, 1), (1, 2), (2, 0), (2, 1), (2, 2)]
+    assert starts[:2] == [(1, 1, (1, 0.25), (0, 0.5)), (1, 2, (1, 0.5), (0, 1.0))]
+    assert starts[2] == (2, 0, None, (1, 0.25))
+    assert results[0] == [(1, 0.25), (1, 0.5), (1, 1.0)]
+    assert calls.seen == ["start", 0.5, 1.0, "level", 0.25, 0.5, 1.0, "level", "end"]
+
+
 def test_a_named_stage_reports_each_finished_step_and_none_without_it():
     reports = []
     with progress.listening(reports.append):
