@@ -112,6 +112,20 @@ def test_ctrl_c_inside_a_level_saves_the_iterate_and_resume_gives_the_same_run(t
     assert (cut / "mesh.obj").read_bytes() == (whole / "mesh.obj").read_bytes()
 
 
+def test_a_resume_with_other_load_steps_is_refused_in_one_line(strip, tmp_path):
+    scene, solver, whole = strip
+    path = tmp_path / "c.pt"
+    with pytest.raises(Stop):
+        solve_spline(scene.model, scene.field, solver,
+                     callbacks=[CheckpointWriter(path), StopAfter(_inside(whole, 0.6))])
+    state = State.newton(None)
+    state.restore(path)
+    other = dataclasses.replace(solver, load_steps=(0.4, 1.0))
+    with pytest.raises(CheckpointError, match=r"^the checkpoint was written inside grid level "
+                       r"1 of a run with other load steps than \[0.4, 1.0\]; resume it"):
+        solve_spline(scene.model, scene.field, other, state=state)
+
+
 def test_a_run_with_obstacles_refuses_a_checkpoint_inside_a_level():
     scene = load_scene("scenes/tablecloth_box.toml", field="spline")
     assert scene.model.contact is not None

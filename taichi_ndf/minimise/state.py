@@ -89,6 +89,14 @@ class InsideLevel:
     step: int | None = None
     iterate: NewtonIterate | None = None
 
+    def fits(self, load_steps: tuple[float, ...]) -> bool:
+        """Whether the run went over these load steps (its finished and coarser solutions
+        stand at the load steps from `first_step` on)."""
+        ahead = list(load_steps[self.first_step:])
+        return (self.first_step < len(load_steps)
+                and [s.load_factor for s in self.done] == ahead[:len(self.done)]
+                and (self.coarser is None or [s.load_factor for s in self.coarser] == ahead))
+
     def to_dict(self) -> dict:
         return {"level": self.level, "first_step": self.first_step, "records": self.records,
                 "done": [_solution_dict(s) for s in self.done],

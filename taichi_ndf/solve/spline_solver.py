@@ -153,6 +153,10 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         raise CheckpointError(
             f"the checkpoint was written inside grid level {inside.level}, which a run with "
             "obstacles cannot resume (contact's rounds are not in it); start the run afresh")
+    if inside is not None and not inside.fits(load_steps):
+        raise CheckpointError(
+            f"the checkpoint was written inside grid level {inside.level} of a run with other "
+            f"load steps than {list(load_steps)}; resume it with its own [training] load_steps")
     # inside a level: the last finished level's grid refined (the first level's: the grid)
     coarse_grid = None if inside is None or inside.coarser is None else state.field
     grid = state.field if coarse_grid is None else coarse_grid.refined()
