@@ -1,0 +1,205 @@
+"""Seams (issue 30): a tube seamed to itself against the periodic tube, the penalty's error,
+and sewing a cylinder sector shut. Spline field + projected Newton, float64, one thread.
+
+Parts (`--parts`):
+- refinement: scenes/tube_seam.toml (a tube cut open along θ = 0, seamed with bending
+  transmitted; clamped top rim, a pinch by two line loads, gravity) and the same tube with
+  angle 360° (periodic, no seam) and with a hinge seam, on n1 × n2 spans: Π of each, the
+  relative differences, the largest displacement difference on a 97 × 13 grid of ξ, the
+  largest seam gap, CPU and wall per solve;
+- penalty: the seamed tube on one grid with the seam's penalty factor β = 1e2 … 1e6: the
+  gap, |Π_seamed − Π_periodic| / |Π_periodic| and the displacement difference (∝ 1/β while
+  the penalty's error dominates the discretisation's);
+- sewing: a 300° cylinder sector (its edges 0.1 m apart at rest) held at one point opposite
+  the cut, sewn shut by a hinge seam over load steps 0.1 … 1.0 (the seam's rest gap closes
+  with the load factor): the largest gap after each step.
+
+CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
+average after the solve (the machine is shared).
+
+    python benchmarks/seam_consistency.py [--parts refinement,penalty,sewing]
+        [--spans 8x2,16x4,32x8,64x16] [--penalty-spans 32x8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import math
+import os
+import resource
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import torch
+
+import taichi_ndf
+from taichi_ndf.objective.seam import SeamTerm, with_seam_points
+from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.scene.reader import parse_scene
+from taichi_ndf.solve.spline_solver import solve_spline
+
+ROOT = Path(__file__).resolve().parents[1]
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit  # noqa: E402  (the commit each benchmark states)
+
+
+def cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def tube_document() -> dict:
+    return tomllib.loads((ROOT / "scenes" / "tube_seam.toml").read_text())
+
+
+def variant(document: dict, kind: str, spans, penalty: float | None = None) -> dict:
+    """The tube as `kind`: "periodic" (360°, no seam), "transmitted" or "hinge"."""
+    document = copy.deepcopy(document)
+    document["field"]["spans"] = list(spans)
+    if kind == "periodic":
+        document["geometry"]["angle_deg"] = 360.0
+        del document["seams"]
+    else:
+        document["seams"][0]["bending"] = kind
+        if penalty is not None:
+            document["seams"][0]["stiffness"] = penalty
+    return document
+
+
+def solve(document: dict) -> dict:
+    scene = parse_scene(document, base_dir=ROOT / "scenes")
+    cpu, wall = cpu_seconds(), time.perf_counter()
+    run = solve_spline(scene.model, scene.field, scene.solver)
+    cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
+    return {"scene": scene, "run": run, "cpu": cpu, "wall": wall, "load": os.getloadavg()[0],
+            "converged": all(lv.converged for lv in run.levels),
+            "iterations": sum(lv.iterations for lv in run.levels)}
+
+
+def displacements(result: dict, theta_max: float, length: float) -> torch.Tensor:
+    """u (97 · 13, 3) [m] on a grid of ξ over θ ∈ [0, theta_max], z ∈ [0, length]."""
+    theta = torch.linspace(0.0, theta_max, 97, dtype=torch.float64)
+    z = torch.linspace(0.0, length, 13, dtype=torch.float64)
+    xi = torch.stack(torch.meshgrid(theta, z, indexing="ij"), dim=-1).reshape(-1, 2)
+    return result["scene"].model.displacement(result["run"].field, xi)
+
+
+def seam_gap(result: dict) -> float:
+    """The largest |x_A − x_B| [m] over the seam's Gauss points (0 without a seam)."""
+    model, field = result["scene"].model, result["run"].field
+    seams = [t for t in model.terms if isinstance(t, SeamTerm)]
+    if not seams:
+        return 0.0
+    samples = with_seam_points(span_quadrature(model.surface, field.config, None,
+                                               dtype=torch.float64), seams)
+    operator = model.operator(field)
+    u = operator.jets(samples.xi)
+    return max(float(s.gaps(samples, u).max()) for s in seams)
+
+
+def compare(seamed: dict, periodic: dict) -> tuple[float, float]:
+    """(|Π_s − Π_p| / |Π_p|, max |u_s − u_p| [m]) on the seamed domain's grid."""
+    surface = seamed["scene"].model.surface
+    (_, theta_max), (_, length) = surface.domain.bounds
+    du = displacements(seamed, theta_max, length) - displacements(periodic, theta_max, length)
+    energy = periodic["run"].energy
+    return abs(seamed["run"].energy - energy) / abs(energy), float(du.norm(dim=1).max())
+
+
+def refinement(spans_list) -> None:
+    print("\n### Tube seamed to itself against the periodic tube (scenes/tube_seam.toml)\n")
+    print("| spans | Π periodic [J] | max |u| periodic [m] | Π seamed [J] | rel. diff | "
+          "max |Δu| [m] | seam gap max [m] | Π hinge [J] | hinge rel. diff | hinge max |Δu| "
+          "[m] | CPU p / s / h [s] | wall p / s / h [s] | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    document = tube_document()
+    for spans in spans_list:
+        results = {k: solve(variant(document, k, spans))
+                   for k in ("periodic", "transmitted", "hinge")}
+        p, s, h = results["periodic"], results["transmitted"], results["hinge"]
+        rel, du = compare(s, p)
+        rel_h, du_h = compare(h, p)
+        flags = "".join("" if r["converged"] else f" ({k} not converged)"
+                        for k, r in results.items())
+        (_, top), (_, length) = p["scene"].model.surface.domain.bounds
+        largest = float(displacements(p, top, length).norm(dim=1).max())
+        print(f"| {spans[0]}×{spans[1]} | {p['run'].energy:.10g} | {largest:.4f} | "
+              f"{s['run'].energy:.10g} | "
+              f"{rel:.2e} | {du:.2e} | {seam_gap(s):.2e} | {h['run'].energy:.10g} | "
+              f"{rel_h:.2e} | {du_h:.2e} | {p['cpu']:.1f} / {s['cpu']:.1f} / {h['cpu']:.1f} | "
+              f"{p['wall']:.1f} / {s['wall']:.1f} / {h['wall']:.1f} | {h['load']:.1f} |{flags}",
+              flush=True)
+
+
+def penalty(spans, factors) -> None:
+    print(f"\n### Penalty factor β on {spans[0]}×{spans[1]} spans (bending transmitted)\n")
+    print("| β | k_x [N/m²] | seam gap max [m] | rel. diff Π | max |Δu| [m] | Newton "
+          "iterations | CPU [s] | wall [s] | load |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    document = tube_document()
+    periodic = solve(variant(document, "periodic", spans))
+    for beta in factors:
+        s = solve(variant(document, "transmitted", spans, penalty=beta))
+        rel, du = compare(s, periodic)
+        term = next(t for t in s["scene"].model.terms if isinstance(t, SeamTerm))
+        print(f"| {beta:.0e} | {term.position_stiffness:.3g} | {seam_gap(s):.2e} | {rel:.2e} | "
+              f"{du:.2e} | {s['iterations']} | {s['cpu']:.1f} | {s['wall']:.1f} | "
+              f"{s['load']:.1f} |{'' if s['converged'] else ' (not converged)'}", flush=True)
+
+
+def sewing(spans) -> None:
+    print(f"\n### Sewing a 300° sector shut (hinge seam, {spans[0]}×{spans[1]} spans)\n")
+    document = tube_document()
+    document["geometry"]["angle_deg"] = 300.0
+    document["loads"] = {}
+    document["boundary"] = {"constraint": [
+        {"type": "pinned_point", "xi": [math.radians(150.0), 0.15], "rotation": "held"}]}
+    document["seams"][0]["bending"] = "hinge"
+    document["field"]["spans"] = list(spans)
+    steps = [round(0.1 * k, 1) for k in range(1, 11)]
+    document["training"]["load_steps"] = steps
+    del document["probes"]
+    scene = parse_scene(document, base_dir=ROOT / "scenes")
+    term = next(t for t in scene.model.terms if isinstance(t, SeamTerm))
+    rest = term.gaps(term.points(), torch.zeros(len(term.xi), 6, 3, dtype=torch.float64))
+    cpu, wall = cpu_seconds(), time.perf_counter()
+    run = solve_spline(scene.model, scene.field, scene.solver)
+    cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
+    print(f"rest gap max {float(rest.max()):.4f} m; after the last step: seam gap max "
+          f"{seam_gap({'scene': scene, 'run': run}):.2e} m; Π {run.energy:.6g} J; converged "
+          f"{all(lv.converged for lv in run.levels)}; Newton iterations "
+          f"{sum(lv.iterations for lv in run.levels)}; CPU {cpu:.1f} s, wall {wall:.1f} s, "
+          f"load {os.getloadavg()[0]:.1f}")
+    print("\n| load factor | Π [J] | converged |")
+    print("|---|---|---|")
+    for step in run.load_steps:
+        print(f"| {step['load_factor']} | {step['energy']:.6g} | {step['converged']} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--parts", default="refinement,penalty,sewing")
+    parser.add_argument("--spans", default="8x2,16x4,32x8,64x16")
+    parser.add_argument("--penalty-spans", default="32x8")
+    parser.add_argument("--factors", default="1e2,1e3,1e4,1e5,1e6")
+    args = parser.parse_args()
+    spans = [tuple(int(v) for v in s.split("x")) for s in args.spans.split(",")]
+    one = tuple(int(v) for v in args.penalty_spans.split("x"))
+    taichi_ndf.init(arch="cpu", precision="f64", seed=0)
+    torch.set_num_threads(1)
+    print(f"commit {commit()}, float64, one thread, load {os.getloadavg()[0]:.1f} at start")
+    parts = args.parts.split(",")
+    if "refinement" in parts:
+        refinement(spans)
+    if "penalty" in parts:
+        penalty(one, [float(f) for f in args.factors.split(",")])
+    if "sewing" in parts:
+        sewing(one)
+
+
+if __name__ == "__main__":
+    main()
