@@ -7,6 +7,9 @@ Parts (`--parts`):
   angle 360° (periodic, no seam) and with a hinge seam, on n1 × n2 spans: Π of each, the
   relative differences, the largest displacement difference on a 97 × 13 grid of ξ, the
   largest seam gap, CPU and wall per solve;
+- annulus: a flat annulus clamped at its inner rim, loaded on part of its outer rim, whole
+  (periodic in θ) against slit along θ = 0 and seamed (edges xi2_min / xi2_max), both
+  bendings, on n_ρ × n_θ spans: the same columns;
 - penalty: the seamed tube on one grid with the seam's penalty factor β = 1e2 … 1e6: the
   gap, |Π_seamed − Π_periodic| / |Π_periodic| and the displacement difference (∝ 1/β while
   the penalty's error dominates the discretisation's);
@@ -17,8 +20,9 @@ Parts (`--parts`):
 CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
 average after the solve (the machine is shared).
 
-    python benchmarks/seam_consistency.py [--parts refinement,penalty,sewing]
-        [--spans 8x2,16x4,32x8,64x16] [--penalty-spans 32x8]
+    python benchmarks/seam_consistency.py [--parts refinement,annulus,penalty,sewing]
+        [--spans 8x2,16x4,32x8,64x16] [--annulus-spans 4x16,8x32,16x64]
+        [--penalty-spans 32x8] [--factors 1e2,1e3,1e4,1e5,1e6]
 """
 
 from __future__ import annotations
@@ -135,6 +139,60 @@ def refinement(spans_list) -> None:
               flush=True)
 
 
+def annulus_document(kind: str, spans) -> dict:
+    """A flat annulus (radii 0.05 m and 0.15 m, the 2 mm rubber of tube_seam) clamped at its
+    inner rim, under gravity and a line load of 0.5 N/m downwards along the outer rim from
+    θ = 0.2 to 0.6 rad: "periodic" (no slit) or slit along θ = 0 and seamed (`kind` the
+    seam's bending)."""
+    document = {
+        "name": "annulus_seam",
+        "geometry": {"type": "annulus", "inner_radius": 0.05, "outer_radius": 0.15,
+                     "slit": kind != "periodic"},
+        "material": {"type": "linear", "young_modulus": 5e6, "poisson_ratio": 0.3,
+                     "thickness": 2e-3, "areal_density": 2.0},
+        "loads": {"gravity": [0.0, 0.0, -9.81],
+                  "line": [{"path": [[0.15, 0.2], [0.15, 0.6]], "force": [0.0, 0.0, -0.5]}]},
+        "boundary": {"constraint": [{"type": "clamped_edge", "edge": "xi1_min"}]},
+        "field": {"type": "spline", "spans": list(spans)},
+        "training": {"method": "newton", "load_steps": [0.5, 1.0]}}
+    if kind != "periodic":
+        document["seams"] = [{"name": "slit", "a": "xi2_min", "b": "xi2_max",
+                              "bending": kind}]
+    return document
+
+
+def annulus_displacements(result: dict) -> torch.Tensor:
+    """u (9 · 97, 3) [m] on a grid of ξ over ρ ∈ [0.05, 0.15], θ ∈ [0, 2π]."""
+    rho = torch.linspace(0.05, 0.15, 9, dtype=torch.float64)
+    theta = torch.linspace(0.0, 2 * math.pi, 97, dtype=torch.float64)
+    xi = torch.stack(torch.meshgrid(rho, theta, indexing="ij"), dim=-1).reshape(-1, 2)
+    return result["scene"].model.displacement(result["run"].field, xi)
+
+
+def annulus(spans_list) -> None:
+    print("\n### Slit annulus seamed along θ = 0 against the whole annulus\n")
+    print("| spans (ρ × θ) | Π whole [J] | max |u| whole [m] | Π seamed [J] | rel. diff | max "
+          "|Δu| [m] | seam gap max [m] | Π hinge [J] | hinge rel. diff | hinge max |Δu| [m] | "
+          "CPU w / s / h [s] | wall w / s / h [s] | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for spans in spans_list:
+        results = {k: solve(annulus_document(k, spans))
+                   for k in ("periodic", "transmitted", "hinge")}
+        p, s, h = results["periodic"], results["transmitted"], results["hinge"]
+        u = annulus_displacements(p)
+        energy = p["run"].energy
+        rows = [(abs(r["run"].energy - energy) / abs(energy),
+                 float((annulus_displacements(r) - u).norm(dim=1).max())) for r in (s, h)]
+        flags = "".join("" if r["converged"] else f" ({k} not converged)"
+                        for k, r in results.items())
+        print(f"| {spans[0]}×{spans[1]} | {energy:.10g} | {float(u.norm(dim=1).max()):.4f} | "
+              f"{s['run'].energy:.10g} | {rows[0][0]:.2e} | {rows[0][1]:.2e} | "
+              f"{seam_gap(s):.2e} | {h['run'].energy:.10g} | {rows[1][0]:.2e} | "
+              f"{rows[1][1]:.2e} | {p['cpu']:.1f} / {s['cpu']:.1f} / {h['cpu']:.1f} | "
+              f"{p['wall']:.1f} / {s['wall']:.1f} / {h['wall']:.1f} | {h['load']:.1f} |{flags}",
+              flush=True)
+
+
 def penalty(spans, factors) -> None:
     print(f"\n### Penalty factor β on {spans[0]}×{spans[1]} spans (bending transmitted)\n")
     print("| β | k_x [N/m²] | seam gap max [m] | rel. diff Π | max |Δu| [m] | Newton "
@@ -182,7 +240,8 @@ def sewing(spans) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--parts", default="refinement,penalty,sewing")
+    parser.add_argument("--parts", default="refinement,annulus,penalty,sewing")
+    parser.add_argument("--annulus-spans", default="4x16,8x32,16x64")
     parser.add_argument("--spans", default="8x2,16x4,32x8,64x16")
     parser.add_argument("--penalty-spans", default="32x8")
     parser.add_argument("--factors", default="1e2,1e3,1e4,1e5,1e6")
@@ -195,6 +254,8 @@ def main() -> None:
     parts = args.parts.split(",")
     if "refinement" in parts:
         refinement(spans)
+    if "annulus" in parts:
+        annulus([tuple(int(v) for v in s.split("x")) for s in args.annulus_spans.split(",")])
     if "penalty" in parts:
         penalty(one, [float(f) for f in args.factors.split(",")])
     if "sewing" in parts:

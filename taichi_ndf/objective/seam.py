@@ -13,17 +13,17 @@ with weights w_g = ŵ_g |dr_A/ds| [m] (reference arclength along A):
 (a) Positions: x_A = x_B (r + u, so a seam between edges apart at rest pulls them together:
 the sewing; over load steps λ ∈ [0, 1] the ties are to (1 − λ) times their rest values, so a
 continuation closes a seam that is open at rest gradually, and from λ = 1 on it is closed; a
-seam whose sides coincide at rest is unchanged by λ). (b) Bending transmitted (k_d > 0): the outward across-seam tangent of one side
-equals the inward one of the other, d_A = −d_B. With the positions tied, the along-seam
-tangents agree too, so x is C¹ across the seam in the joined chart: the displacement is in
-H², the space the Kirchhoff–Love energy (second derivatives) is defined on, and any smooth
-solution (a periodic one above all: x and x_,ν continuous across the wrap) satisfies both ties
-at zero penalty, so as k grows the seamed minimiser tends to the smooth one. This ties the
-whole across tangent (its stretch too), not only the normal: a stronger tie than G¹, exact for
-a chart that continues with the same reference speed across the seam (a cut-open cylinder or
-annulus, two panels of one surface); an edge pair that differs in direction at rest (a
-cylinder sector sewn shut) is sewn with a hinge. Hinge (k_d = 0): positions only, the two
-sides turn freely about the seam.
+seam whose sides coincide at rest is unchanged by λ). (b) Bending transmitted (k_d > 0): the
+outward across-seam tangent of one side equals the inward one of the other, d_A = −d_B. With
+the positions tied, the along-seam tangents agree too, so x is C¹ across the seam in the
+joined chart: the displacement is in H², the space the Kirchhoff–Love energy (second
+derivatives) is defined on, and any smooth solution (a periodic one above all: x and x_,ν
+continuous across the wrap) satisfies both ties at zero penalty, so as k grows the seamed
+minimiser tends to the smooth one. This ties the whole across tangent (its stretch too), not
+only the normal: a stronger tie than G¹, exact for a chart that continues with the same
+reference speed across the seam (a cut-open cylinder or annulus, two panels of one surface);
+an edge pair that differs in direction at rest (a cylinder sector sewn shut) is sewn with a
+hinge. Hinge (k_d = 0): positions only, the two sides turn freely about the seam.
 
 Stiffness, scaled with the material: k_x = β D / h [N/m²] and k_d = β D h [N] = k_x h², D
 the membrane stiffness (`small_strain_stiffness`) [N/m], h = L / segments [m] the seam's
