@@ -10,6 +10,9 @@ Parts (`--parts`):
 - annulus: a flat annulus clamped at its inner rim, loaded on part of its outer rim, whole
   (periodic in θ) against slit along θ = 0 and seamed (edges xi2_min / xi2_max), both
   bendings, on n_ρ × n_θ spans: the same columns;
+- halves: the tube as two half-cylinder spline patches in one Newton
+  (`MultiPatchLinearisation`), joined by two seams with bending transmitted, against the
+  periodic tube on the same span density;
 - penalty: the seamed tube on one grid with the seam's penalty factor β = 1e2 … 1e6: the
   gap, |Π_seamed − Π_periodic| / |Π_periodic| and the displacement difference (∝ 1/β while
   the penalty's error dominates the discretisation's);
@@ -20,8 +23,8 @@ Parts (`--parts`):
 CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
 average after the solve (the machine is shared).
 
-    python benchmarks/seam_consistency.py [--parts refinement,annulus,penalty,sewing]
-        [--spans 8x2,16x4,32x8,64x16] [--annulus-spans 4x16,8x32,16x64]
+    python benchmarks/seam_consistency.py [--parts refinement,annulus,halves,penalty,sewing]
+        [--spans 8x2,16x4,32x8,64x16] [--annulus-spans 4x16,8x32,16x64] [--halves-spans 32x8,64x16]
         [--penalty-spans 32x8] [--factors 1e2,1e3,1e4,1e5,1e6]
 """
 
@@ -40,8 +43,19 @@ from pathlib import Path
 import torch
 
 import taichi_ndf
+from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
+from taichi_ndf.field.spline import SplineConfig, SplineField
+from taichi_ndf.geometry import Cylinder
+from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.minimise.linearisation import GridLinearisation
+from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
+from taichi_ndf.minimise.newton import NewtonConfig, minimise
+from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm, with_seam_points
+from taichi_ndf.problem.line_loads import LineLoad
+from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.quadrature import span_quadrature
+from taichi_ndf.problem.seams import EdgeSegment, SeamSpec
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.solve.spline_solver import solve_spline
 
@@ -193,6 +207,86 @@ def annulus(spans_list) -> None:
               flush=True)
 
 
+def two_halves(spans) -> dict:
+    """The tube of tube_seam.toml as two half-cylinder patches (θ ∈ [0, π] and, turned by π
+    about z, [π, 2π]), each on n1/2 × n2 spans with its top rim clamped and its pinch line,
+    joined by two seams with bending transmitted (`MultiPatchLinearisation`), solved by the
+    one Newton at load factors 0.5 and 1: Π, u on both halves' 49 × 13 grids of ξ, the
+    largest gap, CPU and wall."""
+    document = tube_document()
+    material = parse_scene(document, base_dir=ROOT / "scenes").model.material
+    radius, length = document["geometry"]["radius"], document["geometry"]["length"]
+    gravity = tuple(document["loads"]["gravity"])
+    halves = [Cylinder(radius=radius, length=length, angle=math.pi),
+              Cylinder(radius=radius, length=length, angle=math.pi,
+                       frame=((-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)))]
+    pinch = [LineLoad(((0.5, 0.0), (0.5, length)), tuple(line["force"]))
+             for line in document["loads"]["line"]]  # θ = 0.5 on each half's own ξ
+    seams = [SeamTerm(SeamSpec(f"s{i}", EdgeSegment("xi1_max"), EdgeSegment("xi1_min")),
+                      halves[i], material, surface_b=halves[1 - i]) for i in range(2)]
+    grids = []
+    for i, surface in enumerate(halves):
+        field = SplineField(SplineConfig(spans=(spans[0] // 2, spans[1]),
+                                         domain=surface.domain.bounds), dtype=torch.float64)
+        grid = GridLinearisation(field, BoundaryConditions([ClampedEdge("xi2_max")],
+                                                           domain=surface.domain),
+                                 length=math.sqrt(surface.domain.rectangle_area))
+        points = GridLinearisation.quadrature(surface, field.config,
+                                              Loads(gravity=gravity, line_loads=(pinch[i],)),
+                                              dtype=torch.float64)
+        grid.assemble(points.joined(seams[i].points(0)).joined(seams[1 - i].points(1)))
+        grids.append(grid)
+    cpu, wall = cpu_seconds(), time.perf_counter()
+    length_scale = math.sqrt(halves[0].domain.rectangle_area)
+    linear = MultiPatchLinearisation(grids, 1.0, length=length_scale)
+    terms = (seams[0].between(linear.rows(0), linear.rows(1)),
+             seams[1].between(linear.rows(1), linear.rows(0)))
+    objective = Objective(ShellEnergyTerm(material, Loads(gravity=gravity)), terms)
+    coefficients = torch.zeros(linear.coefficient_offsets[-1], 3, dtype=torch.float64)
+    converged, iterations = True, 0
+    for step in document["training"]["load_steps"]:
+        linear = MultiPatchLinearisation(grids, step, length=length_scale)
+        solution = minimise(linear, objective.potential(step), coefficients, NewtonConfig())
+        coefficients = solution.parameters
+        converged &= solution.converged
+        iterations += len(solution.history)
+    cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
+    theta = torch.linspace(0.0, math.pi, 49, dtype=torch.float64)
+    z = torch.linspace(0.0, length, 13, dtype=torch.float64)
+    xi = torch.stack(torch.meshgrid(theta, z, indexing="ij"), dim=-1).reshape(-1, 2)
+    u = [displacement_at(grid.operator, xi, coefficients[linear.coefficient_offsets[i]:
+                                                         linear.coefficient_offsets[i + 1]],
+                         1.0)[:, 0] for i, grid in enumerate(grids)]
+    gap = max(float(t.gaps(linear.samples, linear.displacement(coefficients)).max())
+              for t in terms)
+    return {"energy": solution.energy, "u": u, "xi": xi, "gap": gap, "cpu": cpu, "wall": wall,
+            "converged": converged, "iterations": iterations, "load": os.getloadavg()[0]}
+
+
+def halves(spans_list) -> None:
+    print("\n### Two half-cylinder patches seamed into the tube against the periodic tube\n")
+    print("| spans (whole tube) | Π periodic [J] | Π two halves [J] | rel. diff | max |Δu| [m] "
+          "| seam gap max [m] | Newton iterations | CPU p / halves [s] | wall p / halves [s] "
+          "| load |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    document = tube_document()
+    for spans in spans_list:
+        periodic = solve(variant(document, "periodic", spans))
+        joined = two_halves(spans)
+        model, field = periodic["scene"].model, periodic["run"].field
+        shifted = joined["xi"] + torch.tensor([math.pi, 0.0], dtype=torch.float64)
+        du = max(float((joined["u"][0] - model.displacement(field, joined["xi"]))
+                       .norm(dim=1).max()),
+                 float((joined["u"][1] - model.displacement(field, shifted)).norm(dim=1).max()))
+        energy = periodic["run"].energy
+        print(f"| {spans[0]}×{spans[1]} | {energy:.10g} | {joined['energy']:.10g} | "
+              f"{abs(joined['energy'] - energy) / abs(energy):.2e} | {du:.2e} | "
+              f"{joined['gap']:.2e} | {joined['iterations']} | {periodic['cpu']:.1f} / "
+              f"{joined['cpu']:.1f} | {periodic['wall']:.1f} / {joined['wall']:.1f} | "
+              f"{joined['load']:.1f} |{'' if joined['converged'] else ' (not converged)'}",
+              flush=True)
+
+
 def penalty(spans, factors) -> None:
     print(f"\n### Penalty factor β on {spans[0]}×{spans[1]} spans (bending transmitted)\n")
     print("| β | k_x [N/m²] | seam gap max [m] | rel. diff Π | max |Δu| [m] | Newton "
@@ -240,7 +334,8 @@ def sewing(spans) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--parts", default="refinement,annulus,penalty,sewing")
+    parser.add_argument("--parts", default="refinement,annulus,halves,penalty,sewing")
+    parser.add_argument("--halves-spans", default="32x8,64x16")
     parser.add_argument("--annulus-spans", default="4x16,8x32,16x64")
     parser.add_argument("--spans", default="8x2,16x4,32x8,64x16")
     parser.add_argument("--penalty-spans", default="32x8")
@@ -256,6 +351,8 @@ def main() -> None:
         refinement(spans)
     if "annulus" in parts:
         annulus([tuple(int(v) for v in s.split("x")) for s in args.annulus_spans.split(",")])
+    if "halves" in parts:
+        halves([tuple(int(v) for v in s.split("x")) for s in args.halves_spans.split(",")])
     if "penalty" in parts:
         penalty(one, [float(f) for f in args.factors.split(",")])
     if "sewing" in parts:

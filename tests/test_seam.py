@@ -284,3 +284,60 @@ def test_a_slit_annulus_seamed_is_the_whole_annulus():
     assert float(u.norm(dim=1).max()) > 0.05
     assert abs(seamed - energy) <= 1e-4 * abs(energy)
     assert float((u_seamed - u).norm(dim=1).max()) <= 1e-4
+
+
+def _two_halves(spans=(4, 2)):
+    """A tube as two half-cylinder patches (the second turned by π about z), top rims
+    clamped, joined by two seams (bending transmitted) in a `MultiPatchLinearisation`."""
+    from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
+    from taichi_ndf.field.spline import SplineField
+    from taichi_ndf.minimise.linearisation import GridLinearisation
+    from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
+
+    halves = [Cylinder(radius=0.1, length=0.3, angle=math.pi),
+              Cylinder(radius=0.1, length=0.3, angle=math.pi,
+                       frame=((-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)))]
+    seams = [SeamTerm(SeamSpec(f"s{i}", EdgeSegment("xi1_max"), EdgeSegment("xi1_min"),
+                               segments=4, nodes=2),
+                      halves[i], MATERIAL, surface_b=halves[1 - i]) for i in range(2)]
+    grids = []
+    for i, surface in enumerate(halves):
+        field = SplineField(SplineConfig(spans=spans, domain=surface.domain.bounds), dtype=DT)
+        grid = GridLinearisation(field, BoundaryConditions([ClampedEdge("xi2_max")],
+                                                           domain=surface.domain))
+        points = span_quadrature(surface, field.config, None, dtype=DT)
+        grid.assemble(points.joined(seams[i].points(0)).joined(seams[1 - i].points(1)))
+        grids.append(grid)
+    linear = MultiPatchLinearisation(grids, 1.0)
+    terms = (seams[0].between(linear.rows(0), linear.rows(1)),
+             seams[1].between(linear.rows(1), linear.rows(0)))
+    return linear, terms
+
+
+def test_two_patches_joined_have_the_exact_hessian_of_their_seams():
+    """The seams between two patches couple coefficients of both: K_seams v = g(C + v) −
+    g(C) through the joined linearisation (exact: the seams are quadratic), with entries
+    between the two patches' coefficients; at rest the two halves meet (gap ~ 1e-17 m)."""
+    linear, terms = _two_halves()
+
+    def gradient(c):
+        u = linear.displacement(c)
+        return sum(linear.gradient(t.evaluate(linear.samples, u)[1]) for t in terms)
+
+    generator = torch.Generator().manual_seed(3)
+    n = linear.coefficient_offsets[-1]
+    c = 0.01 * torch.randn(n, 3, dtype=DT, generator=generator)
+    v = torch.randn(n, 3, dtype=DT, generator=generator)
+    u = linear.displacement(c)
+    from taichi_ndf.objective.couplings import Couplings
+    couplings = Couplings.join(t.coupled_hessian(linear.samples, u) for t in terms)
+    matrix = linear.coupled_hessian(couplings)
+    product = torch.from_numpy(matrix @ v.reshape(-1).numpy())
+    change = (gradient(c + v) - gradient(c)).reshape(-1)
+    assert float(change.abs().max()) > 1.0
+    assert torch.allclose(product, change, rtol=1e-9, atol=1e-10 * float(change.abs().max()))
+    first = 3 * linear.coefficient_offsets[1]
+    assert abs(matrix[:first, first:]).max() > 0  # couplings across the patches
+    zero = torch.zeros(n, 3, dtype=DT)
+    assert max(float(t.gaps(linear.samples, linear.displacement(zero)).max())
+               for t in terms) < 1e-15

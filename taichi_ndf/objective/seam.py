@@ -39,6 +39,7 @@ quadrature, and the term finds them among the samples it is given by their ξ (a
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterable
 
 import torch
@@ -64,16 +65,20 @@ def _segment_xi(side: EdgeSegment, s: torch.Tensor, bounds) -> tuple[torch.Tenso
 
 
 class SeamTerm:
-    """The seam of `spec` on `surface` for `material` (module docstring). Raises ValueError
+    """The seam of `spec` on `surface` for `material` (module docstring); surface_b: the
+    surface of side B where it is another patch's (default `surface`). Raises ValueError
     naming the seam and the edge for an edge across a periodic coordinate, a range outside
     the edge, and reference lengths of A and B differing by more than `LENGTH_TOLERANCE`
     (relative)."""
 
-    def __init__(self, spec: SeamSpec, surface, material, *, dtype=torch.float64):
+    def __init__(self, spec: SeamSpec, surface, material, *, surface_b=None,
+                 dtype=torch.float64):
         self.spec = spec
-        domain = surface.domain
-        bounds = domain.bounds
-        for side in (spec.a, spec.b):
+        surface_b = surface if surface_b is None else surface_b
+        self.blocks: tuple[slice, slice] | None = None  # `between`
+        for side, side_surface in ((spec.a, surface), (spec.b, surface_b)):
+            domain = side_surface.domain
+            bounds = domain.bounds
             if domain.periodic[side.across]:
                 raise ValueError(f"seam {spec.name!r}: edge {side.edge!r} is on a periodic "
                                  f"coordinate ξ{side.across + 1}: the surface has no such edge")
@@ -87,9 +92,11 @@ class SeamTerm:
         parts = torch.arange(spec.segments, dtype=torch.float64)
         s = ((parts[:, None] + nodes) / spec.segments).reshape(-1)
         w = (weights / spec.segments).repeat(spec.segments)
-        xi_a, run_a = _segment_xi(spec.a, s, bounds)
-        xi_b, run_b = _segment_xi(spec.b, s if spec.orientation == "same" else 1 - s, bounds)
-        r_a, r_b = surface.jets(xi_a).to(torch.float64), surface.jets(xi_b).to(torch.float64)
+        xi_a, run_a = _segment_xi(spec.a, s, surface.domain.bounds)
+        xi_b, run_b = _segment_xi(spec.b, s if spec.orientation == "same" else 1 - s,
+                                  surface_b.domain.bounds)
+        r_a = surface.jets(xi_a).to(torch.float64)
+        r_b = surface_b.jets(xi_b).to(torch.float64)
         along_a, along_b = _CHANNEL[1 - spec.a.across], _CHANNEL[1 - spec.b.across]
         speed_a = r_a[:, along_a].norm(dim=1) * abs(run_a)
         speed_b = r_b[:, along_b].norm(dim=1) * abs(run_b)
@@ -112,24 +119,40 @@ class SeamTerm:
                       (spec.b.outward / r_b[:, self.channels[1]].norm(dim=1)).to(dtype))
         self._rows_of: tuple[torch.Tensor, torch.Tensor] | None = None
 
-    def points(self) -> SurfaceSamples:
-        """The seam's points as zero-weight samples: A's Gauss points, then B's."""
-        zeros = self.xi.new_zeros(self.xi.shape[0])
-        return SurfaceSamples(self.xi, self.r_jets, zeros, self.xi.new_zeros(len(zeros), 3))
+    def points(self, side: int | None = None) -> SurfaceSamples:
+        """The seam's points as zero-weight samples: A's Gauss points, then B's (side 0 or 1:
+        one side's only)."""
+        xi, r = self.xi, self.r_jets
+        if side is not None:
+            count = xi.shape[0] // 2
+            xi, r = xi[side * count:(side + 1) * count], r[side * count:(side + 1) * count]
+        zeros = xi.new_zeros(xi.shape[0])
+        return SurfaceSamples(xi, r, zeros, xi.new_zeros(len(zeros), 3))
+
+    def between(self, a: slice, b: slice) -> SeamTerm:
+        """This seam with side A's points looked for in the sample rows `a` only and B's in
+        `b` (two patches whose ξ overlap, one after the other in the samples)."""
+        term = copy.copy(self)
+        term.blocks, term._rows_of = (a, b), None
+        return term
 
     def rows(self, samples: SurfaceSamples) -> torch.Tensor:
         """Row numbers (M, 2) of each Gauss point's A and B point in `samples` (found by ξ;
         remembered for the last samples given). Raises ValueError if any is missing."""
         if self._rows_of is not None and self._rows_of[0] is samples.xi:
             return self._rows_of[1]
-        xi = self.xi.to(samples.xi)
-        distance, found = torch.cdist(xi, samples.xi, compute_mode="donot_use_mm_for_euclid_dist"
-                                       ).min(dim=1)
+        xi = self.xi.to(samples.xi).reshape(2, -1, 2)
         scale = float(samples.xi.abs().max()) + 1.0
-        if bool((distance > 1e-9 * scale).any()):
-            raise ValueError(f"seam {self.spec.name!r}: its points are not among the samples "
-                             "(a quadrature without `with_seam_points`)")
-        pairs = found.reshape(2, -1).t().contiguous()
+        found = []
+        for side, block in zip(xi, self.blocks or (slice(None),) * 2, strict=True):
+            among = samples.xi[block]
+            distance, rows = torch.cdist(side, among,
+                                         compute_mode="donot_use_mm_for_euclid_dist").min(dim=1)
+            if bool((distance > 1e-9 * scale).any()):
+                raise ValueError(f"seam {self.spec.name!r}: its points are not among the "
+                                 "samples (a quadrature without `with_seam_points`)")
+            found.append(rows + (block.start or 0))
+        pairs = torch.stack(found, dim=1)
         self._rows_of = (samples.xi, pairs)
         return pairs
 
