@@ -24,7 +24,6 @@ import torch
 from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.minimise.linearisation import GridLinearisation, SplineLinearisation
 from taichi_ndf.objective.couplings import PAIR_SIZE, Couplings
-from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
 
 
@@ -45,8 +44,7 @@ class MultiPatchLinearisation:
         counts = [len(p.samples.xi) for p in self.parts]
         self.coefficient_offsets = np.concatenate(([0], np.cumsum(sizes))).tolist()
         self.row_offsets = np.concatenate(([0], np.cumsum(counts))).tolist()
-        first = self.parts[0].samples
-        self.samples = first
+        self.samples = self.parts[0].samples
         for part in self.parts[1:]:
             self.samples = self.samples.joined(part.samples)
         held = [None if p.fixed is None else p.fixed + COMPONENTS * o
@@ -125,10 +123,3 @@ class MultiPatchLinearisation:
         step, damping = result
         return torch.from_numpy(step).to(gradient).reshape(gradient.shape), damping
 
-
-def joined_samples(parts: Sequence[SurfaceSamples]) -> SurfaceSamples:
-    """The patches' samples one after the other."""
-    samples = parts[0]
-    for part in parts[1:]:
-        samples = samples.joined(part)
-    return samples
