@@ -20,6 +20,7 @@ from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.linearisation import GridLinearisation, SplineLinearisation
 from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective
+from taichi_ndf.objective.seam import with_seam_points
 from taichi_ndf.problem.field_types import SPLINE, FieldType
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
@@ -180,9 +181,10 @@ class SplineDiscretisation:
 
     def evaluation_points(self) -> SurfaceSamples:
         field = self.field
-        return GridLinearisation.quadrature(self.model.surface, field.config, self.model.loads,
-                                            points=self.spec.quadrature_points,
-                                            dtype=field.coefficients.dtype)
+        return with_seam_points(GridLinearisation.quadrature(
+            self.model.surface, field.config, self.model.loads,
+            points=self.spec.quadrature_points, dtype=field.coefficients.dtype),
+            self.model.terms)
 
     def displacement(self, xi: torch.Tensor, load_factor: float) -> torch.Tensor:
         field = self.field

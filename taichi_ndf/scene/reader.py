@@ -40,6 +40,7 @@ from taichi_ndf.scene.field import field_config, with_field_type
 from taichi_ndf.scene.overrides import apply_overrides
 from taichi_ndf.scene.schema import SceneError, Table, read_toml
 from taichi_ndf.scene.schema import checked as _check
+from taichi_ndf.scene.seams import parse_seams
 from taichi_ndf.scene.terms import parse_terms
 from taichi_ndf.scene.training import training
 from taichi_ndf.shell.materials import (
@@ -119,9 +120,14 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     boundary = _section(top.table("boundary", optional=True), _boundary, surface)
     probes = tuple(Probe(t.string("name"), t.vector("xi", 2)) for t in top.tables("probes"))
     model = _check(lambda: ShellModel(surface, material, loads, boundary, probes), "probes")
-    model = replace(model, contact=parse_contact(top, model, base_dir), terms=parse_terms(top))
+    seams = parse_seams(top, surface, material)
+    model = replace(model, contact=parse_contact(top, model, base_dir),
+                    terms=parse_terms(top) + seams)
     field, estimate = _section(top.table("field", optional=True), field_config, model)
     kind = of_spec(field)
+    if seams and kind.method != "newton":
+        raise SceneError(f"seams: need [field] type = \"spline\" (a seam's points are Gauss "
+                         f"points of the spline path's quadrature), not a {kind.label} field")
     solver, quick = _section(top.table("training", optional=True), training,
                              kind.method == "newton")
     output = _section(top.table("output", optional=True), _output, solver.pseudo_time)

@@ -50,6 +50,7 @@ from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, extrapolate_changes
 from taichi_ndf.minimise.state import LevelSummary, NewtonRecord
 from taichi_ndf.objective import Objective
+from taichi_ndf.objective.seam import with_seam_points
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.problem.training import SolverConfig
@@ -186,8 +187,9 @@ def solve_on(model: ShellModel, start: SplineField, config: SplineConfig, plan: 
     field.coefficients.copy_(project(start, config, points.xi, points.weight))
     grids = GridLevels(
         field, model.boundary,
-        lambda f: GridLinearisation.quadrature(model.surface, f.config, model.loads,
-                                               points=plan.quadrature_points, dtype=dtype),
+        lambda f: with_seam_points(GridLinearisation.quadrature(
+            model.surface, f.config, model.loads, points=plan.quadrature_points, dtype=dtype),
+            model.terms),
         objective, levels=level + 1, config=newton_config(solver, dtype),
         probes={p.name: p.xi for p in model.probes},
         length=math.sqrt(model.surface.domain.rectangle_area),
@@ -242,8 +244,9 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
     started = time.perf_counter() - run.wall_time
 
     def samples_for(field):
-        return GridLinearisation.quadrature(model.surface, field.config, model.loads,
-                                            points=plan.quadrature_points, dtype=dtype)
+        return with_seam_points(GridLinearisation.quadrature(
+            model.surface, field.config, model.loads, points=plan.quadrature_points,
+            dtype=dtype), model.terms)
 
     def iterated(level: int, spans, newton_record) -> None:
         values = dataclasses.asdict(newton_record)

@@ -36,6 +36,7 @@ from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson
 from taichi_ndf.minimise.state import InsideLevel, LevelSummary, NewtonRecord, State
 from taichi_ndf.objective import Objective
+from taichi_ndf.objective.seam import with_seam_points
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.problem.training import SolverConfig
@@ -228,9 +229,9 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
 
     points = plan.quadrature_points
     grids = GridLevels(grid, model.boundary,
-                       lambda f: GridLinearisation.quadrature(
+                       lambda f: with_seam_points(GridLinearisation.quadrature(
                            surface, f.config, model.loads, points=points,
-                           dtype=f.coefficients.dtype),
+                           dtype=f.coefficients.dtype), objective.extra),
                        objective, levels=levels, config=newton, probes=probes,
                        length=math.sqrt(surface.domain.rectangle_area), contact=contact,
                        linear=LinearSolverConfig(kind=config.linear_solver),
