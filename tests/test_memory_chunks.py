@@ -1,15 +1,19 @@
 """Work done in chunks to bound memory gives the numbers of the whole batch at once: the PSD
 screen and projection (`shell.hessian.project_psd`, chunks of `PROJECT_CHUNK` blocks) and K's
 point-local sums scattered per chunk of groups (`Assembly._pair_sums`, chunks of `CHUNK`
-points, point-load samples added into their groups' sums)."""
+points, point-load samples added into their groups' sums); and a V-cycle kept between Newton
+steps for its pattern only (`VCycle.release`) lends the same parts as the whole one."""
 
 import numpy as np
+import scipy.sparse as sp
 import torch
 from test_jacobian import _cylinder
+from test_multigrid import napkin_system  # noqa: F401  (the fixture)
 
 from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise import assembly as assembly_module
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
+from taichi_ndf.minimise.multigrid import VCycle, spline_prolongations
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.quadrature import span_quadrature
 from taichi_ndf.shell import hessian as hessian_module
@@ -60,3 +64,22 @@ def test_hessian_scattered_per_chunk_equals_the_whole_batch(monkeypatch):
     assert np.array_equal(whole.indptr, chunked.indptr)
     assert np.array_equal(whole.indices, chunked.indices)
     assert np.array_equal(whole.data, chunked.data)
+
+
+def test_a_vcycle_reused_after_release_equals_a_fresh_one(napkin_system):
+    """A released V-cycle (`VCycle.release`: its values and factorisations let go between
+    Newton steps) holds no matrix values, and a V-cycle built on it for a changed matrix
+    applies the same operator as one built from scratch."""
+    matrix, _, fixed, config = napkin_system
+    prolongations = spline_prolongations(config, 100)
+    unknowns = np.setdiff1d(np.arange(matrix.shape[0]), fixed)
+    system = matrix[unknowns][:, unknowns].tocsr()
+    first = VCycle(system, unknowns, prolongations).release()
+    assert first.coarsest is None and not hasattr(first.levels[0].matrix, "data")
+    assert first.levels[0].smoother.lower is None
+    changed = (system + sp.diags(0.3 * system.diagonal())).tocsr()
+    reused = VCycle(changed, unknowns, prolongations, reuse=first)
+    fresh = VCycle(changed, unknowns, prolongations)
+    assert reused.levels[0].smoother.parts is first.levels[0].smoother.parts
+    r = np.random.default_rng(0).standard_normal(len(unknowns))
+    assert np.array_equal(reused(r), fresh(r))
