@@ -66,7 +66,7 @@ def test_hessian_scattered_per_chunk_equals_the_whole_batch(monkeypatch):
     assert np.array_equal(whole.data, chunked.data)
 
 
-def test_a_vcycle_reused_after_release_equals_a_fresh_one(napkin_system):
+def test_a_vcycle_reused_after_release_equals_a_fresh_one(napkin_system):  # noqa: F811
     """A released V-cycle (`VCycle.release`: its values and factorisations let go between
     Newton steps) holds no matrix values, and a V-cycle built on it for a changed matrix
     applies the same operator as one built from scratch."""
