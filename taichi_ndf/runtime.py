@@ -104,6 +104,7 @@ def language(backend: str | None = None) -> ModuleType:
     if _language is None:
         _language = importlib.import_module(_installed(wanted))
         _lighter_front_end(wanted)
+        _compile_arguments_released(wanted)
         log.info("Taichi language: %s %s", wanted, backend_version(_language))
     elif _language.__name__ != wanted:
         raise RuntimeError(
@@ -150,6 +151,38 @@ def _lighter_front_end(backend: str) -> None:
     if backend == "taichi":  # each ti.func's source, read again at each call site compiled
         for name in ("getsourcelines", "getsourcefile"):
             setattr(kernel_impl, name, _remembered(getattr(kernel_impl, name)))
+
+
+def _compile_arguments_released(backend: str) -> None:
+    """Taichi's compile context of a kernel (`ASTTransformerContext`) keeps the arguments of
+    the call that compiled it (`argument_data`) and sits in a reference cycle with the AST
+    transformer's closures, so those arrays (a first call's full-size inputs and outputs: 1.4
+    GB at 322 k Gauss points, the spline basis jets and the shell's Hessian blocks) stay alive
+    until Python's cyclic collector next runs a full pass. Dropped once the kernel is
+    compiled (its AST built: the context is not read after that)."""
+    try:
+        kernel_impl = importlib.import_module(f"{backend}.lang.kernel_impl")
+        build, materialize = kernel_impl._get_tree_and_ctx, kernel_impl.Kernel.materialize
+    except (ImportError, AttributeError):
+        log.debug("%s: no compile context to release", backend)
+        return
+    built: list = []  # contexts of the kernels (and their functions) being compiled
+
+    def get_tree_and_ctx(*args, **kwargs):
+        tree, ctx = build(*args, **kwargs)
+        built.append(ctx)
+        return tree, ctx
+
+    def released(self, *args, **kwargs):
+        try:
+            return materialize(self, *args, **kwargs)
+        finally:
+            for ctx in [c for c in built if getattr(c, "ast_builder", None) is not None]:
+                ctx.argument_data = None
+                built.remove(ctx)
+
+    kernel_impl._get_tree_and_ctx = get_tree_and_ctx
+    kernel_impl.Kernel.materialize = released
 
 
 def _remembered(read):

@@ -5,7 +5,8 @@ import pytest
 import scipy.sparse as sp
 import torch
 
-from taichi_ndf.minimise.assembly import _apply, _apply_transpose, _csr_pattern
+from taichi_ndf.minimise.assembly import _csr_pattern
+from taichi_ndf.minimise.jacobian import ComponentJacobian
 
 
 @pytest.mark.parametrize("periodic", [False, True])
@@ -40,8 +41,9 @@ def test_csr_pattern_scatters_group_sums_as_a_coordinate_matrix_does(periodic):
 
 
 def _apply_one_bmm(jacobian, local):
-    """`_apply` as one batched GEMV over all components (its form before J could be stored
-    once): the reference the per-component form must equal bit for bit."""
+    """U = J C as one batched GEMV over all components of a dense J (3, N, 6, k) (the form
+    before J could be stored per distinct component): the reference the per-component form
+    must equal bit for bit."""
     comps, count, channels, k = jacobian.shape
     out = torch.bmm(jacobian.reshape(comps * count, channels, k),
                     local.permute(2, 0, 1).reshape(comps * count, k, 1))
@@ -55,28 +57,31 @@ def _apply_transpose_one_bmm(jacobian, grad):
     return out.reshape(comps, count, k).permute(1, 2, 0)
 
 
-def test_apply_of_a_broadcast_jacobian_equals_the_one_bmm_form_bit_for_bit():
-    """U = J C and Jᵀ g per component, with J (3, N, 6, 16) stored once and broadcast or per
-    component, give exactly the one-GEMM results (no rounding changed)."""
+def test_apply_of_a_component_jacobian_equals_the_one_bmm_form_bit_for_bit():
+    """U = J C and Jᵀ g per component, with J (3, N, 6, 16) stored once, as two arrays (x and
+    y alike) or three, give exactly the one-GEMM results of the dense J (no rounding
+    changed)."""
     gen = torch.Generator().manual_seed(0)
-    one = torch.randn(1, 500, 6, 16, generator=gen, dtype=torch.float64)
+    arrays = [torch.randn(500, 6, 16, generator=gen, dtype=torch.float64) for _ in range(3)]
     local = torch.randn(500, 16, 3, generator=gen, dtype=torch.float64)
     grad = torch.randn(500, 6, 3, generator=gen, dtype=torch.float64)
-    for jacobian in (one.expand(3, -1, -1, -1),
-                     torch.randn(3, 500, 6, 16, generator=gen, dtype=torch.float64)):
-        full = jacobian.contiguous()
-        assert torch.equal(_apply(jacobian, local), _apply_one_bmm(full, local))
-        assert torch.equal(_apply_transpose(jacobian, grad), _apply_transpose_one_bmm(full, grad))
+    for jacobian in (ComponentJacobian(arrays[:1], (0, 0, 0)),
+                     ComponentJacobian(arrays[:2], (0, 0, 1)),
+                     ComponentJacobian(arrays, (0, 1, 2))):
+        full = jacobian.dense().contiguous()
+        assert torch.equal(jacobian.apply(local), _apply_one_bmm(full, local))
+        assert torch.equal(jacobian.apply_transpose(grad), _apply_transpose_one_bmm(full, grad))
+        assert ComponentJacobian.of(full).slots == jacobian.slots
 
 
 def test_a_jacobian_equal_in_the_three_components_is_stored_once():
-    """The strip clamped in all components (`test_one_newton._strip`): J is stored once and
-    broadcast (stride 0 over the components), and U, g and K equal those of the same assembly
-    with J written out per component (and int64 unknown numbers), bit for bit."""
+    """The strip clamped in all components (`test_one_newton._strip`): J is one array for the
+    three components, and U, g and K equal those of the same assembly with J written out per
+    component (and int64 unknown numbers), bit for bit."""
     from test_one_newton import _strip
 
     assembly, _, _ = _strip()
-    assert assembly.jacobian.stride(0) == 0
+    assert len(assembly.jacobian.arrays) == 1 and assembly.jacobian.slots == (0, 0, 0)
     assert assembly.point_dofs.dtype == torch.int32  # the gradient's scatter: half of int64
     coefficients = torch.randn(assembly.n_coefficients, 3, dtype=torch.float64,
                                generator=torch.Generator().manual_seed(1)) * 1e-3
@@ -87,7 +92,8 @@ def test_a_jacobian_equal_in_the_three_components_is_stored_once():
     blocks = blocks + blocks.transpose(1, 2)
     once = (assembly.displacement(coefficients), assembly.gradient(grad_u),
             assembly.hessian(blocks))
-    assembly.jacobian = assembly.jacobian.contiguous()
+    one = assembly.jacobian.component(0)
+    assembly.jacobian = ComponentJacobian([one.clone() for _ in range(3)], (0, 1, 2))
     assembly.point_dofs = assembly.point_dofs.long()
     per_component = (assembly.displacement(coefficients), assembly.gradient(grad_u),
                      assembly.hessian(blocks))

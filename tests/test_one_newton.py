@@ -38,7 +38,7 @@ def _dense_of(sparse: SplineLinearisation) -> DenseLinearisation:
     """The sparse linearisation written out densely: J (3, N, 6, n) over parameters C ᵀ (3, n),
     with the spline's FD steps (the same blocks)."""
     assembly = sparse.assembly
-    local = assembly.jacobian  # (3, N, 6, k) on the coefficients assembly.basis.index (N, k)
+    local = assembly.jacobian.dense()  # (3, N, 6, k) on the coefficients basis.index (N, k)
     comps, count, channels, _ = local.shape
     jacobian = local.new_zeros(comps, count, channels, assembly.n_coefficients)
     index = assembly.basis.index[None, :, None, :].expand(comps, count, channels, -1)

@@ -207,7 +207,7 @@ class SplineEquilibrium(Equilibrium):
         for c in range(3):
             a = torch.zeros(len(xi), n, dtype=torch.float64)
             a.index_put_((rows, at.index.reshape(-1)),
-                         at.jacobian[c, :, jets.VALUE].reshape(-1), accumulate=True)
+                         at.jacobian.component(c)[:, jets.VALUE].reshape(-1), accumulate=True)
             normal = a.T @ a
             normal += ridge * float(normal.diagonal().mean()) * torch.eye(n, dtype=normal.dtype)
             state[:, c] = torch.linalg.solve(normal, a.T @ target[:, c])
@@ -222,8 +222,9 @@ class SplineEquilibrium(Equilibrium):
     def position_sensitivity(self, xi: torch.Tensor, sensitivity: torch.Tensor) -> torch.Tensor:
         """dx/dz (N, 3, p) at ξ from dC*/dz (`sensitivity`): x is affine in C."""
         at = self.grid.at_points(xi.to(torch.float64), 1.0)
-        value = at.jacobian[:, :, jets.VALUE]  # (3, N, k)
-        out = torch.einsum("cna,nacj->ncj", value, sensitivity[at.index])
+        local = sensitivity[at.index]  # (N, k, 3, p)
+        out = torch.stack([torch.einsum("na,naj->nj", at.jacobian.component(c)[:, jets.VALUE],
+                                        local[:, :, c]) for c in range(3)], dim=1)
         if at.pin is not None:
             out = out + torch.einsum("cna,acj->ncj", at.pin[:, :, jets.VALUE],
                                      sensitivity[at.pin_index])

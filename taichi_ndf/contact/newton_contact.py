@@ -55,12 +55,11 @@ class PointMap:
         at = grid.at_points(xi, load_factor)
         self.index, self.pin_index = at.index, at.pin_index
         self.offset = at.offset[:, jets.VALUE]
-        self.jacobian = at.jacobian[:, :, jets.VALUE]  # (3, N, k)
+        self.jacobian = at.jacobian.channels([jets.VALUE])  # (3, N, 1, k)
         self.pin = None if at.pin is None else at.pin[:, 0, jets.VALUE]  # (3, k)
 
     def __call__(self, coefficients: torch.Tensor) -> torch.Tensor:
-        u = self.offset + torch.einsum("cna,nac->nc", self.jacobian,
-                                       coefficients[self.index])
+        u = self.offset + self.jacobian.apply(coefficients[self.index])[:, 0]
         if self.pin is not None:
             u = u + torch.einsum("ca,ac->c", self.pin, coefficients[self.pin_index])
         return u

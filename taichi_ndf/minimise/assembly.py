@@ -7,7 +7,8 @@ boundary composition u = φ N + g is pointwise and affine in N, so at the fixed 
     U_q = G_q + J_q · C_q      (C_q: the 3k coefficients acting at q),
 
 with J_q and G_q (the prescribed part) from the displacement operator
-(`DisplacementOperator.local_jacobian`, `.prescribed`), J_q per component along the boundary
+(`DisplacementOperator.local_jacobian`, `.prescribed`; J stored once per distinct component
+and built once per assembly: `minimise.jacobian`), J_q per component along the boundary
 frame's axes (the world axes unless the boundary has a `frame`: then U_q = G_q + Fᵀ J_q C_q and
 the gradient and Hessian blocks are turned to the frame, `operator.to_frame`,
 `.blocks_to_frame`; the coefficients are the frame components). A free pin
@@ -36,6 +37,7 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
+from taichi_ndf.minimise.jacobian import ComponentJacobian, component_jacobian
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.sampling import SurfaceSamples
@@ -65,29 +67,24 @@ def local_basis_at(operator: DisplacementOperator, xi: torch.Tensor) -> LocalBas
     return LocalBasis(index[:-1], basis[:-1], index[-1], basis[-1])
 
 
+def jacobians(operator: DisplacementOperator, xi: torch.Tensor, basis: LocalBasis
+              ) -> tuple[ComponentJacobian, torch.Tensor | None]:
+    """J at ξ (N, 2) (`ComponentJacobian`: J[c, q, :, a] = ∂u_c(ξ_q)/∂C[index[q, a], c]) and
+    the pin's Jacobian (3, N, 6, k), the same at every point (an expanded view; None without
+    a free pin); neither depends on the load factor."""
+    xi = xi.to(basis.jets.dtype)
+    jacobian, pin = component_jacobian(operator, xi, basis.jets, basis.pin_jets)
+    return jacobian, None if pin is None else pin[:, None].expand(-1, xi.shape[0], -1, -1)
+
+
 def linearised(operator: DisplacementOperator, xi: torch.Tensor, basis: LocalBasis,
                load_factor: float
-               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+               ) -> tuple[torch.Tensor, ComponentJacobian, torch.Tensor | None]:
     """U = offset + Σ_a J[:, :, :, a] C[a] at ξ (N, 2) and load factor t, from the operator:
-    offset (N, 6, 3) [m] the prescribed displacement (`operator.prescribed`),
-    jacobian (3, N, 6, k): J[c, q, :, a] = ∂u_c(ξ_q)/∂C[index[q, a], c],
-    pin_jacobian (3, N, 6, k) the same for the pin's coefficients, the same at every point
-    (an expanded view; None without a free pin)."""
-    dtype = basis.jets.dtype
-    xi = xi.to(dtype)
-    full = basis.jets if basis.pin_jets is None else torch.cat((basis.jets, basis.pin_jets[None]))
-    offset = operator.prescribed(xi, t=load_factor, dtype=dtype)
-    local = operator.local_jacobian(xi, full)
-    pin = None if local.pin is None else local.pin[:, None].expand(-1, xi.shape[0], -1, -1)
-    return offset, local.own, pin
-
-
-def _apply(jacobian: torch.Tensor, local: torch.Tensor) -> torch.Tensor:
-    """U[n, j, c] = Σ_a J[c, n, j, a] C[n, a, c]: Jacobians (3, N, 6, k) (possibly one
-    broadcast over the components) of the per-point coefficients local (N, k, 3); shape
-    (N, 6, 3). A batched GEMV per component (3× faster than einsum; no copy of a broadcast J)."""
-    return torch.stack([torch.bmm(j, local[:, :, c, None])[..., 0]
-                        for c, j in enumerate(jacobian)], dim=2)
+    offset (N, 6, 3) [m] the prescribed displacement (`operator.prescribed`), J and the pin's
+    (`jacobians`)."""
+    offset = operator.prescribed(xi.to(basis.jets.dtype), t=load_factor, dtype=basis.jets.dtype)
+    return (offset, *jacobians(operator, xi, basis))
 
 
 def _pin_displacement(pin_jacobian: torch.Tensor, pin_coefficients: torch.Tensor
@@ -95,13 +92,6 @@ def _pin_displacement(pin_jacobian: torch.Tensor, pin_coefficients: torch.Tensor
     """The pin's part of U (1, 6, 3), the same at every point: pin Jacobian (3, N, 6, k) (an
     expanded view), the pin's coefficients (k, 3)."""
     return torch.einsum("cja,ac->jc", pin_jacobian[:, 0], pin_coefficients)[None]
-
-
-def _apply_transpose(jacobian: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
-    """G[n, a, c] = Σ_j J[c, n, j, a] g[n, j, c] for Jacobians (3, N, 6, k) (as `_apply`) and
-    g (N, 6, 3); shape (N, k, 3)."""
-    return torch.stack([torch.bmm(grad[:, None, :, c], j)[:, 0]
-                        for c, j in enumerate(jacobian)], dim=2)
 
 
 def _weighted(blocks: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
@@ -202,15 +192,18 @@ class Assembly:
         self._scatter, self._columns, self._row_starts = _csr_pattern(
             groups.cpu().numpy().astype(np.int64), self.n_coefficients)
         self._groups = groups.shape[0]
-        self.offset = self.jacobian = self.pin_jacobian = None
+        self.offset = self.jacobian = self.pin_jacobian = self._operator = None
 
     def at_load(self, operator: DisplacementOperator, load_factor: float) -> Assembly:
-        """Linearise the composition at load factor t (see `linearised`)."""
-        self.offset, self.jacobian, self.pin_jacobian = linearised(
-            operator, self.samples.xi, self.basis, load_factor)
+        """Linearise the composition at load factor t (see `linearised`; J is built for the
+        first operator given and kept: it does not depend on t)."""
+        dtype = self.basis.jets.dtype
+        self.offset = operator.prescribed(self.samples.xi.to(dtype), t=load_factor, dtype=dtype)
+        if operator is self._operator:
+            return self
+        self.jacobian = self.pin_jacobian = None  # let the last one go first
+        self.jacobian, self.pin_jacobian = jacobians(operator, self.samples.xi, self.basis)
         self._operator = operator  # its boundary frame turns the per-component parts
-        if all(torch.equal(self.jacobian[0], j) for j in self.jacobian[1:]):  # e.g. all held
-            self.jacobian = self.jacobian[:1].expand(COMPONENTS, -1, -1, -1)  # stored once
         if self.pin_jacobian is not None:
             # the same at every point (an expanded view): read point 0
             used = self.pin_jacobian[:, 0].abs().amax(dim=(0, 2)) > 0
@@ -219,7 +212,7 @@ class Assembly:
 
     def displacement(self, coefficients: torch.Tensor) -> torch.Tensor:
         """Displacement jets U (N, 6, 3) [m] of coefficients (n, 3)."""
-        u = _apply(self.jacobian, coefficients[self.basis.index])
+        u = self.jacobian.apply(coefficients[self.basis.index])
         if self.pin_jacobian is not None:
             u = u + _pin_displacement(self.pin_jacobian, coefficients[self.basis.pin_index])
         return self.offset + self._operator.to_world(u)
@@ -227,7 +220,7 @@ class Assembly:
     def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
         """dΠ/dC (n, 3) from dΠ/dU (N, 6, 3)."""
         grad_u_jets = self._operator.to_frame(grad_u_jets)
-        local = _apply_transpose(self.jacobian, grad_u_jets)
+        local = self.jacobian.apply_transpose(grad_u_jets)
         out = local.new_zeros(self.size)
         out.index_add_(0, self.point_dofs, local.reshape(-1))
         if self.pin_jacobian is not None:
@@ -236,10 +229,10 @@ class Assembly:
             out.index_add_(0, torch.from_numpy(self.pin_dofs).to(out.device), pin.reshape(-1))
         return out.reshape(-1, COMPONENTS)
 
-    def _group_sums(self, left: torch.Tensor, blocks: torch.Tensor, right: torch.Tensor
+    def _group_sums(self, left: ComponentJacobian, blocks: torch.Tensor, right: torch.Tensor
                     ) -> torch.Tensor:
         """Σ over the points q of each group of L_qᵀ H_q R_q, shape (G, 3k, 3k), for
-        Jacobians L (3, N, cl, k), R (3, N, cr, k) on channel subsets and blocks
+        Jacobians L (3, N, cl, k), R (3, N, cr, k) (a tensor) on channel subsets and blocks
         (N, cl, 3, cr, 3) on the same channels."""
         k, channels = left.shape[3], left.shape[2]
         width = k * COMPONENTS
@@ -251,40 +244,48 @@ class Assembly:
             points = slice(groups.start * m, groups.stop * m)
             weighted = _weighted(blocks[points], right[:, points]).reshape(
                 -1, m * channels, COMPONENTS, width)
-            lhs = left[:, points].reshape(COMPONENTS, -1, m * channels, k)
             for c in range(COMPONENTS):
-                summed[groups, :, c] = torch.bmm(lhs[c].transpose(1, 2), weighted[:, :, c])
+                lhs = left.component(c)[points].reshape(-1, m * channels, k)
+                summed[groups, :, c] = torch.bmm(lhs.transpose(1, 2), weighted[:, :, c])
         summed = summed.reshape(self._groups, width, width)
         if self._extra.stop > self._extra.start:
             extra = self._extra
             summed.index_add_(0, self._group[extra], _contract(
-                left[:, extra], _weighted(blocks[extra], right[:, extra])).reshape(
+                left.rows(extra).dense(), _weighted(blocks[extra], right[:, extra])).reshape(
                     -1, width, width))
         return summed
 
-    def _pair_sums(self, jacobian: torch.Tensor, blocks: torch.Tensor) -> torch.Tensor:
-        """R[c, d, g] = Σ over the points q of group g of J_c,qᵀ H_q[:, c, :, d] J_d,q, shape
-        (3, 3, G, k, k), for Jacobians (3, N, ch, k), symmetric blocks (N, ch, 3, ch, 3): per
-        chunk of groups and component pair two batched GEMMs, the group's points folded into
-        the inner dimension of the second; R[d, c] = R[c, d]ᵀ."""
+    def _pair_sums(self, jacobian: ComponentJacobian, blocks: torch.Tensor) -> np.ndarray:
+        """K's CSR data (float64), point-local part: R[c, d, g] = Σ_{q in group g} J_c,qᵀ
+        H_q[:, c, :, d] J_d,q (symmetric blocks (N, ch, 3, ch, 3)) scattered per chunk of
+        groups (each datum summed over the groups in order, as all at once): two batched GEMMs
+        per component pair, the group's points in the inner dimension; R[d, c] = R[c, d]ᵀ."""
         channels, k, m, count = *jacobian.shape[2:], self._per_group, self._groups
-        out, step = blocks.new_empty(COMPONENTS, COMPONENTS, count, k, k), max(1, CHUNK // m)
+        data, step = np.zeros(len(self._columns)), max(1, CHUNK // m)
+        scatter = self._scatter.reshape(COMPONENTS, COMPONENTS, count, k, k)
+        extra = self._extra
+        if extra.stop > extra.start:  # point by point, added into their groups' sums
+            dense = jacobian.rows(extra).dense()
+            per_point = _contract(dense, _weighted(blocks[extra], dense)).permute(2, 4, 0, 1, 3)
+            extra_group = self._group[extra]
         for start in range(0, count, step):
             g = slice(start, min(count, start + step))
             p = slice(g.start * m, g.stop * m)
+            out = blocks.new_empty(COMPONENTS, COMPONENTS, g.stop - g.start, k, k)
             for c in range(COMPONENTS):
-                left = jacobian[c, p].reshape(-1, m * channels, k).transpose(1, 2)
+                left = jacobian.component(c)[p].reshape(-1, m * channels, k).transpose(1, 2)
                 for d in range(c, COMPONENTS):
-                    weighted = torch.bmm(blocks[p, :, c, :, d].contiguous(), jacobian[d, p])
-                    torch.bmm(left, weighted.reshape(-1, m * channels, k), out=out[c, d, g])
+                    weighted = torch.bmm(blocks[p, :, c, :, d].contiguous(),
+                                         jacobian.component(d)[p])
+                    torch.bmm(left, weighted.reshape(-1, m * channels, k), out=out[c, d])
                     if d != c:
-                        out[d, c, g] = out[c, d, g].transpose(1, 2)
-        if self._extra.stop > self._extra.start:
-            extra = self._extra
-            per_point = _contract(jacobian[:, extra], _weighted(blocks[extra],
-                                                               jacobian[:, extra]))
-            out.index_add_(2, self._group[extra], per_point.permute(2, 4, 0, 1, 3))
-        return out
+                        out[d, c] = out[c, d].transpose(1, 2)
+            if extra.stop > extra.start:
+                here = (extra_group >= g.start) & (extra_group < g.stop)
+                out.index_add_(2, extra_group[here] - g.start, per_point[:, :, here])
+            flat = np.ascontiguousarray(scatter[:, :, g]).ravel()  # np.add.at: 5× a view's
+            np.add.at(data, flat, out.double().cpu().numpy().ravel())  # speed
+        return data
 
     def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None
                 ) -> sp.csr_matrix:
@@ -307,7 +308,7 @@ class Assembly:
         jacobians, dofs = [], []
         for end in range(2):
             rows = couplings.points[:, end].to(self.jacobian.device)
-            jacobian = self.jacobian[:, rows]  # (3, P, 6, k)
+            jacobian = self.jacobian.rows(rows).dense()  # (3, P, 6, k)
             index = _dofs(self.basis.index[rows])  # (P, 3k)
             if self.pin_jacobian is not None:
                 jacobian = torch.cat((jacobian, self.pin_jacobian[:, rows]), dim=3)
@@ -342,11 +343,11 @@ class Assembly:
         if used.numel() < jets.CHANNELS:
             lo, hi = int(used[0]), int(used[-1]) + 1
             if hi - lo == used.numel():  # a range of channels: views, no copies
-                blocks, jacobian = blocks[:, lo:hi, :, lo:hi], jacobian[:, :, lo:hi]
+                blocks, jacobian = blocks[:, lo:hi, :, lo:hi], jacobian.channels(slice(lo, hi))
             else:
                 blocks = blocks[:, used][:, :, :, used]
-                jacobian = jacobian[:, :, used]
-        pairs = self._pair_sums(jacobian, blocks)
+                jacobian = jacobian.channels(used)
+        data = self._pair_sums(jacobian, blocks)  # summed in order, as np.bincount would
         pin = self.pin_jacobian is not None
         if pin:  # the pin's Jacobian lives on few channels (the value): only those enter
             ch = torch.nonzero(torch.isin(used, self._pin_channels)).flatten()
@@ -356,9 +357,8 @@ class Assembly:
             cross = self._group_sums(jacobian, blocks[:, :, :, ch], pin_jac)
             dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
             dense.index_add_(0, self._group_dofs, cross.reshape(-1, width))
-            pin_pin = self._group_sums(pin_jac, blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
-        data = np.zeros(len(self._columns))  # summed in order, as np.bincount would
-        np.add.at(data, self._scatter, pairs.double().cpu().numpy().ravel())
+            pin_pin = self._group_sums(ComponentJacobian(list(pin_jac), (0, 1, 2)),
+                                       blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
         matrix = sp.csr_matrix((data, self._columns, self._row_starts),
                                shape=(self.size, self.size))
         if not pin:
@@ -383,7 +383,7 @@ def displacement_at(operator: DisplacementOperator, xi: torch.Tensor,
     (n, 3) in place of its own, at load factor t (e.g. at probe points)."""
     basis = local_basis_at(operator, xi)
     offset, jacobian, pin_jacobian = linearised(operator, xi, basis, load_factor)
-    u = _apply(jacobian, coefficients[basis.index])
+    u = jacobian.apply(coefficients[basis.index])
     if pin_jacobian is not None:
         u = u + _pin_displacement(pin_jacobian, coefficients[basis.pin_index])
     return offset + operator.to_world(u)

@@ -294,6 +294,7 @@ class LinearSolver:
         setup = time.perf_counter() - started
         result = conjugate_gradients(system, rhs[unknowns[active]], cycle,
                                      self.config.tolerance, self.config.max_iterations)
+        cycle.release()  # kept for its pattern-only parts only
         solve = time.perf_counter() - started - setup
         log.debug("multigrid CG: %s in %d iterations, residual %.2e, levels %s, setup %.3f "
                   "s, iterations %.3f s", result.status, result.iterations, result.residual,

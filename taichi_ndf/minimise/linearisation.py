@@ -35,6 +35,7 @@ from taichi_ndf.minimise.assembly import (
     linearised,
     local_basis_at,
 )
+from taichi_ndf.minimise.jacobian import ComponentJacobian
 from taichi_ndf.minimise.linear_solve import LinearSolver, LinearSolverConfig, damped_solve
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.loads import Loads
@@ -231,14 +232,15 @@ def held_unknowns(grid, boundary: BoundaryConditions | None, basis: LocalBasis
 @dataclass(frozen=True)
 class PointJacobian:
     """The spline field's displacement jets at fixed points ξ (N, 2), affine in the
-    coefficients C (n, 3): U = offset + Σ_a jacobian[:, :, :, a] C[index[:, a]] (+ the pin's
-    part, the same at every point), components along the boundary frame's axes.
-    index (N, k) int64; offset (N, 6, 3) [m]; jacobian (3, N, 6, k); pin_index (k,) and
-    pin (3, N, 6, k) (an expanded view) with a free pin, else None (`assembly.linearised`)."""
+    coefficients C (n, 3): U = offset + jacobian.apply(C[index]) (+ the pin's part, the same
+    at every point), components along the boundary frame's axes.
+    index (N, k) int64; offset (N, 6, 3) [m]; jacobian J (3, N, 6, k) as a
+    `ComponentJacobian` (each distinct component stored once); pin_index (k,) and pin (3, N,
+    6, k) (an expanded view) with a free pin, else None (`assembly.linearised`)."""
 
     index: torch.Tensor
     offset: torch.Tensor
-    jacobian: torch.Tensor
+    jacobian: ComponentJacobian
     pin_index: torch.Tensor | None
     pin: torch.Tensor | None
 

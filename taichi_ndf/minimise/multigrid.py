@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -82,7 +83,15 @@ def _sorted_csr(matrix: sp.spmatrix) -> sp.csr_matrix:
     return matrix if matrix.has_sorted_indices else matrix.sorted_indices()
 
 
-def _same_pattern(a: sp.csr_matrix, b: sp.csr_matrix) -> bool:
+class _Pattern(NamedTuple):
+    """A CSR matrix's pattern without its values (a released V-cycle's levels)."""
+
+    shape: tuple[int, int]
+    indptr: np.ndarray
+    indices: np.ndarray
+
+
+def _same_pattern(a: sp.csr_matrix | _Pattern, b: sp.csr_matrix) -> bool:
     return (a.shape == b.shape and np.array_equal(a.indptr, b.indptr)
             and np.array_equal(a.indices, b.indices))
 
@@ -199,6 +208,17 @@ class VCycle:
 
     def __call__(self, residual: np.ndarray) -> np.ndarray:
         return self._cycle(0, residual)
+
+    def release(self) -> VCycle:
+        """Keep only what `reuse` reads (each level's pattern, unknowns and prolongations, the
+        smoothers' selections) and let the matrices' values and the factorisations go (a
+        copy of K and more, held between Newton steps otherwise); not applicable after."""
+        for level in self.levels:
+            level.matrix = _Pattern(level.matrix.shape, level.matrix.indptr,
+                                    level.matrix.indices)
+            level.smoother.matrix = level.smoother.lower = level.smoother.upper = None
+        self.coarsest = None
+        return self
 
     def _cycle(self, depth: int, rhs: np.ndarray) -> np.ndarray:
         if depth == len(self.levels):

@@ -38,6 +38,9 @@ JET_SIZE = jets.CHANNELS * COMPONENTS  # 18 jet values per point
 PSD_SLACK = 1e-7
 # Blocks per chunk of `used_entries`'s sum (a ~5 MB temporary of 18 × 18 float64 blocks).
 USED_CHUNK = 2048
+# Blocks per chunk of the PSD screen and projection (`project_psd`): bounds their copies and
+# factors (the whole batch at once: 1.1 GB beside 0.8 GB of blocks at 322 k points).
+PROJECT_CHUNK = 16384
 
 # Potential at given displacement jets: (samples, u_jets (N, 6, 3), grad) -> EnergyResult.
 Potential = Callable[[SurfaceSamples, torch.Tensor, bool], EnergyResult]
@@ -146,22 +149,28 @@ def project_psd(blocks: torch.Tensor, bad: torch.Tensor | None = None, mode: str
     mode "abs": negative eigenvalues replaced by their absolute values; "clamp" (and
     "strain", for blocks without their strains): by 0. Only
     the indefinite blocks (`indefinite_blocks`, or `bad` if given) are eigen-decomposed
-    (module docstring)."""
+    (module docstring). Screened and projected in chunks of at most `PROJECT_CHUNK` blocks
+    (each block on its own: the same numbers as all at once)."""
     if mode not in PROJECTIONS:
         raise ValueError(f"projection must be one of {PROJECTIONS}, got {mode!r}")
     rows = active_rows(blocks)
     if bad is None:
-        bad = indefinite_blocks(blocks, rows)
+        bad = torch.cat([indefinite_blocks(blocks[start:start + PROJECT_CHUNK], rows) + start
+                         for start in range(0, blocks.shape[0], PROJECT_CHUNK)] or [
+                             torch.zeros(0, dtype=torch.int64, device=blocks.device)])
     if bad.numel() == 0:
         return blocks, 0
-    values, vectors = torch.linalg.eigh(_part(blocks[bad], rows))
-    values = values.abs() if mode == "abs" else values.clamp_min(0.0)
-    part = (vectors * values[:, None, :]) @ vectors.transpose(1, 2)
     projected = blocks if overwrite else blocks.clone()
-    if isinstance(rows, slice):
-        projected[:, rows, rows].index_copy_(0, bad, part)
-    else:
-        changed = projected[bad]
-        changed[:, rows[:, None], rows[None, :]] = part
-        projected[bad] = changed
+    # equal parts of at most PROJECT_CHUNK blocks: no small last batch (torch's eigh rounds
+    # batches of a few matrices otherwise than large ones)
+    for some in bad.tensor_split(-(-bad.numel() // PROJECT_CHUNK)):
+        values, vectors = torch.linalg.eigh(_part(projected[some], rows))
+        values = values.abs() if mode == "abs" else values.clamp_min(0.0)
+        part = (vectors * values[:, None, :]) @ vectors.transpose(1, 2)
+        if isinstance(rows, slice):
+            projected[:, rows, rows].index_copy_(0, some, part)
+        else:
+            changed = projected[some]
+            changed[:, rows[:, None], rows[None, :]] = part
+            projected[some] = changed
     return projected, int(bad.numel())
