@@ -96,7 +96,7 @@ class MultiPatchLinearisation:
             if at.pin is not None:
                 raise ValueError("a multi-patch linearisation takes no free pin")
             k = at.index.shape[1]
-            jacobian = at.jacobian.expand(COMPONENTS, -1, -1, -1).double().cpu().numpy()
+            jacobian = at.jacobian.dense().double().cpu().numpy()
             index = at.index.cpu().numpy() + self.coefficient_offsets[i]
             # row (end e of pair p) 18 e' + 3 j + c with e' = 2p + side; column 3 C + c
             end = torch.as_tensor(ends).numpy()
