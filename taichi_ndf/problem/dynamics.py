@@ -3,14 +3,68 @@
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
+
+from taichi_ndf.problem.wind import Wind
 
 # implicit_euler: first order, dissipative; newmark: the average-acceleration (trapezoidal)
 # Newmark scheme β = 1/4, γ = 1/2, second order, energy-conserving for linear problems.
 INTEGRATORS = ("implicit_euler", "newmark")
 NEWMARK_BETA = 0.25
 NEWMARK_GAMMA = 0.5
+
+
+@dataclass(frozen=True)
+class BoundaryMotion:
+    """The prescribed boundary motion in time (a scene's `[dynamics.motion]`): the factor μ(t)
+    by which the scene's prescribed displacements (handles' displacement, rim rotations'
+    angle: the boundary's load-factor path, `boundary.motions.prescribed_motion`) are
+    applied at time t [s]. Either keyframes ((t_i [s], μ_i), t_0 = 0 < t_1 < …, μ_0 = 0:
+    linear between them, held after the last) or a sinusoid μ(t) = amplitude sin(2π
+    frequency t) (frequency [Hz] > 0). μ(0) = 0: the run starts in the reference state."""
+
+    keyframes: tuple[tuple[float, float], ...] = ()
+    amplitude: float = 0.0
+    frequency: float = 0.0
+
+    def __post_init__(self):
+        frames = tuple((float(t), float(m)) for t, m in self.keyframes)
+        object.__setattr__(self, "keyframes", frames)
+        if bool(frames) == bool(self.frequency):
+            raise ValueError("motion: give either keyframes or a sinusoid (amplitude, "
+                             "frequency), not both or neither")
+        if frames:
+            times = [t for t, _ in frames]
+            if not all(math.isfinite(v) for f in frames for v in f) or len(frames) < 2:
+                raise ValueError(f"motion keyframes must be at least two finite [t, μ] pairs, "
+                                 f"got {list(self.keyframes)!r}")
+            if times[0] != 0 or frames[0][1] != 0:
+                raise ValueError(f"motion keyframes must start at [0, 0] (the reference state), "
+                                 f"got {list(frames[0])}")
+            if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+                raise ValueError(f"motion keyframes' times must increase, got {times}")
+        elif not (math.isfinite(self.amplitude) and math.isfinite(self.frequency)
+                  and self.frequency > 0):
+            raise ValueError(f"motion: amplitude must be finite and frequency finite and > 0 "
+                             f"[Hz], got {self.amplitude!r}, {self.frequency!r}")
+
+    def factor(self, t: float) -> float:
+        """μ(t) at time t [s] ≥ 0."""
+        if not self.keyframes:
+            return self.amplitude * math.sin(2 * math.pi * self.frequency * t)
+        times = [k for k, _ in self.keyframes]
+        i = bisect.bisect_right(times, t)
+        if i >= len(times):
+            return self.keyframes[-1][1]
+        (t0, m0), (t1, m1) = self.keyframes[i - 1], self.keyframes[i]
+        return m0 + (m1 - m0) * (t - t0) / (t1 - t0)
+
+    def to_dict(self) -> dict:
+        if self.keyframes:
+            return {"keyframes": [list(k) for k in self.keyframes]}
+        return {"amplitude": self.amplitude, "frequency": self.frequency}
 
 
 @dataclass(frozen=True)
@@ -25,7 +79,8 @@ class DynamicsConfig:
     load_ramp: the time [s] ≥ 0 over which the loads rise linearly from 0 to their full value,
     load factor λ(t) = min(1, t / load_ramp) (0: on in full from t = 0); halvings: how
     often a step whose Newton solve does not converge may be split in two halves, recursively,
-    before the run fails."""
+    before the run fails; wind: the air's motion and drag (`Wind`) or None; motion: the
+    prescribed boundary motion in time (`BoundaryMotion`) or None (the boundary held)."""
 
     dt: float
     duration: float
@@ -35,6 +90,8 @@ class DynamicsConfig:
     stiffness_damping: float = 0.0
     load_ramp: float = 0.0
     halvings: int = 4
+    wind: Wind | None = None
+    motion: BoundaryMotion | None = None
 
     def __post_init__(self):
         if self.integrator not in INTEGRATORS:
@@ -67,6 +124,10 @@ class DynamicsConfig:
         if isinstance(self.halvings, bool) or not isinstance(self.halvings, int) or \
                 self.halvings < 0:
             raise ValueError(f"halvings must be an integer >= 0, got {self.halvings!r}")
+        if self.wind is not None and not isinstance(self.wind, Wind):
+            raise ValueError(f"wind must be a Wind, got {self.wind!r}")
+        if self.motion is not None and not isinstance(self.motion, BoundaryMotion):
+            raise ValueError(f"motion must be a BoundaryMotion, got {self.motion!r}")
 
     @property
     def steps(self) -> int:
@@ -76,6 +137,11 @@ class DynamicsConfig:
     def load_factor(self, t: float) -> float:
         """λ(t) = min(1, t / load_ramp) (1 without a ramp) at time t [s]."""
         return 1.0 if self.load_ramp == 0 else min(1.0, t / self.load_ramp)
+
+    def boundary_factor(self, t: float) -> float:
+        """μ(t), the factor of the prescribed boundary motion at time t [s] (1 without a
+        motion: a boundary without prescribed displacements)."""
+        return 1.0 if self.motion is None else self.motion.factor(t)
 
     @property
     def frame_every(self) -> int | None:
@@ -94,7 +160,9 @@ class DynamicsConfig:
         return {"integrator": self.integrator, "dt": self.dt, "duration": self.duration,
                 "frame_rate": self.frame_rate, "mass_damping": self.mass_damping,
                 "stiffness_damping": self.stiffness_damping, "load_ramp": self.load_ramp,
-                "halvings": self.halvings, "steps": self.steps}
+                "halvings": self.halvings, "steps": self.steps,
+                **({"wind": self.wind.to_dict()} if self.wind else {}),
+                **({"motion": self.motion.to_dict()} if self.motion else {})}
 
 
 def combine(coefficients, terms):
