@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from taichi_ndf.problem.dynamics import BoundaryMotion, DynamicsConfig
+from taichi_ndf.problem.dynamics import AdaptiveStep, BoundaryMotion, DynamicsConfig
 from taichi_ndf.problem.wind import Wind
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.scene.schema import SceneError
@@ -140,3 +140,40 @@ def test_wind_and_motion_keys_are_read():
                                gust_frequency=0.5)
     assert config.motion.keyframes == ((0.0, 0.0), (0.1, 1.0))
     assert config.to_dict()["wind"]["velocity"] == [0.0, 5.0, 0.0]
+
+
+def test_adaptive_steps_grow_on_easy_solves_and_land_on_the_frames():
+    """A free plate falling under gravity (every Newton solve easy): after every 3 easy steps
+    h grows by 1.25 up to max_dt, shortened to land on each output frame; the fall is implicit
+    Euler's with those steps, v' = v − g h, z' = z + h v', to 1e-9."""
+    document = dict(PLATE, loads={"gravity": [0.0, 0.0, -9.81]})
+    s = scene(document)
+    rule = AdaptiveStep(max_dt=0.02, easy_iterations=4, grow_after=3)
+    config = DynamicsConfig(dt=0.005, duration=0.2, frame_rate=20, adaptive=rule)
+    trajectory = TimeStepper(s.model, s.field, config).run()
+    sizes = [r.size for r in trajectory.records]
+    assert sizes[:4] == pytest.approx([0.005, 0.005, 0.005, 0.00625])
+    assert max(sizes) == pytest.approx(0.005 * 1.25**6) and len(sizes) < 0.6 * config.steps
+    assert [t for t, _ in trajectory.frames] == [0.0, 0.05, 0.1, 0.15, 0.2]
+    assert trajectory.times[-1] == 0.2
+    z, v = 0.0, 0.0
+    for n, h in enumerate(sizes):
+        v -= 9.81 * h
+        z += h * v
+        assert trajectory.probes["tip"][n + 1][2] == pytest.approx(z, rel=1e-9)
+    assert trajectory.to_dict()["step_sizes"] == sizes
+
+
+def test_the_adaptive_rule():
+    rule = AdaptiveStep(max_dt=0.1, easy_iterations=3, grow_after=2)
+    assert rule.after(0.01, 0, 3, 1) == (0.01, 1)
+    assert rule.after(0.01, 1, 2, 1) == (pytest.approx(0.0125), 0)
+    assert rule.after(0.01, 1, 4, 1) == (0.01, 0)  # a hard solve resets the count
+    assert rule.after(0.01, 1, 9, 3) == (0.005, 0)  # halved: on at half the size
+    assert rule.after(0.09, 1, 1, 1) == (0.1, 0)  # capped at max_dt
+    with pytest.raises(ValueError, match="max_dt must be >= dt"):
+        DynamicsConfig(dt=0.1, duration=0.1, adaptive=AdaptiveStep(max_dt=0.05))
+    with pytest.raises(SceneError, match="dynamics.max_dt: needs adaptive = true"):
+        scene(dict(PLATE, dynamics={"dt": 0.1, "duration": 0.1, "max_dt": 0.2}))
+    read = scene(dict(PLATE, dynamics={"dt": 0.1, "duration": 0.2, "adaptive": True}))
+    assert read.dynamics.adaptive == AdaptiveStep(max_dt=0.8)

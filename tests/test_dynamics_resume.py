@@ -10,7 +10,7 @@ import torch
 
 from taichi_ndf.app import dynamics as app_dynamics
 from taichi_ndf.cli import sim
-from taichi_ndf.problem.dynamics import DynamicsConfig
+from taichi_ndf.problem.dynamics import AdaptiveStep, DynamicsConfig
 from taichi_ndf.solve.dynamics import TimeStepper
 from taichi_ndf.solve.dynamics_trajectory import read_checkpoint, write_checkpoint
 from tests.test_dynamics_scene import RUNTIME, SCENE
@@ -23,11 +23,13 @@ def strip():
     return parse_document(tomllib.loads(SCENE))
 
 
-@pytest.mark.parametrize("integrator", ["implicit_euler", "newmark"])
-def test_a_resumed_run_ends_in_the_same_state_bit_for_bit(tmp_path, integrator):
+@pytest.mark.parametrize("integrator, adaptive", [("implicit_euler", None),
+                                                 ("newmark", None),
+                                                 ("implicit_euler", AdaptiveStep(0.02, 6, 1))])
+def test_a_resumed_run_ends_in_the_same_state_bit_for_bit(tmp_path, integrator, adaptive):
     s = strip()
     config = DynamicsConfig(dt=0.005, duration=0.03, frame_rate=100, integrator=integrator,
-                            mass_damping=0.5)
+                            mass_damping=0.5, adaptive=adaptive)
     whole = TimeStepper(s.model, s.field, config).run()
     saved = []
     first = TimeStepper(s.model, s.field, config)
@@ -49,6 +51,9 @@ def test_a_resumed_run_ends_in_the_same_state_bit_for_bit(tmp_path, integrator):
     assert [r.total for r in resumed.records] == [r.total for r in whole.records]
     assert resumed.probes == whole.probes
     assert [t for t, _ in resumed.frames] == [t for t, _ in whole.frames]
+    assert [r.size for r in resumed.records] == [r.size for r in whole.records]
+    if adaptive is not None:  # the step grew before the checkpoint and after it
+        assert checkpoint.step_size > 0.005 and max(r.size for r in whole.records) == pytest.approx(0.01)
     with pytest.raises(ValueError, match="other \\[dynamics\\] settings"):
         read_checkpoint(tmp_path / "c.pt", DynamicsConfig(dt=0.005, duration=0.04))
 

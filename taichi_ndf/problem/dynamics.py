@@ -67,6 +67,46 @@ class BoundaryMotion:
         return {"amplitude": self.amplitude, "frequency": self.frequency}
 
 
+GROWTH = 1.25  # an adaptive step grows by this factor after `grow_after` easy steps
+
+
+@dataclass(frozen=True)
+class AdaptiveStep:
+    """The step-size rule of an adaptive run (`[dynamics] adaptive = true`): start at dt; after
+    `grow_after` consecutive steps that each converged unhalved in at most `easy_iterations`
+    Newton iterations, h ← min(max_dt, GROWTH h); a step whose Newton does not converge is
+    redone as two halves (the halving of every run) and the run goes on at h/2 (not below
+    dt/2^halvings, the halving's floor); a step is shortened to land on the next output frame
+    and the step size stays what it was. max_dt [s] ≥ dt."""
+
+    max_dt: float
+    easy_iterations: int = 4
+    grow_after: int = 3
+
+    def __post_init__(self):
+        if not (math.isfinite(self.max_dt) and self.max_dt > 0):
+            raise ValueError(f"max_dt must be finite and > 0 [s], got {self.max_dt!r}")
+        for name in ("easy_iterations", "grow_after"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+
+    def after(self, h: float, easy: int, iterations: int, substeps: int) -> tuple[float, int]:
+        """(the next step size [s], the count of easy steps) after a step taken at size h
+        with `iterations` Newton iterations over `substeps` substeps."""
+        if substeps > 1:
+            return 0.5 * h, 0
+        if iterations > self.easy_iterations:
+            return h, 0
+        if easy + 1 >= self.grow_after:
+            return min(self.max_dt, GROWTH * h), 0
+        return h, easy + 1
+
+    def to_dict(self) -> dict:
+        return {"max_dt": self.max_dt, "easy_iterations": self.easy_iterations,
+                "grow_after": self.grow_after, "growth": GROWTH}
+
+
 @dataclass(frozen=True)
 class DynamicsConfig:
     """integrator: one of INTEGRATORS; dt: the time step h [s] > 0; duration: the simulated
@@ -80,7 +120,9 @@ class DynamicsConfig:
     load factor λ(t) = min(1, t / load_ramp) (0: on in full from t = 0); halvings: how
     often a step whose Newton solve does not converge may be split in two halves, recursively,
     before the run fails; wind: the air's motion and drag (`Wind`) or None; motion: the
-    prescribed boundary motion in time (`BoundaryMotion`) or None (the boundary held)."""
+    prescribed boundary motion in time (`BoundaryMotion`) or None (the boundary held);
+    adaptive: the step-size rule (`AdaptiveStep`, its max_dt ≥ dt) or None (every step dt;
+    output frames stay at multiples of frame_every × dt either way)."""
 
     dt: float
     duration: float
@@ -92,6 +134,7 @@ class DynamicsConfig:
     halvings: int = 4
     wind: Wind | None = None
     motion: BoundaryMotion | None = None
+    adaptive: AdaptiveStep | None = None
 
     def __post_init__(self):
         if self.integrator not in INTEGRATORS:
@@ -128,6 +171,10 @@ class DynamicsConfig:
             raise ValueError(f"wind must be a Wind, got {self.wind!r}")
         if self.motion is not None and not isinstance(self.motion, BoundaryMotion):
             raise ValueError(f"motion must be a BoundaryMotion, got {self.motion!r}")
+        if self.adaptive is not None and not (isinstance(self.adaptive, AdaptiveStep)
+                                              and self.adaptive.max_dt >= self.dt):
+            raise ValueError(f"adaptive: max_dt must be >= dt ({self.dt} s), got "
+                             f"{getattr(self.adaptive, 'max_dt', self.adaptive)!r}")
 
     @property
     def steps(self) -> int:
@@ -150,6 +197,12 @@ class DynamicsConfig:
             return None
         return max(1, round(1.0 / (self.frame_rate * self.dt)))
 
+    def frame_times(self) -> list[float]:
+        """The output frames' times [s] after t = 0: every frame_every × dt and the end."""
+        every = self.frame_every or self.steps
+        steps = list(range(every, self.steps, every)) + [self.steps]
+        return [k * self.dt for k in steps]
+
     @property
     def frames(self) -> int:
         """The number of output frames: t = 0, every `frame_every` steps and the last."""
@@ -162,7 +215,8 @@ class DynamicsConfig:
                 "stiffness_damping": self.stiffness_damping, "load_ramp": self.load_ramp,
                 "halvings": self.halvings, "steps": self.steps,
                 **({"wind": self.wind.to_dict()} if self.wind else {}),
-                **({"motion": self.motion.to_dict()} if self.motion else {})}
+                **({"motion": self.motion.to_dict()} if self.motion else {}),
+                **({"adaptive": self.adaptive.to_dict()} if self.adaptive else {})}
 
 
 def combine(coefficients, terms):

@@ -5,28 +5,18 @@ The state lives in the coefficients (n, 3) of one grid (the plan's finest): disp
 [m], velocity V [m/s], acceleration A [m/s²], each a field u = U₀ + J P on the Gauss points of
 the spline discretisation (`SplineDiscretisation.linearisation`). The loads act at the load
 factor λ(t) (`DynamicsConfig.load_factor`: 1 from t = 0, or a linear ramp), each step's at its
-end time. M is the consistent mass matrix of that field (`objective.inertia`), Π
-the model's potential energy (strain energy − work of the loads, + its further terms), α the
-mass-proportional Rayleigh damping [1/s] (force −α M v). A step of length h from (C, V, A):
-
-- implicit Euler: x̂ = C + h V; C' = argmin ½ (x − x̂)ᵀ M (x − x̂)/h² + ½ α (x − C)ᵀ M (x − C)/h
-  + Π(x); V' = (C' − C)/h, A' = (V' − V)/h (first order, dissipative);
-- Newmark, average acceleration (β = ¼, γ = ½; trapezoidal): x̂ = C + h V + (½ − β) h² A,
-  ṽ = V + (1 − γ) h A; C' = argmin ½ (x − x̂)ᵀ M (x − x̂)/(β h²) + α (x − x̂)ᵀ M (ṽ + ½ γ (x −
-  x̂)/(β h)) + Π(x); A' = (C' − x̂)/(β h²), V' = ṽ + γ h A' (second order; conserves
-  ½ VᵀMV + Π for a linear problem). A₀ solves M A₀ = −∇Π(C₀) − α M V₀.
-
-Both inertia parts are one `InertiaTerm` ½ s (x − x*)ᵀ M (x − x*) (its constant dropped):
-s = 1/h² + α/h, x* = x̂ − α V/s (implicit Euler); s = 1/(β h²) + α γ/(β h), x* = x̂ − α ṽ/s
-(Newmark). Stiffness-proportional damping β_R [s] (force −β_R K₀ v, K₀ the shell's tangent
-stiffness at the step's start, positive semi-definite through the strains) adds the same form
-in K₀, one `StiffnessDampingTerm` ½ c (x − y)ᵀ K₀ (x − y): c = β_R/h, y = C (implicit Euler);
-c = β_R γ/(β h), y = x̂ − β_R ṽ/c (Newmark); and −β_R K₀ V₀ to A₀'s right-hand side. These
-formulas are written once, as the linear maps of `taichi_ndf.problem.dynamics.StepMap` (the
-adjoint, `solve/dynamics_adjoint.py`, differentiates the same maps). Each step starts Newton
-from x̂ at load factor 1 and stops on Newton's own test; a step whose Newton does not
-converge is logged and split into two halves (recursively, at most
-`DynamicsConfig.halvings` times; beyond that `DynamicsError`).
+end time. M is the consistent mass matrix of that field (`objective.inertia`), Π the model's
+potential energy (strain energy − work of the loads, + its further terms), α the
+mass-proportional Rayleigh damping [1/s] (force −α M v). Each step of length h from (C, V, A)
+minimises ½ s (x − x*)ᵀ M (x − x*) + Π(x) (+ ½ c (x − y)ᵀ K₀ (x − y) with stiffness-
+proportional damping β_R [s]): implicit Euler (first order, dissipative) or Newmark's average
+acceleration (β = ¼, γ = ½; second order); s, x*, c, y and the new V', A' are the linear maps
+of `taichi_ndf.problem.dynamics.StepMap`, written once there (docs/dynamics.md has the
+formulas; the adjoint, `solve/dynamics_adjoint.py`, differentiates the same maps). Newmark's
+A₀ solves M A₀ = −∇Π(C₀) − α M V₀ − β_R K₀ V₀. Each step starts Newton from x̂ and stops on
+Newton's own test; a step whose Newton does not converge is logged and split into two halves
+(recursively, at most `DynamicsConfig.halvings` times; beyond that `DynamicsError`). With
+`DynamicsConfig.adaptive` the step size follows `AdaptiveStep`'s rule between output frames.
 
 Contact (`[[obstacles]]`, the model's `ContactConfig`): each step is solved by the spline
 path's `NewtonContact.solve` (the barrier, its lagged friction, the check points kept over the
@@ -36,7 +26,7 @@ could be inside an obstacle), and friction lags from C. The smallest gap [m] of 
 check grid after each step is recorded (`StepRecord.gap`). Wind: one more per-point term
 (`objective.wind`, its drag implicit in the velocity); a boundary motion μ(t): the boundary's
 part g of the displacement is stepped by the same scheme (`Motion.boundary`, docs/dynamics.md).
-Not yet: stiffness damping or a motion with contact (refused), adaptive steps.
+Not yet: stiffness damping or a motion with contact (refused).
 """
 
 from __future__ import annotations
@@ -143,7 +133,6 @@ class TimeStepper:
         return points.flag(points.point_gaps(points.grid_r.to(u.dtype) + u,
                                              self.config.load_factor(t)))
 
-    # --- energies and the mass matrix --------------------------------------------------------
     def kinetic(self, velocity: torch.Tensor, boundary: torch.Tensor | None = None) -> float:
         """T = ½ Vᵀ M V [J]; with a boundary motion, of the velocity J V + ġ (boundary: ġ)."""
         return kinetic_energy(self.samples, self.density,
@@ -198,7 +187,6 @@ class TimeStepper:
         steps = linear.fd_steps(u, displacement, self.newton.fd_step)
         return self.objective.shell.hessian_blocks(self.samples, u, 1.0, steps=steps, psd=True)
 
-    # --- one step ----------------------------------------------------------------------------
     def _wind(self, state: Motion, scheme: StepMap):
         """None without wind; else from the step's start: the displacement jets, the points'
         velocities (N, 3) [m/s], and v' = k (x − y) of the scheme: k [1/s], y's coefficients
@@ -285,7 +273,6 @@ class TimeStepper:
         end, second, n2 = self.advance(middle, 0.5 * h, depth + 1)
         return end, iterations + first + second, n1 + n2
 
-    # --- the run -----------------------------------------------------------------------------
     def _probes(self, displacement: torch.Tensor, t: float) -> dict[str, list[float]]:
         self.field.coefficients.copy_(displacement)
         return self.discretisation.probes(self.field, self.config.boundary_factor(t))
@@ -315,24 +302,35 @@ class TimeStepper:
         trajectory.probes = {k: [u] for k, u in self._probes(c, 0.0).items()}
         return self._checkpoint(0, state, trajectory)
 
-    def _checkpoint(self, step: int, state: Motion, trajectory: Trajectory) -> Checkpoint:
+    def _checkpoint(self, step: int, state: Motion, trajectory: Trajectory,
+                    size: float | None = None, easy: int = 0) -> Checkpoint:
         if self.contact is None:
-            return Checkpoint(step, state, trajectory)
+            return Checkpoint(step, state, trajectory, size, easy)
         points = self.contact.points
-        return Checkpoint(step, state, trajectory, points.active.clone(),
+        return Checkpoint(step, state, trajectory, size, easy, points.active.clone(),
                           float(points.term.stiffness))
+
+    def _record(self, k: int, state: Motion, iterations: int, substeps: int, size: float,
+                cpu: float, wall: float) -> StepRecord:
+        """Step k's record: energies and gap at its end (the CPU and wall clock from the
+        step's start, `cpu` and `wall`, to now)."""
+        kinetic = self.kinetic(state.velocity, None if state.boundary is None
+                               else state.boundary.velocity)
+        potential = self.potential_energy(state.displacement, state.time)
+        gap = self.gap(state.displacement, state.time)
+        return StepRecord(k, state.time, iterations, substeps, kinetic, potential,
+                          kinetic + potential, _cpu() - cpu, time.perf_counter() - wall, gap,
+                          size)
 
     def run(self, displacement: torch.Tensor | None = None,
             velocity: torch.Tensor | None = None, *,
             on_frame: Callable[[float, SplineField], None] | None = None,
             on_checkpoint: Callable[[Checkpoint], None] | None = None,
             resume: Checkpoint | None = None) -> Trajectory:
-        """Integrate from coefficients C₀ (None: the reference state) and V₀ (None: at rest)
-        over `config.duration`, or on from `resume` (a `Checkpoint` of a run of the same
-        scene and settings: the same steps follow as without the interruption);
-        on_frame(time [s], field) at t = 0, every `frame_every` steps and at the end, each
-        frame after a step followed by on_checkpoint(the `Checkpoint` there) (one progress
-        stage, one report per step)."""
+        """Integrate from C₀ (None: the reference state) and V₀ (None: at rest) over
+        `config.duration`, or on from `resume` (a `Checkpoint` of the same run: the same steps
+        follow); on_frame(time [s], field) at t = 0 and every `config.frame_times()`, then
+        on_checkpoint(the `Checkpoint` there) (one progress stage, a report per step)."""
         config = self.config
         if resume is None:
             resume = self.start(displacement, velocity)
@@ -351,30 +349,32 @@ class TimeStepper:
 
         if resume.step == 0:
             frame(state)
-        every = config.frame_every
+        rule, k, tol = config.adaptive, resume.step, 1e-9 * config.dt
+        h, easy = resume.step_size or config.dt, resume.easy
         with progress.stage(f"dynamics ({config.integrator}, {config.steps} steps of "
-                            f"{config.dt:.3g} s)", config.steps):
-            for k in range(resume.step + 1, config.steps + 1):
-                cpu, wall = _cpu(), time.perf_counter()
-                state, iterations, substeps = self.advance(state, config.dt)
-                state = replace(state, time=k * config.dt)  # no rounding drift of the clock
-                kinetic = self.kinetic(state.velocity, None if state.boundary is None
-                                       else state.boundary.velocity)
-                potential = self.potential_energy(state.displacement, state.time)
-                gap = self.gap(state.displacement, state.time)
-                record = StepRecord(k, state.time, iterations, substeps, kinetic, potential,
-                                    kinetic + potential, _cpu() - cpu,
-                                    time.perf_counter() - wall, gap)
-                trajectory.records.append(record)
-                for name, u in self._probes(state.displacement, state.time).items():
-                    trajectory.probes[name].append(u)
-                progress.report(k, t=state.time, E=record.total)
-                log.debug("step %d, t = %.6g s: T %.6g J, Π %.6g J, %d Newton iterations", k,
-                          state.time, kinetic, potential, iterations)
-                if (every is not None and k % every == 0) or k == config.steps:
-                    frame(state)
-                    if on_checkpoint is not None:
-                        on_checkpoint(self._checkpoint(k, state, trajectory))
+                            f"{config.dt:.3g} s{', adaptive' if rule else ''})", config.steps):
+            for target in [t for t in config.frame_times() if t > state.time + tol]:
+                while state.time < target - tol:  # fixed steps: exactly frame_every of them
+                    size = h if rule is None else min(h, target - state.time)
+                    cpu, wall = _cpu(), time.perf_counter()
+                    state, iterations, substeps = self.advance(state, size)
+                    k += 1
+                    if rule is None:
+                        state = replace(state, time=k * config.dt)  # no drift of the clock
+                    else:
+                        if abs(state.time - target) <= tol:
+                            state = replace(state, time=target)
+                        h, easy = rule.after(h, easy, iterations, substeps)
+                        h = max(h, config.dt / 2**config.halvings)
+                    record = self._record(k, state, iterations, substeps, size, cpu, wall)
+                    trajectory.records.append(record)
+                    for name, u in self._probes(state.displacement, state.time).items():
+                        trajectory.probes[name].append(u)
+                    progress.report(min(config.steps, round(state.time / config.dt)),
+                                    t=state.time, E=record.total)
+                frame(state)
+                if on_checkpoint is not None:
+                    on_checkpoint(self._checkpoint(k, state, trajectory, h, easy))
         self.field.coefficients.copy_(state.displacement)
         trajectory.field = self.field
         return trajectory

@@ -54,6 +54,7 @@ class StepRecord:
     cpu_seconds: float
     wall_seconds: float
     gap: float | None = None  # with contact: the dense check grid's smallest gap [m]
+    size: float | None = None  # the step's length h [s]
 
 
 @dataclass
@@ -89,6 +90,8 @@ class Trajectory:
                 "total": [r.total for r in records],
                 "newton_iterations": [r.newton_iterations for r in self.records],
                 "substeps": [r.substeps for r in self.records],
+                **({"step_sizes": [r.size for r in self.records]} if self.config.adaptive
+                   else {}),
                 **({"gaps": [r.gap for r in records]} if self.initial.gap is not None
                    else {}),
                 "frame_times": [t for t, _ in self.frames], "probes": self.probes,
@@ -100,13 +103,16 @@ class Trajectory:
 
 @dataclass
 class Checkpoint:
-    """Where a run stands after step `step` (0: none yet): its state, its record so far, and
-    with obstacles the contact check grid's flags `active` (bool (G,)) and the barrier
-    stiffness [N/m³] (None without)."""
+    """Where a run stands after step `step` (0: none yet): its state, its record so far, the
+    step size h [s] the next step takes (None: dt) and the adaptive rule's count of easy
+    steps, and with obstacles the contact check grid's flags `active` (bool (G,)) and the
+    barrier stiffness [N/m³] (None without)."""
 
     step: int
     state: Motion
     trajectory: Trajectory
+    step_size: float | None = None
+    easy: int = 0
     active: torch.Tensor | None = None
     stiffness: float | None = None
 
@@ -130,6 +136,7 @@ def write_checkpoint(path: str | Path, checkpoint: Checkpoint, extra: dict) -> N
     """Save `checkpoint` (and `extra`, e.g. the scene) to `path` atomically (torch.save)."""
     trajectory = checkpoint.trajectory
     document = {"kind": CHECKPOINT_KIND, "step": checkpoint.step,
+                "step_size": checkpoint.step_size, "easy": checkpoint.easy,
                 "state": _motion_dict(checkpoint.state), "config": trajectory.config.to_dict(),
                 "spans": list(trajectory.spans),
                 "initial": dataclasses.asdict(trajectory.initial),
@@ -156,4 +163,5 @@ def read_checkpoint(path: str | Path, config: DynamicsConfig) -> tuple[Checkpoin
                             [StepRecord(**r) for r in document["records"]],
                             list(document["frames"]), document["probes"])
     return Checkpoint(document["step"], _motion(document["state"]), trajectory,
-                      document["active"], document["stiffness"]), document["extra"]
+                      document["step_size"], document["easy"], document["active"],
+                      document["stiffness"]), document["extra"]
