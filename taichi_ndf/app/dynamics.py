@@ -17,7 +17,10 @@ from taichi_ndf.app.outputs import (
     write_field_outputs,
     write_trajectory_mesh,
 )
+from taichi_ndf.export.usd import require_usd, write_run_usd
+from taichi_ndf.extras import MissingExtra
 from taichi_ndf.io import OutputDir, read_mesh
+from taichi_ndf.io.run_files import read_run
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.dynamics import TimeStepper
 from taichi_ndf.solve.dynamics_trajectory import read_checkpoint, write_checkpoint
@@ -47,11 +50,15 @@ def simulate_dynamics(scene, out: OutputDir, *, solver: SolverConfig | None = No
     result before the outputs are written.
     checkpoint.pt: the state at every output frame; `resume` continues from it (the frames
     before it read back from trajectory/), and the run ends as the uninterrupted one would.
-    ValueError for what the dynamic path does not do yet (USD) and for a checkpoint of
-    another scene."""
+    With `[output] usd`, result.usdc with the frames at time codes t × (frames per second)
+    (`export.usd`). ValueError for a checkpoint of another scene, and for USD without its
+    extra."""
     config = solver or scene.solver
-    if scene.output.usd:
-        raise ValueError("output.usd: a dynamic run does not write USD yet")
+    if scene.output.usd:  # before the steps, not after them
+        try:
+            require_usd()
+        except MissingExtra as err:
+            raise ValueError(f"[output] usd = true: {err}") from err
     dynamics = scene.dynamics
     stepper = TimeStepper(scene.model, scene.field, dynamics,
                           newton=newton_config(config, _dtype()))
@@ -121,6 +128,8 @@ def simulate_dynamics(scene, out: OutputDir, *, solver: SolverConfig | None = No
     except ExportError as err:
         raise ValueError(str(err)) from err
     out.write_json("result.json", result)
+    if scene.output.usd:  # time codes at the output rate (`export.usd`)
+        write_run_usd(read_run(out.path), out.file("result.usdc"))
     log.info("wrote outputs of %s to %s", scene.name, out.path)
     return result
 
