@@ -1,4 +1,4 @@
-"""The two shipped dynamic scenes of issue 29's friction work, checked from their runs' outputs.
+"""The shipped dynamic scenes of issue 29, checked from their runs' outputs.
 
 Run first (float64):
 
@@ -8,7 +8,9 @@ Run first (float64):
         --out SLIDE
 
 then `python benchmarks/dynamic_scenes_check.py pendulum PENDULUM` and
-`python benchmarks/dynamic_scenes_check.py slide SLIDE`. Prints markdown tables:
+`python benchmarks/dynamic_scenes_check.py slide SLIDE` (likewise `flag FLAG` for
+scenes/flag_wind.toml, and `cost NAME=DIR ...`: one row of cost per run of any dynamic
+scene). Prints markdown tables:
 
 - pendulum: the run (steps, Newton iterations, CPU per step and per simulated second), and the
   energy history every 0.1 s: T, Π, E = T + Π [J], the work of the mass damping
@@ -129,5 +131,52 @@ def slide(out: Path) -> None:
           f"u = {np.array(d['probes']['centre'])[-1].round(4).tolist()} m")
 
 
+def flag(out: Path) -> None:
+    """The flag in wind: the run, and every 0.1 s the angle of the flag about the pole (of the
+    fly's mid-point, centre probe) towards the wind (atan2(z, x) from the flag's plane; the
+    wind blows at 45°), the fly corners' positions and the energies."""
+    d = json.loads((out / "result.json").read_text())["dynamics"]
+    run_table(d)
+    t = np.array(d["times"])
+    scene = tomllib.loads((ROOT / "scenes" / "flag_wind.toml").read_text())
+    (x0, x1), (y0, y1) = scene["geometry"]["bounds"]
+    reference = {"centre": ((x0 + x1) / 2, (y0 + y1) / 2), "fly_top": (x1, y1),
+                 "fly_bottom": (x1, y0)}
+    position = {k: np.array(d["probes"][k]) + np.array([*xy, 0.0])
+                for k, xy in reference.items()}
+    print("| t [s] | wind factor | centre's angle about the pole [°] | fly top (x, y, z) [m] | "
+          "fly bottom (x, y, z) [m] | T [J] | Π [J] |")
+    print("|---|---|---|---|---|---|---|")
+    wind = d["wind"]
+    every = max(1, round(0.1 / d["dt"]))
+    for i in range(0, len(t), every):
+        c = position["centre"][i]
+        factor = 1 + wind["gust_amplitude"] * math.sin(2 * math.pi * wind["gust_frequency"]
+                                                         * t[i])
+        top, bottom = (np.round(position[k][i], 3).tolist() for k in ("fly_top", "fly_bottom"))
+        print(f"| {t[i]:.1f} | {factor:.2f} | {math.degrees(math.atan2(c[2], c[0])):.1f} | "
+              f"{top} | {bottom} | {d['kinetic'][i]:.3e} | {d['potential'][i]:.3e} |")
+    print()
+
+
+def cost(runs: list[str]) -> None:
+    """One row per run NAME=DIR: the scene's steps, Newton iterations, substeps, CPU (user +
+    sys of the run's process, its steps only) and wall per step and per simulated second."""
+    print("| scene | spans | dt [s] | steps | simulated [s] | Newton it./step | substeps | "
+          "CPU [s] | CPU/step [s] | CPU/simulated s [s] | wall/step [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for run in runs:
+        name, path = run.split("=", 1)
+        d = json.loads((Path(path) / "result.json").read_text())["dynamics"]
+        steps = len(d["newton_iterations"])
+        print(f"| {name} | {d['spans'][0]}×{d['spans'][1]} | {d['dt']:g} | {steps} | "
+              f"{d['times'][-1]:g} | {np.mean(d['newton_iterations']):.2f} | "
+              f"{sum(d['substeps'])} | {d['cpu_seconds']:.1f} | {d['cpu_per_step']:.3f} | "
+              f"{d['cpu_per_simulated_second']:.1f} | {d['wall_seconds'] / steps:.3f} |")
+
+
 if __name__ == "__main__":
-    {"pendulum": pendulum, "slide": slide}[sys.argv[1]](Path(sys.argv[2]))
+    if sys.argv[1] == "cost":
+        cost(sys.argv[2:])
+    else:
+        {"pendulum": pendulum, "slide": slide, "flag": flag}[sys.argv[1]](Path(sys.argv[2]))

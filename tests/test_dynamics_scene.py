@@ -154,3 +154,27 @@ def test_ndf_sim_refuses_in_one_line(tmp_path, capsys):
         assert sim.main([str(scene), "--out", str(tmp_path / "x"), *extra, *RUNTIME]) == 2
         err = capsys.readouterr().err.strip()
         assert message in err and "\n" not in err
+
+
+def test_ndf_sim_writes_usd_time_codes_at_the_output_rate(tmp_path):
+    """[output] usd = true on a dynamic run: result.usdc's frames at time codes t × 100
+    (frame_rate 100 /s as time codes and frames per second), ndf:time the frames' t [s]."""
+    pytest.importorskip("pxr")
+    from pxr import Usd
+
+    scene = tmp_path / "drop.toml"
+    scene.write_text(SCENE.replace("resolution = [8, 2]", "resolution = [8, 2]\nusd = true"))
+    out = tmp_path / "run"
+    assert sim.main([str(scene), "--out", str(out), "--no-pictures", *RUNTIME]) == 0
+    stage = Usd.Stage.Open(str(out / "result.usdc"))
+    assert stage.GetTimeCodesPerSecond() == pytest.approx(100.0)
+    assert stage.GetFramesPerSecond() == pytest.approx(100.0)
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == pytest.approx((0.0, 2.0))
+    deformed = stage.GetPrimAtPath("/World/deformed")
+    times = deformed.GetAttribute("ndf:time")
+    assert times.GetTimeSamples() == pytest.approx([0.0, 1.0, 2.0])
+    assert [times.Get(c) for c in (0.0, 1.0, 2.0)] == pytest.approx([0.0, 0.01, 0.02])
+    points = deformed.GetAttribute("points")
+    last = [line.split()[1:4] for line in (out / "trajectory" / "step_002.obj").read_text()
+            .splitlines() if line.startswith("v ")]
+    assert list(points.Get(2.0)[-1]) == pytest.approx([float(v) for v in last[-1]], rel=1e-6)

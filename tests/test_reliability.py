@@ -50,7 +50,7 @@ def one_line(err: str) -> str:
                          ids=["out-of-memory", "ctrl-c"])
 def test_1_failed_output_writing_keeps_the_previous_complete_run(tmp_path, monkeypatch, capsys,
                                                                  failure, code):
-    import taichi_ndf.app.simulation as simulation
+    import taichi_ndf.app.outputs as outputs  # the one output writer (`write_field_outputs`)
 
     scene = small_napkin(tmp_path)
     out = tmp_path / "run"
@@ -61,7 +61,7 @@ def test_1_failed_output_writing_keeps_the_previous_complete_run(tmp_path, monke
     def fail(*args, **kwargs):
         raise failure()
 
-    monkeypatch.setattr(simulation, "write_render", fail)
+    monkeypatch.setattr(outputs, "write_render", fail)
     assert run_sim(scene, "--out", out, "--overwrite", "--iters", "15") == code
     line = one_line(capsys.readouterr().err)
     staging = tmp_path / "run.incomplete"

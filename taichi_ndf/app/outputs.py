@@ -8,15 +8,17 @@ chunks.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from taichi_ndf import jets
+from taichi_ndf import jets, progress
+from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.io import grid_mesh, write_obj, write_ply
 from taichi_ndf.io.output_dir import OutputDir
-from taichi_ndf.io.run_files import QUANTITIES
+from taichi_ndf.io.run_files import QUANTITIES, up_direction
 from taichi_ndf.objective import ShellEnergyTerm
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.pseudo_time import conditioning
@@ -28,6 +30,12 @@ from taichi_ndf.shell.kinematics import strains
 log = logging.getLogger(__name__)
 
 CHUNK = 8192  # samples per jets evaluation when exporting (bounds the field's tape memory)
+# Grid cells per coordinate (256² points) of the clearance to the obstacles in result.json.
+CONTACT_GRID = (255, 255)
+
+
+class ExportError(ValueError):
+    """An exported mesh holds non-finite values (the run's result cannot be trusted)."""
 
 
 @dataclass
@@ -156,15 +164,21 @@ def write_probe_points(out: OutputDir, model: ShellModel, displacements: dict) -
 
 
 def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0, 1.0),
-                 views: tuple[str, ...] = ("iso",), obstacles=()) -> None:
+                 views: tuple[str, ...] = ("iso",), obstacles=(), label: str | None = None
+                 ) -> None:
     """The deformed surface coloured by bending strain from `views` side by side (default a
     three-quarter view from the side that shows it largest), with its ground shadow, the
     obstacles (vertices, faces) drawn in grey and a colour bar; 600 pixels high, each view as
-    wide as its framed shape needs (300 to 800 pixels)."""
+    wide as its framed shape needs (300 to 800 pixels); `label` (e.g. a dynamic run's time
+    "t = 3.00 s") written in the top left corner."""
     image = render_figure(mesh.deformed, mesh.faces, scalars=mesh.bending_strain,
                           scalar_label=QUANTITIES["bending_strain"], up=up, views=views,
                           obstacles=tuple(Obstacle(v, f) for v, f in obstacles),
                           width=None, height=600)
+    if label is not None:
+        from taichi_ndf.render.trajectory import put_label
+
+        put_label(image, label, boxed=True)
     save_png(out.file(name), image)
 
 
@@ -194,11 +208,13 @@ def write_trajectory_mesh(out: OutputDir, index: int, mesh: DeformedMesh) -> Non
 
 def write_trajectory_video(out: OutputDir, states: list[np.ndarray], faces: np.ndarray,
                            load_factors: list[float], *, reference: np.ndarray, up,
-                           obstacles=None, pseudo_time: bool = False) -> bool:
+                           obstacles=None, pseudo_time: bool = False,
+                           physical_time: bool = False) -> bool:
     """trajectory.mp4 (H.264): the deformed `states` (positions (V, 3) [m] on `faces`) in
     order, coloured by displacement from `reference` on one colour range, with `obstacles`
-    per state (meshes (vertices, faces) at that state) and a load-factor (or pseudo-time)
-    label, all from one camera that frames every state (`render.trajectory`). Where no H.264
+    per state (meshes (vertices, faces) at that state) and a load-factor (or pseudo-time, or
+    with `physical_time` the time "t = … s" of a dynamic run) label, all from one camera
+    that frames every state (`render.trajectory`). Where no H.264
     encoder is found the run keeps its other outputs: a warning names the cause and the
     video is left out (returns False)."""
     from taichi_ndf.render.trajectory import FPS, trajectory_frames
@@ -206,10 +222,68 @@ def write_trajectory_video(out: OutputDir, states: list[np.ndarray], faces: np.n
     groups = None if obstacles is None else [tuple(Obstacle(v, f) for v, f in group)
                                              for group in obstacles]
     frames = trajectory_frames(states, faces, load_factors, reference=reference,
-                               obstacles=groups, up=up, pseudo_time=pseudo_time)
+                               obstacles=groups, up=up, pseudo_time=pseudo_time,
+                               physical_time=physical_time)
     try:
         write_video(out.file("trajectory.mp4"), frames, FPS)
     except RuntimeError as err:
         log.warning("trajectory.mp4 not written: %s", err)
         return False
     return True
+
+
+def write_field_outputs(out: OutputDir, model: ShellModel, field, probes: dict, *,
+                        resolution: tuple[int, int], views: tuple[str, ...], history=(),
+                        load_factor: float = 1.0, pseudo_time: bool = False,
+                        refinement: dict | None = None, obstacles: tuple = (),
+                        states: list[np.ndarray] | None = None,
+                        state_parameters: list[float] | None = None,
+                        state_obstacles: list | None = None, physical_time: bool = False,
+                        label: str | None = None, pictures: bool = True) -> DeformedMesh:
+    """The one writer of a run's outputs, static or dynamic: mesh.obj/.ply, reference.obj,
+    probes.json, render.png (with `obstacles` (vertices, faces) and `label`) and energy.png
+    (of a non-empty `history`) of the final field at `load_factor`, and trajectory.mp4 of
+    `states` (positions (V, 3) [m]) at `state_parameters` (load factors, pseudo-times, or
+    with `physical_time` times [s]) with `state_obstacles` per state (a progress stage of six
+    steps); without `pictures` the meshes and probes only. ExportError for a non-finite mesh.
+    Returns the final mesh."""
+    name = "outputs: mesh, render, energy plot, video" if pictures else "outputs: mesh"
+    with progress.stage(name, 6):
+        mesh = deformed_mesh(model, field, resolution, load_factor=load_factor,
+                             pseudo_time=pseudo_time)
+        for quantity, values in mesh.scalars().items():
+            if not all(math.isfinite(float(v)) for v in values):
+                raise ExportError(f"non-finite {quantity} in the exported mesh")
+        progress.report(1)
+        write_mesh_files(out, "mesh", mesh)
+        write_reference_mesh(out, mesh)
+        write_probe_points(out, model, probes)
+        progress.report(3)
+        if not pictures:
+            return mesh
+        up = up_direction(model.loads.gravity)
+        write_render(out, "render.png", mesh, up=up, views=views, obstacles=obstacles,
+                     label=label)
+        progress.report(4)
+        write_energy_plot(out, "energy.png", history, refinement)
+        progress.report(5)
+        if states:
+            write_trajectory_video(out, states, mesh.faces, state_parameters,
+                                   reference=mesh.reference, up=up, pseudo_time=pseudo_time,
+                                   physical_time=physical_time, obstacles=state_obstacles)
+        progress.report(6)
+    return mesh
+
+
+def contact_outputs(config, out: OutputDir, surface: np.ndarray, points, *,
+                    load_factor: float = 1.0, **counts) -> tuple[dict, tuple]:
+    """The obstacles' meshes at `load_factor` (RUN/obstacles/*.obj, and (vertices, faces) for
+    the render) and result.json's `contact`: the clearance of `surface` (points (N, 3) [m] of
+    the final surface on CONTACT_GRID, `surface_points`) (`contact_summary`), the check points
+    and κ of `points` (`ContactPoints`), and `counts`. config: the model's `ContactConfig`."""
+    write_obstacles(config, out, load_factor)
+    meshes = tuple(o.triangles(load_factor) for o in config.obstacles)
+    contact = contact_summary(config, surface, load_factor)
+    contact.update(evaluation_grid=list(CONTACT_GRID), check_points=points.count,
+                   final_stiffness=points.term.stiffness, **counts)
+    return contact, meshes

@@ -4,34 +4,29 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import os
 from collections.abc import Callable
 from pathlib import Path
 
-from taichi_ndf import progress
 from taichi_ndf.app.dynamics import simulate_dynamics
 from taichi_ndf.app.outputs import (
+    CONTACT_GRID,
     DeformedMesh,
+    ExportError,
+    contact_outputs,
     deformed_mesh,
     surface_points,
     trajectory_mesh_name,
-    write_energy_plot,
-    write_mesh_files,
-    write_probe_points,
-    write_reference_mesh,
-    write_render,
+    write_field_outputs,
     write_trajectory_mesh,
-    write_trajectory_video,
 )
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
-from taichi_ndf.contact.config import contact_summary, write_obstacles
 from taichi_ndf.discretise import SolveRefused, of_scene
 from taichi_ndf.discretise.adaptive import adaptive as adaptive_discretisation
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
 from taichi_ndf.io import OutputDir, read_mesh
-from taichi_ndf.io.run_files import read_run, up_direction
+from taichi_ndf.io.run_files import read_run
 from taichi_ndf.minimise.callbacks import CheckpointWriter, DivergenceGuard
 from taichi_ndf.minimise.checkpoint import CheckpointError, read_checkpoint
 from taichi_ndf.problem.pseudo_time import frame_times
@@ -47,8 +42,6 @@ FORMAT_VERSION = 1
 RUN_FILES = ("mesh.obj", "mesh.ply", "reference.obj", "probes.json", "render.png", "energy.png",
              "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4",
              "obstacles", "progress.jsonl")
-# Grid cells per coordinate (256² points) of the clearance to the obstacles in result.json.
-CONTACT_GRID = (255, 255)
 # Scene sections a resumed run may change: how long and how it trains, what it writes.
 RESUMABLE_CHANGES = ("name", "description", "training", "output")
 
@@ -139,8 +132,10 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
                       "states": states}
     contact, obstacle_meshes = None, ()
     if solution.contact is not None:
-        contact, obstacle_meshes = _contact_outputs(scene, out, solution.field, solution.contact,
-                                                    **solution.contact_counts)
+        contact, obstacle_meshes = contact_outputs(scene.model.contact, out,
+                                                   surface_points(scene.model, solution.field,
+                                                                  CONTACT_GRID),
+                                                   solution.contact, **solution.contact_counts)
     _write_field_outputs(scene, out, solution.field, solution.probes, solution.history,
                          pseudo_time=config.pseudo_time, refinement=solution.refinement,
                          obstacles=obstacle_meshes, trajectory=trajectory, pictures=pictures)
@@ -151,57 +146,25 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     return _finish(scene, out, summary)
 
 
-def _contact_outputs(scene: Scene, out: OutputDir, field, points, **counts
-                     ) -> tuple[dict, tuple]:
-    """The obstacles' meshes (RUN/obstacles/*.obj, and for the render) and result.json's
-    `contact`: the clearance over a 256² grid of the final surface (`contact_summary`), the
-    check points and κ of `points` (`ContactPoints`), and `counts`."""
-    config = scene.model.contact
-    write_obstacles(config, out)
-    meshes = tuple(o.triangles(1.0) for o in config.obstacles)
-    contact = contact_summary(config, surface_points(scene.model, field, CONTACT_GRID))
-    contact.update(evaluation_grid=list(CONTACT_GRID), check_points=points.count,
-                   final_stiffness=points.term.stiffness, **counts)
-    return contact, meshes
-
-
 def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, history, *,
                          pseudo_time: bool = False, refinement: dict | None = None,
                          obstacles: tuple = (), trajectory: dict | None = None,
                          pictures: bool = True) -> None:
-    """mesh.obj/.ply, reference.obj, probes.json, render.png and energy.png of the final
-    field, and trajectory.mp4 of a `trajectory` (its "states", taken out of it here) with the
-    obstacles at each state's load factor (a progress stage of six steps); without
-    `pictures` the meshes and probes only."""
-    name = "outputs: mesh, render, energy plot, video" if pictures else "outputs: mesh"
-    with progress.stage(name, 6):
-        mesh = deformed_mesh(scene.model, field, scene.output.resolution,
-                             pseudo_time=pseudo_time)
-        for name, values in mesh.scalars().items():
-            if not all(math.isfinite(float(v)) for v in values):
-                raise SimulationError(f"non-finite {name} in the exported mesh")
-        progress.report(1)
-        write_mesh_files(out, "mesh", mesh)
-        write_reference_mesh(out, mesh)
-        write_probe_points(out, scene.model, probes)
-        progress.report(3)
-        states = trajectory.pop("states", None) if trajectory else None
-        if not pictures:
-            return
-        write_render(out, "render.png", mesh, up=up_direction(scene.model.loads.gravity),
-                     views=scene.output.views, obstacles=obstacles)
-        progress.report(4)
-        write_energy_plot(out, "energy.png", history, refinement)
-        progress.report(5)
-        if states:
-            contact = scene.model.contact
-            write_trajectory_video(
-                out, states, mesh.faces, trajectory["load_factors"], reference=mesh.reference,
-                up=up_direction(scene.model.loads.gravity), pseudo_time=pseudo_time,
-                obstacles=None if contact is None else [
-                    tuple(o.triangles(t) for o in contact.obstacles)
-                    for t in trajectory["load_factors"]])
-        progress.report(6)
+    """The final field's outputs and trajectory.mp4 of a `trajectory` (its "states", taken out
+    of it here) with the obstacles at each state's load factor (`write_field_outputs`)."""
+    states = trajectory.pop("states", None) if trajectory else None
+    contact = scene.model.contact
+    factors = trajectory["load_factors"] if states else None
+    try:
+        write_field_outputs(
+            out, scene.model, field, probes, resolution=scene.output.resolution,
+            views=scene.output.views, history=history, pseudo_time=pseudo_time,
+            refinement=refinement, obstacles=obstacles, states=states, state_parameters=factors,
+            state_obstacles=None if contact is None or not states else [
+                tuple(o.triangles(t) for o in contact.obstacles) for t in factors],
+            pictures=pictures)
+    except ExportError as err:
+        raise SimulationError(str(err)) from err
 
 
 def _summary(scene: Scene, config: SolverConfig, seed: int, energy: float, iterations: int,

@@ -20,7 +20,10 @@ scale and orient it right):
 
 Positions and UVs are stored as float32, the values of the run's OBJ files rounded to float32;
 time code k is trajectory frame k (trajectory/step_k.obj), FRAMES_PER_SECOND time codes and
-frames per second. Blender 5.0's importer maps time code k to its frame k and sets the frame
+frames per second; a dynamic run's frame at time t [s] has the time code t × r with r its
+output frames per second as time codes and frames per second (its codes are 0, 1, … at the
+output rate; a last frame off that grid gets its fractional code), and `ndf:time` [s] instead
+of `ndf:loadFactor`. Blender 5.0's importer maps time code k to its frame k and sets the frame
 range, but keeps the scene's own frame rate (24 fps unless changed); it imports the reference
 (a guide) only with its "Guide" option (tests/test_usd_blender.py).
 """
@@ -49,6 +52,16 @@ def require_usd():
     return require("pxr.Usd", "usd", "USD export")
 
 
+def _time_codes(run: RunFiles) -> list:
+    """The frames' time codes: k for frame k, or for a dynamic run (`RunFiles.time_rate`)
+    t × rate, so that with `rate` time codes per second a code is the physical time t [s]."""
+    from pxr import Usd
+
+    if run.time_rate is None:
+        return [Usd.TimeCode(k) for k in range(len(run.frames))]
+    return [Usd.TimeCode(frame.load_factor * run.time_rate) for frame in run.frames]
+
+
 def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
     """Write `run` as a USD stage at `path` (.usdc binary, .usda text or .usd), atomically."""
     require_usd()
@@ -71,19 +84,23 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
         extent = deformed.GetExtentAttr()
         normals = deformed.CreateNormalsAttr(_vec3(vertex_normals(run.deformed, run.faces)))
         deformed.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        codes = _time_codes(run)
         if run.frames:
-            load_factor = deformed.GetPrim().CreateAttribute("ndf:loadFactor",
-                                                             Sdf.ValueTypeNames.Double)
-            load_factor.SetDocumentation("load factor (or pseudo-time) of each trajectory frame")
-            for k, frame in enumerate(run.frames):
-                points.Set(_vec3(frame.vertices), Usd.TimeCode(k))
-                extent.Set(_extent(frame.vertices), Usd.TimeCode(k))
-                normals.Set(_vec3(vertex_normals(frame.vertices, run.faces)), Usd.TimeCode(k))
-                load_factor.Set(frame.load_factor, Usd.TimeCode(k))
-            stage.SetStartTimeCode(0)
-            stage.SetEndTimeCode(len(run.frames) - 1)
-            stage.SetTimeCodesPerSecond(FRAMES_PER_SECOND)
-            stage.SetFramesPerSecond(FRAMES_PER_SECOND)
+            dynamic = run.time_rate is not None
+            load_factor = deformed.GetPrim().CreateAttribute(
+                "ndf:time" if dynamic else "ndf:loadFactor", Sdf.ValueTypeNames.Double)
+            load_factor.SetDocumentation("time [s] of each output frame" if dynamic else
+                                         "load factor (or pseudo-time) of each trajectory frame")
+            for code, frame in zip(codes, run.frames, strict=True):
+                points.Set(_vec3(frame.vertices), code)
+                extent.Set(_extent(frame.vertices), code)
+                normals.Set(_vec3(vertex_normals(frame.vertices, run.faces)), code)
+                load_factor.Set(frame.load_factor, code)
+            stage.SetStartTimeCode(codes[0].GetValue())
+            stage.SetEndTimeCode(codes[-1].GetValue())
+            rate = run.time_rate or FRAMES_PER_SECOND
+            stage.SetTimeCodesPerSecond(rate)
+            stage.SetFramesPerSecond(rate)
         primvars = UsdGeom.PrimvarsAPI(deformed)
         if run.uv is not None:
             st = primvars.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
@@ -107,7 +124,7 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
             probes = UsdGeom.Points.Define(stage, "/World/probes")
             probe_points = probes.CreatePointsAttr(_vec3(run.probe_positions()[0]))
             for k in range(len(run.frames) if run.reference is not None else 0):
-                probe_points.Set(_vec3(run.probe_positions(k)[0]), Usd.TimeCode(k))
+                probe_points.Set(_vec3(run.probe_positions(k)[0]), codes[k])
             probes.GetPrim().SetCustomDataByKey("names", Vt.StringArray([p.name
                                                                          for p in run.probes]))
         if run.obstacles:

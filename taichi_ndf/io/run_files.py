@@ -79,6 +79,7 @@ class RunFiles:
     obstacles: tuple[MeshData, ...] = field(default_factory=tuple)
     obstacle_names: tuple[str, ...] = field(default_factory=tuple)
     decrements: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    time_rate: float | None = None  # a dynamic run's output frames per second [1/s], or None
 
     def probe_positions(self, index: int | None = None) -> tuple[np.ndarray, bool]:
         """Deformed positions (P, 3) [m] of the probes in trajectory frame `index` (None or the
@@ -155,6 +156,9 @@ def read_run(path: str | os.PathLike) -> RunFiles:
     history = result.get("history", [])
     gravity = result.get("resolved", {}).get("scene_file", {}).get("loads", {}).get("gravity")
     obstacle_files = sorted((path / "obstacles").glob("*.obj"))
+    rate = None  # a dynamic run: its frames' times [s] as load factors, a frame every 1/rate s
+    if (result.get("trajectory") or {}).get("source") == "dynamics" and len(factors) > 1:
+        rate = 1.0 / (float(factors[1]) - float(factors[0]))
     return RunFiles(
         path=path, name=str(result.get("scene", path.name)), deformed=mesh.vertices,
         faces=mesh.faces, uv=mesh.uvs, reference=reference, scalars=scalars, frames=frames,
@@ -164,7 +168,8 @@ def read_run(path: str | os.PathLike) -> RunFiles:
         obstacles=tuple(read_mesh(f) for f in obstacle_files),
         obstacle_names=tuple(f.stem for f in obstacle_files),
         decrements=np.array([h["decrement"] for h in history]
-                            if all("decrement" in h for h in history) else [], dtype=np.float64))
+                            if all("decrement" in h for h in history) else [], dtype=np.float64),
+        time_rate=rate)
 
 
 def _displacements(probes: dict | None) -> dict[str, np.ndarray] | None:

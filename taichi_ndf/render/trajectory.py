@@ -13,8 +13,9 @@ import numpy as np
 from taichi_ndf.render.camera import widest_azimuth
 from taichi_ndf.render.colour import ROBUST_PERCENTILES, colour_scale
 from taichi_ndf.render.figure import VIEWS, Obstacle, render_figure
+from taichi_ndf.render.shaded import BACKGROUND_BGR
 
-__all__ = ["trajectory_frames", "frame_repeats", "MIN_SECONDS", "FPS"]
+__all__ = ["trajectory_frames", "frame_repeats", "put_label", "MIN_SECONDS", "FPS"]
 
 FPS = 4.0  # frames per second of a trajectory video
 MIN_SECONDS = 3.0  # a short trajectory's states are repeated so that the video lasts this long
@@ -27,6 +28,16 @@ def frame_repeats(states: int, fps: float = FPS) -> int:
     return max(1, math.ceil(MIN_SECONDS * fps / max(states, 1)))
 
 
+def put_label(image: np.ndarray, text: str, *, boxed: bool = False) -> None:
+    """Write `text` into the top left corner of a BGR image (in place); `boxed`: on a box of
+    the background's colour, so that it stays legible over the surface."""
+    if boxed:
+        (width, height), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.7, 2)
+        cv2.rectangle(image, (8, 30 - height - 6), (20 + width, 30 + base + 4),
+                      tuple(int(c) for c in BACKGROUND_BGR), -1)
+    cv2.putText(image, text, (14, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.7, _INK, 2, cv2.LINE_AA)
+
+
 def trajectory_frames(
     states: Sequence[np.ndarray],
     faces: np.ndarray,
@@ -36,6 +47,7 @@ def trajectory_frames(
     obstacles: Sequence[Sequence[Obstacle]] | None = None,
     up=(0.0, 0.0, 1.0),
     pseudo_time: bool = False,
+    physical_time: bool = False,
     size: tuple[int, int] = (800, 600),
     fps: float = FPS,
 ) -> list[np.ndarray]:
@@ -43,7 +55,9 @@ def trajectory_frames(
     [m] on `faces`) at `load_factors`: coloured by |u| = |x − reference| [m] on the 1st–99th
     percentile of every state's values together (the colour bar states what it clips),
     `obstacles` per state (their meshes at that state), each state repeated `frame_repeats`
-    times and the last held HOLD_SECONDS longer."""
+    times and the last held HOLD_SECONDS longer. Labels: "load factor λ (step k of n)",
+    "t λ" with `pseudo_time`, "t = λ s (frame k of n)" with `physical_time` (a dynamic
+    run's times [s])."""
     if len(states) != len(load_factors) or not len(states):
         raise ValueError(f"need one load factor per state, got {len(load_factors)} for "
                          f"{len(states)} states")
@@ -65,9 +79,11 @@ def trajectory_frames(
                               scalar_range=scale.range, obstacles=tuple(obstacles[k]), up=up,
                               width=width, height=height, frame_points=every,
                               azimuth_deg=azimuth)
-        label = f"{word} {factor:.3g}" + ("" if pseudo_time else
-                                           f"  (step {k + 1} of {len(states)})")
-        cv2.putText(image, label, (14, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.7, _INK, 2,
-                    cv2.LINE_AA)
+        if physical_time:
+            label = f"t = {factor:.2f} s  (frame {k + 1} of {len(states)})"
+        else:
+            label = f"{word} {factor:.3g}" + ("" if pseudo_time else
+                                               f"  (step {k + 1} of {len(states)})")
+        put_label(image, label)
         pictures += [image] * frame_repeats(len(states), fps)
     return pictures + [pictures[-1]] * int(round(HOLD_SECONDS * fps))

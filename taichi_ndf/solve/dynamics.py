@@ -5,37 +5,28 @@ The state lives in the coefficients (n, 3) of one grid (the plan's finest): disp
 [m], velocity V [m/s], acceleration A [m/s²], each a field u = U₀ + J P on the Gauss points of
 the spline discretisation (`SplineDiscretisation.linearisation`). The loads act at the load
 factor λ(t) (`DynamicsConfig.load_factor`: 1 from t = 0, or a linear ramp), each step's at its
-end time. M is the consistent mass matrix of that field (`objective.inertia`), Π
-the model's potential energy (strain energy − work of the loads, + its further terms), α the
-mass-proportional Rayleigh damping [1/s] (force −α M v). A step of length h from (C, V, A):
-
-- implicit Euler: x̂ = C + h V; C' = argmin ½ (x − x̂)ᵀ M (x − x̂)/h² + ½ α (x − C)ᵀ M (x − C)/h
-  + Π(x); V' = (C' − C)/h, A' = (V' − V)/h (first order, dissipative);
-- Newmark, average acceleration (β = ¼, γ = ½; trapezoidal): x̂ = C + h V + (½ − β) h² A,
-  ṽ = V + (1 − γ) h A; C' = argmin ½ (x − x̂)ᵀ M (x − x̂)/(β h²) + α (x − x̂)ᵀ M (ṽ + ½ γ (x −
-  x̂)/(β h)) + Π(x); A' = (C' − x̂)/(β h²), V' = ṽ + γ h A' (second order; conserves
-  ½ VᵀMV + Π for a linear problem). A₀ solves M A₀ = −∇Π(C₀) − α M V₀.
-
-Both inertia parts are one `InertiaTerm` ½ s (x − x*)ᵀ M (x − x*) (its constant dropped):
-s = 1/h² + α/h, x* = x̂ − α V/s (implicit Euler); s = 1/(β h²) + α γ/(β h), x* = x̂ − α ṽ/s
-(Newmark). Stiffness-proportional damping β_R [s] (force −β_R K₀ v, K₀ the shell's tangent
-stiffness at the step's start, positive semi-definite through the strains) adds the same form
-in K₀, one `StiffnessDampingTerm` ½ c (x − y)ᵀ K₀ (x − y): c = β_R/h, y = C (implicit Euler);
-c = β_R γ/(β h), y = x̂ − β_R ṽ/c (Newmark); and −β_R K₀ V₀ to A₀'s right-hand side. These
-formulas are written once, as the linear maps of `taichi_ndf.problem.dynamics.StepMap` (the
-adjoint, `solve/dynamics_adjoint.py`, differentiates the same maps). Each step starts Newton
-from x̂ at load factor 1 and stops on Newton's own test; a step whose Newton does not
-converge is logged and split into two halves (recursively, at most
-`DynamicsConfig.halvings` times; beyond that `DynamicsError`).
+end time. M is the consistent mass matrix of that field (`objective.inertia`), Π the model's
+potential energy (strain energy − work of the loads, + its further terms), α the
+mass-proportional Rayleigh damping [1/s] (force −α M v). Each step of length h from (C, V, A)
+minimises ½ s (x − x*)ᵀ M (x − x*) + Π(x) (+ ½ c (x − y)ᵀ K₀ (x − y) with stiffness-
+proportional damping β_R [s]): implicit Euler (first order, dissipative) or Newmark's average
+acceleration (β = ¼, γ = ½; second order); s, x*, c, y and the new V', A' are the linear maps
+of `taichi_ndf.problem.dynamics.StepMap`, written once there (docs/dynamics.md has the
+formulas; the adjoint, `solve/dynamics_adjoint.py`, differentiates the same maps). Newmark's
+A₀ solves M A₀ = −∇Π(C₀) − α M V₀ − β_R K₀ V₀. Each step starts Newton from x̂ and stops on
+Newton's own test; a step whose Newton does not converge is logged and split into two halves
+(recursively, at most `DynamicsConfig.halvings` times; beyond that `DynamicsError`). With
+`DynamicsConfig.adaptive` the step size follows `AdaptiveStep`'s rule between output frames.
 
 Contact (`[[obstacles]]`, the model's `ContactConfig`): each step is solved by the spline
 path's `NewtonContact.solve` (the barrier, its lagged friction, the check points kept over the
 steps, the line search bounded by the hook's `feasible`), with the inertia term passed as a
 term at each round's samples (`terms_at`); its Newton starts from the step's start C (x̂
 could be inside an obstacle), and friction lags from C. The smallest gap [m] of the dense
-check grid after each step is recorded (`StepRecord.gap`). Not yet: stiffness damping with
-contact (refused), prescribed motions in time (refused), adaptive steps, adjoints through
-contact (`solve/dynamics_adjoint.py` refuses it).
+check grid after each step is recorded (`StepRecord.gap`). Wind: one more per-point term
+(`objective.wind`, its drag implicit in the velocity); a boundary motion μ(t): the boundary's
+part g of the displacement is stepped by the same scheme (`Motion.boundary`, docs/dynamics.md).
+Not yet: stiffness damping or a motion with contact (refused).
 """
 
 from __future__ import annotations
@@ -43,7 +34,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import replace
 
 import torch
 
@@ -55,87 +46,18 @@ from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.damping import StiffnessDampingTerm
 from taichi_ndf.objective.inertia import InertiaTerm, kinetic_energy
+from taichi_ndf.objective.wind import wind_term
 from taichi_ndf.problem.dynamics import DynamicsConfig, StepMap, combine
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.shell.hessian import flat_blocks
+from taichi_ndf.solve.dynamics_trajectory import Checkpoint, Motion, StepRecord, Trajectory
 
 log = logging.getLogger(__name__)
 
 
 class DynamicsError(RuntimeError):
     """A time step did not converge even after the allowed halvings."""
-
-
-@dataclass(frozen=True)
-class Motion:
-    """The state at a time [s]: coefficients (n, 3) of displacement [m], velocity [m/s] and
-    acceleration [m/s²]."""
-
-    time: float
-    displacement: torch.Tensor
-    velocity: torch.Tensor
-    acceleration: torch.Tensor
-
-
-@dataclass(frozen=True)
-class StepRecord:
-    """One time step: its index (1 = the first), the time reached [s], Newton iterations over
-    its substeps, substeps (1: not halved), kinetic energy T, potential energy Π and T + Π [J]
-    at its end, and the CPU seconds (user + sys of this process) and wall seconds it took."""
-
-    step: int
-    time: float
-    newton_iterations: int
-    substeps: int
-    kinetic: float
-    potential: float
-    total: float
-    cpu_seconds: float
-    wall_seconds: float
-    gap: float | None = None  # with contact: the dense check grid's smallest gap [m]
-
-
-@dataclass
-class Trajectory:
-    """A dynamic run: its settings, spans of the grid, the state at t = 0 (energies), every
-    step, the output frames (time [s], coefficients (n, 3)), the probes' displacement [m] at
-    t = 0 and after every step, the final field."""
-
-    config: DynamicsConfig
-    spans: tuple[int, int]
-    initial: StepRecord
-    records: list[StepRecord] = field(default_factory=list)
-    frames: list[tuple[float, torch.Tensor]] = field(default_factory=list)
-    probes: dict[str, list[list[float]]] = field(default_factory=dict)
-    field: SplineField | None = None
-
-    @property
-    def times(self) -> list[float]:
-        return [self.initial.time] + [r.time for r in self.records]
-
-    @property
-    def cpu_seconds(self) -> float:
-        return sum(r.cpu_seconds for r in self.records)
-
-    def to_dict(self) -> dict:
-        """result.json's `dynamics`: settings, per step times and energies, frames' times, and
-        the CPU cost per step and per simulated second."""
-        records = [self.initial, *self.records]
-        steps = max(1, len(self.records))
-        return {**self.config.to_dict(), "spans": list(self.spans),
-                "times": self.times, "kinetic": [r.kinetic for r in records],
-                "potential": [r.potential for r in records],
-                "total": [r.total for r in records],
-                "newton_iterations": [r.newton_iterations for r in self.records],
-                "substeps": [r.substeps for r in self.records],
-                **({"gaps": [r.gap for r in records]} if self.initial.gap is not None
-                   else {}),
-                "frame_times": [t for t, _ in self.frames], "probes": self.probes,
-                "cpu_seconds": self.cpu_seconds,
-                "wall_seconds": sum(r.wall_seconds for r in self.records),
-                "cpu_per_step": self.cpu_seconds / steps,
-                "cpu_per_simulated_second": self.cpu_seconds / max(self.times[-1], 1e-300)}
 
 
 def _cpu() -> float:
@@ -154,16 +76,26 @@ class TimeStepper:
         if model.contact is not None and config.stiffness_damping:
             raise ValueError("dynamics: stiffness damping with contact ([[obstacles]]) is not "
                              "supported by the dynamic path yet")
+        if model.contact is not None and config.motion is not None:
+            raise ValueError("dynamics: a prescribed boundary motion with contact "
+                             "([[obstacles]]) is not supported by the dynamic path yet")
         finest = SplinePlan(plan.finest(), 1, plan.quadrature_points)
         self.discretisation = SplineDiscretisation(finest, model, objective=objective)
         self.model, self.config = model, config
         self.field = SplineField(finest.config)
         self.samples = self.discretisation.evaluation_points()
-        self.linear = self.discretisation.linearisation(self.samples, 1.0)
+        # One assembly at the Gauss points; its boundary offset g(μ) follows `_at` (μ(t)).
+        self._grid = self.discretisation.linearise(self.field)
+        self.linear = self._grid.linearisation(1.0, self.samples)
+        moves = float(self.linear.displacement(torch.zeros_like(
+            self.field.coefficients)).abs().max()) > 0
+        if moves != (config.motion is not None):
+            raise ValueError("dynamics: the boundary prescribes displacements (handles, rim "
+                             "rotations): give their motion in time, [dynamics.motion]"
+                             if moves else "dynamics.motion: the boundary prescribes no "
+                             "displacement to move (no handle, no rim rotation)")
+        self.linear = self._at(0.0)
         self.offset = self.linear.displacement(torch.zeros_like(self.field.coefficients))
-        if float(self.offset.abs().max()) > 0:
-            raise ValueError("dynamics: prescribed boundary motions (handles, rim rotations) "
-                             "are not supported by the dynamic path yet")
         self.objective = objective or Objective.of_model(model)
         self.density = model.material.areal_density
         self.newton = newton or NewtonConfig()
@@ -173,6 +105,23 @@ class TimeStepper:
             self.grid = self.discretisation.linearise(self.field)
             self._on_grid = PointMap(self.grid, self.contact.points.grid_xi.to(
                 self.offset.dtype), 1.0)
+
+    def _at(self, t: float):
+        """The linearisation at the Gauss points with the boundary at μ(t) (t [s]); the one
+        assembly's offset is moved there (without a motion: μ = 1, offset 0, unchanged)."""
+        if self.config.motion is None:
+            return self.linear
+        return self._grid.linearisation(self.config.boundary_factor(t))
+
+    def _jets(self, linear, coefficients: torch.Tensor, boundary=None) -> torch.Tensor:
+        """Jets (N, 6, 3) of J P + b at the Gauss points: the free part of coefficients P and
+        the boundary part b (jets, or None: 0)."""
+        jets_ = linear.displacement(coefficients) - self.offset_of(linear)
+        return jets_ if boundary is None else jets_ + boundary
+
+    def offset_of(self, linear) -> torch.Tensor:
+        """g: the boundary's displacement jets (N, 6, 3) [m] of a linearisation."""
+        return linear.displacement(torch.zeros_like(self.field.coefficients))
 
     def gap(self, displacement: torch.Tensor, t: float) -> float | None:
         """The smallest gap [m] of the dense check grid at coefficients C (None: no contact);
@@ -184,11 +133,10 @@ class TimeStepper:
         return points.flag(points.point_gaps(points.grid_r.to(u.dtype) + u,
                                              self.config.load_factor(t)))
 
-    # --- energies and the mass matrix --------------------------------------------------------
-    def kinetic(self, velocity: torch.Tensor) -> float:
-        """T = ½ Vᵀ M V [J]."""
-        rate = self.linear.displacement(velocity) - self.offset
-        return kinetic_energy(self.samples, self.density, rate)
+    def kinetic(self, velocity: torch.Tensor, boundary: torch.Tensor | None = None) -> float:
+        """T = ½ Vᵀ M V [J]; with a boundary motion, of the velocity J V + ġ (boundary: ġ)."""
+        return kinetic_energy(self.samples, self.density,
+                              self._jets(self.linear, velocity, boundary))
 
     def potential_energy(self, displacement: torch.Tensor, t: float) -> float:
         """Π [J] at coefficients C and time t [s] (the loads at λ(t)); with contact + the
@@ -197,7 +145,7 @@ class TimeStepper:
         load_factor = self.config.load_factor(t)
         if self.contact is None:
             potential = self.objective.potential(load_factor)
-            return potential(self.samples, self.linear.displacement(displacement), False).total
+            return potential(self.samples, self._at(t).displacement(displacement), False).total
         samples = self.contact.points.augment(self.samples)
         linear = self.grid.linearisation(load_factor, samples)
         potential = self.objective.with_terms(self.contact.points.term).potential(load_factor)
@@ -211,14 +159,15 @@ class TimeStepper:
 
     def initial_acceleration(self, displacement: torch.Tensor, velocity: torch.Tensor
                              ) -> torch.Tensor:
-        """A₀ from M A₀ = −∇Π(C₀) − α M V₀ − β_R K₀ V₀ (one solve with the mass matrix)."""
-        u = self.linear.displacement(displacement)
+        """A₀ from M A₀ = −∇Π(C₀) − α M V₀ − β_R K₀ V₀ (one solve with the mass matrix; the
+        boundary at rest at t = 0)."""
+        u = self._at(0.0).displacement(displacement)
         potential = self.objective.potential(self.config.load_factor(0.0))
         gradient = self.linear.gradient(potential(self.samples, u, True).grad_u_jets)
         if self.config.mass_damping:
             gradient = gradient + self.config.mass_damping * self._mass_times(velocity)
         if self.config.stiffness_damping:
-            term = StiffnessDampingTerm(self._stiffness_blocks(displacement),
+            term = StiffnessDampingTerm(self._stiffness_blocks(0.0, displacement),
                                         self.config.stiffness_damping, self.offset)
             _, force = term.evaluate(self.samples, self.linear.displacement(velocity))
             gradient = gradient + self.linear.gradient(force)
@@ -229,42 +178,83 @@ class TimeStepper:
             raise DynamicsError("the mass matrix could not be factorised")
         return solved[0]
 
-    def _stiffness_blocks(self, displacement: torch.Tensor) -> torch.Tensor:
-        """The shell's per-point tangent-stiffness blocks (N, 6, 3, 6, 3) at coefficients C,
-        positive semi-definite through the strains (K₀ of the stiffness damping)."""
-        u = self.linear.displacement(displacement)
-        steps = self.linear.fd_steps(u, displacement, self.newton.fd_step)
+    def _stiffness_blocks(self, t: float, displacement: torch.Tensor) -> torch.Tensor:
+        """The shell's per-point tangent-stiffness blocks (N, 6, 3, 6, 3) at coefficients C
+        and time t [s], positive semi-definite through the strains (K₀ of the stiffness
+        damping)."""
+        linear = self._at(t)
+        u = linear.displacement(displacement)
+        steps = linear.fd_steps(u, displacement, self.newton.fd_step)
         return self.objective.shell.hessian_blocks(self.samples, u, 1.0, steps=steps, psd=True)
 
-    # --- one step ----------------------------------------------------------------------------
+    def _wind(self, state: Motion, scheme: StepMap):
+        """None without wind; else from the step's start: the displacement jets, the points'
+        velocities (N, 3) [m/s], and v' = k (x − y) of the scheme: k [1/s], y's coefficients
+        and its boundary jets (None: no boundary motion)."""
+        if self.config.wind is None:
+            return None
+        c, v, a, b = state.displacement, state.velocity, state.acceleration, state.boundary
+        linear = self._at(state.time)
+        rate = scheme.velocity[0]
+        origin = combine(scheme.velocity[1:], (c, v, a)) / -rate
+        boundary = None if b is None else combine(
+            scheme.velocity[1:], (b.displacement, b.velocity, b.acceleration)) / -rate
+        velocity = self._jets(linear, v, None if b is None else b.velocity)[:, jets.VALUE]
+        return linear.displacement(c), velocity, rate, origin, boundary
+
     def step(self, state: Motion, h: float) -> tuple[Motion, object]:
         """The state after one step of length h [s] and Newton's solution (module docstring)."""
         c, v, a = state.displacement, state.velocity, state.acceleration
         scheme = StepMap.of(self.config, h)
+        end_time = state.time + h
+        wind = self._wind(state, scheme)
+        stiffness = (self._stiffness_blocks(state.time, c) if self.config.stiffness_damping
+                     else None)
+        linear = self._at(end_time)  # the boundary at its step's end
+        boundary = None
+        if state.boundary is not None:  # g' given; its x* part as the free part's
+            b = state.boundary
+            g = self.offset_of(linear)
+            boundary = (g, combine(scheme.target, (b.displacement, b.velocity, b.acceleration)),
+                        combine(scheme.predicted, (b.displacement, b.velocity, b.acceleration)))
         predicted = combine(scheme.predicted, (c, v, a))
         target = combine(scheme.target, (c, v, a))
         scale = scheme.scale
-        terms = [InertiaTerm(self.density, scale, self.linear.displacement(target))]
-        damping = self.config.stiffness_damping
-        if damping:
-            coefficient = damping * scheme.rate
+        target_jets = self._jets(linear, target, None if boundary is None else boundary[1])
+        terms = [InertiaTerm(self.density, scale, target_jets)]
+        if wind is not None:
+            u0, v0, rate, origin, origin_boundary = wind
+            terms.append(wind_term(self.config.wind, end_time, self.samples, u0, v0, rate,
+                                   self._jets(linear, origin, origin_boundary)))
+        if stiffness is not None:
             origin = predicted - combine(scheme.carried, (c, v, a)) / scheme.rate
-            terms.append(StiffnessDampingTerm(self._stiffness_blocks(c), coefficient,
-                                              self.linear.displacement(origin)))
-        load_factor = self.config.load_factor(state.time + h)  # the loads at the step's end
+            origin_jets = self._jets(linear, origin, None if boundary is None else (
+                boundary[2] - combine(scheme.carried, (b.displacement, b.velocity,
+                                                       b.acceleration)) / scheme.rate))
+            terms.append(StiffnessDampingTerm(stiffness, self.config.stiffness_damping
+                                              * scheme.rate, origin_jets))
+        load_factor = self.config.load_factor(end_time)  # the loads at the step's end
         if self.contact is not None:  # from C: x̂ could be inside an obstacle
-            def inertia(assembly) -> tuple:
-                return (InertiaTerm(self.density, scale, assembly.displacement(target)),)
+            def step_terms(assembly) -> tuple:
+                extra = (InertiaTerm(self.density, scale, assembly.displacement(target)),)
+                if wind is not None:
+                    u0, v0, rate, origin, _ = wind
+                    extra += (wind_term(self.config.wind, end_time, self.samples, u0, v0, rate,
+                                        assembly.displacement(origin)),)
+                return extra
             solution = self.contact.solve(
                 self.grid, self.samples, self.objective, c, self.newton,
                 load_factor=load_factor, start_load_factor=self.config.load_factor(state.time),
-                terms_at=inertia, report=False)
+                terms_at=step_terms, report=False)
         else:
-            solution = minimise(self.linear, self.objective.with_terms(*terms).potential(
+            solution = minimise(linear, self.objective.with_terms(*terms).potential(
                 load_factor), predicted, self.newton, load_factor=load_factor, report=False)
         x = solution.parameters
         velocity, acceleration = scheme.apply(x, state)
-        return Motion(state.time + h, x, velocity, acceleration), solution
+        end_boundary = None
+        if boundary is not None:
+            end_boundary = Motion(end_time, boundary[0], *scheme.apply(boundary[0], b))
+        return Motion(end_time, x, velocity, acceleration, end_boundary), solution
 
     def advance(self, state: Motion, h: float, depth: int = 0) -> tuple[Motion, int, int]:
         """One step of h [s], halved where Newton does not converge (module docstring): the
@@ -283,32 +273,73 @@ class TimeStepper:
         end, second, n2 = self.advance(middle, 0.5 * h, depth + 1)
         return end, iterations + first + second, n1 + n2
 
-    # --- the run -----------------------------------------------------------------------------
-    def _probes(self, displacement: torch.Tensor) -> dict[str, list[float]]:
+    def _probes(self, displacement: torch.Tensor, t: float) -> dict[str, list[float]]:
         self.field.coefficients.copy_(displacement)
-        return self.discretisation.probes(self.field, 1.0)
+        return self.discretisation.probes(self.field, self.config.boundary_factor(t))
 
-    def run(self, displacement: torch.Tensor | None = None,
-            velocity: torch.Tensor | None = None, *,
-            on_frame: Callable[[float, SplineField], None] | None = None) -> Trajectory:
-        """Integrate from coefficients C₀ (None: the reference state) and V₀ (None: at rest)
-        over `config.duration`; on_frame(time [s], field) at t = 0, every `frame_every` steps
-        and at the end (one progress stage, one report per step)."""
-        config = self.config
+    def start(self, displacement: torch.Tensor | None = None,
+              velocity: torch.Tensor | None = None) -> Checkpoint:
+        """Step 0 of a run from coefficients C₀ (None: the reference state) and V₀ (None: at
+        rest), the boundary (with a motion) at rest in the reference state."""
         zeros = torch.zeros_like(self.field.coefficients)
         c = zeros.clone() if displacement is None else displacement.to(zeros).clone()
         v = zeros.clone() if velocity is None else velocity.to(zeros).clone()
-        a = self.initial_acceleration(c, v) if config.integrator == "newmark" else zeros.clone()
-        state = Motion(0.0, c, v, a)
+        a = (self.initial_acceleration(c, v) if self.config.integrator == "newmark"
+             else zeros.clone())
+        boundary = None
+        if self.config.motion is not None:
+            g = self.offset_of(self._at(0.0))
+            boundary = Motion(0.0, g, torch.zeros_like(g), torch.zeros_like(g))
+        state = Motion(0.0, c, v, a, boundary)
         kinetic, potential = self.kinetic(v), self.potential_energy(c, 0.0)
         gap = self.gap(c, 0.0)
         if gap is not None and gap <= 0:
             raise ValueError(f"dynamics: the initial state touches an obstacle (smallest gap "
                              f"{gap:.3g} m)")
-        trajectory = Trajectory(config, tuple(self.field.config.spans),
+        trajectory = Trajectory(self.config, tuple(self.field.config.spans),
                                 StepRecord(0, 0.0, 0, 0, kinetic, potential, kinetic + potential,
                                            0.0, 0.0, gap))
-        trajectory.probes = {k: [u] for k, u in self._probes(c).items()}
+        trajectory.probes = {k: [u] for k, u in self._probes(c, 0.0).items()}
+        return self._checkpoint(0, state, trajectory)
+
+    def _checkpoint(self, step: int, state: Motion, trajectory: Trajectory,
+                    size: float | None = None, easy: int = 0) -> Checkpoint:
+        if self.contact is None:
+            return Checkpoint(step, state, trajectory, size, easy)
+        points = self.contact.points
+        return Checkpoint(step, state, trajectory, size, easy, points.active.clone(),
+                          float(points.term.stiffness))
+
+    def _record(self, k: int, state: Motion, iterations: int, substeps: int, size: float,
+                cpu: float, wall: float) -> StepRecord:
+        """Step k's record: energies and gap at its end (the CPU and wall clock from the
+        step's start, `cpu` and `wall`, to now)."""
+        kinetic = self.kinetic(state.velocity, None if state.boundary is None
+                               else state.boundary.velocity)
+        potential = self.potential_energy(state.displacement, state.time)
+        gap = self.gap(state.displacement, state.time)
+        return StepRecord(k, state.time, iterations, substeps, kinetic, potential,
+                          kinetic + potential, _cpu() - cpu, time.perf_counter() - wall, gap,
+                          size)
+
+    def run(self, displacement: torch.Tensor | None = None,
+            velocity: torch.Tensor | None = None, *,
+            on_frame: Callable[[float, SplineField], None] | None = None,
+            on_checkpoint: Callable[[Checkpoint], None] | None = None,
+            resume: Checkpoint | None = None) -> Trajectory:
+        """Integrate from C₀ (None: the reference state) and V₀ (None: at rest) over
+        `config.duration`, or on from `resume` (a `Checkpoint` of the same run: the same steps
+        follow); on_frame(time [s], field) at t = 0 and every `config.frame_times()`, then
+        on_checkpoint(the `Checkpoint` there) (one progress stage, a report per step)."""
+        config = self.config
+        if resume is None:
+            resume = self.start(displacement, velocity)
+        elif self.contact is not None:  # the check points and κ the steps reached
+            points = self.contact.points
+            points.active = resume.active.clone()
+            points._samples = None
+            points.term.stiffness = resume.stiffness
+        state, trajectory = resume.state, resume.trajectory
 
         def frame(state: Motion) -> None:
             trajectory.frames.append((state.time, state.displacement.clone()))
@@ -316,29 +347,34 @@ class TimeStepper:
                 self.field.coefficients.copy_(state.displacement)
                 on_frame(state.time, self.field)
 
-        frame(state)
-        every = config.frame_every
+        if resume.step == 0:
+            frame(state)
+        rule, k, tol = config.adaptive, resume.step, 1e-9 * config.dt
+        h, easy = resume.step_size or config.dt, resume.easy
         with progress.stage(f"dynamics ({config.integrator}, {config.steps} steps of "
-                            f"{config.dt:.3g} s)", config.steps):
-            for k in range(1, config.steps + 1):
-                cpu, wall = _cpu(), time.perf_counter()
-                state, iterations, substeps = self.advance(state, config.dt)
-                state = Motion(k * config.dt, state.displacement, state.velocity,
-                               state.acceleration)  # no rounding drift of the clock
-                kinetic = self.kinetic(state.velocity)
-                potential = self.potential_energy(state.displacement, state.time)
-                gap = self.gap(state.displacement, state.time)
-                record = StepRecord(k, state.time, iterations, substeps, kinetic, potential,
-                                    kinetic + potential, _cpu() - cpu,
-                                    time.perf_counter() - wall, gap)
-                trajectory.records.append(record)
-                for name, u in self._probes(state.displacement).items():
-                    trajectory.probes[name].append(u)
-                progress.report(k, t=state.time, E=record.total)
-                log.debug("step %d, t = %.6g s: T %.6g J, Π %.6g J, %d Newton iterations", k,
-                          state.time, kinetic, potential, iterations)
-                if (every is not None and k % every == 0) or k == config.steps:
-                    frame(state)
+                            f"{config.dt:.3g} s{', adaptive' if rule else ''})", config.steps):
+            for target in [t for t in config.frame_times() if t > state.time + tol]:
+                while state.time < target - tol:  # fixed steps: exactly frame_every of them
+                    size = h if rule is None else min(h, target - state.time)
+                    cpu, wall = _cpu(), time.perf_counter()
+                    state, iterations, substeps = self.advance(state, size)
+                    k += 1
+                    if rule is None:
+                        state = replace(state, time=k * config.dt)  # no drift of the clock
+                    else:
+                        if abs(state.time - target) <= tol:
+                            state = replace(state, time=target)
+                        h, easy = rule.after(h, easy, iterations, substeps)
+                        h = max(h, config.dt / 2**config.halvings)
+                    record = self._record(k, state, iterations, substeps, size, cpu, wall)
+                    trajectory.records.append(record)
+                    for name, u in self._probes(state.displacement, state.time).items():
+                        trajectory.probes[name].append(u)
+                    progress.report(min(config.steps, round(state.time / config.dt)),
+                                    t=state.time, E=record.total)
+                frame(state)
+                if on_checkpoint is not None:
+                    on_checkpoint(self._checkpoint(k, state, trajectory, h, easy))
         self.field.coefficients.copy_(state.displacement)
         trajectory.field = self.field
         return trajectory

@@ -18,8 +18,8 @@ quasistatic sensitivities; not the projected one Newton steps with); ∂f/∂θ 
 the shell energy's gradient at unit θ (Π is linear in each stiffness parameter,
 `ShellEnergy.evaluate`'s per-sample stiffness). The states are recomputed by `record`, which
 steps like `TimeStepper.run` but keeps every state and refuses a halved step. Not covered:
-stiffness-proportional damping (K₀ depends on C and θ), contact, a custom per-sample
-stiffness; these raise ValueError.
+stiffness-proportional damping (K₀ depends on C and θ), contact, wind and boundary motions in
+time, a custom per-sample stiffness; these raise ValueError.
 """
 
 from __future__ import annotations
@@ -38,6 +38,8 @@ from taichi_ndf.solve.dynamics import DynamicsError, Motion, TimeStepper
 def _check(stepper: TimeStepper, parameter: str) -> None:
     if stepper.config.stiffness_damping:
         raise ValueError("dynamics adjoint: stiffness-proportional damping is not supported")
+    if stepper.config.wind is not None or stepper.config.motion is not None:
+        raise ValueError("dynamics adjoint: wind and boundary motions are not supported")
     if getattr(stepper.objective.shell, "stiffness", None) is not None:
         raise ValueError("dynamics adjoint: a per-sample stiffness is not supported")
     names = stepper.model.material.stiffness_names
