@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from inverse.sft.camera import Camera
 from inverse.sft.correspondences import FrameCorrespondences
-from inverse.sft.image import bilinear, eroded, inside, sample_mask, signed_area, to_gray
+from inverse.sft.image import bilinear, eroded, sample_mask, signed_area, to_gray
 from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.matching import prefiltered_texture
 from inverse.sft.surface import surface_positions, uv_locator
@@ -86,6 +86,7 @@ class GuidedConfig:
     max_points: int = 400
     mask_margin: int = 4
     corner_spacing: float = 7.0
+    match_sigma: float = 1.5
 
     def __post_init__(self):
         if self.patch_radius < 2:
@@ -94,7 +95,7 @@ class GuidedConfig:
             raise ValueError("need 0 < min_window <= max_window (finite), got "
                              f"{self.min_window}, {self.max_window}")
         for name in ("window_sigmas", "peak_separation", "fb_threshold", "gap_edges",
-                     "corner_spacing"):
+                     "corner_spacing", "match_sigma"):
             if not 0 < getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
         if not 0 < self.min_ncc < 1 or not 0 < self.peak_ratio < 1:
@@ -105,8 +106,9 @@ class GuidedConfig:
             raise ValueError(f"mask_margin must be >= 0, got {self.mask_margin}")
 
 
-# Why a searched point was not accepted, in the order the tests run.
-REJECTIONS = ("low_peak", "ambiguous", "forward_backward")
+# Why a candidate was not searched, and why a searched one was not accepted (in test order).
+SKIPS = ("off_mask", "hidden", "oblique")
+REJECTIONS = ("low_peak", "edge", "ambiguous", "forward_backward")
 
 
 class GuidedSearch:
@@ -126,14 +128,17 @@ class GuidedSearch:
         self.mean_edge = mean_edge_length(template.vertices, template.faces)
         h, w = texture.shape[:2]
         self.texture_corners = uv_to_texture_pixels(template.uvs, w, h)
-        self.texture_gray = prefiltered_texture(texture, template, camera, self.texture_corners)
-        self.face, self.bary, self.texture_xy = self._texture_points(texture)
+        scale = _texture_scale(template, camera, self.texture_corners)
+        self.texture_gray = cv2.GaussianBlur(
+            prefiltered_texture(texture, template, camera, self.texture_corners), (0, 0),
+            self.config.match_sigma * scale)
+        self.face, self.bary, self.texture_xy = self._texture_points(texture, scale)
         self.rest = surface_positions(template.vertices, template.faces, self.face, self.bary)
         self.stats: dict[int, dict[str, int]] = {}
 
-    def _texture_points(self, texture: np.ndarray):
-        """Shi–Tomasi corners of the texture on the UV chart: face, bary, texture xy."""
-        scale = _texture_scale(self.template, self.camera, self.texture_corners)
+    def _texture_points(self, texture: np.ndarray, scale: float):
+        """Shi–Tomasi corners of the texture on the UV chart (scale: texture px per image
+        px): face, bary, texture xy."""
         gray = to_gray(texture)
         chart = uv_locator(self.template, gray.shape[1], gray.shape[0])
         on_chart = (chart.face_image >= 0).astype(np.uint8)
@@ -150,7 +155,8 @@ class GuidedSearch:
         """Texture points re-found in frame t near where `history` (the vertices [m] of the
         frames before t, last one last) predicts them, away from the `tracked` points."""
         cfg = self.config
-        stats = dict.fromkeys(("candidates", "searched", "accepted", *REJECTIONS), 0)
+        stats = dict.fromkeys(("candidates", *SKIPS, "searched", "widened", "accepted",
+                               *REJECTIONS), 0)
         self.stats[t] = stats
         previous = history[-1]
         predicted = 2.0 * previous - history[-2] if len(history) > 1 else previous
@@ -172,33 +178,45 @@ class GuidedSearch:
         cam = self.camera
         points = surface_positions(predicted, faces, self.face[order], self.bary[order])
         pixel = cam.project(points)
-        window = self._windows(predicted, tracked, track_rest if len(tracked) else None, order)
+        shift, window = self._windows(predicted, tracked, track_rest if len(tracked) else None,
+                                      order)
+        pixel = pixel + shift
         reach = cfg.patch_radius + np.ceil(window) + 2
-        ok = np.isfinite(pixel).all(1) & (points[:, 2] > 0)
-        ok &= inside(np.where(ok[:, None], pixel, -1e9), (cam.height, cam.width), margin=0)
-        ok &= (pixel[:, 0] >= reach) & (pixel[:, 0] <= cam.width - 1 - reach)
-        ok &= (pixel[:, 1] >= reach) & (pixel[:, 1] <= cam.height - 1 - reach)
+        on_image = np.isfinite(pixel).all(1) & (points[:, 2] > 0)
+        pixel = np.where(on_image[:, None], pixel, -1e9)
+        on_image &= (pixel[:, 0] >= reach) & (pixel[:, 0] <= cam.width - 1 - reach)
+        on_image &= (pixel[:, 1] >= reach) & (pixel[:, 1] <= cam.height - 1 - reach)
         if self.masks is not None:
-            ok &= sample_mask(eroded(self.masks[t], cfg.mask_margin), pixel)
+            on_image &= sample_mask(eroded(self.masks[t], cfg.mask_margin), pixel)
         raster = rasterize(predicted, faces, cam.K, cam.width, cam.height)
         col = np.clip(np.rint(pixel[:, 0]), 0, cam.width - 1).astype(int)
         row = np.clip(np.rint(pixel[:, 1]), 0, cam.height - 1).astype(int)
         # Hidden: another part of the predicted sheet lies in front by more than an edge.
-        ok &= raster.depth[row, col] > points[:, 2] - self.mean_edge
+        visible = raster.depth[row, col] > points[:, 2] - self.mean_edge
         jacobian = self._texture_map(predicted, order)
         singular = np.linalg.svd(jacobian, compute_uv=False)
-        ok &= singular[:, 1] > 1e-9
-        ok &= singular[:, 0] <= cfg.max_stretch * np.maximum(singular[:, 1], 1e-300)
+        frontal = singular[:, 1] > 1e-9
+        frontal &= singular[:, 0] <= cfg.max_stretch * np.maximum(singular[:, 1], 1e-300)
+        stats["off_mask"] = int((~on_image).sum())
+        stats["hidden"] = int((on_image & ~visible).sum())
+        stats["oblique"] = int((on_image & visible & ~frontal).sum())
+        ok = on_image & visible & frontal
         chosen = np.flatnonzero(ok)
         stats["searched"] = len(chosen)
         if len(chosen) == 0:
             return _empty()
 
-        gray = to_gray(self.frames[t]).astype(np.float32)
+        gray = cv2.GaussianBlur(to_gray(self.frames[t]).astype(np.float32), (0, 0),
+                                cfg.match_sigma)
         found, fb = [], []
         for k in chosen:
             result = search(gray, self.texture_gray, pixel[k], self.texture_xy[order[k]],
                             jacobian[k], int(np.ceil(window[k])), cfg)
+            if result == "edge" and window[k] < cfg.max_window:
+                # The correlation rises out of the window: search the widest one once.
+                stats["widened"] += 1
+                result = search(gray, self.texture_gray, pixel[k], self.texture_xy[order[k]],
+                                jacobian[k], int(np.ceil(cfg.max_window)), cfg)
             if isinstance(result, str):
                 stats[result] += 1
                 continue
@@ -216,20 +234,23 @@ class GuidedSearch:
             track_id=GUIDED_TRACK_ID + order[index].astype(np.int64))
 
     def _windows(self, predicted: np.ndarray, tracked: FrameCorrespondences,
-                 track_rest: np.ndarray | None, order: np.ndarray) -> np.ndarray:
-        """Search radius [px] of each candidate: window_sigmas × the median prediction error
-        of its template-nearest tracked points, clamped."""
+                 track_rest: np.ndarray | None, order: np.ndarray):
+        """Where the tracked points say the prediction is off, per candidate: the median
+        offset [px] (n, 2) of the pixel error of x̂ at its template-nearest tracked points
+        (added to the prediction), and the search radius [px] (n,): window_sigmas × the median
+        distance of those errors from that offset, clamped."""
         cfg = self.config
         if track_rest is None or len(tracked) == 0:
-            return np.full(len(order), cfg.max_window)
+            return np.zeros((len(order), 2)), np.full(len(order), cfg.max_window)
         at = self.camera.project(surface_positions(predicted, self.template.faces,
                                                    tracked.face, tracked.bary))
-        error = np.linalg.norm(at - tracked.xy, axis=1)
+        error = tracked.xy - at
         k = min(cfg.neighbours, len(tracked))
         _, near = cKDTree(track_rest).query(self.rest[order], k=k)
         near = np.asarray(near).reshape(len(order), k)
-        local = np.median(error[near], axis=1)
-        return np.clip(cfg.window_sigmas * local, cfg.min_window, cfg.max_window)
+        shift = np.median(error[near], axis=1)
+        spread = np.median(np.linalg.norm(error[near] - shift[:, None], axis=2), axis=1)
+        return shift, np.clip(cfg.window_sigmas * spread, cfg.min_window, cfg.max_window)
 
     def _texture_map(self, predicted: np.ndarray, order: np.ndarray) -> np.ndarray:
         """d texture / d image (n, 2, 2) of each candidate's triangle under the projection of
@@ -267,9 +288,14 @@ def search(gray: np.ndarray, texture_gray: np.ndarray, predicted: np.ndarray,
     best = float(score[peak])
     if best < config.min_ncc:
         return "low_peak"
+    if min(peak) == 0 or max(peak) == 2 * R:
+        return "edge"  # the correlation still rises out of the window: no peak inside it
+    # The second peak: the highest other local maximum (a repeat), not the first peak's own
+    # flank, which a smooth texture keeps high for pixels around it.
     rows, cols = np.indices(score.shape)
-    away = np.hypot(rows - peak[0], cols - peak[1]) > config.peak_separation
-    if away.any() and score[away].max() >= config.peak_ratio * best:
+    maxima = score >= cv2.dilate(score, np.ones((3, 3), np.uint8))
+    maxima &= np.hypot(rows - peak[0], cols - peak[1]) > config.peak_separation
+    if maxima.any() and score[maxima].max() >= config.peak_ratio * best:
         return "ambiguous"
     # Lucas–Kanade from the warped texture to the image, started at the peak, and back.
     a, b = _normalised(warped), _normalised(image)
