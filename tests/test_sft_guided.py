@@ -80,7 +80,7 @@ def test_a_window_holding_two_repeats_is_refused_as_ambiguous():
                   GuidedConfig()) == "ambiguous"
 
 
-def test_a_match_outside_the_window_is_not_found():
+def test_a_match_outside_the_window_is_not_found_and_an_edge_peak_is_refused():
     rng = np.random.default_rng(1)
     texture = cv2.GaussianBlur(rng.integers(0, 256, (SIZE, SIZE)).astype(np.float32),
                                (0, 0), 1.5)  # no repeat
@@ -90,6 +90,9 @@ def test_a_match_outside_the_window_is_not_found():
     config = GuidedConfig()
     assert not isinstance(search(frame, texture, image_xy + 2.0, tex_xy, np.eye(2), 4, config),
                           str)
+    # The truth just past the window's edge: the correlation rises out of it, no peak inside.
+    assert search(frame, texture, image_xy + [5.0, 0.0], tex_xy, np.eye(2), 4,
+                  config) == "edge"
     # The truth 9 px from the prediction, window 4 px: nothing there correlates.
     assert search(frame, texture, image_xy + [9.0, 0.0], tex_xy, np.eye(2), 4,
                   config) == "low_peak"

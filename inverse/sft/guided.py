@@ -10,18 +10,23 @@ gone, so a local search decides.
 Per frame t, for the template's texture corners (Shi–Tomasi corners of the texture on its UV
 chart) that no tracked point of frame t lies near on the template (farther than `gap_edges`
 mean edge lengths: lost or never found):
-1. p̂ from x̂; skipped when off the eroded mask, hidden behind another part of x̂ (z-buffer), or
-   seen so obliquely that the local map stretches more than `max_stretch`;
+1. p̂ from x̂, shifted by the median pixel error of x̂ at the k template-nearest tracked
+   points of frame t (where the tracker says the prediction is off); skipped when off the
+   eroded mask, hidden behind another part of x̂ (z-buffer), or seen so obliquely that the
+   local map stretches more than `max_stretch`;
 2. the texture around the point is warped into the image by the affine map that x̂'s triangle
-   induces (texture → image through the camera), a (2 r + 1)² patch;
-3. normalised cross-correlation of that patch over a window of radius R around p̂, R from the
-   prediction's own error: `window_sigmas` × the median pixel error of x̂ at the k template-
-   nearest tracked points of frame t (where the tracker says the prediction is off), clamped
-   to [`min_window`, `max_window`];
-4. accepted when the peak is high (NCC ≥ `min_ncc`), distinct (every place farther than
-   `peak_separation` from it correlates below `peak_ratio` × the peak: the window holds one
-   match, not two repeats) and stable: Lucas–Kanade from the warped patch to the frame,
-   started at the peak, and back, returns within `fb_threshold` (the tracker's limit).
+   induces (texture → image through the camera), a (2 r + 1)² patch; frame and texture are
+   both smoothed by `match_sigma` (a moving sheet's frames are blurrier than its texture);
+3. normalised cross-correlation of that patch over a window of radius R around p̂, R =
+   `window_sigmas` × the median distance of those tracked errors from their median (the
+   prediction's own uncertainty there), clamped to [`min_window`, `max_window`]; a peak on
+   the window's edge (the correlation still rising out of it) is searched once more in the
+   widest window;
+4. accepted when the peak is high (NCC ≥ `min_ncc`), not on the window's edge, distinct (no
+   other local maximum farther than `peak_separation` reaches `peak_ratio` × the peak: the
+   window holds one match, not two repeats) and stable: Lucas–Kanade from the warped patch to
+   the frame, started at the peak, and back, returns within `fb_threshold` (the tracker's
+   limit) and stays within `peak_separation` of the peak.
 
 The points are correspondences of frame t only (re-searched every frame from the newest
 prediction, never carried as tracks), confidence exp(−(fb / fb_threshold)²) like a track's.
@@ -69,7 +74,9 @@ class GuidedConfig:
     than ~75° from the normal); max_points: texture points searched per frame, farthest from
     the tracks first; mask_margin: distance kept from the mask's outline [px] (the tracker's);
     corner_spacing: spacing of the texture corners [image px at frame 0] (the tracker's
-    min_distance).
+    min_distance); match_sigma: smoothing of both images before matching [image px] (1.5:
+    about the motion blur of a sheet that moves a few px per frame; R1's whipping strip keeps
+    0.7 of frame 0's Laplacian energy).
     """
 
     patch_radius: int = 10
