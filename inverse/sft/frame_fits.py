@@ -41,8 +41,8 @@ def reconstruct_sequence(template: Template, camera: Camera,
     is first fitted to in each frame (ValueError on the spline field, which starts from the
     previous frame's solution); flow: dense-flow correspondences (`inverse.sft.flow`) added to
     each frame's tracks, carried from the frame before's reconstruction; guided: texture
-    points re-found where the frames before predict them (`inverse.sft.guided`); callbacks: the solve
-    callbacks of the frame loop (`reconstruct_frames`).
+    points re-found where the frames before predict them (`inverse.sft.guided`); callbacks:
+    the solve callbacks of the frame loop (`reconstruct_frames`).
     """
     kind = of_frame_settings(config)
     if initial is None:

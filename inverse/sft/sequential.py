@@ -132,8 +132,9 @@ def reconstruct_frames(template: Template, camera: Camera,
     timing and result the bookkeeping after it. masks: per-frame silhouettes (bool (h, w)) or
     None; flow: dense flow correspondences added to each frame's tracks, carried from the frame
     before's reconstruction; guided: texture points re-found near where the frames before
-    predict them (`inverse.sft.guided`), added to each frame's tracks; callbacks: the loop's callbacks (`taichi_ndf.minimise.callbacks`:
-    on_start, on_load_step(fit, frame index) after each frame, on_end), called with `fit`.
+    predict them (`inverse.sft.guided`), added to each frame's tracks; callbacks: the loop's
+    callbacks (`taichi_ndf.minimise.callbacks`: on_start, on_load_step(fit, frame index) after
+    each frame, on_end), called with `fit`.
     """
     weights = fit.weights
     rest = torch.from_numpy(template.vertices).double()
