@@ -3,7 +3,7 @@
 
     python benchmarks/sft_study.py [--sequences roll fold corner wave] [--seeds 0 1]
         [--frames 30] [--field spline|siren] [--cache DIR] [--json OUT]
-        [--tracker NAME=VALUE ...]
+        [--tracker NAME=VALUE ...] [--guided]
 
 For every sequence family and seed: render the sequence (`inverse.sft.synth`, default
 degradations), track it (`inverse.sft.tracking`), reconstruct it with the baseline
@@ -14,7 +14,9 @@ here), and seconds per frame (wall, and process CPU summed over threads); then w
 beats the baseline on e3D, chamfer and normal error on every sequence. --field siren runs the
 older SIREN + Adam field (`inverse.sft.reconstruct`, initialised from the baseline's meshes)
 instead of the spline; its per-frame time excludes the baseline it starts from. --cache keeps the
-rendered and tracked sequences (pickles) for reruns. docs/sft_results.md holds a run.
+rendered and tracked sequences (pickles) for reruns. --guided adds the prior with the guided
+search (`inverse.sft.guided`: lost texture points re-found near the reconstruction's
+prediction), row "prior+guided", beside the prior without it. docs/sft_results.md holds a run.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import torch
 import taichi_ndf
 from inverse.sft.baseline import reconstruct_baseline
 from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.guided import GuidedSearch
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
 from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.spline_prior import SplinePriorConfig
@@ -57,6 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path, help="write every row here")
     p.add_argument("--tracker", nargs="+", default=[], metavar="NAME=VALUE",
                    help="TrackerConfig fields other than the defaults (e.g. outlier_tolerance=4)")
+    p.add_argument("--guided", action="store_true",
+                   help="also run the prior with the guided search (inverse.sft.guided)")
     return p
 
 
@@ -81,7 +86,15 @@ def prepared(sequence: str, seed: int, frames: int, cache: Path | None,
     path = None if cache is None else cache / f"{sequence}_{seed}_{frames}{changed}.pkl"
     if path is not None and path.exists():
         with path.open("rb") as f:
-            return pickle.load(f)
+            data = pickle.load(f)
+        if "frames" in data:
+            return data
+        # An older cache without the images the guided search needs: render them again.
+        synth = generate(SynthConfig(sequence=sequence, frames=frames, seed=seed))
+        data.update(frames=synth.frames, texture=synth.texture)
+        with path.open("wb") as f:
+            pickle.dump(data, f)
+        return data
     synth = generate(SynthConfig(sequence=sequence, frames=frames, seed=seed))
     clock = time.perf_counter()
     tracks, _ = track_sequence(synth.frames, synth.template, synth.texture, synth.camera,
@@ -91,6 +104,7 @@ def prepared(sequence: str, seed: int, frames: int, cache: Path | None,
     baseline = reconstruct_baseline(synth.template, synth.camera, tracks).vertices
     data = {"template": synth.template, "camera": synth.camera, "faces": synth.faces,
             "gt": synth.vertices, "masks": synth.masks, "tracks": tracks,
+            "frames": synth.frames, "texture": synth.texture,
             "tracking_s": tracking, "baseline": baseline,
             "baseline_s": (time.perf_counter() - clock) / (frames - 1),
             "baseline_cpu_s": (time.process_time() - cpu) / (frames - 1)}
@@ -122,12 +136,17 @@ def study(sequence: str, seed: int, args: argparse.Namespace) -> list[dict]:
               else ReconstructionConfig(seed=seed))
     if args.physics_weight is not None:
         config = dataclasses.replace(config, physics_weight=args.physics_weight)
-    weights = [("prior", config.physics_weight)] + ([("no-prior", 0.0)] if args.no_prior else [])
-    for name, weight in weights:
+    weights = [("prior", config.physics_weight, False)]
+    weights += [("prior+guided", config.physics_weight, True)] if args.guided else []
+    weights += [("no-prior", 0.0, False)] if args.no_prior else []
+    for name, weight, guide in weights:
         settings = dataclasses.replace(config, physics_weight=weight)
+        guided = None if not guide else GuidedSearch(
+            data["frames"], data["camera"], data["template"], data["texture"],
+            masks=data["masks"])
         result = reconstruct_sequence(
             data["template"], data["camera"], data["tracks"], settings, masks=data["masks"],
-            initial=data["baseline"] if args.field == "siren" else None)
+            initial=data["baseline"] if args.field == "siren" else None, guided=guided)
         wall, cpu = float(np.mean(result.seconds[1:])), float(np.mean(result.cpu_seconds[1:]))
         rows.append(row(name, data, result.vertices, wall, cpu))
     for r in rows:
@@ -137,13 +156,13 @@ def study(sequence: str, seed: int, args: argparse.Namespace) -> list[dict]:
 
 
 def format_row(r: dict) -> str:
-    return (f"{r['sequence']:<7} {r['seed']:>4} {r['method']:<9} {r['e3d']:7.4f} "
+    return (f"{r['sequence']:<7} {r['seed']:>4} {r['method']:<12} {r['e3d']:7.4f} "
             f"{r['e3d_procrustes']:7.4f} {r['chamfer_x1e4']:8.4f} {r['normal_deg']:7.2f} "
             f"{r['reprojection_px']:7.3f} {r['depth_bias_mm']:7.2f} {r['s_per_frame']:6.2f} "
             f"{r['cpu_s_per_frame']:6.2f}")
 
 
-HEADER = (f"{'seq':<7} {'seed':>4} {'method':<9} {'e3D':>7} {'e3D-P':>7} {'chamfer':>8} "
+HEADER = (f"{'seq':<7} {'seed':>4} {'method':<12} {'e3D':>7} {'e3D-P':>7} {'chamfer':>8} "
           f"{'normal°':>7} {'rep px':>7} {'dz mm':>7} {'s/fr':>6} {'cpu s':>6}")
 
 
@@ -152,9 +171,12 @@ def verdict(rows: list[dict]) -> list[str]:
     lines = []
     for key in sorted({(r["sequence"], r["seed"]) for r in rows}):
         by = {r["method"]: r for r in rows if (r["sequence"], r["seed"]) == key}
-        wins = {m: by["prior"][m] < by["baseline"][m] for m in COMPARED}
-        lines.append(f"{key[0]} seed {key[1]}: prior beats baseline on "
-                     + ", ".join(f"{m} {'yes' if w else 'NO'}" for m, w in wins.items()))
+        for method in ("prior", "prior+guided"):
+            if method not in by:
+                continue
+            wins = {m: by[method][m] < by["baseline"][m] for m in COMPARED}
+            lines.append(f"{key[0]} seed {key[1]}: {method} beats baseline on "
+                         + ", ".join(f"{m} {'yes' if w else 'NO'}" for m, w in wins.items()))
     return lines
 
 

@@ -154,3 +154,23 @@ def test_demo_quick(capsys, field):
     assert demo.main(["--quick", "--field", field, "--precision", "f64"]) == 0
     out = capsys.readouterr().out
     assert "field + KL prior" in out and "baseline" in out and f"{field} field" in out
+
+
+def test_cli_guided_search_reports_its_counts_per_frame(tmp_path):
+    seq = small_sequence(tmp_path)
+    out = tmp_path / "out"
+    status = sft_cli.main([
+        "--frames", str(seq / "frames"), "--camera", str(seq / "camera.json"),
+        "--template", str(seq / "template.obj"), "--texture", str(seq / "texture.png"),
+        "--masks", str(seq / "masks"), "--gt", str(seq / "gt"), "--out", str(out),
+        "--guided", "--precision", "f64",
+    ])
+    assert status == 0
+    result = json.loads((out / "result.json").read_text())
+    guided = result["guided"]
+    assert sorted(guided) == ["1", "2"]  # every frame after the template
+    for counts in guided.values():
+        assert counts["searched"] + counts["off_mask"] + counts["hidden"] \
+            + counts["oblique"] == counts["candidates"]
+        assert counts["accepted"] <= counts["searched"]
+    assert result["metrics"]["e3d"] < 0.05

@@ -22,3 +22,19 @@ def test_prior_beats_the_baseline(sequence, seed):
     for metric in study.COMPARED:
         assert rows["prior"][metric] < rows["baseline"][metric], (metric, rows)
     assert rows["prior"]["depth_bias_mm"] < 2.0
+
+
+def test_verdict_judges_the_guided_prior_too():
+    spec = importlib.util.spec_from_file_location("sft_study", ROOT / "benchmarks" /
+                                                  "sft_study.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    base = {"sequence": "fold", "seed": 0, "e3d": 2.0, "chamfer_x1e4": 2.0, "normal_deg": 2.0}
+    rows = [dict(base, method="baseline"), dict(base, method="prior", e3d=1.0, chamfer_x1e4=1.0,
+                                                normal_deg=1.0),
+            dict(base, method="prior+guided", e3d=1.0, chamfer_x1e4=3.0, normal_deg=1.0)]
+    lines = study.verdict(rows)
+    assert lines == ["fold seed 0: prior beats baseline on e3d yes, chamfer_x1e4 yes, "
+                     "normal_deg yes",
+                     "fold seed 0: prior+guided beats baseline on e3d yes, chamfer_x1e4 NO, "
+                     "normal_deg yes"]

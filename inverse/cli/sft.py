@@ -68,6 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--flow", action="store_true",
                    help="add dense optical-flow correspondences (inverse.sft.flow) to "
                    "the sparse tracks (slower; not better on R1, docs/sft_results.md)")
+    p.add_argument("--guided", action="store_true",
+                   help="re-find lost texture points near where the reconstruction of the frames "
+                   "before predicts them (inverse.sft.guided) and add them to the tracks")
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")

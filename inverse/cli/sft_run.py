@@ -21,6 +21,7 @@ from inverse.sft.correspondences import FrameCorrespondences, track_gaps
 from inverse.sft.crop import cropped_to_sheet
 from inverse.sft.flow import DenseFlow
 from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Camera, InputError, Template, mean_edge_length
 from inverse.sft.material_from_video import estimate_material
 from inverse.sft.reconstruct import ReconstructionConfig
@@ -66,14 +67,19 @@ def run(args: argparse.Namespace) -> dict:
         seconds["baseline"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
+    guided = None
     if args.method == "baseline":
         vertices, losses, per_frame = baseline.vertices, None, baseline.seconds
     else:
+        if args.guided:
+            guided = GuidedSearch(work.frames, work.camera, work.template, work.texture,
+                                  masks=work.masks)
         result = reconstruct_sequence(
             work.template, work.camera, correspondences, config, masks=work.masks,
             pinned=work.pinned, initial=None if baseline is None else baseline.vertices,
             flow=None if not args.flow else DenseFlow(work.frames, work.camera,
-                                                      work.template.faces, masks=work.masks))
+                                                      work.template.faces, masks=work.masks),
+            guided=guided)
         vertices, losses, per_frame = result.vertices, result.losses, result.seconds
     if args.method != "baseline":
         seconds["reconstruction"] = time.perf_counter() - clock
@@ -102,6 +108,7 @@ def run(args: argparse.Namespace) -> dict:
         "init": args.init if args.field == "siren" and args.method != "baseline" else None,
         "config": None if config is None else dataclasses.asdict(config),
         "correspondences_per_frame": [len(c) for c in correspondences],
+        "guided": None if guided is None else {str(t): v for t, v in guided.stats.items()},
         "confidence": track_coverage(work.template, correspondences),
         "final_loss_terms": losses,
         "timings": {

@@ -17,6 +17,7 @@ from inverse.material.field_types import of_frame_settings
 from inverse.sft.camera import Camera
 from inverse.sft.correspondences import FrameCorrespondences
 from inverse.sft.flow import DenseFlow
+from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Template
 from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.sequential import ReconstructionResult, reconstruct_frames
@@ -30,6 +31,7 @@ def reconstruct_sequence(template: Template, camera: Camera,
                          pinned: np.ndarray | None = None,
                          initial: Sequence[np.ndarray] | None = None,
                          flow: DenseFlow | None = None,
+                         guided: GuidedSearch | None = None,
                          callbacks: Sequence[Any] = ()) -> ReconstructionResult:
     """Vertices [m] for every frame (frame 0 = the template), fitted frame by frame from the
     previous frame on the field that `config` names.
@@ -38,8 +40,9 @@ def reconstruct_sequence(template: Template, camera: Camera,
     template positions; initial: per-frame guesses (e.g. the baseline's vertices) that a SIREN
     is first fitted to in each frame (ValueError on the spline field, which starts from the
     previous frame's solution); flow: dense-flow correspondences (`inverse.sft.flow`) added to
-    each frame's tracks, carried from the frame before's reconstruction; callbacks: the solve
-    callbacks of the frame loop (`reconstruct_frames`).
+    each frame's tracks, carried from the frame before's reconstruction; guided: texture
+    points re-found where the frames before predict them (`inverse.sft.guided`); callbacks:
+    the solve callbacks of the frame loop (`reconstruct_frames`).
     """
     kind = of_frame_settings(config)
     if initial is None:
@@ -50,4 +53,4 @@ def reconstruct_sequence(template: Template, camera: Camera,
         raise ValueError("initial guesses are for the SIREN field; the spline field starts "
                          "each frame from the previous frame's solution")
     return reconstruct_frames(template, camera, correspondences, fit, masks=masks, flow=flow,
-                              callbacks=callbacks)
+                              guided=guided, callbacks=callbacks)

@@ -29,6 +29,7 @@ import torch
 from inverse.sft.camera import Camera
 from inverse.sft.correspondences import FrameCorrespondences
 from inverse.sft.flow import DenseFlow, merged
+from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.outline import outline_allowance, outline_offsets
@@ -121,6 +122,7 @@ def reconstruct_frames(template: Template, camera: Camera,
                        correspondences: Sequence[FrameCorrespondences], fit: FrameFit, *,
                        masks: Sequence[np.ndarray] | None = None,
                        flow: DenseFlow | None = None,
+                       guided: GuidedSearch | None = None,
                        callbacks: Sequence[Any] = ()) -> ReconstructionResult:
     """Vertices for every frame (frame 0 = template), fitted frame by frame by `fit`.
 
@@ -129,8 +131,10 @@ def reconstruct_frames(template: Template, camera: Camera,
     starts from the vertices of the frames before it, its fit is the step's solve and its
     timing and result the bookkeeping after it. masks: per-frame silhouettes (bool (h, w)) or
     None; flow: dense flow correspondences added to each frame's tracks, carried from the frame
-    before's reconstruction; callbacks: the loop's callbacks (`taichi_ndf.minimise.callbacks`:
-    on_start, on_load_step(fit, frame index) after each frame, on_end), called with `fit`.
+    before's reconstruction; guided: texture points re-found near where the frames before
+    predict them (`inverse.sft.guided`), added to each frame's tracks; callbacks: the loop's
+    callbacks (`taichi_ndf.minimise.callbacks`: on_start, on_load_step(fit, frame index) after
+    each frame, on_end), called with `fit`.
     """
     weights = fit.weights
     rest = torch.from_numpy(template.vertices).double()
@@ -148,6 +152,8 @@ def reconstruct_frames(template: Template, camera: Camera,
         i = int(step.value)
         start, cpu = time.perf_counter(), time.process_time()
         seen = correspondences[i]
+        if guided is not None:
+            seen = merged(seen, guided.correspondences(i, history, seen))
         if flow is not None:
             seen = merged(seen, flow.correspondences(i, history[-1]))
         distance = offsets = None
