@@ -40,6 +40,7 @@ from taichi_ndf.scene.field import field_config, with_field_type
 from taichi_ndf.scene.overrides import apply_overrides
 from taichi_ndf.scene.schema import SceneError, Table, read_toml
 from taichi_ndf.scene.schema import checked as _check
+from taichi_ndf.scene.self_contact import parse_self_contact
 from taichi_ndf.scene.terms import parse_terms
 from taichi_ndf.scene.training import training
 from taichi_ndf.shell.materials import (
@@ -122,6 +123,7 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     model = replace(model, contact=parse_contact(top, model, base_dir), terms=parse_terms(top))
     field, estimate = _section(top.table("field", optional=True), field_config, model)
     kind = of_spec(field)
+    model = parse_self_contact(top, model, field)
     solver, quick = _section(top.table("training", optional=True), training,
                              kind.method == "newton")
     output = _section(top.table("output", optional=True), _output, solver.pseudo_time)
