@@ -11,15 +11,15 @@ from triangle_intersections import intersecting_pairs
 
 from taichi_ndf import jets
 from taichi_ndf.contact.barrier import barrier
-from taichi_ndf.contact.self_step import closest_along_step, self_step_allowed
-from taichi_ndf.geometry import Plane
-from taichi_ndf.objective.self_contact import (
+from taichi_ndf.contact.self_pairs import (
     SelfContactConfig,
-    SelfContactTerm,
     candidate_pairs,
     default_stiffness,
     hole_radius,
 )
+from taichi_ndf.contact.self_step import closest_along_step, self_step_allowed
+from taichi_ndf.geometry import Plane
+from taichi_ndf.objective.self_contact import SelfContactTerm
 from taichi_ndf.problem.sampling import SurfaceSamples
 
 DT = torch.float64

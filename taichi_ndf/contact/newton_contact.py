@@ -42,6 +42,7 @@ from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonSolution, minimise
 from taichi_ndf.objective import Objective
+from taichi_ndf.objective.self_contact import SelfContactTerm
 from taichi_ndf.problem.sampling import SurfaceSamples
 
 log = logging.getLogger(__name__)
@@ -125,7 +126,7 @@ class NewtonContact:
                                          FRICTION_SMOOTHING * config.activation)
         self.rounds = 0  # Newton rounds over all load steps and levels
         self.self_contact = None if config.self_contact is None else \
-            config.self_contact.term()
+            SelfContactTerm(config.self_contact)
 
     @property
     def points(self):

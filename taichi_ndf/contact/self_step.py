@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from taichi_ndf.objective.self_contact import SelfContactConfig, candidate_pairs
+from taichi_ndf.contact.self_pairs import SelfContactConfig, candidate_pairs
 
 
 def closest_along_step(p0: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import torch
 
-from taichi_ndf.objective.self_contact import (
+from taichi_ndf.contact.self_pairs import (
     SelfContactConfig,
     default_stiffness,
     hole_radius,
