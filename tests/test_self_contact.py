@@ -225,3 +225,58 @@ def test_the_independent_intersection_test():
     assert len(intersecting_pairs(folded, faces)) > 0
     folded[upper, 2] = 0.05 + 0.0 * g[upper, 0]
     assert len(intersecting_pairs(folded, faces)) == 0
+
+
+def test_the_contact_hook_refuses_a_crossing_step_only_with_self_contact():
+    """The hook's `feasible(P, P_trial)` (what projected Newton's line search asks) on two
+    layers 0.5 m above a table: the upper layer moved through the lower one passes the obstacle
+    test (nothing nears the table) but not the self-contact one; without self-contact the hook
+    allows it."""
+    from dataclasses import replace
+
+    from taichi_ndf.boundary import BoundaryConditions
+    from taichi_ndf.contact import ContactConfig, ContactHook, GroundPlane
+    from taichi_ndf.problem.loads import Loads
+    from taichi_ndf.problem.model import ShellModel
+    from taichi_ndf.shell.materials import preset
+
+    surface = Plane(bounds=((0.0, 0.05), (0.0, 0.05)))
+    model = ShellModel(surface, preset("cotton_polyester"), Loads(),
+                       BoundaryConditions([], domain=surface.domain))
+    config = SelfContactConfig(activation=0.004, offset=0.003, stiffness=1.0)
+    contact = ContactConfig((GroundPlane(name="table", point=(0.0, 0.0, -0.5)),), 3e-4,
+                            activation=1e-3, stiffness=1.0, check_resolution=4)
+    rest, x = _two_layers(0.006)
+    crossed = x.clone()
+    crossed[25:, 2] -= 0.012
+    for self_contact, allowed in ((config, False), (None, True)):
+        hook = ContactHook.of_model(replace(model, contact=replace(contact,
+                                                                    self_contact=self_contact)),
+                                    DT, both_ends=False)
+        grid = hook.points.grid_r
+        positions = lambda p, grid=grid: torch.cat((p, grid))  # noqa: E731
+        feasible = hook.feasible(positions, 1.0, self_rest=rest)
+        assert feasible(x, crossed) is allowed
+        assert feasible(x, x + 1e-4)
+
+
+def test_the_contact_potential_passes_the_pair_blocks_on():
+    """`ContactPotential` (the spline contact rounds' potential) gives the self-contact term's
+    pair blocks to Newton (`coupled_blocks`) and skips it among the per-point blocks."""
+    from taichi_ndf.contact.newton_contact import ContactPotential
+    from taichi_ndf.objective import Objective, ShellEnergyTerm
+    from taichi_ndf.problem.loads import Loads
+    from taichi_ndf.shell.materials import preset
+
+    samples, u = _folded_samples()
+    term = SelfContactTerm(CONFIG)
+    potential = ContactPotential(Objective(ShellEnergyTerm(preset("cotton_polyester"),
+                                                           Loads())), (term,), 1.0)
+    couplings = potential.coupled_blocks(samples, u)
+    own = term.coupled_hessian(samples, u)
+    assert torch.equal(couplings.points, own.points)
+    assert torch.allclose(couplings.blocks, own.blocks)
+    value = potential(samples, u, True)
+    assert value.total == pytest.approx(
+        term.evaluate(samples, u)[0] + Objective(ShellEnergyTerm(
+            preset("cotton_polyester"), Loads())).evaluate(samples, u).total)
