@@ -12,7 +12,9 @@ smallest distance between the vertices of the two flat layers (ξ¹ below the cr
 Prints the table (layer distances, intersecting face pairs, Π, Newton iterations and contact
 rounds, CPU and wall time, load average, commit).
 
-    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/self_contact_fold.py
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/self_contact_fold.py [OUT_DIR]
+
+(OUT_DIR: the two output meshes as OBJ files.)
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import taichi_ndf  # noqa: E402
 from taichi_ndf import jets  # noqa: E402
 from taichi_ndf.app.outputs import deformed_mesh  # noqa: E402
 from taichi_ndf.field.spline import SplineField  # noqa: E402
+from taichi_ndf.io import write_obj  # noqa: E402
 from taichi_ndf.minimise.linearisation import GridLinearisation  # noqa: E402
 from taichi_ndf.minimise.newton import NewtonConfig, minimise  # noqa: E402
 from taichi_ndf.minimise.state import State  # noqa: E402
@@ -129,7 +132,17 @@ def layer_distances(mesh, length: float, radius: float, margin: float = 0.0) -> 
     return cKDTree(lower).query(upper)[0]
 
 
-def run(self_contact: bool) -> dict:
+def profile(mesh, stations=(0.0, 0.05, 0.1, 0.13, 0.15, 0.17, 0.2, 0.25, 0.3)) -> str:
+    """x, z [mm] of the mesh's middle line ξ² = mid at the given ξ¹ [m] (nearest vertices)."""
+    mid = mesh.xi[:, 1].min() + 0.5 * np.ptp(mesh.xi[:, 1])
+    line = np.abs(mesh.xi[:, 1] - mid) <= 0.5 * np.diff(np.unique(mesh.xi[:, 1])).max()
+    xi, x = mesh.xi[line], mesh.deformed[line]
+    rows = [x[int(np.argmin(np.abs(xi[:, 0] - s)))] for s in stations]
+    return ", ".join(f"ξ¹ {s:.2f}: ({1e3 * p[0]:.1f}, {1e3 * p[2]:.1f})"
+                     for s, p in zip(stations, rows, strict=True))
+
+
+def run(self_contact: bool, out: Path | None = None) -> dict:
     scene = load_scene(SCENE)
     model, plan = scene.model, scene.field
     if not self_contact:
@@ -143,11 +156,19 @@ def run(self_contact: bool) -> dict:
     after = resource.getrusage(resource.RUSAGE_SELF)
     mesh = deformed_mesh(model, result.state.field, scene.output.resolution)
     (lo, hi), _ = model.surface.domain.bounds
+    if out is not None:
+        write_obj(out / f"napkin_fold_{'on' if self_contact else 'off'}.obj", mesh.deformed,
+                  mesh.faces)
     everywhere = layer_distances(mesh, hi - lo, CREASE_RADIUS)
     flat = layer_distances(mesh, hi - lo, CREASE_RADIUS, CREASE_MARGIN)
     lower, upper = layers(mesh, hi - lo, CREASE_RADIUS, CREASE_MARGIN)
     summary = result.state.levels[-1]
+    config = scene.model.contact.self_contact
+    touching = everywhere < config.offset + config.activation
     return {"self_contact": self_contact, "min_layer_distance": float(everywhere.min()),
+            "touching": float(touching.mean()),
+            "touching_median": float(np.median(everywhere[touching])) if touching.any()
+            else math.nan, "profile": profile(mesh),
             "min_flat_distance": float(flat.min()), "median_flat_distance": float(np.median(flat)),
             "upper_lowest_z": float(upper[:, 2].min()),
             "lower_highest_z": float(lower[:, 2].max()),
@@ -159,14 +180,16 @@ def run(self_contact: bool) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| self-contact | layer distance: min [mm] | flat parts: min, median [mm] | "
+    lines = ["| self-contact | layer distance: min [mm] | upper layer within o + ĝ of the "
+             "lower: share, median distance [mm] | flat parts: min, median [mm] | "
              "upper layer lowest z, lower highest z [mm] | "
              "intersecting face pairs | Π [J] | Newton iterations | contact rounds | "
              "converged | CPU [s] | wall [s] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {'on' if r['self_contact'] else 'off'} | "
-                     f"{1e3 * r['min_layer_distance']:.2f} | {1e3 * r['min_flat_distance']:.2f}, "
+                     f"{1e3 * r['min_layer_distance']:.2f} | {100 * r['touching']:.0f} %, "
+                     f"{1e3 * r['touching_median']:.2f} | {1e3 * r['min_flat_distance']:.2f}, "
                      f"{1e3 * r['median_flat_distance']:.2f} | {1e3 * r['upper_lowest_z']:.2f}, "
                      f"{1e3 * r['lower_highest_z']:.2f} | "
                      f"{r['intersections']} | {r['energy']:.6g} | {r['iterations']} | "
@@ -178,11 +201,17 @@ def main() -> None:
     taichi_ndf.init(arch="cpu", precision="f64")
     torch.set_num_threads(1)
     print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
-    rows = [run(True), run(False)]
+    out = Path(sys.argv[1]) if len(sys.argv) > 1 else None
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    rows = [run(True, out), run(False, out)]
     config = rows[0]["config"]
     print(f"self-contact: ĝ {config.activation * 1e3:.2g} mm, offset {config.offset * 1e3:.3g}"
           f" mm, κ {config.stiffness:.4g} N/m⁵, exclusion {config.exclusion * 1e3:.3g} mm")
     print(table(rows))
+    for r in rows:
+        print(f"middle line, self-contact {'on' if r['self_contact'] else 'off'} (x, z) [mm]: "
+              f"{r['profile']}")
     print(f"load average {os.getloadavg()[0]:.1f} (end)")
 
 
