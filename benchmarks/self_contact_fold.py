@@ -1,11 +1,11 @@
 """A napkin folded in half on a table, with and without self-contact (issue 30).
 
-scenes/napkin_fold.toml (0.3 m × 0.15 m cotton/polyester, edge ξ¹ = 0 clamped on a table,
-16 × 8 cubic spans, float64) started folded: the half ξ¹ > 0.15 turned over the other,
+scenes/napkin_fold.toml (0.6 m × 0.15 m cotton/polyester, edge ξ¹ = 0 clamped on a table,
+32 × 8 cubic spans, float64) started folded: the half ξ¹ > 0.3 turned over the other,
 2 ρ = 2 cm above it around a crease of radius ρ = 1 cm (an isometric fold, fitted by the
 spline in least squares: `folded_start`), then solved under gravity at load factor 1 by the
 spline path's contact solve, once with the scene's [self_contact] and once without it.
-Checked on the output mesh (121 × 61 vertices) by tests/triangle_intersections.py, an
+Checked on the output mesh (241 × 61 vertices) by tests/triangle_intersections.py, an
 independent segment–triangle test of every pair of faces that share no vertex, and by the
 smallest distance between the vertices of the two flat layers (ξ¹ below the crease against
 ξ¹ beyond it: nearest-vertex distances, everywhere and 2 cm of ξ¹ away from the crease).
@@ -132,7 +132,7 @@ def layer_distances(mesh, length: float, radius: float, margin: float = 0.0) -> 
     return cKDTree(lower).query(upper)[0]
 
 
-def profile(mesh, stations=(0.0, 0.05, 0.1, 0.13, 0.15, 0.17, 0.2, 0.25, 0.3)) -> str:
+def profile(mesh, stations=(0.0, 0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 0.6)) -> str:
     """x, z [mm] of the mesh's middle line ξ² = mid at the given ξ¹ [m] (nearest vertices)."""
     mid = mesh.xi[:, 1].min() + 0.5 * np.ptp(mesh.xi[:, 1])
     line = np.abs(mesh.xi[:, 1] - mid) <= 0.5 * np.diff(np.unique(mesh.xi[:, 1])).max()

@@ -32,11 +32,11 @@ def _parse(document):
 
 
 def test_the_scene_reads_its_settings_with_the_stated_defaults():
-    """napkin_fold: 16 × 8 spans of 1.875 cm, 4 Gauss points: hole radius ½ × 0.34 × 1.875
+    """napkin_fold: 32 × 8 spans of 1.875 cm, 4 Gauss points: hole radius ½ × 0.34 × 1.875
     × √2 cm = 4.5 mm, offset 1.25 × that; κ from the sheet's weight; exclusion 2 (o + ĝ)."""
     scene = _parse(_document())
     config = scene.model.contact.self_contact
-    hole = hole_radius((0.3 / 16, 0.15 / 8), 4)
+    hole = hole_radius((0.6 / 32, 0.15 / 8), 4)
     assert hole == pytest.approx(0.0045, abs=1e-4)
     assert config.activation == 0.004
     assert config.offset == pytest.approx(1.25 * hole)
