@@ -12,7 +12,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from self_contact_fold import run  # noqa: E402
 
 
-@pytest.mark.slow  # two contact solves: 191 s CPU, 12 min wall on the loaded 2 cores
+@pytest.mark.slow  # two contact solves: 191 s CPU, 9–12 min wall on the loaded 2 cores
 def test_the_folded_napkin_rests_on_itself_and_falls_through_without_self_contact():
     """Measured (benchmarks/RESULTS.md "Self-contact (issue 30)"): with self-contact no
     face pair intersects and the layers rest 7.1 mm apart at the least (median 7.7 mm beyond
