@@ -13,6 +13,8 @@ Rules (docs/contact.md):
   (driven by prescribed motions only) must give κ.
 - friction: the Coulomb coefficient μ ≥ 0 of each obstacle (0: frictionless); its smoothing
   distance ε = FRICTION_SMOOTHING × ĝ (`taichi_ndf.contact.friction`).
+- self-contact (optional): the barrier between points of the sheet itself, its own settings
+  (`taichi_ndf.objective.self_contact.SelfContactConfig`), solved with the obstacles' rounds.
 """
 
 from __future__ import annotations
@@ -36,7 +38,8 @@ FRICTION_SMOOTHING = 1e-2
 class ContactConfig:
     """obstacles: the rigid obstacles; thickness: h [m]; margin [m] added to h/2;
     activation: ĝ [m]; stiffness: κ [N/m³]; check_resolution: points per surface coordinate
-    of the dense check grid; friction: μ per obstacle (empty: 0 for all)."""
+    of the dense check grid; friction: μ per obstacle (empty: 0 for all); self_contact: a
+    `SelfContactConfig` or None (no self-contact)."""
 
     obstacles: tuple
     thickness: float
@@ -45,6 +48,7 @@ class ContactConfig:
     margin: float = 0.0
     check_resolution: int = DEFAULT_CHECK_RESOLUTION
     friction: tuple = ()
+    self_contact: object = None
 
     def __post_init__(self):
         if not self.obstacles:

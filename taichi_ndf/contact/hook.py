@@ -8,7 +8,9 @@ it, and nothing else, about contact:
 - `check(start, t)`: the test of steps from one state of the checked points (a `StepCheck`,
   the start's gaps computed once), with the run's rule (`both_ends`);
 - `feasible(positions, t)`: the same test between two parameter states, the `feasible(P,
-  P_trial)` of a Newton line search (`taichi_ndf.minimise.newton.minimise`);
+  P_trial)` of a Newton line search (`taichi_ndf.minimise.newton.minimise`); with
+  self-contact (`self_contact`) the trial must also pass the self-contact step test
+  (`taichi_ndf.contact.self_step`) on the self-contact points among the checked ones;
 - `accept(check, before, after, move, positions)`: the acceptance policy of a step that has
   been taken: kept where the test allows it, else halved towards `before` up to `halvings`
   times, else undone (Adam's step; any step whose end can be set);
@@ -25,6 +27,7 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf.contact.check_points import ContactPoints
+from taichi_ndf.contact.self_step import self_step_allowed
 
 log = logging.getLogger(__name__)
 
@@ -56,14 +59,17 @@ class ContactHook:
     """The contact of one run, as every minimiser asks it (module docstring).
 
     points: the `ContactPoints`; both_ends: the step test's rule (`step_allowed`);
-    halvings: most halvings of a refused step (`accept`)."""
+    halvings: most halvings of a refused step (`accept`); self_contact: the
+    `SelfContactConfig` of the sheet's self-contact, or None."""
 
-    def __init__(self, points: ContactPoints, *, both_ends: bool, halvings: int = HALVINGS):
+    def __init__(self, points: ContactPoints, *, both_ends: bool, halvings: int = HALVINGS,
+                 self_contact=None):
         if halvings < 0:
             raise ValueError(f"halvings must be >= 0, got {halvings}")
         self.points = points
         self.both_ends = both_ends
         self.halvings = halvings
+        self.self_contact = self_contact
 
     @classmethod
     def of_model(cls, model, dtype: torch.dtype, *, both_ends: bool) -> ContactHook:
@@ -72,7 +78,8 @@ class ContactHook:
         config = model.contact
         config.check(model)
         return cls(ContactPoints(config.term(), model.surface, config.check_resolution,
-                                 dtype=dtype), both_ends=both_ends)
+                                 dtype=dtype), both_ends=both_ends,
+                   self_contact=config.self_contact)
 
     @property
     def term(self):
@@ -84,17 +91,32 @@ class ContactHook:
         return StepCheck(self.points, start, self.points.point_gaps(start, load_factor),
                          load_factor, self.both_ends)
 
-    def feasible(self, positions: Callable[[torch.Tensor], torch.Tensor], load_factor: float
+    def feasible(self, positions: Callable[[torch.Tensor], torch.Tensor], load_factor: float,
+                 *, self_rest: torch.Tensor | None = None
                  ) -> Callable[[torch.Tensor, torch.Tensor], bool]:
         """`feasible(P, P_trial) -> bool`, a line search's test of a step between two
         parameter states: `positions(P) -> x (M, 3)` [m] of the checked points; the start is
-        evaluated once per state P."""
+        evaluated once per state P. With self-contact, self_rest (S, 3) [m]: the rest
+        positions of the first S checked points, the self-contact points, whose step must
+        also pass `self_step_allowed` (refused without them: a hook with self-contact has no
+        test of its steps otherwise)."""
+        if self.self_contact is not None and self_rest is None:
+            raise ValueError("the contact hook has self-contact: feasible needs self_rest")
         cache: dict = {}
 
         def feasible(state: torch.Tensor, trial: torch.Tensor) -> bool:
             if cache.get("state") is not state:
-                cache.update(state=state, check=self.check(positions(state), load_factor))
-            return cache["check"].allows(positions(trial))
+                start = positions(state)
+                cache.update(state=state, start=start,
+                             check=self.check(start, load_factor))
+            end = positions(trial)
+            if not cache["check"].allows(end):
+                return False
+            if self.self_contact is None:
+                return True
+            count = len(self_rest)
+            return self_step_allowed(self.self_contact, self_rest, cache["start"][:count],
+                                     end[:count])
         return feasible
 
     def accept(self, check: StepCheck, before: torch.Tensor, after: torch.Tensor,

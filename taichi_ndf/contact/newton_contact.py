@@ -12,6 +12,10 @@ Each load step on each grid (`NewtonContact.solve`) runs in rounds:
    could enter an obstacle (the hook's `feasible`, `ContactPoints.step_allowed`: each point
    outside moves by less than its gap, so, the signed distance being 1-Lipschitz, it cannot
    enter or tunnel);
+   with self-contact (`ContactConfig.self_contact`) its barrier between the Gauss points
+   (`taichi_ndf.objective.self_contact`, pairs found afresh at each evaluation, its pair
+   blocks in K) is one more term, and the trial must also keep every Gauss-point pair's gap
+   (`taichi_ndf.contact.self_step`);
 4. after each accepted Newton iterate the grid is evaluated again (and κ raised if a point
    came closer than ĝ/10; the hook's `look_ahead`); when points came within ĝ (or within
    ĝ + LOOK_AHEAD × their last move: they could by the next steps), Newton stops there,
@@ -38,6 +42,7 @@ from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonSolution, minimise
 from taichi_ndf.objective import Objective
+from taichi_ndf.objective.self_contact import SelfContactTerm
 from taichi_ndf.problem.sampling import SurfaceSamples
 
 log = logging.getLogger(__name__)
@@ -77,7 +82,8 @@ class ContactPotential:
     are the contact terms' (analytic) at every sample plus `objective`'s (the shell's) only at
     the samples with shell weight or a point force: at the check points (shell weight 0) those
     are exactly zero, and skipping them saves most of the Hessian's time once the check points
-    outnumber the Gauss points."""
+    outnumber the Gauss points. A contact term with couplings (self-contact) gives its pair
+    blocks (`coupled_blocks`) instead of per-point ones."""
 
     objective: Objective  # without the contact terms
     terms: tuple
@@ -91,11 +97,16 @@ class ContactPotential:
                        steps: torch.Tensor) -> torch.Tensor:
         """Per-point blocks (N, 6, 3, 6, 3), not projected (`Objective.hessian_blocks`)."""
         blocks = sum(term.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
-                     for term in self.terms)
+                     for term in self.terms if hasattr(term, "hessian_blocks"))
         rows = (samples.weight > 0) | (samples.point_force != 0).any(dim=1)
         blocks[rows] += self.objective.hessian_blocks(_subset(samples, rows), u_jets[rows],
                                                       self.load_factor, steps=steps)
         return blocks
+
+    def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor):
+        """Hessian entries between pairs of points of all the terms (`Couplings` or None)."""
+        return self.objective.with_terms(*self.terms).coupled_blocks(samples, u_jets,
+                                                                     self.load_factor)
 
 
 class NewtonContact:
@@ -113,6 +124,8 @@ class NewtonContact:
             self.friction = FrictionTerm(self.points.term, config.friction,
                                          FRICTION_SMOOTHING * config.activation)
         self.rounds = 0  # Newton rounds over all load steps and levels
+        self.self_contact = None if config.self_contact is None else \
+            SelfContactTerm(config.self_contact)
 
     @property
     def points(self):
@@ -122,7 +135,8 @@ class NewtonContact:
     @property
     def terms(self) -> tuple:
         """The energy terms contact adds to the objective (`ContactPotential`)."""
-        return (self.points.term,) + (() if self.friction is None else (self.friction,))
+        return (self.points.term,) + tuple(
+            t for t in (self.friction, self.self_contact) if t is not None)
 
     def solve(self, grid: GridLinearisation, quadrature, objective: Objective,
               coefficients: torch.Tensor, config, *, load_factor: float,
@@ -151,7 +165,9 @@ class NewtonContact:
         start = coefficients
         # after each Newton iterate: the grid's points within ĝ (+ the look-ahead) added
         refresh = self.hook.look_ahead(lambda c: checked(c)[on_grid], t)
-        feasible = self.hook.feasible(lambda c: checked_r + checked(c), t)
+        # the Gauss points come first among the checked points: they are self-contact's
+        feasible = self.hook.feasible(lambda c: checked_r + checked(c), t,
+                                      self_rest=checked_r[:on_grid.start])
 
         refresh(start)
         history, c, solution, lagged = [], coefficients, None, None

@@ -41,6 +41,7 @@ from taichi_ndf.scene.overrides import apply_overrides
 from taichi_ndf.scene.schema import SceneError, Table, read_toml
 from taichi_ndf.scene.schema import checked as _check
 from taichi_ndf.scene.seams import parse_seams
+from taichi_ndf.scene.self_contact import parse_self_contact
 from taichi_ndf.scene.terms import parse_terms
 from taichi_ndf.scene.training import training
 from taichi_ndf.shell.materials import (
@@ -128,6 +129,7 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     if seams and kind.method != "newton":
         raise SceneError(f"seams: need [field] type = \"spline\" (a seam's points are Gauss "
                          f"points of the spline path's quadrature), not a {kind.label} field")
+    model = parse_self_contact(top, model, field)
     solver, quick = _section(top.table("training", optional=True), training,
                              kind.method == "newton")
     output = _section(top.table("output", optional=True), _output, solver.pseudo_time)

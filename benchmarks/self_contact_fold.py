@@ -1,0 +1,219 @@
+"""A napkin folded in half on a table, with and without self-contact (issue 30).
+
+scenes/napkin_fold.toml (0.6 m × 0.15 m cotton/polyester, edge ξ¹ = 0 clamped on a table,
+32 × 8 cubic spans, float64) started folded: the half ξ¹ > 0.3 turned over the other,
+2 ρ = 2 cm above it around a crease of radius ρ = 1 cm (an isometric fold, fitted by the
+spline in least squares: `folded_start`), then solved under gravity at load factor 1 by the
+spline path's contact solve, once with the scene's [self_contact] and once without it.
+Checked on the output mesh (241 × 61 vertices) by tests/triangle_intersections.py, an
+independent segment–triangle test of every pair of faces that share no vertex, and by the
+smallest distance between the vertices of the two flat layers (ξ¹ below the crease against
+ξ¹ beyond it: nearest-vertex distances, everywhere and 2 cm of ξ¹ away from the crease).
+Prints the table (layer distances, intersecting face pairs, Π, Newton iterations and contact
+rounds, CPU and wall time, load average, commit).
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/self_contact_fold.py [OUT_DIR]
+
+(OUT_DIR: the two output meshes as OBJ files.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from provenance import commit  # noqa: E402
+from triangle_intersections import intersecting_pairs  # noqa: E402
+
+import taichi_ndf  # noqa: E402
+from taichi_ndf import jets  # noqa: E402
+from taichi_ndf.app.outputs import deformed_mesh  # noqa: E402
+from taichi_ndf.field.spline import SplineField  # noqa: E402
+from taichi_ndf.io import write_obj  # noqa: E402
+from taichi_ndf.minimise.linearisation import GridLinearisation  # noqa: E402
+from taichi_ndf.minimise.newton import NewtonConfig, minimise  # noqa: E402
+from taichi_ndf.minimise.state import State  # noqa: E402
+from taichi_ndf.scene.reader import load_scene  # noqa: E402
+from taichi_ndf.solve.spline_solver import solve_spline  # noqa: E402
+
+SCENE = ROOT / "scenes" / "napkin_fold.toml"
+CREASE_RADIUS = 0.01  # ρ [m]
+CREASE_MARGIN = 0.02  # [m] of ξ¹ left out around the crease for the flat layers' distances
+
+
+def fold(xi: torch.Tensor, length: float, height: float, radius: float) -> torch.Tensor:
+    """Positions (N, 3) [m] of the isometric fold of a flat strip of `length` [m] at
+    `height`: flat to a = length/2 − πρ/2, a half circle of radius ρ, then back over the
+    first part 2ρ above it."""
+    s, y = xi[:, 0], xi[:, 1]
+    a = 0.5 * length - 0.5 * math.pi * radius
+    theta = ((s - a) / radius).clamp(0.0, math.pi)
+    x = torch.where(s <= a, s, a + radius * torch.sin(theta))
+    z = torch.where(s <= a, torch.zeros_like(s), radius * (1 - torch.cos(theta)))
+    beyond = s > a + math.pi * radius
+    x = torch.where(beyond, a - (s - a - math.pi * radius), x)
+    z = torch.where(beyond, torch.full_like(s, 2 * radius), z)
+    return torch.stack((x, y, height + z), dim=1)
+
+
+@dataclasses.dataclass(frozen=True)
+class _FitPotential:
+    """½ Σ w √a |u − target|² over the samples (a least-squares fit as a potential)."""
+
+    target: torch.Tensor  # (N, 3) in the samples' order
+
+    def _weight(self, samples):
+        r = samples.r_jets
+        return samples.weight * torch.linalg.cross(r[:, 1], r[:, 2], dim=-1).norm(dim=-1)
+
+    def __call__(self, samples, u, grad):
+        w = self._weight(samples)
+        residual = u[:, jets.VALUE] - self.target
+        gradient = torch.zeros_like(u)
+        gradient[:, jets.VALUE] = w[:, None] * residual
+        return _Result(0.5 * float((w[:, None] * residual ** 2).sum()), gradient)
+
+    def hessian_blocks(self, samples, u, *, steps):
+        blocks = u.new_zeros(len(u), jets.CHANNELS, 3, jets.CHANNELS, 3)
+        eye = torch.eye(3, dtype=u.dtype)
+        blocks[:, jets.VALUE, :, jets.VALUE, :] = self._weight(samples)[:, None, None] * eye
+        return blocks
+
+
+@dataclasses.dataclass
+class _Result:
+    total: float
+    grad_u_jets: torch.Tensor
+
+
+def folded_start(model, plan, radius: float = CREASE_RADIUS) -> SplineField:
+    """The plan's coarsest spline field fitted (least squares at its Gauss points, through
+    the model's boundary conditions) to the fold of the model's flat sheet (`fold`)."""
+    field = SplineField(plan.config, dtype=torch.float64)
+    (lo, hi), _ = model.surface.domain.bounds
+    grid = GridLinearisation(field, model.boundary, length=hi - lo)
+    samples = GridLinearisation.quadrature(model.surface, field.config, model.loads,
+                                           dtype=torch.float64)
+    linear = grid.linearisation(1.0, samples)
+    s = linear.samples
+    height = float(s.r_jets[0, jets.VALUE, 2])
+    target = fold(s.xi, hi - lo, height, radius) - s.r_jets[:, jets.VALUE]
+    solution = minimise(linear, _FitPotential(target), field.coefficients.detach().clone(),
+                        NewtonConfig(max_iterations=5, project=False), report=False)
+    field.coefficients.data.copy_(solution.parameters)
+    return field
+
+
+def layers(mesh, length: float, radius: float, margin: float = 0.0
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices of the lower and the upper flat layer (ξ¹ below the crease, and beyond it),
+    `margin` [m] of ξ¹ away from the crease of the start."""
+    a = 0.5 * length - 0.5 * math.pi * radius
+    lower = mesh.xi[:, 0] < a - margin
+    upper = mesh.xi[:, 0] > a + math.pi * radius + margin
+    return mesh.deformed[lower], mesh.deformed[upper]
+
+
+def layer_distances(mesh, length: float, radius: float, margin: float = 0.0) -> np.ndarray:
+    """Each upper-layer vertex's distance [m] to the nearest lower-layer vertex (`layers`)."""
+    lower, upper = layers(mesh, length, radius, margin)
+    return cKDTree(lower).query(upper)[0]
+
+
+def profile(mesh, stations=(0.0, 0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 0.6)) -> str:
+    """x, z [mm] of the mesh's middle line ξ² = mid at the given ξ¹ [m] (nearest vertices)."""
+    mid = mesh.xi[:, 1].min() + 0.5 * np.ptp(mesh.xi[:, 1])
+    line = np.abs(mesh.xi[:, 1] - mid) <= 0.5 * np.diff(np.unique(mesh.xi[:, 1])).max()
+    xi, x = mesh.xi[line], mesh.deformed[line]
+    rows = [x[int(np.argmin(np.abs(xi[:, 0] - s)))] for s in stations]
+    return ", ".join(f"ξ¹ {s:.2f}: ({1e3 * p[0]:.1f}, {1e3 * p[2]:.1f})"
+                     for s, p in zip(stations, rows, strict=True))
+
+
+def run(self_contact: bool, out: Path | None = None) -> dict:
+    scene = load_scene(SCENE)
+    model, plan = scene.model, scene.field
+    if not self_contact:
+        model = dataclasses.replace(model, contact=dataclasses.replace(model.contact,
+                                                                       self_contact=None))
+    start = folded_start(model, plan)
+    before = resource.getrusage(resource.RUSAGE_SELF)
+    wall = time.perf_counter()
+    result = solve_spline(model, plan, scene.solver, state=State.newton(start))
+    wall = time.perf_counter() - wall
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    mesh = deformed_mesh(model, result.state.field, scene.output.resolution)
+    (lo, hi), _ = model.surface.domain.bounds
+    if out is not None:
+        write_obj(out / f"napkin_fold_{'on' if self_contact else 'off'}.obj", mesh.deformed,
+                  mesh.faces)
+    everywhere = layer_distances(mesh, hi - lo, CREASE_RADIUS)
+    flat = layer_distances(mesh, hi - lo, CREASE_RADIUS, CREASE_MARGIN)
+    lower, upper = layers(mesh, hi - lo, CREASE_RADIUS, CREASE_MARGIN)
+    summary = result.state.levels[-1]
+    config = scene.model.contact.self_contact
+    touching = everywhere < config.offset + config.activation
+    return {"self_contact": self_contact, "min_layer_distance": float(everywhere.min()),
+            "touching": float(touching.mean()),
+            "touching_median": float(np.median(everywhere[touching])) if touching.any()
+            else math.nan, "profile": profile(mesh),
+            "min_flat_distance": float(flat.min()), "median_flat_distance": float(np.median(flat)),
+            "upper_lowest_z": float(upper[:, 2].min()),
+            "lower_highest_z": float(lower[:, 2].max()),
+            "intersections": len(intersecting_pairs(mesh.deformed, mesh.faces)),
+            "energy": summary.energy, "iterations": len(result.state.history),
+            "rounds": result.contact.rounds, "converged": summary.converged,
+            "cpu": after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime,
+            "wall": wall, "config": model.contact.self_contact, "mesh": mesh}
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| self-contact | layer distance: min [mm] | upper layer within o + ĝ of the "
+             "lower: share, median distance [mm] | flat parts: min, median [mm] | "
+             "upper layer lowest z, lower highest z [mm] | "
+             "intersecting face pairs | Π [J] | Newton iterations | contact rounds | "
+             "converged | CPU [s] | wall [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {'on' if r['self_contact'] else 'off'} | "
+                     f"{1e3 * r['min_layer_distance']:.2f} | {100 * r['touching']:.0f} %, "
+                     f"{1e3 * r['touching_median']:.2f} | {1e3 * r['min_flat_distance']:.2f}, "
+                     f"{1e3 * r['median_flat_distance']:.2f} | {1e3 * r['upper_lowest_z']:.2f}, "
+                     f"{1e3 * r['lower_highest_z']:.2f} | "
+                     f"{r['intersections']} | {r['energy']:.6g} | {r['iterations']} | "
+                     f"{r['rounds']} | {r['converged']} | {r['cpu']:.1f} | {r['wall']:.1f} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    taichi_ndf.init(arch="cpu", precision="f64")
+    torch.set_num_threads(1)
+    print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+    out = Path(sys.argv[1]) if len(sys.argv) > 1 else None
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    rows = [run(True, out), run(False, out)]
+    config = rows[0]["config"]
+    print(f"self-contact: ĝ {config.activation * 1e3:.2g} mm, offset {config.offset * 1e3:.3g}"
+          f" mm, κ {config.stiffness:.4g} N/m⁵, exclusion {config.exclusion * 1e3:.3g} mm")
+    print(table(rows))
+    for r in rows:
+        print(f"middle line, self-contact {'on' if r['self_contact'] else 'off'} (x, z) [mm]: "
+              f"{r['profile']}")
+    print(f"load average {os.getloadavg()[0]:.1f} (end)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,82 @@
+"""The `[self_contact]` table (issue 30; docs/scenes.md "Self-contact"): read into the
+contact's `SelfContactConfig` with its defaults, refused in one line where it cannot work."""
+
+from __future__ import annotations
+
+import copy
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from taichi_ndf.contact.self_pairs import default_stiffness, hole_radius
+from taichi_ndf.problem.scaling import load_per_area
+from taichi_ndf.scene.reader import parse_scene
+from taichi_ndf.scene.schema import SceneError
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "scenes" / "napkin_fold.toml"
+
+
+def _document(**self_contact) -> dict:
+    document = tomllib.loads(SCENE.read_text())
+    document["self_contact"] = {"distance": 0.004, **self_contact}
+    return document
+
+
+def _parse(document):
+    return parse_scene(copy.deepcopy(document), base_dir=ROOT / "scenes")
+
+
+def test_the_scene_reads_its_settings_with_the_stated_defaults():
+    """napkin_fold: 32 × 8 spans of 1.875 cm, 4 Gauss points: hole radius ½ × 0.34 × 1.875
+    × √2 cm = 4.5 mm, offset 1.25 × that; κ from the sheet's weight; exclusion 2 (o + ĝ)."""
+    scene = _parse(_document())
+    config = scene.model.contact.self_contact
+    hole = hole_radius((0.6 / 32, 0.15 / 8), 4)
+    assert hole == pytest.approx(0.0045, abs=1e-4)
+    assert config.activation == 0.004
+    assert config.offset == pytest.approx(1.25 * hole)
+    assert config.stiffness == pytest.approx(
+        default_stiffness(load_per_area(scene.model), 0.004, config.offset))
+    assert config.exclusion == pytest.approx(2 * (config.offset + 0.004))
+    given = _parse(_document(offset=0.006, stiffness=1e7, exclusion=0.05))
+    assert (given.model.contact.self_contact.offset, given.model.contact.self_contact.stiffness,
+            given.model.contact.self_contact.exclusion) == (0.006, 1e7, 0.05)
+    without = tomllib.loads(SCENE.read_text())
+    del without["self_contact"]
+    assert _parse(without).model.contact.self_contact is None
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.pop("obstacles"), "self_contact: needs [[obstacles]]"),
+    (lambda d: d.update(field={"width": 16}), "self_contact: needs a spline field"),
+    (lambda d: d["self_contact"].update(offset=0.001), "self_contact.offset: 0.001 m is below"),
+    (lambda d: d["self_contact"].update(exclusion=0.005), "self_contact: self-contact exclusion"),
+    (lambda d: d["self_contact"].pop("distance"), "self_contact.distance: required key"),
+    (lambda d: d["self_contact"].update(distance=-1.0), "self_contact.distance"),
+    (lambda d: d["self_contact"].update(radius=1.0), "radius"),
+])
+def test_bad_settings_are_refused_naming_the_key(change, message):
+    document = _document()
+    change(document)
+    with pytest.raises(SceneError) as error:
+        _parse(document)
+    assert message in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def test_ndf_sim_refuses_a_bad_table_with_exit_code_2_and_one_line(tmp_path):
+    text = SCENE.read_text().replace("distance = 0.004", "distance = 0.004\noffset = 0.001")
+    scene = tmp_path / "bad.toml"
+    scene.write_text(text)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    process = subprocess.run([sys.executable, "-m", "taichi_ndf.cli.sim", str(scene), "--out",
+                              str(tmp_path / "out")], capture_output=True, text=True, env=env,
+                             timeout=300)
+    assert process.returncode == 2, process.stderr
+    lines = process.stderr.strip().splitlines()
+    assert len(lines) == 1 and "self_contact.offset" in lines[0], process.stderr
