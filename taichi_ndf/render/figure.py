@@ -9,7 +9,13 @@ import cv2
 import numpy as np
 
 from taichi_ndf.render.camera import frame_mesh, ground_axes, widest_azimuth
-from taichi_ndf.render.colour import ROBUST_PERCENTILES, colormap, colour_bar, colour_scale
+from taichi_ndf.render.colour import (
+    ROBUST_PERCENTILES,
+    ColourScale,
+    colormap,
+    colour_bar,
+    colour_scale,
+)
 from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
 from taichi_ndf.render.shaded import (
     BACKGROUND_BGR,
@@ -97,7 +103,8 @@ def render_figure(
     scalar_range: the values at the ends of the colour map; by default the 1st and 99th
         percentiles (a singular point, such as a pinned corner, then does not wash out the rest;
         values beyond are drawn in the end colours, and the colour bar states how many and
-        their extremes).
+        their extremes); a ColourScale is used as it is, its colour bar stating what it
+        states (a video's frames: the scale of all of them, one bar drawn once).
     obstacles: rigid meshes drawn in grey (they cast shadows too).
     up: the world direction shown upwards (against gravity); the ground plane lies just below
         the lowest point of the surface and the obstacles, normal to it.
@@ -115,7 +122,8 @@ def render_figure(
     bar = None
     if scalars is not None:
         scalars = vertex_scalars(scalars, len(vertices))
-        scalar_range = colour_scale(scalars, RANGE_PERCENTILES, value_range=scalar_range)
+        if not isinstance(scalar_range, ColourScale):
+            scalar_range = colour_scale(scalars, RANGE_PERCENTILES, value_range=scalar_range)
         bar = colour_bar(scalar_range, scalar_label, height)
     bar_width = 0 if bar is None else bar.shape[1]
     if width is not None and ((width - bar_width) // len(views) < 16 or height < 16):
@@ -159,29 +167,36 @@ def render_figure(
         points_cam = camera.to_camera(all_points)
         raster = rasterize(points_cam, all_faces, camera.intrinsics(view_width, height),
                            view_width, height, supersample=supersample)
+        fine_h, fine_w = raster.face_id.shape
+        face_id = raster.face_id.ravel()
+        covered = face_id >= 0
+        covered[covered] = face_part[face_id[covered]] != 2  # the shadow needs coverage only
         attributes = np.concatenate([normals @ camera.rotation.T, points_cam,
                                      vertex_scalar[:, None]], axis=1)
-        pixel_index, per_pixel = interpolate_covered(raster, attributes)
-        part = face_part[raster.face_id.ravel()[pixel_index]]
+        lit_index, per_pixel = interpolate_covered(raster, attributes, covered)
+        part = face_part[face_id[lit_index]]
         intensity = lambert_intensity(per_pixel[:, 0:3], per_pixel[:, 3:6])
         if scalars is None:
-            base = np.broadcast_to(SURFACE_BGR, (len(pixel_index), 3))
+            base = np.broadcast_to(SURFACE_BGR, (len(lit_index), 3))
         else:
             base = colormap(per_pixel[:, 6], scalar_range)
         base = np.where((part == 1)[:, None], OBSTACLE_BGR, base)
 
-        fine_h, fine_w = raster.face_id.shape
-        shade = np.zeros(fine_h * fine_w)
-        shade[pixel_index[part == 2]] = 1.0
+        shade = (face_id >= 0) & ~covered
         shade = soft_shadow(shade.reshape(fine_h, fine_w), 0.01 * fine_h,
                             raster.supersample).ravel()
+        # Background darkened by the shadow, then the lit pixels; rounded to uint8 in place.
+        shade *= -_SHADOW_DARKNESS
+        shade += 1.0
         fine = np.empty((fine_h * fine_w, 3))
-        fine[:] = np.asarray(BACKGROUND_BGR, dtype=np.float64)
-        fine *= (1.0 - _SHADOW_DARKNESS * shade)[:, None]
-        lit = part != 2
-        fine[pixel_index[lit]] = base[lit] * intensity[lit, None]
-        fine = np.clip(np.rint(fine), 0, 255).astype(np.uint8)
-        pictures.append(downsample(fine.reshape(fine_h, fine_w, 3), raster.supersample))
+        np.multiply(shade[:, None], np.asarray(BACKGROUND_BGR, dtype=np.float64)[None, :],
+                    out=fine)
+        base *= intensity[:, None]
+        fine[lit_index] = base
+        np.rint(fine, out=fine)
+        np.clip(fine, 0, 255, out=fine)
+        pictures.append(downsample(fine.astype(np.uint8).reshape(fine_h, fine_w, 3),
+                                   raster.supersample))
     image = np.concatenate(pictures + ([] if bar is None else [bar]), axis=1)
     if width is not None and image.shape[1] < width:  # the integer division left a few columns
         pad = np.full((height, width - image.shape[1], 3), BACKGROUND_BGR, dtype=np.uint8)

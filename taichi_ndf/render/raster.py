@@ -209,15 +209,16 @@ def interpolate(raster: Raster, vertex_attributes: np.ndarray, *, fill: float = 
 
 
 def interpolate_covered(
-    raster: Raster, vertex_attributes: np.ndarray
+    raster: Raster, vertex_attributes: np.ndarray, where: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Like `interpolate`, only at covered pixels (saves memory on large supersampled rasters).
 
-    vertex_attributes: shape (V, C). Returns the covered pixels' flat indices into H * W, shape
-    (M,), and their interpolated values, shape (M, C).
+    vertex_attributes: shape (V, C). where: bool (H * W,), the covered pixels wanted (default
+    all covered ones). Returns the pixels' flat indices into H * W, shape (M,), and their
+    interpolated values, shape (M, C).
     """
     values = np.asarray(vertex_attributes, dtype=np.float64)
-    pixel_index = np.nonzero(raster.face_id.ravel() >= 0)[0]
+    pixel_index = np.nonzero(raster.face_id.ravel() >= 0 if where is None else where)[0]
     corners = raster.faces[raster.face_id.ravel()[pixel_index]]
     weights = raster.bary.reshape(-1, 3)[pixel_index]
     return pixel_index, np.einsum("mk,mkc->mc", weights, values[corners])

@@ -20,6 +20,9 @@ __all__ = ["trajectory_frames", "frame_repeats", "put_label", "MIN_SECONDS", "FP
 FPS = 4.0  # frames per second of a trajectory video
 MIN_SECONDS = 3.0  # a short trajectory's states are repeated so that the video lasts this long
 HOLD_SECONDS = 1.0  # the last state is held this long at the end
+# Sub-pixels per pixel along each axis of a video frame: 2 (4 samples) instead of the still
+# pictures' 3 (9), the frames' main cost (docs/dynamics.md, "Outputs"; benchmarks/RESULTS.md).
+SUPERSAMPLE = 2
 _INK = (40, 40, 40)
 
 
@@ -53,7 +56,8 @@ def trajectory_frames(
 ) -> list[np.ndarray]:
     """The video frames (uint8 BGR, `size` = (width, height)) of `states` (positions (V, 3)
     [m] on `faces`) at `load_factors`: coloured by |u| = |x − reference| [m] on the 1st–99th
-    percentile of every state's values together (the colour bar states what it clips),
+    percentile of every state's values together (one colour bar, the same in every frame,
+    states what it clips over all of them), rendered with SUPERSAMPLE,
     `obstacles` per state (their meshes at that state), each state repeated `frame_repeats`
     times and the last held HOLD_SECONDS longer. Labels: "load factor λ (step k of n)",
     "t λ" with `pseudo_time`, "t = λ s (frame k of n)" with `physical_time` (a dynamic
@@ -76,9 +80,9 @@ def trajectory_frames(
     for k, (state, values, factor) in enumerate(zip(states, displacement, load_factors,
                                                     strict=True)):
         image = render_figure(state, faces, scalars=values, scalar_label="|u| [m]",
-                              scalar_range=scale.range, obstacles=tuple(obstacles[k]), up=up,
+                              scalar_range=scale, obstacles=tuple(obstacles[k]), up=up,
                               width=width, height=height, frame_points=every,
-                              azimuth_deg=azimuth)
+                              azimuth_deg=azimuth, supersample=SUPERSAMPLE)
         if physical_time:
             label = f"t = {factor:.2f} s  (frame {k + 1} of {len(states)})"
         else:
