@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import tomllib
 from pathlib import Path
@@ -175,8 +176,105 @@ def cost(runs: list[str]) -> None:
               f"{d['cpu_per_simulated_second']:.1f} | {d['wall_seconds'] / steps:.3f} |")
 
 
+def faces_of(path: Path) -> np.ndarray:
+    rows = [[int(w.split("/")[0]) - 1 for w in line.split()[1:4]]
+            for line in path.read_text().splitlines() if line.startswith("f ")]
+    return np.array(rows, dtype=np.int64)
+
+
+def crossings(runs: list[str]) -> None:
+    """Per run NAME=DIR: whether the sheet passes through itself, from the output meshes alone
+    (tests/triangle_intersections.py, independent of the solver): the intersecting face pairs
+    of every trajectory frame and of mesh.obj; the frames with any, and the most."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from triangle_intersections import intersecting_pairs
+
+    print("| run | frames checked | frames with crossings | most crossing face pairs (frame, "
+          "t [s]) | final mesh's crossing pairs |")
+    print("|---|---|---|---|---|")
+    for run in runs:
+        name, path = run.split("=", 1)
+        out = Path(path)
+        times = json.loads((out / "result.json").read_text())["trajectory"]["times"]
+        frames = sorted((out / "trajectory").glob("step_*.obj"))
+        counts = [len(intersecting_pairs(vertices(f), faces_of(f))) for f in frames]
+        final = len(intersecting_pairs(vertices(out / "mesh.obj"), faces_of(out / "mesh.obj")))
+        worst = int(np.argmax(counts))
+        print(f"| {name} | {len(frames)} | {sum(c > 0 for c in counts)} | {counts[worst]} "
+              f"({worst}, {times[worst]:.2f}) | {final} |")
+
+
+def video(out: Path) -> None:
+    """CPU (user + sys of this process) and wall of a run's trajectory.mp4 made again from its
+    output frames (trajectory/*.obj, result.json's times): the frames' rendering and the
+    encoding separately (the taichi_ndf on PYTHONPATH: run it with each version to compare)."""
+    import resource
+    import tempfile
+    import time
+
+    from taichi_ndf.render.trajectory import FPS, trajectory_frames
+    from taichi_ndf.render.video import write_video
+
+    def cpu() -> float:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    result = json.loads((out / "result.json").read_text())
+    times = result["trajectory"]["times"]
+    frames = sorted((out / "trajectory").glob("step_*.obj"))
+    states, faces = [vertices(f) for f in frames], faces_of(frames[0])
+    gravity = np.array(result["resolved"]["scene_file"]["loads"]["gravity"], dtype=np.float64)
+    up = -gravity / np.linalg.norm(gravity)
+    c0, w0 = cpu(), time.time()
+    pictures = trajectory_frames(states, faces, times, reference=vertices(
+        out / "reference.obj"), up=up, physical_time=True)
+    c1, w1 = cpu(), time.time()
+    with tempfile.TemporaryDirectory() as scratch:
+        write_video(Path(scratch) / "trajectory.mp4", pictures, FPS)
+    c2, w2 = cpu(), time.time()
+    print(f"| {len(states)} states, {len(pictures)} video frames | {c1 - c0:.1f} | "
+          f"{w1 - w0:.1f} | {c2 - c1:.1f} | {w2 - w1:.1f} | {os.getloadavg()[0]:.1f} |")
+
+
+def balance(out: Path) -> None:
+    """The flag's wind moment about the pole (the y axis) at its last output frame: the
+    quadratic normal drag p = ½ ρ C_d s|s|, s = w·n of the mean wind (still air speed of the
+    cloth neglected), summed over the faces of the frame's mesh: M_y [N m], and the mean
+    angle of the faces' normals about the pole. A rigid flat plate hinged on a vertical pole
+    has its gravity along the pole (no moment about it), so it balances where w·n = 0: the
+    wind's direction, 45°."""
+    result = json.loads((out / "result.json").read_text())
+    wind = np.array(result["dynamics"]["wind"]["velocity"], dtype=np.float64)
+    frames = sorted((out / "trajectory").glob("step_*.obj"))
+    times = result["trajectory"]["times"]
+    print("| t [s] | centre's angle [°] | area-weighted normal's angle [°] | |n_y| mean | "
+          "drag moment about the pole M_y [N m] | moment of a plate at that angle [N m] |")
+    print("|---|---|---|---|---|---|")
+    for k in range(max(0, len(frames) - 6), len(frames)):
+        x, f = vertices(frames[k]), faces_of(frames[k])
+        a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]
+        cross = np.cross(b - a, c - a)
+        area = 0.5 * np.linalg.norm(cross, axis=1)
+        n = cross / np.linalg.norm(cross, axis=1, keepdims=True)
+        s = n @ wind
+        force = (0.5 * 1.2 * 1.2 * s * np.abs(s) * area)[:, None] * n
+        centroid = (a + b + c) / 3
+        moment = float(np.cross(centroid, force)[:, 1].sum())
+        mean_n = (n * np.sign(n[:, 2:3] + 1e-300) * area[:, None]).sum(axis=0)
+        normal_angle = math.degrees(math.atan2(-mean_n[0], mean_n[2]))
+        centre = x.mean(axis=0)
+        theta = math.atan2(centre[2], centre[0])
+        plate_n = np.array([-math.sin(theta), 0.0, math.cos(theta)])
+        sp = plate_n @ wind
+        lever = np.array([math.cos(theta), 0.0, math.sin(theta)]) * 0.3
+        plate = float(np.cross(lever, 0.5 * 1.44 * sp * abs(sp) * area.sum() * plate_n)[1])
+        print(f"| {times[k]:.2f} | {math.degrees(theta):.1f} | {normal_angle:.1f} | "
+              f"{np.abs(n[:, 1]) @ area / area.sum():.3f} | {moment:.3e} | {plate:.3e} |")
+
+
 if __name__ == "__main__":
-    if sys.argv[1] == "cost":
-        cost(sys.argv[2:])
+    if sys.argv[1] in ("cost", "crossings"):
+        {"cost": cost, "crossings": crossings}[sys.argv[1]](sys.argv[2:])
     else:
-        {"pendulum": pendulum, "slide": slide, "flag": flag}[sys.argv[1]](Path(sys.argv[2]))
+        {"pendulum": pendulum, "slide": slide, "flag": flag, "video": video,
+         "balance": balance}[sys.argv[1]](Path(sys.argv[2]))

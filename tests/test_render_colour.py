@@ -153,6 +153,48 @@ def test_trajectory_frames_have_colour_obstacles_label_and_one_camera():
         trajectory_frames(states, grid.faces, [1.0], reference=reference)
 
 
+def test_video_frames_share_one_colour_bar_and_use_the_video_supersampling(monkeypatch):
+    """The bar states the clipping over all states, drawn once: the same pixels in every
+    frame, though only the second state has values beyond the range; the frames render with
+    SUPERSAMPLE (2), not the still pictures' 3."""
+    import taichi_ndf.render.trajectory as trajectory
+
+    grid = grid_mesh(((0.0, 1.0), (0.0, 1.0)), 10)
+    reference = np.column_stack([grid.xi, np.zeros(len(grid.xi))])
+    states = [reference + [0, 0, -0.3] * grid.xi[:, :1],
+              reference + [0, 0, -0.3] * grid.xi[:, :1] ** 4]
+    states[1][0, 2] = -5.0  # a spike in the second state only
+    used = []
+    original = trajectory.render_figure
+
+    def spy(*args, **kwargs):
+        used.append(kwargs["supersample"])
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(trajectory, "render_figure", spy)
+    frames = trajectory_frames(states, grid.faces, [0.5, 1.0], reference=reference,
+                               size=(320, 240))
+    assert used == [trajectory.SUPERSAMPLE] * 2 and trajectory.SUPERSAMPLE == 2
+    first, last = frames[0], frames[-1]
+    bar = slice(240 - 60, None), slice(200, None)  # the bar's lower part, its note
+    assert not np.array_equal(first, last)
+    assert np.array_equal(first[bar], last[bar])
+    assert (np.ptp(first[bar].astype(int), axis=-1) > 30).any()  # the viridis bar is there
+
+
+def test_render_figure_with_a_colour_scale_uses_it_as_it_is():
+    grid = grid_mesh(((0.0, 1.0), (0.0, 1.0)), 8)
+    vertices = np.column_stack([grid.xi, 0.1 * grid.xi[:, 0]])
+    values = grid.xi[:, 0]
+    scale = colour_scale(np.concatenate([values, [10.0]]))  # clips the 10 (not among values)
+    stated = render_figure(vertices, grid.faces, scalars=values, scalar_range=scale,
+                           width=400, height=300)
+    own = render_figure(vertices, grid.faces, scalars=values, scalar_range=scale.range,
+                        width=400, height=300)
+    assert scale.above > 0
+    assert not np.array_equal(stated, own)  # the given scale's note, not a new count's
+
+
 def test_a_run_without_an_h264_encoder_keeps_its_outputs_and_says_why(tmp_path, monkeypatch,
                                                                        caplog):
     import sys

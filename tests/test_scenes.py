@@ -24,7 +24,8 @@ from taichi_ndf.solve.solver import Solver
 SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 # Scenes run in physical time ([dynamics], a spline field): not the SIREN smoke runs below
 # (tests/test_dynamics_contact.py).
-DYNAMIC = {"napkin_drop_sphere", "cloth_pendulum", "sheet_slide_box", "flag_wind"}
+DYNAMIC = {"napkin_drop_sphere", "cloth_pendulum", "cloth_pendulum_self", "sheet_slide_box",
+           "flag_wind"}
 # Scenes that need the spline field (seams, self-contact): not the SIREN smoke runs below
 # (tests/test_seam.py, tests/test_self_contact_scene.py).
 SPLINE_ONLY = {"tube_seam", "napkin_fold"}

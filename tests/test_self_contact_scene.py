@@ -11,6 +11,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+import torch
 
 from taichi_ndf.contact.self_pairs import default_stiffness, hole_radius
 from taichi_ndf.problem.scaling import load_per_area
@@ -80,3 +81,23 @@ def test_ndf_sim_refuses_a_bad_table_with_exit_code_2_and_one_line(tmp_path):
     assert process.returncode == 2, process.stderr
     lines = process.stderr.strip().splitlines()
     assert len(lines) == 1 and "self_contact.offset" in lines[0], process.stderr
+
+
+def test_the_swinging_pendulum_copy_has_self_contact_and_a_floor_out_of_reach():
+    """scenes/cloth_pendulum_self.toml: cloth_pendulum with [self_contact] and the floor its
+    contact rounds need, further below the pin than the sheet reaches (its diagonal, stretched
+    by a tenth), so that the floor never acts; the same dynamics as cloth_pendulum. Its run
+    and the triangle test of every output frame: benchmarks/RESULTS.md ("Dynamics: the video's
+    cost, a pendulum that does not pass through itself")."""
+    document = tomllib.loads((ROOT / "scenes" / "cloth_pendulum_self.toml").read_text())
+    plain = tomllib.loads((ROOT / "scenes" / "cloth_pendulum.toml").read_text())
+    assert document["dynamics"] == plain["dynamics"]
+    assert document["boundary"] == plain["boundary"]
+    scene = _parse(document)
+    contact = scene.model.contact
+    assert contact.self_contact is not None and contact.self_contact.activation == 0.005
+    (floor,) = contact.obstacles
+    diagonal = 0.3 * 2 ** 0.5
+    pin = (-0.15, -0.15, 0.0)
+    gap, _ = contact.term().gaps(torch.tensor([pin], dtype=torch.float64), 1.0)
+    assert float(gap[0, 0]) + contact.offset > 1.1 * diagonal
