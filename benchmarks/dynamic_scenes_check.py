@@ -10,7 +10,9 @@ Run first (float64):
 then `python benchmarks/dynamic_scenes_check.py pendulum PENDULUM` and
 `python benchmarks/dynamic_scenes_check.py slide SLIDE` (likewise `flag FLAG` for
 scenes/flag_wind.toml, and `cost NAME=DIR ...`: one row of cost per run of any dynamic
-scene). Prints markdown tables:
+scene; `crossings NAME=DIR ...`: the sheet's self-intersections in every output frame;
+`video DIR`: the CPU of making a run's trajectory.mp4 again; `balance DIR`: the flag's wind
+moment about its pole). Prints markdown tables:
 
 - pendulum: the run (steps, Newton iterations, CPU per step and per simulated second), and the
   energy history every 0.1 s: T, Π, E = T + Π [J], the work of the mass damping
