@@ -210,3 +210,14 @@ def test_a_run_without_an_h264_encoder_keeps_its_outputs_and_says_why(tmp_path, 
                                           [0.5, 1.0], reference=reference, up=(0.0, 0.0, 1.0))
     assert "trajectory.mp4 not written: H.264 video needs imageio-ffmpeg" in caplog.text
     assert not (tmp_path / "run" / "trajectory.mp4").exists()
+
+
+def test_dynamic_video_plays_in_real_time():
+    from taichi_ndf.render.trajectory import MAX_FPS, real_time_fps
+
+    # 51 frames over 2 s: 25 frames per second; a shorter last interval changes little
+    assert real_time_fps([0.04 * k for k in range(51)]) == pytest.approx(25.0)
+    assert real_time_fps([0.0, 0.04, 0.08, 0.1]) == pytest.approx(30.0)
+    assert real_time_fps([0.0, 1e-4, 2e-4]) == MAX_FPS
+    assert real_time_fps([0.0, 5.0]) == 1.0
+    assert real_time_fps([1.0]) == 1.0

@@ -214,18 +214,20 @@ def write_trajectory_video(out: OutputDir, states: list[np.ndarray], faces: np.n
     order, coloured by displacement from `reference` on one colour range, with `obstacles`
     per state (meshes (vertices, faces) at that state) and a load-factor (or pseudo-time, or
     with `physical_time` the time "t = … s" of a dynamic run) label, all from one camera
-    that frames every state (`render.trajectory`). Where no H.264
+    that frames every state (`render.trajectory`); a dynamic run's video plays in real time
+    (`render.trajectory.real_time_fps`), the others at FPS. Where no H.264
     encoder is found the run keeps its other outputs: a warning names the cause and the
     video is left out (returns False)."""
-    from taichi_ndf.render.trajectory import FPS, trajectory_frames
+    from taichi_ndf.render.trajectory import FPS, real_time_fps, trajectory_frames
 
     groups = None if obstacles is None else [tuple(Obstacle(v, f) for v, f in group)
                                              for group in obstacles]
+    fps = real_time_fps(load_factors) if physical_time else FPS
     frames = trajectory_frames(states, faces, load_factors, reference=reference,
                                obstacles=groups, up=up, pseudo_time=pseudo_time,
-                               physical_time=physical_time)
+                               physical_time=physical_time, fps=fps)
     try:
-        write_video(out.file("trajectory.mp4"), frames, FPS)
+        write_video(out.file("trajectory.mp4"), frames, fps)
     except RuntimeError as err:
         log.warning("trajectory.mp4 not written: %s", err)
         return False

@@ -15,10 +15,12 @@ from taichi_ndf.render.colour import ROBUST_PERCENTILES, colour_scale
 from taichi_ndf.render.figure import VIEWS, Obstacle, render_figure
 from taichi_ndf.render.shaded import BACKGROUND_BGR
 
-__all__ = ["trajectory_frames", "frame_repeats", "put_label", "MIN_SECONDS", "FPS"]
+__all__ = ["trajectory_frames", "frame_repeats", "real_time_fps", "put_label", "MIN_SECONDS",
+           "FPS"]
 
 FPS = 4.0  # frames per second of a trajectory video
 MIN_SECONDS = 3.0  # a short trajectory's states are repeated so that the video lasts this long
+MAX_FPS = 60.0  # a dynamic run's video plays in real time up to this frame rate
 HOLD_SECONDS = 1.0  # the last state is held this long at the end
 # Sub-pixels per pixel along each axis of a video frame: 2 (4 samples) instead of the still
 # pictures' 3 (9), the frames' main cost (docs/dynamics.md, "Outputs"; benchmarks/RESULTS.md).
@@ -29,6 +31,16 @@ _INK = (40, 40, 40)
 def frame_repeats(states: int, fps: float = FPS) -> int:
     """How many video frames show each state so that `states` of them last MIN_SECONDS."""
     return max(1, math.ceil(MIN_SECONDS * fps / max(states, 1)))
+
+
+def real_time_fps(times: Sequence[float]) -> float:
+    """The frame rate [1/s] at which states at `times` [s] (a dynamic run's output frames,
+    evenly spaced but for a shorter last one) play in real time: their number over the time
+    they span, within [1, MAX_FPS]."""
+    span = float(times[-1]) - float(times[0]) if len(times) > 1 else 0.0
+    if not span > 0:
+        return 1.0
+    return min(MAX_FPS, max(1.0, (len(times) - 1) / span))
 
 
 def put_label(image: np.ndarray, text: str, *, boxed: bool = False) -> None:
@@ -89,5 +101,5 @@ def trajectory_frames(
             label = f"{word} {factor:.3g}" + ("" if pseudo_time else
                                                f"  (step {k + 1} of {len(states)})")
         put_label(image, label)
-        pictures += [image] * frame_repeats(len(states), fps)
+        pictures += [image] * (1 if physical_time else frame_repeats(len(states), fps))
     return pictures + [pictures[-1]] * int(round(HOLD_SECONDS * fps))
