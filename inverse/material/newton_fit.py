@@ -91,10 +91,12 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
     for level in range(config.levels):
         if level:
             grids = [g.refined() for g in grids]
-        eqs = [SplineEquilibrium(obs.model, unknowns, config.model, grid)
+        eqs = [SplineEquilibrium(obs.model, unknowns, config.model, grid,
+                                 free_handles=obs.free_handles)
                for obs, grid in zip(observations, grids, strict=True)]
         if level:  # start where the coarser grid ended: its estimate, its solution prolonged
             for eq, coarse in zip(eqs, equilibria[-1], strict=True):
+                eq.set_local(coarse.local_values())  # the free handles where it put them
                 prolonged = torch.sparse.mm(coarse.field.prolongation(), coarse.coefficients)
                 eq.solve(values, start=prolonged)
         elif config.start_from_observations:

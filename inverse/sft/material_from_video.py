@@ -80,6 +80,7 @@ SIZE_PASSES = 3
 SIZE_TOLERANCE = 2e-5
 PLANAR_TOLERANCE = 1e-4  # a template within this fraction of its diagonal of a plane is flat
 MISFIT_FLOOR = 1e-6  # [m] smallest per-frame misfit a frame weight is computed from
+HELD_HANDLES = (0, 1)  # the held corners' handles among a frame model's constraints
 
 def chosen_frames(count: int, used: int) -> list[int]:
     """`used` frame indices evenly spread over `count` frames (all when used is 0 or more)."""
@@ -119,7 +120,8 @@ def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
             if rows is None:
                 rows = torch.eye(3, dtype=observed.dtype).expand(len(observed), 3, 3)
             rows = float(weights[k]) * rows.clone()
-        observations.append(Observation(model, observed, xi, rows))
+        free = HELD_HANDLES if config.corners == "fitted" and f != 0 else ()
+        observations.append(Observation(model, observed, xi, rows, free))
     return observations
 
 
@@ -208,7 +210,49 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     out["frame_weights"] = {"kind": config.frame_weights, "weights": unit.tolist(),
                             "coarse_per_frame_rms_m": None if coarse_rms is None
                             else coarse_rms.tolist()}
+    out["corners"] = corner_report(fit, observations, frames, config)
     return out
+
+
+def corner_report(fit, observations: list[Observation], frames: list[int],
+                  config: MaterialFromVideoConfig) -> dict:
+    """The held corners as the fit used them: per used frame the offset [m] of each fitted
+    corner from its reconstructed position (None: held there) with its Gauss–Newton standard
+    error per coordinate (the residual variance at the estimate, the other unknowns
+    estimated too; independent residuals assumed)."""
+    errors = _local_errors(fit) or [None] * len(frames)
+    per_frame = []
+    for f, obs, values, error in zip(frames, observations, fit.local_values or
+                                     [None] * len(frames), errors, strict=True):
+        if not obs.free_handles:
+            per_frame.append({"frame": f, "fitted": False})
+            continue
+        offset, error = values.reshape(-1, 3), error.reshape(-1, 3)
+        per_frame.append({"frame": f, "fitted": True, "offset_m": offset.tolist(),
+                          "offset_norm_m": np.linalg.norm(offset, axis=1).tolist(),
+                          "standard_error_m": error.tolist()})
+    return {"kind": config.corners, "frames": per_frame,
+            "meaning": "held corners of the frames after the first fitted beside the material "
+                       "(3 coordinates each, camera axes), frame 0 held at the template"
+            if config.corners == "fitted" else
+            "every frame held where the reconstruction puts its corners"}
+
+
+def _local_errors(fit) -> list[np.ndarray]:
+    """Per observation with local unknowns: their Gauss–Newton standard errors [m] (θ
+    estimated too: the full Jacobian, not the profiled one)."""
+    if fit.full_jacobian is None:
+        return []
+    full = fit.full_jacobian
+    p = full.shape[1] - fit.nuisance
+    dof = max(len(fit.residuals) - full.shape[1], 1)
+    sigma2 = float(fit.residuals @ fit.residuals) / dof
+    try:
+        variance = np.diag(np.linalg.inv(full.T @ full))[p:] * sigma2
+    except np.linalg.LinAlgError:
+        variance = np.full(fit.nuisance, np.inf)
+    ends = np.cumsum([len(v) for v in fit.local_values])
+    return np.split(np.sqrt(np.maximum(variance, 0.0)), ends[:-1])
 
 
 def _newton(config: MaterialFromVideoConfig, spans: tuple[int, int],
@@ -266,8 +310,8 @@ def error_parts(result, index: int) -> dict:
     frames) and the discretisation part (the two grids' difference)."""
     fit = result.fits[-1]
     value = float(fit.values[index])
-    jacobian = fit.jacobian  # in z = ln θ: relative errors
-    dof = max(len(fit.residuals) - jacobian.shape[1], 1)
+    jacobian = fit.jacobian  # in z = ln θ: relative errors (the corners profiled out)
+    dof = max(len(fit.residuals) - jacobian.shape[1] - fit.nuisance, 1)
     sigma2 = float(fit.residuals @ fit.residuals) / dof
     try:
         fisher = math.sqrt(sigma2 * float(np.linalg.inv(jacobian.T @ jacobian)[index, index]))
