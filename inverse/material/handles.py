@@ -88,6 +88,41 @@ def unit_displacements(boundary: BoundaryConditions, free: tuple[int, ...],
     return torch.stack(columns, dim=-1)
 
 
+def offset_report(fit, observations, labels) -> list[dict]:
+    """Per observation (`labels`, e.g. frame numbers) of an outer fit (`ForwardFit`): whether
+    its handles were fitted and, if so, their offsets (k, 3) [m] and the offsets' Gauss–Newton
+    standard errors [m] (`offset_errors`)."""
+    errors = offset_errors(fit) or [None] * len(labels)
+    values = fit.local_values or [None] * len(labels)
+    out = []
+    for label, obs, offset, error in zip(labels, observations, values, errors, strict=True):
+        if not obs.free_handles:
+            out.append({"frame": label, "fitted": False})
+            continue
+        offset = offset.reshape(-1, 3)
+        out.append({"frame": label, "fitted": True, "offset_m": offset.tolist(),
+                    "offset_norm_m": np.linalg.norm(offset, axis=1).tolist(),
+                    "standard_error_m": error.reshape(-1, 3).tolist()})
+    return out
+
+
+def offset_errors(fit) -> list[np.ndarray]:
+    """Per observation: its local unknowns' Gauss–Newton standard errors (the residual
+    variance at the estimate; θ estimated too: the full Jacobian, not θ's profiled one;
+    independent residuals assumed); [] without local unknowns."""
+    if fit.full_jacobian is None:
+        return []
+    full = fit.full_jacobian
+    p = full.shape[1] - fit.nuisance
+    sigma2 = float(fit.residuals @ fit.residuals) / max(len(fit.residuals) - full.shape[1], 1)
+    try:
+        variance = np.diag(np.linalg.inv(full.T @ full))[p:] * sigma2
+    except np.linalg.LinAlgError:
+        variance = np.full(fit.nuisance, np.inf)
+    ends = np.cumsum([len(v) for v in fit.local_values])
+    return np.split(np.sqrt(np.maximum(variance, 0.0)), ends[:-1])
+
+
 def _rebuilt(boundary: BoundaryConditions, constraints) -> BoundaryConditions:
     return BoundaryConditions(constraints, boundary.domain, surface=boundary.surface,
                               length=boundary.length, frame=boundary.frame)

@@ -61,6 +61,7 @@ import time
 import numpy as np
 import torch
 
+from inverse.material.handles import offset_report
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.observations import Observation, ray_rows
 from inverse.material.outer_fit import OuterConfig
@@ -74,8 +75,7 @@ from inverse.sft.settings import FABRIC_BENDING_LENGTH, MaterialFromVideoConfig
 log = logging.getLogger(__name__)
 
 QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not quasi-static
-# The flat size from a template that is frame 0's shape (`unstretched_grid`): passes at most,
-# and the relative size change below which they stop.
+# The flat size from a frame-0 template (`unstretched_grid`): most passes, stop below this change
 SIZE_PASSES = 3
 SIZE_TOLERANCE = 2e-5
 PLANAR_TOLERANCE = 1e-4  # a template within this fraction of its diagonal of a plane is flat
@@ -216,43 +216,12 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
 
 def corner_report(fit, observations: list[Observation], frames: list[int],
                   config: MaterialFromVideoConfig) -> dict:
-    """The held corners as the fit used them: per used frame the offset [m] of each fitted
-    corner from its reconstructed position (None: held there) with its Gauss–Newton standard
-    error per coordinate (the residual variance at the estimate, the other unknowns
-    estimated too; independent residuals assumed)."""
-    errors = _local_errors(fit) or [None] * len(frames)
-    per_frame = []
-    for f, obs, values, error in zip(frames, observations, fit.local_values or
-                                     [None] * len(frames), errors, strict=True):
-        if not obs.free_handles:
-            per_frame.append({"frame": f, "fitted": False})
-            continue
-        offset, error = values.reshape(-1, 3), error.reshape(-1, 3)
-        per_frame.append({"frame": f, "fitted": True, "offset_m": offset.tolist(),
-                          "offset_norm_m": np.linalg.norm(offset, axis=1).tolist(),
-                          "standard_error_m": error.tolist()})
-    return {"kind": config.corners, "frames": per_frame,
+    """The held corners as the fit used them (`handles.offset_report`, per used frame)."""
+    return {"kind": config.corners, "frames": offset_report(fit, observations, frames),
             "meaning": "held corners of the frames after the first fitted beside the material "
-                       "(3 coordinates each, camera axes), frame 0 held at the template"
-            if config.corners == "fitted" else
-            "every frame held where the reconstruction puts its corners"}
-
-
-def _local_errors(fit) -> list[np.ndarray]:
-    """Per observation with local unknowns: their Gauss–Newton standard errors [m] (θ
-    estimated too: the full Jacobian, not the profiled one)."""
-    if fit.full_jacobian is None:
-        return []
-    full = fit.full_jacobian
-    p = full.shape[1] - fit.nuisance
-    dof = max(len(fit.residuals) - full.shape[1], 1)
-    sigma2 = float(fit.residuals @ fit.residuals) / dof
-    try:
-        variance = np.diag(np.linalg.inv(full.T @ full))[p:] * sigma2
-    except np.linalg.LinAlgError:
-        variance = np.full(fit.nuisance, np.inf)
-    ends = np.cumsum([len(v) for v in fit.local_values])
-    return np.split(np.sqrt(np.maximum(variance, 0.0)), ends[:-1])
+                       "(3 coordinates each, camera axes; offsets from the reconstructed "
+                       "corners), frame 0 held at the template" if config.corners == "fitted"
+            else "every frame held where the reconstruction puts its corners"}
 
 
 def _newton(config: MaterialFromVideoConfig, spans: tuple[int, int],
