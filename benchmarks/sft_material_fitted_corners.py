@@ -1,4 +1,4 @@
-"""Material from video with the held corners held vs fitted (the estimate's `corners`), side by side.
+"""Material from video, the held corners held vs fitted (the estimate's `corners`), side by side.
 
     python benchmarks/sft_material_fitted_corners.py --work W --tag c0.05_cells12x12_f3
         [--source sft|gt] [--sft-suffix _template_wmisfit] [--vertex-noise 0.001]

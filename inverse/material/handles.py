@@ -11,8 +11,8 @@ The composition u_c = φ_c N_c + g_c (`boundary.conditions`) carries the handles
 is linear in the displacements: g = Σ_h b_h(ξ) d_h with the blend b_h (jets) of handle h —
 the same whether or not another handle prescribes the component (with two points the blend
 is Φ_other / (Φ_h + Φ_other) either way). So dU/dδ_{h,c} = b_h e_c at every sample
-(`unit_displacements`), exactly, and the implicit-function theorem gives the equilibrium's sensitivity
-as for a material unknown: with g(C, δ) = ∂Π/∂C = Jᵀ ∂Π/∂U(U₀(δ) + J C),
+(`unit_displacements`), exactly, and the implicit-function theorem gives the equilibrium's
+sensitivity as for a material unknown: with g(C, δ) = ∂Π/∂C = Jᵀ ∂Π/∂U(U₀(δ) + J C),
 
     ∂g/∂δ_{h,c} = Jᵀ H (b_h e_c),    dC*/dδ = −K⁻¹ ∂g/∂δ,
 

@@ -16,6 +16,13 @@ damped step lowers the misfit. Residuals: x*(ξ_k) − p_k with correspondence, 
 distance n · (x(ξ_k) − p_k) at the closest point ξ_k; an observation with `rows` gives
 rows_k (x*(ξ_k) − p_k), the components it observed.
 
+Local unknowns: a forward model may have unknowns of its observation alone
+(`Equilibrium.local_count`, e.g. its held points' offsets, `inverse.material.handles`); they
+join z in the Levenberg–Marquardt step (normalised by the model's `local_scale`), each
+observation's in a column block of its own. The fit's `jacobian` is then θ's columns with
+each observation's local columns projected out of its rows (`profiled`): the covariance of θ
+from it is θ's block of the full covariance — θ's error with the local unknowns estimated.
+
 Uncertainty (`combine`): the Fisher matrix JᵀJ/σ² of the final Jacobian (σ² from the residual
 at the estimate; the Gauss–Newton covariance, `identifiability.analyse`) gives the noise part;
 the caller gives the forward model's part (the spread over feature bases, or the difference

@@ -15,6 +15,10 @@ signed ones) a column is multiplied by θ_j for a positive unknown. Observed pos
 x(ξ) = X(ξ) + u(ξ) are affine in C, so dx/dz = J_obs dC*/dz exactly (the composition at ξ).
 What is the same for every field type (the solves, θ's point forces, the sensitivity's
 columns, the positions) is `inverse.material.equilibrium`.
+
+Free handles (`free_handles`): the displacement of some of the model's handles offset by
+local unknowns δ [m]; their columns dC*/dδ = −K⁻¹ Jᵀ H dU/dδ use the same exact per-sample
+blocks H and the same factorisation of K (`inverse.material.handles`).
 """
 
 from __future__ import annotations

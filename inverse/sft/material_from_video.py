@@ -5,8 +5,10 @@ Input: the per-frame reconstructions (vertex positions, template order, camera c
 camera coordinates. Each used frame becomes one observation of `inverse.material`: its model is
 `hanging.hanging_model` — the flat sheet of the template's grid-line lengths, the held corners
 where the reconstruction puts them in that frame, the reference plane hanging vertically from
-the corner line (`hanging.hanging_across`), gravity — and its
-points are the reconstructed vertices with their surface coordinates (correspondence). The
+the corner line (`hanging.hanging_across`), gravity — and its points are the reconstructed
+vertices with their surface coordinates (correspondence). With `corners="fitted"` (default)
+the held corners of every frame but frame 0 (the template) are unknowns too, 3 coordinates
+each (`Observation.free_handles`, `inverse.material.handles`; docs/sft.md §8). The
 unknown bending stiffness B (and optionally the membrane stiffness D) is then fitted to all
 frames at once by the Newton method of `ndf-fit-material` (`newton_fit.newton_estimate`): each
 frame's shape is the cloth's own equilibrium (spline field + projected Newton) under gravity
@@ -210,18 +212,9 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     out["frame_weights"] = {"kind": config.frame_weights, "weights": unit.tolist(),
                             "coarse_per_frame_rms_m": None if coarse_rms is None
                             else coarse_rms.tolist()}
-    out["corners"] = corner_report(fit, observations, frames, config)
+    out["corners"] = {"kind": config.corners,  # per frame: offsets from the reconstruction
+                      "frames": offset_report(fit, observations, frames)}
     return out
-
-
-def corner_report(fit, observations: list[Observation], frames: list[int],
-                  config: MaterialFromVideoConfig) -> dict:
-    """The held corners as the fit used them (`handles.offset_report`, per used frame)."""
-    return {"kind": config.corners, "frames": offset_report(fit, observations, frames),
-            "meaning": "held corners of the frames after the first fitted beside the material "
-                       "(3 coordinates each, camera axes; offsets from the reconstructed "
-                       "corners), frame 0 held at the template" if config.corners == "fitted"
-            else "every frame held where the reconstruction puts its corners"}
 
 
 def _newton(config: MaterialFromVideoConfig, spans: tuple[int, int],
