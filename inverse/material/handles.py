@@ -70,6 +70,12 @@ def displaced(boundary: BoundaryConditions, free: tuple[int, ...],
     return _rebuilt(boundary, constraints)
 
 
+def displaced_model(model, free: tuple[int, ...], offsets: np.ndarray):
+    """The model (`ShellModel`) with its handles free[i] moved by offsets[i] [m] and held
+    there (a fitted observation's handles made known)."""
+    return dataclasses.replace(model, boundary=displaced(model.boundary, free, offsets))
+
+
 def unit_displacements(boundary: BoundaryConditions, free: tuple[int, ...],
                        xi: torch.Tensor) -> torch.Tensor:
     """dU/dδ at ξ (N, 2): jets (N, 6, 3, 3k) [m/m] of the prescribed displacement per unit

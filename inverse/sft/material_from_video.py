@@ -214,6 +214,9 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
                             else coarse_rms.tolist()}
     out["corners"] = {"kind": config.corners,  # per frame: offsets from the reconstruction
                       "frames": offset_report(fit, observations, frames)}
+    check = result.coarse_at_fine_handles  # the grid difference's coarse fit, corners held
+    out["coarse_grid_at_fitted_corners"] = None if check is None else {
+        "spans": list(check.label["spans"]), "values": check.values.tolist()}
     return out
 
 
