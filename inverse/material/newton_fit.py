@@ -11,7 +11,9 @@ error of the fine fit (its Jacobian, the residual variance at the estimate; with
 the larger of it and the cluster-robust error, one cluster per observation); the forward
 model's part is the difference of the two grids' estimates |z_{h/2} − z_h| (normalised
 coordinates), an over-estimate of the fine grid's error for any convergence order ≥ 1 in the
-asymptotic range. They are combined in quadrature.
+asymptotic range. They are combined in quadrature. With free handles (`Observation.free_handles`,
+the held points as unknowns) the coarse grid is refitted with the handles held where the fine
+grid put them, and the difference is taken from that fit (`_coarse_at_fine_handles`).
 """
 
 from __future__ import annotations
