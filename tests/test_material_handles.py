@@ -76,9 +76,9 @@ def test_fitted_corners_remove_the_bias_of_wrong_corners():
     `ndf-sft`'s corner errors lie mostly along the rays, benchmarks/RESULTS.md) and every
     other vertex exact. Held where reconstructed ("held"), each frame's equilibrium is forced
     through the wrong corners and B comes out far off (measured +27.7 %); fitted ("fitted":
-    frames 1 and 2's corners 6 unknowns each, frame 0's held at the template) B is within 2 %
-    (measured +0.47 % ± 0.55 %) and within 2 standard errors of the truth, and the fitted
-    corners are within 0.2 mm of the true ones (measured 0.05 mm)."""
+    frames 1 and 2's corners 6 unknowns each, frame 0's held: they are the given ones) B is
+    within 2 % (measured +0.47 % ± 0.55 %) and within 2 standard errors of the truth, and the
+    fitted corners are within 0.2 mm of the true ones (measured 0.05 mm)."""
     truth = HangingConfig(frames=3, cells=(8, 8), bending_length=0.05, spans=(5, 5))
     shapes = equilibrium_shapes(truth)
     grid, _, held = template_grid(truth)
@@ -94,7 +94,8 @@ def test_fitted_corners_remove_the_bias_of_wrong_corners():
     results = {}
     for corners in ("held", "fitted"):
         config = MaterialFromVideoConfig(areal_density=0.2, frames=0, corners=corners)
-        observations = frame_observations(observed, sheet, config, [0, 1, 2])
+        observations = frame_observations(observed, sheet, config, [0, 1, 2],
+                                          given_corners=shapes[0][list(held)])
         _, unknowns = parse_unknowns("bending,stretch", observations[0].model)
         results[corners] = newton_estimate(observations, unknowns, newton,
                                            start=[1.5 * true_b, 120.0])

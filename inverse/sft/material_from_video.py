@@ -7,8 +7,9 @@ camera coordinates. Each used frame becomes one observation of `inverse.material
 where the reconstruction puts them in that frame, the reference plane hanging vertically from
 the corner line (`hanging.hanging_across`), gravity — and its points are the reconstructed
 vertices with their surface coordinates (correspondence). With `corners="fitted"` (default)
-the held corners of every frame but frame 0 (the template) are unknowns too, 3 coordinates
-each (`Observation.free_handles`, `inverse.material.handles`; docs/sft.md §8). The
+the held corners of every frame whose corners are not the template's (SfT's frame 0 is the
+template) are unknowns too, 3 coordinates each (`Observation.free_handles`,
+`inverse.material.handles`; docs/sft.md §8). The
 unknown bending stiffness B (and optionally the membrane stiffness D) is then fitted to all
 frames at once by the Newton method of `ndf-fit-material` (`newton_fit.newton_estimate`): each
 frame's shape is the cloth's own equilibrium (spline field + projected Newton) under gravity
@@ -104,9 +105,11 @@ def corner_accelerations(vertices: list[np.ndarray], held: tuple[int, int],
 
 def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
                        config: MaterialFromVideoConfig, frames: list[int],
-                       weights: np.ndarray | None = None) -> list[Observation]:
-    """One observation per used frame (module docstring); `weights` (one per used frame,
-    dimensionless) scale each frame's residuals (`Observation.rows`)."""
+                       weights: np.ndarray | None = None, *,
+                       given_corners: np.ndarray | None = None) -> list[Observation]:
+    """One observation per used frame (module docstring); `weights` (one per used frame)
+    scale each frame's residuals (`Observation.rows`); corners "fitted": a frame's held
+    corners are unknowns unless they are the `given_corners` (2, 3) [m] (the template's)."""
     material = config.start_material
     xi = torch.from_numpy(grid.xi)
     observations = []
@@ -122,7 +125,8 @@ def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
             if rows is None:
                 rows = torch.eye(3, dtype=observed.dtype).expand(len(observed), 3, 3)
             rows = float(weights[k]) * rows.clone()
-        free = HELD_HANDLES if config.corners == "fitted" and f != 0 else ()
+        given = given_corners is not None and np.abs(corners - given_corners).max() <= 1e-6
+        free = HELD_HANDLES if config.corners == "fitted" and not given else ()
         observations.append(Observation(model, observed, xi, rows, free))
     return observations
 
@@ -155,7 +159,8 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     if config.sheet_size is not None:
         grid = grid.with_size(config.sheet_size)
     frames = chosen_frames(len(vertices), config.frames)
-    observations = frame_observations(vertices, grid, config, frames)
+    given = template[list(grid.held)]  # held where a frame's corners are the template's
+    observations = frame_observations(vertices, grid, config, frames, given_corners=given)
     spec = "bending,stretch" if config.estimate_membrane else "bending"
     _, unknowns = parse_unknowns(spec, observations[0].model)
     material = config.start_material
@@ -170,8 +175,8 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     passes, coarse_rms, weights = [], None, None
     if size_from == "equilibrium":
         grid, start, passes = unstretched_grid(vertices, faces, grid, config, frames,
-                                               unknowns, start, spans)
-        observations = frame_observations(vertices, grid, config, frames)
+                                               unknowns, start, spans, given)
+        observations = frame_observations(vertices, grid, config, frames, given_corners=given)
         coarse_rms = np.array(passes[-1]["per_frame_rms_m"])
     elif choice.chosen or config.frame_weights == "misfit":  # a coarse first estimate
         coarse = newton_estimate(observations, unknowns, _newton(config, spans, 1),
@@ -180,7 +185,8 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
         coarse_rms = _per_frame_rms(coarse.fits[-1].residuals, observations)
     if config.frame_weights == "misfit":
         weights = misfit_weights(coarse_rms)
-        observations = frame_observations(vertices, grid, config, frames, weights)
+        observations = frame_observations(vertices, grid, config, frames, weights,
+                                          given_corners=given)
     spans = choice.next(grid.size, start[0], "coarse estimate") or spans
     result = newton_estimate(observations, unknowns, _newton(config, spans, 2), start=start)
     finer_spans = choice.next(grid.size, float(result.fits[-1].values[0]), "estimate",
@@ -239,7 +245,7 @@ def planar(vertices: np.ndarray) -> bool:
 
 def unstretched_grid(vertices, faces, grid: SheetGrid, config: MaterialFromVideoConfig,
                      frames: list[int], unknowns, start: list[float],
-                     spans: tuple[int, int]):
+                     spans: tuple[int, int], given: np.ndarray | None = None):
     """The flat sheet's size when the template is the sheet's shape in frame 0 (as SfT
     templates are): the template's grid-line lengths are the flat sheet's stretched by that
     frame's equilibrium, so the size is updated by the fixed point
@@ -250,7 +256,7 @@ def unstretched_grid(vertices, faces, grid: SheetGrid, config: MaterialFromVideo
     measured = np.array(grid.size)
     passes = []
     for _ in range(SIZE_PASSES):
-        observations = frame_observations(vertices, grid, config, frames)
+        observations = frame_observations(vertices, grid, config, frames, given_corners=given)
         coarse = newton_estimate(observations, unknowns, _newton(config, spans, 1),
                                  start=start)
         start = [float(v) for v in coarse.fits[-1].values]
