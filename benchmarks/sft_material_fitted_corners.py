@@ -73,7 +73,7 @@ def row(label: str, material: dict, b_true: float, gt: list[np.ndarray],
         head = (f"{b['value']:.4g} ± {b['standard_error']:.2g} | {100 * err:+.2f} % | "
                 f"{abs(b['value'] - b_true) / b['standard_error']:.2f}")
     grids = " / ".join(f"{g['bending_stiffness']:.4g}" for g in material["grids"])
-    check = material.get("coarse_grid_at_fitted_corners")
+    check = material["corners"].get("coarse_grid_at_fitted_corners")
     if check:  # the coarse grid refitted with the corners where the fine grid put them
         grids += f" (coarse at the fitted corners {check['values'][0]:.4g})"
     dd = "" if d["value"] is None else f"{d['value']:.4g}"

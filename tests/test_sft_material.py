@@ -102,9 +102,9 @@ def test_coarse_hanging_sheet_bending_length_recovered():
     of c = 2 cm with the stated areal density, the flat sheet from the template: B within 5 %
     and within 2 standard errors (measured −1.5 % ± 8.1 %, D 101.7 ± 4.3 N/m with equal frame
     weights; +0.65 % ± 3.0 %, D 102.1 ± 6.4 N/m with the misfit weights, the default since
-    2026-12-06 10:20; with frames 1 and 2's held corners fitted, the default since 13:00,
-    −0.94 % ± 10.7 % on the stored truth meshes; benchmarks/RESULTS.md, Material from
-    video)."""
+    2026-12-06 10:20; with every frame's held corners fitted — the default since 13:45 for a
+    template that is not frame 0's shape — −2.36 % ± 6.7 % on the stored truth meshes;
+    benchmarks/RESULTS.md, Material from video)."""
     truth = HangingConfig(frames=3, cells=(12, 12), bending_length=0.05, spans=(12, 12))
     shapes = equilibrium_shapes(truth)
     grid, _, held = template_grid(truth)

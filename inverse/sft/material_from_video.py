@@ -79,8 +79,7 @@ log = logging.getLogger(__name__)
 
 QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not quasi-static
 # The flat size from a frame-0 template (`unstretched_grid`): most passes, stop below this change
-SIZE_PASSES = 3
-SIZE_TOLERANCE = 2e-5
+SIZE_PASSES, SIZE_TOLERANCE = 3, 2e-5
 PLANAR_TOLERANCE = 1e-4  # a template within this fraction of its diagonal of a plane is flat
 MISFIT_FLOOR = 1e-6  # [m] smallest per-frame misfit a frame weight is computed from
 HELD_HANDLES = (0, 1)  # the held corners' handles among a frame model's constraints
@@ -218,11 +217,10 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     out["frame_weights"] = {"kind": config.frame_weights, "weights": unit.tolist(),
                             "coarse_per_frame_rms_m": None if coarse_rms is None
                             else coarse_rms.tolist()}
-    out["corners"] = {"kind": config.corners,  # per frame: offsets from the reconstruction
-                      "frames": offset_report(fit, observations, frames)}
     check = result.coarse_at_fine_handles  # the grid difference's coarse fit, corners held
-    out["coarse_grid_at_fitted_corners"] = None if check is None else {
-        "spans": list(check.label["spans"]), "values": check.values.tolist()}
+    out["corners"] = {"kind": config.corners, "frames": offset_report(fit, observations, frames),
+                      "coarse_grid_at_fitted_corners": None if check is None else {
+                          "spans": list(check.label["spans"]), "values": check.values.tolist()}}
     return out
 
 

@@ -177,9 +177,9 @@ class MaterialFromVideoConfig:
     model explains worse, e.g. a reconstruction further from the truth, counts less;
     `material_from_video.misfit_weights`; measured through `ndf-sft`: c = 5 cm +25.7 → +12.5 %,
     c = 3 cm +24.0 → +3.3 %, the truth unchanged within 2.2 %) or "equal" (every vertex of
-    every frame alike); corners: "fitted" (default: the held corners of every used frame but
-    frame 0 — SfT's template, the given shape, which anchors them — are unknowns of the fit,
-    3 coordinates each,
+    every frame alike); corners: "fitted" (default: the held corners of every used frame whose
+    corners are not the template's — SfT's frame 0 is the template, the given shape, and keeps
+    them — are unknowns of the fit, 3 coordinates each,
     with their implicit-function Jacobian, `inverse.material.handles`: a reconstruction's
     corner error is no longer imposed on the frame's equilibrium, and B's standard error
     includes them) or "held" (each frame's equilibrium held exactly where the reconstruction
