@@ -5,7 +5,8 @@ the bending length (`inverse.sft.material_grid`; 7 × 7 / 14 × 14 for c ≥ 2.9
 sheet), the membrane
 stiffness D estimated beside B unless `--membrane-stiffness` states it, the flat sheet's size
 from the template unless `--sheet-size` states it, each frame weighted by the inverse of its
-coarse-grid misfit (`--material-frame-weights`). The held corners are `--held-corners A B`
+coarse-grid misfit (`--material-frame-weights`), the held corners of the frames after the
+first fitted beside the material (`--material-corners`). The held corners are `--held-corners A B`
 (default: the two `--pinned` vertices, when the corners do not move); the template must be a
 regular vertex grid with them at the two ends of one grid edge
 (`inverse.sft.hanging.SheetGrid`). Everything is checked before tracking; a bad option is an
@@ -21,6 +22,7 @@ import numpy as np
 
 from inverse.sft.errors import InputError
 from inverse.sft.settings import (
+    CORNERS,
     FRAME_WEIGHTS,
     OBSERVED,
     SHEET_SIZE_FROM,
@@ -69,6 +71,11 @@ def add_material_options(p: argparse.ArgumentParser) -> None:
                    help="how the frames count in the fit: misfit (each frame by the inverse "
                    "of its coarse-grid rms misfit) or equal (every vertex alike; default: "
                    f"{DEFAULTS.frame_weights})")
+    g.add_argument("--material-corners", choices=CORNERS,
+                   help="the held corners of the frames after the first: fitted (unknowns of "
+                   "the fit beside the material, 3 coordinates each: a reconstruction's corner "
+                   "error is not imposed) or held where the reconstruction puts them (default: "
+                   f"{DEFAULTS.corners})")
     g.add_argument("--sheet-size-from", choices=SHEET_SIZE_FROM,
                    help="without --sheet-size: the flat size from the template's grid-line "
                    "lengths as they are (template) or unstretched by the fitted equilibrium of "
@@ -103,7 +110,8 @@ _FIELD = {"areal_density": "areal_density", "gravity": "gravity",
           "material_frames": "frames", "material_spans": "spans",
           "material_degree": "degree", "membrane_stiffness": "membrane_stiffness",
           "sheet_size": "sheet_size", "material_observed": "observed",
-          "sheet_size_from": "sheet_size_from", "material_frame_weights": "frame_weights"}
+          "sheet_size_from": "sheet_size_from", "material_frame_weights": "frame_weights",
+          "material_corners": "corners"}
 
 
 def _value(args: argparse.Namespace, name: str):

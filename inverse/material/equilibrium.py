@@ -111,6 +111,26 @@ class Equilibrium:
     def dtype(self) -> torch.dtype:
         return self.field.parameters[0].dtype
 
+    # -- unknowns of this observation alone (e.g. its held points: `inverse.material.handles`)
+    # The outer fit (`outer_fit.fit`) estimates them beside the shared θ; their columns follow
+    # θ's in `sensitivity`, `predicted_change` and `position_sensitivity`. None here.
+    local_scale = 1.0  # the normalised coordinate of a local unknown, in its unit
+
+    @property
+    def local_count(self) -> int:
+        return 0
+
+    def local_values(self) -> np.ndarray:
+        return np.zeros(0)
+
+    def set_local(self, values) -> None:
+        if len(values):
+            raise ValueError(f"{type(self).__name__} has no local unknowns")
+
+    def _local_gradients(self) -> list[torch.Tensor]:
+        """∂g/∂(local unknown) at the last `_linearised` point, one per local unknown."""
+        return []
+
     # -- written once ---------------------------------------------------------------------------
     def set_state(self, state: Any, values) -> None:
         self._set_parameters(state)
@@ -164,7 +184,8 @@ class Equilibrium:
 
     def sensitivity(self) -> torch.Tensor:
         """dP*/dz at the current solution, the unknowns on the last axis: column j is
-        −K⁻¹ ∂g/∂θ_j, times θ_j for a positive unknown (z_j = ln θ_j)."""
+        −K⁻¹ ∂g/∂θ_j, times θ_j for a positive unknown (z_j = ln θ_j); the local unknowns'
+        columns (−K⁻¹ ∂g/∂l) after θ's."""
         if self.values is None:
             raise RuntimeError("solve before asking for the sensitivity")
         samples, u, pull_back, solve = self._linearised(self._potential(self.values, 1.0))
@@ -173,7 +194,7 @@ class Equilibrium:
         for unknown, value, column in zip(self.unknowns, self.values, columns, strict=True):
             g = pull_back(column)
             dg.append(g * float(value) if unknown.positive else g)
-        return solve(dg)
+        return solve(dg + self._local_gradients())
 
     def position_jets(self, xi: torch.Tensor, z=None) -> torch.Tensor:
         """Jets (N, 6, 3) of the current equilibrium positions [m] (z: ignored, for the

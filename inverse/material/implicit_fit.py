@@ -49,6 +49,8 @@ def implicit_estimate(observations: list[Observation], unknowns: list[Unknown],
     equilibria: forward models from an earlier result for the same conditions (one list per
         basis, one per observation): their start solution is reused."""
     config = config or ImplicitConfig()
+    if any(obs.free_handles for obs in observations):
+        raise ValueError("free handles (held positions as unknowns) need the Newton method")
     t0 = time.perf_counter()
     first_values = start_values(observations, unknowns, start)
     positive = np.array([u.positive for u in unknowns])

@@ -11,7 +11,9 @@ error of the fine fit (its Jacobian, the residual variance at the estimate; with
 the larger of it and the cluster-robust error, one cluster per observation); the forward
 model's part is the difference of the two grids' estimates |z_{h/2} − z_h| (normalised
 coordinates), an over-estimate of the fine grid's error for any convergence order ≥ 1 in the
-asymptotic range. They are combined in quadrature.
+asymptotic range. They are combined in quadrature. With free handles (`Observation.free_handles`,
+the held points as unknowns) the coarse grid is refitted with the handles held where the fine
+grid put them, and the difference is taken from that fit (`_coarse_at_fine_handles`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 import torch
 
 from inverse.material.conditioned import to_values
+from inverse.material.handles import displaced_model
 from inverse.material.observations import Observation
 from inverse.material.outer_fit import (
     ForwardFit,
@@ -69,6 +72,8 @@ class NewtonResult(OuterResult):
     """`OuterResult` of the Newton method: one fit per grid, the finest reported; the forward
     model's part is the discretisation error (the difference of the last two grids)."""
 
+    coarse_at_fine_handles: ForwardFit | None = None  # with free handles: the grid check's fit
+
     @property
     def discretisation(self) -> np.ndarray:
         return self.model_errors
@@ -91,10 +96,12 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
     for level in range(config.levels):
         if level:
             grids = [g.refined() for g in grids]
-        eqs = [SplineEquilibrium(obs.model, unknowns, config.model, grid)
+        eqs = [SplineEquilibrium(obs.model, unknowns, config.model, grid,
+                                 free_handles=obs.free_handles)
                for obs, grid in zip(observations, grids, strict=True)]
         if level:  # start where the coarser grid ended: its estimate, its solution prolonged
             for eq, coarse in zip(eqs, equilibria[-1], strict=True):
+                eq.set_local(coarse.local_values())  # the free handles where it put them
                 prolonged = torch.sparse.mm(coarse.field.prolongation(), coarse.coefficients)
                 eq.solve(values, start=prolonged)
         elif config.start_from_observations:
@@ -112,8 +119,14 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
     z = fits[-1].z
     norm = np.where(positive, 1.0, unknown_scales(unknowns, np.array(to_values(unknowns, z))))
     notes = []
+    coarse = None
+    if len(fits) > 1 and any(o.free_handles for o in observations):
+        coarse = _coarse_at_fine_handles(observations, unknowns, config, equilibria, fits)
+        notes.append(f"the coarse grid {coarse.label['spans']} refitted with the free handles "
+                     f"held where the fine grid put them (its own fit moved them to absorb its "
+                     f"error at the handles): B there {coarse.values.tolist()}")
     if len(fits) > 1:
-        discretisation = np.abs(fits[-1].z - fits[-2].z) / norm
+        discretisation = np.abs(fits[-1].z - (coarse or fits[-2]).z) / norm
         notes.append(f"standard errors combine in quadrature the Fisher error (exact forward "
                      f"model) and the difference of the estimates on the grids "
                      f"{fits[-2].label['spans']} and {fits[-1].label['spans']} (discretisation)")
@@ -141,6 +154,26 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
                      sum(f.iterations for f in fits), time.perf_counter() - t0,
                      clusters=clusters)
     estimate = result.estimate
-    return NewtonResult(estimate, fits, equilibria, result.fisher, result.model,
-                        ratios=result.ratios, notes=notes + result.notes,
-                        reported=len(fits) - 1)
+    out = NewtonResult(estimate, fits, equilibria, result.fisher, result.model,
+                       ratios=result.ratios, notes=notes + result.notes,
+                       reported=len(fits) - 1)
+    out.coarse_at_fine_handles = coarse
+    return out
+
+
+def _coarse_at_fine_handles(observations, unknowns, config, equilibria, fits) -> ForwardFit:
+    """The next-to-last grid's fit with every free handle held where the last grid put it:
+    the grid difference of the material at the same held points. Fitted on the coarse grid
+    too, the handles absorb its error at the held points (a sharp feature: measured on a
+    noise-free hanging sheet, 0.3–0.4 mm and B +24 % on 7 × 7 against −0.9 % on 14 × 14),
+    which is not the fine grid's discretisation error."""
+    held = [Observation(displaced_model(o.model, o.free_handles,
+                                        eq.local_values().reshape(-1, 3)),
+                        o.points, o.xi, o.rows) if o.free_handles else o
+            for o, eq in zip(observations, equilibria[-1], strict=True)]
+    eqs = []
+    for obs, coarse in zip(held, equilibria[-2], strict=True):
+        eq = SplineEquilibrium(obs.model, unknowns, config.model, coarse.field.config)
+        eq.solve(fits[-1].values, start=coarse.coefficients)
+        eqs.append(eq)
+    return fit(eqs, held, unknowns, fits[-1].values, config.outer)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from inverse.material.handles import check_free_handles
 from taichi_ndf.io import read_mesh
 from taichi_ndf.io.grid import grid_mesh
 from taichi_ndf.problem.model import ShellModel
@@ -28,12 +29,17 @@ class Observation:
         poor along it, observes the two directions perpendicular to each point's ray
         (`ray_rows`). Honoured by the outer fit of the implicit-function estimates
         (`outer_fit.residuals`: the Newton and the implicit methods).
+    free_handles: indices of the model's `Handle` constraints whose held position is itself
+        uncertain (e.g. measured in the same reconstruction): their displacements are
+        offset by unknowns of this observation alone, 3 each [m], fitted beside the shared
+        ones (`inverse.material.handles`; the Newton method only). Empty: held as stated.
     """
 
     model: ShellModel
     points: torch.Tensor
     xi: torch.Tensor | None = None
     rows: torch.Tensor | None = None
+    free_handles: tuple[int, ...] = ()
 
     def __post_init__(self):
         if self.points.ndim != 2 or self.points.shape[1] != 3 or len(self.points) < 3:
@@ -55,6 +61,9 @@ class Observation:
                                  f"got {tuple(self.rows.shape)}")
             if not bool(torch.isfinite(self.rows).all()):
                 raise ValueError("rows contain non-finite values")
+        if self.free_handles:
+            object.__setattr__(self, "free_handles",
+                               check_free_handles(self.model.boundary, self.free_handles))
 
     @property
     def components(self) -> int:
@@ -77,7 +86,7 @@ class Observation:
         gen = torch.Generator().manual_seed(seed)
         noise = torch.randn(self.points.shape, generator=gen, dtype=self.points.dtype)
         return Observation(self.model, self.points + fraction * self.size * noise, self.xi,
-                           self.rows)
+                           self.rows, self.free_handles)
 
     def without_correspondence(self) -> Observation:
         """The same points as a point cloud (correspondence and `rows` dropped)."""

@@ -16,6 +16,13 @@ damped step lowers the misfit. Residuals: x*(ξ_k) − p_k with correspondence, 
 distance n · (x(ξ_k) − p_k) at the closest point ξ_k; an observation with `rows` gives
 rows_k (x*(ξ_k) − p_k), the components it observed.
 
+Local unknowns: a forward model may have unknowns of its observation alone
+(`Equilibrium.local_count`, e.g. its held points' offsets, `inverse.material.handles`); they
+join z in the Levenberg–Marquardt step (normalised by the model's `local_scale`), each
+observation's in a column block of its own. The fit's `jacobian` is then θ's columns with
+each observation's local columns projected out of its rows (`profiled`): the covariance of θ
+from it is θ's block of the full covariance — θ's error with the local unknowns estimated.
+
 Uncertainty (`combine`): the Fisher matrix JᵀJ/σ² of the final Jacobian (σ² from the residual
 at the estimate; the Gauss–Newton covariance, `identifiability.analyse`) gives the noise part;
 the caller gives the forward model's part (the spread over feature bases, or the difference
@@ -119,13 +126,22 @@ class ForwardFit:
     converged: bool
     stable: bool = True
     unconverged_solves: int = 0
+    local_values: list[np.ndarray] = field(default_factory=list)
+    full_jacobian: np.ndarray | None = None
+
+    @property
+    def nuisance(self) -> int:
+        """How many local unknowns (per observation, `Equilibrium.local_count`) were fitted."""
+        return sum(len(v) for v in self.local_values)
 
     @property
     def solves_converged(self) -> bool:
         return self.unconverged_solves == 0
 
 
-def _evaluate(equilibria, observations, grid, jacobian: bool):
+def _evaluate(equilibria, observations, grid, jacobian: bool, p: int):
+    """Stacked residuals, their Jacobian (R, p + Σ local) — θ's columns, then each
+    observation's local unknowns in a block of its own — and the sensitivities."""
     rs, js, sens = [], [], []
     for eq, obs in zip(equilibria, observations, strict=True):
         s = eq.sensitivity() if jacobian else None
@@ -134,7 +150,31 @@ def _evaluate(equilibria, observations, grid, jacobian: bool):
         js.append(j)
         sens.append(s)
     r = np.concatenate(rs)
-    return r, (np.concatenate(js) if jacobian else None), sens
+    if not jacobian:
+        return r, None, sens
+    counts = [j.shape[1] - p for j in js]
+    full = np.zeros((len(r), p + sum(counts)))
+    row, column = 0, p
+    for j, k in zip(js, counts, strict=True):
+        full[row:row + len(j), :p] = j[:, :p]
+        full[row:row + len(j), column:column + k] = j[:, p:]
+        row, column = row + len(j), column + k
+    return r, full, sens
+
+
+def profiled(jacobian: np.ndarray, p: int, rows: list[int], counts: list[int]) -> np.ndarray:
+    """θ's columns (R, p) of a Jacobian with local blocks, each observation's local columns
+    projected out of its rows: J̃_θ = (I − P_local) J_θ. Its Gauss–Newton (and sandwich)
+    covariance is θ's block of the full one — θ's error with the local unknowns estimated,
+    not held (the Schur complement)."""
+    out = jacobian[:, :p].copy()
+    row, column = 0, p
+    for n, k in zip(rows, counts, strict=True):
+        if k:
+            local = jacobian[row:row + n, column:column + k]
+            out[row:row + n] -= local @ np.linalg.lstsq(local, out[row:row + n], rcond=None)[0]
+        row, column = row + n, column + k
+    return out
 
 
 def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknown],
@@ -145,12 +185,18 @@ def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknow
     steps0 = sum(eq.newton_steps for eq in equilibria)
     failed0 = sum(getattr(eq, "unconverged_solves", 0) for eq in equilibria)
     grid = config.projection_grid
+    p = len(unknowns)
     z = np.array(to_coordinates(unknowns, start_values))
     positive = np.array([u.positive for u in unknowns])
-    norm = np.where(positive, 1.0, unknown_scales(unknowns, start_values))
+    counts = [eq.local_count for eq in equilibria]
+    ends = np.cumsum([p, *counts])
+    local = np.concatenate([np.zeros(0), *(eq.local_values() for eq in equilibria)])
+    norm = np.concatenate([np.where(positive, 1.0, unknown_scales(unknowns, start_values)),
+                           *(np.full(k, eq.local_scale)
+                             for eq, k in zip(equilibria, counts, strict=True))])
     for eq in equilibria:
         eq.solve(start_values, from_reference=True)
-    r, jac, sens = _evaluate(equilibria, observations, grid, True)
+    r, jac, sens = _evaluate(equilibria, observations, grid, True, p)
     cost = float(r @ r)
     mu, iterations, converged = 1e-3, 0, False
     for iterations in progress.counted(range(1, config.max_iterations + 1),
@@ -165,18 +211,24 @@ def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknow
             largest = float(np.abs(step).max())
             if largest > config.max_step:
                 step *= config.max_step / largest
-            dz = step * norm
-            trial = z + dz
+            dw = step * norm  # θ's coordinates z, then the local unknowns
+            dz, trial, local_trial = dw[:p], z + dw[:p], local + dw[p:]
             values = np.array(to_values(unknowns, trial))
-            for eq, s in zip(equilibria, sens, strict=True):
-                eq.solve(values, prediction=eq.predicted_change(s, dz))
-            r_trial, _, _ = _evaluate(equilibria, observations, grid, False)
+            for f, (eq, s) in enumerate(zip(equilibria, sens, strict=True)):
+                own = slice(ends[f] - p, ends[f + 1] - p)
+                if counts[f]:
+                    eq.set_local(local_trial[own])
+                eq.solve(values, prediction=eq.predicted_change(
+                    s, np.concatenate([dz, dw[p:][own]])))
+            r_trial, _, _ = _evaluate(equilibria, observations, grid, False, p)
             cost_trial = float(r_trial @ r_trial)
             if math.isfinite(cost_trial) and cost_trial < cost:
                 accepted = True
                 mu = max(mu / 3, 1e-9)
                 break
-            for eq, state in zip(equilibria, states, strict=True):
+            for f, (eq, state) in enumerate(zip(equilibria, states, strict=True)):
+                if counts[f]:
+                    eq.set_local(local[ends[f] - p:ends[f + 1] - p])
                 eq.set_state(state, to_values(unknowns, z))
             mu *= 10
         if not accepted:
@@ -185,8 +237,8 @@ def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknow
                      equilibria[0].label, iterations)
             break
         relative = cost - cost_trial
-        z, cost = trial, cost_trial
-        r, jac, sens = _evaluate(equilibria, observations, grid, True)
+        z, local, cost = trial, local_trial, cost_trial
+        r, jac, sens = _evaluate(equilibria, observations, grid, True, p)
         log.info("outer fit %s iteration %d: %s, rms %.4g m, step %.3g, mu %.2g",
                  equilibria[0].label, iterations,
                  dict(zip([u.name for u in unknowns], to_values(unknowns, z), strict=True)),
@@ -194,13 +246,18 @@ def fit(equilibria: list, observations: list[Observation], unknowns: list[Unknow
         if float(np.abs(step).max()) < config.tolerance or relative <= 1e-14 * cost:
             converged = True
             break
+    rows = [o.components * len(o.points) for o in observations]
     return ForwardFit(label=dict(equilibria[0].label), values=np.array(to_values(unknowns, z)),
-                      z=z, residuals=r, jacobian=jac, iterations=iterations,
+                      z=z, residuals=r, jacobian=profiled(jac, p, rows, counts) if sum(counts)
+                      else jac, iterations=iterations,
                       newton_steps=sum(eq.newton_steps for eq in equilibria) - steps0,
                       time=time.perf_counter() - t0, converged=converged,
                       stable=all(getattr(eq, "stable", True) for eq in equilibria),
                       unconverged_solves=sum(getattr(eq, "unconverged_solves", 0)
-                                             for eq in equilibria) - failed0)
+                                             for eq in equilibria) - failed0,
+                      local_values=[local[a - p:b - p] for a, b in zip(ends[:-1], ends[1:],
+                                                                       strict=True)],
+                      full_jacobian=jac if sum(counts) else None)
 
 
 def start_values(observations: list[Observation], unknowns: list[Unknown], start) -> np.ndarray:
@@ -287,7 +344,7 @@ def combine(observations: list[Observation], unknowns: list[Unknown], z: np.ndar
     scale = unknown_scales(unknowns, values)
     norm = np.where(positive, 1.0, scale)
     r = final.residuals
-    dof = max(len(r) - len(unknowns), 1)
+    dof = max(len(r) - len(unknowns) - final.nuisance, 1)
     sigma2 = float(r @ r) / dof
     ident = analyse(final.jacobian * norm, sigma2, names, positive.tolist())
     fisher_std = ident.std.copy()

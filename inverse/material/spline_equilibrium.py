@@ -15,10 +15,15 @@ signed ones) a column is multiplied by θ_j for a positive unknown. Observed pos
 x(ξ) = X(ξ) + u(ξ) are affine in C, so dx/dz = J_obs dC*/dz exactly (the composition at ξ).
 What is the same for every field type (the solves, θ's point forces, the sensitivity's
 columns, the positions) is `inverse.material.equilibrium`.
+
+Free handles (`free_handles`): the displacement of some of the model's handles offset by
+local unknowns δ [m]; their columns dC*/dδ = −K⁻¹ Jᵀ H dU/dδ use the same exact per-sample
+blocks H and the same factorisation of K (`inverse.material.handles`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -27,14 +32,21 @@ import numpy as np
 import torch
 
 from inverse.material.equilibrium import Equilibrium
+from inverse.material.handles import (
+    OFFSET_SCALE,
+    check_free_handles,
+    displaced,
+    unit_displacements,
+)
 from inverse.material.unknowns import Unknown
 from taichi_ndf import checks, jets, progress
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.linearisation import GridLinearisation
-from taichi_ndf.minimise.newton import NewtonConfig, minimise
-from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
+from taichi_ndf.minimise.newton import NewtonConfig, coupled_blocks, minimise, point_blocks
+from taichi_ndf.minimise.sensitivity import sensitivity
 from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.spline_grid import auto_span_length, spans_for
 
 log = logging.getLogger(__name__)
@@ -92,13 +104,21 @@ class SplineEquilibrium(Equilibrium):
     `Equilibrium` on a spline's coefficients C (n, 3).
 
     model: the observation's model (unknowns at their scene values); grid: the field's
-    configuration (`SplineModelConfig.grid`, or a refinement of it)."""
+    configuration (`SplineModelConfig.grid`, or a refinement of it); free_handles: indices of
+    the model's `Handle` constraints whose displacement is offset by local unknowns (3 each,
+    [m], world axes; `inverse.material.handles`)."""
 
     def __init__(self, model: ShellModel, unknowns: list[Unknown], config: SplineModelConfig,
-                 grid: SplineConfig):
+                 grid: SplineConfig, *, free_handles: tuple[int, ...] = ()):
         super().__init__(model, unknowns, boundary_length=config.boundary_length,
                          load_steps=config.load_steps)
         model = self.model
+        self.free_handles = check_free_handles(model.boundary, free_handles)
+        self._held = model.boundary  # the handles at their stated displacement (offsets 0)
+        self.offsets = np.zeros((len(self.free_handles), 3))
+        self.local_scale = OFFSET_SCALE * math.sqrt(model.surface.domain.rectangle_area)
+        self._units = None  # dU/dδ at the assembly's samples (`handles.unit_displacements`)
+        self._local_dg: list[torch.Tensor] = []
         self.config = config
         self.field = SplineField(grid, dtype=torch.float64)
         self.label = {"spans": list(grid.spans), "degree": grid.degree}
@@ -121,6 +141,29 @@ class SplineEquilibrium(Equilibrium):
                  config: SplineModelConfig, *, seed: int = 0) -> SplineEquilibrium:
         """On the grid `spec` (seed: no meaning here)."""
         return cls(model, unknowns, config, spec)
+
+    # -- the free handles' offsets δ (k, 3) [m]: local unknowns ---------------------------------
+    @property
+    def local_count(self) -> int:
+        return 3 * len(self.free_handles)
+
+    def local_values(self) -> np.ndarray:
+        return self.offsets.reshape(-1).copy()
+
+    def set_local(self, values) -> None:
+        """Move the free handles to their stated displacement plus `values` (3k,) [m]: the
+        model's conditions and the operator follow; the solution is not re-solved."""
+        values = np.asarray(values, dtype=np.float64)
+        if values.shape != (self.local_count,):
+            raise ValueError(f"need {self.local_count} handle offsets, got {values.shape}")
+        if not self.local_count:
+            return
+        self.offsets = values.reshape(-1, 3).copy()
+        boundary = displaced(self._held, self.free_handles, self.offsets)
+        self.model = dataclasses.replace(self.model, boundary=boundary)
+        self.grid.boundary = boundary
+        self.grid.operator = self.operator = DisplacementOperator(self.field, boundary)
+        self._first = None  # a kept first solution belongs to the old offsets
 
     # -- the coefficients C ---------------------------------------------------------------------
     @property
@@ -165,8 +208,13 @@ class SplineEquilibrium(Equilibrium):
 
     def _linearised(self, potential):
         """K of the exact blocks at C*, factorised once for all unknowns; sets `stable`."""
-        matrix = exact_hessian(self.grid.linearisation(1.0), potential, self.coefficients,
-                               fd_step=self.newton.fd_step)
+        linearisation = self.grid.linearisation(1.0)
+        u_assembly = linearisation.displacement(self.coefficients)
+        blocks = point_blocks(linearisation, potential, self.coefficients, u_assembly,
+                              self.newton.fd_step)  # the exact blocks (not projected)
+        couplings = coupled_blocks(potential, linearisation.samples, u_assembly)
+        matrix = linearisation.hessian(blocks, couplings)
+        self._local_dg = self._handle_gradients(blocks, couplings)
         samples = self.assembly.samples
         order = self._model_order
         u = self.assembly.displacement(self.coefficients)
@@ -187,6 +235,25 @@ class SplineEquilibrium(Equilibrium):
             return result.derivative
 
         return in_order, u[order], pull_back, solve
+
+    def _handle_gradients(self, blocks: torch.Tensor, couplings) -> list[torch.Tensor]:
+        """∂g/∂δ = Jᵀ H dU/dδ per free-handle coordinate (`inverse.material.handles`), H the
+        exact per-sample blocks (N, 18, 18) at the solution (the assembly's sample order)."""
+        if not self.local_count:
+            return []
+        if couplings is not None:
+            raise NotImplementedError("free handles with pair couplings in the Hessian")
+        if self._units is None:
+            self._units = unit_displacements(self._held, self.free_handles,
+                                             self.assembly.samples.xi)
+        n = self._units.shape[0]
+        flat = self._units.reshape(n, 18, self.local_count)
+        hv = torch.einsum("nij,njk->nik", blocks, flat).reshape(n, 6, 3, self.local_count)
+        return [self.assembly.gradient(hv[..., k]) for k in range(self.local_count)]
+
+    def _local_gradients(self) -> list[torch.Tensor]:
+        dg, self._local_dg = self._local_dg, []
+        return dg
 
     def fitted_state(self, xi: torch.Tensor, points: torch.Tensor, *,
                      ridge: float = 1e-10) -> torch.Tensor:
@@ -229,4 +296,8 @@ class SplineEquilibrium(Equilibrium):
             out = out + torch.einsum("cna,acj->ncj", at.pin[:, :, jets.VALUE],
                                      sensitivity[at.pin_index])
         # components along the boundary frame's axes -> world (vectors on the last axis)
-        return self.operator.to_world(out.transpose(1, 2)).transpose(1, 2)
+        out = self.operator.to_world(out.transpose(1, 2)).transpose(1, 2)
+        if self.local_count:  # a free handle moves x through the prescribed part too
+            units = unit_displacements(self._held, self.free_handles, xi.to(torch.float64))
+            out[:, :, -self.local_count:] += units[:, jets.VALUE]
+        return out

@@ -5,8 +5,11 @@ Input: the per-frame reconstructions (vertex positions, template order, camera c
 camera coordinates. Each used frame becomes one observation of `inverse.material`: its model is
 `hanging.hanging_model` — the flat sheet of the template's grid-line lengths, the held corners
 where the reconstruction puts them in that frame, the reference plane hanging vertically from
-the corner line (`hanging.hanging_across`), gravity — and its
-points are the reconstructed vertices with their surface coordinates (correspondence). The
+the corner line (`hanging.hanging_across`), gravity — and its points are the reconstructed
+vertices with their surface coordinates (correspondence). With `corners="fitted"` (default)
+the held corners of every frame whose corners are not the template's (SfT's frame 0 is the
+template) are unknowns too, 3 coordinates each (`Observation.free_handles`,
+`inverse.material.handles`; docs/sft.md §8). The
 unknown bending stiffness B (and optionally the membrane stiffness D) is then fitted to all
 frames at once by the Newton method of `ndf-fit-material` (`newton_fit.newton_estimate`): each
 frame's shape is the cloth's own equilibrium (spline field + projected Newton) under gravity
@@ -61,6 +64,7 @@ import time
 import numpy as np
 import torch
 
+from inverse.material.handles import offset_report
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.observations import Observation, ray_rows
 from inverse.material.outer_fit import OuterConfig
@@ -74,12 +78,11 @@ from inverse.sft.settings import FABRIC_BENDING_LENGTH, MaterialFromVideoConfig
 log = logging.getLogger(__name__)
 
 QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not quasi-static
-# The flat size from a template that is frame 0's shape (`unstretched_grid`): passes at most,
-# and the relative size change below which they stop.
-SIZE_PASSES = 3
-SIZE_TOLERANCE = 2e-5
+# The flat size from a frame-0 template (`unstretched_grid`): most passes, stop below this change
+SIZE_PASSES, SIZE_TOLERANCE = 3, 2e-5
 PLANAR_TOLERANCE = 1e-4  # a template within this fraction of its diagonal of a plane is flat
 MISFIT_FLOOR = 1e-6  # [m] smallest per-frame misfit a frame weight is computed from
+HELD_HANDLES = (0, 1)  # the held corners' handles among a frame model's constraints
 
 def chosen_frames(count: int, used: int) -> list[int]:
     """`used` frame indices evenly spread over `count` frames (all when used is 0 or more)."""
@@ -101,9 +104,11 @@ def corner_accelerations(vertices: list[np.ndarray], held: tuple[int, int],
 
 def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
                        config: MaterialFromVideoConfig, frames: list[int],
-                       weights: np.ndarray | None = None) -> list[Observation]:
-    """One observation per used frame (module docstring); `weights` (one per used frame,
-    dimensionless) scale each frame's residuals (`Observation.rows`)."""
+                       weights: np.ndarray | None = None, *,
+                       given_corners: np.ndarray | None = None) -> list[Observation]:
+    """One observation per used frame (module docstring); `weights` (one per used frame)
+    scale each frame's residuals (`Observation.rows`); corners "fitted": a frame's held
+    corners are unknowns unless they are the `given_corners` (2, 3) [m] (the template's)."""
     material = config.start_material
     xi = torch.from_numpy(grid.xi)
     observations = []
@@ -119,7 +124,9 @@ def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
             if rows is None:
                 rows = torch.eye(3, dtype=observed.dtype).expand(len(observed), 3, 3)
             rows = float(weights[k]) * rows.clone()
-        observations.append(Observation(model, observed, xi, rows))
+        given = given_corners is not None and np.abs(corners - given_corners).max() <= 1e-6
+        free = HELD_HANDLES if config.corners == "fitted" and not given else ()
+        observations.append(Observation(model, observed, xi, rows, free))
     return observations
 
 
@@ -151,7 +158,8 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     if config.sheet_size is not None:
         grid = grid.with_size(config.sheet_size)
     frames = chosen_frames(len(vertices), config.frames)
-    observations = frame_observations(vertices, grid, config, frames)
+    given = template[list(grid.held)]  # held where a frame's corners are the template's
+    observations = frame_observations(vertices, grid, config, frames, given_corners=given)
     spec = "bending,stretch" if config.estimate_membrane else "bending"
     _, unknowns = parse_unknowns(spec, observations[0].model)
     material = config.start_material
@@ -166,8 +174,8 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     passes, coarse_rms, weights = [], None, None
     if size_from == "equilibrium":
         grid, start, passes = unstretched_grid(vertices, faces, grid, config, frames,
-                                               unknowns, start, spans)
-        observations = frame_observations(vertices, grid, config, frames)
+                                               unknowns, start, spans, given)
+        observations = frame_observations(vertices, grid, config, frames, given_corners=given)
         coarse_rms = np.array(passes[-1]["per_frame_rms_m"])
     elif choice.chosen or config.frame_weights == "misfit":  # a coarse first estimate
         coarse = newton_estimate(observations, unknowns, _newton(config, spans, 1),
@@ -176,7 +184,8 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
         coarse_rms = _per_frame_rms(coarse.fits[-1].residuals, observations)
     if config.frame_weights == "misfit":
         weights = misfit_weights(coarse_rms)
-        observations = frame_observations(vertices, grid, config, frames, weights)
+        observations = frame_observations(vertices, grid, config, frames, weights,
+                                          given_corners=given)
     spans = choice.next(grid.size, start[0], "coarse estimate") or spans
     result = newton_estimate(observations, unknowns, _newton(config, spans, 2), start=start)
     finer_spans = choice.next(grid.size, float(result.fits[-1].values[0]), "estimate",
@@ -208,6 +217,10 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     out["frame_weights"] = {"kind": config.frame_weights, "weights": unit.tolist(),
                             "coarse_per_frame_rms_m": None if coarse_rms is None
                             else coarse_rms.tolist()}
+    check = result.coarse_at_fine_handles  # the grid difference's coarse fit, corners held
+    out["corners"] = {"kind": config.corners, "frames": offset_report(fit, observations, frames),
+                      "coarse_grid_at_fitted_corners": None if check is None else {
+                          "spans": list(check.label["spans"]), "values": check.values.tolist()}}
     return out
 
 
@@ -230,7 +243,7 @@ def planar(vertices: np.ndarray) -> bool:
 
 def unstretched_grid(vertices, faces, grid: SheetGrid, config: MaterialFromVideoConfig,
                      frames: list[int], unknowns, start: list[float],
-                     spans: tuple[int, int]):
+                     spans: tuple[int, int], given: np.ndarray | None = None):
     """The flat sheet's size when the template is the sheet's shape in frame 0 (as SfT
     templates are): the template's grid-line lengths are the flat sheet's stretched by that
     frame's equilibrium, so the size is updated by the fixed point
@@ -241,7 +254,7 @@ def unstretched_grid(vertices, faces, grid: SheetGrid, config: MaterialFromVideo
     measured = np.array(grid.size)
     passes = []
     for _ in range(SIZE_PASSES):
-        observations = frame_observations(vertices, grid, config, frames)
+        observations = frame_observations(vertices, grid, config, frames, given_corners=given)
         coarse = newton_estimate(observations, unknowns, _newton(config, spans, 1),
                                  start=start)
         start = [float(v) for v in coarse.fits[-1].values]
@@ -266,8 +279,8 @@ def error_parts(result, index: int) -> dict:
     frames) and the discretisation part (the two grids' difference)."""
     fit = result.fits[-1]
     value = float(fit.values[index])
-    jacobian = fit.jacobian  # in z = ln θ: relative errors
-    dof = max(len(fit.residuals) - jacobian.shape[1], 1)
+    jacobian = fit.jacobian  # in z = ln θ: relative errors (the corners profiled out)
+    dof = max(len(fit.residuals) - jacobian.shape[1] - fit.nuisance, 1)
     sigma2 = float(fit.residuals @ fit.residuals) / dof
     try:
         fisher = math.sqrt(sigma2 * float(np.linalg.inv(jacobian.T @ jacobian)[index, index]))

@@ -35,6 +35,8 @@ OBSERVED = ("3d", "ray")
 SHEET_SIZE_FROM = ("template", "equilibrium")
 # How the material fit weights the frames (MaterialFromVideoConfig.frame_weights)
 FRAME_WEIGHTS = ("equal", "misfit")
+# Where the material fit holds each frame's corners (MaterialFromVideoConfig.corners)
+CORNERS = ("held", "fitted")
 
 
 def _positive(name: str, value) -> None:
@@ -175,7 +177,13 @@ class MaterialFromVideoConfig:
     model explains worse, e.g. a reconstruction further from the truth, counts less;
     `material_from_video.misfit_weights`; measured through `ndf-sft`: c = 5 cm +25.7 → +12.5 %,
     c = 3 cm +24.0 → +3.3 %, the truth unchanged within 2.2 %) or "equal" (every vertex of
-    every frame alike)."""
+    every frame alike); corners: "fitted" (default: the held corners of every used frame whose
+    corners are not the template's — SfT's frame 0 is the template, the given shape, and keeps
+    them — are unknowns of the fit, 3 coordinates each,
+    with their implicit-function Jacobian, `inverse.material.handles`: a reconstruction's
+    corner error is no longer imposed on the frame's equilibrium, and B's standard error
+    includes them) or "held" (each frame's equilibrium held exactly where the reconstruction
+    puts its corners)."""
 
     areal_density: float = FABRIC_AREAL_DENSITY[1]
     gravity: tuple[float, float, float] = (0.0, STANDARD_GRAVITY, 0.0)
@@ -192,6 +200,7 @@ class MaterialFromVideoConfig:
     observed: str = "3d"
     sheet_size_from: str = "equilibrium"
     frame_weights: str = "misfit"
+    corners: str = "fitted"
 
     def __post_init__(self):
         for name in ("areal_density", "start_bending_length", "fps"):
@@ -222,6 +231,8 @@ class MaterialFromVideoConfig:
         if self.frame_weights not in FRAME_WEIGHTS:
             raise ValueError(f"frame_weights must be one of {FRAME_WEIGHTS}, got "
                              f"{self.frame_weights!r}")
+        if self.corners not in CORNERS:
+            raise ValueError(f"corners must be one of {CORNERS}, got {self.corners!r}")
         if self.observed not in OBSERVED:
             raise ValueError(f"observed must be one of {OBSERVED}, got {self.observed!r}")
 
