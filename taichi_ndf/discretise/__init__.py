@@ -23,17 +23,23 @@ DISCRETISATIONS: dict[type, type] = {kind.field_type.spec: kind for kind in (
 
 
 def discretisation(spec: Any, model: ShellModel, *, objective: Objective | None = None,
-                   estimate: str | None = None) -> Discretisation:
+                   estimate: str | None = None, start_shape: Any = None) -> Discretisation:
     """The discretisation of the field specification `spec` (a `FieldConfig` or a
     `SplinePlan`) on `model`. objective: what is minimised (None: Π of the model); estimate:
-    a SIREN's output-scale estimate made at run start (`Scene.output_scale_estimate`)."""
+    a SIREN's output-scale estimate made at run start (`Scene.output_scale_estimate`);
+    start_shape: a spline field's start shape (`problem.start_shape.StartShape`; None: rest)."""
     kind = DISCRETISATIONS.get(type(spec))
     if kind is None:
         raise TypeError(f"no discretisation of a {type(spec).__name__} (known: "
                         f"{', '.join(t.__name__ for t in DISCRETISATIONS)})")
-    return kind(spec, model, objective=objective, estimate=estimate)
+    if start_shape is None:
+        return kind(spec, model, objective=objective, estimate=estimate)
+    if kind is not SplineDiscretisation:
+        raise ValueError(f"a start shape needs a spline field, not a {kind.name} field")
+    return kind(spec, model, objective=objective, estimate=estimate, start_shape=start_shape)
 
 
 def of_scene(scene) -> Discretisation:
     """The discretisation of a `Scene`'s field on its model."""
-    return discretisation(scene.field, scene.model, estimate=scene.output_scale_estimate)
+    return discretisation(scene.field, scene.model, estimate=scene.output_scale_estimate,
+                          start_shape=scene.start)
