@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from taichi_ndf.discretise.protocol import Discretisation, Solution, SolveRefused
+from taichi_ndf.discretise.multipatch import MultiPatchDiscretisation, MultiPatchPlan
 from taichi_ndf.discretise.siren import SirenDiscretisation
 from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.objective import Objective
@@ -20,6 +21,7 @@ __all__ = ["DISCRETISATIONS", "Discretisation", "SirenDiscretisation", "Solution
 # The field specification's class -> its discretisation (one per field type).
 DISCRETISATIONS: dict[type, type] = {kind.field_type.spec: kind for kind in (
     SirenDiscretisation, SplineDiscretisation)}
+DISCRETISATIONS[MultiPatchPlan] = MultiPatchDiscretisation  # a garment's panels (no field type)
 
 
 def discretisation(spec: Any, model: ShellModel, *, objective: Objective | None = None,

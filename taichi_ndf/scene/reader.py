@@ -37,6 +37,7 @@ from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.scene.contact import parse_contact
 from taichi_ndf.scene.dynamics import parse_dynamics
 from taichi_ndf.scene.field import field_config, with_field_type
+from taichi_ndf.scene.garment import is_garment, parse_garment
 from taichi_ndf.scene.overrides import apply_overrides
 from taichi_ndf.scene.schema import SceneError, Table, read_toml
 from taichi_ndf.scene.schema import checked as _check
@@ -114,6 +115,8 @@ def load_scene(path: str | Path, *, material: str | None = None,
 
 
 def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> Scene:
+    if is_garment(document):
+        return _garment(document, base_dir=base_dir, path=path)
     top = Table(document, "")
     name = top.string("name")
     description = top.string("description", "")
@@ -163,6 +166,21 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
     except ValueError as err:
         raise SceneError(str(err)) from None
     return scene
+
+
+def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
+    """A garment file (`[[panels]]`, `taichi_ndf.scene.garment`): its field is the panels'
+    `MultiPatchPlan`, its model the first panel's."""
+    top = Table(document, "")
+    name, description = top.string("name"), top.string("description", "")
+    material = _section(top.table("material"), _material)
+    plan, _ = parse_garment(top, material, top.table("field", optional=True))
+    solver, quick = _section(top.table("training", optional=True), training, True)
+    output = _section(top.table("output", optional=True), _output, False)
+    top.close()
+    return Scene(name=name, description=description, model=plan.patches[0].model, field=plan,
+                 solver=solver, quick_solver=quick, output=output,
+                 path=path or base_dir / "scene.toml", document=document)
 
 
 def _section(table: Table, build, *args):
