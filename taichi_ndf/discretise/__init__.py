@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from taichi_ndf.discretise.protocol import Discretisation, Solution, SolveRefused
 from taichi_ndf.discretise.multipatch import MultiPatchDiscretisation, MultiPatchPlan
+from taichi_ndf.discretise.protocol import Discretisation, Solution, SolveRefused
 from taichi_ndf.discretise.siren import SirenDiscretisation
 from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.objective import Objective
