@@ -35,9 +35,11 @@ def _parse(**start):
     return parse_scene(copy.deepcopy(document), base_dir=ROOT / "scenes")
 
 
-def test_the_napkin_scene_starts_folded():
-    start = _parse().start
-    assert start == StartShape("fold", axis=0, at=0.3, radius=0.01)
+def test_the_napkin_scene_starts_folded_and_a_scene_without_start_at_rest():
+    assert _parse().start == StartShape("fold", axis=0, at=0.3, radius=0.01)
+    document = tomllib.loads(SCENE.read_text())
+    del document["start"]
+    assert parse_scene(document, base_dir=ROOT / "scenes").start is None
 
 
 def test_fold_and_wrap_are_isometric_and_rigid_moves_rigidly():

@@ -18,9 +18,9 @@ AXES = {"xi1": 0, "xi2": 1}
 
 def parse_start(top: Table, surface, field) -> StartShape | None:
     """The `[start]` table's start shape (None: no table, the rest shape)."""
-    t = top.table("start", optional=True)
-    if t is None:
+    if not top.has("start"):
         return None
+    t = top.table("start")
     kind = t.string("type", choices=KINDS)
     axis = AXES[t.string("axis", "xi1", choices=tuple(AXES))]
     bent = kind != "rigid"
