@@ -4,7 +4,8 @@ scenes/napkin_fold.toml (0.6 m × 0.15 m cotton/polyester, edge ξ¹ = 0 clamped
 32 × 8 cubic spans, float64) started folded: the half ξ¹ > 0.3 turned over the other,
 2 ρ = 2 cm above it around a crease of radius ρ = 1 cm (an isometric fold, fitted by the
 spline in least squares: the scene's [start], `fitted_start`), then solved under gravity at
-load factor 1 by the spline path's contact solve, once with the scene's [self_contact] and once without it.
+load factor 1 by the spline path's contact solve, once with the scene's [self_contact] and
+once without it.
 Checked on the output mesh (241 × 61 vertices) by tests/triangle_intersections.py, an
 independent segment–triangle test of every pair of faces that share no vertex, and by the
 smallest distance between the vertices of the two flat layers (ξ¹ below the crease against

@@ -15,7 +15,8 @@ from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
 
-__all__ = ["DISCRETISATIONS", "Discretisation", "SirenDiscretisation", "Solution",
+__all__ = ["DISCRETISATIONS", "Discretisation", "MultiPatchDiscretisation", "SirenDiscretisation",
+           "Solution",
            "SolveRefused", "SplineDiscretisation", "discretisation", "of_scene"]
 
 # The field specification's class -> its discretisation (one per field type).

@@ -68,12 +68,12 @@ def _edges(t: Table, key: str) -> list[str]:
 def _panel(t: Table, index: int, material, gravity, default_spans) -> Patch:
     name = t.string("name", f"panels[{index}]")
     surface = _surface(t)
-    constraints = ([ClampedEdge(e) for e in _edges(t, "clamped")]
-                   + [HingedEdge(e) for e in _edges(t, "hinged")])
-    for c in constraints:
-        if c.edge not in EDGES:
-            raise SceneError(f"{t.path}: panel {name!r}: no edge {c.edge!r} (edges: "
+    clamped, hinged = _edges(t, "clamped"), _edges(t, "hinged")
+    for edge in clamped + hinged:
+        if edge not in EDGES:
+            raise SceneError(f"{t.path}: panel {name!r}: no edge {edge!r} (edges: "
                              f"{', '.join(EDGES)})")
+    constraints = [ClampedEdge(e) for e in clamped] + [HingedEdge(e) for e in hinged]
     boundary = checked(lambda: BoundaryConditions(constraints, domain=surface.domain), t.path)
     probes = tuple(Probe(p.string("name"), p.vector("xi", 2)) for p in t.tables("probes"))
     model = checked(lambda: ShellModel(surface, material, Loads(gravity=gravity), boundary,
