@@ -27,7 +27,6 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.field import SplineField
-from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
@@ -36,65 +35,18 @@ from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
 from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.seams import SeamSpec
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import newton_config
+
+__all__ = ["MultiPatchDiscretisation", "MultiPatchField", "MultiPatchPlan", "Patch", "PatchSeam"]
 
 log = logging.getLogger(__name__)
 
 DTYPE = torch.float64
-# Gauss points per knot span and direction (`GridLinearisation.quadrature`'s default: 4)
-# times coefficients: a patch's size for `check_size`, counted as the spline path counts it.
+# The most unknowns (3 × coefficients over all patches) of one joint K (`check_size`).
 MAX_UNKNOWNS = 2_000_000
-
-
-@dataclass(frozen=True)
-class Patch:
-    """One panel: its name, model (surface, material, loads, boundary, probes) and grid."""
-
-    name: str
-    model: ShellModel
-    config: SplineConfig
-
-
-@dataclass(frozen=True)
-class PatchSeam:
-    """A seam from an edge of patch `a` (index) to an edge of patch `b` (`spec.a`, `spec.b`)."""
-
-    spec: SeamSpec
-    a: int
-    b: int
-
-
-@dataclass(frozen=True)
-class MultiPatchPlan:
-    """The patches and the seams between them; gravity [m/s²] acts on every patch."""
-
-    patches: tuple[Patch, ...]
-    seams: tuple[PatchSeam, ...] = ()
-    gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self):
-        if not self.patches:
-            raise ValueError("a multi-patch plan needs at least one patch")
-        first = self.patches[0].model.material
-        for patch in self.patches[1:]:
-            if patch.model.material != first:
-                raise ValueError(f"panel {patch.name!r}: its material differs from panel "
-                                 f"{self.patches[0].name!r}'s (one material for all panels)")
-        for seam in self.seams:
-            for index in (seam.a, seam.b):
-                if not 0 <= index < len(self.patches):
-                    raise ValueError(f"seam {seam.spec.name!r}: no patch {index}")
-
-    def to_dict(self) -> dict:
-        return {"type": "multipatch",
-                "patches": [{"name": p.name, "spans": list(p.config.spans)}
-                            for p in self.patches],
-                "seams": [{"name": s.spec.name, "a": f"{self.patches[s.a].name}.{s.spec.a.edge}",
-                           "b": f"{self.patches[s.b].name}.{s.spec.b.edge}"}
-                          for s in self.seams]}
 
 
 @dataclass(frozen=True)

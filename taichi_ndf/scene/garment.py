@@ -13,12 +13,12 @@ from __future__ import annotations
 import math
 
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge
-from taichi_ndf.discretise.multipatch import MultiPatchPlan, Patch, PatchSeam
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.geometry import Cylinder, Plane
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import Probe, ShellModel
+from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
 from taichi_ndf.problem.seams import (
     BENDING,
     DEFAULT_PENALTY,
