@@ -16,17 +16,24 @@ rounds, CPU and wall time, load average, commit).
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/self_contact_fold.py [OUT_DIR]
 
 (OUT_DIR: the two output meshes as OBJ files.)
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/self_contact_fold.py --run RUN_DIR
+
+checks the mesh.obj of an `ndf-sim scenes/napkin_fold.toml --out RUN_DIR` run (which starts
+folded by the scene's [start]) the same way: layer distances and intersecting face pairs.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import resource
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -39,9 +46,9 @@ from provenance import commit  # noqa: E402
 from triangle_intersections import intersecting_pairs  # noqa: E402
 
 import taichi_ndf  # noqa: E402
-from taichi_ndf.app.outputs import deformed_mesh  # noqa: E402
+from taichi_ndf.app.outputs import deformed_mesh, export_grid  # noqa: E402
 from taichi_ndf.discretise.start import fitted_start  # noqa: E402
-from taichi_ndf.io import write_obj  # noqa: E402
+from taichi_ndf.io import read_mesh, write_obj  # noqa: E402
 from taichi_ndf.minimise.state import State  # noqa: E402
 from taichi_ndf.scene.reader import load_scene  # noqa: E402
 from taichi_ndf.solve.spline_solver import solve_spline  # noqa: E402
@@ -132,10 +139,30 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def check_run(run_dir: Path) -> None:
+    """The layer distances and intersecting face pairs of an ndf-sim run's mesh.obj (its ξ:
+    the scene's export grid, `export_grid`), and its result.json's Π and Newton iterations."""
+    scene = load_scene(SCENE)
+    xi, faces, _ = export_grid(scene.model, scene.output.resolution)
+    mesh = SimpleNamespace(xi=xi, deformed=read_mesh(run_dir / "mesh.obj").vertices,
+                           faces=faces)
+    (lo, hi), _ = scene.model.surface.domain.bounds
+    result = json.loads((run_dir / "result.json").read_text())
+    everywhere = layer_distances(mesh, hi - lo, CREASE_RADIUS)
+    flat = layer_distances(mesh, hi - lo, CREASE_RADIUS, CREASE_MARGIN)
+    print(f"ndf-sim run {run_dir}: layer distance min {1e3 * everywhere.min():.2f} mm, flat "
+          f"parts min {1e3 * flat.min():.2f} mm, median {1e3 * np.median(flat):.2f} mm, "
+          f"intersecting face pairs {len(intersecting_pairs(mesh.deformed, mesh.faces))}, "
+          f"Π {result['energy']:.6g} J, {result['iterations']} Newton iterations")
+
+
 def main() -> None:
     taichi_ndf.init(arch="cpu", precision="f64")
     torch.set_num_threads(1)
     print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+    if len(sys.argv) == 3 and sys.argv[1] == "--run":
+        check_run(Path(sys.argv[2]))
+        return
     out = Path(sys.argv[1]) if len(sys.argv) > 1 else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
