@@ -125,3 +125,14 @@ def test_a_multi_patch_run_refuses_a_resume(tmp_path):
     scene = _parse(_document())
     with pytest.raises(ValueError, match="cannot be resumed"):
         of_scene(scene).start(scene.solver, seed=0, resume_from=tmp_path / "checkpoint.pt")
+
+
+def test_the_multi_patch_discretisation_implements_the_whole_protocol():
+    import inspect
+
+    from taichi_ndf.discretise import Discretisation
+
+    for name, member in vars(Discretisation).items():
+        if inspect.isfunction(member) and not name.startswith("_"):
+            assert (inspect.signature(getattr(MultiPatchDiscretisation, name)).parameters.keys()
+                    == inspect.signature(member).parameters.keys()), name

@@ -22,7 +22,6 @@ __all__ = ["DISCRETISATIONS", "Discretisation", "MultiPatchDiscretisation", "Sir
 # The field specification's class -> its discretisation (one per field type).
 DISCRETISATIONS: dict[type, type] = {kind.field_type.spec: kind for kind in (
     SirenDiscretisation, SplineDiscretisation)}
-DISCRETISATIONS[MultiPatchPlan] = MultiPatchDiscretisation  # a garment's panels (no field type)
 
 
 def discretisation(spec: Any, model: ShellModel, *, objective: Objective | None = None,
@@ -31,6 +30,8 @@ def discretisation(spec: Any, model: ShellModel, *, objective: Objective | None 
     `SplinePlan`) on `model`. objective: what is minimised (None: Π of the model); estimate:
     a SIREN's output-scale estimate made at run start (`Scene.output_scale_estimate`);
     start_shape: a spline field's start shape (`problem.start_shape.StartShape`; None: rest)."""
+    if isinstance(spec, MultiPatchPlan):  # a garment's panels: several fields, no field type
+        return MultiPatchDiscretisation(spec, model, objective=objective)
     kind = DISCRETISATIONS.get(type(spec))
     if kind is None:
         raise TypeError(f"no discretisation of a {type(spec).__name__} (known: "

@@ -93,7 +93,9 @@ class MultiPatchDiscretisation:
     def with_displacement_unit(self, factor: float) -> MultiPatchDiscretisation:
         return self
 
-    def for_case(self, *args, **kwargs):
+    def for_case(self, scene_solver: SolverConfig, quick_solver: SolverConfig, *,
+                 quick: bool, solver: SolverConfig | None, iterations: int | None,
+                 seed: int | None, levels: int) -> tuple[MultiPatchDiscretisation, SolverConfig]:
         raise ValueError("a multi-patch field is not a validation case")
 
     def start(self, config: SolverConfig, *, seed: int, resume_from: Path | None = None
