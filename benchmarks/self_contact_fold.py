@@ -3,8 +3,9 @@
 scenes/napkin_fold.toml (0.6 m × 0.15 m cotton/polyester, edge ξ¹ = 0 clamped on a table,
 32 × 8 cubic spans, float64) started folded: the half ξ¹ > 0.3 turned over the other,
 2 ρ = 2 cm above it around a crease of radius ρ = 1 cm (an isometric fold, fitted by the
-spline in least squares: `folded_start`), then solved under gravity at load factor 1 by the
-spline path's contact solve, once with the scene's [self_contact] and once without it.
+spline in least squares: the scene's [start], `fitted_start`), then solved under gravity at
+load factor 1 by the spline path's contact solve, once with the scene's [self_contact] and
+once without it.
 Checked on the output mesh (241 × 61 vertices) by tests/triangle_intersections.py, an
 independent segment–triangle test of every pair of faces that share no vertex, and by the
 smallest distance between the vertices of the two flat layers (ξ¹ below the crease against
@@ -15,17 +16,24 @@ rounds, CPU and wall time, load average, commit).
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/self_contact_fold.py [OUT_DIR]
 
 (OUT_DIR: the two output meshes as OBJ files.)
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/self_contact_fold.py --run RUN_DIR
+
+checks the mesh.obj of an `ndf-sim scenes/napkin_fold.toml --out RUN_DIR` run (which starts
+folded by the scene's [start]) the same way: layer distances and intersecting face pairs.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import resource
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -38,12 +46,9 @@ from provenance import commit  # noqa: E402
 from triangle_intersections import intersecting_pairs  # noqa: E402
 
 import taichi_ndf  # noqa: E402
-from taichi_ndf import jets  # noqa: E402
-from taichi_ndf.app.outputs import deformed_mesh  # noqa: E402
-from taichi_ndf.field.spline import SplineField  # noqa: E402
-from taichi_ndf.io import write_obj  # noqa: E402
-from taichi_ndf.minimise.linearisation import GridLinearisation  # noqa: E402
-from taichi_ndf.minimise.newton import NewtonConfig, minimise  # noqa: E402
+from taichi_ndf.app.outputs import deformed_mesh, export_grid  # noqa: E402
+from taichi_ndf.discretise.start import fitted_start  # noqa: E402
+from taichi_ndf.io import read_mesh, write_obj  # noqa: E402
 from taichi_ndf.minimise.state import State  # noqa: E402
 from taichi_ndf.scene.reader import load_scene  # noqa: E402
 from taichi_ndf.solve.spline_solver import solve_spline  # noqa: E402
@@ -51,69 +56,6 @@ from taichi_ndf.solve.spline_solver import solve_spline  # noqa: E402
 SCENE = ROOT / "scenes" / "napkin_fold.toml"
 CREASE_RADIUS = 0.01  # ρ [m]
 CREASE_MARGIN = 0.02  # [m] of ξ¹ left out around the crease for the flat layers' distances
-
-
-def fold(xi: torch.Tensor, length: float, height: float, radius: float) -> torch.Tensor:
-    """Positions (N, 3) [m] of the isometric fold of a flat strip of `length` [m] at
-    `height`: flat to a = length/2 − πρ/2, a half circle of radius ρ, then back over the
-    first part 2ρ above it."""
-    s, y = xi[:, 0], xi[:, 1]
-    a = 0.5 * length - 0.5 * math.pi * radius
-    theta = ((s - a) / radius).clamp(0.0, math.pi)
-    x = torch.where(s <= a, s, a + radius * torch.sin(theta))
-    z = torch.where(s <= a, torch.zeros_like(s), radius * (1 - torch.cos(theta)))
-    beyond = s > a + math.pi * radius
-    x = torch.where(beyond, a - (s - a - math.pi * radius), x)
-    z = torch.where(beyond, torch.full_like(s, 2 * radius), z)
-    return torch.stack((x, y, height + z), dim=1)
-
-
-@dataclasses.dataclass(frozen=True)
-class _FitPotential:
-    """½ Σ w √a |u − target|² over the samples (a least-squares fit as a potential)."""
-
-    target: torch.Tensor  # (N, 3) in the samples' order
-
-    def _weight(self, samples):
-        r = samples.r_jets
-        return samples.weight * torch.linalg.cross(r[:, 1], r[:, 2], dim=-1).norm(dim=-1)
-
-    def __call__(self, samples, u, grad):
-        w = self._weight(samples)
-        residual = u[:, jets.VALUE] - self.target
-        gradient = torch.zeros_like(u)
-        gradient[:, jets.VALUE] = w[:, None] * residual
-        return _Result(0.5 * float((w[:, None] * residual ** 2).sum()), gradient)
-
-    def hessian_blocks(self, samples, u, *, steps):
-        blocks = u.new_zeros(len(u), jets.CHANNELS, 3, jets.CHANNELS, 3)
-        eye = torch.eye(3, dtype=u.dtype)
-        blocks[:, jets.VALUE, :, jets.VALUE, :] = self._weight(samples)[:, None, None] * eye
-        return blocks
-
-
-@dataclasses.dataclass
-class _Result:
-    total: float
-    grad_u_jets: torch.Tensor
-
-
-def folded_start(model, plan, radius: float = CREASE_RADIUS) -> SplineField:
-    """The plan's coarsest spline field fitted (least squares at its Gauss points, through
-    the model's boundary conditions) to the fold of the model's flat sheet (`fold`)."""
-    field = SplineField(plan.config, dtype=torch.float64)
-    (lo, hi), _ = model.surface.domain.bounds
-    grid = GridLinearisation(field, model.boundary, length=hi - lo)
-    samples = GridLinearisation.quadrature(model.surface, field.config, model.loads,
-                                           dtype=torch.float64)
-    linear = grid.linearisation(1.0, samples)
-    s = linear.samples
-    height = float(s.r_jets[0, jets.VALUE, 2])
-    target = fold(s.xi, hi - lo, height, radius) - s.r_jets[:, jets.VALUE]
-    solution = minimise(linear, _FitPotential(target), field.coefficients.detach().clone(),
-                        NewtonConfig(max_iterations=5, project=False), report=False)
-    field.coefficients.data.copy_(solution.parameters)
-    return field
 
 
 def layers(mesh, length: float, radius: float, margin: float = 0.0
@@ -148,7 +90,7 @@ def run(self_contact: bool, out: Path | None = None) -> dict:
     if not self_contact:
         model = dataclasses.replace(model, contact=dataclasses.replace(model.contact,
                                                                        self_contact=None))
-    start = folded_start(model, plan)
+    start = fitted_start(model, plan.config, scene.start)
     before = resource.getrusage(resource.RUSAGE_SELF)
     wall = time.perf_counter()
     result = solve_spline(model, plan, scene.solver, state=State.newton(start))
@@ -197,10 +139,30 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def check_run(run_dir: Path) -> None:
+    """The layer distances and intersecting face pairs of an ndf-sim run's mesh.obj (its ξ:
+    the scene's export grid, `export_grid`), and its result.json's Π and Newton iterations."""
+    scene = load_scene(SCENE)
+    xi, faces, _ = export_grid(scene.model, scene.output.resolution)
+    mesh = SimpleNamespace(xi=xi, deformed=read_mesh(run_dir / "mesh.obj").vertices,
+                           faces=faces)
+    (lo, hi), _ = scene.model.surface.domain.bounds
+    result = json.loads((run_dir / "result.json").read_text())
+    everywhere = layer_distances(mesh, hi - lo, CREASE_RADIUS)
+    flat = layer_distances(mesh, hi - lo, CREASE_RADIUS, CREASE_MARGIN)
+    print(f"ndf-sim run {run_dir}: layer distance min {1e3 * everywhere.min():.2f} mm, flat "
+          f"parts min {1e3 * flat.min():.2f} mm, median {1e3 * np.median(flat):.2f} mm, "
+          f"intersecting face pairs {len(intersecting_pairs(mesh.deformed, mesh.faces))}, "
+          f"Π {result['energy']:.6g} J, {result['iterations']} Newton iterations")
+
+
 def main() -> None:
     taichi_ndf.init(arch="cpu", precision="f64")
     torch.set_num_threads(1)
     print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+    if len(sys.argv) == 3 and sys.argv[1] == "--run":
+        check_run(Path(sys.argv[2]))
+        return
     out = Path(sys.argv[1]) if len(sys.argv) > 1 else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)

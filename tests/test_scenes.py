@@ -26,9 +26,9 @@ SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 # (tests/test_dynamics_contact.py).
 DYNAMIC = {"napkin_drop_sphere", "cloth_pendulum", "cloth_pendulum_self", "sheet_slide_box",
            "flag_wind"}
-# Scenes that need the spline field (seams, self-contact): not the SIREN smoke runs below
-# (tests/test_seam.py, tests/test_self_contact_scene.py).
-SPLINE_ONLY = {"tube_seam", "napkin_fold"}
+# Scenes that need the spline field (seams, self-contact, a garment's panels): not the SIREN
+# smoke runs below (tests/test_seam.py, tests/test_self_contact_scene.py, tests/test_garment.py).
+SPLINE_ONLY = {"tube_seam", "napkin_fold", "skirt_panels"}
 STATIC = [p for p in SCENES if p.stem not in DYNAMIC | SPLINE_ONLY]
 FABRICS = ("canvas", "cotton", "silk")
 TEST_WIDTH = 16  # neurons per layer in these smoke tests: the scenes' physics, a cheap field

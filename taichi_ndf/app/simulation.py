@@ -20,9 +20,11 @@ from taichi_ndf.app.outputs import (
     write_field_outputs,
     write_trajectory_mesh,
 )
+from taichi_ndf.app.panels import write_panel_outputs
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.discretise import SolveRefused, of_scene
 from taichi_ndf.discretise.adaptive import adaptive as adaptive_discretisation
+from taichi_ndf.discretise.multipatch import MultiPatchPlan
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
 from taichi_ndf.io import OutputDir, read_mesh
@@ -93,7 +95,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         discretisation.start(config, seed=seed, resume_from=checkpoint if resume else None)
     except CheckpointError as err:
         raise SimulationError(f"--resume: {err}") from err
-    step_frames = len(config.load_steps) > 1 and not config.pseudo_time
+    panels = isinstance(scene.field, MultiPatchPlan)  # a garment: outputs per panel
+    step_frames = len(config.load_steps) > 1 and not config.pseudo_time and not panels
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
 
     def on_load_step(load_factor: float, field) -> None:
@@ -136,9 +139,14 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
                                                    surface_points(scene.model, solution.field,
                                                                   CONTACT_GRID),
                                                    solution.contact, **solution.contact_counts)
-    _write_field_outputs(scene, out, solution.field, solution.probes, solution.history,
-                         pseudo_time=config.pseudo_time, refinement=solution.refinement,
-                         obstacles=obstacle_meshes, trajectory=trajectory, pictures=pictures)
+    if panels:
+        write_panel_outputs(out, scene.field, solution.field, scene.output.resolution,
+                            views=scene.output.views, pictures=pictures)
+    else:
+        _write_field_outputs(scene, out, solution.field, solution.probes, solution.history,
+                             pseudo_time=config.pseudo_time, refinement=solution.refinement,
+                             obstacles=obstacle_meshes, trajectory=trajectory,
+                             pictures=pictures)
     summary = _summary(scene, config, seed, solution.energy, solution.iterations,
                        solution.wall_time, solution.probes, trajectory, solution.field_document,
                        machine, solution.history, contact)

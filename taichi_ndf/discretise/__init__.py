@@ -8,13 +8,15 @@ from __future__ import annotations
 
 from typing import Any
 
+from taichi_ndf.discretise.multipatch import MultiPatchDiscretisation, MultiPatchPlan
 from taichi_ndf.discretise.protocol import Discretisation, Solution, SolveRefused
 from taichi_ndf.discretise.siren import SirenDiscretisation
 from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
 
-__all__ = ["DISCRETISATIONS", "Discretisation", "SirenDiscretisation", "Solution",
+__all__ = ["DISCRETISATIONS", "Discretisation", "MultiPatchDiscretisation", "SirenDiscretisation",
+           "Solution",
            "SolveRefused", "SplineDiscretisation", "discretisation", "of_scene"]
 
 # The field specification's class -> its discretisation (one per field type).
@@ -23,17 +25,25 @@ DISCRETISATIONS: dict[type, type] = {kind.field_type.spec: kind for kind in (
 
 
 def discretisation(spec: Any, model: ShellModel, *, objective: Objective | None = None,
-                   estimate: str | None = None) -> Discretisation:
+                   estimate: str | None = None, start_shape: Any = None) -> Discretisation:
     """The discretisation of the field specification `spec` (a `FieldConfig` or a
     `SplinePlan`) on `model`. objective: what is minimised (None: Π of the model); estimate:
-    a SIREN's output-scale estimate made at run start (`Scene.output_scale_estimate`)."""
+    a SIREN's output-scale estimate made at run start (`Scene.output_scale_estimate`);
+    start_shape: a spline field's start shape (`problem.start_shape.StartShape`; None: rest)."""
+    if isinstance(spec, MultiPatchPlan):  # a garment's panels: several fields, no field type
+        return MultiPatchDiscretisation(spec, model, objective=objective)
     kind = DISCRETISATIONS.get(type(spec))
     if kind is None:
         raise TypeError(f"no discretisation of a {type(spec).__name__} (known: "
                         f"{', '.join(t.__name__ for t in DISCRETISATIONS)})")
-    return kind(spec, model, objective=objective, estimate=estimate)
+    if start_shape is None:
+        return kind(spec, model, objective=objective, estimate=estimate)
+    if kind is not SplineDiscretisation:
+        raise ValueError(f"a start shape needs a spline field, not a {kind.name} field")
+    return kind(spec, model, objective=objective, estimate=estimate, start_shape=start_shape)
 
 
 def of_scene(scene) -> Discretisation:
     """The discretisation of a `Scene`'s field on its model."""
-    return discretisation(scene.field, scene.model, estimate=scene.output_scale_estimate)
+    return discretisation(scene.field, scene.model, estimate=scene.output_scale_estimate,
+                          start_shape=scene.start)

@@ -33,6 +33,9 @@ def adaptive(discretisation, config: AdaptiveConfig) -> AdaptiveDiscretisation:
                          "grids to refine")
     if discretisation.model.contact is not None:
         raise ValueError(CONTACT_REFUSED)
+    if discretisation.start_shape is not None:
+        raise ValueError("--tolerance: an adaptive run starts from the rest shape; drop the "
+                         "scene's [start] or --tolerance")
     return AdaptiveDiscretisation(discretisation.spec, discretisation.model, config,
                                   objective=discretisation.objective)
 

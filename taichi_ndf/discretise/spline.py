@@ -14,6 +14,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
+from taichi_ndf.discretise.start import fitted_start
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
@@ -27,6 +28,7 @@ from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.run_size import contact_check_points
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import SplineRun, solve_spline
 
@@ -38,16 +40,19 @@ class SplineDiscretisation:
     its energy is evaluated on the Gauss points of every knot span (`span_quadrature`,
     through `GridLinearisation.quadrature`).
     objective: what is minimised (None: Π of the model); estimate: unused (a spline's
-    coefficients carry any scale)."""
+    coefficients carry any scale); start_shape: where a fresh solve starts (None: the rest
+    shape, zero coefficients; else `fitted_start` on the plan's first grid)."""
 
     field_type: ClassVar[FieldType] = SPLINE
     name: ClassVar[str] = SPLINE.name
 
     def __init__(self, spec: SplinePlan, model: ShellModel, *,
-                 objective: Objective | None = None, estimate: str | None = None):
+                 objective: Objective | None = None, estimate: str | None = None,
+                 start_shape: StartShape | None = None):
         self.spec = spec
         self.model = model
         self.objective = objective
+        self.start_shape = start_shape
         self.state: State | None = None
         self.run: SplineRun | None = None
 
@@ -63,7 +68,7 @@ class SplineDiscretisation:
         if levels < 1:
             raise ValueError(f"--refine must be >= 1, got {levels}")
         return SplineDiscretisation(dataclasses.replace(self.spec, levels=levels), self.model,
-                                    objective=self.objective)
+                                    objective=self.objective, start_shape=self.start_shape)
 
     def with_displacement_unit(self, factor: float) -> SplineDiscretisation:
         return self
@@ -80,13 +85,17 @@ class SplineDiscretisation:
 
     def start(self, config: SolverConfig, *, seed: int, resume_from: Path | None = None
               ) -> None:
-        """A resumed run goes on from the checkpoint's last finished level."""
+        """A resumed run goes on from the checkpoint's last finished level; a fresh one from
+        the start shape's fit on the first grid (`fitted_start`), if any."""
         if config.method != "newton":
             raise ValueError("a spline field is solved with [training] method = \"newton\"")
         self.state = None
         if resume_from is not None:
             self.state = State.newton(None)
             self.state.restore(resume_from)
+        elif self.start_shape is not None:
+            self.state = State.newton(fitted_start(self.model, self.spec.config,
+                                                   self.start_shape))
 
     def solve(self, config: SolverConfig, *, callbacks: Sequence[Any] = (),
               on_load_step: OnLoadStep | None = None,

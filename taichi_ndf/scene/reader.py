@@ -37,11 +37,13 @@ from taichi_ndf.render.figure import VIEWS
 from taichi_ndf.scene.contact import parse_contact
 from taichi_ndf.scene.dynamics import parse_dynamics
 from taichi_ndf.scene.field import field_config, with_field_type
+from taichi_ndf.scene.garment import is_garment, parse_garment
 from taichi_ndf.scene.overrides import apply_overrides
 from taichi_ndf.scene.schema import SceneError, Table, read_toml
 from taichi_ndf.scene.schema import checked as _check
 from taichi_ndf.scene.seams import parse_seams
 from taichi_ndf.scene.self_contact import parse_self_contact
+from taichi_ndf.scene.start import parse_start
 from taichi_ndf.scene.terms import parse_terms
 from taichi_ndf.scene.training import training
 from taichi_ndf.shell.materials import (
@@ -87,6 +89,8 @@ class Scene:
     output_scale_estimate: str | None = None
     # A run in physical time (`[dynamics]`, `problem.dynamics.DynamicsConfig`); None: quasistatic.
     dynamics: Any = None
+    # Where the solve starts (`[start]`, `problem.start_shape.StartShape`); None: the rest shape.
+    start: Any = None
 
 
 def load_scene(path: str | Path, *, material: str | None = None,
@@ -111,6 +115,8 @@ def load_scene(path: str | Path, *, material: str | None = None,
 
 
 def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> Scene:
+    if is_garment(document):
+        return _garment(document, base_dir=base_dir, path=path)
     top = Table(document, "")
     name = top.string("name")
     description = top.string("description", "")
@@ -146,15 +152,35 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
             raise SceneError("training.pseudo_time: not available with [[obstacles]]")
         field = replace(field, conditioning=(TIME_RANGE,), pseudo_time=True)
     dynamics = parse_dynamics(top, field, model)
+    start = parse_start(top, surface, field)
+    if start is not None and dynamics is not None:
+        raise SceneError("start: not available with [dynamics] (a run in physical time starts "
+                         "from the rest shape)")
     top.close()
     scene = Scene(name=name, description=description, model=model, field=field, solver=solver,
                   quick_solver=quick, output=output, path=path or base_dir / "scene.toml",
-                  document=document, output_scale_estimate=estimate, dynamics=dynamics)
+                  document=document, output_scale_estimate=estimate, dynamics=dynamics,
+                  start=start)
     try:  # its sizes fit the memory, before any work (at run start: `Discretisation.check_size`)
         kind.check_size(field, solver, 4, **contact_check_points(model.contact))
     except ValueError as err:
         raise SceneError(str(err)) from None
     return scene
+
+
+def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
+    """A garment file (`[[panels]]`, `taichi_ndf.scene.garment`): its field is the panels'
+    `MultiPatchPlan`, its model the first panel's."""
+    top = Table(document, "")
+    name, description = top.string("name"), top.string("description", "")
+    material = _section(top.table("material"), _material)
+    plan, _ = parse_garment(top, material, top.table("field", optional=True))
+    solver, quick = _section(top.table("training", optional=True), training, True)
+    output = _section(top.table("output", optional=True), _output, False)
+    top.close()
+    return Scene(name=name, description=description, model=plan.patches[0].model, field=plan,
+                 solver=solver, quick_solver=quick, output=output,
+                 path=path or base_dir / "scene.toml", document=document)
 
 
 def _section(table: Table, build, *args):

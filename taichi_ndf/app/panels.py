@@ -1,0 +1,47 @@
+"""The outputs of a garment's run (several panels, `MultiPatchDiscretisation`): one mesh per
+panel, one combined mesh with a `panel` vertex property, a render showing all panels."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from taichi_ndf.app.outputs import DeformedMesh, deformed_mesh, write_mesh_files
+from taichi_ndf.io import OutputDir, write_obj, write_ply
+from taichi_ndf.render.figure import render_figure
+from taichi_ndf.render.image_file import save_png
+
+
+def panel_meshes(plan, field, resolution: tuple[int, int], load_factor: float = 1.0
+                 ) -> list[DeformedMesh]:
+    """Each panel's deformed mesh on the export grid (`deformed_mesh` of its model)."""
+    return [deformed_mesh(patch.model, f, resolution, load_factor=load_factor)
+            for patch, f in zip(plan.patches, field.fields, strict=True)]
+
+
+def combined(meshes: list[DeformedMesh]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The panels' meshes as one: vertices (V, 3) [m], faces (F, 3) and each vertex's panel
+    index (V,) in the plan's order (the panels' vertices are not welded at the seams)."""
+    offsets = np.cumsum([0] + [len(m.deformed) for m in meshes])
+    vertices = np.concatenate([m.deformed for m in meshes])
+    faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets, strict=False)])
+    panel = np.concatenate([np.full(len(m.deformed), i, dtype=np.float64)
+                            for i, m in enumerate(meshes)])
+    return vertices, faces, panel
+
+
+def write_panel_outputs(out: OutputDir, plan, field, resolution: tuple[int, int], *,
+                        views: tuple[str, ...] = ("iso",), pictures: bool = True) -> None:
+    """mesh_<panel>.obj/.ply per panel; mesh.obj and mesh.ply of all panels (the PLY with a
+    `panel` vertex property: the panel's index in the file's order); render.png of all
+    panels coloured by panel."""
+    meshes = panel_meshes(plan, field, resolution)
+    for patch, mesh in zip(plan.patches, meshes, strict=True):
+        write_mesh_files(out, f"mesh_{patch.name}", mesh)
+    vertices, faces, panel = combined(meshes)
+    write_obj(out.file("mesh.obj"), vertices, faces)
+    write_ply(out.file("mesh.ply"), vertices, faces, vertex_scalars={"panel": panel})
+    if pictures:
+        image = render_figure(vertices, faces, scalars=panel,
+                              scalar_label="panel (" + ", ".join(p.name for p in plan.patches)
+                              + ")", views=views, width=None, height=600)
+        save_png(out.file("render.png"), image)

@@ -1,0 +1,239 @@
+"""Several spline patches (a garment's panels) solved in one projected Newton, behind the
+`Discretisation` protocol: `MultiPatchDiscretisation`.
+
+Each patch is a `ShellModel` of its own (surface, boundary conditions, line loads) with a
+spline grid (`SplineConfig`); seams join an edge of one patch to an edge of another
+(`SeamTerm` with `surface_b`, its points looked up in each patch's rows: `SeamTerm.between`).
+Every load step minimises Π = Σ_patches Π_shell + Σ_seams Π_seam over the joint coefficients
+by projected Newton on the joined linearisation (`minimise.multipatch.MultiPatchLinearisation`:
+block-diagonal K, the seams' pair couplings across patches); the load factor ramps gravity and
+sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), one material
+and one gravity for all patches (the shell energy is one term over the joined points), float64.
+A run is not resumable (a checkpoint holds one field): `start` refuses a resume in one line.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
+from taichi_ndf.field import SplineField
+from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.minimise.linearisation import GridLinearisation
+from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
+from taichi_ndf.minimise.newton import minimise
+from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.objective.seam import SeamTerm
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.training import SolverConfig
+from taichi_ndf.solve.spline_solver import newton_config
+
+__all__ = ["MultiPatchDiscretisation", "MultiPatchField", "MultiPatchPlan", "Patch", "PatchSeam"]
+
+log = logging.getLogger(__name__)
+
+DTYPE = torch.float64
+# The most unknowns (3 × coefficients over all patches) of one joint K (`check_size`).
+MAX_UNKNOWNS = 2_000_000
+
+
+@dataclass(frozen=True)
+class MultiPatchField:
+    """The solved fields, one `SplineField` per patch in the plan's order."""
+
+    fields: tuple[SplineField, ...]
+
+
+class MultiPatchDiscretisation:
+    """A `MultiPatchPlan` solved by projected Newton over all patches at once (module
+    docstring). objective, estimate: not supported (None)."""
+
+    field_type: ClassVar[Any] = None
+    name: ClassVar[str] = "multipatch"
+
+    def __init__(self, spec: MultiPatchPlan, model: ShellModel | None = None, *,
+                 objective: Objective | None = None, estimate: str | None = None):
+        if objective is not None:
+            raise ValueError("a multi-patch discretisation minimises Π of its patches only")
+        self.spec = spec
+        self.model = model or spec.patches[0].model
+        self.fields: list[SplineField] | None = None
+        self.converged: list[bool] = []
+        self._linear: MultiPatchLinearisation | None = None
+
+    def uses_newton(self, config: SolverConfig) -> bool:
+        return True
+
+    def check_size(self, config: SolverConfig, *, itemsize: int = 4) -> None:
+        """ValueError where the patches' unknowns together exceed `MAX_UNKNOWNS` (the joint
+        K is one sparse matrix of 3 Σ n_i rows)."""
+        total = sum(3 * math.prod(p.config.spans[i] + p.config.degree for i in range(2))
+                    for p in self.spec.patches)
+        if total > MAX_UNKNOWNS:
+            raise ValueError(f"the panels have {total} unknowns together, more than "
+                             f"{MAX_UNKNOWNS}; use fewer spans")
+
+    def refined(self, levels: int) -> MultiPatchDiscretisation:
+        if levels != 1:
+            raise ValueError("--refine: a multi-patch field is solved on one grid per patch")
+        return self
+
+    def with_displacement_unit(self, factor: float) -> MultiPatchDiscretisation:
+        return self
+
+    def for_case(self, scene_solver: SolverConfig, quick_solver: SolverConfig, *,
+                 quick: bool, solver: SolverConfig | None, iterations: int | None,
+                 seed: int | None, levels: int) -> tuple[MultiPatchDiscretisation, SolverConfig]:
+        raise ValueError("a multi-patch field is not a validation case")
+
+    def start(self, config: SolverConfig, *, seed: int, resume_from: Path | None = None
+              ) -> None:
+        """Zero coefficients on every patch (the rest shape: a garment's placement)."""
+        if config.method != "newton":
+            raise ValueError("a multi-patch field is solved with [training] method = \"newton\"")
+        if resume_from is not None:
+            raise ValueError("--resume: a multi-patch run cannot be resumed (its checkpoint "
+                             "would hold one patch); start it again")
+        self.fields = [SplineField(p.config, dtype=DTYPE) for p in self.spec.patches]
+
+    def _grids(self) -> tuple[list[GridLinearisation], list[SeamTerm]]:
+        """Each patch's grid assembled on its Gauss points and the seam points on it, and the
+        seam terms (before `between`)."""
+        patches = self.spec.patches
+        material = patches[0].model.material
+        seams = [SeamTerm(s.spec, patches[s.a].model.surface, material,
+                          surface_b=patches[s.b].model.surface) for s in self.spec.seams]
+        grids = []
+        for i, (patch, field) in enumerate(zip(patches, self.fields, strict=True)):
+            model = patch.model
+            grid = GridLinearisation(field, model.boundary,
+                                     length=math.sqrt(model.surface.domain.rectangle_area))
+            points = GridLinearisation.quadrature(model.surface, patch.config, model.loads,
+                                                  dtype=DTYPE)
+            for seam, term in zip(self.spec.seams, seams, strict=True):
+                if seam.a == i:
+                    points = points.joined(term.points(0))
+                if seam.b == i:
+                    points = points.joined(term.points(1))
+            grid.assemble(points)
+            grids.append(grid)
+        return grids, seams
+
+    def solve(self, config: SolverConfig, *, callbacks: Sequence[Any] = (),
+              on_load_step: OnLoadStep | None = None,
+              report: Callable[[str], None] | None = None) -> Solution:
+        """Each load step's Newton over the joint coefficients, from the last step's."""
+        started = time.perf_counter()
+        grids, seams = self._grids()
+        linear = MultiPatchLinearisation(grids, 1.0)
+        terms = tuple(term.between(linear.rows(s.a), linear.rows(s.b))
+                      for s, term in zip(self.spec.seams, seams, strict=True))
+        objective = Objective(ShellEnergyTerm(self.model.material,
+                                              Loads(gravity=self.spec.gravity)), terms)
+        c = torch.cat([f.coefficients.detach() for f in self.fields])
+        newton = newton_config(config, DTYPE)
+        history, steps, self.converged = [], [], []
+        energy = math.nan
+        for t in config.load_steps:
+            linear = MultiPatchLinearisation(grids, t)
+            solution = minimise(linear, objective.potential(t), c, newton, load_factor=t)
+            c, energy = solution.parameters, solution.energy
+            history.extend(solution.history)
+            self.converged.append(solution.converged)
+            steps.append({"load_factor": t, "energy": energy,
+                          "iterations": len(solution.history),
+                          "converged": solution.converged})
+            self._set(c, linear)
+            if config.progress and report is not None:
+                report(f"load factor {t:g}: Π = {energy:.8g} J, {len(solution.history)} "
+                       f"Newton iterations, converged {solution.converged}")
+            if on_load_step is not None:
+                on_load_step(t, self.field)
+        self._linear = linear
+        self._terms = terms
+        wall = time.perf_counter() - started
+        probes = self.probes(self.field, config.load_steps[-1])
+        return Solution(
+            field=self.field, energy=energy, iterations=len(history), wall_time=wall,
+            history=history, probes=probes, field_document=self.spec.to_dict(),
+            document={"load_steps": steps,
+                      "seam_gaps": self.seam_gaps()},
+            newton_steps=len(history),
+            settings={"method": "newton", "load_steps": list(config.load_steps),
+                      "field": self.spec.to_dict()})
+
+    def _set(self, c: torch.Tensor, linear: MultiPatchLinearisation) -> None:
+        for i, f in enumerate(self.fields):
+            f.coefficients.data.copy_(
+                c[linear.coefficient_offsets[i]:linear.coefficient_offsets[i + 1]])
+
+    def seam_gaps(self) -> dict[str, float]:
+        """Each seam's largest gap |x_A − x_B| [m] at its Gauss points, after `solve`."""
+        linear = self._linear
+        c = torch.cat([f.coefficients.detach() for f in self.fields])
+        u = linear.displacement(c)
+        return {t.spec.name: float(t.gaps(linear.samples, u).max()) for t in self._terms}
+
+    def check_solution(self, solution: Solution) -> None:
+        """No Newton step on any load step: refused; the last step not converged: logged."""
+        if not any(h.step_length > 0 for h in solution.history):
+            raise SolveRefused("projected Newton took no step on any load step of the panels, "
+                               f"so the result would be the start, Π = {solution.energy:.6g} J")
+        if not self.converged[-1]:
+            log.warning("projected Newton did not converge at the last load step of the "
+                        "panels (see result.json history)")
+
+    @property
+    def field(self) -> MultiPatchField:
+        return MultiPatchField(tuple(self.fields))
+
+    def probes(self, field: MultiPatchField, load_factor: float) -> Probes:
+        """Each patch's probes, named "panel.probe"."""
+        out: Probes = {}
+        for patch, f in zip(self.spec.patches, field.fields, strict=True):
+            probes = patch.model.probes
+            if not probes:
+                continue
+            xi = torch.tensor([p.xi for p in probes], dtype=DTYPE).reshape(-1, 2)
+            u = displacement_at(DisplacementOperator(f, patch.model.boundary), xi,
+                                f.coefficients, load_factor)[:, jets.VALUE]
+            out.update({f"{patch.name}.{p.name}": [float(v) for v in u[k]]
+                        for k, p in enumerate(probes)})
+        return out
+
+    def energy_at(self, load_factor: float) -> float:
+        raise ValueError("a multi-patch field has no pseudo-time path")
+
+    def evaluation_points(self):
+        """The joined points of all patches (after `solve`)."""
+        return self._linear.samples
+
+    def displacement(self, xi: torch.Tensor, load_factor: float) -> torch.Tensor:
+        raise ValueError("a multi-patch field's ξ is per patch: use displacement_of(patch, xi)")
+
+    def displacement_of(self, patch: int, xi: torch.Tensor, load_factor: float = 1.0
+                        ) -> torch.Tensor:
+        """Displacement jets (N, 6, 3) [m] of patch `patch` at its ξ (N, 2)."""
+        f, model = self.fields[patch], self.spec.patches[patch].model
+        return displacement_at(DisplacementOperator(f, model.boundary), xi.to(DTYPE),
+                               f.coefficients, load_factor)
+
+    def linearisation(self, samples, load_factor: float) -> MultiPatchLinearisation:
+        """The joined linearisation of the patches at their own points (`samples` must be
+        `evaluation_points()`)."""
+        if samples is not self._linear.samples:
+            raise ValueError("a multi-patch linearisation is built on its own points "
+                             "(evaluation_points())")
+        return MultiPatchLinearisation(self._linear.grids, load_factor)

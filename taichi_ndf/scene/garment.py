@@ -1,0 +1,147 @@
+"""Garment files (TOML): panels sewn together (docs/scenes.md, "Garments").
+
+A garment file is a scene file with `[[panels]]` instead of `[geometry]`: each panel a
+rectangle width × height [m] placed where it starts (flat, or wrapped around a cylinder), with
+its own edges held and its own spline grid; `[[seams]]` join `panel.edge` to `panel.edge`.
+Read into a `MultiPatchPlan` (`taichi_ndf.discretise.multipatch`). Errors are one line naming
+the panel and the edge (an unknown panel or edge, an edge in two seams, seam lengths differing
+by more than `LENGTH_TOLERANCE`), raised before anything is solved.
+"""
+
+from __future__ import annotations
+
+import math
+
+from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge
+from taichi_ndf.field.spline import SplineConfig
+from taichi_ndf.geometry import Cylinder, Plane
+from taichi_ndf.objective.seam import SeamTerm
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import Probe, ShellModel
+from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
+from taichi_ndf.problem.seams import (
+    BENDING,
+    DEFAULT_PENALTY,
+    EDGES,
+    LENGTH_TOLERANCE,
+    ORIENTATIONS,
+    EdgeSegment,
+    SeamSpec,
+)
+from taichi_ndf.scene.schema import SceneError, Table, checked
+
+__all__ = ["LENGTH_TOLERANCE", "is_garment", "parse_garment"]
+
+
+def is_garment(document: dict) -> bool:
+    """Whether a parsed TOML document is a garment file (it has `[[panels]]`)."""
+    return "panels" in document
+
+
+def _surface(t: Table):
+    """The panel's rest (and start) surface: width along ξ¹, height along ξ²; flat, or a
+    cylinder sector of `wrap_radius` (ξ¹ its angle [rad], ξ² along its axis)."""
+    width, height = t.number("width", positive=True), t.number("height", positive=True)
+    placement = {"origin": t.vector("origin", 3, (0.0, 0.0, 0.0))}
+    if t.has("frame"):
+        frame = t._get("frame", None)
+        placement["frame"] = checked(lambda: tuple(tuple(float(v) for v in row)
+                                                   for row in frame), t.key("frame"))
+    if t.has("wrap_radius"):
+        radius = t.number("wrap_radius", positive=True)
+        if width / radius > 2 * math.pi * (1 - 1e-9):
+            raise SceneError(f"{t.key('wrap_radius')}: a {width} m wide panel wraps more than "
+                             f"a whole turn around radius {radius} m")
+        return checked(lambda: Cylinder(radius=radius, length=height, angle=width / radius,
+                                        **placement), t.path)
+    return checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), **placement), t.path)
+
+
+def _edges(t: Table, key: str) -> list[str]:
+    """A list of edge names (none: [])."""
+    value = t._get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise SceneError(f"{t.key(key)}: expected a list of edges like [\"xi2_max\"]")
+    return value
+
+
+def _panel(t: Table, index: int, material, gravity, default_spans) -> Patch:
+    name = t.string("name", f"panels[{index}]")
+    surface = _surface(t)
+    clamped, hinged = _edges(t, "clamped"), _edges(t, "hinged")
+    for edge in clamped + hinged:
+        if edge not in EDGES:
+            raise SceneError(f"{t.path}: panel {name!r}: no edge {edge!r} (edges: "
+                             f"{', '.join(EDGES)})")
+    constraints = [ClampedEdge(e) for e in clamped] + [HingedEdge(e) for e in hinged]
+    boundary = checked(lambda: BoundaryConditions(constraints, domain=surface.domain), t.path)
+    probes = tuple(Probe(p.string("name"), p.vector("xi", 2)) for p in t.tables("probes"))
+    model = checked(lambda: ShellModel(surface, material, Loads(gravity=gravity), boundary,
+                                       probes), t.path)
+    spans = tuple(int(v) for v in t.vector("spans", 2, default_spans))
+    config = checked(lambda: SplineConfig(spans=spans, domain=surface.domain.bounds),
+                     t.key("spans"))
+    t.close()
+    return Patch(name, model, config)
+
+
+def _side(t: Table, key: str, names: dict[str, int]) -> tuple[int, str]:
+    value = t.string(key)
+    panel, _, edge = value.rpartition(".")
+    if panel not in names:
+        raise SceneError(f"{t.key(key)}: no panel {panel!r} (panels: {', '.join(names)})")
+    if edge not in EDGES:
+        raise SceneError(f"{t.key(key)}: panel {panel!r} has no edge {edge!r} (edges: "
+                         f"{', '.join(EDGES)})")
+    return names[panel], edge
+
+
+def _seam(t: Table, index: int, names: dict[str, int]) -> PatchSeam:
+    name = t.string("name", f"seams[{index}]")
+    (a, edge_a), (b, edge_b) = _side(t, "a", names), _side(t, "b", names)
+    spec = checked(lambda: SeamSpec(
+        name, EdgeSegment(edge_a), EdgeSegment(edge_b),
+        orientation=t.string("orientation", "same", choices=ORIENTATIONS),
+        bending=t.string("bending", "transmitted", choices=BENDING),
+        penalty=t.number("stiffness", DEFAULT_PENALTY, positive=True),
+        segments=t.integer("segments", 64, minimum=1), nodes=t.integer("nodes", 4, minimum=1)),
+        t.path)
+    t.close()
+    return PatchSeam(spec, a, b)
+
+
+def parse_garment(top: Table, material, field: Table | None) -> tuple[MultiPatchPlan, tuple]:
+    """The garment's plan (panels and seams) from the document's `[[panels]]`, `[[seams]]`,
+    `[loads]` (gravity only) and `[field]` (`spans`: each panel's default grid), the
+    material already read; returns the plan and the panels' probes (named "panel.probe")."""
+    loads = top.table("loads", optional=True)
+    gravity = loads.vector("gravity", 3, (0.0, 0.0, 0.0)) if loads is not None else (0, 0, 0)
+    if loads is not None:
+        loads.close()
+    spans = (16, 8)
+    if field is not None:
+        field.string("type", "spline", choices=("spline",))
+        spans = tuple(int(v) for v in field.vector("spans", 2, spans))
+        field.close()
+    tables = top.tables("panels")
+    patches = [_panel(t, i, material, gravity, spans) for i, t in enumerate(tables)]
+    names: dict[str, int] = {}
+    for t, patch in zip(tables, patches, strict=True):
+        if patch.name in names:
+            raise SceneError(f"{t.path}: a second panel named {patch.name!r}")
+        names[patch.name] = len(names)
+    seams, used = [], {}
+    for index, t in enumerate(top.tables("seams")):
+        seam = _seam(t, index, names)
+        for side, panel in ((seam.spec.a, seam.a), (seam.spec.b, seam.b)):
+            key = f"{patches[panel].name}.{side.edge}"
+            if key in used:
+                raise SceneError(f"{t.path}: edge {key!r} is already in seam {used[key]!r}")
+            used[key] = seam.spec.name
+        checked(lambda seam=seam: SeamTerm(seam.spec, patches[seam.a].model.surface, material,
+                                           surface_b=patches[seam.b].model.surface), t.path)
+        seams.append(seam)
+    plan = checked(lambda: MultiPatchPlan(tuple(patches), tuple(seams), tuple(gravity)),
+                   "panels")
+    probes = tuple(Probe(f"{p.name}.{q.name}", q.xi) for p in patches for q in p.model.probes)
+    return plan, probes
