@@ -31,8 +31,8 @@ mean edge lengths: lost or never found):
 An accepted point's confidence is exp(−(fb / fb_threshold)²) like a track's. With `carry`
 (the default) an accepted point becomes a track (`inverse.sft.carried`): followed frame to
 frame by Lucas–Kanade from the image where it was accepted, forward–backward checked, dropped
-when it fails or leaves the mask; a carried point counts as tracked (it is not searched again
-and its error sets the windows of its neighbours). Without `carry` the points are
+when it fails or leaves the mask; a carried point is not searched again, and its pixel error,
+like a tracked point's, sets the windows of the candidates near it. Without `carry` the points are
 correspondences of frame t only, re-searched every frame from the newest prediction.
 `stats` keeps per frame how many were searched and accepted, and why the others were not.
 """
@@ -175,7 +175,7 @@ class GuidedSearch:
         if not self.config.carry:
             return self._search(t, history, tracked)
         self.carried.advance(t, self.frames, self.masks)
-        if len(tracked) and len(self.carried):
+        if len(tracked) and len(self.carried):  # the tracker has them again: no need
             carried = self.carried.current()
             self.carried.drop_near(
                 surface_positions(self.template.vertices, self.template.faces, carried.face,
@@ -183,15 +183,16 @@ class GuidedSearch:
                 surface_positions(self.template.vertices, self.template.faces, tracked.face,
                                   tracked.bary), self.config.gap_edges * self.mean_edge)
         carried = self.carried.current()
-        found = self._search(t, history, merged(tracked, carried))
+        found = self._search(t, history, tracked, carried)
         self.stats[t]["carried"] = len(carried)
         self.carried.add(t, found)
         return self.carried.current()
 
-    def _search(self, t: int, history: list[np.ndarray],
-                tracked: FrameCorrespondences) -> FrameCorrespondences:
+    def _search(self, t: int, history: list[np.ndarray], tracked: FrameCorrespondences,
+                carried: FrameCorrespondences | None = None) -> FrameCorrespondences:
         """Texture points re-found in frame t near where `history` predicts them, away from
-        the `tracked` points."""
+        the `tracked` points, other than those `carried` (whose errors, with the tracked
+        points', set the windows)."""
         cfg = self.config
         stats = dict.fromkeys(("candidates", *SKIPS, "searched", "widened", "accepted",
                                *REJECTIONS), 0)
@@ -208,7 +209,13 @@ class GuidedSearch:
         else:
             gap = np.full(len(self.rest), np.inf)
         order = np.argsort(-gap)
-        order = order[gap[order] > cfg.gap_edges * self.mean_edge][:cfg.max_points]
+        order = order[gap[order] > cfg.gap_edges * self.mean_edge]
+        if carried is not None and len(carried):
+            order = order[~np.isin(GUIDED_TRACK_ID + order, carried.track_id)]
+            tracked = merged(tracked, carried)
+            track_rest = surface_positions(self.template.vertices, faces, tracked.face,
+                                           tracked.bary)
+        order = order[:cfg.max_points]
         stats["candidates"] = len(order)
         if len(order) == 0:
             return _empty()
