@@ -11,7 +11,9 @@ pyramidal Lucas–Kanade, checked forward–backward, and dropped when the check
 when the sparse tracker holds a point within `gap_edges` mean edges of it on the template (the
 same rule that decides which points the guided search looks for). Its confidence in a frame is
 exp(−(fb / fb_threshold)²), a sparse track's rule. A point that is carried is not searched
-again; one that is dropped may be re-found by the search later.
+again; one that is dropped may be re-found by the search later. Opt-in
+(`GuidedConfig.carry`): on R1 and on the synthetic study it measured worse than re-searching
+every frame (benchmarks/RESULTS.md, R1 section, wip-sft6).
 """
 
 from __future__ import annotations

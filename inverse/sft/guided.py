@@ -28,12 +28,13 @@ mean edge lengths: lost or never found):
    the frame, started at the peak, and back, returns within `fb_threshold` (the tracker's
    limit) and stays within `peak_separation` of the peak.
 
-An accepted point's confidence is exp(−(fb / fb_threshold)²) like a track's. With `carry`
-(the default) an accepted point becomes a track (`inverse.sft.carried`): followed frame to
-frame by Lucas–Kanade from the image where it was accepted, forward–backward checked, dropped
-when it fails or leaves the mask; a carried point is not searched again, and its pixel error,
-like a tracked point's, sets the windows of the candidates near it. Without `carry` the points are
-correspondences of frame t only, re-searched every frame from the newest prediction.
+An accepted point's confidence is exp(−(fb / fb_threshold)²) like a track's. By default the
+points are correspondences of frame t only, re-searched every frame from the newest
+prediction. With `carry` an accepted point becomes a track (`inverse.sft.carried`): followed
+frame to frame by Lucas–Kanade from the image where it was accepted, forward–backward checked,
+dropped when it fails or leaves the mask; a carried point is not searched again, and its pixel
+error, like a tracked point's, sets the windows of the candidates near it. `carry` is off:
+measured worse on R1 and on the synthetic study (benchmarks/RESULTS.md, R1, wip-sft6).
 `stats` keeps per frame how many were searched and accepted, and why the others were not.
 """
 
@@ -83,7 +84,8 @@ class GuidedConfig:
     min_distance); match_sigma: smoothing of both images before matching [image px] (1.5:
     about the motion blur of a sheet that moves a few px per frame; R1's whipping strip keeps
     0.7 of frame 0's Laplacian energy); carry: follow accepted points into the next frames
-    as tracks (`inverse.sft.carried`, the tracker's Lucas–Kanade settings).
+    as tracks (`inverse.sft.carried`, the tracker's Lucas–Kanade settings; off: measured worse
+    on R1's largest distance and on the synthetic roll and corner sequences).
     """
 
     patch_radius: int = 10
@@ -101,7 +103,7 @@ class GuidedConfig:
     mask_margin: int = 4
     corner_spacing: float = 7.0
     match_sigma: float = 1.5
-    carry: bool = True
+    carry: bool = False
 
     def __post_init__(self):
         if self.patch_radius < 2:
