@@ -28,8 +28,13 @@ mean edge lengths: lost or never found):
    the frame, started at the peak, and back, returns within `fb_threshold` (the tracker's
    limit) and stays within `peak_separation` of the peak.
 
-The points are correspondences of frame t only (re-searched every frame from the newest
-prediction, never carried as tracks), confidence exp(−(fb / fb_threshold)²) like a track's.
+An accepted point's confidence is exp(−(fb / fb_threshold)²) like a track's. By default the
+points are correspondences of frame t only, re-searched every frame from the newest
+prediction. With `carry` an accepted point becomes a track (`inverse.sft.carried`): followed
+frame to frame by Lucas–Kanade from the image where it was accepted, forward–backward checked,
+dropped when it fails or leaves the mask; a carried point is not searched again, and its pixel
+error, like a tracked point's, sets the windows of the candidates near it. `carry` is off:
+measured worse on R1 and on the synthetic study (benchmarks/RESULTS.md, R1, wip-sft6).
 `stats` keeps per frame how many were searched and accepted, and why the others were not.
 """
 
@@ -43,7 +48,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from inverse.sft.camera import Camera
+from inverse.sft.carried import CarriedTracks, CarryConfig
 from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.flow import merged
 from inverse.sft.image import bilinear, eroded, sample_mask, signed_area, to_gray
 from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.matching import prefiltered_texture
@@ -76,7 +83,9 @@ class GuidedConfig:
     corner_spacing: spacing of the texture corners [image px at frame 0] (the tracker's
     min_distance); match_sigma: smoothing of both images before matching [image px] (1.5:
     about the motion blur of a sheet that moves a few px per frame; R1's whipping strip keeps
-    0.7 of frame 0's Laplacian energy).
+    0.7 of frame 0's Laplacian energy); carry: follow accepted points into the next frames
+    as tracks (`inverse.sft.carried`, the tracker's Lucas–Kanade settings; off: measured worse
+    on R1's largest distance and on the synthetic roll and corner sequences).
     """
 
     patch_radius: int = 10
@@ -94,6 +103,7 @@ class GuidedConfig:
     mask_margin: int = 4
     corner_spacing: float = 7.0
     match_sigma: float = 1.5
+    carry: bool = False
 
     def __post_init__(self):
         if self.patch_radius < 2:
@@ -141,6 +151,8 @@ class GuidedSearch:
             self.config.match_sigma * scale)
         self.face, self.bary, self.texture_xy = self._texture_points(texture, scale)
         self.rest = surface_positions(template.vertices, template.faces, self.face, self.bary)
+        self.carried = CarriedTracks(CarryConfig(fb_threshold=self.config.fb_threshold,
+                                                 mask_margin=self.config.mask_margin))
         self.stats: dict[int, dict[str, int]] = {}
 
     def _texture_points(self, texture: np.ndarray, scale: float):
@@ -159,8 +171,30 @@ class GuidedSearch:
 
     def correspondences(self, t: int, history: list[np.ndarray],
                         tracked: FrameCorrespondences) -> FrameCorrespondences:
-        """Texture points re-found in frame t near where `history` (the vertices [m] of the
-        frames before t, last one last) predicts them, away from the `tracked` points."""
+        """Texture points of frame t away from the `tracked` points: with `carry` those
+        carried from frame t − 1, plus those re-found near where `history` (the vertices [m]
+        of the frames before t, last one last) predicts them."""
+        if not self.config.carry:
+            return self._search(t, history, tracked)
+        self.carried.advance(t, self.frames, self.masks)
+        if len(tracked) and len(self.carried):  # the tracker has them again: no need
+            carried = self.carried.current()
+            self.carried.drop_near(
+                surface_positions(self.template.vertices, self.template.faces, carried.face,
+                                  carried.bary),
+                surface_positions(self.template.vertices, self.template.faces, tracked.face,
+                                  tracked.bary), self.config.gap_edges * self.mean_edge)
+        carried = self.carried.current()
+        found = self._search(t, history, tracked, carried)
+        self.stats[t]["carried"] = len(carried)
+        self.carried.add(t, found)
+        return self.carried.current()
+
+    def _search(self, t: int, history: list[np.ndarray], tracked: FrameCorrespondences,
+                carried: FrameCorrespondences | None = None) -> FrameCorrespondences:
+        """Texture points re-found in frame t near where `history` predicts them, away from
+        the `tracked` points, other than those `carried` (whose errors, with the tracked
+        points', set the windows)."""
         cfg = self.config
         stats = dict.fromkeys(("candidates", *SKIPS, "searched", "widened", "accepted",
                                *REJECTIONS), 0)
@@ -177,7 +211,13 @@ class GuidedSearch:
         else:
             gap = np.full(len(self.rest), np.inf)
         order = np.argsort(-gap)
-        order = order[gap[order] > cfg.gap_edges * self.mean_edge][:cfg.max_points]
+        order = order[gap[order] > cfg.gap_edges * self.mean_edge]
+        if carried is not None and len(carried):
+            order = order[~np.isin(GUIDED_TRACK_ID + order, carried.track_id)]
+            tracked = merged(tracked, carried)
+            track_rest = surface_positions(self.template.vertices, faces, tracked.face,
+                                           tracked.bary)
+        order = order[:cfg.max_points]
         stats["candidates"] = len(order)
         if len(order) == 0:
             return _empty()
