@@ -84,3 +84,28 @@ def test_bad_first_step_or_level_is_refused():
         solve_over(Stages(lambda step, begin: None), [1.0], first_step=1)
     with pytest.raises(ValueError, match="first_level"):
         solve_over(Stages(lambda step, begin: None), [1.0], levels=2, first_level=2)
+
+
+def test_steps_found_as_the_loop_goes_take_their_value_from_the_last_result():
+    """`next_value`: a dynamic run's time steps, each step's end time from the last result
+    (here: doubling sizes up to t = 1), the callbacks after each, no count in advance."""
+    asked = []
+
+    def next_value(index, last):
+        asked.append((index, last))
+        time = 0.0 if last is None else last[1]
+        size = 0.125 if last is None else 2 * last[2]
+        return None if time >= 1.0 else min(1.0, time + size)
+
+    def solve(step, start):  # (index, end time, size)
+        last = asked[-1][1]
+        return step.index, step.value, step.value - (0.0 if last is None else last[1])
+
+    calls = Calls()
+    results = solve_over(Stages(solve), (), first_step=3, callbacks=[calls],
+                         next_value=next_value)
+    assert [r[:2] for r in results[0]] == [(3, 0.125), (4, 0.375), (5, 0.875), (6, 1.0)]
+    assert calls.seen == ["start", 0.125, 0.375, 0.875, 1.0, "end"]
+    assert [i for i, _ in asked] == [3, 4, 5, 6, 7]
+    with pytest.raises(ValueError, match="cannot be counted"):
+        solve_over(Stages(solve), (), next_value=next_value, stage="steps")

@@ -1,8 +1,9 @@
 """A projected-Newton run checkpointed inside a grid level (`State.inside`: the level's
 finished load steps, the coarser level's solutions, Newton's iterate) and resumed there gives
 the uninterrupted run's result bit for bit: stopped by a callback raising after Newton
-iteration j, every k iterations and on Ctrl-C; a run with obstacles refuses such a
-checkpoint in one line."""
+iteration j, every k iterations and on Ctrl-C; a run with obstacles too, stopped inside its
+first and its second contact round (`State.inside.contact`: check points, κ, the round), and
+it refuses a checkpoint without contact in one line."""
 
 from __future__ import annotations
 
@@ -126,11 +127,101 @@ def test_a_resume_with_other_load_steps_is_refused_in_one_line(strip, tmp_path):
         solve_spline(scene.model, scene.field, other, state=state)
 
 
-def test_a_run_with_obstacles_refuses_a_checkpoint_inside_a_level():
+def test_a_checkpoint_without_contact_is_refused_by_a_run_with_obstacles_in_one_line():
     scene = load_scene("scenes/tablecloth_box.toml", field="spline")
     assert scene.model.contact is not None
     state = State.newton(SplineField(scene.field.config))
     state.inside = InsideLevel(level=0, first_step=0, done=[], coarser=None, records=0)
     with pytest.raises(CheckpointError, match="^the checkpoint was written inside grid level 0"
-                       r".*obstacles cannot resume"):
+                       r" of a run without obstacles; resume it with its own scene"):
         solve_spline(scene.model, scene.field, scene.solver, state=state)
+
+TABLE = """
+name = "tiny_table"
+[geometry]
+type = "plane"
+bounds = [[-0.2, 0.2], [-0.15, 0.15]]
+origin = [0.0, 0.0, 0.003]
+[material]
+preset = "polyester"
+[loads]
+gravity = [0.0, 0.0, -9.81]
+[[boundary.constraint]]
+type = "pinned_point"
+xi = [0.0, 0.0]
+components = "xy"
+[[boundary.constraint]]
+type = "interior_line"
+start = [-0.2, 0.0]
+end = [0.2, 0.0]
+extend = true
+hinged = true
+components = "y"
+[[obstacles]]
+type = "box"
+name = "table"
+centre = [0.0, 0.0, -0.05]
+half_extents = [0.15, 0.1, 0.05]
+rounding = 0.02
+friction = 0.3
+[contact]
+check_resolution = 24
+[field]
+type = "spline"
+spans = [4, 4]
+levels = 2
+[training]
+load_steps = [0.5, 1.0]
+"""
+
+
+class Rounds:
+    """After each kept Newton iterate: (iteration, load factor, the contact round's index)."""
+
+    def __init__(self):
+        self.kept = []
+
+    def on_iteration(self, run, record) -> None:
+        within = run.contact.to_dict()["round"]
+        self.kept.append((run.state.iteration, run.state.history[-1].load_factor,
+                          None if within is None else within["index"]))
+
+
+@pytest.fixture(scope="module")
+def table(tmp_path_factory):
+    """A tiny tablecloth_box: a cloth with friction on a rounded box, 2 levels × 2 load
+    steps, solved once whole (its kept iterates' rounds recorded)."""
+    path = tmp_path_factory.mktemp("table") / "table.toml"
+    path.write_text(TABLE)
+    scene = load_scene(path)
+    solver = dataclasses.replace(scene.solver, checkpoint_every=1)
+    rounds = Rounds()
+    whole = solve_spline(scene.model, scene.field, solver, callbacks=[rounds])
+    return scene, solver, whole, rounds.kept
+
+
+@pytest.mark.parametrize("round_index", [0, 1])
+def test_a_contact_run_resumed_inside_a_round_is_bit_identical(table, tmp_path, round_index):
+    scene, solver, whole, kept = table
+    # an iterate in the middle of the run's iterates inside such a round
+    candidates = [j for j, _, r in kept if r == round_index]
+    assert candidates, f"no kept iterate inside round {round_index}: {kept}"
+    j = candidates[len(candidates) // 2]
+    path = tmp_path / "c.pt"
+    with pytest.raises(Stop):
+        solve_spline(scene.model, scene.field, solver,
+                     callbacks=[CheckpointWriter(path), StopAfter(j)])
+    state = State.newton(None)
+    state.restore(path)
+    assert state.iteration == j and state.inside.iterate is not None
+    assert state.inside.contact["round"]["index"] == round_index
+    resumed = solve_spline(scene.model, scene.field, solver, state=state)
+    assert resumed.energy == whole.energy
+    assert [h.energy for h in resumed.history] == [h.energy for h in whole.history]
+    assert [h.step_length for h in resumed.history] == [h.step_length for h in whole.history]
+    assert resumed.contact.rounds == whole.contact.rounds
+    assert torch.equal(resumed.contact.points.active, whole.contact.points.active)
+    assert resumed.contact.points.term.stiffness == whole.contact.points.term.stiffness
+    assert torch.equal(resumed.field.coefficients, whole.field.coefficients)
+    assert [(lv.energy, lv.iterations, lv.probes) for lv in resumed.levels] == [
+        (lv.energy, lv.iterations, lv.probes) for lv in whole.levels]

@@ -25,12 +25,18 @@ normal forces changed by less than LAG_TOLERANCE of their largest), at most MAX_
 
 Friction (`taichi_ndf.contact.friction`) is lagged per round: the normal forces and normals
 of the round's starting state, the positions at the start of the load step.
+
+A checkpoint inside a grid level holds the contact's state (`NewtonContact.to_dict`: the
+check points, κ, the rounds so far and, inside a load step, its round: the round's index,
+the coefficients and κ it started from (friction's lag is recomputed from them), whether the lag
+changed, the step's Newton iterations of its finished rounds); `restore` and `solve(...,
+resume=)` go on from there bit for bit (`taichi_ndf.solve.spline_solver`).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import torch
 
@@ -40,7 +46,8 @@ from taichi_ndf.contact.friction import FrictionTerm
 from taichi_ndf.contact.hook import ContactHook
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.linearisation import GridLinearisation
-from taichi_ndf.minimise.newton import NewtonSolution, minimise
+from taichi_ndf.minimise.newton import NewtonIteration, NewtonSolution, minimise
+from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.self_contact import SelfContactTerm
 from taichi_ndf.problem.sampling import SurfaceSamples
@@ -126,6 +133,36 @@ class NewtonContact:
         self.rounds = 0  # Newton rounds over all load steps and levels
         self.self_contact = None if config.self_contact is None else \
             SelfContactTerm(config.self_contact)
+        self._round = None  # the load step's round in progress (`to_dict`)
+
+    def to_dict(self) -> dict:
+        """The contact's state as plain values (module docstring): the check points (mask
+        over the dense grid), κ [N/m³], the rounds so far and the round in progress (None
+        between load steps: index, start coefficients (n, 3), lag changed, the step's
+        iterations of its finished rounds)."""
+        within = None
+        if self._round is not None:
+            index, start, stiffness, lag_changed, history = self._round
+            within = {"index": index, "start": start, "stiffness": stiffness,
+                      "lag_changed": lag_changed, "history": [asdict(h) for h in history]}
+        return {"active": self.points.active.clone(), "stiffness": self.points.term.stiffness,
+                "rounds": self.rounds, "round": within}
+
+    def restore(self, values: dict) -> None:
+        """Take the state `to_dict` gave (the round in progress: for `solve(..., resume=)`)."""
+        points = self.points
+        active = values["active"]
+        if active.shape != points.active.shape:
+            raise ValueError(f"the checkpoint's contact has {len(active)} check-grid points, "
+                             f"this run's {len(points.active)}")
+        points.active, points._samples = active.clone(), None
+        points.term.stiffness = float(values["stiffness"])
+        self.rounds = int(values["rounds"])
+        within = values["round"]
+        self._round = None if within is None else (
+            int(within["index"]), within["start"], float(within["stiffness"]),
+            bool(within["lag_changed"]),
+            [NewtonIteration(**h) for h in within["history"]])
 
     @property
     def points(self):
@@ -141,7 +178,8 @@ class NewtonContact:
     def solve(self, grid: GridLinearisation, quadrature, objective: Objective,
               coefficients: torch.Tensor, config, *, load_factor: float,
               start_load_factor: float, on_iteration=None, terms_at=None,
-              report: bool = True) -> NewtonSolution:
+              report: bool = True, resume: NewtonIterate | None = None,
+              on_iterate=None) -> NewtonSolution:
         """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
 
         grid: the grid's linearisation builder (its operator, held unknowns, linear solver
@@ -151,7 +189,10 @@ class NewtonContact:
         start-of-step positions); config, on_iteration, report: as `minimise`.
         terms_at(assembly) -> tuple: further terms evaluated, like the contact terms, at every
         sample of a round's `Assembly` (made per round, in its sample order: a time step's
-        `InertiaTerm`, its target at those samples; `taichi_ndf.solve.dynamics`)."""
+        `InertiaTerm`, its target at those samples; `taichi_ndf.solve.dynamics`).
+        resume: Newton's iterate inside the round `restore` gave (its check points, κ,
+        round): the step goes on from there bit for bit; on_iterate(iterate): after each
+        Newton step a round goes on from (`to_dict` then holds the round)."""
         operator = grid.operator
         t = load_factor
         points = self.points
@@ -169,17 +210,28 @@ class NewtonContact:
         feasible = self.hook.feasible(lambda c: checked_r + checked(c), t,
                                       self_rest=checked_r[:on_grid.start])
 
-        refresh(start)
-        history, c, solution, lagged = [], coefficients, None, None
-        for _round in range(MAX_ROUNDS):
-            self.rounds += 1
+        history, c, solution, lagged, first = [], coefficients, None, None, 0
+        if resume is None:
+            self._round = None
+            refresh(start)
+        else:  # the look-ahead's last positions: the iterate's (refreshed there before)
+            first, c, stiffness, resumed_lag, history = self._round
+            kept = points.active.clone(), points.term.stiffness
+            refresh(resume.parameters)
+            points.active, points._samples, points.term.stiffness = kept[0], None, kept[1]
+        for _round in range(first, MAX_ROUNDS):
+            if resume is None:
+                self.rounds += 1
             count = points.count
             linearisation = grid.linearisation(t, points.augment(quadrature))
             assembly = linearisation.assembly
             extra = () if terms_at is None else tuple(terms_at(assembly))
             potential = ContactPotential(objective, self.terms + extra, t)
             lag_changed = False
-            if self.friction is not None:
+            if resume is None:
+                stiffness = points.term.stiffness  # κ at the round's start
+            if self.friction is not None:  # lagged at the round's start (and its κ)
+                held, points.term.stiffness = points.term.stiffness, stiffness
                 s = assembly.samples
                 x0 = s.r_jets[:, jets.VALUE] + displacement_at(
                     operator, s.xi, start, start_load_factor)[:, jets.VALUE]
@@ -191,9 +243,15 @@ class NewtonContact:
                     change = float((capacity - lagged).abs().max())
                     lag_changed = change > LAG_TOLERANCE * float(capacity.abs().max())
                 lagged = capacity
+                points.term.stiffness = held
+            if resume is not None:
+                lag_changed = resumed_lag
+            self._round = (_round, c, stiffness, lag_changed, list(history))
             solution = minimise(linearisation, potential, c, config, load_factor=t,
                                 feasible=feasible, on_step=refresh,
-                                on_iteration=on_iteration, report=report)
+                                on_iteration=on_iteration, report=report, resume=resume,
+                                on_iterate=on_iterate)
+            resume = None
             history += solution.history
             c = solution.parameters
             refresh(c)
@@ -206,4 +264,5 @@ class NewtonContact:
         else:
             log.warning("contact: %d rounds at load factor %g without settling the check "
                         "points", MAX_ROUNDS, t)
+        self._round = None
         return NewtonSolution(c, solution.energy, solution.converged and not added, history)

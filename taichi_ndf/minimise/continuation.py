@@ -4,8 +4,10 @@ A solve of a quasistatic problem goes through its load factors in turn (load con
 and, for a field with a grid hierarchy, through successively refined grids (coarse to fine);
 a shape-from-template reconstruction goes through its frames in turn, each warm-started from
 the frame before (`inverse.sft.sequential`). `solve_over` owns that loop; a step's value
-(`Step.value`) is a load factor on the forward paths and a frame index for the SfT frames. A
-solve path gives the loop what differs (`Stages`):
+(`Step.value`) is a load factor on the forward paths, a frame index for the SfT frames and
+the physical time [s] at a step's end for a dynamic run's time steps, whose count is found as
+the loop goes (`next_value`: the step control, `taichi_ndf.solve.time_steps`). A solve path
+gives the loop what differs (`Stages`):
 
 - `solve(step, start)`: minimise at one step (a load step, a frame) from its start; returns
   the step's result (a spline level's `LevelSolution`, a last-layer solve's step count, a
@@ -80,17 +82,24 @@ class Stages:
 def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = None,
                first_level: int = 0, first_step: int = 0, callbacks: Sequence[Any] = (),
                subject: Any = None, stage: str | None = None, done: Sequence[Any] = (),
-               coarser: list[Any] | None = None) -> list[list[Any]]:
+               coarser: list[Any] | None = None,
+               next_value: Callable[[int, Any], float | None] | None = None
+               ) -> list[list[Any]]:
     """Solve every step (`steps`: their values, load factors or frame indices) from
     `first_step` on, on every grid level from `first_level` below `levels` (None: a field
     without grid levels, one pass and no on_level), calling the stages and the callbacks, and
     with `stage` the progress reports (module docstring). done: the results of the first
     level's steps from `first_step` on that are already solved (a run resumed inside a
     level: they are not solved again); coarser: the results of the level below the first
-    (None: none). Returns the results per level of this run, per step solved."""
+    (None: none). next_value(index, the previous step's result or None): the value of step
+    `index` or None (the end), for steps not known in advance (`steps` then unused: give ()),
+    without `stage`. Returns the results per level of this run, per step solved."""
     if levels is not None and not 0 <= first_level < levels:
         raise ValueError(f"first_level must be in [0, {levels}), got {first_level}")
-    if not 0 <= first_step < len(steps):
+    if next_value is not None:
+        if stage is not None:
+            raise ValueError("solve_over: steps found as the loop goes cannot be counted")
+    elif not 0 <= first_step < len(steps):
         raise ValueError(f"first_step must be in [0, {len(steps)}), got {first_step}")
     call(callbacks, "on_start", subject)
     results: list[list[Any]] = []
@@ -99,9 +108,7 @@ def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = N
             stages.enter_level(level)
         coarser = results[-1] if results else coarser
         per_step: list[Any] = [] if results else list(done)
-        indices = range(first_step + len(per_step), len(steps))
-        for index in indices if stage is None else progress.counted(indices, stage):
-            step = Step(level, index, steps[index])
+        for step in _steps(level, steps, first_step, per_step, next_value, stage):
             start = None if stages.start is None else stages.start(
                 step, per_step[-1] if per_step else None,
                 None if coarser is None else coarser[len(per_step)])
@@ -119,6 +126,20 @@ def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = N
         stages.before_end()
     call(callbacks, "on_end", subject)
     return results
+
+
+def _steps(level: int, steps: Sequence[float], first_step: int, per_step: list, next_value,
+           stage: str | None):
+    """The level's steps (`Step`) from `first_step` + the steps already in `per_step`."""
+    index = first_step + len(per_step)
+    if next_value is None:
+        indices = range(index, len(steps))
+        for i in indices if stage is None else progress.counted(indices, stage):
+            yield Step(level, i, steps[i])
+        return
+    while (value := next_value(index, per_step[-1] if per_step else None)) is not None:
+        yield Step(level, index, value)
+        index += 1
 
 
 def resume_point(state, load_steps: int) -> tuple[int, int]:

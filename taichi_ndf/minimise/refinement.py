@@ -325,8 +325,8 @@ class GridLevels:
         shown = step.level - self.first_level  # labels count this run's levels (as before)
         stage = (f"Newton level {shown} ({nx} × {ny} spans), load {t:.4g}",
                  (newton or NewtonConfig()).max_iterations)
+        iterate = None if self.on_iterate is None else partial(self.on_iterate, step)
         if self.contact is None:
-            iterate = None if self.on_iterate is None else partial(self.on_iterate, step)
             solution = run_phases([Phase(
                 NewtonMinimiser(newton, load_factor=t, coarse_energy=coarse_energy,
                                 resume=resume),
@@ -338,7 +338,7 @@ class GridLevels:
                 solution = self.contact.solve(
                     self.builder, self.samples, self.objective, coefficients, newton,
                     load_factor=t, start_load_factor=start_load_factor,
-                    on_iteration=self.iterated)
+                    on_iteration=self.iterated, resume=resume, on_iterate=iterate)
         coefficients = solution.parameters
         readings = {}
         if self.probes:  # (a free pin's composition needs a point)

@@ -79,7 +79,8 @@ class InsideLevel:
     steps; coarser: the coarser level's solutions (None on the run's first level); step: the
     load step in progress with Newton's `iterate` (None: the next load step starts afresh);
     records: how many of the state's history records precede it (an interrupt between a
-    record and its iterate drops that record)."""
+    record and its iterate drops that record); contact: a run with obstacles' contact state
+    (`NewtonContact.to_dict`: check points, κ, the round in progress; plain values)."""
 
     level: int
     first_step: int
@@ -88,6 +89,7 @@ class InsideLevel:
     records: int
     step: int | None = None
     iterate: NewtonIterate | None = None
+    contact: dict | None = None
 
     def fits(self, load_steps: tuple[float, ...]) -> bool:
         """Whether the run went over these load steps (its finished and coarser solutions
@@ -103,7 +105,8 @@ class InsideLevel:
                 "coarser": None if self.coarser is None else [
                     _solution_dict(s, history=False) for s in self.coarser],
                 "step": self.step,
-                "iterate": None if self.iterate is None else self.iterate.to_dict()}
+                "iterate": None if self.iterate is None else self.iterate.to_dict(),
+                "contact": self.contact}
 
     @classmethod
     def from_dict(cls, values: dict) -> InsideLevel:
@@ -113,7 +116,8 @@ class InsideLevel:
                    [_solution(s) for s in values["done"]],
                    None if coarser is None else [_solution(s) for s in coarser],
                    int(values["records"]), values["step"],
-                   None if iterate is None else NewtonIterate.from_dict(iterate))
+                   None if iterate is None else NewtonIterate.from_dict(iterate),
+                   values.get("contact"))  # absent before contact runs resumed inside
 
 
 def _solution_dict(solution: LevelSolution, history: bool = True) -> dict:

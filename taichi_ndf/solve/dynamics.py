@@ -1,32 +1,32 @@
 """Implicit time stepping of a model on a spline field: every step minimises an incremental
 potential with the one projected Newton (`taichi_ndf.minimise.newton.minimise`).
 
-The state lives in the coefficients (n, 3) of one grid (the plan's finest): displacement C
-[m], velocity V [m/s], acceleration A [m/s²], each a field u = U₀ + J P on the Gauss points of
-the spline discretisation (`SplineDiscretisation.linearisation`). The loads act at the load
-factor λ(t) (`DynamicsConfig.load_factor`: 1 from t = 0, or a linear ramp), each step's at its
-end time. M is the consistent mass matrix of that field (`objective.inertia`), Π the model's
-potential energy (strain energy − work of the loads, + its further terms), α the
-mass-proportional Rayleigh damping [1/s] (force −α M v). Each step of length h from (C, V, A)
-minimises ½ s (x − x*)ᵀ M (x − x*) + Π(x) (+ ½ c (x − y)ᵀ K₀ (x − y) with stiffness-
-proportional damping β_R [s]): implicit Euler (first order, dissipative) or Newmark's average
-acceleration (β = ¼, γ = ½; second order); s, x*, c, y and the new V', A' are the linear maps
-of `taichi_ndf.problem.dynamics.StepMap`, written once there (docs/dynamics.md has the
-formulas; the adjoint, `solve/dynamics_adjoint.py`, differentiates the same maps). Newmark's
-A₀ solves M A₀ = −∇Π(C₀) − α M V₀ − β_R K₀ V₀. Each step starts Newton from x̂ and stops on
-Newton's own test; a step whose Newton does not converge is logged and split into two halves
-(recursively, at most `DynamicsConfig.halvings` times; beyond that `DynamicsError`). With
-`DynamicsConfig.adaptive` the step size follows `AdaptiveStep`'s rule between output frames.
+The state lives in the coefficients (n, 3) of one grid (the plan's finest): displacement C [m],
+velocity V [m/s], acceleration A [m/s²], each a field u = U₀ + J P on the Gauss points of the
+spline discretisation (`SplineDiscretisation.linearisation`). The loads act at the load factor λ(t)
+(`DynamicsConfig.load_factor`: 1 from t = 0, or a linear ramp), each step's at its end time. M is
+the consistent mass matrix of that field (`objective.inertia`), Π the model's potential energy
+(strain energy − work of the loads, + its further terms), α the mass-proportional Rayleigh damping
+[1/s] (force −α M v). Each step of length h from (C, V, A) minimises ½ s (x − x*)ᵀ M (x − x*) +
+Π(x) (+ ½ c (x − y)ᵀ K₀ (x − y) with stiffness-proportional damping β_R [s]): implicit Euler
+(first order, dissipative) or Newmark's average acceleration (β = ¼, γ = ½; second order); s, x*,
+c, y and the new V', A' are the linear maps of `taichi_ndf.problem.dynamics.StepMap`, written once
+there (docs/dynamics.md has the formulas; the adjoint, `solve/dynamics_adjoint.py`, differentiates
+the same maps). Newmark's A₀ solves M A₀ = −∇Π(C₀) − α M V₀ − β_R K₀ V₀. Each step starts Newton
+from x̂ and stops on Newton's own test (the minimiser interface); one not converged is logged and
+split into two halves (recursively, at most `DynamicsConfig.halvings` times; beyond that
+`DynamicsError`). The time steps are the steps of the one continuation loop (`solve_over`, a
+step's value its end time), their sizes from the step control (`solve.time_steps`).
 
-Contact (`[[obstacles]]`, the model's `ContactConfig`): each step is solved by the spline
-path's `NewtonContact.solve` (the barrier, its lagged friction, the check points kept over the
-steps, the line search bounded by the hook's `feasible`), with the inertia term passed as a
-term at each round's samples (`terms_at`); its Newton starts from the step's start C (x̂
-could be inside an obstacle), and friction lags from C. The smallest gap [m] of the dense
-check grid after each step is recorded (`StepRecord.gap`). Wind: one more per-point term
-(`objective.wind`, its drag implicit in the velocity); a boundary motion μ(t): the boundary's
-part g of the displacement is stepped by the same scheme (`Motion.boundary`, docs/dynamics.md).
-Not yet: stiffness damping or a motion with contact (refused).
+Contact (`[[obstacles]]`, the model's `ContactConfig`): each step is solved by the spline path's
+`NewtonContact.solve` (the barrier, its lagged friction, the check points kept over the steps, the
+line search bounded by the hook's `feasible`), with the inertia term passed as a term at each
+round's samples (`terms_at`); its Newton starts from the step's start C (x̂ could be inside an
+obstacle), and friction lags from C. The smallest gap [m] of the dense check grid after each step
+is recorded (`StepRecord.gap`). Wind: one more per-point term (`objective.wind`, its drag implicit
+in the velocity); a boundary motion μ(t): the boundary's part g of the displacement is stepped by
+the same scheme (`Motion.boundary`, docs/dynamics.md). Not yet: stiffness damping or a motion with
+contact (refused).
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import replace
 
 import torch
 
@@ -42,7 +41,9 @@ from taichi_ndf import jets, progress
 from taichi_ndf.contact.newton_contact import NewtonContact, PointMap
 from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.field import SplineField
-from taichi_ndf.minimise.newton import NewtonConfig, minimise
+from taichi_ndf.minimise.continuation import Hook, Stages, solve_over
+from taichi_ndf.minimise.minimisers import NewtonMinimiser
+from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.damping import StiffnessDampingTerm
 from taichi_ndf.objective.inertia import InertiaTerm, kinetic_energy
@@ -52,6 +53,7 @@ from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.shell.hessian import flat_blocks
 from taichi_ndf.solve.dynamics_trajectory import Checkpoint, Motion, StepRecord, Trajectory
+from taichi_ndf.solve.time_steps import TimeSteps
 
 log = logging.getLogger(__name__)
 
@@ -87,8 +89,7 @@ class TimeStepper:
         # One assembly at the Gauss points; its boundary offset g(μ) follows `_at` (μ(t)).
         self._grid = self.discretisation.linearise(self.field)
         self.linear = self._grid.linearisation(1.0, self.samples)
-        moves = float(self.linear.displacement(torch.zeros_like(
-            self.field.coefficients)).abs().max()) > 0
+        moves = float(self.offset_of(self.linear).abs().max()) > 0
         if moves != (config.motion is not None):
             raise ValueError("dynamics: the boundary prescribes displacements (handles, rim "
                              "rotations): give their motion in time, [dynamics.motion]"
@@ -246,9 +247,10 @@ class TimeStepper:
                 self.grid, self.samples, self.objective, c, self.newton,
                 load_factor=load_factor, start_load_factor=self.config.load_factor(state.time),
                 terms_at=step_terms, report=False)
-        else:
-            solution = minimise(linear, self.objective.with_terms(*terms).potential(
-                load_factor), predicted, self.newton, load_factor=load_factor, report=False)
+        else:  # the minimiser interface, as every static step
+            solution = NewtonMinimiser(self.newton, load_factor=load_factor, report=False
+                                       ).minimise((linear, self.objective.with_terms(
+                                           *terms).potential(load_factor)), predicted)
         x = solution.parameters
         velocity, acceleration = scheme.apply(x, state)
         end_boundary = None
@@ -329,16 +331,15 @@ class TimeStepper:
             resume: Checkpoint | None = None) -> Trajectory:
         """Integrate from C₀ (None: the reference state) and V₀ (None: at rest) over
         `config.duration`, or on from `resume` (a `Checkpoint` of the same run: the same steps
-        follow); on_frame(time [s], field) at t = 0 and every `config.frame_times()`, then
-        on_checkpoint(the `Checkpoint` there) (one progress stage, a report per step)."""
+        follow), by `solve_over` (one progress stage, a report per step); on_frame(time [s],
+        field) at t = 0 and every `config.frame_times()`, then on_checkpoint(its `Checkpoint`)
+        (from the loop's on_load_step callback)."""
         config = self.config
         if resume is None:
             resume = self.start(displacement, velocity)
         elif self.contact is not None:  # the check points and κ the steps reached
-            points = self.contact.points
-            points.active = resume.active.clone()
-            points._samples = None
-            points.term.stiffness = resume.stiffness
+            self.contact.restore({"active": resume.active, "stiffness": resume.stiffness,
+                                  "rounds": self.contact.rounds, "round": None})
         state, trajectory = resume.state, resume.trajectory
 
         def frame(state: Motion) -> None:
@@ -349,33 +350,35 @@ class TimeStepper:
 
         if resume.step == 0:
             frame(state)
-        rule, k, tol = config.adaptive, resume.step, 1e-9 * config.dt
-        h, easy = resume.step_size or config.dt, resume.easy
-        with progress.stage(f"dynamics ({config.integrator}, {config.steps} steps of "
-                            f"{config.dt:.3g} s{', adaptive' if rule else ''})", config.steps):
-            for target in [t for t in config.frame_times() if t > state.time + tol]:
-                while state.time < target - tol:  # fixed steps: exactly frame_every of them
-                    size = h if rule is None else min(h, target - state.time)
-                    cpu, wall = _cpu(), time.perf_counter()
-                    state, iterations, substeps = self.advance(state, size)
-                    k += 1
-                    if rule is None:
-                        state = replace(state, time=k * config.dt)  # no drift of the clock
-                    else:
-                        if abs(state.time - target) <= tol:
-                            state = replace(state, time=target)
-                        h, easy = rule.after(h, easy, iterations, substeps)
-                        h = max(h, config.dt / 2**config.halvings)
-                    record = self._record(k, state, iterations, substeps, size, cpu, wall)
-                    trajectory.records.append(record)
-                    for name, u in self._probes(state.displacement, state.time).items():
-                        trajectory.probes[name].append(u)
-                    progress.report(min(config.steps, round(state.time / config.dt)),
-                                    t=state.time, E=record.total)
-                frame(state)
+        clock = TimeSteps(config, state, step=resume.step, size=resume.step_size,
+                          easy=resume.easy)
+
+        def solve(step, _start) -> StepRecord:  # one time step (halved inside: `advance`)
+            cpu, wall, size = _cpu(), time.perf_counter(), clock.size
+            end, iterations, substeps = self.advance(clock.state, size)
+            end = clock.after(end, iterations, substeps)
+            record = self._record(clock.step, end, iterations, substeps, size, cpu, wall)
+            trajectory.records.append(record)
+            for name, u in self._probes(end.displacement, end.time).items():
+                trajectory.probes[name].append(u)
+            progress.report(min(config.steps, round(end.time / config.dt)), t=end.time,
+                            E=record.total)
+            return record
+
+        def at_frame(_time: float) -> None:  # after a step that reached its output frame
+            if clock.at_frame():
+                frame(clock.state)
                 if on_checkpoint is not None:
-                    on_checkpoint(self._checkpoint(k, state, trajectory, h, easy))
-        self.field.coefficients.copy_(state.displacement)
+                    on_checkpoint(self._checkpoint(clock.step, clock.state, trajectory,
+                                                   clock.h, clock.easy))
+
+        with progress.stage(f"dynamics ({config.integrator}, {config.steps} steps of "
+                            f"{config.dt:.3g} s{', adaptive' if clock.rule else ''})",
+                            config.steps):
+            solve_over(Stages(solve), (), first_step=resume.step,
+                       callbacks=[Hook("on_load_step", at_frame)],
+                       next_value=lambda _index, _last: clock.next())
+        self.field.coefficients.copy_(clock.state.displacement)
         trajectory.field = self.field
         return trajectory
 

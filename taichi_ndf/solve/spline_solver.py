@@ -127,9 +127,9 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     its levels and history, and where the run was inside a grid level, `State.inside`: it
     goes on there, bit for bit; without it, the remaining levels are solved at the last load
     factor from the last level). With obstacles (`model.contact`) each load step is solved
-    by `NewtonContact.solve` (which adds the contact terms to the objective); its rounds'
-    state (check points, κ) is not in a checkpoint, so such a run keeps `State.inside` None
-    (checkpoints per finished level, as before) and refuses a state inside a level.
+    by `NewtonContact.solve` (which adds the contact terms to the objective); its state
+    (check points, κ, the round in progress) is in `State.inside.contact` and a resume
+    inside a level takes it back (`NewtonContact.restore`).
     callbacks (`taichi_ndf.minimise.callbacks`, each hook optional, called with the `SplineRun`):
     on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_iteration(run,
     None) after each Newton step a load step goes on from (`State.inside` then holds the
@@ -150,10 +150,11 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     if state.field is None:
         state.field = SplineField(plan.config)
     inside = state.inside
-    if inside is not None and model.contact is not None:
+    if inside is not None and (model.contact is None) != (inside.contact is None):
         raise CheckpointError(
-            f"the checkpoint was written inside grid level {inside.level}, which a run with "
-            "obstacles cannot resume (contact's rounds are not in it); start the run afresh")
+            f"the checkpoint was written inside grid level {inside.level} of a run "
+            f"{'without' if inside.contact is None else 'with'} obstacles; resume it with "
+            "its own scene")
     if inside is not None and not inside.fits(load_steps):
         raise CheckpointError(
             f"the checkpoint was written inside grid level {inside.level} of a run with other "
@@ -169,6 +170,8 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     contact = None
     if model.contact is not None:
         contact = NewtonContact(model.contact, model, grid.coefficients.dtype)
+        if inside is not None:
+            contact.restore(inside.contact)
     run = SplineRun(state, config, contact=contact)
     if first + 1 > levels:
         raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "
@@ -186,9 +189,9 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         state.iteration = len(state.history)
 
     def within(level: int, step: int | None = None, iterate: NewtonIterate | None = None
-               ) -> InsideLevel | None:  # where the run is, None with contact
-        return None if contact is not None else InsideLevel(
-            level, first_step, list(done), coarser, len(state.history), step, iterate)
+               ) -> InsideLevel:  # where the run is (with contact: its state)
+        return InsideLevel(level, first_step, list(done), coarser, len(state.history), step,
+                           iterate, None if contact is None else contact.to_dict())
 
     def iterate_kept(step: Step, iterate: NewtonIterate) -> None:
         state.inside = within(step.level, step.index, iterate)
