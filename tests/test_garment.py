@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
-import subprocess
 import sys
 import tomllib
 from pathlib import Path
@@ -15,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from sim_process import sim_refusal
 
 from taichi_ndf.app.panels import combined, panel_meshes
 from taichi_ndf.discretise import MultiPatchDiscretisation, of_scene
@@ -78,13 +77,7 @@ def test_bad_garments_are_refused_in_one_line_naming_the_panel_and_the_edge(chan
 def test_ndf_sim_refuses_a_bad_garment_with_exit_code_2(tmp_path):
     scene = tmp_path / "bad.toml"
     scene.write_text(SCENE.read_text().replace('a = "back.xi1_max"', 'a = "back.hem"'))
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
-    process = subprocess.run([sys.executable, "-m", "taichi_ndf.cli.sim", str(scene), "--out",
-                              str(tmp_path / "out")], capture_output=True, text=True, env=env,
-                             timeout=300)
-    assert process.returncode == 2, process.stderr
-    lines = process.stderr.strip().splitlines()
-    assert len(lines) == 1 and "panel 'back' has no edge 'hem'" in lines[0], process.stderr
+    assert "panel 'back' has no edge 'hem'" in sim_refusal(scene, tmp_path / "out")
 
 
 def test_the_two_panel_skirt_is_the_periodic_skirt():
