@@ -293,55 +293,69 @@ class Assembly:
         over the channels the pair blocks touch (`pair_hessian.coupled_hessian`)."""
         return coupled_hessian(self, couplings)
 
-    def _chunks(self, chunk: int):
-        """(points, groups) per chunk: the regular points by whole groups, about `chunk`
-        points each, then the extra points (groups None)."""
-        step = max(1, chunk // self._per_group)
-        for start in range(0, self._groups, step):
-            groups = slice(start, min(self._groups, start + step))
-            yield slice(groups.start * self._per_group, groups.stop * self._per_group), groups
+    def _chunks(self, chunk: int) -> list[list[tuple[slice, slice | None]]]:
+        """The chunks of points, each a list of (points, groups): the regular points by whole
+        groups, about `chunk` points a chunk; the extra points (groups None) with the last
+        chunk (asked together: a PSD screen sees them beside shell blocks, as all at once)."""
+        step, m = max(1, chunk // self._per_group), self._per_group
+        chunks = [[(slice(g * m, min(self._groups, g + step) * m),
+                    slice(g, min(self._groups, g + step)))]
+                  for g in range(0, self._groups, step)]
         if self._extra.stop > self._extra.start:
-            yield self._extra, None
+            chunks[-1].append((self._extra, None))
+        return chunks
+
+    def _add_points(self, data: np.ndarray, pin: list, points: slice, groups: slice | None,
+                    blocks: torch.Tensor) -> None:
+        """Adds the points' part of K: to its CSR data, and through a free pin to `pin`
+        ([Σ J_localᵀ H J_pin, the pin–pin block], None until some block reaches the pin's
+        channels). blocks (n, 18, 18) of the points `points` (those of `groups`, or the extra
+        points with groups None)."""
+        blocks = self._operator.blocks_to_frame(blocks).reshape(
+            -1, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
+        # Only the channels some block touches enter (the shell energy's blocks have no value
+        # channel: 5² of the 6² channel pairs, and no coupling through a free pin's value).
+        used = touched_channels(blocks)
+        jacobian = self.jacobian.rows(points)
+        if used.numel() < jets.CHANNELS:
+            lo, hi = int(used[0]), int(used[-1]) + 1
+            if hi - lo == used.numel():  # a range of channels: views, no copies
+                blocks, jacobian = blocks[:, lo:hi, :, lo:hi], jacobian.channels(slice(lo, hi))
+            else:
+                blocks = blocks[:, used][:, :, :, used]
+                jacobian = jacobian.channels(used)
+        self._pair_sums(data, jacobian, blocks, groups)
+        if self.pin_jacobian is None:
+            return
+        # the pin's Jacobian lives on few channels (the value): only those enter
+        ch = torch.nonzero(torch.isin(used, self._pin_channels)).flatten()
+        if ch.numel() == 0:
+            return
+        width = self.jacobian.shape[3] * COMPONENTS
+        pin_jac = self.pin_jacobian[:, points][:, :, used[ch]]
+        cross = self._group_sums(jacobian, blocks[:, :, :, ch], pin_jac, groups)
+        pin_pin = self._group_sums(ComponentJacobian(list(pin_jac), (0, 1, 2)),
+                                   blocks[:, ch][:, :, :, ch], pin_jac, groups).sum(dim=0)
+        if pin[0] is None:
+            pin[0], pin[1] = blocks.new_zeros(self.size, width), 0.0
+        group_dofs = self._group_dofs.reshape(self._groups, width)
+        rows = group_dofs[groups if groups is not None else self._group[self._extra]]
+        pin[0].index_add_(0, rows.reshape(-1), cross.reshape(-1, width))
+        pin[1] = pin[1] + pin_pin
 
     def _point_hessian(self, blocks_of: Callable[[slice], torch.Tensor], chunk: int
                        ) -> sp.csr_matrix:
         """Σ Jᵀ H J of the per-point blocks H (`hessian`), chunk by chunk of points."""
         data, width = np.zeros(len(self._columns)), self.jacobian.shape[3] * COMPONENTS
-        dense = pin_pin = None  # Σ J_localᵀ H J_pin at the rows, the pin–pin block
-        group_dofs = self._group_dofs.reshape(self._groups, width)
-        for points, groups in self._chunks(chunk):
-            n = points.stop - points.start
-            blocks = self._operator.blocks_to_frame(blocks_of(points)).reshape(
-                n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
-            # Only the channels some block touches enter (the shell energy's blocks have no
-            # value channel: 5² of the 6² channel pairs, and no coupling through a free pin's
-            # value).
-            used = touched_channels(blocks)
-            jacobian = self.jacobian.rows(points)
-            if used.numel() < jets.CHANNELS:
-                lo, hi = int(used[0]), int(used[-1]) + 1
-                if hi - lo == used.numel():  # a range of channels: views, no copies
-                    blocks, jacobian = blocks[:, lo:hi, :, lo:hi], jacobian.channels(slice(lo, hi))
-                else:
-                    blocks = blocks[:, used][:, :, :, used]
-                    jacobian = jacobian.channels(used)
-            self._pair_sums(data, jacobian, blocks, groups)
-            if self.pin_jacobian is None:
-                continue
-            # the pin's Jacobian lives on few channels (the value): only those enter
-            ch = torch.nonzero(torch.isin(used, self._pin_channels)).flatten()
-            if ch.numel() == 0:
-                continue
-            pin_jac = self.pin_jacobian[:, points][:, :, used[ch]]
-            cross = self._group_sums(jacobian, blocks[:, :, :, ch], pin_jac, groups)
-            if dense is None:
-                dense, pin_pin = blocks.new_zeros(self.size, width), 0.0
-            rows = group_dofs[groups] if groups is not None else group_dofs[
-                self._group[self._extra]]
-            dense.index_add_(0, rows.reshape(-1), cross.reshape(-1, width))
-            pin_pin = pin_pin + self._group_sums(ComponentJacobian(list(pin_jac), (0, 1, 2)),
-                                                 blocks[:, ch][:, :, :, ch], pin_jac,
-                                                 groups).sum(dim=0)
+        pin = [None, None]  # Σ J_localᵀ H J_pin (3n × 3k) and the pin–pin block, if any
+        for parts in self._chunks(chunk):
+            first = parts[0][0].start
+            fetched = blocks_of(slice(first, parts[-1][0].stop))
+            for points, groups in parts:
+                self._add_points(data, pin, points, groups,
+                                 fetched[points.start - first:points.stop - first])
+            fetched = None
+        dense, pin_pin = pin
         matrix = sp.csr_matrix((data, self._columns, self._row_starts),
                                shape=(self.size, self.size))
         if dense is None:
