@@ -206,3 +206,32 @@ def test_newton_with_blocks_in_chunks_takes_the_same_iterations(hessian, monkeyp
     scale = float(one.parameters.abs().max())
     assert scale > 0
     assert float((one.parameters - chunked.parameters).abs().max()) <= 1e-12 * scale
+
+
+def test_pair_blocks_over_their_channels_equal_all_six():
+    """Pair blocks mapped onto the coefficients over the channels they touch equal the
+    products over all six channels to 1e-14 relative: a transmitted seam's stitches (value
+    and slope channels) on a plate, and value-only pair springs through a free pin."""
+    from test_seam import _plane_seam, _samples
+
+    from taichi_ndf.minimise.linearisation import GridLinearisation
+    from taichi_ndf.minimise.pair_hessian import coupled_hessian, touched_channels
+
+    plane, term = _plane_seam("transmitted", "reversed")
+    config = SplineConfig(spans=(4, 2), domain=plane.domain.bounds)
+    grid = GridLinearisation(SplineField(config, dtype=F64), None)
+    linear = grid.linearisation(1.0, _samples(plane, term))
+    c = 1e-2 * torch.randn(config.num_coefficients, 3, dtype=F64,
+                           generator=torch.Generator().manual_seed(6))
+    seam = term.coupled_hessian(linear.samples, linear.displacement(c))
+    springs_linear, objective = _scene("free_pin_xz")
+    springs = objective.extra[1].coupled_hessian(springs_linear.samples, None)
+    for assembly, couplings, channels in ((linear.assembly, seam, None),
+                                          (springs_linear.assembly, springs, [0])):
+        ends = couplings.endpoint_blocks().permute(0, 1, 4, 2, 3, 5, 6).reshape(-1, 6, 3, 6, 3)
+        used = touched_channels(ends).tolist()
+        assert len(used) < 6 and (channels is None or used == channels)
+        every = coupled_hessian(assembly, couplings, all_channels=True)
+        touched = coupled_hessian(assembly, couplings)
+        assert abs(every).max() > 0
+        assert abs(touched - every).max() <= 1e-14 * abs(every).max()
