@@ -18,7 +18,8 @@ the gradient and Hessian blocks are turned to the frame, `operator.to_frame`,
     g = Σ_q J_qᵀ ∂e_q/∂U_q,     K = Σ_q J_qᵀ H_q J_q
 
 exactly (U is affine in the coefficients). The point-local part of K is scattered into a CSR
-pattern computed once per grid (a `np.bincount` per Newton step); the couplings through the
+pattern computed once per grid, chunk by chunk of points (blocks asked per chunk and dropped
+after its scatter: `Assembly.hessian`); the couplings through the
 shared pin set are summed densely (3n × 3k) and added as a sparse block. A term that joins
 two points (`taichi_ndf.objective.couplings`: a seam's stitches) adds A_pᵀ H_p A_p per pair,
 A_p the Jacobian of both points' jets, scattered as a sparse matrix of its own.

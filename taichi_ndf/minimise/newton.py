@@ -6,7 +6,8 @@ coefficients, `SplineLinearisation`). Π = Σ_q e_q(U_q) is a sum of per-point t
 Hessian over the jets is one 18 × 18 block per point and, U being affine in P,
 g = Jᵀ ∂Π/∂U and K = Jᵀ H J exactly. Per iteration from P:
 1. Π and g (`Linearisation.gradient`: held unknowns zero);
-2. per-point Hessian blocks (`point_blocks`): the potential's own (`Objective.hessian_blocks`:
+2. per-point Hessian blocks (`PointBlocks`: built chunk by chunk of points as the assembly of
+   K asks, never all at once): the potential's own (`Objective.hessian_blocks`:
    the shell's through its strains, `taichi_ndf.shell.strain_hessian`) or central differences
    of its gradient, with the linearisation's step per jet channel (`Linearisation.fd_steps`);
    — and, for terms that join points (a seam's stitches), blocks between pairs of points
