@@ -10,6 +10,7 @@ kernel's high-water mark, reset at the stage's start through /proc/self/clear_re
 sampling; Linux only). At the stages marked `snapshot` the largest live arrays (torch tensors
 by storage, scipy sparse matrices' arrays, numpy arrays held in an object's attributes) are
 listed, largest first. A wrapped name missing in this tree (another commit) is skipped.
+Consecutive calls of one stage (the per-chunk blocks, `PointBlocks`) are shown as one row.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ STAGES = [
     ("taichi_ndf.minimise.assembly", "Assembly.__init__", "Assembly.__init__", True),
     ("taichi_ndf.minimise.assembly", "Assembly.at_load", "Assembly.at_load", True),
     ("taichi_ndf.minimise.newton", "point_blocks", "point blocks", True),
+    ("taichi_ndf.minimise.point_blocks", "PointBlocks.__call__", "blocks of a chunk", False),
     ("taichi_ndf.minimise.newton", "project_psd", "project_psd", False),
     ("taichi_ndf.minimise.linearisation", "SplineLinearisation.hessian", "assembly of K", True),
     ("taichi_ndf.minimise.linearisation", "SplineLinearisation.solve", "solve", True),
@@ -128,6 +130,21 @@ def largest(count: int = 12) -> list[tuple[str, float]]:
     return sorted(seen.values(), key=lambda item: -item[1])[:count]
 
 
+def merged(rows: list[dict]) -> list[dict]:
+    """Consecutive calls of one stage (the blocks of each chunk) as one row "stage × n": RSS
+    in of the first, out of the last, the highest peak, the CPU summed."""
+    out: list[dict] = []
+    for row in rows:
+        last = out[-1] if out else None
+        if last is not None and last["name"] == row["stage"]:
+            last["count"] += 1
+            last.update(out=row["out"], peak=max(last["peak"], row["peak"]),
+                        cpu=last["cpu"] + row["cpu"], stage=f"{row['stage']} × {last['count']}")
+        else:
+            out.append(dict(row, name=row["stage"], count=1))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--case", default="cylinder", choices=list(CASES))
@@ -169,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{usage.ru_maxrss / 1024:.0f} MiB; load average {os.getloadavg()[0]:.2f} at end\n")
     print("| stage | RSS in MiB | RSS out MiB | peak during MiB | CPU s |")
     print("|---|---|---|---|---|")
-    for row in recorder.rows:
+    for row in merged(recorder.rows):
         print(f"| {row['stage']} | {row['in']:.0f} | {row['out']:.0f} | {row['peak']:.0f} | "
               f"{row['cpu']:.2f} |")
     for label, items in recorder.snapshots:

@@ -4,7 +4,10 @@ point-local sums scattered per chunk of groups (`Assembly._pair_sums`, chunks of
 points, point-load samples added into their groups' sums); and a V-cycle kept between Newton
 steps for its pattern only (`VCycle.release`) lends the same parts as the whole one."""
 
+import math
+
 import numpy as np
+import pytest
 import scipy.sparse as sp
 import torch
 from test_jacobian import _cylinder
@@ -83,3 +86,152 @@ def test_a_vcycle_reused_after_release_equals_a_fresh_one(napkin_system):  # noq
     assert reused.levels[0].smoother.parts is first.levels[0].smoother.parts
     r = np.random.default_rng(0).standard_normal(len(unknowns))
     assert np.array_equal(reused(r), fresh(r))
+
+
+# --- per-point blocks built and scattered chunk by chunk (issue 28) -------------------------
+
+class _PairSprings:
+    """A quadratic term joining point pairs (a stitch's form): ½ Σ_p E_pᵀ H_p E_p over both
+    endpoints' jets with random positive semi-definite value-channel pair blocks."""
+
+    def __init__(self, points, seed):
+        gen = torch.Generator().manual_seed(seed)
+        root = torch.randn(len(points), 6, 6, generator=gen, dtype=F64)
+        value = root @ root.transpose(1, 2)  # (P, 6, 6): (end × 3 + component)²
+        self.points, self.blocks = points, torch.zeros(len(points), 36, 36, dtype=F64)
+        at = torch.tensor([0, 1, 2, 18, 19, 20])
+        self.blocks[:, at[:, None], at[None, :]] = value
+
+    def _pairs(self, u_jets):
+        return torch.cat((u_jets[self.points[:, 0]].reshape(-1, 18),
+                          u_jets[self.points[:, 1]].reshape(-1, 18)), dim=1)
+
+    def evaluate(self, samples, u_jets, load_factor=1.0, *, grad=True):
+        pairs = self._pairs(u_jets)
+        force = torch.einsum("pij,pj->pi", self.blocks, pairs)
+        value = 0.5 * float((pairs * force).sum())
+        if not grad:
+            return value, None
+        out = torch.zeros_like(u_jets).reshape(-1, 18)
+        out.index_add_(0, self.points[:, 0], force[:, :18])
+        out.index_add_(0, self.points[:, 1], force[:, 18:])
+        return value, out.reshape(u_jets.shape)
+
+    def coupled_hessian(self, samples, u_jets, load_factor=1.0):
+        from taichi_ndf.objective.couplings import Couplings
+        return Couplings(self.points, self.blocks.clone())
+
+
+def _scene(case):
+    """A case of test_jacobian (the cylinder: a point-load sample; the plate: a free pin) on
+    its grid, with the shell, a stiffness damping of random PSD blocks and pair springs."""
+    from test_jacobian import CASES
+
+    from taichi_ndf.minimise.linearisation import GridLinearisation
+    from taichi_ndf.objective import Objective, ShellEnergyTerm
+    from taichi_ndf.objective.damping import StiffnessDampingTerm
+    from taichi_ndf.shell.materials import LinearIsotropic
+
+    surface, config, boundary, loads = CASES[case]()
+    grid = GridLinearisation(SplineField(config, dtype=F64), boundary, length=1.0)
+    samples = GridLinearisation.quadrature(surface, config, loads, dtype=F64)
+    linear = grid.linearisation(1.0, samples)
+    n = len(linear.samples)
+    gen = torch.Generator().manual_seed(2)
+    root = torch.randn(n, 18, 18, generator=gen, dtype=F64)
+    damping = StiffnessDampingTerm(
+        (1e3 * root @ root.transpose(1, 2)).reshape(n, 6, 3, 6, 3), 0.3,
+        1e-3 * torch.randn(n, 6, 3, generator=gen, dtype=F64))
+    pairs = torch.randint(0, n, (2 * n // 3, 2), generator=gen)
+    material = LinearIsotropic.from_young(2e8, 0.3, 0.01, 1.0)
+    objective = Objective(ShellEnergyTerm(material, loads), (damping, _PairSprings(pairs, 4)))
+    return linear, objective
+
+
+@pytest.mark.parametrize("case", ["cylinder_xy_diaphragms", "free_pin_xz"])
+def test_blocks_by_rows_and_k_by_chunks_equal_all_at_once(case, monkeypatch):
+    """The objective's blocks asked by rows (shell, damping by its rows, pair springs none)
+    are those rows of all points' blocks bit for bit, exact and psd; K assembled from blocks
+    asked per chunk of 5 points (`PointBlocks`) equals K from all blocks at once to 1e-14
+    relative, on the point-load sample's chunk and through a free pin."""
+    from taichi_ndf.minimise.point_blocks import PointBlocks
+
+    linear, objective = _scene(case)
+    potential = objective.potential(1.0)
+    c = 1e-3 * torch.randn(linear.assembly.n_coefficients, 3, dtype=F64,
+                           generator=torch.Generator().manual_seed(5))
+    u = linear.displacement(c)
+    steps = linear.fd_steps(u, c, 1e-4)
+    n = len(linear.samples)
+    for psd in (False, True):
+        whole = objective.hessian_blocks(linear.samples, u, 1.0, steps=steps, psd=psd)
+        for rows in (slice(0, 7), slice(7, n - 1), slice(n - 1, n)):
+            part = objective.hessian_blocks(linear.samples, u, 1.0, steps=steps, psd=psd,
+                                            rows=rows)
+            assert torch.equal(part, whole[rows])
+    for psd, project in ((False, None), (True, None), (False, "clamp")):
+        blocks = PointBlocks(linear, potential, c, u, 1e-4, psd, project)
+        full = linear.hessian(blocks(slice(0, n)))
+        monkeypatch.setattr(assembly_module, "POINT_CHUNK", 5)
+        chunked_blocks = PointBlocks(linear, potential, c, u, 1e-4, psd, project)
+        chunked = linear.hessian(chunked_blocks)
+        monkeypatch.undo()
+        assert chunked_blocks.projected == blocks.projected
+        if project:
+            assert blocks.projected > 0
+        assert abs(full).max() > 0
+        assert abs(chunked - full).max() <= 1e-14 * abs(full).max()
+
+
+@pytest.mark.parametrize("hessian", ["strain", "clamp"])
+def test_newton_with_blocks_in_chunks_takes_the_same_iterations(hessian, monkeypatch):
+    """Projected Newton on the cylinder with damping and pair springs (couplings): blocks in
+    chunks of 5 points give the same iterations (Π, λ², α, projected counts) and the same
+    coefficients to 1e-12 relative as one chunk of all points."""
+    from taichi_ndf.minimise.newton import NewtonConfig, minimise
+
+    runs = []
+    for chunk in (10 ** 7, 5):
+        monkeypatch.setattr(assembly_module, "POINT_CHUNK", chunk)
+        linear, objective = _scene("cylinder_xy_diaphragms")
+        start = torch.zeros(linear.assembly.n_coefficients, 3, dtype=F64)
+        runs.append(minimise(linear, objective.potential(1.0), start,
+                             NewtonConfig(hessian=hessian, max_iterations=6), report=False))
+    one, chunked = runs
+    assert len(one.history) == len(chunked.history) >= 2
+    for a, b in zip(one.history, chunked.history, strict=True):
+        assert a.projected_blocks == b.projected_blocks and a.step_length == b.step_length
+        assert math.isclose(a.energy, b.energy, rel_tol=1e-12)
+        assert math.isclose(a.decrement, b.decrement, rel_tol=1e-10)
+    scale = float(one.parameters.abs().max())
+    assert scale > 0
+    assert float((one.parameters - chunked.parameters).abs().max()) <= 1e-12 * scale
+
+
+def test_pair_blocks_over_their_channels_equal_all_six():
+    """Pair blocks mapped onto the coefficients over the channels they touch equal the
+    products over all six channels to 1e-14 relative: a transmitted seam's stitches (value
+    and slope channels) on a plate, and value-only pair springs through a free pin."""
+    from test_seam import _plane_seam, _samples
+
+    from taichi_ndf.minimise.linearisation import GridLinearisation
+    from taichi_ndf.minimise.pair_hessian import coupled_hessian, touched_channels
+
+    plane, term = _plane_seam("transmitted", "reversed")
+    config = SplineConfig(spans=(4, 2), domain=plane.domain.bounds)
+    grid = GridLinearisation(SplineField(config, dtype=F64), None)
+    linear = grid.linearisation(1.0, _samples(plane, term))
+    c = 1e-2 * torch.randn(config.num_coefficients, 3, dtype=F64,
+                           generator=torch.Generator().manual_seed(6))
+    seam = term.coupled_hessian(linear.samples, linear.displacement(c))
+    springs_linear, objective = _scene("free_pin_xz")
+    springs = objective.extra[1].coupled_hessian(springs_linear.samples, None)
+    for assembly, couplings, channels in ((linear.assembly, seam, None),
+                                          (springs_linear.assembly, springs, [0])):
+        ends = couplings.endpoint_blocks().permute(0, 1, 4, 2, 3, 5, 6).reshape(-1, 6, 3, 6, 3)
+        used = touched_channels(ends).tolist()
+        assert len(used) < 6 and (channels is None or used == channels)
+        every = coupled_hessian(assembly, couplings, all_channels=True)
+        touched = coupled_hessian(assembly, couplings)
+        assert abs(every).max() > 0
+        assert abs(touched - every).max() <= 1e-14 * abs(every).max()

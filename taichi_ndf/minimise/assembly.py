@@ -18,7 +18,8 @@ the gradient and Hessian blocks are turned to the frame, `operator.to_frame`,
     g = Σ_q J_qᵀ ∂e_q/∂U_q,     K = Σ_q J_qᵀ H_q J_q
 
 exactly (U is affine in the coefficients). The point-local part of K is scattered into a CSR
-pattern computed once per grid (a `np.bincount` per Newton step); the couplings through the
+pattern computed once per grid, chunk by chunk of points (blocks asked per chunk and dropped
+after its scatter: `Assembly.hessian`); the couplings through the
 shared pin set are summed densely (3n × 3k) and added as a sparse block. A term that joins
 two points (`taichi_ndf.objective.couplings`: a seam's stitches) adds A_pᵀ H_p A_p per pair,
 A_p the Jacobian of both points' jets, scattered as a sparse matrix of its own.
@@ -28,6 +29,7 @@ Unknowns are ordered coefficient × 3 + component.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,13 +40,20 @@ from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
 from taichi_ndf.minimise.jacobian import ComponentJacobian, component_jacobian
+from taichi_ndf.minimise.pair_hessian import contract as _contract
+from taichi_ndf.minimise.pair_hessian import coupled_hessian, touched_channels
+from taichi_ndf.minimise.pair_hessian import dofs as _dofs
+from taichi_ndf.minimise.pair_hessian import weighted as _weighted
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.sampling import SurfaceSamples
-from taichi_ndf.shell.hessian import COMPONENTS, used_entries
+from taichi_ndf.shell.hessian import COMPONENTS
 
 # Points per batch of the Hessian products (bounds the (chunk, 3k, 3k) temporaries).
 CHUNK = 4096
+# Points per chunk of per-point blocks built, scattered and let go (`Assembly.hessian`): ~21 MB
+# of float64 blocks, and the strain Hessian's temporaries of as many points.
+POINT_CHUNK = 8192
 
 
 @dataclass(frozen=True)
@@ -92,23 +101,6 @@ def _pin_displacement(pin_jacobian: torch.Tensor, pin_coefficients: torch.Tensor
     """The pin's part of U (1, 6, 3), the same at every point: pin Jacobian (3, N, 6, k) (an
     expanded view), the pin's coefficients (k, 3)."""
     return torch.einsum("cja,ac->jc", pin_jacobian[:, 0], pin_coefficients)[None]
-
-
-def _weighted(blocks: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
-    """T[q, i, c, b, d] = Σ_j H[q, i, c, j, d] J[d, q, j, b]: blocks (n, 6, 3, 6, 3) times
-    Jacobians (3, n, 6, k); shape (n, 6, 3, k, 3)."""
-    return torch.einsum("qicjd,dqjb->qicbd", blocks, jacobian)
-
-
-def _contract(jacobian: torch.Tensor, weighted: torch.Tensor) -> torch.Tensor:
-    """M[q, a, c, b, d] = Σ_i J[c, q, i, a] T[q, i, c, b, d], shape (n, k, 3, k, 3)."""
-    return torch.einsum("cqia,qicbd->qacbd", jacobian, weighted)
-
-
-def _dofs(index: torch.Tensor) -> np.ndarray:
-    """Unknown numbers (…, 3k) of coefficient indices (…, k): coefficient × 3 + component."""
-    idx = index.cpu().numpy().astype(np.int64)
-    return (idx[..., :, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(*idx.shape[:-1], -1)
 
 
 def _csr_pattern(groups: np.ndarray, n_coefficients: int
@@ -229,48 +221,48 @@ class Assembly:
             out.index_add_(0, torch.from_numpy(self.pin_dofs).to(out.device), pin.reshape(-1))
         return out.reshape(-1, COMPONENTS)
 
-    def _group_sums(self, left: ComponentJacobian, blocks: torch.Tensor, right: torch.Tensor
-                    ) -> torch.Tensor:
-        """Σ over the points q of each group of L_qᵀ H_q R_q, shape (G, 3k, 3k), for
-        Jacobians L (3, N, cl, k), R (3, N, cr, k) (a tensor) on channel subsets and blocks
-        (N, cl, 3, cr, 3) on the same channels."""
+    def _group_sums(self, left: ComponentJacobian, blocks: torch.Tensor, right: torch.Tensor,
+                    groups: slice | None) -> torch.Tensor:
+        """Σ over the points q of each group of L_qᵀ H_q R_q, shape (g, 3k, 3k), for the points
+        of `groups` (a slice of groups; None: the extra points, one per point), Jacobians L
+        (3, n, cl, k), R (3, n, cr, k) (a tensor) on channel subsets and blocks (n, cl, 3, cr,
+        3) on the same channels, all at those points only."""
         k, channels = left.shape[3], left.shape[2]
         width = k * COMPONENTS
-        summed = blocks.new_empty(self._groups, k, COMPONENTS, width)
-        m = self._per_group
+        if groups is None:
+            return _contract(left.dense(), _weighted(blocks, right)).reshape(-1, width, width)
+        count, m = groups.stop - groups.start, self._per_group
+        summed = blocks.new_empty(count, k, COMPONENTS, width)
         step = max(1, CHUNK // m)
-        for start in range(0, self._groups, step):
-            groups = slice(start, min(self._groups, start + step))
-            points = slice(groups.start * m, groups.stop * m)
+        for start in range(0, count, step):
+            here = slice(start, min(count, start + step))
+            points = slice(here.start * m, here.stop * m)
             weighted = _weighted(blocks[points], right[:, points]).reshape(
                 -1, m * channels, COMPONENTS, width)
             for c in range(COMPONENTS):
                 lhs = left.component(c)[points].reshape(-1, m * channels, k)
-                summed[groups, :, c] = torch.bmm(lhs.transpose(1, 2), weighted[:, :, c])
-        summed = summed.reshape(self._groups, width, width)
-        if self._extra.stop > self._extra.start:
-            extra = self._extra
-            summed.index_add_(0, self._group[extra], _contract(
-                left.rows(extra).dense(), _weighted(blocks[extra], right[:, extra])).reshape(
-                    -1, width, width))
-        return summed
+                summed[here, :, c] = torch.bmm(lhs.transpose(1, 2), weighted[:, :, c])
+        return summed.reshape(count, width, width)
 
-    def _pair_sums(self, jacobian: ComponentJacobian, blocks: torch.Tensor) -> np.ndarray:
-        """K's CSR data (float64), point-local part: R[c, d, g] = Σ_{q in group g} J_c,qᵀ
-        H_q[:, c, :, d] J_d,q (symmetric blocks (N, ch, 3, ch, 3)) scattered per chunk of
-        groups (each datum summed over the groups in order, as all at once): two batched GEMMs
-        per component pair, the group's points in the inner dimension; R[d, c] = R[c, d]ᵀ."""
-        channels, k, m, count = *jacobian.shape[2:], self._per_group, self._groups
-        data, step = np.zeros(len(self._columns)), max(1, CHUNK // m)
-        scatter = self._scatter.reshape(COMPONENTS, COMPONENTS, count, k, k)
-        extra = self._extra
-        if extra.stop > extra.start:  # point by point, added into their groups' sums
-            dense = jacobian.rows(extra).dense()
-            per_point = _contract(dense, _weighted(blocks[extra], dense)).permute(2, 4, 0, 1, 3)
-            extra_group = self._group[extra]
-        for start in range(0, count, step):
-            g = slice(start, min(count, start + step))
-            p = slice(g.start * m, g.stop * m)
+    def _pair_sums(self, data: np.ndarray, jacobian: ComponentJacobian, blocks: torch.Tensor,
+                   groups: slice | None) -> None:
+        """Adds to K's CSR data (float64) the point-local part of the points of `groups` (a
+        slice of groups; None: the extra points, point by point): R[c, d, g] = Σ_{q in group
+        g} J_c,qᵀ H_q[:, c, :, d] J_d,q (symmetric blocks (n, ch, 3, ch, 3) and J at those
+        points) scattered per batch of groups in order: two batched GEMMs per component pair,
+        the group's points in the inner dimension; R[d, c] = R[c, d]ᵀ."""
+        channels, k, m = *jacobian.shape[2:], self._per_group
+        scatter = self._scatter.reshape(COMPONENTS, COMPONENTS, self._groups, k, k)
+        if groups is None:
+            dense = jacobian.dense()
+            out = _contract(dense, _weighted(blocks, dense)).permute(2, 4, 0, 1, 3)
+            flat = np.ascontiguousarray(scatter[:, :, self._group[self._extra].cpu().numpy()])
+            np.add.at(data, flat.ravel(), out.double().cpu().numpy().ravel())
+            return
+        step = max(1, CHUNK // m)
+        for start in range(groups.start, groups.stop, step):
+            g = slice(start, min(groups.stop, start + step))
+            p = slice((g.start - groups.start) * m, (g.stop - groups.start) * m)
             out = blocks.new_empty(COMPONENTS, COMPONENTS, g.stop - g.start, k, k)
             for c in range(COMPONENTS):
                 left = jacobian.component(c)[p].reshape(-1, m * channels, k).transpose(1, 2)
@@ -280,66 +272,52 @@ class Assembly:
                     torch.bmm(left, weighted.reshape(-1, m * channels, k), out=out[c, d])
                     if d != c:
                         out[d, c] = out[c, d].transpose(1, 2)
-            if extra.stop > extra.start:
-                here = (extra_group >= g.start) & (extra_group < g.stop)
-                out.index_add_(2, extra_group[here] - g.start, per_point[:, :, here])
             flat = np.ascontiguousarray(scatter[:, :, g]).ravel()  # np.add.at: 5× a view's
             np.add.at(data, flat, out.double().cpu().numpy().ravel())  # speed
-        return data
 
-    def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None
+    def hessian(self, blocks: torch.Tensor | Callable[[slice], torch.Tensor],
+                couplings: Couplings | None = None, *, chunk: int | None = None
                 ) -> sp.csr_matrix:
         """K = Σ Jᵀ H J (3n × 3n, CSR, float64) from per-point blocks H (N, 18, 18) (index
         channel × 3 + component), plus the pair blocks of terms that couple points
-        (`coupled_hessian`; their points in this assembly's order)."""
-        matrix = self._point_hessian(blocks)
+        (`coupled_hessian`; their points in this assembly's order). blocks: a tensor, or a
+        function of a slice of points (this assembly's order) giving their blocks (n, 18, 18):
+        asked once per chunk of about `chunk` points (default `POINT_CHUNK`) in order, each
+        chunk let go after its scatter, so that the blocks of all points are never held."""
+        blocks_of = blocks if callable(blocks) else blocks.__getitem__
+        matrix = self._point_hessian(blocks_of, POINT_CHUNK if chunk is None else chunk)
         return matrix if couplings is None else (matrix + self.coupled_hessian(couplings)).tocsr()
 
     def coupled_hessian(self, couplings: Couplings) -> sp.csr_matrix:
         """Σ_p A_pᵀ H_p A_p (3n × 3n, CSR, float64) of pair blocks H_p (`Couplings`), A_p the
-        Jacobian of both points' jets over the coefficients acting at either (and the pin's)."""
-        ends = couplings.endpoint_blocks()  # (P, 2, 6, 3, 2, 6, 3)
-        count = len(couplings)
-        # to the boundary frame's components, each endpoint pair's 18 × 18 block alike
-        ends = self._operator.blocks_to_frame(
-            ends.permute(0, 1, 4, 2, 3, 5, 6).reshape(count * 4, jets.CHANNELS * COMPONENTS,
-                                                      jets.CHANNELS * COMPONENTS)
-        ).reshape(count, 2, 2, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
-        jacobians, dofs = [], []
-        for end in range(2):
-            rows = couplings.points[:, end].to(self.jacobian.device)
-            jacobian = self.jacobian.rows(rows).dense()  # (3, P, 6, k)
-            index = _dofs(self.basis.index[rows])  # (P, 3k)
-            if self.pin_jacobian is not None:
-                jacobian = torch.cat((jacobian, self.pin_jacobian[:, rows]), dim=3)
-                index = np.concatenate((index, np.broadcast_to(self.pin_dofs,
-                                                               (count, self.pin_dofs.size))), 1)
-            jacobians.append(jacobian)
-            dofs.append(index)
-        matrix = sp.csr_matrix((self.size, self.size))
-        for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)):
-            block = _contract(jacobians[a], _weighted(ends[:, a, b].to(self.jacobian.dtype),
-                                                      jacobians[b]))
-            shape = (count, dofs[a].shape[1], dofs[b].shape[1])
-            matrix = matrix + sp.coo_matrix((
-                block.reshape(shape).double().cpu().numpy().ravel(),
-                (np.broadcast_to(dofs[a][:, :, None], shape).ravel(),
-                 np.broadcast_to(dofs[b][:, None, :], shape).ravel())), shape=matrix.shape)
-        return matrix.tocsr()
+        Jacobian of both points' jets over the coefficients acting at either (and the pin's),
+        over the channels the pair blocks touch (`pair_hessian.coupled_hessian`)."""
+        return coupled_hessian(self, couplings)
 
-    def _point_hessian(self, blocks: torch.Tensor) -> sp.csr_matrix:
-        """Σ Jᵀ H J of the per-point blocks H (N, 18, 18) (`hessian`)."""
-        n = blocks.shape[0]
+    def _chunks(self, chunk: int) -> list[list[tuple[slice, slice | None]]]:
+        """The chunks of points, each a list of (points, groups): the regular points by whole
+        groups, about `chunk` points a chunk; the extra points (groups None) with the last
+        chunk (asked together: a PSD screen sees them beside shell blocks, as all at once)."""
+        step, m = max(1, chunk // self._per_group), self._per_group
+        chunks = [[(slice(g * m, min(self._groups, g + step) * m),
+                    slice(g, min(self._groups, g + step)))]
+                  for g in range(0, self._groups, step)]
+        if self._extra.stop > self._extra.start:
+            chunks[-1].append((self._extra, None))
+        return chunks
+
+    def _add_points(self, data: np.ndarray, pin: list, points: slice, groups: slice | None,
+                    blocks: torch.Tensor) -> None:
+        """Adds the points' part of K: to its CSR data, and through a free pin to `pin`
+        ([Σ J_localᵀ H J_pin, the pin–pin block], None until some block reaches the pin's
+        channels). blocks (n, 18, 18) of the points `points` (those of `groups`, or the extra
+        points with groups None)."""
         blocks = self._operator.blocks_to_frame(blocks).reshape(
-            n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
-        width = self.jacobian.shape[3] * COMPONENTS
+            -1, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
         # Only the channels some block touches enter (the shell energy's blocks have no value
         # channel: 5² of the 6² channel pairs, and no coupling through a free pin's value).
-        touched = used_entries(blocks).any(dim=3).any(dim=1)
-        used = torch.nonzero(touched.any(dim=0) | touched.any(dim=1)).flatten()
-        if used.numel() == 0:  # all blocks zero: K = 0 on the pattern
-            used = torch.zeros(1, dtype=torch.int64, device=used.device)
-        jacobian = self.jacobian
+        used = touched_channels(blocks)
+        jacobian = self.jacobian.rows(points)
         if used.numel() < jets.CHANNELS:
             lo, hi = int(used[0]), int(used[-1]) + 1
             if hi - lo == used.numel():  # a range of channels: views, no copies
@@ -347,21 +325,41 @@ class Assembly:
             else:
                 blocks = blocks[:, used][:, :, :, used]
                 jacobian = jacobian.channels(used)
-        data = self._pair_sums(jacobian, blocks)  # summed in order, as np.bincount would
-        pin = self.pin_jacobian is not None
-        if pin:  # the pin's Jacobian lives on few channels (the value): only those enter
-            ch = torch.nonzero(torch.isin(used, self._pin_channels)).flatten()
-            pin = ch.numel() > 0
-        if pin:
-            pin_jac = self.pin_jacobian[:, :, used[ch]]
-            cross = self._group_sums(jacobian, blocks[:, :, :, ch], pin_jac)
-            dense = blocks.new_zeros(self.size, width)  # Σ J_localᵀ H J_pin
-            dense.index_add_(0, self._group_dofs, cross.reshape(-1, width))
-            pin_pin = self._group_sums(ComponentJacobian(list(pin_jac), (0, 1, 2)),
-                                       blocks[:, ch][:, :, :, ch], pin_jac).sum(dim=0)
+        self._pair_sums(data, jacobian, blocks, groups)
+        if self.pin_jacobian is None:
+            return
+        # the pin's Jacobian lives on few channels (the value): only those enter
+        ch = torch.nonzero(torch.isin(used, self._pin_channels)).flatten()
+        if ch.numel() == 0:
+            return
+        width = self.jacobian.shape[3] * COMPONENTS
+        pin_jac = self.pin_jacobian[:, points][:, :, used[ch]]
+        cross = self._group_sums(jacobian, blocks[:, :, :, ch], pin_jac, groups)
+        pin_pin = self._group_sums(ComponentJacobian(list(pin_jac), (0, 1, 2)),
+                                   blocks[:, ch][:, :, :, ch], pin_jac, groups).sum(dim=0)
+        if pin[0] is None:
+            pin[0], pin[1] = blocks.new_zeros(self.size, width), 0.0
+        group_dofs = self._group_dofs.reshape(self._groups, width)
+        rows = group_dofs[groups if groups is not None else self._group[self._extra]]
+        pin[0].index_add_(0, rows.reshape(-1), cross.reshape(-1, width))
+        pin[1] = pin[1] + pin_pin
+
+    def _point_hessian(self, blocks_of: Callable[[slice], torch.Tensor], chunk: int
+                       ) -> sp.csr_matrix:
+        """Σ Jᵀ H J of the per-point blocks H (`hessian`), chunk by chunk of points."""
+        data, width = np.zeros(len(self._columns)), self.jacobian.shape[3] * COMPONENTS
+        pin = [None, None]  # Σ J_localᵀ H J_pin (3n × 3k) and the pin–pin block, if any
+        for parts in self._chunks(chunk):
+            first = parts[0][0].start
+            fetched = blocks_of(slice(first, parts[-1][0].stop))
+            for points, groups in parts:
+                self._add_points(data, pin, points, groups,
+                                 fetched[points.start - first:points.stop - first])
+            fetched = None
+        dense, pin_pin = pin
         matrix = sp.csr_matrix((data, self._columns, self._row_starts),
                                shape=(self.size, self.size))
-        if not pin:
+        if dense is None:
             return matrix
         # Couplings through the pin's coefficients: Σ J_localᵀ H J_pin at the rows of the
         # points' unknowns and the pin's columns, its transpose, and the pin–pin block.

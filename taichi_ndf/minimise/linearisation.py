@@ -143,8 +143,11 @@ class DenseLinearisation:
         scale = torch.maximum(rms_u, rms_j * rms_theta)
         return relative * torch.where(scale > 0, scale, torch.ones_like(scale))
 
-    def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None
-                ) -> torch.Tensor:
+    def hessian(self, blocks, couplings: Couplings | None = None) -> torch.Tensor:
+        """K (3p × 3p) from blocks (N, 18, 18) or a function of a slice of points giving
+        theirs (asked once for all points: the dense J holds more than the blocks)."""
+        if callable(blocks):
+            blocks = blocks(slice(0, len(self.samples)))
         n = blocks.shape[0]
         channels = JET_SIZE // COMPONENTS
         matrix = parameter_hessian(self.jacobian,
@@ -202,8 +205,9 @@ class SplineLinearisation:
                  relative: float) -> torch.Tensor:
         return jet_steps(self.samples.r_jets, u_jets, self.length, relative)
 
-    def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None
-                ) -> sp.csr_matrix:
+    def hessian(self, blocks, couplings: Couplings | None = None) -> sp.csr_matrix:
+        """K (CSR) from blocks (N, 18, 18) or a function of a slice of points giving theirs
+        (`Assembly.hessian`: chunk by chunk)."""
         return self.assembly.hessian(blocks, couplings)
 
     def solve(self, matrix: sp.csr_matrix, gradient: torch.Tensor, damping: float, *,

@@ -6,7 +6,8 @@ coefficients, `SplineLinearisation`). Π = Σ_q e_q(U_q) is a sum of per-point t
 Hessian over the jets is one 18 × 18 block per point and, U being affine in P,
 g = Jᵀ ∂Π/∂U and K = Jᵀ H J exactly. Per iteration from P:
 1. Π and g (`Linearisation.gradient`: held unknowns zero);
-2. per-point Hessian blocks (`point_blocks`): the potential's own (`Objective.hessian_blocks`:
+2. per-point Hessian blocks (`PointBlocks`: built chunk by chunk of points as the assembly of
+   K asks, never all at once): the potential's own (`Objective.hessian_blocks`:
    the shell's through its strains, `taichi_ndf.shell.strain_hessian`) or central differences
    of its gradient, with the linearisation's step per jet channel (`Linearisation.fd_steps`);
    — and, for terms that join points (a seam's stitches), blocks between pairs of points
@@ -47,14 +48,14 @@ import torch
 
 from taichi_ndf import progress
 from taichi_ndf.minimise.newton_state import NewtonIterate, NewtonIteration
+from taichi_ndf.minimise.point_blocks import PointBlocks, coupled_blocks
+from taichi_ndf.minimise.point_blocks import hessian_blocks as hessian_blocks
+from taichi_ndf.minimise.point_blocks import point_blocks as point_blocks
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import (
     PROJECTIONS,
     Potential,
-    flat_blocks,
-    project_psd,
-    sample_hessians,
 )
 
 log = logging.getLogger(__name__)
@@ -79,9 +80,11 @@ class Linearisation(Protocol):
                  relative: float) -> torch.Tensor:
         """Central-difference step per jet channel (6,) of the Hessian blocks at U(P)."""
 
-    def hessian(self, blocks: torch.Tensor, couplings: Couplings | None = None) -> Any:
-        """K = Jᵀ H J (dense torch matrix or scipy sparse) from blocks H (N, 18, 18) and the
-        pair blocks of terms that couple points (`Couplings`, None: none)."""
+    def hessian(self, blocks: torch.Tensor | Callable[[slice], torch.Tensor],
+                couplings: Couplings | None = None) -> Any:
+        """K = Jᵀ H J (dense torch matrix or scipy sparse) from blocks H (N, 18, 18), or a
+        function of a slice of points giving theirs (asked chunk by chunk, `PointBlocks`), and
+        the pair blocks of terms that couple points (`Couplings`, None: none)."""
 
     def solve(self, matrix: Any, gradient: torch.Tensor, damping: float, *,
               require_definite: bool = False) -> tuple[torch.Tensor, float] | None:
@@ -180,33 +183,6 @@ class NewtonSolution:
         return self.history[0].energy if self.history else self.energy
 
 
-def hessian_blocks(potential: Potential, samples, u_jets: torch.Tensor, steps: torch.Tensor
-                   ) -> torch.Tensor:
-    """Per-point Hessian blocks (N, 6, 3, 6, 3): the potential's own `hessian_blocks` (an
-    `Objective.potential`: term by term) where it has one, else central differences of its
-    gradient."""
-    own = getattr(potential, "hessian_blocks", None)
-    if own is not None:
-        return own(samples, u_jets, steps=steps)
-    return sample_hessians(potential, samples, u_jets, steps=steps)
-
-
-def coupled_blocks(potential: Potential, samples, u_jets: torch.Tensor) -> Couplings | None:
-    """The potential's Hessian entries between pairs of points (`Objective.coupled_blocks`),
-    None where it has none."""
-    own = getattr(potential, "coupled_blocks", None)
-    return None if own is None else own(samples, u_jets)
-
-
-def point_blocks(linearisation: Linearisation, potential: Potential, parameters: torch.Tensor,
-                 u_jets: torch.Tensor, fd_step: float, psd: bool = False) -> torch.Tensor:
-    """The exact (unprojected) per-point blocks (N, 18, 18) at U(P) = u_jets, with the FD steps
-    `fd_step` × each channel's scale (`hessian_blocks`); psd: `psd_hessian_blocks`'."""
-    steps = linearisation.fd_steps(u_jets, parameters, fd_step)
-    own = potential.psd_hessian_blocks if psd else partial(hessian_blocks, potential)
-    return flat_blocks(own(linearisation.samples, u_jets, steps=steps))
-
-
 def _tolerance(config: NewtonConfig, energy: float, coarse_energy: float | None) -> float:
     """The stopping bound [J] on λ²/2 at Π = energy: decrement_tolerance × |Π|, or
     discretisation_fraction × |Π − Π_coarse| where that is larger (module docstring)."""
@@ -288,17 +264,19 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
         exact = config.project and damping == 0.0 and not exact_failed  # try the exact K
         strain = config.project and config.hessian == "strain" and hasattr(
             potential, "psd_hessian_blocks")
-        blocks = None if strain and not exact else point_blocks(
-            linearisation, potential, c, u, config.fd_step)
+        # the blocks are built chunk by chunk inside the assemblies (`PointBlocks`)
+        blocks = partial(PointBlocks, linearisation, potential, c, u, config.fd_step)
         couplings = coupled_blocks(potential, samples, u)
         t_hessian = time.perf_counter() - started
         t_assembly, t_solve, first_step = 0.0, 0.0, None  # first: (step, μ) of a definite K
-        if exact:
+        if exact or not config.project:
             # The exact K may be definite although some blocks are not (a stable state under
             # compression): then its Newton step converges quadratically.
-            started = time.perf_counter()
-            matrix = linearisation.hessian(blocks, couplings)
-            t_assembly += time.perf_counter() - started
+            started, exact_blocks = time.perf_counter(), blocks()
+            matrix = linearisation.hessian(exact_blocks, couplings)
+            t_assembly += time.perf_counter() - started - exact_blocks.seconds
+            t_hessian += exact_blocks.seconds
+        if exact:
             started = time.perf_counter()
             first_step = linearisation.solve(matrix, gradient, 0.0, require_definite=True)
             exact_failed = first_step is None
@@ -306,22 +284,19 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
         else:  # after a failed attempt the next iteration goes straight to the projected K
             exact_failed = False
         projected = 0
-        if first_step is None:
-            if config.project:
-                started = time.perf_counter()
-                if strain:  # positive semi-definite through the strains: every block
-                    blocks = point_blocks(linearisation, potential, c, u, config.fd_step, True)
-                    projected = blocks.shape[0]
-                else:
-                    blocks, projected = project_psd(blocks, mode=config.hessian, overwrite=True)
-                if couplings is not None:
-                    couplings, pairs = couplings.projected(config.hessian)
-                    projected += pairs
-                t_hessian += time.perf_counter() - started
-            if matrix is None or projected:
-                started, matrix = time.perf_counter(), None  # free the exact K first
-                matrix = linearisation.hessian(blocks, couplings)
-                t_assembly += time.perf_counter() - started
+        if first_step is None and config.project:
+            started = time.perf_counter()
+            if couplings is not None:
+                couplings, pairs = couplings.projected(config.hessian)
+                projected += pairs
+            t_hessian += time.perf_counter() - started
+            started, matrix = time.perf_counter(), None  # free the exact K first
+            # through the strains: every block; else the exact blocks screened and projected
+            psd_blocks = blocks(psd=True) if strain else blocks(project=config.hessian)
+            matrix = linearisation.hessian(psd_blocks, couplings)
+            projected += len(samples) if strain else psd_blocks.projected
+            t_assembly += time.perf_counter() - started - psd_blocks.seconds
+            t_hessian += psd_blocks.seconds
         blocks = couplings = None  # K holds what the solves need
         alpha, small = 0.0, False
         for _attempt in range(config.line_searches):

@@ -57,7 +57,10 @@ class StiffnessDampingTerm:
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0, *,
-                       steps: torch.Tensor | None = None) -> torch.Tensor:
-        """c H_q (N, 6, 3, 6, 3) (exact: E is quadratic)."""
-        return (self.scale * self.blocks.to(u_jets.dtype)).reshape(
-            u_jets.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3).clone()
+                       steps: torch.Tensor | None = None, rows: slice | None = None
+                       ) -> torch.Tensor:
+        """c H_q (N, 6, 3, 6, 3) (exact: E is quadratic), or (n, 6, 3, 6, 3) of the points
+        `rows` (a chunk of the samples)."""
+        blocks = self.blocks if rows is None else self.blocks[rows]
+        return (self.scale * blocks.to(u_jets.dtype)).reshape(
+            blocks.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3).clone()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -75,25 +76,33 @@ class Objective:
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor,
-                       psd: bool = False) -> torch.Tensor:
+                       psd: bool = False, rows: slice | None = None) -> torch.Tensor:
         """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3), not projected: the sum of
         each term's own `hessian_blocks(samples, u_jets, load_factor, steps=steps)` where the
         term has one, else central differences of that term's gradient (`sample_hessians`,
         steps (6,) per jet channel) — except for a term with couplings, whose Hessian is in
         `coupled_blocks`. psd: positive semi-definite instead, the shell's through its strains
-        (`ShellEnergyTerm.hessian_blocks`' psd), the other terms' clamped (`project_psd`)."""
-        total = None
+        (`ShellEnergyTerm.hessian_blocks`' psd), the other terms' clamped (`project_psd`).
+        rows: only the blocks of these points (n, 6, 3, 6, 3) (a chunk: Newton assembles K
+        chunk by chunk), the same values as those rows of all points' blocks: a term whose
+        `hessian_blocks` takes `rows` (the shell's, the stiffness damping) given them, any
+        other term's built at all points and cut (per-point data of their own: inertia,
+        wind, contact; their blocks are cheap)."""
+        total, part = None, (lambda b: b) if rows is None else (lambda b: b[rows])
         for term in (self.shell, *self.extra):
             own = getattr(term, "hessian_blocks", None)
             if own is not None and psd and term is self.shell:
-                blocks = own(samples, u_jets, load_factor, steps=steps, psd=True)
+                blocks = own(samples, u_jets, load_factor, steps=steps, psd=True,
+                             **({} if rows is None else {"rows": rows}))
+            elif own is not None and "rows" in inspect.signature(own).parameters:
+                blocks = own(samples, u_jets, load_factor, steps=steps, rows=rows)
             elif own is not None:
-                blocks = own(samples, u_jets, load_factor, steps=steps)
+                blocks = part(own(samples, u_jets, load_factor, steps=steps))
             elif hasattr(term, "coupled_hessian"):  # its Hessian is all in its couplings
                 continue
             else:
-                blocks = sample_hessians(_term_potential(term, load_factor), samples, u_jets,
-                                         steps=steps)
+                blocks = part(sample_hessians(_term_potential(term, load_factor), samples,
+                                              u_jets, steps=steps))
             if psd and term is not self.shell:
                 blocks = project_psd(blocks.reshape(blocks.shape[0], JET_SIZE, JET_SIZE)
                                      )[0].reshape(blocks.shape)
@@ -140,16 +149,18 @@ class FixedLoadPotential:
         return self.objective.evaluate(samples, u_jets, self.load_factor, grad=grad)
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
-                       steps: torch.Tensor) -> torch.Tensor:
-        """Per-point Hessian blocks (N, 6, 3, 6, 3) (`Objective.hessian_blocks`)."""
-        return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
+                       steps: torch.Tensor, rows: slice | None = None) -> torch.Tensor:
+        """Per-point Hessian blocks (N, 6, 3, 6, 3), or those of `rows`
+        (`Objective.hessian_blocks`)."""
+        return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps,
+                                             rows=rows)
 
     def psd_hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
-                           steps: torch.Tensor) -> torch.Tensor:
-        """Positive semi-definite per-point blocks (N, 6, 3, 6, 3) (`Objective.hessian_blocks`'
-        psd: projected Newton's "strain" treatment)."""
+                           steps: torch.Tensor, rows: slice | None = None) -> torch.Tensor:
+        """Positive semi-definite per-point blocks (N, 6, 3, 6, 3), or those of `rows`
+        (`Objective.hessian_blocks`' psd: projected Newton's "strain" treatment)."""
         return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps,
-                                             psd=True)
+                                             psd=True, rows=rows)
 
     def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor
                        ) -> Couplings | None:

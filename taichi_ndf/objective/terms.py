@@ -49,13 +49,14 @@ class ShellEnergyTerm:
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor,
-                       psd: bool = False) -> torch.Tensor:
+                       psd: bool = False, rows: slice | None = None) -> torch.Tensor:
         """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3) through the strains
         (`strain_energy_hessians`; the loads are linear in u: the load factor adds nothing).
         steps (6,): the jet channels' central-difference steps (`jet_steps`). psd: positive
-        semi-definite by construction instead (`strain_energy_hessians`' psd)."""
+        semi-definite by construction instead (`strain_energy_hessians`' psd). rows: those
+        samples' blocks only (n, 6, 3, 6, 3)."""
         return strain_energy_hessians(self.material, samples, u_jets, steps=steps,
-                                      stiffness=self.stiffness, psd=psd)
+                                      stiffness=self.stiffness, psd=psd, rows=rows)
 
 
 class EndMomentTerm:

@@ -212,17 +212,38 @@ def _clamped(matrices: torch.Tensor) -> torch.Tensor:
     return out
 
 
+def _tangent_length(samples: SurfaceSamples, u_jets: torch.Tensor) -> float:
+    """The RMS length [m] of the deformed tangents x_,1, x_,2 over the samples of weight ≠ 0
+    (0 where none)."""
+    active = torch.nonzero(samples.weight != 0).flatten()
+    if active.numel() == 0:
+        return 0.0
+    if int(active[-1]) == active.numel() - 1:
+        active = slice(0, active.numel())
+    x = samples.r_jets[active].contiguous() + u_jets.detach().to(samples.r_jets.dtype)[active]
+    return float(x[:, jets.D1:jets.D2 + 1].pow(2).sum(2).mean().sqrt())
+
+
 def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: torch.Tensor,
                            *, steps: torch.Tensor, stiffness: torch.Tensor | None = None,
-                           psd: bool = False) -> torch.Tensor:
+                           psd: bool = False, rows: slice | None = None) -> torch.Tensor:
     """Per-point Hessian blocks d²E/dU² (N, 6, 3, 6, 3) of the strain energy (module
     docstring), symmetric; zero at point-load samples (weight 0).
 
     steps: the jet channels' central-difference steps (6,) (`jet_steps`); the strain steps
-    are the strain changes they cause: δε = the tangent step × the RMS tangent length,
-    δκ = the largest second-derivative step. stiffness: per-sample stiffness (N, K) or None.
-    psd: the positive semi-definite blocks of the strain treatment instead (module docstring).
+    are the strain changes they cause: δε = the tangent step × the RMS tangent length (over
+    all the samples), δκ = the largest second-derivative step. stiffness: per-sample
+    stiffness (N, K) or None. psd: the positive semi-definite blocks of the strain treatment
+    instead (module docstring). rows: only the blocks of these samples (n, 6, 3, 6, 3) (a
+    chunk), the same as those rows of all samples' blocks.
     """
+    tangent = _tangent_length(samples, u_jets)
+    if rows is not None:
+        samples = SurfaceSamples(*(None if t is None else t[rows] for t in (
+            samples.xi, samples.r_jets, samples.weight, samples.point_force,
+            samples.barrier_weight)))
+        u_jets = u_jets[rows]
+        stiffness = None if stiffness is None else stiffness[rows]
     count = len(samples)
     r_all = samples.r_jets
     dtype, device = r_all.dtype, r_all.device
@@ -242,7 +263,6 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     kstiff = kernel_stiffness[active].contiguous()
     kernel = _law_kernel(material.law)
     stress = _strain_gradient(kernel, r, strain, weight=weight, stiffness=kstiff, params=params)
-    tangent = float(x[:, jets.D1:jets.D2 + 1].pow(2).sum(2).mean().sqrt())
     delta_e = float(steps[jets.D1:jets.D2 + 1].max()) * tangent
     delta_k = float(steps[jets.D11:].max())
     gradient = functools.partial(_strain_gradient, kernel, r, weight=weight, stiffness=kstiff,
