@@ -152,3 +152,56 @@ def test_simulate_writes_a_mesh_per_panel_and_the_combined_mesh(tmp_path):
     assert b"property float panel" in (out / "mesh.ply").read_bytes()[:2000]
     pixels = cv2.imread(str(out / "render.png"))
     assert pixels is not None and pixels.std() > 0
+
+
+class _Recorder:
+    """The hooks a garment solve calls, in order, with the load factor of each record."""
+
+    def __init__(self):
+        self.calls = []
+
+    def on_start(self, solver):
+        self.calls.append(("start", solver.state.iteration))
+
+    def on_record(self, solver, energy, grad_norm, load_factor):
+        self.calls.append(("record", load_factor))
+
+    def on_load_step(self, solver, load_factor):
+        self.calls.append(("load_step", load_factor))
+
+    def on_end(self, solver):
+        self.calls.append(("end", solver.state.iteration))
+
+
+def test_the_garment_solve_calls_the_callbacks_and_the_divergence_guard_stops_it():
+    """The callbacks see every Newton iteration and each load step; the divergence guard
+    (a Π of NaN at the second record) stops the solve with `DivergenceError` and resets
+    every panel's coefficients to the last good state (here the first load step's start, zero:
+    the panels' coefficients take Newton's iterate when a load step ends)."""
+    from taichi_ndf.minimise.callbacks import DivergenceError, DivergenceGuard
+
+    document = _document()
+    document["field"]["spans"] = [4, 2]
+    scene = _parse(document)
+    panels = of_scene(scene)
+    panels.start(scene.solver, seed=0)
+    recorder = _Recorder()
+    solution = panels.solve(scene.solver, callbacks=[DivergenceGuard(), recorder])
+    records = [c for c in recorder.calls if c[0] == "record"]
+    assert len(records) == solution.iterations > 2
+    assert recorder.calls[0] == ("start", 0) and recorder.calls[-1] == ("end", len(records))
+    assert [c for c in recorder.calls if c[0] == "load_step"] == [("load_step", 0.5),
+                                                                 ("load_step", 1.0)]
+
+    class Poison:  # Π turns NaN at the second iteration, after the first good state
+        def on_record(self, solver, energy, grad_norm, load_factor):
+            if solver.state.iteration == 1:
+                for f in solver.field.fields:
+                    f.coefficients.data.fill_(1.0)
+                guard.on_record(solver, math.nan, grad_norm, load_factor)
+
+    guard = DivergenceGuard()
+    panels.start(scene.solver, seed=0)
+    with pytest.raises(DivergenceError, match="diverged at iteration 1"):
+        panels.solve(scene.solver, callbacks=[guard, Poison()])
+    assert all(float(f.coefficients.abs().max()) == 0.0 for f in panels.fields)

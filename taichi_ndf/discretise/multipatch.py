@@ -10,6 +10,9 @@ block-diagonal K, the seams' pair couplings across patches); the load factor ram
 sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), one material
 and one gravity for all patches (the shell energy is one term over the joined points), float64.
 A run is not resumable (a checkpoint holds one field): `start` refuses a resume in one line.
+The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as `solver`: on_start,
+on_record at every Newton iteration (the divergence guard), on_load_step and on_end; it has no
+`State.save`, so a `CheckpointWriter` is not one of them (a garment run writes no checkpoint).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -28,9 +31,10 @@ from taichi_ndf import jets
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.minimise.callbacks import call
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
-from taichi_ndf.minimise.newton import minimise
+from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
@@ -54,6 +58,44 @@ class MultiPatchField:
     """The solved fields, one `SplineField` per patch in the plan's order."""
 
     fields: tuple[SplineField, ...]
+
+    def get_flat(self) -> torch.Tensor:
+        """All patches' coefficients as one vector (3 Σ n_i,) [m], in the plan's order."""
+        return torch.cat([f.coefficients.detach().reshape(-1) for f in self.fields])
+
+    def set_flat(self, flat: torch.Tensor) -> None:
+        """Set every patch's coefficients from `get_flat`'s layout."""
+        offset = 0
+        for f in self.fields:
+            n = f.coefficients.numel()
+            f.coefficients.data.copy_(flat[offset:offset + n].reshape(f.coefficients.shape))
+            offset += n
+
+
+@dataclass
+class PanelsState:
+    """What the callbacks read of a garment solve: the Newton iterations so far (each load
+    step's, in order), their count and the method."""
+
+    history: list = field(default_factory=list)
+    method: str = "newton"
+
+    @property
+    def iteration(self) -> int:
+        return len(self.history)
+
+    def energies_at(self, load_factor: float) -> list[float]:
+        """Π [J] of the iterations at `load_factor`, in order."""
+        return [h.energy for h in self.history if h.load_factor == load_factor]
+
+
+@dataclass
+class PanelsRun:
+    """The `solver` the callbacks are called with: the joint field, its state, the config."""
+
+    field: MultiPatchField
+    state: PanelsState
+    config: SolverConfig
 
 
 class MultiPatchDiscretisation:
@@ -144,23 +186,37 @@ class MultiPatchDiscretisation:
                                               Loads(gravity=self.spec.gravity)), terms)
         c = torch.cat([f.coefficients.detach() for f in self.fields])
         newton = newton_config(config, DTYPE)
-        history, steps, self.converged = [], [], []
+        run = PanelsRun(self.field, PanelsState(), config)
+        history, steps, self.converged = run.state.history, [], []
         energy = math.nan
+
+        def iterated(record) -> None:
+            call(callbacks, "on_record", run, record.energy, record.gradient_norm,
+                 record.load_factor)
+            history.append(record)
+
+        call(callbacks, "on_start", run)
         for t in config.load_steps:
             linear = MultiPatchLinearisation(grids, t)
-            solution = minimise(linear, objective.potential(t), c, newton, load_factor=t)
+            phase = Phase(NewtonMinimiser(newton, load_factor=t),
+                          objective=lambda linear=linear, t=t: (linear, objective.potential(t)),
+                          parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
+                          stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
+                                 newton.max_iterations))
+            solution, = run_phases([phase])
             c, energy = solution.parameters, solution.energy
-            history.extend(solution.history)
             self.converged.append(solution.converged)
             steps.append({"load_factor": t, "energy": energy,
                           "iterations": len(solution.history),
                           "converged": solution.converged})
             self._set(c, linear)
+            call(callbacks, "on_load_step", run, t)
             if config.progress and report is not None:
                 report(f"load factor {t:g}: Π = {energy:.8g} J, {len(solution.history)} "
                        f"Newton iterations, converged {solution.converged}")
             if on_load_step is not None:
                 on_load_step(t, self.field)
+        call(callbacks, "on_end", run)
         self._linear = linear
         self._terms = terms
         wall = time.perf_counter() - started
