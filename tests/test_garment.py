@@ -205,3 +205,54 @@ def test_the_garment_solve_calls_the_callbacks_and_the_divergence_guard_stops_it
     with pytest.raises(DivergenceError, match="diverged at iteration 1"):
         panels.solve(scene.solver, callbacks=[guard, Poison()])
     assert all(float(f.coefficients.abs().max()) == 0.0 for f in panels.fields)
+
+
+def test_a_garment_run_opens_in_ndf_view_and_ndf_export_usd_and_refuses_obj(tmp_path, capsys):
+    """A garment run's directory (skirt at 4 × 2 spans per panel) reads back as a run: the
+    combined mesh with its reference and the panel property, the probes; ndf-export --format
+    usd writes a stage with a panel primvar; ndf-export to OBJ (which evaluates a checkpoint)
+    refuses it in one line naming the panels, exit 2; ndf-view's viewer opens it."""
+    from taichi_ndf.app.simulation import simulate
+    from taichi_ndf.cli import export
+    from taichi_ndf.io import OutputDir
+    from taichi_ndf.io.run_files import garment_panels, read_run
+
+    document = _document()
+    document["field"]["spans"] = [4, 2]
+    document["output"]["resolution"] = [8, 4]
+    out = tmp_path / "run"
+    result = simulate(_parse(document), OutputDir(out), pictures=False)
+    assert garment_panels(out) == ["front", "back"]
+    run = read_run(out)
+    assert run.reference.shape == run.deformed.shape == (2 * 9 * 5, 3)
+    assert np.array_equal(np.unique(run.scalars["panel"]), [0.0, 1.0])
+    assert run.available() == ["displacement", "membrane_strain", "bending_strain",
+                               "energy_density"]
+    assert float(run.quantity("displacement").max()) > 1e-5
+    (probe,) = run.probes
+    assert probe.name == "front.hem"
+    np.testing.assert_array_equal(probe.displacement, result["probes"]["front.hem"])
+    np.testing.assert_allclose(probe.reference, [0.0, 0.15, 0.0], atol=1e-7)
+
+    assert export.main([str(out), "--out", str(tmp_path / "skirt.obj")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "garment run (2 panels: front, back)" in err
+    pxr = pytest.importorskip("pxr", reason="usd-core (taichi-ndf[usd]) is missing")
+    stage_path = tmp_path / "skirt.usda"
+    assert export.main([str(out), "--format", "usd", "--out", str(stage_path)]) == 0
+    stage = pxr.Usd.Stage.Open(str(stage_path))
+    mesh = stage.GetPrimAtPath("/World/deformed")
+    panel = pxr.UsdGeom.PrimvarsAPI(mesh).GetPrimvar("panel").Get()
+    np.testing.assert_array_equal(np.array(panel), run.scalars["panel"].astype(int))
+    assert stage.GetPrimAtPath("/World/reference").IsValid()
+
+    pytest.importorskip("viser", reason="viser (taichi-ndf[viewer]) is missing")
+    from taichi_ndf.viewer.app import RunViewer
+
+    viewer = RunViewer(run, port=0)
+    try:
+        vertices, values, _ = viewer.frame_state()
+        np.testing.assert_array_equal(vertices, run.deformed)
+        assert values is not None and len(values) == len(vertices)
+    finally:
+        viewer.stop()

@@ -1,10 +1,15 @@
 """The outputs of a garment's run (several panels, `MultiPatchDiscretisation`): one mesh per
-panel, one combined mesh with a `panel` vertex property, a render showing all panels."""
+panel, one combined mesh with a `panel` vertex property and its undeformed twin, the probes, a
+render showing all panels: the files `io.run_files.read_run` opens (ndf-view, ndf-export
+--format usd). No checkpoint.pt: a garment's state is several fields."""
 
 from __future__ import annotations
 
 import numpy as np
 
+import torch
+
+from taichi_ndf import jets
 from taichi_ndf.app.outputs import DeformedMesh, deformed_mesh, write_mesh_files
 from taichi_ndf.io import OutputDir, write_obj, write_ply
 from taichi_ndf.render.figure import render_figure
@@ -30,18 +35,43 @@ def combined(meshes: list[DeformedMesh]) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def write_panel_outputs(out: OutputDir, plan, field, resolution: tuple[int, int], *,
-                        views: tuple[str, ...] = ("iso",), pictures: bool = True) -> None:
-    """mesh_<panel>.obj/.ply per panel; mesh.obj and mesh.ply of all panels (the PLY with a
-    `panel` vertex property: the panel's index in the file's order); render.png of all
-    panels coloured by panel."""
+                        probes: dict | None = None, views: tuple[str, ...] = ("iso",),
+                        pictures: bool = True) -> None:
+    """mesh_<panel>.obj/.ply per panel; mesh.obj (with UVs), mesh.ply (UVs, strains, energy
+    density and a `panel` vertex property: the panel's index in the file's order) and
+    reference.obj (undeformed, the same vertices and faces) of all panels; probes.json of
+    `probes` (displacement (3,) [m] by "panel.probe", as `MultiPatchDiscretisation.probes`);
+    render.png of all panels coloured by panel."""
     meshes = panel_meshes(plan, field, resolution)
     for patch, mesh in zip(plan.patches, meshes, strict=True):
         write_mesh_files(out, f"mesh_{patch.name}", mesh)
     vertices, faces, panel = combined(meshes)
-    write_obj(out.file("mesh.obj"), vertices, faces)
-    write_ply(out.file("mesh.ply"), vertices, faces, vertex_scalars={"panel": panel})
+    uv = np.concatenate([m.uv for m in meshes])
+    scalars = {name: np.concatenate([m.scalars()[name] for m in meshes])
+               for name in meshes[0].scalars()}
+    write_obj(out.file("mesh.obj"), vertices, faces, uvs=uv)
+    write_ply(out.file("mesh.ply"), vertices, faces, uvs=uv,
+              vertex_scalars={**scalars, "panel": panel})
+    write_obj(out.file("reference.obj"), np.concatenate([m.reference for m in meshes]), faces,
+              uvs=uv)
+    if probes:
+        out.write_json("probes.json", _probe_points(plan, probes))
     if pictures:
         image = render_figure(vertices, faces, scalars=panel,
                               scalar_label="panel (" + ", ".join(p.name for p in plan.patches)
                               + ")", views=views, width=None, height=600)
         save_png(out.file("render.png"), image)
+
+
+def _probe_points(plan, probes: dict) -> dict:
+    """probes.json's document: per probe "panel.probe" its ξ on its panel, reference
+    position [m] and displacement [m]."""
+    document = {}
+    for patch in plan.patches:
+        for p in patch.model.probes:
+            xi = torch.tensor([p.xi], dtype=torch.float64)
+            reference = patch.model.surface.jets(xi)[0, jets.VALUE].double().numpy()
+            name = f"{patch.name}.{p.name}"
+            document[name] = {"xi": list(p.xi), "reference": [float(v) for v in reference],
+                              "displacement": [float(v) for v in probes[name]]}
+    return document

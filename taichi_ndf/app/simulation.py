@@ -143,7 +143,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
                                                    solution.contact, **solution.contact_counts)
     if panels:
         write_panel_outputs(out, scene.field, solution.field, scene.output.resolution,
-                            views=scene.output.views, pictures=pictures)
+                            probes=solution.probes, views=scene.output.views,
+                            pictures=pictures)
     else:
         _write_field_outputs(scene, out, solution.field, solution.probes, solution.history,
                              pseudo_time=config.pseudo_time, refinement=solution.refinement,

@@ -67,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         res = tuple(args.resolution) * (2 if len(args.resolution) == 1 else 1)
         if not 0.0 <= args.time <= 1.0:
             raise ValueError(f"--time must be in [0, 1], got {args.time}")
+        _refuse_a_garment(args.checkpoint)
         start(args)
         from taichi_ndf.app.outputs import deformed_mesh, exports_on_template
         from taichi_ndf.app.simulation import checkpoint_scene
@@ -99,6 +100,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"wrote {args.out}: {len(mesh.deformed)} vertices, {len(mesh.faces)} faces")
     return 0
+
+
+def _refuse_a_garment(checkpoint: Path) -> None:
+    """ValueError in one line where `checkpoint` is missing from a garment run's directory."""
+    from taichi_ndf.io.run_files import garment_panels
+
+    panels = None if checkpoint.is_file() else garment_panels(checkpoint.parent)
+    if panels:
+        raise ValueError(f"{checkpoint.parent} is a garment run ({len(panels)} panels: "
+                         f"{', '.join(panels)}) and has no checkpoint.pt to evaluate at another "
+                         "resolution; its meshes are mesh.obj/.ply (all panels) and "
+                         "mesh_<panel>.obj/.ply, or use --format usd")
 
 
 def _export_usd(args) -> int:

@@ -8,7 +8,8 @@ scale and orient it right):
                                 run has them; the default value is the final state), normals,
                                 primvars:st (UVs), per-vertex primvars displacement,
                                 membrane_strain, bending_strain, energy_density (final state),
-                                and ndf:loadFactor (time-sampled)
+                                and ndf:loadFactor (time-sampled); a garment run's
+                                also primvars:panel (int, each vertex's panel index)
     /World/reference            Mesh: the undeformed surface (purpose "guide")
     /World/probes               Points: the probes (time-sampled over the frames as
                                 `RunFiles.probe_positions` places them; the default value
@@ -112,6 +113,13 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
             primvar.Set(Vt.FloatArray.FromNumpy(
                 np.ascontiguousarray(run.quantity(name), dtype=np.float32)))
             primvar.GetAttr().SetDocumentation(f"{QUANTITIES[name]} at the final state")
+        if "panel" in run.scalars:  # a garment run: each vertex's panel (mesh.ply's property)
+            panel = primvars.CreatePrimvar("panel", Sdf.ValueTypeNames.IntArray,
+                                           UsdGeom.Tokens.vertex)
+            panel.Set(Vt.IntArray.FromNumpy(np.ascontiguousarray(run.scalars["panel"],
+                                                                 dtype=np.int32)))
+            panel.GetAttr().SetDocumentation("the vertex's panel: its index in the garment's "
+                                             "[[panels]] order")
 
         UsdGeom.Scope.Define(stage, "/World/Looks")
         surface = _display_material(stage, "/World/Looks/surface", SURFACE_BGR)

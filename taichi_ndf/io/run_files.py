@@ -17,7 +17,8 @@ import numpy as np
 
 from taichi_ndf.io.mesh_files import MeshData, read_mesh
 
-__all__ = ["QUANTITIES", "Frame", "Probe", "RunFiles", "read_run", "up_direction"]
+__all__ = ["QUANTITIES", "Frame", "Probe", "RunFiles", "garment_panels", "read_run",
+           "up_direction"]
 
 # Colourable per-vertex quantities: name -> label with units (colour bars, viewer, USD docs).
 QUANTITIES = {
@@ -170,6 +171,19 @@ def read_run(path: str | os.PathLike) -> RunFiles:
         decrements=np.array([h["decrement"] for h in history]
                             if all("decrement" in h for h in history) else [], dtype=np.float64),
         time_rate=rate)
+
+
+def garment_panels(path: str | os.PathLike) -> list[str] | None:
+    """The panels' names of the garment run in directory `path` (its result.json's scene has
+    [[panels]]), or None where `path` holds no garment run (or no readable result.json)."""
+    try:
+        result = json.loads((Path(path) / "result.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    panels = result.get("resolved", {}).get("scene_file", {}).get("panels")
+    if not isinstance(panels, list):
+        return None
+    return [str(p.get("name", "?")) if isinstance(p, dict) else "?" for p in panels]
 
 
 def _displacements(probes: dict | None) -> dict[str, np.ndarray] | None:
