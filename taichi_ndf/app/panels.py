@@ -6,7 +6,6 @@ render showing all panels: the files `io.run_files.read_run` opens (ndf-view, nd
 from __future__ import annotations
 
 import numpy as np
-
 import torch
 
 from taichi_ndf import jets

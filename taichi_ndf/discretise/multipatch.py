@@ -17,11 +17,12 @@ on_record at every Newton iteration (the divergence guard), on_load_step and on_
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -33,8 +34,8 @@ from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
 from taichi_ndf.minimise.linearisation import GridLinearisation
-from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
+from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
@@ -77,7 +78,7 @@ class PanelsState:
     """What the callbacks read of a garment solve: the Newton iterations so far (each load
     step's, in order), their count and the method."""
 
-    history: list = field(default_factory=list)
+    history: list = dataclasses.field(default_factory=list)
     method: str = "newton"
 
     @property
