@@ -90,3 +90,17 @@ def test_a_recorded_live_holder_is_refused_even_without_its_flock(tmp_path):
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_a_run_replaces_the_per_panel_meshes_of_an_earlier_garment_run(tmp_path):
+    # a garment run's mesh_<panel>.obj are the run's files (a pattern among its products):
+    # a later run into the same directory removes them instead of keeping them beside its own
+    out = tmp_path / "run"
+    products = ("result.json", "mesh.obj", "mesh_*.obj")
+    with staged_run(out, products=products) as garment:
+        garment.write_text("mesh_front.obj", "v 0 0 0\n")
+        garment.write_text("mesh.obj", "v 0 0 0\n")
+    (out / "notes.txt").write_text("mine")
+    with staged_run(out, overwrite=True, products=products) as napkin:
+        napkin.write_text("mesh.obj", "v 1 1 1\n")
+    assert sorted(p.name for p in out.iterdir()) == ["mesh.obj", "notes.txt"]

@@ -43,7 +43,7 @@ FORMAT_VERSION = 1
 # What a run writes into its directory (see `simulate`): replaced as a whole by the next run.
 RUN_FILES = ("mesh.obj", "mesh.ply", "reference.obj", "probes.json", "render.png", "energy.png",
              "checkpoint.pt", "result.json", "result.usdc", "trajectory", "trajectory.mp4",
-             "obstacles", "progress.jsonl")
+             "obstacles", "progress.jsonl", "mesh_*.obj", "mesh_*.ply")  # mesh_<panel>: a garment
 # Scene sections a resumed run may change: how long and how it trains, what it writes.
 RESUMABLE_CHANGES = ("name", "description", "training", "output")
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import logging
 import os
@@ -124,8 +125,9 @@ def staged_run(path: str | os.PathLike, *, overwrite: bool = False, resume: bool
     So `path` holds one complete run; after an error or Ctrl-C it holds the previous complete
     run (if any) and the failed attempt lies beside it in ``<path>.incomplete``.
     overwrite: allow replacing the run in a non-empty `path`; entries of `path` named in
-        `products` (the files a run writes) that the new run did not write are removed with the
-        previous run, other entries (a user's notes) are kept.
+        `products` (the files a run writes; a name or a glob pattern such as "mesh_*.obj") that
+        the new run did not write are removed with the previous run, other entries (a user's
+        notes) are kept.
     resume: continue from ``<path>.incomplete`` if it holds checkpoint.pt, else from the
         complete run in `path` (copied into the staging folder first); FileNotFoundError if
         neither has a checkpoint.
@@ -172,7 +174,8 @@ def _commit(stage: Path, path: Path, products: tuple[str, ...]) -> None:
         os.replace(stage, path)
         return
     for entry in path.iterdir():
-        if entry.name not in products and not (stage / entry.name).exists():
+        ours = any(fnmatch.fnmatchcase(entry.name, product) for product in products)
+        if not ours and not (stage / entry.name).exists():
             os.replace(entry, stage / entry.name)  # not the run's: kept
     previous = path.with_name(f".{path.name}.previous-{uuid.uuid4().hex[:8]}")
     os.replace(path, previous)
