@@ -275,3 +275,28 @@ def test_pair_blocks_scattered_at_once_equal_the_pair_by_pair_sum():
         matrix = coupled_hessian(linear.assembly, couplings).toarray()
         assert np.abs(reference).max() > 0
         assert np.abs(matrix - reference).max() <= 1e-14 * np.abs(reference).max()
+
+
+def test_inertia_and_wind_blocks_by_rows_are_those_rows_of_all_blocks():
+    """InertiaTerm's and WindTerm's blocks asked by rows (chunks of 5 points, the last one
+    short; the wind acting on the first 9 of 14 points, a chunk across that end) are those
+    rows of all points' blocks bit for bit."""
+    from taichi_ndf.objective.inertia import InertiaTerm
+    from taichi_ndf.objective.wind import wind_term
+    from taichi_ndf.problem.wind import Wind
+
+    linear, _ = _scene("free_pin_xz")
+    samples = linear.samples
+    gen = torch.Generator().manual_seed(8)
+    u = 0.05 * torch.randn(len(samples), 6, 3, generator=gen, dtype=F64)
+    inertia = InertiaTerm(1.2, 4e4, torch.randn(len(samples), 6, 3, generator=gen, dtype=F64))
+    head = type(samples)(samples.xi[:9], samples.r_jets[:9], samples.weight[:9],
+                         samples.point_force[:9])
+    wind = wind_term(Wind(velocity=(0.0, 1.0, 2.0)), 0.1, head, u[:9],
+                     torch.randn(9, 3, generator=gen, dtype=F64), 20.0, u[:14])
+    for term, points in ((inertia, len(samples)), (wind, 14)):
+        every = term.hessian_blocks(samples, u[:points])
+        assert float(every.abs().max()) > 0
+        chunks = [term.hessian_blocks(samples, u[:points], rows=slice(s, s + 5))
+                  for s in range(0, points, 5)]
+        assert torch.equal(torch.cat(chunks), every)
