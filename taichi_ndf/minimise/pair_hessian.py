@@ -9,6 +9,9 @@ contact) adds Σ_p A_pᵀ H_p A_p, A_p the Jacobian of both points' jets over th
 acting at either (and the pin's), per pair p (`coupled_hessian`). Only the jet channels some
 pair block touches enter the products (those terms act on the value channel only: 1 of the
 6 channels, a 36 × 36 pair block with 6 × 6 non-zero entries); the rest are exact zeros.
+All pairs at once: K = Aᵀ H A, A all A_p stacked (sparse), H the pair blocks as a block
+diagonal; one sparse product sums the entries per row (the same K as Σ_p to rounding;
+benchmarks/pair_scatter.py).
 """
 
 from __future__ import annotations
