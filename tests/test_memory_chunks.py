@@ -235,3 +235,68 @@ def test_pair_blocks_over_their_channels_equal_all_six():
         touched = coupled_hessian(assembly, couplings)
         assert abs(every).max() > 0
         assert abs(touched - every).max() <= 1e-14 * abs(every).max()
+
+
+def _dense_pair_sum(assembly, couplings) -> np.ndarray:
+    """Σ_p A_pᵀ H_p A_p written out pair by pair (dense, all six channels): A_p's row
+    (end, channel, component) holds the end's Jacobian at its unknowns (and the pin's)."""
+    from taichi_ndf.minimise.pair_hessian import dofs
+
+    total = np.zeros((assembly.size, assembly.size))
+    blocks = couplings.blocks.double().numpy()
+    for p, ends in enumerate(couplings.points.tolist()):
+        a_p = np.zeros((36, assembly.size))
+        for end, point in enumerate(ends):
+            rows = torch.tensor([point])
+            jacobian = assembly.jacobian.rows(rows).dense()[:, 0]  # (3, 6, k)
+            index = dofs(assembly.basis.index[rows])[0].reshape(-1, 3)  # (k, 3)
+            if assembly.pin_jacobian is not None:
+                jacobian = torch.cat((jacobian, assembly.pin_jacobian[:, point]), dim=2)
+                index = np.concatenate((index, assembly.pin_dofs.reshape(-1, 3)))
+            for c in range(3):
+                for i in range(6):
+                    np.add.at(a_p[18 * end + 3 * i + c], index[:, c],
+                              jacobian[c, i].double().numpy())
+        total += a_p.T @ blocks[p] @ a_p
+    return total
+
+
+def test_pair_blocks_scattered_at_once_equal_the_pair_by_pair_sum():
+    """The pair blocks' K (`coupled_hessian`: all pairs in one sparse product) equals
+    Σ_p A_pᵀ H_p A_p summed pair by pair to 1e-14 relative: value-only pair springs through
+    a free pin (every pair also acts on the pin's unknowns) and on the cylinder."""
+    from taichi_ndf.minimise.pair_hessian import coupled_hessian
+
+    for case in ("free_pin_xz", "cylinder_xy_diaphragms"):
+        linear, objective = _scene(case)
+        couplings = objective.extra[1].coupled_hessian(linear.samples, None)
+        couplings = type(couplings)(couplings.points[:40], couplings.blocks[:40])
+        reference = _dense_pair_sum(linear.assembly, couplings)
+        matrix = coupled_hessian(linear.assembly, couplings).toarray()
+        assert np.abs(reference).max() > 0
+        assert np.abs(matrix - reference).max() <= 1e-14 * np.abs(reference).max()
+
+
+def test_inertia_and_wind_blocks_by_rows_are_those_rows_of_all_blocks():
+    """InertiaTerm's and WindTerm's blocks asked by rows (chunks of 5 points, the last one
+    short; the wind acting on the first 9 of 14 points, a chunk across that end) are those
+    rows of all points' blocks bit for bit."""
+    from taichi_ndf.objective.inertia import InertiaTerm
+    from taichi_ndf.objective.wind import wind_term
+    from taichi_ndf.problem.wind import Wind
+
+    linear, _ = _scene("free_pin_xz")
+    samples = linear.samples
+    gen = torch.Generator().manual_seed(8)
+    u = 0.05 * torch.randn(len(samples), 6, 3, generator=gen, dtype=F64)
+    inertia = InertiaTerm(1.2, 4e4, torch.randn(len(samples), 6, 3, generator=gen, dtype=F64))
+    head = type(samples)(samples.xi[:9], samples.r_jets[:9], samples.weight[:9],
+                         samples.point_force[:9])
+    wind = wind_term(Wind(velocity=(0.0, 1.0, 2.0)), 0.1, head, u[:9],
+                     torch.randn(9, 3, generator=gen, dtype=F64), 20.0, u[:14])
+    for term, points in ((inertia, len(samples)), (wind, 14)):
+        every = term.hessian_blocks(samples, u[:points])
+        assert float(every.abs().max()) > 0
+        chunks = [term.hessian_blocks(samples, u[:points], rows=slice(s, s + 5))
+                  for s in range(0, points, 5)]
+        assert torch.equal(torch.cat(chunks), every)

@@ -9,6 +9,9 @@ contact) adds Σ_p A_pᵀ H_p A_p, A_p the Jacobian of both points' jets over th
 acting at either (and the pin's), per pair p (`coupled_hessian`). Only the jet channels some
 pair block touches enter the products (those terms act on the value channel only: 1 of the
 6 channels, a 36 × 36 pair block with 6 × 6 non-zero entries); the rest are exact zeros.
+All pairs at once: K = Aᵀ H A, A all A_p stacked (sparse), H the pair blocks as a block
+diagonal; one sparse product sums the entries per row (the same K as Σ_p to rounding;
+benchmarks/pair_scatter.py).
 """
 
 from __future__ import annotations
@@ -63,24 +66,48 @@ def coupled_hessian(assembly, couplings: Couplings, *, all_channels: bool = Fals
         ends.reshape(count * 4, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS))
     if used.numel() < jets.CHANNELS:
         ends = ends[:, :, :, used][:, :, :, :, :, used]
-    jacobians, numbers = [], []
+    jacobian, numbers = [], []
     for end in range(2):
         rows = couplings.points[:, end].to(assembly.jacobian.device)
-        jacobian = assembly.jacobian.rows(rows).channels(used).dense()  # (3, P, ch, k)
+        part = assembly.jacobian.rows(rows).channels(used).dense()  # (3, P, ch, k)
         index = dofs(assembly.basis.index[rows])  # (P, 3k)
         if assembly.pin_jacobian is not None:
-            jacobian = torch.cat((jacobian, assembly.pin_jacobian[:, rows][:, :, used]), dim=3)
+            part = torch.cat((part, assembly.pin_jacobian[:, rows][:, :, used]), dim=3)
             index = np.concatenate((index, np.broadcast_to(assembly.pin_dofs,
                                                            (count, assembly.pin_dofs.size))), 1)
-        jacobians.append(jacobian)
+        jacobian.append(part)
         numbers.append(index)
-    matrix = sp.csr_matrix((assembly.size, assembly.size))
-    for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)):
-        block = contract(jacobians[a], weighted(ends[:, a, b].to(assembly.jacobian.dtype),
-                                                jacobians[b]))
-        shape = (count, numbers[a].shape[1], numbers[b].shape[1])
-        matrix = matrix + sp.coo_matrix((
-            block.reshape(shape).double().cpu().numpy().ravel(),
-            (np.broadcast_to(numbers[a][:, :, None], shape).ravel(),
-             np.broadcast_to(numbers[b][:, None, :], shape).ravel())), shape=matrix.shape)
-    return matrix.tocsr()
+    return _scattered(_pair_jacobian(jacobian, numbers, assembly.size),
+                      ends.permute(0, 1, 3, 4, 2, 5, 6)  # (P, 2, ch, 3, 2, ch, 3)
+                      .reshape(count, 2 * used.numel() * COMPONENTS, -1))
+
+
+def _pair_jacobian(jacobian: list[torch.Tensor], numbers: list[np.ndarray], size: int
+                   ) -> sp.csr_matrix:
+    """All pairs' A_p stacked (P m × size, CSR, float64; m = 2 ch 3): row p m + (end ch + i) 3
+    + c of pair p holds J_end[c, p, i, a] at unknown numbers_end[p, 3 a + c], from the ends'
+    Jacobians (3, P, ch, k) and unknown numbers (P, 3k)."""
+    count, channels = jacobian[0].shape[1], jacobian[0].shape[2]
+    values, columns = [], []
+    for part, index in zip(jacobian, numbers):
+        k = part.shape[3]
+        values.append(part.permute(1, 2, 0, 3).double().cpu().numpy())  # (P, ch, 3, k)
+        columns.append(np.broadcast_to(  # (P, ch, 3, k): unknown 3 a + c
+            index.reshape(count, 1, k, COMPONENTS).transpose(0, 1, 3, 2),
+            (count, channels, COMPONENTS, k)))
+    values = np.stack(values, axis=1).reshape(count * 2 * channels * COMPONENTS, -1)
+    columns = np.stack(columns, axis=1).reshape(values.shape)
+    rows = np.broadcast_to(np.arange(values.shape[0])[:, None], values.shape)
+    return sp.csr_matrix((values.ravel(), (rows.ravel(), columns.ravel())),
+                         shape=(values.shape[0], size))
+
+
+def _scattered(pair_jacobian: sp.csr_matrix, blocks: torch.Tensor) -> sp.csr_matrix:
+    """Aᵀ H A (size × size, CSR) of the stacked Jacobians A (P m × size) and the pair blocks
+    H (P, m, m) as a block diagonal: one sparse product, its sums accumulated per row (no
+    triplet per entry of every A_pᵀ H_p A_p)."""
+    count, m = blocks.shape[0], blocks.shape[1]
+    diagonal = sp.bsr_matrix((blocks.double().cpu().numpy(), np.arange(count),
+                              np.arange(count + 1)), shape=(count * m, count * m))
+    transposed = pair_jacobian.T.tocsr()
+    return (transposed @ (diagonal.tocsr() @ pair_jacobian)).tocsr()

@@ -84,11 +84,14 @@ class InertiaTerm:
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0, *,
-                       steps: torch.Tensor | None = None) -> torch.Tensor:
+                       steps: torch.Tensor | None = None, rows: slice | None = None
+                       ) -> torch.Tensor:
         """Per-point blocks (N, 6, 3, 6, 3): s m_q I on the value channel (exact: E is
-        quadratic); assembled, s M."""
+        quadratic); assembled, s M. rows: only those points' blocks (n, 6, 3, 6, 3)."""
         springs = self._springs(samples, u_jets)
-        blocks = u_jets.new_zeros(u_jets.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3)
+        if rows is not None:
+            springs = springs[rows]
+        blocks = u_jets.new_zeros(springs.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3)
         eye = torch.eye(3, dtype=u_jets.dtype, device=u_jets.device)
         blocks[:, jets.VALUE, :, jets.VALUE, :] = springs[:, None, None] * eye
         return blocks

@@ -73,14 +73,19 @@ class WindTerm:
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0, *,
-                       steps: torch.Tensor | None = None) -> torch.Tensor:
-        """κ_q n_q n_qᵀ on the value channel (N, 6, 3, 6, 3) (exact: E is quadratic)."""
+                       steps: torch.Tensor | None = None, rows: slice | None = None
+                       ) -> torch.Tensor:
+        """κ_q n_q n_qᵀ on the value channel (N, 6, 3, 6, 3) (exact: E is quadratic); rows:
+        only those points' blocks (n, 6, 3, 6, 3)."""
         _, normal, _ = self._parts(u_jets)
-        blocks = u_jets.new_zeros(u_jets.shape[0], jets.CHANNELS, 3, jets.CHANNELS, 3)
-        n = len(normal)
-        blocks[:n, jets.VALUE, :, jets.VALUE, :] = (
-            self.stiffness.to(u_jets.dtype)[:, None, None] * normal[:, :, None]
-            * normal[:, None, :])
+        points = torch.arange(u_jets.shape[0], device=u_jets.device)
+        points = points if rows is None else points[rows]
+        acting = points < len(normal)  # the wind acts on the first len(normal) points
+        at = points[acting]
+        blocks = u_jets.new_zeros(len(points), jets.CHANNELS, 3, jets.CHANNELS, 3)
+        blocks[acting, jets.VALUE, :, jets.VALUE, :] = (
+            self.stiffness.to(u_jets.dtype)[at, None, None] * normal[at, :, None]
+            * normal[at, None, :])
         return blocks
 
 
