@@ -85,9 +85,9 @@ class Objective:
         (`ShellEnergyTerm.hessian_blocks`' psd), the other terms' clamped (`project_psd`).
         rows: only the blocks of these points (n, 6, 3, 6, 3) (a chunk: Newton assembles K
         chunk by chunk), the same values as those rows of all points' blocks: a term whose
-        `hessian_blocks` takes `rows` (the shell's, the stiffness damping) given them, any
-        other term's built at all points and cut (per-point data of their own: inertia,
-        wind, contact; their blocks are cheap)."""
+        `hessian_blocks` takes `rows` (the shell's, the stiffness damping, inertia, wind)
+        given them, any other term's built at all points and cut (per-point data of their
+        own: the contact terms; their blocks are cheap)."""
         total, part = None, (lambda b: b) if rows is None else (lambda b: b[rows])
         for term in (self.shell, *self.extra):
             own = getattr(term, "hessian_blocks", None)
