@@ -85,7 +85,7 @@ def main() -> None:
     results = {}
     for name, function in contenders.items():
         function(assembly, couplings)  # warm-up
-        matrix, cpu, wall = timed(lambda: function(assembly, couplings), args.repeats)
+        matrix, cpu, wall = timed(lambda f=function: f(assembly, couplings), args.repeats)
         results[name] = matrix
         print(f"{name:>15} {cpu:11.3f} {wall:12.3f} {matrix.nnz:9d}")
     if len(results) == 2:

@@ -89,7 +89,7 @@ def _pair_jacobian(jacobian: list[torch.Tensor], numbers: list[np.ndarray], size
     Jacobians (3, P, ch, k) and unknown numbers (P, 3k)."""
     count, channels = jacobian[0].shape[1], jacobian[0].shape[2]
     values, columns = [], []
-    for part, index in zip(jacobian, numbers):
+    for part, index in zip(jacobian, numbers, strict=True):
         k = part.shape[3]
         values.append(part.permute(1, 2, 0, 3).double().cpu().numpy())  # (P, ch, 3, k)
         columns.append(np.broadcast_to(  # (P, ch, 3, k): unknown 3 a + c
