@@ -73,8 +73,8 @@ def test_ctrl_c_leaves_a_level_checkpoint_and_resume_is_exact(tmp_path, monkeypa
 
     assert sim.main([str(scene), "--out", str(cut), "--resume", *RUNTIME]) == 0
     resumed = json.loads((cut / "result.json").read_text())
-    # level 1 is re-solved from its own solution (no step), level 2 refined from it: the same
-    # finest solution, bit for bit
+    # the level-end checkpoint points at level 2, which is refined from level 1's solution:
+    # the same finest solution, bit for bit
     assert resumed["energy"] == expected["energy"]
     assert resumed["probes"] == expected["probes"]
     assert [lv["energy"] for lv in resumed["levels"]] == [
