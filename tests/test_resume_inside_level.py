@@ -40,6 +40,17 @@ class StopAfter:
             raise Stop
 
 
+def stopped_after(scene, solver, j: int, path) -> State:
+    """Run until Newton iteration `j` is kept with a checkpoint written at every iteration,
+    stop there, and return the state read back from the checkpoint at `path`."""
+    with pytest.raises(Stop):
+        solve_spline(scene.model, scene.field, solver,
+                     callbacks=[CheckpointWriter(path), StopAfter(j)])
+    state = State.newton(None)
+    state.restore(path)
+    return state
+
+
 @pytest.fixture(scope="module")
 def strip(tmp_path_factory):
     """The clamped strip under gravity on 3 levels × 2 load steps, solved once whole."""
@@ -61,12 +72,7 @@ def _inside(run, fraction):
 def test_resume_inside_a_level_is_bit_identical(strip, tmp_path, fraction):
     scene, solver, whole = strip
     j = _inside(whole, fraction)
-    path = tmp_path / "c.pt"
-    with pytest.raises(Stop):
-        solve_spline(scene.model, scene.field, solver,
-                     callbacks=[CheckpointWriter(path), StopAfter(j)])
-    state = State.newton(None)
-    state.restore(path)
+    state = stopped_after(scene, solver, j, tmp_path / "c.pt")
     assert state.inside is not None and state.iteration == j
     assert state.inside.level == whole.history[j].level and state.inside.iterate is not None
     resumed = solve_spline(scene.model, scene.field, solver, state=state)
@@ -115,12 +121,7 @@ def test_ctrl_c_inside_a_level_saves_the_iterate_and_resume_gives_the_same_run(t
 
 def test_a_resume_with_other_load_steps_is_refused_in_one_line(strip, tmp_path):
     scene, solver, whole = strip
-    path = tmp_path / "c.pt"
-    with pytest.raises(Stop):
-        solve_spline(scene.model, scene.field, solver,
-                     callbacks=[CheckpointWriter(path), StopAfter(_inside(whole, 0.6))])
-    state = State.newton(None)
-    state.restore(path)
+    state = stopped_after(scene, solver, _inside(whole, 0.6), tmp_path / "c.pt")
     other = dataclasses.replace(solver, load_steps=(0.4, 1.0))
     with pytest.raises(CheckpointError, match=r"^the checkpoint was written inside grid level "
                        r"1 of a run with other load steps than \[0.4, 1.0\]; resume it"):
@@ -207,12 +208,7 @@ def test_a_contact_run_resumed_inside_a_round_is_bit_identical(table, tmp_path, 
     candidates = [j for j, _, r in kept if r == round_index]
     assert candidates, f"no kept iterate inside round {round_index}: {kept}"
     j = candidates[len(candidates) // 2]
-    path = tmp_path / "c.pt"
-    with pytest.raises(Stop):
-        solve_spline(scene.model, scene.field, solver,
-                     callbacks=[CheckpointWriter(path), StopAfter(j)])
-    state = State.newton(None)
-    state.restore(path)
+    state = stopped_after(scene, solver, j, tmp_path / "c.pt")
     assert state.iteration == j and state.inside.iterate is not None
     assert state.inside.contact["round"]["index"] == round_index
     resumed = solve_spline(scene.model, scene.field, solver, state=state)

@@ -115,15 +115,18 @@ def small_sequence(tmp_path):
     return write_sequence(generate(synth), tmp_path / "seq", frame_format="png")
 
 
+def sequence_arguments(seq, out) -> list[str]:
+    """`ndf-sft`'s input and output arguments for a sequence written by `small_sequence`."""
+    return ["--frames", str(seq / "frames"), "--camera", str(seq / "camera.json"),
+            "--template", str(seq / "template.obj"), "--texture", str(seq / "texture.png"),
+            "--masks", str(seq / "masks"), "--gt", str(seq / "gt"), "--out", str(out)]
+
+
 def test_cli_writes_meshes_overlay_and_result(tmp_path):
     seq = small_sequence(tmp_path)
     out = tmp_path / "out"
-    status = sft_cli.main([
-        "--frames", str(seq / "frames"), "--camera", str(seq / "camera.json"),
-        "--template", str(seq / "template.obj"), "--texture", str(seq / "texture.png"),
-        "--masks", str(seq / "masks"), "--gt", str(seq / "gt"), "--out", str(out),
-        "--field", "siren", "--steps", "5", "--precision", "f64",
-    ])
+    status = sft_cli.main([*sequence_arguments(seq, out), "--field", "siren", "--steps", "5",
+                           "--precision", "f64"])
     assert status == 0
     template = read_mesh(seq / "template.obj")
     meshes = sorted((out / "meshes").glob("*.obj"))
@@ -159,12 +162,7 @@ def test_demo_quick(capsys, field):
 def test_cli_guided_search_reports_its_counts_per_frame(tmp_path):
     seq = small_sequence(tmp_path)
     out = tmp_path / "out"
-    status = sft_cli.main([
-        "--frames", str(seq / "frames"), "--camera", str(seq / "camera.json"),
-        "--template", str(seq / "template.obj"), "--texture", str(seq / "texture.png"),
-        "--masks", str(seq / "masks"), "--gt", str(seq / "gt"), "--out", str(out),
-        "--guided", "--precision", "f64",
-    ])
+    status = sft_cli.main([*sequence_arguments(seq, out), "--guided", "--precision", "f64"])
     assert status == 0
     result = json.loads((out / "result.json").read_text())
     guided = result["guided"]
