@@ -56,9 +56,11 @@ def write_panel_outputs(out: OutputDir, plan, field, resolution: tuple[int, int]
     if probes:
         out.write_json("probes.json", _probe_points(plan, probes))
     if pictures:
+        # the panels' indices on the whole map (not the 1st–99th percentiles of a field)
         image = render_figure(vertices, faces, scalars=panel,
                               scalar_label="panel (" + ", ".join(p.name for p in plan.patches)
-                              + ")", views=views, width=None, height=600)
+                              + ")", scalar_range=(0.0, max(len(plan.patches) - 1, 1)),
+                              views=views, width=None, height=600)
         save_png(out.file("render.png"), image)
 
 
