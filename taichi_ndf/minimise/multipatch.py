@@ -23,6 +23,7 @@ import torch
 
 from taichi_ndf.minimise.linear_solve import damped_solve
 from taichi_ndf.minimise.linearisation import GridLinearisation, SplineLinearisation
+from taichi_ndf.minimise.pair_hessian import scattered
 from taichi_ndf.objective.couplings import PAIR_SIZE, Couplings
 from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
 
@@ -110,8 +111,7 @@ class MultiPatchLinearisation:
                 vals.append(jacobian[c].ravel())
         jac = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                             shape=(count * PAIR_SIZE, self.size))
-        pair = sp.block_diag(list(couplings.blocks.double().cpu().numpy()), format="csr")
-        return (jac.T @ pair @ jac).tocsr()
+        return scattered(jac, couplings.blocks)
 
     def solve(self, matrix: sp.csr_matrix, gradient: torch.Tensor, damping: float, *,
               require_definite: bool = False) -> tuple[torch.Tensor, float] | None:

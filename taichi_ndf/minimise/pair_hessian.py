@@ -77,7 +77,7 @@ def coupled_hessian(assembly, couplings: Couplings, *, all_channels: bool = Fals
                                                            (count, assembly.pin_dofs.size))), 1)
         jacobian.append(part)
         numbers.append(index)
-    return _scattered(_pair_jacobian(jacobian, numbers, assembly.size),
+    return scattered(_pair_jacobian(jacobian, numbers, assembly.size),
                       ends.permute(0, 1, 3, 4, 2, 5, 6)  # (P, 2, ch, 3, 2, ch, 3)
                       .reshape(count, 2 * used.numel() * COMPONENTS, -1))
 
@@ -102,7 +102,7 @@ def _pair_jacobian(jacobian: list[torch.Tensor], numbers: list[np.ndarray], size
                          shape=(values.shape[0], size))
 
 
-def _scattered(pair_jacobian: sp.csr_matrix, blocks: torch.Tensor) -> sp.csr_matrix:
+def scattered(pair_jacobian: sp.csr_matrix, blocks: torch.Tensor) -> sp.csr_matrix:
     """Aᵀ H A (size × size, CSR) of the stacked Jacobians A (P m × size) and the pair blocks
     H (P, m, m) as a block diagonal: one sparse product, its sums accumulated per row (no
     triplet per entry of every A_pᵀ H_p A_p)."""
