@@ -26,10 +26,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
 import torch
 
 from taichi_ndf import jets
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
+from taichi_ndf.discretise.start import fitted_start
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
@@ -143,13 +145,16 @@ class MultiPatchDiscretisation:
 
     def start(self, config: SolverConfig, *, seed: int, resume_from: Path | None = None
               ) -> None:
-        """Zero coefficients on every patch (the rest shape: a garment's placement)."""
+        """Zero coefficients on every patch (its rest shape), or a flat-cut patch's start
+        shape (its placement) fitted by its coefficients (`fitted_start`)."""
         if config.method != "newton":
             raise ValueError("a multi-patch field is solved with [training] method = \"newton\"")
         if resume_from is not None:
             raise ValueError("--resume: a multi-patch run cannot be resumed (its checkpoint "
                              "would hold one patch); start it again")
-        self.fields = [SplineField(p.config, dtype=DTYPE) for p in self.spec.patches]
+        self.fields = [SplineField(p.config, dtype=DTYPE) if p.start is None
+                       else fitted_start(p.model, p.config, p.start, dtype=DTYPE)
+                       for p in self.spec.patches]
 
     def _grids(self) -> tuple[list[GridLinearisation], list[SeamTerm]]:
         """Each patch's grid assembled on its Gauss points and the seam points on it, and the
@@ -180,7 +185,7 @@ class MultiPatchDiscretisation:
         """Each load step's Newton over the joint coefficients, from the last step's."""
         started = time.perf_counter()
         grids, seams = self._grids()
-        linear = MultiPatchLinearisation(grids, 1.0)
+        linear = self._joined(grids, 1.0)
         terms = tuple(term.between(linear.rows(s.a), linear.rows(s.b))
                       for s, term in zip(self.spec.seams, seams, strict=True))
         objective = Objective(ShellEnergyTerm(self.model.material,
@@ -198,7 +203,7 @@ class MultiPatchDiscretisation:
 
         call(callbacks, "on_start", run)
         for t in config.load_steps:
-            linear = MultiPatchLinearisation(grids, t)
+            linear = self._joined(grids, t)
             phase = Phase(NewtonMinimiser(newton, load_factor=t),
                           objective=lambda linear=linear, t=t: (linear, objective.potential(t)),
                           parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
@@ -293,4 +298,28 @@ class MultiPatchDiscretisation:
         if samples is not self._linear.samples:
             raise ValueError("a multi-patch linearisation is built on its own points "
                              "(evaluation_points())")
-        return MultiPatchLinearisation(self._linear.grids, load_factor)
+        return self._joined(self._linear.grids, load_factor)
+
+    def _joined(self, grids, load_factor: float) -> MultiPatchLinearisation:
+        """The patches' joined linearisation with the held edges' unknowns held too."""
+        offsets = np.cumsum([0] + [3 * f.coefficients.shape[0] for f in self.fields])
+        held = [p.held_unknowns() + o for p, o in zip(self.spec.patches, offsets, strict=False)
+                if p.held]
+        return HeldEdges(grids, load_factor, np.concatenate(held) if held else None)
+
+
+class HeldEdges(MultiPatchLinearisation):
+    """`MultiPatchLinearisation` with further unknowns `held` (sorted indices into the joint
+    unknowns, or None): no step and no gradient there (`Patch.held`)."""
+
+    def __init__(self, grids, load_factor: float, held: np.ndarray | None):
+        super().__init__(grids, load_factor)
+        self.held = held
+        if held is not None:
+            self.fixed = held if self.fixed is None else np.union1d(self.fixed, held)
+
+    def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
+        gradient = super().gradient(grad_u_jets)
+        if self.held is not None:
+            gradient.reshape(-1)[torch.from_numpy(self.held)] = 0.0
+        return gradient

@@ -28,9 +28,13 @@ from taichi_ndf.problem.seams import (
     EdgeSegment,
     SeamSpec,
 )
+from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.scene.schema import SceneError, Table, checked
 
-__all__ = ["LENGTH_TOLERANCE", "is_garment", "parse_garment"]
+__all__ = ["LENGTH_TOLERANCE", "RESTS", "is_garment", "parse_garment"]
+
+# A panel's rest shape: its placement ("placed") or the flat pattern it is cut from ("flat").
+RESTS = ("placed", "flat")
 
 
 def is_garment(document: dict) -> bool:
@@ -39,9 +43,12 @@ def is_garment(document: dict) -> bool:
 
 
 def _surface(t: Table):
-    """The panel's rest (and start) surface: width along ξ¹, height along ξ²; flat, or a
-    cylinder sector of `wrap_radius` (ξ¹ its angle [rad], ξ² along its axis)."""
+    """The panel's rest surface and start shape: width along ξ¹, height along ξ²; flat, or a
+    cylinder sector of `wrap_radius` (ξ¹ its angle [rad], ξ² along its axis) — or, with
+    `rest = "flat"`, the flat pattern tangent to that cylinder along its ξ¹ = 0 edge (ξ¹ [m]
+    round it) wrapped onto it by its start shape (`_flat_cut`)."""
     width, height = t.number("width", positive=True), t.number("height", positive=True)
+    rest = t.string("rest", "placed", choices=RESTS)
     placement = {"origin": t.vector("origin", 3, (0.0, 0.0, 0.0))}
     if t.has("frame"):
         frame = t._get("frame", None)
@@ -52,9 +59,26 @@ def _surface(t: Table):
         if width / radius > 2 * math.pi * (1 - 1e-9):
             raise SceneError(f"{t.key('wrap_radius')}: a {width} m wide panel wraps more than "
                              f"a whole turn around radius {radius} m")
+        if rest == "flat":
+            return _flat_cut(t, width, height, radius, placement)
         return checked(lambda: Cylinder(radius=radius, length=height, angle=width / radius,
-                                        **placement), t.path)
-    return checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), **placement), t.path)
+                                        **placement), t.path), None
+    return checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), **placement),
+                   t.path), None
+
+
+def _flat_cut(t: Table, width: float, height: float, radius: float, placement: dict):
+    """A flat-cut panel wrapped by its start: the rectangle tangent to the cylinder
+    origin + F (R cos θ, R sin θ, z) at θ = 0 (origin + R e_x, ξ¹ along e_y, ξ² along e_z,
+    normal e_x outward) and the `wrap` start shape onto it (tangent along ξ¹ = 0, towards the
+    axis), which puts ξ¹ = R θ where the placed sector has θ."""
+    surface = checked(lambda: Cylinder(radius=radius, length=height, angle=width / radius,
+                                       **placement), t.path)
+    ex, ey, ez = surface.frame
+    origin = tuple(o + radius * e for o, e in zip(surface.origin, ex, strict=True))
+    flat = checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), origin=origin,
+                                 frame=(ey, ez, ex)), t.path)
+    return flat, StartShape("wrap", axis=0, at=0.0, radius=radius)
 
 
 def _edges(t: Table, key: str) -> list[str]:
@@ -67,13 +91,18 @@ def _edges(t: Table, key: str) -> list[str]:
 
 def _panel(t: Table, index: int, material, gravity, default_spans) -> Patch:
     name = t.string("name", f"panels[{index}]")
-    surface = _surface(t)
+    surface, start = _surface(t)
     clamped, hinged = _edges(t, "clamped"), _edges(t, "hinged")
     for edge in clamped + hinged:
         if edge not in EDGES:
             raise SceneError(f"{t.path}: panel {name!r}: no edge {edge!r} (edges: "
                              f"{', '.join(EDGES)})")
-    constraints = [ClampedEdge(e) for e in clamped] + [HingedEdge(e) for e in hinged]
+    if start is not None and hinged:
+        raise SceneError(f"{t.key('hinged')}: panel {name!r} is cut flat (rest = \"flat\"): "
+                         f"its edges can be clamped where the placement puts them, not hinged")
+    held = tuple(clamped) if start is not None else ()
+    constraints = [] if start is not None else (
+        [ClampedEdge(e) for e in clamped] + [HingedEdge(e) for e in hinged])
     boundary = checked(lambda: BoundaryConditions(constraints, domain=surface.domain), t.path)
     probes = tuple(Probe(p.string("name"), p.vector("xi", 2)) for p in t.tables("probes"))
     model = checked(lambda: ShellModel(surface, material, Loads(gravity=gravity), boundary,
@@ -82,7 +111,7 @@ def _panel(t: Table, index: int, material, gravity, default_spans) -> Patch:
     config = checked(lambda: SplineConfig(spans=spans, domain=surface.domain.bounds),
                      t.key("spans"))
     t.close()
-    return Patch(name, model, config)
+    return checked(lambda: Patch(name, model, config, start=start, held=held), t.path)
 
 
 def _side(t: Table, key: str, names: dict[str, int]) -> tuple[int, str]:
