@@ -7,8 +7,9 @@ spline grid (`SplineConfig`); seams join an edge of one patch to an edge of anot
 Every load step minimises Π = Σ_patches Π_shell + Σ_seams Π_seam over the joint coefficients
 by projected Newton on the joined linearisation (`minimise.multipatch.MultiPatchLinearisation`:
 block-diagonal K, the seams' pair couplings across patches); the load factor ramps gravity and
-sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), one material
-and one gravity for all patches (the shell energy is one term over the joined points), float64.
+sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), a material per
+patch (one `ShellEnergyTerm` over the joined points where all are the same, else a
+`PanelEnergy` of one per patch) and one gravity for all patches, float64.
 A run is not resumable (a checkpoint holds one field): `start` refuses a resume in one line.
 The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as `solver`: on_start,
 on_record at every Newton iteration (the divergence guard), on_load_step and on_end; it has no
@@ -30,6 +31,7 @@ import numpy as np
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.discretise.panel_energy import PanelEnergy
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.discretise.start import fitted_start
 from taichi_ndf.field import SplineField
@@ -160,8 +162,7 @@ class MultiPatchDiscretisation:
         """Each patch's grid assembled on its Gauss points and the seam points on it, and the
         seam terms (before `between`)."""
         patches = self.spec.patches
-        material = patches[0].model.material
-        seams = [SeamTerm(s.spec, patches[s.a].model.surface, material,
+        seams = [SeamTerm(s.spec, patches[s.a].model.surface, self.spec.seam_material(s),
                           surface_b=patches[s.b].model.surface) for s in self.spec.seams]
         grids = []
         for i, (patch, field) in enumerate(zip(patches, self.fields, strict=True)):
@@ -188,8 +189,10 @@ class MultiPatchDiscretisation:
         linear = self._joined(grids, 1.0)
         terms = tuple(term.between(linear.rows(s.a), linear.rows(s.b))
                       for s, term in zip(self.spec.seams, seams, strict=True))
-        objective = Objective(ShellEnergyTerm(self.model.material,
-                                              Loads(gravity=self.spec.gravity)), terms)
+        loads, materials = Loads(gravity=self.spec.gravity), self.spec.materials
+        shell = (ShellEnergyTerm(materials[0], loads) if len(set(materials)) == 1 else
+                 PanelEnergy(materials, loads, [linear.rows(i) for i in range(len(materials))]))
+        objective = Objective(shell, terms)
         c = torch.cat([f.coefficients.detach() for f in self.fields])
         newton = newton_config(config, DTYPE)
         run = PanelsRun(self.field, PanelsState(), config)

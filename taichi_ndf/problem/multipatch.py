@@ -4,6 +4,8 @@ of `Patch`es and the `PatchSeam`s between them, solved by
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,8 +14,38 @@ from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.seams import EDGES, SeamSpec
 from taichi_ndf.problem.start_shape import StartShape
+from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, Material, OrthotropicStVK
 
 COMPONENTS = 3
+
+
+def grain_turned(material: Material, grain: float) -> Material:
+    """`material` cut with its warp at `grain` [deg] from the panel's ξ¹ direction: the woven
+    laws' warp runs along ξ¹ (`taichi_ndf.shell.law_terms.material_frame_transform`), so a
+    grain of 90° (mod 180) swaps warp and weft (a11 ↔ a22, h₁ ↔ h₂; Clyde: also η₁ ↔ η₃ and
+    E₁₁max ↔ E₂₂max; E₁₂ → −E₁₂ leaves Ψ unchanged) and 0° (mod 180) keeps it; an isotropic
+    law is the same at any grain. Any other grain (a bias cut) needs a material frame turned
+    inside the law: ValueError."""
+    if not math.isfinite(grain):
+        raise ValueError(f"grain must be a finite angle [deg], got {grain}")
+    if isinstance(material, LinearIsotropic):
+        return material
+    turns = grain / 90.0
+    if abs(turns - round(turns)) > 1e-9:
+        raise ValueError(f"grain {grain:g}°: the woven laws hold the warp along ξ¹ or (90°) "
+                         f"along ξ², not at another angle (a bias cut is not supported)")
+    if round(turns) % 2 == 0:
+        return material
+    if isinstance(material, OrthotropicStVK):
+        return dataclasses.replace(material, a11=material.a22, a22=material.a11,
+                                   thickness=material.weft_thickness,
+                                   weft_thickness=material.thickness)
+    if isinstance(material, ClydeFabric):
+        eta, limits = material.eta, material.strain_limits
+        return dataclasses.replace(material, a11=material.a22, a22=material.a11,
+                                   eta=(eta[2], eta[1], eta[0], eta[3]),
+                                   strain_limits=(limits[1], limits[0], limits[2]))
+    raise ValueError(f"grain: no warp and weft known for a {type(material).__name__}")
 
 
 @dataclass(frozen=True)
@@ -67,7 +99,8 @@ class PatchSeam:
 
 @dataclass(frozen=True)
 class MultiPatchPlan:
-    """The patches and the seams between them; gravity [m/s²] acts on every patch."""
+    """The patches and the seams between them; gravity [m/s²] acts on every patch (through
+    each patch's own material: its areal density)."""
 
     patches: tuple[Patch, ...]
     seams: tuple[PatchSeam, ...] = ()
@@ -76,15 +109,21 @@ class MultiPatchPlan:
     def __post_init__(self):
         if not self.patches:
             raise ValueError("a multi-patch plan needs at least one patch")
-        first = self.patches[0].model.material
-        for patch in self.patches[1:]:
-            if patch.model.material != first:
-                raise ValueError(f"panel {patch.name!r}: its material differs from panel "
-                                 f"{self.patches[0].name!r}'s (one material for all panels)")
         for seam in self.seams:
             for index in (seam.a, seam.b):
                 if not 0 <= index < len(self.patches):
                     raise ValueError(f"seam {seam.spec.name!r}: no patch {index}")
+
+    @property
+    def materials(self) -> tuple:
+        """Each patch's material, in order."""
+        return tuple(p.model.material for p in self.patches)
+
+    def seam_material(self, seam: PatchSeam):
+        """The material that sets a seam's penalty stiffness (`SeamTerm`): the side's with
+        the larger membrane stiffness (the stronger tie)."""
+        return max((self.patches[seam.a].model.material, self.patches[seam.b].model.material),
+                   key=lambda m: m.small_strain_stiffness()[0])
 
     def to_dict(self) -> dict:
         return {"type": "multipatch",

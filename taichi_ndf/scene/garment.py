@@ -18,7 +18,7 @@ from taichi_ndf.geometry import Cylinder, Plane
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import Probe, ShellModel
-from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
+from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam, grain_turned
 from taichi_ndf.problem.seams import (
     BENDING,
     DEFAULT_PENALTY,
@@ -30,6 +30,7 @@ from taichi_ndf.problem.seams import (
 )
 from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.scene.schema import SceneError, Table, checked
+from taichi_ndf.shell.materials import preset
 
 __all__ = ["LENGTH_TOLERANCE", "RESTS", "is_garment", "parse_garment"]
 
@@ -89,8 +90,29 @@ def _edges(t: Table, key: str) -> list[str]:
     return value
 
 
-def _panel(t: Table, index: int, material, gravity, default_spans) -> Patch:
+def _material(t: Table, default, read_material):
+    """The panel's material: the garment's, a preset named by `material`, or an inline
+    `material` table (read as `[material]`, by `read_material`); then cut along `grain`
+    [deg] (`grain_turned`)."""
+    material = default
+    if t.has("material"):
+        value = t._get("material", None)
+        if isinstance(value, str):
+            material = checked(lambda: preset(value), t.key("material"))
+        elif isinstance(value, dict):
+            table = t.table("material")
+            material = checked(lambda: read_material(table), table.path)
+            table.close()
+        else:
+            raise SceneError(f"{t.key('material')}: expected a preset name or a table like "
+                             f"{{preset = \"denim\"}}, got {value!r}")
+    grain = t.number("grain", 0.0)
+    return checked(lambda: grain_turned(material, grain), t.key("grain"))
+
+
+def _panel(t: Table, index: int, material, gravity, default_spans, read_material) -> Patch:
     name = t.string("name", f"panels[{index}]")
+    material = _material(t, material, read_material)
     surface, start = _surface(t)
     clamped, hinged = _edges(t, "clamped"), _edges(t, "hinged")
     for edge in clamped + hinged:
@@ -139,10 +161,13 @@ def _seam(t: Table, index: int, names: dict[str, int]) -> PatchSeam:
     return PatchSeam(spec, a, b)
 
 
-def parse_garment(top: Table, material, field: Table | None) -> tuple[MultiPatchPlan, tuple]:
+def parse_garment(top: Table, material, field: Table | None, *, read_material
+                  ) -> tuple[MultiPatchPlan, tuple]:
     """The garment's plan (panels and seams) from the document's `[[panels]]`, `[[seams]]`,
     `[loads]` (gravity only) and `[field]` (`spans`: each panel's default grid), the
-    material already read; returns the plan and the panels' probes (named "panel.probe")."""
+    garment's material already read (each panel's default) and `read_material` (Table ->
+    material: how `[material]` is read, for a panel's inline table); returns the plan and
+    the panels' probes (named "panel.probe")."""
     loads = top.table("loads", optional=True)
     gravity = loads.vector("gravity", 3, (0.0, 0.0, 0.0)) if loads is not None else (0, 0, 0)
     if loads is not None:
@@ -153,7 +178,8 @@ def parse_garment(top: Table, material, field: Table | None) -> tuple[MultiPatch
         spans = tuple(int(v) for v in field.vector("spans", 2, spans))
         field.close()
     tables = top.tables("panels")
-    patches = [_panel(t, i, material, gravity, spans) for i, t in enumerate(tables)]
+    patches = [_panel(t, i, material, gravity, spans, read_material)
+               for i, t in enumerate(tables)]
     names: dict[str, int] = {}
     for t, patch in zip(tables, patches, strict=True):
         if patch.name in names:
@@ -167,10 +193,12 @@ def parse_garment(top: Table, material, field: Table | None) -> tuple[MultiPatch
             if key in used:
                 raise SceneError(f"{t.path}: edge {key!r} is already in seam {used[key]!r}")
             used[key] = seam.spec.name
-        checked(lambda seam=seam: SeamTerm(seam.spec, patches[seam.a].model.surface, material,
-                                           surface_b=patches[seam.b].model.surface), t.path)
         seams.append(seam)
     plan = checked(lambda: MultiPatchPlan(tuple(patches), tuple(seams), tuple(gravity)),
                    "panels")
+    for t, seam in zip(top.tables("seams"), seams, strict=True):
+        checked(lambda seam=seam: SeamTerm(seam.spec, patches[seam.a].model.surface,
+                                           plan.seam_material(seam),
+                                           surface_b=patches[seam.b].model.surface), t.path)
     probes = tuple(Probe(f"{p.name}.{q.name}", q.xi) for p in patches for q in p.model.probes)
     return plan, probes
