@@ -240,3 +240,40 @@ def test_ndf_sim_refuses_an_unknown_panel_preset_with_exit_code_2(tmp_path):
                                                'material = "jeans"'))
     assert "panels[1].material: unknown material preset 'jeans'" in sim_refusal(
         scene, tmp_path / "out")
+
+
+def test_a_flat_cut_waist_held_on_a_smaller_circle_is_gathered_there():
+    """`held_radius`: the clamped waist of the two flat-cut panels (wrapped at R = 0.15 m)
+    moved onto a circle of 0.12 m over the load steps; the waist ends on that circle (to the
+    fit of its rows), the hem stays out near the wrap's radius (the skirt flares), the seams
+    closed."""
+    document = _document("flat", spans=(8, 4))
+    document["training"]["load_steps"] = [0.5, 1.0]
+    for panel in document["panels"]:
+        panel["held_radius"] = 0.12
+    scene = _parse(document)
+    assert scene.field.patches[0].held_target.factor == pytest.approx(0.8)
+    panels, solution = _solved(scene)
+    assert max(solution.document["seam_gaps"].values()) < 1e-5
+    s = torch.linspace(0.0, math.pi * RADIUS, 9, dtype=torch.float64)
+    for height, low, high in ((HEIGHT, 0.12 - 1e-4, 0.12 + 1e-4), (0.0, 0.13, 0.16)):
+        xi = torch.stack((s, torch.full_like(s, height)), dim=1)
+        for i in range(2):
+            x = (panels.spec.patches[i].model.surface.jets(xi)[:, 0]
+                 + panels.displacement_of(i, xi)[:, 0])
+            radius = x[:, :2].norm(dim=1)
+            assert low < float(radius.min()) and float(radius.max()) < high
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"held_radius": 0.1}, "panels[0].held_radius: only a panel cut flat and wrapped"),
+    ({"rest": "flat", "held_radius": 0.1, "clamped": []},
+     "panels[0].held_radius: panel 'front' has no clamped edge"),
+    ({"rest": "flat", "held_radius": -0.1}, "panels[0].held_radius: must be > 0"),
+])
+def test_bad_held_radii_are_refused_in_one_line(change, message):
+    document = _document("placed")
+    document["panels"][0].update(change)
+    with pytest.raises(SceneError) as err:
+        _parse(document)
+    assert message in str(err.value)

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.discretise.panel_energy import PanelEnergy
+from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.discretise.start import fitted_start
 from taichi_ndf.field import SplineField
@@ -157,6 +157,9 @@ class MultiPatchDiscretisation:
         self.fields = [SplineField(p.config, dtype=DTYPE) if p.start is None
                        else fitted_start(p.model, p.config, p.start, dtype=DTYPE)
                        for p in self.spec.patches]
+        self._targets = [None if p.held_target is None
+                         else fitted_start(p.model, p.config, p.held_target, dtype=DTYPE)
+                         for p in self.spec.patches]
 
     def _grids(self) -> tuple[list[GridLinearisation], list[SeamTerm]]:
         """Each patch's grid assembled on its Gauss points and the seam points on it, and the
@@ -192,8 +195,12 @@ class MultiPatchDiscretisation:
         loads, materials = Loads(gravity=self.spec.gravity), self.spec.materials
         shell = (ShellEnergyTerm(materials[0], loads) if len(set(materials)) == 1 else
                  PanelEnergy(materials, loads, [linear.rows(i) for i in range(len(materials))]))
-        objective = Objective(shell, terms)
         c = torch.cat([f.coefficients.detach() for f in self.fields])
+        if any(p.start is not None for p in self.spec.patches):  # sewn from the placement
+            start = linear.displacement(c)
+            objective = Objective(shell, tuple(SewnFromStart(t, start) for t in terms))
+        else:
+            objective = Objective(shell, terms)
         newton = newton_config(config, DTYPE)
         run = PanelsRun(self.field, PanelsState(), config)
         history, steps, self.converged = run.state.history, [], []
@@ -205,8 +212,13 @@ class MultiPatchDiscretisation:
             history.append(record)
 
         call(callbacks, "on_start", run)
+        moves = self._held_moves(c)
         for t in config.load_steps:
             linear = self._joined(grids, t)
+            if moves is not None:  # the held rows moved towards their targets (no step there)
+                held, first, last = moves
+                c = c.clone()
+                c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (last - first)
             phase = Phase(NewtonMinimiser(newton, load_factor=t),
                           objective=lambda linear=linear, t=t: (linear, objective.potential(t)),
                           parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
@@ -238,6 +250,22 @@ class MultiPatchDiscretisation:
             newton_steps=len(history),
             settings={"method": "newton", "load_steps": list(config.load_steps),
                       "field": self.spec.to_dict()})
+
+    def _held_moves(self, c: torch.Tensor):
+        """(unknowns, start values, target values) of the held rows of the patches that have
+        a held target (`Patch.held_target`), in the joint unknowns of `c`; None: none."""
+        offsets = np.cumsum([0] + [3 * f.coefficients.shape[0] for f in self.fields])
+        index, target = [], []
+        for patch, field, offset in zip(self.spec.patches, self._targets, offsets,
+                                        strict=False):
+            if field is not None:
+                held = patch.held_unknowns()
+                index.append(torch.from_numpy(held + offset))
+                target.append(field.coefficients.detach().reshape(-1)[held])
+        if not index:
+            return None
+        index = torch.cat(index)
+        return index, c.reshape(-1)[index].clone(), torch.cat(target).to(c)
 
     def _set(self, c: torch.Tensor, linear: MultiPatchLinearisation) -> None:
         for i, f in enumerate(self.fields):

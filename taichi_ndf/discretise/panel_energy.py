@@ -1,6 +1,8 @@
-"""The shell energy of several panels of different materials as one term over their joined
-points: `PanelEnergy`, each panel's `ShellEnergyTerm` (its material, its gravity through its
-own areal density) on its own rows of the joined samples."""
+"""The energy terms of a garment's panels over their joined points: the shell energy of
+panels of different materials as one term (`PanelEnergy`, each panel's `ShellEnergyTerm` —
+its material, its gravity through its own areal density — on its own rows of the joined
+samples), and a seam sewn from where the panels start rather than from their rest shapes
+(`SewnFromStart`)."""
 
 from __future__ import annotations
 
@@ -66,3 +68,34 @@ class PanelEnergy:
                     _part(samples, own), u_jets[own], load_factor, steps=steps, psd=psd,
                     rows=slice(lo - own.start, hi - own.start)))
         return torch.cat(blocks)
+
+
+class SewnFromStart:
+    """A seam term (`SeamTerm`) whose sewing starts from the start displacement jets `start`
+    (N, 6, 3) [m] at the joined samples instead of the rest shape: at load factor λ its ties
+    are to (1 − λ) times their values at the start, so a seam that the panels' placement
+    closes stays closed at every load step, and one it leaves open is closed gradually from
+    there (a flat-cut panel's rest shape is its pattern, far from where it is sewn). The
+    seam's gap and tangent tie are affine in u, so this is the seam evaluated at
+    u − (1 − λ) u_start (the same gradient; the same pair blocks, which do not depend on u);
+    from λ = 1 on it is the seam itself."""
+
+    def __init__(self, term, start: torch.Tensor):
+        self.term = term
+        self.spec = term.spec
+        self.start = start
+
+    def _shifted(self, u_jets: torch.Tensor, load_factor: float) -> torch.Tensor:
+        open_ = 1.0 - min(max(float(load_factor), 0.0), 1.0)
+        return u_jets - open_ * self.start.to(u_jets) if open_ else u_jets
+
+    def evaluate(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                 load_factor: float = 1.0, *, grad: bool = True
+                 ) -> tuple[float, torch.Tensor | None]:
+        return self.term.evaluate(samples, self._shifted(u_jets, load_factor), load_factor,
+                                  grad=grad)
+
+    def coupled_hessian(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                        load_factor: float = 1.0):
+        return self.term.coupled_hessian(samples, self._shifted(u_jets, load_factor),
+                                         load_factor)

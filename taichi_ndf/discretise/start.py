@@ -13,6 +13,7 @@ from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.multipatch import Gathered
 from taichi_ndf.problem.start_shape import StartShape
 
 
@@ -48,7 +49,7 @@ class _Result:
     grad_u_jets: torch.Tensor
 
 
-def fitted_start(model: ShellModel, config: SplineConfig, shape: StartShape, *,
+def fitted_start(model: ShellModel, config: SplineConfig, shape: StartShape | Gathered, *,
                  load_factor: float = 1.0, dtype: torch.dtype | None = None) -> SplineField:
     """A spline field on `config`'s grid whose displacement is the least-squares fit (at the
     Gauss points of every knot span, through the model's boundary conditions: held unknowns

@@ -49,6 +49,32 @@ def grain_turned(material: Material, grain: float) -> Material:
 
 
 @dataclass(frozen=True)
+class Gathered:
+    """The positions of a start shape moved radially about the axis through `point` [m] along
+    `direction` by `factor` (> 0; < 1 towards the axis): x ↦ p + (x − p)·d d + factor ×
+    the rest of x − p. Has the start shape's `positions`, so `fitted_start` fits it."""
+
+    shape: StartShape
+    point: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    factor: float
+
+    def __post_init__(self):
+        if not (math.isfinite(self.factor) and self.factor > 0):
+            raise ValueError(f"the gathering factor must be > 0, got {self.factor}")
+
+    def positions(self, xi, r, r1, r2):
+        """The gathered start positions (N, 3) [m] (`StartShape.positions`' arguments)."""
+        x = self.shape.positions(xi, r, r1, r2)
+        p = x.new_tensor(self.point)
+        d = x.new_tensor(self.direction)
+        d = d / d.norm()
+        v = x - p
+        along = (v @ d)[:, None] * d
+        return p + along + self.factor * (v - along)
+
+
+@dataclass(frozen=True)
 class Patch:
     """One panel: its name, model (surface, material, loads, boundary, probes) and grid.
 
@@ -56,13 +82,16 @@ class Patch:
     fitted by the coefficients, `taichi_ndf.discretise.start.fitted_start`); held: edges held
     where the start put them (position, slope and curvature: the `degree` rows of
     coefficients that act on the edge keep their start values), a flat-cut panel's clamped
-    edges (a clamp of the model's boundary would hold them at the flat rest shape)."""
+    edges (a clamp of the model's boundary would hold them at the flat rest shape);
+    held_target: where the held edges are at load factor 1 (None: where they start), their
+    rows moved there linearly in the load factor (a waist gathered onto a smaller circle)."""
 
     name: str
     model: ShellModel
     config: SplineConfig
     start: StartShape | None = None
     held: tuple[str, ...] = ()
+    held_target: Gathered | None = None
 
     def __post_init__(self):
         for edge in self.held:
@@ -71,6 +100,8 @@ class Patch:
         if self.held and self.start is None:
             raise ValueError(f"panel {self.name!r}: held edges need a start shape (a clamped "
                              f"edge holds the rest shape)")
+        if self.held_target is not None and not self.held:
+            raise ValueError(f"panel {self.name!r}: a held target needs held edges")
         if self.held and any(self.config.periodic):
             raise ValueError(f"panel {self.name!r}: held edges need an open grid")
 

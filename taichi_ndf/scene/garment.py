@@ -18,7 +18,13 @@ from taichi_ndf.geometry import Cylinder, Plane
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import Probe, ShellModel
-from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam, grain_turned
+from taichi_ndf.problem.multipatch import (
+    Gathered,
+    MultiPatchPlan,
+    Patch,
+    PatchSeam,
+    grain_turned,
+)
 from taichi_ndf.problem.seams import (
     BENDING,
     DEFAULT_PENALTY,
@@ -62,24 +68,34 @@ def _surface(t: Table):
                              f"a whole turn around radius {radius} m")
         if rest == "flat":
             return _flat_cut(t, width, height, radius, placement)
+    if t.has("held_radius"):
+        raise SceneError(f"{t.key('held_radius')}: only a panel cut flat and wrapped (rest = "
+                         f"\"flat\" with a wrap_radius) is held on a circle")
+    if t.has("wrap_radius"):
         return checked(lambda: Cylinder(radius=radius, length=height, angle=width / radius,
-                                        **placement), t.path), None
+                                        **placement), t.path), None, None
     return checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), **placement),
-                   t.path), None
+                   t.path), None, None
 
 
 def _flat_cut(t: Table, width: float, height: float, radius: float, placement: dict):
     """A flat-cut panel wrapped by its start: the rectangle tangent to the cylinder
     origin + F (R cos θ, R sin θ, z) at θ = 0 (origin + R e_x, ξ¹ along e_y, ξ² along e_z,
     normal e_x outward) and the `wrap` start shape onto it (tangent along ξ¹ = 0, towards the
-    axis), which puts ξ¹ = R θ where the placed sector has θ."""
+    axis), which puts ξ¹ = R θ where the placed sector has θ; with `held_radius`, the target
+    of its held (clamped) edges: the wrap moved radially onto that radius (`Gathered`)."""
     surface = checked(lambda: Cylinder(radius=radius, length=height, angle=width / radius,
                                        **placement), t.path)
     ex, ey, ez = surface.frame
     origin = tuple(o + radius * e for o, e in zip(surface.origin, ex, strict=True))
     flat = checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), origin=origin,
                                  frame=(ey, ez, ex)), t.path)
-    return flat, StartShape("wrap", axis=0, at=0.0, radius=radius)
+    start = StartShape("wrap", axis=0, at=0.0, radius=radius)
+    target = None
+    if t.has("held_radius"):
+        held = t.number("held_radius", positive=True)
+        target = Gathered(start, surface.origin, ez, held / radius)
+    return flat, start, target
 
 
 def _edges(t: Table, key: str) -> list[str]:
@@ -113,7 +129,7 @@ def _material(t: Table, default, read_material):
 def _panel(t: Table, index: int, material, gravity, default_spans, read_material) -> Patch:
     name = t.string("name", f"panels[{index}]")
     material = _material(t, material, read_material)
-    surface, start = _surface(t)
+    surface, start, target = _surface(t)
     clamped, hinged = _edges(t, "clamped"), _edges(t, "hinged")
     for edge in clamped + hinged:
         if edge not in EDGES:
@@ -133,7 +149,11 @@ def _panel(t: Table, index: int, material, gravity, default_spans, read_material
     config = checked(lambda: SplineConfig(spans=spans, domain=surface.domain.bounds),
                      t.key("spans"))
     t.close()
-    return checked(lambda: Patch(name, model, config, start=start, held=held), t.path)
+    if target is not None and not held:
+        raise SceneError(f"{t.key('held_radius')}: panel {name!r} has no clamped edge to hold "
+                         f"on that circle")
+    return checked(lambda: Patch(name, model, config, start=start, held=held,
+                                 held_target=target), t.path)
 
 
 def _side(t: Table, key: str, names: dict[str, int]) -> tuple[int, str]:
