@@ -12,6 +12,14 @@ largest gap, Newton iterations, convergence, CPU and wall time of each solve, lo
 commit.
 
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py [n m ...]
+
+--four: scenes/skirt_four_panels.toml (four flat-cut knit panels, the waist gathered from a
+0.1875 m onto a 0.15 m circle) on n × m spans per panel, and the same skirt with its waist
+held on the wrap's circle (no `held_radius`): per case Π, Newton iterations, convergence, the
+seams' largest gap, the waist's and the hem's radius (min / mean / max over 17 points per
+panel) and the hem's mean height (placed at z = 0), CPU and wall time.
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py --four [n m ...]
 """
 
 from __future__ import annotations
@@ -35,7 +43,9 @@ from taichi_ndf.discretise import of_scene  # noqa: E402
 from taichi_ndf.scene.reader import parse_scene  # noqa: E402
 
 SCENE = ROOT / "scenes" / "skirt_panels.toml"
+FOUR = ROOT / "scenes" / "skirt_four_panels.toml"
 GRIDS = ((16, 8), (32, 8))
+FOUR_GRIDS = ((8, 12), (12, 18))
 
 
 def _cpu() -> float:
@@ -91,9 +101,51 @@ def run(spans) -> dict:
             "reference_cpu": cpu, "reference_wall": wall}
 
 
+def _rim(panels, height: float) -> torch.Tensor:
+    """Deformed positions (4 × 17, 3) [m] of every panel's edge at ξ² = height."""
+    out = []
+    for i, patch in enumerate(panels.spec.patches):
+        (lo, hi), _ = patch.model.surface.domain.bounds
+        s = torch.linspace(lo, hi, 17, dtype=torch.float64)
+        xi = torch.stack((s, torch.full_like(s, height)), dim=1)
+        out.append(patch.model.surface.jets(xi)[:, 0] + panels.displacement_of(i, xi)[:, 0])
+    return torch.cat(out)
+
+
+def four(spans, gathered: bool) -> str:
+    """One row of the four-panel table."""
+    garment = tomllib.loads(FOUR.read_text())
+    garment["field"]["spans"] = list(spans)
+    if not gathered:
+        for panel in garment["panels"]:
+            del panel["held_radius"]
+    panels, solution, cpu, wall = _solve(parse_scene(garment, base_dir=FOUR.parent, path=FOUR))
+    height = garment["panels"][0]["height"]
+    waist, hem = (_rim(panels, z)[:, :2].norm(dim=1) for z in (height, 0.0))
+    z = float(_rim(panels, 0.0)[:, 2].mean())
+    return (f"| {spans[0]} × {spans[1]} | {'0.15' if gathered else 'none'} | "
+            f"{solution.energy:.6g} | {solution.iterations} | {all(panels.converged)} | "
+            f"{max(solution.document['seam_gaps'].values()):.1e} | {float(waist.min()):.4f} / "
+            f"{float(waist.max()):.4f} | {float(hem.min()):.4f} / {float(hem.mean()):.4f} / "
+            f"{float(hem.max()):.4f} | {z * 1e3:.2f} | {cpu:.1f} | {wall:.1f} |")
+
+
 def main() -> None:
     taichi_ndf.init(arch="cpu", precision="f64")
     torch.set_num_threads(1)
+    if sys.argv[1:2] == ["--four"]:
+        args = [int(v) for v in sys.argv[2:]]
+        grids = tuple(zip(args[::2], args[1::2], strict=True)) if args else FOUR_GRIDS
+        print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+        print("| spans per panel | waist held on [m] | Π [J] | Newton it. | converged | "
+              "seam gap [m] | waist radius min / max [m] | hem radius min / mean / max [m] | "
+              "hem height [mm] | CPU [s] | wall [s] |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for spans in grids:
+            for gathered in (True, False):
+                print(four(spans, gathered), flush=True)
+        print(f"load average {os.getloadavg()[0]:.1f} (end)")
+        return
     args = [int(v) for v in sys.argv[1:]]
     grids = tuple(zip(args[::2], args[1::2], strict=True)) if args else GRIDS
     print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
