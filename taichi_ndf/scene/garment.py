@@ -94,7 +94,8 @@ def _flat_cut(t: Table, width: float, height: float, radius: float, placement: d
     target = None
     if t.has("held_radius"):
         held = t.number("held_radius", positive=True)
-        target = Gathered(start, surface.origin, ez, held / radius)
+        target = checked(lambda: Gathered(start, surface.origin, ez, held / radius),
+                         t.key("held_radius"))
     return flat, start, target
 
 
