@@ -5,15 +5,13 @@ clamped edges are held where the placement puts them (`Patch.held`)."""
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
-import tomllib
+import sys
 from pathlib import Path
 
 import pytest
 import torch
 
-from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.discretise import of_scene
 from taichi_ndf.geometry import Plane
 from taichi_ndf.problem.start_shape import StartShape
@@ -22,6 +20,7 @@ from taichi_ndf.scene.schema import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "skirt_panels.toml"
+sys.path.insert(0, str(ROOT / "benchmarks"))
 RADIUS, HEIGHT = 0.15, 0.4
 
 
@@ -29,32 +28,13 @@ def _document(rest: str, bending: float = 7.68e-7, spans=(16, 8)) -> dict:
     """The two-panel skirt of scenes/skirt_panels.toml (two half-cylinders of radius 0.15 m,
     0.4 m long, sewn at the sides, the waist clamped, gravity) with its panels' rest shape
     `rest`, a linear isotropic material of bending stiffness `bending` [N·m]."""
-    document = tomllib.loads(SCENE.read_text())
-    document["field"]["spans"] = list(spans)
-    document["material"] = {"type": "linear", "membrane_stiffness": 6.4,
-                            "bending_stiffness": bending, "poisson_ratio": 0.25,
-                            "areal_density": 0.144}
-    for panel in document["panels"]:
-        panel.pop("probes", None)
-        panel["rest"] = rest
-    return document
+    from garment_skirt import flat_document
+
+    return flat_document(rest, bending, spans)
 
 
 def _parse(document):
     return parse_scene(copy.deepcopy(document), base_dir=SCENE.parent, path=SCENE)
-
-
-def _held_at_rest(scene):
-    """The scene with each panel's clamp replaced by the flat-cut panels' hold (its p rows of
-    coefficients at the waist kept), its start its rest shape: the same support as a flat-cut
-    panel's, so that the two differ only in their rest shapes."""
-    patches = []
-    for patch in scene.field.patches:
-        free = BoundaryConditions([], domain=patch.model.surface.domain)
-        patches.append(dataclasses.replace(patch, model=dataclasses.replace(
-            patch.model, boundary=free), start=StartShape("rigid"), held=("xi2_max",)))
-    return dataclasses.replace(scene, field=dataclasses.replace(scene.field,
-                                                                patches=tuple(patches)))
 
 
 def _solved(scene):
@@ -64,18 +44,6 @@ def _solved(scene):
     panels.check_solution(solution)
     assert all(panels.converged)
     return panels, solution
-
-
-def _positions(panels, flat: bool) -> torch.Tensor:
-    """Deformed positions (2 × 13 × 5, 3) [m] of both panels on one grid of the placed
-    sector's (θ, z): a flat-cut panel's ξ¹ is the arc length R θ."""
-    theta = torch.linspace(0.0, math.pi, 13, dtype=torch.float64)
-    z = torch.linspace(0.0, HEIGHT, 5, dtype=torch.float64)
-    xi = torch.stack(torch.meshgrid(theta, z, indexing="ij"), dim=-1).reshape(-1, 2)
-    if flat:
-        xi = xi * torch.tensor([RADIUS, 1.0], dtype=torch.float64)
-    return torch.cat([panels.spec.patches[i].model.surface.jets(xi)[:, 0]
-                      + panels.displacement_of(i, xi)[:, 0] for i in range(2)])
 
 
 def test_a_flat_cut_panel_is_a_flat_rectangle_started_on_its_placement():
@@ -118,16 +86,19 @@ def test_flat_cut_panels_wrapped_into_a_skirt_carry_the_bending_of_the_wrap():
     3e-4 N·m Π higher by ½ B (1/R)² × area less the relaxation (measured 2.451e-3 J for
     2.513e-3 J, −2.5 %) and the shape another (measured 1.4 mm of 14 mm: the stored moment
     pushes the tube out)."""
+    from garment_skirt import held_at_rest, positions
+
     area = 2 * math.pi * RADIUS * HEIGHT
     for bending, shape_tolerance in ((7.68e-7, 0.02), (3e-4, None)):
-        placed, placed_solution = _solved(_held_at_rest(_parse(_document("placed", bending))))
+        placed, placed_solution = _solved(held_at_rest(_parse(_document("placed", bending))))
         flat, solution = _solved(_parse(_document("flat", bending)))
         assert max(solution.document["seam_gaps"].values()) < 1e-6
         # sewn from where the panels start, not from the flat patterns: Π ~ 1e6 J at 0.5
         assert all(abs(step["energy"]) < 0.01 for step in solution.document["load_steps"])
         wrapped = 0.5 * bending / RADIUS ** 2 * area
         difference = solution.energy - placed_solution.energy
-        shape = float((_positions(flat, True) - _positions(placed, False)).norm(dim=1).max())
+        shape = float((positions(flat, RADIUS, True) - positions(placed, RADIUS, False)
+                       ).norm(dim=1).max())
         largest = max(float(placed.displacement_of(i, torch.tensor(
             [[0.0, 0.0], [1.5, 0.0]], dtype=torch.float64))[:, 0].norm(dim=1).max())
             for i in range(2))
