@@ -12,10 +12,28 @@ largest gap, Newton iterations, convergence, CPU and wall time of each solve, lo
 commit.
 
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py [n m ...]
+
+--four: scenes/skirt_four_panels.toml (four flat-cut knit panels, the waist gathered from a
+0.1875 m onto a 0.15 m circle) on n × m spans per panel, and the same skirt with its waist
+held on the wrap's circle (no `held_radius`): per case Π, Newton iterations, convergence, the
+seams' largest gap, the waist's and the hem's radius (min / mean / max over 17 points per
+panel) and the hem's mean height (placed at z = 0), CPU and wall time.
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py --four [n m ...]
+
+--flat: the two-panel skirt cut flat (`rest = "flat"`: the wrap is the panels' start)
+against the same skirt at rest wrapped (`held_at_rest`: the same hold of the waist), 16 × 8
+spans per panel, a linear isotropic material (D = 6.4 N/m, ν = 0.25, ρ_A = 0.144 kg/m²) of
+bending stiffness B = 7.68e-7 ("cloth"), 1e-4 and 3e-4 N·m: Π of both, their difference
+against the wrapped bending energy ½ B (1/R)² × area, the largest distance between the two
+skirts' deformed positions (13 × 5 points per panel), Newton iterations, CPU and wall.
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py --flat
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import resource
@@ -31,11 +49,15 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from provenance import commit  # noqa: E402
 
 import taichi_ndf  # noqa: E402
+from taichi_ndf.boundary import BoundaryConditions  # noqa: E402
 from taichi_ndf.discretise import of_scene  # noqa: E402
+from taichi_ndf.problem.start_shape import StartShape  # noqa: E402
 from taichi_ndf.scene.reader import parse_scene  # noqa: E402
 
 SCENE = ROOT / "scenes" / "skirt_panels.toml"
+FOUR = ROOT / "scenes" / "skirt_four_panels.toml"
 GRIDS = ((16, 8), (32, 8))
+FOUR_GRIDS = ((8, 12), (12, 18))
 
 
 def _cpu() -> float:
@@ -62,6 +84,72 @@ def periodic_document(garment: dict, spans) -> dict:
             "boundary": {"constraint": [{"type": "clamped_edge", "edge": "xi2_max"}]},
             "field": {"type": "spline", "spans": [2 * spans[0], spans[1]]},
             "training": garment["training"]}
+
+
+def flat_document(rest: str, bending: float, spans=(16, 8)) -> dict:
+    """The two-panel skirt with its panels' rest shape `rest` ("placed" or "flat") and a
+    linear isotropic material of bending stiffness `bending` [N·m] (module docstring)."""
+    document = tomllib.loads(SCENE.read_text())
+    document["field"]["spans"] = list(spans)
+    document["material"] = {"type": "linear", "membrane_stiffness": 6.4,
+                            "bending_stiffness": bending, "poisson_ratio": 0.25,
+                            "areal_density": 0.144}
+    for panel in document["panels"]:
+        panel.pop("probes", None)
+        panel["rest"] = rest
+    return document
+
+
+def held_at_rest(scene):
+    """The garment scene with each panel's clamp replaced by a flat-cut panel's hold (its p
+    rows of coefficients at the clamped edges kept, `Patch.held`) and its start its rest shape:
+    the support of a flat-cut panel, so that the two differ only in their rest shapes."""
+    patches = []
+    for patch in scene.field.patches:
+        edges = tuple(c.edge for c in patch.model.boundary.constraints)
+        free = BoundaryConditions([], domain=patch.model.surface.domain)
+        patches.append(dataclasses.replace(patch, model=dataclasses.replace(
+            patch.model, boundary=free), start=StartShape("rigid"), held=edges))
+    return dataclasses.replace(scene, field=dataclasses.replace(scene.field,
+                                                                patches=tuple(patches)))
+
+
+def _grid_xi(panels) -> torch.Tensor:
+    """13 × 5 points (θ, z) of a wrapped panel's chart (65, 2)."""
+    _, (lo, hi) = panels.spec.patches[0].model.surface.domain.bounds
+    theta = torch.linspace(0.0, math.pi, 13, dtype=torch.float64)
+    z = torch.linspace(lo, hi, 5, dtype=torch.float64)
+    return torch.stack(torch.meshgrid(theta, z, indexing="ij"), dim=-1).reshape(-1, 2)
+
+
+def positions(panels, radius: float, flat: bool, *, rest: bool = False) -> torch.Tensor:
+    """Deformed positions (2 × 65, 3) [m] of both panels at `_grid_xi` of the placed sector
+    (a flat-cut panel's ξ¹ is the arc length R θ); rest: the rest positions instead."""
+    xi = _grid_xi(panels)
+    if flat:
+        xi = xi * torch.tensor([radius, 1.0], dtype=torch.float64)
+    return torch.cat([panels.spec.patches[i].model.surface.jets(xi)[:, 0]
+                      + (0.0 if rest else panels.displacement_of(i, xi)[:, 0])
+                      for i in range(2)])
+
+
+def flat_row(bending: float) -> str:
+    """One row of the flat-cut table."""
+    placed, reference, cpu0, wall0 = _solve(held_at_rest(parse_scene(
+        flat_document("placed", bending), base_dir=SCENE.parent, path=SCENE)))
+    document = flat_document("flat", bending)
+    flat, solution, cpu, wall = _solve(parse_scene(document, base_dir=SCENE.parent,
+                                                   path=SCENE))
+    radius, height = document["panels"][0]["wrap_radius"], document["panels"][0]["height"]
+    wrapped = 0.5 * bending / radius ** 2 * 2 * math.pi * radius * height
+    x_placed = positions(placed, radius, False)
+    shape = float((positions(flat, radius, True) - x_placed).norm(dim=1).max())
+    u = float((x_placed - positions(placed, radius, False, rest=True)).norm(dim=1).max())
+    difference = solution.energy - reference.energy
+    return (f"| {bending:.3g} | {reference.energy:.6g} | {solution.energy:.6g} | "
+            f"{difference:.4g} | {wrapped:.4g} | {difference / wrapped - 1:+.1%} | "
+            f"{shape * 1e3:.3f} | {u * 1e3:.2f} | {reference.iterations} / "
+            f"{solution.iterations} | {cpu0:.1f} / {cpu:.1f} | {wall0:.1f} / {wall:.1f} |")
 
 
 def run(spans) -> dict:
@@ -91,9 +179,62 @@ def run(spans) -> dict:
             "reference_cpu": cpu, "reference_wall": wall}
 
 
+def _rim(panels, height: float) -> torch.Tensor:
+    """Deformed positions (4 × 17, 3) [m] of every panel's edge at ξ² = height."""
+    out = []
+    for i, patch in enumerate(panels.spec.patches):
+        (lo, hi), _ = patch.model.surface.domain.bounds
+        s = torch.linspace(lo, hi, 17, dtype=torch.float64)
+        xi = torch.stack((s, torch.full_like(s, height)), dim=1)
+        out.append(patch.model.surface.jets(xi)[:, 0] + panels.displacement_of(i, xi)[:, 0])
+    return torch.cat(out)
+
+
+def four(spans, gathered: bool) -> str:
+    """One row of the four-panel table."""
+    garment = tomllib.loads(FOUR.read_text())
+    garment["field"]["spans"] = list(spans)
+    if not gathered:
+        for panel in garment["panels"]:
+            del panel["held_radius"]
+    panels, solution, cpu, wall = _solve(parse_scene(garment, base_dir=FOUR.parent, path=FOUR))
+    height = garment["panels"][0]["height"]
+    waist, hem = (_rim(panels, z)[:, :2].norm(dim=1) for z in (height, 0.0))
+    z = float(_rim(panels, 0.0)[:, 2].mean())
+    return (f"| {spans[0]} × {spans[1]} | {'0.15' if gathered else 'none'} | "
+            f"{solution.energy:.6g} | {solution.iterations} | {all(panels.converged)} | "
+            f"{max(solution.document['seam_gaps'].values()):.1e} | {float(waist.min()):.4f} / "
+            f"{float(waist.max()):.4f} | {float(hem.min()):.4f} / {float(hem.mean()):.4f} / "
+            f"{float(hem.max()):.4f} | {z * 1e3:.2f} | {cpu:.1f} | {wall:.1f} |")
+
+
 def main() -> None:
     taichi_ndf.init(arch="cpu", precision="f64")
     torch.set_num_threads(1)
+    if sys.argv[1:2] == ["--flat"]:
+        print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+        print("| B [N·m] | Π wrapped rest [J] | Π cut flat [J] | ΔΠ [J] | ½ B/R² × area [J] | "
+              "ΔΠ / (½ B/R² A) − 1 | max \\|x_flat − x_wrapped\\| [mm] | max \\|u\\| "
+              "wrapped [mm] | Newton it. wrapped / flat | CPU wrapped / flat [s] | "
+              "wall wrapped / flat [s] |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for bending in (7.68e-7, 1e-4, 3e-4):
+            print(flat_row(bending), flush=True)
+        print(f"load average {os.getloadavg()[0]:.1f} (end)")
+        return
+    if sys.argv[1:2] == ["--four"]:
+        args = [int(v) for v in sys.argv[2:]]
+        grids = tuple(zip(args[::2], args[1::2], strict=True)) if args else FOUR_GRIDS
+        print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+        print("| spans per panel | waist held on [m] | Π [J] | Newton it. | converged | "
+              "seam gap [m] | waist radius min / max [m] | hem radius min / mean / max [m] | "
+              "hem height [mm] | CPU [s] | wall [s] |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for spans in grids:
+            for gathered in (True, False):
+                print(four(spans, gathered), flush=True)
+        print(f"load average {os.getloadavg()[0]:.1f} (end)")
+        return
     args = [int(v) for v in sys.argv[1:]]
     grids = tuple(zip(args[::2], args[1::2], strict=True)) if args else GRIDS
     print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")

@@ -7,8 +7,9 @@ spline grid (`SplineConfig`); seams join an edge of one patch to an edge of anot
 Every load step minimises Π = Σ_patches Π_shell + Σ_seams Π_seam over the joint coefficients
 by projected Newton on the joined linearisation (`minimise.multipatch.MultiPatchLinearisation`:
 block-diagonal K, the seams' pair couplings across patches); the load factor ramps gravity and
-sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), one material
-and one gravity for all patches (the shell energy is one term over the joined points), float64.
+sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), a material per
+patch (one `ShellEnergyTerm` over the joined points where all are the same, else a
+`PanelEnergy` of one per patch) and one gravity for all patches, float64.
 A run is not resumable (a checkpoint holds one field): `start` refuses a resume in one line.
 The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as `solver`: on_start,
 on_record at every Newton iteration (the divergence guard), on_load_step and on_end; it has no
@@ -26,10 +27,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
+from taichi_ndf.discretise.start import fitted_start
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
@@ -143,20 +147,25 @@ class MultiPatchDiscretisation:
 
     def start(self, config: SolverConfig, *, seed: int, resume_from: Path | None = None
               ) -> None:
-        """Zero coefficients on every patch (the rest shape: a garment's placement)."""
+        """Zero coefficients on every patch (its rest shape), or a flat-cut patch's start
+        shape (its placement) fitted by its coefficients (`fitted_start`)."""
         if config.method != "newton":
             raise ValueError("a multi-patch field is solved with [training] method = \"newton\"")
         if resume_from is not None:
             raise ValueError("--resume: a multi-patch run cannot be resumed (its checkpoint "
                              "would hold one patch); start it again")
-        self.fields = [SplineField(p.config, dtype=DTYPE) for p in self.spec.patches]
+        self.fields = [SplineField(p.config, dtype=DTYPE) if p.start is None
+                       else fitted_start(p.model, p.config, p.start, dtype=DTYPE)
+                       for p in self.spec.patches]
+        self._targets = [None if p.held_target is None
+                         else fitted_start(p.model, p.config, p.held_target, dtype=DTYPE)
+                         for p in self.spec.patches]
 
     def _grids(self) -> tuple[list[GridLinearisation], list[SeamTerm]]:
         """Each patch's grid assembled on its Gauss points and the seam points on it, and the
         seam terms (before `between`)."""
         patches = self.spec.patches
-        material = patches[0].model.material
-        seams = [SeamTerm(s.spec, patches[s.a].model.surface, material,
+        seams = [SeamTerm(s.spec, patches[s.a].model.surface, self.spec.seam_material(s),
                           surface_b=patches[s.b].model.surface) for s in self.spec.seams]
         grids = []
         for i, (patch, field) in enumerate(zip(patches, self.fields, strict=True)):
@@ -180,12 +189,18 @@ class MultiPatchDiscretisation:
         """Each load step's Newton over the joint coefficients, from the last step's."""
         started = time.perf_counter()
         grids, seams = self._grids()
-        linear = MultiPatchLinearisation(grids, 1.0)
+        linear = self._joined(grids, 1.0)
         terms = tuple(term.between(linear.rows(s.a), linear.rows(s.b))
                       for s, term in zip(self.spec.seams, seams, strict=True))
-        objective = Objective(ShellEnergyTerm(self.model.material,
-                                              Loads(gravity=self.spec.gravity)), terms)
+        loads, materials = Loads(gravity=self.spec.gravity), self.spec.materials
+        shell = (ShellEnergyTerm(materials[0], loads) if len(set(materials)) == 1 else
+                 PanelEnergy(materials, loads, [linear.rows(i) for i in range(len(materials))]))
         c = torch.cat([f.coefficients.detach() for f in self.fields])
+        if any(p.start is not None for p in self.spec.patches):  # sewn from the placement
+            start = linear.displacement(c)
+            objective = Objective(shell, tuple(SewnFromStart(t, start) for t in terms))
+        else:
+            objective = Objective(shell, terms)
         newton = newton_config(config, DTYPE)
         run = PanelsRun(self.field, PanelsState(), config)
         history, steps, self.converged = run.state.history, [], []
@@ -197,8 +212,13 @@ class MultiPatchDiscretisation:
             history.append(record)
 
         call(callbacks, "on_start", run)
+        moves = self._held_moves(c)
         for t in config.load_steps:
-            linear = MultiPatchLinearisation(grids, t)
+            linear = self._joined(grids, t)
+            if moves is not None:  # the held rows moved towards their targets (no step there)
+                held, first, last = moves
+                c = c.clone()
+                c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (last - first)
             phase = Phase(NewtonMinimiser(newton, load_factor=t),
                           objective=lambda linear=linear, t=t: (linear, objective.potential(t)),
                           parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
@@ -230,6 +250,22 @@ class MultiPatchDiscretisation:
             newton_steps=len(history),
             settings={"method": "newton", "load_steps": list(config.load_steps),
                       "field": self.spec.to_dict()})
+
+    def _held_moves(self, c: torch.Tensor):
+        """(unknowns, start values, target values) of the held rows of the patches that have
+        a held target (`Patch.held_target`), in the joint unknowns of `c`; None: none."""
+        offsets = np.cumsum([0] + [3 * f.coefficients.shape[0] for f in self.fields])
+        index, target = [], []
+        for patch, field, offset in zip(self.spec.patches, self._targets, offsets,
+                                        strict=False):
+            if field is not None:
+                held = patch.held_unknowns()
+                index.append(torch.from_numpy(held + offset))
+                target.append(field.coefficients.detach().reshape(-1)[held])
+        if not index:
+            return None
+        index = torch.cat(index)
+        return index, c.reshape(-1)[index].clone(), torch.cat(target).to(c)
 
     def _set(self, c: torch.Tensor, linear: MultiPatchLinearisation) -> None:
         for i, f in enumerate(self.fields):
@@ -293,4 +329,28 @@ class MultiPatchDiscretisation:
         if samples is not self._linear.samples:
             raise ValueError("a multi-patch linearisation is built on its own points "
                              "(evaluation_points())")
-        return MultiPatchLinearisation(self._linear.grids, load_factor)
+        return self._joined(self._linear.grids, load_factor)
+
+    def _joined(self, grids, load_factor: float) -> MultiPatchLinearisation:
+        """The patches' joined linearisation with the held edges' unknowns held too."""
+        offsets = np.cumsum([0] + [3 * f.coefficients.shape[0] for f in self.fields])
+        held = [p.held_unknowns() + o for p, o in zip(self.spec.patches, offsets, strict=False)
+                if p.held]
+        return HeldEdges(grids, load_factor, np.concatenate(held) if held else None)
+
+
+class HeldEdges(MultiPatchLinearisation):
+    """`MultiPatchLinearisation` with further unknowns `held` (sorted indices into the joint
+    unknowns, or None): no step and no gradient there (`Patch.held`)."""
+
+    def __init__(self, grids, load_factor: float, held: np.ndarray | None):
+        super().__init__(grids, load_factor)
+        self.held = held
+        if held is not None:
+            self.fixed = held if self.fixed is None else np.union1d(self.fixed, held)
+
+    def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
+        gradient = super().gradient(grad_u_jets)
+        if self.held is not None:
+            gradient.reshape(-1)[torch.from_numpy(self.held)] = 0.0
+        return gradient

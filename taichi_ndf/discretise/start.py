@@ -13,6 +13,7 @@ from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.multipatch import Gathered
 from taichi_ndf.problem.start_shape import StartShape
 
 
@@ -48,13 +49,13 @@ class _Result:
     grad_u_jets: torch.Tensor
 
 
-def fitted_start(model: ShellModel, config: SplineConfig, shape: StartShape, *,
-                 load_factor: float = 1.0) -> SplineField:
+def fitted_start(model: ShellModel, config: SplineConfig, shape: StartShape | Gathered, *,
+                 load_factor: float = 1.0, dtype: torch.dtype | None = None) -> SplineField:
     """A spline field on `config`'s grid whose displacement is the least-squares fit (at the
     Gauss points of every knot span, through the model's boundary conditions: held unknowns
     stay as the boundary holds them) of `shape`'s start displacement; fitted in float64,
-    returned in the grid's default dtype. One Newton step solves the quadratic fit; the
-    rest are the minimiser's own check."""
+    returned in `dtype` (None: the grid's default dtype). One Newton step solves the
+    quadratic fit; the rest are the minimiser's own check."""
     field = SplineField(config, dtype=torch.float64)
     grid = GridLinearisation(field, model.boundary,
                              length=math.sqrt(model.surface.domain.rectangle_area))
@@ -66,6 +67,6 @@ def fitted_start(model: ShellModel, config: SplineConfig, shape: StartShape, *,
     target = shape.positions(s.xi, r[:, jets.VALUE], r[:, 1], r[:, 2]) - r[:, jets.VALUE]
     solution = minimise(linear, _FitPotential(target), field.coefficients.detach().clone(),
                         NewtonConfig(max_iterations=5, project=False), report=False)
-    out = SplineField(config)
+    out = SplineField(config) if dtype is None else SplineField(config, dtype=dtype)
     out.coefficients.data.copy_(solution.parameters.to(out.coefficients.dtype))
     return out

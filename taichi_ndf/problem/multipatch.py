@@ -4,20 +4,119 @@ of `Patch`es and the `PatchSeam`s between them, solved by
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
+
+import numpy as np
 
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.seams import SeamSpec
+from taichi_ndf.problem.seams import EDGES, SeamSpec
+from taichi_ndf.problem.start_shape import StartShape
+from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, Material, OrthotropicStVK
+
+COMPONENTS = 3
+
+
+def grain_turned(material: Material, grain: float) -> Material:
+    """`material` cut with its warp at `grain` [deg] from the panel's ξ¹ direction: the woven
+    laws' warp runs along ξ¹ (`taichi_ndf.shell.law_terms.material_frame_transform`), so a
+    grain of 90° (mod 180) swaps warp and weft (a11 ↔ a22, h₁ ↔ h₂; Clyde: also η₁ ↔ η₃ and
+    E₁₁max ↔ E₂₂max; E₁₂ → −E₁₂ leaves Ψ unchanged) and 0° (mod 180) keeps it; an isotropic
+    law is the same at any grain. Any other grain (a bias cut) needs a material frame turned
+    inside the law: ValueError."""
+    if not math.isfinite(grain):
+        raise ValueError(f"grain must be a finite angle [deg], got {grain}")
+    if isinstance(material, LinearIsotropic):
+        return material
+    turns = grain / 90.0
+    if abs(turns - round(turns)) > 1e-9:
+        raise ValueError(f"grain {grain:g}°: the woven laws hold the warp along ξ¹ or (90°) "
+                         f"along ξ², not at another angle (a bias cut is not supported)")
+    if round(turns) % 2 == 0:
+        return material
+    if isinstance(material, OrthotropicStVK):
+        return dataclasses.replace(material, a11=material.a22, a22=material.a11,
+                                   thickness=material.weft_thickness,
+                                   weft_thickness=material.thickness)
+    if isinstance(material, ClydeFabric):
+        eta, limits = material.eta, material.strain_limits
+        return dataclasses.replace(material, a11=material.a22, a22=material.a11,
+                                   eta=(eta[2], eta[1], eta[0], eta[3]),
+                                   strain_limits=(limits[1], limits[0], limits[2]))
+    raise ValueError(f"grain: no warp and weft known for a {type(material).__name__}")
+
+
+@dataclass(frozen=True)
+class Gathered:
+    """The positions of a start shape moved radially about the axis through `point` [m] along
+    `direction` by `factor` (> 0; < 1 towards the axis): x ↦ p + (x − p)·d d + factor ×
+    the rest of x − p. Has the start shape's `positions`, so `fitted_start` fits it."""
+
+    shape: StartShape
+    point: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    factor: float
+
+    def __post_init__(self):
+        if not (math.isfinite(self.factor) and self.factor > 0):
+            raise ValueError(f"the gathering factor must be > 0, got {self.factor}")
+
+    def positions(self, xi, r, r1, r2):
+        """The gathered start positions (N, 3) [m] (`StartShape.positions`' arguments)."""
+        x = self.shape.positions(xi, r, r1, r2)
+        p = x.new_tensor(self.point)
+        d = x.new_tensor(self.direction)
+        d = d / d.norm()
+        v = x - p
+        along = (v @ d)[:, None] * d
+        return p + along + self.factor * (v - along)
 
 
 @dataclass(frozen=True)
 class Patch:
-    """One panel: its name, model (surface, material, loads, boundary, probes) and grid."""
+    """One panel: its name, model (surface, material, loads, boundary, probes) and grid.
+
+    start: where its solve starts (None: the rest shape; a flat-cut panel: its placement,
+    fitted by the coefficients, `taichi_ndf.discretise.start.fitted_start`); held: edges held
+    where the start put them (position, slope and curvature: the `degree` rows of
+    coefficients that act on the edge keep their start values), a flat-cut panel's clamped
+    edges (a clamp of the model's boundary would hold them at the flat rest shape);
+    held_target: where the held edges are at load factor 1 (None: where they start), their
+    rows moved there linearly in the load factor (a waist gathered onto a smaller circle)."""
 
     name: str
     model: ShellModel
     config: SplineConfig
+    start: StartShape | None = None
+    held: tuple[str, ...] = ()
+    held_target: Gathered | None = None
+
+    def __post_init__(self):
+        for edge in self.held:
+            if edge not in EDGES:
+                raise ValueError(f"panel {self.name!r}: no edge {edge!r} to hold")
+        if self.held and self.start is None:
+            raise ValueError(f"panel {self.name!r}: held edges need a start shape (a clamped "
+                             f"edge holds the rest shape)")
+        if self.held_target is not None and not self.held:
+            raise ValueError(f"panel {self.name!r}: a held target needs held edges")
+        if self.held and any(self.config.periodic):
+            raise ValueError(f"panel {self.name!r}: held edges need an open grid")
+
+    def held_unknowns(self) -> np.ndarray:
+        """The unknowns (coefficient × 3 + component, sorted) of the `held` edges: on a
+        uniform open grid the value and the first p − 1 derivatives across an edge depend on
+        its p nearest rows of coefficients only (`taichi_ndf.field.bspline`)."""
+        m1, m2 = self.config.coefficient_counts
+        p = self.config.degree
+        index = np.arange(m1 * m2).reshape(m1, m2)
+        rows = {"xi1_min": index[:p], "xi1_max": index[m1 - p:],
+                "xi2_min": index[:, :p], "xi2_max": index[:, m2 - p:]}
+        held = np.unique(np.concatenate([rows[e].ravel() for e in self.held] or [[]])
+                         ).astype(np.int64)
+        return (held[:, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(-1)
 
 
 @dataclass(frozen=True)
@@ -31,7 +130,8 @@ class PatchSeam:
 
 @dataclass(frozen=True)
 class MultiPatchPlan:
-    """The patches and the seams between them; gravity [m/s²] acts on every patch."""
+    """The patches and the seams between them; gravity [m/s²] acts on every patch (through
+    each patch's own material: its areal density)."""
 
     patches: tuple[Patch, ...]
     seams: tuple[PatchSeam, ...] = ()
@@ -40,15 +140,21 @@ class MultiPatchPlan:
     def __post_init__(self):
         if not self.patches:
             raise ValueError("a multi-patch plan needs at least one patch")
-        first = self.patches[0].model.material
-        for patch in self.patches[1:]:
-            if patch.model.material != first:
-                raise ValueError(f"panel {patch.name!r}: its material differs from panel "
-                                 f"{self.patches[0].name!r}'s (one material for all panels)")
         for seam in self.seams:
             for index in (seam.a, seam.b):
                 if not 0 <= index < len(self.patches):
                     raise ValueError(f"seam {seam.spec.name!r}: no patch {index}")
+
+    @property
+    def materials(self) -> tuple:
+        """Each patch's material, in order."""
+        return tuple(p.model.material for p in self.patches)
+
+    def seam_material(self, seam: PatchSeam):
+        """The material that sets a seam's penalty stiffness (`SeamTerm`): the side's with
+        the larger membrane stiffness (the stronger tie)."""
+        return max((self.patches[seam.a].model.material, self.patches[seam.b].model.material),
+                   key=lambda m: m.small_strain_stiffness()[0])
 
     def to_dict(self) -> dict:
         return {"type": "multipatch",

@@ -18,7 +18,13 @@ from taichi_ndf.geometry import Cylinder, Plane
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import Probe, ShellModel
-from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
+from taichi_ndf.problem.multipatch import (
+    Gathered,
+    MultiPatchPlan,
+    Patch,
+    PatchSeam,
+    grain_turned,
+)
 from taichi_ndf.problem.seams import (
     BENDING,
     DEFAULT_PENALTY,
@@ -28,9 +34,14 @@ from taichi_ndf.problem.seams import (
     EdgeSegment,
     SeamSpec,
 )
+from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.scene.schema import SceneError, Table, checked
+from taichi_ndf.shell.materials import preset
 
-__all__ = ["LENGTH_TOLERANCE", "is_garment", "parse_garment"]
+__all__ = ["LENGTH_TOLERANCE", "RESTS", "is_garment", "parse_garment"]
+
+# A panel's rest shape: its placement ("placed") or the flat pattern it is cut from ("flat").
+RESTS = ("placed", "flat")
 
 
 def is_garment(document: dict) -> bool:
@@ -39,9 +50,12 @@ def is_garment(document: dict) -> bool:
 
 
 def _surface(t: Table):
-    """The panel's rest (and start) surface: width along ξ¹, height along ξ²; flat, or a
-    cylinder sector of `wrap_radius` (ξ¹ its angle [rad], ξ² along its axis)."""
+    """The panel's rest surface and start shape: width along ξ¹, height along ξ²; flat, or a
+    cylinder sector of `wrap_radius` (ξ¹ its angle [rad], ξ² along its axis) — or, with
+    `rest = "flat"`, the flat pattern tangent to that cylinder along its ξ¹ = 0 edge (ξ¹ [m]
+    round it) wrapped onto it by its start shape (`_flat_cut`)."""
     width, height = t.number("width", positive=True), t.number("height", positive=True)
+    rest = t.string("rest", "placed", choices=RESTS)
     placement = {"origin": t.vector("origin", 3, (0.0, 0.0, 0.0))}
     if t.has("frame"):
         frame = t._get("frame", None)
@@ -52,9 +66,37 @@ def _surface(t: Table):
         if width / radius > 2 * math.pi * (1 - 1e-9):
             raise SceneError(f"{t.key('wrap_radius')}: a {width} m wide panel wraps more than "
                              f"a whole turn around radius {radius} m")
+        if rest == "flat":
+            return _flat_cut(t, width, height, radius, placement)
+    if t.has("held_radius"):
+        raise SceneError(f"{t.key('held_radius')}: only a panel cut flat and wrapped (rest = "
+                         f"\"flat\" with a wrap_radius) is held on a circle")
+    if t.has("wrap_radius"):
         return checked(lambda: Cylinder(radius=radius, length=height, angle=width / radius,
-                                        **placement), t.path)
-    return checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), **placement), t.path)
+                                        **placement), t.path), None, None
+    return checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), **placement),
+                   t.path), None, None
+
+
+def _flat_cut(t: Table, width: float, height: float, radius: float, placement: dict):
+    """A flat-cut panel wrapped by its start: the rectangle tangent to the cylinder
+    origin + F (R cos θ, R sin θ, z) at θ = 0 (origin + R e_x, ξ¹ along e_y, ξ² along e_z,
+    normal e_x outward) and the `wrap` start shape onto it (tangent along ξ¹ = 0, towards the
+    axis), which puts ξ¹ = R θ where the placed sector has θ; with `held_radius`, the target
+    of its held (clamped) edges: the wrap moved radially onto that radius (`Gathered`)."""
+    surface = checked(lambda: Cylinder(radius=radius, length=height, angle=width / radius,
+                                       **placement), t.path)
+    ex, ey, ez = surface.frame
+    origin = tuple(o + radius * e for o, e in zip(surface.origin, ex, strict=True))
+    flat = checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), origin=origin,
+                                 frame=(ey, ez, ex)), t.path)
+    start = StartShape("wrap", axis=0, at=0.0, radius=radius)
+    target = None
+    if t.has("held_radius"):
+        held = t.number("held_radius", positive=True)
+        target = checked(lambda: Gathered(start, surface.origin, ez, held / radius),
+                         t.key("held_radius"))
+    return flat, start, target
 
 
 def _edges(t: Table, key: str) -> list[str]:
@@ -65,15 +107,41 @@ def _edges(t: Table, key: str) -> list[str]:
     return value
 
 
-def _panel(t: Table, index: int, material, gravity, default_spans) -> Patch:
+def _material(t: Table, default, read_material):
+    """The panel's material: the garment's, a preset named by `material`, or an inline
+    `material` table (read as `[material]`, by `read_material`); then cut along `grain`
+    [deg] (`grain_turned`)."""
+    material = default
+    if t.has("material"):
+        value = t._get("material", None)
+        if isinstance(value, str):
+            material = checked(lambda: preset(value), t.key("material"))
+        elif isinstance(value, dict):
+            table = t.table("material")
+            material = checked(lambda: read_material(table), table.path)
+            table.close()
+        else:
+            raise SceneError(f"{t.key('material')}: expected a preset name or a table like "
+                             f"{{preset = \"denim\"}}, got {value!r}")
+    grain = t.number("grain", 0.0)
+    return checked(lambda: grain_turned(material, grain), t.key("grain"))
+
+
+def _panel(t: Table, index: int, material, gravity, default_spans, read_material) -> Patch:
     name = t.string("name", f"panels[{index}]")
-    surface = _surface(t)
+    material = _material(t, material, read_material)
+    surface, start, target = _surface(t)
     clamped, hinged = _edges(t, "clamped"), _edges(t, "hinged")
     for edge in clamped + hinged:
         if edge not in EDGES:
             raise SceneError(f"{t.path}: panel {name!r}: no edge {edge!r} (edges: "
                              f"{', '.join(EDGES)})")
-    constraints = [ClampedEdge(e) for e in clamped] + [HingedEdge(e) for e in hinged]
+    if start is not None and hinged:
+        raise SceneError(f"{t.key('hinged')}: panel {name!r} is cut flat (rest = \"flat\"): "
+                         f"its edges can be clamped where the placement puts them, not hinged")
+    held = tuple(clamped) if start is not None else ()
+    constraints = [] if start is not None else (
+        [ClampedEdge(e) for e in clamped] + [HingedEdge(e) for e in hinged])
     boundary = checked(lambda: BoundaryConditions(constraints, domain=surface.domain), t.path)
     probes = tuple(Probe(p.string("name"), p.vector("xi", 2)) for p in t.tables("probes"))
     model = checked(lambda: ShellModel(surface, material, Loads(gravity=gravity), boundary,
@@ -82,7 +150,11 @@ def _panel(t: Table, index: int, material, gravity, default_spans) -> Patch:
     config = checked(lambda: SplineConfig(spans=spans, domain=surface.domain.bounds),
                      t.key("spans"))
     t.close()
-    return Patch(name, model, config)
+    if target is not None and not held:
+        raise SceneError(f"{t.key('held_radius')}: panel {name!r} has no clamped edge to hold "
+                         f"on that circle")
+    return checked(lambda: Patch(name, model, config, start=start, held=held,
+                                 held_target=target), t.path)
 
 
 def _side(t: Table, key: str, names: dict[str, int]) -> tuple[int, str]:
@@ -110,10 +182,13 @@ def _seam(t: Table, index: int, names: dict[str, int]) -> PatchSeam:
     return PatchSeam(spec, a, b)
 
 
-def parse_garment(top: Table, material, field: Table | None) -> tuple[MultiPatchPlan, tuple]:
+def parse_garment(top: Table, material, field: Table | None, *, read_material
+                  ) -> tuple[MultiPatchPlan, tuple]:
     """The garment's plan (panels and seams) from the document's `[[panels]]`, `[[seams]]`,
     `[loads]` (gravity only) and `[field]` (`spans`: each panel's default grid), the
-    material already read; returns the plan and the panels' probes (named "panel.probe")."""
+    garment's material already read (each panel's default) and `read_material` (Table ->
+    material: how `[material]` is read, for a panel's inline table); returns the plan and
+    the panels' probes (named "panel.probe")."""
     loads = top.table("loads", optional=True)
     gravity = loads.vector("gravity", 3, (0.0, 0.0, 0.0)) if loads is not None else (0, 0, 0)
     if loads is not None:
@@ -124,7 +199,8 @@ def parse_garment(top: Table, material, field: Table | None) -> tuple[MultiPatch
         spans = tuple(int(v) for v in field.vector("spans", 2, spans))
         field.close()
     tables = top.tables("panels")
-    patches = [_panel(t, i, material, gravity, spans) for i, t in enumerate(tables)]
+    patches = [_panel(t, i, material, gravity, spans, read_material)
+               for i, t in enumerate(tables)]
     names: dict[str, int] = {}
     for t, patch in zip(tables, patches, strict=True):
         if patch.name in names:
@@ -138,10 +214,12 @@ def parse_garment(top: Table, material, field: Table | None) -> tuple[MultiPatch
             if key in used:
                 raise SceneError(f"{t.path}: edge {key!r} is already in seam {used[key]!r}")
             used[key] = seam.spec.name
-        checked(lambda seam=seam: SeamTerm(seam.spec, patches[seam.a].model.surface, material,
-                                           surface_b=patches[seam.b].model.surface), t.path)
         seams.append(seam)
     plan = checked(lambda: MultiPatchPlan(tuple(patches), tuple(seams), tuple(gravity)),
                    "panels")
+    for t, seam in zip(top.tables("seams"), seams, strict=True):
+        checked(lambda seam=seam: SeamTerm(seam.spec, patches[seam.a].model.surface,
+                                           plan.seam_material(seam),
+                                           surface_b=patches[seam.b].model.surface), t.path)
     probes = tuple(Probe(f"{p.name}.{q.name}", q.xi) for p in patches for q in p.model.probes)
     return plan, probes

@@ -174,7 +174,8 @@ def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
     top = Table(document, "")
     name, description = top.string("name"), top.string("description", "")
     material = _section(top.table("material"), _material)
-    plan, _ = parse_garment(top, material, top.table("field", optional=True))
+    plan, _ = parse_garment(top, material, top.table("field", optional=True),
+                            read_material=_material)
     solver, quick = _section(top.table("training", optional=True), training, True)
     output = _section(top.table("output", optional=True), _output, False)
     top.close()
