@@ -288,6 +288,12 @@ def table(results: list[dict]) -> str:
                          f"(change) {sum(row['two_covers'] for row in rows)} of {len(rows)}; "
                          f"old two-grid rule {sum(row['old_two_covers'] for row in rows)} of "
                          f"{len(rows)}")
+            cases = {r["case"]: all(row["three_covers"] for row in r["rows"]
+                                    if not prescribed(row))
+                     for r in results if r["sample"] == sample
+                     and any(not prescribed(row) for row in r["rows"])}
+            lines.append(f"{sample} sample by case (a case holds where every bar of its "
+                         f"quantities holds): {sum(cases.values())} of {len(cases)}")
     defaults = [(r, row) for r in results for row in r["default_rows"]
                 if CASES[r["case"]].default is not None]
     if defaults:
