@@ -170,12 +170,17 @@ def covers(bar, reference: float) -> bool:
     return abs(reference - bar.value) <= bar.error
 
 
-def bar_row(values: list[float], first: int, spans: list, quantity: str) -> dict:
-    """The bars of the window starting at grid `first` against the finest value."""
+def bar_row(values: list[float], first: int, spans: list, quantity: str,
+            converged: list[bool]) -> dict:
+    """The bars of the window starting at grid `first` against the finest value; converged:
+    per grid, whether its solve converged (`richardson` calls the order of a window with an
+    unconverged grid unreliable)."""
     reference = values[-1]
-    ref_bar = richardson(values[-3:], order=ORDER)
-    three = richardson(values[first:first + 3], order=ORDER)
-    two = richardson(values[first + 1:first + 3], order=ORDER)
+    ref_bar = richardson(values[-3:], order=ORDER, converged=converged[-3:])
+    three = richardson(values[first:first + 3], order=ORDER,
+                       converged=converged[first:first + 3])
+    two = richardson(values[first + 1:first + 3], order=ORDER,
+                     converged=converged[first + 1:first + 3])
     old_error = abs(two.value - values[first + 2])  # the replaced two-grid rule
     distance = abs(reference - three.value)
     return {
@@ -188,6 +193,7 @@ def bar_row(values: list[float], first: int, spans: list, quantity: str) -> dict
         "reference": reference, "reference_spans": spans[-1],
         "reference_error": ref_bar.error, "reference_how": ref_bar.how(),
         "reference_ratio": spans[-1][0] // spans[first + 2][0],
+        "window_converged": all(converged[first:first + 3]),
     }
 
 
@@ -196,11 +202,11 @@ def bar_rows(result: dict) -> tuple[list[dict], list[dict]]:
     values per level with the current `richardson` (so a stored run is re-read under whatever
     rule the library has now)."""
     case = CASES[result["case"]]
-    values, spans = result["all_values"], result["spans"]
-    rows = [dict(bar_row(values[q], first, spans, q), default=(first == case.default))
+    values, spans, ok = result["all_values"], result["spans"], result["converged"]
+    rows = [dict(bar_row(values[q], first, spans, q, ok), default=(first == case.default))
             for q in case.quantities for first in case.windows]
     defaults = ([] if case.default is None else
-                [bar_row(values[q], case.default, spans, q) for q in case.quantities])
+                [bar_row(values[q], case.default, spans, q, ok) for q in case.quantities])
     return rows, defaults
 
 
@@ -294,6 +300,12 @@ def table(results: list[dict]) -> str:
                      and any(not prescribed(row) for row in r["rows"])}
             lines.append(f"{sample} sample by case (a case holds where every bar of its "
                          f"quantities holds): {sum(cases.values())} of {len(cases)}")
+            invalid = sorted({r["case"] for r in results if r["sample"] == sample
+                              for row in r["rows"] if not row["window_converged"]})
+            if invalid:
+                lines.append(f"{sample}: windows with a grid whose solve did not converge "
+                             f"(their bars are not a discretisation error): "
+                             f"{', '.join(invalid)}")
     defaults = [(r, row) for r in results for row in r["default_rows"]
                 if CASES[r["case"]].default is not None]
     if defaults:
