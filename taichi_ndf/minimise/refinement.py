@@ -6,44 +6,13 @@ coarser level's solution prolonged exactly (`SplineField.refined`), so a finer l
 where the coarser one ended and takes few Newton steps. It reads Π and every probe per level
 and load factor.
 
-`richardson` extrapolates a quantity from its values on the last grids and bounds the error
-of the result (one rule for every caller: `extrapolate_changes` works on the changes between
-successive grids, signed for a scalar, a norm for a field of positions). It follows Roache's
-grid convergence index (GCI; P. J. Roache, "Perspective: a method for uniform reporting of
-grid refinement studies", J. Fluids Eng. 116 (1994) 405–413, and "Discussion: factors of
-safety for Richardson extrapolation", J. Fluids Eng. 133 (2011) 115501): the extrapolation is
-trusted only where the observed order is reasonable, with a safety factor Fs = 1.25; where it
-is not, the bar falls back to a conservative one with Fs = 3. With three values v₀, v₁, v₂ on
-grids h, h/2, h/4 (changes d₁ = v₁ − v₀, d₂ = v₂ − v₁):
-
-- observed order p = log₂(d₁/d₂); the order is **reliable** where the changes fall
-  monotonically (d₁/d₂ > 1), neither change is at the rounding level (|d| > `ROUNDING` ×
-  max|v|) and `ORDER_MIN` ≤ p ≤ the expected order 2(p_deg − 1) (+ `ORDER_SLACK`, where one
-  is given). Then
-  v∞ = v₂ + d₂/(2ᵖ − 1) and the error is 1.25 |v∞ − v₂| (the interval reaches a quarter of
-  the correction past v₂ on one side and 1.25 corrections past v∞ on the other); a warning
-  is logged where p is below the expected order / `ORDER_FAR`.
-- otherwise the order is **unreliable** (said so in the value's text and `order_basis`):
-  v∞ = v₂ and the error is 3 Δ_M, Δ_M = max|vᵢ − vⱼ| the range of the three values (Eça and
-  Hoekstra's data range, L. Eça and M. Hoekstra, J. Comput. Phys. 262 (2014) 104–130, with
-  their Fs = 3 for data that do not converge monotonically). Not Roache's "p_th with Fs = 3"
-  fallback, 3 |d₂|/(2^p_th − 1): where p is above the expected order the last change is
-  small by coincidence (measured, benchmarks/RESULTS.md: cantilever_shear's tip at t = 0.1
-  changes by 6.5e-6 then 6.4e-9, observed order 10, and the 64 × 16 value lies 4.8e-7 away,
-  75× the last change), so no multiple of the last change bounds the error; the range does.
-  For a field (norms of its differences) Δ_M is bounded by d₁ + d₂.
-
-With two values the order cannot be observed: it is assumed (the expected order, required),
-the value is extrapolated with it and the error is widened to the whole change |v₂ − v₁|
-between the two grids (Roache's two-grid GCI, 3 |d|/(2^p − 1), is 0.2 |d| at p = 4: narrower;
-measured: the napkin's two-grid bar at the assumed order 4 was 15× smaller than the change;
-benchmarks/RESULTS.md, "Refinement error bars"). The text says "order assumed".
+`richardson` (`taichi_ndf.minimise.extrapolation`, imported from here too) extrapolates a
+quantity from its values on the last grids and bounds the error of the result.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -56,6 +25,19 @@ from taichi_ndf import jets, progress
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
+from taichi_ndf.minimise.extrapolation import (  # noqa: F401 (imported from here)
+    ORDER_BASES,
+    ORDER_FAR,
+    ORDER_MIN,
+    ORDER_SLACK,
+    ROUNDING,
+    SAFETY_OBSERVED,
+    SAFETY_UNRELIABLE,
+    Extrapolation,
+    OrderEstimate,
+    extrapolate_changes,
+    richardson,
+)
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: imported from here)
     GridLinearisation,
@@ -86,153 +68,6 @@ class LevelSolution:
     converged: bool
     seconds: float
     history: list[NewtonIteration] = field(default_factory=list)
-
-
-ORDER_FAR = 2.0  # a reliable observed order below expected / ORDER_FAR warns
-ORDER_MIN = 0.5  # an observed order below this is unreliable (2ᵖ − 1 → 0: the correction blows up)
-# An observed order up to expected + ORDER_SLACK is reliable (Xing and Stern's and Eça and
-# Hoekstra's p < 2.05 for a second-order method), so an exact power law of the expected order
-# is not refused for its rounding.
-ORDER_SLACK = 0.05
-# A change at most this fraction of max|v| is not resolved: float32's Π rounding floor is
-# about 1e-6 |Π| (spline_solver.newton_config), and in float64 at the default Newton tolerance
-# cantilever_shear's tip stops converging near 1e-7 relative (benchmarks/RESULTS.md).
-ROUNDING = 1e-6
-SAFETY_OBSERVED = 1.25  # Roache's Fs for three grids with a reliable observed order
-SAFETY_UNRELIABLE = 3.0  # Roache's Fs where the order cannot be trusted (times the range)
-ORDER_BASES = ("observed", "assumed", "unreliable")
-
-
-@dataclass(frozen=True)
-class Extrapolation:
-    """A refinement-extrapolated value and its error bar (the interval value ± error should
-    hold the converged value), the order it used, and how it was found: basis "observed"
-    (three or more grids, a reliable observed order), "assumed" (two grids: `order` is the
-    expected one) or "unreliable" (three or more grids whose order cannot be trusted: value
-    = the finest value, error = 3 × the range of the last three values; `order` the observed
-    one or None, `reason` why; module docstring). grids: how many values; warning: a
-    one-line caution or None."""
-
-    value: float
-    error: float
-    order: float | None
-    basis: str = "observed"
-    grids: int = 3
-    expected: float | None = None
-    warning: str | None = None
-    reason: str | None = None
-
-    @property
-    def assumed(self) -> bool:
-        return self.basis == "assumed"
-
-    @property
-    def unreliable(self) -> bool:
-        return self.basis == "unreliable"
-
-    def describe(self, unit: str = "") -> str:
-        """'v ± e unit (how)', the way every output shows the value."""
-        unit = f" {unit}" if unit else ""
-        return f"{self.value:.6g} ± {self.error:.2g}{unit} ({self.how()})"
-
-    def how(self) -> str:
-        """How the value was found, in words (shown beside it everywhere)."""
-        if self.basis == "assumed":
-            return (f"order {self.order:g} assumed from {self.grids} grids, error = the change "
-                    "between them")
-        if self.basis == "unreliable":
-            return (f"order unreliable from {self.grids} grids ({self.reason}): finest value, "
-                    "error = 3 × the range of the last three")
-        expected = "" if self.expected is None else f", expected {self.expected:g}"
-        return f"observed order {self.order:.2f} from {self.grids} grids{expected}"
-
-    def to_dict(self) -> dict:
-        return {"extrapolated": self.value, "estimated_error": self.error, "order": self.order,
-                "order_basis": self.basis, "order_reason": self.reason, "grids": self.grids,
-                "expected_order": self.expected, "warning": self.warning,
-                "text": self.describe()}
-
-
-@dataclass(frozen=True)
-class OrderEstimate:
-    """What the changes between successive grids say (`extrapolate_changes`): the order
-    (observed, assumed, or the observed one that is not trusted; None where none can be
-    computed), the correction v∞ − v_finest (0 where unreliable), the error bar, the basis,
-    why an order is unreliable, and a warning."""
-
-    order: float | None
-    correction: float
-    error: float
-    basis: str
-    reason: str | None = None
-    warning: str | None = None
-
-
-def _unreliable_reason(d1: float, d2: float, scale: float,
-                       expected: float | None) -> tuple[float | None, str | None]:
-    """The observed order of changes d₁, d₂ (None where the changes do not fall) and why it
-    is not to be trusted (None: it is)."""
-    ratio = d1 / d2 if d2 != 0.0 else math.inf
-    observed = math.log2(ratio) if math.isfinite(ratio) and ratio > 1.0 else None
-    if min(abs(d1), abs(d2)) <= ROUNDING * scale:
-        return observed, f"a change at the rounding level, ≤ {ROUNDING:g} of the value"
-    if observed is None:
-        return None, "changes not falling monotonically"
-    if observed < ORDER_MIN:
-        return observed, f"observed order {observed:.2f} below {ORDER_MIN:g}"
-    if expected is not None and observed > expected + ORDER_SLACK:
-        return observed, f"observed order {observed:.2f} above the expected {expected:g}"
-    return observed, None
-
-
-def extrapolate_changes(changes: list[float], order: float | None = None,
-                        scale: float = 0.0) -> OrderEstimate:
-    """The order, correction and error bar of the finest value from the changes between
-    successive grids refined by 2 each (signed differences of a scalar, or norms of a field's
-    differences; the last two are used; module docstring). order: the expected order, assumed
-    with one change and the upper limit of a reliable observed one with two or more. scale:
-    the size of the values (max |v|) that the rounding level is relative to (0: no rounding
-    check)."""
-    if not changes:
-        raise ValueError("richardson needs at least two values, got 1")
-    last = changes[-1]
-    if len(changes) == 1:
-        if order is None:
-            raise ValueError("two values need an assumed order")
-        return OrderEstimate(order, last / (2.0**order - 1.0), abs(last), "assumed")
-    d1, d2 = changes[-2:]
-    observed, reason = _unreliable_reason(d1, d2, scale, order)
-    if reason is not None:
-        spread = max(abs(d1), abs(d2), abs(d1 + d2))  # the range of the three values
-        warning = (f"refinement order unreliable ({reason}): the finest value with 3 × the "
-                   "range of the last three grids as its error bar; refine further for an "
-                   "extrapolation")
-        return OrderEstimate(observed, 0.0, SAFETY_UNRELIABLE * spread, "unreliable",
-                             reason, warning)
-    correction = d2 / (2.0**observed - 1.0)
-    warning = None
-    if order is not None and observed < order / ORDER_FAR:
-        warning = (f"observed refinement order {observed:.2f} is far below the expected "
-                   f"{order:g}: the grids are not in the asymptotic range (a singularity or "
-                   "an unresolved layer?); the error bar rests on the observed order")
-    return OrderEstimate(observed, correction, SAFETY_OBSERVED * abs(correction), "observed",
-                         None, warning)
-
-
-def richardson(values: list[float], order: float | None = None) -> Extrapolation:
-    """Richardson extrapolation of values on grids refined by 2 each, with a GCI-style error
-    bar (module docstring). order: the expected convergence order, assumed with two values
-    (required then) and the upper limit of a reliable observed order of the last three with
-    three or more."""
-    if len(values) < 2:
-        raise ValueError(f"richardson needs at least two values, got {len(values)}")
-    last = values[-3:]
-    changes = np.diff(last).tolist()
-    estimate = extrapolate_changes(changes, order, scale=max(abs(v) for v in last))
-    if estimate.warning is not None:
-        log.warning("%s", estimate.warning)
-    return Extrapolation(values[-1] + estimate.correction, estimate.error, estimate.order,
-                         estimate.basis, len(values), order, estimate.warning, estimate.reason)
 
 
 class GridLevels:

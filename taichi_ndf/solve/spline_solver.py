@@ -89,9 +89,11 @@ class SplineRun:
         if len(self.levels) < 2:
             return None
         order = 2.0 * (degree - 1)
+        converged = [lv.converged for lv in self.levels]  # an unconverged level: no order
 
         def extrapolate(values):
-            return {"values": values, **richardson(values, order=order).to_dict()}
+            return {"values": values,
+                    **richardson(values, order=order, converged=converged).to_dict()}
 
         probes = {name: [extrapolate([lv.probes[name][c] for lv in self.levels])
                          for c in range(3)] for name in self.levels[-1].probes}
