@@ -29,13 +29,14 @@ from typing import Any, ClassVar
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
-from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
+from taichi_ndf.minimise.multipatch import MultiPatchGrid, MultiPatchLinearisation
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
@@ -187,6 +188,7 @@ class MultiPatchDiscretisation:
                                               Loads(gravity=self.spec.gravity)), terms)
         c = torch.cat([f.coefficients.detach() for f in self.fields])
         newton = newton_config(config, DTYPE)
+        contact = None if self.model.contact is None else self._contact(grids)
         run = PanelsRun(self.field, PanelsState(), config)
         history, steps, self.converged = run.state.history, [], []
         energy = math.nan
@@ -197,6 +199,7 @@ class MultiPatchDiscretisation:
             history.append(record)
 
         call(callbacks, "on_start", run)
+        last = 0.0
         for t in config.load_steps:
             linear = MultiPatchLinearisation(grids, t)
             phase = Phase(NewtonMinimiser(newton, load_factor=t),
@@ -204,7 +207,13 @@ class MultiPatchDiscretisation:
                           parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
                           stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
                                  newton.max_iterations))
+            if contact is not None:  # the contact rounds over the joint chart (ContactMinimiser)
+                phase.minimiser = contact[0].minimiser(newton, load_factor=t,
+                                                       start_load_factor=last,
+                                                       terms_at=self._seams_at(seams))
+                phase.objective = lambda: contact[1:] + (Objective(objective.shell),)
             solution, = run_phases([phase])
+            last = t
             c, energy = solution.parameters, solution.energy
             self.converged.append(solution.converged)
             steps.append({"load_factor": t, "energy": energy,
@@ -218,6 +227,10 @@ class MultiPatchDiscretisation:
             if on_load_step is not None:
                 on_load_step(t, self.field)
         call(callbacks, "on_end", run)
+        if contact is not None:  # the grids back on their Gauss and seam points (seam_gaps)
+            for grid, points in zip(grids, self._points, strict=True):
+                grid.assemble(points)
+            linear = MultiPatchLinearisation(grids, t)
         self._linear = linear
         self._terms = terms
         wall = time.perf_counter() - started
@@ -227,9 +240,33 @@ class MultiPatchDiscretisation:
             history=history, probes=probes, field_document=self.spec.to_dict(),
             document={"load_steps": steps,
                       "seam_gaps": self.seam_gaps()},
-            newton_steps=len(history),
+            newton_steps=len(history), contact=None if contact is None else contact[0].points,
+            contact_counts={} if contact is None else {"newton_rounds": contact[0].rounds},
             settings={"method": "newton", "load_steps": list(config.load_steps),
                       "field": self.spec.to_dict()})
+
+    def _contact(self, grids: list[GridLinearisation]) -> tuple:
+        """With obstacles: the run's `NewtonContact` over the patches' joint chart (each
+        patch checked: no obstacle at its reference surface or pins), the chart
+        (`MultiPatchGrid`) and its quadrature (the patches' Gauss and seam points there)."""
+        config = self.model.contact
+        if config.has_friction:
+            raise ValueError("obstacles: friction is not supported on a garment's panels yet")
+        for patch in self.spec.patches:
+            config.check(dataclasses.replace(patch.model, contact=config))
+        chart = MultiPatchGrid(grids, [p.model.surface for p in self.spec.patches],
+                               length=grids[0].length)
+        self._points = [grid.assembly.samples for grid in grids]
+        quadrature = chart.joint(self._points[0], 0)
+        for i, points in enumerate(self._points[1:], start=1):
+            quadrature = quadrature.joined(chart.joint(points, i))
+        return NewtonContact(config, self.model, DTYPE, surface=chart.surface), chart, quadrature
+
+    def _seams_at(self, seams: list[SeamTerm]):
+        """terms_at(linearisation) of the contact rounds: the seams, their points looked up
+        in each round's patch rows."""
+        return lambda linear: tuple(term.between(linear.rows(s.a), linear.rows(s.b))
+                                    for s, term in zip(self.spec.seams, seams, strict=True))
 
     def _set(self, c: torch.Tensor, linear: MultiPatchLinearisation) -> None:
         for i, f in enumerate(self.fields):

@@ -170,15 +170,18 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
 
 def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
     """A garment file (`[[panels]]`, `taichi_ndf.scene.garment`): its field is the panels'
-    `MultiPatchPlan`, its model the first panel's."""
+    `MultiPatchPlan`, its model the first panel's with the garment's contact (`[[obstacles]]`,
+    `[contact]`: the body the panels drape on)."""
     top = Table(document, "")
     name, description = top.string("name"), top.string("description", "")
     material = _section(top.table("material"), _material)
     plan, _ = parse_garment(top, material, top.table("field", optional=True))
+    model = plan.patches[0].model
+    model = replace(model, contact=parse_contact(top, model, base_dir))
     solver, quick = _section(top.table("training", optional=True), training, True)
     output = _section(top.table("output", optional=True), _output, False)
     top.close()
-    return Scene(name=name, description=description, model=plan.patches[0].model, field=plan,
+    return Scene(name=name, description=description, model=model, field=plan,
                  solver=solver, quick_solver=quick, output=output,
                  path=path or base_dir / "scene.toml", document=document)
 
