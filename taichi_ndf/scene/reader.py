@@ -178,6 +178,8 @@ def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
     plan, _ = parse_garment(top, material, top.table("field", optional=True))
     model = plan.patches[0].model
     model = replace(model, contact=parse_contact(top, model, base_dir))
+    if model.contact is not None and model.contact.has_friction:
+        raise SceneError("obstacles: friction is not supported on a garment's panels yet")
     solver, quick = _section(top.table("training", optional=True), training, True)
     output = _section(top.table("output", optional=True), _output, False)
     top.close()
