@@ -232,12 +232,12 @@ class TimeStepper:
                                               * scheme.rate, origin_jets))
         load_factor = self.config.load_factor(end_time)  # the loads at the step's end
         if self.contact is not None:  # from C: x̂ could be inside an obstacle
-            def step_terms(assembly) -> tuple:
-                extra = (InertiaTerm(self.density, scale, assembly.displacement(target)),)
+            def step_terms(linear) -> tuple:  # at a contact round's samples
+                extra = (InertiaTerm(self.density, scale, linear.displacement(target)),)
                 if wind is not None:
                     u0, v0, rate, origin, _ = wind
                     extra += (wind_term(self.config.wind, end_time, self.samples, u0, v0, rate,
-                                        assembly.displacement(origin)),)
+                                        linear.displacement(origin)),)
                 return extra
             phase = Phase(self.contact.minimiser(
                 self.newton, load_factor=load_factor, terms_at=step_terms, report=False,
