@@ -254,8 +254,7 @@ class MultiPatchDiscretisation:
             raise ValueError("obstacles: friction is not supported on a garment's panels yet")
         for patch in self.spec.patches:
             config.check(dataclasses.replace(patch.model, contact=config))
-        chart = MultiPatchGrid(grids, [p.model.surface for p in self.spec.patches],
-                               length=grids[0].length)
+        chart = MultiPatchGrid(grids, [p.model.surface for p in self.spec.patches])
         self._points = [grid.assembly.samples for grid in grids]
         quadrature = chart.joint(self._points[0], 0)
         for i, points in enumerate(self._points[1:], start=1):

@@ -178,7 +178,8 @@ class MultiPatchGrid:
     `at_points(ξ, t)` (the affine map of the coefficients at joint ξ, every patch's
     coefficients in one (Σ n_i, 3) block), `linearisation(t, samples)` (each patch assembled
     on its samples, joined: a `MultiPatchLinearisation`), `surface` (a `JointSurface`) and
-    `joint(samples, i)` (patch i's samples in the joint chart). Not supported (refused): a
+    `joint(samples, i)` (patch i's samples in the joint chart). length: the FD steps' domain
+    length of its linearisations (`MultiPatchLinearisation`'s). Not supported (refused): a
     free pin; patches whose splines have different degrees."""
 
     GAP = 0.1
