@@ -144,3 +144,25 @@ def test_the_shipped_skirt_on_a_body_rests_on_it_without_entering():
         gap = float(config.term().gaps(x, 1.0)[0].min())
         assert 0 < gap < config.activation
     assert max(solution.document["seam_gaps"].values()) < 1e-6
+
+
+def test_simulate_writes_a_garments_contact_summary_and_its_obstacles(tmp_path):
+    """The app's one path on the two panels over the sphere: result.json's `contact` (the
+    clearance of every panel's output surface, the rounds), the obstacle's mesh, a render."""
+    import json
+
+    import cv2
+
+    from taichi_ndf.app.simulation import simulate
+    from taichi_ndf.io import OutputDir
+
+    document = _sheet()
+    document["output"] = {"resolution": [8, 8]}
+    out = tmp_path / "run"
+    simulate(_scene(document), OutputDir(out))
+    contact = json.loads((out / "result.json").read_text())["contact"]
+    assert 0 < contact["min_gap"] < contact["activation_distance"]
+    assert contact["newton_rounds"] >= 2 and contact["check_points"] > 0
+    assert (out / "obstacles" / "ball.obj").is_file()
+    pixels = cv2.imread(str(out / "render.png"))
+    assert pixels is not None and pixels.std() > 0
