@@ -11,7 +11,7 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.app.outputs import DeformedMesh, deformed_mesh, write_mesh_files
 from taichi_ndf.io import OutputDir, write_obj, write_ply
-from taichi_ndf.render.figure import render_figure
+from taichi_ndf.render.figure import Obstacle, render_figure
 from taichi_ndf.render.image_file import save_png
 
 
@@ -35,12 +35,13 @@ def combined(meshes: list[DeformedMesh]) -> tuple[np.ndarray, np.ndarray, np.nda
 
 def write_panel_outputs(out: OutputDir, plan, field, resolution: tuple[int, int], *,
                         probes: dict | None = None, views: tuple[str, ...] = ("iso",),
-                        pictures: bool = True) -> None:
+                        pictures: bool = True, obstacles: tuple = ()) -> None:
     """mesh_<panel>.obj/.ply per panel; mesh.obj (with UVs), mesh.ply (UVs, strains, energy
     density and a `panel` vertex property: the panel's index in the file's order) and
     reference.obj (undeformed, the same vertices and faces) of all panels; probes.json of
     `probes` (displacement (3,) [m] by "panel.probe", as `MultiPatchDiscretisation.probes`);
-    render.png of all panels coloured by panel."""
+    render.png of all panels coloured by panel, with `obstacles` ((vertices, faces) each) in
+    grey."""
     meshes = panel_meshes(plan, field, resolution)
     for patch, mesh in zip(plan.patches, meshes, strict=True):
         write_mesh_files(out, f"mesh_{patch.name}", mesh)
@@ -60,6 +61,7 @@ def write_panel_outputs(out: OutputDir, plan, field, resolution: tuple[int, int]
         image = render_figure(vertices, faces, scalars=panel,
                               scalar_label="panel (" + ", ".join(p.name for p in plan.patches)
                               + ")", scalar_range=(0.0, max(len(plan.patches) - 1, 1)),
+                              obstacles=tuple(Obstacle(v, f) for v, f in obstacles),
                               views=views, width=None, height=600)
         save_png(out.file("render.png"), image)
 

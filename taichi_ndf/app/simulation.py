@@ -8,6 +8,8 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from taichi_ndf.app.dynamics import simulate_dynamics
 from taichi_ndf.app.outputs import (
     CONTACT_GRID,
@@ -136,15 +138,16 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy,
                       "states": states}
     contact, obstacle_meshes = None, ()
-    if solution.contact is not None:
-        contact, obstacle_meshes = contact_outputs(scene.model.contact, out,
-                                                   surface_points(scene.model, solution.field,
-                                                                  CONTACT_GRID),
+    if solution.contact is not None:  # a garment: every panel's surface
+        surface = np.concatenate([surface_points(p.model, f, CONTACT_GRID) for p, f in zip(
+            scene.field.patches, solution.field.fields, strict=True)]) if panels else \
+            surface_points(scene.model, solution.field, CONTACT_GRID)
+        contact, obstacle_meshes = contact_outputs(scene.model.contact, out, surface,
                                                    solution.contact, **solution.contact_counts)
     if panels:
         write_panel_outputs(out, scene.field, solution.field, scene.output.resolution,
                             probes=solution.probes, views=scene.output.views,
-                            pictures=pictures)
+                            pictures=pictures, obstacles=obstacle_meshes)
     else:
         _write_field_outputs(scene, out, solution.field, solution.probes, solution.history,
                              pseudo_time=config.pseudo_time, refinement=solution.refinement,

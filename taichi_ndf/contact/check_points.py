@@ -29,29 +29,37 @@ ADAPT_BELOW = 0.1
 ADAPT_LIMIT = 1024.0
 
 
+def check_grid(domain, resolution: int, dtype: torch.dtype
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The check grid of a parameter domain: resolution² points over its rectangle, edges
+    included, those inside it (ξ (G, 2)) with their weights (G,): the trapezoidal rule (half
+    weight on the edges of the rectangle), scaled so that they add up to its area |Ω|."""
+    (lo1, hi1), (lo2, hi2) = domain.bounds
+    s = torch.linspace(0, 1, resolution, dtype=dtype)
+    g1, g2 = torch.meshgrid(lo1 + (hi1 - lo1) * s, lo2 + (hi2 - lo2) * s, indexing="ij")
+    xi = torch.stack((g1.reshape(-1), g2.reshape(-1)), dim=1)
+    ends = torch.ones(resolution, dtype=dtype)
+    ends[0] = ends[-1] = 0.5
+    weight = (ends[:, None] * ends[None, :]).reshape(-1)
+    inside = domain.contains(xi)
+    return xi[inside], weight[inside] * (domain.area / float(weight[inside].sum()))
+
+
 class ContactPoints:
     """The contact term with its dense grid and the check points added so far.
 
     term: the `ContactTerm`; surface: the reference surface; resolution: grid points per
-    coordinate."""
+    coordinate; grid: the grid's ξ (G, 2) and weights (G,) where the surface lays its own
+    (several patches: `check_grid` per patch, `minimise.multipatch.JointSurface`), None: the
+    surface's rectangle (`check_grid`)."""
 
     def __init__(self, term: ContactTerm, surface, resolution: int, *,
-                 dtype: torch.dtype = torch.float64):
+                 dtype: torch.dtype = torch.float64,
+                 grid: tuple[torch.Tensor, torch.Tensor] | None = None):
         self.term = term
         self.initial_stiffness = term.stiffness
         self.surface = surface
-        (lo1, hi1), (lo2, hi2) = surface.domain.bounds
-        s = torch.linspace(0, 1, resolution, dtype=dtype)
-        g1, g2 = torch.meshgrid(lo1 + (hi1 - lo1) * s, lo2 + (hi2 - lo2) * s, indexing="ij")
-        xi = torch.stack((g1.reshape(-1), g2.reshape(-1)), dim=1)
-        # trapezoidal rule (half weight on the edges of the rectangle), scaled so that the
-        # weights of the points inside the domain add up to its area |Ω|
-        ends = torch.ones(resolution, dtype=dtype)
-        ends[0] = ends[-1] = 0.5
-        weight = (ends[:, None] * ends[None, :]).reshape(-1)
-        inside = surface.domain.contains(xi)
-        self.grid_xi = xi[inside]
-        self.grid_weight = weight[inside] * (surface.domain.area / float(weight[inside].sum()))
+        self.grid_xi, self.grid_weight = grid or check_grid(surface.domain, resolution, dtype)
         self.grid_r = surface.jets(self.grid_xi)[:, 0]
         self.active = torch.zeros(len(self.grid_xi), dtype=torch.bool)
         self._samples = None

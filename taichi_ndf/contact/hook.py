@@ -72,13 +72,18 @@ class ContactHook:
         self.self_contact = self_contact
 
     @classmethod
-    def of_model(cls, model, dtype: torch.dtype, *, both_ends: bool) -> ContactHook:
+    def of_model(cls, model, dtype: torch.dtype, *, both_ends: bool, surface=None
+                 ) -> ContactHook:
         """The hook of `model`'s contact (a `ContactConfig`, checked against the model: no
-        obstacle at the reference surface or a pin), its grid in `dtype`."""
+        obstacle at the reference surface or a pin), its grid in `dtype` over `surface` (None:
+        the model's; several patches' joint surface, `minimise.multipatch.JointSurface`, which
+        lays the grid over each patch: its `check_grid`)."""
         config = model.contact
         config.check(model)
-        return cls(ContactPoints(config.term(), model.surface, config.check_resolution,
-                                 dtype=dtype), both_ends=both_ends,
+        resolution = config.check_resolution
+        grid = None if surface is None else surface.check_grid(resolution, dtype)
+        return cls(ContactPoints(config.term(), surface or model.surface, resolution,
+                                 dtype=dtype, grid=grid), both_ends=both_ends,
                    self_contact=config.self_contact)
 
     @property

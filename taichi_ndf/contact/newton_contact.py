@@ -1,6 +1,8 @@
 """Contact on the spline + projected-Newton path (`method = "newton"`; docs/contact.md).
 
-Each load step on each grid (`NewtonContact.solve`) runs in rounds:
+Each load step on each grid (`ContactMinimiser`, a `Minimiser` the drivers run through
+`run_phases` as any other: the static spline solve's load steps, the dynamics' time steps) runs
+in rounds:
 1. the dense check grid (check_resolution² points of the run's `ContactHook`) is evaluated
    at the current coefficients; its points within the activation distance ĝ become check
    points for good;
@@ -29,14 +31,16 @@ of the round's starting state, the positions at the start of the load step.
 A checkpoint inside a grid level holds the contact's state (`NewtonContact.to_dict`: the
 check points, κ, the rounds so far and, inside a load step, its round: the round's index,
 the coefficients and κ it started from (friction's lag is recomputed from them), whether the lag
-changed, the step's Newton iterations of its finished rounds); `restore` and `solve(...,
-resume=)` go on from there bit for bit (`taichi_ndf.solve.spline_solver`).
+changed, the step's Newton iterations of its finished rounds); `restore` and
+`ContactMinimiser(..., resume=)` go on from there bit for bit
+(`taichi_ndf.solve.spline_solver`).
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import asdict, dataclass
+from typing import Protocol
 
 import torch
 
@@ -45,8 +49,9 @@ from taichi_ndf.contact.config import FRICTION_SMOOTHING, ContactConfig
 from taichi_ndf.contact.friction import FrictionTerm
 from taichi_ndf.contact.hook import ContactHook
 from taichi_ndf.minimise.assembly import displacement_at
-from taichi_ndf.minimise.linearisation import GridLinearisation
-from taichi_ndf.minimise.newton import NewtonIteration, NewtonSolution, minimise
+from taichi_ndf.minimise.linearisation import PointJacobian
+from taichi_ndf.minimise.minimisers import Hooks, MinimiseResult, NewtonMinimiser
+from taichi_ndf.minimise.newton import NewtonIteration
 from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.self_contact import SelfContactTerm
@@ -58,12 +63,25 @@ MAX_ROUNDS = 50
 LAG_TOLERANCE = 1e-3
 
 
+class ContactGrid(Protocol):
+    """What the contact rounds take of a discretisation's points: one grid's
+    `GridLinearisation` and several patches' `minimise.multipatch.MultiPatchGrid` alike."""
+
+    def at_points(self, xi: torch.Tensor, load_factor: float) -> PointJacobian:
+        """The displacement jets at ξ (N, 2) (its chart) as an affine map of the
+        coefficients: index (N, k) of the unknowns, offset, Jacobian, a free pin's part."""
+
+    def linearisation(self, load_factor: float, samples: SurfaceSamples):
+        """A new assembly on `samples` at load factor t (`samples`, `displacement`,
+        `gradient`, `hessian`, `solve`: what `newton.minimise` takes)."""
+
+
 class PointMap:
     """Displacement values u (N, 3) [m] at fixed ξ (N, 2) as a function of the coefficients
     (n, 3) of the grid's field, at a load factor (affine: precomputed once,
-    `GridLinearisation.at_points`)."""
+    `ContactGrid.at_points`)."""
 
-    def __init__(self, grid: GridLinearisation, xi: torch.Tensor, load_factor: float):
+    def __init__(self, grid: ContactGrid, xi: torch.Tensor, load_factor: float):
         at = grid.at_points(xi, load_factor)
         self.index, self.pin_index = at.index, at.pin_index
         self.offset = at.offset[:, jets.VALUE]
@@ -118,14 +136,17 @@ class ContactPotential:
 
 class NewtonContact:
     """The contact of one spline solve: the check points (kept over load steps and grid
-    levels), the terms it adds to the objective, and the contact-aware load-step solve.
+    levels and time steps) and the terms it adds to the objective; its load-step solve is
+    `ContactMinimiser`.
 
     config: the model's `ContactConfig`; model: the `ShellModel` (checked: no obstacle at the
-    reference surface or a pin); dtype: of the solve."""
+    reference surface or a pin); dtype: of the solve; surface: the reference surface the check
+    grid covers, in the chart of the rounds' grid (None: the model's; several patches: their
+    `MultiPatchGrid.surface`, each patch checked by the caller)."""
 
-    def __init__(self, config: ContactConfig, model, dtype: torch.dtype):
+    def __init__(self, config: ContactConfig, model, dtype: torch.dtype, *, surface=None):
         self.config = config
-        self.hook = ContactHook.of_model(model, dtype, both_ends=False)
+        self.hook = ContactHook.of_model(model, dtype, both_ends=False, surface=surface)
         self.friction = None
         if config.has_friction:
             self.friction = FrictionTerm(self.points.term, config.friction,
@@ -149,7 +170,8 @@ class NewtonContact:
                 "rounds": self.rounds, "round": within}
 
     def restore(self, values: dict) -> None:
-        """Take the state `to_dict` gave (the round in progress: for `solve(..., resume=)`)."""
+        """Take the state `to_dict` gave (the round in progress: for
+        `ContactMinimiser(..., resume=)`)."""
         points = self.points
         active = values["active"]
         if active.shape != points.active.shape:
@@ -169,74 +191,93 @@ class NewtonContact:
         """The hook's `ContactPoints` (the check grid and the check points so far)."""
         return self.hook.points
 
+    def minimiser(self, config=None, **settings) -> ContactMinimiser:
+        """A load step's `ContactMinimiser` on this contact (settings: its keywords)."""
+        return ContactMinimiser(self, config, **settings)
+
     @property
     def terms(self) -> tuple:
         """The energy terms contact adds to the objective (`ContactPotential`)."""
         return (self.points.term,) + tuple(
             t for t in (self.friction, self.self_contact) if t is not None)
 
-    def solve(self, grid: GridLinearisation, quadrature, objective: Objective,
-              coefficients: torch.Tensor, config, *, load_factor: float,
-              start_load_factor: float, on_iteration=None, terms_at=None,
-              report: bool = True, resume: NewtonIterate | None = None,
-              on_iterate=None) -> NewtonSolution:
-        """Projected Newton at one load factor from `coefficients` (n, 3) (module docstring).
 
-        grid: the grid's linearisation builder (its operator, held unknowns, linear solver
-        and FD length; each round assembles it anew on the round's points); quadrature: its
-        Gauss-point samples; objective: Π without the contact terms (`ContactPotential` adds
-        them); start_load_factor: the load factor of the starting coefficients (friction's
-        start-of-step positions); config, on_iteration, report: as `minimise`.
-        terms_at(assembly) -> tuple: further terms evaluated, like the contact terms, at every
-        sample of a round's `Assembly` (made per round, in its sample order: a time step's
-        `InertiaTerm`, its target at those samples; `taichi_ndf.solve.dynamics`).
-        resume: Newton's iterate inside the round `restore` gave (its check points, κ,
-        round): the step goes on from there bit for bit; on_iterate(iterate): after each
-        Newton step a round goes on from (`to_dict` then holds the round)."""
-        operator = grid.operator
-        t = load_factor
-        points = self.points
-        dtype = coefficients.dtype
+class ContactMinimiser:
+    """The contact rounds of one load step behind the minimiser interface (`Minimiser`; module
+    docstring): each round is `inner`'s Newton (`NewtonMinimiser`) on the round's points with
+    the barrier, bounded by the hook's `feasible`; between rounds the check points, κ and
+    friction's lag are updated. A driver runs it through `run_phases` as any minimiser.
+
+    contact: the run's `NewtonContact` (its state carries over load steps, levels and time
+    steps); config: Newton's settings; load_factor: t of the step; start_load_factor: the load
+    factor of the starting coefficients (friction's start-of-step positions);
+    terms_at(linearisation) -> tuple: further terms evaluated, like the contact terms, at every
+    sample of a round's linearisation (made per round, in its sample order: a time step's
+    `InertiaTerm`, its target at those samples, `taichi_ndf.solve.dynamics`; a garment's seams,
+    their rows among the round's samples); report: Newton's progress reports; resume:
+    Newton's iterate inside the round `NewtonContact.restore` gave (its check points, κ,
+    round): the step goes on from there bit for bit; inner(config, **settings): the Minimiser
+    of a round."""
+
+    def __init__(self, contact: NewtonContact, config=None, *, load_factor: float,
+                 start_load_factor: float, terms_at=None, report: bool = True,
+                 resume: NewtonIterate | None = None, inner=NewtonMinimiser):
+        self.contact, self.config, self.inner = contact, config, inner
+        self.load_factor, self.start_load_factor = load_factor, start_load_factor
+        self.terms_at, self.report, self.resume = terms_at, report, resume
+
+    def minimise(self, objective: tuple, parameters: torch.Tensor, hooks: Hooks | None = None
+                 ) -> MinimiseResult:
+        """objective = (grid, quadrature, Π): the linearisation builder (`ContactGrid`: one
+        grid's `GridLinearisation` or several patches' `MultiPatchGrid`; each round assembles
+        it anew on the round's points), its Gauss-point samples (in its chart) and Π without
+        the contact terms (`ContactPotential` adds them); parameters: the starting
+        coefficients (n, 3).
+        hooks.on_iteration, hooks.on_iterate: each round's Newton's (on_iterate: after each
+        Newton step a round goes on from; `NewtonContact.to_dict` then holds the round)."""
+        grid, quadrature, base = objective
+        contact, t, resume = self.contact, self.load_factor, self.resume
+        points = contact.points
+        dtype = parameters.dtype
         grid_xi = points.grid_xi.to(dtype)
         area = quadrature.weight > 0
         checked_xi = torch.cat((quadrature.xi[area], grid_xi))
         checked_r = torch.cat((quadrature.r_jets[area, jets.VALUE], points.grid_r.to(dtype)))
         checked = PointMap(grid, checked_xi, t)
         on_grid = slice(int(area.sum()), None)
-        start = coefficients
+        start = parameters
         # after each Newton iterate: the grid's points within ĝ (+ the look-ahead) added
-        refresh = self.hook.look_ahead(lambda c: checked(c)[on_grid], t)
+        refresh = contact.hook.look_ahead(lambda c: checked(c)[on_grid], t)
         # the Gauss points come first among the checked points: they are self-contact's
-        feasible = self.hook.feasible(lambda c: checked_r + checked(c), t,
-                                      self_rest=checked_r[:on_grid.start])
+        feasible = contact.hook.feasible(lambda c: checked_r + checked(c), t,
+                                         self_rest=checked_r[:on_grid.start])
 
-        history, c, solution, lagged, first = [], coefficients, None, None, 0
+        history, c, solution, lagged, first = [], parameters, None, None, 0
         if resume is None:
-            self._round = None
+            contact._round = None
             refresh(start)
         else:  # the look-ahead's last positions: the iterate's (refreshed there before)
-            first, c, stiffness, resumed_lag, history = self._round
+            first, c, stiffness, resumed_lag, history = contact._round
             kept = points.active.clone(), points.term.stiffness
             refresh(resume.parameters)
             points.active, points._samples, points.term.stiffness = kept[0], None, kept[1]
         for _round in range(first, MAX_ROUNDS):
             if resume is None:
-                self.rounds += 1
+                contact.rounds += 1
             count = points.count
             linearisation = grid.linearisation(t, points.augment(quadrature))
-            assembly = linearisation.assembly
-            extra = () if terms_at is None else tuple(terms_at(assembly))
-            potential = ContactPotential(objective, self.terms + extra, t)
+            extra = () if self.terms_at is None else tuple(self.terms_at(linearisation))
+            potential = ContactPotential(base, contact.terms + extra, t)
             lag_changed = False
             if resume is None:
                 stiffness = points.term.stiffness  # κ at the round's start
-            if self.friction is not None:  # lagged at the round's start (and its κ)
+            if contact.friction is not None:  # lagged at the round's start (and its κ)
                 held, points.term.stiffness = points.term.stiffness, stiffness
-                s = assembly.samples
+                s = linearisation.samples
                 x0 = s.r_jets[:, jets.VALUE] + displacement_at(
-                    operator, s.xi, start, start_load_factor)[:, jets.VALUE]
-                capacity = self.friction.lag(s, assembly.displacement(c), t, x0,
-                                             start_load_factor)
+                    grid.operator, s.xi, start, self.start_load_factor)[:, jets.VALUE]
+                capacity = contact.friction.lag(s, linearisation.displacement(c), t, x0,
+                                                self.start_load_factor)
                 if lagged is None or len(lagged) != len(capacity):
                     lag_changed = bool((capacity > 0).any())
                 else:
@@ -246,11 +287,10 @@ class NewtonContact:
                 points.term.stiffness = held
             if resume is not None:
                 lag_changed = resumed_lag
-            self._round = (_round, c, stiffness, lag_changed, list(history))
-            solution = minimise(linearisation, potential, c, config, load_factor=t,
-                                feasible=feasible, on_step=refresh,
-                                on_iteration=on_iteration, report=report, resume=resume,
-                                on_iterate=on_iterate)
+            contact._round = (_round, c, stiffness, lag_changed, list(history))
+            solution = self.inner(self.config, load_factor=t, feasible=feasible,
+                                  on_step=refresh, report=self.report, resume=resume
+                                  ).minimise((linearisation, potential), c, hooks or Hooks())
             resume = None
             history += solution.history
             c = solution.parameters
@@ -264,5 +304,7 @@ class NewtonContact:
         else:
             log.warning("contact: %d rounds at load factor %g without settling the check "
                         "points", MAX_ROUNDS, t)
-        self._round = None
-        return NewtonSolution(c, solution.energy, solution.converged and not added, history)
+        contact._round = None
+        return MinimiseResult(sum(h.step_length > 0 for h in history),
+                              history[0].energy if history else solution.energy,
+                              solution.energy, solution.converged and not added, c, history)

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
 from taichi_ndf.discretise.start import fitted_start
@@ -39,12 +40,12 @@ from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
-from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
+from taichi_ndf.minimise.multipatch import MultiPatchGrid, MultiPatchLinearisation
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
+from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam, obstacle_refusal
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import newton_config
@@ -202,6 +203,7 @@ class MultiPatchDiscretisation:
         else:
             objective = Objective(shell, terms)
         newton = newton_config(config, DTYPE)
+        contact = None if self.model.contact is None else self._contact(grids)
         run = PanelsRun(self.field, PanelsState(), config)
         history, steps, self.converged = run.state.history, [], []
         energy = math.nan
@@ -213,6 +215,7 @@ class MultiPatchDiscretisation:
 
         call(callbacks, "on_start", run)
         moves = self._held_moves(c)
+        previous = 0.0  # the last load step's factor (the contact rounds start from it)
         for t in config.load_steps:
             linear = self._joined(grids, t)
             if moves is not None:  # the held rows moved towards their targets (no step there)
@@ -224,7 +227,13 @@ class MultiPatchDiscretisation:
                           parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
                           stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
                                  newton.max_iterations))
+            if contact is not None:  # the contact rounds over the joint chart (ContactMinimiser)
+                phase.minimiser = contact[0].minimiser(newton, load_factor=t,
+                                                       start_load_factor=previous,
+                                                       terms_at=self._seams_at(seams))
+                phase.objective = lambda: contact[1:] + (Objective(objective.shell),)
             solution, = run_phases([phase])
+            previous = t
             c, energy = solution.parameters, solution.energy
             self.converged.append(solution.converged)
             steps.append({"load_factor": t, "energy": energy,
@@ -238,6 +247,10 @@ class MultiPatchDiscretisation:
             if on_load_step is not None:
                 on_load_step(t, self.field)
         call(callbacks, "on_end", run)
+        if contact is not None:  # the grids back on their Gauss and seam points (seam_gaps)
+            for grid, points in zip(grids, self._points, strict=True):
+                grid.assemble(points)
+            linear = MultiPatchLinearisation(grids, t)
         self._linear = linear
         self._terms = terms
         wall = time.perf_counter() - started
@@ -247,7 +260,8 @@ class MultiPatchDiscretisation:
             history=history, probes=probes, field_document=self.spec.to_dict(),
             document={"load_steps": steps,
                       "seam_gaps": self.seam_gaps()},
-            newton_steps=len(history),
+            newton_steps=len(history), contact=None if contact is None else contact[0].points,
+            contact_counts={} if contact is None else {"newton_rounds": contact[0].rounds},
             settings={"method": "newton", "load_steps": list(config.load_steps),
                       "field": self.spec.to_dict()})
 
@@ -266,6 +280,31 @@ class MultiPatchDiscretisation:
             return None
         index = torch.cat(index)
         return index, c.reshape(-1)[index].clone(), torch.cat(target).to(c)
+
+    def _contact(self, grids: list[GridLinearisation]) -> tuple:
+        """With obstacles: the run's `NewtonContact` over the patches' joint chart (each
+        patch checked: no obstacle at its reference surface or pins), the chart
+        (`MultiPatchGrid`) and its quadrature (the patches' Gauss and seam points there)."""
+        config = self.model.contact
+        if config.has_friction:
+            raise ValueError("obstacles: friction is not supported on a garment's panels yet")
+        refused = obstacle_refusal(self.spec)
+        if refused:
+            raise ValueError(refused)
+        for patch in self.spec.patches:
+            config.check(dataclasses.replace(patch.model, contact=config))
+        chart = MultiPatchGrid(grids, [p.model.surface for p in self.spec.patches])
+        self._points = [grid.assembly.samples for grid in grids]
+        quadrature = chart.joint(self._points[0], 0)
+        for i, points in enumerate(self._points[1:], start=1):
+            quadrature = quadrature.joined(chart.joint(points, i))
+        return NewtonContact(config, self.model, DTYPE, surface=chart.surface), chart, quadrature
+
+    def _seams_at(self, seams: list[SeamTerm]):
+        """terms_at(linearisation) of the contact rounds: the seams, their points looked up
+        in each round's patch rows."""
+        return lambda linear: tuple(term.between(linear.rows(s.a), linear.rows(s.b))
+                                    for s, term in zip(self.spec.seams, seams, strict=True))
 
     def _set(self, c: torch.Tensor, linear: MultiPatchLinearisation) -> None:
         for i, f in enumerate(self.fields):

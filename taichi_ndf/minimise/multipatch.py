@@ -11,20 +11,35 @@ patch's `GridLinearisation.at_points` (the local basis at the two points): a spa
 product Sᵀ diag(H_p) S, S (P·36, 3 Σ n_i). Not supported (refused): a free pin or a tilted
 boundary frame in a patch (the pin's coefficients and the frame's rotation of the blocks are
 the single-patch `Assembly`'s business).
+
+Contact (`MultiPatchGrid`): the contact rounds take one linearisation builder that maps points
+to displacements and assembles on a round's points; over several patches that builder is
+`MultiPatchGrid`, whose points live in a joint chart (the patches' rectangles side by side
+along ξ¹), so the check grid, the check points and the step test see one surface
+(`JointSurface`, its check grid laid over each patch, edges included) as on one patch.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
 import torch
 
+from taichi_ndf.contact.check_points import check_grid
+from taichi_ndf.geometry.domain import ParameterDomain
+from taichi_ndf.minimise.jacobian import ComponentJacobian
 from taichi_ndf.minimise.linear_solve import damped_solve
-from taichi_ndf.minimise.linearisation import GridLinearisation, SplineLinearisation
+from taichi_ndf.minimise.linearisation import (
+    GridLinearisation,
+    PointJacobian,
+    SplineLinearisation,
+)
 from taichi_ndf.minimise.pair_hessian import scattered
 from taichi_ndf.objective.couplings import PAIR_SIZE, Couplings
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
 
 
@@ -123,3 +138,132 @@ class MultiPatchLinearisation:
         step, damping = result
         return torch.from_numpy(step).to(gradient).reshape(gradient.shape), damping
 
+
+
+class JointSurface:
+    """The patches' reference surfaces as one surface over the joint chart of a
+    `MultiPatchGrid` (the patches' parameter rectangles side by side along ξ¹): `domain` (the
+    union of the shifted rectangles, its area the patches' together) and `jets(ξ)` (each
+    point's patch's jets at its own ξ). What the contact's check grid is laid over
+    (`ContactPoints`)."""
+
+    def __init__(self, chart: MultiPatchGrid):
+        self.chart = chart
+        self.domain = ParameterDomain(chart.bounds, inside=chart.contains,
+                                      mask_area=sum(s.domain.area for s in chart.surfaces))
+
+    def check_grid(self, resolution: int, dtype: torch.dtype
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Contact's check grid: resolution² points over each patch (its edges, the seams',
+        included), in the joint chart, with their weights (`contact.check_points.check_grid`)."""
+        parts = [check_grid(s.domain, resolution, dtype) for s in self.chart.surfaces]
+        return (torch.cat([xi + xi.new_tensor([shift, 0.0]) for (xi, _), shift in
+                           zip(parts, self.chart.shifts, strict=True)]),
+                torch.cat([w for _, w in parts]))
+
+    def jets(self, xi: torch.Tensor) -> torch.Tensor:
+        """Reference jets (N, 6, 3) [m] at joint ξ (N, 2)."""
+        out = xi.new_zeros(len(xi), JET_SIZE // COMPONENTS, COMPONENTS)
+        for i, rows in self.chart.split(xi):
+            out[rows] = self.chart.surfaces[i].jets(self.chart.local(xi[rows], i))
+        return out
+
+
+class MultiPatchGrid:
+    """The patches' linearisation builders (`GridLinearisation`, one per patch, on its
+    `surfaces[i]`) as one builder over a joint chart, for contact's rounds
+    (`contact.newton_contact.ContactMinimiser` takes it as it takes one grid): a point of
+    patch i at its ξ is the point ξ + (shift_i, 0) of the joint chart, the patches'
+    rectangles side by side along ξ¹ with a gap of GAP × the widest between them.
+    `at_points(ξ, t)` (the affine map of the coefficients at joint ξ, every patch's
+    coefficients in one (Σ n_i, 3) block), `linearisation(t, samples)` (each patch assembled
+    on its samples, joined: a `MultiPatchLinearisation`), `surface` (a `JointSurface`) and
+    `joint(samples, i)` (patch i's samples in the joint chart). length: the FD steps' domain
+    length of its linearisations (`MultiPatchLinearisation`'s). Not supported (refused): a
+    free pin; patches whose splines have different degrees."""
+
+    GAP = 0.1
+
+    def __init__(self, grids: Sequence[GridLinearisation], surfaces: Sequence, *,
+                 length: float = 1.0):
+        self.grids, self.surfaces, self.length = list(grids), list(surfaces), length
+        bounds = [s.domain.bounds for s in self.surfaces]
+        gap = self.GAP * max(hi - lo for (lo, hi), _ in bounds)
+        starts, shifts = [0.0], []
+        for (lo, hi), _ in bounds:
+            shifts.append(starts[-1] - lo)
+            starts.append(starts[-1] + (hi - lo) + gap)
+        self.shifts, self.starts = shifts, starts[:-1]
+        self.bounds = ((0.0, starts[-1] - gap),
+                       (min(b[1][0] for b in bounds), max(b[1][1] for b in bounds)))
+        sizes = [g.field.config.num_coefficients for g in self.grids]
+        self.coefficient_offsets = np.concatenate(([0], np.cumsum(sizes))).tolist()
+        self.surface = JointSurface(self)
+
+    def patch_of(self, xi: torch.Tensor) -> torch.Tensor:
+        """Each joint point's patch (N,) int64 (by its ξ¹)."""
+        starts = torch.tensor(self.starts, dtype=xi.dtype, device=xi.device)
+        return torch.searchsorted(starts, xi[:, 0].contiguous(), right=True) - 1
+
+    def split(self, xi: torch.Tensor):
+        """(patch, rows) of the joint points `xi` in each patch that has some."""
+        patch = self.patch_of(xi)
+        for i in range(len(self.grids)):
+            rows = torch.nonzero(patch == i)[:, 0]
+            if len(rows):
+                yield i, rows
+
+    def local(self, xi: torch.Tensor, patch: int, *, clamp: bool = True) -> torch.Tensor:
+        """Joint ξ (N, 2) of patch `patch`'s points as its own ξ; clamp: onto its rectangle
+        (the shift and back round by an ulp: a point on an edge, a seam's, stays on it)."""
+        own = xi - xi.new_tensor([self.shifts[patch], 0.0])
+        if not clamp:
+            return own
+        (lo1, hi1), (lo2, hi2) = self.surfaces[patch].domain.bounds
+        return torch.maximum(torch.minimum(own, own.new_tensor([hi1, hi2])),
+                             own.new_tensor([lo1, lo2]))
+
+    def joint(self, samples: SurfaceSamples, patch: int) -> SurfaceSamples:
+        """Patch `patch`'s samples with their ξ in the joint chart."""
+        return replace(samples, xi=samples.xi + samples.xi.new_tensor([self.shifts[patch],
+                                                                       0.0]))
+
+    def contains(self, xi: torch.Tensor) -> torch.Tensor:
+        """Whether each joint ξ (N, 2) is a point of a patch (N,) bool."""
+        inside = torch.zeros(len(xi), dtype=torch.bool, device=xi.device)
+        patch = self.patch_of(xi).clamp(min=0)
+        for i, surface in enumerate(self.surfaces):
+            rows = patch == i
+            inside[rows] = surface.domain.contains(self.local(xi[rows], i, clamp=False))
+        return inside
+
+    def at_points(self, xi: torch.Tensor, load_factor: float) -> PointJacobian:
+        """The displacement jets at joint ξ (N, 2) as an affine map of all patches'
+        coefficients (`GridLinearisation.at_points`, indices offset to the joint block)."""
+        order, index, offset, jacobian = [], [], [], []
+        for i, rows in self.split(xi):
+            at = self.grids[i].at_points(self.local(xi[rows], i), load_factor)
+            if at.pin is not None:
+                raise ValueError("contact on several patches takes no free pin")
+            order.append(rows)
+            index.append(at.index + self.coefficient_offsets[i])
+            offset.append(at.offset)
+            jacobian.append(at.jacobian.dense())
+        if len({j.shape[-1] for j in jacobian}) > 1:
+            raise ValueError("contact on several patches needs one spline degree for all")
+        back = torch.argsort(torch.cat(order))
+        return PointJacobian(torch.cat(index)[back], torch.cat(offset)[back],
+                             ComponentJacobian.of(torch.cat(jacobian, dim=1)[:, back]),
+                             None, None)
+
+    def linearisation(self, load_factor: float, samples: SurfaceSamples
+                      ) -> MultiPatchLinearisation:
+        """Each patch assembled on its points among `samples` (joint ξ; at their own ξ), and
+        the patches joined at load factor t (its `samples`: each patch's, reordered, at
+        their own ξ)."""
+        for i, rows in self.split(samples.xi):
+            part = SurfaceSamples(*(None if v is None else v[rows] for v in (
+                samples.xi, samples.r_jets, samples.weight, samples.point_force,
+                samples.barrier_weight)))
+            self.grids[i].assemble(replace(part, xi=self.local(part.xi, i)))
+        return MultiPatchLinearisation(self.grids, load_factor, length=self.length)

@@ -152,7 +152,7 @@ class GridLevels:
     def solve(self, step: Step, start: tuple[torch.Tensor, float, float, float | None]
               ) -> LevelSolution:
         """Projected Newton at the step's load factor from `start` (`NewtonMinimiser`, or
-        `NewtonContact.solve` with obstacles); the solution, Π, the probes' readings."""
+        `ContactMinimiser`'s rounds with obstacles); the solution, Π, the probes' readings."""
         coefficients, start_load_factor, started, coarse_energy = start
         grid, t, newton = self.grid, step.load_factor, self.newton
         nx, ny = grid.config.spans
@@ -162,18 +162,16 @@ class GridLevels:
                  (newton or NewtonConfig()).max_iterations)
         iterate = None if self.on_iterate is None else partial(self.on_iterate, step)
         if self.contact is None:
-            solution = run_phases([Phase(
-                NewtonMinimiser(newton, load_factor=t, coarse_energy=coarse_energy,
-                                resume=resume),
-                lambda: (self.builder.linearisation(t), self.objective.potential(t)),
-                lambda: coefficients, Hooks(on_iteration=self.iterated, on_iterate=iterate),
-                stage)])[0]
+            phase = Phase(NewtonMinimiser(newton, load_factor=t, coarse_energy=coarse_energy,
+                                          resume=resume),
+                          lambda: (self.builder.linearisation(t), self.objective.potential(t)))
         else:  # from the previous load step's state (finer level: this one's, prolonged)
-            with progress.stage(*stage):
-                solution = self.contact.solve(
-                    self.builder, self.samples, self.objective, coefficients, newton,
-                    load_factor=t, start_load_factor=start_load_factor,
-                    on_iteration=self.iterated, resume=resume, on_iterate=iterate)
+            phase = Phase(self.contact.minimiser(newton, load_factor=t, resume=resume,
+                                                 start_load_factor=start_load_factor),
+                          lambda: (self.builder, self.samples, self.objective))
+        phase.parameters = lambda: coefficients
+        phase.hooks, phase.stage = Hooks(on_iteration=self.iterated, on_iterate=iterate), stage
+        solution = run_phases([phase])[0]
         coefficients = solution.parameters
         readings = {}
         if self.probes:  # (a free pin's composition needs a point)

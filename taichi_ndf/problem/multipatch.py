@@ -163,3 +163,15 @@ class MultiPatchPlan:
                 "seams": [{"name": s.spec.name, "a": f"{self.patches[s.a].name}.{s.spec.a.edge}",
                            "b": f"{self.patches[s.b].name}.{s.spec.b.edge}"}
                           for s in self.seams]}
+
+
+def obstacle_refusal(plan) -> str | None:
+    """Why the garment `plan` (`MultiPatchPlan`) cannot run against obstacles (the contact
+    rounds take one shell term over the joint chart and the seams as sewn at rest), or None:
+    flat-cut panels (held edges, seams sewn from the start) and a material per panel are not
+    carried through the contact rounds yet."""
+    if any(p.start is not None or p.held for p in plan.patches):
+        return "obstacles: flat-cut panels (rest = \"flat\") are not supported with obstacles yet"
+    if len(set(plan.materials)) > 1:
+        return "obstacles: a material per panel is not supported with obstacles yet"
+    return None

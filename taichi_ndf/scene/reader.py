@@ -30,6 +30,7 @@ from taichi_ndf.problem.field_types import of_spec
 from taichi_ndf.problem.line_loads import LineLoad, edge_path
 from taichi_ndf.problem.loads import Loads, PointLoad
 from taichi_ndf.problem.model import Probe, ShellModel
+from taichi_ndf.problem.multipatch import obstacle_refusal
 from taichi_ndf.problem.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
 from taichi_ndf.problem.run_size import contact_check_points
 from taichi_ndf.problem.training import SolverConfig
@@ -170,16 +171,23 @@ def parse_scene(document: dict, *, base_dir: Path, path: Path | None = None) -> 
 
 def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
     """A garment file (`[[panels]]`, `taichi_ndf.scene.garment`): its field is the panels'
-    `MultiPatchPlan`, its model the first panel's."""
+    `MultiPatchPlan`, its model the first panel's with the garment's contact (`[[obstacles]]`,
+    `[contact]`: the body the panels drape on)."""
     top = Table(document, "")
     name, description = top.string("name"), top.string("description", "")
     material = _section(top.table("material"), _material)
     plan, _ = parse_garment(top, material, top.table("field", optional=True),
                             read_material=_material)
+    model = plan.patches[0].model
+    model = replace(model, contact=parse_contact(top, model, base_dir))
+    if model.contact is not None and model.contact.has_friction:
+        raise SceneError("obstacles: friction is not supported on a garment's panels yet")
+    if model.contact is not None and obstacle_refusal(plan):
+        raise SceneError(obstacle_refusal(plan))
     solver, quick = _section(top.table("training", optional=True), training, True)
     output = _section(top.table("output", optional=True), _output, False)
     top.close()
-    return Scene(name=name, description=description, model=plan.patches[0].model, field=plan,
+    return Scene(name=name, description=description, model=model, field=plan,
                  solver=solver, quick_solver=quick, output=output,
                  path=path or base_dir / "scene.toml", document=document)
 

@@ -18,15 +18,15 @@ split into two halves (recursively, at most `DynamicsConfig.halvings` times; bey
 `DynamicsError`). The time steps are the steps of the one continuation loop (`solve_over`, a
 step's value its end time), their sizes from the step control (`solve.time_steps`).
 
-Contact (`[[obstacles]]`, the model's `ContactConfig`): each step is solved by the spline path's
-`NewtonContact.solve` (the barrier, its lagged friction, the check points kept over the steps, the
-line search bounded by the hook's `feasible`), with the inertia term passed as a term at each
-round's samples (`terms_at`); its Newton starts from the step's start C (x̂ could be inside an
-obstacle), and friction lags from C. The smallest gap [m] of the dense check grid after each step
-is recorded (`StepRecord.gap`). Wind: one more per-point term (`objective.wind`, its drag implicit
-in the velocity); a boundary motion μ(t): the boundary's part g of the displacement is stepped by
-the same scheme (`Motion.boundary`, docs/dynamics.md). Not yet: stiffness damping or a motion with
-contact (refused).
+Contact (`[[obstacles]]`, the model's `ContactConfig`): each step is the spline path's
+`ContactMinimiser` run through `run_phases` as a static step (the barrier, its lagged friction,
+the check points kept over the steps, the line search bounded by the hook's `feasible`), with the
+inertia term passed as a term at each round's samples (`terms_at`); its Newton starts from the
+step's start C (x̂ could be inside an obstacle), and friction lags from C. The smallest gap [m]
+of the dense check grid after each step is recorded (`StepRecord.gap`). Wind: one more per-point
+term (`objective.wind`, its drag implicit in the velocity); a boundary motion μ(t): the
+boundary's part g of the displacement is stepped by the same scheme (`Motion.boundary`,
+docs/dynamics.md). Not yet: stiffness damping or a motion with contact (refused).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from taichi_ndf.contact.newton_contact import NewtonContact, PointMap
 from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.continuation import Hook, Stages, solve_over
-from taichi_ndf.minimise.minimisers import NewtonMinimiser
+from taichi_ndf.minimise.minimisers import NewtonMinimiser, Phase, run_phases
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.damping import StiffnessDampingTerm
@@ -60,10 +60,6 @@ log = logging.getLogger(__name__)
 
 class DynamicsError(RuntimeError):
     """A time step did not converge even after the allowed halvings."""
-
-
-def _cpu() -> float:
-    return time.process_time()
 
 
 class TimeStepper:
@@ -236,21 +232,22 @@ class TimeStepper:
                                               * scheme.rate, origin_jets))
         load_factor = self.config.load_factor(end_time)  # the loads at the step's end
         if self.contact is not None:  # from C: x̂ could be inside an obstacle
-            def step_terms(assembly) -> tuple:
-                extra = (InertiaTerm(self.density, scale, assembly.displacement(target)),)
+            def step_terms(linear) -> tuple:  # at a contact round's samples
+                extra = (InertiaTerm(self.density, scale, linear.displacement(target)),)
                 if wind is not None:
                     u0, v0, rate, origin, _ = wind
                     extra += (wind_term(self.config.wind, end_time, self.samples, u0, v0, rate,
-                                        assembly.displacement(origin)),)
+                                        linear.displacement(origin)),)
                 return extra
-            solution = self.contact.solve(
-                self.grid, self.samples, self.objective, c, self.newton,
-                load_factor=load_factor, start_load_factor=self.config.load_factor(state.time),
-                terms_at=step_terms, report=False)
-        else:  # the minimiser interface, as every static step
-            solution = NewtonMinimiser(self.newton, load_factor=load_factor, report=False
-                                       ).minimise((linear, self.objective.with_terms(
-                                           *terms).potential(load_factor)), predicted)
+            phase = Phase(self.contact.minimiser(
+                self.newton, load_factor=load_factor, terms_at=step_terms, report=False,
+                start_load_factor=self.config.load_factor(state.time)),
+                lambda: (self.grid, self.samples, self.objective), lambda: c)
+        else:  # Newton alone, from x̂
+            phase = Phase(NewtonMinimiser(self.newton, load_factor=load_factor, report=False),
+                          lambda: (linear, self.objective.with_terms(*terms).potential(
+                              load_factor)), lambda: predicted)
+        solution, = run_phases([phase])
         x = solution.parameters
         velocity, acceleration = scheme.apply(x, state)
         end_boundary = None
@@ -321,8 +318,8 @@ class TimeStepper:
         potential = self.potential_energy(state.displacement, state.time)
         gap = self.gap(state.displacement, state.time)
         return StepRecord(k, state.time, iterations, substeps, kinetic, potential,
-                          kinetic + potential, _cpu() - cpu, time.perf_counter() - wall, gap,
-                          size)
+                          kinetic + potential, time.process_time() - cpu,
+                          time.perf_counter() - wall, gap, size)
 
     def run(self, displacement: torch.Tensor | None = None,
             velocity: torch.Tensor | None = None, *,
@@ -354,7 +351,7 @@ class TimeStepper:
                           easy=resume.easy)
 
         def solve(step, _start) -> StepRecord:  # one time step (halved inside: `advance`)
-            cpu, wall, size = _cpu(), time.perf_counter(), clock.size
+            cpu, wall, size = time.process_time(), time.perf_counter(), clock.size
             end, iterations, substeps = self.advance(clock.state, size)
             end = clock.after(end, iterations, substeps)
             record = self._record(clock.step, end, iterations, substeps, size, cpu, wall)

@@ -129,8 +129,8 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     its levels and history, and where the run was inside a grid level, `State.inside`: it
     goes on there, bit for bit; without it, the remaining levels are solved at the last load
     factor from the last level). With obstacles (`model.contact`) each load step is solved
-    by `NewtonContact.solve` (which adds the contact terms to the objective); its state
-    (check points, κ, the round in progress) is in `State.inside.contact` and a resume
+    by the contact's `ContactMinimiser` (which adds the contact terms to the objective); its
+    state (check points, κ, the round in progress) is in `State.inside.contact` and a resume
     inside a level takes it back (`NewtonContact.restore`).
     callbacks (`taichi_ndf.minimise.callbacks`, each hook optional, called with the `SplineRun`):
     on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_iteration(run,
