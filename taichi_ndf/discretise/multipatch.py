@@ -29,7 +29,13 @@ from typing import Any, ClassVar
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
+from taichi_ndf.discretise.protocol import (
+    OnLoadStep,
+    Probes,
+    ResultPart,
+    Solution,
+    SolveRefused,
+)
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
@@ -294,3 +300,8 @@ class MultiPatchDiscretisation:
             raise ValueError("a multi-patch linearisation is built on its own points "
                              "(evaluation_points())")
         return MultiPatchLinearisation(self._linear.grids, load_factor)
+
+    def result_parts(self, field: MultiPatchField) -> tuple[ResultPart, ...]:
+        """One part per panel, named by it, in the plan's order."""
+        return tuple(ResultPart(p.name, p.model, f)
+                     for p, f in zip(self.spec.patches, field.fields, strict=True))
