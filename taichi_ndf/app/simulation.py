@@ -109,8 +109,6 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
 
     callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {"scene": scene.document,
                                                "scene_dir": str(scene.path.parent.resolve())})]
-    if panels:  # a garment's state is several fields: no checkpoint (docs/scenes.md)
-        callbacks = [DivergenceGuard()]
     try:
         solution = discretisation.solve(config, callbacks=callbacks, on_load_step=on_load_step,
                                         report=report)

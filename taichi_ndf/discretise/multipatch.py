@@ -9,15 +9,15 @@ by projected Newton on the joined linearisation (`minimise.multipatch.MultiPatch
 block-diagonal K, the seams' pair couplings across patches); the load factor ramps gravity and
 sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), one material
 and one gravity for all patches (the shell energy is one term over the joined points), float64.
-A run is not resumable (a checkpoint holds one field): `start` refuses a resume in one line.
 The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as `solver`: on_start,
-on_record at every Newton iteration (the divergence guard), on_load_step and on_end; it has no
-`State.save`, so a `CheckpointWriter` is not one of them (a garment run writes no checkpoint).
+on_record at every Newton iteration (the divergence guard), on_load_step, on_resume_point
+after each load step and on Ctrl-C (a `CheckpointWriter` writes the run's `State`: the panels'
+coefficients, `PanelFields`, and the finished load steps) and on_end; `start` resumes from
+such a checkpoint, and the resumed run goes on from the last finished load step bit for bit.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -37,11 +37,14 @@ from taichi_ndf.discretise.protocol import (
     SolveRefused,
 )
 from taichi_ndf.field import SplineField
+from taichi_ndf.field.panels import PanelFields
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
+from taichi_ndf.minimise.checkpoint import CheckpointError
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
 from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
+from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
@@ -80,28 +83,12 @@ class MultiPatchField:
 
 
 @dataclass
-class PanelsState:
-    """What the callbacks read of a garment solve: the Newton iterations so far (each load
-    step's, in order), their count and the method."""
-
-    history: list = dataclasses.field(default_factory=list)
-    method: str = "newton"
-
-    @property
-    def iteration(self) -> int:
-        return len(self.history)
-
-    def energies_at(self, load_factor: float) -> list[float]:
-        """Π [J] of the iterations at `load_factor`, in order."""
-        return [h.energy for h in self.history if h.load_factor == load_factor]
-
-
-@dataclass
 class PanelsRun:
-    """The `solver` the callbacks are called with: the joint field, its state, the config."""
+    """The `solver` the callbacks are called with: the joint field, its state (method
+    "newton", field the panels' `PanelFields`: `minimise.state.State`), the config."""
 
     field: MultiPatchField
-    state: PanelsState
+    state: State
     config: SolverConfig
 
 
@@ -119,6 +106,7 @@ class MultiPatchDiscretisation:
         self.spec = spec
         self.model = model or spec.patches[0].model
         self.fields: list[SplineField] | None = None
+        self.state: State | None = None
         self.converged: list[bool] = []
         self._linear: MultiPatchLinearisation | None = None
 
@@ -149,13 +137,30 @@ class MultiPatchDiscretisation:
 
     def start(self, config: SolverConfig, *, seed: int, resume_from: Path | None = None
               ) -> None:
-        """Zero coefficients on every patch (the rest shape: a garment's placement)."""
+        """Zero coefficients on every patch (the rest shape: a garment's placement), or a
+        checkpoint's state (`State.save` of a garment's run): its panels' coefficients and
+        finished load steps (CheckpointError where it holds other panels or grids, or load
+        steps other than the first of `config.load_steps`)."""
         if config.method != "newton":
             raise ValueError("a multi-patch field is solved with [training] method = \"newton\"")
+        fields = [SplineField(p.config, dtype=DTYPE) for p in self.spec.patches]
+        self.state = State.newton(PanelFields.of([p.name for p in self.spec.patches], fields))
         if resume_from is not None:
-            raise ValueError("--resume: a multi-patch run cannot be resumed (its checkpoint "
-                             "would hold one patch); start it again")
-        self.fields = [SplineField(p.config, dtype=DTYPE) for p in self.spec.patches]
+            ours = self.state.field.config
+            self.state.restore(resume_from)
+            stored = self.state.field
+            if not isinstance(stored, PanelFields) or stored.config != ours:
+                what = (f"panels {list(stored.config.names)}" if isinstance(stored, PanelFields)
+                        else f"a {type(stored).__name__}")
+                raise CheckpointError(f"{resume_from} holds {what}, not this garment's panels "
+                                      f"{list(ours.names)} on their grids")
+            done = [s["load_factor"] for s in self.state.steps]
+            if done != list(config.load_steps[:len(done)]):
+                raise CheckpointError(f"{resume_from} finished the load steps {done}, not the "
+                                      f"first of {list(config.load_steps)}; resume it with its "
+                                      "own [training] load_steps")
+            fields = list(stored.fields)
+        self.fields = fields
 
     def _grids(self) -> tuple[list[GridLinearisation], list[SeamTerm]]:
         """Each patch's grid assembled on its Gauss points and the seam points on it, and the
@@ -193,36 +198,50 @@ class MultiPatchDiscretisation:
                                               Loads(gravity=self.spec.gravity)), terms)
         c = torch.cat([f.coefficients.detach() for f in self.fields])
         newton = newton_config(config, DTYPE)
-        run = PanelsRun(self.field, PanelsState(), config)
-        history, steps, self.converged = run.state.history, [], []
-        energy = math.nan
+        state = self.state  # fresh, or a checkpoint's: its finished load steps
+        run = PanelsRun(self.field, state, config)
+        history, steps = state.history, state.steps
+        self.converged = [s["converged"] for s in steps]
+        energy = steps[-1]["energy"] if steps else math.nan
+        linear = MultiPatchLinearisation(grids, config.load_steps[-1])
 
         def iterated(record) -> None:
             call(callbacks, "on_record", run, record.energy, record.gradient_norm,
                  record.load_factor)
             history.append(record)
+            state.iteration = len(history)
 
+        state.iteration = len(history)
         call(callbacks, "on_start", run)
-        for t in config.load_steps:
-            linear = MultiPatchLinearisation(grids, t)
-            phase = Phase(NewtonMinimiser(newton, load_factor=t),
-                          objective=lambda linear=linear, t=t: (linear, objective.potential(t)),
-                          parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
-                          stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
-                                 newton.max_iterations))
-            solution, = run_phases([phase])
-            c, energy = solution.parameters, solution.energy
-            self.converged.append(solution.converged)
-            steps.append({"load_factor": t, "energy": energy,
-                          "iterations": len(solution.history),
-                          "converged": solution.converged})
-            self._set(c, linear)
-            call(callbacks, "on_load_step", run, t)
-            if config.progress and report is not None:
-                report(f"load factor {t:g}: Π = {energy:.8g} J, {len(solution.history)} "
-                       f"Newton iterations, converged {solution.converged}")
-            if on_load_step is not None:
-                on_load_step(t, self.field)
+        try:
+            for t in config.load_steps[state.load_step:]:
+                linear = MultiPatchLinearisation(grids, t)
+                phase = Phase(NewtonMinimiser(newton, load_factor=t),
+                              objective=lambda linear=linear, t=t: (linear,
+                                                                    objective.potential(t)),
+                              parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
+                              stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
+                                     newton.max_iterations))
+                solution, = run_phases([phase])
+                c, energy = solution.parameters, solution.energy
+                self.converged.append(solution.converged)
+                steps.append({"load_factor": t, "energy": energy,
+                              "iterations": len(solution.history),
+                              "converged": solution.converged})
+                self._set(c, linear)
+                state.load_step += 1
+                call(callbacks, "on_load_step", run, t)
+                call(callbacks, "on_resume_point", run)
+                if config.progress and report is not None:
+                    report(f"load factor {t:g}: Π = {energy:.8g} J, {len(solution.history)} "
+                           f"Newton iterations, converged {solution.converged}")
+                if on_load_step is not None:
+                    on_load_step(t, self.field)
+        except KeyboardInterrupt:  # the fields hold the last finished load step's solution
+            del history[sum(s["iterations"] for s in steps):]
+            state.iteration = len(history)
+            call(callbacks, "on_resume_point", run)
+            raise
         call(callbacks, "on_end", run)
         self._linear = linear
         self._terms = terms
@@ -231,7 +250,7 @@ class MultiPatchDiscretisation:
         return Solution(
             field=self.field, energy=energy, iterations=len(history), wall_time=wall,
             history=history, probes=probes, field_document=self.spec.to_dict(),
-            document={"load_steps": steps,
+            document={"load_steps": list(steps),
                       "seam_gaps": self.seam_gaps()},
             newton_steps=len(history),
             settings={"method": "newton", "load_steps": list(config.load_steps),
