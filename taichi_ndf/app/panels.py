@@ -40,6 +40,23 @@ def combined(meshes: list[DeformedMesh]) -> tuple[np.ndarray, np.ndarray, np.nda
     return vertices, faces, panel
 
 
+def write_panels_file(path, parts, meshes: list[DeformedMesh]) -> None:
+    """The parts' deformed `meshes` (`part_meshes`) in one file: an OBJ with one object per
+    part named by its panel (`o front`), with UVs; or a PLY (binary) with UVs, strains,
+    energy density and the `panel` vertex property, a header comment naming each index
+    ("panel 0 front")."""
+    vertices, faces, panel = combined(meshes)
+    uv = np.concatenate([m.uv for m in meshes])
+    if str(path).lower().endswith(".obj"):
+        write_obj(path, vertices, faces, uvs=uv,
+                  objects=[(p.name, len(m.deformed)) for p, m in zip(parts, meshes, strict=True)])
+        return
+    scalars = {name: np.concatenate([m.scalars()[name] for m in meshes])
+               for name in meshes[0].scalars()}
+    write_ply(path, vertices, faces, uvs=uv, vertex_scalars={**scalars, "panel": panel},
+              comments=[f"panel {i} {p.name}" for i, p in enumerate(parts)])
+
+
 def write_panel_outputs(out: OutputDir, parts, resolution: tuple[int, int], *,
                         probes: dict | None = None, views: tuple[str, ...] = ("iso",),
                         pictures: bool = True) -> None:
