@@ -212,3 +212,39 @@ def test_ndf_export_writes_a_garment_with_one_object_per_panel(tmp_path, capsys)
     faces = [np.array(s.GetIndicesAttr().Get()) for s in subsets]
     assert [len(f) for f in faces] == [64, 64]
     np.testing.assert_array_equal(np.concatenate(faces), np.arange(128))
+
+
+def _swatch_found(image: np.ndarray, bgr) -> bool:
+    """Whether a 5 × 5 block of pixels of exactly this colour is in the image (a swatch)."""
+    same = (image == np.asarray(bgr, dtype=np.uint8)).all(axis=2).astype(np.int32)
+    blocks = same.cumsum(0).cumsum(1)
+    b = np.pad(blocks, ((1, 0), (1, 0)))
+    counts = b[5:, 5:] - b[:-5, 5:] - b[5:, :-5] + b[:-5, :-5]
+    return bool((counts == 25).any())
+
+
+def test_a_garment_render_has_a_categorical_legend_naming_the_panels(tmp_path):
+    """render.png of the skirt's panels (at the placement: no solve): write_panel_outputs
+    returns the legend it drew, naming the panels in order, each with its own palette colour;
+    the picture holds each colour's swatch and no colour bar (none of viridis's colours)."""
+    import cv2
+
+    from taichi_ndf.app.panels import write_panel_outputs
+    from taichi_ndf.io import OutputDir
+    from taichi_ndf.render.mpl import VIRIDIS_BGR
+
+    scene = _scene()
+    panels = of_scene(scene)
+    panels.start(scene.solver, seed=0)
+    out = OutputDir(tmp_path / "run")
+    legend = write_panel_outputs(out, panels.result_parts(panels.field), (8, 4))
+    assert [name for name, _ in legend.entries()] == ["front", "back"]
+    (front, a), (back, b) = legend.entries()
+    assert a != b
+    image = cv2.imread(str(tmp_path / "run" / "render.png"))
+    assert _swatch_found(image, a) and _swatch_found(image, b)
+    # a colour bar shows nearly all of viridis's colours (the old render: 238 of 240)
+    viridis = {tuple(c) for c in VIRIDIS_BGR[8:-8].tolist()}
+    assert len(viridis & {tuple(p) for p in image.reshape(-1, 3).tolist()}) < 10
+    assert write_panel_outputs(out, panels.result_parts(panels.field), (8, 4),
+                               pictures=False) is None

@@ -1,7 +1,8 @@
 """The outputs of a run whose result has several named parts (a garment's panels:
 `Discretisation.result_parts`, `MultiPatchDiscretisation`): one mesh per panel, one combined
 mesh with a `panel` vertex property and its undeformed twin, the probes, a render showing all
-panels: the files `io.run_files.read_run` opens (ndf-view, ndf-export --format usd)."""
+panels in categorical colours with a legend naming them: the files `io.run_files.read_run`
+opens (ndf-view, ndf-export --format usd)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from taichi_ndf.app.outputs import DeformedMesh, deformed_mesh, write_mesh_files
 from taichi_ndf.io import OutputDir, write_obj, write_ply
 from taichi_ndf.render.figure import render_figure
 from taichi_ndf.render.image_file import save_png
+from taichi_ndf.render.legend import Legend
 
 
 def part_meshes(parts, resolution: tuple[int, int], load_factor: float = 1.0
@@ -59,12 +61,14 @@ def write_panels_file(path, parts, meshes: list[DeformedMesh]) -> None:
 
 def write_panel_outputs(out: OutputDir, parts, resolution: tuple[int, int], *,
                         probes: dict | None = None, views: tuple[str, ...] = ("iso",),
-                        pictures: bool = True) -> None:
+                        pictures: bool = True) -> Legend | None:
     """mesh_<panel>.obj/.ply per part (`ResultPart`, named by its panel); mesh.obj (with
     UVs), mesh.ply (UVs, strains, energy density and a `panel` vertex property: the part's
     index in the file's order) and reference.obj (undeformed, the same vertices and faces) of
     all parts; probes.json of `probes` (displacement (3,) [m] by "panel.probe", as
-    `MultiPatchDiscretisation.probes`); render.png of all panels coloured by panel."""
+    `MultiPatchDiscretisation.probes`); render.png of all panels, each in its colour of a
+    categorical palette with a legend naming them. Returns that legend (None: no
+    pictures)."""
     meshes = part_meshes(parts, resolution)
     for part, mesh in zip(parts, meshes, strict=True):
         write_mesh_files(out, f"mesh_{part.name}", mesh)
@@ -79,13 +83,13 @@ def write_panel_outputs(out: OutputDir, parts, resolution: tuple[int, int], *,
               uvs=uv)
     if probes:
         out.write_json("probes.json", _probe_points(parts, probes))
-    if pictures:
-        # the panels' indices on the whole map (not the 1st–99th percentiles of a field)
-        image = render_figure(vertices, faces, scalars=panel,
-                              scalar_label="panel (" + ", ".join(p.name for p in parts)
-                              + ")", scalar_range=(0.0, max(len(parts) - 1, 1)),
-                              views=views, width=None, height=600)
-        save_png(out.file("render.png"), image)
+    if not pictures:
+        return None
+    legend = Legend(tuple(p.name for p in parts))
+    image = render_figure(vertices, faces, scalars=panel, scalar_label="panel", legend=legend,
+                          views=views, width=None, height=600)
+    save_png(out.file("render.png"), image)
+    return legend
 
 
 def _probe_points(parts, probes: dict) -> dict:
