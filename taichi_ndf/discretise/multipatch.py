@@ -203,7 +203,8 @@ class MultiPatchDiscretisation:
         history, steps = state.history, state.steps
         self.converged = [s["converged"] for s in steps]
         energy = steps[-1]["energy"] if steps else math.nan
-        linear = MultiPatchLinearisation(grids, config.load_steps[-1])
+        if state.load_step == len(config.load_steps):  # a finished run's: nothing to solve
+            linear = MultiPatchLinearisation(grids, config.load_steps[-1])
 
         def iterated(record) -> None:
             call(callbacks, "on_record", run, record.energy, record.gradient_norm,
