@@ -26,7 +26,6 @@ from taichi_ndf.app.panels import write_panel_outputs
 from taichi_ndf.boundary.rigid_motions import warn_rigid_motions
 from taichi_ndf.discretise import SolveRefused, of_scene
 from taichi_ndf.discretise.adaptive import adaptive as adaptive_discretisation
-from taichi_ndf.discretise.multipatch import MultiPatchPlan
 from taichi_ndf.export.usd import require_usd, write_run_usd
 from taichi_ndf.extras import MissingExtra
 from taichi_ndf.io import OutputDir, read_mesh
@@ -97,21 +96,21 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         discretisation.start(config, seed=seed, resume_from=checkpoint if resume else None)
     except CheckpointError as err:
         raise SimulationError(f"--resume: {err}") from err
-    panels = isinstance(scene.field, MultiPatchPlan)  # a garment: outputs per panel
+    # the surfaces the result is made of: one (mesh.obj), or named panels (mesh_<panel>.obj)
+    panels = _named(discretisation.result_parts(discretisation.field))
     step_frames = len(config.load_steps) > 1 and not config.pseudo_time and not panels
     frames: dict[int, DeformedMesh] = {}  # load step index -> its deformed mesh
 
     def on_load_step(load_factor: float, field) -> None:
         if step_frames:  # written at once: a resumed run reads the finished steps back
             index = config.load_steps.index(load_factor)
-            frames[index] = deformed_mesh(scene.model, field, scene.output.resolution,
+            part, = discretisation.result_parts(field)
+            frames[index] = deformed_mesh(part.model, part.field, scene.output.resolution,
                                           load_factor=load_factor)
             write_trajectory_mesh(out, index, frames[index])
 
     callbacks = [DivergenceGuard(checkpoint), CheckpointWriter(checkpoint, {"scene": scene.document,
                                                "scene_dir": str(scene.path.parent.resolve())})]
-    if panels:  # a garment's state is several fields: no checkpoint (docs/scenes.md)
-        callbacks = [DivergenceGuard()]
     try:
         solution = discretisation.solve(config, callbacks=callbacks, on_load_step=on_load_step,
                                         report=report)
@@ -122,6 +121,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         on_result({"energy": solution.energy, "iterations": solution.iterations,
                    "wall_time": solution.wall_time, "probes": solution.probes,
                    **solution.document})
+    parts = discretisation.result_parts(solution.field)
 
     trajectory = None
     if step_frames:
@@ -130,7 +130,7 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         times = frame_times(config.pseudo_time_start, scene.output.frames)
         energy, states = [], []
         for index, t in enumerate(times):
-            mesh = deformed_mesh(scene.model, solution.field, scene.output.resolution,
+            mesh = deformed_mesh(parts[0].model, parts[0].field, scene.output.resolution,
                                  load_factor=t, pseudo_time=True)
             write_trajectory_mesh(out, index, mesh)
             states.append(mesh.deformed)
@@ -138,18 +138,18 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
         trajectory = {"source": "pseudo_time", "load_factors": list(times), "energy": energy,
                       "states": states}
     contact, obstacle_meshes = None, ()
-    if solution.contact is not None:  # a garment: every panel's surface
-        surface = np.concatenate([surface_points(p.model, f, CONTACT_GRID) for p, f in zip(
-            scene.field.patches, solution.field.fields, strict=True)]) if panels else \
-            surface_points(scene.model, solution.field, CONTACT_GRID)
+    if solution.contact is not None:  # every part's surface (a garment: every panel's)
+        surface = np.concatenate([surface_points(p.model, p.field, CONTACT_GRID)
+                                  for p in parts])
         contact, obstacle_meshes = contact_outputs(scene.model.contact, out, surface,
                                                    solution.contact, **solution.contact_counts)
-    if panels:
-        write_panel_outputs(out, scene.field, solution.field, scene.output.resolution,
+    if _named(parts):
+        write_panel_outputs(out, parts, scene.output.resolution,
                             probes=solution.probes, views=scene.output.views,
                             pictures=pictures, obstacles=obstacle_meshes)
     else:
-        _write_field_outputs(scene, out, solution.field, solution.probes, solution.history,
+        part, = parts
+        _write_field_outputs(scene, out, part, solution.probes, solution.history,
                              pseudo_time=config.pseudo_time, refinement=solution.refinement,
                              obstacles=obstacle_meshes, trajectory=trajectory,
                              pictures=pictures)
@@ -160,18 +160,24 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
     return _finish(scene, out, summary)
 
 
-def _write_field_outputs(scene: Scene, out: OutputDir, field, probes: dict, history, *,
+def _named(parts) -> bool:
+    """Whether a result's parts (`Discretisation.result_parts`) are named panels."""
+    return any(p.name for p in parts)
+
+
+def _write_field_outputs(scene: Scene, out: OutputDir, part, probes: dict, history, *,
                          pseudo_time: bool = False, refinement: dict | None = None,
                          obstacles: tuple = (), trajectory: dict | None = None,
                          pictures: bool = True) -> None:
-    """The final field's outputs and trajectory.mp4 of a `trajectory` (its "states", taken out
-    of it here) with the obstacles at each state's load factor (`write_field_outputs`)."""
+    """The outputs of the result's one part (`ResultPart`: the model with the final field)
+    and trajectory.mp4 of a `trajectory` (its "states", taken out of it here) with the
+    obstacles at each state's load factor (`write_field_outputs`)."""
     states = trajectory.pop("states", None) if trajectory else None
     contact = scene.model.contact
     factors = trajectory["load_factors"] if states else None
     try:
         write_field_outputs(
-            out, scene.model, field, probes, resolution=scene.output.resolution,
+            out, part.model, part.field, probes, resolution=scene.output.resolution,
             views=scene.output.views, history=history, pseudo_time=pseudo_time,
             refinement=refinement, obstacles=obstacles, states=states, state_parameters=factors,
             state_obstacles=None if contact is None or not states else [

@@ -1,7 +1,9 @@
 """`ndf-export CHECKPOINT --resolution R --out MESH.obj|.ply`: evaluate a trained field anywhere.
 
 The checkpoint carries its scene, so the boundary conditions and reference surface are rebuilt
-exactly; the field is continuous, so any resolution can be exported.
+exactly; the field is continuous, so any resolution can be exported. A garment's checkpoint
+(its panels' fields) is written with one object per panel, named by it (OBJ: `o <panel>`;
+PLY: a `panel` vertex property and a header comment `panel <index> <name>` per panel).
 `ndf-export RUN_DIR --format usd [--out FILE.usdc]` converts a finished run (its meshes, strains,
 trajectory, probes) into one USD stage (needs the [usd] extra).
 """
@@ -70,7 +72,9 @@ def main(argv: list[str] | None = None) -> int:
         _refuse_a_garment(args.checkpoint)
         start(args)
         from taichi_ndf.app.outputs import deformed_mesh, exports_on_template
+        from taichi_ndf.app.panels import part_meshes, write_panels_file
         from taichi_ndf.app.simulation import checkpoint_scene
+        from taichi_ndf.discretise import of_scene
         from taichi_ndf.io import write_obj, write_ply
         from taichi_ndf.io.memory import check_export_memory
         from taichi_ndf.minimise.checkpoint import load_checkpoint
@@ -79,14 +83,25 @@ def main(argv: list[str] | None = None) -> int:
         scene = checkpoint_scene(args.checkpoint, checkpoint.extra)
         if not exports_on_template(scene.model):
             check_export_memory(res, "--resolution")
-        field = checkpoint.field
+        # the surfaces of the run: its one field's, or a garment's panels (named)
+        parts = of_scene(scene).result_parts(checkpoint.field)
         if args.time != 1.0 and not scene.solver.pseudo_time:
             raise ValueError("--time needs a checkpoint of a pseudo-time field "
                              "([training] pseudo_time = true)")
         from taichi_ndf import progress
 
         with progress.stage(f"export {res[0]} × {res[1]} mesh to {args.out.name}", 2):
-            mesh = deformed_mesh(scene.model, field, res, load_factor=args.time,
+            if any(p.name for p in parts):  # one object per panel, named by it
+                meshes = part_meshes(parts, res)
+                progress.report(1)
+                write_panels_file(args.out, parts, meshes)
+                progress.report(2)
+                print(f"wrote {args.out}: {len(parts)} panels ("
+                      + ", ".join(f"{p.name} {len(m.deformed)} vertices"
+                                  for p, m in zip(parts, meshes, strict=True)) + ")")
+                return 0
+            (part,) = parts
+            mesh = deformed_mesh(part.model, part.field, res, load_factor=args.time,
                                  pseudo_time=scene.solver.pseudo_time)
             progress.report(1)
             if args.out.suffix.lower() == ".obj":
@@ -110,8 +125,9 @@ def _refuse_a_garment(checkpoint: Path) -> None:
     if panels:
         raise ValueError(f"{checkpoint.parent} is a garment run ({len(panels)} panels: "
                          f"{', '.join(panels)}) and has no checkpoint.pt to evaluate at another "
-                         "resolution; its meshes are mesh.obj/.ply (all panels) and "
-                         "mesh_<panel>.obj/.ply, or use --format usd")
+                         "resolution (written before garment runs were checkpointed); its "
+                         "meshes are mesh.obj/.ply (all panels) and mesh_<panel>.obj/.ply, or "
+                         "use --format usd")
 
 
 def _export_usd(args) -> int:

@@ -9,14 +9,14 @@ from __future__ import annotations
 from typing import Any
 
 from taichi_ndf.discretise.multipatch import MultiPatchDiscretisation, MultiPatchPlan
-from taichi_ndf.discretise.protocol import Discretisation, Solution, SolveRefused
+from taichi_ndf.discretise.protocol import Discretisation, ResultPart, Solution, SolveRefused
 from taichi_ndf.discretise.siren import SirenDiscretisation
 from taichi_ndf.discretise.spline import SplineDiscretisation
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.model import ShellModel
 
-__all__ = ["DISCRETISATIONS", "Discretisation", "MultiPatchDiscretisation", "SirenDiscretisation",
-           "Solution",
+__all__ = ["DISCRETISATIONS", "Discretisation", "MultiPatchDiscretisation", "ResultPart",
+           "SirenDiscretisation", "Solution",
            "SolveRefused", "SplineDiscretisation", "discretisation", "of_scene"]
 
 # The field specification's class -> its discretisation (one per field type).

@@ -10,10 +10,12 @@ block-diagonal K, the seams' pair couplings across patches); the load factor ram
 sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), a material per
 patch (one `ShellEnergyTerm` over the joined points where all are the same, else a
 `PanelEnergy` of one per patch) and one gravity for all patches, float64.
-A run is not resumable (a checkpoint holds one field): `start` refuses a resume in one line.
 The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as `solver`: on_start,
-on_record at every Newton iteration (the divergence guard), on_load_step and on_end; it has no
-`State.save`, so a `CheckpointWriter` is not one of them (a garment run writes no checkpoint).
+on_record at every Newton iteration (the divergence guard), on_load_step, on_resume_point
+after each load step and on Ctrl-C (a `CheckpointWriter` writes the run's `State`: the panels'
+coefficients, `PanelFields`, and the finished load steps) and on_end; `start` resumes from
+such a checkpoint, and the resumed run goes on from the last finished load step bit for bit
+(not with obstacles: the contact rounds' state is not in the checkpoint).
 """
 
 from __future__ import annotations
@@ -27,20 +29,29 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
-import numpy as np
 import torch
 
 from taichi_ndf import jets
 from taichi_ndf.contact.newton_contact import NewtonContact
+from taichi_ndf.discretise.held_edges import held_moves, joined
 from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
-from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
+from taichi_ndf.discretise.protocol import (
+    OnLoadStep,
+    Probes,
+    ResultPart,
+    Solution,
+    SolveRefused,
+)
 from taichi_ndf.discretise.start import fitted_start
 from taichi_ndf.field import SplineField
+from taichi_ndf.field.panels import PanelFields
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
+from taichi_ndf.minimise.checkpoint import CheckpointError
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
 from taichi_ndf.minimise.multipatch import MultiPatchGrid, MultiPatchLinearisation
+from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
@@ -79,28 +90,12 @@ class MultiPatchField:
 
 
 @dataclass
-class PanelsState:
-    """What the callbacks read of a garment solve: the Newton iterations so far (each load
-    step's, in order), their count and the method."""
-
-    history: list = dataclasses.field(default_factory=list)
-    method: str = "newton"
-
-    @property
-    def iteration(self) -> int:
-        return len(self.history)
-
-    def energies_at(self, load_factor: float) -> list[float]:
-        """Π [J] of the iterations at `load_factor`, in order."""
-        return [h.energy for h in self.history if h.load_factor == load_factor]
-
-
-@dataclass
 class PanelsRun:
-    """The `solver` the callbacks are called with: the joint field, its state, the config."""
+    """The `solver` the callbacks are called with: the joint field, its state (method
+    "newton", field the panels' `PanelFields`: `minimise.state.State`), the config."""
 
     field: MultiPatchField
-    state: PanelsState
+    state: State
     config: SolverConfig
 
 
@@ -118,6 +113,7 @@ class MultiPatchDiscretisation:
         self.spec = spec
         self.model = model or spec.patches[0].model
         self.fields: list[SplineField] | None = None
+        self.state: State | None = None
         self.converged: list[bool] = []
         self._linear: MultiPatchLinearisation | None = None
 
@@ -149,15 +145,37 @@ class MultiPatchDiscretisation:
     def start(self, config: SolverConfig, *, seed: int, resume_from: Path | None = None
               ) -> None:
         """Zero coefficients on every patch (its rest shape), or a flat-cut patch's start
-        shape (its placement) fitted by its coefficients (`fitted_start`)."""
+        shape (its placement) fitted by its coefficients (`fitted_start`); or a checkpoint's
+        state (`State.save` of a garment's run): its panels' coefficients and finished load
+        steps (CheckpointError where it holds other panels or grids, or load steps other than
+        the first of `config.load_steps`, or the garment has obstacles)."""
         if config.method != "newton":
             raise ValueError("a multi-patch field is solved with [training] method = \"newton\"")
+        fields = [SplineField(p.config, dtype=DTYPE) if p.start is None
+                  else fitted_start(p.model, p.config, p.start, dtype=DTYPE)
+                  for p in self.spec.patches]
+        self._start = torch.cat([f.coefficients.detach() for f in fields])
+        self.state = State.newton(PanelFields.of([p.name for p in self.spec.patches], fields))
         if resume_from is not None:
-            raise ValueError("--resume: a multi-patch run cannot be resumed (its checkpoint "
-                             "would hold one patch); start it again")
-        self.fields = [SplineField(p.config, dtype=DTYPE) if p.start is None
-                       else fitted_start(p.model, p.config, p.start, dtype=DTYPE)
-                       for p in self.spec.patches]
+            if self.model.contact is not None:
+                raise CheckpointError("--resume: a garment run with obstacles cannot be "
+                                      "resumed yet (the contact rounds' state is not in its "
+                                      "checkpoint); start it again")
+            ours = self.state.field.config
+            self.state.restore(resume_from)
+            stored = self.state.field
+            if not isinstance(stored, PanelFields) or stored.config != ours:
+                what = (f"panels {list(stored.config.names)}" if isinstance(stored, PanelFields)
+                        else f"a {type(stored).__name__}")
+                raise CheckpointError(f"{resume_from} holds {what}, not this garment's panels "
+                                      f"{list(ours.names)} on their grids")
+            done = [s["load_factor"] for s in self.state.steps]
+            if done != list(config.load_steps[:len(done)]):
+                raise CheckpointError(f"{resume_from} finished the load steps {done}, not the "
+                                      f"first of {list(config.load_steps)}; resume it with its "
+                                      "own [training] load_steps")
+            fields = list(stored.fields)
+        self.fields = fields
         self._targets = [None if p.held_target is None
                          else fitted_start(p.model, p.config, p.held_target, dtype=DTYPE)
                          for p in self.spec.patches]
@@ -198,59 +216,74 @@ class MultiPatchDiscretisation:
                  PanelEnergy(materials, loads, [linear.rows(i) for i in range(len(materials))]))
         c = torch.cat([f.coefficients.detach() for f in self.fields])
         if any(p.start is not None for p in self.spec.patches):  # sewn from the placement
-            start = linear.displacement(c)
+            start = linear.displacement(self._start)
             objective = Objective(shell, tuple(SewnFromStart(t, start) for t in terms))
         else:
             objective = Objective(shell, terms)
         newton = newton_config(config, DTYPE)
         contact = None if self.model.contact is None else self._contact(grids)
-        run = PanelsRun(self.field, PanelsState(), config)
-        history, steps, self.converged = run.state.history, [], []
-        energy = math.nan
+        state = self.state  # fresh, or a checkpoint's: its finished load steps
+        run = PanelsRun(self.field, state, config)
+        history, steps = state.history, state.steps
+        self.converged = [s["converged"] for s in steps]
+        energy = steps[-1]["energy"] if steps else math.nan
+        if state.load_step == len(config.load_steps):  # a finished run's: nothing to solve
+            linear = self._joined(grids, config.load_steps[-1])
 
         def iterated(record) -> None:
             call(callbacks, "on_record", run, record.energy, record.gradient_norm,
                  record.load_factor)
             history.append(record)
+            state.iteration = len(history)
 
+        state.iteration = len(history)
         call(callbacks, "on_start", run)
-        moves = self._held_moves(c)
-        previous = 0.0  # the last load step's factor (the contact rounds start from it)
-        for t in config.load_steps:
-            linear = self._joined(grids, t)
-            if moves is not None:  # the held rows moved towards their targets (no step there)
-                held, first, last = moves
-                c = c.clone()
-                c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (last - first)
-            phase = Phase(NewtonMinimiser(newton, load_factor=t),
-                          objective=lambda linear=linear, t=t: (linear, objective.potential(t)),
-                          parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
-                          stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
-                                 newton.max_iterations))
-            if contact is not None:  # the contact rounds over the joint chart (ContactMinimiser)
-                phase.minimiser = contact[0].minimiser(newton, load_factor=t,
-                                                       start_load_factor=previous,
-                                                       terms_at=self._seams_at(seams))
-                phase.objective = lambda: contact[1:] + (Objective(objective.shell),)
-            solution, = run_phases([phase])
-            previous = t
-            c, energy = solution.parameters, solution.energy
-            self.converged.append(solution.converged)
-            steps.append({"load_factor": t, "energy": energy,
-                          "iterations": len(solution.history),
-                          "converged": solution.converged})
-            self._set(c, linear)
-            call(callbacks, "on_load_step", run, t)
-            if config.progress and report is not None:
-                report(f"load factor {t:g}: Π = {energy:.8g} J, {len(solution.history)} "
-                       f"Newton iterations, converged {solution.converged}")
-            if on_load_step is not None:
-                on_load_step(t, self.field)
+        moves = held_moves(self.spec.patches, self._targets, self.fields, self._start)
+        previous = steps[-1]["load_factor"] if steps else 0.0  # the contact rounds start there
+        try:
+            for t in config.load_steps[state.load_step:]:
+                linear = self._joined(grids, t)
+                if moves is not None:  # the held rows moved towards their targets (no step)
+                    held, first, target = moves
+                    c = c.clone()
+                    c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (target - first)
+                phase = Phase(NewtonMinimiser(newton, load_factor=t),
+                              objective=lambda linear=linear, t=t: (linear,
+                                                                    objective.potential(t)),
+                              parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
+                              stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
+                                     newton.max_iterations))
+                if contact is not None:  # the contact rounds over the joint chart
+                    phase.minimiser = contact[0].minimiser(newton, load_factor=t,
+                                                           start_load_factor=previous,
+                                                           terms_at=self._seams_at(seams))
+                    phase.objective = lambda: contact[1:] + (Objective(objective.shell),)
+                solution, = run_phases([phase])
+                previous = t
+                c, energy = solution.parameters, solution.energy
+                self.converged.append(solution.converged)
+                steps.append({"load_factor": t, "energy": energy,
+                              "iterations": len(solution.history),
+                              "converged": solution.converged})
+                self._set(c, linear)
+                state.load_step += 1
+                call(callbacks, "on_load_step", run, t)
+                call(callbacks, "on_resume_point", run)
+                if config.progress and report is not None:
+                    report(f"load factor {t:g}: Π = {energy:.8g} J, {len(solution.history)} "
+                           f"Newton iterations, converged {solution.converged}")
+                if on_load_step is not None:
+                    on_load_step(t, self.field)
+        except KeyboardInterrupt:  # the fields hold the last finished load step's solution
+            del history[sum(s["iterations"] for s in steps):]
+            state.iteration = len(history)
+            call(callbacks, "on_resume_point", run)
+            raise
         call(callbacks, "on_end", run)
         if contact is not None:  # the grids back on their Gauss and seam points (seam_gaps)
             for grid, points in zip(grids, self._points, strict=True):
                 grid.assemble(points)
-            linear = MultiPatchLinearisation(grids, t)
+            linear = self._joined(grids, config.load_steps[-1])
         self._linear = linear
         self._terms = terms
         wall = time.perf_counter() - started
@@ -258,28 +291,12 @@ class MultiPatchDiscretisation:
         return Solution(
             field=self.field, energy=energy, iterations=len(history), wall_time=wall,
             history=history, probes=probes, field_document=self.spec.to_dict(),
-            document={"load_steps": steps,
+            document={"load_steps": list(steps),
                       "seam_gaps": self.seam_gaps()},
             newton_steps=len(history), contact=None if contact is None else contact[0].points,
             contact_counts={} if contact is None else {"newton_rounds": contact[0].rounds},
             settings={"method": "newton", "load_steps": list(config.load_steps),
                       "field": self.spec.to_dict()})
-
-    def _held_moves(self, c: torch.Tensor):
-        """(unknowns, start values, target values) of the held rows of the patches that have
-        a held target (`Patch.held_target`), in the joint unknowns of `c`; None: none."""
-        offsets = np.cumsum([0] + [3 * f.coefficients.shape[0] for f in self.fields])
-        index, target = [], []
-        for patch, field, offset in zip(self.spec.patches, self._targets, offsets,
-                                        strict=False):
-            if field is not None:
-                held = patch.held_unknowns()
-                index.append(torch.from_numpy(held + offset))
-                target.append(field.coefficients.detach().reshape(-1)[held])
-        if not index:
-            return None
-        index = torch.cat(index)
-        return index, c.reshape(-1)[index].clone(), torch.cat(target).to(c)
 
     def _contact(self, grids: list[GridLinearisation]) -> tuple:
         """With obstacles: the run's `NewtonContact` over the patches' joint chart (each
@@ -372,24 +389,9 @@ class MultiPatchDiscretisation:
 
     def _joined(self, grids, load_factor: float) -> MultiPatchLinearisation:
         """The patches' joined linearisation with the held edges' unknowns held too."""
-        offsets = np.cumsum([0] + [3 * f.coefficients.shape[0] for f in self.fields])
-        held = [p.held_unknowns() + o for p, o in zip(self.spec.patches, offsets, strict=False)
-                if p.held]
-        return HeldEdges(grids, load_factor, np.concatenate(held) if held else None)
+        return joined(self.spec.patches, self.fields, grids, load_factor)
 
-
-class HeldEdges(MultiPatchLinearisation):
-    """`MultiPatchLinearisation` with further unknowns `held` (sorted indices into the joint
-    unknowns, or None): no step and no gradient there (`Patch.held`)."""
-
-    def __init__(self, grids, load_factor: float, held: np.ndarray | None):
-        super().__init__(grids, load_factor)
-        self.held = held
-        if held is not None:
-            self.fixed = held if self.fixed is None else np.union1d(self.fixed, held)
-
-    def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
-        gradient = super().gradient(grad_u_jets)
-        if self.held is not None:
-            gradient.reshape(-1)[torch.from_numpy(self.held)] = 0.0
-        return gradient
+    def result_parts(self, field: MultiPatchField) -> tuple[ResultPart, ...]:
+        """One part per panel, named by it, in the plan's order."""
+        return tuple(ResultPart(p.name, p.model, f)
+                     for p, f in zip(self.spec.patches, field.fields, strict=True))

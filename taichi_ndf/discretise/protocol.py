@@ -36,6 +36,18 @@ class SolveRefused(RuntimeError):
     """A solve ended without a result worth writing (the message says why)."""
 
 
+@dataclass(frozen=True)
+class ResultPart:
+    """One surface of a run's result: a model (its reference surface, boundary conditions and
+    probes) with the field solved on it, whose deformed mesh the run writes.
+    name: "" for a run's one surface (mesh.obj); a panel's name for one of several
+    (mesh_<name>.obj, probes named "<name>.<probe>")."""
+
+    name: str
+    model: Any
+    field: Any
+
+
 @dataclass
 class Solution:
     """One solve of a discretisation over the load steps.
@@ -124,6 +136,10 @@ class Discretisation(Protocol):
 
     def energy_at(self, load_factor: float) -> float:
         """Π [J] of the solved field at a load factor (a pseudo-time field's path)."""
+
+    def result_parts(self, field: Any) -> tuple[ResultPart, ...]:
+        """The surfaces a run writes of `field` (the solution's, or one `on_load_step` gave):
+        one unnamed part (a single field on the model), or one named part per panel."""
 
     # What a solver written against the protocol minimises over (after `start`): the fixed
     # points where its Newton evaluates Π, the displacement jets of the current parameters,

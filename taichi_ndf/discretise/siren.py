@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import torch
 
-from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution
+from taichi_ndf.discretise.protocol import OnLoadStep, Probes, ResultPart, Solution
 from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.minimise.checkpoint import read_checkpoint
 from taichi_ndf.minimise.last_layer import output_linearisation
@@ -148,3 +148,7 @@ class SirenDiscretisation:
         if self.spec.pseudo_time:
             raise ValueError("a pseudo-time field's jets take its time input: use its "
                              "Solver (energy_and_gradient)")
+
+    def result_parts(self, field: NeuralField) -> tuple[ResultPart, ...]:
+        """One surface: the model with `field`."""
+        return (ResultPart("", self.model, field),)

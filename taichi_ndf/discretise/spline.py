@@ -13,7 +13,13 @@ from typing import Any, ClassVar
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution, SolveRefused
+from taichi_ndf.discretise.protocol import (
+    OnLoadStep,
+    Probes,
+    ResultPart,
+    Solution,
+    SolveRefused,
+)
 from taichi_ndf.discretise.start import fitted_start
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.assembly import displacement_at
@@ -216,3 +222,7 @@ class SplineDiscretisation:
         return GridLinearisation(field, self.model.boundary,
                                  length=math.sqrt(self.model.surface.domain.rectangle_area),
                                  linear=linear or LinearSolverConfig())
+
+    def result_parts(self, field: SplineField) -> tuple[ResultPart, ...]:
+        """One surface: the model with `field` (a grid of this discretisation)."""
+        return (ResultPart("", self.model, field),)

@@ -10,6 +10,8 @@ scale and orient it right):
                                 membrane_strain, bending_strain, energy_density (final state),
                                 and ndf:loadFactor (time-sampled); a garment run's
                                 also primvars:panel (int, each vertex's panel index)
+    /World/deformed/PANEL       GeomSubset (family "panel"): a garment panel's faces, one
+                                per panel, named by it
     /World/reference            Mesh: the undeformed surface (purpose "guide")
     /World/probes               Points: the probes (time-sampled over the frames as
                                 `RunFiles.probe_positions` places them; the default value
@@ -39,7 +41,7 @@ import numpy as np
 from taichi_ndf.extras import require
 from taichi_ndf.io.normals import vertex_normals
 from taichi_ndf.io.output_dir import atomic_path
-from taichi_ndf.io.run_files import QUANTITIES, RunFiles
+from taichi_ndf.io.run_files import QUANTITIES, RunFiles, garment_panels
 from taichi_ndf.render.figure import OBSTACLE_BGR
 from taichi_ndf.render.shaded import SURFACE_BGR
 
@@ -120,6 +122,8 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
                                                                  dtype=np.int32)))
             panel.GetAttr().SetDocumentation("the vertex's panel: its index in the garment's "
                                              "[[panels]] order")
+            _panel_subsets(deformed, run.faces, run.scalars["panel"],
+                           garment_panels(run.path) or [])
 
         UsdGeom.Scope.Define(stage, "/World/Looks")
         surface = _display_material(stage, "/World/Looks/surface", SURFACE_BGR)
@@ -146,6 +150,19 @@ def write_run_usd(run: RunFiles, path: str | os.PathLike) -> Path:
         stage.GetRootLayer().Save()
         del stage
     return path
+
+
+def _panel_subsets(mesh, faces: np.ndarray, panel: np.ndarray, names: list[str]) -> None:
+    """One face subset of `mesh` per panel (family "panel"), named by it (`names` in the
+    panels' order; a panel without a name: panel_<index>)."""
+    from pxr import Tf, UsdGeom, Vt
+
+    of_face = np.asarray(panel, dtype=np.int64)[faces[:, 0]]
+    for index in np.unique(of_face):
+        name = names[index] if index < len(names) else f"panel_{index}"
+        UsdGeom.Subset.CreateGeomSubset(
+            mesh, Tf.MakeValidIdentifier(name), UsdGeom.Tokens.face,
+            Vt.IntArray.FromNumpy(np.nonzero(of_face == index)[0].astype(np.int32)), "panel")
 
 
 def _display_material(stage, path: str, bgr):

@@ -63,6 +63,7 @@ def write_obj(
     *,
     uvs: np.ndarray | None = None,
     normals: np.ndarray | None = None,
+    objects: list[tuple[str, int]] | None = None,
 ) -> None:
     """Write a Wavefront OBJ (atomically).
 
@@ -70,8 +71,38 @@ def write_obj(
     uvs: per-vertex texture coordinates (V, 2), OBJ convention (v up); normals: (V, 3).
     Vertex i of the arrays is vertex i + 1 of the file; texture and normal indices equal the
     vertex index, so readers keep the vertex order.
+    objects: (name, vertex count) of consecutive runs of vertices, each an object (`o name`
+    followed by its vertices and the faces among them, e.g. a garment's panels; a face
+    across two objects: ValueError); None: one nameless object.
     """
     vertices, faces = _check_mesh(vertices, faces, uvs, normals)
+    if objects is not None:
+        ends = np.cumsum([count for _, count in objects])
+        if not len(ends) or ends[-1] != len(vertices):
+            raise ValueError(f"objects: {ends[-1] if len(ends) else 0} vertices named, the "
+                             f"mesh has {len(vertices)}")
+        owner = np.searchsorted(ends, faces, side="right")
+        if (owner != owner[:, :1]).any() or (np.diff(owner[:, 0]) < 0).any():
+            raise ValueError("objects: a face joins two objects, or faces are not in their "
+                             "objects' order")
+        starts, face_ends = np.concatenate(([0], ends)), np.searchsorted(owner[:, 0],
+                                                                          np.arange(len(ends)),
+                                                                          side="right")
+        face_starts = np.concatenate(([0], face_ends[:-1]))
+        text = "".join(f"o {name}\n" + _obj_body(vertices[a:b], faces[c:d],
+                                                 None if uvs is None else uvs[a:b],
+                                                 None if normals is None else normals[a:b])
+                       for (name, _), a, b, c, d in zip(objects, starts, ends, face_starts,
+                                                        face_ends, strict=False))
+    else:
+        text = _obj_body(vertices, faces, uvs, normals)
+    with atomic_path(path) as temporary:
+        temporary.write_text(text, encoding="ascii")
+
+
+def _obj_body(vertices: np.ndarray, faces: np.ndarray, uvs, normals) -> str:
+    """OBJ lines of vertices (their texture coordinates and normals) and faces (0-based
+    indices into all the file's vertices, these and those before)."""
     parts = [_rows(vertices, "v")]
     if uvs is not None:
         parts.append(_rows(np.asarray(uvs, dtype=np.float64), "vt"))
@@ -89,8 +120,7 @@ def write_obj(
     buffer = io.StringIO()
     np.savetxt(buffer, corner, fmt=" ".join([fmt] * 3))
     parts.append("".join(f"f {line}\n" for line in buffer.getvalue().splitlines()))
-    with atomic_path(path) as temporary:
-        temporary.write_text("".join(parts), encoding="ascii")
+    return "".join(parts)
 
 
 def write_ply(
@@ -101,6 +131,7 @@ def write_ply(
     uvs: np.ndarray | None = None,
     vertex_scalars: dict[str, np.ndarray] | None = None,
     binary: bool = True,
+    comments: list[str] | None = None,
 ) -> None:
     """Write a PLY file (atomically), binary little-endian or ASCII.
 
@@ -108,8 +139,11 @@ def write_ply(
     uvs: per-vertex texture coordinates (V, 2), stored as properties ``s``, ``t``;
     vertex_scalars: extra per-vertex float32 properties, e.g. ``{"membrane_strain": (V,),
     "energy_density": (V,)}``; names must be identifiers and not clash with standard ones.
+    comments: further header comments, one line each (e.g. what a property's values name).
     """
     vertices, faces = _check_mesh(vertices, faces, uvs)
+    if any("\n" in c or "\r" in c for c in comments or ()):
+        raise ValueError("a PLY comment is one line")
     columns = {"x": vertices[:, 0], "y": vertices[:, 1], "z": vertices[:, 2]}
     if uvs is not None:
         uvs = np.asarray(uvs, dtype=np.float64)
@@ -128,6 +162,7 @@ def write_ply(
         "ply",
         f"format {'binary_little_endian' if binary else 'ascii'} 1.0",
         "comment written by taichi_ndf",
+        *(f"comment {c}" for c in comments or ()),
         f"element vertex {len(vertices)}",
     ]
     header += [f"property float {name}" for name in columns]

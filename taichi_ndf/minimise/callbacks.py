@@ -11,7 +11,9 @@ Adam step), `on_iteration(solver, record)` (after each Adam iteration, record: i
 monitor samples, every Newton iteration), `on_polish(solver, before, after)` (Π around an
 L-BFGS polish), `on_load_step(solver, load_factor)`, `on_level(solver)` (after each Newton
 grid level), `on_interrupt(solver)` (Ctrl-C on the Newton path, whose state is whole between
-two iterations) and `on_end(solver)`. A hook may raise to stop the solve.
+two iterations), `on_resume_point(solver)` (a garment's run, `discretise.multipatch`: after
+each load step, and on Ctrl-C with the last finished load step's state) and `on_end(solver)`.
+A hook may raise to stop the solve.
 """
 
 from __future__ import annotations
@@ -102,7 +104,8 @@ class CheckpointWriter:
     """Writes the solver's state to `path` every `solver.config.checkpoint_every` iterations
     (Adam's, or Newton's over all levels and load steps: the iterate inside the level; 0:
     never in between), after each Newton grid level, on Ctrl-C inside a Newton level and at
-    the end; `extra` (e.g. the scene) goes with it."""
+    the end, and at a garment's resume points (after each load step, on Ctrl-C); `extra`
+    (e.g. the scene) goes with it."""
 
     def __init__(self, path: str | Path, extra: dict | None = None):
         self.path = Path(path)
@@ -120,6 +123,10 @@ class CheckpointWriter:
         """Ctrl-C: a Newton run's state inside its level (its last iterate), if it has one."""
         if getattr(solver.state, "inside", None) is not None:
             solver.state.save(self.path, self.extra)
+
+    def on_resume_point(self, solver) -> None:
+        """A state a run resumes from bit for bit (a garment's after a load step)."""
+        solver.state.save(self.path, self.extra)
 
     def on_end(self, solver) -> None:
         solver.state.save(self.path, self.extra)

@@ -17,6 +17,7 @@ from pathlib import Path
 import torch
 
 from taichi_ndf.field import NeuralField, SplineField
+from taichi_ndf.field.panels import PanelFields, PanelsConfig
 from taichi_ndf.problem.field_types import FIELD_TYPES, of_field
 from taichi_ndf.problem.optim import Adam
 
@@ -28,6 +29,9 @@ KIND = "taichi_ndf.minimise.checkpoint"
 # field class and its architecture class); one without a "field_type" (written before spline
 # fields existed) holds a SIREN field.
 UNTAGGED = "siren"
+# The tag of a garment's fields, one spline field per panel (`PanelFields`): not a field type
+# a scene names, so not in FIELD_TYPES.
+PANELS = "panels"
 
 
 class CheckpointError(ValueError):
@@ -89,7 +93,7 @@ def save_checkpoint(
     payload = {
         "kind": KIND,
         "format_version": FORMAT_VERSION,
-        "field_type": of_field(field).name,
+        "field_type": PANELS if isinstance(field, PanelFields) else of_field(field).name,
         "architecture": field.config.to_dict(),
         "parameters": _to_cpu(field.state_dict()),
         "optimiser": None if optimiser is None else _to_cpu(optimiser.state_dict()),
@@ -123,7 +127,8 @@ def _architecture_mismatch(stored, ours) -> list[str]:
 
 def read_checkpoint(path: str | os.PathLike) -> dict:
     """The checked contents of a checkpoint file: a dict with ``field_type`` (a name of
-    `FIELD_TYPES`: "siren", "spline"), ``architecture`` (its config: FieldConfig, SplineConfig),
+    `FIELD_TYPES`: "siren", "spline"; "panels": a garment's `PanelFields`), ``architecture``
+    (its config: FieldConfig, SplineConfig, PanelsConfig),
     ``parameters`` (name -> finite tensor), ``optimiser`` (dict or None), ``extra`` (dict) and
     ``format_version``.
 
@@ -151,10 +156,12 @@ def read_checkpoint(path: str | os.PathLike) -> dict:
         raise CheckpointError(
             f"{path}: checkpoint format {version!r}, this version reads {FORMAT_VERSION}")
     tag = payload.get("field_type", UNTAGGED)
-    if tag not in FIELD_TYPES:
-        raise CheckpointError(f"{path}: unknown field type {tag!r}; known: {list(FIELD_TYPES)}")
+    if tag not in FIELD_TYPES and tag != PANELS:
+        raise CheckpointError(f"{path}: unknown field type {tag!r}; known: "
+                              f"{[*FIELD_TYPES, PANELS]}")
     try:
-        architecture = FIELD_TYPES[tag].config.from_dict(payload["architecture"])
+        config = PanelsConfig if tag == PANELS else FIELD_TYPES[tag].config
+        architecture = config.from_dict(payload["architecture"])
         parameters = payload["parameters"]
         if not isinstance(parameters, dict) or not all(
                 isinstance(v, torch.Tensor) for v in parameters.values()):
@@ -189,7 +196,8 @@ def load_checkpoint(
     """
     contents = read_checkpoint(path)
     stored = contents["architecture"]
-    field_class = FIELD_TYPES[contents["field_type"]].field
+    tag = contents["field_type"]
+    field_class = PanelFields if tag == PANELS else FIELD_TYPES[tag].field
     if field is None:
         field = field_class(stored)
     else:

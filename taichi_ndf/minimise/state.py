@@ -9,7 +9,10 @@ One `State` for both solve paths, tagged by its `method`:
   finished grid level, the per-iteration history (`NewtonRecord`), the finished levels'
   summaries (`LevelSummary`) and, inside a grid level, where in it the run is (`InsideLevel`:
   the level's finished load steps, the coarser level's solutions it starts from, Newton's
-  iterate of the load step in progress); no optimiser, no generator.
+  iterate of the load step in progress); no optimiser, no generator. A garment's run
+  (several spline patches, `taichi_ndf.discretise.multipatch`) is one too: its field the
+  panels' (`PanelFields`), its history the Newton iterations (`NewtonIteration`, no grid
+  level), `load_step` the finished load steps and `steps` their summaries.
 The model and the objective are immutable and live elsewhere, so a state saved with `save`
 and read back with `restore` continues a run where it stopped (checkpoint file I/O, with the
 field type and the method as tags: `taichi_ndf.minimise.checkpoint`).
@@ -148,6 +151,8 @@ class State:
     best: the lowest monitored Π at the current load factor and its state (`backoff`).
     backoffs: learning-rate backoffs so far. levels: a Newton run's finished grid levels.
     inside: where a Newton run is inside a grid level (None: at the end of its last level).
+    steps: a garment's finished load steps (load factor, Π [J], Newton iterations,
+    converged), in order; empty otherwise.
     """
 
     field: object
@@ -162,6 +167,7 @@ class State:
     method: str = "adam"
     levels: list[LevelSummary] = field(default_factory=list)
     inside: InsideLevel | None = None
+    steps: list[dict] = field(default_factory=list)
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -196,6 +202,8 @@ class State:
         if self.method == "newton":
             values["levels"] = [asdict(lv) for lv in self.levels]
             values["inside"] = None if self.inside is None else self.inside.to_dict()
+        if self.steps:
+            values["steps"] = self.steps
         save_checkpoint(path, self.field, self.optimiser, extra=values)
 
     def restore(self, path: str | Path) -> dict:
@@ -226,12 +234,14 @@ class State:
         extra = stored.extra
         _check_method(path, extra, "newton")
         self.field = stored.field
-        self.history = [NewtonRecord(**{**h, "spans": tuple(h["spans"])})
+        self.history = [NewtonRecord(**{**h, "spans": tuple(h["spans"])}) if "spans" in h
+                        else NewtonIteration(**h)  # a garment's: no grid level
                         for h in extra["history"]]
         self.levels = [LevelSummary(**{**d, "spans": tuple(d["spans"])})
                        for d in extra["levels"]]
         self.iteration = len(self.history)
         self.load_step = int(extra.get("load_step", 0))
+        self.steps = list(extra.get("steps", []))
         inside = extra.get("inside")  # absent before checkpoints inside a level
         self.inside = None if inside is None else InsideLevel.from_dict(inside)
         where = "" if self.inside is None else (

@@ -16,6 +16,7 @@ from taichi_ndf.render.colour import (
     colour_bar,
     colour_scale,
 )
+from taichi_ndf.render.legend import Legend, legend_panel
 from taichi_ndf.render.raster import downsample, interpolate_covered, rasterize
 from taichi_ndf.render.shaded import (
     BACKGROUND_BGR,
@@ -90,6 +91,7 @@ def render_figure(
     supersample: int = 3,
     frame_points: np.ndarray | None = None,
     azimuth_deg: float | None = None,
+    legend: Legend | None = None,
 ) -> np.ndarray:
     """The surface (V, 3) [m] with faces (F, 3) side by side from each of `views` (names in
     VIEWS), uint8 BGR (height, width, 3).
@@ -112,6 +114,9 @@ def render_figure(
         the surface and obstacles (frames of a video: all of its frames, so the camera stays);
     azimuth_deg: the azimuth of every view (default: each view's own, `widest_azimuth` for
         the three-quarter view).
+    legend: the scalars are category indices (0, 1, ...: a garment's panels), each drawn in
+        its colour of the categorical palette and named in a legend (titled `scalar_label`)
+        instead of the colour bar; scalar_range is then unused.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -122,9 +127,13 @@ def render_figure(
     bar = None
     if scalars is not None:
         scalars = vertex_scalars(scalars, len(vertices))
-        if not isinstance(scalar_range, ColourScale):
-            scalar_range = colour_scale(scalars, RANGE_PERCENTILES, value_range=scalar_range)
-        bar = colour_bar(scalar_range, scalar_label, height)
+        if legend is not None:
+            bar = legend_panel(legend, height, title=scalar_label)
+        else:
+            if not isinstance(scalar_range, ColourScale):
+                scalar_range = colour_scale(scalars, RANGE_PERCENTILES,
+                                            value_range=scalar_range)
+            bar = colour_bar(scalar_range, scalar_label, height)
     bar_width = 0 if bar is None else bar.shape[1]
     if width is not None and ((width - bar_width) // len(views) < 16 or height < 16):
         raise ValueError(f"a {width}x{height} image leaves no room for {len(views)} view(s)"
@@ -178,6 +187,8 @@ def render_figure(
         intensity = lambert_intensity(per_pixel[:, 0:3], per_pixel[:, 3:6])
         if scalars is None:
             base = np.broadcast_to(SURFACE_BGR, (len(lit_index), 3))
+        elif legend is not None:
+            base = legend.colour_of(per_pixel[:, 6])
         else:
             base = colormap(per_pixel[:, 6], scalar_range)
         base = np.where((part == 1)[:, None], OBSTACLE_BGR, base)
