@@ -5,8 +5,10 @@
 
 Newton (warp-lang + newton) lives in its own environment, not the project's: `python3.11 -m
 venv /tmp/nwt && /tmp/nwt/bin/pip install numpy warp-lang newton` (measured with warp-lang
-1.19.0, newton 1.8.0), then `--newton-python /tmp/nwt/bin/python` (or NEWTON_PYTHON). Where it
-cannot import newton the Newton runs are skipped with one line and ours still run.
+1.19.0, newton 1.8.0), then `--newton-python /tmp/nwt/bin/python` (or NEWTON_PYTHON; or `pip install
+taichi-ndf[peers]` into the project's environment). Where it cannot import newton the Newton
+runs are skipped with one line and ours still run. Results: benchmarks/RESULTS.md, "Dynamics:
+the flag beside NVIDIA Newton's cloth".
 
 Newton has no aerodynamic forcing in its cloth solvers (1.8.0: `add_cloth_grid` takes
 `tri_drag`/`tri_lift` but no solver reads them), so the flag is compared **without wind**:
