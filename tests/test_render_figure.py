@@ -179,3 +179,24 @@ def test_fitted_width_follows_the_shape():
     wide, wide_faces, _ = sheet()
     image = render_figure(wide * [3.0, 1.0, 1.0], wide_faces, width=None, height=300)
     assert image.shape[1] == 400  # 4:3 at most
+
+
+def test_label_rows_keep_the_surface_out_of_the_label():
+    """A hanging sheet fills the picture's height: with the default margin it reaches into
+    the rows that put_label's boxed label covers (the flag's top corner was hidden under
+    "t = 2.00 s", docs/gallery/dynamics_flag_wind.png); label_rows keeps them free."""
+    from taichi_ndf.render.trajectory import LABEL_ROWS, put_label
+
+    vertices, faces = hanging_sheet()
+    plain = render_figure(vertices, faces, width=None, height=600, shadow=False)
+    assert (~is_background(plain[:LABEL_ROWS])).any()  # the surface reaches under the label
+    image = render_figure(vertices, faces, width=None, height=600, shadow=False,
+                          label_rows=LABEL_ROWS)
+    surface = ~is_background(image)
+    assert not surface[:LABEL_ROWS].any() and surface.mean() > 0.25
+    labelled = image.copy()
+    put_label(labelled, "t = 2.00 s", boxed=True)
+    changed = np.nonzero(np.any(labelled != image, axis=-1).any(axis=1))[0]
+    assert changed.max() < LABEL_ROWS  # the label and its box lie in those rows
+    with pytest.raises(ValueError, match="label_rows"):
+        render_figure(vertices, faces, width=None, height=60, label_rows=30)

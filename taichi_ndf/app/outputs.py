@@ -171,13 +171,13 @@ def write_render(out: OutputDir, name: str, mesh: DeformedMesh, *, up=(0.0, 0.0,
     obstacles (vertices, faces) drawn in grey and a colour bar; 600 pixels high, each view as
     wide as its framed shape needs (300 to 800 pixels); `label` (e.g. a dynamic run's time
     "t = 3.00 s") written in the top left corner."""
+    from taichi_ndf.render.trajectory import LABEL_ROWS, put_label
+
     image = render_figure(mesh.deformed, mesh.faces, scalars=mesh.bending_strain,
                           scalar_label=QUANTITIES["bending_strain"], up=up, views=views,
                           obstacles=tuple(Obstacle(v, f) for v, f in obstacles),
-                          width=None, height=600)
+                          width=None, height=600, label_rows=0 if label is None else LABEL_ROWS)
     if label is not None:
-        from taichi_ndf.render.trajectory import put_label
-
         put_label(image, label, boxed=True)
     save_png(out.file(name), image)
 

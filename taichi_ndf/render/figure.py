@@ -37,6 +37,9 @@ VIEWS = {"iso": (30.0, None), "front": (8.0, -90.0), "side": (8.0, 0.0), "top": 
 
 RANGE_PERCENTILES = ROBUST_PERCENTILES  # default colour range of the scalars
 VIEW_ASPECT = (0.5, 4.0 / 3.0)  # width / height of a view fitted to its shape (width=None)
+# `frame_mesh`'s margin: the fraction of the half field of view left free on the tighter side
+# (at 600 pixels 24 rows; a label's 46 rows need `label_rows`).
+FRAME_MARGIN = 0.08
 OBSTACLE_BGR = np.array([160.0, 160.0, 160.0])
 _SHADOW_DARKNESS = 0.35  # fraction of the background's brightness a full shadow removes
 # Direction towards the light, in the ground frame (east, north, up): high, slightly to the side.
@@ -92,6 +95,7 @@ def render_figure(
     frame_points: np.ndarray | None = None,
     azimuth_deg: float | None = None,
     legend: Legend | None = None,
+    label_rows: int = 0,
 ) -> np.ndarray:
     """The surface (V, 3) [m] with faces (F, 3) side by side from each of `views` (names in
     VIEWS), uint8 BGR (height, width, 3).
@@ -117,6 +121,9 @@ def render_figure(
     legend: the scalars are category indices (0, 1, ...: a garment's panels), each drawn in
         its colour of the categorical palette and named in a legend (titled `scalar_label`)
         instead of the colour bar; scalar_range is then unused.
+    label_rows: pixels at the top of the image kept free of the framed shape, for a label
+        written there afterwards (`trajectory.put_label`): the framing's margin is widened to
+        at least this many rows on every side (default FRAME_MARGIN of the half height).
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -124,6 +131,9 @@ def render_figure(
     unknown = [v for v in views if v not in VIEWS]
     if not views or unknown:
         raise ValueError(f"views must be some of {', '.join(VIEWS)}, got {list(views)}")
+    if not 0 <= label_rows < height // 2:
+        raise ValueError(f"label_rows must be in [0, {height // 2}), got {label_rows}")
+    margin = max(FRAME_MARGIN, 2.0 * label_rows / height)
     bar = None
     if scalars is not None:
         scalars = vertex_scalars(scalars, len(vertices))
@@ -172,7 +182,7 @@ def render_figure(
         else:
             view_width = (width - bar_width) // len(views)
         camera = frame_mesh(framed, width=view_width, height=height, up=tuple(up),
-                            elevation_deg=elevation, azimuth_deg=azimuth)
+                            elevation_deg=elevation, azimuth_deg=azimuth, margin=margin)
         points_cam = camera.to_camera(all_points)
         raster = rasterize(points_cam, all_faces, camera.intrinsics(view_width, height),
                            view_width, height, supersample=supersample)

@@ -16,7 +16,7 @@ from taichi_ndf.render.figure import VIEWS, Obstacle, render_figure
 from taichi_ndf.render.shaded import BACKGROUND_BGR
 
 __all__ = ["trajectory_frames", "frame_repeats", "real_time_fps", "put_label", "MIN_SECONDS",
-           "FPS"]
+           "FPS", "LABEL_ROWS"]
 
 FPS = 4.0  # frames per second of a trajectory video
 MIN_SECONDS = 3.0  # a short trajectory's states are repeated so that the video lasts this long
@@ -26,6 +26,9 @@ HOLD_SECONDS = 1.0  # the last state is held this long at the end
 # pictures' 3 (9), the frames' main cost (docs/dynamics.md, "Outputs"; benchmarks/RESULTS.md).
 SUPERSAMPLE = 2
 _INK = (40, 40, 40)
+# Rows from the top that `put_label`'s text and box take (the box ends at row 41 for the
+# font's 0.7 scale), plus a gap: `render_figure(label_rows=...)` keeps them free of the surface.
+LABEL_ROWS = 46
 
 
 def frame_repeats(states: int, fps: float = FPS) -> int:
@@ -94,7 +97,8 @@ def trajectory_frames(
         image = render_figure(state, faces, scalars=values, scalar_label="|u| [m]",
                               scalar_range=scale, obstacles=tuple(obstacles[k]), up=up,
                               width=width, height=height, frame_points=every,
-                              azimuth_deg=azimuth, supersample=SUPERSAMPLE)
+                              azimuth_deg=azimuth, supersample=SUPERSAMPLE,
+                              label_rows=LABEL_ROWS)
         if physical_time:
             label = f"t = {factor:.2f} s  (frame {k + 1} of {len(states)})"
         else:
