@@ -11,8 +11,9 @@ a slowly varying gain and offset — the lighting of a moving sheet — do not c
 
     E_photo(u) = w_photo / m · Σ_k ρ((I_t(π(X_k + u_k)) − T_k) / g)                  [px²]
 
-over the m points visible at the start of the frame (projected from the previous frame's
-surface inside the mask eroded by 2σ, and facing the camera as in frame 0), with T_k the
+over the m points visible at the start of the frame (on the previous frame's surface: projected
+inside the mask eroded by 2σ, facing the camera as in frame 0, and not behind another part of
+the sheet by more than a mean edge in its z-buffer), with T_k the
 texture level at point k, I_t the frame's level sampled bilinearly, ρ the Huber penalty of
 `least_squares.huber` (quadratic up to δ [px]) and g the rms slope [1/px] of frame 0's level
 at the points: a residual of one unit is the intensity change of a 1 px shift, so E_photo is
@@ -32,14 +33,14 @@ import torch
 
 from inverse.sft.camera import Camera
 from inverse.sft.image import bilinear, eroded, sample_mask, signed_area, to_gray
-from inverse.sft.inputs import Template
+from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import COMPONENTS, MIN_DEPTH, huber
 from inverse.sft.settings import SplinePriorConfig
 from inverse.sft.silhouette import bilinear_differentiable
 from inverse.sft.surface import surface_positions, uv_locator
 from taichi_ndf import jets
 from taichi_ndf.problem.sampling import SurfaceSamples
-from taichi_ndf.render import uv_to_texture_pixels
+from taichi_ndf.render import rasterize, uv_to_texture_pixels
 
 log = logging.getLogger(__name__)
 
@@ -96,11 +97,11 @@ class PhotometricEvidence:
                              f"{weight}, {huber_px}")
         self.frames, self.masks, self.camera = frames, masks, camera
         self.template, self.sigma = template, sigma
+        self.mean_edge = mean_edge_length(template.vertices, faces := template.faces)
         self.weight, self.huber_px = weight, huber_px
         gray = to_gray(texture)
         h, w = gray.shape
         corners = uv_to_texture_pixels(template.uvs, w, h)
-        faces = template.faces
         image_area = np.abs(signed_area(camera.project(template.vertices)[faces])).sum()
         scale = float(np.sqrt(np.abs(signed_area(corners[faces])).sum() / max(image_area, 1e-12)))
         level = normalised(gray, sigma * scale)
@@ -149,6 +150,11 @@ class PhotometricEvidence:
             margin = int(np.ceil(BORDER_SIGMAS * self.sigma))
             region[margin:-margin, margin:-margin] = True
         visible = sample_mask(region, pixels) & (self._facing(previous) == self._front)
+        # Hidden: another part of the sheet lies in front by more than a mean edge.
+        raster = rasterize(previous, self.template.faces, self.camera.K, *level.shape[::-1])
+        col = np.clip(np.rint(pixels[:, 0]), 0, level.shape[1] - 1).astype(int)
+        row = np.clip(np.rint(pixels[:, 1]), 0, level.shape[0] - 1).astype(int)
+        visible &= raster.depth[row, col] > at[:, 2] - self.mean_edge
         gy, gx = np.gradient(level.astype(np.float64))
         idx = np.nonzero(visible)[0]
         return PhotometricFrame(
