@@ -90,3 +90,36 @@ def test_only_a_spline_config_with_a_weight_asks_for_it(sequence):
 def test_config_refuses_bad_photometric_values(name, value):
     with pytest.raises(ValueError, match=name):
         SplinePriorConfig(**{name: value})
+
+
+def test_with_few_tracks_the_texture_brings_the_fit_closer(sequence):
+    """Frame 2 of the fold from 12 exact tracks: the photometric term sees the rest."""
+    from test_sft_reconstruct import exact_tracks
+
+    from inverse.sft.frame_fits import reconstruct_sequence
+
+    tracks = [exact_tracks(sequence.template, v, sequence.camera, count=12, seed=i)
+              for i, v in enumerate(sequence.vertices)]
+    errors = {}
+    for weight in (0.0, 1.0):
+        config = SplinePriorConfig(photometric_weight=weight, photometric_points=600)
+        result = reconstruct_sequence(
+            sequence.template, sequence.camera, tracks, config, masks=sequence.masks,
+            photometric=photometric_evidence(config, sequence.frames, sequence.camera,
+                                             sequence.template, sequence.texture,
+                                             masks=sequence.masks))
+        errors[weight] = float(np.linalg.norm(result.vertices[2] - sequence.vertices[2],
+                                              axis=1).mean())
+        assert ("photometric" in result.losses[2]) == (weight > 0)
+    assert errors[1.0] < 0.8 * errors[0.0], errors
+
+
+def test_the_cli_refuses_the_term_on_the_siren(tmp_path, capsys):
+    from inverse.cli import sft as sft_cli
+
+    status = sft_cli.main(["--frames", str(tmp_path / "none"), "--camera", "c.json",
+                           "--template", "t.obj", "--texture", "x.png", "--out",
+                           str(tmp_path / "out"), "--precision", "f64", "--field", "siren",
+                           "--photometric-weight", "1"])
+    assert status == 2
+    assert "--photometric-weight" in capsys.readouterr().err
