@@ -3,7 +3,7 @@
 
     python benchmarks/sft_study.py [--sequences roll fold corner wave] [--seeds 0 1]
         [--frames 30] [--field spline|siren] [--cache DIR] [--json OUT]
-        [--tracker NAME=VALUE ...] [--guided]
+        [--tracker NAME=VALUE ...] [--guided] [--photometric W]
 
 For every sequence family and seed: render the sequence (`inverse.sft.synth`, default
 degradations), track it (`inverse.sft.tracking`), reconstruct it with the baseline
@@ -16,7 +16,9 @@ older SIREN + Adam field (`inverse.sft.reconstruct`, initialised from the baseli
 instead of the spline; its per-frame time excludes the baseline it starts from. --cache keeps the
 rendered and tracked sequences (pickles) for reruns. --guided adds the prior with the guided
 search (`inverse.sft.guided`: lost texture points re-found near the reconstruction's
-prediction), row "prior+guided", beside the prior without it. docs/sft_results.md holds a run.
+prediction), row "prior+guided", beside the prior without it. --photometric W adds the prior
+with the photometric term at w_photo = W (`inverse.sft.photometric`), row "prior+photo".
+docs/sft_results.md holds a run.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from inverse.sft.baseline import reconstruct_baseline
 from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.guided import GuidedSearch
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
+from inverse.sft.photometric import photometric_evidence
 from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
@@ -62,6 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="TrackerConfig fields other than the defaults (e.g. outlier_tolerance=4)")
     p.add_argument("--guided", action="store_true",
                    help="also run the prior with the guided search (inverse.sft.guided)")
+    p.add_argument("--photometric", type=float, metavar="W",
+                   help="also run the spline prior with the photometric term at w_photo = W "
+                   "(inverse.sft.photometric)")
     return p
 
 
@@ -136,17 +142,23 @@ def study(sequence: str, seed: int, args: argparse.Namespace) -> list[dict]:
               else ReconstructionConfig(seed=seed))
     if args.physics_weight is not None:
         config = dataclasses.replace(config, physics_weight=args.physics_weight)
-    weights = [("prior", config.physics_weight, False)]
-    weights += [("prior+guided", config.physics_weight, True)] if args.guided else []
-    weights += [("no-prior", 0.0, False)] if args.no_prior else []
-    for name, weight, guide in weights:
-        settings = dataclasses.replace(config, physics_weight=weight)
+    variants = [("prior", config, False)]
+    variants += [("prior+guided", config, True)] if args.guided else []
+    if args.photometric is not None:
+        variants += [("prior+photo", dataclasses.replace(
+            config, photometric_weight=args.photometric), False)]
+    variants += ([("no-prior", dataclasses.replace(config, physics_weight=0.0), False)]
+                 if args.no_prior else [])
+    for name, settings, guide in variants:
         guided = None if not guide else GuidedSearch(
             data["frames"], data["camera"], data["template"], data["texture"],
             masks=data["masks"])
         result = reconstruct_sequence(
             data["template"], data["camera"], data["tracks"], settings, masks=data["masks"],
-            initial=data["baseline"] if args.field == "siren" else None, guided=guided)
+            initial=data["baseline"] if args.field == "siren" else None, guided=guided,
+            photometric=photometric_evidence(settings, data["frames"], data["camera"],
+                                             data["template"], data["texture"],
+                                             masks=data["masks"]))
         wall, cpu = float(np.mean(result.seconds[1:])), float(np.mean(result.cpu_seconds[1:]))
         rows.append(row(name, data, result.vertices, wall, cpu))
     for r in rows:
@@ -171,7 +183,7 @@ def verdict(rows: list[dict]) -> list[str]:
     lines = []
     for key in sorted({(r["sequence"], r["seed"]) for r in rows}):
         by = {r["method"]: r for r in rows if (r["sequence"], r["seed"]) == key}
-        for method in ("prior", "prior+guided"):
+        for method in ("prior", "prior+guided", "prior+photo"):
             if method not in by:
                 continue
             wins = {m: by[method][m] < by["baseline"][m] for m in COMPARED}
@@ -181,7 +193,10 @@ def verdict(rows: list[dict]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.photometric is not None and (args.field != "spline" or not args.photometric > 0):
+        parser.error("--photometric needs --field spline and W > 0")
     taichi_ndf.init(precision="f64")
     torch.set_num_threads(1)
     rows = []

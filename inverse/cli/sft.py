@@ -71,6 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--guided", action="store_true",
                    help="re-find lost texture points near where the reconstruction of the frames "
                    "before predicts them (inverse.sft.guided) and add them to the tracks")
+    p.add_argument("--photometric-weight", type=finite_float, default=None,
+                   help="spline: w_photo of the photometric term, the texture compared with "
+                   "each frame at every textured point (inverse.sft.photometric; default "
+                   f"{SplinePriorConfig.photometric_weight:g}, 0: off)")
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")

@@ -24,6 +24,7 @@ from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Camera, InputError, Template, mean_edge_length
 from inverse.sft.material_from_video import estimate_material
+from inverse.sft.photometric import photometric_evidence
 from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.tracking import track_sequence
@@ -79,7 +80,9 @@ def run(args: argparse.Namespace) -> dict:
             pinned=work.pinned, initial=None if baseline is None else baseline.vertices,
             flow=None if not args.flow else DenseFlow(work.frames, work.camera,
                                                       work.template.faces, masks=work.masks),
-            guided=guided)
+            guided=guided, photometric=photometric_evidence(
+                config, work.frames, work.camera, work.template, work.texture,
+                masks=work.masks))
         vertices, losses, per_frame = result.vertices, result.losses, result.seconds
     if args.method != "baseline":
         seconds["reconstruction"] = time.perf_counter() - clock
@@ -161,7 +164,11 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
     if args.method == "no-prior":
         weight = 0.0
     if kind is SplinePriorConfig:
-        return SplinePriorConfig(physics_weight=weight)
+        photometric = args.photometric_weight
+        return SplinePriorConfig(physics_weight=weight, **(
+            {} if photometric is None else {"photometric_weight": photometric}))
+    if args.photometric_weight is not None:
+        raise ValueError("--photometric-weight is an option of --field spline")
     return ReconstructionConfig(physics_weight=weight, steps=args.iterations, seed=args.seed)
 
 

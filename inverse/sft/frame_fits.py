@@ -19,6 +19,7 @@ from inverse.sft.correspondences import FrameCorrespondences
 from inverse.sft.flow import DenseFlow
 from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Template
+from inverse.sft.photometric import PhotometricEvidence
 from inverse.sft.reconstruct import ReconstructionConfig
 from inverse.sft.sequential import ReconstructionResult, reconstruct_frames
 from inverse.sft.spline_prior import SplinePriorConfig
@@ -32,6 +33,7 @@ def reconstruct_sequence(template: Template, camera: Camera,
                          initial: Sequence[np.ndarray] | None = None,
                          flow: DenseFlow | None = None,
                          guided: GuidedSearch | None = None,
+                         photometric: PhotometricEvidence | None = None,
                          callbacks: Sequence[Any] = ()) -> ReconstructionResult:
     """Vertices [m] for every frame (frame 0 = the template), fitted frame by frame from the
     previous frame on the field that `config` names.
@@ -41,7 +43,8 @@ def reconstruct_sequence(template: Template, camera: Camera,
     is first fitted to in each frame (ValueError on the spline field, which starts from the
     previous frame's solution); flow: dense-flow correspondences (`inverse.sft.flow`) added to
     each frame's tracks, carried from the frame before's reconstruction; guided: texture
-    points re-found where the frames before predict them (`inverse.sft.guided`); callbacks:
+    points re-found where the frames before predict them (`inverse.sft.guided`); photometric:
+    the texture compared with each frame (`inverse.sft.photometric`; spline field only); callbacks:
     the solve callbacks of the frame loop (`reconstruct_frames`).
     """
     kind = of_frame_settings(config)
@@ -53,4 +56,4 @@ def reconstruct_sequence(template: Template, camera: Camera,
         raise ValueError("initial guesses are for the SIREN field; the spline field starts "
                          "each frame from the previous frame's solution")
     return reconstruct_frames(template, camera, correspondences, fit, masks=masks, flow=flow,
-                              guided=guided, callbacks=callbacks)
+                              guided=guided, photometric=photometric, callbacks=callbacks)

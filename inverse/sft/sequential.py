@@ -33,6 +33,7 @@ from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.outline import outline_allowance, outline_offsets
+from inverse.sft.photometric import PhotometricEvidence, PhotometricFrame
 from inverse.sft.silhouette import silhouette_distance
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
 
@@ -57,7 +58,8 @@ class FrameData:
     `rest`, float64; mean edge length h [m]): the m tracked surface points' UVs ξ (m, 2) and
     template positions (m, 3) [m], their pixels (m, 2) [px] and confidences (m,); the vertices'
     predicted positions x̂ (n, 3) [m]; the mask's `silhouette_distance` (h, w) [px] or None;
-    the outline offsets (n,) [px] (`outline_offsets`) or None."""
+    the outline offsets (n,) [px] (`outline_offsets`) or None; the photometric term's data
+    (`inverse.sft.photometric`) or None."""
 
     index: int
     camera: Camera
@@ -71,6 +73,7 @@ class FrameData:
     predicted: torch.Tensor
     distance: torch.Tensor | None
     outline_offset: torch.Tensor | None
+    photometric: PhotometricFrame | None = None
 
     def data_term(self, tracks: torch.Tensor, vertices: torch.Tensor, *,
                   slope: str = "image") -> LeastSquaresData:
@@ -123,6 +126,7 @@ def reconstruct_frames(template: Template, camera: Camera,
                        masks: Sequence[np.ndarray] | None = None,
                        flow: DenseFlow | None = None,
                        guided: GuidedSearch | None = None,
+                       photometric: PhotometricEvidence | None = None,
                        callbacks: Sequence[Any] = ()) -> ReconstructionResult:
     """Vertices for every frame (frame 0 = template), fitted frame by frame by `fit`.
 
@@ -132,7 +136,9 @@ def reconstruct_frames(template: Template, camera: Camera,
     timing and result the bookkeeping after it. masks: per-frame silhouettes (bool (h, w)) or
     None; flow: dense flow correspondences added to each frame's tracks, carried from the frame
     before's reconstruction; guided: texture points re-found near where the frames before
-    predict them (`inverse.sft.guided`), added to each frame's tracks; callbacks: the loop's
+    predict them (`inverse.sft.guided`), added to each frame's tracks; photometric: the
+    texture compared with the frame at the points visible from frame t − 1's surface
+    (`inverse.sft.photometric`; a fit that takes it adds the term); callbacks: the loop's
     callbacks (`taichi_ndf.minimise.callbacks`: on_start, on_load_step(fit, frame index) after
     each frame, on_end), called with `fit`.
     """
@@ -171,7 +177,8 @@ def reconstruct_frames(template: Template, camera: Camera,
             track_xi=(bary[:, :, None] * torch.from_numpy(template.uvs[faces])).sum(1),
             track_rest=(bary[:, :, None] * rest[torch.from_numpy(faces)]).sum(1),
             pixels=torch.from_numpy(seen.xy), confidence=torch.from_numpy(seen.confidence),
-            predicted=2.0 * previous - before, distance=distance, outline_offset=offsets)
+            predicted=2.0 * previous - before, distance=distance, outline_offset=offsets,
+            photometric=None if photometric is None else photometric.frame(i, history[-1]))
         fitted = fit.fit_frame(frame)
         return fitted, time.perf_counter() - start, time.process_time() - cpu
 

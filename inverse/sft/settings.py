@@ -60,7 +60,10 @@ class SplinePriorConfig:
     huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
     Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
     decrease λ²/2 is below this fraction of E; extrapolate: start each frame from the
-    constant-velocity extrapolation of the coefficients (else from the last frame's).
+    constant-velocity extrapolation of the coefficients (else from the last frame's);
+    photometric_weight: w_photo, the texture compared with the frame at about
+    photometric_points surface points on an image level blurred by photometric_sigma [px]
+    (`inverse.sft.photometric`; 0 switches it off; needs the frames and the texture).
     """
 
     physics_weight: float = 1e-2
@@ -76,14 +79,23 @@ class SplinePriorConfig:
     max_iterations: int = 8
     tolerance: float = 1e-2
     extrapolate: bool = False
+    photometric_weight: float = 0.0
+    photometric_sigma: float = 2.0
+    photometric_points: int = 4096
 
     def __post_init__(self):
-        for name in ("physics_weight", "silhouette_weight", "outline_weight", "temporal_weight"):
+        for name in ("physics_weight", "silhouette_weight", "outline_weight", "temporal_weight",
+                     "photometric_weight"):
             if not 0 <= getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
-        for name in ("span_edges", "huber_px", "tolerance", "membrane_factor"):
+        for name in ("span_edges", "huber_px", "tolerance", "membrane_factor",
+                     "photometric_sigma"):
             if not 0 < getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
+        if isinstance(self.photometric_points, bool) or not isinstance(
+                self.photometric_points, int) or self.photometric_points < 1:
+            raise ValueError(f"photometric_points must be a positive integer, got "
+                             f"{self.photometric_points!r}")
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
         if self.degree not in (3, 4):

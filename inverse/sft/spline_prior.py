@@ -135,14 +135,20 @@ class SplinePriorReconstructor:
         cfg = self.config
         samples = self.quadrature.joined(self._samples_at(frame.track_xi.to(DTYPE))).joined(
             self.vertex_samples)
+        photo = frame.photometric
+        if photo is not None:
+            samples = samples.joined(self._samples_at(photo.xi.to(DTYPE)))
         linearisation = self.grid.linearisation(1.0, samples)
         assembly = linearisation.assembly
         position = torch.empty_like(assembly.order)
         position[assembly.order] = torch.arange(len(assembly.order))
-        n_q, n_t = len(self.quadrature), len(frame.track_xi)
-        data = frame.data_term(position[n_q:n_q + n_t], position[n_q + n_t:])
-        potential = (_DataOnly(data) if self.shell is None
-                     else Objective(self.shell, (data,)).potential(1.0))
+        n_q, n_t, n_v = len(self.quadrature), len(frame.track_xi), len(self.vertex_xi)
+        data = frame.data_term(position[n_q:n_q + n_t], position[n_q + n_t:n_q + n_t + n_v])
+        terms = (data,)
+        if photo is not None:
+            terms = (data, photo.term(frame.camera, position[n_q + n_t + n_v:]))
+        potential = (_DataOnly(terms) if self.shell is None
+                     else Objective(self.shell, terms).potential(1.0))
         start = self.field.coefficients
         if cfg.extrapolate and self._previous is not None:
             start = 2.0 * start - self._previous
@@ -151,6 +157,8 @@ class SplinePriorReconstructor:
         self.field.coefficients.copy_(solution.parameters)
         u = assembly.displacement(solution.parameters)
         parts = data.parts(u)
+        for term in terms[1:]:
+            parts.update(term.parts(u))
         if self.shell is not None:
             result = self.shell.result(assembly.samples, u)
             parts["energy"] = result.internal / (cfg.physics_weight)  # Π_int / E_ref
@@ -201,15 +209,16 @@ class _DataOnly:
     """The data terms alone as a potential (w_phys = 0): callable (samples, u_jets, grad) ->
     an object with `.total` and `.grad_u_jets`, with Gauss–Newton `hessian_blocks`."""
 
-    data: LeastSquaresData
+    terms: tuple[LeastSquaresData, ...]
 
     def __call__(self, samples: SurfaceSamples, u_jets: torch.Tensor, grad: bool):
-        value, gradient = self.data.evaluate(samples, u_jets, grad=grad)
-        return _Value(value, gradient)
+        results = [term.evaluate(samples, u_jets, grad=grad) for term in self.terms]
+        gradient = sum(g for _, g in results) if grad else None
+        return _Value(sum(v for v, _ in results), gradient)
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
                        steps: torch.Tensor) -> torch.Tensor:
-        return self.data.hessian_blocks(samples, u_jets, steps=steps)
+        return sum(term.hessian_blocks(samples, u_jets, steps=steps) for term in self.terms)
 
 
 @dataclass(frozen=True)
