@@ -123,3 +123,16 @@ def test_the_cli_refuses_the_term_on_the_siren(tmp_path, capsys):
                            "--photometric-weight", "1"])
     assert status == 2
     assert "--photometric-weight" in capsys.readouterr().err
+
+
+def test_a_library_caller_handing_the_term_to_the_siren_is_refused(sequence):
+    """The SIREN's frame fit does not take the term: refused, not silently dropped."""
+    from inverse.sft.frame_fits import reconstruct_sequence
+
+    evidence = photometric_evidence(SplinePriorConfig(photometric_weight=1.0,
+                                                      photometric_points=100),
+                                    sequence.frames, sequence.camera, sequence.template,
+                                    sequence.texture, masks=sequence.masks)
+    with pytest.raises(ValueError, match="photometric term is for the spline field"):
+        reconstruct_sequence(sequence.template, sequence.camera, [], ReconstructionConfig(),
+                             photometric=evidence)

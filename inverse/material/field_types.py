@@ -34,7 +34,8 @@ class InverseFieldType:
     configuration (`field_type.config`) by `Equilibrium.of_field`. frame_settings: the SfT
     settings class that names this field; frame_fit: its per-frame fit
     (`inverse.sft.sequential.FrameFit`, built as `frame_fit(template, pinned=, config=)`);
-    initial_guesses: whether the frame fit takes per-frame initial guesses (`initial=`).
+    initial_guesses: whether the frame fit takes per-frame initial guesses (`initial=`);
+    photometric: whether it takes the photometric term (`inverse.sft.photometric`).
     """
 
     field_type: FieldType
@@ -42,14 +43,15 @@ class InverseFieldType:
     frame_settings: type
     frame_fit: type
     initial_guesses: bool
+    photometric: bool
 
 
 # Field types by name (the forward registry's names).
 INVERSE_FIELD_TYPES: dict[str, InverseFieldType] = {kind.field_type.name: kind for kind in (
     InverseFieldType(SIREN, ImplicitEquilibrium, ReconstructionConfig, FieldReconstructor,
-                     initial_guesses=True),
+                     initial_guesses=True, photometric=False),
     InverseFieldType(SPLINE, SplineEquilibrium, SplinePriorConfig, SplinePriorReconstructor,
-                     initial_guesses=False))}
+                     initial_guesses=False, photometric=True))}
 
 
 def of_field_config(spec: Any) -> InverseFieldType:

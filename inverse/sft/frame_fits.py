@@ -48,6 +48,9 @@ def reconstruct_sequence(template: Template, camera: Camera,
     the solve callbacks of the frame loop (`reconstruct_frames`).
     """
     kind = of_frame_settings(config)
+    if photometric is not None and not kind.photometric:
+        raise ValueError(f"the photometric term is for the spline field, not the "
+                         f"{kind.field_type.name} field")
     if initial is None:
         fit = kind.frame_fit(template, pinned=pinned, config=config)
     elif kind.initial_guesses:
