@@ -40,14 +40,17 @@ from inverse.material.handles import (
 )
 from inverse.material.unknowns import Unknown
 from taichi_ndf import checks, jets, progress
-from taichi_ndf.field import SplineConfig, SplineField
+from taichi_ndf.discretise import discretisation
+from taichi_ndf.field import SplineConfig
 from taichi_ndf.minimise.assembly import displacement_at
-from taichi_ndf.minimise.linearisation import GridLinearisation
+from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.newton import NewtonConfig, coupled_blocks, minimise, point_blocks
 from taichi_ndf.minimise.sensitivity import sensitivity
+from taichi_ndf.objective.seam import seam_points
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.spline_grid import auto_span_length, spans_for
+from taichi_ndf.problem.spline_grid import SplinePlan, auto_span_length, spans_for
+from taichi_ndf.problem.training import SolverConfig
 
 log = logging.getLogger(__name__)
 
@@ -120,19 +123,24 @@ class SplineEquilibrium(Equilibrium):
         self._units = None  # dU/dδ at the assembly's samples (`handles.unit_displacements`)
         self._local_dg: list[torch.Tensor] = []
         self.config = config
-        self.field = SplineField(grid, dtype=torch.float64)
         self.label = {"spans": list(grid.spans), "degree": grid.degree}
-        self.grid = GridLinearisation(self.field, model.boundary,
-                                      length=math.sqrt(model.surface.domain.rectangle_area))
+        # the grid through the forward solve's discretisation (in float64 whatever the run's):
+        # its field, its Gauss points and its linearisation builder with the direct solve
+        spline = discretisation(SplinePlan(grid, quadrature_points=config.quadrature_points),
+                                model, dtype=torch.float64)
+        spline.start(SolverConfig(method="newton"), seed=0)
+        self.field = spline.field
+        self.grid = spline.linearise(self.field, LinearSolverConfig(kind="direct"))
         self.operator = self.grid.operator
-        original = self.grid.quadrature(model.surface, grid, model.loads,
-                                        points=config.quadrature_points, dtype=torch.float64)
+        original = spline.evaluation_points()
         self.assembly = self.grid.assemble(original)
         self.fixed = self.grid.fixed
         # the assembly's row of each original sample (`Assembly.order` is the inverse):
-        # term_gradients and the point forces index the original order (point loads last)
+        # term_gradients and the point forces index the original order (the quadrature, its
+        # point loads last, then the seams' own points)
         self._model_order = torch.argsort(self.assembly.order)
-        self.point_rows = self._model_order[len(original) - len(model.loads.point_loads):]
+        end = len(original) - seam_points(model.terms)
+        self.point_rows = self._model_order[end - len(model.loads.point_loads):end]
         self.newton = NewtonConfig(max_iterations=config.newton_iterations)
         self.coefficients = torch.zeros(grid.num_coefficients, 3, dtype=torch.float64)
 

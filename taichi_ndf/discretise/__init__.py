@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import torch
+
 from taichi_ndf.discretise.multipatch import MultiPatchDiscretisation, MultiPatchPlan
 from taichi_ndf.discretise.protocol import Discretisation, ResultPart, Solution, SolveRefused
 from taichi_ndf.discretise.siren import SirenDiscretisation
@@ -25,22 +27,28 @@ DISCRETISATIONS: dict[type, type] = {kind.field_type.spec: kind for kind in (
 
 
 def discretisation(spec: Any, model: ShellModel, *, objective: Objective | None = None,
-                   estimate: str | None = None, start_shape: Any = None) -> Discretisation:
+                   estimate: str | None = None, start_shape: Any = None,
+                   dtype: torch.dtype | None = None) -> Discretisation:
     """The discretisation of the field specification `spec` (a `FieldConfig` or a
     `SplinePlan`) on `model`. objective: what is minimised (None: Π of the model); estimate:
     a SIREN's output-scale estimate made at run start (`Scene.output_scale_estimate`);
-    start_shape: a spline field's start shape (`problem.start_shape.StartShape`; None: rest)."""
+    start_shape: a spline field's start shape (`problem.start_shape.StartShape`; None: rest);
+    dtype: its fields' (None: the runtime's; a garment's panels are float64 only)."""
     if isinstance(spec, MultiPatchPlan):  # a garment's panels: several fields, no field type
+        if dtype not in (None, MultiPatchDiscretisation.dtype):
+            raise ValueError(f"a multi-patch field is {MultiPatchDiscretisation.dtype}, "
+                             f"not {dtype}")
         return MultiPatchDiscretisation(spec, model, objective=objective)
     kind = DISCRETISATIONS.get(type(spec))
     if kind is None:
         raise TypeError(f"no discretisation of a {type(spec).__name__} (known: "
                         f"{', '.join(t.__name__ for t in DISCRETISATIONS)})")
     if start_shape is None:
-        return kind(spec, model, objective=objective, estimate=estimate)
+        return kind(spec, model, objective=objective, estimate=estimate, dtype=dtype)
     if kind is not SplineDiscretisation:
         raise ValueError(f"a start shape needs a spline field, not a {kind.name} field")
-    return kind(spec, model, objective=objective, estimate=estimate, start_shape=start_shape)
+    return kind(spec, model, objective=objective, estimate=estimate, start_shape=start_shape,
+                dtype=dtype)
 
 
 def of_scene(scene) -> Discretisation:

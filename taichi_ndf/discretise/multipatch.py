@@ -105,6 +105,7 @@ class MultiPatchDiscretisation:
 
     field_type: ClassVar[Any] = None
     name: ClassVar[str] = "multipatch"
+    dtype: ClassVar[torch.dtype] = DTYPE
 
     def __init__(self, spec: MultiPatchPlan, model: ShellModel | None = None, *,
                  objective: Objective | None = None, estimate: str | None = None):

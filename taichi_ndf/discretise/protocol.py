@@ -95,6 +95,11 @@ class Discretisation(Protocol):
     field_type: ClassVar[Any]
     name: ClassVar[str]  # the field type as scenes and --field name it: "siren", "spline"
     spec: Any  # the field specification (`FieldConfig`, `SplinePlan`)
+    # The dtype of the fields it makes, and so of its evaluation points and linearisations
+    # (None: the runtime's): a caller working in its own precision whatever the run's (the
+    # material fits' equilibria: float64) asks for it when building it
+    # (`discretise.discretisation(..., dtype=)`).
+    dtype: torch.dtype | None
 
     def uses_newton(self, config: SolverConfig) -> bool:
         """Whether a Newton method solves it with `config` (rigid motions then matter)."""

@@ -30,23 +30,25 @@ class SirenDiscretisation:
     evaluated on stratified samples drawn every Adam iteration (and on fixed monitor and
     Newton samples). objective: what is minimised (None: Π of the model); estimate: the
     scene's name of an output scale estimated at run start (`Scene.output_scale_estimate`;
-    None: a number given)."""
+    None: a number given); dtype: the field's (None: the runtime's)."""
 
     field_type: ClassVar[FieldType] = SIREN
     name: ClassVar[str] = SIREN.name
 
     def __init__(self, spec: FieldConfig, model: ShellModel, *,
-                 objective: Objective | None = None, estimate: str | None = None):
+                 objective: Objective | None = None, estimate: str | None = None,
+                 dtype: torch.dtype | None = None):
         self.spec = spec
         self.model = model
         self.objective = objective
         self.estimate = estimate
+        self.dtype = dtype
         self.field: NeuralField | None = None
         self.solver: Solver | None = None
 
     def _with(self, spec: FieldConfig) -> SirenDiscretisation:
         return SirenDiscretisation(spec, self.model, objective=self.objective,
-                                   estimate=self.estimate)
+                                   estimate=self.estimate, dtype=self.dtype)
 
     def uses_newton(self, config: SolverConfig) -> bool:
         return config.newton_iterations > 0
@@ -84,7 +86,7 @@ class SirenDiscretisation:
             spec = dataclasses.replace(self.spec, output_scale=stored.output_scale)
         else:
             spec = field_for_run(self.spec, self.estimate, self.model, config)
-        self.field = NeuralField(spec, seed=seed)
+        self.field = NeuralField(spec, seed=seed, dtype=self.dtype)
         self.solver = Solver(self.model, self.field, config, objective=self.objective,
                              linearise=self.linearisation)
         if resume_from is not None:

@@ -47,18 +47,20 @@ class SplineDiscretisation:
     through `GridLinearisation.quadrature`).
     objective: what is minimised (None: Π of the model); estimate: unused (a spline's
     coefficients carry any scale); start_shape: where a fresh solve starts (None: the rest
-    shape, zero coefficients; else `fitted_start` on the plan's first grid)."""
+    shape, zero coefficients; else `fitted_start` on the plan's first grid); dtype: the
+    fields' (None: the runtime's; a start shape's fit makes its own)."""
 
     field_type: ClassVar[FieldType] = SPLINE
     name: ClassVar[str] = SPLINE.name
 
     def __init__(self, spec: SplinePlan, model: ShellModel, *,
                  objective: Objective | None = None, estimate: str | None = None,
-                 start_shape: StartShape | None = None):
+                 start_shape: StartShape | None = None, dtype: torch.dtype | None = None):
         self.spec = spec
         self.model = model
         self.objective = objective
         self.start_shape = start_shape
+        self.dtype = dtype
         self.state: State | None = None
         self.run: SplineRun | None = None
 
@@ -74,7 +76,8 @@ class SplineDiscretisation:
         if levels < 1:
             raise ValueError(f"--refine must be >= 1, got {levels}")
         return SplineDiscretisation(dataclasses.replace(self.spec, levels=levels), self.model,
-                                    objective=self.objective, start_shape=self.start_shape)
+                                    objective=self.objective, start_shape=self.start_shape,
+                                    dtype=self.dtype)
 
     def with_displacement_unit(self, factor: float) -> SplineDiscretisation:
         return self
@@ -102,6 +105,8 @@ class SplineDiscretisation:
         elif self.start_shape is not None:
             self.state = State.newton(fitted_start(self.model, self.spec.config,
                                                    self.start_shape))
+        else:  # as `solve_spline` starts without a state, in this discretisation's dtype
+            self.state = State.newton(SplineField(self.spec.config, dtype=self.dtype))
 
     def solve(self, config: SolverConfig, *, callbacks: Sequence[Any] = (),
               on_load_step: OnLoadStep | None = None,
@@ -192,7 +197,7 @@ class SplineDiscretisation:
             return self.run.field
         if self.state is not None:
             return self.state.field
-        return SplineField(self.spec.config)
+        return SplineField(self.spec.config, dtype=self.dtype)
 
     def evaluation_points(self) -> SurfaceSamples:
         field = self.field

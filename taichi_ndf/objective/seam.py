@@ -233,6 +233,11 @@ def with_seam_points(samples: SurfaceSamples, terms: Iterable) -> SurfaceSamples
     return samples
 
 
+def seam_points(terms: Iterable) -> int:
+    """How many points `with_seam_points` appends after the samples for `terms`."""
+    return sum(len(term.points()) for term in terms if isinstance(term, SeamTerm))
+
+
 def _like(points: SurfaceSamples, samples: SurfaceSamples) -> SurfaceSamples:
     """`points` in the dtype and on the device of `samples`."""
     to = dict(dtype=samples.xi.dtype, device=samples.xi.device)
