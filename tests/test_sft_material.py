@@ -54,12 +54,14 @@ def test_defaults_are_the_measured_settings():
     set_ = material_config(parser.parse_args(base + [
         "--material-degree", "3", "--material-spans", "5", "6", "--membrane-stiffness", "250",
         "--sheet-size", "0.3", "0.2", "--material-observed", "ray", "--sheet-size-from",
-        "template", "--material-frame-weights", "equal", "--material-corners", "held"]))
+        "template", "--material-frame-weights", "equal", "--material-corners", "held",
+        "--material-quasi-static", "0.05"]))
     assert (set_.degree, set_.spans, set_.membrane_stiffness, set_.sheet_size) == \
         (3, (5, 6), 250.0, (0.3, 0.2))
     assert (set_.observed, set_.sheet_size_from) == ("ray", "template")
     assert (config.frame_weights, set_.frame_weights) == ("misfit", "equal")
     assert (config.corners, set_.corners) == ("fitted", "held")
+    assert (config.quasi_static_limit, set_.quasi_static_limit) == (None, 0.05)
     grid = grid_mesh(((0.0, 0.3), (0.0, 0.2)), (6, 4))
     sheet = SheetGrid.from_template(np.column_stack([grid.xi, np.zeros(len(grid.xi))]),
                                     grid.faces, (0, 6)).with_size((0.6, 0.1))
@@ -159,6 +161,8 @@ def test_flat_size_from_a_hanging_template():
      "sheet_size must be positive"),
     (["--estimate-material", "--held-corners", "0", "4", "--membrane-stiffness", "nan"],
      "must be finite"),
+    (["--estimate-material", "--held-corners", "0", "4", "--material-quasi-static", "-0.1"],
+     "quasi_static_limit must be positive"),
 ])
 def test_cli_rejects_bad_material_options(tmp_path, capsys, extra, message):
     """Each bad option: exit 2 and one line naming it, before tracking (no output folder)."""

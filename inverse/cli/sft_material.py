@@ -76,6 +76,10 @@ def add_material_options(p: argparse.ArgumentParser) -> None:
                    "the fit beside the material, 3 coordinates each: a reconstruction's corner "
                    "error is not imposed) or held where the reconstruction puts them (default: "
                    f"{DEFAULTS.corners})")
+    g.add_argument("--material-quasi-static", type=finite_float, metavar="G",
+                   help="use only frames whose sheet accelerates by at most G times g "
+                   "(second differences of the reconstruction at --fps; frame 0 always "
+                   "kept; default: every frame taken as an equilibrium)")
     g.add_argument("--sheet-size-from", choices=SHEET_SIZE_FROM,
                    help="without --sheet-size: the flat size from the template's grid-line "
                    "lengths as they are (template) or unstretched by the fitted equilibrium of "
@@ -111,7 +115,7 @@ _FIELD = {"areal_density": "areal_density", "gravity": "gravity",
           "material_degree": "degree", "membrane_stiffness": "membrane_stiffness",
           "sheet_size": "sheet_size", "material_observed": "observed",
           "sheet_size_from": "sheet_size_from", "material_frame_weights": "frame_weights",
-          "material_corners": "corners"}
+          "material_corners": "corners", "material_quasi_static": "quasi_static_limit"}
 
 
 def _value(args: argparse.Namespace, name: str):

@@ -52,7 +52,9 @@ SfT sequence, the given shape) typically counts most. Measured in benchmarks/RES
 
 Quasi-static check: the held corners' accelerations (second differences of the reconstructed
 corner positions at the frame rate) over g; a frame whose corners accelerate by more than
-`QUASI_STATIC_LIMIT` g is not an equilibrium, and the report says how many there are.
+`QUASI_STATIC_LIMIT` g is not an equilibrium, and the report says how many there are. The
+used frames: `frames` evenly spread, among those whose whole sheet accelerates by at most
+`quasi_static_limit` g when that is stated (`material_frames`; the report's "frame_choice").
 """
 
 from __future__ import annotations
@@ -72,35 +74,17 @@ from inverse.material.report import estimate_document
 from inverse.material.spline_equilibrium import SplineModelConfig
 from inverse.material.unknowns import parse_unknowns
 from inverse.sft.hanging import SheetGrid, hanging_across, hanging_model
+from inverse.sft.material_frames import QUASI_STATIC_LIMIT, corner_accelerations, used_frames
 from inverse.sft.material_grid import GridChoice
 from inverse.sft.settings import FABRIC_BENDING_LENGTH, MaterialFromVideoConfig
 
 log = logging.getLogger(__name__)
 
-QUASI_STATIC_LIMIT = 0.05  # corner acceleration / g above which a frame is not quasi-static
 # The flat size from a frame-0 template (`unstretched_grid`): most passes, stop below this change
 SIZE_PASSES, SIZE_TOLERANCE = 3, 2e-5
 PLANAR_TOLERANCE = 1e-4  # a template within this fraction of its diagonal of a plane is flat
 MISFIT_FLOOR = 1e-6  # [m] smallest per-frame misfit a frame weight is computed from
 HELD_HANDLES = (0, 1)  # the held corners' handles among a frame model's constraints
-
-def chosen_frames(count: int, used: int) -> list[int]:
-    """`used` frame indices evenly spread over `count` frames (all when used is 0 or more)."""
-    if used == 0 or used >= count:
-        return list(range(count))
-    return sorted({int(round(i)) for i in np.linspace(0, count - 1, used)})
-
-
-def corner_accelerations(vertices: list[np.ndarray], held: tuple[int, int],
-                         fps: float) -> np.ndarray:
-    """Largest acceleration [m/s²] of the two held corners per interior frame (second
-    differences at the frame rate); (F − 2,)."""
-    corners = np.stack([np.asarray(v)[list(held)] for v in vertices])  # (F, 2, 3)
-    if len(corners) < 3:
-        return np.zeros(0)
-    second = corners[2:] - 2 * corners[1:-1] + corners[:-2]
-    return np.linalg.norm(second, axis=2).max(axis=1) * fps ** 2
-
 
 def frame_observations(vertices: list[np.ndarray], grid: SheetGrid,
                        config: MaterialFromVideoConfig, frames: list[int],
@@ -157,7 +141,9 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     grid = SheetGrid.from_template(template, faces, held)
     if config.sheet_size is not None:
         grid = grid.with_size(config.sheet_size)
-    frames = chosen_frames(len(vertices), config.frames)
+    g = float(np.linalg.norm(config.gravity))
+    frames, frame_choice = used_frames(vertices, config.frames, config.fps, g,
+                                       config.quasi_static_limit)
     given = template[list(grid.held)]  # held where a frame's corners are the template's
     observations = frame_observations(vertices, grid, config, frames, given_corners=given)
     spec = "bending,stretch" if config.estimate_membrane else "bending"
@@ -168,7 +154,6 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     size_from = "stated" if config.sheet_size is not None else config.sheet_size_from
     if size_from == "equilibrium" and planar(template):
         size_from = "template"  # a flat template is the flat sheet: nothing to unstretch
-    g = float(np.linalg.norm(config.gravity))
     choice = GridChoice(config, g)
     spans = choice.first(grid.size)
     passes, coarse_rms, weights = [], None, None
@@ -214,6 +199,7 @@ def estimate_material(vertices: list[np.ndarray], faces: np.ndarray, held: tuple
     out["sheet_size_from"] = size_from
     out["sheet_size_passes"] = passes
     out["grid_choice"] = choice.steps
+    out["frame_choice"] = frame_choice
     out["frame_weights"] = {"kind": config.frame_weights, "weights": unit.tolist(),
                             "coarse_per_frame_rms_m": None if coarse_rms is None
                             else coarse_rms.tolist()}

@@ -195,7 +195,10 @@ class MaterialFromVideoConfig:
     with their implicit-function Jacobian, `inverse.material.handles`: a reconstruction's
     corner error is no longer imposed on the frame's equilibrium, and B's standard error
     includes them) or "held" (each frame's equilibrium held exactly where the reconstruction
-    puts its corners)."""
+    puts its corners); quasi_static_limit: use only frames whose whole sheet accelerates by
+    at most this fraction of g (second differences of the reconstruction at `fps`; frame 0
+    always kept; `material_frames`), or None (default) to take every frame as an
+    equilibrium."""
 
     areal_density: float = FABRIC_AREAL_DENSITY[1]
     gravity: tuple[float, float, float] = (0.0, STANDARD_GRAVITY, 0.0)
@@ -213,12 +216,14 @@ class MaterialFromVideoConfig:
     sheet_size_from: str = "equilibrium"
     frame_weights: str = "misfit"
     corners: str = "fitted"
+    quasi_static_limit: float | None = None
 
     def __post_init__(self):
         for name in ("areal_density", "start_bending_length", "fps"):
             _positive(name, getattr(self, name))
-        if self.membrane_stiffness is not None:
-            _positive("membrane_stiffness", self.membrane_stiffness)
+        for name in ("membrane_stiffness", "quasi_static_limit"):
+            if getattr(self, name) is not None:
+                _positive(name, getattr(self, name))
         if self.sheet_size is not None:
             if len(self.sheet_size) != 2:
                 raise ValueError(f"sheet_size must be (W, H) [m], got {self.sheet_size!r}")
