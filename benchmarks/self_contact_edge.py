@@ -48,7 +48,8 @@ from taichi_ndf.solve.spline_solver import solve_spline  # noqa: E402
 SCENE = ROOT / "scenes" / "napkin_fold.toml"
 LENGTH = 0.3  # [m]
 SMALL = {"geometry.bounds": [[0.0, LENGTH], [0.0, 0.15]], "field.spans": [16, 8],
-         "start.at": 0.5 * LENGTH, "output.resolution": [121, 61]}
+         "start.at": 0.5 * LENGTH, "output.resolution": [121, 61],
+         "probes[0].xi": [LENGTH, 0.075], "probes[1].xi": [0.5 * LENGTH, 0.075]}
 
 
 def run(name: str, *, edges: bool, table: bool) -> dict:
