@@ -105,3 +105,27 @@ def test_the_swinging_pendulum_copy_has_self_contact_and_no_obstacle():
     contact = _parse(document).model.contact
     assert contact.self_contact is not None and contact.self_contact.activation == 0.005
     assert contact.obstacles == ()
+
+
+def test_ndf_sim_runs_the_pendulum_with_self_contact_alone(tmp_path):
+    """Two time steps of scenes/cloth_pendulum_self.toml (no obstacle) under `ndf-sim`: it
+    finishes, and result.json (strict JSON: no inf from the check grid's gap with no obstacle
+    to measure) has no obstacle distances."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    process = subprocess.run(
+        [sys.executable, "-m", "taichi_ndf.cli.sim", str(ROOT / "scenes" /
+                                                          "cloth_pendulum_self.toml"),
+         "--out", str(tmp_path / "out"), "--no-pictures", "--set", "dynamics.duration=0.02",
+         "--set", "output.resolution=[8, 8]"],
+        capture_output=True, text=True, env=env, timeout=600)
+    assert process.returncode == 0, process.stderr[-2000:]
+    result = json.loads((tmp_path / "out" / "result.json").read_text(),
+                        parse_constant=lambda name: pytest.fail(f"result.json has {name}"))
+    assert result["contact"]["min_signed_distance"] is None
+    assert result["contact"]["min_signed_distance_per_obstacle"] == {}
+    assert result["dynamics"]["steps"] == 2
