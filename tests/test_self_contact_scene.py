@@ -85,6 +85,15 @@ def test_bad_settings_are_refused_naming_the_key(change, message):
     assert "\n" not in str(error.value)
 
 
+def test_a_garment_file_with_self_contact_is_refused_in_one_line():
+    document = tomllib.loads((ROOT / "scenes" / "skirt_body.toml").read_text())
+    document["self_contact"] = {"distance": 0.004}
+    with pytest.raises(SceneError) as error:
+        _parse(document)
+    assert str(error.value).startswith("self_contact: not supported in a garment file")
+    assert "\n" not in str(error.value)
+
+
 def test_ndf_sim_refuses_a_bad_table_with_exit_code_2_and_one_line(tmp_path):
     text = SCENE.read_text().replace("distance = 0.004", "distance = 0.004\noffset = 0.001")
     scene = tmp_path / "bad.toml"
