@@ -260,6 +260,42 @@ def test_the_contact_hook_refuses_a_crossing_step_only_with_self_contact():
         assert feasible(x, x + 1e-4)
 
 
+def test_self_contact_alone_refuses_a_crossing_step_and_has_no_obstacle_energy():
+    """`ContactConfig.self_only` (no obstacle): the hook still refuses the upper layer moved
+    through the lower one and allows a small step; the obstacle barrier is zero, every point's
+    obstacle gap +inf, and result.json's obstacle distances are None."""
+    from dataclasses import replace
+
+    from taichi_ndf.boundary import BoundaryConditions
+    from taichi_ndf.contact import ContactConfig, ContactHook
+    from taichi_ndf.contact.config import contact_summary
+    from taichi_ndf.problem.loads import Loads
+    from taichi_ndf.problem.model import ShellModel
+    from taichi_ndf.shell.materials import preset
+
+    surface = Plane(bounds=((0.0, 0.05), (0.0, 0.05)))
+    model = ShellModel(surface, preset("cotton_polyester"), Loads(),
+                       BoundaryConditions([], domain=surface.domain))
+    config = SelfContactConfig(activation=0.004, offset=0.003, stiffness=1.0)
+    contact = ContactConfig.self_only(model, config)
+    with pytest.raises(ValueError, match="at least one obstacle"):
+        replace(contact, self_contact=None)
+    hook = ContactHook.of_model(replace(model, contact=contact), DT, both_ends=False)
+    rest, x = _two_layers(0.006)
+    crossed = x.clone()
+    crossed[25:, 2] -= 0.012
+    grid = hook.points.grid_r
+    assert len(grid) == 4
+    feasible = hook.feasible(lambda p: torch.cat((p, grid)), 1.0, self_rest=rest)
+    assert not feasible(x, crossed)
+    assert feasible(x, x + 1e-4)
+    assert torch.isinf(hook.points.point_gaps(x, 1.0)).all()
+    samples, u = _folded_samples()
+    assert contact.term().evaluate(samples, u)[0] == 0.0
+    summary = contact_summary(contact, x)
+    assert summary["min_signed_distance"] is None and summary["min_gap"] is None
+
+
 def test_the_contact_potential_passes_the_pair_blocks_on():
     """`ContactPotential` (the spline contact rounds' potential) gives the self-contact term's
     pair blocks to Newton (`coupled_blocks`) and skips it among the per-point blocks."""
@@ -280,3 +316,65 @@ def test_the_contact_potential_passes_the_pair_blocks_on():
     assert value.total == pytest.approx(
         term.evaluate(samples, u)[0] + Objective(ShellEnergyTerm(
             preset("cotton_polyester"), Loads())).evaluate(samples, u).total)
+
+
+def test_edge_points_lie_on_the_free_edges_and_share_the_area():
+    """The outermost Gauss rows projected onto the free edges (and corners): 3 × 2 spans of
+    4² points have 2 (8 + 12) edge points plus 4 corners; a periodic direction none; the
+    Gauss points and edge points together keep the area."""
+    from taichi_ndf.contact.self_pairs import edge_points
+    from taichi_ndf.field import SplineConfig
+    from taichi_ndf.problem.quadrature import span_points
+
+    config = SplineConfig((3, 2), domain=((0.0, 0.3), (0.0, 0.15)))
+    xi, weight = span_points(config)
+    edges = edge_points(xi, weight, config.domain, (False, False))
+    assert len(edges.xi) == 2 * (8 + 12) + 4
+    on_edge = ((edges.xi[:, 0] == 0.0) | (edges.xi[:, 0] == 0.3)
+               | (edges.xi[:, 1] == 0.0) | (edges.xi[:, 1] == 0.15))
+    assert bool(on_edge.all())
+    total = float((weight / edges.shares(xi)).sum() + edges.weight.sum())
+    assert total == pytest.approx(0.3 * 0.15, rel=1e-12)
+    tube = edge_points(xi, weight, config.domain, (True, False))
+    assert len(tube.xi) == 2 * 12 and bool(((tube.xi[:, 1] == 0.0)
+                                           | (tube.xi[:, 1] == 0.15)).all())
+
+
+def test_edge_points_carry_the_barrier_at_a_free_edge():
+    """A layer's free edge over another layer, closer than the barrier's reach only at its
+    edge: the Gauss points alone feel nothing; with the edge points (samples of weight 0 at
+    their ξ) the energy is positive and its gradient pushes the edge up."""
+    from taichi_ndf.contact.self_pairs import edge_points
+    from taichi_ndf.field import SplineConfig
+    from taichi_ndf.problem.quadrature import span_points
+
+    config = SplineConfig((4, 2), domain=((0.0, 0.2), (0.0, 0.05)))
+    xi, weight = span_points(config)
+    edges = edge_points(xi, weight, config.domain, (False, False))
+    surface = Plane(bounds=config.domain)
+    all_xi = torch.cat((xi, edges.xi))
+    w = torch.cat((weight, torch.zeros(len(edges.xi), dtype=DT)))
+    samples = SurfaceSamples(all_xi, surface.jets(all_xi).to(DT), w,
+                             torch.zeros(len(all_xi), 3, dtype=DT))
+    # the half ξ¹ > 0.1 folded over the other: x¹ = 0.25 − ξ¹, tilted so that its free edge
+    # ξ¹ = 0.2 sits 3 mm over the lower layer's ξ¹ = 0.05 (4.6 mm from its nearest Gauss
+    # points, 3.5 mm of ξ¹ away), rising 1 m per metre of ξ¹ away from it (its outer Gauss
+    # row, 3.5 mm of ξ¹ in, 6.5 mm up: beyond o + ĝ = 5.5 mm of every lower point)
+    r = samples.r_jets[:, jets.VALUE]
+    x = r.clone()
+    upper = all_xi[:, 0] > 0.1
+    x[upper, 0] = 0.25 - all_xi[upper, 0]
+    x[upper, 2] = 0.003 + (0.2 - all_xi[upper, 0])
+    u = torch.zeros(len(all_xi), jets.CHANNELS, 3, dtype=DT)
+    u[:, jets.VALUE] = x - r
+    config_s = SelfContactConfig(activation=0.002, offset=0.0035, stiffness=1e9,
+                                 exclusion=0.03)
+    alone = SelfContactTerm(config_s).evaluate(samples, u)[0]
+    term = SelfContactTerm(config_s, edges)
+    value, gradient = term.evaluate(samples, u)
+    assert alone == 0.0 and value > 0
+    rows, area = term.points(samples)
+    assert len(rows) == len(xi) + len(edges.xi)
+    assert float(area.sum()) == pytest.approx(0.2 * 0.05, rel=1e-12)
+    edge_rows = torch.nonzero(all_xi[:, 0] == 0.2).reshape(-1)
+    assert float(gradient[edge_rows, jets.VALUE, 2].sum()) < 0  # Π falls as the edge rises

@@ -50,8 +50,25 @@ def test_the_scene_reads_its_settings_with_the_stated_defaults():
     assert _parse(without).model.contact.self_contact is None
 
 
+def test_self_contact_stands_alone_without_obstacles():
+    """Without [[obstacles]] the scene's contact is self-contact alone (`ContactConfig.
+    self_only`): no obstacle, the obstacle barrier at stiffness 0, the 2² check grid, and the
+    same self-contact settings as with the table."""
+    document = _document()
+    document.pop("obstacles")
+    contact = _parse(document).model.contact
+    with_table = _parse(_document()).model.contact
+    assert contact.obstacles == () and contact.stiffness == 0.0
+    assert contact.check_resolution == 2
+    assert contact.self_contact == with_table.self_contact
+    assert contact.activation == with_table.self_contact.activation
+    plain = _document()
+    plain.pop("obstacles")
+    plain.pop("self_contact")
+    assert _parse(plain).model.contact is None
+
+
 @pytest.mark.parametrize("change, message", [
-    (lambda d: d.pop("obstacles"), "self_contact: needs [[obstacles]]"),
     (lambda d: d.update(field={"width": 16}), "self_contact: needs a spline field"),
     (lambda d: d["self_contact"].update(offset=0.001), "self_contact.offset: 0.001 m is below"),
     (lambda d: d["self_contact"].update(exclusion=0.005), "self_contact: self-contact exclusion"),
@@ -68,6 +85,15 @@ def test_bad_settings_are_refused_naming_the_key(change, message):
     assert "\n" not in str(error.value)
 
 
+def test_a_garment_file_with_self_contact_is_refused_in_one_line():
+    document = tomllib.loads((ROOT / "scenes" / "skirt_body.toml").read_text())
+    document["self_contact"] = {"distance": 0.004}
+    with pytest.raises(SceneError) as error:
+        _parse(document)
+    assert str(error.value).startswith("self_contact: not supported in a garment file")
+    assert "\n" not in str(error.value)
+
+
 def test_ndf_sim_refuses_a_bad_table_with_exit_code_2_and_one_line(tmp_path):
     text = SCENE.read_text().replace("distance = 0.004", "distance = 0.004\noffset = 0.001")
     scene = tmp_path / "bad.toml"
@@ -75,21 +101,40 @@ def test_ndf_sim_refuses_a_bad_table_with_exit_code_2_and_one_line(tmp_path):
     assert "self_contact.offset" in sim_refusal(scene, tmp_path / "out")
 
 
-def test_the_swinging_pendulum_copy_has_self_contact_and_a_floor_out_of_reach():
-    """scenes/cloth_pendulum_self.toml: cloth_pendulum with [self_contact] and the floor its
-    contact rounds need, further below the pin than the sheet reaches (its diagonal, stretched
-    by a tenth), so that the floor never acts; the same dynamics as cloth_pendulum. Its run
-    and the triangle test of every output frame: benchmarks/RESULTS.md ("Dynamics: the video's
-    cost, a pendulum that does not pass through itself")."""
+def test_the_swinging_pendulum_copy_has_self_contact_and_no_obstacle():
+    """scenes/cloth_pendulum_self.toml: cloth_pendulum with [self_contact] alone (no floor:
+    self-contact needs no obstacle); the same dynamics as cloth_pendulum. Its runs with and
+    without the former floor, and the triangle test of every output frame:
+    benchmarks/RESULTS.md ("Self-contact without obstacles")."""
     document = tomllib.loads((ROOT / "scenes" / "cloth_pendulum_self.toml").read_text())
     plain = tomllib.loads((ROOT / "scenes" / "cloth_pendulum.toml").read_text())
     assert document["dynamics"] == plain["dynamics"]
     assert document["boundary"] == plain["boundary"]
-    scene = _parse(document)
-    contact = scene.model.contact
+    assert "obstacles" not in document
+    contact = _parse(document).model.contact
     assert contact.self_contact is not None and contact.self_contact.activation == 0.005
-    (floor,) = contact.obstacles
-    diagonal = 0.3 * 2 ** 0.5
-    pin = (-0.15, -0.15, 0.0)
-    gap, _ = contact.term().gaps(torch.tensor([pin], dtype=torch.float64), 1.0)
-    assert float(gap[0, 0]) + contact.offset > 1.1 * diagonal
+    assert contact.obstacles == ()
+
+
+def test_ndf_sim_runs_the_pendulum_with_self_contact_alone(tmp_path):
+    """Two time steps of scenes/cloth_pendulum_self.toml (no obstacle) under `ndf-sim`: it
+    finishes, and result.json (strict JSON: no inf from the check grid's gap with no obstacle
+    to measure) has no obstacle distances."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    process = subprocess.run(
+        [sys.executable, "-m", "taichi_ndf.cli.sim", str(ROOT / "scenes" /
+                                                          "cloth_pendulum_self.toml"),
+         "--out", str(tmp_path / "out"), "--no-pictures", "--set", "dynamics.duration=0.02",
+         "--set", "output.resolution=[8, 8]"],
+        capture_output=True, text=True, env=env, timeout=600)
+    assert process.returncode == 0, process.stderr[-2000:]
+    result = json.loads((tmp_path / "out" / "result.json").read_text(),
+                        parse_constant=lambda name: pytest.fail(f"result.json has {name}"))
+    assert result["contact"]["min_signed_distance"] is None
+    assert result["contact"]["min_signed_distance_per_obstacle"] == {}
+    assert result["dynamics"]["steps"] == 2

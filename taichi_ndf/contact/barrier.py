@@ -60,15 +60,15 @@ class ContactTerm:
     """κ Σ w √a b(g) against a set of obstacles (module docstring); the `Term` protocol of
     `taichi_ndf.objective`.
 
-    obstacles: `taichi_ndf.contact.obstacles` instances; offset: h/2 + margin [m];
-    activation: ĝ [m]; stiffness: κ [N/m³]."""
+    obstacles: `taichi_ndf.contact.obstacles` instances (none: the term is zero, its gaps
+    (N, 0); a sheet with self-contact alone, `ContactConfig.self_only`, stiffness 0);
+    offset: h/2 + margin [m]; activation: ĝ [m]; stiffness: κ [N/m³]."""
 
     def __init__(self, obstacles, *, offset: float, activation: float, stiffness: float):
-        if not obstacles:
-            raise ValueError("a contact term needs at least one obstacle")
         for name, value in (("offset", offset), ("activation", activation),
                             ("stiffness", stiffness)):
-            if not math.isfinite(value) or value < 0 or (name != "offset" and value == 0):
+            zero = name == "offset" or (name == "stiffness" and not obstacles)
+            if not math.isfinite(value) or value < 0 or (not zero and value == 0):
                 raise ValueError(f"contact {name} must be finite and > 0, got {value!r}")
         self.obstacles = tuple(obstacles)
         self.offset = float(offset)
@@ -79,6 +79,8 @@ class ContactTerm:
              ) -> tuple[torch.Tensor, torch.Tensor]:
         """Gaps g (N, K) [m] of points (N, 3) [m] to the K obstacles and their gradients
         ∂g/∂x (N, K, 3)."""
+        if not self.obstacles:
+            return points.new_zeros(len(points), 0), points.new_zeros(len(points), 0, 3)
         gaps, normals = [], []
         for obstacle in self.obstacles:
             d, n = obstacle.signed_distance(points, load_factor)

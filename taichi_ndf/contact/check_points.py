@@ -131,8 +131,11 @@ class ContactPoints:
         return keep
 
     def point_gaps(self, x: torch.Tensor, load_factor: float) -> torch.Tensor:
-        """Each point's smallest gap over the obstacles (N,) [m]."""
-        return self.term.gaps(x, load_factor)[0].min(dim=1).values
+        """Each point's smallest gap over the obstacles (N,) [m] (+inf: no obstacle)."""
+        gaps = self.term.gaps(x, load_factor)[0]
+        if not gaps.shape[1]:
+            return gaps.new_full((len(x),), torch.inf)
+        return gaps.min(dim=1).values
 
     def step_allowed(self, start: torch.Tensor, start_gap: torch.Tensor, end: torch.Tensor,
                      load_factor: float, *, both_ends: bool = False,

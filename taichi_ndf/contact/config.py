@@ -14,7 +14,11 @@ Rules (docs/contact.md):
 - friction: the Coulomb coefficient μ ≥ 0 of each obstacle (0: frictionless); its smoothing
   distance ε = FRICTION_SMOOTHING × ĝ (`taichi_ndf.contact.friction`).
 - self-contact (optional): the barrier between points of the sheet itself, its own settings
-  (`taichi_ndf.objective.self_contact.SelfContactConfig`), solved with the obstacles' rounds.
+  (`taichi_ndf.contact.self_pairs.SelfContactConfig`: its own ĝ, offset and κ rule), solved
+  in the same contact rounds. It needs no obstacle: `ContactConfig.self_only` is the contact
+  of a sheet with self-contact alone (no obstacle, so the obstacle barrier acts nowhere: its
+  stiffness is 0, its activation distance the self-contact's ĝ, its check grid the smallest,
+  2², since no grid point can come near an obstacle).
 """
 
 from __future__ import annotations
@@ -51,16 +55,18 @@ class ContactConfig:
     self_contact: object = None
 
     def __post_init__(self):
-        if not self.obstacles:
-            raise ValueError("contact needs at least one obstacle")
+        if not self.obstacles and self.self_contact is None:
+            raise ValueError("contact needs at least one obstacle (or self-contact)")
         names = [o.name for o in self.obstacles]
         if len(set(names)) != len(names):
             raise ValueError(f"obstacle names must be unique, got {names}")
         for name in ("thickness", "activation", "stiffness", "margin"):
             value = getattr(self, name)
-            if not math.isfinite(value) or value < 0 or (name != "margin" and value == 0):
+            # without obstacles the obstacle barrier's stiffness is 0 (`self_only`)
+            zero = name == "margin" or (name == "stiffness" and not self.obstacles)
+            if not math.isfinite(value) or value < 0 or (not zero and value == 0):
                 raise ValueError(f"contact {name} must be finite and "
-                                 f"{'>= 0' if name == 'margin' else '> 0'}, got {value!r}")
+                                 f"{'>= 0' if zero else '> 0'}, got {value!r}")
         friction = tuple(float(m) for m in self.friction) or (0.0,) * len(self.obstacles)
         if len(friction) != len(self.obstacles):
             raise ValueError(f"contact friction: one coefficient per obstacle "
@@ -105,6 +111,14 @@ class ContactConfig:
                                  "give it (contact stiffness [N/m³])")
         return cls(tuple(obstacles), float(model.material.thickness), float(activation),
                    float(stiffness), float(margin), int(check_resolution), tuple(friction))
+
+    @classmethod
+    def self_only(cls, model, self_contact) -> ContactConfig:
+        """The contact of `model` (a `ShellModel`) with self-contact (a `SelfContactConfig`)
+        and no obstacle (module docstring): obstacle stiffness 0, activation distance the
+        self-contact's ĝ, the 2² check grid."""
+        return cls((), float(model.material.thickness), float(self_contact.activation), 0.0,
+                   0.0, 2, (), self_contact)
 
     def check(self, model) -> None:
         """ValueError naming the obstacle when it intersects the reference surface or a
@@ -163,8 +177,9 @@ def contact_summary(config: ContactConfig, points, load_factor: float = 1.0) -> 
     gaps, _ = config.term().gaps(x, load_factor)
     per = {o.name: float(gaps[:, k].min()) + config.margin
            for k, o in enumerate(config.obstacles)}
-    return {"min_signed_distance": min(per.values()),
-            "min_gap": min(per.values()) - config.margin,
+    nearest = min(per.values()) if per else None  # None: no obstacle (`self_only`)
+    return {"min_signed_distance": nearest,
+            "min_gap": None if nearest is None else nearest - config.margin,
             "min_signed_distance_per_obstacle": per, "offset": config.offset,
             "activation_distance": config.activation, "stiffness": config.stiffness}
 

@@ -14,10 +14,11 @@ in rounds:
    could enter an obstacle (the hook's `feasible`, `ContactPoints.step_allowed`: each point
    outside moves by less than its gap, so, the signed distance being 1-Lipschitz, it cannot
    enter or tunnel);
-   with self-contact (`ContactConfig.self_contact`) its barrier between the Gauss points
-   (`taichi_ndf.objective.self_contact`, pairs found afresh at each evaluation, its pair
-   blocks in K) is one more term, and the trial must also keep every Gauss-point pair's gap
-   (`taichi_ndf.contact.self_step`);
+   with self-contact (`ContactConfig.self_contact`) its barrier between the Gauss points and
+   the chart's edge points (`taichi_ndf.objective.self_contact`, pairs found afresh at each
+   evaluation, its pair blocks in K; the edge points join the round's samples with weight 0,
+   `NewtonContact.edge_samples`) is one more term, and the trial must also keep every such
+   pair's gap (`taichi_ndf.contact.self_step`);
 4. after each accepted Newton iterate the grid is evaluated again (and κ raised if a point
    came closer than ĝ/10; the hook's `look_ahead`); when points came within ĝ (or within
    ĝ + LOOK_AHEAD × their last move: they could by the next steps), Newton stops there,
@@ -48,6 +49,7 @@ from taichi_ndf import jets
 from taichi_ndf.contact.config import FRICTION_SMOOTHING, ContactConfig
 from taichi_ndf.contact.friction import FrictionTerm
 from taichi_ndf.contact.hook import ContactHook
+from taichi_ndf.contact.self_pairs import edge_points
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.linearisation import PointJacobian
 from taichi_ndf.minimise.minimisers import Hooks, MinimiseResult, NewtonMinimiser
@@ -154,6 +156,11 @@ class NewtonContact:
         self.rounds = 0  # Newton rounds over all load steps and levels
         self.self_contact = None if config.self_contact is None else \
             SelfContactTerm(config.self_contact)
+        # the chart whose free edges carry self-contact points: one grid's unmasked rectangle
+        domain = model.surface.domain
+        self._edge_surface = model.surface if (
+            self.self_contact is not None and config.self_contact.edges and surface is None
+            and domain.inside is None) else None
         self._round = None  # the load step's round in progress (`to_dict`)
 
     def to_dict(self) -> dict:
@@ -194,6 +201,21 @@ class NewtonContact:
     def minimiser(self, config=None, **settings) -> ContactMinimiser:
         """A load step's `ContactMinimiser` on this contact (settings: its keywords)."""
         return ContactMinimiser(self, config, **settings)
+
+    def edge_samples(self, quadrature: SurfaceSamples) -> SurfaceSamples | None:
+        """The self-contact edge points of the grid whose Gauss points are `quadrature`, as
+        samples of weight 0 (`taichi_ndf.contact.self_pairs.edge_points`), set on the
+        self-contact term; None (and none set) without self-contact edges."""
+        if self._edge_surface is None:
+            return None
+        area = quadrature.weight > 0
+        domain = self._edge_surface.domain
+        edges = edge_points(quadrature.xi[area], quadrature.weight[area], domain.bounds,
+                            domain.periodic)
+        self.self_contact.edges = edges
+        zero = edges.weight.new_zeros(len(edges.xi))
+        return SurfaceSamples(edges.xi, self._edge_surface.jets(edges.xi).to(zero), zero,
+                              edges.weight.new_zeros(len(edges.xi), 3), zero)
 
     @property
     def terms(self) -> tuple:
@@ -241,14 +263,19 @@ class ContactMinimiser:
         dtype = parameters.dtype
         grid_xi = points.grid_xi.to(dtype)
         area = quadrature.weight > 0
-        checked_xi = torch.cat((quadrature.xi[area], grid_xi))
-        checked_r = torch.cat((quadrature.r_jets[area, jets.VALUE], points.grid_r.to(dtype)))
+        edges = contact.edge_samples(quadrature)  # self-contact's edge points, or None
+        selfs = [quadrature.xi[area]] + ([] if edges is None else [edges.xi])
+        checked_xi = torch.cat(selfs + [grid_xi])
+        checked_r = torch.cat([quadrature.r_jets[area, jets.VALUE]] + (
+            [] if edges is None else [edges.r_jets[:, jets.VALUE]]) + [points.grid_r.to(dtype)])
+        if edges is not None:  # in every round's samples, after the Gauss points
+            quadrature = quadrature.joined(edges)
         checked = PointMap(grid, checked_xi, t)
-        on_grid = slice(int(area.sum()), None)
+        on_grid = slice(sum(len(x) for x in selfs), None)
         start = parameters
         # after each Newton iterate: the grid's points within ĝ (+ the look-ahead) added
         refresh = contact.hook.look_ahead(lambda c: checked(c)[on_grid], t)
-        # the Gauss points come first among the checked points: they are self-contact's
+        # the Gauss (and edge) points come first among the checked points: self-contact's
         feasible = contact.hook.feasible(lambda c: checked_r + checked(c), t,
                                          self_rest=checked_r[:on_grid.start])
 

@@ -1,7 +1,9 @@
 """Self-contact: the IPC log-barrier between points of the cloth itself (issue 30).
 
 Points: the samples with positive shell weight (a spline's Gauss points), each with its area
-A = w √a [m²]. A pair (a, b) is a candidate when the two points are far apart on the surface
+A = w √a [m²], and the chart's edge points (`taichi_ndf.contact.self_pairs.edge_points`:
+the outermost Gauss points projected onto the free edges, sharing those points' areas; samples
+of shell, barrier and point-load weight 0 at the edge points' ξ, which the contact rounds add). A pair (a, b) is a candidate when the two points are far apart on the surface
 — their rest distance |r_a − r_b| is at least the exclusion radius ρ [m], so that neighbours
 do not repel — and close in space: gap g = |x_a − x_b| − o < ĝ (x = r + u, o the offset [m],
 ĝ the activation distance [m]). The energy is the double area integral of the obstacle
@@ -35,31 +37,57 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.contact.barrier import area_element, barrier
-from taichi_ndf.contact.self_pairs import SelfContactConfig, candidate_pairs
+from taichi_ndf.contact.self_pairs import EdgePoints, SelfContactConfig, candidate_pairs
 from taichi_ndf.objective.couplings import PAIR_SIZE, Couplings
 from taichi_ndf.problem.sampling import SurfaceSamples
 
 
 class SelfContactTerm:
     """κ Σ A_a A_b b(g_ab) over the candidate pairs of the samples with shell weight (module
-    docstring); the `Term` protocol of `taichi_ndf.objective`, with `coupled_hessian`."""
+    docstring); the `Term` protocol of `taichi_ndf.objective`, with `coupled_hessian`.
 
-    def __init__(self, config: SelfContactConfig):
+    edges: the `EdgePoints` of the grid in use (set by the contact rounds per load step), None:
+    the Gauss points alone."""
+
+    def __init__(self, config: SelfContactConfig, edges: EdgePoints | None = None):
         self.config = config
+        self.edges = edges
+
+    def points(self, samples: SurfaceSamples) -> tuple[torch.Tensor, torch.Tensor]:
+        """The self-contact points as rows of the samples (M,) int64 and their areas (M,)
+        [m²]: the Gauss points (shell weight > 0), then the edge points found among the
+        samples of zero weight (module docstring)."""
+        element = area_element(samples)
+        gauss = torch.nonzero(samples.weight > 0).reshape(-1)
+        area = samples.weight[gauss] * element[gauss]
+        if self.edges is None:
+            return gauss, area
+        free = (samples.weight == 0) & (samples.point_force == 0).all(dim=1)
+        if samples.barrier_weight is not None:
+            free = free & (samples.barrier_weight == 0)
+        candidates = torch.nonzero(free).reshape(-1)
+        edge_xi = self.edges.xi.to(samples.xi)
+        hit, which = (samples.xi[candidates][:, None, :] == edge_xi[None]).all(dim=2).nonzero(
+            as_tuple=True)
+        rows = candidates[hit]
+        edge_area = self.edges.weight.to(area)[which] * element[rows]
+        return torch.cat((gauss, rows)), torch.cat((
+            area / self.edges.shares(samples.xi[gauss]), edge_area))
 
     def pairs(self, samples: SurfaceSamples, u_jets: torch.Tensor
               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Candidate pairs as rows of the samples (P, 2) int64, their separations x_a − x_b
         (P, 3) [m] and the weights κ A_a A_b (P,) [N/m]."""
-        rows = torch.nonzero(samples.weight > 0).reshape(-1)
+        rows, point_area = self.points(samples)
         rest = samples.r_jets[rows, jets.VALUE]
         x = rest + u_jets[rows, jets.VALUE]
         config = self.config
         local = candidate_pairs(x.detach().cpu().numpy(), config.offset + config.activation,
                                 rest.detach().cpu().numpy(), config.exclusion)
-        pairs = rows[torch.from_numpy(local).to(rows.device)]
-        area = (samples.weight * area_element(samples)).to(u_jets.dtype)
-        weight = config.stiffness * area[pairs[:, 0]] * area[pairs[:, 1]]
+        local = torch.from_numpy(local).to(rows.device)
+        pairs = rows[local]
+        area = point_area.to(u_jets.dtype)
+        weight = config.stiffness * area[local[:, 0]] * area[local[:, 1]]
         xv = samples.r_jets[:, jets.VALUE] + u_jets[:, jets.VALUE]
         return pairs, xv[pairs[:, 0]] - xv[pairs[:, 1]], weight
 

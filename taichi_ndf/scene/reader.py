@@ -184,6 +184,9 @@ def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
         raise SceneError("obstacles: friction is not supported on a garment's panels yet")
     if model.contact is not None and obstacle_refusal(plan):
         raise SceneError(obstacle_refusal(plan))
+    if top.has("self_contact"):
+        raise SceneError("self_contact: not supported in a garment file ([[panels]]) yet (one "
+                         "chart only: docs/scenes.md, \"Self-contact\")")
     solver, quick = _section(top.table("training", optional=True), training, True)
     output = _section(top.table("output", optional=True), _output, False)
     top.close()

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import torch
 
+from taichi_ndf.contact.config import ContactConfig
 from taichi_ndf.contact.self_pairs import (
     SelfContactConfig,
     default_stiffness,
@@ -29,9 +30,6 @@ def parse_self_contact(top: Table, model, field):
     if not top.has("self_contact"):
         return model
     t = top.table("self_contact")
-    if model.contact is None:
-        raise SceneError("self_contact: needs [[obstacles]] (it is solved in the contact "
-                         "rounds; a table under the sheet is enough)")
     if not isinstance(field, SplinePlan):
         raise SceneError("self_contact: needs a spline field ([field] type = \"spline\", "
                          "projected Newton)")
@@ -54,6 +52,8 @@ def parse_self_contact(top: Table, model, field):
     t.close()
     config = checked(lambda: SelfContactConfig(activation, offset, stiffness, exclusion),
                      "self_contact")
+    if model.contact is None:  # no [[obstacles]]: the contact rounds with self-contact alone
+        return replace(model, contact=ContactConfig.self_only(model, config))
     return replace(model, contact=replace(model.contact, self_contact=config))
 
 

@@ -121,9 +121,10 @@ class TimeStepper:
         return linear.displacement(torch.zeros_like(self.field.coefficients))
 
     def gap(self, displacement: torch.Tensor, t: float) -> float | None:
-        """The smallest gap [m] of the dense check grid at coefficients C (None: no contact);
-        its points within the activation distance become check points."""
-        if self.contact is None:
+        """The smallest gap [m] of the dense check grid at coefficients C (None: no contact,
+        or no obstacle: self-contact alone); its points within the activation distance become
+        check points."""
+        if self.contact is None or not self.contact.config.obstacles:
             return None
         points = self.contact.points
         u = self._on_grid(displacement)
