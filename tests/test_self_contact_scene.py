@@ -8,7 +8,6 @@ import tomllib
 from pathlib import Path
 
 import pytest
-import torch
 from sim_process import sim_refusal
 
 from taichi_ndf.contact.self_pairs import default_stiffness, hole_radius

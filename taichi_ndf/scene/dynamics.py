@@ -44,11 +44,12 @@ def parse_dynamics(top: Table, field, model) -> DynamicsConfig | None:
         raise SceneError("dynamics: needs a spline field ([field] type = \"spline\"); a SIREN "
                          "is solved quasistatically (its pseudo-time is not physical time)")
     if model.contact is not None and config.stiffness_damping:
-        raise SceneError("dynamics: stiffness_damping with contact ([[obstacles]]) is not "
-                         "supported by the dynamic path yet (use mass_damping)")
+        raise SceneError("dynamics: stiffness_damping with contact ([[obstacles]] or "
+                         "[self_contact]) is not supported by the dynamic path yet (use "
+                         "mass_damping)")
     if model.contact is not None and config.motion is not None:
-        raise SceneError("dynamics.motion: a boundary motion with contact ([[obstacles]]) is "
-                         "not supported by the dynamic path yet")
+        raise SceneError("dynamics.motion: a boundary motion with contact ([[obstacles]] or "
+                         "[self_contact]) is not supported by the dynamic path yet")
     return config
 
 

@@ -72,11 +72,11 @@ class TimeStepper:
     def __init__(self, model: ShellModel, plan: SplinePlan, config: DynamicsConfig, *,
                  newton: NewtonConfig | None = None, objective: Objective | None = None):
         if model.contact is not None and config.stiffness_damping:
-            raise ValueError("dynamics: stiffness damping with contact ([[obstacles]]) is not "
-                             "supported by the dynamic path yet")
+            raise ValueError("dynamics: stiffness damping with contact ([[obstacles]] or "
+                             "[self_contact]) is not supported by the dynamic path yet")
         if model.contact is not None and config.motion is not None:
-            raise ValueError("dynamics: a prescribed boundary motion with contact "
-                             "([[obstacles]]) is not supported by the dynamic path yet")
+            raise ValueError("dynamics: a prescribed boundary motion with contact ([[obstacles]] "
+                             "or [self_contact]) is not supported by the dynamic path yet")
         finest = SplinePlan(plan.finest(), 1, plan.quadrature_points)
         self.discretisation = SplineDiscretisation(finest, model, objective=objective)
         self.model, self.config = model, config
