@@ -85,6 +85,8 @@ class _Marks:
         if (report.stage.startswith("Newton") and "load" in report.stage and report.step >= 1
                 and not any(m["what"] == "newton" for m in self.marks)):
             self.add("newton", report.stage)
+            if os.environ.get("STARTUP_MODULES"):  # which modules a run needed to get here
+                Path(os.environ["STARTUP_MODULES"]).write_text("\n".join(sorted(sys.modules)))
             if self.stop:
                 sys.stdout.flush()
                 _write_cache()  # what a finished run writes at exit; os._exit would skip it
