@@ -10,7 +10,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["new_figure", "figure_image", "VIRIDIS_BGR", "viridis_bgr", "viridis_colormap"]
+__all__ = ["new_figure", "figure_image", "viridis_bgr", "viridis_colormap"]
 
 DPI = 100
 
