@@ -32,6 +32,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+BYTECODE = False  # --pyc: the children write and read __pycache__ (see main)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from provenance import commit  # noqa: E402  (the commit each benchmark states)
@@ -85,6 +86,8 @@ class _Marks:
         if (report.stage.startswith("Newton") and "load" in report.stage and report.step >= 1
                 and not any(m["what"] == "newton" for m in self.marks)):
             self.add("newton", report.stage)
+            if os.environ.get("STARTUP_MODULES"):  # which modules a run needed to get here
+                Path(os.environ["STARTUP_MODULES"]).write_text("\n".join(sorted(sys.modules)))
             if self.stop:
                 sys.stdout.flush()
                 _write_cache()  # what a finished run writes at exit; os._exit would skip it
@@ -137,15 +140,15 @@ def _mark_init(marks: _Marks) -> None:
     runtime.init = marked
 
 
-OUTPUT_WRITERS = ("deformed_mesh", "write_mesh_files", "write_reference_mesh",
-                  "write_probe_points", "write_render", "write_energy_plot",
+OUTPUT_WRITERS = ("write_field_outputs", "deformed_mesh", "write_mesh_files",
+                  "write_reference_mesh", "write_probe_points", "write_render", "write_energy_plot",
                   "write_trajectory_mesh", "write_trajectory_video", "_finish")
 
 
 def _time_outputs(marks: _Marks) -> None:
     """Mark the CPU each output writer of `simulate` takes ("output NAME", the CPU seconds of
     the call as its text), and the checkpoint writes."""
-    from taichi_ndf.app import simulation
+    from taichi_ndf.app import outputs, simulation
     from taichi_ndf.minimise import callbacks
 
     def timed(name, function):
@@ -158,8 +161,10 @@ def _time_outputs(marks: _Marks) -> None:
 
         return run
 
-    for name in OUTPUT_WRITERS:
-        setattr(simulation, name, timed(name, getattr(simulation, name)))
+    for name in OUTPUT_WRITERS:  # where each is looked up when called (writers have moved)
+        for module in (simulation, outputs):
+            if hasattr(module, name):
+                setattr(module, name, timed(name, getattr(module, name)))
     writer = callbacks.CheckpointWriter
     for name in ("on_level", "on_end", "on_iteration"):
         if hasattr(writer, name):
@@ -209,6 +214,9 @@ def run(target: list[str], cache: Path, workdir: Path, *, stop_at_newton: bool,
     marks_path = workdir / f"marks_{time.monotonic_ns()}.json"
     env = dict(os.environ, TAICHI_NDF_CACHE=str(cache), OMP_NUM_THREADS="1",
                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    if BYTECODE:  # a user's Python: modules compiled once, then loaded from __pycache__
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        env.pop("PYTHONPYCACHEPREFIX", None)
     if outputs:
         env["STARTUP_OUTPUTS"] = "1"
     started = time.time()
@@ -284,17 +292,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--args", nargs="*", default=[], metavar="ARG",
                         help="further arguments for every command (e.g. --precision=f32)")
     parser.add_argument("--out", type=Path, help="folder of the runs (default: a temporary one)")
+    parser.add_argument("--pyc", action="store_true",
+                        help="let the children write and load Python bytecode (__pycache__) "
+                        "even where PYTHONDONTWRITEBYTECODE is set, as a user's install does "
+                        "(in this sandbox it is set: every module compiled from source, "
+                        "0.2-0.5 s CPU of a start)")
     args, target = parser.parse_known_args(argv)
     if args.child:
         return child(args.child, args.started, args.stop_at_newton,
                      [t for t in target if t != "--"])
     if args.repeat < 1:
         parser.error("--repeat must be >= 1")
+    global BYTECODE
+    BYTECODE = args.pyc
+    if BYTECODE:  # compile ROOT's modules once, so that no measured run pays for it
+        subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "taichi_ndf")],
+                       env={k: v for k, v in os.environ.items()
+                            if k != "PYTHONDONTWRITEBYTECODE"}, check=False)
     workdir = Path(args.out or tempfile.mkdtemp(prefix="ndf_startup_"))
     workdir.mkdir(parents=True, exist_ok=True)
     wanted = args.commands
+    writes = BYTECODE or not os.environ.get("PYTHONDONTWRITEBYTECODE")
     print(f"commit {commit()}, load average {os.getloadavg()[0]:.2f} at start, "
-          f"{os.cpu_count()} CPUs, {sys.executable}")
+          f"{os.cpu_count()} CPUs, {sys.executable}, Python bytecode "
+          f"{'cached' if writes else 'not written (PYTHONDONTWRITEBYTECODE)'}")
     if wanted is None or "help" in wanted:
         print("\n".join(help_table(workdir, max(args.repeat, 3))))
     costs: dict[str, dict] = {}

@@ -20,6 +20,8 @@ settings raises, because re-initialising Taichi invalidates every field and kern
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.machinery
 import importlib.util
 import linecache
 import logging
@@ -102,9 +104,14 @@ def language(backend: str | None = None) -> ModuleType:
     global _language
     wanted = _check_backend(backend or selected_backend())
     if _language is None:
-        _language = importlib.import_module(_installed(wanted))
-        _lighter_front_end(wanted)
-        _compile_arguments_released(wanted)
+        finder = _PatchOnImport(f"{wanted}.lang.kernel_impl", _lighter_front_end)
+        sys.meta_path.insert(0, finder)
+        try:
+            _language = importlib.import_module(_installed(wanted))
+        finally:
+            sys.meta_path.remove(finder)
+        if f"{wanted}.lang.kernel_impl" in sys.modules:  # imported before: patched now
+            _lighter_front_end(sys.modules[f"{wanted}.lang.kernel_impl"])
         log.info("Taichi language: %s %s", wanted, backend_version(_language))
     elif _language.__name__ != wanted:
         raise RuntimeError(
@@ -115,27 +122,49 @@ def language(backend: str | None = None) -> ModuleType:
     return _language
 
 
-# Taichi's Python front end spends much of a warm start (the offline cache supplies the
-# machine code, but each kernel is still turned into IR in Python to find its cache key) in
-# three helpers (benchmarks/RESULTS.md, "Start-up", 2026-12-06): every @ti.kernel/@ti.func asks
-# `inspect.getframeinfo` whether it is defined in a class body (a scan of every module in
-# sys.modules per decorator, ~150 decorators here); every AST node of a kernel formats an
-# underlined, text-wrapped source excerpt for error messages (~50 000 nodes before the first
-# Newton iteration of a spline run); and a ti.func's source is read and tokenised again at
-# each call site. Replaced by what they compute: the same class test from `linecache`; file,
-# line, function and source line of the node without the ^^^ underline (Taichi's own under
-# `init(debug=True)`); each function's source read once per process.
+# Taichi's Python front end spends much of a warm start (benchmarks/RESULTS.md, "Start-up")
+# in: `inspect.getframeinfo` per @ti.kernel/@ti.func (is it in a class body? a scan of
+# sys.modules each); an underlined, text-wrapped source excerpt per AST node compiled (~50 000
+# before the first Newton iteration); a ti.func's source read again at each call site.
+# Replaced by what they compute: the class test from `linecache`; file, line, function and
+# source line of the node (Taichi's own under `init(debug=True)`); each source read once.
 _FULL_POSITIONS: dict[str, object] = {}  # backend -> its own get_pos_info
 
 
-def _lighter_front_end(backend: str) -> None:
+class _PatchOnImport(importlib.abc.MetaPathFinder):
+    """`patch(module)` as soon as the module `name` has run, before the rest of its package's
+    import: Taichi's own ~90 decorations in `import taichi` then skip `_inside_class`'s scan
+    of sys.modules (0.15-0.2 s CPU where torch was imported first)."""
+
+    def __init__(self, name: str, patch):
+        self.name, self.patch = name, patch
+
+    def find_spec(self, fullname, path, target=None):
+        spec = (importlib.machinery.PathFinder.find_spec(fullname, path)
+                if fullname == self.name else None)
+        if spec is not None and hasattr(spec.loader, "exec_module"):
+            run = spec.loader.exec_module
+
+            def exec_module(module):
+                run(module)
+                self.patch(module)
+
+            spec.loader.exec_module = exec_module
+        return spec
+
+
+def _lighter_front_end(kernel_impl: ModuleType) -> None:
     """Taichi's `_inside_class` (is the decorated function in a class body?) from the source
     line by `linecache` instead of `inspect.getframeinfo`, the same answer; and on taichi,
-    each function's source read once (`_remembered`)."""
+    each function's source read once (`_remembered`). Then the compile context released."""
+    if getattr(kernel_impl, "_taichi_ndf_lighter", False):
+        return
+    kernel_impl._taichi_ndf_lighter = True
+    backend = kernel_impl.__name__.split(".")[0]
+    _compile_arguments_released(kernel_impl)
     try:
-        kernel_impl = importlib.import_module(f"{backend}.lang.kernel_impl")
         patterns = kernel_impl._KERNEL_CLASS_STACKFRAME_STMT_RES
-    except (ImportError, AttributeError):
+    except AttributeError:
         log.debug("%s: no _inside_class to replace", backend)
         return
 
@@ -153,7 +182,7 @@ def _lighter_front_end(backend: str) -> None:
             setattr(kernel_impl, name, _remembered(getattr(kernel_impl, name)))
 
 
-def _compile_arguments_released(backend: str) -> None:
+def _compile_arguments_released(kernel_impl: ModuleType) -> None:
     """Taichi's compile context of a kernel (`ASTTransformerContext`) keeps the arguments of
     the call that compiled it (`argument_data`) and sits in a reference cycle with the AST
     transformer's closures, so those arrays (a first call's full-size inputs and outputs: 1.4
@@ -161,10 +190,9 @@ def _compile_arguments_released(backend: str) -> None:
     until Python's cyclic collector next runs a full pass. Dropped once the kernel is
     compiled (its AST built: the context is not read after that)."""
     try:
-        kernel_impl = importlib.import_module(f"{backend}.lang.kernel_impl")
         build, materialize = kernel_impl._get_tree_and_ctx, kernel_impl.Kernel.materialize
-    except (ImportError, AttributeError):
-        log.debug("%s: no compile context to release", backend)
+    except AttributeError:
+        log.debug("%s: no compile context to release", kernel_impl.__name__)
         return
     built: list = []  # contexts of the kernels (and their functions) being compiled
 

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 # A step may close at most this fraction of any point's gap (`taichi_ndf.contact.self_step`).
 STEP_FRACTION = 0.8
@@ -132,6 +131,8 @@ def candidate_pairs(x: np.ndarray, radius: float, rest: np.ndarray, exclusion: f
                     ) -> np.ndarray:
     """Pairs (P, 2) int64, a < b, of points x (M, 3) [m] within `radius` of each other whose
     rest positions (M, 3) are at least `exclusion` apart."""
+    from scipy.spatial import cKDTree  # on first use: not on ndf-sim's solve path (issue 28)
+
     pairs = cKDTree(x).query_pairs(radius, output_type="ndarray").astype(np.int64)
     if len(pairs):
         apart = np.linalg.norm(rest[pairs[:, 0]] - rest[pairs[:, 1]], axis=1) >= exclusion

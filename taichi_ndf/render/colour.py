@@ -10,7 +10,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from taichi_ndf.render.mpl import VIRIDIS_BGR, figure_image, new_figure, viridis_colormap
+from taichi_ndf.render.mpl import figure_image, new_figure, viridis_bgr, viridis_colormap
 
 __all__ = ["ColourScale", "colour_scale", "colour_range", "colormap", "colour_bar",
            "bar_ticks", "ROBUST_PERCENTILES", "BAR_TICKS"]
@@ -91,7 +91,7 @@ def colormap(values: np.ndarray, value_range) -> np.ndarray:
     t = np.clip((np.asarray(values, dtype=np.float64) - lo) / span, 0.0, 1.0)
     finite = np.isfinite(t)
     index = np.rint(np.where(finite, t, 0.0) * 255).astype(np.int64)
-    return np.where(finite[..., None], VIRIDIS_BGR[index].astype(np.float64), MISSING_BGR)
+    return np.where(finite[..., None], viridis_bgr()[index].astype(np.float64), MISSING_BGR)
 
 
 def bar_ticks(lo: float, hi: float) -> list[float]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from taichi_ndf.render.camera import frame_mesh, ground_axes, widest_azimuth
@@ -70,6 +69,8 @@ def soft_shadow(coverage: np.ndarray, sigma: float, supersample: int) -> np.ndar
     back up bilinearly: 0.011 instead of 0.3-0.5 s CPU at 1800 x 2400 fine pixels, within 0.02
     of the full-resolution blur (under 2 grey levels of 255 at the shadow's depth; the napkin's
     render.png changed by 1 level in 0.13 % of its pixels)."""
+    import cv2  # on first use: not on ndf-sim's solve path (issue 28)
+
     fine_h, fine_w = coverage.shape
     coarse = cv2.resize(coverage.astype(np.float32), (fine_w // supersample,
                         fine_h // supersample), interpolation=cv2.INTER_AREA)

@@ -2,7 +2,6 @@
 
 import os
 
-import cv2
 import numpy as np
 
 from taichi_ndf.io.output_dir import atomic_path
@@ -12,6 +11,8 @@ __all__ = ["save_png"]
 
 def save_png(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an image as PNG (atomically): uint8 or uint16, (H, W) grey or (H, W, 3|4) BGR(A)."""
+    import cv2  # on first use: not on ndf-sim's solve path (issue 28)
+
     image = np.asarray(image)
     if image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"PNG images must be uint8 or uint16, got {image.dtype}")

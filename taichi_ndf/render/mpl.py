@@ -6,9 +6,11 @@ placement and a readable font, which OpenCV's Hershey font (ASCII only) cannot.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-__all__ = ["new_figure", "figure_image", "VIRIDIS_BGR", "viridis_colormap"]
+__all__ = ["new_figure", "figure_image", "viridis_bgr", "viridis_colormap"]
 
 DPI = 100
 
@@ -33,18 +35,24 @@ def figure_image(figure, background_bgr=(255, 255, 255)) -> np.ndarray:
     return np.ascontiguousarray(np.clip(np.rint(rgb[..., ::-1]), 0, 255).astype(np.uint8))
 
 
-def _viridis_bgr() -> np.ndarray:
+@functools.cache
+def viridis_bgr() -> np.ndarray:
+    """(256, 3) uint8: the colour map of every render (OpenCV's viridis; made on first use, so
+    importing the renderer does not import cv2: issue 28)."""
     import cv2
 
     ramp = np.arange(256, dtype=np.uint8)[:, None]
     return cv2.applyColorMap(ramp, cv2.COLORMAP_VIRIDIS)[:, 0]
 
 
-VIRIDIS_BGR = _viridis_bgr()  # (256, 3) uint8: the colour map of every render
+def __getattr__(name: str):
+    if name == "VIRIDIS_BGR":  # the table under its former name
+        return viridis_bgr()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def viridis_colormap():
     """VIRIDIS_BGR as a matplotlib colour map, so bars show exactly the render's colours."""
     from matplotlib.colors import ListedColormap
 
-    return ListedColormap(VIRIDIS_BGR[:, ::-1] / 255.0, name="viridis_bgr")
+    return ListedColormap(viridis_bgr()[:, ::-1] / 255.0, name="viridis_bgr")

@@ -1,6 +1,5 @@
 """Textured rendering of a mesh seen by a pinhole camera (synthetic video frames)."""
 
-import cv2
 import numpy as np
 
 from taichi_ndf.render.raster import downsample, interpolate, rasterize
@@ -58,6 +57,8 @@ def render_textured(
     C]); the silhouette mask is bool (height, width), True where the mesh covers at least half of
     the pixel.
     """
+    import cv2  # on first use: not on ndf-sim's solve path (issue 28)
+
     texture = np.asarray(texture)
     uvs = np.asarray(uvs, dtype=np.float64)
     if uvs.shape != (len(points_cam), 2):
