@@ -9,7 +9,7 @@ against the inextensible limit.
     python demos/napkin.py --quick    # a short run, to check the installation
 
 Measured (2026-12-03, the default f64, 2-core VM at load 1-4): 55 s CPU (86 s wall); on
-2026-12-06 the corner's sag is printed before the outputs, after 40 s CPU with a warm Taichi
+2026-12-06 the corner's sag is printed before the outputs, after 33 s CPU with a warm Taichi
 kernel cache (51 s on a first run; benchmarks/RESULTS.md, "Start-up"); Π
 −1.64003 J on 32 × 32 spans, extrapolated −1.6568 ± 0.021 J (observed order 0.84 from 3 grids,
 expected 4: the point pin); the corner hangs 1.4377 ± 0.0016 m, 1.66 % beyond √2 m (f32, load
