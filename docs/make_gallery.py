@@ -15,7 +15,8 @@ first image). The converged runs' spline rows (and their renders) also go into t
 comparison of benchmarks/spline_vs_siren.py (marked f64 there). A run that did not converge
 gets no pictures: the page lists it under "Not in this gallery" with its Newton record, as it
 lists each `--leave-out SCENE=REASON` (a run looked at and found not to show the physical
-state, e.g. a symmetric equilibrium that a perturbation leaves). --note TEXT: a paragraph on
+state, e.g. a symmetric equilibrium that a perturbation leaves; such a scene is not run again
+unless DIR holds its run). --note TEXT: a paragraph on
 where the runs came from. --quick: the scenes' [training.quick] settings, a smoke test of this
 script (the page then says so; nothing is stored).
 """
@@ -38,10 +39,11 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from benchmarks import spline_vs_siren as comparison  # noqa: E402
-from taichi_ndf.io.run_files import QUANTITIES, read_run  # noqa: E402
+from taichi_ndf.io.run_files import QUANTITIES, garment_panels, read_run  # noqa: E402
 from taichi_ndf.render import save_png, write_video  # noqa: E402
 from taichi_ndf.render.energy_plot import energy_figure  # noqa: E402
 from taichi_ndf.render.figure import Obstacle, render_figure  # noqa: E402
+from taichi_ndf.render.legend import Legend  # noqa: E402
 from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
 
 SCENES = ROOT / "scenes"
@@ -51,6 +53,7 @@ TILE = (320, 256)  # width, height [pixels] of one scene in the overview
 COLUMNS = 4  # of the overview
 COLOUR = "displacement"  # of the scene pictures (render.png itself: bending strain)
 VIDEO_SIZE = (640, 480)
+TILE_LABEL_ROWS = 30  # [pixels] at the top of a tile kept free of the shape, for its name
 FOLD_AMPLITUDE = 0.03  # [m] of the radial fold perturbation at the open end (--folds)
 
 
@@ -128,7 +131,16 @@ def pictures(name: str, run_dir: Path) -> dict:
     save_png(PICTURES / f"{name}.png", image)
     save_png(PICTURES / f"{name}_energy.png",
              energy_figure(result["history"], result.get("refinement")))
-    written = {"picture": f"{name}.png", "energy": f"{name}_energy.png", "video": None}
+    written = {"picture": f"{name}.png", "energy": f"{name}_energy.png", "video": None,
+               "panels": None}
+    panels = garment_panels(run_dir)
+    if panels and "panel" in run.scalars:  # a garment: its panels named, as its render.png
+        image = render_figure(run.deformed, run.faces, scalars=run.scalars["panel"],
+                              scalar_label="panel", legend=Legend(tuple(panels)), up=run.up,
+                              obstacles=obstacles, views=("iso", "front"), width=None,
+                              height=480)
+        save_png(PICTURES / f"{name}_panels.png", image)
+        written["panels"] = f"{name}_panels.png"
     if len(run.frames) > 1 and run.reference is not None:
         pseudo = (result.get("trajectory") or {}).get("source") == "pseudo_time"
         frames = trajectory_frames([f.vertices for f in run.frames], run.faces,
@@ -141,7 +153,7 @@ def pictures(name: str, run_dir: Path) -> dict:
     # three-quarter view from above hides them under the sheet
     tile = render_figure(run.deformed, run.faces, up=run.up, obstacles=obstacles,
                          views=("front",) if obstacles else ("iso",),
-                         width=TILE[0], height=TILE[1])
+                         width=TILE[0], height=TILE[1], label_rows=TILE_LABEL_ROWS)
     cv2.putText(tile, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (40, 40, 40), 1,
                 cv2.LINE_AA)
     return {**written, "tile": tile, "colour": colour}
@@ -171,8 +183,9 @@ def describe(record: dict) -> str:
 
 def left_out_reasons(records: dict, leave_out: dict[str, str]) -> dict[str, str]:
     """Why each scene gets no pictures: its run failed or did not converge (with the last
-    Newton step's λ²/2), or the reason given by --leave-out."""
-    reasons = {}
+    Newton step's λ²/2), or the reason given by --leave-out (a left-out scene that was not
+    run has no record)."""
+    reasons = {name: reason for name, reason in leave_out.items() if name not in records}
     for name, record in records.items():
         if name in leave_out:
             reasons[name] = leave_out[name]
@@ -205,7 +218,9 @@ def write_gallery(records: dict, args) -> int:
         caption = captions.get(name, "not described yet: look at the pictures and say what "
                                f"they show in {CAPTIONS.relative_to(ROOT)}")
         rows.append(heading + f"\n{caption}\n\n![{name}](gallery/{made['picture']})\n"
-                    f"![{name}: energy](gallery/{made['energy']})\n"
+                    + (f"![{name}: panels](gallery/{made['panels']})\n"
+                       if made["panels"] else "")
+                    + f"![{name}: energy](gallery/{made['energy']})\n"
                     + (f"\n[trajectory video (H.264)](gallery/{made['video']})\n"
                        if made["video"] else ""))
         print(f"{name}: pictures written", flush=True)
@@ -231,7 +246,8 @@ def write_gallery(records: dict, args) -> int:
             "(`ndf-fit-material`, docs/inverse_material.md), not shown here.", "",
             *([args.note, ""] if args.note else []),
             "![all scenes](gallery/overview.png)", ""] + rows
-    missing = [s for s in comparison.shipped_scenes() if s not in records]
+    missing = [s for s in comparison.shipped_scenes()
+               if s not in records and s not in left_out]
     if missing or left_out:
         page += ["### Not in this gallery", ""]
         page += [f"- **{name}**: {reason}" for name, reason in left_out.items()]
@@ -291,7 +307,9 @@ def main(argv: list[str] | None = None) -> int:
         if not (SCENES / f"{name}.toml").is_file():
             p.error(f"--scenes: no scene {name!r} in {SCENES}")
     args.runs.mkdir(parents=True, exist_ok=True)
-    records = {name: run_scene(name, args.runs, args.quick) for name in names}
+    # a left-out scene is run only where its run is stored (its reason needs no new run)
+    records = {name: run_scene(name, args.runs, args.quick) for name in names
+               if name not in leave_out or (args.runs / f"{name}.json").is_file()}
     for name, count in folds.items():
         records[name] = refold(name, count, args.runs, records[name])
     if args.runs_only:

@@ -76,3 +76,45 @@ def test_unconverged_and_left_out_runs_get_reasons_not_pictures():
     assert set(reasons) == {"b", "c", "d"}
     assert reasons["b"].startswith("not converged") and "2e-09" in reasons["b"]
     assert reasons["c"] == "a saddle" and "boom" in reasons["d"]
+
+
+def test_a_garment_gets_a_picture_of_its_panels_with_their_legend(tmp_path, monkeypatch):
+    import json
+
+    from taichi_ndf.io import read_mesh, write_ply
+    from taichi_ndf.render.legend import PALETTE_BGR
+
+    module = gallery()
+    monkeypatch.setattr(module, "PICTURES", tmp_path / "pictures")
+    (tmp_path / "pictures").mkdir()
+    run = fake_run(tmp_path / "run")
+    assert module.pictures("sheet", run)["panels"] is None  # not a garment: no panel picture
+    mesh = read_mesh(run / "mesh.ply")
+    panel = (mesh.vertices[:, 0] > 0.5).astype(np.float64)  # two panels, left and right
+    write_ply(run / "mesh.ply", mesh.vertices, mesh.faces, uvs=mesh.uvs,
+              vertex_scalars={**mesh.vertex_scalars, "panel": panel})
+    result = json.loads((run / "result.json").read_text())
+    result["resolved"]["scene_file"]["panels"] = [{"name": "front"}, {"name": "back"}]
+    (run / "result.json").write_text(json.dumps(result))
+    made = module.pictures("skirt", run)
+    assert made["panels"] == "skirt_panels.png" and made["colour"] == "displacement"
+    image = cv2.imread(str(tmp_path / "pictures" / "skirt_panels.png"))
+    assert image.shape[0] == 480
+    # both panels' palette colours appear (shaded: within a few levels of them somewhere)
+    pixels = image.reshape(-1, 3).astype(float)
+    for colour in PALETTE_BGR[:2]:
+        assert np.abs(pixels - colour).max(axis=1).min() < 12
+
+
+def test_a_left_out_scene_without_a_stored_run_is_not_run(tmp_path, monkeypatch):
+    module = gallery()
+    ran = []
+    monkeypatch.setattr(module, "run_scene", lambda name, runs, quick: ran.append(name) or {})
+    module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
+                 "--leave-out", "bowl=grid-limited"])
+    assert ran == ["napkin"]
+    (tmp_path / "bowl.json").write_text("{}")  # stored: run (read back) again
+    module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
+                 "--leave-out", "bowl=grid-limited"])
+    assert ran == ["napkin", "napkin", "bowl"]
+    assert module.left_out_reasons({}, {"bowl": "grid-limited"}) == {"bowl": "grid-limited"}
