@@ -17,7 +17,9 @@ gets no pictures: the page lists it under "Not in this gallery" with its Newton 
 lists each `--leave-out SCENE=REASON` (a run looked at and found not to show the physical
 state, e.g. a symmetric equilibrium that a perturbation leaves; such a scene is not run again
 unless DIR holds its run). --note TEXT: a paragraph on
-where the runs came from. --quick: the scenes' [training.quick] settings, a smoke test of this
+where the runs came from. --keep-others: a page for the scenes of --scenes (new scenes, or
+those whose pictures changed) that keeps the current page's sections, overview tiles and
+reasons for the other scenes. --quick: the scenes' [training.quick] settings, a smoke test of this
 script (the page then says so; nothing is stored).
 """
 
@@ -198,12 +200,45 @@ def left_out_reasons(records: dict, leave_out: dict[str, str]) -> dict[str, str]
     return reasons
 
 
+def kept_sections(page: str, tiles: np.ndarray) -> tuple[dict, dict]:
+    """What an earlier docs/gallery.md (`page`) with its overview image `tiles` shows: per
+    scene its section (from its "### name" heading to the next) and its overview tile (the
+    sections' order, COLUMNS per row), and per scene of its "Not in this gallery" list the
+    reason given there."""
+    sections, reasons = {}, {}
+    for block in page.split("\n### ")[1:]:
+        name, _, body = block.partition("\n")
+        if name.strip() == "Not in this gallery":
+            for line in body.splitlines():
+                if line.startswith("- **") and "**: " in line:
+                    scene, _, reason = line[4:].partition("**: ")
+                    reasons[scene] = reason
+            continue
+        index = len(sections)
+        row, column = divmod(index, COLUMNS)
+        tile = tiles[row * TILE[1]:(row + 1) * TILE[1], column * TILE[0]:(column + 1) * TILE[0]]
+        if tile.shape[:2] != (TILE[1], TILE[0]):
+            raise SystemExit(f"--keep-others: the overview has no tile {index} for {name}")
+        sections[name.strip()] = ("### " + block.rstrip() + "\n", tile)
+    return sections, reasons
+
+
 def write_gallery(records: dict, args) -> int:
     """The pictures, overview.png, docs/gallery.md and (converged runs) the comparison store's
     spline rows."""
     PICTURES.mkdir(exist_ok=True)
-    rows, tiles = [], []
+    rows, tiles = {}, {}
     left_out = left_out_reasons(records, args.leave_out)
+    if args.keep_others:  # the earlier page's sections, tiles and reasons of scenes not run
+        sections, reasons = kept_sections((ROOT / "docs" / "gallery.md").read_text(),
+                                          cv2.imread(str(PICTURES / "overview.png")))
+        for name in comparison.shipped_scenes():
+            if name in records or name in left_out:
+                continue
+            if name in sections:
+                rows[name], tiles[name] = sections[name]
+            elif name in reasons:
+                left_out[name] = reasons[name]
     captions = tomllib.loads(CAPTIONS.read_text()) if CAPTIONS.is_file() else {}
     for name, record in records.items():
         if name in left_out:
@@ -214,17 +249,18 @@ def write_gallery(records: dict, args) -> int:
                   f"`ndf-sim scenes/{name}.toml --field spline" \
                   f"{' --quick' if args.quick else ''}`: {describe(record)}\n"
         made = pictures(name, args.runs / record.get("run", name))
-        tiles.append(made.pop("tile"))
+        tiles[name] = made.pop("tile")
         caption = captions.get(name, "not described yet: look at the pictures and say what "
                                f"they show in {CAPTIONS.relative_to(ROOT)}")
-        rows.append(heading + f"\n{caption}\n\n![{name}](gallery/{made['picture']})\n"
+        rows[name] = (heading + f"\n{caption}\n\n![{name}](gallery/{made['picture']})\n"
                     + (f"![{name}: panels](gallery/{made['panels']})\n"
                        if made["panels"] else "")
                     + f"![{name}: energy](gallery/{made['energy']})\n"
                     + (f"\n[trajectory video (H.264)](gallery/{made['video']})\n"
                        if made["video"] else ""))
         print(f"{name}: pictures written", flush=True)
-    save_png(PICTURES / "overview.png", overview(tiles))
+    order = sorted(rows)  # the scenes' order, on the page and in the overview
+    save_png(PICTURES / "overview.png", overview([tiles[name] for name in order]))
     training = ("`--quick` runs (the scenes' `[training.quick]` settings: smoke runs, NOT "
                 "converged results)" if args.quick else "converged runs")
     page = ["# Gallery", "",
@@ -232,8 +268,10 @@ def write_gallery(records: dict, args) -> int:
             f"end with the reason) from {training} of the spline field solved "
             "by projected Newton (`ndf-sim SCENE --field spline`: the grid rule's grid, one "
             "level, float64, the scene's load steps), pictures drawn from each run's own files "
-            "by `python docs/make_gallery.py` (which runs the scenes too: these runs took "
-            f"{sum(r.get('cpu', 0) for r in records.values()) / 60:.0f} minutes of CPU). "
+            "by `python docs/make_gallery.py` (which runs the scenes too: "
+            + ("the runs for this page's last update " if args.keep_others else "these runs ")
+            + f"took {sum(r.get('cpu', 0) for r in records.values()) / 60:.0f} minutes of "
+            "CPU; each scene's line gives its run's date). "
             "Per scene: the final state from the three-quarter and "
             f"the front view coloured by {QUANTITIES[COLOUR]} (bending strain where a run has "
             "no reference mesh) on its 1st–99th percentile (the colour bar states what it "
@@ -245,9 +283,9 @@ def write_gallery(records: dict, args) -> int:
             "scenes in `scenes/inverse/` are start points of the material estimator "
             "(`ndf-fit-material`, docs/inverse_material.md), not shown here.", "",
             *([args.note, ""] if args.note else []),
-            "![all scenes](gallery/overview.png)", ""] + rows
+            "![all scenes](gallery/overview.png)", ""] + [rows[name] for name in order]
     missing = [s for s in comparison.shipped_scenes()
-               if s not in records and s not in left_out]
+               if s not in records and s not in left_out and s not in rows]
     if missing or left_out:
         page += ["### Not in this gallery", ""]
         page += [f"- **{name}**: {reason}" for name, reason in left_out.items()]
@@ -270,7 +308,7 @@ def write_gallery(records: dict, args) -> int:
         comparison.STORE.write_text(json.dumps(store, indent=1, sort_keys=True) + "\n")
         print("comparison store updated: rebuild its table with "
               "`python benchmarks/spline_vs_siren.py --table-only`")
-    print(f"wrote docs/gallery.md and {len(tiles) + 1} pictures in {PICTURES}")
+    print(f"wrote docs/gallery.md and the pictures of {len(records)} runs in {PICTURES}")
     return 0
 
 
@@ -284,6 +322,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="[training.quick] settings: a smoke test of this script")
     p.add_argument("--leave-out", action="append", default=[], metavar="SCENE=REASON",
                    help="draw no pictures of SCENE; the page gives REASON (repeatable)")
+    p.add_argument("--keep-others", action="store_true",
+                   help="keep the current page's sections (and overview tiles) of the scenes "
+                   "not in --scenes, and its reasons for those it leaves out")
     p.add_argument("--note", default="", help="a paragraph on where the runs came from")
     p.add_argument("--folds", action="append", default=[], metavar="SCENE=K",
                    help="show SCENE re-solved from its run plus a K-fold radial perturbation "

@@ -118,3 +118,20 @@ def test_a_left_out_scene_without_a_stored_run_is_not_run(tmp_path, monkeypatch)
                  "--leave-out", "bowl=grid-limited"])
     assert ran == ["napkin", "napkin", "bowl"]
     assert module.left_out_reasons({}, {"bowl": "grid-limited"}) == {"bowl": "grid-limited"}
+
+
+def test_kept_sections_give_each_scene_its_text_and_overview_tile():
+    module = gallery()
+    width, height = module.TILE
+    tiles = [np.full((height, width, 3), 10 * (k + 1), np.uint8) for k in range(5)]
+    page = "# Gallery\n\nintro\n\n" + "".join(
+        f"### s{k}\n\nsection {k}\n\n" for k in range(5)) + \
+        "### Not in this gallery\n\n- **late**: not converged: 3 iterations\n"
+    sections, reasons = module.kept_sections(page, module.overview(tiles))
+    assert list(sections) == [f"s{k}" for k in range(5)]
+    assert sections["s3"][0] == "### s3\n\nsection 3\n"
+    for k in range(5):  # the fifth tile from the second row, not the blank beside it
+        assert np.all(sections[f"s{k}"][1] == 10 * (k + 1))
+    assert reasons == {"late": "not converged: 3 iterations"}
+    with pytest.raises(SystemExit, match="no tile"):
+        module.kept_sections(page, module.overview(tiles[:4]))
