@@ -55,6 +55,7 @@ TILE = (320, 256)  # width, height [pixels] of one scene in the overview
 COLUMNS = 4  # of the overview
 COLOUR = "displacement"  # of the scene pictures (render.png itself: bending strain)
 VIDEO_SIZE = (640, 480)
+CROP_PAD = 0.5  # obstacles drawn within the surface's box widened by this times its size
 TILE_LABEL_ROWS = 30  # [pixels] at the top of a tile kept free of the shape, for its name
 FOLD_AMPLITUDE = 0.03  # [m] of the radial fold perturbation at the open end (--folds)
 
@@ -68,6 +69,8 @@ def run_scene(name: str, runs: Path, quick: bool) -> dict:
         raise SystemExit(f"{out} holds an earlier run without its record; remove it")
     print(f"{name}: ndf-sim --field spline{' --quick' if quick else ''}", flush=True)
     record = comparison.run_one(name, "spline", out, "f64", quick)
+    if record["status"] == "ok" and "converged" not in record:
+        record.update(run_convergence(json.loads((out / "result.json").read_text())))
     record_file.write_text(json.dumps(record, indent=1) + "\n")
     state = record["status"] if record["status"] != "ok" else (
         f"Π {record['energy']:.6g} J, {record['iterations']} iterations, "
@@ -75,6 +78,19 @@ def run_scene(name: str, runs: Path, quick: bool) -> dict:
     print(f"{name}: {state}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU, "
           f"load {record['load']}", flush=True)
     return record
+
+
+def run_convergence(result: dict) -> dict:
+    """`converged` and `spans` of a run that has no `levels` in its result.json (which
+    run_one reads): a garment's, every load step converged; a dynamic run's ([dynamics]),
+    finished, since a time step that does not converge after its halvings stops the run
+    (DynamicsError), with its grid's spans."""
+    if "dynamics" in result:
+        return {"converged": True, "spans": result["dynamics"].get("spans", []),
+                "dynamic": True}
+    steps = result.get("load_steps") or []
+    return {"converged": bool(steps) and all(s.get("converged") for s in steps),
+            "spans": []}
 
 
 def add_folds(checkpoint: Path, folds: int, amplitude: float = FOLD_AMPLITUDE) -> None:
@@ -120,12 +136,24 @@ def refold(name: str, folds: int, runs: Path, start: dict) -> dict:
     return record
 
 
+def cropped(vertices: np.ndarray, shapes: np.ndarray, pad: float = CROP_PAD) -> np.ndarray:
+    """An obstacle's vertices (N, 3) [m] clamped to the box around the surface's positions
+    `shapes` (M, 3) [m] widened by `pad` times its largest side: a table plane (a 2 m square
+    of two triangles by default) then frames a 0.3 m napkin instead of dwarfing it; a flat
+    axis-aligned obstacle is cut exactly, a curved one sticking out of the box is flattened
+    where it does, and one inside the box is unchanged."""
+    low, high = shapes.min(axis=0), shapes.max(axis=0)
+    margin = pad * float(np.ptp(shapes, axis=0).max())
+    return np.clip(vertices, low - margin, high + margin)
+
+
 def pictures(name: str, run_dir: Path) -> dict:
     """docs/gallery/<name>.png, <name>_energy.png and (several states) <name>.mp4 from the
     run's files; returns the overview tile and what was written."""
     run = read_run(run_dir)
     result = json.loads((run_dir / "result.json").read_text())
-    obstacles = tuple(Obstacle(o.vertices, o.faces) for o in run.obstacles)
+    shapes = np.concatenate([run.deformed, *(f.vertices for f in run.frames)])
+    obstacles = tuple(Obstacle(cropped(o.vertices, shapes), o.faces) for o in run.obstacles)
     colour = COLOUR if COLOUR in run.available() else "bending_strain"
     image = render_figure(run.deformed, run.faces, scalars=run.quantity(colour),
                           scalar_label=QUANTITIES[colour], up=run.up, obstacles=obstacles,
@@ -174,11 +202,14 @@ def describe(record: dict) -> str:
     if record["status"] != "ok":
         return f"{record['status']}: {record.get('message', '')}"
     state = "converged" if record.get("converged") else "**NOT converged**"
+    if record.get("dynamic") and record.get("converged"):
+        state = "every time step converged"
     spans = " × ".join(str(s) for s in record.get("spans", []))
     commit = "commit not recorded" if record["commit"] == "unknown" else record["commit"]
+    grid = f" ({spans} spans)" if spans else ""
     start = f"; re-solved (`--resume`) from {record['start']}" if record.get("start") else ""
-    return (f"Π = {record['energy']:.6g} J; {record['iterations']} Newton iterations, {state} "
-            f"({spans} spans){start}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU "
+    return (f"Π = {record['energy']:.6g} J; {record['iterations']} Newton iterations, {state}"
+            f"{grid}{start}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU "
             f"at load {record['load'][0]:.1f}–{record['load'][1]:.1f} ({record['date']}, "
             f"{commit})")
 

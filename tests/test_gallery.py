@@ -135,3 +135,17 @@ def test_kept_sections_give_each_scene_its_text_and_overview_tile():
     assert reasons == {"late": "not converged: 3 iterations"}
     with pytest.raises(SystemExit, match="no tile"):
         module.kept_sections(page, module.overview(tiles[:4]))
+
+
+def test_a_garment_or_dynamic_run_has_its_convergence_from_its_result():
+    module = gallery()
+    steps = [{"load_factor": 0.5, "converged": True}, {"load_factor": 1.0, "converged": True}]
+    assert module.run_convergence({"load_steps": steps})["converged"] is True
+    steps[1]["converged"] = False
+    assert module.run_convergence({"load_steps": steps})["converged"] is False
+    assert module.run_convergence({})["converged"] is False  # nothing says it converged
+    dynamic = module.run_convergence({"dynamics": {"spans": [6, 6], "steps": 120}})
+    assert dynamic == {"converged": True, "spans": [6, 6], "dynamic": True}
+    record = {"status": "ok", "energy": -0.03, "iterations": 725, "wall": 1.0, "cpu": 1.0,
+              "load": [1.0, 1.0], "date": "d", "commit": "c", **dynamic}
+    assert "every time step converged (6 × 6 spans)" in module.describe(record)
