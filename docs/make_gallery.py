@@ -46,6 +46,7 @@ from taichi_ndf.render import save_png, write_video  # noqa: E402
 from taichi_ndf.render.energy_plot import energy_figure  # noqa: E402
 from taichi_ndf.render.figure import Obstacle, render_figure  # noqa: E402
 from taichi_ndf.render.legend import Legend  # noqa: E402
+from taichi_ndf.render.plot import plot_curves  # noqa: E402
 from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
 
 SCENES = ROOT / "scenes"
@@ -147,6 +148,21 @@ def cropped(vertices: np.ndarray, shapes: np.ndarray, pad: float = CROP_PAD) -> 
     return np.clip(vertices, low - margin, high + margin)
 
 
+def energy_picture(result: dict) -> np.ndarray:
+    """A run's energy plot: Π over the Newton iterations (`energy_figure`), or for a dynamic
+    run (no Newton history) its kinetic energy T, potential energy Π and T + Π [J] over
+    time [s] (result.json's `dynamics`)."""
+    dynamics = result.get("dynamics")
+    if dynamics is None:
+        return energy_figure(result["history"], result.get("refinement"))
+    times = np.asarray(dynamics["times"], dtype=np.float64)
+    return plot_curves({"$T$": (times, dynamics["kinetic"]), r"$\Pi$": (times,
+                        dynamics["potential"]), r"$T + \Pi$": (times, dynamics["total"])},
+                       title=f"Energies over time ({dynamics['integrator']}, "
+                       f"h = {1000 * dynamics['dt']:g} ms)", xlabel="time [s]",
+                       ylabel="energy [J]", width=820, height=500)
+
+
 def pictures(name: str, run_dir: Path) -> dict:
     """docs/gallery/<name>.png, <name>_energy.png and (several states) <name>.mp4 from the
     run's files; returns the overview tile and what was written."""
@@ -159,8 +175,7 @@ def pictures(name: str, run_dir: Path) -> dict:
                           scalar_label=QUANTITIES[colour], up=run.up, obstacles=obstacles,
                           views=("iso", "front"), width=None, height=480)
     save_png(PICTURES / f"{name}.png", image)
-    save_png(PICTURES / f"{name}_energy.png",
-             energy_figure(result["history"], result.get("refinement")))
+    save_png(PICTURES / f"{name}_energy.png", energy_picture(result))
     written = {"picture": f"{name}.png", "energy": f"{name}_energy.png", "video": None,
                "panels": None}
     panels = garment_panels(run_dir)

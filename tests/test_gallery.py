@@ -149,3 +149,16 @@ def test_a_garment_or_dynamic_run_has_its_convergence_from_its_result():
     record = {"status": "ok", "energy": -0.03, "iterations": 725, "wall": 1.0, "cpu": 1.0,
               "load": [1.0, 1.0], "date": "d", "commit": "c", **dynamic}
     assert "every time step converged (6 × 6 spans)" in module.describe(record)
+
+
+def test_a_dynamic_run_gets_its_energies_over_time_plotted():
+    module = gallery()
+    times = np.linspace(0.0, 1.0, 11)
+    result = {"dynamics": {"times": times.tolist(), "kinetic": np.sin(3 * times).tolist(),
+                           "potential": (-np.sin(3 * times)).tolist(),
+                           "total": np.zeros(11).tolist(), "integrator": "implicit_euler",
+                           "dt": 0.01}}
+    image = module.energy_picture(result)  # no "history": energy_figure would raise
+    assert image.shape == (500, 820, 3) and image.std() > 0
+    with pytest.raises(KeyError):
+        module.energy_picture({})
