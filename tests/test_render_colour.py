@@ -233,3 +233,12 @@ def test_a_common_factor_of_the_ticks_goes_beside_the_label_not_over_it():
     assert np.array_equal(small[:30, :right], normal[:30, :right])  # nothing drawn over it
     assert small.shape[1] > normal.shape[1]  # the factor beside it
     assert (small[:30, right:] < 100).all(axis=-1).sum() > 20
+
+
+def test_energy_figure_counts_iterations_through_the_run_when_each_load_step_restarts():
+    # a garment's history numbers its iterations per load step: 0, 1, 0, 1
+    restarting = [{"load_factor": f, "iteration": i, "energy": -f - 0.1 * i}
+                  for f in (0.5, 1.0) for i in (0, 1)]
+    counted = [{**r, "iteration": k} for k, r in enumerate(restarting)]
+    assert np.array_equal(energy_figure(restarting), energy_figure(counted))
+    assert segments(restarting) == segments(counted)
