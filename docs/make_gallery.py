@@ -15,8 +15,11 @@ first image). The converged runs' spline rows (and their renders) also go into t
 comparison of benchmarks/spline_vs_siren.py (marked f64 there). A run that did not converge
 gets no pictures: the page lists it under "Not in this gallery" with its Newton record, as it
 lists each `--leave-out SCENE=REASON` (a run looked at and found not to show the physical
-state, e.g. a symmetric equilibrium that a perturbation leaves). --note TEXT: a paragraph on
-where the runs came from. --quick: the scenes' [training.quick] settings, a smoke test of this
+state, e.g. a symmetric equilibrium that a perturbation leaves; such a scene is not run again
+unless DIR holds its run). --note TEXT: a paragraph on
+where the runs came from. --keep-others: a page for the scenes of --scenes (new scenes, or
+those whose pictures changed) that keeps the current page's sections, overview tiles and
+reasons for the other scenes. --quick: the scenes' [training.quick] settings, a smoke test of this
 script (the page then says so; nothing is stored).
 """
 
@@ -38,10 +41,12 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from benchmarks import spline_vs_siren as comparison  # noqa: E402
-from taichi_ndf.io.run_files import QUANTITIES, read_run  # noqa: E402
+from taichi_ndf.io.run_files import QUANTITIES, garment_panels, read_run  # noqa: E402
 from taichi_ndf.render import save_png, write_video  # noqa: E402
 from taichi_ndf.render.energy_plot import energy_figure  # noqa: E402
 from taichi_ndf.render.figure import Obstacle, render_figure  # noqa: E402
+from taichi_ndf.render.legend import Legend  # noqa: E402
+from taichi_ndf.render.plot import plot_curves  # noqa: E402
 from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
 
 SCENES = ROOT / "scenes"
@@ -51,6 +56,8 @@ TILE = (320, 256)  # width, height [pixels] of one scene in the overview
 COLUMNS = 4  # of the overview
 COLOUR = "displacement"  # of the scene pictures (render.png itself: bending strain)
 VIDEO_SIZE = (640, 480)
+CROP_PAD = 0.5  # obstacles drawn within the surface's box widened by this times its size
+TILE_LABEL_ROWS = 30  # [pixels] at the top of a tile kept free of the shape, for its name
 FOLD_AMPLITUDE = 0.03  # [m] of the radial fold perturbation at the open end (--folds)
 
 
@@ -63,6 +70,8 @@ def run_scene(name: str, runs: Path, quick: bool) -> dict:
         raise SystemExit(f"{out} holds an earlier run without its record; remove it")
     print(f"{name}: ndf-sim --field spline{' --quick' if quick else ''}", flush=True)
     record = comparison.run_one(name, "spline", out, "f64", quick)
+    if record["status"] == "ok" and "converged" not in record:
+        record.update(run_convergence(json.loads((out / "result.json").read_text())))
     record_file.write_text(json.dumps(record, indent=1) + "\n")
     state = record["status"] if record["status"] != "ok" else (
         f"Π {record['energy']:.6g} J, {record['iterations']} iterations, "
@@ -70,6 +79,19 @@ def run_scene(name: str, runs: Path, quick: bool) -> dict:
     print(f"{name}: {state}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU, "
           f"load {record['load']}", flush=True)
     return record
+
+
+def run_convergence(result: dict) -> dict:
+    """`converged` and `spans` of a run that has no `levels` in its result.json (which
+    run_one reads): a garment's, every load step converged; a dynamic run's ([dynamics]),
+    finished, since a time step that does not converge after its halvings stops the run
+    (DynamicsError), with its grid's spans."""
+    if "dynamics" in result:
+        return {"converged": True, "spans": result["dynamics"].get("spans", []),
+                "dynamic": True}
+    steps = result.get("load_steps") or []
+    return {"converged": bool(steps) and all(s.get("converged") for s in steps),
+            "spans": []}
 
 
 def add_folds(checkpoint: Path, folds: int, amplitude: float = FOLD_AMPLITUDE) -> None:
@@ -115,20 +137,55 @@ def refold(name: str, folds: int, runs: Path, start: dict) -> dict:
     return record
 
 
+def cropped(vertices: np.ndarray, shapes: np.ndarray, pad: float = CROP_PAD) -> np.ndarray:
+    """An obstacle's vertices (N, 3) [m] clamped to the box around the surface's positions
+    `shapes` (M, 3) [m] widened by `pad` times its largest side: a table plane (a 2 m square
+    of two triangles by default) then frames a 0.3 m napkin instead of dwarfing it; a flat
+    axis-aligned obstacle is cut exactly, a curved one sticking out of the box is flattened
+    where it does, and one inside the box is unchanged."""
+    low, high = shapes.min(axis=0), shapes.max(axis=0)
+    margin = pad * float(np.ptp(shapes, axis=0).max())
+    return np.clip(vertices, low - margin, high + margin)
+
+
+def energy_picture(result: dict) -> np.ndarray:
+    """A run's energy plot: Π over the Newton iterations (`energy_figure`), or for a dynamic
+    run (no Newton history) its kinetic energy T, potential energy Π and T + Π [J] over
+    time [s] (result.json's `dynamics`)."""
+    dynamics = result.get("dynamics")
+    if dynamics is None:
+        return energy_figure(result["history"], result.get("refinement"))
+    times = np.asarray(dynamics["times"], dtype=np.float64)
+    return plot_curves({"$T$": (times, dynamics["kinetic"]), r"$\Pi$": (times,
+                        dynamics["potential"]), r"$T + \Pi$": (times, dynamics["total"])},
+                       title=f"Energies over time ({dynamics['integrator']}, "
+                       f"h = {1000 * dynamics['dt']:g} ms)", xlabel="time [s]",
+                       ylabel="energy [J]", width=820, height=500)
+
+
 def pictures(name: str, run_dir: Path) -> dict:
     """docs/gallery/<name>.png, <name>_energy.png and (several states) <name>.mp4 from the
     run's files; returns the overview tile and what was written."""
     run = read_run(run_dir)
     result = json.loads((run_dir / "result.json").read_text())
-    obstacles = tuple(Obstacle(o.vertices, o.faces) for o in run.obstacles)
+    shapes = np.concatenate([run.deformed, *(f.vertices for f in run.frames)])
+    obstacles = tuple(Obstacle(cropped(o.vertices, shapes), o.faces) for o in run.obstacles)
     colour = COLOUR if COLOUR in run.available() else "bending_strain"
     image = render_figure(run.deformed, run.faces, scalars=run.quantity(colour),
                           scalar_label=QUANTITIES[colour], up=run.up, obstacles=obstacles,
                           views=("iso", "front"), width=None, height=480)
     save_png(PICTURES / f"{name}.png", image)
-    save_png(PICTURES / f"{name}_energy.png",
-             energy_figure(result["history"], result.get("refinement")))
-    written = {"picture": f"{name}.png", "energy": f"{name}_energy.png", "video": None}
+    save_png(PICTURES / f"{name}_energy.png", energy_picture(result))
+    written = {"picture": f"{name}.png", "energy": f"{name}_energy.png", "video": None,
+               "panels": None}
+    panels = garment_panels(run_dir)
+    if panels and "panel" in run.scalars:  # a garment: its panels named, as its render.png
+        image = render_figure(run.deformed, run.faces, scalars=run.scalars["panel"],
+                              scalar_label="panel", legend=Legend(tuple(panels)), up=run.up,
+                              obstacles=obstacles, views=("iso", "front"), width=None,
+                              height=480)
+        save_png(PICTURES / f"{name}_panels.png", image)
+        written["panels"] = f"{name}_panels.png"
     if len(run.frames) > 1 and run.reference is not None:
         pseudo = (result.get("trajectory") or {}).get("source") == "pseudo_time"
         frames = trajectory_frames([f.vertices for f in run.frames], run.faces,
@@ -141,7 +198,7 @@ def pictures(name: str, run_dir: Path) -> dict:
     # three-quarter view from above hides them under the sheet
     tile = render_figure(run.deformed, run.faces, up=run.up, obstacles=obstacles,
                          views=("front",) if obstacles else ("iso",),
-                         width=TILE[0], height=TILE[1])
+                         width=TILE[0], height=TILE[1], label_rows=TILE_LABEL_ROWS)
     cv2.putText(tile, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (40, 40, 40), 1,
                 cv2.LINE_AA)
     return {**written, "tile": tile, "colour": colour}
@@ -160,19 +217,23 @@ def describe(record: dict) -> str:
     if record["status"] != "ok":
         return f"{record['status']}: {record.get('message', '')}"
     state = "converged" if record.get("converged") else "**NOT converged**"
+    if record.get("dynamic") and record.get("converged"):
+        state = "every time step converged"
     spans = " × ".join(str(s) for s in record.get("spans", []))
     commit = "commit not recorded" if record["commit"] == "unknown" else record["commit"]
+    grid = f" ({spans} spans)" if spans else ""
     start = f"; re-solved (`--resume`) from {record['start']}" if record.get("start") else ""
-    return (f"Π = {record['energy']:.6g} J; {record['iterations']} Newton iterations, {state} "
-            f"({spans} spans){start}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU "
+    return (f"Π = {record['energy']:.6g} J; {record['iterations']} Newton iterations, {state}"
+            f"{grid}{start}; {record['wall']:.0f} s wall, {record['cpu']:.0f} s CPU "
             f"at load {record['load'][0]:.1f}–{record['load'][1]:.1f} ({record['date']}, "
             f"{commit})")
 
 
 def left_out_reasons(records: dict, leave_out: dict[str, str]) -> dict[str, str]:
     """Why each scene gets no pictures: its run failed or did not converge (with the last
-    Newton step's λ²/2), or the reason given by --leave-out."""
-    reasons = {}
+    Newton step's λ²/2), or the reason given by --leave-out (a left-out scene that was not
+    run has no record)."""
+    reasons = {name: reason for name, reason in leave_out.items() if name not in records}
     for name, record in records.items():
         if name in leave_out:
             reasons[name] = leave_out[name]
@@ -185,12 +246,45 @@ def left_out_reasons(records: dict, leave_out: dict[str, str]) -> dict[str, str]
     return reasons
 
 
+def kept_sections(page: str, tiles: np.ndarray) -> tuple[dict, dict]:
+    """What an earlier docs/gallery.md (`page`) with its overview image `tiles` shows: per
+    scene its section (from its "### name" heading to the next) and its overview tile (the
+    sections' order, COLUMNS per row), and per scene of its "Not in this gallery" list the
+    reason given there."""
+    sections, reasons = {}, {}
+    for block in page.split("\n### ")[1:]:
+        name, _, body = block.partition("\n")
+        if name.strip() == "Not in this gallery":
+            for line in body.splitlines():
+                if line.startswith("- **") and "**: " in line:
+                    scene, _, reason = line[4:].partition("**: ")
+                    reasons[scene] = reason
+            continue
+        index = len(sections)
+        row, column = divmod(index, COLUMNS)
+        tile = tiles[row * TILE[1]:(row + 1) * TILE[1], column * TILE[0]:(column + 1) * TILE[0]]
+        if tile.shape[:2] != (TILE[1], TILE[0]):
+            raise SystemExit(f"--keep-others: the overview has no tile {index} for {name}")
+        sections[name.strip()] = ("### " + block.rstrip() + "\n", tile)
+    return sections, reasons
+
+
 def write_gallery(records: dict, args) -> int:
     """The pictures, overview.png, docs/gallery.md and (converged runs) the comparison store's
     spline rows."""
     PICTURES.mkdir(exist_ok=True)
-    rows, tiles = [], []
+    rows, tiles = {}, {}
     left_out = left_out_reasons(records, args.leave_out)
+    if args.keep_others:  # the earlier page's sections, tiles and reasons of scenes not run
+        sections, reasons = kept_sections((ROOT / "docs" / "gallery.md").read_text(),
+                                          cv2.imread(str(PICTURES / "overview.png")))
+        for name in comparison.shipped_scenes():
+            if name in records or name in left_out:
+                continue
+            if name in sections:
+                rows[name], tiles[name] = sections[name]
+            elif name in reasons:
+                left_out[name] = reasons[name]
     captions = tomllib.loads(CAPTIONS.read_text()) if CAPTIONS.is_file() else {}
     for name, record in records.items():
         if name in left_out:
@@ -201,15 +295,18 @@ def write_gallery(records: dict, args) -> int:
                   f"`ndf-sim scenes/{name}.toml --field spline" \
                   f"{' --quick' if args.quick else ''}`: {describe(record)}\n"
         made = pictures(name, args.runs / record.get("run", name))
-        tiles.append(made.pop("tile"))
+        tiles[name] = made.pop("tile")
         caption = captions.get(name, "not described yet: look at the pictures and say what "
                                f"they show in {CAPTIONS.relative_to(ROOT)}")
-        rows.append(heading + f"\n{caption}\n\n![{name}](gallery/{made['picture']})\n"
-                    f"![{name}: energy](gallery/{made['energy']})\n"
+        rows[name] = (heading + f"\n{caption}\n\n![{name}](gallery/{made['picture']})\n"
+                    + (f"![{name}: panels](gallery/{made['panels']})\n"
+                       if made["panels"] else "")
+                    + f"![{name}: energy](gallery/{made['energy']})\n"
                     + (f"\n[trajectory video (H.264)](gallery/{made['video']})\n"
                        if made["video"] else ""))
         print(f"{name}: pictures written", flush=True)
-    save_png(PICTURES / "overview.png", overview(tiles))
+    order = sorted(rows)  # the scenes' order, on the page and in the overview
+    save_png(PICTURES / "overview.png", overview([tiles[name] for name in order]))
     training = ("`--quick` runs (the scenes' `[training.quick]` settings: smoke runs, NOT "
                 "converged results)" if args.quick else "converged runs")
     page = ["# Gallery", "",
@@ -217,8 +314,10 @@ def write_gallery(records: dict, args) -> int:
             f"end with the reason) from {training} of the spline field solved "
             "by projected Newton (`ndf-sim SCENE --field spline`: the grid rule's grid, one "
             "level, float64, the scene's load steps), pictures drawn from each run's own files "
-            "by `python docs/make_gallery.py` (which runs the scenes too: these runs took "
-            f"{sum(r.get('cpu', 0) for r in records.values()) / 60:.0f} minutes of CPU). "
+            "by `python docs/make_gallery.py` (which runs the scenes too: "
+            + ("the runs for this page's last update " if args.keep_others else "these runs ")
+            + f"took {sum(r.get('cpu', 0) for r in records.values()) / 60:.0f} minutes of "
+            "CPU; each scene's line gives its run's date). "
             "Per scene: the final state from the three-quarter and "
             f"the front view coloured by {QUANTITIES[COLOUR]} (bending strain where a run has "
             "no reference mesh) on its 1st–99th percentile (the colour bar states what it "
@@ -230,8 +329,9 @@ def write_gallery(records: dict, args) -> int:
             "scenes in `scenes/inverse/` are start points of the material estimator "
             "(`ndf-fit-material`, docs/inverse_material.md), not shown here.", "",
             *([args.note, ""] if args.note else []),
-            "![all scenes](gallery/overview.png)", ""] + rows
-    missing = [s for s in comparison.shipped_scenes() if s not in records]
+            "![all scenes](gallery/overview.png)", ""] + [rows[name] for name in order]
+    missing = [s for s in comparison.shipped_scenes()
+               if s not in records and s not in left_out and s not in rows]
     if missing or left_out:
         page += ["### Not in this gallery", ""]
         page += [f"- **{name}**: {reason}" for name, reason in left_out.items()]
@@ -254,7 +354,7 @@ def write_gallery(records: dict, args) -> int:
         comparison.STORE.write_text(json.dumps(store, indent=1, sort_keys=True) + "\n")
         print("comparison store updated: rebuild its table with "
               "`python benchmarks/spline_vs_siren.py --table-only`")
-    print(f"wrote docs/gallery.md and {len(tiles) + 1} pictures in {PICTURES}")
+    print(f"wrote docs/gallery.md and the pictures of {len(records)} runs in {PICTURES}")
     return 0
 
 
@@ -268,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="[training.quick] settings: a smoke test of this script")
     p.add_argument("--leave-out", action="append", default=[], metavar="SCENE=REASON",
                    help="draw no pictures of SCENE; the page gives REASON (repeatable)")
+    p.add_argument("--keep-others", action="store_true",
+                   help="keep the current page's sections (and overview tiles) of the scenes "
+                   "not in --scenes, and its reasons for those it leaves out")
     p.add_argument("--note", default="", help="a paragraph on where the runs came from")
     p.add_argument("--folds", action="append", default=[], metavar="SCENE=K",
                    help="show SCENE re-solved from its run plus a K-fold radial perturbation "
@@ -291,7 +394,9 @@ def main(argv: list[str] | None = None) -> int:
         if not (SCENES / f"{name}.toml").is_file():
             p.error(f"--scenes: no scene {name!r} in {SCENES}")
     args.runs.mkdir(parents=True, exist_ok=True)
-    records = {name: run_scene(name, args.runs, args.quick) for name in names}
+    # a left-out scene is run only where its run is stored (its reason needs no new run)
+    records = {name: run_scene(name, args.runs, args.quick) for name in names
+               if name not in leave_out or (args.runs / f"{name}.json").is_file()}
     for name, count in folds.items():
         records[name] = refold(name, count, args.runs, records[name])
     if args.runs_only:

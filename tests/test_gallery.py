@@ -76,3 +76,89 @@ def test_unconverged_and_left_out_runs_get_reasons_not_pictures():
     assert set(reasons) == {"b", "c", "d"}
     assert reasons["b"].startswith("not converged") and "2e-09" in reasons["b"]
     assert reasons["c"] == "a saddle" and "boom" in reasons["d"]
+
+
+def test_a_garment_gets_a_picture_of_its_panels_with_their_legend(tmp_path, monkeypatch):
+    import json
+
+    from taichi_ndf.io import read_mesh, write_ply
+    from taichi_ndf.render.legend import PALETTE_BGR
+
+    module = gallery()
+    monkeypatch.setattr(module, "PICTURES", tmp_path / "pictures")
+    (tmp_path / "pictures").mkdir()
+    run = fake_run(tmp_path / "run")
+    assert module.pictures("sheet", run)["panels"] is None  # not a garment: no panel picture
+    mesh = read_mesh(run / "mesh.ply")
+    panel = (mesh.vertices[:, 0] > 0.5).astype(np.float64)  # two panels, left and right
+    write_ply(run / "mesh.ply", mesh.vertices, mesh.faces, uvs=mesh.uvs,
+              vertex_scalars={**mesh.vertex_scalars, "panel": panel})
+    result = json.loads((run / "result.json").read_text())
+    result["resolved"]["scene_file"]["panels"] = [{"name": "front"}, {"name": "back"}]
+    (run / "result.json").write_text(json.dumps(result))
+    made = module.pictures("skirt", run)
+    assert made["panels"] == "skirt_panels.png" and made["colour"] == "displacement"
+    image = cv2.imread(str(tmp_path / "pictures" / "skirt_panels.png"))
+    assert image.shape[0] == 480
+    # both panels' palette colours appear (shaded: within a few levels of them somewhere)
+    pixels = image.reshape(-1, 3).astype(float)
+    for colour in PALETTE_BGR[:2]:
+        assert np.abs(pixels - colour).max(axis=1).min() < 12
+
+
+def test_a_left_out_scene_without_a_stored_run_is_not_run(tmp_path, monkeypatch):
+    module = gallery()
+    ran = []
+    monkeypatch.setattr(module, "run_scene", lambda name, runs, quick: ran.append(name) or {})
+    module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
+                 "--leave-out", "bowl=grid-limited"])
+    assert ran == ["napkin"]
+    (tmp_path / "bowl.json").write_text("{}")  # stored: run (read back) again
+    module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
+                 "--leave-out", "bowl=grid-limited"])
+    assert ran == ["napkin", "napkin", "bowl"]
+    assert module.left_out_reasons({}, {"bowl": "grid-limited"}) == {"bowl": "grid-limited"}
+
+
+def test_kept_sections_give_each_scene_its_text_and_overview_tile():
+    module = gallery()
+    width, height = module.TILE
+    tiles = [np.full((height, width, 3), 10 * (k + 1), np.uint8) for k in range(5)]
+    page = "# Gallery\n\nintro\n\n" + "".join(
+        f"### s{k}\n\nsection {k}\n\n" for k in range(5)) + \
+        "### Not in this gallery\n\n- **late**: not converged: 3 iterations\n"
+    sections, reasons = module.kept_sections(page, module.overview(tiles))
+    assert list(sections) == [f"s{k}" for k in range(5)]
+    assert sections["s3"][0] == "### s3\n\nsection 3\n"
+    for k in range(5):  # the fifth tile from the second row, not the blank beside it
+        assert np.all(sections[f"s{k}"][1] == 10 * (k + 1))
+    assert reasons == {"late": "not converged: 3 iterations"}
+    with pytest.raises(SystemExit, match="no tile"):
+        module.kept_sections(page, module.overview(tiles[:4]))
+
+
+def test_a_garment_or_dynamic_run_has_its_convergence_from_its_result():
+    module = gallery()
+    steps = [{"load_factor": 0.5, "converged": True}, {"load_factor": 1.0, "converged": True}]
+    assert module.run_convergence({"load_steps": steps})["converged"] is True
+    steps[1]["converged"] = False
+    assert module.run_convergence({"load_steps": steps})["converged"] is False
+    assert module.run_convergence({})["converged"] is False  # nothing says it converged
+    dynamic = module.run_convergence({"dynamics": {"spans": [6, 6], "steps": 120}})
+    assert dynamic == {"converged": True, "spans": [6, 6], "dynamic": True}
+    record = {"status": "ok", "energy": -0.03, "iterations": 725, "wall": 1.0, "cpu": 1.0,
+              "load": [1.0, 1.0], "date": "d", "commit": "c", **dynamic}
+    assert "every time step converged (6 × 6 spans)" in module.describe(record)
+
+
+def test_a_dynamic_run_gets_its_energies_over_time_plotted():
+    module = gallery()
+    times = np.linspace(0.0, 1.0, 11)
+    result = {"dynamics": {"times": times.tolist(), "kinetic": np.sin(3 * times).tolist(),
+                           "potential": (-np.sin(3 * times)).tolist(),
+                           "total": np.zeros(11).tolist(), "integrator": "implicit_euler",
+                           "dt": 0.01}}
+    image = module.energy_picture(result)  # no "history": energy_figure would raise
+    assert image.shape == (500, 820, 3) and image.std() > 0
+    with pytest.raises(KeyError):
+        module.energy_picture({})

@@ -221,3 +221,24 @@ def test_dynamic_video_plays_in_real_time():
     assert real_time_fps([0.0, 1e-4, 2e-4]) == MAX_FPS
     assert real_time_fps([0.0, 5.0]) == 1.0
     assert real_time_fps([1.0]) == 1.0
+
+
+def test_a_common_factor_of_the_ticks_goes_beside_the_label_not_over_it():
+    # |u| up to 4e-5 m: matplotlib writes the ticks 0..4 and a factor 1e−5, which it drew at
+    # the bar's top, over the label (the two-panel skirt's gallery picture)
+    normal = colour_bar((0.0, 0.35), "|u| [m]", 480)
+    small = colour_bar((0.0, 4.24e-5), "|u| [m]", 480)
+    label = (normal[:30] < 100).all(axis=-1)  # the label's dark text in the top rows
+    right = np.nonzero(label.any(axis=0))[0].max() + 2
+    assert np.array_equal(small[:30, :right], normal[:30, :right])  # nothing drawn over it
+    assert small.shape[1] > normal.shape[1]  # the factor beside it
+    assert (small[:30, right:] < 100).all(axis=-1).sum() > 20
+
+
+def test_energy_figure_counts_iterations_through_the_run_when_each_load_step_restarts():
+    # a garment's history numbers its iterations per load step: 0, 1, 0, 1
+    restarting = [{"load_factor": f, "iteration": i, "energy": -f - 0.1 * i}
+                  for f in (0.5, 1.0) for i in (0, 1)]
+    counted = [{**r, "iteration": k} for k, r in enumerate(restarting)]
+    assert np.array_equal(energy_figure(restarting), energy_figure(counted))
+    assert segments(restarting) == segments(counted)

@@ -125,6 +125,19 @@ def colour_bar(value_range, label: str, height: int, *,
     return _colour_bar(scale, label, int(height), tuple(int(c) for c in background_bgr)).copy()
 
 
+def _has_factor(lo: float, hi: float) -> bool:
+    """Whether matplotlib writes the ticks of [lo, hi] with a common factor (e.g. 1e−5)."""
+    from matplotlib.ticker import ScalarFormatter
+
+    if hi <= lo:
+        return False
+    formatter = ScalarFormatter()
+    formatter.create_dummy_axis()
+    formatter.axis.set_view_interval(lo, hi)
+    formatter.set_locs(bar_ticks(lo, hi))
+    return bool(formatter.get_offset())
+
+
 @lru_cache(maxsize=32)
 def _colour_bar(scale: ColourScale, label: str, height: int, background_bgr) -> np.ndarray:
     from matplotlib.colorbar import ColorbarBase
@@ -135,7 +148,7 @@ def _colour_bar(scale: ColourScale, label: str, height: int, background_bgr) -> 
     line = font * 100 / 72 * 1.25  # [pixels] per line of text at 100 dpi
     char = font * 100 / 72 * 0.62  # [pixels] per character, about
     width = int(max(font * 8.5, max(len(s) for s in [label, *note]) * 0.8 * char + 12,
-                    len(label) * char + 12))
+                    (len(label) + 7 * _has_factor(*scale.range)) * char + 12))
     top = 1.0 - (1.6 * line + 6) / height
     bottom = (len(note) * 0.8 * line + 14) / height if note else 0.06
     figure = new_figure(width, height)
@@ -147,8 +160,14 @@ def _colour_bar(scale: ColourScale, label: str, height: int, background_bgr) -> 
     bar = ColorbarBase(axes, cmap=viridis_colormap(), norm=Normalize(lo, hi),
                        orientation="vertical", ticks=bar_ticks(lo, hi))
     bar.ax.tick_params(labelsize=font)
-    bar.ax.yaxis.get_offset_text().set_fontsize(font)
-    figure.text(4 / width, 1.0 - 4 / height, label, fontsize=font, ha="left", va="top")
+    # a common factor of the ticks (e.g. 1e−5) goes into the label: matplotlib draws it at
+    # the bar's top, where the label is
+    formatter = bar.ax.yaxis.get_major_formatter()
+    formatter.set_locs(bar.ax.get_yticks())
+    factor = formatter.get_offset()
+    bar.ax.yaxis.get_offset_text().set_visible(False)
+    figure.text(4 / width, 1.0 - 4 / height, f"{label} ×{factor}" if factor else label,
+                fontsize=font, ha="left", va="top")
     if note:
         figure.text(4 / width, bottom - 8 / height, "\n".join(note), fontsize=0.8 * font,
                     ha="left", va="top", color="0.3", linespacing=1.15)

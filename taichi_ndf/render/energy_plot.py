@@ -20,7 +20,14 @@ MAX_LABELLED_BOUNDARIES = 8  # more load-step boundaries than this are drawn wit
 
 
 def _records(history) -> list[dict]:
-    return [dataclasses.asdict(h) if dataclasses.is_dataclass(h) else dict(h) for h in history]
+    """The history as dicts, iterations counted through the run: a history whose iterations
+    restart at each load step (a garment's) is renumbered 0, 1, ... in order."""
+    records = [dataclasses.asdict(h) if dataclasses.is_dataclass(h) else dict(h)
+               for h in history]
+    iterations = [r["iteration"] for r in records]
+    if any(b <= a for a, b in zip(iterations, iterations[1:], strict=False)):
+        records = [{**r, "iteration": k} for k, r in enumerate(records)]
+    return records
 
 
 def segments(history) -> list[tuple[int, int, float, int]]:
