@@ -178,3 +178,22 @@ def test_the_siren_solvers_last_layer_newton_minimises_over_the_discretisations_
     Solver(scene.model, field, config).run()
     for mine, theirs in zip(d.field.parameters, field.parameters, strict=True):
         torch.testing.assert_close(mine, theirs, rtol=0, atol=0)
+
+
+def test_a_free_pin_without_probes_has_no_probes_to_evaluate():
+    """A spline field with a free pin (its raw jets need at least one point) and no
+    [[probes]]: no probe values, not a ValueError (the dynamic path asks at every frame)."""
+    import tomllib
+    from pathlib import Path
+
+    from taichi_ndf.discretise import of_scene
+    from taichi_ndf.scene.reader import parse_scene
+
+    path = Path(__file__).resolve().parents[1] / "scenes" / "cloth_pendulum.toml"
+    document = tomllib.loads(path.read_text())
+    document.pop("probes")
+    scene = parse_scene(document, base_dir=path.parent, path=path)
+    assert not scene.model.probes
+    spline = of_scene(scene)
+    spline.start(scene.solver, seed=0)
+    assert spline.probes(spline.field, 0.5) == {}

@@ -180,6 +180,8 @@ class SplineDiscretisation:
                    load_factor: float) -> Probes:
         """The probes of `field`'s grid with `coefficients` (n, 3) at a load factor."""
         probes = self.model.probes
+        if not probes:  # nothing to evaluate (a free pin's raw jets need at least one point)
+            return {}
         operator = DisplacementOperator(field, self.model.boundary)
         xi = torch.tensor([p.xi for p in probes], dtype=coefficients.dtype).reshape(-1, 2)
         u = displacement_at(operator, xi, coefficients, load_factor)[:, jets.VALUE]
