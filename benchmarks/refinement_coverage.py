@@ -101,6 +101,13 @@ CASES = {
                                     5, ("load_0:0",), (0,), "out", default=1),
     "flag": Case("scenes/flag.toml", (15, 10), 4, ("energy", "fly_bottom:1", "fly_bottom:2"),
                  (0,), "out", default=0),
+    # Added 2026-12-06 16:29 UTC (issue 35, before any of its values was seen): the flag's
+    # `--refine` default (the grid rule's 15 × 10, then 30 × 20 and 60 × 40) with every probe
+    # component that `ndf-sim --refine` shows (hoist_top is on the hinged edge: prescribed, not
+    # counted), against 120 × 80.
+    "flag_default": Case("scenes/flag.toml", (15, 10), 4,
+                         ("energy", *(f"{p}:{c}" for p in ("hoist_top", "fly_top", "fly_bottom")
+                                      for c in range(3))), (0,), "out", default=0),
     "napkin_interior_point": Case("scenes/napkin_interior_point.toml", (10, 10), 4,
                                   ("energy", "corner:2"), (0,), "out", default=0),
     # Out of sample, second set: chosen 2026-12-03 17:30 UTC, before any of their results were
@@ -228,8 +235,11 @@ def run_case(name: str) -> dict:
 
     def on_level(run) -> None:
         steps.append(run.load_steps[case.load_step])
-        log.warning("%s: level %d (%s spans) done, %.0f s", name, len(steps) - 1,
-                    run.levels[-1].spans, time.perf_counter() - started)
+        last = run.levels[-1]
+        log.warning("%s: level %d (%s spans) done, %.0f s wall, %.0f s CPU since the start; "
+                    "converged %s, %d iterations; %s", name, len(steps) - 1, last.spans,
+                    time.perf_counter() - started, time.process_time() - cpu, last.converged,
+                    last.iterations, {q: read(steps[-1], q) for q in case.quantities})
 
     run = solve_spline(scene.model, plan, solver, on_level=on_level)
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
