@@ -164,7 +164,9 @@ CASES = {
                                       overrides=(("material.thickness", 0.5),)),
     # Added 2026-12-06 17:06 UTC to re-check the point-order rule (`richardson_point`, after
     # the flag's fly_bottom:2 miss): a probe's three components, so its order is the point's.
-    "napkin_coarse_xyz": Case("scenes/napkin.toml", (2, 2), 4,
+    # napkin_coarse_xyz first ran on 4 levels (17:03: its 16 × 16 reference carried a ± 0.25 m
+    # bar of its own); 5 levels from 17:05, as the 2026-12-03 napkin_coarse.
+    "napkin_coarse_xyz": Case("scenes/napkin.toml", (2, 2), 5,
                               ("energy", "free_corner:0", "free_corner:1", "free_corner:2"),
                               (0,), "in"),
     "square_plate_xyz": Case("validation/scenes/square_plate.toml", (2, 2), 5,

@@ -220,40 +220,35 @@ def richardson(values: list[float], order: float | None = None,
 def richardson_point(values: list[list[float]], order: float | None = None,
                      converged: list[bool] | None = None) -> list[Extrapolation]:
     """`richardson` for a point's displacement u (per grid a vector, (K, 3) in m), one
-    Extrapolation per component: the order is the point's, observed on the lengths of the
-    vector changes |u_{i+1} − u_i| (as for a field), not on each component alone (a
-    component's order depends on the axes; measured: the flag's fly_bottom moves 0.131 m then
-    0.102 m, order 0.37, while its z component's changes fall at order 3.54 and its ± 1.1 mm
-    bar missed the 120 × 80 value by 16 mm, benchmarks/RESULTS.md). Reliable: each component
-    is extrapolated with that order (error 1.25 × its correction); unreliable: each component
-    is its finest value with 3 × its range; two grids: `richardson` per component."""
+    Extrapolation per component: a component's observed order is trusted only where the
+    point's is too, observed on the lengths of the vector changes |u_{i+1} − u_i| (as for a
+    field). A component's order depends on the axes, the point's does not (measured: the
+    flag's fly_bottom moves 0.131 m then 0.102 m, order 0.37, while its z component alone falls
+    at order 3.54, and that ± 1.1 mm bar missed the 120 × 80 value by 16 mm; and the other way
+    round, the napkin's corner on 2²/4²/8² has norms falling at order 1.01 while x and y do not
+    fall monotonically: benchmarks/RESULTS.md). So: the component's own `richardson` where
+    both are reliable (or it is unreliable itself, or with two grids); where only the point's
+    order is unreliable, the component's finest value with 3 × its range, the point's reason.
+    Never narrower than `richardson` per component."""
     u = np.asarray(values, dtype=float)
+    own = [richardson(u[:, c].tolist(), order, converged) for c in range(u.shape[1])]
     if len(u) < 3:
-        return [richardson(u[:, c].tolist(), order, converged) for c in range(u.shape[1])]
-    if converged is not None and len(converged) != len(u):
-        raise ValueError(f"{len(converged)} convergence flags for {len(u)} values")
+        return own
     last = u[-3:]
-    failed = [] if converged is None else [
-        len(u) - 3 + i for i, ok in enumerate(converged[-3:]) if not ok]
-    unconverged = (None if not failed else
-                   f"grid level{'s' if len(failed) > 1 else ''} "
-                   f"{', '.join(map(str, failed))} of {len(u)} not converged")
     norms = np.linalg.norm(np.diff(last, axis=0), axis=1).tolist()
-    point = extrapolate_changes(norms, order, scale=float(np.linalg.norm(last, axis=1).max()),
-                                unconverged=unconverged)
-    if point.warning is not None:
-        log.warning("%s", point.warning)
+    point = extrapolate_changes(norms, order, scale=float(np.linalg.norm(last, axis=1).max()))
+    if point.basis == "observed":
+        return own
     out = []
-    for c in range(u.shape[1]):
+    for c, bar in enumerate(own):
+        if bar.basis != "observed":
+            out.append(bar)
+            continue
+        reason = f"the point's {point.reason}"
+        warning = (f"refinement order unreliable ({reason}): the finest value with 3 × the "
+                   "range of the last three grids as its error bar; refine further")
+        log.warning("%s", warning)
         v = last[:, c]
-        if point.basis == "observed":
-            correction = (v[2] - v[1]) / (2.0**point.order - 1.0)
-            out.append(Extrapolation(float(v[2] + correction),
-                                     SAFETY_OBSERVED * abs(correction), point.order,
-                                     "observed", len(u), order, point.warning))
-        else:
-            spread = float(v.max() - v.min())
-            out.append(Extrapolation(float(v[2]), SAFETY_UNRELIABLE * spread, point.order,
-                                     "unreliable", len(u), order, point.warning,
-                                     unconverged or f"the point's {point.reason}"))
+        out.append(Extrapolation(float(v[2]), SAFETY_UNRELIABLE * float(v.max() - v.min()),
+                                 point.order, "unreliable", len(u), order, warning, reason))
     return out
