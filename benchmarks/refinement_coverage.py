@@ -41,7 +41,7 @@ from pathlib import Path
 import torch
 
 import taichi_ndf
-from taichi_ndf.minimise.refinement import richardson
+from taichi_ndf.minimise.refinement import richardson, richardson_point
 from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.solve.spline_solver import solve_spline
 
@@ -101,6 +101,13 @@ CASES = {
                                     5, ("load_0:0",), (0,), "out", default=1),
     "flag": Case("scenes/flag.toml", (15, 10), 4, ("energy", "fly_bottom:1", "fly_bottom:2"),
                  (0,), "out", default=0),
+    # Added 2026-12-06 16:29 UTC (issue 35, before any of its values was seen): the flag's
+    # `--refine` default (the grid rule's 15 × 10, then 30 × 20 and 60 × 40) with every probe
+    # component that `ndf-sim --refine` shows (hoist_top is on the hinged edge: prescribed, not
+    # counted), against 120 × 80.
+    "flag_default": Case("scenes/flag.toml", (15, 10), 4,
+                         ("energy", *(f"{p}:{c}" for p in ("hoist_top", "fly_top", "fly_bottom")
+                                      for c in range(3))), (0,), "out", default=0),
     "napkin_interior_point": Case("scenes/napkin_interior_point.toml", (10, 10), 4,
                                   ("energy", "corner:2"), (0,), "out", default=0),
     # Out of sample, second set: chosen 2026-12-03 17:30 UTC, before any of their results were
@@ -155,6 +162,15 @@ CASES = {
     "square_plate_quarter_thin": Case("validation/scenes/square_plate_quarter.toml", (4, 4), 5,
                                       ("energy", "centre:2"), (0,), "out3",
                                       overrides=(("material.thickness", 0.5),)),
+    # Added 2026-12-06 17:06 UTC to re-check the point-order rule (`richardson_point`, after
+    # the flag's fly_bottom:2 miss): a probe's three components, so its order is the point's.
+    # napkin_coarse_xyz first ran on 4 levels (17:03: its 16 × 16 reference carried a ± 0.25 m
+    # bar of its own); 5 levels from 17:05, as the 2026-12-03 napkin_coarse.
+    "napkin_coarse_xyz": Case("scenes/napkin.toml", (2, 2), 5,
+                              ("energy", "free_corner:0", "free_corner:1", "free_corner:2"),
+                              (0,), "in"),
+    "square_plate_xyz": Case("validation/scenes/square_plate.toml", (2, 2), 5,
+                             ("energy", "centre:0", "centre:1", "centre:2"), (0,), "in"),
     # For the --refine default only (the scene is in sample; its grid rule's grids).
     "cantilever_shear_default": Case("validation/scenes/cantilever_shear.toml", (8, 1), 4,
                                      ("tip:2",), (), "in", default=0),
@@ -177,7 +193,7 @@ def covers(bar, reference: float) -> bool:
 
 
 def bar_row(values: list[float], first: int, spans: list, quantity: str,
-            converged: list[bool]) -> dict:
+            converged: list[bool], point: list[list[float]] | None = None) -> dict:
     """The bars of the window starting at grid `first` against the finest value; converged:
     per grid, whether its solve converged (`richardson` calls the order of a window with an
     unconverged grid unreliable)."""
@@ -185,6 +201,11 @@ def bar_row(values: list[float], first: int, spans: list, quantity: str,
     ref_bar = richardson(values[-3:], order=ORDER, converged=converged[-3:])
     three = richardson(values[first:first + 3], order=ORDER,
                        converged=converged[first:first + 3])
+    if point is not None:  # all three components stored: the point's order, as ndf-sim's
+        c = int(quantity.split(":")[1])
+        ref_bar = richardson_point(point[-3:], ORDER, converged[-3:])[c]
+        three = richardson_point(point[first:first + 3], ORDER,
+                                 converged[first:first + 3])[c]
     two = richardson(values[first + 1:first + 3], order=ORDER,
                      converged=converged[first + 1:first + 3])
     old_error = abs(two.value - values[first + 2])  # the replaced two-grid rule
@@ -209,10 +230,19 @@ def bar_rows(result: dict) -> tuple[list[dict], list[dict]]:
     rule the library has now)."""
     case = CASES[result["case"]]
     values, spans, ok = result["all_values"], result["spans"], result["converged"]
-    rows = [dict(bar_row(values[q], first, spans, q, ok), default=(first == case.default))
+
+    def point(q):  # a probe's three components per level, where all three are stored
+        name = q.split(":")[0]
+        if q == "energy" or any(f"{name}:{c}" not in values for c in range(3)):
+            return None
+        return [list(u) for u in zip(*(values[f"{name}:{c}"] for c in range(3)), strict=True)]
+
+    rows = [dict(bar_row(values[q], first, spans, q, ok, point(q)),
+                 default=(first == case.default))
             for q in case.quantities for first in case.windows]
     defaults = ([] if case.default is None else
-                [bar_row(values[q], case.default, spans, q, ok) for q in case.quantities])
+                [bar_row(values[q], case.default, spans, q, ok, point(q))
+                 for q in case.quantities])
     return rows, defaults
 
 
@@ -228,8 +258,11 @@ def run_case(name: str) -> dict:
 
     def on_level(run) -> None:
         steps.append(run.load_steps[case.load_step])
-        log.warning("%s: level %d (%s spans) done, %.0f s", name, len(steps) - 1,
-                    run.levels[-1].spans, time.perf_counter() - started)
+        last = run.levels[-1]
+        log.warning("%s: level %d (%s spans) done, %.0f s wall, %.0f s CPU since the start; "
+                    "converged %s, %d iterations; %s", name, len(steps) - 1, last.spans,
+                    time.perf_counter() - started, time.process_time() - cpu, last.converged,
+                    last.iterations, {q: read(steps[-1], q) for q in case.quantities})
 
     run = solve_spline(scene.model, plan, solver, on_level=on_level)
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu

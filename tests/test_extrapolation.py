@@ -8,7 +8,12 @@ from __future__ import annotations
 
 import pytest
 
-from taichi_ndf.minimise.extrapolation import SAFETY_OBSERVED, SAFETY_UNRELIABLE, richardson
+from taichi_ndf.minimise.extrapolation import (
+    SAFETY_OBSERVED,
+    SAFETY_UNRELIABLE,
+    richardson,
+    richardson_point,
+)
 from taichi_ndf.minimise.state import LevelSummary, State
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import SplineRun
@@ -60,3 +65,53 @@ def test_the_spline_run_passes_each_levels_convergence():
     assert document["energy"]["order_basis"] == "unreliable"
     assert document["energy"]["order_reason"] == "grid level 0 of 3 not converged"
     assert document["probes"]["corner"][2]["order_basis"] == "unreliable"
+
+
+# The flag's fly_bottom u [m] on 15 × 10, 30 × 20, 60 × 40 (`--refine`'s default grids) and
+# 120 × 80 (benchmarks/RESULTS.md, "The flag's `--refine` default bar").
+FLY_BOTTOM = [[-1.3827656233145138, -0.6294148886317771, 0.9082769030865477],
+              [-1.425668581722233, -0.6906006114736567, 0.8001595744224824],
+              [-1.5262452125614634, -0.7047660823853151, 0.7908669335849227]]
+FLY_BOTTOM_120 = [-1.5226829823712211, -0.7130130768309426, 0.774102203532385]
+
+
+def test_a_probe_component_takes_the_points_order():
+    """fly_bottom's z alone falls at order 3.54 (a ± 1.1 mm bar that misses the 120 × 80
+    value by 16 mm; y at 2.11); the point moves 0.131 m then 0.102 m (order 0.37): y and z
+    unreliable for the point's reason (x does not fall: its own), and every component's bar
+    holds the 120 × 80 value."""
+    alone = richardson([u[2] for u in FLY_BOTTOM], order=4.0)
+    assert alone.basis == "observed" and abs(alone.value - FLY_BOTTOM_120[2]) > alone.error
+    bars = richardson_point(FLY_BOTTOM, order=4.0)
+    assert all(b.basis == "unreliable" for b in bars)
+    assert bars[0].reason == "changes not falling monotonically"  # x: its own reason
+    assert all("the point's observed order 0.37" in b.reason for b in bars[1:])
+    assert all(abs(b.value - ref) <= b.error for b, ref in zip(bars, FLY_BOTTOM_120,
+                                                                strict=True))
+
+
+def test_a_point_converging_at_one_order_keeps_each_components_extrapolation():
+    """u_h = u∞ + c h² per component (different c): the point's order is 2, each component
+    is extrapolated to its u∞ as `richardson` does alone."""
+    u_inf, c = [0.3, -0.2, 1.0], [1.0, -3.0, 0.5]
+    values = [[a + k / 4**i for a, k in zip(u_inf, c, strict=True)] for i in range(3)]
+    bars = richardson_point(values, order=4.0)
+    for axis, bar in enumerate(bars):
+        alone = richardson([v[axis] for v in values], order=4.0)
+        assert bar.basis == "observed" and bar.order == pytest.approx(2.0)
+        assert bar.value == pytest.approx(u_inf[axis]) == pytest.approx(alone.value)
+        assert bar.error == pytest.approx(alone.error)
+    unconverged = richardson_point(values, order=4.0, converged=[True, False, True])
+    assert all(b.reason == "grid level 1 of 3 not converged" for b in unconverged)
+
+
+def test_components_that_do_not_fall_stay_unreliable_when_the_point_falls():
+    """The napkin's free corner on 2², 4², 8² (scenes/napkin.toml): |Δu| falls (order 1.01)
+    but no component falls monotonically: their own unreliable bars are kept (they hold the
+    32² value; bars at the point's order 1.01 missed x and y, benchmarks/RESULTS.md)."""
+    corner = [[-0.8474192, -0.8488420, -1.4148213], [-0.8049260, -0.8102842, -1.4069167],
+              [-0.8202152, -0.8317524, -1.4181840]]
+    bars = richardson_point(corner, order=4.0)
+    for axis, bar in enumerate(bars):
+        alone = richardson([u[axis] for u in corner], order=4.0)
+        assert bar == alone and bar.basis == "unreliable"

@@ -37,6 +37,7 @@ from taichi_ndf.minimise.extrapolation import (  # noqa: F401 (imported from her
     OrderEstimate,
     extrapolate_changes,
     richardson,
+    richardson_point,
 )
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: imported from here)

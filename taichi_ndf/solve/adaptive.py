@@ -19,7 +19,9 @@ two solves, per knot span); without one (the default, "none": measured worse tha
                  the expected order 2(p − 1)) on Π and every probe component over the last
                  three levels; stop where every bar ≤ tolerance × |Π| (Π) and ≤ tolerance ×
                  |u| of the probe (a probe's components), or where the next grid's unknowns
-                 would exceed `max_unknowns`.
+                 would exceed `max_unknowns`. An estimate over a window with a level whose
+                 Newton solve did not converge never meets the tolerance (its bar is no
+                 discretisation error, however small: `tolerance_met`); the loop refines on.
 
 The spans double per level in η, so h halves as the rule assumes; the knots move between
 levels, so the observed order is that of the adaptive sequence (the rule sees the sequence's
@@ -152,11 +154,34 @@ def density_order(energies: list[float], expected: float) -> float:
     return expected
 
 
-def tolerance_met(document: dict, tolerance: float) -> tuple[bool, str]:
+def unconverged_window(converged: list[bool] | None) -> str | None:
+    """Why the estimate over the last three levels is no discretisation error: the levels
+    among them whose Newton solve did not converge, in words (None: all converged, or
+    unknown)."""
+    if converged is None:
+        return None
+    first = max(len(converged) - 3, 0)
+    failed = [i for i in range(first, len(converged)) if not converged[i]]
+    if not failed:
+        return None
+    return (f"grid level{'s' if len(failed) > 1 else ''} {', '.join(map(str, failed))} of "
+            f"{len(converged)} not converged (Newton stopped before its tolerance): the "
+            "estimate is not a discretisation error")
+
+
+def tolerance_met(document: dict, tolerance: float,
+                  converged: list[bool] | None = None) -> tuple[bool, str]:
     """Whether every estimated error in a refinement document is within the tolerance
-    (module docstring), and the largest relative one in words."""
+    (module docstring), and the largest relative one in words. converged: per grid level,
+    whether its Newton solve converged (None: all did); where one of the last three did not,
+    the tolerance is not met whatever the bars (`richardson` marks such an estimate
+    unreliable; its bar can be small, e.g. 0 where Newton stopped at the same Π on every
+    grid), and the words say which level."""
     if len(document["spans"]) < 3:
         return False, "fewer than three grids"
+    unconverged = unconverged_window(converged)
+    if unconverged is not None:
+        return False, unconverged
     worst, what = 0.0, ""
     energy = document["energy"]
     ratio = energy["estimated_error"] / max(abs(energy["extrapolated"]), 1e-300)
@@ -256,15 +281,17 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
         run.state.history.append(NewtonRecord(**values))
         run.state.iteration = len(run.state.history)
 
-    outcome = "budget"
+    outcome, stopped = "budget", ""
     while True:
         if len(run.levels) >= 3:
-            met, worst = tolerance_met(run.refinement(degree), adaptive.tolerance)
+            met, worst = tolerance_met(run.refinement(degree), adaptive.tolerance,
+                                       [lv.converged for lv in run.levels])
             log.info("adaptive level %d: %s (tolerance %g)", len(run.levels) - 1, worst,
                      adaptive.tolerance)
             record["worst"] = worst
             if met:
                 outcome = "tolerance met"
+                stopped = f"--tolerance {adaptive.tolerance:g} met: {worst}"
                 break
         coarse, fine = snapshots[-2], snapshots[-1]
         if adaptive.indicator == "none":
@@ -277,9 +304,11 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
             record["levels"][-1]["next_grid_order"] = q
             next_config = equidistributed(fine.config, indicator, growth=GROWTH, order=q)
         if unknowns(next_config) > adaptive.max_unknowns:
-            log.warning("--tolerance %g not reached: the next grid (%d × %d spans, %d unknowns) "
-                        "is over the budget of %d unknowns", adaptive.tolerance,
-                        *next_config.spans, unknowns(next_config), adaptive.max_unknowns)
+            stopped = (f"--tolerance {adaptive.tolerance:g} not reached: the next grid "
+                       f"({next_config.spans[0]} × {next_config.spans[1]} spans, "
+                       f"{unknowns(next_config)} unknowns) is over the budget of "
+                       f"{adaptive.max_unknowns} unknowns; {record.get('worst', 'no estimate')}")
+            log.warning("%s", stopped)
             break
         level = len(run.levels)
         step_started = time.perf_counter()
@@ -311,6 +340,8 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
         level_done(run)
     record["outcome"] = outcome
     record["met"] = outcome == "tolerance met"
+    record["stopped"] = stopped  # why, in one line (the budget line names an unconverged level)
+    record["unconverged_levels"] = [i for i, lv in enumerate(run.levels) if not lv.converged]
     run.wall_time = time.perf_counter() - started
     log.info("adaptive refinement: %s after %d grids", outcome, len(run.levels))
     return run

@@ -33,7 +33,7 @@ from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.newton_state import NewtonIterate
-from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson
+from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson, richardson_point
 from taichi_ndf.minimise.state import InsideLevel, LevelSummary, NewtonRecord, State
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.seam import with_seam_points
@@ -95,8 +95,12 @@ class SplineRun:
             return {"values": values,
                     **richardson(values, order=order, converged=converged).to_dict()}
 
-        probes = {name: [extrapolate([lv.probes[name][c] for lv in self.levels])
-                         for c in range(3)] for name in self.levels[-1].probes}
+        def point(name):  # a probe's order is the point's (`richardson_point`)
+            values = [lv.probes[name] for lv in self.levels]
+            return [{"values": [v[c] for v in values], **e.to_dict()} for c, e in enumerate(
+                richardson_point(values, order=order, converged=converged))]
+
+        probes = {name: point(name) for name in self.levels[-1].probes}
         return {"spans": [list(lv.spans) for lv in self.levels],
                 "energy": extrapolate([lv.energy for lv in self.levels]), "probes": probes}
 
