@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import resource
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -34,16 +32,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from provenance import commit  # noqa: E402
-from self_contact_fold import CREASE_RADIUS, layers  # noqa: E402
+from self_contact_fold import CREASE_RADIUS, folded_solve, layers  # noqa: E402
 from triangle_intersections import intersecting_pairs  # noqa: E402
 
 import taichi_ndf  # noqa: E402
-from taichi_ndf.app.outputs import deformed_mesh  # noqa: E402
 from taichi_ndf.contact.config import ContactConfig  # noqa: E402
-from taichi_ndf.discretise.start import fitted_start  # noqa: E402
-from taichi_ndf.minimise.state import State  # noqa: E402
 from taichi_ndf.scene.reader import load_scene  # noqa: E402
-from taichi_ndf.solve.spline_solver import solve_spline  # noqa: E402
 
 SCENE = ROOT / "scenes" / "napkin_fold.toml"
 LENGTH = 0.3  # [m]
@@ -54,18 +48,12 @@ SMALL = {"geometry.bounds": [[0.0, LENGTH], [0.0, 0.15]], "field.spans": [16, 8]
 
 def run(name: str, *, edges: bool, table: bool) -> dict:
     scene = load_scene(SCENE, overrides=SMALL)
-    model, plan = scene.model, scene.field
+    model = scene.model
     config = dataclasses.replace(model.contact.self_contact, edges=edges)
     contact = dataclasses.replace(model.contact, self_contact=config) if table else \
         ContactConfig.self_only(model, config)
     model = dataclasses.replace(model, contact=contact)
-    start = fitted_start(model, plan.config, scene.start)
-    before = resource.getrusage(resource.RUSAGE_SELF)
-    wall = time.perf_counter()
-    result = solve_spline(model, plan, scene.solver, state=State.newton(start))
-    wall = time.perf_counter() - wall
-    after = resource.getrusage(resource.RUSAGE_SELF)
-    mesh = deformed_mesh(model, result.state.field, scene.output.resolution)
+    result, mesh, cpu, wall = folded_solve(scene, model)
     a = 0.5 * LENGTH - 0.5 * np.pi * CREASE_RADIUS
     lower_mask = mesh.xi[:, 0] < a
     upper_rows = np.nonzero(mesh.xi[:, 0] > a + np.pi * CREASE_RADIUS)[0]
@@ -80,7 +68,7 @@ def run(name: str, *, edges: bool, table: bool) -> dict:
             "intersections": len(intersecting_pairs(mesh.deformed, mesh.faces)),
             "energy": summary.energy, "iterations": len(result.state.history),
             "rounds": result.contact.rounds, "converged": summary.converged,
-            "cpu": after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime,
+            "cpu": cpu,
             "wall": wall, "offset": config.offset, "reach": config.offset + config.activation,
             "lowest_upper_z": float(upper[:, 2].min())}
 

@@ -84,19 +84,28 @@ def profile(mesh, stations=(0.0, 0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 0.6)) -> s
                      for s, p in zip(stations, rows, strict=True))
 
 
-def run(self_contact: bool, out: Path | None = None) -> dict:
-    scene = load_scene(SCENE)
-    model, plan = scene.model, scene.field
-    if not self_contact:
-        model = dataclasses.replace(model, contact=dataclasses.replace(model.contact,
-                                                                       self_contact=None))
-    start = fitted_start(model, plan.config, scene.start)
+def folded_solve(scene, model):
+    """`model` (the scene's, its contact changed) solved from the scene's folded start:
+    (the spline solve's result, its deformed mesh at the output resolution, CPU s (user +
+    sys), wall s)."""
+    start = fitted_start(model, scene.field.config, scene.start)
     before = resource.getrusage(resource.RUSAGE_SELF)
     wall = time.perf_counter()
-    result = solve_spline(model, plan, scene.solver, state=State.newton(start))
+    result = solve_spline(model, scene.field, scene.solver, state=State.newton(start))
     wall = time.perf_counter() - wall
     after = resource.getrusage(resource.RUSAGE_SELF)
     mesh = deformed_mesh(model, result.state.field, scene.output.resolution)
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return result, mesh, cpu, wall
+
+
+def run(self_contact: bool, out: Path | None = None) -> dict:
+    scene = load_scene(SCENE)
+    model = scene.model
+    if not self_contact:
+        model = dataclasses.replace(model, contact=dataclasses.replace(model.contact,
+                                                                       self_contact=None))
+    result, mesh, cpu, wall = folded_solve(scene, model)
     (lo, hi), _ = model.surface.domain.bounds
     if out is not None:
         write_obj(out / f"napkin_fold_{'on' if self_contact else 'off'}.obj", mesh.deformed,
@@ -117,7 +126,7 @@ def run(self_contact: bool, out: Path | None = None) -> dict:
             "intersections": len(intersecting_pairs(mesh.deformed, mesh.faces)),
             "energy": summary.energy, "iterations": len(result.state.history),
             "rounds": result.contact.rounds, "converged": summary.converged,
-            "cpu": after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime,
+            "cpu": cpu,
             "wall": wall, "config": model.contact.self_contact, "mesh": mesh}
 
 

@@ -37,6 +37,16 @@ def _parse(document):
     return parse_scene(copy.deepcopy(document), base_dir=SCENE.parent, path=SCENE)
 
 
+def _refused(change: dict, message: str) -> None:
+    """The skirt with its first panel's keys `change`d is refused in one line naming it."""
+    document = _document("placed")
+    document["panels"][0].update(change)
+    with pytest.raises(SceneError) as err:
+        _parse(document)
+    assert message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
 def _solved(scene):
     panels = of_scene(scene)
     panels.start(scene.solver, seed=0)
@@ -69,12 +79,7 @@ def test_a_flat_cut_panel_is_a_flat_rectangle_started_on_its_placement():
     ({"rest": "flat", "hinged": ["xi2_min"]}, "panels[0].hinged: panel 'front' is cut flat"),
 ])
 def test_bad_flat_panels_are_refused_in_one_line(change, message):
-    document = _document("placed")
-    document["panels"][0].update(change)
-    with pytest.raises(SceneError) as err:
-        _parse(document)
-    assert message in str(err.value)
-    assert "\n" not in str(err.value)
+    _refused(change, message)
 
 
 def test_flat_cut_panels_wrapped_into_a_skirt_carry_the_bending_of_the_wrap():
@@ -184,12 +189,7 @@ def test_a_panel_cut_across_the_grain_hangs_on_the_warp():
     ({"material": "denim", "grain": 45.0}, "panels[0].grain: grain 45°: the woven laws hold"),
 ])
 def test_bad_panel_materials_are_refused_in_one_line(change, message):
-    document = _document("placed")
-    document["panels"][0].update(change)
-    with pytest.raises(SceneError) as err:
-        _parse(document)
-    assert message in str(err.value)
-    assert "\n" not in str(err.value)
+    _refused(change, message)
 
 
 def test_panel_materials_read_as_presets_tables_and_grains():
@@ -246,8 +246,4 @@ def test_a_flat_cut_waist_held_on_a_smaller_circle_is_gathered_there():
     ({"rest": "flat", "held_radius": -0.1}, "panels[0].held_radius: must be > 0"),
 ])
 def test_bad_held_radii_are_refused_in_one_line(change, message):
-    document = _document("placed")
-    document["panels"][0].update(change)
-    with pytest.raises(SceneError) as err:
-        _parse(document)
-    assert message in str(err.value)
+    _refused(change, message)

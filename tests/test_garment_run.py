@@ -75,15 +75,13 @@ class _StopAfterFirstLoadStep:
         raise KeyboardInterrupt
 
 
-def test_a_resumed_garment_run_equals_the_uninterrupted_one_bit_for_bit(tmp_path):
-    """Interrupted after load step 1 (KeyboardInterrupt in a callback: the Ctrl-C path writes
-    the checkpoint), resumed from checkpoint.pt: the same coefficients, Π, history, probes
-    and load steps as the run that went through, bit for bit."""
-    scene = _scene()
+def _whole_and_resumed(scene, tmp_path):
+    """The garment `scene` solved through (its solution), and a second run interrupted after
+    its first load step (Ctrl-C inside the solve: the checkpoint is written) started again
+    from its checkpoint.pt (the discretisation, ready to solve), and that checkpoint."""
     whole = of_scene(scene)
     whole.start(scene.solver, seed=0)
     reference = whole.solve(scene.solver, callbacks=[CheckpointWriter(tmp_path / "whole.pt")])
-
     checkpoint = tmp_path / "checkpoint.pt"
     first = of_scene(scene)
     first.start(scene.solver, seed=0)
@@ -92,6 +90,15 @@ def test_a_resumed_garment_run_equals_the_uninterrupted_one_bit_for_bit(tmp_path
                                              _StopAfterFirstLoadStep()])
     resumed = of_scene(scene)
     resumed.start(scene.solver, seed=0, resume_from=checkpoint)
+    return reference, resumed, checkpoint
+
+
+def test_a_resumed_garment_run_equals_the_uninterrupted_one_bit_for_bit(tmp_path):
+    """Interrupted after load step 1 (KeyboardInterrupt in a callback: the Ctrl-C path writes
+    the checkpoint), resumed from checkpoint.pt: the same coefficients, Π, history, probes
+    and load steps as the run that went through, bit for bit."""
+    scene = _scene()
+    reference, resumed, checkpoint = _whole_and_resumed(scene, tmp_path)
     assert resumed.state.load_step == 1 and len(resumed.state.steps) == 1
     assert [h.load_factor for h in resumed.state.history] == [0.5] * len(
         resumed.state.history)
@@ -264,17 +271,7 @@ def test_a_resumed_flat_cut_gathered_skirt_equals_the_uninterrupted_one(tmp_path
     for panel in document["panels"]:
         panel["held_radius"] = 0.12
     scene = parse_scene(document, base_dir=SCENE.parent, path=SCENE)
-    whole = of_scene(scene)
-    whole.start(scene.solver, seed=0)
-    reference = whole.solve(scene.solver)
-    checkpoint = tmp_path / "checkpoint.pt"
-    first = of_scene(scene)
-    first.start(scene.solver, seed=0)
-    with pytest.raises(KeyboardInterrupt):
-        first.solve(scene.solver, callbacks=[CheckpointWriter(checkpoint),
-                                             _StopAfterFirstLoadStep()])
-    resumed = of_scene(scene)
-    resumed.start(scene.solver, seed=0, resume_from=checkpoint)
+    reference, resumed, _ = _whole_and_resumed(scene, tmp_path)
     solution = resumed.solve(scene.solver)
     for a, b in zip(reference.field.fields, solution.field.fields, strict=True):
         assert torch.equal(a.coefficients, b.coefficients)
