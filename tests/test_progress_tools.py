@@ -26,6 +26,14 @@ def test_ndf_validate_spline_shows_progress_within_5_s(tmp_path):
     assert seconds < 5, f"first progress after {seconds:.1f} s:\n{text}"
 
 
+def test_ndf_validate_siren_shows_progress_within_5_s(tmp_path):
+    """The SIREN path (Adam, with its Newton scale estimate first) of ndf-validate."""
+    command = _tool("taichi_ndf.cli.validate", "square_plate", "--field", "siren", "--quick",
+                    "--out", tmp_path / "v")
+    seconds, text = _first_progress(command, r"Newton level 0|Adam, load 1", timeout=90)
+    assert seconds < 5, f"first progress after {seconds:.1f} s:\n{text}"
+
+
 def test_ndf_sft_shows_tracking_then_reconstruction_progress(tmp_path):
     inputs = ["--frames", ROLL / "frames", "--camera", ROLL / "camera.json", "--template",
               ROLL / "template.obj", "--texture", ROLL / "texture.png", "--masks", ROLL / "masks"]
@@ -61,3 +69,29 @@ def test_ndf_sweep_says_its_plan_within_5_s(tmp_path):
     command = _tool("taichi_ndf.cli.sweep", study, "--out", tmp_path / "out")
     seconds, text = _first_progress(command, r"study: 2 runs", timeout=60)
     assert seconds < 5, f"first progress after {seconds:.1f} s:\n{text}"
+
+
+def test_ndf_sft_eval_shows_its_frames_within_5_s(tmp_path):
+    """ndf-sft-eval against point clouds (a capture's 50 Kinect clouds take about a minute):
+    a bar for reading the frames, then one for their chamfer, each counting frames."""
+    from inverse.sft.metrics import surface_samples
+    from taichi_ndf.io import write_obj
+
+    t = np.linspace(0.0, 1.0, 9)
+    x, y = np.meshgrid(t, t, indexing="ij")
+    vertices = np.column_stack([x.ravel(), y.ravel(), np.ones(x.size)])
+    a = (np.arange(8)[:, None] * 9 + np.arange(8)[None, :]).ravel()
+    faces = np.concatenate([np.column_stack([a, a + 9, a + 10]),
+                            np.column_stack([a, a + 10, a + 1])])
+    (tmp_path / "gt").mkdir()
+    for i in range(12):
+        write_obj(tmp_path / "pred" / f"{i:06d}.obj", vertices, faces)
+        np.save(tmp_path / "gt" / f"point_cloud_{i:03d}.npy",
+                surface_samples(vertices, faces, count=20000, seed=i))
+    command = _tool("inverse.cli.sft_eval", "--pred", tmp_path / "pred", "--gt",
+                    tmp_path / "gt")
+    (first, counted), text = _progress_times(
+        command, [r"read 12 meshes and clouds", r"chamfer of 12 frames.*\| *1[0-2]/12"],
+        timeout=90)
+    assert first < 5, f"first progress after {first:.1f} s:\n{text}"
+    assert counted >= first

@@ -143,17 +143,20 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _against_clouds(args: argparse.Namespace, camera) -> int:
     """Predicted meshes against point clouds: the field's chamfer protocol."""
     from inverse.sft.chamfer import evaluate_against_clouds, load_point_cloud
+    from taichi_ndf import progress
 
     pairs, how = paired_meshes(args.pred, args.gt, clouds=True)
     to_camera = camera.to_camera if camera is not None else np.asarray
     pred, clouds, faces = [], [], None
-    for name, pred_path, gt_path in pairs:
-        mesh = read_mesh(pred_path)
-        faces = mesh.faces if faces is None else faces
-        if not np.array_equal(mesh.faces, faces):
-            raise InputError(f"{name}: connectivity differs from the first frame's")
-        pred.append(to_camera(mesh.vertices))
-        clouds.append(to_camera(load_point_cloud(gt_path)))
+    with progress.stage(f"read {len(pairs)} meshes and clouds", len(pairs)):
+        for i, (name, pred_path, gt_path) in enumerate(pairs):
+            mesh = read_mesh(pred_path)
+            faces = mesh.faces if faces is None else faces
+            if not np.array_equal(mesh.faces, faces):
+                raise InputError(f"{name}: connectivity differs from the first frame's")
+            pred.append(to_camera(mesh.vertices))
+            clouds.append(to_camera(load_point_cloud(gt_path)))
+            progress.report(i + 1)
     metrics = evaluate_against_clouds(pred, faces, clouds)
     _report(args, pairs, how, metrics, ("frames", "chamfer_x1e4", "chamfer_x1e4_worst",
                                         "worst_frame", "max_vertex_distance_m",

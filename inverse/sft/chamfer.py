@@ -23,6 +23,7 @@ import numpy as np
 
 from inverse.sft.errors import InputError, existing_path
 from inverse.sft.metrics import CHAMFER_SCALE, CHAMFER_SEED, nearest_sq_distances, surface_samples
+from taichi_ndf import progress
 
 CLOUD_SUFFIXES = (".npy", ".ply")
 
@@ -154,8 +155,12 @@ def evaluate_against_clouds(
     if len(pred) != len(clouds) or len(pred) == 0:
         raise ValueError(f"need the same non-zero number of frames and clouds, got {len(pred)} "
                          f"and {len(clouds)}")
-    rows = [(CHAMFER_SCALE * chamfer_to_cloud(v, faces, c, seed=seed), max_vertex_distance(v, c))
-            for v, c in zip(pred, clouds, strict=True)]
+    rows = []
+    with progress.stage(f"chamfer of {len(pred)} frames against their clouds", len(pred)):
+        for i, (v, c) in enumerate(zip(pred, clouds, strict=True)):
+            rows.append((CHAMFER_SCALE * chamfer_to_cloud(v, faces, c, seed=seed),
+                         max_vertex_distance(v, c)))
+            progress.report(i + 1)
     cols = np.array(rows).T
     return CloudMetrics(chamfer_x1e4=cols[0], max_vertex_distance=cols[1])
 

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from inverse.sft.inputs import Camera
+from taichi_ndf import progress
 from taichi_ndf.io import vertex_normals
 
 CHAMFER_SAMPLES = 10_000
@@ -170,14 +171,16 @@ def evaluate_sequence(
         raise ValueError(f"need the same non-zero number of frames, got {len(pred)} and {len(gt)}")
     gt_faces = faces if gt_faces is None else gt_faces
     rows = []
-    for p, g in zip(pred, gt, strict=True):
-        rows.append((
-            relative_error(p, g),
-            relative_error(similarity_align(p, g), g),
-            CHAMFER_SCALE * chamfer(p, faces, g, gt_faces),
-            normal_error_deg(p, g, faces),
-            reprojection_error_px(p, g, camera) if camera is not None else np.nan,
-        ))
+    with progress.stage(f"metrics of {len(pred)} frames", len(pred)):
+        for i, (p, g) in enumerate(zip(pred, gt, strict=True)):
+            rows.append((
+                relative_error(p, g),
+                relative_error(similarity_align(p, g), g),
+                CHAMFER_SCALE * chamfer(p, faces, g, gt_faces),
+                normal_error_deg(p, g, faces),
+                reprojection_error_px(p, g, camera) if camera is not None else np.nan,
+            ))
+            progress.report(i + 1)
     cols = np.array(rows).T
     return SequenceMetrics(
         e3d=cols[0], e3d_procrustes=cols[1], chamfer_x1e4=cols[2], normal_deg=cols[3],
