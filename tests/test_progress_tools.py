@@ -95,3 +95,23 @@ def test_ndf_sft_eval_shows_its_frames_within_5_s(tmp_path):
         timeout=90)
     assert first < 5, f"first progress after {first:.1f} s:\n{text}"
     assert counted >= first
+
+
+def test_ndf_export_shows_its_stage_within_5_s(tmp_path):
+    """ndf-export of a run at a fine resolution (seconds for a million-vertex mesh)."""
+    import subprocess
+
+    from test_progress import SCENE
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE.format(field='type = "spline"\nspans = [4, 4]',
+                                  training="newton_max_iterations = 300"))
+    subprocess.run([sys.executable, "-m", "taichi_ndf.cli.sim", str(scene), "--out",
+                    str(tmp_path / "run"), "--no-pictures"], check=True, cwd=ROOT,
+                   capture_output=True)
+    command = _tool("taichi_ndf.cli.export", tmp_path / "run", "--resolution", 600,
+                    "--out", tmp_path / "fine.ply")
+    (first, done), text = _progress_times(
+        command, [r"export 600 × 600 mesh to fine\.ply", r"wrote|2/2"], timeout=90)
+    assert first < 5, f"first progress after {first:.1f} s:\n{text}"
+    assert done >= first
