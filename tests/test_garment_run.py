@@ -75,6 +75,16 @@ class _StopAfterFirstLoadStep:
         raise KeyboardInterrupt
 
 
+def _interrupted(scene, checkpoint) -> None:
+    """The garment `scene` solved until Ctrl-C after its first load step (writing
+    `checkpoint`)."""
+    first = of_scene(scene)
+    first.start(scene.solver, seed=0)
+    with pytest.raises(KeyboardInterrupt):
+        first.solve(scene.solver, callbacks=[CheckpointWriter(checkpoint),
+                                             _StopAfterFirstLoadStep()])
+
+
 def _whole_and_resumed(scene, tmp_path):
     """The garment `scene` solved through (its solution), and a second run interrupted after
     its first load step (Ctrl-C inside the solve: the checkpoint is written) started again
@@ -83,11 +93,7 @@ def _whole_and_resumed(scene, tmp_path):
     whole.start(scene.solver, seed=0)
     reference = whole.solve(scene.solver, callbacks=[CheckpointWriter(tmp_path / "whole.pt")])
     checkpoint = tmp_path / "checkpoint.pt"
-    first = of_scene(scene)
-    first.start(scene.solver, seed=0)
-    with pytest.raises(KeyboardInterrupt):
-        first.solve(scene.solver, callbacks=[CheckpointWriter(checkpoint),
-                                             _StopAfterFirstLoadStep()])
+    _interrupted(scene, checkpoint)
     resumed = of_scene(scene)
     resumed.start(scene.solver, seed=0, resume_from=checkpoint)
     return reference, resumed, checkpoint
@@ -162,11 +168,7 @@ def test_ndf_sim_resumes_a_garment_and_refuses_another_scenes_checkpoint(tmp_pat
 def test_resume_with_other_load_steps_is_refused(tmp_path):
     scene = _scene()
     checkpoint = tmp_path / "checkpoint.pt"
-    first = of_scene(scene)
-    first.start(scene.solver, seed=0)
-    with pytest.raises(KeyboardInterrupt):
-        first.solve(scene.solver, callbacks=[CheckpointWriter(checkpoint),
-                                             _StopAfterFirstLoadStep()])
+    _interrupted(scene, checkpoint)
     import dataclasses
 
     other = dataclasses.replace(scene.solver, load_steps=(0.25, 1.0))
