@@ -61,7 +61,7 @@ from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import newton_config
 
-__all__ = ["MultiPatchDiscretisation", "MultiPatchField", "MultiPatchPlan", "Patch", "PatchSeam"]
+__all__ = ["MultiPatchDiscretisation", "MultiPatchPlan", "Patch", "PatchSeam"]
 
 log = logging.getLogger(__name__)
 
@@ -70,31 +70,12 @@ DTYPE = torch.float64
 MAX_UNKNOWNS = 2_000_000
 
 
-@dataclass(frozen=True)
-class MultiPatchField:
-    """The solved fields, one `SplineField` per patch in the plan's order."""
-
-    fields: tuple[SplineField, ...]
-
-    def get_flat(self) -> torch.Tensor:
-        """All patches' coefficients as one vector (3 Σ n_i,) [m], in the plan's order."""
-        return torch.cat([f.coefficients.detach().reshape(-1) for f in self.fields])
-
-    def set_flat(self, flat: torch.Tensor) -> None:
-        """Set every patch's coefficients from `get_flat`'s layout."""
-        offset = 0
-        for f in self.fields:
-            n = f.coefficients.numel()
-            f.coefficients.data.copy_(flat[offset:offset + n].reshape(f.coefficients.shape))
-            offset += n
-
-
 @dataclass
 class PanelsRun:
     """The `solver` the callbacks are called with: the joint field, its state (method
     "newton", field the panels' `PanelFields`: `minimise.state.State`), the config."""
 
-    field: MultiPatchField
+    field: PanelFields
     state: State
     config: SolverConfig
 
@@ -346,10 +327,12 @@ class MultiPatchDiscretisation:
                         "panels (see result.json history)")
 
     @property
-    def field(self) -> MultiPatchField:
-        return MultiPatchField(tuple(self.fields))
+    def field(self) -> PanelFields:
+        """The panels' fields under their names: the run state's (after `start`), shared with
+        the solve (`self.fields`)."""
+        return self.state.field
 
-    def probes(self, field: MultiPatchField, load_factor: float) -> Probes:
+    def probes(self, field: PanelFields, load_factor: float) -> Probes:
         """Each patch's probes, named "panel.probe"."""
         out: Probes = {}
         for patch, f in zip(self.spec.patches, field.fields, strict=True):
@@ -392,7 +375,7 @@ class MultiPatchDiscretisation:
         """The patches' joined linearisation with the held edges' unknowns held too."""
         return joined(self.spec.patches, self.fields, grids, load_factor)
 
-    def result_parts(self, field: MultiPatchField) -> tuple[ResultPart, ...]:
+    def result_parts(self, field: PanelFields) -> tuple[ResultPart, ...]:
         """One part per panel, named by it, in the plan's order."""
         return tuple(ResultPart(p.name, p.model, f)
                      for p, f in zip(self.spec.patches, field.fields, strict=True))
