@@ -11,14 +11,21 @@ from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
 
 
 class HeldEdges(MultiPatchLinearisation):
-    """`MultiPatchLinearisation` with further unknowns `held` (sorted indices into the joint
-    unknowns, or None): no step and no gradient there (`Patch.held`)."""
+    """`MultiPatchLinearisation` of `grids` with the held edges' unknowns of `patches`
+    (`Patch.held`) held too: no step and no gradient there. held: their sorted indices into
+    the joint unknowns (None: no patch has held edges)."""
 
-    def __init__(self, grids, load_factor: float, held: np.ndarray | None):
+    def __init__(self, grids, load_factor: float, patches):
         super().__init__(grids, load_factor)
-        self.held = held
-        if held is not None:
-            self.fixed = held if self.fixed is None else np.union1d(self.fixed, held)
+        held = [p.held_unknowns() + o for p, o in zip(patches, self.unknown_offsets(),
+                                                       strict=False) if p.held]
+        self.held = np.concatenate(held) if held else None
+        if self.held is not None:
+            self.fixed = self.held if self.fixed is None else np.union1d(self.fixed, self.held)
+
+    def unknown_offsets(self) -> list[int]:
+        """Each patch's first joint unknown (3 per coefficient, in the plan's order)."""
+        return [3 * o for o in self.coefficient_offsets[:-1]]
 
     def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
         gradient = super().gradient(grad_u_jets)
@@ -27,25 +34,13 @@ class HeldEdges(MultiPatchLinearisation):
         return gradient
 
 
-def _offsets(fields) -> np.ndarray:
-    """Each patch's first joint unknown (3 per coefficient, in the plan's order)."""
-    return np.cumsum([0] + [3 * f.coefficients.shape[0] for f in fields])
-
-
-def joined(patches, fields, grids, load_factor: float) -> HeldEdges:
-    """The patches' (`Patch`, with their `SplineField`s `fields`) joined linearisation of
-    `grids` at `load_factor`, the held edges' unknowns held too."""
-    held = [p.held_unknowns() + o for p, o in zip(patches, _offsets(fields), strict=False)
-            if p.held]
-    return HeldEdges(grids, load_factor, np.concatenate(held) if held else None)
-
-
-def held_moves(patches, targets, fields, start: torch.Tensor):
+def held_moves(patches, targets, linear: HeldEdges, start: torch.Tensor):
     """(unknowns, start values, target values) of the held rows of the patches that have a
-    held target (`targets`: per patch the fitted target field or None), the start values
-    from the joint start coefficients `start` (the fitted placement); None: none."""
+    held target (`targets`: per patch the fitted target field or None), numbered as `linear`'s
+    joint unknowns, the start values from the joint start coefficients `start` (the fitted
+    placement); None: none."""
     index, target = [], []
-    for patch, field, offset in zip(patches, targets, _offsets(fields), strict=False):
+    for patch, field, offset in zip(patches, targets, linear.unknown_offsets(), strict=False):
         if field is not None:
             held = patch.held_unknowns()
             index.append(torch.from_numpy(held + offset))

@@ -33,7 +33,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.contact.newton_contact import NewtonContact
-from taichi_ndf.discretise.held_edges import held_moves, joined
+from taichi_ndf.discretise.held_edges import HeldEdges, held_moves
 from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
 from taichi_ndf.discretise.protocol import (
     OnLoadStep,
@@ -220,7 +220,7 @@ class MultiPatchDiscretisation:
 
         state.iteration = len(history)
         call(callbacks, "on_start", run)
-        moves = held_moves(self.spec.patches, self._targets, self.fields, self._start)
+        moves = held_moves(self.spec.patches, self._targets, linear, self._start)
         previous = steps[-1]["load_factor"] if steps else 0.0  # the contact rounds start there
         try:
             for t in config.load_steps[state.load_step:]:
@@ -373,7 +373,7 @@ class MultiPatchDiscretisation:
 
     def _joined(self, grids, load_factor: float) -> MultiPatchLinearisation:
         """The patches' joined linearisation with the held edges' unknowns held too."""
-        return joined(self.spec.patches, self.fields, grids, load_factor)
+        return HeldEdges(grids, load_factor, self.spec.patches)
 
     def result_parts(self, field: PanelFields) -> tuple[ResultPart, ...]:
         """One part per panel, named by it, in the plan's order."""
