@@ -42,6 +42,7 @@ from taichi_ndf.field import FieldConfig, NeuralField
 from taichi_ndf.minimise.last_layer import last_layer_config, solve_last_layer
 from taichi_ndf.minimise.minimisers import lbfgs
 from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.problem.field_types import of_spec
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
@@ -127,14 +128,23 @@ class ConditionedConfig:
         """The training `settings` of a conditioned field with the architecture of the SIREN
         specification `spec` (width, hidden_layers, omega0, output_scale). ValueError where
         `spec` is not a SIREN's: a conditioned field is a network taking θ as input, and a
-        spline field has no such input."""
-        if not isinstance(spec, FieldConfig):
+        spline field has no such input (`FieldType.conditioned`)."""
+        if not _takes_inputs(spec):
             raise ValueError("--method bilevel trains a material-conditioned SIREN with the "
                              "scene's [field] architecture, but the scene's [field] is not a "
                              "SIREN: give one (type = \"siren\") or use --method newton or "
                              "implicit")
         return cls(width=spec.width, hidden_layers=spec.hidden_layers, omega0=spec.omega0,
                    output_scale=spec.output_scale, **settings)
+
+
+def _takes_inputs(spec) -> bool:
+    """Whether the field type of the specification `spec` takes inputs beside ξ; False for
+    a specification of no field type a scene names (a garment's panels)."""
+    try:
+        return of_spec(spec).conditioned
+    except TypeError:
+        return False
 
 
 def to_values(unknowns: list[Unknown], z) -> list[float]:

@@ -17,21 +17,17 @@ from pathlib import Path
 import torch
 
 from taichi_ndf.field import NeuralField, SplineField
-from taichi_ndf.field.panels import PanelFields, PanelsConfig
-from taichi_ndf.problem.field_types import FIELD_TYPES, of_field
+from taichi_ndf.problem.field_types import CHECKPOINT_TYPES, of_field
 from taichi_ndf.problem.optim import Adam
 
 log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
 KIND = "taichi_ndf.minimise.checkpoint"
-# A checkpoint is tagged with its field type's name (`problem.field_types.FIELD_TYPES`: the
-# field class and its architecture class); one without a "field_type" (written before spline
-# fields existed) holds a SIREN field.
+# A checkpoint is tagged with its field type's name (`problem.field_types.CHECKPOINT_TYPES`:
+# the field class and its architecture class; "panels" for a garment's `PanelFields`); one
+# without a "field_type" (written before spline fields existed) holds a SIREN field.
 UNTAGGED = "siren"
-# The tag of a garment's fields, one spline field per panel (`PanelFields`): not a field type
-# a scene names, so not in FIELD_TYPES.
-PANELS = "panels"
 
 
 class CheckpointError(ValueError):
@@ -93,7 +89,7 @@ def save_checkpoint(
     payload = {
         "kind": KIND,
         "format_version": FORMAT_VERSION,
-        "field_type": PANELS if isinstance(field, PanelFields) else of_field(field).name,
+        "field_type": of_field(field).name,
         "architecture": field.config.to_dict(),
         "parameters": _to_cpu(field.state_dict()),
         "optimiser": None if optimiser is None else _to_cpu(optimiser.state_dict()),
@@ -127,7 +123,7 @@ def _architecture_mismatch(stored, ours) -> list[str]:
 
 def read_checkpoint(path: str | os.PathLike) -> dict:
     """The checked contents of a checkpoint file: a dict with ``field_type`` (a name of
-    `FIELD_TYPES`: "siren", "spline"; "panels": a garment's `PanelFields`), ``architecture``
+    `CHECKPOINT_TYPES`: "siren", "spline"; "panels": a garment's `PanelFields`), ``architecture``
     (its config: FieldConfig, SplineConfig, PanelsConfig),
     ``parameters`` (name -> finite tensor), ``optimiser`` (dict or None), ``extra`` (dict) and
     ``format_version``.
@@ -156,11 +152,11 @@ def read_checkpoint(path: str | os.PathLike) -> dict:
         raise CheckpointError(
             f"{path}: checkpoint format {version!r}, this version reads {FORMAT_VERSION}")
     tag = payload.get("field_type", UNTAGGED)
-    if tag not in FIELD_TYPES and tag != PANELS:
+    if tag not in CHECKPOINT_TYPES:
         raise CheckpointError(f"{path}: unknown field type {tag!r}; known: "
-                              f"{[*FIELD_TYPES, PANELS]}")
+                              f"{list(CHECKPOINT_TYPES)}")
     try:
-        config = PanelsConfig if tag == PANELS else FIELD_TYPES[tag].config
+        config = CHECKPOINT_TYPES[tag].config
         architecture = config.from_dict(payload["architecture"])
         parameters = payload["parameters"]
         if not isinstance(parameters, dict) or not all(
@@ -197,7 +193,7 @@ def load_checkpoint(
     contents = read_checkpoint(path)
     stored = contents["architecture"]
     tag = contents["field_type"]
-    field_class = PanelFields if tag == PANELS else FIELD_TYPES[tag].field
+    field_class = CHECKPOINT_TYPES[tag].field
     if field is None:
         field = field_class(stored)
     else:

@@ -5,7 +5,9 @@
 `DisplacementOperator` is the one place that evaluates the chain field → boundary composition
 and its reverse (boundary adjoint → field backward), and the one place that refuses what the
 composition cannot do (a free pin with a conditioned field: the pin's value would differ per
-sample). Any field with `jets(points, conditioning)` / `backward(grad_jets)` /
+sample). Any field of a registered field type (`taichi_ndf.problem.field_types`: what its
+configuration asks of the composition, even ends or a pseudo-time factor, is a capability of
+its entry) with `jets(points, conditioning)` / `backward(grad_jets)` /
 `evaluate(points, conditioning)` works; the Jacobian with respect to a linear block of the
 field's parameters is served for a dense block (the SIREN output layer: the same p functions at
 every point) and for a local basis (k functions per point, e.g. a spline's nearby
@@ -25,6 +27,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.problem.field_types import of_field
 
 
 @dataclass
@@ -41,8 +44,16 @@ class LocalJacobian:
     pin: torch.Tensor | None
 
 
+def _even_ends(field) -> tuple:
+    """The ends across which `field` is even by itself, per direction (its field type's
+    capability, `FieldType.even_ends`: a spline's `config.even_ends`); none for no field."""
+    if field is None or not of_field(field).even_ends:
+        return ((), ())
+    return field.config.even_ends
+
+
 def _unfolded_for(field, boundary: BoundaryConditions | None) -> BoundaryConditions | None:
-    even = getattr(getattr(field, "config", None), "even_ends", ((), ()))
+    even = _even_ends(field)
     if not any(even):
         return boundary
     planes = ((), ()) if boundary is None else boundary.fold.edge_ends
@@ -110,8 +121,8 @@ class DisplacementOperator:
     def _time_factor(self, conditioning: torch.Tensor | None) -> torch.Tensor | None:
         """A pseudo-time field's factor t (M, 1, 1) on its raw output (`FieldConfig.pseudo_time`:
         u(ξ, 0) = 0, the path starts at rest exactly); None for any other field."""
-        if conditioning is None or not getattr(getattr(self.field, "config", None),
-                                               "pseudo_time", False):
+        if (conditioning is None or not of_field(self.field).pseudo_time
+                or not self.field.config.pseudo_time):
             return None
         return conditioning[:, :1].reshape(-1, 1, 1)
 
