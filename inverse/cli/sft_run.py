@@ -16,6 +16,7 @@ from inverse.cli.sft_inputs import (
     load_run_inputs,
 )
 from inverse.cli.sft_material import check_held_corners, material_config
+from inverse.material.field_types import INVERSE_FIELD_TYPES
 from inverse.sft.baseline import mesh_edges, reconstruct_baseline
 from inverse.sft.correspondences import FrameCorrespondences, track_gaps
 from inverse.sft.crop import cropped_to_sheet
@@ -61,7 +62,8 @@ def run(args: argparse.Namespace) -> dict:
     seconds["tracking"] = time.perf_counter() - clock
 
     baseline = None
-    if args.method == "baseline" or (args.field == "siren" and args.init == "baseline"):
+    field = INVERSE_FIELD_TYPES[args.field]
+    if args.method == "baseline" or (field.initial_guesses and args.init == "baseline"):
         clock = time.perf_counter()
         baseline = reconstruct_baseline(work.template, work.camera, correspondences,
                                         pinned=work.pinned)
@@ -108,7 +110,7 @@ def run(args: argparse.Namespace) -> dict:
         "pinned": None if inputs.pinned is None else inputs.pinned.tolist(),
         "method": args.method,
         "field": None if args.method == "baseline" else args.field,
-        "init": args.init if args.field == "siren" and args.method != "baseline" else None,
+        "init": args.init if field.initial_guesses and args.method != "baseline" else None,
         "config": None if config is None else dataclasses.asdict(config),
         "correspondences_per_frame": [len(c) for c in correspondences],
         "guided": None if guided is None else {str(t): v for t, v in guided.stats.items()},
@@ -156,20 +158,23 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
     raises ValueError for options that do not fit them."""
     if args.method == "baseline":
         return None
-    if args.field == "spline" and args.precision != "f64":
-        raise ValueError("--field spline needs --precision f64 (its Hessian blocks are central "
-                         "differences)")
-    kind = SplinePriorConfig if args.field == "spline" else ReconstructionConfig
+    field = INVERSE_FIELD_TYPES[args.field]
+    if field.float64_only and args.precision != "f64":
+        raise ValueError(f"--field {args.field} needs --precision f64 (its Hessian blocks are "
+                         "central differences)")
+    kind = field.frame_settings
     weight = kind.physics_weight if args.physics_weight is None else args.physics_weight
     if args.method == "no-prior":
         weight = 0.0
-    if kind is SplinePriorConfig:
-        photometric = args.photometric_weight
-        return SplinePriorConfig(physics_weight=weight, **(
-            {} if photometric is None else {"photometric_weight": photometric}))
+    options = {"steps": args.iterations, "seed": args.seed}  # where the settings have them
     if args.photometric_weight is not None:
-        raise ValueError("--photometric-weight is an option of --field spline")
-    return ReconstructionConfig(physics_weight=weight, steps=args.iterations, seed=args.seed)
+        if not field.photometric:
+            takes = [n for n, f in INVERSE_FIELD_TYPES.items() if f.photometric]
+            raise ValueError(f"--photometric-weight is an option of --field "
+                             f"{' or '.join(takes)}")
+        options["photometric_weight"] = args.photometric_weight
+    names = {f.name for f in dataclasses.fields(kind)}
+    return kind(physics_weight=weight, **{k: v for k, v in options.items() if k in names})
 
 
 def overlay_frames(

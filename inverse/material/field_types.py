@@ -35,7 +35,9 @@ class InverseFieldType:
     settings class that names this field; frame_fit: its per-frame fit
     (`inverse.sft.sequential.FrameFit`, built as `frame_fit(template, pinned=, config=)`);
     initial_guesses: whether the frame fit takes per-frame initial guesses (`initial=`);
-    photometric: whether it takes the photometric term (`inverse.sft.photometric`).
+    photometric: whether it takes the photometric term (`inverse.sft.photometric`);
+    float64_only: whether the frame fit needs the runtime in float64 (`ndf-sft --precision
+    f64`: the spline prior's Hessian blocks are central differences).
     """
 
     field_type: FieldType
@@ -44,14 +46,15 @@ class InverseFieldType:
     frame_fit: type
     initial_guesses: bool
     photometric: bool
+    float64_only: bool
 
 
 # Field types by name (the forward registry's names).
 INVERSE_FIELD_TYPES: dict[str, InverseFieldType] = {kind.field_type.name: kind for kind in (
     InverseFieldType(SIREN, ImplicitEquilibrium, ReconstructionConfig, FieldReconstructor,
-                     initial_guesses=True, photometric=False),
+                     initial_guesses=True, photometric=False, float64_only=False),
     InverseFieldType(SPLINE, SplineEquilibrium, SplinePriorConfig, SplinePriorReconstructor,
-                     initial_guesses=False, photometric=True))}
+                     initial_guesses=False, photometric=True, float64_only=True))}
 
 
 def of_field_config(spec: Any) -> InverseFieldType:
