@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -100,19 +102,42 @@ def _bilevel_samples(args) -> tuple[int, int]:
     return (512, 2048) if args.quick else (1024, 4096)
 
 
+def _check_newton_size(args, model, itemsize: int) -> None:
+    """The Newton estimate's finest grid (its Hessian work is float64: itemsize unused)."""
+    config = _newton_config(args)
+    plan = SplinePlan(config.model.grid(model), levels=config.levels,
+                      quadrature_points=config.model.quadrature_points)
+    check_spline_size(plan, advice="choose fewer --spans")
+
+
+def _check_implicit_size(args, model, itemsize: int) -> None:
+    """The implicit estimate's SIREN features on its Newton samples."""
+    width, samples = _implicit_sizes(args)
+    field = FieldConfig(width=width, hidden_layers=ImplicitConfig.hidden_layers)
+    check_siren_size(field, samples, itemsize, advice="choose a smaller --width or fewer "
+                                                      "--samples")
+
+
+@dataclass(frozen=True)
+class _FieldFit:
+    """A method that fits the unknowns on one field type's equilibria (`newton_estimate` on
+    a spline grid, `implicit_estimate` on fixed SIREN features): its memory check
+    (args, model, itemsize; ValueError in one line), its estimate (args, observations,
+    unknowns -> `OuterResult`; InputError on bad settings) and, in estimate.json, the name of
+    the forward model's part of the standard error and of the list of its fits."""
+
+    check_size: Callable[..., None]
+    estimate: Callable[..., object]
+    model_error: str
+    fits: str
+
+
 def _check_sizes(args, scene, model, itemsize: int) -> None:
     """The memory of the method's largest solve against the machine's, before any work
     (`taichi_ndf.problem.run_size`, the check ndf-sim makes); ValueError in one line beyond it."""
-    if args.method == "newton":
-        config = _newton_config(args)
-        plan = SplinePlan(config.model.grid(model), levels=config.levels,
-                          quadrature_points=config.model.quadrature_points)
-        check_spline_size(plan, advice="choose fewer --spans")
-    elif args.method == "implicit":
-        width, samples = _implicit_sizes(args)
-        field = FieldConfig(width=width, hidden_layers=ImplicitConfig.hidden_layers)
-        check_siren_size(field, samples, itemsize, advice="choose a smaller --width or fewer "
-                                                          "--samples")
+    fit = FIELD_FITS.get(args.method)
+    if fit is not None:
+        fit.check_size(args, model, itemsize)
     elif args.method == "bilevel":  # a SIREN field: `_conditioned` refused any other
         check_siren_size(scene.field, max(_bilevel_samples(args)), itemsize,
                          advice="choose a narrower [field] in the scene")
@@ -137,6 +162,15 @@ def _newton(args, observations, unknowns):
         return newton_estimate(observations, unknowns, _newton_config(args))
     except ValueError as err:
         raise InputError(str(err)) from None
+
+
+# The --method choices that fit on one field type's equilibria, by name.
+FIELD_FITS: dict[str, _FieldFit] = {
+    "newton": _FieldFit(_check_newton_size, _newton, model_error="discretisation",
+                        fits="grids"),
+    "implicit": _FieldFit(_check_implicit_size, _implicit, model_error="feature_spread",
+                          fits="feature_bases"),
+}
 
 
 def _add_fits(document: dict, result, unknowns, part: str, fits: str) -> None:
@@ -206,15 +240,13 @@ def run(args, runtime) -> dict:
         estimate = residual_estimate(observations, unknowns, ResidualConfig(samples=16384))
         document = estimate_document(estimate, model, notes=estimate.notes)
         fitted = estimate.shapes[0].positions(grid_xi).numpy()
-    elif args.method in ("newton", "implicit"):
-        newton = args.method == "newton"
-        result = (_newton if newton else _implicit)(args, observations, unknowns)
+    elif args.method in FIELD_FITS:
+        fit = FIELD_FITS[args.method]
+        result = fit.estimate(args, observations, unknowns)
         estimate = result.estimate
         document = estimate_document(estimate, model, ratios=result.ratios, notes=result.notes,
                                      goodness=goodness(estimate, result.fits))
-        _add_fits(document, result, unknowns,
-                  *(("discretisation", "grids") if newton else ("feature_spread",
-                                                               "feature_bases")))
+        _add_fits(document, result, unknowns, fit.model_error, fit.fits)
         fitted = result.fitted_positions(0, grid_xi).numpy()
     else:
         try:
