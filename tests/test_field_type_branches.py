@@ -179,3 +179,41 @@ value = getattr(self, name)
 kind = FIELD_TYPES[args.field]
 """
     assert branches(passed) == []
+
+
+def test_the_entries_carry_what_the_branches_asked(tmp_path):
+    """What the removed branches tested is now a value of the entry: a garment's panels are
+    a checkpoint type of their own (tag "panels", saved and loaded through `of_field` /
+    `CHECKPOINT_TYPES`) that no scene names; the operator's and the bilevel fit's
+    capabilities; the SfT tool's per-field settings."""
+    import torch
+
+    from inverse.material.field_types import INVERSE_FIELD_TYPES
+    from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
+    from taichi_ndf.field.panels import PanelFields, PanelsConfig
+    from taichi_ndf.minimise.checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
+    from taichi_ndf.problem.field_types import (
+        CHECKPOINT_TYPES,
+        FIELD_TYPES,
+        PANELS,
+        SIREN,
+        SPLINE,
+        of_field,
+    )
+
+    grid = SplineConfig(spans=(2, 1), domain=((0.0, 1.0), (0.0, 0.5)))
+    panels = PanelFields(PanelsConfig(("front", "back"), (grid, grid)))
+    panels.fields[1].parameters[0].fill_(0.25)
+    assert of_field(panels) is PANELS and "panels" not in FIELD_TYPES
+    assert set(CHECKPOINT_TYPES) == {*FIELD_TYPES, "panels"}
+    path = save_checkpoint(tmp_path / "panels.pt", panels)
+    assert read_checkpoint(path)["field_type"] == "panels"
+    loaded = load_checkpoint(path).field
+    assert isinstance(loaded, PanelFields) and loaded.config == panels.config
+    assert torch.equal(loaded.get_flat(), panels.get_flat())
+    assert (SIREN.pseudo_time, SIREN.conditioned, SIREN.even_ends) == (True, True, False)
+    assert (SPLINE.pseudo_time, SPLINE.conditioned, SPLINE.even_ends) == (False, False, True)
+    sft = {name: (k.frame_settings, k.initial_guesses, k.photometric, k.float64_only)
+           for name, k in INVERSE_FIELD_TYPES.items()}
+    assert sft == {"siren": (ReconstructionConfig, True, False, False),
+                   "spline": (SplinePriorConfig, False, True, True)}

@@ -110,5 +110,5 @@ def of_field(field: Any) -> FieldType:
     for kind in CHECKPOINT_TYPES.values():
         if isinstance(field, kind.field):
             return kind
-    raise TypeError(f"cannot checkpoint a {type(field).__name__}; fields: "
-                    f"{list(CHECKPOINT_TYPES)}")
+    raise TypeError(f"no field type of a {type(field).__name__} (known: "
+                    f"{', '.join(kind.field.__name__ for kind in CHECKPOINT_TYPES.values())})")
