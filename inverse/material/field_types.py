@@ -5,8 +5,10 @@ per-frame fit with the settings class that names it.
 
 The one place in `inverse` that tells field types apart, as `taichi_ndf.discretise` is for
 the forward solves: `inverse.material.forward_model` and `inverse.sft.frame_fits` look their
-class up here. A third field type is one `InverseFieldType` entry (its equilibrium and its
-frame fit) beside its forward `FieldType`. It lives in `inverse.material` although it names
+class up here, and `ndf-sft` (`inverse.cli.sft_run`) its `--field`'s settings class and
+capabilities (initial guesses, the photometric term, float64 only). A third field type is
+one `InverseFieldType` entry (its equilibrium and its frame fit) beside its forward
+`FieldType`. It lives in `inverse.material` although it names
 the SfT fits too: `inverse.material` imports `forward_model` when the package is imported,
 so a registry outside the package that imports the equilibria would close an import cycle.
 """
