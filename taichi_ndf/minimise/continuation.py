@@ -18,7 +18,9 @@ gives the loop what differs (`Stages`):
   grid). Without it the start is None: the state lives in place (a SIREN's weights);
 - `enter_level(level)`: set a level up (refine the grid, its quadrature and assembly);
 - `after_step(step, result)`, `after_level(level, results)`, `before_end()`: the path's
-  bookkeeping (its `State`, its log lines), run before the callbacks see the state.
+  bookkeeping (its `State`, its log lines), run before the callbacks see the state;
+- `interrupted()`: Ctrl-C (KeyboardInterrupt) inside a step or its bookkeeping or callbacks:
+  bring the state back to the last finished step (a garment's), before it propagates.
 
 The callbacks (`taichi_ndf.minimise.callbacks`, called with `subject`, the object they see as
 `solver`) are called here for every path: on_start before the first step, on_load_step(solver,
@@ -77,6 +79,7 @@ class Stages:
     after_step: Callable[[Step, Any], None] | None = None
     after_level: Callable[[int, list], None] | None = None
     before_end: Callable[[], None] | None = None
+    interrupted: Callable[[], None] | None = None
 
 
 def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = None,
@@ -87,7 +90,8 @@ def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = N
                ) -> list[list[Any]]:
     """Solve every step (`steps`: their values, load factors or frame indices) from
     `first_step` on, on every grid level from `first_level` below `levels` (None: a field
-    without grid levels, one pass and no on_level), calling the stages and the callbacks, and
+    without grid levels, one pass and no on_level; there `first_step` may be len(steps): a
+    finished run resumed, nothing left to solve), calling the stages and the callbacks, and
     with `stage` the progress reports (module docstring). done: the results of the first
     level's steps from `first_step` on that are already solved (a run resumed inside a
     level: they are not solved again); coarser: the results of the level below the first
@@ -99,9 +103,26 @@ def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = N
     if next_value is not None:
         if stage is not None:
             raise ValueError("solve_over: steps found as the loop goes cannot be counted")
-    elif not 0 <= first_step < len(steps):
-        raise ValueError(f"first_step must be in [0, {len(steps)}), got {first_step}")
+    elif not 0 <= first_step < len(steps) + (levels is None):
+        raise ValueError(f"first_step must be in [0, {len(steps) + (levels is None)}), got "
+                         f"{first_step}")
     call(callbacks, "on_start", subject)
+    try:
+        results = _levels(stages, steps, levels, first_level, first_step, callbacks, subject,
+                          stage, done, coarser, next_value)
+    except KeyboardInterrupt:
+        if stages.interrupted is not None:
+            stages.interrupted()
+        raise
+    if stages.before_end is not None:
+        stages.before_end()
+    call(callbacks, "on_end", subject)
+    return results
+
+
+def _levels(stages: Stages, steps, levels, first_level, first_step, callbacks, subject, stage,
+            done, coarser, next_value) -> list[list[Any]]:
+    """`solve_over`'s loop over the levels and their steps (its arguments)."""
     results: list[list[Any]] = []
     for level in range(first_level, first_level + 1 if levels is None else levels):
         if stages.enter_level is not None:
@@ -122,9 +143,6 @@ def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = N
             if stages.after_level is not None:
                 stages.after_level(level, per_step)
             call(callbacks, "on_level", subject)
-    if stages.before_end is not None:
-        stages.before_end()
-    call(callbacks, "on_end", subject)
     return results
 
 
