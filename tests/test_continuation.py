@@ -142,3 +142,27 @@ def test_ctrl_c_inside_the_loop_calls_interrupted_and_propagates_without_ending(
                    [0.25, 0.5, 1.0], callbacks=[calls])
     assert seen == [0.25, 0.5, "interrupted"]
     assert calls.seen == ["start", 0.25, 0.5]
+
+
+def test_levels_chosen_as_the_loop_goes_stop_where_next_level_says():
+    """`next_level(level)`: asked before each level from `first_level` on (here: on while the
+    last level's result is below 3); on_level and after_level after each level solved."""
+    asked, after = [], []
+    results: list = []
+
+    def next_level(level):
+        asked.append(level)
+        return not results or results[-1] < 3
+
+    def solve(step, begin):
+        results.append(step.level + step.value)
+        return results[-1]
+
+    calls = Calls()
+    levels = solve_over(Stages(solve, after_level=lambda level, r: after.append((level, r))),
+                        [0.5, 1.0], first_level=1, next_level=next_level, callbacks=[calls])
+    assert asked == [1, 2, 3] and levels == [[1.5, 2.0], [2.5, 3.0]]
+    assert after == [(1, [1.5, 2.0]), (2, [2.5, 3.0])]
+    assert calls.seen == ["start", 0.5, 1.0, "level", 0.5, 1.0, "level", "end"]
+    with pytest.raises(ValueError, match="not counted"):
+        solve_over(Stages(solve), [1.0], levels=2, next_level=next_level)
