@@ -3,6 +3,7 @@ equidistributed next grid, the projection warm start, the loop's stopping rule a
 refusals, and one small run end to end through ndf-sim (result.json's estimate)."""
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -13,6 +14,7 @@ from taichi_ndf.solve.adaptive import AdaptiveConfig, density_order, project, to
 from taichi_ndf.solve.error_indicator import equidistributed, knot_density, span_edges, span_index
 
 F64 = torch.float64
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_a_tabulated_density_gives_the_map_of_the_same_density():
@@ -224,3 +226,44 @@ def test_an_unconverged_window_never_meets_the_tolerance(tmp_path):
     assert "grid levels 0, 1, 2 of 3 not converged" in adaptive["worst"]
     assert "over the budget" in adaptive["stopped"] and "not converged" in adaptive["stopped"]
     assert len(adaptive["stopped"].splitlines()) == 1
+
+
+class _Seen:
+    """The callbacks an adaptive solve calls, with the number of finished grid levels."""
+
+    def __init__(self):
+        self.calls = []
+
+    def on_start(self, run):
+        self.calls.append(("start", len(run.levels)))
+
+    def on_load_step(self, run, load_factor):
+        self.calls.append(("load_step", len(run.levels)))
+
+    def on_level(self, run):
+        self.calls.append(("level", len(run.levels)))
+
+    def on_end(self, run):
+        self.calls.append(("end", len(run.levels)))
+
+
+def test_the_adaptive_grids_are_a_pass_of_the_continuation_loop():
+    """napkin 3² → 6² → 12² (budget 700): the adaptive grid (level 2) is solved by
+    `solve_over` after `solve_spline`'s two levels, so the callbacks see its load steps, its
+    on_level and on_end after the last level (before: on_end after level 1, then the adaptive
+    grid's on_level only)."""
+    from taichi_ndf.discretise import of_scene
+    from taichi_ndf.discretise.adaptive import adaptive
+    from taichi_ndf.scene.reader import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "napkin.toml", field="spline",
+                       overrides={"field.spans": [3, 3]})
+    run = adaptive(of_scene(scene), AdaptiveConfig(1e-3, max_unknowns=700))
+    run.start(scene.solver, seed=0)
+    seen = _Seen()
+    solution = run.solve(scene.solver, callbacks=[seen])
+    assert solution.settings["spans"] == [[3, 3], [6, 6], [12, 12]]
+    steps = len(scene.solver.load_steps)
+    assert seen.calls == [("start", 0), *[("load_step", 0)] * steps, ("level", 1),
+                          *[("load_step", 1)] * steps, ("level", 2), ("end", 2),
+                          ("start", 2), *[("load_step", 2)] * steps, ("level", 3), ("end", 3)]

@@ -81,7 +81,9 @@ def test_a_named_stage_reports_each_finished_step_and_none_without_it():
 
 def test_bad_first_step_or_level_is_refused():
     with pytest.raises(ValueError, match="first_step"):
-        solve_over(Stages(lambda step, begin: None), [1.0], first_step=1)
+        solve_over(Stages(lambda step, begin: None), [1.0], first_step=2)
+    with pytest.raises(ValueError, match="first_step"):  # a level has steps to solve
+        solve_over(Stages(lambda step, begin: None), [1.0], levels=1, first_step=1)
     with pytest.raises(ValueError, match="first_level"):
         solve_over(Stages(lambda step, begin: None), [1.0], levels=2, first_level=2)
 
@@ -109,3 +111,58 @@ def test_steps_found_as_the_loop_goes_take_their_value_from_the_last_result():
     assert [i for i, _ in asked] == [3, 4, 5, 6, 7]
     with pytest.raises(ValueError, match="cannot be counted"):
         solve_over(Stages(solve), (), next_value=next_value, stage="steps")
+
+
+def test_a_finished_run_resumed_solves_nothing_but_starts_and_ends():
+    """first_step = len(steps) without levels (a garment's finished run resumed): no step is
+    solved, on_start and on_end are called."""
+    calls = Calls()
+    results = solve_over(Stages(lambda step, begin: pytest.fail("solved")), [0.5, 1.0],
+                         first_step=2, callbacks=[calls])
+    assert results == [[]] and calls.seen == ["start", "end"]
+
+
+def test_ctrl_c_inside_the_loop_calls_interrupted_and_propagates_without_ending():
+    """`Stages.interrupted`: called on a KeyboardInterrupt in a step or its callbacks, after
+    the steps finished before it; on_end and before_end are not called."""
+    seen = []
+
+    class Stop(Calls):
+        def on_load_step(self, solver, value):
+            super().on_load_step(solver, value)
+            if value == 0.5:
+                raise KeyboardInterrupt
+
+    calls = Stop()
+    with pytest.raises(KeyboardInterrupt):
+        solve_over(Stages(lambda step, begin: step.value,
+                          after_step=lambda step, result: seen.append(result),
+                          before_end=lambda: seen.append("before_end"),
+                          interrupted=lambda: seen.append("interrupted")),
+                   [0.25, 0.5, 1.0], callbacks=[calls])
+    assert seen == [0.25, 0.5, "interrupted"]
+    assert calls.seen == ["start", 0.25, 0.5]
+
+
+def test_levels_chosen_as_the_loop_goes_stop_where_next_level_says():
+    """`next_level(level)`: asked before each level from `first_level` on (here: on while the
+    last level's result is below 3); on_level and after_level after each level solved."""
+    asked, after = [], []
+    results: list = []
+
+    def next_level(level):
+        asked.append(level)
+        return not results or results[-1] < 3
+
+    def solve(step, begin):
+        results.append(step.level + step.value)
+        return results[-1]
+
+    calls = Calls()
+    levels = solve_over(Stages(solve, after_level=lambda level, r: after.append((level, r))),
+                        [0.5, 1.0], first_level=1, next_level=next_level, callbacks=[calls])
+    assert asked == [1, 2, 3] and levels == [[1.5, 2.0], [2.5, 3.0]]
+    assert after == [(1, [1.5, 2.0]), (2, [2.5, 3.0])]
+    assert calls.seen == ["start", 0.5, 1.0, "level", 0.5, 1.0, "level", "end"]
+    with pytest.raises(ValueError, match="not counted"):
+        solve_over(Stages(solve), [1.0], levels=2, next_level=next_level)

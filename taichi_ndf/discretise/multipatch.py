@@ -10,7 +10,10 @@ block-diagonal K, the seams' pair couplings across patches); the load factor ram
 sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), a material per
 patch (one `ShellEnergyTerm` over the joined points where all are the same, else a
 `PanelEnergy` of one per patch) and one gravity for all patches, float64.
-The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as `solver`: on_start,
+The load steps are the steps of the one continuation loop (`minimise.continuation.solve_over`:
+a step's Newton is its `Stages.solve`, the step record its `after_step`, the rollback on Ctrl-C
+its `interrupted`). The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as
+`solver`: on_start,
 on_record at every Newton iteration (the divergence guard), on_load_step, on_resume_point
 after each load step and on Ctrl-C (a `CheckpointWriter` writes the run's `State`: the panels'
 coefficients, `PanelFields`, and the finished load steps) and on_end; `start` resumes from
@@ -48,6 +51,7 @@ from taichi_ndf.field.panels import PanelFields
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.callbacks import call
 from taichi_ndf.minimise.checkpoint import CheckpointError
+from taichi_ndf.minimise.continuation import Hook, Stages, solve_over
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
 from taichi_ndf.minimise.multipatch import MultiPatchGrid, MultiPatchLinearisation
@@ -219,49 +223,58 @@ class MultiPatchDiscretisation:
             state.iteration = len(history)
 
         state.iteration = len(history)
-        call(callbacks, "on_start", run)
         moves = held_moves(self.spec.patches, self._targets, linear, self._start)
         previous = steps[-1]["load_factor"] if steps else 0.0  # the contact rounds start there
-        try:
-            for t in config.load_steps[state.load_step:]:
-                linear = self._joined(grids, t)
-                if moves is not None:  # the held rows moved towards their targets (no step)
-                    held, first, target = moves
-                    c = c.clone()
-                    c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (target - first)
-                phase = Phase(NewtonMinimiser(newton, load_factor=t),
-                              objective=lambda linear=linear, t=t: (linear,
-                                                                    objective.potential(t)),
-                              parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
-                              stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
-                                     newton.max_iterations))
-                if contact is not None:  # the contact rounds over the joint chart
-                    phase.minimiser = contact[0].minimiser(newton, load_factor=t,
-                                                           start_load_factor=previous,
-                                                           terms_at=self._seams_at(seams))
-                    phase.objective = lambda: contact[1:] + (Objective(objective.shell),)
-                solution, = run_phases([phase])
-                previous = t
-                c, energy = solution.parameters, solution.energy
-                self.converged.append(solution.converged)
-                steps.append({"load_factor": t, "energy": energy,
-                              "iterations": len(solution.history),
-                              "converged": solution.converged})
-                self._set(c, linear)
-                state.load_step += 1
-                call(callbacks, "on_load_step", run, t)
-                call(callbacks, "on_resume_point", run)
-                if config.progress and report is not None:
-                    report(f"load factor {t:g}: Π = {energy:.8g} J, {len(solution.history)} "
-                           f"Newton iterations, converged {solution.converged}")
-                if on_load_step is not None:
-                    on_load_step(t, self.field)
-        except KeyboardInterrupt:  # the fields hold the last finished load step's solution
+
+        def solve(step, _start):  # one load step's Newton (or contact rounds) from c
+            nonlocal c, linear, previous
+            t = step.value
+            linear = self._joined(grids, t)
+            if moves is not None:  # the held rows moved towards their targets (no step)
+                held, first, target = moves
+                c = c.clone()
+                c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (target - first)
+            phase = Phase(NewtonMinimiser(newton, load_factor=t),
+                          objective=lambda linear=linear: (linear, objective.potential(t)),
+                          parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
+                          stage=(f"Newton, {len(self.fields)} panels, load factor {t:g}",
+                                 newton.max_iterations))
+            if contact is not None:  # the contact rounds over the joint chart
+                phase.minimiser = contact[0].minimiser(newton, load_factor=t,
+                                                       start_load_factor=previous,
+                                                       terms_at=self._seams_at(seams))
+                phase.objective = lambda: contact[1:] + (Objective(objective.shell),)
+            solution, = run_phases([phase])
+            previous = t
+            return solution
+
+        def stepped(step, solution) -> None:  # the step's record, the fields set to it
+            nonlocal c, energy
+            c, energy = solution.parameters, solution.energy
+            self.converged.append(solution.converged)
+            steps.append({"load_factor": step.value, "energy": energy,
+                          "iterations": len(solution.history),
+                          "converged": solution.converged})
+            self._set(c, linear)
+            state.load_step += 1
+
+        def resume_point(t: float) -> None:  # after the callbacks' on_load_step
+            call(callbacks, "on_resume_point", run)
+            if config.progress and report is not None:
+                last = steps[-1]
+                report(f"load factor {t:g}: Π = {energy:.8g} J, {last['iterations']} "
+                       f"Newton iterations, converged {last['converged']}")
+            if on_load_step is not None:
+                on_load_step(t, self.field)
+
+        def interrupted() -> None:  # the fields hold the last finished load step's solution
             del history[sum(s["iterations"] for s in steps):]
             state.iteration = len(history)
             call(callbacks, "on_resume_point", run)
-            raise
-        call(callbacks, "on_end", run)
+
+        solve_over(Stages(solve, after_step=stepped, interrupted=interrupted),
+                   config.load_steps, first_step=state.load_step, subject=run,
+                   callbacks=(*callbacks, Hook("on_load_step", resume_point)))
         if contact is not None:  # the grids back on their Gauss and seam points (seam_gaps)
             for grid, points in zip(grids, self._points, strict=True):
                 grid.assemble(points)

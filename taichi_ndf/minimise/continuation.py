@@ -18,12 +18,15 @@ gives the loop what differs (`Stages`):
   grid). Without it the start is None: the state lives in place (a SIREN's weights);
 - `enter_level(level)`: set a level up (refine the grid, its quadrature and assembly);
 - `after_step(step, result)`, `after_level(level, results)`, `before_end()`: the path's
-  bookkeeping (its `State`, its log lines), run before the callbacks see the state.
+  bookkeeping (its `State`, its log lines), run before the callbacks see the state;
+- `interrupted()`: Ctrl-C (KeyboardInterrupt) inside a step or its bookkeeping or callbacks:
+  bring the state back to the last finished step (a garment's), before it propagates.
 
 The callbacks (`taichi_ndf.minimise.callbacks`, called with `subject`, the object they see as
 `solver`) are called here for every path: on_start before the first step, on_load_step(solver,
 step value) after each step, on_level(solver) after each grid level (only where the field has
-grid levels: `levels` given), on_end after the last. The per-iteration hooks (on_step,
+grid levels: `levels` given, or `next_level`: grids chosen as the loop goes, the adaptive
+path's), on_end after the last. The per-iteration hooks (on_step,
 on_record, on_iteration, on_polish) come from inside a step's minimiser. With `stage` named,
 the loop also reports each finished step to a progress stage of that name
 (`taichi_ndf.progress.counted`; the SfT frames); the forward paths report from inside their
@@ -77,33 +80,59 @@ class Stages:
     after_step: Callable[[Step, Any], None] | None = None
     after_level: Callable[[int, list], None] | None = None
     before_end: Callable[[], None] | None = None
+    interrupted: Callable[[], None] | None = None
 
 
 def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = None,
                first_level: int = 0, first_step: int = 0, callbacks: Sequence[Any] = (),
                subject: Any = None, stage: str | None = None, done: Sequence[Any] = (),
                coarser: list[Any] | None = None,
-               next_value: Callable[[int, Any], float | None] | None = None
+               next_value: Callable[[int, Any], float | None] | None = None,
+               next_level: Callable[[int], bool] | None = None
                ) -> list[list[Any]]:
     """Solve every step (`steps`: their values, load factors or frame indices) from
     `first_step` on, on every grid level from `first_level` below `levels` (None: a field
-    without grid levels, one pass and no on_level), calling the stages and the callbacks, and
+    without grid levels, one pass and no on_level; there `first_step` may be len(steps): a
+    finished run resumed, nothing left to solve), calling the stages and the callbacks, and
     with `stage` the progress reports (module docstring). done: the results of the first
     level's steps from `first_step` on that are already solved (a run resumed inside a
     level: they are not solved again); coarser: the results of the level below the first
     (None: none). next_value(index, the previous step's result or None): the value of step
     `index` or None (the end), for steps not known in advance (`steps` then unused: give ()),
-    without `stage`. Returns the results per level of this run, per step solved."""
+    without `stage`. next_level(level): whether grid level `level` (from `first_level` on) is
+    solved, for levels chosen as the loop goes (adaptive grids: `levels` then None; the
+    on_level callbacks and `after_level` as with `levels`). Returns the results per level of
+    this run, per step solved."""
+    if next_level is not None and levels is not None:
+        raise ValueError("solve_over: levels found as the loop goes are not counted")
     if levels is not None and not 0 <= first_level < levels:
         raise ValueError(f"first_level must be in [0, {levels}), got {first_level}")
     if next_value is not None:
         if stage is not None:
             raise ValueError("solve_over: steps found as the loop goes cannot be counted")
-    elif not 0 <= first_step < len(steps):
-        raise ValueError(f"first_step must be in [0, {len(steps)}), got {first_step}")
+    else:  # one pass (no levels) may have nothing left: a finished run resumed
+        last = len(steps) + (levels is None and next_level is None)
+        if not 0 <= first_step < last:
+            raise ValueError(f"first_step must be in [0, {last}), got {first_step}")
     call(callbacks, "on_start", subject)
+    try:
+        results = _levels(stages, steps, levels, first_level, first_step, callbacks, subject,
+                          stage, done, coarser, next_value, next_level)
+    except KeyboardInterrupt:
+        if stages.interrupted is not None:
+            stages.interrupted()
+        raise
+    if stages.before_end is not None:
+        stages.before_end()
+    call(callbacks, "on_end", subject)
+    return results
+
+
+def _levels(stages: Stages, steps, levels, first_level, first_step, callbacks, subject, stage,
+            done, coarser, next_value, next_level) -> list[list[Any]]:
+    """`solve_over`'s loop over the levels and their steps (its arguments)."""
     results: list[list[Any]] = []
-    for level in range(first_level, first_level + 1 if levels is None else levels):
+    for level in _level_numbers(levels, first_level, next_level):
         if stages.enter_level is not None:
             stages.enter_level(level)
         coarser = results[-1] if results else coarser
@@ -118,14 +147,22 @@ def solve_over(stages: Stages, steps: Sequence[float], *, levels: int | None = N
                 stages.after_step(step, result)
             call(callbacks, "on_load_step", subject, step.value)
         results.append(per_step)
-        if levels is not None:
+        if levels is not None or next_level is not None:
             if stages.after_level is not None:
                 stages.after_level(level, per_step)
             call(callbacks, "on_level", subject)
-    if stages.before_end is not None:
-        stages.before_end()
-    call(callbacks, "on_end", subject)
     return results
+
+
+def _level_numbers(levels: int | None, first_level: int, next_level):
+    """The levels from `first_level` on: below `levels`, one (None), or while next_level."""
+    if next_level is None:
+        yield from range(first_level, first_level + 1 if levels is None else levels)
+        return
+    level = first_level
+    while next_level(level):
+        yield level
+        level += 1
 
 
 def _steps(level: int, steps: Sequence[float], first_step: int, per_step: list, next_value,

@@ -26,7 +26,10 @@ two solves, per knot span); without one (the default, "none": measured worse tha
 The spans double per level in η, so h halves as the rule assumes; the knots move between
 levels, so the observed order is that of the adaptive sequence (the rule sees the sequence's
 own convergence: where it is erratic the order is "unreliable" and the bar widens to 3 × the
-range of the last three values). The estimate is of the last load step. Refused: obstacles
+range of the last three values). The estimate is of the last load step. Levels 0 and 1 are
+`solve_spline`'s; the adaptive levels from 2 on are one more pass of the continuation loop
+(`minimise.continuation.solve_over`, its `next_level`: the stopping rule and the next grid),
+so the callbacks see on_start, on_load_step, on_level and on_end there too. Refused: obstacles
 (contact check points and κ are per grid and load path), a resumed run.
 """
 
@@ -46,7 +49,7 @@ import torch
 
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.minimise.callbacks import call
-from taichi_ndf.minimise.continuation import Step
+from taichi_ndf.minimise.continuation import Hook, Stages, Step, solve_over
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, extrapolate_changes
@@ -282,7 +285,10 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
         run.state.iteration = len(run.state.history)
 
     outcome, stopped = "budget", ""
-    while True:
+    grid: dict = {}  # the level being solved: its grid ("config"), the one before ("fine")
+
+    def next_level(level: int) -> bool:  # the next grid, unless the tolerance or budget stops
+        nonlocal outcome, stopped
         if len(run.levels) >= 3:
             met, worst = tolerance_met(run.refinement(degree), adaptive.tolerance,
                                        [lv.converged for lv in run.levels])
@@ -292,7 +298,7 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
             if met:
                 outcome = "tolerance met"
                 stopped = f"--tolerance {adaptive.tolerance:g} met: {worst}"
-                break
+                return False
         coarse, fine = snapshots[-2], snapshots[-1]
         if adaptive.indicator == "none":
             next_config = fine.config.refined()
@@ -309,35 +315,43 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                        f"{unknowns(next_config)} unknowns) is over the budget of "
                        f"{adaptive.max_unknowns} unknowns; {record.get('worst', 'no estimate')}")
             log.warning("%s", stopped)
-            break
-        level = len(run.levels)
-        step_started = time.perf_counter()
-        solutions = []
-        for index, (t_step, coefficients) in enumerate(run.steps):
-            start = SplineField(fine.config, dtype=dtype)
-            start.coefficients.copy_(coefficients)
-            field, solution = solve_on(model, start, next_config, plan, config, objective,
-                                       level=level, step=index,
-                                       coarse_energy=run.load_steps[index]["energy"],
-                                       on_iteration=iterated)
-            solutions.append(solution)
-            if on_load_step is not None:
-                field.coefficients.copy_(solution.coefficients)
-                on_load_step(t_step, field)
+            return False
+        grid.update(config=next_config, fine=fine, started=time.perf_counter())
+        return True
+
+    def solve(step: Step, _start) -> tuple[SplineField, LevelSolution]:
+        """A load step on the new grid from the level before's solution there, projected."""
+        start = SplineField(grid["fine"].config, dtype=dtype)
+        start.coefficients.copy_(run.steps[step.index][1])
+        return solve_on(model, start, grid["config"], plan, config, objective,
+                        level=step.level, step=step.index,
+                        coarse_energy=run.load_steps[step.index]["energy"],
+                        on_iteration=iterated)
+
+    def stepped(step: Step, result: tuple[SplineField, LevelSolution]) -> None:
+        if on_load_step is not None:
+            field, solution = result
+            field.coefficients.copy_(solution.coefficients)
+            on_load_step(step.value, field)
+
+    def finished(level: int, results: list[tuple[SplineField, LevelSolution]]) -> None:
+        field, solutions = results[-1][0], [solution for _, solution in results]
         field.coefficients.copy_(solutions[-1].coefficients)
         run.state.field = field
         last = solutions[-1]
         run.state.levels.append(LevelSummary(
             level, last.spans, last.energy, {k: v.tolist() for k, v in last.probes.items()},
-            sum(len(s.history) for s in solutions), time.perf_counter() - step_started,
+            sum(len(s.history) for s in solutions), time.perf_counter() - grid["started"],
             all(s.converged for s in solutions)))
         run.steps = [(s.load_factor, s.coefficients) for s in solutions]
         run.load_steps = [{"load_factor": s.load_factor, "energy": s.energy,
                            "probes": {k: v.tolist() for k, v in s.probes.items()},
                            "converged": s.converged} for s in solutions]
         run.wall_time = time.perf_counter() - started
-        call(callbacks, "on_level", run)
-        level_done(run)
+
+    solve_over(Stages(solve, after_step=stepped, after_level=finished), config.load_steps,
+               first_level=len(run.levels), next_level=next_level, subject=run,
+               callbacks=(*callbacks, Hook("on_level", lambda: level_done(run))))
     record["outcome"] = outcome
     record["met"] = outcome == "tolerance met"
     record["stopped"] = stopped  # why, in one line (the budget line names an unconverged level)
