@@ -30,6 +30,14 @@ mean hem radius (`taichi_ndf.minimise.extrapolation.richardson`, expected order 
 
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py --refine [n m ...]
 
+--clamps: the two-panel skirt at rest wrapped (the `--flat` material, B = 1e-4 N·m) on 8 × 4,
+16 × 8 and 32 × 16 spans per panel, its waist clamped by `ClampedEdge` (φ, the single-patch
+clamp) against the same waist held as a flat-cut panel's is (`held_at_rest`): Π of both,
+their relative difference, the largest distance between their deformed positions (13 × 5
+points per panel), the largest displacement, Newton iterations, CPU and wall.
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py --clamps
+
 --flat: the two-panel skirt cut flat (`rest = "flat"`: the wrap is the panels' start)
 against the same skirt at rest wrapped (`held_at_rest`: the same hold of the waist), 16 × 8
 spans per panel, a linear isotropic material (D = 6.4 N/m, ν = 0.25, ρ_A = 0.144 kg/m²) of
@@ -243,8 +251,9 @@ def lowest_eigenvalues(panels, count: int = 4) -> list[float]:
     """The `count` lowest eigenvalues of the exact Hessian of Π, over the mean of its
     diagonal's magnitudes (its scale), at the panels' solution at load factor 1, over the
     unknowns Newton steps (`HeldEdges`: Tᵀ K T without its held rows; seams sewn from the
-    start, one material): the solve's own objective rebuilt as `MultiPatchDiscretisation.solve` builds it. A
-    negative one: the state is a saddle; near 0: a buckling mode."""
+    start, one material): the solve's own objective rebuilt as
+    `MultiPatchDiscretisation.solve` builds it. A negative one: the state is a saddle; near
+    0: a buckling mode."""
     import numpy as np
     import scipy.sparse.linalg as spla
 
@@ -312,6 +321,21 @@ def refinement_table(grids, gathered: bool = True) -> None:
             print(f"{name}: changes {changes}; Richardson {e.describe()}")
 
 
+def clamp_row(spans) -> str:
+    """`--clamps`: one row of the two-panel skirt at rest wrapped (B = 1e-4 N·m) with its
+    waist clamped by `ClampedEdge` (φ) against the same waist held (`held_at_rest`)."""
+    document = flat_document("placed", 1e-4, spans)
+    scenes = [parse_scene(document, base_dir=SCENE.parent, path=SCENE) for _ in range(2)]
+    a, sa, ca, wa = _solve(scenes[0])
+    b, sb, cb, wb = _solve(held_at_rest(scenes[1]))
+    xa, xb = positions(a, 0.15, False), positions(b, 0.15, False)
+    u = float((xa - positions(a, 0.15, False, rest=True)).norm(dim=1).max())
+    return (f"| {spans[0]} × {spans[1]} | {sa.energy:.7g} | {sb.energy:.7g} | "
+            f"{(sb.energy - sa.energy) / abs(sa.energy):+.2e} | "
+            f"{1e3 * float((xa - xb).norm(dim=1).max()):.3f} | {1e3 * u:.2f} | "
+            f"{sa.iterations} / {sb.iterations} | {ca:.1f} / {cb:.1f} | {wa:.1f} / {wb:.1f} |")
+
+
 def main() -> None:
     taichi_ndf.init(arch="cpu", precision="f64")
     torch.set_num_threads(1)
@@ -324,6 +348,16 @@ def main() -> None:
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for bending in (7.68e-7, 1e-4, 3e-4):
             print(flat_row(bending), flush=True)
+        print(f"load average {os.getloadavg()[0]:.1f} (end)")
+        return
+    if sys.argv[1:2] == ["--clamps"]:
+        print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+        print("| spans per panel | Π `ClampedEdge` [J] | Π held [J] | (Π_held − Π_φ)/\\|Π_φ\\| | "
+              "max \\|Δx\\| [mm] | max \\|u\\| [mm] | Newton it. φ / held | CPU φ / held [s] | "
+              "wall φ / held [s] |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for spans in ((8, 4), (16, 8), (32, 16)):
+            print(clamp_row(spans), flush=True)
         print(f"load average {os.getloadavg()[0]:.1f} (end)")
         return
     if sys.argv[1:2] in (["--refine"], ["--refine-plain"]):
