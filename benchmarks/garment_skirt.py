@@ -21,6 +21,23 @@ panel) and the hem's mean height (placed at z = 0), CPU and wall time.
 
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py --four [n m ...]
 
+--refine: the four-panel skirt (gathered; --refine-plain: its waist held on the wrap's
+circle) on grids refined by 2 each (default 4 × 6, 8 × 12, 16 × 24 per panel): per grid Π,
+the front and left panels' hem probes, the hem's radius per panel, the hem height, Newton
+iterations per load step, convergence (Newton's own test at every load step), the seams'
+gap, CPU, wall, load; then Richardson's observed order and extrapolation of Π and of the
+mean hem radius (`taichi_ndf.minimise.extrapolation.richardson`, expected order 4).
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py --refine [n m ...]
+
+--clamps: the two-panel skirt at rest wrapped (the `--flat` material, B = 1e-4 N·m) on 8 × 4,
+16 × 8 and 32 × 16 spans per panel, its waist clamped by `ClampedEdge` (φ, the single-patch
+clamp) against the same waist held as a flat-cut panel's is (`held_at_rest`): Π of both,
+their relative difference, the largest distance between their deformed positions (13 × 5
+points per panel), the largest displacement, Newton iterations, CPU and wall.
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_skirt.py --clamps
+
 --flat: the two-panel skirt cut flat (`rest = "flat"`: the wrap is the panels' start)
 against the same skirt at rest wrapped (`held_at_rest`: the same hold of the waist), 16 × 8
 spans per panel, a linear isotropic material (D = 6.4 N/m, ν = 0.25, ρ_A = 0.144 kg/m²) of
@@ -58,6 +75,7 @@ SCENE = ROOT / "scenes" / "skirt_panels.toml"
 FOUR = ROOT / "scenes" / "skirt_four_panels.toml"
 GRIDS = ((16, 8), (32, 8))
 FOUR_GRIDS = ((8, 12), (12, 18))
+REFINE_GRIDS = ((4, 6), (8, 12), (16, 24))
 
 
 def _cpu() -> float:
@@ -101,8 +119,8 @@ def flat_document(rest: str, bending: float, spans=(16, 8)) -> dict:
 
 
 def held_at_rest(scene):
-    """The garment scene with each panel's clamp replaced by a flat-cut panel's hold (its p
-    rows of coefficients at the clamped edges kept, `Patch.held`) and its start its rest shape:
+    """The garment scene with each panel's clamp replaced by a flat-cut panel's hold (the
+    clamped edges' position and slope kept, `Patch.held`) and its start its rest shape:
     the support of a flat-cut panel, so that the two differ only in their rest shapes."""
     patches = []
     for patch in scene.field.patches:
@@ -208,6 +226,116 @@ def four(spans, gathered: bool) -> str:
             f"{float(hem.max()):.4f} | {z * 1e3:.2f} | {cpu:.1f} | {wall:.1f} |")
 
 
+def refinement_row(spans, gathered: bool = True) -> dict:
+    """The four-panel skirt on `spans` per panel: Π, the front and left hem probes, the hem's
+    radius per panel (min / max over 17 points), Newton iterations per load step and
+    convergence (Newton's own test at every load step), CPU and wall."""
+    garment = tomllib.loads(FOUR.read_text())
+    garment["field"]["spans"] = list(spans)
+    if not gathered:
+        for panel in garment["panels"]:
+            del panel["held_radius"]
+    panels, solution, cpu, wall = _solve(parse_scene(garment, base_dir=FOUR.parent, path=FOUR))
+    hem = _rim(panels, 0.0)
+    radius = hem[:, :2].norm(dim=1).reshape(4, -1)
+    steps = solution.document["load_steps"]
+    return {"spans": spans, "energy": solution.energy, "probes": solution.probes,
+            "radius": radius, "hem_z": float(hem[:, 2].mean()),
+            "iterations": [s["iterations"] for s in steps],
+            "converged": [s["converged"] for s in steps],
+            "gap": max(solution.document["seam_gaps"].values()), "cpu": cpu, "wall": wall,
+            "load": os.getloadavg()[0], "eigenvalues": lowest_eigenvalues(panels)}
+
+
+def lowest_eigenvalues(panels, count: int = 4) -> list[float]:
+    """The `count` lowest eigenvalues of the exact Hessian of Π, over the mean of its
+    diagonal's magnitudes (its scale), at the panels' solution at load factor 1, over the
+    unknowns Newton steps (`HeldEdges`: Tᵀ K T without its held rows; seams sewn from the
+    start, one material): the solve's own objective rebuilt as
+    `MultiPatchDiscretisation.solve` builds it. A negative one: the state is a saddle; near
+    0: a buckling mode."""
+    import numpy as np
+    import scipy.sparse.linalg as spla
+
+    from taichi_ndf.discretise.panel_energy import SewnFromStart
+    from taichi_ndf.minimise.newton import NewtonConfig
+    from taichi_ndf.minimise.point_blocks import PointBlocks, coupled_blocks
+    from taichi_ndf.objective import Objective, ShellEnergyTerm
+    from taichi_ndf.objective.seam import SeamTerm
+    from taichi_ndf.problem.loads import Loads
+
+    spec, linear = panels.spec, panels._linear
+    patches = spec.patches
+    seams = [SeamTerm(s.spec, patches[s.a].model.surface, spec.seam_material(s),
+                      surface_b=patches[s.b].model.surface).between(linear.rows(s.a),
+                                                                     linear.rows(s.b))
+             for s in spec.seams]
+    start = linear.displacement(panels._start)
+    objective = Objective(ShellEnergyTerm(spec.materials[0], Loads(gravity=spec.gravity)),
+                          tuple(SewnFromStart(t, start) for t in seams))
+    potential = objective.potential(1.0)
+    c = torch.cat([f.coefficients.detach() for f in panels.fields])
+    u = linear.displacement(c)
+    blocks = PointBlocks(linear, potential, c, u, NewtonConfig().fd_step)
+    matrix = linear.hessian(blocks, coupled_blocks(potential, linear.samples, u))
+    free = np.ones(matrix.shape[0], dtype=bool)
+    free[linear.fixed] = False
+    reduced = matrix[free][:, free].tocsc()
+    reduced = 0.5 * (reduced + reduced.T)
+    scale = float(np.abs(reduced.diagonal()).mean())
+    values = spla.eigsh(reduced, k=count, sigma=-1e-9 * scale, which="LM",
+                        return_eigenvectors=False)
+    return sorted(float(v) / scale for v in values)
+
+
+def refinement_table(grids, gathered: bool = True) -> None:
+    """`--refine`: the four-panel skirt on grids refined by 2 each (module docstring), then
+    Richardson's order and extrapolation of Π and of the mean hem radius
+    (`minimise.extrapolation.richardson`)."""
+    from taichi_ndf.minimise.extrapolation import richardson
+
+    print(f"waist held on {'0.15 m (gathered)' if gathered else 'the wrap (not gathered)'}")
+    print("| spans per panel | Π [J] | front hem u [mm] | left hem u [mm] | hem radius min / "
+          "max per panel [m] | hem height [mm] | Newton it. per load step | converged | "
+          "seam gap [m] | CPU [s] | wall [s] | load | lowest eigenvalues of K / mean diag |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    rows = []
+    for spans in grids:
+        r = refinement_row(spans, gathered)
+        rows.append(r)
+        probe = {k: " ".join(f"{1e3 * v:+.2f}" for v in r["probes"][f"{k}.hem"])
+                 for k in ("front", "left")}
+        radius = ", ".join(f"{float(x.min()):.4f} / {float(x.max()):.4f}" for x in r["radius"])
+        print(f"| {spans[0]} × {spans[1]} | {r['energy']:.7g} | {probe['front']} | "
+              f"{probe['left']} | {radius} | {1e3 * r['hem_z']:.2f} | "
+              f"{' '.join(map(str, r['iterations']))} | {all(r['converged'])} | "
+              f"{r['gap']:.1e} | {r['cpu']:.1f} | {r['wall']:.1f} | {r['load']:.1f} | "
+              f"{' '.join(f'{v:.3g}' for v in r['eigenvalues'])} |", flush=True)
+    if len(rows) >= 2:
+        converged = [all(r["converged"]) for r in rows]
+        for name, values, order in (
+                ("Π [J]", [r["energy"] for r in rows], 4.0),
+                ("mean hem radius [m]", [float(r["radius"].mean()) for r in rows], 4.0)):
+            e = richardson(values, order=order, converged=converged)
+            changes = " ".join(f"{b - a:+.4g}" for a, b in zip(values, values[1:], strict=False))
+            print(f"{name}: changes {changes}; Richardson {e.describe()}")
+
+
+def clamp_row(spans) -> str:
+    """`--clamps`: one row of the two-panel skirt at rest wrapped (B = 1e-4 N·m) with its
+    waist clamped by `ClampedEdge` (φ) against the same waist held (`held_at_rest`)."""
+    document = flat_document("placed", 1e-4, spans)
+    scenes = [parse_scene(document, base_dir=SCENE.parent, path=SCENE) for _ in range(2)]
+    a, sa, ca, wa = _solve(scenes[0])
+    b, sb, cb, wb = _solve(held_at_rest(scenes[1]))
+    xa, xb = positions(a, 0.15, False), positions(b, 0.15, False)
+    u = float((xa - positions(a, 0.15, False, rest=True)).norm(dim=1).max())
+    return (f"| {spans[0]} × {spans[1]} | {sa.energy:.7g} | {sb.energy:.7g} | "
+            f"{(sb.energy - sa.energy) / abs(sa.energy):+.2e} | "
+            f"{1e3 * float((xa - xb).norm(dim=1).max()):.3f} | {1e3 * u:.2f} | "
+            f"{sa.iterations} / {sb.iterations} | {ca:.1f} / {cb:.1f} | {wa:.1f} / {wb:.1f} |")
+
+
 def main() -> None:
     taichi_ndf.init(arch="cpu", precision="f64")
     torch.set_num_threads(1)
@@ -220,6 +348,23 @@ def main() -> None:
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for bending in (7.68e-7, 1e-4, 3e-4):
             print(flat_row(bending), flush=True)
+        print(f"load average {os.getloadavg()[0]:.1f} (end)")
+        return
+    if sys.argv[1:2] == ["--clamps"]:
+        print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+        print("| spans per panel | Π `ClampedEdge` [J] | Π held [J] | (Π_held − Π_φ)/\\|Π_φ\\| | "
+              "max \\|Δx\\| [mm] | max \\|u\\| [mm] | Newton it. φ / held | CPU φ / held [s] | "
+              "wall φ / held [s] |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for spans in ((8, 4), (16, 8), (32, 16)):
+            print(clamp_row(spans), flush=True)
+        print(f"load average {os.getloadavg()[0]:.1f} (end)")
+        return
+    if sys.argv[1:2] in (["--refine"], ["--refine-plain"]):
+        args = [int(v) for v in sys.argv[2:]]
+        grids = tuple(zip(args[::2], args[1::2], strict=True)) if args else REFINE_GRIDS
+        print(f"commit {commit()}, load average {os.getloadavg()[0]:.1f} (start)")
+        refinement_table(grids, gathered=sys.argv[1] == "--refine")
         print(f"load average {os.getloadavg()[0]:.1f} (end)")
         return
     if sys.argv[1:2] == ["--four"]:

@@ -20,6 +20,13 @@ Parts (`--parts`):
   the cut, sewn shut by a hinge seam over load steps 0.1 … 1.0 (the seam's rest gap closes
   with the load factor): the largest gap after each step.
 
+- diagnosis (not in the default parts): why the seamed tube differs from the periodic one on
+  a coarse grid: on the --penalty-spans grid the seamed and the periodic tube with the Newton
+  tolerance loosened to 1e-8 and tightened to 1e-15, the seam's quadrature raised to 256 × 6
+  points and β to 1e5; then on the --spans grids both tubes' Π, the seamed tube's jump of
+  ∂²u/∂θ² across the seam (the periodic spline has none), and each one's distance from the
+  periodic tube's Richardson value.
+
 CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
 average after the solve (the machine is shared).
 
@@ -332,6 +339,89 @@ def sewing(spans) -> None:
         print(f"| {step['load_factor']} | {step['energy']:.6g} | {step['converged']} |")
 
 
+def curvature_jump(result: dict) -> tuple[float, float]:
+    """(max over z of |∂²u/∂θ²(0, z) − ∂²u/∂θ²(θ_max, z)|, max |∂²u/∂θ²| over the 97 × 13
+    grid) [m/rad²] of a seamed tube: the seam ties u and ∂u/∂θ, not the curvature, which
+    the periodic spline keeps continuous."""
+    from taichi_ndf import jets
+
+    model, field = result["scene"].model, result["run"].field
+    (_, theta_max), (_, length) = model.surface.domain.bounds
+    z = torch.linspace(0.0, length, 13, dtype=torch.float64)
+    ends = [torch.stack((torch.full_like(z, t), z), dim=1) for t in (0.0, theta_max)]
+    a, b = (model.displacement_jets(field, xi)[:, jets.D11] for xi in ends)
+    theta = torch.linspace(0.0, theta_max, 97, dtype=torch.float64)
+    xi = torch.stack(torch.meshgrid(theta, z, indexing="ij"), dim=-1).reshape(-1, 2)
+    whole = model.displacement_jets(field, xi)[:, jets.D11]
+    return float((a - b).norm(dim=1).max()), float(whole.norm(dim=1).max())
+
+
+def diagnosis(spans_list, one) -> None:
+    """Why the seamed tube differs from the periodic one on a coarse grid (module
+    docstring, "diagnosis")."""
+    from taichi_ndf.minimise.extrapolation import richardson
+
+    print("\n### The seamed tube's difference from the periodic tube: tolerance, seam "
+          "quadrature, penalty, grid\n")
+    document = tube_document()
+    print(f"On {one[0]}×{one[1]} spans: each variant against the periodic tube solved with the "
+          "same Newton tolerance.\n")
+    print("| variant | Π periodic [J] | Π seamed [J] | rel. diff | max |Δu| [m] | Newton it. "
+          "p / s | CPU p / s [s] | load |")
+    print("|---|---|---|---|---|---|---|---|")
+    base = {}
+    for name, change, seam in (
+            ("as shipped (λ²/2 ≤ 1e-12 |Π|, 64 × 4 seam points, β = 1e4)", {}, {}),
+            ("Newton tolerance 1e-8", {"newton_tolerance": 1e-8}, {}),
+            ("Newton tolerance 1e-15", {"newton_tolerance": 1e-15}, {}),
+            ("seam quadrature 256 × 6 points", {}, {"segments": 256, "nodes": 6}),
+            ("β = 1e5", {}, {"stiffness": 1e5})):
+        docs = {}
+        for kind in ("periodic", "transmitted"):
+            d = variant(document, kind, one)
+            d["training"].update(change)
+            if kind != "periodic":
+                d["seams"][0].update(seam)
+            docs[kind] = d
+        key = json_key(docs["periodic"])
+        p = base[key] if key in base else solve(docs["periodic"])
+        base[key] = p
+        s = solve(docs["transmitted"])
+        rel, du = compare(s, p)
+        print(f"| {name} | {p['run'].energy:.10g} | {s['run'].energy:.10g} | {rel:.3e} | "
+              f"{du:.2e} | {p['iterations']} / {s['iterations']} | {p['cpu']:.1f} / "
+              f"{s['cpu']:.1f} | {s['load']:.1f} |", flush=True)
+    print("\nUnder refinement (as shipped): each discretisation's Π against the Richardson "
+          "value of the periodic tube's, and the seamed tube's curvature jump at the seam.\n")
+    print("| spans | Π periodic [J] | Π seamed [J] | rel. diff | Π_s − Π_p [J] | "
+          "curvature jump at the seam / max |∂²u/∂θ²| | CPU p / s [s] | load |")
+    print("|---|---|---|---|---|---|---|---|")
+    periodic, seamed = [], []
+    for spans in spans_list:
+        p = solve(variant(document, "periodic", spans))
+        s = solve(variant(document, "transmitted", spans))
+        rel, _ = compare(s, p)
+        jump, largest = curvature_jump(s)
+        periodic.append(p["run"].energy)
+        seamed.append(s["run"].energy)
+        print(f"| {spans[0]}×{spans[1]} | {periodic[-1]:.10g} | {seamed[-1]:.10g} | {rel:.3e} | "
+              f"{seamed[-1] - periodic[-1]:+.3e} | {jump / largest:.3e} | {p['cpu']:.1f} / "
+              f"{s['cpu']:.1f} | {s['load']:.1f} |", flush=True)
+    if len(periodic) >= 3:
+        limit = richardson(periodic)
+        print(f"\nΠ periodic extrapolated: {limit.describe('J')}")
+        for spans, p, s in zip(spans_list, periodic, seamed, strict=True):
+            off = [abs(v - limit.value) / abs(limit.value) for v in (p, s)]
+            print(f"{spans[0]}×{spans[1]}: periodic off by {off[0]:.2e}, seamed by "
+                  f"{off[1]:.2e} (relative)")
+
+
+def json_key(document: dict) -> str:
+    import json
+
+    return json.dumps(document, sort_keys=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--parts", default="refinement,annulus,halves,penalty,sewing")
@@ -357,6 +447,8 @@ def main() -> None:
         penalty(one, [float(f) for f in args.factors.split(",")])
     if "sewing" in parts:
         sewing(one)
+    if "diagnosis" in parts:
+        diagnosis(spans, one)
 
 
 if __name__ == "__main__":

@@ -86,11 +86,11 @@ def test_flat_cut_panels_wrapped_into_a_skirt_carry_the_bending_of_the_wrap():
     """Two flat panels wrapped into a tube by their start and sewn, hanging from the waist,
     against the same tube whose rest shape is the wrap (the same hold at the waist), 16 × 8
     spans per panel: with negligible bending (B = 7.7e-7 N·m, the "cloth" preset's) the same
-    shape (measured 0.05 mm of 14 mm: benchmarks/garment_skirt.py --flat) and Π higher by
-    the wrapped bending energy ½ B (1/R)² × area (measured 6.9e-6 J for 6.4e-6 J: the fit's
-    own strain); with B =
-    3e-4 N·m Π higher by ½ B (1/R)² × area less the relaxation (measured 2.451e-3 J for
-    2.513e-3 J, −2.5 %) and the shape another (measured 1.4 mm of 14 mm: the stored moment
+    shape (measured 0.05 mm of 16.5 mm: benchmarks/garment_skirt.py --flat, the waist held as
+    a clamp) and Π higher by the wrapped bending energy ½ B (1/R)² × area (measured 6.5e-6 J
+    for 6.4e-6 J: the fit's own strain); with B =
+    3e-4 N·m Π higher by ½ B (1/R)² × area less the relaxation (measured 2.445e-3 J for
+    2.513e-3 J, −2.7 %) and the shape another (measured 1.4 mm of 16.4 mm: the stored moment
     pushes the tube out)."""
     from garment_skirt import held_at_rest, positions
 

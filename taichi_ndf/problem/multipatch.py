@@ -79,10 +79,10 @@ class Patch:
     """One panel: its name, model (surface, material, loads, boundary, probes) and grid.
 
     start: where its solve starts (None: the rest shape; a flat-cut panel: its placement,
-    fitted by the coefficients, `taichi_ndf.discretise.start.fitted_start`); held: edges held
-    where the start put them (position, slope and curvature: the `degree` rows of
-    coefficients that act on the edge keep their start values), a flat-cut panel's clamped
-    edges (a clamp of the model's boundary would hold them at the flat rest shape);
+    fitted by the coefficients, `taichi_ndf.discretise.start.fitted_start`); held: edges
+    clamped where the start put them (their position and derivative across the edge, as a
+    clamp; their curvature free: `taichi_ndf.discretise.held_edges`), a flat-cut panel's
+    clamped edges (a clamp of the model's boundary would hold them at the flat rest shape);
     held_target: where the held edges are at load factor 1 (None: where they start), their
     rows moved there linearly in the load factor (a waist gathered onto a smaller circle)."""
 
@@ -106,9 +106,10 @@ class Patch:
             raise ValueError(f"panel {self.name!r}: held edges need an open grid")
 
     def held_unknowns(self) -> np.ndarray:
-        """The unknowns (coefficient × 3 + component, sorted) of the `held` edges: on a
-        uniform open grid the value and the first p − 1 derivatives across an edge depend on
-        its p nearest rows of coefficients only (`taichi_ndf.field.bspline`)."""
+        """The unknowns (coefficient × 3 + component, sorted) of the p rows of coefficients
+        nearest the `held` edges: on a uniform open grid the value and the first p − 1
+        derivatives across an edge depend on these only (`taichi_ndf.field.bspline`); the
+        hold fixes 2 combinations of them per edge point (`discretise.held_edges`)."""
         m1, m2 = self.config.coefficient_counts
         p = self.config.degree
         index = np.arange(m1 * m2).reshape(m1, m2)
