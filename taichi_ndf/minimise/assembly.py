@@ -43,6 +43,7 @@ from taichi_ndf.minimise.jacobian import ComponentJacobian, component_jacobian
 from taichi_ndf.minimise.pair_hessian import contract as _contract
 from taichi_ndf.minimise.pair_hessian import coupled_hessian, touched_channels
 from taichi_ndf.minimise.pair_hessian import dofs as _dofs
+from taichi_ndf.minimise.pair_hessian import point_stiffness
 from taichi_ndf.minimise.pair_hessian import weighted as _weighted
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.operator import DisplacementOperator
@@ -257,8 +258,7 @@ class Assembly:
         channels, k, m = *jacobian.shape[2:], self._per_group
         scatter = self._scatter.reshape(COMPONENTS, COMPONENTS, self._groups, k, k)
         if groups is None:
-            dense = jacobian.dense()  # [q, c, a, b, d]: the contraction's own layout (no copy)
-            out = _contract(dense, _weighted(blocks, dense)).permute(0, 2, 1, 3, 4).contiguous()
+            out = point_stiffness(jacobian.dense(), blocks)  # [q, c, a, b, d]
             np.add.at(data, self._extra_scatter, out.double().cpu().numpy().ravel())
             return
         step = max(1, CHUNK // m)
