@@ -41,9 +41,8 @@ from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
 from taichi_ndf.minimise.jacobian import ComponentJacobian, component_jacobian
 from taichi_ndf.minimise.pair_hessian import contract as _contract
-from taichi_ndf.minimise.pair_hessian import coupled_hessian, touched_channels
+from taichi_ndf.minimise.pair_hessian import coupled_hessian, point_stiffness, touched_channels
 from taichi_ndf.minimise.pair_hessian import dofs as _dofs
-from taichi_ndf.minimise.pair_hessian import point_stiffness
 from taichi_ndf.minimise.pair_hessian import weighted as _weighted
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.operator import DisplacementOperator
