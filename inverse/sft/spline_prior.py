@@ -71,6 +71,9 @@ log = logging.getLogger(__name__)
 
 DTYPE = torch.float64  # the Hessian blocks are central differences: float64 only
 JETS_SHAPE = (jets.CHANNELS, 3)
+# Points per shell evaluation of the central-difference blocks: all 36 perturbed copies of R1's
+# ~1900 quadrature points in one kernel launch (`sample_hessians`; ~100 MB of jets at most).
+STACKED_POINTS = 1 << 17
 
 
 class SplinePriorReconstructor:
@@ -190,7 +193,8 @@ def sheet_quadrature(surface: MeshSurface, config: SplineConfig, template: Templ
 class QuadratureShellTerm(ShellEnergyTerm):
     """The shell energy term whose Hessian blocks are differenced only at the samples with
     quadrature weight (the data points carry weight 0, so their shell blocks are 0): saves the
-    central differences at every tracked point and vertex."""
+    central differences at every tracked point and vertex; the perturbed copies stacked into
+    few evaluations (`STACKED_POINTS`: the shell's terms are per point)."""
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float = 1.0, *, steps: torch.Tensor) -> torch.Tensor:
@@ -200,7 +204,7 @@ class QuadratureShellTerm(ShellEnergyTerm):
         blocks = u_jets.new_zeros(u_jets.shape[0], *JETS_SHAPE, *JETS_SHAPE)
         blocks[rows] = sample_hessians(
             lambda s, u, grad: self.result(s, u, load_factor, grad=grad), weighted,
-            u_jets[rows], steps=steps)
+            u_jets[rows], steps=steps, stacked_points=STACKED_POINTS)
         return blocks
 
 

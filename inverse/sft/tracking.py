@@ -37,7 +37,13 @@ import numpy as np
 from inverse.sft.correspondences import FrameCorrespondences, TrackingTimings
 from inverse.sft.image import contrast_normalised, eroded, inside, sample_mask, to_gray
 from inverse.sft.inputs import Camera, Template
-from inverse.sft.matching import TextureMatcher, local_affine, patch_ncc, prefiltered_texture
+from inverse.sft.matching import (
+    TextureMatcher,
+    local_affine,
+    pairwise_distances,
+    patch_ncc,
+    prefiltered_texture,
+)
 from inverse.sft.surface import surface_positions, view_locator
 from inverse.sft.tracking_config import TrackerConfig
 from taichi_ndf import progress
@@ -185,7 +191,7 @@ class Tracker:
         Tracks pile up where the sheet turns away from the camera; piled-up tracks carry no
         extra information and often one of them has slid.
         """
-        d = np.linalg.norm(self.xy[:, None, :] - self.xy[None, :, :], axis=2)
+        d = pairwise_distances(self.xy, self.xy)
         younger = self.track_id[:, None] > self.track_id[None, :]
         return ~np.any((d < self.config.min_distance / 4) & younger, axis=1)
 
@@ -332,7 +338,7 @@ class Tracker:
     def _far_from_tracks(self, xy: np.ndarray) -> np.ndarray:
         if len(self.xy) == 0:
             return np.ones(len(xy), bool)
-        d = np.linalg.norm(xy[:, None, :] - self.xy[None, :, :], axis=2).min(axis=1)
+        d = pairwise_distances(xy, self.xy).min(axis=1)
         return d >= self.config.min_distance
 
 

@@ -41,7 +41,7 @@ from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
 from taichi_ndf.minimise.jacobian import ComponentJacobian, component_jacobian
 from taichi_ndf.minimise.pair_hessian import contract as _contract
-from taichi_ndf.minimise.pair_hessian import coupled_hessian, touched_channels
+from taichi_ndf.minimise.pair_hessian import coupled_hessian, point_stiffness, touched_channels
 from taichi_ndf.minimise.pair_hessian import dofs as _dofs
 from taichi_ndf.minimise.pair_hessian import weighted as _weighted
 from taichi_ndf.objective.couplings import Couplings
@@ -183,7 +183,10 @@ class Assembly:
         # dof[g, b, d]); `_scatter` is its position in K's CSR data (`_csr_pattern`).
         self._scatter, self._columns, self._row_starts = _csr_pattern(
             groups.cpu().numpy().astype(np.int64), self.n_coefficients)
-        self._groups = groups.shape[0]
+        self._groups, k = groups.shape
+        extra = self._scatter.reshape(COMPONENTS, COMPONENTS, self._groups, k, k)[
+            :, :, self._group[self._extra].cpu().numpy()]  # the extra points' [c, d, q, a, b]
+        self._extra_scatter = np.ascontiguousarray(extra.transpose(2, 0, 3, 4, 1)).ravel()
         self.offset = self.jacobian = self.pin_jacobian = self._operator = None
 
     def at_load(self, operator: DisplacementOperator, load_factor: float) -> Assembly:
@@ -247,17 +250,15 @@ class Assembly:
     def _pair_sums(self, data: np.ndarray, jacobian: ComponentJacobian, blocks: torch.Tensor,
                    groups: slice | None) -> None:
         """Adds to K's CSR data (float64) the point-local part of the points of `groups` (a
-        slice of groups; None: the extra points, point by point): R[c, d, g] = Σ_{q in group
-        g} J_c,qᵀ H_q[:, c, :, d] J_d,q (symmetric blocks (n, ch, 3, ch, 3) and J at those
-        points) scattered per batch of groups in order: two batched GEMMs per component pair,
-        the group's points in the inner dimension; R[d, c] = R[c, d]ᵀ."""
+        slice of groups; None: the extra points, point by point in order, at `_extra_scatter`):
+        R[c, d, g] = Σ_{q in group g} J_c,qᵀ H_q[:, c, :, d] J_d,q (symmetric blocks (n, ch, 3,
+        ch, 3) and J at those points) scattered per batch of groups in order: two batched GEMMs
+        per component pair, the group's points in the inner dimension; R[d, c] = R[c, d]ᵀ."""
         channels, k, m = *jacobian.shape[2:], self._per_group
         scatter = self._scatter.reshape(COMPONENTS, COMPONENTS, self._groups, k, k)
         if groups is None:
-            dense = jacobian.dense()
-            out = _contract(dense, _weighted(blocks, dense)).permute(2, 4, 0, 1, 3)
-            flat = np.ascontiguousarray(scatter[:, :, self._group[self._extra].cpu().numpy()])
-            np.add.at(data, flat.ravel(), out.double().cpu().numpy().ravel())
+            out = point_stiffness(jacobian.dense(), blocks)  # [q, c, a, b, d]
+            np.add.at(data, self._extra_scatter, out.double().cpu().numpy().ravel())
             return
         step = max(1, CHUNK // m)
         for start in range(groups.start, groups.stop, step):

@@ -47,25 +47,44 @@ Potential = Callable[[SurfaceSamples, torch.Tensor, bool], EnergyResult]
 
 
 def sample_hessians(potential: Potential, samples: SurfaceSamples, u_jets: torch.Tensor, *,
-                    steps: torch.Tensor) -> torch.Tensor:
+                    steps: torch.Tensor, stacked_points: int = 0) -> torch.Tensor:
     """Per-point Hessian blocks d²Π/du_jets², shape (N, 6, 3, 6, 3), symmetrised.
 
     steps: central-difference step of each jet channel, shape (6,) [m per unit ξ^order].
     Perturbing one (channel, component) of every point at once is exact for a sum of per-point
-    terms.
+    terms. stacked_points: for a potential whose every point's term depends on that point's
+    sample and jets alone (the shell energy), up to this many points per call: several of the
+    36 perturbed copies of the samples stacked into one evaluation (one kernel launch instead
+    of one per copy; each point's gradient, so each block, the same bit for bit); 0: one copy
+    per call (any potential).
     """
     n = u_jets.shape[0]
     hessian = u_jets.new_zeros(n, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
-    for c in range(jets.CHANNELS):
-        step = float(steps[c])
-        for k in range(COMPONENTS):
-            grads = []
-            for sign in (1.0, -1.0):
-                shifted = u_jets.clone()
-                shifted[:, c, k] += sign * step
-                grads.append(potential(samples, shifted, True).grad_u_jets)
-            hessian[:, :, :, c, k] = (grads[0] - grads[1]) / (2 * step)
+    shifts = [(c, k, sign) for c in range(jets.CHANNELS) for k in range(COMPONENTS)
+              for sign in (1.0, -1.0)]
+    copies = max(1, min(len(shifts), stacked_points // max(n, 1)))
+    plus = None  # the gradient at +step of the shift being differenced
+    for first in range(0, len(shifts), copies):
+        batch = shifts[first:first + copies]
+        shifted = u_jets.repeat(len(batch), 1, 1).reshape(len(batch), n, *u_jets.shape[1:])
+        for copy, (c, k, sign) in enumerate(batch):
+            shifted[copy, :, c, k] += sign * float(steps[c])
+        stacked = samples if len(batch) == 1 else _repeated(samples, len(batch))
+        grads = potential(stacked, shifted.reshape(-1, *u_jets.shape[1:]), True).grad_u_jets
+        for (c, k, sign), grad in zip(batch, grads.reshape(len(batch), n, *u_jets.shape[1:]),
+                                      strict=True):
+            if sign > 0:
+                plus = grad
+            else:
+                hessian[:, :, :, c, k] = (plus - grad) / (2 * float(steps[c]))
     return 0.5 * (hessian + hessian.permute(0, 3, 4, 1, 2))
+
+
+def _repeated(samples: SurfaceSamples, copies: int) -> SurfaceSamples:
+    """The samples `copies` times one after the other."""
+    return SurfaceSamples(*(None if t is None else t.repeat(copies, *(1,) * (t.dim() - 1))
+                            for t in (samples.xi, samples.r_jets, samples.weight,
+                                      samples.point_force, samples.barrier_weight)))
 
 
 def jet_steps(r_jets: torch.Tensor, u_jets: torch.Tensor, length: float,
