@@ -168,3 +168,29 @@ def test_newton_wind_forces_are_the_projects_wind_law_on_a_mesh():
     normal = np.cross((b - a).numpy(), (c - a).numpy())
     s = ((air - v[triangles].mean(axis=1)) * normal).sum(axis=1)
     assert s.min() < 0 < s.max()  # some triangles overtake the air (the braking branch)
+
+
+@pytest.mark.skipif(_newton_python() is None, reason="NVIDIA Newton (warp-lang, newton) not "
+                    "importable; set NEWTON_PYTHON to an environment that has them")
+def test_newton_flag_in_wind_is_pushed_by_the_drag_law(tmp_path):
+    """One 10 ms step of the flag in wind in VBD from rest: the free corners, whose
+    neighbours all move alike (no bending, no stretch), move along the normal by the wind's
+    p/ρ_A h² (p = ½ ρ_air C_d s², s the normal air speed at t = h), i.e. the forces reach
+    VBD's particles as computed; with the wind's speed doubled, four times as far."""
+    peer = _module("dynamics_peer")
+    lifts = []
+    for scale in (1.0, 2.0):
+        wind = {**peer.WIND, "velocity": [scale * c for c in peer.WIND["velocity"]]}
+        job = peer.newton_job(peer.FLAG, (6, 4), (0.0, -9.81, 0.0), 1, 0.01, 1, 10, wind=wind)
+        (tmp_path / "job.json").write_text(json.dumps(job))
+        subprocess.run([_newton_python(), str(BENCH / "dynamics_peer_newton.py"),
+                        str(tmp_path / "job.json"), str(tmp_path / "out.json")], check=True,
+                       capture_output=True, timeout=1800)
+        result = json.loads((tmp_path / "out.json").read_text())
+        s = wind["velocity"][2] * (1 + 0.4 * np.sin(2 * np.pi * 1.5 * 0.01))
+        p = 0.5 * peer.AIR_DENSITY * peer.FLAT_PLATE_DRAG * s * s
+        for corner in ("fly_top", "fly_bottom"):
+            lift = result["probes"][corner][-1][2]
+            assert abs(lift) == pytest.approx(p / peer.DENSITY * 0.01 ** 2, rel=1e-3)
+        lifts.append(abs(lift))
+    assert lifts[1] == pytest.approx(4 * lifts[0], rel=1e-3)
