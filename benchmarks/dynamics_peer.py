@@ -9,7 +9,8 @@ venv /tmp/nwt && /tmp/nwt/bin/pip install numpy warp-lang newton` (measured with
 1.19.0, newton 1.8.0), then `--newton-python /tmp/nwt/bin/python` (or NEWTON_PYTHON; or `pip install
 taichi-ndf[peers]` into the project's environment). Where it cannot import newton the Newton
 runs are skipped with one line and ours still run. Results: benchmarks/RESULTS.md, "Dynamics:
-the flag beside NVIDIA Newton's cloth".
+the flag beside NVIDIA Newton's cloth" and "Dynamics: the flag in wind beside NVIDIA Newton's
+cloth".
 
 Newton has no aerodynamic forcing in its cloth solvers (1.8.0: `add_cloth_grid` takes
 `tri_drag`/`tri_lift` but no solver reads them). scenes/flag_wind.toml's 0.6 m × 0.4 m sheet
