@@ -1,23 +1,31 @@
 """The dynamic flag side by side with NVIDIA Newton's cloth (issue 29's peer item), in one run.
 
-    python benchmarks/dynamics_peer.py [--newton-python PATH] [--cases strip flag curtain]
-                                       [--duration 1.0] [--cells 30 20] [--keep DIR]
+    python benchmarks/dynamics_peer.py [--newton-python PATH]
+                                       [--cases strip flag curtain wind] [--duration 1.0]
+                                       [--cells 30 20] [--keep DIR]
 
 Newton (warp-lang + newton) lives in its own environment, not the project's: `python3.11 -m
 venv /tmp/nwt && /tmp/nwt/bin/pip install numpy warp-lang newton` (measured with warp-lang
 1.19.0, newton 1.8.0), then `--newton-python /tmp/nwt/bin/python` (or NEWTON_PYTHON; or `pip install
 taichi-ndf[peers]` into the project's environment). Where it cannot import newton the Newton
 runs are skipped with one line and ours still run. Results: benchmarks/RESULTS.md, "Dynamics:
-the flag beside NVIDIA Newton's cloth".
+the flag beside NVIDIA Newton's cloth" and "Dynamics: the flag in wind beside NVIDIA Newton's
+cloth".
 
 Newton has no aerodynamic forcing in its cloth solvers (1.8.0: `add_cloth_grid` takes
-`tri_drag`/`tri_lift` but no solver reads them), so the flag is compared **without wind**:
-scenes/flag_wind.toml's 0.6 m × 0.4 m sheet hinged along its hoist (x = 0), released at rest,
-(a) `flag`: the pole vertical, gravity −y in the sheet's plane (it sags in its plane); (b)
-`curtain`: the pole horizontal, gravity −z, the sheet released horizontal swings down about
-the hinge (bending, membrane and inertia together). (c) `strip`: the static check of the
-bending mapping, a cantilever strip 0.2 m × 0.02 m clamped at x = 0 under gravity scaled so that
-its sag is 5 % of its length (linear), against q L⁴/(8B).
+`tri_drag`/`tri_lift` but no solver reads them). scenes/flag_wind.toml's 0.6 m × 0.4 m sheet
+hinged along its hoist (x = 0), released at rest: (a) `flag`: the pole vertical, gravity −y in
+the sheet's plane (it sags in its plane), no wind; (b) `curtain`: the pole horizontal, gravity
+−z, the sheet released horizontal swings down about the hinge (bending, membrane and inertia
+together), no wind; (d) `wind`: the flag of (a) in flag_wind's gusting wind, w(t) = (2, 0, 2)
+m/s × (1 + 0.4 sin(2π 1.5 Hz t)), ρ_air = 1.2 kg/m³, C_d = 1.2: ours the scene's
+`[dynamics.wind]` (objective/wind.py: the drag linearised about each step's start, implicit in
+the velocity); Newton's cloth gets the same law as external particle forces recomputed before
+each of its steps from its current mesh (the child's `wind_forces`: per triangle its normal,
+area and mean vertex velocity, a third to each vertex; equal to the project's own wind force
+on the same mesh, tests/test_dynamics_peer.py), explicit in the velocity. (c) `strip`: the
+static check of the bending mapping, a cantilever strip 0.2 m × 0.02 m clamped at x = 0 under
+gravity scaled so that its sag is 5 % of its length (linear), against q L⁴/(8B).
 
 The material: the polyester preset's means, isotropic, ν = 0 (Newton's membrane is isotropic;
 the preset's shear G12 = 19 N/m is 100 × below an isotropic sheet's and cannot be matched):
@@ -58,6 +66,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fe_peer import run_child  # noqa: E402  (a child's CPU, wall and RSS by os.wait4)
 from provenance import commit  # noqa: E402
 
+from taichi_ndf.problem.wind import AIR_DENSITY, FLAT_PLATE_DRAG  # noqa: E402
+
 NEWTON_SCRIPT = Path(__file__).resolve().parent / "dynamics_peer_newton.py"
 MEMBRANE = (2 * 2002.08618 + 2 * 2027.48559) / 2  # N/m, the polyester preset's (a11 + a22)/2
 BENDING = (51.713814e-6 + 31.282822e-6) / 2  # N·m, its (warp + weft)/2
@@ -67,6 +77,10 @@ FLAG = {"bounds": ((0.0, 0.6), (-0.2, 0.2)), "spans": (8, 6),
         "probes": {"fly_top": (0.6, 0.2), "fly_bottom": (0.6, -0.2), "centre": (0.3, 0.0)}}
 STRIP = {"bounds": ((0.0, 0.2), (-0.01, 0.01)), "spans": (8, 1), "probes": {"tip": (0.2, 0.0)}}
 STRIP_SAG = 0.05  # the strip's sag as a fraction of its length (linear regime)
+# scenes/flag_wind.toml's wind: w(t) = U (1 + a sin(2π f t)), the project's ρ_air and C_d
+WIND = {"velocity": [2.0, 0.0, 2.0], "gust_amplitude": 0.4, "gust_frequency": 1.5,
+        "air_density": AIR_DENSITY, "drag_coefficient": FLAT_PLATE_DRAG}
+SETTLE = 0.5  # s: the flapping's figures are taken over t >= SETTLE (the first swing left out)
 # VBD's settings compared: (dt [s], iterations per step)
 VBD_SETTINGS = ((0.01, 10), (0.01, 100), (0.001, 10), (0.001, 50))
 
@@ -84,9 +98,10 @@ def strip_gravity() -> float:
 
 
 def scene_text(name: str, case: dict, gravity: tuple, edge: str,
-               dynamics: tuple[float, float] | None) -> str:
+               dynamics: tuple[float, float] | None, wind: dict | None = None) -> str:
     """Our scene: the case's rectangle, the matched linear material, the edge constraint,
-    and with `dynamics` = (dt, duration) implicit Euler without damping."""
+    and with `dynamics` = (dt, duration) implicit Euler without damping, in `wind` (WIND's
+    keys) if given."""
     (x0, x1), (y0, y1) = case["bounds"]
     lines = [f'name = "{name}"', "[geometry]", 'type = "plane"',
              f"bounds = [[{x0}, {x1}], [{y0}, {y1}]]", "[material]", 'type = "linear"',
@@ -99,6 +114,11 @@ def scene_text(name: str, case: dict, gravity: tuple, edge: str,
     if dynamics is not None:
         lines += ["[dynamics]", 'integrator = "implicit_euler"', f"dt = {dynamics[0]}",
                   f"duration = {dynamics[1]}"]
+        if wind is not None:
+            u = wind["velocity"]
+            lines += ["[dynamics.wind]", f"velocity = [{u[0]!r}, {u[1]!r}, {u[2]!r}]"] + [
+                f"{key} = {wind[key]!r}" for key in ("gust_amplitude", "gust_frequency",
+                                                     "air_density", "drag_coefficient")]
     for probe, xi in case["probes"].items():
         lines += ["[[probes]]", f'name = "{probe}"', f"xi = [{xi[0]}, {xi[1]}]"]
     return "\n".join(lines) + "\n"
@@ -143,15 +163,17 @@ def newton(name: str, job: dict, python: str, work: Path, timeout: float) -> dic
 
 
 def newton_job(case: dict, cells: tuple[int, int], gravity: tuple, fixed: int, dt: float,
-               steps: int, iterations: int, behind: int = 0) -> dict:
-    """The job of dynamics_peer_newton.py for a case; `behind` cells added behind x = 0."""
+               steps: int, iterations: int, behind: int = 0, wind: dict | None = None) -> dict:
+    """The job of dynamics_peer_newton.py for a case; `behind` cells added behind x = 0;
+    `wind` (WIND's keys) or None."""
     (x0, x1), (y0, y1) = case["bounds"]
     spacing = (x1 - x0) / cells[0]
     return {"cells": [cells[0] + behind, cells[1]], "size": [x1 - x0 + behind * spacing, y1 - y0],
             "x0": x0 - behind * spacing, "y0": y0, "areal_density": DENSITY,
             "fixed_columns": fixed, "gravity": list(gravity), **vbd_material(spacing),
             "bending_stiffness": BENDING, "dt": dt, "steps": steps, "iterations": iterations,
-            "probes": {k: [p[0], p[1], 0.0] for k, p in case["probes"].items()}}
+            "probes": {k: [p[0], p[1], 0.0] for k, p in case["probes"].items()},
+            **({} if wind is None else {"wind": wind})}
 
 
 def at(times: list, values: list, t: float):
@@ -197,13 +219,37 @@ def strip(args, work: Path, python: str | None) -> None:
     print()
 
 
-def dynamic(name: str, gravity: tuple, args, work: Path, python: str | None) -> None:
-    """One dynamic case in both codes: the probes' trajectories, energies and costs."""
+def flapping(times: list, corner: list, kinetic: list) -> dict:
+    """Over t >= SETTLE: the corner's half peak-to-peak per coordinate [m] (3,), the dominant
+    frequency [Hz] of its x and of its z (the largest |FFT| of the coordinate less its mean,
+    resolution 1/(the window's length)), and the mean kinetic energy [J] over the whole run
+    and over the window."""
+    t, u, k = np.asarray(times), np.asarray(corner), np.asarray(kinetic)
+    window = t >= SETTLE - 1e-9
+    tail = u[window]
+    step = t[1] - t[0]
+    frequencies = np.fft.rfftfreq(len(tail), step)
+
+    def dominant(c: np.ndarray) -> float:
+        spectrum = np.abs(np.fft.rfft(c - c.mean()))
+        return float(frequencies[1 + int(np.argmax(spectrum[1:]))])
+
+    return {"amplitude": 0.5 * (tail.max(axis=0) - tail.min(axis=0)),
+            "frequency_x": dominant(tail[:, 0]), "frequency_z": dominant(tail[:, 2]),
+            "resolution": 1.0 / (len(tail) * step), "mean_kinetic": float(k.mean()),
+            "mean_kinetic_window": float(k[window].mean())}
+
+
+def dynamic(name: str, gravity: tuple, args, work: Path, python: str | None,
+            wind: dict | None = None) -> None:
+    """One dynamic case in both codes: the probes' trajectories, energies, the flapping and
+    the costs; in `wind` (WIND) if given."""
     dt, duration = 0.01, args.duration
-    print(f"## {name}: gravity {gravity} m/s², hinged at x = 0, {duration:g} s\n")
+    print(f"## {name}: gravity {gravity} m/s², hinged at x = 0, {duration:g} s"
+          + ("" if wind is None else f", wind {wind}") + "\n")
     rows = []
-    run = ours(name, scene_text(f"peer_{name}", FLAG, gravity, "hinged_edge", (dt, duration)),
-               work, args.timeout)
+    run = ours(name, scene_text(f"peer_{name}", FLAG, gravity, "hinged_edge", (dt, duration),
+                                wind), work, args.timeout)
     if run["result"] is None:
         print(f"taichi-ndf failed (exit {run['rc']}, {work / (name + '_ours.log')})\n")
     else:
@@ -215,24 +261,29 @@ def dynamic(name: str, gravity: tuple, args, work: Path, python: str | None) -> 
                      d["cpu_per_step"], d["cpu_seconds"], d["cpu_per_simulated_second"], run))
     for step, iterations in (() if python is None else VBD_SETTINGS):
         n = round(duration / step)
-        job = newton_job(FLAG, tuple(args.cells), gravity, 1, step, n, iterations)
+        job = newton_job(FLAG, tuple(args.cells), gravity, 1, step, n, iterations, wind=wind)
         run = newton(f"{name}_vbd_{step:g}_{iterations}", job, python, work, args.timeout)
         r = run["result"]
         if r is None:
             print(f"Newton VBD h = {step:g} s × {iterations} it. failed (exit {run['rc']})\n")
             continue
+        forces = "" if wind is None else (f"; the wind's forces (numpy, in the steps' CPU): "
+                                          f"{r['wind_cpu_per_step'] * 1e3:.2f} ms/step")
         rows.append(("Newton VBD", f"{args.cells[0]} × {args.cells[1]} cells, "
-                     f"{r['particles']} vertices, f32", f"h = {step * 1e3:g} ms, "
+                     f"{r['particles']} vertices, f32{forces}", f"h = {step * 1e3:g} ms, "
                      f"{iterations} it./step", r["times"], r["probes"], r["kinetic"],
                      r["potential"], r["cpu_per_step"], r["cpu_per_step"] * n,
                      r["cpu_per_step"] / step, run))
     marks = [t for t in (0.1, 0.25, 0.5, 1.0, 2.0, 4.0) if t <= duration + 1e-9]
-    print("fly_top corner's displacement (x, y, z) [m] at t [s]:\n")
-    print("| code | settings | " + " | ".join(f"t = {t:g}" for t in marks) + " |")
-    print("|---|---|" + "---|" * len(marks))
-    for code, _, setting, times, probes, *_ in rows:
-        cells = [" ".join(f"{c:+.3f}" for c in at(times, probes["fly_top"], t)) for t in marks]
-        print(f"| {code} | {setting} | " + " | ".join(cells) + " |")
+    for corner in ("fly_top", "fly_bottom"):
+        print(f"{corner} corner's displacement (x, y, z) [m] at t [s]:\n")
+        print("| code | settings | " + " | ".join(f"t = {t:g}" for t in marks) + " |")
+        print("|---|---|" + "---|" * len(marks))
+        for code, _, setting, times, probes, *_ in rows:
+            cells = [" ".join(f"{c:+.3f}" for c in at(times, probes[corner], t))
+                     for t in marks]
+            print(f"| {code} | {setting} | " + " | ".join(cells) + " |")
+        print()
     print("\nT, Π and T + Π [J] at t [s] (Π = elastic − Σ m g·u, each code's own model):\n")
     print("| code | settings | " + " | ".join(f"t = {t:g}" for t in marks) + " |")
     print("|---|---|" + "---|" * len(marks))
@@ -240,6 +291,19 @@ def dynamic(name: str, gravity: tuple, args, work: Path, python: str | None) -> 
         cells = [f"{at(times, kinetic, t):.3g}, {at(times, potential, t):.3g}, "
                  f"{at(times, kinetic, t) + at(times, potential, t):.3g}" for t in marks]
         print(f"| {code} | {setting} | " + " | ".join(cells) + " |")
+    if duration > SETTLE + 0.1:
+        print(f"\nThe flapping over t >= {SETTLE:g} s: fly_top's half peak-to-peak (x, y, z), "
+              "the dominant frequency of its x and z (FFT), the mean kinetic energy over the "
+              "whole run and over the window:\n")
+        print("| code | settings | half peak-to-peak x, y, z [m] | dominant f of x, of z [Hz] "
+              "(resolution) | mean T, whole run; window [J] |")
+        print("|---|---|---|---|---|")
+        for code, _, setting, times, probes, kinetic, *_ in rows:
+            f = flapping(times, probes["fly_top"], kinetic)
+            print(f"| {code} | {setting} | " + " ".join(f"{a:.3f}" for a in f["amplitude"])
+                  + f" | {f['frequency_x']:.2f}, {f['frequency_z']:.2f} "
+                  f"(±{f['resolution'] / 2:.2f}) | {f['mean_kinetic']:.3g}; "
+                  f"{f['mean_kinetic_window']:.3g} |")
     print("\nCost (CPU = user + sys; the steps alone, and the whole child process with "
           "start-up and compilation):\n")
     print("| code | discretisation | settings | CPU/step [s] | CPU/simulated s [s] | steps' CPU "
@@ -263,8 +327,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--newton-python", default=os.environ.get("NEWTON_PYTHON", sys.executable),
                    help="the Python of an environment with warp-lang and newton")
-    p.add_argument("--cases", nargs="+", default=["strip", "flag", "curtain"],
-                   choices=("strip", "flag", "curtain"))
+    p.add_argument("--cases", nargs="+", default=["strip", "flag", "curtain", "wind"],
+                   choices=("strip", "flag", "curtain", "wind"))
     p.add_argument("--duration", type=float, default=1.0, help="simulated seconds [s]")
     p.add_argument("--cells", type=int, nargs=2, default=[30, 20],
                    help="Newton's grid over the flag (square cells)")
@@ -294,8 +358,8 @@ def main(argv=None) -> int:
             if case == "strip":
                 strip(args, work, python)
             else:
-                dynamic(case, (0.0, -9.81, 0.0) if case == "flag" else (0.0, 0.0, -9.81),
-                        args, work, python)
+                dynamic(case, (0.0, 0.0, -9.81) if case == "curtain" else (0.0, -9.81, 0.0),
+                        args, work, python, WIND if case == "wind" else None)
     load = os.getloadavg()
     print(f"load average at the end {load[0]:.1f} {load[1]:.1f} {load[2]:.1f}")
     return 0

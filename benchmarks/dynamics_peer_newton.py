@@ -13,12 +13,21 @@ these Lamé constants), the dihedral-angle bending stiffness edge_ke [N] (energy
 per interior edge of rest length |e|), no damping (tri_kd = edge_kd = 0), `steps` steps of dt
 [s] with `iterations` VBD iterations each (VBD's implicit Euler; no contact).
 
+With `wind` (velocity U [m/s], gust_amplitude a, gust_frequency f [Hz], air_density ρ_air
+[kg/m³], drag_coefficient C_d) the project's wind law (taichi_ndf/problem/wind.py) acts on the
+cloth as external per-particle forces, recomputed before every step from the step's start
+(`wind_forces`: per triangle its current normal and area, the mean of its vertices' velocities,
+the air at the step's end w(t + dt) = U (1 + a sin(2π f (t + dt))), the pressure ½ ρ_air C_d s|s|
+on s = (w − v)·n, a third of the triangle's force to each vertex). VBD reads them in its
+inertial prediction (`state.particle_f`, forward_step: v + (g + f/m) dt), so the drag is
+explicit in the velocity (ours is implicit in it: objective/wind.py).
+
 The result: per step the time [s], the probes' displacements [m] (the vertex nearest each
 probe's reference point), the kinetic energy T = ½ Σ m |v|², the potential Π = elastic energy
 (the Neo-Hookean membrane minus its value at rest, plus the dihedral springs, evaluated here
 in numpy with VBD's own formulas) − Σ m g·u [J]; CPU seconds (user + sys of this process) and
 wall seconds of the steps alone (the first step, which loads Warp's compiled kernels, timed
-apart); the final vertex positions.
+apart; the wind's forces included, and their CPU also alone); the final vertex positions.
 """
 
 from __future__ import annotations
@@ -45,6 +54,35 @@ def lumped_masses(rest: np.ndarray, triangles: np.ndarray, density: float) -> np
     for k in range(3):
         np.add.at(mass, triangles[:, k], density * area / 3)
     return mass
+
+
+def wind_forces(x: np.ndarray, v: np.ndarray, triangles: np.ndarray, air: np.ndarray,
+                air_density: float, drag_coefficient: float) -> np.ndarray:
+    """Nodal wind forces [N] (V, 3) on a triangle mesh at positions x (V, 3) [m] moving at v
+    (V, 3) [m/s] in air moving at `air` (3,) [m/s]: per triangle (vertices a, b, c) the unit
+    normal n = (b − a) × (c − a)/|…|, its area A = ½ |(b − a) × (c − a)| [m²], the relative
+    normal speed s = (w − v̄)·n with v̄ the mean of its vertices' velocities [m/s], the force
+    ½ ρ_air C_d s|s| A n (the project's law, taichi_ndf/problem/wind.py, on one point per
+    triangle), a third to each of its vertices. The sign of n does not matter (s and the
+    force's direction flip together)."""
+    a, b, c = (x[triangles[:, k]] for k in range(3))
+    cross = np.cross(b - a, c - a)
+    twice_area = np.linalg.norm(cross, axis=1)
+    normal = cross / twice_area[:, None]
+    mean_velocity = v[triangles].mean(axis=1)
+    s = ((air[None, :] - mean_velocity) * normal).sum(axis=1)
+    force = (0.5 * air_density * drag_coefficient * s * np.abs(s) * 0.5 * twice_area)[:, None] \
+        * normal
+    out = np.zeros_like(x, dtype=np.float64)
+    for k in range(3):
+        np.add.at(out, triangles[:, k], force / 3)
+    return out
+
+
+def air_velocity(wind: dict, t: float) -> np.ndarray:
+    """w(t) = U (1 + a sin(2π f t)) [m/s] (3,) of the job's `wind`."""
+    factor = 1.0 + wind["gust_amplitude"] * np.sin(2 * np.pi * wind["gust_frequency"] * t)
+    return factor * np.asarray(wind["velocity"], dtype=np.float64)
 
 
 def membrane_energy(x: np.ndarray, rest: np.ndarray, triangles: np.ndarray, mu: float,
@@ -134,12 +172,19 @@ def run(job: dict) -> dict:
     g = np.array(job["gravity"], dtype=np.float64)
     free_mass = np.where(held, 0.0, mass)
     dt = job["dt"]
+    wind = job.get("wind")
     positions, velocities = [rest.copy()], [np.zeros_like(rest)]
     first_cpu = first_wall = 0.0
-    cpu = wall = 0.0
+    cpu = wall = wind_cpu = 0.0
     for k in range(job["steps"]):
         c0, w0 = cpu_seconds(), time.perf_counter()
         state.clear_forces()
+        if wind is not None:
+            force = wind_forces(positions[-1], velocities[-1], triangles,
+                                air_velocity(wind, (k + 1) * dt), wind["air_density"],
+                                wind["drag_coefficient"])
+            state.particle_f.assign(force.astype(np.float32))
+            wind_cpu += cpu_seconds() - c0
         solver.step(state, scratch, control, None, dt)
         state, scratch = scratch, state
         q = state.particle_q.numpy()  # the step is done once its result is read back
@@ -165,6 +210,7 @@ def run(job: dict) -> dict:
             "total": [a + b for a, b in zip(kinetic, potential, strict=True)],
             "first_step_cpu_seconds": first_cpu, "first_step_wall_seconds": first_wall,
             "cpu_per_step": cpu / steps, "wall_per_step": wall / steps,
+            "wind_cpu_per_step": wind_cpu / job["steps"],
             "particles": int(model.particle_count), "triangles": int(model.tri_count),
             "edges": int(model.edge_count), "held": int(held.sum()), "mass": float(mass.sum()),
             "bending_modes": bending_modes(rest, edges, rest_length, job["edge_ke"],

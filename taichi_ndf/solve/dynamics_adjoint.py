@@ -19,7 +19,8 @@ the shell energy's gradient at unit θ (Π is linear in each stiffness parameter
 `ShellEnergy.evaluate`'s per-sample stiffness). The states are recomputed by `record`, which
 steps like `TimeStepper.run` but keeps every state and refuses a halved step. Not covered:
 stiffness-proportional damping (K₀ depends on C and θ), contact, wind and boundary motions in
-time, a custom per-sample stiffness; these raise ValueError.
+time, a custom per-sample stiffness; these raise ValueError (`record` too: its polish has no
+barrier, drag or moving boundary).
 """
 
 from __future__ import annotations
@@ -35,11 +36,19 @@ from taichi_ndf.shell.hessian import flat_blocks
 from taichi_ndf.solve.dynamics import DynamicsError, Motion, TimeStepper
 
 
-def _check(stepper: TimeStepper, parameter: str) -> None:
+def _check_steps(stepper: TimeStepper) -> None:
+    """Refuse what the steps' potential here (`_step_potential`, `_step_hessian`) lacks."""
     if stepper.config.stiffness_damping:
         raise ValueError("dynamics adjoint: stiffness-proportional damping is not supported")
+    if stepper.contact is not None:
+        raise ValueError("dynamics adjoint: contact ([[obstacles]] or [self_contact]) is not "
+                         "supported")
     if stepper.config.wind is not None or stepper.config.motion is not None:
         raise ValueError("dynamics adjoint: wind and boundary motions are not supported")
+
+
+def _check(stepper: TimeStepper, parameter: str) -> None:
+    _check_steps(stepper)
     if getattr(stepper.objective.shell, "stiffness", None) is not None:
         raise ValueError("dynamics adjoint: a per-sample stiffness is not supported")
     names = stepper.model.material.stiffness_names
@@ -54,6 +63,7 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
     step one `TimeStepper.step` then at most `polish` plain Newton steps on its exact Hessian
     (`_polish`); DynamicsError where a step's Newton does not converge (the adjoint follows
     unhalved steps only)."""
+    _check_steps(stepper)
     config = stepper.config
     zeros = torch.zeros_like(stepper.field.coefficients)
     c = zeros.clone() if displacement is None else displacement.to(zeros).clone()
