@@ -56,7 +56,9 @@ class SplinePriorConfig:
     Gauss points per span and direction (None: degree + 1; 3 measured as accurate as 4 for
     cubics here at half the Hessian cost); silhouette_weight: w_sil; outline_weight: w_out,
     the visible border vertices held no deeper inside the mask than in frame 0
-    (`inverse.sft.outline`; needs masks and w_sil > 0); temporal_weight: w_temp;
+    (`inverse.sft.outline`; needs masks and w_sil > 0); silhouette_border: whether the
+    silhouette term acts on the template's border vertices too (False: on the interior
+    vertices only); temporal_weight: w_temp;
     huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
     Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
     decrease λ²/2 is below this fraction of E; extrapolate: start each frame from the
@@ -74,6 +76,7 @@ class SplinePriorConfig:
     quadrature_points: int | None = 3
     silhouette_weight: float = 1.0
     outline_weight: float = 1.0
+    silhouette_border: bool = True
     temporal_weight: float = 0.1
     huber_px: float = 2.0
     max_iterations: int = 8
