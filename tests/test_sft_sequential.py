@@ -9,6 +9,8 @@ import torch
 from test_sft_reconstruct import bent_pair, exact_tracks
 
 from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.correspondences import track_gaps
+from inverse.sft.inputs import mean_edge_length
 from inverse.sft.outline import border_vertices
 from inverse.sft.sequential import DataWeights, FittedFrame, reconstruct_frames
 from inverse.sft.spline_prior import SplinePriorConfig
@@ -71,18 +73,24 @@ def test_masks_give_the_silhouette_and_outline_only_when_weighted():
     assert all(f.distance is None and f.outline_offset is None for f in fit.frames)
 
 
-def test_silhouette_border_false_leaves_the_border_vertices_out_of_the_silhouette():
+def test_the_silhouette_acts_on_border_vertices_only_far_from_every_track():
     camera = default_camera()
     masks = [np.ones((camera.height, camera.width), bool)] * 3
     template, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0), masks=masks)
     assert all(f.silhouette_rows is None for f in fit.frames)  # the default: every vertex
-    _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_border=False), masks=masks)
-    rows = fit.frames[0].silhouette_rows.numpy()
     border = border_vertices(template.faces, len(template.vertices))
-    np.testing.assert_array_equal(rows, ~border)
-    assert border.any() and rows.any()
-    assert fit.frames[0].data_term(torch.arange(1), torch.arange(1, 1 + len(rows))) \
-        .vertex.silhouette_rows is fit.frames[0].silhouette_rows
+    _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_border_gap=np.inf),
+                       masks=masks)
+    np.testing.assert_array_equal(fit.frames[0].silhouette_rows.numpy(), ~border)
+    _, tracks, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_border_gap=0.5),
+                            masks=masks)
+    mean_edge = mean_edge_length(template.vertices, template.faces)
+    for frame in fit.frames:
+        far = track_gaps(template.vertices, template.faces, tracks[frame.index], mean_edge) > 0.5
+        assert (border & far).any() and (border & ~far).any()  # both kinds present
+        np.testing.assert_array_equal(frame.silhouette_rows.numpy(), ~border | far)
+        assert frame.data_term(torch.arange(1), torch.arange(1, 1 + len(border))) \
+            .vertex.silhouette_rows is frame.silhouette_rows
 
 
 def test_the_data_term_sits_on_the_rows_the_fit_names():

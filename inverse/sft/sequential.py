@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from inverse.sft.camera import Camera
-from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.correspondences import FrameCorrespondences, track_gaps
 from inverse.sft.flow import DenseFlow, merged
 from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Template, mean_edge_length
@@ -44,15 +44,16 @@ log = logging.getLogger(__name__)
 class DataWeights:
     """The data term's settings: huber_px [px], the reprojection error beyond which its penalty
     grows linearly; the weights w_temp (motion), w_sil (silhouette, with masks) and w_out
-    (outline; needs masks and w_sil > 0; 0: no outline term); silhouette_border: whether the
-    silhouette term acts on the template's border vertices too (False: interior vertices
-    only)."""
+    (outline; needs masks and w_sil > 0; 0: no outline term); silhouette_border_gap: the
+    silhouette term acts on a border vertex of the template only where the frame has no
+    tracked point within this many mean edge lengths of it (0: on every border vertex; inf:
+    on none), and on every interior vertex."""
 
     huber_px: float
     temporal_weight: float
     silhouette_weight: float
     outline_weight: float = 0.0
-    silhouette_border: bool = True
+    silhouette_border_gap: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -155,10 +156,7 @@ def reconstruct_frames(template: Template, camera: Camera,
     if masks is not None and weights.outline_weight > 0 and weights.silhouette_weight > 0:
         allowance = outline_allowance(template.vertices, template.faces, camera, masks[0],
                                       tolerance=mean_edge)
-    silhouette_rows = None
-    if not weights.silhouette_border:
-        silhouette_rows = torch.from_numpy(
-            ~border_vertices(template.faces, len(template.vertices)))
+    border = border_vertices(template.faces, len(template.vertices))
     result = ReconstructionResult([template.vertices.copy()], [0.0], [0.0], [0], [{}])
 
     def solve(step: Step, history: list[np.ndarray]) -> tuple[FittedFrame, float, float]:
@@ -177,6 +175,10 @@ def reconstruct_frames(template: Template, camera: Camera,
             if allowance is not None:
                 offsets = outline_offsets(allowance, history[-1], template.faces,
                                           tolerance=mean_edge)
+        silhouette_rows = None  # every vertex
+        if weights.silhouette_border_gap > 0:
+            gaps = track_gaps(template.vertices, template.faces, seen, mean_edge)
+            silhouette_rows = torch.from_numpy(~border | (gaps > weights.silhouette_border_gap))
         faces = template.faces[seen.face]
         bary = torch.from_numpy(seen.bary)
         previous = torch.from_numpy(history[-1])
