@@ -146,3 +146,17 @@ def test_the_frames_run_through_the_continuation_loop_with_its_callbacks_and_pro
     frames = [r for r in reports if r.stage == "SfT reconstruction, frames"]
     assert [(r.step, r.total, r.done) for r in frames] == [(0, 2, False), (1, 2, False),
                                                            (2, 2, False), (2, 2, True)]
+
+
+@pytest.mark.parametrize("extra, named", [
+    (["--silhouette-border-gap", "-1"], "silhouette_border_gap"),
+    (["--field", "siren", "--silhouette-border-gap", "2"], "--silhouette-border-gap")])
+def test_the_cli_refuses_a_bad_silhouette_border_gap_before_any_work(tmp_path, capsys, extra,
+                                                                     named):
+    from inverse.cli import sft as sft_cli
+
+    status = sft_cli.main(["--frames", str(tmp_path / "none"), "--camera", "c.json",
+                           "--template", "t.obj", "--texture", "x.png", "--out",
+                           str(tmp_path / "out"), "--precision", "f64", *extra])
+    assert status == 2
+    assert named in capsys.readouterr().err

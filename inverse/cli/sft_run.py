@@ -164,11 +164,13 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
     if args.method == "no-prior":
         weight = 0.0
     if kind is SplinePriorConfig:
-        photometric = args.photometric_weight
+        photometric, gap = args.photometric_weight, args.silhouette_border_gap
         return SplinePriorConfig(physics_weight=weight, **(
-            {} if photometric is None else {"photometric_weight": photometric}))
-    if args.photometric_weight is not None:
-        raise ValueError("--photometric-weight is an option of --field spline")
+            {} if photometric is None else {"photometric_weight": photometric}), **(
+            {} if gap is None else {"silhouette_border_gap": gap}))
+    for option in ("photometric_weight", "silhouette_border_gap"):
+        if getattr(args, option) is not None:
+            raise ValueError(f"--{option.replace('_', '-')} is an option of --field spline")
     return ReconstructionConfig(physics_weight=weight, steps=args.iterations, seed=args.seed)
 
 
