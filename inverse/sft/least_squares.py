@@ -25,7 +25,9 @@ the depth inside the mask that vertex v is allowed (`outline_offsets`: its own d
 0), so a border vertex that has slid deeper into the silhouette than the template's own
 outline lay in frame 0 is pulled back out to it, while inside the allowance it is free. The
 silhouette term alone is one-sided (it only pulls vertices in), so a sheet whose outline
-retreats inside the mask is not told.
+retreats inside the mask is not told. With `VertexTerms.silhouette_rows` the silhouette sum
+runs over the chosen vertices only (`SplinePriorConfig.silhouette_border_gap`: border vertices
+far from every track, and the interior ones); n stays the number of vertices.
 """
 
 from __future__ import annotations
