@@ -85,9 +85,15 @@ def replaced(config, pairs: list[str]):
         if name not in {f.name for f in dataclasses.fields(config)}:
             raise SystemExit(f"{type(config).__name__} has no field {name!r}")
         default = getattr(config, name)
-        changes[name] = (value.lower() in ("1", "true", "yes") if isinstance(default, bool)
-                         else type(default)(value))
-    return dataclasses.replace(config, **changes)
+        try:
+            changes[name] = (value.lower() in ("1", "true", "yes") if isinstance(default, bool)
+                             else type(default)(value) if default is not None else float(value))
+        except ValueError:
+            raise SystemExit(f"{name}={value}: not a {type(default).__name__}") from None
+    try:
+        return dataclasses.replace(config, **changes)
+    except ValueError as err:
+        raise SystemExit(str(err)) from None
 
 
 def tracker_config(pairs: list[str]) -> TrackerConfig:

@@ -150,7 +150,8 @@ def test_the_frames_run_through_the_continuation_loop_with_its_callbacks_and_pro
 
 @pytest.mark.parametrize("extra, named", [
     (["--silhouette-border-gap", "-1"], "silhouette_border_gap"),
-    (["--field", "siren", "--silhouette-border-gap", "2"], "--silhouette-border-gap")])
+    (["--field", "siren", "--silhouette-border-gap", "2"], "--silhouette-border-gap"),
+    (["--field", "siren", "--extrapolate"], "--extrapolate")])
 def test_the_cli_refuses_a_bad_silhouette_border_gap_before_any_work(tmp_path, capsys, extra,
                                                                      named):
     from inverse.cli import sft as sft_cli

@@ -165,11 +165,11 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
         weight = 0.0
     if kind is SplinePriorConfig:
         photometric, gap = args.photometric_weight, args.silhouette_border_gap
-        return SplinePriorConfig(physics_weight=weight, **(
+        return SplinePriorConfig(physics_weight=weight, extrapolate=args.extrapolate, **(
             {} if photometric is None else {"photometric_weight": photometric}), **(
             {} if gap is None else {"silhouette_border_gap": gap}))
-    for option in ("photometric_weight", "silhouette_border_gap"):
-        if getattr(args, option) is not None:
+    for option in ("photometric_weight", "silhouette_border_gap", "extrapolate"):
+        if getattr(args, option) not in (None, False):
             raise ValueError(f"--{option.replace('_', '-')} is an option of --field spline")
     return ReconstructionConfig(physics_weight=weight, steps=args.iterations, seed=args.seed)
 
