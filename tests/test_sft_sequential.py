@@ -8,8 +8,8 @@ import pytest
 import torch
 from test_sft_reconstruct import bent_pair, exact_tracks
 
-from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.correspondences import track_gaps
+from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.inputs import mean_edge_length
 from inverse.sft.outline import border_vertices
 from inverse.sft.sequential import DataWeights, FittedFrame, reconstruct_frames
