@@ -3,7 +3,7 @@
 
     python benchmarks/sft_study.py [--sequences roll fold corner wave] [--seeds 0 1]
         [--frames 30] [--field spline|siren] [--cache DIR] [--json OUT]
-        [--tracker NAME=VALUE ...] [--guided] [--photometric W]
+        [--tracker NAME=VALUE ...] [--guided] [--photometric W] [--variant NAME=VALUE ...]
 
 For every sequence family and seed: render the sequence (`inverse.sft.synth`, default
 degradations), track it (`inverse.sft.tracking`), reconstruct it with the baseline
@@ -18,6 +18,8 @@ rendered and tracked sequences (pickles) for reruns. --guided adds the prior wit
 search (`inverse.sft.guided`: lost texture points re-found near the reconstruction's
 prediction), row "prior+guided", beside the prior without it. --photometric W adds the prior
 with the photometric term at w_photo = W (`inverse.sft.photometric`), row "prior+photo".
+--variant NAME=VALUE ... adds the prior with those `SplinePriorConfig` fields changed, row
+"prior+variant", beside the prior at its defaults.
 docs/sft_results.md holds a run.
 """
 
@@ -68,7 +70,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--photometric", type=float, metavar="W",
                    help="also run the spline prior with the photometric term at w_photo = W "
                    "(inverse.sft.photometric)")
+    p.add_argument("--variant", nargs="+", default=[], metavar="NAME=VALUE",
+                   help="also run the spline prior with these SplinePriorConfig fields changed "
+                   "(e.g. membrane_factor=0.1), row prior+variant")
     return p
+
+
+def replaced(config, pairs: list[str]):
+    """`config` (a frozen dataclass) with NAME=VALUE fields replaced (values of the field's
+    default's type; booleans as true/false)."""
+    changes = {}
+    for pair in pairs:
+        name, _, value = pair.partition("=")
+        if name not in {f.name for f in dataclasses.fields(config)}:
+            raise SystemExit(f"{type(config).__name__} has no field {name!r}")
+        default = getattr(config, name)
+        try:
+            changes[name] = (value.lower() in ("1", "true", "yes") if isinstance(default, bool)
+                             else type(default)(value) if default is not None else float(value))
+        except ValueError:
+            raise SystemExit(f"{name}={value}: not a {type(default).__name__}") from None
+    try:
+        return dataclasses.replace(config, **changes)
+    except ValueError as err:
+        raise SystemExit(str(err)) from None
 
 
 def tracker_config(pairs: list[str]) -> TrackerConfig:
@@ -147,6 +172,8 @@ def study(sequence: str, seed: int, args: argparse.Namespace) -> list[dict]:
     if args.photometric is not None:
         variants += [("prior+photo", dataclasses.replace(
             config, photometric_weight=args.photometric), False)]
+    if args.variant:
+        variants += [("prior+variant", replaced(config, args.variant), False)]
     variants += ([("no-prior", dataclasses.replace(config, physics_weight=0.0), False)]
                  if args.no_prior else [])
     for name, settings, guide in variants:
@@ -183,7 +210,7 @@ def verdict(rows: list[dict]) -> list[str]:
     lines = []
     for key in sorted({(r["sequence"], r["seed"]) for r in rows}):
         by = {r["method"]: r for r in rows if (r["sequence"], r["seed"]) == key}
-        for method in ("prior", "prior+guided", "prior+photo"):
+        for method in ("prior", "prior+guided", "prior+photo", "prior+variant"):
             if method not in by:
                 continue
             wins = {m: by[method][m] < by["baseline"][m] for m in COMPARED}
@@ -197,6 +224,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.photometric is not None and (args.field != "spline" or not args.photometric > 0):
         parser.error("--photometric needs --field spline and W > 0")
+    if args.variant and args.field != "spline":
+        parser.error("--variant needs --field spline")
+    if args.variant:
+        replaced(SplinePriorConfig(), args.variant)  # a bad name or value: before any work
     taichi_ndf.init(precision="f64")
     torch.set_num_threads(1)
     rows = []

@@ -149,3 +149,36 @@ def test_the_interpolant_slope_is_the_gradient_of_the_value_the_image_slope_is_n
     assert not torch.allclose(image_grad, grad, rtol=1e-2)
     with pytest.raises(ValueError, match="slope"):
         silhouette_term("autograd")
+
+
+def test_silhouette_rows_leave_the_other_vertices_out_of_the_silhouette_term():
+    """`VertexTerms.silhouette_rows`: the silhouette term (value, gradient, Gauss–Newton
+    blocks) acts on the selected vertices only; all three lie 4.5 px outside the mask."""
+    camera = default_camera(160, 120, focal=150.0)
+    mask = np.zeros((120, 160), bool)
+    mask[30:90, 40:120] = True
+    pixels = np.array([[124.0, 60.0], [124.0, 50.0], [124.0, 70.0]])
+    depth = 0.5
+    rest = torch.from_numpy(np.column_stack([(pixels - [camera.cx, camera.cy])
+                                             / [camera.fx, camera.fy] * depth,
+                                             np.full(3, depth)]))
+
+    def term(rows):
+        return LeastSquaresData(
+            camera, torch.arange(1),
+            Reprojection(rest[:1], camera.project(rest[:1]), torch.ones(1), 2.0),
+            torch.arange(1, 4),
+            VertexTerms(rest, rest, 0.0, 0.01, silhouette_distance(mask), 1.0,
+                        silhouette_rows=rows))
+
+    u = torch.zeros(4, jets.CHANNELS, 3, dtype=torch.float64)
+    every, _ = term(None).evaluate(None, u)
+    assert every == pytest.approx(3 * 4.5**2 / 3, rel=1e-6)
+    chosen = term(torch.tensor([False, True, False]))
+    value, grad = chosen.evaluate(None, u)
+    assert value == pytest.approx(4.5**2 / 3, rel=1e-6)
+    assert chosen.parts(u)["silhouette"] == pytest.approx(4.5**2 / 3, rel=1e-6)
+    assert torch.count_nonzero(grad[[1, 3], jets.VALUE]) == 0
+    assert grad[2, jets.VALUE, 0] > 0  # outside on the right: pulled left, inwards
+    blocks = chosen.hessian_blocks(None, u, steps=None)[:, jets.VALUE, :, jets.VALUE, :]
+    assert torch.count_nonzero(blocks[[1, 3]]) == 0 and torch.count_nonzero(blocks[2]) > 0

@@ -8,7 +8,10 @@ import pytest
 import torch
 from test_sft_reconstruct import bent_pair, exact_tracks
 
+from inverse.sft.correspondences import track_gaps
 from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.inputs import mean_edge_length
+from inverse.sft.outline import border_vertices
 from inverse.sft.sequential import DataWeights, FittedFrame, reconstruct_frames
 from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.surface import surface_positions
@@ -70,6 +73,26 @@ def test_masks_give_the_silhouette_and_outline_only_when_weighted():
     assert all(f.distance is None and f.outline_offset is None for f in fit.frames)
 
 
+def test_the_silhouette_acts_on_border_vertices_only_far_from_every_track():
+    camera = default_camera()
+    masks = [np.ones((camera.height, camera.width), bool)] * 3
+    template, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0), masks=masks)
+    assert all(f.silhouette_rows is None for f in fit.frames)  # the default: every vertex
+    border = border_vertices(template.faces, len(template.vertices))
+    _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_border_gap=np.inf),
+                       masks=masks)
+    np.testing.assert_array_equal(fit.frames[0].silhouette_rows.numpy(), ~border)
+    _, tracks, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_border_gap=0.5),
+                            masks=masks)
+    mean_edge = mean_edge_length(template.vertices, template.faces)
+    for frame in fit.frames:
+        far = track_gaps(template.vertices, template.faces, tracks[frame.index], mean_edge) > 0.5
+        assert (border & far).any() and (border & ~far).any()  # both kinds present
+        np.testing.assert_array_equal(frame.silhouette_rows.numpy(), ~border | far)
+        assert frame.data_term(torch.arange(1), torch.arange(1, 1 + len(border))) \
+            .vertex.silhouette_rows is frame.silhouette_rows
+
+
 def test_the_data_term_sits_on_the_rows_the_fit_names():
     _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0))
     frame = fit.frames[0]
@@ -123,3 +146,18 @@ def test_the_frames_run_through_the_continuation_loop_with_its_callbacks_and_pro
     frames = [r for r in reports if r.stage == "SfT reconstruction, frames"]
     assert [(r.step, r.total, r.done) for r in frames] == [(0, 2, False), (1, 2, False),
                                                            (2, 2, False), (2, 2, True)]
+
+
+@pytest.mark.parametrize("extra, named", [
+    (["--silhouette-border-gap", "-1"], "silhouette_border_gap"),
+    (["--field", "siren", "--silhouette-border-gap", "2"], "--silhouette-border-gap"),
+    (["--field", "siren", "--extrapolate"], "--extrapolate")])
+def test_the_cli_refuses_a_bad_silhouette_border_gap_before_any_work(tmp_path, capsys, extra,
+                                                                     named):
+    from inverse.cli import sft as sft_cli
+
+    status = sft_cli.main(["--frames", str(tmp_path / "none"), "--camera", "c.json",
+                           "--template", "t.obj", "--texture", "x.png", "--out",
+                           str(tmp_path / "out"), "--precision", "f64", *extra])
+    assert status == 2
+    assert named in capsys.readouterr().err

@@ -138,7 +138,8 @@ def test_pinned_vertices_stay_at_the_template(bent):
 
 @pytest.mark.parametrize("name, value", [("physics_weight", -1.0), ("span_edges", 0.0),
                                          ("max_iterations", 0), ("material", "silk"),
-                                         ("degree", 2)])
+                                         ("degree", 2), ("silhouette_border_gap", -1.0),
+                                         ("silhouette_border_gap", float("nan"))])
 def test_config_refuses_bad_values(name, value):
     with pytest.raises(ValueError, match=name if name != "material" else "linear"):
         SplinePriorConfig(**{name: value})

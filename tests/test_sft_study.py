@@ -38,3 +38,18 @@ def test_verdict_judges_the_guided_prior_too():
                      "normal_deg yes",
                      "fold seed 0: prior+guided beats baseline on e3d yes, chamfer_x1e4 NO, "
                      "normal_deg yes"]
+
+
+def test_variant_replaces_the_named_prior_settings_and_refuses_bad_ones():
+    from inverse.sft.spline_prior import SplinePriorConfig
+
+    spec = importlib.util.spec_from_file_location("sft_study", ROOT / "benchmarks" /
+                                                  "sft_study.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    config = study.replaced(SplinePriorConfig(), ["silhouette_border_gap=3", "extrapolate=true"])
+    assert config.silhouette_border_gap == 3.0 and config.extrapolate is True
+    assert config.huber_px == SplinePriorConfig().huber_px
+    for bad in (["no_such=1"], ["huber_px=wide"], ["silhouette_border_gap=-1"]):
+        with pytest.raises(SystemExit):
+            study.replaced(SplinePriorConfig(), bad)

@@ -75,6 +75,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="spline: w_photo of the photometric term, the texture compared with "
                    "each frame at every textured point (inverse.sft.photometric; default "
                    f"{SplinePriorConfig.photometric_weight:g}, 0: off)")
+    p.add_argument("--silhouette-border-gap", type=float, default=None, metavar="EDGES",
+                   help="spline: the silhouette acts on a border vertex only where no tracked "
+                   "point lies within EDGES template mean edge lengths (default "
+                   f"{SplinePriorConfig.silhouette_border_gap:g}: every vertex; inf: interior "
+                   "vertices only; not better on R1, benchmarks/RESULTS.md)")
+    p.add_argument("--extrapolate", action="store_true",
+                   help="spline: start each frame from the constant-velocity extrapolation of "
+                   "the two frames before (default: from the frame before)")
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")

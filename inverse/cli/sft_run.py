@@ -174,6 +174,13 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
                              f"{' or '.join(takes)}")
         options["photometric_weight"] = args.photometric_weight
     names = {f.name for f in dataclasses.fields(kind)}
+    for option in ("silhouette_border_gap", "extrapolate"):  # given only where the settings have it
+        if getattr(args, option) in (None, False):
+            continue
+        if option not in names:
+            raise ValueError(f"--{option.replace('_', '-')} is not an option of "
+                             f"--field {args.field}")
+        options[option] = getattr(args, option)
     return kind(physics_weight=weight, **{k: v for k, v in options.items() if k in names})
 
 

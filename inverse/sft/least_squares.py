@@ -25,7 +25,9 @@ the depth inside the mask that vertex v is allowed (`outline_offsets`: its own d
 0), so a border vertex that has slid deeper into the silhouette than the template's own
 outline lay in frame 0 is pulled back out to it, while inside the allowance it is free. The
 silhouette term alone is one-sided (it only pulls vertices in), so a sheet whose outline
-retreats inside the mask is not told.
+retreats inside the mask is not told. With `VertexTerms.silhouette_rows` the silhouette sum
+runs over the chosen vertices only (`SplinePriorConfig.silhouette_border_gap`: border vertices
+far from every track, and the interior ones); n stays the number of vertices.
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ class VertexTerms:
     w_temp over the squared mean edge length h² [m²]; silhouette distance image (h, w) [px]
     (None: no silhouette term) with weight w_sil: `inverse.sft.silhouette.silhouette_distance`;
     outline_offset: (n,) [px], the signed distance o_v ≤ 0 a border vertex may reach inside the
-    mask, −inf for the other vertices (None: no outline term), with weight w_out."""
+    mask, −inf for the other vertices (None: no outline term), with weight w_out;
+    silhouette_rows: bool (n,), the vertices the silhouette term acts on (None: all)."""
 
     rest: torch.Tensor
     predicted: torch.Tensor
@@ -71,6 +74,7 @@ class VertexTerms:
     silhouette_weight: float = 0.0
     outline_offset: torch.Tensor | None = None
     outline_weight: float = 0.0
+    silhouette_rows: torch.Tensor | None = None
 
 
 class LeastSquaresData:
@@ -103,6 +107,8 @@ class LeastSquaresData:
         self.outline_scale = 0.0
         if vertex_terms.outline_offset is not None and vertex_terms.distance is not None:
             self.outline_scale = vertex_terms.outline_weight / len(vertex_terms.rest)
+        self.silhouette_on = (None if vertex_terms.silhouette_rows is None
+                              else vertex_terms.silhouette_rows.to(torch.float64))
         if vertex_terms.distance is not None:
             gy, gx = np.gradient(vertex_terms.distance.numpy())
             self.distance_gradient = (torch.from_numpy(gx), torch.from_numpy(gy))
@@ -118,7 +124,7 @@ class LeastSquaresData:
         out["motion"] = float(((x - self.vertex.predicted) ** 2).sum(1).mean()
                               / self.vertex.mean_edge**2)
         if self.vertex.distance is not None:
-            d = silhouette_residual(self.vertex.distance, self._vertex_pixels(u))
+            d = self._silhouette_residual(self._vertex_pixels(u))
             out["silhouette"] = float((d**2).mean())
         if self.outline_scale > 0:
             d = self._outline_residual(self._vertex_pixels(u))
@@ -145,6 +151,11 @@ class LeastSquaresData:
 
     def _vertex_pixels(self, u: torch.Tensor) -> torch.Tensor:
         return self.camera.project(self.vertex.rest + u[self.vertices], min_depth=MIN_DEPTH)
+
+    def _silhouette_residual(self, pixels: torch.Tensor) -> torch.Tensor:
+        """D [px] (n,) outside the mask, 0 inside and at the vertices the term leaves out."""
+        d = silhouette_residual(self.vertex.distance, pixels)
+        return d if self.silhouette_on is None else d * self.silhouette_on
 
     def _outline_residual(self, pixels: torch.Tensor) -> torch.Tensor:
         """min(0, D − o) [px] (n,): how much deeper inside the mask than allowed."""
@@ -201,7 +212,7 @@ class LeastSquaresData:
         if vt.distance is not None and self.silhouette_scale > 0:
             points = vt.rest + u[self.vertices]
             pixels = self.camera.project(points, min_depth=MIN_DEPTH)
-            d = silhouette_residual(vt.distance, pixels)
+            d = self._silhouette_residual(pixels)
             value = value + self.silhouette_scale * (d**2).sum()
             row = self._distance_rows(points, d > 0)  # inside, D = 0 is flat
             if grad:

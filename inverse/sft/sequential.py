@@ -27,12 +27,12 @@ import numpy as np
 import torch
 
 from inverse.sft.camera import Camera
-from inverse.sft.correspondences import FrameCorrespondences
+from inverse.sft.correspondences import FrameCorrespondences, track_gaps
 from inverse.sft.flow import DenseFlow, merged
 from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
-from inverse.sft.outline import outline_allowance, outline_offsets
+from inverse.sft.outline import border_vertices, outline_allowance, outline_offsets
 from inverse.sft.photometric import PhotometricEvidence, PhotometricFrame
 from inverse.sft.silhouette import silhouette_distance
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
@@ -44,12 +44,16 @@ log = logging.getLogger(__name__)
 class DataWeights:
     """The data term's settings: huber_px [px], the reprojection error beyond which its penalty
     grows linearly; the weights w_temp (motion), w_sil (silhouette, with masks) and w_out
-    (outline; needs masks and w_sil > 0; 0: no outline term)."""
+    (outline; needs masks and w_sil > 0; 0: no outline term); silhouette_border_gap: the
+    silhouette term acts on a border vertex of the template only where the frame has no
+    tracked point within this many mean edge lengths of it (0: on every border vertex; inf:
+    on none), and on every interior vertex."""
 
     huber_px: float
     temporal_weight: float
     silhouette_weight: float
     outline_weight: float = 0.0
+    silhouette_border_gap: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -59,7 +63,8 @@ class FrameData:
     template positions (m, 3) [m], their pixels (m, 2) [px] and confidences (m,); the vertices'
     predicted positions x̂ (n, 3) [m]; the mask's `silhouette_distance` (h, w) [px] or None;
     the outline offsets (n,) [px] (`outline_offsets`) or None; the photometric term's data
-    (`inverse.sft.photometric`) or None."""
+    (`inverse.sft.photometric`) or None; the vertices the silhouette term acts on, bool (n,),
+    or None for all."""
 
     index: int
     camera: Camera
@@ -74,6 +79,7 @@ class FrameData:
     distance: torch.Tensor | None
     outline_offset: torch.Tensor | None
     photometric: PhotometricFrame | None = None
+    silhouette_rows: torch.Tensor | None = None
 
     def data_term(self, tracks: torch.Tensor, vertices: torch.Tensor, *,
                   slope: str = "image") -> LeastSquaresData:
@@ -87,7 +93,7 @@ class FrameData:
             vertices,
             VertexTerms(self.rest, self.predicted, w.temporal_weight, self.mean_edge,
                         self.distance, w.silhouette_weight, self.outline_offset,
-                        w.outline_weight), slope=slope)
+                        w.outline_weight, self.silhouette_rows), slope=slope)
 
 
 @dataclass(frozen=True)
@@ -150,6 +156,7 @@ def reconstruct_frames(template: Template, camera: Camera,
     if masks is not None and weights.outline_weight > 0 and weights.silhouette_weight > 0:
         allowance = outline_allowance(template.vertices, template.faces, camera, masks[0],
                                       tolerance=mean_edge)
+    border = border_vertices(template.faces, len(template.vertices))
     result = ReconstructionResult([template.vertices.copy()], [0.0], [0.0], [0], [{}])
 
     def solve(step: Step, history: list[np.ndarray]) -> tuple[FittedFrame, float, float]:
@@ -168,6 +175,10 @@ def reconstruct_frames(template: Template, camera: Camera,
             if allowance is not None:
                 offsets = outline_offsets(allowance, history[-1], template.faces,
                                           tolerance=mean_edge)
+        silhouette_rows = None  # every vertex
+        if weights.silhouette_border_gap > 0:
+            gaps = track_gaps(template.vertices, template.faces, seen, mean_edge)
+            silhouette_rows = torch.from_numpy(~border | (gaps > weights.silhouette_border_gap))
         faces = template.faces[seen.face]
         bary = torch.from_numpy(seen.bary)
         previous = torch.from_numpy(history[-1])
@@ -178,7 +189,8 @@ def reconstruct_frames(template: Template, camera: Camera,
             track_rest=(bary[:, :, None] * rest[torch.from_numpy(faces)]).sum(1),
             pixels=torch.from_numpy(seen.xy), confidence=torch.from_numpy(seen.confidence),
             predicted=2.0 * previous - before, distance=distance, outline_offset=offsets,
-            photometric=None if photometric is None else photometric.frame(i, history[-1]))
+            photometric=None if photometric is None else photometric.frame(i, history[-1]),
+            silhouette_rows=silhouette_rows)
         fitted = fit.fit_frame(frame)
         return fitted, time.perf_counter() - start, time.process_time() - cpu
 

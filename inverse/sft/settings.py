@@ -56,7 +56,10 @@ class SplinePriorConfig:
     Gauss points per span and direction (None: degree + 1; 3 measured as accurate as 4 for
     cubics here at half the Hessian cost); silhouette_weight: w_sil; outline_weight: w_out,
     the visible border vertices held no deeper inside the mask than in frame 0
-    (`inverse.sft.outline`; needs masks and w_sil > 0); temporal_weight: w_temp;
+    (`inverse.sft.outline`; needs masks and w_sil > 0); silhouette_border_gap: the silhouette
+    acts on a border vertex only where no tracked point lies within this many template mean
+    edge lengths of it (0: on every border vertex; inf: on none; interior vertices always);
+    temporal_weight: w_temp;
     huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
     Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
     decrease λ²/2 is below this fraction of E; extrapolate: start each frame from the
@@ -74,6 +77,7 @@ class SplinePriorConfig:
     quadrature_points: int | None = 3
     silhouette_weight: float = 1.0
     outline_weight: float = 1.0
+    silhouette_border_gap: float = 0.0
     temporal_weight: float = 0.1
     huber_px: float = 2.0
     max_iterations: int = 8
@@ -92,6 +96,9 @@ class SplinePriorConfig:
                      "photometric_sigma"):
             if not 0 < getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be finite and positive, got {getattr(self, name)}")
+        if not self.silhouette_border_gap >= 0:  # inf allowed: no border vertex
+            raise ValueError(f"silhouette_border_gap must be >= 0, got "
+                             f"{self.silhouette_border_gap}")
         if isinstance(self.photometric_points, bool) or not isinstance(
                 self.photometric_points, int) or self.photometric_points < 1:
             raise ValueError(f"photometric_points must be a positive integer, got "
