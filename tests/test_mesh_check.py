@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from taichi_ndf.io.mesh_check import (check_mesh, crossings, distances_to_mesh, inside,
-                                      is_closed, layer_distance, self_intersections)
+                                      is_closed, layer_distance, self_intersections, welded)
 from taichi_ndf.io.tri_tri import (point_triangle_distance, triangles_intersect,
                                    winding_numbers)
 
@@ -204,3 +204,15 @@ def test_the_layer_distance_of_a_folded_sheet_is_the_gap_between_its_layers():
     assert layer_distance(vertices, faces, rest, exclusion=0.0, reach=0.05)[0] == 0.0
     report = check_mesh(vertices, faces, rest_vertices=rest, exclusion=0.05)
     assert report.layer_distance == pytest.approx(gap, rel=1e-9) and report.clean
+
+
+def test_two_panels_welded_along_their_seam_are_one_mesh_without_self_intersection():
+    left, faces = _sheet(5, size=1.0)
+    right = left + [1.0, 0, 0]
+    vertices = np.concatenate((left, right))
+    both = np.concatenate((faces, faces + len(left)))
+    joined, joined_faces, kept = welded(vertices, both, tolerance=1e-9)
+    assert len(vertices) - len(kept) == 5 and len(joined) == 45
+    assert np.array_equal(vertices[kept], joined)
+    assert np.allclose(joined[joined_faces], vertices[both])
+    assert len(self_intersections(joined, joined_faces)) == 0

@@ -84,6 +84,24 @@ def crossings(vertices, faces, other_vertices, other_faces) -> np.ndarray:
     return pairs[triangles_intersect(v[f[pairs[:, 0]]], w[g[pairs[:, 1]]])]
 
 
+def welded(vertices, faces, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mesh with vertices closer than `tolerance` [m] merged into one (the first of each
+    group): panels' meshes joined along their seams. Returns (vertices, faces, the indices
+    of the vertices kept (the same selection for another array per vertex))."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    v, f = _as_mesh(vertices, faces)
+    pairs = cKDTree(v).query_pairs(tolerance, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(v),) * 2)
+    count, label = connected_components(graph, directed=False)
+    first = np.full(count, len(v))
+    np.minimum.at(first, label, np.arange(len(v)))
+    keep = np.unique(first)
+    index = np.searchsorted(keep, first[label])
+    return v[keep], index[f], keep
+
+
 def is_closed(faces) -> bool:
     """Whether every edge of the mesh is shared by exactly two faces (a closed surface)."""
     f = np.asarray(faces, dtype=np.int64)

@@ -163,7 +163,7 @@ def point_triangle_distance(p: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def winding_numbers(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
-                    chunk: int = 1_000_000) -> np.ndarray:
+                    chunk: int = 250_000) -> np.ndarray:
     """The winding number (N,) of a closed, consistently oriented triangle mesh (vertices
     (V, 3), faces (F, 3)) about each point (N, 3): Σ of the faces' solid angles / 4π (Van
     Oosterom and Strackee 1983), ±1 inside (the sign is the orientation's), 0 outside."""
