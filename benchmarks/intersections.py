@@ -35,7 +35,7 @@ from taichi_ndf.io import read_mesh  # noqa: E402
 from taichi_ndf.io.mesh_check import check_mesh, welded  # noqa: E402
 
 WELD = 1e-6       # [m] seams' and periodic edges' vertices merged below this distance
-REACH = 0.05      # [m] clearances and layer distances looked for within this
+REACH = 0.05      # [m] clearances looked for within this; layer distances within 2 (o + ĝ)
 
 
 def _cpu() -> float:
@@ -45,12 +45,19 @@ def _cpu() -> float:
 
 def _self_contact(run: Path):
     """The run's self-contact configuration (offset, activation ĝ, exclusion [m]) or None,
-    and its scene (from the checkpoint, as ndf-export reads it)."""
+    its scene and its checkpoint (as ndf-export reads them; a dynamic run's checkpoint is
+    not read: its scene from scenes/<name>.toml, and None)."""
     from taichi_ndf.app.simulation import checkpoint_scene
-    from taichi_ndf.minimise.checkpoint import load_checkpoint
+    from taichi_ndf.minimise.checkpoint import CheckpointError, load_checkpoint
+    from taichi_ndf.scene.reader import load_scene
 
-    checkpoint = load_checkpoint(run / "checkpoint.pt")
-    scene = checkpoint_scene(run / "checkpoint.pt", checkpoint.extra)
+    try:
+        checkpoint = load_checkpoint(run / "checkpoint.pt")
+        scene = checkpoint_scene(run / "checkpoint.pt", checkpoint.extra)
+    except (CheckpointError, FileNotFoundError):  # a dynamic run's: its scene file by name
+        checkpoint = None
+        name = json.loads((run / "result.json").read_text())["scene"]
+        scene = load_scene(ROOT / "scenes" / f"{name}.toml")
     contact = getattr(scene.model, "contact", None)
     return getattr(contact, "self_contact", None), scene, checkpoint
 
@@ -64,14 +71,15 @@ def _check(vertices, faces, obstacles, rest, config) -> tuple[dict, float]:
     report = check_mesh(v, f, obstacles,
                         rest_vertices=rest if config is not None else None,
                         exclusion=config.exclusion if config is not None else 0.0,
-                        reach=REACH)
+                        reach=REACH, layer_reach=None if config is None else
+                        2 * (config.offset + config.activation))
     return {"report": report, "merged": merged}, _cpu() - before
 
 
 def _mm(x: float | None) -> str:
     if x is None:
         return "—"
-    return "> 50" if np.isinf(x) and x > 0 else f"{x * 1e3:.3f}"
+    return "beyond reach" if np.isinf(x) and x > 0 else f"{x * 1e3:.3f}"
 
 
 def _obstacle_cells(report) -> str:
@@ -143,7 +151,7 @@ def check_run(name: str, run: Path, fine: int) -> list[str]:
         frame_rest = rest if rest is not None and len(rest) == len(
             read_mesh(frames[0]).vertices) else None
         rows.append(_frames_row(name, frames, obstacles, frame_rest, config))
-    if fine > 1:
+    if fine > 1 and checkpoint is not None:  # (a dynamic run's checkpoint is not a field's)
         from taichi_ndf.app.outputs import deformed_mesh
         from taichi_ndf.discretise import of_scene
 

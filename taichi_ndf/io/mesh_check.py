@@ -18,6 +18,8 @@ from scipy.spatial import cKDTree
 from taichi_ndf.io.tri_tri import (edges_meet, point_triangle_distance, triangles_intersect,
                                    winding_numbers)
 
+CHUNK = 2048  # points whose candidate pairs are found and measured at once
+
 
 def _spheres(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Centroids (F, 3) and the radii (F,) of spheres about them holding each triangle."""
@@ -47,6 +49,11 @@ def _near_pairs(centres_a, radii_a, centres_b, radii_b) -> np.ndarray:
     return np.stack((i[near], j[near]), axis=1)
 
 
+def _chunks(count: int, size: int = CHUNK):
+    for start in range(0, count, size):
+        yield np.arange(start, min(start + size, count))
+
+
 def self_intersections(vertices, faces) -> np.ndarray:
     """Pairs (K, 2), i < j, of faces of one mesh that intersect. Pairs sharing an edge (two
     vertices) are neighbours and skipped; pairs sharing one vertex touch there and intersect
@@ -54,8 +61,16 @@ def self_intersections(vertices, faces) -> np.ndarray:
     non-coplanar case: a coplanar fan folded onto itself is not seen)."""
     v, f = _as_mesh(vertices, faces)
     centres, radii = _spheres(v, f)
-    pairs = _near_pairs(centres, radii, centres, radii)
-    pairs = pairs[pairs[:, 0] < pairs[:, 1]]
+    found = [np.zeros((0, 2), dtype=np.int64)]
+    for rows in _chunks(len(f)):
+        pairs = _near_pairs(centres[rows], radii[rows], centres, radii)
+        pairs[:, 0] = rows[pairs[:, 0]]
+        pairs = pairs[pairs[:, 0] < pairs[:, 1]]
+        found.append(pairs[_intersect_in_one_mesh(v, f, pairs)])
+    return np.concatenate(found)
+
+
+def _intersect_in_one_mesh(v: np.ndarray, f: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     same = f[pairs[:, 0]][:, :, None] == f[pairs[:, 1]][:, None, :]       # (K, 3, 3)
     shared = same.sum(axis=(1, 2))
     hit = np.zeros(len(pairs), dtype=bool)
@@ -71,17 +86,21 @@ def self_intersections(vertices, faces) -> np.ndarray:
             first, second = c1 == c, c2 == c
             hit[one[first]] |= edges_meet(t1[first], t2[first], edges=((c + 1) % 3,))
             hit[one[second]] |= edges_meet(t2[second], t1[second], edges=((c + 1) % 3,))
-    return pairs[hit]
+    return hit
 
 
 def crossings(vertices, faces, other_vertices, other_faces) -> np.ndarray:
     """Pairs (K, 2) (face of the first mesh, face of the second) that intersect."""
     v, f = _as_mesh(vertices, faces)
     w, g = _as_mesh(other_vertices, other_faces)
-    pairs = _near_pairs(*_spheres(v, f), *_spheres(w, g))
-    if not len(pairs):
-        return pairs
-    return pairs[triangles_intersect(v[f[pairs[:, 0]]], w[g[pairs[:, 1]]])]
+    centres, radii = _spheres(v, f)
+    others = _spheres(w, g)
+    found = [np.zeros((0, 2), dtype=np.int64)]
+    for rows in _chunks(len(f)):
+        pairs = _near_pairs(centres[rows], radii[rows], *others)
+        pairs[:, 0] = rows[pairs[:, 0]]
+        found.append(pairs[triangles_intersect(v[f[pairs[:, 0]]], w[g[pairs[:, 1]]])])
+    return np.concatenate(found)
 
 
 def welded(vertices, faces, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -125,15 +144,16 @@ def inside(points, vertices, faces) -> np.ndarray:
 
 def distances_to_mesh(points, vertices, faces, reach: float) -> np.ndarray:
     """Each point's (N, 3) distance to the nearest triangle of the mesh, inf where none is
-    within `reach` (N,)."""
+    within `reach` (N,). Points taken CHUNK at a time (the candidate pairs' memory)."""
     p = np.asarray(points, dtype=np.float64)
     v, f = _as_mesh(vertices, faces)
     centres, radii = _spheres(v, f)
-    pairs = _near_pairs(p, np.full(len(p), float(reach)), centres, radii)
     out = np.full(len(p), np.inf)
-    if len(pairs):
-        d = point_triangle_distance(p[pairs[:, 0]], v[f[pairs[:, 1]]])
-        np.minimum.at(out, pairs[:, 0], d)
+    for rows in _chunks(len(p)):
+        pairs = _near_pairs(p[rows], np.full(len(rows), float(reach)), centres, radii)
+        if len(pairs):
+            d = point_triangle_distance(p[rows[pairs[:, 0]]], v[f[pairs[:, 1]]])
+            np.minimum.at(out, rows[pairs[:, 0]], d)
     out[out > reach] = np.inf
     return out
 
@@ -150,14 +170,20 @@ def layer_distance(vertices, faces, rest_vertices, exclusion: float, reach: floa
     if rest.shape != v.shape:
         raise ValueError(f"layer_distance: rest vertices {rest.shape} do not match {v.shape}")
     centres, radii = _spheres(v, f)
-    pairs = _near_pairs(v, np.full(len(v), float(reach)), centres, radii)
-    at_rest = np.linalg.norm(rest[f[pairs[:, 1]]] - rest[pairs[:, 0], None], axis=2).min(axis=1)
-    pairs = pairs[at_rest >= exclusion]
-    if not len(pairs):
-        return np.inf, -1, -1
-    d = point_triangle_distance(v[pairs[:, 0]], v[f[pairs[:, 1]]])
-    k = int(d.argmin())
-    return float(d[k]), int(pairs[k, 0]), int(pairs[k, 1])
+    best = (np.inf, -1, -1)
+    for rows in _chunks(len(v)):
+        pairs = _near_pairs(v[rows], np.full(len(rows), float(reach)), centres, radii)
+        pairs[:, 0] = rows[pairs[:, 0]]
+        at_rest = np.linalg.norm(rest[f[pairs[:, 1]]] - rest[pairs[:, 0], None],
+                                 axis=2).min(axis=1)
+        pairs = pairs[at_rest >= exclusion]
+        if not len(pairs):
+            continue
+        d = point_triangle_distance(v[pairs[:, 0]], v[f[pairs[:, 1]]])
+        k = int(d.argmin())
+        if d[k] < best[0]:
+            best = (float(d[k]), int(pairs[k, 0]), int(pairs[k, 1]))
+    return best if best[0] <= reach else (np.inf, -1, -1)
 
 
 @dataclass(frozen=True)
@@ -192,11 +218,12 @@ class MeshCheck:
 
 
 def check_mesh(vertices, faces, obstacles=(), rest_vertices=None, exclusion: float = 0.0,
-               reach: float = 0.05) -> MeshCheck:
+               reach: float = 0.05, layer_reach: float | None = None) -> MeshCheck:
     """Check a triangle mesh (vertices (V, 3) [m], faces (F, 3)): its self-intersections,
     against each obstacle (name, vertices, faces) its crossings, the vertices inside it
     (closed surfaces only) and the clearance within `reach` [m], and with `rest_vertices`
-    (V, 3) the layer distance over pairs at least `exclusion` [m] apart at rest."""
+    (V, 3) the layer distance over pairs at least `exclusion` [m] apart at rest, within
+    `layer_reach` [m] (default `reach`; its cost grows with its square)."""
     v, f = _as_mesh(vertices, faces)
     found = []
     for name, ov, of in obstacles:
@@ -211,7 +238,8 @@ def check_mesh(vertices, faces, obstacles=(), rest_vertices=None, exclusion: flo
             clearance=float(distance.min()) if len(distance) else np.inf))
     layers = None
     if rest_vertices is not None:
-        layers = layer_distance(v, f, rest_vertices, exclusion, reach)[0]
+        layers = layer_distance(v, f, rest_vertices, exclusion,
+                                reach if layer_reach is None else layer_reach)[0]
     return MeshCheck(vertices=len(v), faces=len(f),
                      self_intersections=len(self_intersections(v, f)),
                      obstacles=tuple(found), layer_distance=layers)
