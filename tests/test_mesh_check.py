@@ -24,6 +24,11 @@ def test_two_crossing_triangles_intersect_and_moved_apart_do_not():
     # Piercing through the middle of the other without any corner near it.
     spear = _one([0.25, 0.25, -1], [0.25, 0.25, 1], [5, 5, 0.5])
     assert triangles_intersect(BASE, spear).tolist() == [True]
+    # Near the hypotenuse x + y = 1: just inside crosses, just outside does not.
+    for at, crosses in ((0.49, True), (0.51, False)):
+        spear = _one([at, at, -1], [at, at, 1], [at + 5, at - 5, 0.5])
+        assert triangles_intersect(BASE, spear).tolist() == [crosses]
+        assert triangles_intersect(spear, BASE).tolist() == [crosses]
 
 
 def test_a_corner_touching_the_other_counts_and_a_hair_above_does_not():
