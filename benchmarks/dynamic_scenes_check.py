@@ -186,10 +186,10 @@ def faces_of(path: Path) -> np.ndarray:
 
 def crossings(runs: list[str]) -> None:
     """Per run NAME=DIR: whether the sheet passes through itself, from the output meshes alone
-    (tests/triangle_intersections.py, independent of the solver): the intersecting face pairs
+    (taichi_ndf/io/mesh_check.py, independent of the solver): the intersecting face pairs
     of every trajectory frame and of mesh.obj; the frames with any, and the most."""
     sys.path.insert(0, str(ROOT / "tests"))
-    from triangle_intersections import intersecting_pairs
+    from taichi_ndf.io.mesh_check import self_intersections
 
     print("| run | frames checked | frames with crossings | most crossing face pairs (frame, "
           "t [s]) | final mesh's crossing pairs |")
@@ -199,8 +199,8 @@ def crossings(runs: list[str]) -> None:
         out = Path(path)
         times = json.loads((out / "result.json").read_text())["trajectory"]["times"]
         frames = sorted((out / "trajectory").glob("step_*.obj"))
-        counts = [len(intersecting_pairs(vertices(f), faces_of(f))) for f in frames]
-        final = len(intersecting_pairs(vertices(out / "mesh.obj"), faces_of(out / "mesh.obj")))
+        counts = [len(self_intersections(vertices(f), faces_of(f))) for f in frames]
+        final = len(self_intersections(vertices(out / "mesh.obj"), faces_of(out / "mesh.obj")))
         worst = int(np.argmax(counts))
         print(f"| {name} | {len(frames)} | {sum(c > 0 for c in counts)} | {counts[worst]} "
               f"({worst}, {times[worst]:.2f}) | {final} |")

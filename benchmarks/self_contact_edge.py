@@ -12,7 +12,7 @@ one process:
 Checked on the output mesh: the nearest-vertex distance between the two layers (ξ¹ below the
 crease of the start against ξ¹ beyond it; `self_contact_fold.layer_distances`), where the
 closest upper vertex is (ξ), the smallest distance of the upper layer's free-edge vertices
-(ξ¹ = 0.3) to the lower layer, against the offset; and tests/triangle_intersections.py. CPU =
+(ξ¹ = 0.3) to the lower layer, against the offset; and taichi_ndf/io/mesh_check.py. CPU =
 user + sys of the process over each solve (`resource.getrusage`), wall beside it.
 
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/self_contact_edge.py
@@ -33,10 +33,10 @@ sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from provenance import commit  # noqa: E402
 from self_contact_fold import CREASE_RADIUS, folded_solve, layers  # noqa: E402
-from triangle_intersections import intersecting_pairs  # noqa: E402
 
 import taichi_ndf  # noqa: E402
 from taichi_ndf.contact.config import ContactConfig  # noqa: E402
+from taichi_ndf.io.mesh_check import self_intersections  # noqa: E402
 from taichi_ndf.scene.reader import load_scene  # noqa: E402
 
 SCENE = ROOT / "scenes" / "napkin_fold.toml"
@@ -65,7 +65,7 @@ def run(name: str, *, edges: bool, table: bool) -> dict:
     return {"name": name, "min": float(distance.min()),
             "where": tuple(float(v) for v in mesh.xi[closest]),
             "edge_min": float(distance[free_edge].min()),
-            "intersections": len(intersecting_pairs(mesh.deformed, mesh.faces)),
+            "intersections": len(self_intersections(mesh.deformed, mesh.faces)),
             "energy": summary.energy, "iterations": len(result.state.history),
             "rounds": result.contact.rounds, "converged": summary.converged,
             "cpu": cpu,

@@ -6,7 +6,7 @@ scenes/napkin_fold.toml (0.6 m × 0.15 m cotton/polyester, edge ξ¹ = 0 clamped
 spline in least squares: the scene's [start], `fitted_start`), then solved under gravity at
 load factor 1 by the spline path's contact solve, once with the scene's [self_contact] and
 once without it.
-Checked on the output mesh (241 × 61 vertices) by tests/triangle_intersections.py, an
+Checked on the output mesh (241 × 61 vertices) by taichi_ndf/io/mesh_check.py, an
 independent segment–triangle test of every pair of faces that share no vertex, and by the
 smallest distance between the vertices of the two flat layers (ξ¹ below the crease against
 ξ¹ beyond it: nearest-vertex distances, everywhere and 2 cm of ξ¹ away from the crease).
@@ -43,12 +43,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from provenance import commit  # noqa: E402
-from triangle_intersections import intersecting_pairs  # noqa: E402
 
 import taichi_ndf  # noqa: E402
 from taichi_ndf.app.outputs import deformed_mesh, export_grid  # noqa: E402
 from taichi_ndf.discretise.start import fitted_start  # noqa: E402
 from taichi_ndf.io import read_mesh, write_obj  # noqa: E402
+from taichi_ndf.io.mesh_check import self_intersections  # noqa: E402
 from taichi_ndf.minimise.state import State  # noqa: E402
 from taichi_ndf.scene.reader import load_scene  # noqa: E402
 from taichi_ndf.solve.spline_solver import solve_spline  # noqa: E402
@@ -123,7 +123,7 @@ def run(self_contact: bool, out: Path | None = None) -> dict:
             "min_flat_distance": float(flat.min()), "median_flat_distance": float(np.median(flat)),
             "upper_lowest_z": float(upper[:, 2].min()),
             "lower_highest_z": float(lower[:, 2].max()),
-            "intersections": len(intersecting_pairs(mesh.deformed, mesh.faces)),
+            "intersections": len(self_intersections(mesh.deformed, mesh.faces)),
             "energy": summary.energy, "iterations": len(result.state.history),
             "rounds": result.contact.rounds, "converged": summary.converged,
             "cpu": cpu,
@@ -161,7 +161,7 @@ def check_run(run_dir: Path) -> None:
     flat = layer_distances(mesh, hi - lo, CREASE_RADIUS, CREASE_MARGIN)
     print(f"ndf-sim run {run_dir}: layer distance min {1e3 * everywhere.min():.2f} mm, flat "
           f"parts min {1e3 * flat.min():.2f} mm, median {1e3 * np.median(flat):.2f} mm, "
-          f"intersecting face pairs {len(intersecting_pairs(mesh.deformed, mesh.faces))}, "
+          f"intersecting face pairs {len(self_intersections(mesh.deformed, mesh.faces))}, "
           f"Π {result['energy']:.6g} J, {result['iterations']} Newton iterations")
 
 

@@ -4,10 +4,17 @@ cases whose answer is known, and against brute force over every pair of triangle
 import numpy as np
 import pytest
 
-from taichi_ndf.io.mesh_check import (check_mesh, crossings, distances_to_mesh, inside,
-                                      is_closed, layer_distance, self_intersections, welded)
-from taichi_ndf.io.tri_tri import (point_triangle_distance, triangles_intersect,
-                                   winding_numbers)
+from taichi_ndf.io.mesh_check import (
+    check_mesh,
+    crossings,
+    distances_to_mesh,
+    inside,
+    is_closed,
+    layer_distance,
+    self_intersections,
+    welded,
+)
+from taichi_ndf.io.tri_tri import point_triangle_distance, triangles_intersect, winding_numbers
 
 BASE = np.array([[[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]])
 
@@ -122,7 +129,7 @@ def test_self_intersections_equal_brute_force_over_every_pair():
     shared = (f[i][:, :, None] == f[j][:, None, :]).sum(axis=(1, 2))
     apart = shared == 0
     brute = triangles_intersect(v[f[i[apart]]], v[f[j[apart]]])
-    expected = {(int(a), int(b)) for a, b in zip(i[apart][brute], j[apart][brute])}
+    expected = {(int(a), int(b)) for a, b in zip(i[apart][brute], j[apart][brute], strict=True)}
     assert len(expected) > 10
     assert {p for p in found if not (set(f[p[0]]) & set(f[p[1]]))} == expected
 

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from triangle_intersections import intersecting_pairs
 
 from taichi_ndf import jets
 from taichi_ndf.contact.barrier import barrier
@@ -19,6 +18,7 @@ from taichi_ndf.contact.self_pairs import (
 )
 from taichi_ndf.contact.self_step import closest_along_step, self_step_allowed
 from taichi_ndf.geometry import Plane
+from taichi_ndf.io.mesh_check import self_intersections
 from taichi_ndf.objective.self_contact import SelfContactTerm
 from taichi_ndf.problem.sampling import SurfaceSamples
 
@@ -206,10 +206,10 @@ def test_the_independent_intersection_test():
     folded through itself (upper half below the lower one at its end) has some."""
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],
                   [0.2, 0.2, -0.5], [0.2, 0.2, 0.5], [0.8, 0.8, 0.0]], dtype=float)
-    assert len(intersecting_pairs(v, np.array([[0, 1, 2], [3, 4, 5]]))) == 1
+    assert len(self_intersections(v, np.array([[0, 1, 2], [3, 4, 5]]))) == 1
     v[3:, 2] = 0.1
     v[5, 2] = 0.1
-    assert len(intersecting_pairs(v, np.array([[0, 1, 2], [3, 4, 5]]))) == 0
+    assert len(self_intersections(v, np.array([[0, 1, 2], [3, 4, 5]]))) == 0
     n = 11
     s = np.linspace(0, 1, n)
     g = np.stack(np.meshgrid(s, s, indexing="ij"), axis=-1).reshape(-1, 2)
@@ -217,14 +217,14 @@ def test_the_independent_intersection_test():
              for i in range(n - 1) for j in range(n - 1)]
     faces = np.array([f for a, b, c, d in quads for f in ((a, b, c), (a, c, d))])
     flat = np.column_stack((g, np.zeros(len(g))))
-    assert len(intersecting_pairs(flat, faces)) == 0
+    assert len(self_intersections(flat, faces)) == 0
     folded = flat.copy()
     upper = g[:, 0] > 0.5
     folded[upper, 0] = 1.0 - g[upper, 0]
     folded[upper, 2] = 0.05 - 0.2 * (g[upper, 0] - 0.5)  # the upper half dips through
-    assert len(intersecting_pairs(folded, faces)) > 0
+    assert len(self_intersections(folded, faces)) > 0
     folded[upper, 2] = 0.05 + 0.0 * g[upper, 0]
-    assert len(intersecting_pairs(folded, faces)) == 0
+    assert len(self_intersections(folded, faces)) == 0
 
 
 def test_the_contact_hook_refuses_a_crossing_step_only_with_self_contact():

@@ -1,7 +1,7 @@
 """Acceptance of self-contact (issue 30): a napkin folded in half on a table
 (scenes/napkin_fold.toml started folded, benchmarks/self_contact_fold.py) rests on itself
 without crossing; without self-contact the same fold falls through itself. Checked on the
-output mesh by the independent intersection test (tests/triangle_intersections.py)."""
+output mesh by the independent intersection test (taichi_ndf/io/mesh_check.py)."""
 
 import sys
 from pathlib import Path

@@ -15,8 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from taichi_ndf.io.tri_tri import (edges_meet, point_triangle_distance, triangles_intersect,
-                                   winding_numbers)
+from taichi_ndf.io.tri_tri import (
+    edges_meet,
+    point_triangle_distance,
+    triangles_intersect,
+    winding_numbers,
+)
 
 CHUNK = 2048  # points whose candidate pairs are found and measured at once
 
