@@ -43,12 +43,6 @@ ALLOWED = (
 # Branches left today, each with why: the list may only shrink (an entry whose branch is
 # gone fails `test_known_branches_still_occur`). Keyed on (path, what), not on the line.
 KNOWN: dict[tuple[str, str], str] = {
-    ("inverse/sft/photometric.py", "isinstance(..., SplinePriorConfig)"):
-        "photometric_evidence(config, ...) returns None for settings without the photometric "
-        "term; the SfT registry (`InverseFieldType.photometric`) cannot be imported here "
-        "(inverse.material.field_types imports inverse.sft.spline_prior, which imports this "
-        "module through inverse.sft.sequential), and declaring the term on both settings "
-        "classes would change ndf-sft's result.json (its config). Not this branch's file.",
 }
 
 # Classes of one field type each.

@@ -35,7 +35,6 @@ from inverse.sft.camera import Camera
 from inverse.sft.image import bilinear, eroded, sample_mask, signed_area, to_gray
 from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import COMPONENTS, MIN_DEPTH, huber
-from inverse.sft.settings import SplinePriorConfig
 from inverse.sft.silhouette import bilinear_differentiable
 from inverse.sft.surface import surface_positions, uv_locator
 from taichi_ndf import jets
@@ -168,9 +167,10 @@ class PhotometricEvidence:
 
 def photometric_evidence(config, frames, camera: Camera, template: Template,
                          texture: np.ndarray, *, masks=None) -> PhotometricEvidence | None:
-    """The evidence that `config` asks for: a `SplinePriorConfig` with photometric_weight > 0
-    (its σ, points, weight and the reprojection's Huber δ); None for any other config."""
-    if not isinstance(config, SplinePriorConfig) or config.photometric_weight <= 0:
+    """The evidence that the frame-fit settings `config` ask for: with photometric_weight > 0
+    (a `SplinePriorConfig`: its σ, points, weight and the reprojection's Huber δ); None where
+    the weight is 0 (the settings of a fit without the term declare 0)."""
+    if config.photometric_weight <= 0:
         return None
     return PhotometricEvidence(frames, camera, template, texture, masks=masks,
                                sigma=config.photometric_sigma,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -128,6 +128,9 @@ class ReconstructionConfig:
     schedule per frame; init_steps: steps fitting the field to the initial guess of each frame
     (when one is given); seed: field initialisation and energy samples.
     """
+
+    # No photometric term on this fit (`inverse.sft.photometric`): weight 0, not a setting.
+    photometric_weight: ClassVar[float] = 0.0
 
     physics_weight: float = 1e-2
     material: str = "cloth"
