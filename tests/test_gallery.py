@@ -109,7 +109,7 @@ def test_a_garment_gets_a_picture_of_its_panels_with_their_legend(tmp_path, monk
 def test_a_left_out_scene_without_a_stored_run_is_not_run(tmp_path, monkeypatch):
     module = gallery()
     ran = []
-    monkeypatch.setattr(module, "run_scene", lambda name, runs, quick: ran.append(name) or {})
+    monkeypatch.setattr(module, "run_scene", lambda name, runs, quick, spans: ran.append(name) or {})
     module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
                  "--leave-out", "bowl=grid-limited"])
     assert ran == ["napkin"]
@@ -118,6 +118,33 @@ def test_a_left_out_scene_without_a_stored_run_is_not_run(tmp_path, monkeypatch)
                  "--leave-out", "bowl=grid-limited"])
     assert ran == ["napkin", "napkin", "bowl"]
     assert module.left_out_reasons({}, {"bowl": "grid-limited"}) == {"bowl": "grid-limited"}
+
+
+def test_spans_solve_a_scene_on_the_grid_given_and_refuse_a_run_on_another(tmp_path,
+                                                                          monkeypatch):
+    module = gallery()
+    calls = []
+
+    def run_one(name, field, out, precision, quick, extra=()):
+        calls.append((name, extra))
+        out.mkdir(parents=True)
+        (out / "result.json").write_text("{}")
+        return {"status": "ok", "energy": -0.1, "iterations": 5, "converged": True,
+                "spans": [20, 10], "wall": 1.0, "cpu": 1.0, "load": [1.0, 1.0]}
+
+    monkeypatch.setattr(module.comparison, "run_one", run_one)
+    module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
+                 "--spans", "napkin=20x10"])
+    assert calls == [("napkin", ("--set", "field.spans=[20,10]")), ("bowl", ())]
+    with pytest.raises(SystemExit, match=r"\[20, 10\] spans, not \[40, 40\]"):
+        module.main(["--runs", str(tmp_path), "--scenes", "napkin", "--runs-only",
+                     "--spans", "napkin=40x40"])
+    for bad in ("napkin=20", "napkin=0x4", "bowl=4x4", "napkin=ax4"):  # bowl: not in --scenes
+        with pytest.raises(SystemExit) as refused:
+            module.main(["--runs", str(tmp_path), "--scenes", "napkin", "--runs-only",
+                         "--spans", bad])
+        assert refused.value.code == 2
+    assert len(calls) == 2
 
 
 def test_kept_sections_give_each_scene_its_text_and_overview_tile():
