@@ -21,8 +21,8 @@ where the runs came from. --keep-others: a page for the scenes of --scenes (new 
 those whose pictures changed) that keeps the current page's sections, overview tiles and
 reasons for the other scenes. --spans SCENE=NxM: SCENE solved on N × M knot spans (`--set
 field.spans=[N,M]`) instead of the grid rule's grid, where that grid is found too coarse by
-refinement (the page's command line says so). --quick: the scenes' [training.quick] settings, a smoke test of this
-script (the page then says so; nothing is stored).
+refinement (the page's command line says so). --quick: the scenes' [training.quick]
+settings, a smoke test of this script (the page then says so; nothing is stored).
 """
 
 from __future__ import annotations

@@ -109,7 +109,8 @@ def test_a_garment_gets_a_picture_of_its_panels_with_their_legend(tmp_path, monk
 def test_a_left_out_scene_without_a_stored_run_is_not_run(tmp_path, monkeypatch):
     module = gallery()
     ran = []
-    monkeypatch.setattr(module, "run_scene", lambda name, runs, quick, spans: ran.append(name) or {})
+    monkeypatch.setattr(module, "run_scene",
+                        lambda name, runs, quick, spans: ran.append(name) or {})
     module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
                  "--leave-out", "bowl=grid-limited"])
     assert ran == ["napkin"]
