@@ -49,7 +49,7 @@ from taichi_ndf.render.energy_plot import energy_figure  # noqa: E402
 from taichi_ndf.render.figure import Obstacle, render_figure  # noqa: E402
 from taichi_ndf.render.legend import Legend  # noqa: E402
 from taichi_ndf.render.plot import plot_curves  # noqa: E402
-from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
+from taichi_ndf.render.trajectory import FPS, real_time_fps, trajectory_frames  # noqa: E402
 
 SCENES = ROOT / "scenes"
 PICTURES = ROOT / "docs" / "gallery"
@@ -201,11 +201,16 @@ def pictures(name: str, run_dir: Path) -> dict:
         written["panels"] = f"{name}_panels.png"
     if len(run.frames) > 1 and run.reference is not None:
         pseudo = (result.get("trajectory") or {}).get("source") == "pseudo_time"
-        frames = trajectory_frames([f.vertices for f in run.frames], run.faces,
-                                   [f.load_factor for f in run.frames], reference=run.reference,
+        # a dynamic run's frames are at times [s]: labelled "t = … s", played in real time
+        dynamic = "dynamics" in result
+        values = [f.load_factor for f in run.frames]
+        fps = real_time_fps(values) if dynamic else FPS
+        frames = trajectory_frames([f.vertices for f in run.frames], run.faces, values,
+                                   reference=run.reference,
                                    obstacles=[obstacles] * len(run.frames), up=run.up,
-                                   pseudo_time=pseudo, size=VIDEO_SIZE)
-        write_video(PICTURES / f"{name}.mp4", frames, FPS)
+                                   pseudo_time=pseudo, physical_time=dynamic, size=VIDEO_SIZE,
+                                   fps=fps)
+        write_video(PICTURES / f"{name}.mp4", frames, fps)
         written["video"] = f"{name}.mp4"
     # the shape alone, steel blue; a scene with obstacles from the front, where the
     # three-quarter view from above hides them under the sheet

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import cv2
@@ -11,6 +12,7 @@ import pytest
 import torch
 from test_render_figure import fake_run
 
+import taichi_ndf.render.trajectory as trajectory
 from taichi_ndf.render.video import video_info
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -190,3 +192,22 @@ def test_a_dynamic_run_gets_its_energies_over_time_plotted():
     assert image.shape == (500, 820, 3) and image.std() > 0
     with pytest.raises(KeyError):
         module.energy_picture({})
+
+
+def test_a_dynamic_runs_video_plays_in_real_time_labelled_by_time(tmp_path, monkeypatch):
+    module = gallery()
+    monkeypatch.setattr(module, "PICTURES", tmp_path / "pictures")
+    (tmp_path / "pictures").mkdir()
+    run = fake_run(tmp_path / "run", frames=11)  # states at 1/11 … 1: times [s] in a dynamic run
+    result = json.loads((run / "result.json").read_text())
+    times = result["trajectory"]["load_factors"]
+    result["dynamics"] = {"times": times, "kinetic": times, "potential": times,
+                          "total": times, "integrator": "implicit_euler", "dt": 0.01}
+    (run / "result.json").write_text(json.dumps(result))
+    labels = []
+    monkeypatch.setattr(trajectory, "put_label", lambda image, text, **_: labels.append(text))
+    made = module.pictures("swing", run)
+    info = video_info(tmp_path / "pictures" / made["video"])
+    assert info["fps"] == pytest.approx(11.0, rel=1e-3)  # 10 intervals in 10/11 s: real time
+    assert labels[0].startswith("t = 0.09 s") and labels[-1].startswith("t = 1.00 s")
+    assert info["frames"] == 11 + 11  # one video frame per state, the last held one second
