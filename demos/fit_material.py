@@ -25,6 +25,7 @@ import taichi_ndf
 from inverse.cli.fit_material import main as fit_material
 from inverse.material import Observation, apply, parse_unknowns, template_xi
 from inverse.material.calibration import converged_observation
+from taichi_ndf.cli.progress import shown
 from taichi_ndf.io import write_obj
 from taichi_ndf.io.grid import grid_mesh
 from taichi_ndf.scene.reader import load_scene
@@ -65,7 +66,8 @@ def main():
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=False)
     taichi_ndf.init(arch="cpu", precision="f64")
-    observed, sigma = observe(out, args.quick)
+    with shown("fit_material.py"):  # the observation's three solves: a bar each load step
+        observed, sigma = observe(out, args.quick)
     argv = [str(SCENE), "--observed", str(observed), "--estimate", "bending",
             "--noise", repr(sigma), "--out", str(out / "estimate")]
     fit_material([*argv, "--quick"] if args.quick else argv)

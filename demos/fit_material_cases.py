@@ -59,6 +59,7 @@ from inverse.material.bilevel import BilevelConfig, bilevel_estimate
 from inverse.material.conditioned import ConditionedConfig
 from inverse.material.implicit import ImplicitConfig
 from inverse.material.implicit_fit import implicit_estimate
+from taichi_ndf.cli.progress import shown
 from taichi_ndf.field import NeuralField
 from taichi_ndf.problem.loads import PointLoad
 from taichi_ndf.scene.reader import load_scene
@@ -199,7 +200,8 @@ def main():
     name = (f"observation_newton_{args.solve_newton}_{args.solve_newton_samples}_"
             f"{args.obs_width}_{args.band}_{'_'.join(map(str, args.load_steps))}.pt"
             if args.solve_newton else f"observation_{args.solve}_{args.solve_lbfgs}.pt")
-    xi, points = observe(scene, truth, args, out / name)
+    with shown("fit_material_cases.py"):  # the observation's solve (minutes): its bar
+        xi, points = observe(scene, truth, args, out / name)
     model, unknowns = parse_unknowns(spec, start_model)
     observation = Observation(model, points, xi)
     if args.method == "implicit":

@@ -19,8 +19,10 @@ state, e.g. a symmetric equilibrium that a perturbation leaves; such a scene is 
 unless DIR holds its run). --note TEXT: a paragraph on
 where the runs came from. --keep-others: a page for the scenes of --scenes (new scenes, or
 those whose pictures changed) that keeps the current page's sections, overview tiles and
-reasons for the other scenes. --quick: the scenes' [training.quick] settings, a smoke test of this
-script (the page then says so; nothing is stored).
+reasons for the other scenes. --spans SCENE=NxM: SCENE solved on N × M knot spans (`--set
+field.spans=[N,M]`) instead of the grid rule's grid, where that grid is found too coarse by
+refinement (the page's command line says so). --quick: the scenes' [training.quick]
+settings, a smoke test of this script (the page then says so; nothing is stored).
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ from taichi_ndf.render.energy_plot import energy_figure  # noqa: E402
 from taichi_ndf.render.figure import Obstacle, render_figure  # noqa: E402
 from taichi_ndf.render.legend import Legend  # noqa: E402
 from taichi_ndf.render.plot import plot_curves  # noqa: E402
-from taichi_ndf.render.trajectory import FPS, trajectory_frames  # noqa: E402
+from taichi_ndf.render.trajectory import FPS, real_time_fps, trajectory_frames  # noqa: E402
 
 SCENES = ROOT / "scenes"
 PICTURES = ROOT / "docs" / "gallery"
@@ -61,15 +63,26 @@ TILE_LABEL_ROWS = 30  # [pixels] at the top of a tile kept free of the shape, fo
 FOLD_AMPLITUDE = 0.03  # [m] of the radial fold perturbation at the open end (--folds)
 
 
-def run_scene(name: str, runs: Path, quick: bool) -> dict:
-    """The record of scene `name`'s run (run_one's), running it unless it is stored."""
+def spans_options(spans: tuple[int, int] | None) -> tuple[str, ...]:
+    """The ndf-sim arguments that solve on `spans` (--spans) instead of the grid rule's grid."""
+    return () if spans is None else ("--set", f"field.spans=[{spans[0]},{spans[1]}]")
+
+
+def run_scene(name: str, runs: Path, quick: bool, spans: tuple[int, int] | None = None) -> dict:
+    """The record of scene `name`'s run (run_one's), running it unless it is stored; `spans`
+    (N, M): on that grid (--spans), a stored run on another grid refused."""
     out, record_file = runs / name, runs / f"{name}.json"
     if (out / "result.json").is_file() and record_file.is_file():
-        return json.loads(record_file.read_text())
+        record = json.loads(record_file.read_text())
+        if spans is not None and list(record.get("spans", [])) != list(spans):
+            raise SystemExit(f"{out} holds a run on {record.get('spans')} spans, not "
+                             f"{list(spans)} (--spans): use another --runs")
+        return record
     if out.exists() and any(out.iterdir()):
         raise SystemExit(f"{out} holds an earlier run without its record; remove it")
-    print(f"{name}: ndf-sim --field spline{' --quick' if quick else ''}", flush=True)
-    record = comparison.run_one(name, "spline", out, "f64", quick)
+    print(f"{name}: ndf-sim --field spline {' '.join(spans_options(spans))}"
+          f"{' --quick' if quick else ''}", flush=True)
+    record = comparison.run_one(name, "spline", out, "f64", quick, extra=spans_options(spans))
     if record["status"] == "ok" and "converged" not in record:
         record.update(run_convergence(json.loads((out / "result.json").read_text())))
     record_file.write_text(json.dumps(record, indent=1) + "\n")
@@ -188,11 +201,16 @@ def pictures(name: str, run_dir: Path) -> dict:
         written["panels"] = f"{name}_panels.png"
     if len(run.frames) > 1 and run.reference is not None:
         pseudo = (result.get("trajectory") or {}).get("source") == "pseudo_time"
-        frames = trajectory_frames([f.vertices for f in run.frames], run.faces,
-                                   [f.load_factor for f in run.frames], reference=run.reference,
+        # a dynamic run's frames are at times [s]: labelled "t = … s", played in real time
+        dynamic = "dynamics" in result
+        values = [f.load_factor for f in run.frames]
+        fps = real_time_fps(values) if dynamic else FPS
+        frames = trajectory_frames([f.vertices for f in run.frames], run.faces, values,
+                                   reference=run.reference,
                                    obstacles=[obstacles] * len(run.frames), up=run.up,
-                                   pseudo_time=pseudo, size=VIDEO_SIZE)
-        write_video(PICTURES / f"{name}.mp4", frames, FPS)
+                                   pseudo_time=pseudo, physical_time=dynamic, size=VIDEO_SIZE,
+                                   fps=fps)
+        write_video(PICTURES / f"{name}.mp4", frames, fps)
         written["video"] = f"{name}.mp4"
     # the shape alone, steel blue; a scene with obstacles from the front, where the
     # three-quarter view from above hides them under the sheet
@@ -293,6 +311,7 @@ def write_gallery(records: dict, args) -> int:
         heading = f"### {name}\n\n{document.get('description', '')}  \n" \
                   f"material `{document.get('material', {}).get('preset', 'custom')}`; " \
                   f"`ndf-sim scenes/{name}.toml --field spline" \
+                  f"{''.join(' ' + o for o in spans_options(args.spans.get(name)))}" \
                   f"{' --quick' if args.quick else ''}`: {describe(record)}\n"
         made = pictures(name, args.runs / record.get("run", name))
         tiles[name] = made.pop("tile")
@@ -372,6 +391,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="keep the current page's sections (and overview tiles) of the scenes "
                    "not in --scenes, and its reasons for those it leaves out")
     p.add_argument("--note", default="", help="a paragraph on where the runs came from")
+    p.add_argument("--spans", action="append", default=[], metavar="SCENE=NxM",
+                   help="solve SCENE on N x M knot spans instead of the grid rule's grid (a "
+                   "scene the rule's grid leaves grid-limited; repeatable)")
     p.add_argument("--folds", action="append", default=[], metavar="SCENE=K",
                    help="show SCENE re-solved from its run plus a K-fold radial perturbation "
                    "(a scene whose symmetric start stays on a symmetric equilibrium)")
@@ -390,12 +412,21 @@ def main(argv: list[str] | None = None) -> int:
         if name not in names or not count.isdigit() or int(count) < 1:
             p.error(f"--folds {item!r}: expected SCENE=K with SCENE among the scenes, K >= 1")
         folds[name] = int(count)
+    spans = {}
+    for item in args.spans:
+        name, _, grid = item.partition("=")
+        sizes = grid.lower().split("x")
+        if name not in names or len(sizes) != 2 or not all(v.isdigit() and int(v) >= 1
+                                                            for v in sizes):
+            p.error(f"--spans {item!r}: expected SCENE=NxM with SCENE among the scenes, N, M >= 1")
+        spans[name] = (int(sizes[0]), int(sizes[1]))
+    args.spans = spans
     for name in names:
         if not (SCENES / f"{name}.toml").is_file():
             p.error(f"--scenes: no scene {name!r} in {SCENES}")
     args.runs.mkdir(parents=True, exist_ok=True)
     # a left-out scene is run only where its run is stored (its reason needs no new run)
-    records = {name: run_scene(name, args.runs, args.quick) for name in names
+    records = {name: run_scene(name, args.runs, args.quick, spans.get(name)) for name in names
                if name not in leave_out or (args.runs / f"{name}.json").is_file()}
     for name, count in folds.items():
         records[name] = refold(name, count, args.runs, records[name])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import cv2
@@ -11,6 +12,7 @@ import pytest
 import torch
 from test_render_figure import fake_run
 
+import taichi_ndf.render.trajectory as trajectory
 from taichi_ndf.render.video import video_info
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,7 +111,8 @@ def test_a_garment_gets_a_picture_of_its_panels_with_their_legend(tmp_path, monk
 def test_a_left_out_scene_without_a_stored_run_is_not_run(tmp_path, monkeypatch):
     module = gallery()
     ran = []
-    monkeypatch.setattr(module, "run_scene", lambda name, runs, quick: ran.append(name) or {})
+    monkeypatch.setattr(module, "run_scene",
+                        lambda name, runs, quick, spans: ran.append(name) or {})
     module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
                  "--leave-out", "bowl=grid-limited"])
     assert ran == ["napkin"]
@@ -118,6 +121,33 @@ def test_a_left_out_scene_without_a_stored_run_is_not_run(tmp_path, monkeypatch)
                  "--leave-out", "bowl=grid-limited"])
     assert ran == ["napkin", "napkin", "bowl"]
     assert module.left_out_reasons({}, {"bowl": "grid-limited"}) == {"bowl": "grid-limited"}
+
+
+def test_spans_solve_a_scene_on_the_grid_given_and_refuse_a_run_on_another(tmp_path,
+                                                                          monkeypatch):
+    module = gallery()
+    calls = []
+
+    def run_one(name, field, out, precision, quick, extra=()):
+        calls.append((name, extra))
+        out.mkdir(parents=True)
+        (out / "result.json").write_text("{}")
+        return {"status": "ok", "energy": -0.1, "iterations": 5, "converged": True,
+                "spans": [20, 10], "wall": 1.0, "cpu": 1.0, "load": [1.0, 1.0]}
+
+    monkeypatch.setattr(module.comparison, "run_one", run_one)
+    module.main(["--runs", str(tmp_path), "--scenes", "napkin,bowl", "--runs-only",
+                 "--spans", "napkin=20x10"])
+    assert calls == [("napkin", ("--set", "field.spans=[20,10]")), ("bowl", ())]
+    with pytest.raises(SystemExit, match=r"\[20, 10\] spans, not \[40, 40\]"):
+        module.main(["--runs", str(tmp_path), "--scenes", "napkin", "--runs-only",
+                     "--spans", "napkin=40x40"])
+    for bad in ("napkin=20", "napkin=0x4", "bowl=4x4", "napkin=ax4"):  # bowl: not in --scenes
+        with pytest.raises(SystemExit) as refused:
+            module.main(["--runs", str(tmp_path), "--scenes", "napkin", "--runs-only",
+                         "--spans", bad])
+        assert refused.value.code == 2
+    assert len(calls) == 2
 
 
 def test_kept_sections_give_each_scene_its_text_and_overview_tile():
@@ -162,3 +192,22 @@ def test_a_dynamic_run_gets_its_energies_over_time_plotted():
     assert image.shape == (500, 820, 3) and image.std() > 0
     with pytest.raises(KeyError):
         module.energy_picture({})
+
+
+def test_a_dynamic_runs_video_plays_in_real_time_labelled_by_time(tmp_path, monkeypatch):
+    module = gallery()
+    monkeypatch.setattr(module, "PICTURES", tmp_path / "pictures")
+    (tmp_path / "pictures").mkdir()
+    run = fake_run(tmp_path / "run", frames=11)  # states at 1/11 … 1: times [s] in a dynamic run
+    result = json.loads((run / "result.json").read_text())
+    times = result["trajectory"]["load_factors"]
+    result["dynamics"] = {"times": times, "kinetic": times, "potential": times,
+                          "total": times, "integrator": "implicit_euler", "dt": 0.01}
+    (run / "result.json").write_text(json.dumps(result))
+    labels = []
+    monkeypatch.setattr(trajectory, "put_label", lambda image, text, **_: labels.append(text))
+    made = module.pictures("swing", run)
+    info = video_info(tmp_path / "pictures" / made["video"])
+    assert info["fps"] == pytest.approx(11.0, rel=1e-3)  # 10 intervals in 10/11 s: real time
+    assert labels[0].startswith("t = 0.09 s") and labels[-1].startswith("t = 1.00 s")
+    assert info["frames"] == 11 + 11  # one video frame per state, the last held one second
