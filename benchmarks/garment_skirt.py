@@ -208,14 +208,20 @@ def _rim(panels, height: float) -> torch.Tensor:
     return torch.cat(out)
 
 
-def four(spans, gathered: bool) -> str:
-    """One row of the four-panel table."""
+def _solve_four(spans, gathered: bool):
+    """The four-panel skirt's scene document on `spans` per panel (its waist gathered, or not:
+    no `held_radius`) and its solve (`_solve`: panels, solution, CPU, wall)."""
     garment = tomllib.loads(FOUR.read_text())
     garment["field"]["spans"] = list(spans)
     if not gathered:
         for panel in garment["panels"]:
             del panel["held_radius"]
-    panels, solution, cpu, wall = _solve(parse_scene(garment, base_dir=FOUR.parent, path=FOUR))
+    return garment, _solve(parse_scene(garment, base_dir=FOUR.parent, path=FOUR))
+
+
+def four(spans, gathered: bool) -> str:
+    """One row of the four-panel table."""
+    garment, (panels, solution, cpu, wall) = _solve_four(spans, gathered)
     height = garment["panels"][0]["height"]
     waist, hem = (_rim(panels, z)[:, :2].norm(dim=1) for z in (height, 0.0))
     z = float(_rim(panels, 0.0)[:, 2].mean())
@@ -230,12 +236,7 @@ def refinement_row(spans, gathered: bool = True) -> dict:
     """The four-panel skirt on `spans` per panel: Π, the front and left hem probes, the hem's
     radius per panel (min / max over 17 points), Newton iterations per load step and
     convergence (Newton's own test at every load step), CPU and wall."""
-    garment = tomllib.loads(FOUR.read_text())
-    garment["field"]["spans"] = list(spans)
-    if not gathered:
-        for panel in garment["panels"]:
-            del panel["held_radius"]
-    panels, solution, cpu, wall = _solve(parse_scene(garment, base_dir=FOUR.parent, path=FOUR))
+    _, (panels, solution, cpu, wall) = _solve_four(spans, gathered)
     hem = _rim(panels, 0.0)
     radius = hem[:, :2].norm(dim=1).reshape(4, -1)
     steps = solution.document["load_steps"]
