@@ -73,18 +73,28 @@ def test_allowance_is_frame_0_depth_inside_the_mask_of_visible_border_vertices()
     assert offsets[0] == FREE and offsets[3] == allowance[3]
 
 
-def outline_term(offset):
-    """Vertices of a term without tracks' influence: one deep inside the mask, one on its
-    outline, one outside; allowance `offset` [px] for all three."""
+def _at_depth(camera, pixels: np.ndarray, depth: float) -> torch.Tensor:
+    """Points (K, 3) [m] that `camera` sees at `pixels` (K, 2), at camera depth `depth` [m]."""
+    return torch.from_numpy(np.column_stack([(pixels - [camera.cx, camera.cy])
+                                             / [camera.fx, camera.fy] * depth,
+                                             np.full(len(pixels), depth)]))
+
+
+def _box_mask():
+    """A 160 × 120 camera and a mask that is the box x 40–119, y 30–89 [px]."""
     camera = default_camera(160, 120, focal=150.0)
     mask = np.zeros((120, 160), bool)
     mask[30:90, 40:120] = True
+    return camera, mask
+
+
+def outline_term(offset):
+    """Vertices of a term without tracks' influence: one deep inside the mask, one on its
+    outline, one outside; allowance `offset` [px] for all three."""
+    camera, mask = _box_mask()
     # pixels (54, 60) 14.5 px inside, (44, 60) 4.5 px inside the outline, (130, 60) outside
     pixels = np.array([[54.0, 60.0], [44.0, 60.0], [130.0, 60.0]])
-    depth = 0.5
-    rest = torch.from_numpy(np.column_stack([(pixels - [camera.cx, camera.cy])
-                                             / [camera.fx, camera.fy] * depth,
-                                             np.full(3, depth)]))
+    rest = _at_depth(camera, pixels, 0.5)
     n = 1 + 3
     term = LeastSquaresData(
         camera, torch.arange(1),
@@ -126,10 +136,7 @@ def silhouette_term(slope):
     camera = default_camera(160, 120, focal=150.0)
     distance = torch.from_numpy(np.random.default_rng(3).uniform(1.0, 6.0, (120, 160)))
     pixels = np.array([[50.3, 40.6], [81.7, 62.2], [120.45, 90.8]])
-    depth = 0.5
-    rest = torch.from_numpy(np.column_stack([(pixels - [camera.cx, camera.cy])
-                                             / [camera.fx, camera.fy] * depth,
-                                             np.full(3, depth)]))
+    rest = _at_depth(camera, pixels, 0.5)
     term = LeastSquaresData(
         camera, torch.arange(1),
         Reprojection(rest[:1], camera.project(rest[:1]), torch.ones(1), 2.0),
@@ -154,14 +161,9 @@ def test_the_interpolant_slope_is_the_gradient_of_the_value_the_image_slope_is_n
 def test_silhouette_rows_leave_the_other_vertices_out_of_the_silhouette_term():
     """`VertexTerms.silhouette_rows`: the silhouette term (value, gradient, Gauss–Newton
     blocks) acts on the selected vertices only; all three lie 4.5 px outside the mask."""
-    camera = default_camera(160, 120, focal=150.0)
-    mask = np.zeros((120, 160), bool)
-    mask[30:90, 40:120] = True
+    camera, mask = _box_mask()
     pixels = np.array([[124.0, 60.0], [124.0, 50.0], [124.0, 70.0]])
-    depth = 0.5
-    rest = torch.from_numpy(np.column_stack([(pixels - [camera.cx, camera.cy])
-                                             / [camera.fx, camera.fy] * depth,
-                                             np.full(3, depth)]))
+    rest = _at_depth(camera, pixels, 0.5)
 
     def term(rows):
         return LeastSquaresData(
