@@ -21,6 +21,7 @@ from inverse.material.identifiability import UNDETERMINED_STD
 from inverse.material.newton_fit import NewtonEstimateConfig, newton_estimate
 from inverse.material.residual import MAX_RELATIVE_RESIDUAL
 from inverse.material.spline_equilibrium import SplineEquilibrium, SplineModelConfig
+from taichi_ndf import progress
 from taichi_ndf.problem.loads import PointLoad
 from taichi_ndf.scene.reader import load_scene
 
@@ -55,7 +56,14 @@ def test_quick_strip_estimate_within_its_standard_error():
     nearly all of it the grid difference), −0.015 % ± 0.54 % at 1 % (seed 1)."""
     case = strip_case(points=(16, 4))
     config = NewtonEstimateConfig(model=SplineModelConfig(spans=(4, 1)))
-    result = newton_estimate([case.observation], case.unknowns, config)
+    reports = []
+    with progress.listening(reports.append):
+        result = newton_estimate([case.observation], case.unknowns, config)
+    # the grids are levels of the one continuation loop: a progress stage per level, each
+    # holding its outer fit
+    levels = [r for r in reports if r.stage == "newton estimate, grid level" and r.done]
+    assert [(r.step, r.total, r.depth) for r in levels] == [(1, 1, 0), (1, 1, 0)]
+    assert [r.depth for r in reports if r.stage.startswith("outer fit") and r.done] == [1, 1]
     estimate = result.estimate
     error = abs(estimate.values[0] - case.truth[0])
     assert estimate.is_determined("bending_stiffness")

@@ -4,7 +4,11 @@ The outer fit (`outer_fit.fit`: Levenberg–Marquardt with implicit-function Jac
 the forward model `spline_equilibrium.SplineEquilibrium` of two grids, h and h/2 (the grid
 rule's, or the given spans, and its dyadic refinement): first on h from the start values, then
 on h/2 from the estimate of h, the first solve of h/2 from the coarse equilibrium prolonged
-exactly. The estimate is the fine grid's.
+exactly. The estimate is the fine grid's. The grids are the levels of the one continuation loop
+(`taichi_ndf.minimise.continuation.solve_over`), one step per level (the fit of every
+observation at the full load): `enter_level` refines the grids, `start` builds the level's
+equilibria and solves them from the coarser level's prolonged solution, `solve` fits; each
+level is a progress stage "newton estimate, grid level".
 
 Standard error (`outer_fit.combine`): the noise part is the Fisher / Gauss–Newton standard
 error of the fine fit (its Jacobian, the residual variance at the estimate; with `clustered`
@@ -39,6 +43,7 @@ from inverse.material.outer_fit import (
 from inverse.material.residual import unknown_scales
 from inverse.material.spline_equilibrium import SplineEquilibrium, SplineModelConfig
 from inverse.material.unknowns import Unknown
+from taichi_ndf.minimise.continuation import Stages, Step, solve_over
 
 log = logging.getLogger(__name__)
 
@@ -92,15 +97,19 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
     positive = np.array([u.positive for u in unknowns])
     grids = [config.model.grid(obs.model) for obs in observations]
     fits: list[ForwardFit] = []
-    equilibria: list[list[SplineEquilibrium]] = []
-    for level in range(config.levels):
+
+    def enter_level(level: int) -> None:  # each grid after the first refines the previous
+        nonlocal grids
         if level:
             grids = [g.refined() for g in grids]
+
+    def start(_step: Step, _previous, coarser: list[SplineEquilibrium] | None
+              ) -> list[SplineEquilibrium]:  # the level's equilibria, each solved at its start
         eqs = [SplineEquilibrium(obs.model, unknowns, config.model, grid,
                                  free_handles=obs.free_handles)
                for obs, grid in zip(observations, grids, strict=True)]
-        if level:  # start where the coarser grid ended: its estimate, its solution prolonged
-            for eq, coarse in zip(eqs, equilibria[-1], strict=True):
+        if coarser is not None:  # where the coarser grid ended: its estimate, its solution
+            for eq, coarse in zip(eqs, coarser, strict=True):  # prolonged
                 eq.set_local(coarse.local_values())  # the free handles where it put them
                 prolonged = torch.sparse.mm(coarse.field.prolongation(), coarse.coefficients)
                 eq.solve(values, start=prolonged)
@@ -110,12 +119,21 @@ def newton_estimate(observations: list[Observation], unknowns: list[Unknown],
                     raise ValueError("start_from_observations needs observations with "
                                      "correspondence (xi)")
                 eq.solve(values, start=eq.fitted_state(obs.xi, obs.points))
+        return eqs
+
+    def solve(_step: Step, eqs: list[SplineEquilibrium]) -> list[SplineEquilibrium]:
+        nonlocal values  # the next grid starts from this grid's estimate
         fits.append(fit(eqs, observations, unknowns, values, config.outer))
-        equilibria.append(eqs)
         values = fits[-1].values
         log.info("newton estimate on %s: %s (%d outer iterations, %.1f s)", fits[-1].label,
                  dict(zip(names, values.tolist(), strict=True)), fits[-1].iterations,
                  fits[-1].time)
+        return eqs
+
+    # one step per grid level: the fit of every observation at the full load
+    equilibria = [level[0] for level in solve_over(
+        Stages(solve, start, enter_level), (1.0,), levels=config.levels,
+        stage="newton estimate, grid level")]
     z = fits[-1].z
     norm = np.where(positive, 1.0, unknown_scales(unknowns, np.array(to_values(unknowns, z))))
     notes = []

@@ -140,7 +140,8 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     on_start, on_record(run, Π, ‖g‖, load factor) at every Newton iteration, on_iteration(run,
     None) after each Newton step a load step goes on from (`State.inside` then holds the
     iterate), on_load_step(run, load factor) and on_level(run) after each level (its field:
-    that level's grid), on_interrupt(run) on Ctrl-C (then re-raised), on_end.
+    that level's grid), on_interrupt(run) on Ctrl-C inside the levels (solve_over's
+    `Stages.interrupted`; then re-raised), on_end.
     on_level(run): after each level too, after the callbacks.
     linearise(grid): the builder of each grid level's linearisation, the discretisation's
     (`SplineDiscretisation.linearise`: `SplineDiscretisation.solve` passes it); None: the
@@ -252,12 +253,8 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
     callbacks = tuple(callbacks)
     if on_level is not None:  # after the callbacks
         callbacks = (*callbacks, Hook("on_level", lambda: on_level(run)))
-    try:
-        solve_over(Stages(grids.solve, grids.start, grids.enter_level, stepped, finished,
-                          ended), load_steps, levels=levels, first_level=first,
-                   first_step=first_step, callbacks=callbacks, subject=run,
-                   done=list(done), coarser=coarser)
-    except KeyboardInterrupt:
-        call(callbacks, "on_interrupt", run)
-        raise
+    solve_over(Stages(grids.solve, grids.start, grids.enter_level, stepped, finished, ended,
+                      interrupted=lambda: call(callbacks, "on_interrupt", run)),
+               load_steps, levels=levels, first_level=first, first_step=first_step,
+               callbacks=callbacks, subject=run, done=list(done), coarser=coarser)
     return run
