@@ -59,12 +59,19 @@ def test_friction_on_panels_is_refused_in_one_line_by_the_reader():
 
 
 def test_panels_the_contact_rounds_do_not_carry_are_refused_by_the_reader():
-    """A material per panel (PanelEnergy) and flat-cut panels (held edges, seams sewn from the
-    start) are not carried through the contact rounds: refused before any solve."""
+    """Flat-cut panels (held edges, seams sewn from the start) are not carried through the
+    contact rounds: refused before any solve; a material per panel is read
+    (test_contact_panel_materials.py solves it)."""
+    import tomllib
+
+    path = ROOT / "scenes" / "skirt_body.toml"
+    document = tomllib.loads(path.read_text())
+    document["panels"][0].update(rest="flat", probes=[])  # its ξ: the arc length
+    with pytest.raises(SceneError, match="flat-cut panels .* are not supported with obst"):
+        parse_scene(document, base_dir=path.parent, path=path)
     document = _sheet()
     document["panels"][1]["material"] = "denim"
-    with pytest.raises(SceneError, match="a material per panel is not supported with obst"):
-        _scene(document)
+    assert len(set(_scene(document).field.materials)) == 2
 
 
 def test_the_joint_chart_maps_each_patch_to_its_own_grid():

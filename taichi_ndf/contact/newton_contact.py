@@ -109,8 +109,9 @@ class ContactPotential:
     are the contact terms' (analytic) at every sample plus `objective`'s (the shell's) only at
     the samples with shell weight or a point force: at the check points (shell weight 0) those
     are exactly zero, and skipping them saves most of the Hessian's time once the check points
-    outnumber the Gauss points. A contact term with couplings (self-contact) gives its pair
-    blocks (`coupled_blocks`) instead of per-point ones."""
+    outnumber the Gauss points (a shell term of rows, `PanelEnergy`, `restricted` to them).
+    A contact term with couplings (self-contact) gives its pair blocks (`coupled_blocks`)
+    instead of per-point ones."""
 
     objective: Objective  # without the contact terms
     terms: tuple
@@ -126,8 +127,11 @@ class ContactPotential:
         blocks = sum(term.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
                      for term in self.terms if hasattr(term, "hessian_blocks"))
         rows = (samples.weight > 0) | (samples.point_force != 0).any(dim=1)
-        blocks[rows] += self.objective.hessian_blocks(_subset(samples, rows), u_jets[rows],
-                                                      self.load_factor, steps=steps)
+        objective = self.objective
+        if hasattr(objective.shell, "restricted"):  # a shell term of rows (`PanelEnergy`)
+            objective = Objective(objective.shell.restricted(rows), objective.extra)
+        blocks[rows] += objective.hessian_blocks(_subset(samples, rows), u_jets[rows],
+                                                 self.load_factor, steps=steps)
         return blocks
 
     def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor):
@@ -236,25 +240,29 @@ class ContactMinimiser:
     terms_at(linearisation) -> tuple: further terms evaluated, like the contact terms, at every
     sample of a round's linearisation (made per round, in its sample order: a time step's
     `InertiaTerm`, its target at those samples, `taichi_ndf.solve.dynamics`; a garment's seams,
-    their rows among the round's samples); report: Newton's progress reports; resume:
+    their rows among the round's samples); base_at(linearisation) -> Objective: Π without
+    the contact terms built per round on the round's linearisation (a garment's shell term
+    over each panel's rows among the round's samples, `PanelEnergy`), in place of the
+    objective's fixed one; report: Newton's progress reports; resume:
     Newton's iterate inside the round `NewtonContact.restore` gave (its check points, κ,
     round): the step goes on from there bit for bit; inner(config, **settings): the Minimiser
     of a round."""
 
     def __init__(self, contact: NewtonContact, config=None, *, load_factor: float,
-                 start_load_factor: float, terms_at=None, report: bool = True,
+                 start_load_factor: float, terms_at=None, base_at=None, report: bool = True,
                  resume: NewtonIterate | None = None, inner=NewtonMinimiser):
         self.contact, self.config, self.inner = contact, config, inner
         self.load_factor, self.start_load_factor = load_factor, start_load_factor
-        self.terms_at, self.report, self.resume = terms_at, report, resume
+        self.terms_at, self.base_at = terms_at, base_at
+        self.report, self.resume = report, resume
 
     def minimise(self, objective: tuple, parameters: torch.Tensor, hooks: Hooks | None = None
                  ) -> MinimiseResult:
         """objective = (grid, quadrature, Π): the linearisation builder (`ContactGrid`: one
         grid's `GridLinearisation` or several patches' `MultiPatchGrid`; each round assembles
         it anew on the round's points), its Gauss-point samples (in its chart) and Π without
-        the contact terms (`ContactPotential` adds them); parameters: the starting
-        coefficients (n, 3).
+        the contact terms (`ContactPotential` adds them; None where `base_at` builds it per
+        round); parameters: the starting coefficients (n, 3).
         hooks.on_iteration, hooks.on_iterate: each round's Newton's (on_iterate: after each
         Newton step a round goes on from; `NewtonContact.to_dict` then holds the round)."""
         grid, quadrature, base = objective
@@ -294,6 +302,8 @@ class ContactMinimiser:
             count = points.count
             linearisation = grid.linearisation(t, points.augment(quadrature))
             extra = () if self.terms_at is None else tuple(self.terms_at(linearisation))
+            if self.base_at is not None:
+                base = self.base_at(linearisation)
             potential = ContactPotential(base, contact.terms + extra, t)
             lag_changed = False
             if resume is None:

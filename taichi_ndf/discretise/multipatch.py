@@ -9,7 +9,8 @@ by projected Newton on the joined linearisation (`minimise.multipatch.MultiPatch
 block-diagonal K, the seams' pair couplings across patches); the load factor ramps gravity and
 sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), a material per
 patch (one `ShellEnergyTerm` over the joined points where all are the same, else a
-`PanelEnergy` of one per patch) and one gravity for all patches, float64.
+`PanelEnergy` of one per patch, built on each contact round's points) and one gravity for all
+patches, float64.
 The load steps are the steps of the one continuation loop (`minimise.continuation.solve_over`:
 a step's Newton is its `Stages.solve`, the step record its `after_step`, the rollback on Ctrl-C
 its `interrupted`). The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as
@@ -198,8 +199,11 @@ class MultiPatchDiscretisation:
         terms = tuple(term.between(linear.rows(s.a), linear.rows(s.b))
                       for s, term in zip(self.spec.seams, seams, strict=True))
         loads, materials = Loads(gravity=self.spec.gravity), self.spec.materials
-        shell = (ShellEnergyTerm(materials[0], loads) if len(set(materials)) == 1 else
-                 PanelEnergy(materials, loads, [linear.rows(i) for i in range(len(materials))]))
+        one = ShellEnergyTerm(materials[0], loads) if len(set(materials)) == 1 else None
+        def shell_at(linear):  # the shell term over each panel's rows of linear's samples
+            return one if one is not None else PanelEnergy(
+                materials, loads, [linear.rows(i) for i in range(len(materials))])
+        shell = shell_at(linear)
         c = torch.cat([f.coefficients.detach() for f in self.fields])
         if any(p.start is not None for p in self.spec.patches):  # sewn from the placement
             start = linear.displacement(self._start)
@@ -242,8 +246,9 @@ class MultiPatchDiscretisation:
             if contact is not None:  # the contact rounds over the joint chart
                 phase.minimiser = contact[0].minimiser(newton, load_factor=t,
                                                        start_load_factor=previous,
-                                                       terms_at=self._seams_at(seams))
-                phase.objective = lambda: contact[1:] + (Objective(objective.shell),)
+                                                       terms_at=self._seams_at(seams),
+                                                       base_at=lambda r: Objective(shell_at(r)))
+                phase.objective = lambda: contact[1:] + (None,)  # Π: per round, base_at
             solution, = run_phases([phase])
             previous = t
             return solution

@@ -6,6 +6,7 @@ samples), and a seam sewn from where the panels start rather than from their res
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import torch
@@ -27,7 +28,9 @@ class PanelEnergy:
     """Σ_i Π_shell(material_i) over the rows `rows[i]` of the joined samples (a slice per
     panel, together every row, in order), under `loads` (gravity acts through each panel's
     own areal density). Behaves as the objective's shell term (`ShellEnergyTerm`): `result`,
-    `evaluate`, `hessian_blocks`; its `stiffness_terms` are empty (no one material)."""
+    `evaluate`, `hessian_blocks`; its `stiffness_terms` are empty (no one material);
+    `restricted(keep)`: the same panels on a subset of the rows (the contact rounds' shell
+    blocks, `contact.newton_contact.ContactPotential`)."""
 
     def __init__(self, materials: Sequence, loads: Loads, rows: Sequence[slice]):
         if len(materials) != len(rows):
@@ -35,6 +38,15 @@ class PanelEnergy:
         self.terms = [ShellEnergyTerm(m, loads) for m in materials]
         self.rows = list(rows)
         self.loads = loads
+
+    def restricted(self, keep: torch.Tensor) -> PanelEnergy:
+        """The same panels on the rows that `keep` (N,) bool selects of the joined samples, in
+        their order: each panel's kept rows are again one slice of the subset."""
+        counts = [int(keep[rows].sum()) for rows in self.rows]
+        starts = [sum(counts[:i]) for i in range(len(counts))]
+        part = copy.copy(self)
+        part.rows = [slice(a, a + n) for a, n in zip(starts, counts, strict=True)]
+        return part
 
     def result(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                load_factor: float = 1.0, *, grad: bool = True) -> EnergyResult:

@@ -168,11 +168,9 @@ class MultiPatchPlan:
 
 def obstacle_refusal(plan) -> str | None:
     """Why the garment `plan` (`MultiPatchPlan`) cannot run against obstacles (the contact
-    rounds take one shell term over the joint chart and the seams as sewn at rest), or None:
-    flat-cut panels (held edges, seams sewn from the start) and a material per panel are not
-    carried through the contact rounds yet."""
+    rounds' linearisation holds no edges and their seams are sewn at rest), or None: flat-cut
+    panels (held edges, seams sewn from the start) are not carried through the contact rounds
+    yet. A material per panel is (its shell term built per round on the round's points)."""
     if any(p.start is not None or p.held for p in plan.patches):
         return "obstacles: flat-cut panels (rest = \"flat\") are not supported with obstacles yet"
-    if len(set(plan.materials)) > 1:
-        return "obstacles: a material per panel is not supported with obstacles yet"
     return None
