@@ -2,24 +2,27 @@
 trajectory quantity against central differences of whole runs (float64, a cantilever strip
 bent and moving at t = 0 under gravity, a few steps, both integrators) within 1e-6 relative
 (issue 29), the same comparison failing when a term of the adjoint is dropped, the step map as
-the stepper's update, the tangent as the adjoint's transpose, and what the adjoint refuses."""
+the stepper's update, the tangent as the adjoint's transpose, what the adjoint refuses, and
+`record`'s time steps as the steps of the one continuation loop."""
 
 from __future__ import annotations
 
 import copy
+import types
 from pathlib import Path
 
 import pytest
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.minimise import continuation
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.solve import dynamics_adjoint
-from taichi_ndf.solve.dynamics import TimeStepper, initial_velocity
+from taichi_ndf.solve.dynamics import DynamicsError, TimeStepper, initial_velocity
 from taichi_ndf.solve.dynamics_adjoint import StepMap, gradient, record, tangent
 
 # Cantilever strip L = 4 m, b = 1 m, ν = 0.3, bending_stiffness B set to 100 N·m, ρ_A = 1 kg/m²,
@@ -159,3 +162,34 @@ def test_a_probes_position_at_the_end_against_central_differences(integrator):
     central = (values[0] - values[1]) / (2 * delta)
     assert abs(central) > 1e-6
     assert adjoint == pytest.approx(central, rel=1e-6)
+
+
+def test_records_time_steps_are_the_continuation_loops_steps(monkeypatch):
+    """One call of `solve_over` with the steps' end times [s] as its values, each state after
+    t = 0 the result of its step; a step whose Newton does not converge stops the loop and is
+    named by its number (from 1)."""
+    calls = []
+
+    def spy(stages, steps, **options):
+        calls.append(list(steps))
+        return continuation.solve_over(stages, steps, **options)
+
+    monkeypatch.setattr(dynamics_adjoint, "solve_over", spy)
+    st = stepper("newmark", 100.0)
+    c0, v0 = start(st)
+    states = record(st, c0, v0)
+    assert calls == [[k * 0.05 for k in range(1, 5)]]
+    assert [state.time for state in states] == [0.0, *calls[0]]
+    assert torch.equal(states[0].displacement, c0)
+
+    steps, real = [], st.step
+
+    def third_fails(state, h):
+        end, solution = real(state, h)
+        steps.append(state.time)
+        return end, types.SimpleNamespace(converged=solution.converged and len(steps) != 3)
+
+    monkeypatch.setattr(st, "step", third_fails)
+    with pytest.raises(DynamicsError, match="step 3 did not converge"):
+        record(st, c0, v0)
+    assert steps == [0.0, *calls[0][:2]]

@@ -17,7 +17,9 @@ Hessian of the step's incremental potential at its converged end (`exact_hessian
 quasistatic sensitivities; not the projected one Newton steps with); ∂f/∂θ is the pull-back of
 the shell energy's gradient at unit θ (Π is linear in each stiffness parameter,
 `ShellEnergy.evaluate`'s per-sample stiffness). The states are recomputed by `record`, which
-steps like `TimeStepper.run` but keeps every state and refuses a halved step. Not covered:
+steps like `TimeStepper.run` but keeps every state and refuses a halved step; its fixed time
+steps are the steps of the one continuation loop (`solve_over`, a step's value its end time
+[s]), as `TimeStepper.run`'s. Not covered:
 stiffness-proportional damping (K₀ depends on C and θ), contact, wind and boundary motions in
 time, a custom per-sample stiffness; these raise ValueError (`record` too: its polish has no
 barrier, drag or moving boundary).
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import torch
 
+from taichi_ndf.minimise.continuation import Stages, Step, solve_over
 from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
 from taichi_ndf.objective.inertia import InertiaTerm
 from taichi_ndf.problem.dynamics import StepMap, combine
@@ -69,17 +72,24 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
     c = zeros.clone() if displacement is None else displacement.to(zeros).clone()
     v = zeros.clone() if velocity is None else velocity.to(zeros).clone()
     a = stepper.initial_acceleration(c, v) if config.integrator == "newmark" else zeros.clone()
-    states = [Motion(0.0, c, v, a)]
+    first = Motion(0.0, c, v, a)
     step = StepMap.of(config, config.dt)
-    for k in range(1, config.steps + 1):
-        end, solution = stepper.step(states[-1], config.dt)
+
+    def solve(at: Step, start: Motion) -> Motion:  # one time step to at.value [s], polished
+        end, solution = stepper.step(start, config.dt)
         if not solution.converged:
-            raise DynamicsError(f"dynamics adjoint: step {k} did not converge (halved steps "
-                                "are not supported)")
-        x = _polish(stepper, step, states[-1], end.displacement, k * config.dt, polish)
-        velocity, acceleration = step.apply(x, states[-1])
-        states.append(Motion(k * config.dt, x, velocity, acceleration))
-    return states
+            raise DynamicsError(f"dynamics adjoint: step {at.index + 1} did not converge "
+                                "(halved steps are not supported)")
+        x = _polish(stepper, step, start, end.displacement, at.value, polish)
+        velocity, acceleration = step.apply(x, start)
+        return Motion(at.value, x, velocity, acceleration)
+
+    def start(_at: Step, previous: Motion | None, _coarser) -> Motion:
+        return first if previous is None else previous
+
+    times = [k * config.dt for k in range(1, config.steps + 1)]
+    (steps,) = solve_over(Stages(solve, start=start), times)
+    return [first, *steps]
 
 
 def _step_potential(stepper: TimeStepper, step: StepMap, start: Motion, time: float):
