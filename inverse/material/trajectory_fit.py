@@ -55,7 +55,8 @@ class TrajectoryData:
         if self.xi.ndim != 2 or self.xi.shape[1] != 2 or len(self.xi) == 0:
             raise ValueError(f"trajectory data: xi must be (P, 2), P >= 1, got "
                              f"{tuple(self.xi.shape)}")
-        if not steps or min(steps) < 1 or any(b <= a for a, b in zip(steps, steps[1:])):
+        if not steps or min(steps) < 1 \
+                or any(b <= a for a, b in zip(steps, steps[1:], strict=False)):
             raise ValueError(f"trajectory data: steps must be increasing integers >= 1, got "
                              f"{list(steps)}")
         if tuple(self.displacements.shape) != (len(steps), len(self.xi), 3):
