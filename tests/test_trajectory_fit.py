@@ -154,6 +154,8 @@ def test_bad_observations_exit_2_in_one_line(tmp_path, capsys, change, message):
     ("", False, "has no [dynamics] section"),
     ("[dynamics.wind]\nvelocity = [2.0, 0.0, 2.0]", True, "wind and boundary motions"),
     ("stiffness_damping = 0.01", True, "stiffness-proportional damping"),
+    ("[[obstacles]]\ntype = \"sphere\"\nname = \"ball\"\ncentre = [2.0, 0.5, -3.0]\n"
+     "radius = 0.5", True, "contact ([[obstacles]] or [self_contact]) is not supported"),
 ])
 def test_scenes_the_adjoint_cannot_follow_exit_2(tmp_path, capsys, extra, dynamic, message):
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
@@ -162,6 +164,15 @@ def test_scenes_the_adjoint_cannot_follow_exit_2(tmp_path, capsys, extra, dynami
                          tmp_path / "out")
     assert code == 2 and message in streams.err and len(streams.err.splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_shape_options_are_refused_with_a_trajectory(tmp_path, capsys):
+    obs = _observations(tmp_path, GOOD)
+    with pytest.raises(SystemExit) as exit_:
+        main([str(_scene(tmp_path)), "--trajectory", str(obs), "--estimate", "bending",
+              "--method", "residual", "--point-cloud", "--out", str(tmp_path / "out")])
+    assert exit_.value.code == 2
+    assert "--method, --point-cloud: for --observed shapes" in capsys.readouterr().err
 
 
 def test_one_stiffness_unknown_only(tmp_path, capsys):

@@ -107,6 +107,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# The options of the shape fits (--observed) that --trajectory has no use for, with their defaults.
+SHAPE_OPTIONS = {"method": "newton", "spans": None, "seeds": None, "width": None,
+                 "samples": None, "point_cloud": False, "decades": 1.3, "box_centre": "start",
+                 "iterations": None, "newton": 0, "band": None, "quick": False}
+
+
 def parse_args(argv: list[str] | None):
     """The command line, with the scene given once (positional or --scene)."""
     parser = build_parser()
@@ -118,6 +124,11 @@ def parse_args(argv: list[str] | None):
     if (args.observed is None) == (args.trajectory is None):
         parser.error("give the observations: --observed (shapes) or --trajectory (motion), "
                      "one of them")
+    if args.trajectory is not None:
+        shapes_only = [f"--{name.replace('_', '-')}" for name, default in SHAPE_OPTIONS.items()
+                       if getattr(args, name) != default]
+        if shapes_only:
+            parser.error(f"{', '.join(shapes_only)}: for --observed shapes, not --trajectory")
     if args.scene is None:
         parser.error("the scene is required (SCENE.toml, or --scene SCENE.toml)")
     return args
