@@ -34,7 +34,7 @@ from taichi_ndf import jets
 from taichi_ndf.cli.common import machine_description
 from taichi_ndf.io.output_dir import OutputDir, check_output_dir
 from taichi_ndf.io.run_lock import RunLock
-from taichi_ndf.solve.dynamics import TimeStepper
+from taichi_ndf.solve.dynamics import DynamicsError, TimeStepper
 from taichi_ndf.solve.dynamics_adjoint import tangent
 from taichi_ndf.solve.dynamics_trajectory import Motion
 from taichi_ndf.solve.spline_solver import newton_config
@@ -185,9 +185,13 @@ def run_trajectory(args, runtime, error) -> dict:
     try:
         fit = fit_trajectory(stepper_at, data, start,
                              TrajectoryFitConfig(parameter=unknown.key))
-    except ValueError as err:
+    except (ValueError, DynamicsError) as err:  # DynamicsError: a step of a trial run halved
         raise error(str(err)) from None
-    document = estimate_document(_estimate(fit, unknown), model, goodness=fit.goodness)
+    notes = [] if fit.converged else [
+        f"Gauss–Newton did not converge in {fit.iterations} iterations (last relative step "
+        f"above {TrajectoryFitConfig.tolerance}): the value is the last iterate"]
+    document = estimate_document(_estimate(fit, unknown), model, goodness=fit.goodness,
+                                 notes=notes)
     document["trajectory"] = {
         "times_s": [k * scene.dynamics.dt for k in data.steps], "steps": list(data.steps),
         "points_xi": data.xi.tolist(), "converged": fit.converged,
