@@ -10,7 +10,8 @@ displacements of 3 points (ξ = (4, 0.5), (2, 0.5), (4, 0)) at 5 frames (every s
 steps), 45 values, plus Gaussian noise of σ = `--noise` × the RMS of the 45 values (one σ for
 all). Fit: Gauss–Newton on B from `--start` × B_true, J = ½ Σ r²: the gradient Σ r dr/dB by the
 adjoint (`gradient`), the Gauss–Newton Hessian H = Σ (dr/dB)² from the tangent (`tangent`),
-ΔB = −∇J/H, until |ΔB| < 1e-8 B. s.e.(B) = σ/√H at the fit. Per noise seed: B̂, its relative
+ΔB = −∇J/H, until |ΔB| < 1e-8 B. s.e.(B) = σ/√H at the fit (the library's
+`inverse.material.trajectory_fit.fit_trajectory`, σ stated). Per noise seed: B̂, its relative
 error, s.e., |B̂ − B_true|/s.e., iterations, the largest relative gap between the adjoint's
 gradient and the tangent's Σ r dr/dB at the start, CPU and wall seconds.
 
@@ -30,13 +31,11 @@ from pathlib import Path
 import torch
 
 import taichi_ndf
-from taichi_ndf import jets
-from taichi_ndf.minimise.assembly import displacement_at
+from inverse.material.trajectory_fit import TrajectoryData, fit_trajectory, observe
 from taichi_ndf.problem.dynamics import DynamicsConfig
-from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.solve.dynamics import TimeStepper
-from taichi_ndf.solve.dynamics_adjoint import gradient, record, tangent
+from taichi_ndf.solve.dynamics_adjoint import record
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from provenance import commit  # noqa: E402  (the commit each benchmark states)
@@ -73,37 +72,17 @@ class Problem:
         return TimeStepper(model, self.scene.field, self.config)
 
     def observe(self, stepper: TimeStepper, coefficients: torch.Tensor) -> torch.Tensor:
-        """Displacements (3, 3) [m] of POINTS: linear in the coefficients (no prescribed
-        motions)."""
-        operator = DisplacementOperator(stepper.field, stepper.model.boundary)
-        return displacement_at(operator, POINTS, coefficients, 1.0)[:, jets.VALUE]
+        """Displacements (3, 3) [m] of POINTS."""
+        return observe(stepper, POINTS, coefficients)
 
 
 def fit(problem: Problem, data: torch.Tensor, sigma: float, start: float
         ) -> tuple[float, float, int, float]:
-    """B̂, s.e., Gauss–Newton iterations, relative adjoint/tangent gap of ∇J at the start."""
-    b, gap = start, 0.0
-    for iteration in range(1, 16):
-        stepper = problem.stepper(b)
-        states = record(stepper)
-        weights, hessian, slope = {}, 0.0, 0.0
-        forward = tangent(stepper, states, "bending_stiffness")
-        for i, k in enumerate(problem.frames):
-            c = states[k].displacement.clone().requires_grad_(True)
-            r = problem.observe(stepper, c) - data[i]
-            (w,) = torch.autograd.grad((0.5 * r * r).sum(), c)
-            weights[k] = w
-            dr = problem.observe(stepper, forward[k])
-            hessian += float((dr * dr).sum())
-            slope += float((r.detach() * dr).sum())
-        adjoint = gradient(stepper, states, "bending_stiffness", weights)
-        if iteration == 1:  # away from the fit, where ∇J is not ~0
-            gap = abs(adjoint - slope) / abs(slope)
-        step = -adjoint / hessian
-        b += step
-        if abs(step) < 1e-8 * abs(b):
-            break
-    return b, sigma / hessian**0.5, iteration, gap
+    """B̂, s.e., Gauss–Newton iterations, relative adjoint/tangent gap of ∇J at the start
+    (`inverse.material.trajectory_fit`)."""
+    result = fit_trajectory(problem.stepper, TrajectoryData(POINTS, tuple(problem.frames),
+                                                            data, sigma), start)
+    return result.value, result.standard_error, result.iterations, result.gradient_gap
 
 
 def main() -> None:

@@ -2,12 +2,16 @@
 
     ndf-fit-material S.toml --observed OBS.obj [OBS2.ply ...] --estimate bending \
         [--method newton|implicit|bilevel|residual] --out DIR
+    ndf-fit-material DYNAMIC.toml --trajectory OBS.json --estimate bending --out DIR
 
 The scene gives everything known (geometry, boundary conditions, known loads) and start values
 of the unknowns. An observation whose vertex count equals the scene's exported template grid
 ([output] resolution) is taken in template vertex order (correspondence); with
 `--point-cloud` the points are fitted without correspondence (point-to-surface distance).
 Writes DIR/estimate.json and DIR/overlay.png (observed points over the fitted shape).
+With `--trajectory` a scene with [dynamics] is fitted to observed motion instead (one stiffness
+parameter, Gauss–Newton through the time steps' adjoint: `inverse.cli.fit_material_trajectory`;
+estimate.json only, method "trajectory").
 The fit itself is `inverse.cli.fit_material_run` (imported after the command line is read, so
 --help imports neither torch nor Taichi).
 """
@@ -34,8 +38,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scene TOML: known conditions, start values")
     p.add_argument("--scene", dest="scene_option", type=Path, metavar="SCENE",
                    help="the scene, as an option (the same as the positional)")
-    p.add_argument("--observed", required=True, nargs="+",
+    p.add_argument("--observed", nargs="+",
                    help="observed shape(s), OBJ or PLY, all under the scene's conditions")
+    p.add_argument("--trajectory", type=Path, metavar="OBS.json",
+                   help="observed motion of a scene with [dynamics] instead of --observed: "
+                        "points (ξ or probe names), times [s] on the scene's steps, positions "
+                        "or displacements [m], optional noise [m]; or a dynamic run's "
+                        "result.json (its probes at every step). Fits one stiffness parameter "
+                        "(--estimate) by Gauss–Newton through the time steps")
     p.add_argument("--estimate", required=True, action="append",
                    help="unknowns, comma separated or repeated: bending, stretch, scale, "
                         "young_modulus (E; linear isotropic), density, gravity, body_force, "
@@ -97,6 +107,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# The options of the shape fits (--observed) that --trajectory has no use for, with their defaults.
+SHAPE_OPTIONS = {"method": "newton", "spans": None, "seeds": None, "width": None,
+                 "samples": None, "point_cloud": False, "decades": 1.3, "box_centre": "start",
+                 "iterations": None, "newton": 0, "band": None, "quick": False}
+
+
 def parse_args(argv: list[str] | None):
     """The command line, with the scene given once (positional or --scene)."""
     parser = build_parser()
@@ -105,6 +121,14 @@ def parse_args(argv: list[str] | None):
             and args.scene != args.scene_option:
         parser.error(f"two scenes given: {args.scene} and --scene {args.scene_option}")
     args.scene = args.scene or args.scene_option
+    if (args.observed is None) == (args.trajectory is None):
+        parser.error("give the observations: --observed (shapes) or --trajectory (motion), "
+                     "one of them")
+    if args.trajectory is not None:
+        shapes_only = [f"--{name.replace('_', '-')}" for name, default in SHAPE_OPTIONS.items()
+                       if getattr(args, name) != default]
+        if shapes_only:
+            parser.error(f"{', '.join(shapes_only)}: for --observed shapes, not --trajectory")
     if args.scene is None:
         parser.error("the scene is required (SCENE.toml, or --scene SCENE.toml)")
     return args
@@ -133,6 +157,11 @@ def main(argv: list[str] | None = None) -> int:
     fit = document.get("goodness_of_fit")
     print(f"goodness of fit: {fit['statement']}" if fit else
           "goodness of fit: not tested (the residual method fits no equilibrium shape)")
+    if "trajectory" in document:
+        fit = document["trajectory"]
+        print(f"trajectory fit: {document['iterations']} Gauss–Newton iterations, "
+              f"converged {fit['converged']}, noise {fit['noise_m']:.3g} m "
+              f"({fit['noise_source']})")
     for note in document.get("notes", []):
         print(f"note: {note}")
     print(f"wrote {Path(args.out) / 'estimate.json'}")

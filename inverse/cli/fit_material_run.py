@@ -190,6 +190,10 @@ def _add_fits(document: dict, result, unknowns, part: str, fits: str) -> None:
 
 
 def run(args, runtime) -> dict:
+    if args.trajectory is not None:
+        from inverse.cli.fit_material_trajectory import run_trajectory
+
+        return run_trajectory(args, runtime, InputError)
     try:
         scene = load_scene(args.scene)
     except SceneError as err:

@@ -1,0 +1,168 @@
+"""A stiffness parameter fitted to observed motion: Gauss–Newton through the time steps.
+
+Data: the displacements d_fp [m] of P points ξ_p at F observed states k_f (time k_f × dt, the
+states of `taichi_ndf.solve.dynamics_adjoint.record` from rest), noise σ [m] per coordinate
+known or not. Model: r_fp(θ) = u(ξ_p, C_{k_f}(θ)) − d_fp, C_k the coefficients of the run of
+the scene's `TimeStepper` at the stiffness parameter θ (e.g. `bending_stiffness` B [N·m]).
+J(θ) = ½ Σ r²; per iteration one run (`record`), the gradient ∇J = Σ r dr/dθ by the adjoint
+(`gradient`, weights ∂J/∂C_k), the Gauss–Newton Hessian H = Σ (dr/dθ)² from the tangent
+(`tangent`: dC_k/dθ, mapped to the points like the states: u is linear in C without boundary
+motions), and θ ← θ − ∇J/H (a step to θ ≤ 0 is cut to θ/2) until |Δθ| < `tolerance` |θ|.
+At the last run: s.e.(θ) = σ/√H, the residuals, and the χ² test of
+`goodness.goodness_of_fit` (1 unknown). With σ unknown it is
+estimated from the residuals, σ̂² = Σ r²/(R − 1) for R residual entries: then χ²/dof = 1 by
+construction and the test says nothing (the noise source says so). The relative gap between
+the adjoint's ∇J and the tangent's Σ r dr/dθ at the start is returned as a check (4e-15 on
+benchmarks/dynamics_fit.py's strip).
+
+Not covered (ValueError from the adjoint, before any step): contact, wind, boundary motions,
+stiffness-proportional damping, a per-sample stiffness; states halved by a step that did not
+converge (DynamicsError from `record`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from inverse.material.goodness import GoodnessOfFit, goodness_of_fit
+from taichi_ndf import jets, progress
+from taichi_ndf.minimise.assembly import displacement_at
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.solve.dynamics import TimeStepper
+from taichi_ndf.solve.dynamics_adjoint import gradient, record, tangent
+
+ESTIMATED = "estimated from the residuals (χ²/dof = 1 by construction: not a test)"
+
+
+@dataclass(frozen=True)
+class TrajectoryData:
+    """Observed motion. xi: (P, 2) surface coordinates of the points; steps: the observed
+    states' step indices k ≥ 1 (time k × dt [s]), increasing; displacements: (F, P, 3) [m],
+    F = len(steps); noise: σ [m] per coordinate, None to estimate it from the residuals."""
+
+    xi: torch.Tensor
+    steps: tuple[int, ...]
+    displacements: torch.Tensor
+    noise: float | None = None
+
+    def __post_init__(self):
+        steps = tuple(int(k) for k in self.steps)
+        object.__setattr__(self, "steps", steps)
+        if self.xi.ndim != 2 or self.xi.shape[1] != 2 or len(self.xi) == 0:
+            raise ValueError(f"trajectory data: xi must be (P, 2), P >= 1, got "
+                             f"{tuple(self.xi.shape)}")
+        if not steps or min(steps) < 1 \
+                or any(b <= a for a, b in zip(steps, steps[1:], strict=False)):
+            raise ValueError(f"trajectory data: steps must be increasing integers >= 1, got "
+                             f"{list(steps)}")
+        if tuple(self.displacements.shape) != (len(steps), len(self.xi), 3):
+            raise ValueError(f"trajectory data: displacements must be (F, P, 3) = "
+                             f"({len(steps)}, {len(self.xi)}, 3), got "
+                             f"{tuple(self.displacements.shape)}")
+        if not bool(torch.isfinite(self.displacements).all()):
+            raise ValueError("trajectory data: displacements must be finite")
+        if self.noise is not None and not (math.isfinite(self.noise) and self.noise > 0):
+            raise ValueError(f"trajectory data: noise must be finite and > 0 [m], got "
+                             f"{self.noise!r}")
+
+
+@dataclass(frozen=True)
+class TrajectoryFitConfig:
+    """parameter: a stiffness name of the material; max_iterations ≥ 1 Gauss–Newton
+    iterations; tolerance > 0: stop when |Δθ| < tolerance |θ|."""
+
+    parameter: str = "bending_stiffness"
+    max_iterations: int = 15
+    tolerance: float = 1e-8
+
+    def __post_init__(self):
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if not self.tolerance > 0:
+            raise ValueError(f"tolerance must be > 0, got {self.tolerance}")
+
+
+@dataclass(frozen=True)
+class TrajectoryFit:
+    """value: θ̂; standard_error: σ/√H [θ's unit]; iterations; converged (the step fell below
+    the tolerance); residuals (F·P·3,) [m] and sensitivity dr/dθ (same shape) at the last run;
+    noise σ [m] and its source; goodness: the χ² test; gradient_gap: relative gap of the
+    adjoint's and the tangent's ∇J at the start; time_s: wall seconds."""
+
+    value: float
+    standard_error: float
+    iterations: int
+    converged: bool
+    residuals: np.ndarray
+    sensitivity: np.ndarray
+    noise: float
+    noise_source: str
+    goodness: GoodnessOfFit
+    gradient_gap: float
+    time_s: float
+
+
+def observe(stepper: TimeStepper, xi: torch.Tensor, coefficients: torch.Tensor
+            ) -> torch.Tensor:
+    """Displacements (P, 3) [m] at ξ (P, 2) of the stepper's field with `coefficients` (n, 3):
+    linear in them (no boundary motion: the adjoint refuses one)."""
+    operator = DisplacementOperator(stepper.field, stepper.model.boundary)
+    return displacement_at(operator, xi.to(coefficients.dtype), coefficients, 1.0)[:, jets.VALUE]
+
+
+def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryData,
+                   start: float, config: TrajectoryFitConfig = TrajectoryFitConfig()
+                   ) -> TrajectoryFit:
+    """θ̂ by Gauss–Newton from `start` (module docstring); stepper_at(θ): the scene's stepper
+    with the material's `config.parameter` set to θ. One progress report per iteration
+    (stage "trajectory fit", values θ and |Δθ|/|θ|)."""
+    began = time.perf_counter()
+    theta, gap, converged = float(start), 0.0, False
+    with progress.stage(f"trajectory fit ({config.parameter})", config.max_iterations):
+        for iteration in range(1, config.max_iterations + 1):
+            stepper = stepper_at(theta)
+            states = record(stepper)
+            if data.steps[-1] >= len(states):
+                raise ValueError(f"trajectory data: step {data.steps[-1]} is past the run's "
+                                 f"last ({len(states) - 1})")
+            forward = tangent(stepper, states, config.parameter)
+            weights, hessian, slope, residuals, columns = {}, 0.0, 0.0, [], []
+            for i, k in enumerate(data.steps):
+                c = states[k].displacement.clone().requires_grad_(True)
+                r = observe(stepper, data.xi, c) - data.displacements[i].to(c.dtype)
+                (weights[k],) = torch.autograd.grad((0.5 * r * r).sum(), c)
+                dr = observe(stepper, data.xi, forward[k])
+                hessian += float((dr * dr).sum())
+                slope += float((r.detach() * dr).sum())
+                residuals.append(r.detach().reshape(-1))
+                columns.append(dr.detach().reshape(-1))
+            adjoint = gradient(stepper, states, config.parameter, weights)
+            if iteration == 1:  # away from the fit, where ∇J is not ~0
+                gap = abs(adjoint - slope) / max(abs(slope), 1e-300)
+            if not hessian > 0:
+                raise ValueError(f"trajectory fit: the observed points do not move with "
+                                 f"{config.parameter} (H = {hessian:.3g})")
+            step = -adjoint / hessian
+            if theta + step <= 0:  # a stiffness stays positive: halve it instead
+                step = -0.5 * theta
+            theta += step
+            progress.report(iteration, **{config.parameter: theta,
+                                          "relative_step": abs(step) / abs(theta)})
+            if abs(step) < config.tolerance * abs(theta):
+                converged = True
+                break
+    r = torch.cat(residuals).numpy()
+    if data.noise is None:
+        noise, source = float(np.sqrt((r @ r) / max(len(r) - 1, 1))), ESTIMATED
+    else:
+        noise, source = float(data.noise), "stated"
+    return TrajectoryFit(theta, noise / hessian**0.5, iteration, converged, r,
+                         torch.cat(columns).numpy(), noise, source,
+                         goodness_of_fit(r, 1, noise, source), gap,
+                         time.perf_counter() - began)
