@@ -83,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--silhouette-allowance", action="store_true",
                    help="spline: the silhouette tolerates each border vertex as far outside the "
                    "mask as the template lies outside mask 0 (default: off)")
+    p.add_argument("--allowance-reach", type=float, default=None, metavar="EDGES",
+                   help="spline: that allowance only where a tracked point lies within EDGES "
+                   "template mean edge lengths of the vertex (default: inf, everywhere)")
     p.add_argument("--extrapolate", action="store_true",
                    help="spline: start each frame from the constant-velocity extrapolation of "
                    "the two frames before (default: from the frame before)")

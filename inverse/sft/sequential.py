@@ -49,7 +49,8 @@ class DataWeights:
     tracked point within this many mean edge lengths of it (0: on every border vertex; inf:
     on none), and on every interior vertex; silhouette_allowance: the silhouette term
     tolerates each border vertex as far outside the mask as the template lay outside mask 0
-    (`inverse.sft.silhouette.silhouette_allowance`)."""
+    (`inverse.sft.silhouette.silhouette_allowance`), only where a tracked point lies within
+    allowance_reach mean edge lengths of it (inf: everywhere)."""
 
     huber_px: float
     temporal_weight: float
@@ -57,6 +58,7 @@ class DataWeights:
     outline_weight: float = 0.0
     silhouette_border_gap: float = 0.0
     silhouette_allowance: bool = False
+    allowance_reach: float = np.inf
 
 
 @dataclass(frozen=True)
@@ -188,9 +190,15 @@ def reconstruct_frames(template: Template, camera: Camera,
                 offsets = outline_offsets(allowance, history[-1], template.faces,
                                           tolerance=mean_edge)
         silhouette_rows = None  # every vertex
-        if weights.silhouette_border_gap > 0:
+        allowed = tolerated
+        if weights.silhouette_border_gap > 0 or (
+                tolerated is not None and weights.allowance_reach < np.inf):
             gaps = track_gaps(template.vertices, template.faces, seen, mean_edge)
-            silhouette_rows = torch.from_numpy(~border | (gaps > weights.silhouette_border_gap))
+            if weights.silhouette_border_gap > 0:
+                silhouette_rows = torch.from_numpy(
+                    ~border | (gaps > weights.silhouette_border_gap))
+            if tolerated is not None:
+                allowed = tolerated * torch.from_numpy(gaps <= weights.allowance_reach)
         faces = template.faces[seen.face]
         bary = torch.from_numpy(seen.bary)
         previous = torch.from_numpy(history[-1])
@@ -202,7 +210,7 @@ def reconstruct_frames(template: Template, camera: Camera,
             pixels=torch.from_numpy(seen.xy), confidence=torch.from_numpy(seen.confidence),
             predicted=2.0 * previous - before, distance=distance, outline_offset=offsets,
             photometric=None if photometric is None else photometric.frame(i, history[-1]),
-            silhouette_rows=silhouette_rows, silhouette_allowance=tolerated)
+            silhouette_rows=silhouette_rows, silhouette_allowance=allowed)
         fitted = fit.fit_frame(frame)
         return fitted, time.perf_counter() - start, time.process_time() - cpu
 
