@@ -1,16 +1,25 @@
 """The silhouette allowance from frame 0 (inverse.sft.silhouette.silhouette_allowance and
 `VertexTerms.silhouette_allowance` in inverse.sft.least_squares): the allowance on a synthetic
-mask, and the silhouette term's value, gradient and Gauss–Newton blocks with it."""
+mask, the silhouette term's value, gradient and Gauss–Newton blocks with it, and what the
+frame-by-frame driver hands each frame."""
 
+import cv2
 import numpy as np
 import pytest
 import torch
 from test_sft_outline import _at_depth, _box_mask
+from test_sft_reconstruct import bent_pair
+from test_sft_sequential import run
 from test_sft_spline_prior import assert_gradient_matches
 
+from inverse.sft.correspondences import track_gaps
+from inverse.sft.inputs import mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
+from inverse.sft.outline import border_vertices
+from inverse.sft.sequential import DataWeights
 from inverse.sft.settings import SplinePriorConfig
 from inverse.sft.silhouette import silhouette_allowance, silhouette_distance
+from inverse.sft.synth import default_camera
 from taichi_ndf import jets
 
 
@@ -81,3 +90,48 @@ def test_the_setting_is_a_bool():
     assert not SplinePriorConfig().silhouette_allowance
     with pytest.raises(ValueError, match="silhouette_allowance"):
         SplinePriorConfig(silhouette_allowance=1)
+
+
+def test_the_driver_hands_every_frame_frame_0s_allowance_near_tracks_only_with_a_reach():
+    """`reconstruct_frames` with a mask 3 px inside the template's outline all round: the
+    border vertices' allowance from frame 0 in every frame, cut to 0 far from the frame's
+    tracks with `allowance_reach`; none without the setting."""
+    camera = default_camera()
+    template, _ = bent_pair()
+    pixels = camera.project(torch.from_numpy(template.vertices)).numpy()
+    image = np.zeros((camera.height, camera.width), np.uint8)
+    for triangle in np.rint(pixels[template.faces]).astype(np.int32):
+        cv2.fillConvexPoly(image, triangle, 1)
+    mask = cv2.erode(image, np.ones((7, 7), np.uint8)).astype(bool)  # 3 px narrower
+    border = border_vertices(template.faces, len(template.vertices))
+    expected = silhouette_allowance(mask, pixels, border)
+    assert (expected[border] > 1).sum() > border.sum() / 2 and not expected[~border].any()
+    _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0), masks=[mask] * 3)
+    assert all(f.silhouette_allowance is None for f in fit.frames)
+    _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_allowance=True),
+                       masks=[mask] * 3)
+    for frame in fit.frames:
+        np.testing.assert_allclose(frame.silhouette_allowance.numpy(), expected)
+        assert frame.data_term(torch.arange(1), torch.arange(1, 1 + len(border))) \
+            .vertex.silhouette_allowance is frame.silhouette_allowance
+    _, tracks, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_allowance=True,
+                                        allowance_reach=0.5), masks=[mask] * 3)
+    mean_edge = mean_edge_length(template.vertices, template.faces)
+    for frame in fit.frames:
+        near = track_gaps(template.vertices, template.faces, tracks[frame.index],
+                          mean_edge) <= 0.5
+        assert (border & near & (expected > 0)).any() and (border & ~near & (expected > 0)).any()
+        np.testing.assert_allclose(frame.silhouette_allowance.numpy(), expected * near)
+
+
+@pytest.mark.parametrize("extra, named", [
+    (["--allowance-reach", "-1"], "allowance_reach"),
+    (["--field", "siren", "--silhouette-allowance"], "--silhouette-allowance")])
+def test_the_cli_refuses_a_bad_allowance_before_any_work(tmp_path, capsys, extra, named):
+    from inverse.cli import sft as sft_cli
+
+    status = sft_cli.main(["--frames", str(tmp_path / "none"), "--camera", "c.json",
+                           "--template", "t.obj", "--texture", "x.png", "--out",
+                           str(tmp_path / "out"), "--precision", "f64", *extra])
+    assert status == 2
+    assert named in capsys.readouterr().err
