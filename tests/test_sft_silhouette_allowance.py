@@ -3,6 +3,10 @@
 mask, the silhouette term's value, gradient and Gauss–Newton blocks with it, and what the
 frame-by-frame driver hands each frame."""
 
+import dataclasses
+import json
+import math
+
 import cv2
 import numpy as np
 import pytest
@@ -86,10 +90,14 @@ def test_gradient_and_blocks_with_the_allowance_match_central_differences():
         assert torch.allclose(blocks[v + 1], expected, rtol=1e-6, atol=1e-9)
 
 
-def test_the_setting_is_a_bool():
+def test_the_settings_are_checked_and_their_defaults_go_into_result_json():
     assert not SplinePriorConfig().silhouette_allowance
     with pytest.raises(ValueError, match="silhouette_allowance"):
         SplinePriorConfig(silhouette_allowance=1)
+    with pytest.raises(ValueError, match="allowance_reach"):
+        SplinePriorConfig(allowance_reach=math.inf)
+    # result.json is strict JSON: an infinite default broke every run (measured, then fixed).
+    json.dumps(dataclasses.asdict(SplinePriorConfig()), allow_nan=False)
 
 
 def test_the_driver_hands_every_frame_frame_0s_allowance_near_tracks_only_with_a_reach():

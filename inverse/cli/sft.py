@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "mask as the template lies outside mask 0 (default: off)")
     p.add_argument("--allowance-reach", type=float, default=None, metavar="EDGES",
                    help="spline: that allowance only where a tracked point lies within EDGES "
-                   "template mean edge lengths of the vertex (default: inf, everywhere)")
+                   "template mean edge lengths of the vertex (default: everywhere)")
     p.add_argument("--extrapolate", action="store_true",
                    help="spline: start each frame from the constant-velocity extrapolation of "
                    "the two frames before (default: from the frame before)")

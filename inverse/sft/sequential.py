@@ -50,7 +50,7 @@ class DataWeights:
     on none), and on every interior vertex; silhouette_allowance: the silhouette term
     tolerates each border vertex as far outside the mask as the template lay outside mask 0
     (`inverse.sft.silhouette.silhouette_allowance`), only where a tracked point lies within
-    allowance_reach mean edge lengths of it (inf: everywhere)."""
+    allowance_reach mean edge lengths of it (None: everywhere)."""
 
     huber_px: float
     temporal_weight: float
@@ -58,7 +58,7 @@ class DataWeights:
     outline_weight: float = 0.0
     silhouette_border_gap: float = 0.0
     silhouette_allowance: bool = False
-    allowance_reach: float = np.inf
+    allowance_reach: float | None = None
 
 
 @dataclass(frozen=True)
@@ -192,7 +192,7 @@ def reconstruct_frames(template: Template, camera: Camera,
         silhouette_rows = None  # every vertex
         allowed = tolerated
         if weights.silhouette_border_gap > 0 or (
-                tolerated is not None and weights.allowance_reach < np.inf):
+                tolerated is not None and weights.allowance_reach is not None):
             gaps = track_gaps(template.vertices, template.faces, seen, mean_edge)
             if weights.silhouette_border_gap > 0:
                 silhouette_rows = torch.from_numpy(

@@ -62,7 +62,7 @@ class SplinePriorConfig:
     silhouette_allowance: the silhouette term tolerates each border vertex as far outside the
     mask as the template lay outside mask 0 (`inverse.sft.silhouette.silhouette_allowance`);
     allowance_reach: that allowance only where a tracked point lies within this many template
-    mean edge lengths of the vertex (inf: everywhere);
+    mean edge lengths of the vertex (None: everywhere);
     temporal_weight: w_temp;
     huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
     Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
@@ -83,7 +83,7 @@ class SplinePriorConfig:
     outline_weight: float = 1.0
     silhouette_border_gap: float = 0.0
     silhouette_allowance: bool = False
-    allowance_reach: float = math.inf
+    allowance_reach: float | None = None
     temporal_weight: float = 0.1
     huber_px: float = 2.0
     max_iterations: int = 8
@@ -105,8 +105,9 @@ class SplinePriorConfig:
         if not self.silhouette_border_gap >= 0:  # inf allowed: no border vertex
             raise ValueError(f"silhouette_border_gap must be >= 0, got "
                              f"{self.silhouette_border_gap}")
-        if not self.allowance_reach >= 0:  # inf allowed: everywhere
-            raise ValueError(f"allowance_reach must be >= 0, got {self.allowance_reach}")
+        if self.allowance_reach is not None and not 0 <= self.allowance_reach < math.inf:
+            raise ValueError(f"allowance_reach must be finite and >= 0, got "
+                             f"{self.allowance_reach}")
         if not isinstance(self.silhouette_allowance, bool):
             raise ValueError(f"silhouette_allowance must be True or False, got "
                              f"{self.silhouette_allowance!r}")
