@@ -118,7 +118,9 @@ def test_the_driver_hands_every_frame_frame_0s_allowance_near_tracks_only_with_a
     assert all(f.silhouette_allowance is None for f in fit.frames)
     _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_allowance=True),
                        masks=[mask] * 3)
-    for frame in fit.frames:
+    _, _, gapped, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0, silhouette_border_gap=0.5,
+                                      silhouette_allowance=True), masks=[mask] * 3)
+    for frame in fit.frames + gapped.frames:
         np.testing.assert_allclose(frame.silhouette_allowance.numpy(), expected)
         assert frame.data_term(torch.arange(1), torch.arange(1, 1 + len(border))) \
             .vertex.silhouette_allowance is frame.silhouette_allowance

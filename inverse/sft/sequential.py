@@ -197,7 +197,7 @@ def reconstruct_frames(template: Template, camera: Camera,
             if weights.silhouette_border_gap > 0:
                 silhouette_rows = torch.from_numpy(
                     ~border | (gaps > weights.silhouette_border_gap))
-            if tolerated is not None:
+            if tolerated is not None and weights.allowance_reach is not None:
                 allowed = tolerated * torch.from_numpy(gaps <= weights.allowance_reach)
         faces = template.faces[seen.face]
         bary = torch.from_numpy(seen.bary)
