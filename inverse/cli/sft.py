@@ -80,6 +80,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "point lies within EDGES template mean edge lengths (default "
                    f"{SplinePriorConfig.silhouette_border_gap:g}: every vertex; inf: interior "
                    "vertices only; not better on R1, benchmarks/RESULTS.md)")
+    p.add_argument("--silhouette-allowance", action="store_true",
+                   help="spline: the silhouette tolerates each border vertex as far outside the "
+                   "mask as the template lies outside mask 0 (default: off)")
+    p.add_argument("--allowance-reach", type=float, default=None, metavar="EDGES",
+                   help="spline: that allowance only where a tracked point lies within EDGES "
+                   "template mean edge lengths of the vertex (default: everywhere)")
     p.add_argument("--extrapolate", action="store_true",
                    help="spline: start each frame from the constant-velocity extrapolation of "
                    "the two frames before (default: from the frame before)")

@@ -174,7 +174,9 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
                              f"{' or '.join(takes)}")
         options["photometric_weight"] = args.photometric_weight
     names = {f.name for f in dataclasses.fields(kind)}
-    for option in ("silhouette_border_gap", "extrapolate"):  # given only where the settings have it
+    # given only where the settings have them
+    for option in ("silhouette_border_gap", "extrapolate", "silhouette_allowance",
+                   "allowance_reach"):
         if getattr(args, option) in (None, False):
             continue
         if option not in names:

@@ -27,7 +27,10 @@ outline lay in frame 0 is pulled back out to it, while inside the allowance it i
 silhouette term alone is one-sided (it only pulls vertices in), so a sheet whose outline
 retreats inside the mask is not told. With `VertexTerms.silhouette_rows` the silhouette sum
 runs over the chosen vertices only (`SplinePriorConfig.silhouette_border_gap`: border vertices
-far from every track, and the interior ones); n stays the number of vertices.
+far from every track, and the interior ones); n stays the number of vertices. With
+`VertexTerms.silhouette_allowance` a_v ≥ 0 the silhouette residual is max(0, D − a_v): a border
+vertex that lay a_v outside mask 0 in frame 0 (the template, right by construction) is not
+pulled further in than that.
 """
 
 from __future__ import annotations
@@ -64,7 +67,9 @@ class VertexTerms:
     (None: no silhouette term) with weight w_sil: `inverse.sft.silhouette.silhouette_distance`;
     outline_offset: (n,) [px], the signed distance o_v ≤ 0 a border vertex may reach inside the
     mask, −inf for the other vertices (None: no outline term), with weight w_out;
-    silhouette_rows: bool (n,), the vertices the silhouette term acts on (None: all)."""
+    silhouette_rows: bool (n,), the vertices the silhouette term acts on (None: all);
+    silhouette_allowance: (n,) [px] ≥ 0, the distance outside the mask each vertex may lie
+    unpenalised (`inverse.sft.silhouette.silhouette_allowance`; None: 0)."""
 
     rest: torch.Tensor
     predicted: torch.Tensor
@@ -75,6 +80,7 @@ class VertexTerms:
     outline_offset: torch.Tensor | None = None
     outline_weight: float = 0.0
     silhouette_rows: torch.Tensor | None = None
+    silhouette_allowance: torch.Tensor | None = None
 
 
 class LeastSquaresData:
@@ -154,7 +160,7 @@ class LeastSquaresData:
 
     def _silhouette_residual(self, pixels: torch.Tensor) -> torch.Tensor:
         """D [px] (n,) outside the mask, 0 inside and at the vertices the term leaves out."""
-        d = silhouette_residual(self.vertex.distance, pixels)
+        d = silhouette_residual(self.vertex.distance, pixels, self.vertex.silhouette_allowance)
         return d if self.silhouette_on is None else d * self.silhouette_on
 
     def _outline_residual(self, pixels: torch.Tensor) -> torch.Tensor:

@@ -34,7 +34,7 @@ from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.outline import border_vertices, outline_allowance, outline_offsets
 from inverse.sft.photometric import PhotometricEvidence, PhotometricFrame
-from inverse.sft.silhouette import silhouette_distance
+from inverse.sft.silhouette import silhouette_allowance, silhouette_distance
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
 
 log = logging.getLogger(__name__)
@@ -47,13 +47,18 @@ class DataWeights:
     (outline; needs masks and w_sil > 0; 0: no outline term); silhouette_border_gap: the
     silhouette term acts on a border vertex of the template only where the frame has no
     tracked point within this many mean edge lengths of it (0: on every border vertex; inf:
-    on none), and on every interior vertex."""
+    on none), and on every interior vertex; silhouette_allowance: the silhouette term
+    tolerates each border vertex as far outside the mask as the template lay outside mask 0
+    (`inverse.sft.silhouette.silhouette_allowance`), only where a tracked point lies within
+    allowance_reach mean edge lengths of it (None: everywhere)."""
 
     huber_px: float
     temporal_weight: float
     silhouette_weight: float
     outline_weight: float = 0.0
     silhouette_border_gap: float = 0.0
+    silhouette_allowance: bool = False
+    allowance_reach: float | None = None
 
 
 @dataclass(frozen=True)
@@ -64,7 +69,7 @@ class FrameData:
     predicted positions x̂ (n, 3) [m]; the mask's `silhouette_distance` (h, w) [px] or None;
     the outline offsets (n,) [px] (`outline_offsets`) or None; the photometric term's data
     (`inverse.sft.photometric`) or None; the vertices the silhouette term acts on, bool (n,),
-    or None for all."""
+    or None for all; the silhouette allowance (n,) [px] or None."""
 
     index: int
     camera: Camera
@@ -80,6 +85,7 @@ class FrameData:
     outline_offset: torch.Tensor | None
     photometric: PhotometricFrame | None = None
     silhouette_rows: torch.Tensor | None = None
+    silhouette_allowance: torch.Tensor | None = None
 
     def data_term(self, tracks: torch.Tensor, vertices: torch.Tensor, *,
                   slope: str = "image") -> LeastSquaresData:
@@ -93,7 +99,8 @@ class FrameData:
             vertices,
             VertexTerms(self.rest, self.predicted, w.temporal_weight, self.mean_edge,
                         self.distance, w.silhouette_weight, self.outline_offset,
-                        w.outline_weight, self.silhouette_rows), slope=slope)
+                        w.outline_weight, self.silhouette_rows, self.silhouette_allowance),
+            slope=slope)
 
 
 @dataclass(frozen=True)
@@ -157,6 +164,13 @@ def reconstruct_frames(template: Template, camera: Camera,
         allowance = outline_allowance(template.vertices, template.faces, camera, masks[0],
                                       tolerance=mean_edge)
     border = border_vertices(template.faces, len(template.vertices))
+    # How far outside the mask each border vertex may lie unpenalised (frame 0's disagreement).
+    tolerated = None
+    if masks is not None and weights.silhouette_allowance and weights.silhouette_weight > 0:
+        tolerated = torch.from_numpy(silhouette_allowance(
+            masks[0], camera.project(rest).numpy(), border))
+        log.info("silhouette allowance: %d border vertices outside mask 0, up to %.2f px",
+                 int((tolerated > 0).sum()), float(tolerated.max()))
     result = ReconstructionResult([template.vertices.copy()], [0.0], [0.0], [0], [{}])
 
     def solve(step: Step, history: list[np.ndarray]) -> tuple[FittedFrame, float, float]:
@@ -176,9 +190,15 @@ def reconstruct_frames(template: Template, camera: Camera,
                 offsets = outline_offsets(allowance, history[-1], template.faces,
                                           tolerance=mean_edge)
         silhouette_rows = None  # every vertex
-        if weights.silhouette_border_gap > 0:
+        allowed = tolerated
+        if weights.silhouette_border_gap > 0 or (
+                tolerated is not None and weights.allowance_reach is not None):
             gaps = track_gaps(template.vertices, template.faces, seen, mean_edge)
-            silhouette_rows = torch.from_numpy(~border | (gaps > weights.silhouette_border_gap))
+            if weights.silhouette_border_gap > 0:
+                silhouette_rows = torch.from_numpy(
+                    ~border | (gaps > weights.silhouette_border_gap))
+            if tolerated is not None and weights.allowance_reach is not None:
+                allowed = tolerated * torch.from_numpy(gaps <= weights.allowance_reach)
         faces = template.faces[seen.face]
         bary = torch.from_numpy(seen.bary)
         previous = torch.from_numpy(history[-1])
@@ -190,7 +210,7 @@ def reconstruct_frames(template: Template, camera: Camera,
             pixels=torch.from_numpy(seen.xy), confidence=torch.from_numpy(seen.confidence),
             predicted=2.0 * previous - before, distance=distance, outline_offset=offsets,
             photometric=None if photometric is None else photometric.frame(i, history[-1]),
-            silhouette_rows=silhouette_rows)
+            silhouette_rows=silhouette_rows, silhouette_allowance=allowed)
         fitted = fit.fit_frame(frame)
         return fitted, time.perf_counter() - start, time.process_time() - cpu
 

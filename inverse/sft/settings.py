@@ -59,6 +59,10 @@ class SplinePriorConfig:
     (`inverse.sft.outline`; needs masks and w_sil > 0); silhouette_border_gap: the silhouette
     acts on a border vertex only where no tracked point lies within this many template mean
     edge lengths of it (0: on every border vertex; inf: on none; interior vertices always);
+    silhouette_allowance: the silhouette term tolerates each border vertex as far outside the
+    mask as the template lay outside mask 0 (`inverse.sft.silhouette.silhouette_allowance`);
+    allowance_reach: that allowance only where a tracked point lies within this many template
+    mean edge lengths of the vertex (None: everywhere);
     temporal_weight: w_temp;
     huber_px: reprojection error [px] beyond which the penalty grows linearly; max_iterations:
     Newton iterations per frame; tolerance: stop when the Newton decrement's predicted
@@ -78,6 +82,8 @@ class SplinePriorConfig:
     silhouette_weight: float = 1.0
     outline_weight: float = 1.0
     silhouette_border_gap: float = 0.0
+    silhouette_allowance: bool = False
+    allowance_reach: float | None = None
     temporal_weight: float = 0.1
     huber_px: float = 2.0
     max_iterations: int = 8
@@ -99,6 +105,12 @@ class SplinePriorConfig:
         if not self.silhouette_border_gap >= 0:  # inf allowed: no border vertex
             raise ValueError(f"silhouette_border_gap must be >= 0, got "
                              f"{self.silhouette_border_gap}")
+        if self.allowance_reach is not None and not 0 <= self.allowance_reach < math.inf:
+            raise ValueError(f"allowance_reach must be finite and >= 0, got "
+                             f"{self.allowance_reach}")
+        if not isinstance(self.silhouette_allowance, bool):
+            raise ValueError(f"silhouette_allowance must be True or False, got "
+                             f"{self.silhouette_allowance!r}")
         if isinstance(self.photometric_points, bool) or not isinstance(
                 self.photometric_points, int) or self.photometric_points < 1:
             raise ValueError(f"photometric_points must be a positive integer, got "

@@ -1,6 +1,6 @@
 """The mask as a signed distance image, sampled differentiably at projected points: what the
 silhouette and outline terms of `inverse.sft.least_squares` and the outline allowance of
-`inverse.sft.outline` measure."""
+`inverse.sft.outline` measure, and the silhouette's own allowance from frame 0."""
 
 from __future__ import annotations
 
@@ -35,7 +35,21 @@ def silhouette_distance(mask: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.where(mask, 0.5 - inside, outside - 0.5).astype(np.float64))
 
 
-def silhouette_residual(distance: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
+def silhouette_residual(distance: torch.Tensor, xy: torch.Tensor,
+                        allowance: torch.Tensor | None = None) -> torch.Tensor:
     """Distance [px] (n,) of pixels xy (n, 2) outside the silhouette (0 inside): the
-    `silhouette_distance` image sampled bilinearly, clamped at 0 (differentiable)."""
-    return bilinear_differentiable(distance, xy).clamp_min(0.0)
+    `silhouette_distance` image sampled bilinearly, less `allowance` (n,) [px] ≥ 0 where given,
+    clamped at 0 (differentiable)."""
+    d = bilinear_differentiable(distance, xy)
+    return (d if allowance is None else d - allowance).clamp_min(0.0)
+
+
+def silhouette_allowance(mask: np.ndarray, xy: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(n,) [px]: how far outside the silhouette of frame 0 (`mask` bool (h, w)) the points at
+    pixels xy (n, 2) of frame 0 lie, max(0, D₀) with D₀ `silhouette_distance`, at the points
+    selected by `rows` (bool (n,): the template's border vertices); 0 elsewhere. Frame 0 is the
+    template, right by construction: where its outline lies outside the mask, the mask and the
+    template disagree there, and the silhouette term tolerates that much (`least_squares`)."""
+    depth = bilinear_differentiable(silhouette_distance(mask), torch.from_numpy(
+        np.asarray(xy, dtype=np.float64))).numpy()
+    return np.where(rows, np.maximum(depth, 0.0), 0.0)
