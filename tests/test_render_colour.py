@@ -242,3 +242,38 @@ def test_energy_figure_counts_iterations_through_the_run_when_each_load_step_res
     counted = [{**r, "iteration": k} for k, r in enumerate(restarting)]
     assert np.array_equal(energy_figure(restarting), energy_figure(counted))
     assert segments(restarting) == segments(counted)
+
+
+def test_the_video_camera_sees_the_surface_in_front_of_the_obstacles(monkeypatch):
+    """A vertical sheet (x = 0) with a wall just in front of one face (x = 0.3): the final
+    state's widest silhouette (the old rule, `widest_azimuth`) looks from the wall's side
+    (azimuth −15°) and sees none of the sheet; the video's camera (`visible_azimuth`) counts
+    what the wall hides and looks from the open side, where the sheet fills its silhouette."""
+    import taichi_ndf.render.trajectory as trajectory
+    from taichi_ndf.render.camera import widest_azimuth
+    from taichi_ndf.render.trajectory import visible_azimuth, visible_cover
+
+    grid = grid_mesh(((-0.5, 0.5), (0.0, 1.0)), 8)
+    reference = np.column_stack([np.zeros(len(grid.xi)), grid.xi])  # (0, y, z)
+    states = [reference + [0.0, 0.0, -0.1 * t] for t in (0.0, 1.0)]
+    wall = Obstacle(np.array([[0.3, -2.0, -1.0], [0.3, 2.0, -1.0], [0.3, 2.0, 1.5],
+                              [0.3, -2.0, 1.5]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    obstacles = [(wall,), (wall,)]
+    old = widest_azimuth(states[-1], grid.faces)
+    new = visible_azimuth(states, grid.faces, obstacles)
+    hidden, seen = visible_cover(states, grid.faces, obstacles, azimuths_deg=[old, new])
+    assert old == -15.0 and hidden == 0.0  # the old rule: behind the wall
+    assert np.cos(np.radians(new)) < -0.9  # from −x, the open side
+    assert seen > 0.05  # the sheet, 2 states: about 4 % of the wall-framed image each
+    azimuths = []
+    original = trajectory.render_figure
+
+    def spy(*args, **kwargs):
+        azimuths.append(kwargs["azimuth_deg"])
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(trajectory, "render_figure", spy)
+    trajectory_frames(states, grid.faces, [0.5, 1.0], reference=reference,
+                      obstacles=obstacles, size=(160, 120))
+    assert azimuths == [new, new]
+    assert visible_azimuth(states, grid.faces) == old  # no obstacle: the widest view
