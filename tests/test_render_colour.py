@@ -250,8 +250,8 @@ def test_the_video_camera_sees_the_surface_in_front_of_the_obstacles(monkeypatch
     (azimuth −15°) and sees none of the sheet; the video's camera (`visible_azimuth`) counts
     what the wall hides and looks from the open side, where the sheet fills its silhouette."""
     import taichi_ndf.render.trajectory as trajectory
-    from taichi_ndf.render.camera import widest_azimuth
-    from taichi_ndf.render.trajectory import visible_azimuth, visible_cover
+    from taichi_ndf.render.camera import visible_cover, widest_azimuth
+    from taichi_ndf.render.trajectory import visible_azimuth
 
     grid = grid_mesh(((-0.5, 0.5), (0.0, 1.0)), 8)
     reference = np.column_stack([np.zeros(len(grid.xi)), grid.xi])  # (0, y, z)

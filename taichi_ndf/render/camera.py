@@ -6,7 +6,8 @@ import numpy as np
 
 from taichi_ndf.render.raster import rasterize
 
-__all__ = ["Camera", "frame_mesh", "ground_axes", "widest_azimuth"]
+__all__ = ["Camera", "frame_mesh", "ground_axes", "visible_cover", "widest_azimuth",
+           "widest_azimuth_over"]
 
 
 def _unit(vector, name: str) -> np.ndarray:
@@ -59,8 +60,8 @@ class Camera:
 
 
 PREFERRED_AZIMUTH_DEG = -45.0  # a diagonal in front and to the side, as in Blender's default view
-AZIMUTH_STEP_DEG = 15.0  # candidates of `widest_azimuth`
-AREA_TOLERANCE = 0.1  # `widest_azimuth`: views this close to the widest count as wide
+AZIMUTH_STEP_DEG = 15.0  # candidates of `widest_azimuth_over`
+AREA_TOLERANCE = 0.1  # `widest_azimuth_over`: views this close to the widest count as wide
 
 
 def ground_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,6 +81,51 @@ def _toward_eye(up: np.ndarray, elevation_deg, azimuth_deg) -> np.ndarray:
     return np.cos(el)[..., None] * horizontal + np.sin(el)[..., None] * up
 
 
+def visible_cover(
+    states,
+    faces: np.ndarray,
+    obstacles=None,
+    *,
+    up=(0.0, 0.0, 1.0),
+    elevation_deg: float = 30.0,
+    azimuths_deg=(PREFERRED_AZIMUTH_DEG,),
+) -> np.ndarray:
+    """The fraction of a 64 x 64 image that the surface covers in front of the obstacles, per
+    azimuth of `azimuths_deg` [deg] (shape (A,)), summed over `states` (positions (V, 3) [m]
+    on `faces`, with `obstacles[k]` (meshes with `vertices`, `faces`; None: none) at state k):
+    a camera at `elevation_deg` above the plane normal to `up`, distant (10° field of view)
+    and at one distance from the centre of every state and obstacle, so nearly a parallel
+    projection. A surface pixel behind an obstacle does not count, nor does a layer behind
+    another (folded layers count once, as the eye sees them)."""
+    up = _unit(up, "up")
+    faces = np.asarray(faces, dtype=np.int64)
+    obstacles = [()] * len(states) if obstacles is None else obstacles
+    soups = []
+    for state, group in zip(states, obstacles, strict=True):
+        parts = [np.asarray(state, dtype=np.float64)] + [np.asarray(o.vertices, np.float64)
+                                                          for o in group]
+        offsets = np.cumsum([0] + [len(p) for p in parts])
+        tris = [faces] + [np.asarray(o.faces, np.int64) for o in group]
+        soups.append((np.concatenate(parts),
+                      np.concatenate([t + o for t, o in zip(tris, offsets, strict=False)])))
+    points = np.concatenate([soup[0] for soup in soups])
+    points = points[np.all(np.isfinite(points), axis=1)]
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    radius = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-9)
+    fov_deg, side = 10.0, 64
+    distance = radius / np.sin(np.radians(fov_deg) / 2.0)
+    cover = np.zeros(len(azimuths_deg))
+    for a, azimuth in enumerate(np.asarray(azimuths_deg, dtype=np.float64)):
+        toward_eye = _toward_eye(up, np.float64(elevation_deg), azimuth)
+        camera = Camera(eye=tuple(centre + distance * toward_eye), target=tuple(centre),
+                        up=tuple(up), fov_y_deg=fov_deg)
+        for points_k, faces_k in soups:
+            raster = rasterize(camera.to_camera(points_k), faces_k,
+                               camera.intrinsics(side, side), side, side)
+            cover[a] += np.mean((raster.face_id >= 0) & (raster.face_id < len(faces)))
+    return cover
+
+
 def widest_azimuth(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -89,36 +135,38 @@ def widest_azimuth(
     preferred_deg: float = PREFERRED_AZIMUTH_DEG,
 ) -> float:
     """The azimuth [deg] from which a camera at `elevation_deg` sees the surface (vertices
-    (V, 3) [m], faces (F, 3)) largest: of the candidates every AZIMUTH_STEP_DEG, those whose
-    silhouette area is within AREA_TOLERANCE (relative) of the largest, the one nearest
-    `preferred_deg`.
+    (V, 3) [m], faces (F, 3)) largest: `widest_azimuth_over` its one state.
 
-    The silhouette (pixels covered, 64 x 64, from a distant camera at one distance for all
-    candidates, so nearly a parallel projection), not the summed face areas: folded layers
-    count once, as the eye sees them. A level sheet or a cylinder about `up` looks alike from
-    everywhere and keeps the preferred view; a sheet hanging in a vertical plane is seen from
-    its face instead of edge-on.
+    The silhouette (pixels covered), not the summed face areas: folded layers count once, as
+    the eye sees them. A level sheet or a cylinder about `up` looks alike from everywhere and
+    keeps the preferred view; a sheet hanging in a vertical plane is seen from its face
+    instead of edge-on.
     """
-    points = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    finite = points[np.all(np.isfinite(points), axis=1)]
-    if not len(finite) or not len(faces):
+    return widest_azimuth_over([vertices], faces, up=up, elevation_deg=elevation_deg,
+                               preferred_deg=preferred_deg)
+
+
+def widest_azimuth_over(
+    states,
+    faces: np.ndarray,
+    obstacles=None,
+    *,
+    up=(0.0, 0.0, 1.0),
+    elevation_deg: float = 30.0,
+    preferred_deg: float = PREFERRED_AZIMUTH_DEG,
+) -> float:
+    """The azimuth [deg] from which a camera at `elevation_deg` sees the surface largest over
+    `states` (positions (V, 3) [m] on `faces`, `obstacles` per state hiding what lies behind
+    them, None: none): of the candidates every AZIMUTH_STEP_DEG, those whose summed
+    `visible_cover` is within AREA_TOLERANCE (relative) of the largest, the one nearest
+    `preferred_deg` (the preferred view where no state has a finite vertex or there are no
+    faces)."""
+    if not len(faces) or not any(np.isfinite(np.asarray(s, np.float64)).all(axis=1).any()
+                                 for s in states):
         return float(preferred_deg)
-    up = _unit(up, "up")
-    centre = 0.5 * (finite.min(axis=0) + finite.max(axis=0))
-    radius = max(float(np.linalg.norm(finite - centre, axis=1).max()), 1e-9)
-    fov_deg, side = 10.0, 64
-    distance = radius / np.sin(np.radians(fov_deg) / 2.0)
     candidates = preferred_deg + np.arange(0.0, 360.0, AZIMUTH_STEP_DEG)
-    cover = []
-    for azimuth in candidates:
-        toward_eye = _toward_eye(up, np.float64(elevation_deg), np.float64(azimuth))
-        camera = Camera(eye=tuple(centre + distance * toward_eye), target=tuple(centre),
-                        up=tuple(up), fov_y_deg=fov_deg)
-        raster = rasterize(camera.to_camera(points), faces, camera.intrinsics(side, side),
-                           side, side)
-        cover.append(raster.mask.mean())
-    cover = np.array(cover)
+    cover = visible_cover(states, faces, obstacles, up=up, elevation_deg=elevation_deg,
+                          azimuths_deg=candidates)
     if cover.max() <= 0:
         return float(preferred_deg)
     wide = cover >= (1.0 - AREA_TOLERANCE) * cover.max()

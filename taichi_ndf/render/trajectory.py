@@ -11,20 +11,13 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from taichi_ndf.render.camera import (
-    AREA_TOLERANCE,
-    AZIMUTH_STEP_DEG,
-    PREFERRED_AZIMUTH_DEG,
-    Camera,
-    ground_axes,
-)
+from taichi_ndf.render.camera import PREFERRED_AZIMUTH_DEG, widest_azimuth_over
 from taichi_ndf.render.colour import ROBUST_PERCENTILES, colour_scale
 from taichi_ndf.render.figure import VIEWS, Obstacle, render_figure
-from taichi_ndf.render.raster import rasterize
 from taichi_ndf.render.shaded import BACKGROUND_BGR
 
 __all__ = ["trajectory_frames", "frame_repeats", "real_time_fps", "put_label", "MIN_SECONDS",
-           "FPS", "LABEL_ROWS", "visible_azimuth", "visible_cover"]
+           "FPS", "LABEL_ROWS", "visible_azimuth"]
 
 FPS = 4.0  # frames per second of a trajectory video
 MIN_SECONDS = 3.0  # a short trajectory's states are repeated so that the video lasts this long
@@ -38,7 +31,6 @@ _INK = (40, 40, 40)
 # font's 0.7 scale), plus a gap: `render_figure(label_rows=...)` keeps them free of the surface.
 LABEL_ROWS = 46
 VISIBILITY_STATES = 8  # states (evenly spaced, first and last included) `visible_azimuth` sees
-VISIBILITY_PIXELS = 64  # side of its square rasters
 
 
 def frame_repeats(states: int, fps: float = FPS) -> int:
@@ -66,51 +58,6 @@ def put_label(image: np.ndarray, text: str, *, boxed: bool = False) -> None:
     cv2.putText(image, text, (14, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.7, _INK, 2, cv2.LINE_AA)
 
 
-def visible_cover(
-    states: Sequence[np.ndarray],
-    faces: np.ndarray,
-    obstacles: Sequence[Sequence[Obstacle]],
-    *,
-    up=(0.0, 0.0, 1.0),
-    elevation_deg: float = 30.0,
-    azimuths_deg: Sequence[float] = (PREFERRED_AZIMUTH_DEG,),
-) -> np.ndarray:
-    """The fraction of a VISIBILITY_PIXELS-square image that the surface covers in front of the
-    obstacles, per azimuth of `azimuths_deg` [deg] (shape (A,)), summed over `states`
-    (positions (V, 3) [m] on `faces`, with `obstacles[k]` at state k): a camera at
-    `elevation_deg` above the plane normal to `up`, distant (10° field of view) and at one
-    distance from the centre of every state and obstacle, so nearly a parallel projection.
-    A surface pixel behind an obstacle does not count, nor does a layer behind another."""
-    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
-    soups = []
-    for state, group in zip(states, obstacles, strict=True):
-        parts = [np.asarray(state, dtype=np.float64)] + [np.asarray(o.vertices, np.float64)
-                                                          for o in group]
-        offsets = np.cumsum([0] + [len(p) for p in parts])
-        tris = [np.asarray(faces, np.int64)] + [np.asarray(o.faces, np.int64) for o in group]
-        soups.append((np.concatenate(parts),
-                      np.concatenate([t + o for t, o in zip(tris, offsets, strict=False)])))
-    points = np.concatenate([soup[0] for soup in soups])
-    points = points[np.all(np.isfinite(points), axis=1)]
-    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
-    radius = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-9)
-    fov_deg, side = 10.0, VISIBILITY_PIXELS
-    distance = radius / np.sin(np.radians(fov_deg) / 2.0)
-    east, north = ground_axes(up)
-    el = np.radians(elevation_deg)
-    cover = np.zeros(len(azimuths_deg))
-    for a, azimuth in enumerate(np.radians(np.asarray(azimuths_deg, dtype=np.float64))):
-        toward_eye = np.cos(el) * (np.cos(azimuth) * east + np.sin(azimuth) * north) \
-            + np.sin(el) * up
-        camera = Camera(eye=tuple(centre + distance * toward_eye), target=tuple(centre),
-                        up=tuple(up), fov_y_deg=fov_deg)
-        for soup in soups:
-            raster = rasterize(camera.to_camera(soup[0]), soup[1],
-                               camera.intrinsics(side, side), side, side)
-            cover[a] += np.mean((raster.face_id >= 0) & (raster.face_id < len(faces)))
-    return cover
-
-
 def visible_azimuth(
     states: Sequence[np.ndarray],
     faces: np.ndarray,
@@ -120,23 +67,17 @@ def visible_azimuth(
     elevation_deg: float = 30.0,
     preferred_deg: float = PREFERRED_AZIMUTH_DEG,
 ) -> float:
-    """The azimuth [deg] of a video's camera: of the candidates every AZIMUTH_STEP_DEG, those
-    whose `visible_cover` over up to VISIBILITY_STATES of `states` (evenly spaced, the first
-    and the last included) is within AREA_TOLERANCE (relative) of the largest, the one nearest
-    `preferred_deg`. The surface's visible area over the trajectory, not the final state's
-    silhouette alone: a sheet sliding on a tilted table top is seen from above the top, not
-    from beside it where the table hides it until it slides off (sheet_slide_box)."""
+    """The azimuth [deg] of a video's camera: `widest_azimuth_over` up to VISIBILITY_STATES of
+    `states` (evenly spaced, the first and the last included) with their obstacles. The
+    surface's visible area over the trajectory, not the final state's silhouette alone: a
+    sheet sliding on a tilted table top is seen from above the top, not from beside it where
+    the table hides it until it slides off (sheet_slide_box)."""
     obstacles = [()] * len(states) if obstacles is None else list(obstacles)
     picks = np.unique(np.linspace(0, len(states) - 1, min(len(states), VISIBILITY_STATES))
                       .round().astype(int))
-    candidates = preferred_deg + np.arange(0.0, 360.0, AZIMUTH_STEP_DEG)
-    cover = visible_cover([states[k] for k in picks], faces, [obstacles[k] for k in picks],
-                          up=up, elevation_deg=elevation_deg, azimuths_deg=candidates)
-    if cover.max() <= 0:
-        return float(preferred_deg)
-    wide = cover >= (1.0 - AREA_TOLERANCE) * cover.max()
-    away = np.abs((candidates - preferred_deg + 180.0) % 360.0 - 180.0)
-    return float(candidates[wide][np.argmin(away[wide])])
+    return widest_azimuth_over([states[k] for k in picks], faces,
+                               [obstacles[k] for k in picks], up=up,
+                               elevation_deg=elevation_deg, preferred_deg=preferred_deg)
 
 
 def trajectory_frames(
