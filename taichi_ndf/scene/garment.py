@@ -257,6 +257,11 @@ def parse_garment(top: Table, material, field: Table | None, *, read_material
     tables = top.tables("panels")
     patches = [_panel(t, i, material, gravity, spans, read_material)
                for i, t in enumerate(tables)]
+    polygons = [p.name for p in patches if p.outline is not None]
+    if polygons and top.has("obstacles"):
+        raise SceneError(f"obstacles: polygon panels (outline: {', '.join(polygons)}) are not "
+                         "supported with obstacles yet (the contact check grid covers each "
+                         "panel's bounding box)")
     names: dict[str, int] = {}
     for t, patch in zip(tables, patches, strict=True):
         if patch.name in names:
