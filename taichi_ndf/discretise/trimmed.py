@@ -9,7 +9,8 @@ two). Per span:
 
 - a span the outline covers (the pieces' area within `FULL` of the span's, relative) gets
   the span's own tensor Gauss–Legendre points (`span_points`: (p + 1)² points, the
-  untrimmed rule; so an outline that is the rectangle gives the rectangle's points exactly);
+  untrimmed rule, exact to degree 2p + 1 in each coordinate; so an outline that is the
+  rectangle gives the rectangle's points exactly);
 - a span the outline cuts gets, per piece, a fan of triangles and on each the collapsed
   (Duffy) Gauss rule with (p + 2)² points, positive weights that add up to the triangle's
   area, exact for polynomials of total degree ≤ 2p + 2 (cubic: 8, which covers the flat
