@@ -21,9 +21,12 @@ Prints four tables (CPU = user + sys of this process, wall, load average, commit
    Π, Newton iterations, CPU, then Richardson's observed order of Π over the last three grids;
 4. two trapezoids (0, 0), (0.15, 0), (0.12, 0.2), (0, 0.2) and (0.15, 0), (0.3, 0), (0.3, 0.2),
    (0.12, 0.2) sewn along the slanted edge (bending transmitted) on n × n spans each, against
-   the rectangle they make on 2n × n: Π of both, relative difference, the seam's gap.
+   the rectangle they make on 2n × n: Π of both, relative difference, the seam's gap;
+5. trimming alone: the rectangle cantilever of 3 as a polygon on its own bounding box (no
+   span cut) and on a chart widened by 0.02 m below and to the left (its free bottom and left
+   edges cut through spans; the same shape, corners and clamp), n × n spans: Π, the order.
 
-    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_outline.py
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_outline.py [table ...]
 """
 
 from __future__ import annotations
@@ -195,13 +198,56 @@ def pair_table() -> None:
               f"{gaps['slant']:10.1e} {s1 + s2:6.1f}", flush=True)
 
 
+def widened(scene, margin: float):
+    """The one-panel scene with its panel's chart (and grid) widened by `margin` [m] below and
+    to the left of its outline: the outline's bottom and left edges then cut through spans
+    (trimmed) while its shape, corners and clamp (the chart's top side, band ℓ = 1) stay."""
+    (patch,) = scene.field.patches
+    (x0, x1), (y0, y1) = patch.outline.bounds
+    chart = ((x0 - margin, x1), (y0 - margin, y1))
+    surface = OutlinePlane(outline=patch.outline, chart=chart)
+    boundary = BoundaryConditions([ClampedEdge("xi2_max", length=1.0)], domain=surface.domain)
+    model = dataclasses.replace(patch.model, surface=surface, boundary=boundary)
+    config = dataclasses.replace(patch.config, domain=chart)
+    patch = dataclasses.replace(patch, model=model, config=config)
+    return dataclasses.replace(scene, field=dataclasses.replace(scene.field, patches=(patch,)))
+
+
+def trimming_table() -> None:
+    print("\n5. trimming alone: the rectangle cantilever, its free bottom and left edges "
+          "trimmed")
+    polygon = {"name": "r", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0, 0.2]],
+               "clamped": ["e2"]}
+    print(f"{'chart margin':>12} {'spans':>7} {'Π [J]':>16} {'iters':>5} {'CPU s':>6}")
+    for margin in (0.0, 0.02):
+        values, flags = [], []
+        for n in (4, 8, 16, 32):
+            scene = smooth_clamps(parse_scene(document([polygon], spans=(n, n)),
+                                              base_dir=Path("."), path=Path("outline.toml")))
+            if margin:
+                scene = widened(scene, margin)
+            started = cpu()
+            panels = of_scene(scene)
+            panels.start(scene.solver, seed=0)
+            solution = panels.solve(scene.solver)
+            values.append(solution.energy)
+            flags.append(all(panels.converged))
+            print(f"{margin:12.3f} {n:>3} x{n:<3} {solution.energy:16.10e} "
+                  f"{solution.iterations:>5} {cpu() - started:6.1f}", flush=True)
+        result = richardson(values, converged=flags)
+        order = "none" if result.order is None else f"{result.order:.2f}"
+        print(f"{margin:12.3f} observed order {order} ({result.basis}), extrapolated Π "
+              f"{result.value:.10e} ± {result.error:.1e}")
+
+
 def main() -> None:
     taichi_ndf.init(arch="cpu", precision="f64")
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, check=False).stdout.strip()
     print(f"commit {commit}, load {os.getloadavg()}")
     started, wall = cpu(), time.perf_counter()
-    tables = {"1": quadrature_table, "2": held_table, "3": refinement_table, "4": pair_table}
+    tables = {"1": quadrature_table, "2": held_table, "3": refinement_table, "4": pair_table,
+              "5": trimming_table}
     for key in sys.argv[1:] or tables:
         tables[key]()
     print(f"\ntotal CPU {cpu() - started:.1f} s, wall {time.perf_counter() - wall:.1f} s, "

@@ -22,7 +22,7 @@ from taichi_ndf.discretise.trimmed import (
 )
 from taichi_ndf.field import SplineField
 from taichi_ndf.field.spline import SplineConfig
-from taichi_ndf.problem.outline import Outline
+from taichi_ndf.problem.outline import Outline, OutlinePlane
 from taichi_ndf.problem.quadrature import span_points
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.scene.schema import SceneError
@@ -59,10 +59,13 @@ def test_an_outline_that_is_not_a_simple_counter_clockwise_polygon_is_refused(po
         Outline(points)
 
 
+@pytest.mark.parametrize("margin", [0.0, 0.013])
 @pytest.mark.parametrize("points", [L_SHAPE, STAR])
-def test_the_trimmed_quadrature_integrates_polynomials_over_the_outline(points):
+def test_the_trimmed_quadrature_integrates_polynomials_over_the_outline(points, margin):
+    """On the outline's bounding box, and on a wider chart (every edge trimmed)."""
     outline = Outline(points)
-    config = SplineConfig(spans=(7, 5), domain=outline.bounds)
+    chart = tuple((lo - margin, hi + margin) for lo, hi in outline.bounds)
+    config = SplineConfig(spans=(7, 5), domain=chart)
     xi, weight = trimmed_points(outline, config)
     x, y = xi[:, 0].numpy(), xi[:, 1].numpy()
     w = weight.numpy()
@@ -71,6 +74,18 @@ def test_the_trimmed_quadrature_integrates_polynomials_over_the_outline(points):
     for a, b in ((1, 0), (2, 3), (3, 5), (4, 4)):  # total degree ≤ 2p + 2 = 8
         exact = _boundary_integral(outline.points, a, b)
         assert abs(float((w * x ** a * y ** b).sum()) - exact) <= 1e-13 * abs(exact), (a, b)
+
+
+def test_an_outline_plane_is_masked_to_its_outline_on_a_chart_that_holds_it():
+    outline = Outline(L_SHAPE)
+    plane = OutlinePlane(outline=outline, chart=((-0.1, 0.2), (0.0, 0.3)))
+    assert plane.domain.bounds == ((-0.1, 0.2), (0.0, 0.3))
+    assert plane.domain.area == pytest.approx(outline.area, rel=1e-15)
+    xi = torch.tensor([[0.05, 0.03], [0.05, 0.1], [-0.05, 0.03], [0.16, 0.19]],
+                      dtype=torch.float64)
+    assert plane.domain.contains(xi).tolist() == [True, False, False, True]
+    with pytest.raises(ValueError, match="does not hold the outline's bounding box"):
+        OutlinePlane(outline=outline, chart=((0.0, 0.2), (0.0, 0.1)))
 
 
 def test_an_outline_that_is_the_rectangle_gets_the_rectangles_gauss_points():

@@ -1,5 +1,6 @@
-"""Trimmed quadrature: a spline over an outline's bounding box integrated over the outline only
-(a polygon panel, `taichi_ndf.problem.outline.Outline`; issue 30).
+"""Trimmed quadrature: a spline over an outline's bounding box (or any rectangle holding it)
+integrated over the outline only (a polygon panel, `taichi_ndf.problem.outline.Outline`;
+issue 30).
 
 The outline is cut into triangles once (ear clipping: it is simple and counter-clockwise),
 and each triangle is clipped to every knot span's rectangle it overlaps (Sutherland–Hodgman:
@@ -141,10 +142,11 @@ def trimmed_points(outline: Outline, config: SplineConfig
                    ) -> tuple[torch.Tensor, torch.Tensor]:
     """Quadrature points ξ (N, 2) [m] and weights (N,) [m²] of the outline on the knot spans
     of `config` (module docstring), float64, span by span (ξ¹ span major). Raises ValueError
-    for a grid over another domain than the outline's bounding box, a periodic or graded
+    for a grid whose domain does not hold the outline's bounding box, a periodic or graded
     grid."""
-    if config.domain != tuple(outline.bounds):
-        raise ValueError(f"the panel's grid {config.domain} is not over its outline's "
+    if not all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi)
+               in zip(config.domain, outline.bounds, strict=True)):
+        raise ValueError(f"the panel's grid {config.domain} does not hold its outline's "
                          f"bounding box {outline.bounds}")
     if any(config.periodic) or config.graded:
         raise ValueError("a trimmed panel needs an open grid of uniform knots")

@@ -87,9 +87,9 @@ class Patch:
     held_target: where the held edges are at load factor 1 (None: where they start), their
     rows moved there linearly in the load factor (a waist gathered onto a smaller circle).
     outline: a polygon panel's outline (None: the whole chart): the model's surface is then
-    the outline's plane over its bounding box (`config.domain` that box) and the panel is
-    integrated over the outline only (`taichi_ndf.discretise.trimmed`); not with a start
-    shape or held edges."""
+    the outline's plane over a chart holding its bounding box (the garment reader's: that
+    box; `config.domain` the chart) and the panel is integrated over the outline only
+    (`taichi_ndf.discretise.trimmed`); not with a start shape or held edges."""
 
     name: str
     model: ShellModel
@@ -104,10 +104,13 @@ class Patch:
             if self.start is not None or self.held:
                 raise ValueError(f"panel {self.name!r}: an outline panel is placed flat (no "
                                  f"start shape, no held edges)")
-            bounds = tuple(self.outline.bounds)
-            if self.config.domain != bounds or self.model.surface.domain.bounds != bounds:
-                raise ValueError(f"panel {self.name!r}: its chart and grid must be its "
-                                 f"outline's bounding box {bounds}")
+            chart = self.model.surface.domain.bounds
+            inside = all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi)
+                         in zip(chart, self.outline.bounds, strict=True))
+            if self.config.domain != chart or not inside:
+                raise ValueError(f"panel {self.name!r}: its grid must be over its chart "
+                                 f"{chart}, which must hold its outline's bounding box "
+                                 f"{self.outline.bounds}")
         for edge in self.held:
             if edge not in EDGES:
                 raise ValueError(f"panel {self.name!r}: no edge {edge!r} to hold")

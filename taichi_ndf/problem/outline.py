@@ -186,16 +186,24 @@ class Outline:
 
 @dataclass(frozen=True)
 class OutlinePlane(Plane):
-    """A polygon panel's flat rest surface: the `Plane` over the outline's bounding box, its
-    domain masked to the outline (so outputs mesh the outline only, `domain.area` is its area
-    and probes outside it are refused). bounds: set from `outline` (any given are replaced)."""
+    """A polygon panel's flat rest surface: the `Plane` over the outline's bounding box (or a
+    larger `chart` rectangle holding it), its domain masked to the outline (so outputs mesh the
+    outline only, `domain.area` is its area and probes outside it are refused). bounds: set
+    from `chart` or the outline (any given are replaced)."""
 
     outline: Outline | None = None
+    chart: tuple[tuple[float, float], tuple[float, float]] | None = None
 
     def __post_init__(self):
         if not isinstance(self.outline, Outline):
             raise ValueError(f"an outline plane needs an Outline, got {self.outline!r}")
-        object.__setattr__(self, "bounds", tuple(self.outline.bounds))
+        box = self.outline.bounds
+        bounds = box if self.chart is None else ParameterDomain(self.chart).bounds
+        if not all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi) in zip(bounds, box,
+                                                                            strict=True)):
+            raise ValueError(f"the chart {bounds} does not hold the outline's bounding box "
+                             f"{box}")
+        object.__setattr__(self, "bounds", tuple(bounds))
         super().__post_init__()
 
     @property
