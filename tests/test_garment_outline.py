@@ -232,3 +232,29 @@ def test_polygon_panels_with_obstacles_are_refused_in_one_line():
         _parse(document)
     assert str(err.value).startswith("obstacles: polygon panels (outline: a, b) are not "
                                      "supported with obstacles yet")
+
+
+def test_held_outline_edges_are_the_bounding_box_sides_they_lie_on():
+    u_shape = {"name": "u", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0.2, 0.2], [0.2, 0.1],
+                                        [0.1, 0.1], [0.1, 0.2], [0, 0.2]],
+               "clamped": ["e0"], "hinged": ["e2", "e6"]}
+    (patch,) = _parse(_document([u_shape])).field.patches
+    assert [(type(c).__name__, c.edge) for c in patch.model.boundary.constraints] == [
+        ("ClampedEdge", "xi2_min"), ("HingedEdge", "xi2_max")]
+    u_shape["hinged"] = ["e2"]  # e6 lies on the same side: the hinge would hold it too
+    _refused([u_shape], [], "panel 'u': edge 'e2' is held along the whole bounding-box side "
+             "xi2_max, which also holds edge 'e6': hold both the same way")
+
+
+def test_a_polygon_panels_output_grid_keeps_the_faces_inside_its_outline():
+    from taichi_ndf.app.outputs import export_grid
+
+    (patch,) = _parse(_document([TRAPEZOIDS[1]])).field.patches
+    xi, faces, _ = export_grid(patch.model, (16, 16))
+    outline = patch.outline
+    corners = xi[faces]  # (F, 3, 2)
+    assert outline.contains(corners.mean(axis=1)).all()
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    # the staircase: faces with a vertex outside dropped (measured 0.835 of the area here)
+    assert 0.8 * outline.area < area <= outline.area * (1 + 1e-12)
