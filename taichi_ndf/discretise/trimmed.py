@@ -21,9 +21,11 @@ two). Per span:
 
 Coefficients whose basis function is zero at every quadrature point (support outside the
 outline) have no stiffness: `TrimmedGrid` holds them at zero (added to the grid's held
-unknowns), so Newton's matrix stays regular (measured: benchmarks/RESULTS.md "Garments:
-polygon panels"). A coefficient whose support only grazes the outline keeps a small
-stiffness (the known ill-conditioning of trimmed splines); nothing stabilises it.
+unknowns), so Newton's matrix has no zero rows (measured, benchmarks/RESULTS.md "Garments:
+polygon panels": left free, the damped solve still reached the same Π, to 4e-12, in 9–12
+Newton iterations against 7). A coefficient whose support only grazes the outline keeps a
+small stiffness (the known ill-conditioning of trimmed splines: mass diagonal down to 2e-6 of
+the largest there); nothing stabilises it.
 """
 
 from __future__ import annotations
