@@ -47,6 +47,7 @@ from taichi_ndf.discretise.protocol import (
     SolveRefused,
 )
 from taichi_ndf.discretise.start import fitted_start
+from taichi_ndf.discretise.trimmed import patch_grid
 from taichi_ndf.field import SplineField
 from taichi_ndf.field.panels import PanelFields
 from taichi_ndf.minimise.assembly import displacement_at
@@ -175,11 +176,7 @@ class MultiPatchDiscretisation:
                           surface_b=patches[s.b].model.surface) for s in self.spec.seams]
         grids = []
         for i, (patch, field) in enumerate(zip(patches, self.fields, strict=True)):
-            model = patch.model
-            grid = GridLinearisation(field, model.boundary,
-                                     length=math.sqrt(model.surface.domain.rectangle_area))
-            points = GridLinearisation.quadrature(model.surface, patch.config, model.loads,
-                                                  dtype=DTYPE)
+            grid, points = patch_grid(patch, field, dtype=DTYPE)  # trimmed to an outline
             for seam, term in zip(self.spec.seams, seams, strict=True):
                 if seam.a == i:
                     points = points.joined(term.points(0))

@@ -6,9 +6,14 @@ reversed), at Gauss points s_g of the seam's quadrature (equal parts × Gauss–
 with weights w_g = ŵ_g |dr_A/ds| [m] (reference arclength along A):
 
     Π_seam = ½ Σ_g w_g ( k_x |x_A − x_B|² + k_d |d_A + d_B|² ),    x = r + u,
-    d = σ x_,ν / |r_,ν|      (ν the coordinate across the edge, σ = −1 on a *_min edge, +1 on
-                              a *_max one: d is the outward tangent across the edge per unit
-                              reference length).
+    d = x_,n / |r_,n|        (n the edge's outward unit normal in ξ, x_,n = n₁ x_,1 + n₂ x_,2:
+                              on an edge of the parameter rectangle n = σ e_ν, ν the
+                              coordinate across it, σ = −1 on a *_min edge, +1 on a *_max one;
+                              d is the outward tangent across the edge per unit reference
+                              length).
+
+A side is a straight segment of ξ (`segment_line`): part of an edge of the parameter rectangle
+(`EdgeSegment`) or an edge of a polygon panel's outline (`problem.outline.PolygonEdge`).
 
 (a) Positions: x_A = x_B (r + u, so a seam between edges apart at rest pulls them together:
 the sewing; over load steps λ ∈ [0, 1] the ties are to (1 − λ) times their rest values, so a
@@ -53,15 +58,29 @@ from taichi_ndf.problem.seams import LENGTH_TOLERANCE, EdgeSegment, SeamSpec
 _CHANNEL = (jets.D1, jets.D2)  # the jet channel of ∂/∂ξ¹, ∂/∂ξ²
 
 
-def _segment_xi(side: EdgeSegment, s: torch.Tensor, bounds) -> tuple[torch.Tensor, float]:
-    """ξ (M, 2) at fractions s along the segment, and dξ_along/ds."""
+def segment_line(side, bounds) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A seam side as a straight segment of ξ: its start (2,), end (2,) and unit outward
+    normal n (2,) in ξ, float64. side: an `EdgeSegment` of the parameter rectangle `bounds`
+    (n = ±e_across) or a polygon panel's `PolygonEdge` (its own `line`)."""
+    if not isinstance(side, EdgeSegment):
+        return tuple(torch.as_tensor(v, dtype=torch.float64) for v in side.line())
     across, along = side.across, 1 - side.across
     lo, hi = bounds[along]
     start, end = side.span if side.span is not None else (lo, hi)
-    xi = s.new_empty(s.shape[0], 2)
-    xi[:, across] = bounds[across][1] if side.outward > 0 else bounds[across][0]
-    xi[:, along] = start + s * (end - start)
-    return xi, end - start
+    at = bounds[across][1] if side.outward > 0 else bounds[across][0]
+    ends = torch.empty(2, 2, dtype=torch.float64)
+    ends[:, across] = at
+    ends[:, along] = torch.tensor((start, end), dtype=torch.float64)
+    normal = torch.zeros(2, dtype=torch.float64)
+    normal[across] = side.outward
+    return ends[0], ends[1], normal
+
+
+def _segment_xi(side, s: torch.Tensor, bounds) -> tuple[torch.Tensor, torch.Tensor,
+                                                           torch.Tensor]:
+    """ξ (M, 2) at fractions s along the segment, dξ/ds (2,) and the outward normal (2,)."""
+    start, end, normal = segment_line(side, bounds)
+    return start + s[:, None] * (end - start), end - start, normal
 
 
 class SeamTerm:
@@ -77,6 +96,8 @@ class SeamTerm:
         surface_b = surface if surface_b is None else surface_b
         self.blocks: tuple[slice, slice] | None = None  # `between`
         for side, side_surface in ((spec.a, surface), (spec.b, surface_b)):
+            if not isinstance(side, EdgeSegment):  # a polygon edge: a segment of its own
+                continue
             domain = side_surface.domain
             bounds = domain.bounds
             if domain.periodic[side.across]:
@@ -92,14 +113,13 @@ class SeamTerm:
         parts = torch.arange(spec.segments, dtype=torch.float64)
         s = ((parts[:, None] + nodes) / spec.segments).reshape(-1)
         w = (weights / spec.segments).repeat(spec.segments)
-        xi_a, run_a = _segment_xi(spec.a, s, surface.domain.bounds)
-        xi_b, run_b = _segment_xi(spec.b, s if spec.orientation == "same" else 1 - s,
-                                  surface_b.domain.bounds)
+        xi_a, run_a, normal_a = _segment_xi(spec.a, s, surface.domain.bounds)
+        xi_b, run_b, normal_b = _segment_xi(spec.b, s if spec.orientation == "same" else 1 - s,
+                                            surface_b.domain.bounds)
         r_a = surface.jets(xi_a).to(torch.float64)
         r_b = surface_b.jets(xi_b).to(torch.float64)
-        along_a, along_b = _CHANNEL[1 - spec.a.across], _CHANNEL[1 - spec.b.across]
-        speed_a = r_a[:, along_a].norm(dim=1) * abs(run_a)
-        speed_b = r_b[:, along_b].norm(dim=1) * abs(run_b)
+        speed_a = _along(r_a, run_a).norm(dim=1)
+        speed_b = _along(r_b, run_b).norm(dim=1)
         length_a, length_b = float((w * speed_a).sum()), float((w * speed_b).sum())
         if abs(length_a - length_b) > LENGTH_TOLERANCE * max(length_a, length_b):
             raise ValueError(f"seam {spec.name!r}: edge {spec.a.edge!r} is {length_a:.6g} m "
@@ -114,9 +134,9 @@ class SeamTerm:
         self.xi = torch.cat((xi_a, xi_b)).to(dtype)
         self.r_jets = torch.cat((r_a, r_b)).to(dtype)
         self.weight = (w * speed_a).to(dtype)  # w_g [m]
-        self.channels = (_CHANNEL[spec.a.across], _CHANNEL[spec.b.across])
-        self.scale = ((spec.a.outward / r_a[:, self.channels[0]].norm(dim=1)).to(dtype),
-                      (spec.b.outward / r_b[:, self.channels[1]].norm(dim=1)).to(dtype))
+        # c_A, c_B (M, 2): d = c₁ x_,1 + c₂ x_,2 = x_,n / |r_,n|, n the outward normal in ξ
+        self.scale = tuple((n[None, :] / _along(r, n).norm(dim=1)[:, None]).to(dtype)
+                           for n, r in ((normal_a, r_a), (normal_b, r_b)))
         self._rows_of: tuple[torch.Tensor, torch.Tensor] | None = None
 
     def points(self, side: int | None = None) -> SurfaceSamples:
@@ -169,8 +189,7 @@ class SeamTerm:
         for x in (samples.r_jets + u_jets, samples.r_jets):
             xa, xb = x[pairs[:, 0]], x[pairs[:, 1]]
             ties.append((xa[:, jets.VALUE] - xb[:, jets.VALUE],
-                         ca[:, None] * xa[:, self.channels[0]]
-                         + cb[:, None] * xb[:, self.channels[1]]))
+                         _across(ca, xa) + _across(cb, xb)))
         (gap, tie), (gap0, tie0) = ties
         if open_:
             gap, tie = gap - open_ * gap0.to(gap), tie - open_ * tie0.to(tie)
@@ -197,8 +216,9 @@ class SeamTerm:
         gradient[:, jets.VALUE].index_add_(0, pairs[:, 1], -force)
         if kd:
             moment = kd * w[:, None] * tie
-            gradient[:, self.channels[0]].index_add_(0, pairs[:, 0], ca[:, None] * moment)
-            gradient[:, self.channels[1]].index_add_(0, pairs[:, 1], cb[:, None] * moment)
+            for k, channel in enumerate(_CHANNEL):
+                gradient[:, channel].index_add_(0, pairs[:, 0], ca[:, k, None] * moment)
+                gradient[:, channel].index_add_(0, pairs[:, 1], cb[:, k, None] * moment)
         return value, gradient
 
     def coupled_hessian(self, samples: SurfaceSamples, u_jets: torch.Tensor,
@@ -218,10 +238,22 @@ class SeamTerm:
             c = [s.to(u_jets) for s in self.scale]
             for a in range(2):
                 for b in range(2):
-                    blocks[:, a, self.channels[a], :, b, self.channels[b], :] += (
-                        self.tangent_stiffness * (w * c[a] * c[b])[:, None, None] * eye)
+                    for i, ci in enumerate(_CHANNEL):
+                        for j, cj in enumerate(_CHANNEL):
+                            blocks[:, a, ci, :, b, cj, :] += self.tangent_stiffness * (
+                                w * c[a][:, i] * c[b][:, j])[:, None, None] * eye
         size = 2 * 3 * jets.CHANNELS
         return Couplings(pairs, blocks.reshape(count, size, size))
+
+
+def _along(r_jets: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+    """r_,1 v₁ + r_,2 v₂ (M, 3): the derivative of the jets along ξ-direction v (2,)."""
+    return r_jets[:, _CHANNEL[0]] * direction[0] + r_jets[:, _CHANNEL[1]] * direction[1]
+
+
+def _across(c: torch.Tensor, x_jets: torch.Tensor) -> torch.Tensor:
+    """c₁ x_,1 + c₂ x_,2 (M, 3) for per-point factors c (M, 2)."""
+    return c[:, :1] * x_jets[:, _CHANNEL[0]] + c[:, 1:] * x_jets[:, _CHANNEL[1]]
 
 
 def with_seam_points(samples: SurfaceSamples, terms: Iterable) -> SurfaceSamples:

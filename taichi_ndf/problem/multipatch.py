@@ -12,6 +12,7 @@ import numpy as np
 
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.outline import Outline, PolygonEdge
 from taichi_ndf.problem.seams import EDGES, SeamSpec
 from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, Material, OrthotropicStVK
@@ -84,7 +85,11 @@ class Patch:
     clamp; their curvature free: `taichi_ndf.discretise.held_edges`), a flat-cut panel's
     clamped edges (a clamp of the model's boundary would hold them at the flat rest shape);
     held_target: where the held edges are at load factor 1 (None: where they start), their
-    rows moved there linearly in the load factor (a waist gathered onto a smaller circle)."""
+    rows moved there linearly in the load factor (a waist gathered onto a smaller circle).
+    outline: a polygon panel's outline (None: the whole chart): the model's surface is then
+    the outline's plane over a chart holding its bounding box (the garment reader's: that
+    box; `config.domain` the chart) and the panel is integrated over the outline only
+    (`taichi_ndf.discretise.trimmed`); not with a start shape or held edges."""
 
     name: str
     model: ShellModel
@@ -92,8 +97,20 @@ class Patch:
     start: StartShape | None = None
     held: tuple[str, ...] = ()
     held_target: Gathered | None = None
+    outline: Outline | None = None
 
     def __post_init__(self):
+        if self.outline is not None:
+            if self.start is not None or self.held:
+                raise ValueError(f"panel {self.name!r}: an outline panel is placed flat (no "
+                                 f"start shape, no held edges)")
+            chart = self.model.surface.domain.bounds
+            inside = all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi)
+                         in zip(chart, self.outline.bounds, strict=True))
+            if self.config.domain != chart or not inside:
+                raise ValueError(f"panel {self.name!r}: its grid must be over its chart "
+                                 f"{chart}, which must hold its outline's bounding box "
+                                 f"{self.outline.bounds}")
         for edge in self.held:
             if edge not in EDGES:
                 raise ValueError(f"panel {self.name!r}: no edge {edge!r} to hold")
@@ -161,9 +178,14 @@ class MultiPatchPlan:
         return {"type": "multipatch",
                 "patches": [{"name": p.name, "spans": list(p.config.spans)}
                             for p in self.patches],
-                "seams": [{"name": s.spec.name, "a": f"{self.patches[s.a].name}.{s.spec.a.edge}",
-                           "b": f"{self.patches[s.b].name}.{s.spec.b.edge}"}
-                          for s in self.seams]}
+                "seams": [{"name": s.spec.name, "a": self.side_name(s.a, s.spec.a),
+                           "b": self.side_name(s.b, s.spec.b)} for s in self.seams]}
+
+    def side_name(self, patch: int, side) -> str:
+        """A seam side's "panel.edge" (a polygon edge's name holds its panel's already)."""
+        if isinstance(side, PolygonEdge):
+            return side.edge
+        return f"{self.patches[patch].name}.{side.edge}"
 
 
 def obstacle_refusal(plan) -> str | None:

@@ -1,11 +1,14 @@
 """Garment files (TOML): panels sewn together (docs/scenes.md, "Garments").
 
 A garment file is a scene file with `[[panels]]` instead of `[geometry]`: each panel a
-rectangle width × height [m] placed where it starts (flat, or wrapped around a cylinder), with
-its own edges held and its own spline grid; `[[seams]]` join `panel.edge` to `panel.edge`.
+rectangle width × height [m] placed where it starts (flat, or wrapped around a cylinder), or a
+polygon `outline` [[x, y], …] [m] placed flat (its edges e0, e1, …; integrated over the outline
+only: `taichi_ndf.discretise.trimmed`), with its own edges held and its own spline grid;
+`[[seams]]` join `panel.edge` to `panel.edge`.
 Read into a `MultiPatchPlan` (`taichi_ndf.discretise.multipatch`). Errors are one line naming
 the panel and the edge (an unknown panel or edge, an edge in two seams, seam lengths differing
-by more than `LENGTH_TOLERANCE`), raised before anything is solved.
+by more than `LENGTH_TOLERANCE`; an outline's fewer than 3 points, zero-length edge, crossing
+edges or clockwise order), raised before anything is solved.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from taichi_ndf.problem.multipatch import (
     PatchSeam,
     grain_turned,
 )
+from taichi_ndf.problem.outline import Outline, OutlinePlane
 from taichi_ndf.problem.seams import (
     BENDING,
     DEFAULT_PENALTY,
@@ -47,6 +51,45 @@ RESTS = ("placed", "flat")
 def is_garment(document: dict) -> bool:
     """Whether a parsed TOML document is a garment file (it has `[[panels]]`)."""
     return "panels" in document
+
+
+def _outline(t: Table, name: str):
+    """A polygon panel's outline and flat surface (origin and frame as a rectangle's)."""
+    for key in ("width", "height", "wrap_radius", "held_radius"):
+        if t.has(key):
+            raise SceneError(f"{t.key(key)}: panel {name!r} has an outline: give its points, "
+                             f"not {key} (an outline panel is placed flat)")
+    if t.string("rest", "placed", choices=RESTS) != "placed":
+        raise SceneError(f"{t.key('rest')}: panel {name!r}: an outline panel is placed flat "
+                         "(rest = \"placed\")")
+    points = t._get("outline", None)
+    outline = checked(lambda: Outline(tuple(tuple(p) for p in points)),
+                      f"{t.key('outline')}: panel {name!r}")
+    placement = {"origin": t.vector("origin", 3, (0.0, 0.0, 0.0))}
+    if t.has("frame"):
+        frame = t._get("frame", None)
+        placement["frame"] = checked(lambda: tuple(tuple(float(v) for v in row)
+                                                   for row in frame), t.key("frame"))
+    return outline, checked(lambda: OutlinePlane(outline=outline, **placement), t.path)
+
+
+def _box_sides(t: Table, name: str, outline: Outline, clamped: list, hinged: list):
+    """An outline panel's clamped and hinged edges as the bounding-box sides they lie on (the
+    clamp holds the whole side: every edge on it must be held the same way)."""
+    sides = []
+    for edges in (clamped, hinged):
+        found = []
+        for edge in edges:
+            side = checked(lambda edge=edge: outline.box_side(edge),
+                           f"{t.path}: panel {name!r}")
+            others = [e for e in outline.on_side(side) if e not in edges]
+            if others:
+                raise SceneError(f"{t.path}: panel {name!r}: edge {edge!r} is held along the "
+                                 f"whole bounding-box side {side}, which also holds edge "
+                                 f"{others[0]!r}: hold both the same way")
+            found.append(side)
+        sides.append(sorted(set(found)))
+    return sides
 
 
 def _surface(t: Table):
@@ -130,12 +173,20 @@ def _material(t: Table, default, read_material):
 def _panel(t: Table, index: int, material, gravity, default_spans, read_material) -> Patch:
     name = t.string("name", f"panels[{index}]")
     material = _material(t, material, read_material)
-    surface, start, target = _surface(t)
+    outline = None
+    if t.has("outline"):
+        outline, surface = _outline(t, name)
+        start = target = None
+    else:
+        surface, start, target = _surface(t)
     clamped, hinged = _edges(t, "clamped"), _edges(t, "hinged")
+    names = EDGES if outline is None else outline.edges
     for edge in clamped + hinged:
-        if edge not in EDGES:
+        if edge not in names:
             raise SceneError(f"{t.path}: panel {name!r}: no edge {edge!r} (edges: "
-                             f"{', '.join(EDGES)})")
+                             f"{', '.join(names)})")
+    if outline is not None:
+        clamped, hinged = _box_sides(t, name, outline, clamped, hinged)
     if start is not None and hinged:
         raise SceneError(f"{t.key('hinged')}: panel {name!r} is cut flat (rest = \"flat\"): "
                          f"its edges can be clamped where the placement puts them, not hinged")
@@ -154,25 +205,30 @@ def _panel(t: Table, index: int, material, gravity, default_spans, read_material
         raise SceneError(f"{t.key('held_radius')}: panel {name!r} has no clamped edge to hold "
                          f"on that circle")
     return checked(lambda: Patch(name, model, config, start=start, held=held,
-                                 held_target=target), t.path)
+                                 held_target=target, outline=outline), t.path)
 
 
-def _side(t: Table, key: str, names: dict[str, int]) -> tuple[int, str]:
+def _side(t: Table, key: str, names: dict[str, int], patches: list[Patch]):
+    """The panel (index) and the seam side (`EdgeSegment`, or a `PolygonEdge` named
+    "panel.e<i>") that `key` names."""
     value = t.string(key)
     panel, _, edge = value.rpartition(".")
     if panel not in names:
         raise SceneError(f"{t.key(key)}: no panel {panel!r} (panels: {', '.join(names)})")
-    if edge not in EDGES:
+    outline = patches[names[panel]].outline
+    edges = EDGES if outline is None else outline.edges
+    if edge not in edges:
         raise SceneError(f"{t.key(key)}: panel {panel!r} has no edge {edge!r} (edges: "
-                         f"{', '.join(EDGES)})")
-    return names[panel], edge
+                         f"{', '.join(edges)})")
+    side = EdgeSegment(edge) if outline is None else outline.edge(edge, value)
+    return names[panel], side
 
 
-def _seam(t: Table, index: int, names: dict[str, int]) -> PatchSeam:
+def _seam(t: Table, index: int, names: dict[str, int], patches: list[Patch]) -> PatchSeam:
     name = t.string("name", f"seams[{index}]")
-    (a, edge_a), (b, edge_b) = _side(t, "a", names), _side(t, "b", names)
+    (a, side_a), (b, side_b) = _side(t, "a", names, patches), _side(t, "b", names, patches)
     spec = checked(lambda: SeamSpec(
-        name, EdgeSegment(edge_a), EdgeSegment(edge_b),
+        name, side_a, side_b,
         orientation=t.string("orientation", "same", choices=ORIENTATIONS),
         bending=t.string("bending", "transmitted", choices=BENDING),
         penalty=t.number("stiffness", DEFAULT_PENALTY, positive=True),
@@ -201,6 +257,11 @@ def parse_garment(top: Table, material, field: Table | None, *, read_material
     tables = top.tables("panels")
     patches = [_panel(t, i, material, gravity, spans, read_material)
                for i, t in enumerate(tables)]
+    polygons = [p.name for p in patches if p.outline is not None]
+    if polygons and top.has("obstacles"):
+        raise SceneError(f"obstacles: polygon panels (outline: {', '.join(polygons)}) are not "
+                         "supported with obstacles yet (the contact check grid covers each "
+                         "panel's bounding box)")
     names: dict[str, int] = {}
     for t, patch in zip(tables, patches, strict=True):
         if patch.name in names:
@@ -208,9 +269,9 @@ def parse_garment(top: Table, material, field: Table | None, *, read_material
         names[patch.name] = len(names)
     seams, used = [], {}
     for index, t in enumerate(top.tables("seams")):
-        seam = _seam(t, index, names)
+        seam = _seam(t, index, names, patches)
         for side, panel in ((seam.spec.a, seam.a), (seam.spec.b, seam.b)):
-            key = f"{patches[panel].name}.{side.edge}"
+            key = side.edge if patches[panel].outline else f"{patches[panel].name}.{side.edge}"
             if key in used:
                 raise SceneError(f"{t.path}: edge {key!r} is already in seam {used[key]!r}")
             used[key] = seam.spec.name

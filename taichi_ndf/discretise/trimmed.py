@@ -1,0 +1,229 @@
+"""Trimmed quadrature: a spline over an outline's bounding box (or any rectangle holding it)
+integrated over the outline only (a polygon panel, `taichi_ndf.problem.outline.Outline`;
+issue 30).
+
+The outline is cut into triangles once (ear clipping: it is simple and counter-clockwise),
+and each triangle is clipped to every knot span's rectangle it overlaps (Sutherland–Hodgman:
+a triangle against a rectangle is a convex piece, so there are no degenerate bridge edges,
+which clipping the non-convex outline itself to a span would give where the span cuts it in
+two). Per span:
+
+- a span the outline covers (the pieces' area within `FULL` of the span's, relative) gets
+  the span's own tensor Gauss–Legendre points (`span_points`: (p + 1)² points, the
+  untrimmed rule, exact to degree 2p + 1 in each coordinate; so an outline that is the
+  rectangle gives the rectangle's points exactly);
+- a span the outline cuts gets, per piece, a fan of triangles and on each the collapsed
+  (Duffy) Gauss rule with (p + 2)² points, positive weights that add up to the triangle's
+  area, exact for polynomials of total degree ≤ 2p + 2 (cubic: 8, which covers the flat
+  panel's linearised bending stiffness, products of second derivatives, total degree
+  4p − 4 ≤ 2p + 2 for p ≤ 3, and the gravity load, degree 2p);
+- a span outside the outline gets none.
+
+Coefficients whose basis function is zero at every quadrature point (support outside the
+outline) have no stiffness: `TrimmedGrid` holds them at zero (added to the grid's held
+unknowns), so Newton's matrix has no zero rows (measured, benchmarks/RESULTS.md "Garments:
+polygon panels": left free, the damped solve still reached the same Π, to 4e-12, in 9–12
+Newton iterations against 7). A coefficient whose support only grazes the outline keeps a
+small stiffness (the known ill-conditioning of trimmed splines: mass diagonal down to 2e-6 of
+the largest there); nothing stabilises it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from taichi_ndf.field.spline import SplineConfig
+from taichi_ndf.minimise.assembly import local_basis_at
+from taichi_ndf.minimise.linearisation import GridLinearisation
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.outline import Outline
+from taichi_ndf.problem.quadrature import gauss_legendre, span_points
+from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
+from taichi_ndf.shell.hessian import COMPONENTS
+
+# A span whose covered area is within this fraction of its own is integrated as a whole span.
+FULL = 1e-9
+
+
+def _cross(o, a, b) -> float:
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def ear_clip(points) -> list[tuple[int, int, int]]:
+    """Triangles (index triples, counter-clockwise) of a simple counter-clockwise polygon
+    (n − 2 of them; a collinear vertex is clipped as a zero-area ear)."""
+    points = [tuple(p) for p in points]
+    left = list(range(len(points)))
+    triangles = []
+    while len(left) > 3:
+        for k in range(len(left)):
+            i, j, m = left[k - 1], left[k], left[(k + 1) % len(left)]
+            a, b, c = points[i], points[j], points[m]
+            if _cross(a, b, c) < 0:  # a reflex vertex is no ear
+                continue
+            if any(_cross(a, b, points[q]) >= 0 and _cross(b, c, points[q]) >= 0
+                   and _cross(c, a, points[q]) >= 0 and points[q] not in (a, b, c)
+                   for q in left if q not in (i, j, m)):
+                continue
+            triangles.append((i, j, m))
+            del left[k]
+            break
+        else:
+            raise ValueError("ear clipping found no ear: the polygon is not simple and "
+                             "counter-clockwise")
+    triangles.append(tuple(left))
+    return triangles
+
+
+def clip_to_box(polygon: list, box) -> list:
+    """Sutherland–Hodgman: the part of `polygon` (points, in order) inside the rectangle
+    box = ((x0, x1), (y0, y1)), as points in order (fewer than 3: nothing inside)."""
+    for k, bound, keep in ((0, box[0][0], 1), (0, box[0][1], -1),
+                           (1, box[1][0], 1), (1, box[1][1], -1)):
+        if not polygon:
+            break
+        out = []
+        for index, p in enumerate(polygon):
+            q = polygon[index - 1]
+            p_in, q_in = keep * (p[k] - bound) >= 0, keep * (q[k] - bound) >= 0
+            if p_in != q_in:
+                t = (bound - q[k]) / (p[k] - q[k])
+                cut = [q[0] + t * (p[0] - q[0]), q[1] + t * (p[1] - q[1])]
+                cut[k] = bound
+                out.append(tuple(cut))
+            if p_in:
+                out.append(p)
+        polygon = out
+    return polygon
+
+
+def triangle_rule(points: int) -> tuple[np.ndarray, np.ndarray]:
+    """The collapsed Gauss rule on the reference triangle (0, 0), (1, 0), (0, 1): barycentric
+    coordinates (u, v) (points², 2) and weights (points²,) adding up to ½, exact for total
+    degree ≤ 2 points − 2."""
+    nodes, weights = (t.numpy() for t in gauss_legendre(points))
+    s, t = np.meshgrid(nodes, nodes, indexing="ij")
+    ws, wt = np.meshgrid(weights, weights, indexing="ij")
+    uv = np.stack(((s * (1 - t)).ravel(), (s * t).ravel()), axis=1)
+    return uv, (ws * wt * s).ravel()
+
+
+def _pieces(outline: Outline, config: SplineConfig) -> dict[tuple[int, int], list]:
+    """The convex pieces (point lists) of the outline's triangles in each knot span (i, j)."""
+    (lo1, _), (lo2, _) = config.domain
+    h1, h2 = config.spacing
+    n1, n2 = config.spans
+    points = outline.points
+    pieces: dict[tuple[int, int], list] = {}
+    for tri in ear_clip(points):
+        corners = [points[i] for i in tri]
+        if abs(_cross(*corners)) <= 1e-14 * h1 * h2:
+            continue
+        xs, ys = [c[0] for c in corners], [c[1] for c in corners]
+        i0 = max(0, min(n1 - 1, math.floor((min(xs) - lo1) / h1)))
+        i1 = max(0, min(n1 - 1, math.ceil((max(xs) - lo1) / h1) - 1))
+        j0 = max(0, min(n2 - 1, math.floor((min(ys) - lo2) / h2)))
+        j1 = max(0, min(n2 - 1, math.ceil((max(ys) - lo2) / h2) - 1))
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                box = ((lo1 + i * h1, lo1 + (i + 1) * h1), (lo2 + j * h2, lo2 + (j + 1) * h2))
+                piece = clip_to_box(corners, box)
+                if len(piece) >= 3:
+                    pieces.setdefault((i, j), []).append(piece)
+    return pieces
+
+
+def _area(piece) -> float:
+    return 0.5 * sum(_cross(piece[0], piece[k], piece[k + 1]) for k in range(1, len(piece) - 1))
+
+
+def trimmed_points(outline: Outline, config: SplineConfig
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Quadrature points ξ (N, 2) [m] and weights (N,) [m²] of the outline on the knot spans
+    of `config` (module docstring), float64, span by span (ξ¹ span major). Raises ValueError
+    for a grid whose domain does not hold the outline's bounding box, a periodic or graded
+    grid."""
+    if not all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi)
+               in zip(config.domain, outline.bounds, strict=True)):
+        raise ValueError(f"the panel's grid {config.domain} does not hold its outline's "
+                         f"bounding box {outline.bounds}")
+    if any(config.periodic) or config.graded:
+        raise ValueError("a trimmed panel needs an open grid of uniform knots")
+    h1, h2 = config.spacing
+    n1, n2 = config.spans
+    full_xi, full_w = span_points(config)
+    per_span = full_xi.shape[0] // (n1 * n2)
+    uv, tw = triangle_rule(config.degree + 2)
+    xi, weight = [], []
+    for (i, j), pieces in sorted(_pieces(outline, config).items()):
+        areas = [_area(p) for p in pieces]
+        if abs(sum(areas) - h1 * h2) <= FULL * h1 * h2:
+            span = slice((i * n2 + j) * per_span, (i * n2 + j + 1) * per_span)
+            xi.append(full_xi[span].numpy())
+            weight.append(full_w[span].numpy())
+            continue
+        for piece in pieces:
+            a = np.asarray(piece[0])
+            for k in range(1, len(piece) - 1):
+                b, c = np.asarray(piece[k]), np.asarray(piece[k + 1])
+                twice = _cross(a, b, c)
+                if twice <= 1e-14 * h1 * h2:
+                    continue
+                xi.append(a + uv[:, :1] * (b - a) + uv[:, 1:] * (c - a))
+                weight.append(tw * twice)
+    return (torch.from_numpy(np.concatenate(xi)), torch.from_numpy(np.concatenate(weight)))
+
+
+def trimmed_quadrature(surface, outline: Outline, config: SplineConfig,
+                       loads: Loads | None = None, *, dtype: torch.dtype = torch.float64
+                       ) -> SurfaceSamples:
+    """The samples of `trimmed_points` on `surface` (its chart the outline's plane), with the
+    loads' line- and point-load samples (`with_point_loads`)."""
+    xi, weight = trimmed_points(outline, config)
+    if loads is not None:
+        loads.check_domain(surface.domain)
+    return with_point_loads(surface, xi.to(dtype), weight.to(dtype), loads)
+
+
+def unsupported(grid: GridLinearisation, xi: torch.Tensor) -> np.ndarray:
+    """The coefficients (sorted) of `grid`'s field whose basis function is zero at all of ξ
+    (N, 2): their support misses the quadrature points."""
+    index = local_basis_at(grid.operator, xi).index
+    return np.setdiff1d(np.arange(grid.field.config.num_coefficients),
+                        torch.unique(index).cpu().numpy())
+
+
+class TrimmedGrid(GridLinearisation):
+    """A `GridLinearisation` of a trimmed panel: its held unknowns also hold the coefficients
+    with no support on its quadrature points `xi` (N, 2) at zero (`unsupported`)."""
+
+    def __init__(self, field, boundary, xi: torch.Tensor, **kwargs):
+        super().__init__(field, boundary, **kwargs)
+        outside = unsupported(self, xi)
+        self.unsupported = (outside[:, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(-1)
+
+    @property
+    def fixed(self) -> np.ndarray | None:
+        held = super().fixed
+        if not self.unsupported.size:
+            return held
+        return self.unsupported if held is None else np.union1d(held, self.unsupported)
+
+
+def patch_grid(patch, field, *, dtype: torch.dtype = torch.float64
+               ) -> tuple[GridLinearisation, SurfaceSamples]:
+    """A garment panel's (`problem.multipatch.Patch`) grid and quadrature: over its chart's
+    knot spans (`GridLinearisation.quadrature`), or for a polygon panel (an outline) its
+    `TrimmedGrid` and `trimmed_quadrature`."""
+    model = patch.model
+    length = math.sqrt(model.surface.domain.rectangle_area)
+    if patch.outline is None:
+        return (GridLinearisation(field, model.boundary, length=length),
+                GridLinearisation.quadrature(model.surface, patch.config, model.loads,
+                                             dtype=dtype))
+    points = trimmed_quadrature(model.surface, patch.outline, patch.config, model.loads,
+                                dtype=dtype)
+    return TrimmedGrid(field, model.boundary, points.xi, length=length), points

@@ -1,0 +1,214 @@
+"""A panel's outline: a closed polygon of the flat pattern (issue 30), and its edges.
+
+`Outline`: points (x, y) [m] counter-clockwise, at least 3, no zero-length edge, no two edges
+crossing or touching other than neighbours at their shared point; edge e_i runs from point i
+to point i + 1 (the last from the last point to the first). The panel's chart is the plane of
+the outline, ξ = (x, y) [m], over the outline's bounding box (`bounds`); the trimmed quadrature
+(`taichi_ndf.discretise.trimmed`) integrates over the inside only.
+
+`PolygonEdge`: one edge as a straight segment of ξ, from `start` to `end`, the outline on its
+left (counter-clockwise), so its outward normal is the right-hand normal of end − start: what a
+seam (`taichi_ndf.objective.seam.SeamTerm`) takes as one of its sides.
+
+`OutlinePlane`: the panel's flat rest surface, a `Plane` over the bounding box whose domain is
+masked to the outline.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from taichi_ndf.geometry import Plane
+from taichi_ndf.geometry.domain import ParameterDomain
+
+Point = tuple[float, float]
+
+
+def _cross(o, a, b) -> float:
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def _on_segment(p, a, b, tol: float) -> bool:
+    """Whether p (collinear with a, b to `tol`) lies within the segment's box."""
+    return (min(a[0], b[0]) - tol <= p[0] <= max(a[0], b[0]) + tol
+            and min(a[1], b[1]) - tol <= p[1] <= max(a[1], b[1]) + tol)
+
+
+def segments_meet(a, b, c, d, tol: float) -> bool:
+    """Whether the closed segments ab and cd share a point (`tol` [m²] on the cross products,
+    [m] on the boxes)."""
+    d1, d2 = _cross(c, d, a), _cross(c, d, b)
+    d3, d4 = _cross(a, b, c), _cross(a, b, d)
+    if ((d1 > tol and d2 < -tol) or (d1 < -tol and d2 > tol)) and \
+            ((d3 > tol and d4 < -tol) or (d3 < -tol and d4 > tol)):
+        return True
+    scale = math.sqrt(tol)
+    return any(abs(cr) <= tol and _on_segment(p, s, e, scale)
+               for cr, p, s, e in ((d1, a, c, d), (d2, b, c, d), (d3, c, a, b), (d4, d, a, b)))
+
+
+@dataclass(frozen=True)
+class PolygonEdge:
+    """Edge `edge` (a name, e.g. "front.e2") of an outline as the segment start → end in ξ
+    [m], the outline on its left: outward normal (dy, −dx)/|d|."""
+
+    edge: str
+    start: Point
+    end: Point
+
+    def line(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """start (2,), end (2,) and the unit outward normal (2,) in ξ."""
+        a, b = np.asarray(self.start, float), np.asarray(self.end, float)
+        d = b - a
+        return a, b, np.array([d[1], -d[0]]) / np.hypot(*d)
+
+
+@dataclass(frozen=True)
+class Outline:
+    """A closed polygon (module docstring); points [(x, y), …] [m]. Raises ValueError naming
+    the edge for fewer than 3 points, a non-finite coordinate, a zero-length edge, two edges
+    that cross or touch (a self-intersecting outline) and clockwise points."""
+
+    points: tuple[Point, ...]
+
+    def __post_init__(self):
+        try:
+            points = tuple((float(x), float(y)) for x, y in self.points)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"outline: expected points [[x, y], ...], got {self.points!r}"
+                             ) from err
+        object.__setattr__(self, "points", points)
+        n = len(points)
+        if n < 3:
+            raise ValueError(f"outline: a polygon needs at least 3 points, got {n}")
+        if not all(math.isfinite(v) for p in points for v in p):
+            raise ValueError("outline: the points must be finite numbers [m]")
+        size = max(max(p[k] for p in points) - min(p[k] for p in points) for k in range(2))
+        tol = 1e-12 * size * size
+        for i in range(n):
+            a, b = self.edge_points(i)
+            if math.hypot(b[0] - a[0], b[1] - a[1]) <= 1e-12 * size:
+                raise ValueError(f"outline: edge e{i} has zero length (points {i} and "
+                                 f"{(i + 1) % n} coincide)")
+        for i in range(n):
+            for j in range(i + 1, n):
+                neighbours = j == i + 1 or (i == 0 and j == n - 1)
+                a, b = self.edge_points(i)
+                c, d = self.edge_points(j)
+                if neighbours:  # meeting at their shared point only: not folding back
+                    shared, other_i, other_j = (b, a, d) if j == i + 1 else (a, b, c)
+                    if abs(_cross(shared, other_i, other_j)) <= tol and (
+                            (other_i[0] - shared[0]) * (other_j[0] - shared[0])
+                            + (other_i[1] - shared[1]) * (other_j[1] - shared[1]) > 0):
+                        raise ValueError(f"outline: edges e{i} and e{j} overlap (the outline "
+                                         "folds back on itself)")
+                elif segments_meet(a, b, c, d, tol):
+                    raise ValueError(f"outline: edges e{i} and e{j} cross or touch (a "
+                                     "self-intersecting outline)")
+        if self.area <= 0:
+            raise ValueError("outline: the points run clockwise; list them counter-clockwise "
+                             "(the panel on the left of each edge)")
+
+    @property
+    def area(self) -> float:
+        """The signed area [m²] (shoelace; > 0 counter-clockwise)."""
+        p = np.asarray(self.points)
+        x, y = p[:, 0], p[:, 1]
+        return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+    @property
+    def bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The bounding box ((x_min, x_max), (y_min, y_max)) [m]: the panel's chart."""
+        return tuple((min(p[k] for p in self.points), max(p[k] for p in self.points))
+                     for k in range(2))
+
+    @property
+    def edges(self) -> tuple[str, ...]:
+        """The edge names e0, e1, …"""
+        return tuple(f"e{i}" for i in range(len(self.points)))
+
+    def edge_points(self, i: int) -> tuple[Point, Point]:
+        """Edge e_i's start and end points."""
+        return self.points[i], self.points[(i + 1) % len(self.points)]
+
+    def index(self, edge: str) -> int:
+        """The number i of edge "e<i>" (ValueError naming the edges for another name)."""
+        if edge not in self.edges:
+            raise ValueError(f"no edge {edge!r} (edges: {', '.join(self.edges)})")
+        return int(edge[1:])
+
+    def edge(self, edge: str, label: str | None = None) -> PolygonEdge:
+        """Edge `edge` ("e<i>") as a `PolygonEdge` named `label` (default `edge`)."""
+        start, end = self.edge_points(self.index(edge))
+        return PolygonEdge(label or edge, start, end)
+
+    def box_side(self, edge: str) -> str:
+        """The side of the bounding box ("xi1_min", "xi1_max", "xi2_min", "xi2_max") that edge
+        `edge` lies on; ValueError where it lies on none (a slanted or inner edge)."""
+        (x0, x1), (y0, y1) = self.bounds
+        a, b = self.edge_points(self.index(edge))
+        tol = 1e-12 * max(x1 - x0, y1 - y0)
+        for side, k, value in (("xi1_min", 0, x0), ("xi1_max", 0, x1),
+                               ("xi2_min", 1, y0), ("xi2_max", 1, y1)):
+            if abs(a[k] - value) <= tol and abs(b[k] - value) <= tol:
+                return side
+        raise ValueError(f"edge {edge!r} ({list(a)} to {list(b)}) is not on a side of the "
+                         f"outline's bounding box")
+
+    def on_side(self, side: str) -> tuple[str, ...]:
+        """The edges that lie on bounding-box side `side`."""
+        found = []
+        for edge in self.edges:
+            try:
+                if self.box_side(edge) == side:
+                    found.append(edge)
+            except ValueError:
+                pass
+        return tuple(found)
+
+    def contains(self, xi: np.ndarray) -> np.ndarray:
+        """Whether each point ξ (N, 2) is inside (crossing number; boundary points either
+        way); bool (N,)."""
+        xi = np.asarray(xi, float)
+        inside = np.zeros(len(xi), bool)
+        for i in range(len(self.points)):
+            (ax, ay), (bx, by) = self.edge_points(i)
+            up = (ay <= xi[:, 1]) != (by <= xi[:, 1])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x = ax + (xi[:, 1] - ay) * (bx - ax) / (by - ay)
+            inside ^= up & (xi[:, 0] < x)
+        return inside
+
+
+@dataclass(frozen=True)
+class OutlinePlane(Plane):
+    """A polygon panel's flat rest surface: the `Plane` over the outline's bounding box (or a
+    larger `chart` rectangle holding it), its domain masked to the outline (so outputs mesh the
+    outline only, `domain.area` is its area and probes outside it are refused). bounds: set
+    from `chart` or the outline (any given are replaced)."""
+
+    outline: Outline | None = None
+    chart: tuple[tuple[float, float], tuple[float, float]] | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.outline, Outline):
+            raise ValueError(f"an outline plane needs an Outline, got {self.outline!r}")
+        box = self.outline.bounds
+        bounds = box if self.chart is None else ParameterDomain(self.chart).bounds
+        if not all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi) in zip(bounds, box,
+                                                                            strict=True)):
+            raise ValueError(f"the chart {bounds} does not hold the outline's bounding box "
+                             f"{box}")
+        object.__setattr__(self, "bounds", tuple(bounds))
+        super().__post_init__()
+
+    @property
+    def domain(self) -> ParameterDomain:
+        outline = self.outline
+        return ParameterDomain(self.bounds, inside=lambda xi: torch.from_numpy(
+            outline.contains(xi.detach().cpu().numpy())).to(xi.device),
+            mask_area=outline.area)

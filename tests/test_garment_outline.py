@@ -1,0 +1,260 @@
+"""Polygon panels (issue 30; docs/scenes.md "Garments", `outline`): the outline's checks, the
+trimmed quadrature over it (`taichi_ndf.discretise.trimmed`), the coefficients it holds, and
+garments of polygon panels against the same garments of rectangles."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from taichi_ndf.boundary import BoundaryConditions, ClampedEdge
+from taichi_ndf.discretise import of_scene
+from taichi_ndf.discretise.trimmed import (
+    TrimmedGrid,
+    ear_clip,
+    trimmed_points,
+    unsupported,
+)
+from taichi_ndf.field import SplineField
+from taichi_ndf.field.spline import SplineConfig
+from taichi_ndf.problem.outline import Outline, OutlinePlane
+from taichi_ndf.problem.quadrature import span_points
+from taichi_ndf.scene.reader import parse_scene
+from taichi_ndf.scene.schema import SceneError
+
+L_SHAPE = ((0.0, 0.0), (0.2, 0.0), (0.2, 0.2), (0.13, 0.2), (0.13, 0.07), (0.0, 0.07))
+STAR = ((0.0, 0.0), (1.3, 0.2), (0.9, 0.7), (1.5, 1.4), (0.6, 1.1), (0.1, 1.6), (0.3, 0.8))
+MATERIAL = {"type": "linear", "membrane_stiffness": 6400.0, "bending_stiffness": 0.1,
+            "poisson_ratio": 0.25, "areal_density": 0.144}
+
+
+def _boundary_integral(points, a: int, b: int) -> float:
+    """∫ x^a y^b over the polygon by Green: ∮ x^(a+1) y^b / (a + 1) dy, each edge by
+    Gauss–Legendre exact for its degree (an independent rule: no triangles, no spans)."""
+    nodes, weights = np.polynomial.legendre.leggauss(a + b + 2)
+    t, w = (nodes + 1) / 2, weights / 2
+    total = 0.0
+    for i, (x0, y0) in enumerate(points):
+        x1, y1 = points[(i + 1) % len(points)]
+        x, y = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
+        total += float((w * x ** (a + 1) * y ** b).sum()) * (y1 - y0) / (a + 1)
+    return total
+
+
+@pytest.mark.parametrize(("points", "message"), [
+    (((0, 0), (1, 0)), "at least 3 points"),
+    (((0, 0), (1, 0), (1, 0), (0, 1)), "edge e1 has zero length"),
+    (((0, 0), (1, 1), (1, 0), (0, 1)), "edges e0 and e2 cross or touch"),
+    (((0, 0), (0, 1), (1, 1), (1, 0)), "clockwise"),
+    (((0, 0), (2, 0), (1, 0), (1, 1)), "edges e0 and e1 overlap"),
+    (((0, 0), (2, 0), (2, 2), (1, 0), (0, 2)), "cross or touch"),
+])
+def test_an_outline_that_is_not_a_simple_counter_clockwise_polygon_is_refused(points, message):
+    with pytest.raises(ValueError, match=message):
+        Outline(points)
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.013])
+@pytest.mark.parametrize("points", [L_SHAPE, STAR])
+def test_the_trimmed_quadrature_integrates_polynomials_over_the_outline(points, margin):
+    """On the outline's bounding box, and on a wider chart (every edge trimmed)."""
+    outline = Outline(points)
+    chart = tuple((lo - margin, hi + margin) for lo, hi in outline.bounds)
+    config = SplineConfig(spans=(7, 5), domain=chart)
+    xi, weight = trimmed_points(outline, config)
+    x, y = xi[:, 0].numpy(), xi[:, 1].numpy()
+    w = weight.numpy()
+    assert (w > 0).all() and outline.contains(xi.numpy()).all()
+    assert abs(w.sum() - outline.area) <= 1e-14 * outline.area
+    for a, b in ((1, 0), (2, 3), (3, 5), (4, 4)):  # total degree ≤ 2p + 2 = 8
+        exact = _boundary_integral(outline.points, a, b)
+        assert abs(float((w * x ** a * y ** b).sum()) - exact) <= 1e-13 * abs(exact), (a, b)
+
+
+def test_an_outline_plane_is_masked_to_its_outline_on_a_chart_that_holds_it():
+    outline = Outline(L_SHAPE)
+    plane = OutlinePlane(outline=outline, chart=((-0.1, 0.2), (0.0, 0.3)))
+    assert plane.domain.bounds == ((-0.1, 0.2), (0.0, 0.3))
+    assert plane.domain.area == pytest.approx(outline.area, rel=1e-15)
+    xi = torch.tensor([[0.05, 0.03], [0.05, 0.1], [-0.05, 0.03], [0.16, 0.19]],
+                      dtype=torch.float64)
+    assert plane.domain.contains(xi).tolist() == [True, False, False, True]
+    with pytest.raises(ValueError, match="does not hold the outline's bounding box"):
+        OutlinePlane(outline=outline, chart=((0.0, 0.2), (0.0, 0.1)))
+
+
+def test_an_outline_that_is_the_rectangle_gets_the_rectangles_gauss_points():
+    outline = Outline(((0.0, 0.0), (0.3, 0.0), (0.3, 0.2), (0.0, 0.2)))
+    config = SplineConfig(spans=(5, 3), domain=outline.bounds)
+    xi, weight = trimmed_points(outline, config)
+    expected_xi, expected_weight = span_points(config)
+    assert torch.equal(xi, expected_xi) and torch.equal(weight, expected_weight)
+
+
+def test_ear_clipping_covers_a_non_convex_polygon_with_n_minus_2_triangles():
+    triangles = ear_clip(STAR)
+    assert len(triangles) == len(STAR) - 2
+    p = np.asarray(STAR)
+    areas = [0.5 * float((p[j] - p[i])[0] * (p[k] - p[i])[1] - (p[j] - p[i])[1] * (p[k] - p[i])[0])
+             for i, j, k in triangles]
+    assert min(areas) > 0 and abs(sum(areas) - Outline(STAR).area) < 1e-15
+
+
+def test_coefficients_without_support_in_the_outline_are_held_and_k_is_regular():
+    outline = Outline(L_SHAPE)
+    config = SplineConfig(spans=(10, 10), domain=outline.bounds)
+    field = SplineField(config, dtype=torch.float64)
+    xi, _ = trimmed_points(outline, config)
+    grid = TrimmedGrid(field, None, xi)
+    outside = unsupported(grid, xi)
+    # a cubic's coefficient (i, j) is supported on spans i − 3 … i, j − 3 … j; the notch
+    # [0, 0.13] × [0.07, 0.2] holds spans 0 … 5 × 4 … 9 whole (0.02 m spans; 6 and 3 cut)
+    m1, m2 = config.coefficient_counts
+    expected = [i * m2 + j for i in range(m1) for j in range(m2) if i <= 5 and j - 3 >= 4]
+    assert outside.tolist() == expected
+    assert grid.unsupported.tolist() == sorted(3 * c + k for c in expected for k in range(3))
+
+
+def _document(panels, seams=(), spans=(6, 4)) -> dict:
+    return {"name": "t", "material": dict(MATERIAL), "loads": {"gravity": [0.0, 0.0, -9.81]},
+            "field": {"type": "spline", "spans": list(spans)},
+            "training": {"method": "newton", "load_steps": [1.0]},
+            "panels": copy.deepcopy(list(panels)), "seams": copy.deepcopy(list(seams))}
+
+
+def _parse(document):
+    return parse_scene(document, base_dir=Path("."), path=Path("garment.toml"))
+
+
+def smooth_clamps(scene):
+    """The garment scene with its panels' clamps over the whole panel (band ℓ = 1: φ one
+    polynomial; the default ℓ = 0.1 cuts off with a jump in u/φ's third derivative, which
+    the cantilevers here converge poorly under: Π changes by 18 % from 12 × 8 to 24 × 16
+    spans on the rectangle)."""
+    patches = []
+    for patch in scene.field.patches:
+        model = patch.model
+        boundary = BoundaryConditions([ClampedEdge(c.edge, length=1.0)
+                                       for c in model.boundary.constraints],
+                                      domain=model.surface.domain)
+        patches.append(dataclasses.replace(patch, model=dataclasses.replace(
+            model, boundary=boundary)))
+    return dataclasses.replace(scene, field=dataclasses.replace(scene.field,
+                                                                patches=tuple(patches)))
+
+
+def _solved(document, change=lambda scene: scene):
+    scene = change(_parse(document))
+    panels = of_scene(scene)
+    panels.start(scene.solver, seed=0)
+    solution = panels.solve(scene.solver)
+    assert all(panels.converged)
+    return panels, solution
+
+
+def test_a_polygon_that_is_the_rectangle_solves_as_the_rectangle_panel():
+    rectangle = {"name": "a", "width": 0.3, "height": 0.2, "clamped": ["xi2_max"]}
+    polygon = {"name": "a", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0, 0.2]],
+               "clamped": ["e2"]}
+    (one, first), (two, second) = (_solved(_document([p])) for p in (rectangle, polygon))
+    assert abs(second.energy - first.energy) <= 1e-12 * abs(first.energy)
+    assert first.energy < 0
+    assert two._linear.size == one._linear.size and two._linear.fixed is None
+
+
+def test_a_seam_on_polygon_edges_is_the_seam_on_the_rectangles_edges():
+    left = {"name": "a", "width": 0.15, "height": 0.2, "clamped": ["xi2_max"]}
+    right = {"name": "b", "width": 0.15, "height": 0.2, "origin": [0.15, 0, 0],
+             "clamped": ["xi2_max"]}
+    rectangles = _document([left, right], [{"a": "a.xi1_max", "b": "b.xi1_min"}], (3, 4))
+    left = {"name": "a", "outline": [[0, 0], [0.15, 0], [0.15, 0.2], [0, 0.2]],
+            "clamped": ["e2"]}
+    right = {"name": "b", "outline": [[0.15, 0], [0.3, 0], [0.3, 0.2], [0.15, 0.2]],
+             "clamped": ["e2"]}
+    polygons = _document([left, right], [{"a": "a.e1", "b": "b.e3",
+                                          "orientation": "reversed"}], (3, 4))
+    (_, first), (_, second) = _solved(rectangles), _solved(polygons)
+    assert abs(second.energy - first.energy) <= 1e-12 * abs(first.energy)
+
+
+TRAPEZOIDS = ({"name": "a", "outline": [[0, 0], [0.15, 0], [0.12, 0.2], [0, 0.2]],
+               "clamped": ["e2"]},
+              {"name": "b", "outline": [[0.15, 0], [0.3, 0], [0.3, 0.2], [0.12, 0.2]],
+               "clamped": ["e2"]})
+
+
+def test_two_trapezoids_seamed_along_their_slanted_edges_are_the_rectangle_they_make():
+    """The cantilever (0.3 × 0.2 m, clamped along its top, gravity across it) as two
+    trapezoids (8 × 8 spans each) sewn along the slanted edge from (0.15, 0) to (0.12, 0.2)
+    and as one rectangle (16 × 8 spans). Measured (benchmarks/RESULTS.md "Garments: polygon
+    panels"): Π 1.0e-5 relative apart, 4.8e-5 on half these grids, 1.7e-6 on twice."""
+    seam = [{"name": "slant", "a": "a.e1", "b": "b.e3", "orientation": "reversed"}]
+    _, pair = _solved(_document(TRAPEZOIDS, seam, (8, 8)), smooth_clamps)
+    _, whole = _solved(_document([{"name": "w", "width": 0.3, "height": 0.2,
+                                   "clamped": ["xi2_max"]}], spans=(16, 8)), smooth_clamps)
+    assert abs(pair.energy - whole.energy) <= 3e-5 * abs(whole.energy)
+    assert pair.document["seam_gaps"]["slant"] < 1e-5
+
+
+def _refused(panels, seams, message):
+    with pytest.raises(SceneError) as err:
+        _parse(_document(panels, seams))
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(("change", "seams", "message"), [
+    ({"outline": [[0, 0], [0.15, 0.2], [0.15, 0], [0, 0.2]]}, [],
+     "panel 'a': outline: edges e0 and e2 cross or touch"),
+    ({"width": 0.1}, [], "panel 'a' has an outline: give its points, not width"),
+    ({"clamped": ["e1"]}, [], "panel 'a': edge 'e1'"),
+    ({"clamped": ["xi2_max"]}, [], "panel 'a': no edge 'xi2_max' (edges: e0, e1, e2, e3)"),
+    ({}, [{"a": "a.e1", "b": "b.e9"}], "panel 'b' has no edge 'e9'"),
+    ({}, [{"a": "a.e0", "b": "b.e1"}], "edge 'a.e0' is 0.15 m long and edge 'b.e1' 0.2 m"),
+    ({}, [{"a": "a.e1", "b": "b.e3"}, {"a": "a.e1", "b": "b.e1"}],
+     "edge 'a.e1' is already in seam"),
+])
+def test_a_wrong_polygon_panel_or_seam_is_refused_in_one_line_naming_panel_and_edge(
+        change, seams, message):
+    panels = copy.deepcopy(TRAPEZOIDS)
+    panels[0].update(change)
+    _refused(panels, seams, message)
+
+
+def test_polygon_panels_with_obstacles_are_refused_in_one_line():
+    document = _document(TRAPEZOIDS)
+    document["obstacles"] = [{"type": "sphere", "centre": [0.1, 0.1, -0.3], "radius": 0.2}]
+    with pytest.raises(SceneError) as err:
+        _parse(document)
+    assert str(err.value).startswith("obstacles: polygon panels (outline: a, b) are not "
+                                     "supported with obstacles yet")
+
+
+def test_held_outline_edges_are_the_bounding_box_sides_they_lie_on():
+    u_shape = {"name": "u", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0.2, 0.2], [0.2, 0.1],
+                                        [0.1, 0.1], [0.1, 0.2], [0, 0.2]],
+               "clamped": ["e0"], "hinged": ["e2", "e6"]}
+    (patch,) = _parse(_document([u_shape])).field.patches
+    assert [(type(c).__name__, c.edge) for c in patch.model.boundary.constraints] == [
+        ("ClampedEdge", "xi2_min"), ("HingedEdge", "xi2_max")]
+    u_shape["hinged"] = ["e2"]  # e6 lies on the same side: the hinge would hold it too
+    _refused([u_shape], [], "panel 'u': edge 'e2' is held along the whole bounding-box side "
+             "xi2_max, which also holds edge 'e6': hold both the same way")
+
+
+def test_a_polygon_panels_output_grid_keeps_the_faces_inside_its_outline():
+    from taichi_ndf.app.outputs import export_grid
+
+    (patch,) = _parse(_document([TRAPEZOIDS[1]])).field.patches
+    xi, faces, _ = export_grid(patch.model, (16, 16))
+    outline = patch.outline
+    corners = xi[faces]  # (F, 3, 2)
+    assert outline.contains(corners.mean(axis=1)).all()
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    # the staircase: faces with a vertex outside dropped (measured 0.835 of the area here)
+    assert 0.8 * outline.area < area <= outline.area * (1 + 1e-12)
