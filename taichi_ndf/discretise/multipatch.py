@@ -24,7 +24,6 @@ such a checkpoint, and the resumed run goes on from the last finished load step 
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -36,8 +35,8 @@ from typing import Any, ClassVar
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.discretise.held_edges import HeldEdges, held_moves
+from taichi_ndf.discretise.panel_contact import panel_contact, seams_at
 from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
 from taichi_ndf.discretise.protocol import (
     OnLoadStep,
@@ -55,13 +54,13 @@ from taichi_ndf.minimise.checkpoint import CheckpointError
 from taichi_ndf.minimise.continuation import Hook, Stages, solve_over
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
-from taichi_ndf.minimise.multipatch import MultiPatchGrid, MultiPatchLinearisation
+from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
 from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam, obstacle_refusal
+from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import newton_config
@@ -211,7 +210,9 @@ class MultiPatchDiscretisation:
         else:
             objective = Objective(shell, terms)
         newton = newton_config(config, DTYPE)
-        contact = None if self.model.contact is None else self._contact(grids)
+        contact = None
+        if self.model.contact is not None:
+            contact, self._points = panel_contact(self.spec, self.model, grids)
         state = self.state  # fresh, or a checkpoint's: its finished load steps
         run = PanelsRun(self.field, state, config)
         history, steps = state.history, state.steps
@@ -246,7 +247,7 @@ class MultiPatchDiscretisation:
             if contact is not None:  # the contact rounds over the joint chart
                 phase.minimiser = contact[0].minimiser(newton, load_factor=t,
                                                        start_load_factor=previous,
-                                                       terms_at=self._seams_at(seams),
+                                                       terms_at=seams_at(self.spec, seams),
                                                        base_at=lambda r: Objective(shell_at(r)))
                 phase.objective = lambda: contact[1:] + (None,)  # Π: per round, base_at
             solution, = run_phases([phase])
@@ -297,31 +298,6 @@ class MultiPatchDiscretisation:
             contact_counts={} if contact is None else {"newton_rounds": contact[0].rounds},
             settings={"method": "newton", "load_steps": list(config.load_steps),
                       "field": self.spec.to_dict()})
-
-    def _contact(self, grids: list[GridLinearisation]) -> tuple:
-        """With obstacles: the run's `NewtonContact` over the patches' joint chart (each
-        patch checked: no obstacle at its reference surface or pins), the chart
-        (`MultiPatchGrid`) and its quadrature (the patches' Gauss and seam points there)."""
-        config = self.model.contact
-        if config.has_friction:
-            raise ValueError("obstacles: friction is not supported on a garment's panels yet")
-        refused = obstacle_refusal(self.spec)
-        if refused:
-            raise ValueError(refused)
-        for patch in self.spec.patches:
-            config.check(dataclasses.replace(patch.model, contact=config))
-        chart = MultiPatchGrid(grids, [p.model.surface for p in self.spec.patches])
-        self._points = [grid.assembly.samples for grid in grids]
-        quadrature = chart.joint(self._points[0], 0)
-        for i, points in enumerate(self._points[1:], start=1):
-            quadrature = quadrature.joined(chart.joint(points, i))
-        return NewtonContact(config, self.model, DTYPE, surface=chart.surface), chart, quadrature
-
-    def _seams_at(self, seams: list[SeamTerm]):
-        """terms_at(linearisation) of the contact rounds: the seams, their points looked up
-        in each round's patch rows."""
-        return lambda linear: tuple(term.between(linear.rows(s.a), linear.rows(s.b))
-                                    for s, term in zip(self.spec.seams, seams, strict=True))
 
     def _set(self, c: torch.Tensor, linear: MultiPatchLinearisation) -> None:
         for i, f in enumerate(self.fields):
