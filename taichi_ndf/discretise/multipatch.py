@@ -11,6 +11,9 @@ sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), 
 patch (one `ShellEnergyTerm` over the joined points where all are the same, else a
 `PanelEnergy` of one per patch, built on each contact round's points) and one gravity for all
 patches, float64.
+With obstacles each load step is the contact rounds over all patches at once
+(`discretise.panel_contact`), flat-cut panels included (their held edges clamped and their
+seams sewn from the start in every round).
 The load steps are the steps of the one continuation loop (`minimise.continuation.solve_over`:
 a step's Newton is its `Stages.solve`, the step record its `after_step`, the rollback on Ctrl-C
 its `interrupted`). The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as
@@ -36,7 +39,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.discretise.held_edges import HeldEdges, held_moves
-from taichi_ndf.discretise.panel_contact import panel_contact, seams_at
+from taichi_ndf.discretise.panel_contact import check_outside, panel_contact, seams_at
 from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
 from taichi_ndf.discretise.protocol import (
     OnLoadStep,
@@ -204,15 +207,17 @@ class MultiPatchDiscretisation:
                 materials, loads, [linear.rows(i) for i in range(len(materials))])
         shell = shell_at(linear)
         c = torch.cat([f.coefficients.detach() for f in self.fields])
-        if any(p.start is not None for p in self.spec.patches):  # sewn from the placement
-            start = linear.displacement(self._start)
+        sewn = self._start if any(p.start is not None for p in self.spec.patches) else None
+        if sewn is not None:  # sewn from the placement
+            start = linear.displacement(sewn)
             objective = Objective(shell, tuple(SewnFromStart(t, start) for t in terms))
         else:
             objective = Objective(shell, terms)
         newton = newton_config(config, DTYPE)
         contact = None
         if self.model.contact is not None:
-            contact, self._points = panel_contact(self.spec, self.model, grids)
+            contact, self._points = panel_contact(self.spec, self.model, grids, self._joined,
+                                                  self._start)
         state = self.state  # fresh, or a checkpoint's: its finished load steps
         run = PanelsRun(self.field, state, config)
         history, steps = state.history, state.steps
@@ -239,6 +244,9 @@ class MultiPatchDiscretisation:
                 held, first, target = moves
                 c = c.clone()
                 c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (target - first)
+                if contact is not None:  # the rounds start outside the obstacles
+                    check_outside(self.spec, contact[0], contact[1], c, t,
+                                  "where its held edges are moved to")
             phase = Phase(NewtonMinimiser(newton, load_factor=t),
                           objective=lambda linear=linear: (linear, objective.potential(t)),
                           parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
@@ -247,7 +255,7 @@ class MultiPatchDiscretisation:
             if contact is not None:  # the contact rounds over the joint chart
                 phase.minimiser = contact[0].minimiser(newton, load_factor=t,
                                                        start_load_factor=previous,
-                                                       terms_at=seams_at(self.spec, seams),
+                                                       terms_at=seams_at(self.spec, seams, sewn),
                                                        base_at=lambda r: Objective(shell_at(r)))
                 phase.objective = lambda: contact[1:] + (None,)  # Π: per round, base_at
             solution, = run_phases([phase])
