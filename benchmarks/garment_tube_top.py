@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from garment_skirt import _rim, _solve  # noqa: E402
 from provenance import commit  # noqa: E402
 
+import taichi_ndf  # noqa: E402
 from taichi_ndf.minimise.extrapolation import richardson  # noqa: E402
 from taichi_ndf.scene.reader import parse_scene  # noqa: E402
 
@@ -81,6 +82,7 @@ def main() -> None:
     parser.add_argument("--no-body", action="store_true", help="without the torso")
     parser.add_argument("spans", nargs="*", type=int, help="n m per grid (pairs)")
     args = parser.parse_args()
+    taichi_ndf.init(arch="cpu", precision="f64")
     grids = (tuple(zip(args.spans[::2], args.spans[1::2], strict=True)) if args.spans
              else GRIDS)
     body = not args.no_body
