@@ -89,13 +89,19 @@ def test_a_flat_cut_skirt_sags_onto_a_body_without_entering_it():
     assert max(solution.document["seam_gaps"].values()) < 1e-4
 
 
-def test_a_waist_gathered_into_the_body_is_refused_naming_it():
+def test_flat_cut_panels_started_or_gathered_into_the_body_are_refused_naming_it():
     """The flat-cut skirt on the body with its waist gathered onto 0.13 m, inside the 0.14 m
-    capsule: the held edges' move is refused before the rounds start from inside it."""
+    capsule: the held edges' move is refused before the rounds start from inside it; with a
+    0.155 m body (wider than the 0.15 m wrap) the panels' start, their wrap, is refused."""
     document = _skirt("skirt_body", (4, 2), held_radius=0.13)
     document["training"]["load_steps"] = [1.0]
     with pytest.raises(ValueError, match="obstacle 'body' intersects panel '(front|back)' "
                                          "where its held edges are moved to"):
+        _solve(document)
+    document = _skirt("skirt_body", (4, 2))
+    document["obstacles"][0]["radius"] = 0.155
+    with pytest.raises(ValueError, match="obstacle 'body' intersects panel '(front|back)' "
+                                         "where the panels start"):
         _solve(document)
 
 

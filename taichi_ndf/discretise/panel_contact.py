@@ -36,9 +36,9 @@ def panel_contact(plan: MultiPatchPlan, model, grids: list[GridLinearisation], j
     held edges' `HeldEdges`) and its quadrature (the patches' Gauss and seam points there);
     points: each patch's own samples (its grid's, to assemble it on again after the rounds).
     model: the garment's (its `contact`); start: the joint start coefficients (Σ n_i, 3).
-    Checked: no obstacle at a pin, at a placed panel's reference surface
-    (`ContactConfig.check`) or where a flat-cut panel starts (`check_outside` at load factor
-    0: its rest shape is the flat pattern, which need not be near the body)."""
+    Checked: no obstacle at a pin (`check_pins`), at a placed panel's reference surface
+    (`check_reference`) or where a flat-cut panel starts (`check_outside` at load factor 0:
+    its rest shape is the flat pattern, not where it is on the body)."""
     config = model.contact
     if config.has_friction:
         raise ValueError("obstacles: friction is not supported on a garment's panels yet")
