@@ -58,17 +58,9 @@ def test_friction_on_panels_is_refused_in_one_line_by_the_reader():
         _scene(_sheet(friction=0.3))
 
 
-def test_panels_the_contact_rounds_do_not_carry_are_refused_by_the_reader():
-    """Flat-cut panels (held edges, seams sewn from the start) are not carried through the
-    contact rounds: refused before any solve; a material per panel is read
-    (test_contact_panel_materials.py solves it)."""
-    import tomllib
-
-    path = ROOT / "scenes" / "skirt_body.toml"
-    document = tomllib.loads(path.read_text())
-    document["panels"][0].update(rest="flat", probes=[])  # its ξ: the arc length
-    with pytest.raises(SceneError, match="flat-cut panels .* are not supported with obst"):
-        parse_scene(document, base_dir=path.parent, path=path)
+def test_panels_of_other_materials_are_read_with_obstacles():
+    """A material per panel is read with obstacles (test_contact_panel_materials.py solves
+    it; flat-cut panels with obstacles: test_contact_flat_panels.py)."""
     document = _sheet()
     document["panels"][1]["material"] = "denim"
     assert len(set(_scene(document).field.materials)) == 2

@@ -77,9 +77,11 @@ class ContactHook:
         """The hook of `model`'s contact (a `ContactConfig`, checked against the model: no
         obstacle at the reference surface or a pin), its grid in `dtype` over `surface` (None:
         the model's; several patches' joint surface, `minimise.multipatch.JointSurface`, which
-        lays the grid over each patch: its `check_grid`)."""
+        lays the grid over each patch: its `check_grid`; each patch is then checked by the
+        caller, a flat-cut panel where it starts rather than at its reference surface)."""
         config = model.contact
-        config.check(model)
+        if surface is None:
+            config.check(model)
         resolution = config.check_resolution
         grid = None if surface is None else surface.check_grid(resolution, dtype)
         return cls(ContactPoints(config.term(), surface or model.surface, resolution,

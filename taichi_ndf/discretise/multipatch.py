@@ -11,6 +11,9 @@ sews the seams, as on one patch. One grid per patch (no coarse-to-fine levels), 
 patch (one `ShellEnergyTerm` over the joined points where all are the same, else a
 `PanelEnergy` of one per patch, built on each contact round's points) and one gravity for all
 patches, float64.
+With obstacles each load step is the contact rounds over all patches at once
+(`discretise.panel_contact`), flat-cut panels included (their held edges clamped and their
+seams sewn from the start in every round).
 The load steps are the steps of the one continuation loop (`minimise.continuation.solve_over`:
 a step's Newton is its `Stages.solve`, the step record its `after_step`, the rollback on Ctrl-C
 its `interrupted`). The application's callbacks (`minimise.callbacks`) see a `PanelsRun` as
@@ -24,7 +27,6 @@ such a checkpoint, and the resumed run goes on from the last finished load step 
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -36,8 +38,8 @@ from typing import Any, ClassVar
 import torch
 
 from taichi_ndf import jets
-from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.discretise.held_edges import HeldEdges, held_moves
+from taichi_ndf.discretise.panel_contact import check_outside, panel_contact, seams_at
 from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
 from taichi_ndf.discretise.protocol import (
     OnLoadStep,
@@ -56,13 +58,13 @@ from taichi_ndf.minimise.checkpoint import CheckpointError
 from taichi_ndf.minimise.continuation import Hook, Stages, solve_over
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
-from taichi_ndf.minimise.multipatch import MultiPatchGrid, MultiPatchLinearisation
+from taichi_ndf.minimise.multipatch import MultiPatchLinearisation
 from taichi_ndf.minimise.state import State
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam, obstacle_refusal
+from taichi_ndf.problem.multipatch import MultiPatchPlan, Patch, PatchSeam
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import newton_config
@@ -202,13 +204,17 @@ class MultiPatchDiscretisation:
                 materials, loads, [linear.rows(i) for i in range(len(materials))])
         shell = shell_at(linear)
         c = torch.cat([f.coefficients.detach() for f in self.fields])
-        if any(p.start is not None for p in self.spec.patches):  # sewn from the placement
-            start = linear.displacement(self._start)
+        sewn = self._start if any(p.start is not None for p in self.spec.patches) else None
+        if sewn is not None:  # sewn from the placement
+            start = linear.displacement(sewn)
             objective = Objective(shell, tuple(SewnFromStart(t, start) for t in terms))
         else:
             objective = Objective(shell, terms)
         newton = newton_config(config, DTYPE)
-        contact = None if self.model.contact is None else self._contact(grids)
+        contact = None
+        if self.model.contact is not None:
+            contact, self._points = panel_contact(self.spec, self.model, grids, self._joined,
+                                                  self._start)
         state = self.state  # fresh, or a checkpoint's: its finished load steps
         run = PanelsRun(self.field, state, config)
         history, steps = state.history, state.steps
@@ -235,6 +241,9 @@ class MultiPatchDiscretisation:
                 held, first, target = moves
                 c = c.clone()
                 c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (target - first)
+                if contact is not None:  # the rounds start outside the obstacles
+                    check_outside(self.spec, contact[0], contact[1], c, t,
+                                  "where its held edges are moved to")
             phase = Phase(NewtonMinimiser(newton, load_factor=t),
                           objective=lambda linear=linear: (linear, objective.potential(t)),
                           parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
@@ -243,7 +252,7 @@ class MultiPatchDiscretisation:
             if contact is not None:  # the contact rounds over the joint chart
                 phase.minimiser = contact[0].minimiser(newton, load_factor=t,
                                                        start_load_factor=previous,
-                                                       terms_at=self._seams_at(seams),
+                                                       terms_at=seams_at(self.spec, seams, sewn),
                                                        base_at=lambda r: Objective(shell_at(r)))
                 phase.objective = lambda: contact[1:] + (None,)  # Π: per round, base_at
             solution, = run_phases([phase])
@@ -294,31 +303,6 @@ class MultiPatchDiscretisation:
             contact_counts={} if contact is None else {"newton_rounds": contact[0].rounds},
             settings={"method": "newton", "load_steps": list(config.load_steps),
                       "field": self.spec.to_dict()})
-
-    def _contact(self, grids: list[GridLinearisation]) -> tuple:
-        """With obstacles: the run's `NewtonContact` over the patches' joint chart (each
-        patch checked: no obstacle at its reference surface or pins), the chart
-        (`MultiPatchGrid`) and its quadrature (the patches' Gauss and seam points there)."""
-        config = self.model.contact
-        if config.has_friction:
-            raise ValueError("obstacles: friction is not supported on a garment's panels yet")
-        refused = obstacle_refusal(self.spec)
-        if refused:
-            raise ValueError(refused)
-        for patch in self.spec.patches:
-            config.check(dataclasses.replace(patch.model, contact=config))
-        chart = MultiPatchGrid(grids, [p.model.surface for p in self.spec.patches])
-        self._points = [grid.assembly.samples for grid in grids]
-        quadrature = chart.joint(self._points[0], 0)
-        for i, points in enumerate(self._points[1:], start=1):
-            quadrature = quadrature.joined(chart.joint(points, i))
-        return NewtonContact(config, self.model, DTYPE, surface=chart.surface), chart, quadrature
-
-    def _seams_at(self, seams: list[SeamTerm]):
-        """terms_at(linearisation) of the contact rounds: the seams, their points looked up
-        in each round's patch rows."""
-        return lambda linear: tuple(term.between(linear.rows(s.a), linear.rows(s.b))
-                                    for s, term in zip(self.spec.seams, seams, strict=True))
 
     def _set(self, c: torch.Tensor, linear: MultiPatchLinearisation) -> None:
         for i, f in enumerate(self.fields):

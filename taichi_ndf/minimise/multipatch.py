@@ -179,14 +179,18 @@ class MultiPatchGrid:
     coefficients in one (Σ n_i, 3) block), `linearisation(t, samples)` (each patch assembled
     on its samples, joined: a `MultiPatchLinearisation`), `surface` (a `JointSurface`) and
     `joint(samples, i)` (patch i's samples in the joint chart). length: the FD steps' domain
-    length of its linearisations (`MultiPatchLinearisation`'s). Not supported (refused): a
-    free pin; patches whose splines have different degrees."""
+    length of its linearisations (`MultiPatchLinearisation`'s); join(grids, t): the joined
+    linearisation of the assembled grids (default `MultiPatchLinearisation`; a garment's
+    flat-cut panels: its held edges clamped, `discretise.held_edges.HeldEdges`). Not
+    supported (refused): a free pin; patches whose splines have different degrees."""
 
     GAP = 0.1
 
     def __init__(self, grids: Sequence[GridLinearisation], surfaces: Sequence, *,
-                 length: float = 1.0):
+                 length: float = 1.0, join=None):
         self.grids, self.surfaces, self.length = list(grids), list(surfaces), length
+        self.join = join or (lambda grids, t: MultiPatchLinearisation(grids, t,
+                                                                       length=self.length))
         bounds = [s.domain.bounds for s in self.surfaces]
         gap = self.GAP * max(hi - lo for (lo, hi), _ in bounds)
         starts, shifts = [0.0], []
@@ -259,11 +263,11 @@ class MultiPatchGrid:
     def linearisation(self, load_factor: float, samples: SurfaceSamples
                       ) -> MultiPatchLinearisation:
         """Each patch assembled on its points among `samples` (joint ξ; at their own ξ), and
-        the patches joined at load factor t (its `samples`: each patch's, reordered, at
-        their own ξ)."""
+        the patches joined at load factor t by `join` (its `samples`: each patch's,
+        reordered, at their own ξ)."""
         for i, rows in self.split(samples.xi):
             part = SurfaceSamples(*(None if v is None else v[rows] for v in (
                 samples.xi, samples.r_jets, samples.weight, samples.point_force,
                 samples.barrier_weight)))
             self.grids[i].assemble(replace(part, xi=self.local(part.xi, i)))
-        return MultiPatchLinearisation(self.grids, load_factor, length=self.length)
+        return self.join(self.grids, load_factor)

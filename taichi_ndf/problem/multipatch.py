@@ -187,12 +187,3 @@ class MultiPatchPlan:
             return side.edge
         return f"{self.patches[patch].name}.{side.edge}"
 
-
-def obstacle_refusal(plan) -> str | None:
-    """Why the garment `plan` (`MultiPatchPlan`) cannot run against obstacles (the contact
-    rounds' linearisation holds no edges and their seams are sewn at rest), or None: flat-cut
-    panels (held edges, seams sewn from the start) are not carried through the contact rounds
-    yet. A material per panel is (its shell term built per round on the round's points)."""
-    if any(p.start is not None or p.held for p in plan.patches):
-        return "obstacles: flat-cut panels (rest = \"flat\") are not supported with obstacles yet"
-    return None

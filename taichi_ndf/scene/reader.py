@@ -30,7 +30,6 @@ from taichi_ndf.problem.field_types import of_spec
 from taichi_ndf.problem.line_loads import LineLoad, edge_path
 from taichi_ndf.problem.loads import Loads, PointLoad
 from taichi_ndf.problem.model import Probe, ShellModel
-from taichi_ndf.problem.multipatch import obstacle_refusal
 from taichi_ndf.problem.pseudo_time import DEFAULT_FRAMES, TIME_RANGE
 from taichi_ndf.problem.run_size import contact_check_points
 from taichi_ndf.problem.training import SolverConfig
@@ -182,8 +181,6 @@ def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
     model = replace(model, contact=parse_contact(top, model, base_dir))
     if model.contact is not None and model.contact.has_friction:
         raise SceneError("obstacles: friction is not supported on a garment's panels yet")
-    if model.contact is not None and obstacle_refusal(plan):
-        raise SceneError(obstacle_refusal(plan))
     if top.has("self_contact"):
         raise SceneError("self_contact: not supported in a garment file ([[panels]]) yet (one "
                          "chart only: docs/scenes.md, \"Self-contact\")")

@@ -1,0 +1,94 @@
+"""A garment's panels against obstacles (`MultiPatchDiscretisation` with `[[obstacles]]`): the
+run's `NewtonContact` over the panels' joint chart (`panel_contact`), the seams the contact
+rounds evaluate on each round's points (`seams_at`: sewn from where the panels start where
+some panel is cut flat) and the test that a state the load steps move the held edges to
+starts outside the obstacles (`check_outside`).
+
+Flat-cut panels (`Patch.start`, `Patch.held`) go through the rounds as through the plain load
+steps: each round's linearisation is the chart's `join` of the patches' grids, the
+`HeldEdges` map that clamps their held edges (gradient Tᵀ g, Hessian Tᵀ K T, step T z); its
+seams are `SewnFromStart` with the start displacement at the round's own points; a held
+target's move of the held rows (`held_moves`, a gathered waist) is set before the step's
+first round, and that state must be outside the obstacles (the rounds' step test starts
+from it): else ValueError naming the obstacle, the panel and the load factor."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from taichi_ndf.contact.config import check_pins, check_reference
+from taichi_ndf.contact.newton_contact import NewtonContact, PointMap
+from taichi_ndf.discretise.panel_energy import SewnFromStart
+from taichi_ndf.minimise.linearisation import GridLinearisation
+from taichi_ndf.minimise.multipatch import MultiPatchGrid
+from taichi_ndf.objective.seam import SeamTerm
+from taichi_ndf.problem.multipatch import MultiPatchPlan
+
+DTYPE = torch.float64
+
+
+def panel_contact(plan: MultiPatchPlan, model, grids: list[GridLinearisation], join,
+                  start: torch.Tensor) -> tuple[tuple, list]:
+    """((contact, chart, quadrature), points): the run's `NewtonContact` over the patches'
+    joint chart, the chart (`MultiPatchGrid`, its linearisations `join(grids, t)`: the
+    held edges' `HeldEdges`) and its quadrature (the patches' Gauss and seam points there);
+    points: each patch's own samples (its grid's, to assemble it on again after the rounds).
+    model: the garment's (its `contact`); start: the joint start coefficients (Σ n_i, 3).
+    Checked: no obstacle at a pin (`check_pins`), at a placed panel's reference surface
+    (`check_reference`) or where a flat-cut panel starts (`check_outside` at load factor 0:
+    its rest shape is the flat pattern, not where it is on the body)."""
+    config = model.contact
+    if config.has_friction:
+        raise ValueError("obstacles: friction is not supported on a garment's panels yet")
+    for patch in plan.patches:
+        patch_model = dataclasses.replace(patch.model, contact=config)
+        check_pins(config, patch_model)
+        if patch.start is None:
+            check_reference(config, patch_model)
+    chart = MultiPatchGrid(grids, [p.model.surface for p in plan.patches], join=join)
+    points = [grid.assembly.samples for grid in grids]
+    quadrature = chart.joint(points[0], 0)
+    for i, own in enumerate(points[1:], start=1):
+        quadrature = quadrature.joined(chart.joint(own, i))
+    contact = NewtonContact(config, model, DTYPE, surface=chart.surface)
+    if any(p.start is not None for p in plan.patches):
+        check_outside(plan, contact, chart, start, 0.0, "where the panels start")
+    return (contact, chart, quadrature), points
+
+
+def check_outside(plan: MultiPatchPlan, contact: NewtonContact, chart: MultiPatchGrid,
+                  coefficients: torch.Tensor, load_factor: float, when: str) -> None:
+    """ValueError naming the obstacle and the panel where a point of the contact's check grid
+    (every panel's, edges included) is within h/2 + margin of an obstacle at the joint
+    `coefficients` (Σ n_i, 3) and load factor t; `when` says which state it is."""
+    points = contact.points
+    xi = points.grid_xi.to(DTYPE)
+    x = points.grid_r.to(DTYPE) + PointMap(chart, xi, load_factor)(coefficients)
+    gaps = points.term.gaps(x, load_factor)[0]  # (N, obstacles)
+    if not gaps.shape[1] or float(gaps.min()) > 0:
+        return
+    worst = int(gaps.min(dim=1).values.argmin())
+    obstacle = int(gaps[worst].argmin())
+    panel = plan.patches[int(chart.patch_of(xi[worst:worst + 1])[0])].name
+    config = contact.config
+    distance = float(gaps[worst, obstacle]) + config.offset
+    raise ValueError(f"obstacle {config.obstacles[obstacle].name!r} intersects panel {panel!r} "
+                     f"{when} (load factor {load_factor:g}: distance {distance:.4g} m, needs "
+                     f"more than h/2 + margin = {config.offset:.4g} m)")
+
+
+def seams_at(plan: MultiPatchPlan, seams: list[SeamTerm], start: torch.Tensor | None):
+    """terms_at(linearisation) of the contact rounds: the seams, their points looked up in
+    each round's patch rows; start: the joint start coefficients where the seams are sewn
+    from where the panels start (`SewnFromStart`, its start displacement at the round's
+    samples), None: from their rest shapes."""
+    def terms(linear):
+        between = [term.between(linear.rows(s.a), linear.rows(s.b))
+                   for s, term in zip(plan.seams, seams, strict=True)]
+        if start is None:
+            return tuple(between)
+        u = linear.displacement(start)
+        return tuple(SewnFromStart(term, u) for term in between)
+    return terms
