@@ -86,6 +86,7 @@ class FrameData:
     photometric: PhotometricFrame | None = None
     silhouette_rows: torch.Tensor | None = None
     silhouette_allowance: torch.Tensor | None = None
+    first_distance: torch.Tensor | None = None  # mask 0's `silhouette_distance` (the cover term)
 
     def data_term(self, tracks: torch.Tensor, vertices: torch.Tensor, *,
                   slope: str = "image") -> LeastSquaresData:
@@ -172,6 +173,9 @@ def reconstruct_frames(template: Template, camera: Camera,
         log.info("silhouette allowance: %d border vertices outside mask 0, up to %.2f px",
                  int((tolerated > 0).sum()), float(tolerated.max()))
     result = ReconstructionResult([template.vertices.copy()], [0.0], [0.0], [0], [{}])
+    first_distance = None  # frame 0's mask, for the cover term's allowance (`inverse.sft.contour`)
+    if masks is not None and weights.silhouette_weight > 0:
+        first_distance = silhouette_distance(masks[0])
 
     def solve(step: Step, history: list[np.ndarray]) -> tuple[FittedFrame, float, float]:
         """Frame `step.value` fitted from `history`, the vertices of the (at most two) frames
@@ -210,7 +214,8 @@ def reconstruct_frames(template: Template, camera: Camera,
             pixels=torch.from_numpy(seen.xy), confidence=torch.from_numpy(seen.confidence),
             predicted=2.0 * previous - before, distance=distance, outline_offset=offsets,
             photometric=None if photometric is None else photometric.frame(i, history[-1]),
-            silhouette_rows=silhouette_rows, silhouette_allowance=allowed)
+            silhouette_rows=silhouette_rows, silhouette_allowance=allowed,
+            first_distance=first_distance)
         fitted = fit.fit_frame(frame)
         return fitted, time.perf_counter() - start, time.process_time() - cpu
 
