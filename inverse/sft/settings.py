@@ -74,7 +74,10 @@ class SplinePriorConfig:
     cover_weight: w_cover, the mask's outline covered by the sheet's projected border
     (`inverse.sft.contour`; 0 switches it off; needs masks and w_sil > 0); cover_reach: the
     outline points within this many mean projected border edges of the border at the frame's
-    start are compared, and Tukey's reach; cover_points: points per border edge.
+    start are compared, and Tukey's reach; cover_points: points per border edge;
+    allowance_fade: the silhouette allowance fades as each vertex moves from its frame-0 pixel,
+    to none at this many mean projected edge lengths of frame 0
+    (`inverse.sft.silhouette.faded_allowance`; None: no fading).
     """
 
     physics_weight: float = 1e-2
@@ -99,6 +102,7 @@ class SplinePriorConfig:
     cover_weight: float = 0.0
     cover_reach: float = 3.0
     cover_points: int = 6
+    allowance_fade: float | None = None
 
     def __post_init__(self):
         for name in ("physics_weight", "silhouette_weight", "outline_weight", "temporal_weight",
@@ -132,6 +136,9 @@ class SplinePriorConfig:
                 self.cover_points < 1:
             raise ValueError(f"cover_points must be a positive integer, got "
                              f"{self.cover_points!r}")
+        if self.allowance_fade is not None and not 0 < self.allowance_fade < math.inf:
+            raise ValueError(f"allowance_fade must be finite and positive, got "
+                             f"{self.allowance_fade}")
         if self.degree not in (3, 4):
             raise ValueError(f"degree must be 3 or 4, got {self.degree}")
         from taichi_ndf.shell.materials import LinearIsotropic, preset

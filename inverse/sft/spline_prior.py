@@ -87,7 +87,8 @@ class SplinePriorReconstructor:
         self.config = cfg = config or SplinePriorConfig()
         self.weights = DataWeights(cfg.huber_px, cfg.temporal_weight, cfg.silhouette_weight,
                                    cfg.outline_weight, cfg.silhouette_border_gap,
-                                   cfg.silhouette_allowance, cfg.allowance_reach)
+                                   cfg.silhouette_allowance, cfg.allowance_reach,
+                                   cfg.allowance_fade)
         self.surface = MeshSurface(template.vertices, template.faces, template.uvs,
                                    name="template")
         mean_edge = mean_edge_length(template.vertices, template.faces)
