@@ -60,7 +60,7 @@ def test_border_curve_points_lie_on_the_border_edges():
     assert np.allclose(np.sort(t[:4]), [0.125, 0.375, 0.625, 0.875])
 
 
-def cover_term(inset, *, allowance=None, reach=30.0, u=None, visible=None):
+def cover_term(inset, *, allowance=None, reach=30.0, u=None, visible=None, slack=0.0):
     """The box mask and a sheet `inset` [px] inside its outline on every side; the term's
     start is the sheet as it is (u = 0) unless `u` is given."""
     camera, mask = _box_mask()
@@ -76,7 +76,7 @@ def cover_term(inset, *, allowance=None, reach=30.0, u=None, visible=None):
                      visible=np.ones(k, bool) if visible is None else visible,
                      allowance=None if allowance is None else torch.full((k,), allowance,
                                                                          dtype=torch.float64),
-                     start=start, weight=1.0, reach=reach)
+                     start=start, weight=1.0, reach=reach, slack=slack)
     return term, u_jets
 
 
@@ -98,6 +98,8 @@ def test_the_allowance_and_the_reach_leave_points_out():
     u = cover_term(5.0)[1]
     inside, _ = cover_term(5.0, allowance=8.0)  # the template lay 8 px from mask 0's outline
     assert inside.parts(u)["cover"] == 0.0
+    slack, _ = cover_term(5.0, allowance=2.0, slack=3.5)  # 5 px uncovered, 5.5 tolerated
+    assert slack.parts(u)["cover"] < cover_term(5.0, allowance=2.0)[0].parts(u)["cover"] / 10
     near, _ = cover_term(5.0, reach=3.0)  # no outline point within 3 px of the start
     assert near.parts(u)["cover_points"] == 0
     assert near.evaluate(None, u)[0] == 0.0

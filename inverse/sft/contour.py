@@ -8,7 +8,7 @@ wrong pixel leaves the outline where the real corner is uncovered, and nothing p
 The cover term measures, for each point c_j of the mask's outline near the sheet's border, how
 far it is from the sheet's projected border curve:
 
-    E_cover(u) = w_cover / m · Σ_j ρ(max(0, min_k ‖c_j − π(x_k)‖ − a_k(j)))          [px²]
+    E_cover(u) = w_cover / m · Σ_j ρ(max(0, min_k ‖c_j − π(x_k)‖ − a_k(j) − s))      [px²]
 
 over the m outline points within the reach τ of the border at the start of the frame (the
 previous frame's shape; an outline that no border comes near — a hand, a fold's silhouette —
@@ -17,9 +17,10 @@ several per edge, so the curve and not only its vertices is compared; each a sur
 its own, so every residual depends on one point and its Gauss–Newton block is exact), k(j) the
 nearest visible one, a_k the allowance: how far from mask 0's outline the template's own border
 lay at that point in frame 0 (the template is right by construction; where the mask and the
-template disagree, that much is not charged), and ρ Tukey's biweight with reach τ,
+template disagree, that much is not charged), s a slack (`SplinePriorConfig.cover_slack` mean projected border
+edges: an outline uncovered by less is left to the silhouette and outline terms), and ρ Tukey's biweight with reach τ,
 ρ(r) = τ²/3 · (1 − (1 − (r/τ)²)³) for r < τ and τ²/3 beyond (quadratic for small r; a point
-that leaves the reach stops pulling). τ is `reach_edges` mean projected border edges of the
+that leaves the reach stops pulling). τ is `SplinePriorConfig.cover_reach` mean projected border edges of the
 start. Gauss–Newton on the scalar residual r: its row is (e/‖e‖)ᵀ dπ/dx with e = π(x_k) − c_j,
 Tukey by iteratively reweighted least squares (weight (1 − (r/τ)²)²).
 
@@ -102,16 +103,18 @@ class CoverTerm:
     protocol plus Gauss–Newton `hessian_blocks`), float64. visible: bool (K,), the points that
     may cover the outline; allowance: (K,) [px] (`BorderCurve.allowance`) or None; start: the
     points' pixels (K, 2) at the start of the frame, which choose the outline points within
-    `reach` [px] of a visible point."""
+    `reach` [px] of a visible point; slack [px]: added to every point's allowance (an outline
+    left uncovered by less is not charged)."""
 
     def __init__(self, camera: Camera, rows: torch.Tensor, curve: BorderCurve,
                  distance: torch.Tensor, *, visible: np.ndarray, allowance: torch.Tensor | None,
-                 start: np.ndarray, weight: float, reach: float):
+                 start: np.ndarray, weight: float, reach: float, slack: float = 0.0):
         self.camera, self.rows, self.curve = camera, rows, curve
         self.visible = np.flatnonzero(visible)
         self.allowance = (torch.zeros(len(curve.xi), dtype=torch.float64) if allowance is None
                           else allowance)
         self.reach = float(reach)
+        self.allowance = self.allowance + float(slack)
         outline = outline_points(distance)
         if len(self.visible) and len(outline):
             near, _ = cKDTree(start[self.visible]).query(outline, distance_upper_bound=reach)

@@ -77,7 +77,9 @@ class SplinePriorConfig:
     start are compared, and Tukey's reach; cover_points: points per border edge;
     allowance_fade: the silhouette allowance fades as each vertex moves from its frame-0 pixel,
     to none at this many mean projected edge lengths of frame 0
-    (`inverse.sft.silhouette.faded_allowance`; None: no fading).
+    (`inverse.sft.silhouette.faded_allowance`; None: no fading); cover_slack: an outline
+    point uncovered by less than this many mean projected border edges (beyond frame 0's
+    allowance) is not charged by the cover term.
     """
 
     physics_weight: float = 1e-2
@@ -103,6 +105,7 @@ class SplinePriorConfig:
     cover_reach: float = 3.0
     cover_points: int = 6
     allowance_fade: float | None = None
+    cover_slack: float = 0.0
 
     def __post_init__(self):
         for name in ("physics_weight", "silhouette_weight", "outline_weight", "temporal_weight",
@@ -136,6 +139,8 @@ class SplinePriorConfig:
                 self.cover_points < 1:
             raise ValueError(f"cover_points must be a positive integer, got "
                              f"{self.cover_points!r}")
+        if not 0 <= self.cover_slack < math.inf:
+            raise ValueError(f"cover_slack must be finite and >= 0, got {self.cover_slack}")
         if self.allowance_fade is not None and not 0 < self.allowance_fade < math.inf:
             raise ValueError(f"allowance_fade must be finite and positive, got "
                              f"{self.allowance_fade}")

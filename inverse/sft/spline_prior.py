@@ -197,7 +197,8 @@ class SplinePriorReconstructor:
         return CoverTerm(frame.camera, rows, curve, frame.distance,
                          visible=visible_points(curve, frame.outline_offset),
                          allowance=self.cover_allowance, start=start_pixels,
-                         weight=cfg.cover_weight, reach=cfg.cover_reach * edge)
+                         weight=cfg.cover_weight, reach=cfg.cover_reach * edge,
+                         slack=cfg.cover_slack * edge)
 
 
 def sheet_quadrature(surface: MeshSurface, config: SplineConfig, template: Template, *,
