@@ -156,3 +156,18 @@ def test_visible_points_need_both_ends_seen():
     seen = visible_points(curve, offsets)
     assert seen.sum() == 2 * 2  # edges 0–1 and 1–2
     assert visible_points(curve, None).all()
+
+
+@pytest.mark.parametrize("extra, named", [
+    (["--cover-weight", "-1"], "cover_weight"),
+    (["--cover-slack", "nan"], "cover_slack"),
+    (["--allowance-fade", "0"], "allowance_fade"),
+    (["--field", "siren", "--cover-weight", "1"], "--cover-weight")])
+def test_the_cli_refuses_bad_border_options_before_any_work(tmp_path, capsys, extra, named):
+    from inverse.cli import sft as sft_cli
+
+    status = sft_cli.main(["--frames", str(tmp_path / "none"), "--camera", "c.json",
+                           "--template", "t.obj", "--texture", "x.png", "--out",
+                           str(tmp_path / "out"), "--precision", "f64", *extra])
+    assert status == 2
+    assert named in capsys.readouterr().err
