@@ -12,21 +12,26 @@ far it is from the sheet's projected border curve:
 
 over the m outline points within the reach τ of the border at the start of the frame (the
 previous frame's shape; an outline that no border comes near — a hand, a fold's silhouette —
-is not the border's), x_k = X_k + u(ξ_k) points along the template's border edges (`BorderCurve`:
-several per edge, so the curve and not only its vertices is compared; each a surface point of
-its own, so every residual depends on one point and its Gauss–Newton block is exact), k(j) the
-nearest visible one, a_k the allowance: how far from mask 0's outline the template's own border
-lay at that point in frame 0 (the template is right by construction; where the mask and the
-template disagree, that much is not charged), s a slack (`SplinePriorConfig.cover_slack` mean projected border
-edges: an outline uncovered by less is left to the silhouette and outline terms), and ρ Tukey's biweight with reach τ,
+is not the border's), x_k = X_k + u(ξ_k) points along the template's border edges
+(`BorderCurve`: several per edge, so the curve and not only its vertices is compared; each a
+surface point of its own, so every residual depends on one point and its Gauss–Newton block is
+exact), k(j) the nearest visible one, a_k the allowance: how far from mask 0's outline the
+template's own border lay at that point in frame 0 (the template is right by construction;
+where the mask and the template disagree, that much is not charged), s a slack
+(`SplinePriorConfig.cover_slack` mean projected border edges: an outline uncovered by less is
+left to the silhouette and outline terms), and ρ Tukey's biweight with reach τ,
 ρ(r) = τ²/3 · (1 − (1 − (r/τ)²)³) for r < τ and τ²/3 beyond (quadratic for small r; a point
-that leaves the reach stops pulling). τ is `SplinePriorConfig.cover_reach` mean projected border edges of the
-start. Gauss–Newton on the scalar residual r: its row is (e/‖e‖)ᵀ dπ/dx with e = π(x_k) − c_j,
-Tukey by iteratively reweighted least squares (weight (1 − (r/τ)²)²).
+that leaves the reach stops pulling). τ is `SplinePriorConfig.cover_reach` mean projected
+border edges of the start. Gauss–Newton on the scalar residual r: its row is (e/‖e‖)ᵀ dπ/dx
+with e = π(x_k) − c_j, Tukey by iteratively reweighted least squares (weight (1 − (r/τ)²)²).
 
 The outline points are the mask's outline itself at sub-pixel positions: half-way between each
 mask pixel and its non-mask 4-neighbour (where the `silhouette_distance` image is 0); a mask
 cut by the image's edge has none along it.
+
+Measured on φ-SfT's R1 and the synthetic study: not better than without it (benchmarks/
+RESULTS.md, R1 section, wip-sft11): where the mask is a few pixels wider than the cloth it
+pulls the border out, which an inextensible sheet does by bending. Off by default.
 """
 
 from __future__ import annotations
