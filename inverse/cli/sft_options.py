@@ -36,3 +36,27 @@ def add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gt", type=Path, help="ground truth for metrics: a folder of meshes (the "
                    "template's vertex order) or of point clouds (.npy / .ply, the field's "
                    "chamfer protocol); with --capture its ground_truth/ by default")
+
+
+# The mask's outline covered by the border and the fading allowance (`SplinePriorConfig`'s
+# cover_weight, cover_reach, cover_slack, allowance_fade; spline field only).
+BORDER_OPTIONS = ("cover_weight", "cover_reach", "cover_slack", "allowance_fade")
+
+
+def add_border_options(p: argparse.ArgumentParser) -> None:
+    """``--cover-weight``, ``--cover-reach``, ``--cover-slack``, ``--allowance-fade``: the
+    cover term (`inverse.sft.contour`) and the fading silhouette allowance; default: the
+    settings' (off)."""
+    p.add_argument("--cover-weight", type=float, default=None, metavar="W",
+                   help="spline: w_cover, the mask's outline covered by the sheet's projected "
+                   "border (inverse.sft.contour; default 0: off)")
+    p.add_argument("--cover-reach", type=float, default=None, metavar="EDGES",
+                   help="spline: the cover term's reach in mean projected border edges "
+                   "(default 3)")
+    p.add_argument("--cover-slack", type=float, default=None, metavar="EDGES",
+                   help="spline: outline uncovered by less than EDGES mean projected border "
+                   "edges is not charged by the cover term (default 0)")
+    p.add_argument("--allowance-fade", type=float, default=None, metavar="EDGES",
+                   help="spline: with --silhouette-allowance, the allowance fades as a vertex "
+                   "moves from its frame-0 pixel, to none at EDGES mean projected edges "
+                   "(default: no fading)")

@@ -16,6 +16,7 @@ from inverse.cli.sft_inputs import (
     load_run_inputs,
 )
 from inverse.cli.sft_material import check_held_corners, material_config
+from inverse.cli.sft_options import BORDER_OPTIONS
 from inverse.material.field_types import INVERSE_FIELD_TYPES
 from inverse.sft.baseline import mesh_edges, reconstruct_baseline
 from inverse.sft.correspondences import FrameCorrespondences, track_gaps
@@ -176,9 +177,9 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
     names = {f.name for f in dataclasses.fields(kind)}
     # given only where the settings have them
     for option in ("silhouette_border_gap", "extrapolate", "silhouette_allowance",
-                   "allowance_reach"):
-        if getattr(args, option) in (None, False):
-            continue
+                   "allowance_reach") + BORDER_OPTIONS:
+        if getattr(args, option) is None or getattr(args, option) is False:
+            continue  # not given (0 is given: e.g. --allowance-fade 0 is refused)
         if option not in names:
             raise ValueError(f"--{option.replace('_', '-')} is not an option of "
                              f"--field {args.field}")

@@ -34,7 +34,11 @@ from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.outline import border_vertices, outline_allowance, outline_offsets
 from inverse.sft.photometric import PhotometricEvidence, PhotometricFrame
-from inverse.sft.silhouette import silhouette_allowance, silhouette_distance
+from inverse.sft.silhouette import (
+    faded_allowance,
+    silhouette_allowance,
+    silhouette_distance,
+)
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
 
 log = logging.getLogger(__name__)
@@ -59,6 +63,7 @@ class DataWeights:
     silhouette_border_gap: float = 0.0
     silhouette_allowance: bool = False
     allowance_reach: float | None = None
+    allowance_fade: float | None = None  # mean edges (`silhouette.faded_allowance`)
 
 
 @dataclass(frozen=True)
@@ -86,6 +91,7 @@ class FrameData:
     photometric: PhotometricFrame | None = None
     silhouette_rows: torch.Tensor | None = None
     silhouette_allowance: torch.Tensor | None = None
+    first_distance: torch.Tensor | None = None  # mask 0's `silhouette_distance` (the cover term)
 
     def data_term(self, tracks: torch.Tensor, vertices: torch.Tensor, *,
                   slope: str = "image") -> LeastSquaresData:
@@ -172,6 +178,12 @@ def reconstruct_frames(template: Template, camera: Camera,
         log.info("silhouette allowance: %d border vertices outside mask 0, up to %.2f px",
                  int((tolerated > 0).sum()), float(tolerated.max()))
     result = ReconstructionResult([template.vertices.copy()], [0.0], [0.0], [0], [{}])
+    first_pixels = camera.project(template.vertices)  # frame 0's, for a fading allowance
+    fade_px = (weights.allowance_fade or 0.0) * float(np.mean(np.linalg.norm(
+        first_pixels[template.faces] - first_pixels[np.roll(template.faces, 1, 1)], axis=2)))
+    first_distance = None  # frame 0's mask, for the cover term's allowance (`inverse.sft.contour`)
+    if masks is not None and weights.silhouette_weight > 0:
+        first_distance = silhouette_distance(masks[0])
 
     def solve(step: Step, history: list[np.ndarray]) -> tuple[FittedFrame, float, float]:
         """Frame `step.value` fitted from `history`, the vertices of the (at most two) frames
@@ -199,6 +211,9 @@ def reconstruct_frames(template: Template, camera: Camera,
                     ~border | (gaps > weights.silhouette_border_gap))
             if tolerated is not None and weights.allowance_reach is not None:
                 allowed = tolerated * torch.from_numpy(gaps <= weights.allowance_reach)
+        if allowed is not None and weights.allowance_fade is not None:
+            allowed = torch.from_numpy(faded_allowance(
+                allowed.numpy(), first_pixels, camera.project(history[-1]), fade_px))
         faces = template.faces[seen.face]
         bary = torch.from_numpy(seen.bary)
         previous = torch.from_numpy(history[-1])
@@ -210,7 +225,8 @@ def reconstruct_frames(template: Template, camera: Camera,
             pixels=torch.from_numpy(seen.xy), confidence=torch.from_numpy(seen.confidence),
             predicted=2.0 * previous - before, distance=distance, outline_offset=offsets,
             photometric=None if photometric is None else photometric.frame(i, history[-1]),
-            silhouette_rows=silhouette_rows, silhouette_allowance=allowed)
+            silhouette_rows=silhouette_rows, silhouette_allowance=allowed,
+            first_distance=first_distance)
         fitted = fit.fit_frame(frame)
         return fitted, time.perf_counter() - start, time.process_time() - cpu
 

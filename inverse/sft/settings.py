@@ -70,7 +70,16 @@ class SplinePriorConfig:
     constant-velocity extrapolation of the coefficients (else from the last frame's);
     photometric_weight: w_photo, the texture compared with the frame at about
     photometric_points surface points on an image level blurred by photometric_sigma [px]
-    (`inverse.sft.photometric`; 0 switches it off; needs the frames and the texture).
+    (`inverse.sft.photometric`; 0 switches it off; needs the frames and the texture);
+    cover_weight: w_cover, the mask's outline covered by the sheet's projected border
+    (`inverse.sft.contour`; 0 switches it off; needs masks and w_sil > 0); cover_reach: the
+    outline points within this many mean projected border edges of the border at the frame's
+    start are compared, and Tukey's reach; cover_points: points per border edge;
+    allowance_fade: the silhouette allowance fades as each vertex moves from its frame-0 pixel,
+    to none at this many mean projected edge lengths of frame 0
+    (`inverse.sft.silhouette.faded_allowance`; None: no fading); cover_slack: an outline
+    point uncovered by less than this many mean projected border edges (beyond frame 0's
+    allowance) is not charged by the cover term.
     """
 
     physics_weight: float = 1e-2
@@ -92,6 +101,11 @@ class SplinePriorConfig:
     photometric_weight: float = 0.0
     photometric_sigma: float = 2.0
     photometric_points: int = 4096
+    cover_weight: float = 0.0
+    cover_reach: float = 3.0
+    cover_points: int = 6
+    allowance_fade: float | None = None
+    cover_slack: float = 0.0
 
     def __post_init__(self):
         for name in ("physics_weight", "silhouette_weight", "outline_weight", "temporal_weight",
@@ -117,6 +131,19 @@ class SplinePriorConfig:
                              f"{self.photometric_points!r}")
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if not 0 <= self.cover_weight < math.inf:
+            raise ValueError(f"cover_weight must be finite and >= 0, got {self.cover_weight}")
+        if not 0 < self.cover_reach < math.inf:
+            raise ValueError(f"cover_reach must be finite and positive, got {self.cover_reach}")
+        if isinstance(self.cover_points, bool) or not isinstance(self.cover_points, int) or \
+                self.cover_points < 1:
+            raise ValueError(f"cover_points must be a positive integer, got "
+                             f"{self.cover_points!r}")
+        if not 0 <= self.cover_slack < math.inf:
+            raise ValueError(f"cover_slack must be finite and >= 0, got {self.cover_slack}")
+        if self.allowance_fade is not None and not 0 < self.allowance_fade < math.inf:
+            raise ValueError(f"allowance_fade must be finite and positive, got "
+                             f"{self.allowance_fade}")
         if self.degree not in (3, 4):
             raise ValueError(f"degree must be 3 or 4, got {self.degree}")
         from taichi_ndf.shell.materials import LinearIsotropic, preset

@@ -53,3 +53,14 @@ def silhouette_allowance(mask: np.ndarray, xy: np.ndarray, rows: np.ndarray) -> 
     depth = bilinear_differentiable(silhouette_distance(mask), torch.from_numpy(
         np.asarray(xy, dtype=np.float64))).numpy()
     return np.where(rows, np.maximum(depth, 0.0), 0.0)
+
+
+def faded_allowance(allowance: np.ndarray, first: np.ndarray, previous: np.ndarray,
+                    fade_px: float) -> np.ndarray:
+    """(n,) [px]: a `silhouette_allowance` (n,) faded as each vertex moves away from where
+    frame 0 saw it, a_v · max(0, 1 − ‖p_v − p_v⁰‖ / fade_px) with p_v⁰ its pixel in frame 0
+    (`first` (n, 2)) and p_v in the previous frame (`previous` (n, 2)): the allowance measures
+    where the mask and the template disagree in frame 0's pose, so a vertex that has moved
+    `fade_px` [px] or more keeps none (an unobserved corner drifting out is not tolerated)."""
+    moved = np.linalg.norm(np.asarray(previous) - np.asarray(first), axis=1)
+    return np.asarray(allowance) * np.clip(1.0 - moved / fade_px, 0.0, 1.0)

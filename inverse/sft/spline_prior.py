@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from inverse.sft.contour import BorderCurve, CoverTerm, mean_border_edge, visible_points
 from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData
 from inverse.sft.sequential import (
@@ -52,6 +53,7 @@ from inverse.sft.sequential import (
     FrameData,
 )
 from inverse.sft.settings import SplinePriorConfig
+from inverse.sft.silhouette import bilinear_differentiable
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
@@ -85,7 +87,8 @@ class SplinePriorReconstructor:
         self.config = cfg = config or SplinePriorConfig()
         self.weights = DataWeights(cfg.huber_px, cfg.temporal_weight, cfg.silhouette_weight,
                                    cfg.outline_weight, cfg.silhouette_border_gap,
-                                   cfg.silhouette_allowance, cfg.allowance_reach)
+                                   cfg.silhouette_allowance, cfg.allowance_reach,
+                                   cfg.allowance_fade)
         self.surface = MeshSurface(template.vertices, template.faces, template.uvs,
                                    name="template")
         mean_edge = mean_edge_length(template.vertices, template.faces)
@@ -118,6 +121,12 @@ class SplinePriorReconstructor:
         self.newton = NewtonConfig(
             max_iterations=cfg.max_iterations, decrement_tolerance=cfg.tolerance,
             gradient_tolerance=1e-8, floor_tolerance=cfg.tolerance)
+        # The mask's outline covered by the border (`inverse.sft.contour`; w_cover > 0).
+        self.border_curve = self.border_samples = self.cover_allowance = None
+        if cfg.cover_weight > 0:
+            self.border_curve = BorderCurve.of(template.vertices, template.faces, template.uvs,
+                                               per_edge=cfg.cover_points)
+            self.border_samples = self._samples_at(self.border_curve.xi)
         log.info("spline prior: %d x %d spans, %d coefficients, %d quadrature points", *spans,
                  self.field.config.num_coefficients, len(self.quadrature))
 
@@ -142,6 +151,9 @@ class SplinePriorReconstructor:
         photo = frame.photometric
         if photo is not None:
             samples = samples.joined(self._samples_at(photo.xi.to(DTYPE)))
+        cover = self.border_curve is not None and frame.distance is not None
+        if cover:
+            samples = samples.joined(self.border_samples)
         linearisation = self.grid.linearisation(1.0, samples)
         assembly = linearisation.assembly
         position = torch.empty_like(assembly.order)
@@ -151,6 +163,8 @@ class SplinePriorReconstructor:
         terms = (data,)
         if photo is not None:
             terms = (data, photo.term(frame.camera, position[n_q + n_t + n_v:]))
+        if cover:
+            terms = terms + (self._cover_term(frame, position[-len(self.border_curve.xi):]),)
         potential = (_DataOnly(terms) if self.shell is None
                      else Objective(self.shell, terms).potential(1.0))
         start = self.field.coefficients
@@ -167,6 +181,24 @@ class SplinePriorReconstructor:
             result = self.shell.result(assembly.samples, u)
             parts["energy"] = result.internal / (cfg.physics_weight)  # Π_int / E_ref
         return FittedFrame(self.vertices(), parts, len(solution.history))
+
+
+    def _cover_term(self, frame: FrameData, rows: torch.Tensor) -> CoverTerm:
+        """The frame's cover term (`inverse.sft.contour`) at sample rows `rows`, its outline
+        points chosen near the border of the field's current shape (the frame's start)."""
+        curve, cfg = self.border_curve, self.config
+        if self.cover_allowance is None and frame.first_distance is not None:
+            pixels = frame.camera.project(curve.rest)
+            self.cover_allowance = bilinear_differentiable(frame.first_distance, pixels).abs()
+        start = curve.rest + self.operator.displacement(curve.xi).double()
+        start_pixels = frame.camera.project(start).numpy()
+        edge = mean_border_edge(curve, frame.camera.project(torch.from_numpy(self.vertices())
+                                                            ).numpy())
+        return CoverTerm(frame.camera, rows, curve, frame.distance,
+                         visible=visible_points(curve, frame.outline_offset),
+                         allowance=self.cover_allowance, start=start_pixels,
+                         weight=cfg.cover_weight, reach=cfg.cover_reach * edge,
+                         slack=cfg.cover_slack * edge)
 
 
 def sheet_quadrature(surface: MeshSurface, config: SplineConfig, template: Template, *,
