@@ -60,6 +60,7 @@ from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.objective.inertia import InertiaTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
@@ -108,6 +109,12 @@ class SplinePriorReconstructor:
         if cfg.physics_weight > 0:
             self.shell = QuadratureShellTerm(
                 material.scaled(cfg.physics_weight / self.energy_reference), Loads())
+        # The inertia of a step Δt = frame_interval, in the prior's units (λ ρ_A / Δt²).
+        self.areal_density = material.areal_density
+        self.inertia_scale = None
+        if cfg.frame_interval is not None and self.shell is not None:
+            self.inertia_scale = (cfg.physics_weight / self.energy_reference
+                                  / cfg.frame_interval**2)
         self.vertex_xi = torch.from_numpy(template.uvs).to(DTYPE)
         self.vertex_samples = self._samples_at(self.vertex_xi)
         self.rest = torch.from_numpy(template.vertices).double()
@@ -151,18 +158,27 @@ class SplinePriorReconstructor:
         terms = (data,)
         if photo is not None:
             terms = (data, photo.term(frame.camera, position[n_q + n_t + n_v:]))
+        # the constant-velocity prediction 2 C_{t−1} − C_{t−2} of the coefficients
+        start = self.field.coefficients
+        predicted = start if self._previous is None else 2.0 * start - self._previous
+        if self.inertia_scale is not None:
+            terms = terms + (InertiaTerm(self.areal_density, self.inertia_scale,
+                                         assembly.displacement(predicted)),)
         potential = (_DataOnly(terms) if self.shell is None
                      else Objective(self.shell, terms).potential(1.0))
-        start = self.field.coefficients
-        if cfg.extrapolate and self._previous is not None:
-            start = 2.0 * start - self._previous
+        if cfg.extrapolate:
+            start = predicted
         self._previous = self.field.coefficients.clone()
         solution = minimise(linearisation, potential, start, self.newton)
         self.field.coefficients.copy_(solution.parameters)
         u = assembly.displacement(solution.parameters)
         parts = data.parts(u)
         for term in terms[1:]:
-            parts.update(term.parts(u))
+            if isinstance(term, InertiaTerm):  # ½ ρ_A/Δt² ‖u − û‖²_M / E_ref
+                parts["inertia"] = term.evaluate(assembly.samples, u, grad=False)[0] / (
+                    cfg.physics_weight)
+            else:
+                parts.update(term.parts(u))
         if self.shell is not None:
             result = self.shell.result(assembly.samples, u)
             parts["energy"] = result.internal / (cfg.physics_weight)  # Π_int / E_ref
