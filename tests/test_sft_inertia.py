@@ -150,3 +150,23 @@ def test_inertia_part_is_reported_and_small_at_constant_velocity():
     assert parts["keeps"][0] > 0
     assert parts["keeps"][0] == pytest.approx(parts["stops"][0])  # the same frame 1
     assert parts["keeps"][1] < 0.05 * parts["stops"][1], parts
+
+
+def test_cli_frame_interval_reaches_the_settings_and_refuses_bad_values(tmp_path, capsys):
+    from inverse.cli import sft as sft_cli
+    from inverse.cli.sft_run import method_config
+
+    args = sft_cli.build_parser().parse_args(
+        ["--capture", str(tmp_path), "--out", str(tmp_path / "o"), "--frame-interval", "0.04"])
+    assert method_config(args).frame_interval == 0.04
+    args = sft_cli.build_parser().parse_args(["--capture", str(tmp_path), "--out", "o"])
+    assert method_config(args).frame_interval is None
+    with pytest.raises(SystemExit) as bad:
+        sft_cli.build_parser().parse_args(["--capture", "x", "--out", "o",
+                                           "--frame-interval", "0"])
+    assert bad.value.code == 2 and "--frame-interval" in capsys.readouterr().err
+    status = sft_cli.main(["--capture", str(tmp_path), "--out", str(tmp_path / "o"),
+                           "--field", "siren", "--frame-interval", "0.04"])
+    assert status == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--frame-interval" in err

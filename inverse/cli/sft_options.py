@@ -36,3 +36,22 @@ def add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gt", type=Path, help="ground truth for metrics: a folder of meshes (the "
                    "template's vertex order) or of point clouds (.npy / .ply, the field's "
                    "chamfer protocol); with --capture its ground_truth/ by default")
+
+
+# -- the spline prior's inertia (wip-sft12) ------------------------------------------------------
+
+def positive_seconds(text: str) -> float:
+    """``--frame-interval``: a positive, finite number of seconds."""
+    value = float(text)
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be positive and finite [s], got {text!r}")
+    return value
+
+
+def add_motion_options(p: argparse.ArgumentParser) -> None:
+    """The spline prior's inertia: ``--frame-interval S`` (`SplinePriorConfig.frame_interval`)."""
+    p.add_argument("--frame-interval", type=positive_seconds, default=None, metavar="S",
+                   help="spline: the time between frames [s] (1/fps of the capture); adds the "
+                   "inertia ½ ρ_A/Δt² ‖u − û‖²_M of a time step towards the constant-velocity "
+                   "prediction, scaled like the prior (default: off; not better on R1, "
+                   "benchmarks/RESULTS.md)")

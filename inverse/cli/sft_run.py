@@ -176,7 +176,7 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
     names = {f.name for f in dataclasses.fields(kind)}
     # given only where the settings have them
     for option in ("silhouette_border_gap", "extrapolate", "silhouette_allowance",
-                   "allowance_reach"):
+                   "allowance_reach", "frame_interval"):
         if getattr(args, option) in (None, False):
             continue
         if option not in names:
