@@ -33,6 +33,11 @@ w_phys · 2 D (1 + ν) A ε² / B ≈ 1.2e4 ε² px² (cloth preset, w_phys = 1e
 A pull that the data cannot see competes with it: the motion term at w_temp = 1 dragged the
 accelerating corner sequence along its constant-velocity prediction, mostly in depth (e3D
 0.0108 and 2.7 mm depth bias against 0.0020 and 0.3 mm at w_temp = 0.1; docs/sft_results.md).
+
+Inertia (`SplinePriorConfig.frame_interval` Δt, off by default): E gains w_phys / E_ref ·
+½ ρ_A/Δt² (C − Ĉ)ᵀ M (C − Ĉ), `taichi_ndf.objective.inertia.InertiaTerm` at the sheet's
+quadrature points (M the spline's consistent mass matrix), Ĉ = 2 C_{t−1} − C_{t−2} (frame 1:
+C_0). On R1 it made the figures worse at Δt = 1/30, 0.1 and 0.2 s (benchmarks/RESULTS.md).
 """
 
 from __future__ import annotations
