@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 
 from inverse.cli.sft_material import add_material_options
-from inverse.cli.sft_options import add_border_options, add_input_options
+from inverse.cli.sft_options import add_border_options, add_input_options, add_motion_options
 from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 from taichi_ndf.cli.common import (
     ArgumentParser,
@@ -89,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--extrapolate", action="store_true",
                    help="spline: start each frame from the constant-velocity extrapolation of "
                    "the two frames before (default: from the frame before)")
+    add_motion_options(p)
     p.add_argument("--fps", type=finite_float, default=30.0, help="overlay video frame rate")
     p.add_argument("--overwrite", action="store_true",
                    help="allow writing into a non-empty output directory")

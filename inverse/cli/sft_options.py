@@ -60,3 +60,22 @@ def add_border_options(p: argparse.ArgumentParser) -> None:
                    help="spline: with --silhouette-allowance, the allowance fades as a vertex "
                    "moves from its frame-0 pixel, to none at EDGES mean projected edges "
                    "(default: no fading)")
+
+
+# -- the spline prior's inertia (wip-sft12) ------------------------------------------------------
+
+def positive_seconds(text: str) -> float:
+    """``--frame-interval``: a positive, finite number of seconds."""
+    value = float(text)
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be positive and finite [s], got {text!r}")
+    return value
+
+
+def add_motion_options(p: argparse.ArgumentParser) -> None:
+    """The spline prior's inertia: ``--frame-interval S`` (`SplinePriorConfig.frame_interval`)."""
+    p.add_argument("--frame-interval", type=positive_seconds, default=None, metavar="S",
+                   help="spline: the time between frames [s] (1/fps of the capture); adds the "
+                   "inertia ½ ρ_A/Δt² ‖u − û‖²_M of a time step towards the constant-velocity "
+                   "prediction, scaled like the prior (default: off; not better on R1, "
+                   "benchmarks/RESULTS.md)")

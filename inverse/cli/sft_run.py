@@ -177,7 +177,7 @@ def method_config(args: argparse.Namespace) -> SplinePriorConfig | Reconstructio
     names = {f.name for f in dataclasses.fields(kind)}
     # given only where the settings have them
     for option in ("silhouette_border_gap", "extrapolate", "silhouette_allowance",
-                   "allowance_reach") + BORDER_OPTIONS:
+                   "allowance_reach", "frame_interval") + BORDER_OPTIONS:
         if getattr(args, option) is None or getattr(args, option) is False:
             continue  # not given (0 is given: e.g. --allowance-fade 0 is refused)
         if option not in names:

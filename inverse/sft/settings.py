@@ -106,8 +106,19 @@ class SplinePriorConfig:
     cover_points: int = 6
     allowance_fade: float | None = None
     cover_slack: float = 0.0
+    # Inertia (wip-sft12): frame_interval Δt [s] between frames adds the incremental
+    # potential's inertia ½ ρ_A/Δt² ‖u − û‖²_M (consistent mass matrix of the spline over the
+    # sheet's quadrature, ρ_A the material's), scaled like the prior (by w_phys / E_ref), û the
+    # constant-velocity prediction 2 C_{t−1} − C_{t−2} of the coefficients (frame 1: C_0).
+    # None: off. Needs physics_weight > 0.
+    frame_interval: float | None = None
 
     def __post_init__(self):
+        if self.frame_interval is not None:
+            _positive("frame_interval", self.frame_interval)
+            if self.physics_weight == 0:
+                raise ValueError("frame_interval needs physics_weight > 0 (the inertia is "
+                                 "scaled like the prior)")
         for name in ("physics_weight", "silhouette_weight", "outline_weight", "temporal_weight",
                      "photometric_weight"):
             if not 0 <= getattr(self, name) < math.inf:

@@ -33,6 +33,11 @@ w_phys · 2 D (1 + ν) A ε² / B ≈ 1.2e4 ε² px² (cloth preset, w_phys = 1e
 A pull that the data cannot see competes with it: the motion term at w_temp = 1 dragged the
 accelerating corner sequence along its constant-velocity prediction, mostly in depth (e3D
 0.0108 and 2.7 mm depth bias against 0.0020 and 0.3 mm at w_temp = 0.1; docs/sft_results.md).
+
+Inertia (`SplinePriorConfig.frame_interval` Δt, off by default): E gains w_phys / E_ref ·
+½ ρ_A/Δt² (C − Ĉ)ᵀ M (C − Ĉ), `taichi_ndf.objective.inertia.InertiaTerm` at the sheet's
+quadrature points (M the spline's consistent mass matrix), Ĉ = 2 C_{t−1} − C_{t−2} (frame 1:
+C_0). On R1 it made the figures worse at Δt = 1/30, 0.1 and 0.2 s (benchmarks/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.objective import Objective, ShellEnergyTerm
+from taichi_ndf.objective.inertia import InertiaTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
@@ -111,6 +117,12 @@ class SplinePriorReconstructor:
         if cfg.physics_weight > 0:
             self.shell = QuadratureShellTerm(
                 material.scaled(cfg.physics_weight / self.energy_reference), Loads())
+        # The inertia of a step Δt = frame_interval, in the prior's units (λ ρ_A / Δt²).
+        self.areal_density = material.areal_density
+        self.inertia_scale = None
+        if cfg.frame_interval is not None and self.shell is not None:
+            self.inertia_scale = (cfg.physics_weight / self.energy_reference
+                                  / cfg.frame_interval**2)
         self.vertex_xi = torch.from_numpy(template.uvs).to(DTYPE)
         self.vertex_samples = self._samples_at(self.vertex_xi)
         self.rest = torch.from_numpy(template.vertices).double()
@@ -165,18 +177,27 @@ class SplinePriorReconstructor:
             terms = (data, photo.term(frame.camera, position[n_q + n_t + n_v:]))
         if cover:
             terms = terms + (self._cover_term(frame, position[-len(self.border_curve.xi):]),)
+        # the constant-velocity prediction 2 C_{t−1} − C_{t−2} of the coefficients
+        start = self.field.coefficients
+        predicted = start if self._previous is None else 2.0 * start - self._previous
+        if self.inertia_scale is not None:
+            terms = terms + (InertiaTerm(self.areal_density, self.inertia_scale,
+                                         assembly.displacement(predicted)),)
         potential = (_DataOnly(terms) if self.shell is None
                      else Objective(self.shell, terms).potential(1.0))
-        start = self.field.coefficients
-        if cfg.extrapolate and self._previous is not None:
-            start = 2.0 * start - self._previous
+        if cfg.extrapolate:
+            start = predicted
         self._previous = self.field.coefficients.clone()
         solution = minimise(linearisation, potential, start, self.newton)
         self.field.coefficients.copy_(solution.parameters)
         u = assembly.displacement(solution.parameters)
         parts = data.parts(u)
         for term in terms[1:]:
-            parts.update(term.parts(u))
+            if isinstance(term, InertiaTerm):  # ½ ρ_A/Δt² ‖u − û‖²_M / E_ref
+                parts["inertia"] = term.evaluate(assembly.samples, u, grad=False)[0] / (
+                    cfg.physics_weight)
+            else:
+                parts.update(term.parts(u))
         if self.shell is not None:
             result = self.shell.result(assembly.samples, u)
             parts["energy"] = result.internal / (cfg.physics_weight)  # Π_int / E_ref
