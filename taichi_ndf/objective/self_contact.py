@@ -48,11 +48,21 @@ class SelfContactTerm:
     docstring); the `Term` protocol of `taichi_ndf.objective`, with `coupled_hessian`.
 
     edges: the `EdgePoints` of the grid in use (set by the contact rounds per load step), None:
-    the Gauss points alone."""
+    the Gauss points alone; rest_at(ξ, r) -> (M, 3) [m]: the positions the exclusion radius
+    is measured at for points at ξ (M, 2) with reference positions r (M, 3) (a garment's:
+    where its panels start, `taichi_ndf.discretise.panel_contact.StartPositions`), None:
+    r, the rest shape."""
 
-    def __init__(self, config: SelfContactConfig, edges: EdgePoints | None = None):
+    def __init__(self, config: SelfContactConfig, edges: EdgePoints | None = None,
+                 rest_at=None):
         self.config = config
         self.edges = edges
+        self.rest_at = rest_at
+
+    def rest(self, xi: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        """The positions (M, 3) [m] the exclusion is measured at (`rest_at`) of points at ξ
+        (M, 2) with reference positions r (M, 3)."""
+        return r if self.rest_at is None else self.rest_at(xi, r)
 
     def points(self, samples: SurfaceSamples) -> tuple[torch.Tensor, torch.Tensor]:
         """The self-contact points as rows of the samples (M,) int64 and their areas (M,)
@@ -80,8 +90,9 @@ class SelfContactTerm:
         """Candidate pairs as rows of the samples (P, 2) int64, their separations x_a − x_b
         (P, 3) [m] and the weights κ A_a A_b (P,) [N/m]."""
         rows, point_area = self.points(samples)
-        rest = samples.r_jets[rows, jets.VALUE]
-        x = rest + u_jets[rows, jets.VALUE]
+        r = samples.r_jets[rows, jets.VALUE]
+        x = r + u_jets[rows, jets.VALUE]
+        rest = self.rest(samples.xi[rows], r)
         config = self.config
         local = candidate_pairs(x.detach().cpu().numpy(), config.offset + config.activation,
                                 rest.detach().cpu().numpy(), config.exclusion)
