@@ -16,7 +16,9 @@ Self-contact (`[self_contact]` in a garment file): the rounds' self-contact term
 the Gauss points of all panels (pairs within a panel and across panels, found in the joint
 samples; no edge points: a panel's free edge carries none, as on a masked chart). Two points
 are neighbours, and never repel, when they START closer than the exclusion radius ρ
-(`StartPositions`: r + u of the start coefficients, the placement): a flat-cut panel's rest
+(`StartPositions`: r + u of the start coefficients, the placement, found for each Gauss
+point by its reference position among its panel's: the rounds' samples carry each panel's own
+ξ, which several panels share): a flat-cut panel's rest
 shape is its flat pattern, and the patterns of several panels lie on top of each other in
 3-D (so rest distances say nothing across panels), while the placement puts the two edges of
 a seam next to each other, so points neighbouring across a seam start within ρ. It asks that
@@ -42,26 +44,40 @@ DTYPE = torch.float64
 
 
 class StartPositions:
-    """Where a garment's points start, x₀ = r + u(start) (M, 3) [m] at joint ξ (M, 2): the
-    positions self-contact's exclusion radius is measured at on a garment
-    (`SelfContactTerm.rest_at`; module docstring). chart: the `MultiPatchGrid`; start: the
-    joint start coefficients (Σ n_i, 3) at load factor 0. The last few point sets' positions
-    are kept (the rounds ask for the same Gauss points at every evaluation)."""
+    """Where a garment's Gauss points start, x₀ = r + u(start) [m]: the positions
+    self-contact's exclusion radius is measured at on a garment (`SelfContactTerm.rest_at`;
+    module docstring). Asked for the self-contact points of a round (xi (M, 2), r (M, 3)):
+    the Gauss points of every panel, panel after panel (in the round's samples at each
+    panel's own ξ, in the step test at the joint ξ), each found by its reference position in
+    its panel's block. chart: the `MultiPatchGrid`; points: each panel's Gauss-point samples
+    (its own ξ); start: the joint start coefficients (Σ n_i, 3) at load factor 0."""
 
-    KEPT = 4
-
-    def __init__(self, chart: MultiPatchGrid, start: torch.Tensor):
-        self.chart, self.start = chart, start.detach()
-        self._kept: dict[bytes, torch.Tensor] = {}
+    def __init__(self, chart: MultiPatchGrid, points: list, start: torch.Tensor):
+        self.tables, self.counts = [], []
+        for i, own in enumerate(points):
+            gauss = own.weight > 0
+            joint = chart.joint(own, i)
+            r = own.r_jets[gauss, 0].to(DTYPE)
+            x0 = r + PointMap(chart, joint.xi[gauss].to(DTYPE), 0.0)(start.detach())
+            self.tables.append(({row.tobytes(): k for k, row in enumerate(r.numpy())}, x0))
+            self.counts.append(int(gauss.sum()))
+        self._kept: tuple[bytes, torch.Tensor] | None = None
 
     def __call__(self, xi: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
-        key = xi.detach().cpu().numpy().tobytes()
-        if key not in self._kept:
-            if len(self._kept) >= self.KEPT:
-                self._kept.clear()
-            u = PointMap(self.chart, xi.detach().to(DTYPE), 0.0)(self.start)
-            self._kept[key] = r.detach() + u.to(r)
-        return self._kept[key]
+        rows = r.detach().to(DTYPE).cpu().numpy()
+        key = rows.tobytes()
+        if self._kept is not None and self._kept[0] == key:
+            return self._kept[1]
+        if len(rows) != sum(self.counts):
+            raise ValueError(f"self-contact on a garment: {len(rows)} points, not the panels' "
+                             f"{sum(self.counts)} Gauss points")
+        out, first = [], 0
+        for (table, x0), count in zip(self.tables, self.counts, strict=True):
+            index = [table[row.tobytes()] for row in rows[first:first + count]]
+            out.append(x0[index])
+            first += count
+        self._kept = (key, torch.cat(out).to(r))
+        return self._kept[1]
 
 
 def panel_contact(plan: MultiPatchPlan, model, grids: list[GridLinearisation], join,
@@ -90,7 +106,7 @@ def panel_contact(plan: MultiPatchPlan, model, grids: list[GridLinearisation], j
         quadrature = quadrature.joined(chart.joint(own, i))
     contact = NewtonContact(config, model, DTYPE, surface=chart.surface)
     if contact.self_contact is not None:  # neighbours: near where the panels start
-        contact.self_contact.rest_at = StartPositions(chart, start)
+        contact.self_contact.rest_at = StartPositions(chart, points, start)
         check_seams_start_close(plan, seams, chart, start, config.self_contact)
     if any(p.start is not None for p in plan.patches):
         check_outside(plan, contact, chart, start, 0.0, "where the panels start")
