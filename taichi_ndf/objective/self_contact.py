@@ -5,7 +5,8 @@ Points: the samples with positive shell weight (a spline's Gauss points), each w
 outermost Gauss points projected onto the free edges, sharing those points' areas; samples of
 shell, barrier and point-load weight 0 at the edge points' ξ, which the contact rounds add). A
 pair (a, b) is a candidate when the two points are far apart on the surface — their rest
-distance |r_a − r_b| is at least the exclusion radius ρ [m], so that neighbours do not repel —
+distance |r_a − r_b| is at least the exclusion radius ρ [m], so that neighbours do not repel
+(on a garment the distance where the panels start: `SelfContactTerm.rest_at`) —
 and close in space: gap g = |x_a − x_b| − o < ĝ (x = r + u, o the offset [m],
 ĝ the activation distance [m]). The energy is the double area integral of the obstacle
 contact's barrier b (`taichi_ndf.contact.barrier.barrier`, Li et al. 2020), by the samples'
