@@ -6,9 +6,11 @@ one process. Per run: Π at the last load step, Newton iterations, convergence a
 step, contact rounds, the seams' largest gap, the self-contact settings, the smallest
 distance between self-contact points not excluded as neighbours, the intersecting triangle
 pairs of the joined output meshes (`taichi_ndf.io.mesh_check.self_intersections`, 48 × 48
-per panel), CPU (user + sys) and wall time of the solve, the load average.
+per panel, the seams' vertices welded within 1e-5 m), CPU (user + sys) and wall time of
+the solve, the load average.
 
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_self_contact.py [ĝ] [n m ...]
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python benchmarks/garment_self_contact.py --stack
 """
 
 from __future__ import annotations
@@ -42,14 +44,23 @@ def _cpu() -> float:
     return use.ru_utime + use.ru_stime
 
 
-def _crossings(panels, resolution=(48, 48)) -> int:
+def _crossings(panels, resolution=(48, 48), weld: float = 1e-5) -> int:
+    """Intersecting triangle pairs of the panels' output meshes joined into one, the vertices
+    of the seams' two sides (closer than `weld` [m]) merged into one first: else the two
+    panels' triangles that meet at a seam count as crossing."""
+    from scipy.spatial import cKDTree
+
     vertices, faces, count = [], [], 0
     for part in panels.result_parts(panels.field):
         mesh = deformed_mesh(part.model, part.field, resolution)
         vertices.append(mesh.deformed)
         faces.append(mesh.faces + count)
         count += len(mesh.deformed)
-    return len(self_intersections(np.concatenate(vertices), np.concatenate(faces)))
+    vertices, faces = np.concatenate(vertices), np.concatenate(faces)
+    same = np.arange(len(vertices))
+    for a, b in sorted(cKDTree(vertices).query_pairs(weld)):
+        same[b] = same[a]
+    return len(self_intersections(vertices, same[faces]))
 
 
 def run(spans, distance: float | None) -> dict:
@@ -94,7 +105,35 @@ def _closest(panels, config) -> float:
     return float(np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1).min())
 
 
+def stack() -> None:
+    """tests/test_garment_self_contact.py's two stacked panels (a cantilever drooping onto a
+    held panel 5 cm below), without and with `[self_contact]` (ĝ = 5 mm): the middles' height
+    difference, crossings of the joined meshes (24 × 24 per panel), iterations, CPU, wall."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_garment_self_contact import _middle_z, _solve, _stack
+
+    print("| self-contact | upper − lower middle [mm] | o + ĝ/2 [mm] | Newton it. | converged "
+          "| crossings | CPU [s] | wall [s] |")
+    print("|---|---|---|---|---|---|---|---|")
+    for settings in (None, {"distance": 0.005}):
+        cpu, wall = _cpu(), time.perf_counter()
+        scene, panels, solution = _solve(_stack(settings))
+        cpu, wall = _cpu() - cpu, time.perf_counter() - wall
+        lower, upper = _middle_z(scene, panels)
+        config = scene.model.contact.self_contact if scene.model.contact else None
+        rest = "–" if config is None else f"{1e3 * (config.offset + config.activation / 2):.2f}"
+        print(f"| {'on' if settings else 'off'} | {1e3 * (upper - lower):.2f} | {rest} | "
+              f"{solution.iterations} | {all(panels.converged)} | "
+              f"{_crossings(panels, (24, 24))} | {cpu:.1f} | {wall:.1f} |", flush=True)
+
+
 def main(argv: list[str]) -> None:
+    if argv[:1] == ["--stack"]:
+        taichi_ndf.init(arch="cpu", precision="f64", seed=0)
+        print(f"commit {commit()}, load average {os.getloadavg()}")
+        stack()
+        print(f"load average after {os.getloadavg()}")
+        return
     distance = float(argv[0]) if argv else 0.002
     numbers = [int(v) for v in argv[1:]]
     grids = list(zip(numbers[::2], numbers[1::2], strict=True)) or [(4, 6), (8, 12)]
