@@ -16,9 +16,7 @@ Self-contact (`[self_contact]` in a garment file): the rounds' self-contact term
 the Gauss points of all panels (pairs within a panel and across panels, found in the joint
 samples; no edge points: a panel's free edge carries none, as on a masked chart). Two points
 are neighbours, and never repel, when they START closer than the exclusion radius ρ
-(`StartPositions`: r + u of the start coefficients, the placement, found for each Gauss
-point by its reference position among its panel's: the rounds' samples carry each panel's own
-ξ, which several panels share): a flat-cut panel's rest
+(`StartPositions`: r + u of the start coefficients, the placement): a flat-cut panel's rest
 shape is its flat pattern, and the patterns of several panels lie on top of each other in
 3-D (so rest distances say nothing across panels), while the placement puts the two edges of
 a seam next to each other, so points neighbouring across a seam start within ρ. It asks that
@@ -49,8 +47,9 @@ class StartPositions:
     module docstring). Asked for the self-contact points of a round (xi (M, 2), r (M, 3)):
     the Gauss points of every panel, panel after panel (in the round's samples at each
     panel's own ξ, in the step test at the joint ξ), each found by its reference position in
-    its panel's block. chart: the `MultiPatchGrid`; points: each panel's Gauss-point samples
-    (its own ξ); start: the joint start coefficients (Σ n_i, 3) at load factor 0."""
+    its panel's block (by r, not ξ: the rounds' samples carry each panel's own ξ, which
+    panels of one size share). chart: the `MultiPatchGrid`; points: each panel's Gauss-point
+    samples (its own ξ); start: the joint start coefficients (Σ n_i, 3) at load factor 0."""
 
     def __init__(self, chart: MultiPatchGrid, points: list, start: torch.Tensor):
         self.tables, self.counts = [], []
