@@ -84,13 +84,17 @@ def test_bad_settings_are_refused_naming_the_key(change, message):
     assert "\n" not in str(error.value)
 
 
-def test_a_garment_file_with_self_contact_is_refused_in_one_line():
+def test_a_garment_file_reads_self_contact_from_its_coarsest_panel_grid():
+    """A garment file's [self_contact] (issue 30): the offset's default from its panels'
+    coarsest grid (tests/test_garment_self_contact.py runs it)."""
     document = tomllib.loads((ROOT / "scenes" / "skirt_body.toml").read_text())
     document["self_contact"] = {"distance": 0.004}
-    with pytest.raises(SceneError) as error:
-        _parse(document)
-    assert str(error.value).startswith("self_contact: not supported in a garment file")
-    assert "\n" not in str(error.value)
+    scene = _parse(document)
+    config = scene.model.contact.self_contact
+    assert config.activation == 0.004
+    assert [o.name for o in scene.model.contact.obstacles] == ["body"]
+    document["field"]["spans"] = [2 * s for s in document["field"]["spans"]]
+    assert _parse(document).model.contact.self_contact.offset < config.offset
 
 
 def test_ndf_sim_refuses_a_bad_table_with_exit_code_2_and_one_line(tmp_path):

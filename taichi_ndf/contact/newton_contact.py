@@ -284,8 +284,10 @@ class ContactMinimiser:
         # after each Newton iterate: the grid's points within ĝ (+ the look-ahead) added
         refresh = contact.hook.look_ahead(lambda c: checked(c)[on_grid], t)
         # the Gauss (and edge) points come first among the checked points: self-contact's
-        feasible = contact.hook.feasible(lambda c: checked_r + checked(c), t,
-                                         self_rest=checked_r[:on_grid.start])
+        selves = slice(on_grid.start)
+        feasible = contact.hook.feasible(lambda c: checked_r + checked(c), t, self_rest=(
+            None if contact.self_contact is None else
+            contact.self_contact.rest(checked_xi[selves], checked_r[selves])))
 
         history, c, solution, lagged, first = [], parameters, None, None, 0
         if resume is None:

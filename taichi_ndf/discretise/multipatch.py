@@ -214,7 +214,7 @@ class MultiPatchDiscretisation:
         contact = None
         if self.model.contact is not None:
             contact, self._points = panel_contact(self.spec, self.model, grids, self._joined,
-                                                  self._start)
+                                                  self._start, seams)
         state = self.state  # fresh, or a checkpoint's: its finished load steps
         run = PanelsRun(self.field, state, config)
         history, steps = state.history, state.steps

@@ -10,7 +10,19 @@ steps: each round's linearisation is the chart's `join` of the patches' grids, t
 seams are `SewnFromStart` with the start displacement at the round's own points; a held
 target's move of the held rows (`held_moves`, a gathered waist) is set before the step's
 first round, and that state must be outside the obstacles (the rounds' step test starts
-from it): else ValueError naming the obstacle, the panel and the load factor."""
+from it): else ValueError naming the obstacle, the panel and the load factor.
+
+Self-contact (`[self_contact]` in a garment file): the rounds' self-contact term acts between
+the Gauss points of all panels (pairs within a panel and across panels, found in the joint
+samples; no edge points: a panel's free edge carries none, as on a masked chart). Two points
+are neighbours, and never repel, when they START closer than the exclusion radius ρ
+(`StartPositions`: r + u of the start coefficients, the placement): a flat-cut panel's rest
+shape is its flat pattern, and the patterns of several panels lie on top of each other in
+3-D (so rest distances say nothing across panels), while the placement puts the two edges of
+a seam next to each other, so points neighbouring across a seam start within ρ. It asks that
+the panels start apart by more than ρ where they are not sewn, and that a seam's edges start
+closer than ρ − (o + ĝ) (`check_seams_start_close`). The step bound
+(`taichi_ndf.contact.self_step`) is over the same points, measured the same way."""
 
 from __future__ import annotations
 
@@ -29,13 +41,52 @@ from taichi_ndf.problem.multipatch import MultiPatchPlan
 DTYPE = torch.float64
 
 
+class StartPositions:
+    """Where a garment's Gauss points start, x₀ = r + u(start) [m]: the positions
+    self-contact's exclusion radius is measured at on a garment (`SelfContactTerm.rest_at`;
+    module docstring). Asked for the self-contact points of a round (xi (M, 2), r (M, 3)):
+    the Gauss points of every panel, panel after panel (in the round's samples at each
+    panel's own ξ, in the step test at the joint ξ), each found by its reference position in
+    its panel's block (by r, not ξ: the rounds' samples carry each panel's own ξ, which
+    panels of one size share). chart: the `MultiPatchGrid`; points: each panel's Gauss-point
+    samples (its own ξ); start: the joint start coefficients (Σ n_i, 3) at load factor 0."""
+
+    def __init__(self, chart: MultiPatchGrid, points: list, start: torch.Tensor):
+        self.tables, self.counts = [], []
+        for i, own in enumerate(points):
+            gauss = own.weight > 0
+            joint = chart.joint(own, i)
+            r = own.r_jets[gauss, 0].to(DTYPE)
+            x0 = r + PointMap(chart, joint.xi[gauss].to(DTYPE), 0.0)(start.detach())
+            self.tables.append(({row.tobytes(): k for k, row in enumerate(r.numpy())}, x0))
+            self.counts.append(int(gauss.sum()))
+        self._kept: tuple[bytes, torch.Tensor] | None = None
+
+    def __call__(self, xi: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        rows = r.detach().to(DTYPE).cpu().numpy()
+        key = rows.tobytes()
+        if self._kept is not None and self._kept[0] == key:
+            return self._kept[1]
+        if len(rows) != sum(self.counts):
+            raise ValueError(f"self-contact on a garment: {len(rows)} points, not the panels' "
+                             f"{sum(self.counts)} Gauss points")
+        out, first = [], 0
+        for (table, x0), count in zip(self.tables, self.counts, strict=True):
+            index = [table[row.tobytes()] for row in rows[first:first + count]]
+            out.append(x0[index])
+            first += count
+        self._kept = (key, torch.cat(out).to(r))
+        return self._kept[1]
+
+
 def panel_contact(plan: MultiPatchPlan, model, grids: list[GridLinearisation], join,
-                  start: torch.Tensor) -> tuple[tuple, list]:
+                  start: torch.Tensor, seams: list[SeamTerm] = ()) -> tuple[tuple, list]:
     """((contact, chart, quadrature), points): the run's `NewtonContact` over the patches'
     joint chart, the chart (`MultiPatchGrid`, its linearisations `join(grids, t)`: the
     held edges' `HeldEdges`) and its quadrature (the patches' Gauss and seam points there);
     points: each patch's own samples (its grid's, to assemble it on again after the rounds).
-    model: the garment's (its `contact`); start: the joint start coefficients (Σ n_i, 3).
+    model: the garment's (its `contact`); start: the joint start coefficients (Σ n_i, 3);
+    seams: the seams' terms (before `between`; with self-contact `check_seams_start_close`).
     Checked: no obstacle at a pin (`check_pins`), at a placed panel's reference surface
     (`check_reference`) or where a flat-cut panel starts (`check_outside` at load factor 0:
     its rest shape is the flat pattern, not where it is on the body)."""
@@ -53,9 +104,33 @@ def panel_contact(plan: MultiPatchPlan, model, grids: list[GridLinearisation], j
     for i, own in enumerate(points[1:], start=1):
         quadrature = quadrature.joined(chart.joint(own, i))
     contact = NewtonContact(config, model, DTYPE, surface=chart.surface)
+    if contact.self_contact is not None:  # neighbours: near where the panels start
+        contact.self_contact.rest_at = StartPositions(chart, points, start)
+        check_seams_start_close(plan, seams, chart, start, config.self_contact)
     if any(p.start is not None for p in plan.patches):
         check_outside(plan, contact, chart, start, 0.0, "where the panels start")
     return (contact, chart, quadrature), points
+
+
+def check_seams_start_close(plan: MultiPatchPlan, seams: list[SeamTerm],
+                            chart: MultiPatchGrid, start: torch.Tensor, config) -> None:
+    """ValueError naming the seam where its two edges start (the joint `start` coefficients)
+    more than ρ − (o + ĝ) apart at some seam point (config: the `SelfContactConfig`): points
+    across it would not be neighbours by their start distance (module docstring) and would
+    repel as the seam is sewn. A guard on the seam points, not a proof for every pair."""
+    allowed = config.exclusion - config.offset - config.activation
+    for seam, term in zip(plan.seams, seams, strict=True):
+        ends = []
+        for side, patch in enumerate((seam.a, seam.b)):
+            points = chart.joint(term.points(side), patch)
+            xi = points.xi.to(DTYPE)
+            ends.append(points.r_jets[:, 0].to(DTYPE) + PointMap(chart, xi, 0.0)(start))
+        gap = max((float(g) for g in (ends[0] - ends[1]).norm(dim=1)), default=0.0)
+        if gap > allowed:
+            raise ValueError(f"self_contact: seam {seam.spec.name!r} starts {gap:.4g} m open, "
+                             f"more than exclusion − offset − distance = {allowed:.4g} m (its "
+                             "sides would repel as it is sewn): place the panels closer or "
+                             "raise self_contact.exclusion")
 
 
 def check_outside(plan: MultiPatchPlan, contact: NewtonContact, chart: MultiPatchGrid,

@@ -5,7 +5,8 @@ Points: the samples with positive shell weight (a spline's Gauss points), each w
 outermost Gauss points projected onto the free edges, sharing those points' areas; samples of
 shell, barrier and point-load weight 0 at the edge points' ξ, which the contact rounds add). A
 pair (a, b) is a candidate when the two points are far apart on the surface — their rest
-distance |r_a − r_b| is at least the exclusion radius ρ [m], so that neighbours do not repel —
+distance |r_a − r_b| is at least the exclusion radius ρ [m], so that neighbours do not repel
+(on a garment the distance where the panels start: `SelfContactTerm.rest_at`) —
 and close in space: gap g = |x_a − x_b| − o < ĝ (x = r + u, o the offset [m],
 ĝ the activation distance [m]). The energy is the double area integral of the obstacle
 contact's barrier b (`taichi_ndf.contact.barrier.barrier`, Li et al. 2020), by the samples'
@@ -48,11 +49,21 @@ class SelfContactTerm:
     docstring); the `Term` protocol of `taichi_ndf.objective`, with `coupled_hessian`.
 
     edges: the `EdgePoints` of the grid in use (set by the contact rounds per load step), None:
-    the Gauss points alone."""
+    the Gauss points alone; rest_at(ξ, r) -> (M, 3) [m]: the positions the exclusion radius
+    is measured at for points at ξ (M, 2) with reference positions r (M, 3) (a garment's:
+    where its panels start, `taichi_ndf.discretise.panel_contact.StartPositions`), None:
+    r, the rest shape."""
 
-    def __init__(self, config: SelfContactConfig, edges: EdgePoints | None = None):
+    def __init__(self, config: SelfContactConfig, edges: EdgePoints | None = None,
+                 rest_at=None):
         self.config = config
         self.edges = edges
+        self.rest_at = rest_at
+
+    def rest(self, xi: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+        """The positions (M, 3) [m] the exclusion is measured at (`rest_at`) of points at ξ
+        (M, 2) with reference positions r (M, 3)."""
+        return r if self.rest_at is None else self.rest_at(xi, r)
 
     def points(self, samples: SurfaceSamples) -> tuple[torch.Tensor, torch.Tensor]:
         """The self-contact points as rows of the samples (M,) int64 and their areas (M,)
@@ -80,8 +91,9 @@ class SelfContactTerm:
         """Candidate pairs as rows of the samples (P, 2) int64, their separations x_a − x_b
         (P, 3) [m] and the weights κ A_a A_b (P,) [N/m]."""
         rows, point_area = self.points(samples)
-        rest = samples.r_jets[rows, jets.VALUE]
-        x = rest + u_jets[rows, jets.VALUE]
+        r = samples.r_jets[rows, jets.VALUE]
+        x = r + u_jets[rows, jets.VALUE]
+        rest = self.rest(samples.xi[rows], r)
         config = self.config
         local = candidate_pairs(x.detach().cpu().numpy(), config.offset + config.activation,
                                 rest.detach().cpu().numpy(), config.exclusion)

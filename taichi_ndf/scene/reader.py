@@ -181,9 +181,7 @@ def _garment(document: dict, *, base_dir: Path, path: Path | None) -> Scene:
     model = replace(model, contact=parse_contact(top, model, base_dir))
     if model.contact is not None and model.contact.has_friction:
         raise SceneError("obstacles: friction is not supported on a garment's panels yet")
-    if top.has("self_contact"):
-        raise SceneError("self_contact: not supported in a garment file ([[panels]]) yet (one "
-                         "chart only: docs/scenes.md, \"Self-contact\")")
+    model = parse_self_contact(top, model, plan)
     solver, quick = _section(top.table("training", optional=True), training, True)
     output = _section(top.table("output", optional=True), _output, False)
     top.close()
