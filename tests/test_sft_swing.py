@@ -9,8 +9,12 @@ import pytest
 import torch
 
 import taichi_ndf
-from inverse.material.trajectory_fit import (TrajectoryData, TrajectoryFitConfig,
-                                             fit_trajectory, observe)
+from inverse.material.trajectory_fit import (
+    TrajectoryData,
+    TrajectoryFitConfig,
+    fit_trajectory,
+    observe,
+)
 from inverse.sft.swing import SwingConfig, swing_problem
 from taichi_ndf.solve.dynamics_adjoint import record
 

@@ -152,7 +152,7 @@ def test_bad_observations_exit_2_in_one_line(tmp_path, capsys, change, message):
 
 @pytest.mark.parametrize(("extra", "dynamic", "message"), [
     ("", False, "has no [dynamics] section"),
-    ("[dynamics.wind]\nvelocity = [2.0, 0.0, 2.0]", True, "dynamics adjoint: wind is not supported"),
+    ("[dynamics.wind]\nvelocity = [2.0, 0.0, 2.0]", True, "wind is not supported"),
     ("stiffness_damping = 0.01", True, "stiffness-proportional damping"),
     ("[[obstacles]]\ntype = \"sphere\"\nname = \"ball\"\ncentre = [2.0, 0.5, -3.0]\n"
      "radius = 0.5", True, "contact ([[obstacles]] or [self_contact]) is not supported"),

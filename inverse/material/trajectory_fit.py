@@ -8,7 +8,8 @@ J(θ) = ½ Σ r²; per iteration one run (`record`), the gradient ∇J = Σ r dr
 (`gradient`, weights ∂J/∂C_k), the Gauss–Newton Hessian H = Σ (dr/dθ)² from the tangent
 (`tangent`: dC_k/dθ, mapped to the points by the free part J alone: u = g(t) + J C, the
 boundary's part g(t) at the state's time — a scene's motion μ(t) or handles on paths,
-`solve.handle_paths` — does not depend on θ), and θ ← θ − ∇J/H (a step to θ ≤ 0 is cut to θ/2) until |Δθ| < `tolerance` |θ|.
+`solve.handle_paths` — does not depend on θ), and θ ← θ − ∇J/H (a step to θ ≤ 0 is cut
+to θ/2) until |Δθ| < `tolerance` |θ|.
 At the last run: s.e.(θ) = σ/√H, the residuals, and the χ² test of
 `goodness.goodness_of_fit` (1 unknown). With σ unknown it is
 estimated from the residuals, σ̂² = Σ r²/(R − 1) for R residual entries: then χ²/dof = 1 by

@@ -48,7 +48,8 @@ class HandlePath:
         values = np.asarray(self.displacements, dtype=np.float64)
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "displacements", values)
-        if len(times) < 2 or times[0] != 0.0 or any(b <= a for a, b in zip(times, times[1:])):
+        if len(times) < 2 or times[0] != 0.0 \
+                or any(b <= a for a, b in zip(times, times[1:], strict=False)):
             raise ValueError(f"handle path: times must start at 0 and increase (at least two), "
                              f"got {list(times)[:5]}")
         if not np.isfinite(times).all():
