@@ -98,7 +98,7 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     s = 0.5 * (1 - np.cos(2 * np.pi * times / args.duration))
     path = HandlePath(tuple(times), s[:, None, None] * MOVES[None])
     truth = PathStepper(model, plan, DynamicsConfig(dt=dt, duration=steps * dt,
-                                                    integrator="newmark"), path)
+                                                    integrator=args.truth_integrator), path)
     states = record(truth, rest)
     xi_np, faces = grid_mesh(17)
     xi = torch.from_numpy(xi_np)
@@ -123,7 +123,7 @@ def part_synthetic(args) -> None:
     clean, faces, held = synthetic(b_true, args)
     print(f"truth: {len(clean)} frames at {args.fps} fps, B = {b_true:.4e} N·m "
           f"(c = {100 * args.bending_length:.2f} cm), {args.truth_spans}² spans, "
-          f"{args.truth_substeps} Newmark steps per frame: {cpu() - c0:.0f} s CPU; corner "
+          f"{args.truth_substeps} {args.truth_integrator} steps per frame: {cpu() - c0:.0f} s CPU; corner "
           f"moves {MOVES.tolist()} m; sheet rms displacement from frame 0 at the last frame "
           f"{1000 * np.sqrt(np.mean(np.sum((clean[-1] - clean[0]) ** 2, 1))):.1f} mm")
     config = SwingConfig(spans=(args.spans,) * 2, substeps=args.substeps,
@@ -214,6 +214,7 @@ def main() -> None:
     p.add_argument("--fps", type=float, default=30.0)
     p.add_argument("--truth-spans", type=int, default=12)
     p.add_argument("--truth-substeps", type=int, default=4)
+    p.add_argument("--truth-integrator", default="newmark")
     p.add_argument("--spans", type=int, default=8)
     p.add_argument("--substeps", type=int, default=1)
     p.add_argument("--integrator", default="implicit_euler")
