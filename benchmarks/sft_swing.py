@@ -123,7 +123,8 @@ def part_synthetic(args) -> None:
     clean, faces, held = synthetic(b_true, args)
     print(f"truth: {len(clean)} frames at {args.fps} fps, B = {b_true:.4e} N·m "
           f"(c = {100 * args.bending_length:.2f} cm), {args.truth_spans}² spans, "
-          f"{args.truth_substeps} {args.truth_integrator} steps per frame: {cpu() - c0:.0f} s CPU; corner "
+          f"{args.truth_substeps} {args.truth_integrator} steps per frame: "
+          f"{cpu() - c0:.0f} s CPU; corner "
           f"moves {MOVES.tolist()} m; sheet rms displacement from frame 0 at the last frame "
           f"{1000 * np.sqrt(np.mean(np.sum((clean[-1] - clean[0]) ** 2, 1))):.1f} mm")
     config = SwingConfig(spans=(args.spans,) * 2, substeps=args.substeps,
