@@ -1,8 +1,10 @@
 """What the adjoint of the time steps (`taichi_ndf.solve.dynamics_adjoint`) covers, issue 29's
-Build item "adjoints through contact, wind, motions": each is refused in one line
-(ValueError) by `gradient`, `tangent` and `record` alike, not answered with a gradient of
-another problem (the adjoint's step Hessian and `record`'s polish have no barrier, drag or
-moving boundary); and a boundary motion with obstacles is refused by the scene reader."""
+Build item "adjoints through contact, wind, motions": contact and wind are refused in one
+line (ValueError) by `gradient`, `tangent` and `record` alike, not answered with a gradient of
+another problem (the adjoint's step Hessian and `record`'s polish have no barrier or drag);
+boundary motions are followed since issue 27 item 3 (tests/test_dynamics_adjoint_motion.py
+checks them against central differences); and a boundary motion with obstacles is refused by
+the scene reader."""
 
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from taichi_ndf.problem.dynamics import BoundaryMotion, DynamicsConfig
+from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.wind import Wind
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.scene.schema import SceneError
@@ -55,13 +57,6 @@ def test_the_adjoint_refuses_wind():
     s = scene(PLATE)
     config = DynamicsConfig(dt=0.02, duration=0.04, wind=Wind(velocity=(0.0, 0.0, 2.0)))
     refused(TimeStepper(s.model, s.field, config), "wind")
-
-
-def test_the_adjoint_refuses_a_boundary_motion():
-    s = scene({**PLATE, **MOVING})
-    config = DynamicsConfig(dt=0.02, duration=0.04,
-                            motion=BoundaryMotion(keyframes=((0.0, 0.0), (0.04, 1.0))))
-    refused(TimeStepper(s.model, s.field, config), "boundary motion")
 
 
 def test_a_boundary_motion_with_obstacles_is_refused_by_the_scene():

@@ -152,7 +152,7 @@ def test_bad_observations_exit_2_in_one_line(tmp_path, capsys, change, message):
 
 @pytest.mark.parametrize(("extra", "dynamic", "message"), [
     ("", False, "has no [dynamics] section"),
-    ("[dynamics.wind]\nvelocity = [2.0, 0.0, 2.0]", True, "wind and boundary motions"),
+    ("[dynamics.wind]\nvelocity = [2.0, 0.0, 2.0]", True, "wind is not supported"),
     ("stiffness_damping = 0.01", True, "stiffness-proportional damping"),
     ("[[obstacles]]\ntype = \"sphere\"\nname = \"ball\"\ncentre = [2.0, 0.5, -3.0]\n"
      "radius = 0.5", True, "contact ([[obstacles]] or [self_contact]) is not supported"),
@@ -199,3 +199,30 @@ def test_fit_to_a_runs_own_probes_end_to_end(tmp_path, capsys):
     assert document["trajectory"]["steps"] == [1, 2, 3, 4]
     assert "not a test" in document["goodness_of_fit"]["noise_source"]
     assert "bending_stiffness = 100" in streams.out
+
+
+def test_the_tool_fits_a_scene_whose_clamped_end_moves(tmp_path, capsys):
+    """`--trajectory` on a scene with a `[dynamics.motion]` (the clamped end lifted by a
+    sinusoid): the observations are the run's own displacements at B_TRUE (the boundary's
+    part included); the fit from the scene's 1.5 B_TRUE returns B_TRUE."""
+    taichi_ndf.init(arch="cpu", precision="f64", seed=0)
+    extra = "[dynamics.motion]\namplitude = 1.0\nfrequency = 1.25"
+    path = _scene(tmp_path, bending=1.5 * B_TRUE, extra=extra)
+    path.write_text(path.read_text().replace(
+        'edge = "xi1_min"', 'edge = "xi1_min"\ndisplacement = [0.0, 0.1, 0.3]'))
+    scene = load_scene(path)
+    stepper = _stepper_at(scene)(B_TRUE)
+    states = record(stepper)
+    values = [observe(stepper, XI, states[k].displacement, states[k].time).tolist()
+              for k in (1, 2, 3, 4)]
+    free = observe(stepper, XI, states[1].displacement)  # J C alone
+    assert abs(values[0][0][2] - float(free[0, 2])) > 0.1  # the end's lift is observed
+    obs = _observations(tmp_path, {"points": ["tip", "middle", "corner"],
+                                   "times": [0.1, 0.2, 0.3, 0.4], "displacements": values,
+                                   "noise": 1e-3})
+    code, streams = _fit(capsys, path, obs, tmp_path / "out")
+    assert code == 0, streams.err
+    estimate = json.loads((tmp_path / "out" / "estimate.json").read_text())
+    assert estimate["trajectory"]["converged"]
+    assert estimate["parameters"]["bending_stiffness"]["value"] == pytest.approx(B_TRUE,
+                                                                                 rel=1e-6)

@@ -12,7 +12,7 @@ OBS.json, either
 Every time must be a step of the scene's [dynamics] (k × dt, 1 ≤ k ≤ steps, to 1e-6 dt): the
 run is recomputed from rest with the scene's settings at each trial value. Every check (scene
 dynamic with fixed steps, the unknown one stiffness parameter, the points and times, the
-output directory, the adjoint's refusals of contact, wind, motions and stiffness damping) is
+output directory, the adjoint's refusals of contact, wind and stiffness damping) is
 made before the first time step (InputError: exit 2 in one line).
 """
 
@@ -174,7 +174,7 @@ def run_trajectory(args, runtime, error) -> dict:
     try:
         stepper = stepper_at(start)
         zeros = torch.zeros_like(stepper.field.coefficients)
-        # the tangent of a run with no step: the adjoint's refusals (contact, wind, motions,
+        # the tangent of a run with no step: the adjoint's refusals (contact, wind,
         # stiffness damping, per-sample stiffness) before any time step is taken
         tangent(stepper, [Motion(0.0, zeros, zeros, zeros)], unknown.key)
     except ValueError as err:

@@ -6,8 +6,10 @@ known or not. Model: r_fp(θ) = u(ξ_p, C_{k_f}(θ)) − d_fp, C_k the coefficie
 the scene's `TimeStepper` at the stiffness parameter θ (e.g. `bending_stiffness` B [N·m]).
 J(θ) = ½ Σ r²; per iteration one run (`record`), the gradient ∇J = Σ r dr/dθ by the adjoint
 (`gradient`, weights ∂J/∂C_k), the Gauss–Newton Hessian H = Σ (dr/dθ)² from the tangent
-(`tangent`: dC_k/dθ, mapped to the points like the states: u is linear in C without boundary
-motions), and θ ← θ − ∇J/H (a step to θ ≤ 0 is cut to θ/2) until |Δθ| < `tolerance` |θ|.
+(`tangent`: dC_k/dθ, mapped to the points by the free part J alone: u = g(t) + J C, the
+boundary's part g(t) at the state's time — a scene's motion μ(t) or handles on paths,
+`solve.handle_paths` — does not depend on θ), and θ ← θ − ∇J/H (a step to θ ≤ 0 is cut
+to θ/2) until |Δθ| < `tolerance` |θ|.
 At the last run: s.e.(θ) = σ/√H, the residuals, and the χ² test of
 `goodness.goodness_of_fit` (1 unknown). With σ unknown it is
 estimated from the residuals, σ̂² = Σ r²/(R − 1) for R residual entries: then χ²/dof = 1 by
@@ -15,7 +17,7 @@ construction and the test says nothing (the noise source says so). The relative 
 the adjoint's ∇J and the tangent's Σ r dr/dθ at the start is returned as a check (4e-15 on
 benchmarks/dynamics_fit.py's strip).
 
-Not covered (ValueError from the adjoint, before any step): contact, wind, boundary motions,
+Not covered (ValueError from the adjoint, before any step): contact, wind,
 stiffness-proportional damping, a per-sample stiffness; states halved by a step that did not
 converge (DynamicsError from `record`).
 """
@@ -36,6 +38,7 @@ from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.solve.dynamics import TimeStepper
 from taichi_ndf.solve.dynamics_adjoint import gradient, record, tangent
+from taichi_ndf.solve.handle_paths import boundary_displacement
 
 ESTIMATED = "estimated from the residuals (χ²/dof = 1 by construction: not a test)"
 
@@ -108,26 +111,35 @@ class TrajectoryFit:
     time_s: float
 
 
-def observe(stepper: TimeStepper, xi: torch.Tensor, coefficients: torch.Tensor
-            ) -> torch.Tensor:
-    """Displacements (P, 3) [m] at ξ (P, 2) of the stepper's field with `coefficients` (n, 3):
-    linear in them (no boundary motion: the adjoint refuses one)."""
+def observe(stepper: TimeStepper, xi: torch.Tensor, coefficients: torch.Tensor,
+            time: float | None = None) -> torch.Tensor:
+    """Displacements (P, 3) [m] at ξ (P, 2) of the stepper's field with `coefficients` (n, 3)
+    at time t [s]: J C + g(t); time None: the free part J C alone (linear in C: the map of
+    the tangent dC/dθ)."""
     operator = DisplacementOperator(stepper.field, stepper.model.boundary)
-    return displacement_at(operator, xi.to(coefficients.dtype), coefficients, 1.0)[:, jets.VALUE]
+    free = displacement_at(operator, xi.to(coefficients.dtype), coefficients, 0.0)[:, jets.VALUE]
+    if time is None:
+        return free
+    return free + boundary_displacement(stepper, xi, time, coefficients.dtype)
 
 
 def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryData,
-                   start: float, config: TrajectoryFitConfig = TrajectoryFitConfig()
+                   start: float, config: TrajectoryFitConfig = TrajectoryFitConfig(), *,
+                   initial: tuple[torch.Tensor, torch.Tensor] | None = None
                    ) -> TrajectoryFit:
     """θ̂ by Gauss–Newton from `start` (module docstring); stepper_at(θ): the scene's stepper
-    with the material's `config.parameter` set to θ. One progress report per iteration
-    (stage "trajectory fit", values θ and |Δθ|/|θ|)."""
+    with the material's `config.parameter` set to θ; initial: the runs' start (C₀, V₀)
+    (coefficients (n, 3) [m], [m/s]; None: rest), given, not fitted. The adjoint's ∇J is
+    computed at the first iteration (its gap to the tangent's is the check); later
+    iterations step with the tangent's Σ r dr/dθ, the same number (to 1e-10, tested), at
+    one solve per step less. One progress report per iteration (stage "trajectory fit",
+    values θ and |Δθ|/|θ|)."""
     began = time.perf_counter()
     theta, gap, converged = float(start), 0.0, False
     with progress.stage(f"trajectory fit ({config.parameter})", config.max_iterations):
         for iteration in range(1, config.max_iterations + 1):
             stepper = stepper_at(theta)
-            states = record(stepper)
+            states = record(stepper, *(initial or ()))
             if data.steps[-1] >= len(states):
                 raise ValueError(f"trajectory data: step {data.steps[-1]} is past the run's "
                                  f"last ({len(states) - 1})")
@@ -135,15 +147,17 @@ def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryD
             weights, hessian, slope, residuals, columns = {}, 0.0, 0.0, [], []
             for i, k in enumerate(data.steps):
                 c = states[k].displacement.clone().requires_grad_(True)
-                r = observe(stepper, data.xi, c) - data.displacements[i].to(c.dtype)
+                r = observe(stepper, data.xi, c, states[k].time) \
+                    - data.displacements[i].to(c.dtype)
                 (weights[k],) = torch.autograd.grad((0.5 * r * r).sum(), c)
                 dr = observe(stepper, data.xi, forward[k])
                 hessian += float((dr * dr).sum())
                 slope += float((r.detach() * dr).sum())
                 residuals.append(r.detach().reshape(-1))
                 columns.append(dr.detach().reshape(-1))
-            adjoint = gradient(stepper, states, config.parameter, weights)
+            adjoint = slope
             if iteration == 1:  # away from the fit, where ∇J is not ~0
+                adjoint = gradient(stepper, states, config.parameter, weights)
                 gap = abs(adjoint - slope) / max(abs(slope), 1e-300)
             if not hessian > 0:
                 raise ValueError(f"trajectory fit: the observed points do not move with "

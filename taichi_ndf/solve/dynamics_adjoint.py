@@ -19,10 +19,18 @@ the shell energy's gradient at unit θ (Π is linear in each stiffness parameter
 `ShellEnergy.evaluate`'s per-sample stiffness). The states are recomputed by `record`, which
 steps like `TimeStepper.run` but keeps every state and refuses a halved step; its fixed time
 steps are the steps of the one continuation loop (`solve_over`, a step's value its end time
-[s]), as `TimeStepper.run`'s. Not covered:
-stiffness-proportional damping (K₀ depends on C and θ), contact, wind and boundary motions in
-time, a custom per-sample stiffness; these raise ValueError (`record` too: its polish has no
-barrier, drag or moving boundary).
+[s]), as `TimeStepper.run`'s.
+
+Prescribed boundary motions (a scene's `[dynamics.motion]` μ(t), or handles on their own paths,
+`solve.handle_paths.PathStepper`): u = g(t) + J C with the boundary's part g(t) given, stepped
+by the same scheme (`Motion.boundary`: g, ġ, g̈, none of which depends on θ). The step's
+equation is then g = s Jᵀ M (J x + g' − x*_u) + f(x; θ) = 0 with x*_u = J x* + (the scheme's
+combination of g, ġ, g̈): the boundary's part is a constant of the derivatives, so the
+recursion above is unchanged; what changes is that each step's K and ∂f/∂θ are taken with
+the boundary where it stands at that step's end (`stepper._at(t)`), and `record` keeps the
+boundary's states and polishes each step with its inertia target. Not covered:
+stiffness-proportional damping (K₀ depends on C and θ), contact, wind, a custom per-sample
+stiffness; these raise ValueError (`record` too: its polish has no barrier or drag).
 """
 
 from __future__ import annotations
@@ -46,8 +54,8 @@ def _check_steps(stepper: TimeStepper) -> None:
     if stepper.contact is not None:
         raise ValueError("dynamics adjoint: contact ([[obstacles]] or [self_contact]) is not "
                          "supported")
-    if stepper.config.wind is not None or stepper.config.motion is not None:
-        raise ValueError("dynamics adjoint: wind and boundary motions are not supported")
+    if stepper.config.wind is not None:
+        raise ValueError("dynamics adjoint: wind is not supported")
 
 
 def _check(stepper: TimeStepper, parameter: str) -> None:
@@ -72,7 +80,7 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
     c = zeros.clone() if displacement is None else displacement.to(zeros).clone()
     v = zeros.clone() if velocity is None else velocity.to(zeros).clone()
     a = stepper.initial_acceleration(c, v) if config.integrator == "newmark" else zeros.clone()
-    first = Motion(0.0, c, v, a)
+    first = Motion(0.0, c, v, a, _initial_boundary(stepper))
     step = StepMap.of(config, config.dt)
 
     def solve(at: Step, start: Motion) -> Motion:  # one time step to at.value [s], polished
@@ -82,7 +90,7 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
                                 "(halved steps are not supported)")
         x = _polish(stepper, step, start, end.displacement, at.value, polish)
         velocity, acceleration = step.apply(x, start)
-        return Motion(at.value, x, velocity, acceleration)
+        return Motion(at.value, x, velocity, acceleration, end.boundary)
 
     def start(_at: Step, previous: Motion | None, _coarser) -> Motion:
         return first if previous is None else previous
@@ -92,11 +100,29 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
     return [first, *steps]
 
 
+def _initial_boundary(stepper: TimeStepper) -> Motion | None:
+    """The boundary's state at t = 0 as the stepper starts it: None without a motion; a
+    path's `initial_boundary`; a scene motion's g(μ(0)) at rest."""
+    if hasattr(stepper, "initial_boundary"):
+        return stepper.initial_boundary()
+    if stepper.config.motion is None:
+        return None
+    g = stepper.offset_of(stepper._at(0.0))
+    return Motion(0.0, g, torch.zeros_like(g), torch.zeros_like(g))
+
+
 def _step_potential(stepper: TimeStepper, step: StepMap, start: Motion, time: float):
-    """The incremental potential of the step from `start` that ends at `time` [s]."""
+    """The incremental potential of the step from `start` that ends at `time` [s], and the
+    linearisation with the boundary there (the inertia's target with the boundary's part as
+    `TimeStepper.step` makes it)."""
+    linear = stepper._at(time)
     target = combine(step.target, (start.displacement, start.velocity, start.acceleration))
-    inertia = InertiaTerm(stepper.density, step.scale, stepper.linear.displacement(target))
-    return stepper.objective.with_terms(inertia).potential(stepper.config.load_factor(time))
+    b = start.boundary
+    boundary = None if b is None else combine(step.target, (b.displacement, b.velocity,
+                                                            b.acceleration))
+    inertia = InertiaTerm(stepper.density, step.scale, stepper._jets(linear, target, boundary))
+    return (stepper.objective.with_terms(inertia).potential(stepper.config.load_factor(time)),
+            linear)
 
 
 def _polish(stepper: TimeStepper, step: StepMap, start: Motion, x: torch.Tensor, time: float,
@@ -104,8 +130,7 @@ def _polish(stepper: TimeStepper, step: StepMap, start: Motion, x: torch.Tensor,
     """x moved by plain Newton steps x − K⁻¹ g while ‖g‖ falls (at most `limit`). Newton's
     line search on Π stops at Π's rounding floor, where x is known to about √ε only; the
     adjoint's g(x) = 0 and central differences of whole runs need x to the rounding of g."""
-    potential = _step_potential(stepper, step, start, time)
-    linear = stepper.linear
+    potential, linear = _step_potential(stepper, step, start, time)
 
     def residual(x):
         return linear.gradient(potential(stepper.samples, linear.displacement(x), True)
@@ -126,35 +151,39 @@ def _polish(stepper: TimeStepper, step: StepMap, start: Motion, x: torch.Tensor,
 
 
 def _mass_times(stepper: TimeStepper, coefficients: torch.Tensor) -> torch.Tensor:
-    """M P (n, 3) for coefficients P (held unknowns 0)."""
-    term = InertiaTerm(stepper.density, 1.0, stepper.offset)
-    _, gradient = term.evaluate(stepper.samples, stepper.linear.displacement(coefficients))
-    return stepper.linear.gradient(gradient)
+    """M P (n, 3) for coefficients P (held unknowns 0; M does not depend on the boundary)."""
+    linear = stepper.linear
+    term = InertiaTerm(stepper.density, 1.0, stepper.offset_of(linear))
+    _, gradient = term.evaluate(stepper.samples, linear.displacement(coefficients))
+    return linear.gradient(gradient)
 
 
-def force_derivative(stepper: TimeStepper, parameter: str, displacement: torch.Tensor
-                     ) -> torch.Tensor:
-    """∂f/∂θ (n, 3) [N/unit of θ] at coefficients C: the gradient of Π's part that θ
-    multiplies (the strain energy at unit θ, every other stiffness 0, no loads)."""
+def force_derivative(stepper: TimeStepper, parameter: str, displacement: torch.Tensor,
+                     time: float = 0.0) -> torch.Tensor:
+    """∂f/∂θ (n, 3) [N/unit of θ] at coefficients C and time t [s] (the boundary there): the
+    gradient of Π's part that θ multiplies (the strain energy at unit θ, every other stiffness
+    0, no loads)."""
     material = stepper.model.material
     samples = stepper.samples
     dtype = samples.r_jets.dtype
     unit = torch.zeros(len(samples), len(material.stiffness_names), dtype=dtype)
     unit[:, material.stiffness_names.index(parameter)] = 1.0
     unloaded = samples.with_point_force(torch.zeros_like(samples.point_force))
+    linear = stepper._at(time)
     result = ShellEnergy(material, Loads()).evaluate(
-        unloaded, stepper.linear.displacement(displacement), stiffness=unit)
-    return stepper.linear.gradient(result.grad_u_jets)
+        unloaded, linear.displacement(displacement), stiffness=unit)
+    return linear.gradient(result.grad_u_jets)
 
 
 def _step_hessian(stepper: TimeStepper, step: StepMap, end: Motion):
-    """K: the exact Hessian (sparse) of the step's incremental potential at its end."""
-    u = stepper.linear.displacement(end.displacement)
+    """K: the exact Hessian (sparse) of the step's incremental potential at its end (the
+    boundary where it stands then)."""
+    linear = stepper._at(end.time)
+    u = linear.displacement(end.displacement)
     inertia = InertiaTerm(stepper.density, step.scale, u)  # K does not depend on x*
     potential = stepper.objective.with_terms(inertia).potential(
         stepper.config.load_factor(end.time))
-    return exact_hessian(stepper.linear, potential, end.displacement,
-                         fd_step=stepper.newton.fd_step)
+    return exact_hessian(linear, potential, end.displacement, fd_step=stepper.newton.fd_step)
 
 
 def gradient(stepper: TimeStepper, states: list[Motion], parameter: str,
@@ -172,8 +201,8 @@ def gradient(stepper: TimeStepper, states: list[Motion], parameter: str,
         rhs = lam_c + step.velocity[0] * lam_v + step.acceleration[0] * lam_a
         matrix = _step_hessian(stepper, step, states[k])
         mu = -sensitivity(matrix, rhs[..., None], stepper.linear.fixed).derivative[..., 0]
-        total -= float((mu * force_derivative(stepper, parameter,
-                                                states[k].displacement)).sum())
+        total -= float((mu * force_derivative(stepper, parameter, states[k].displacement,
+                                                states[k].time)).sum())
         coupling = step.scale * _mass_times(stepper, mu)
         lam_c, lam_v, lam_a = (
             weights.get(k - 1, zeros) + step.velocity[1] * lam_v
@@ -189,10 +218,12 @@ def gradient(stepper: TimeStepper, states: list[Motion], parameter: str,
 def _initial_acceleration_derivative(stepper: TimeStepper, parameter: str,
                                      displacement: torch.Tensor) -> torch.Tensor:
     """dA₀/dθ = −M⁻¹ ∂f/∂θ(C₀) (n, 3)."""
-    u = stepper.linear.displacement(displacement)
+    force = force_derivative(stepper, parameter, displacement, 0.0)
+    linear = stepper.linear
+    u = linear.displacement(displacement)
     term = InertiaTerm(stepper.density, 1.0, u)
-    mass = stepper.linear.hessian(flat_blocks(term.hessian_blocks(stepper.samples, u)))
-    solved = stepper.linear.solve(mass, force_derivative(stepper, parameter, displacement), 0.0)
+    mass = linear.hessian(flat_blocks(term.hessian_blocks(stepper.samples, u)))
+    solved = linear.solve(mass, force, 0.0)
     if solved is None:
         raise DynamicsError("the mass matrix could not be factorised")
     return solved[0]
@@ -212,7 +243,7 @@ def tangent(stepper: TimeStepper, states: list[Motion], parameter: str) -> list[
     out = [zeros]
     for end in states[1:]:
         moved = combine(step.target, d)
-        rhs = force_derivative(stepper, parameter, end.displacement) \
+        rhs = force_derivative(stepper, parameter, end.displacement, end.time) \
             - step.scale * _mass_times(stepper, moved)
         dx = sensitivity(_step_hessian(stepper, step, end), rhs[..., None],
                          stepper.linear.fixed).derivative[..., 0]

@@ -1,0 +1,242 @@
+"""Bending stiffness from a sheet's swing (issue 27 item 3, `inverse.sft.swing`): a synthetic
+check with a known material, then φ-SfT's R1.
+
+Synthetic (`--part synthetic`): a W × H = 0.55 × 0.55 m sheet (ρ_A 0.197 kg/m², D 300 N/m,
+ν 0.25, B from `--bending-length` c: B = ρ_A g c³) hanging in the camera's x-y plane 1 m in
+front of it (gravity (0, 9.81, 0), OpenCV axes), held at its top corners by handles that move
+from rest over `--duration` s: corner a by (1, 0, −4) cm × s(t), corner b by (−1, 1, 3) cm ×
+s(t), s(t) = ½ (1 − cos(2π t / duration)) (each corner out and back, opposite in depth: a
+swing and a twist). The truth is the project's dynamics (`PathStepper`, Newmark,
+`--truth-spans`, `--truth-substeps` steps per frame, cubic splines) from the planar rest state
+(equilibrium of the held sheet, found by 40 damped implicit-Euler steps of 0.05 s at
+α = 30 /s; planar, so independent of B); observed: a 17 × 17 vertex grid at `--fps` frames
+per second, plus Gaussian noise σ = `--noise` [m] per coordinate and seed. The fit
+(`swing_problem` + `fit_trajectory`): corners from the noisy corner vertices (smoothed), start
+from the smoothed frame 0, B alone (D, ν, ρ_A stated at the truth), on `--spans` with
+`--substeps`, from `--start` × B_true.
+
+R1 (`--part r1 --run DIR`): DIR/meshes/*.obj (the default `ndf-sft --capture` run), held
+vertices 0 and 992, gravity (0, 9.81, 0), ρ_A 0.197 kg/m², D 300 N/m (stated), at each
+`--r1-fps`; per row B ± s.e., c, χ²/dof (σ estimated: 1 by construction), the rms misfit per
+frame against the reconstruction's rms distance to the Kinect cloud.
+
+    OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part synthetic --seeds 0 1 2
+    OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part r1 --run /tmp/r1 --data DATA
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+import taichi_ndf
+from inverse.material.trajectory_fit import TrajectoryFitConfig, fit_trajectory, observe
+from inverse.sft.hanging import hanging_across, hanging_model
+from inverse.sft.swing import SwingConfig, bending_length, swing_problem
+from taichi_ndf import jets
+from taichi_ndf.field.spline import SplineConfig
+from taichi_ndf.problem.dynamics import DynamicsConfig
+from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.shell.materials import LinearIsotropic
+from taichi_ndf.solve.dynamics_adjoint import record
+from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundary
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import commit  # noqa: E402
+
+G = 9.81
+RHO, D, NU, SIZE = 0.197, 300.0, 0.25, 0.55
+MOVES = np.array([[0.01, 0.0, -0.04], [-0.01, 0.01, 0.03]])  # [m] per corner at s = 1
+
+
+def cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def grid_mesh(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """ξ (n², 2) of an n × n vertex grid on the sheet (vertex j n + i at (i, j) / (n − 1) × W,
+    row 0 the held edge) and its triangles."""
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="xy")
+    xi = np.stack([i.ravel(), j.ravel()], axis=1) / (n - 1) * SIZE
+    faces = []
+    for r in range(n - 1):
+        for c in range(n - 1):
+            a = r * n + c
+            faces += [[a, a + 1, a + n + 1], [a, a + n + 1, a + n]]
+    return xi, np.array(faces)
+
+
+def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """The truth's vertex positions (F, n², 3) at the frames, faces, held vertices."""
+    corners = np.array([[-SIZE / 2, -0.3, 1.0], [SIZE / 2, -0.3, 1.0]])
+    gravity = np.array([0.0, G, 0.0])
+    material = LinearIsotropic(D, bending, NU, RHO)
+    model = hanging_model((SIZE, SIZE), material, corners, hanging_across(corners, gravity),
+                          gravity)
+    model = dataclasses.replace(model, boundary=moved_boundary(model.boundary,
+                                                               np.zeros((2, 3))))
+    plan = SplinePlan(SplineConfig(spans=(args.truth_spans,) * 2, degree=3,
+                                   domain=((0.0, SIZE), (0.0, SIZE))))
+    still = HandlePath((0.0, 1.0), np.zeros((2, 2, 3)))
+    settle = PathStepper(model, plan, DynamicsConfig(dt=0.05, duration=2.0,
+                                                     integrator="implicit_euler",
+                                                     mass_damping=30.0), still)
+    rest = record(settle)[-1].displacement
+    frames = int(round(args.duration * args.fps)) + 1
+    dt = 1.0 / args.fps / args.truth_substeps
+    steps = (frames - 1) * args.truth_substeps
+    times = dt * np.arange(steps + 1)
+    s = 0.5 * (1 - np.cos(2 * np.pi * times / args.duration))
+    path = HandlePath(tuple(times), s[:, None, None] * MOVES[None])
+    truth = PathStepper(model, plan, DynamicsConfig(dt=dt, duration=steps * dt,
+                                                    integrator=args.truth_integrator), path)
+    states = record(truth, rest)
+    xi_np, faces = grid_mesh(17)
+    xi = torch.from_numpy(xi_np)
+    flat = model.surface.jets(xi)[:, jets.VALUE].double().numpy()
+    positions = np.stack([flat + observe(truth, xi, states[k].displacement,
+                                         states[k].time).numpy()
+                          for k in range(0, steps + 1, args.truth_substeps)])
+    return positions, faces, (0, 16)
+
+
+def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0)):
+    problem = swing_problem(vertices, faces, held, 1.0 / fps, np.array(gravity), config)
+    result = fit_trajectory(problem.stepper_at, problem.data, start,
+                            TrajectoryFitConfig(max_iterations=10, tolerance=1e-4),
+                            initial=problem.start)
+    return problem, result
+
+
+def part_synthetic(args) -> None:
+    b_true = RHO * G * args.bending_length ** 3
+    c0 = cpu()
+    clean, faces, held = synthetic(b_true, args)
+    print(f"truth: {len(clean)} frames at {args.fps} fps, B = {b_true:.4e} N·m "
+          f"(c = {100 * args.bending_length:.2f} cm), {args.truth_spans}² spans, "
+          f"{args.truth_substeps} {args.truth_integrator} steps per frame: "
+          f"{cpu() - c0:.0f} s CPU; corner "
+          f"moves {MOVES.tolist()} m; sheet rms displacement from frame 0 at the last frame "
+          f"{1000 * np.sqrt(np.mean(np.sum((clean[-1] - clean[0]) ** 2, 1))):.1f} mm")
+    config = SwingConfig(spans=(args.spans,) * 2, substeps=args.substeps,
+                         integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
+                         areal_density=RHO, size=(SIZE, SIZE))
+    print("| seed | σ [mm] | B ± s.e. [N·m] | B error | z | c [cm] | χ²/dof | rms misfit [mm] "
+          "| start fit [mm] | iterations | adjoint–tangent gap | CPU s | wall s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for seed in args.seeds:  # seed −1: the clean sequence (the model's and grid's own bias)
+        rng = np.random.default_rng(max(seed, 0))
+        noise = args.noise if seed >= 0 else 0.0
+        noisy = clean + rng.normal(0.0, 1.0, clean.shape) * noise
+        c0, t0 = cpu(), time.perf_counter()
+        problem, r = fit(noisy, faces, held, args.fps, config, args.start * b_true)
+        err = r.value / b_true - 1
+        misfit = 1000 * np.sqrt(np.mean(r.residuals ** 2) * 3)
+        print(f"| {seed if seed >= 0 else 'none'} | {1000 * noise:.1f} | "
+              f"{r.value:.4e} ± {r.standard_error:.2e} | "
+              f"{100 * err:+.2f} % | {abs(r.value - b_true) / r.standard_error:.2f} | "
+              f"{100 * bending_length(r.value, RHO, G):.3f} | "
+              f"{r.goodness.reduced:.2f} | {misfit:.2f} | {1000 * problem.start_misfit:.2f} | "
+              f"{r.iterations} | "
+              f"{r.gradient_gap:.1e} | {cpu() - c0:.0f} | {time.perf_counter() - t0:.0f} |",
+              flush=True)
+
+
+def part_r1(args) -> None:
+    from taichi_ndf.io import read_mesh
+
+    files = sorted((args.run / "meshes").glob("*.obj"))
+    vertices = np.stack([np.asarray(read_mesh(f).vertices, dtype=np.float64) for f in files])
+    faces = np.asarray(read_mesh(files[0]).faces)
+    clouds = None
+    if args.data is not None:
+        from scipy.spatial import cKDTree
+        clouds = [np.load(args.data / "ground_truth" / f"point_cloud_{f:03d}.npy")
+                  for f in range(len(vertices))]
+        errors = [float(np.sqrt(np.mean(cKDTree(c.reshape(-1, 3)).query(v)[0] ** 2)))
+                  for c, v in zip(clouds, vertices, strict=True)]
+    frames = vertices[: args.r1_frames] if args.r1_frames else vertices
+    print(f"R1: {len(frames)} of {len(vertices)} frames of {vertices.shape[1]} vertices, "
+          f"held 0 and 992, ρ_A {RHO} kg/m², D {D} N/m stated")
+    for fps in args.r1_fps:
+        for spans in args.r1_spans:
+            config = SwingConfig(spans=(spans, spans), substeps=args.substeps,
+                                 integrator=args.integrator, membrane_stiffness=D,
+                                 poisson_ratio=NU, areal_density=RHO, stride=args.stride)
+            c0, t0 = cpu(), time.perf_counter()
+            try:
+                problem, r = fit(frames, faces, (0, 992), fps, config,
+                                 RHO * G * args.r1_start ** 3)
+            except Exception as err:  # noqa: BLE001  (a row that failed says why)
+                print(f"| {fps} | {spans}² | failed: {type(err).__name__}: {err} | "
+                      f"{cpu() - c0:.0f} s CPU |", flush=True)
+                continue
+            per_frame = np.sqrt(np.mean(r.residuals.reshape(len(problem.data.steps), -1) ** 2,
+                                        axis=1) * 3)
+            # cluster-robust s.e. (one cluster per frame): a reconstruction's errors are
+            # smooth over the sheet, so the residuals of a frame are not independent
+            scores = (r.residuals * r.sensitivity).reshape(len(problem.data.steps), -1).sum(1)
+            robust = float(np.sqrt(np.sum(scores ** 2)) / np.sum(r.sensitivity ** 2))
+            if args.save:
+                np.savez(args.save / f"r1_fps{fps:g}_spans{spans}.npz", value=r.value,
+                         residuals=r.residuals, sensitivity=r.sensitivity,
+                         steps=np.array(problem.data.steps), se=r.standard_error)
+            print(f"fps {fps}, {spans}² spans: B = {r.value:.4e} ± {r.standard_error:.2e} N·m "
+                  f"(σ̂/√H, rel {r.standard_error / r.value:.3f}; cluster-robust per frame "
+                  f"{robust:.2e}, rel {robust / r.value:.3f}), χ²/dof "
+                  f"{r.goodness.reduced:.2f} (σ̂ {1000 * r.noise:.2f} mm), c = "
+                  f"{100 * bending_length(r.value, RHO, G):.3f} cm, iterations {r.iterations}"
+                  f" converged {r.converged}, start fit {1000 * problem.start_misfit:.2f} mm, "
+                  f"rms misfit {1000 * np.sqrt(np.mean(r.residuals ** 2) * 3):.2f} mm; "
+                  f"{cpu() - c0:.0f} s CPU, {time.perf_counter() - t0:.0f} s wall, load "
+                  f"{os.getloadavg()[0]:.1f}", flush=True)
+            rows = [f"{f}: {1000 * m:.1f}" + (f" ({1000 * errors[f]:.1f})" if clouds else "")
+                    for f, m in zip(range(1, len(frames)), per_frame, strict=True)]
+            print("  per-frame rms misfit [mm] (reconstruction's rms distance to the cloud): "
+                  + ", ".join(rows[::3]), flush=True)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--part", choices=("synthetic", "r1"), required=True)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--noise", type=float, default=0.002)
+    p.add_argument("--bending-length", type=float, default=0.02)
+    p.add_argument("--duration", type=float, default=1.5)
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--truth-spans", type=int, default=12)
+    p.add_argument("--truth-substeps", type=int, default=4)
+    p.add_argument("--truth-integrator", default="newmark")
+    p.add_argument("--spans", type=int, default=8)
+    p.add_argument("--substeps", type=int, default=1)
+    p.add_argument("--integrator", default="implicit_euler")
+    p.add_argument("--start", type=float, default=1.5)
+    p.add_argument("--run", type=Path, default=None)
+    p.add_argument("--data", type=Path, default=None)
+    p.add_argument("--r1-fps", type=float, nargs="+", default=[30.0])
+    p.add_argument("--r1-spans", type=int, nargs="+", default=[6])
+    p.add_argument("--r1-frames", type=int, default=0)
+    p.add_argument("--r1-start", type=float, default=0.02)
+    p.add_argument("--stride", type=int, default=2)
+    p.add_argument("--save", type=Path, default=None, help="folder for the R1 fits' npz")
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    taichi_ndf.init(arch="cpu", precision="f64", seed=0)
+    print(f"commit {commit()}; load average before {os.getloadavg()}; {vars(args)}")
+    c0, t0 = cpu(), time.perf_counter()
+    (part_synthetic if args.part == "synthetic" else part_r1)(args)
+    print(f"whole part: {cpu() - c0:.0f} s CPU (user + sys), {time.perf_counter() - t0:.0f} s "
+          f"wall; load average after {os.getloadavg()}")
+
+
+if __name__ == "__main__":
+    main()

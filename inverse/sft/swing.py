@@ -1,0 +1,215 @@
+"""The bending stiffness of a sheet from its swing: a video's sheet held at two MOVING corners
+as one dynamic run, fitted to all its frames.
+
+Input: per-frame vertex positions (F, V, 3) [m] of a grid template held at two corner
+vertices (e.g. `ndf-sft`'s meshes, camera coordinates), the frame interval Δt [s] (a video's
+1/fps) and gravity (3,) [m/s²] in their frame. The model (`swing_problem`):
+- the flat sheet of frame 0's grid-line lengths (`hanging.SheetGrid`; `size` when stated),
+  placed hanging vertically from frame 0's corner line (`hanging.hanging_across`,
+  `hanging.hanging_model`), corner a at frame 0's and corner b at the sheet's width W from it
+  along that line, each held by a handle (slope held in the handle's band);
+- the handles follow the observed corner vertices (`solve.handle_paths.PathStepper`): each
+  corner coordinate smoothed in time by a cubic smoothing spline whose smoothing GCV chooses
+  (`scipy.interpolate.make_smoothing_spline`: the reconstruction's corner noise would
+  otherwise enter as accelerations of ~σ/Δt²), sampled at every time step;
+- the sheet starts at frame 0's shape and velocity: the spline field's least-squares fit
+  (free part J C, the handles' part g(0) taken off) to the vertices' positions and velocities
+  at t = 0 from the same smoothing of each vertex coordinate over the frames;
+- `substeps` time steps per frame (implicit Euler by default), gravity, the material
+  LinearIsotropic(D, B, ν, ρ_A) with D, ν and ρ_A stated.
+Observed: every `stride`-th vertex (in each grid direction) of frames 1 … F − 1, as
+displacements from the flat reference; B fitted by `inverse.material.trajectory_fit`
+(Gauss–Newton, gradient by the adjoint, Hessian by the tangent through every step), the noise
+estimated from the residuals (the s.e. is then σ̂/√H: it treats the residuals as independent,
+which a reconstruction's are not — the report states it). B scales with ρ_A; the bending
+length c = (B / (ρ_A g))^(1/3) does not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.interpolate import make_smoothing_spline
+
+from inverse.material.trajectory_fit import TrajectoryData, observe
+from inverse.sft.hanging import SheetGrid, hanging_across, hanging_model
+from taichi_ndf import jets
+from taichi_ndf.field.spline import SplineConfig
+from taichi_ndf.minimise.newton import NewtonConfig
+from taichi_ndf.problem.dynamics import DynamicsConfig
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.shell.materials import LinearIsotropic
+from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundary
+
+
+@dataclass(frozen=True)
+class SwingConfig:
+    """spans: the spline grid (n1, n2) [spans along ξ¹ (the held edge), ξ²]; degree 3 or 4;
+    substeps ≥ 1 time steps per frame; integrator "implicit_euler" or "newmark";
+    mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
+    [kg/m²] (stated); band: the handles' band (fraction of the domain); stride ≥ 1: every
+    stride-th vertex per grid direction observed; size: the flat sheet (W, H) [m] or None
+    (frame 0's grid-line lengths)."""
+
+    spans: tuple[int, int] = (8, 8)
+    degree: int = 3
+    substeps: int = 1
+    integrator: str = "implicit_euler"
+    mass_damping: float = 0.0
+    membrane_stiffness: float = 300.0
+    poisson_ratio: float = 0.25
+    areal_density: float = 0.197
+    band: float = 0.1
+    stride: int = 1
+    size: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        if len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans):
+            raise ValueError(f"spans must be two integers >= 1, got {self.spans!r}")
+        if self.degree not in (3, 4):
+            raise ValueError(f"degree must be 3 or 4, got {self.degree!r}")
+        if int(self.substeps) != self.substeps or self.substeps < 1:
+            raise ValueError(f"substeps must be an integer >= 1, got {self.substeps!r}")
+        if self.integrator not in ("implicit_euler", "newmark"):
+            raise ValueError(f"integrator must be implicit_euler or newmark, got "
+                             f"{self.integrator!r}")
+        for name in ("membrane_stiffness", "areal_density", "band"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(self.mass_damping) and self.mass_damping >= 0):
+            raise ValueError(f"mass_damping must be finite and >= 0, got {self.mass_damping!r}")
+        if not -1 < self.poisson_ratio < 0.5:
+            raise ValueError(f"poisson_ratio must be in (-1, 0.5), got {self.poisson_ratio!r}")
+        if int(self.stride) != self.stride or self.stride < 1:
+            raise ValueError(f"stride must be an integer >= 1, got {self.stride!r}")
+        if self.size is not None and not (len(self.size) == 2 and all(
+                math.isfinite(s) and s > 0 for s in self.size)):
+            raise ValueError(f"size must be two lengths > 0 [m], got {self.size!r}")
+
+
+@dataclass
+class SwingProblem:
+    """What `fit_trajectory` needs: stepper_at(B) (the run's stepper at bending stiffness B
+    [N·m], started by `record` at `start`), the observations, and the model's pieces for the
+    report: grid (the template's ξ), the flat reference model, the handles' path, frame
+    interval Δt [s], the start's coefficients (C₀, V₀) and the rms of the start fit [m]."""
+
+    stepper_at: Callable[[float], PathStepper]
+    data: TrajectoryData
+    grid: SheetGrid
+    model: ShellModel
+    path: HandlePath
+    frame_interval: float
+    start: tuple[torch.Tensor, torch.Tensor]
+    start_misfit: float
+
+
+def smoothed(values: np.ndarray, times: np.ndarray) -> tuple[list, tuple]:
+    """Each entry of values (F, …) smoothed over times (F,) [s] by a cubic smoothing spline
+    whose smoothing GCV chooses: (splines, the entries' shape), read by `_evaluate`."""
+    flat = values.reshape(len(times), -1)
+    splines = [make_smoothing_spline(times, flat[:, j]) for j in range(flat.shape[1])]
+    return splines, values.shape[1:]
+
+
+def _evaluate(smooth, t: np.ndarray, nu: int = 0) -> np.ndarray:
+    splines, shape = smooth
+    out = np.stack([s(t, nu) if nu else s(t) for s in splines], axis=-1)
+    return out.reshape(*np.shape(t), *shape)
+
+
+def _fit_free(stepper: PathStepper, xi: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Coefficients C (n, 3) minimising Σ |J C − target|² at ξ (P, 2), target (P, 3) [m]
+    (J: the free part, linear; least squares of minimum norm)."""
+    zeros = torch.zeros_like(stepper.field.coefficients)
+    jacobian = torch.autograd.functional.jacobian(lambda c: observe(stepper, xi, c), zeros)
+    matrix = jacobian.reshape(target.numel(), zeros.numel())
+    solution = np.linalg.lstsq(matrix.numpy(), target.reshape(-1).numpy(), rcond=1e-10)[0]
+    return torch.from_numpy(solution).reshape(zeros.shape).to(zeros.dtype)
+
+
+def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
+                  frame_interval: float, gravity: np.ndarray,
+                  config: SwingConfig = SwingConfig(), *,
+                  newton: NewtonConfig | None = None) -> SwingProblem:
+    """The dynamic model of the sequence and its observations (module docstring); vertices
+    (F, V, 3) [m], F ≥ 5; faces of the grid template; held: the two corner vertex indices;
+    frame_interval Δt [s] > 0; gravity (3,) [m/s²]. ValueError on bad input."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if vertices.ndim != 3 or vertices.shape[0] < 5 or vertices.shape[2] != 3:
+        raise ValueError(f"vertices must be (F, V, 3) with F >= 5 frames (the smoothing), got "
+                         f"{vertices.shape}")
+    if not np.isfinite(vertices).all():
+        raise ValueError("vertices must be finite")
+    if not (math.isfinite(frame_interval) and frame_interval > 0):
+        raise ValueError(f"frame interval must be finite and > 0 [s], got {frame_interval!r}")
+    gravity = np.asarray(gravity, dtype=np.float64)
+    frames = len(vertices)
+    times = frame_interval * np.arange(frames)
+    grid = SheetGrid.from_template(vertices[0], faces, held)
+    if config.size is not None:
+        grid = grid.with_size(config.size)
+    width, height = grid.size
+    # each vertex coordinate smoothed over the frames: the start's shape and velocity
+    smooth = smoothed(vertices, times)
+    corner_smooth = smoothed(vertices[:, list(held)], times)
+    corners = _evaluate(corner_smooth, times)
+    line = corners[0, 1] - corners[0, 0]
+    e1 = line / np.linalg.norm(line)
+    reference = np.stack([corners[0, 0], corners[0, 0] + width * e1])
+    material = LinearIsotropic(config.membrane_stiffness, 1.0, config.poisson_ratio,
+                               config.areal_density)
+    across = hanging_across(reference, gravity)
+    model = hanging_model(grid.size, material, reference, across, gravity, band=config.band)
+    model = dataclasses.replace(model, boundary=moved_boundary(model.boundary,
+                                                               np.zeros((2, 3))))
+    dt = frame_interval / config.substeps
+    steps = config.substeps * (frames - 1)
+    step_times = dt * np.arange(steps + 1)
+    path = HandlePath(tuple(step_times), _evaluate(corner_smooth, step_times) - reference)
+    plan = SplinePlan(SplineConfig(spans=tuple(int(s) for s in config.spans),
+                                   degree=config.degree, domain=((0.0, width), (0.0, height))))
+    dynamics = DynamicsConfig(dt=dt, duration=steps * dt, integrator=config.integrator,
+                              mass_damping=config.mass_damping)
+    newton = newton or NewtonConfig()
+
+    def stepper_at(bending: float) -> PathStepper:
+        with_b = model.with_material(material.with_stiffness(bending_stiffness=bending))
+        return PathStepper(with_b, plan, dynamics, path, newton=newton)
+
+    stepper = stepper_at(1e-5)
+    pick = grid.index[::config.stride, ::config.stride].ravel()
+    xi = torch.from_numpy(grid.xi[pick]).double()
+    flat = model.surface.jets(xi)[:, jets.VALUE].double().numpy()
+    position0 = _evaluate(smooth, np.array(0.0))[pick]
+    velocity0 = _evaluate(smooth, np.array(0.0), nu=1)[pick]
+    g0 = stepper.boundary_at(xi, 0.0, torch.float64)[:, jets.VALUE].numpy()
+    gv = _boundary_velocity(stepper, xi)
+    c0 = _fit_free(stepper, xi, torch.from_numpy(position0 - flat - g0))
+    v0 = _fit_free(stepper, xi, torch.from_numpy(velocity0 - gv))
+    fitted = observe(stepper, xi, c0, 0.0).numpy() + flat
+    start_misfit = float(np.sqrt(np.mean(np.sum((fitted - vertices[0][pick]) ** 2, axis=1))))
+    observed = torch.from_numpy(vertices[1:, pick] - flat[None])
+    data = TrajectoryData(xi, tuple(config.substeps * f for f in range(1, frames)), observed)
+    return SwingProblem(stepper_at, data, grid, model, path, frame_interval, (c0, v0),
+                        start_misfit)
+
+
+def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:
+    """ġ(0) (P, 3) [m/s] at ξ: the path's first slope blended as the handles' displacement."""
+    boundary = moved_boundary(stepper.model.boundary, stepper.path.initial_velocity())
+    operator = DisplacementOperator(stepper.field, boundary)
+    return operator.prescribed(xi, t=1.0, dtype=torch.float64)[:, jets.VALUE].numpy()
+
+
+def bending_length(bending: float, areal_density: float, gravity: float) -> float:
+    """c = (B / (ρ_A g))^(1/3) [m]."""
+    return (bending / (areal_density * gravity)) ** (1.0 / 3.0)

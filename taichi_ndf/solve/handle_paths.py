@@ -1,0 +1,163 @@
+"""Handles that follow given paths in time: the dynamic path's boundary moved per handle.
+
+A scene's `[dynamics.motion]` moves the whole prescribed boundary by one factor μ(t) (every
+handle along its own fixed displacement, in step). A video's held corners move independently
+in 3-D; `HandlePath` gives each handle of the model (its `Handle` constraints, in order) a
+displacement [m] from the reference at given times, interpolated linearly between them (held
+after the last), and `PathStepper` is the `TimeStepper` whose boundary at time t stands where
+a static model with those handle displacements puts it: the boundary's part g(t) of
+u = g(t) + J C is the composition's prescribed part of that model (`boundary.conditions`,
+the same blend as a quasistatic run's), at the Gauss points. As with a scene's motion, g is
+stepped by the scheme (`Motion.boundary`); the path's velocity at t = 0 (its first segment's
+slope) is the boundary's initial velocity, so a path already moving at t = 0 starts without a
+jerk (`initial_boundary`). The model's handles must be at the reference (zero displacement):
+the path is the whole prescribed motion. The adjoint (`solve/dynamics_adjoint.py`) follows
+these steps: g does not depend on the material.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions
+from taichi_ndf.boundary.constraints import Handle
+from taichi_ndf.problem.dynamics import DynamicsConfig
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.operator import DisplacementOperator
+from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.solve.dynamics import TimeStepper
+from taichi_ndf.solve.dynamics_trajectory import Checkpoint, Motion
+
+
+@dataclass(frozen=True)
+class HandlePath:
+    """times: (T,) [s], T ≥ 2, from 0, increasing; displacements: (T, H, 3) [m] of the H
+    handles from the reference at those times (the first may be non-zero: the start's shape
+    then carries it)."""
+
+    times: tuple[float, ...]
+    displacements: np.ndarray
+
+    def __post_init__(self):
+        times = tuple(float(t) for t in self.times)
+        values = np.asarray(self.displacements, dtype=np.float64)
+        object.__setattr__(self, "times", times)
+        object.__setattr__(self, "displacements", values)
+        if len(times) < 2 or times[0] != 0.0 \
+                or any(b <= a for a, b in zip(times, times[1:], strict=False)):
+            raise ValueError(f"handle path: times must start at 0 and increase (at least two), "
+                             f"got {list(times)[:5]}")
+        if not np.isfinite(times).all():
+            raise ValueError("handle path: times must be finite")
+        if values.ndim != 3 or values.shape[0] != len(times) or values.shape[2] != 3:
+            raise ValueError(f"handle path: displacements must be (T, H, 3) with T = "
+                             f"{len(times)}, got {values.shape}")
+        if not np.isfinite(values).all():
+            raise ValueError("handle path: displacements must be finite")
+
+    @property
+    def handles(self) -> int:
+        return self.displacements.shape[1]
+
+    def at(self, t: float) -> np.ndarray:
+        """(H, 3) [m] at time t [s] (linear between the times, held after the last)."""
+        times = np.asarray(self.times)
+        flat = self.displacements.reshape(len(times), -1)
+        out = np.array([np.interp(t, times, column) for column in flat.T])
+        return out.reshape(self.handles, 3)
+
+    def initial_velocity(self) -> np.ndarray:
+        """(H, 3) [m/s]: the first segment's slope."""
+        return (self.displacements[1] - self.displacements[0]) / self.times[1]
+
+
+def moved_boundary(boundary: BoundaryConditions, displacements: np.ndarray
+                   ) -> BoundaryConditions:
+    """The same conditions with the handles (in order) moved by `displacements` (H, 3) [m]."""
+    handles = [i for i, c in enumerate(boundary.constraints) if isinstance(c, Handle)]
+    if len(handles) != len(displacements):
+        raise ValueError(f"handle path: {len(displacements)} handles' displacements for "
+                         f"{len(handles)} handles of the boundary")
+    constraints = list(boundary.constraints)
+    for i, d in zip(handles, displacements, strict=True):
+        constraints[i] = dataclasses.replace(constraints[i],
+                                             displacement=tuple(float(v) for v in d))
+    return BoundaryConditions(constraints, boundary.domain, surface=boundary.surface,
+                              length=boundary.length, frame=boundary.frame)
+
+
+class PathStepper(TimeStepper):
+    """A `TimeStepper` whose handles follow `path` (module docstring); `config.motion` must
+    be None and the model's handles at the reference. ValueError otherwise, or where the
+    boundary prescribes by something else than handles (a moved edge, a rim rotation)."""
+
+    def __init__(self, model: ShellModel, plan: SplinePlan, config: DynamicsConfig,
+                 path: HandlePath, **options):
+        if config.motion is not None:
+            raise ValueError("handle path: give either [dynamics.motion] or a handle path")
+        boundary = model.boundary
+        if boundary is None or not any(isinstance(c, Handle) for c in boundary.constraints):
+            raise ValueError("handle path: the model has no handle to move")
+        if any(np.any(c.displacement) for c in boundary.constraints
+               if hasattr(c, "displacement") and not isinstance(c, Handle)) \
+                or any(hasattr(c, "angle") for c in boundary.constraints):
+            raise ValueError("handle path: only handles may prescribe displacements")
+        if any(np.any(c.displacement) for c in boundary.constraints if isinstance(c, Handle)):
+            raise ValueError("handle path: the model's handles must be at the reference "
+                             "(zero displacement); the path is their motion")
+        moved_boundary(boundary, np.zeros((path.handles, 3)))  # the count checked
+        self.path = path
+        self._offsets: dict[float, torch.Tensor] = {}
+        super().__init__(model, plan, config, **options)
+
+    def boundary_at(self, xi: torch.Tensor, t: float, dtype: torch.dtype) -> torch.Tensor:
+        """g(t): the boundary's displacement jets (P, 6, 3) [m] at ξ (P, 2), time t [s]."""
+        boundary = moved_boundary(self.model.boundary, self.path.at(t))
+        return DisplacementOperator(self.field, boundary).prescribed(xi, t=1.0, dtype=dtype)
+
+    def _at(self, t: float):
+        """The linearisation at the Gauss points with the handles at path(t) (its offset g(t)
+        set on the grid's one assembly, as `GridLinearisation.linearisation` sets a load
+        factor's: the last time asked holds for every linearisation of it)."""
+        linear = self._grid.linearisation(1.0)
+        if "path" not in self.__dict__:
+            return linear
+        assembly = self._grid.assembly
+        key = float(t)
+        if key not in self._offsets:
+            if len(self._offsets) > 8:
+                self._offsets.pop(next(iter(self._offsets)))
+            self._offsets[key] = self.boundary_at(assembly.samples.xi, key,
+                                                  assembly.offset.dtype)
+        assembly.offset = self._offsets[key]
+        return linear
+
+    def initial_boundary(self) -> Motion:
+        """(g, ġ, g̈) at t = 0 at the Gauss points: the path's start, its first slope, 0."""
+        g = self.offset_of(self._at(0.0))
+        xi = self._grid.assembly.samples.xi
+        velocity = moved_boundary(self.model.boundary, self.path.initial_velocity())
+        gv = DisplacementOperator(self.field, velocity).prescribed(xi, t=1.0, dtype=g.dtype)
+        return Motion(0.0, g, gv, torch.zeros_like(g))
+
+    def start(self, displacement=None, velocity=None) -> Checkpoint:
+        """`TimeStepper.start` with the boundary on its path (`initial_boundary`)."""
+        checkpoint = super().start(displacement, velocity)
+        state = dataclasses.replace(checkpoint.state, boundary=self.initial_boundary())
+        return dataclasses.replace(checkpoint, state=state)
+
+
+def boundary_displacement(stepper: TimeStepper, xi: torch.Tensor, t: float,
+                          dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """The boundary's part of the displacement (P, 3) [m] at ξ (P, 2) and time t [s] of any
+    stepper: a path's g(t), else the scene's prescribed part at μ(t) (μ = 1 without a motion)."""
+    if isinstance(stepper, PathStepper):
+        return stepper.boundary_at(xi.to(dtype), t, dtype)[:, jets.VALUE]
+    operator = DisplacementOperator(stepper.field, stepper.model.boundary)
+    return operator.prescribed(xi.to(dtype), t=stepper.config.boundary_factor(t),
+                               dtype=dtype)[:, jets.VALUE]

@@ -1,0 +1,99 @@
+"""The bending stiffness from a sheet's swing (`inverse.sft.swing`): the model follows the
+observed corners and starts at the observed frame 0; the fit through the moving corners
+recovers B from the model's own motion; bad input is refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import taichi_ndf
+from inverse.material.trajectory_fit import (
+    TrajectoryData,
+    TrajectoryFitConfig,
+    fit_trajectory,
+    observe,
+)
+from inverse.sft.swing import SwingConfig, swing_problem
+from taichi_ndf.solve.dynamics_adjoint import record
+
+SIZE, N, FRAMES, DT = 0.55, 5, 5, 1.0 / 30.0
+CONFIG = SwingConfig(spans=(3, 3), size=(SIZE, SIZE))
+
+
+def rigid_sequence():
+    """A flat N × N vertex grid hanging in the x-y plane (gravity +y), row 0 held, turned
+    about the vertical axis through its middle by 0.02 rad per frame: corner 0 moves towards
+    the camera (−z), corner N − 1 away."""
+    i, j = np.meshgrid(np.arange(N), np.arange(N), indexing="xy")
+    flat = np.stack([i.ravel() / (N - 1) * SIZE - SIZE / 2, j.ravel() / (N - 1) * SIZE - 0.3,
+                     np.ones(N * N)], axis=1)
+    frames = []
+    for f in range(FRAMES):
+        a = 0.02 * f
+        turn = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0],
+                         [-np.sin(a), 0.0, np.cos(a)]])
+        centre = np.array([0.0, 0.0, 1.0])
+        frames.append((flat - centre) @ turn.T + centre)
+    faces = []
+    for r in range(N - 1):
+        for c in range(N - 1):
+            v = r * N + c
+            faces += [[v, v + 1, v + N + 1], [v, v + N + 1, v + N]]
+    return np.stack(frames), np.array(faces)
+
+
+@pytest.fixture(scope="module")
+def problem():
+    taichi_ndf.init(arch="cpu", precision="f64", seed=0)
+    vertices, faces = rigid_sequence()
+    return vertices, swing_problem(vertices, faces, (0, N - 1), DT, np.array([0.0, 9.81, 0.0]),
+                                   CONFIG)
+
+
+def test_the_handles_follow_the_observed_corners_and_the_start_is_frame_0(problem):
+    vertices, p = problem
+    corners = vertices[:, [0, N - 1]]
+    reference = corners[0, 0] + np.array([[0.0, 0.0, 0.0], [SIZE, 0.0, 0.0]])
+    # a rigid turn by a small angle per frame: the smoothed corners within 1e-4 m of them
+    for f in range(FRAMES):
+        assert p.path.at(f * DT) == pytest.approx(corners[f] - reference, abs=1e-4)
+    assert p.start_misfit < 1e-3  # frame 0 is the flat sheet: the start fits it
+    assert p.data.steps == (1, 2, 3, 4) and p.data.displacements.shape == (4, N * N, 3)
+    assert p.model.material.membrane_stiffness == CONFIG.membrane_stiffness
+
+
+def test_the_fit_through_moving_corners_recovers_the_models_own_bending(problem):
+    _, p = problem
+    b_true = 2e-5
+    stepper = p.stepper_at(b_true)
+    states = record(stepper, *p.start)
+    clean = torch.stack([observe(stepper, p.data.xi, states[k].displacement, states[k].time)
+                         for k in p.data.steps])
+    data = TrajectoryData(p.data.xi, p.data.steps, clean, 1e-4)
+    fit = fit_trajectory(p.stepper_at, data, 2 * b_true,
+                         TrajectoryFitConfig(max_iterations=12, tolerance=1e-9),
+                         initial=p.start)
+    assert fit.value == pytest.approx(b_true, rel=1e-5)
+    assert fit.gradient_gap < 1e-8
+    # the boundary's part is in the observations: the corners are where the path puts them
+    corners = torch.tensor([[0.0, 0.0], [SIZE, 0.0]], dtype=torch.float64)
+    u = observe(stepper, corners, states[2].displacement, states[2].time)
+    assert u.numpy() == pytest.approx(p.path.at(states[2].time), abs=1e-12)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (lambda v: v[:4], "F >= 5"),
+    (lambda v: np.where(np.isnan(v), 0, v) * np.nan, "finite"),
+])
+def test_bad_sequences_are_refused(problem, change, message):
+    vertices, _ = problem
+    _, faces = rigid_sequence()
+    with pytest.raises(ValueError, match=message):
+        swing_problem(change(vertices), faces, (0, N - 1), DT, np.array([0.0, 9.81, 0.0]),
+                      CONFIG)
+    with pytest.raises(ValueError, match="frame interval"):
+        swing_problem(vertices, faces, (0, N - 1), 0.0, np.array([0.0, 9.81, 0.0]), CONFIG)
+    with pytest.raises(ValueError, match="substeps"):
+        SwingConfig(substeps=0)
