@@ -17,7 +17,9 @@ g = Jᵀ ∂Π/∂U and K = Jᵀ H J exactly. Per iteration from P:
    blocks, and the exact Newton step then converges quadratically), else of the blocks
    projected to positive semi-definite (`project_psd`: screened and projected only then; the
    first iteration and the iteration after a failed attempt skip it and screen: far from the
-   minimum attempts fail in a row and each costs an assembly and a factorisation);
+   minimum attempts fail in a row and each costs an assembly and a factorisation); in the
+   endgame (the last decrement below the floor) the exact K every iteration, shifted by the
+   least μ D that makes it definite before any projection (`_shifted_step`: a soft mode);
 4. d from (K + μ D) d = −g (`Linearisation.solve`: the dense Jacobi-scaled Cholesky or the
    sparse direct / multigrid solve, D the diagonal of K; μ = 0 unless the system is singular
    or a line search failed: then raised tenfold, from at least `retry_damping`);
