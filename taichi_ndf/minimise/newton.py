@@ -17,7 +17,9 @@ g = Jᵀ ∂Π/∂U and K = Jᵀ H J exactly. Per iteration from P:
    blocks, and the exact Newton step then converges quadratically), else of the blocks
    projected to positive semi-definite (`project_psd`: screened and projected only then; the
    first iteration and the iteration after a failed attempt skip it and screen: far from the
-   minimum attempts fail in a row and each costs an assembly and a factorisation);
+   minimum attempts fail in a row and each costs an assembly and a factorisation); in the
+   endgame (the last decrement below the floor) the exact K every iteration, shifted by the
+   least μ D that makes it definite before any projection (`_shifted_step`: a soft mode);
 4. d from (K + μ D) d = −g (`Linearisation.solve`: the dense Jacobi-scaled Cholesky or the
    sparse direct / multigrid solve, D the diagonal of K; μ = 0 unless the system is singular
    or a line search failed: then raised tenfold, from at least `retry_damping`);
@@ -62,6 +64,8 @@ log = logging.getLogger(__name__)
 
 # A full step that lowered Π by more than this × the quadratic model's ½λ² is tried longer.
 LONGER_STEP_RATIO = 1.25
+# The endgame's shifts of the exact K: μ = retry_damping × 10^k, k < this (`_shifted_step`).
+SHIFTS = 8
 
 
 class Linearisation(Protocol):
@@ -192,6 +196,29 @@ def _tolerance(config: NewtonConfig, energy: float, coarse_energy: float | None)
     return max(bound, config.discretisation_fraction * abs(energy - coarse_energy))
 
 
+def _below_floor(config: NewtonConfig, record: NewtonIteration) -> bool:
+    """Whether an iteration's decrement λ² [J] was below the rounding floor: λ²/2 ≤
+    floor_tolerance × |Π|."""
+    return 0.5 * abs(record.decrement) <= config.floor_tolerance * abs(record.energy)
+
+
+def _shifted_step(linearisation: Linearisation, matrix: Any, gradient: torch.Tensor,
+                  config: NewtonConfig) -> tuple[torch.Tensor, float] | None:
+    """The step of the exact K + μ D with the least μ = retry_damping × 10^k (k < SHIFTS)
+    that makes it definite, and that μ; None where none does. In the endgame the per-block
+    projection misstates the curvature along a soft mode (a nearly neutral fold of a twisted
+    sleeve: exact K's least eigenvalue −1e-5 of 1e2, Π there nearly linear along it), so
+    projected Newton creeps, its decrement far below Π's true remaining change
+    (benchmarks/RESULTS.md, "Gallery 5"); the exact K barely shifted models it."""
+    mu = config.retry_damping
+    for _ in range(SHIFTS):
+        result = linearisation.solve(matrix, gradient, mu, require_definite=True)
+        if result is not None:
+            return result
+        mu *= 10
+    return None
+
+
 def _longer_step(energy_at: Callable[[float], float], start: float, full: float,
                  decrement: float, doublings: int) -> float:
     """The step length from α = 1 (accepted, Π = `full`; Π = `start` at α = 0): doubled while Π
@@ -261,7 +288,10 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
             converged = True
             break
         started, matrix = time.perf_counter(), None  # free the last K before the blocks
-        exact = config.project and damping == 0.0 and not exact_failed  # try the exact K
+        # the endgame (the last decrement already below the floor): the exact K, shifted where
+        # it is not definite, every iteration (`_shifted_step`)
+        endgame = config.project and bool(history) and _below_floor(config, history[-1])
+        exact = config.project and damping == 0.0 and (endgame or not exact_failed)
         strain = config.project and config.hessian == "strain" and hasattr(
             potential, "psd_hessian_blocks")
         # the blocks are built chunk by chunk inside the assemblies (`PointBlocks`)
@@ -279,6 +309,8 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
         if exact:
             started = time.perf_counter()
             first_step = linearisation.solve(matrix, gradient, 0.0, require_definite=True)
+            if first_step is None and endgame:
+                first_step = _shifted_step(linearisation, matrix, gradient, config)
             exact_failed = first_step is None
             t_solve += time.perf_counter() - started
         else:  # after a failed attempt the next iteration goes straight to the projected K
@@ -298,11 +330,12 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
             t_assembly += time.perf_counter() - started - psd_blocks.seconds
             t_hessian += psd_blocks.seconds
         blocks = couplings = None  # K holds what the solves need
-        alpha, small = 0.0, False
+        alpha, small, shifted = 0.0, False, False
         for _attempt in range(config.line_searches):
             started = time.perf_counter()
             if first_step is not None:
                 (step, damping), first_step = first_step, None
+                shifted = damping > 0  # the exact K's shift: not carried to the next iteration
             else:
                 step, damping = linearisation.solve(matrix, gradient, damping)
             t_solve += time.perf_counter() - started
@@ -342,7 +375,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
             progress.report(iteration + 1, **{"Π": current.total, "λ²": decrement})
         if on_iteration is not None:
             on_iteration(history[-1])
-        near = 0.5 * abs(decrement) <= config.floor_tolerance * abs(current.total)
+        near = _below_floor(config, history[-1])
         if alpha == 0.0:  # stopped on the decrement tolerance, or no step decreased Π
             converged = small or near
             break
@@ -353,8 +386,8 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
         if alpha < 1.0 and near:  # the quadratic model no longer predicts Π: rounding floor
             converged = True
             break
-        damping = damping / 10 if alpha >= 1.0 else damping
-        if damping < config.retry_damping:
+        damping = damping / 10 if alpha >= 1.0 and not shifted else damping
+        if damping < config.retry_damping or shifted:
             damping = 0.0
         if on_iterate is not None:
             on_iterate(NewtonIterate(c, iteration + 1, damping, exact_failed, first_norm,
