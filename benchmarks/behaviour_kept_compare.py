@@ -45,7 +45,7 @@ def row(scene: str, field: str, before: dict, after: dict) -> str:
         probes = "probes ="
     else:
         worst = max(abs(x - y) for name, u in b["probes"].items()
-                    for x, y in zip(u, a["probes"].get(name, [float("nan")] * 3)))
+                    for x, y in zip(u, a["probes"].get(name, [float("nan")] * 3), strict=True))
         probes = f"probes differ (max {worst:.2e} m)"
     mesh = "byte-identical" if filecmp.cmp(before["dir"] / "mesh.obj", after["dir"] / "mesh.obj",
                                            shallow=False) else "differs"

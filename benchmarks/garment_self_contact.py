@@ -30,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from provenance import commit  # noqa: E402
 
 import taichi_ndf  # noqa: E402
-from taichi_ndf.app.outputs import deformed_mesh  # noqa: E402
+from taichi_ndf.app.panels import combined, part_meshes  # noqa: E402
 from taichi_ndf.discretise import of_scene  # noqa: E402
-from taichi_ndf.io.mesh_check import self_intersections  # noqa: E402
+from taichi_ndf.io.mesh_check import self_intersections, welded  # noqa: E402
 from taichi_ndf.scene.reader import parse_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,19 +48,9 @@ def _crossings(panels, resolution=(48, 48), weld: float = 1e-5) -> int:
     """Intersecting triangle pairs of the panels' output meshes joined into one, the vertices
     of the seams' two sides (closer than `weld` [m]) merged into one first: else the two
     panels' triangles that meet at a seam count as crossing."""
-    from scipy.spatial import cKDTree
-
-    vertices, faces, count = [], [], 0
-    for part in panels.result_parts(panels.field):
-        mesh = deformed_mesh(part.model, part.field, resolution)
-        vertices.append(mesh.deformed)
-        faces.append(mesh.faces + count)
-        count += len(mesh.deformed)
-    vertices, faces = np.concatenate(vertices), np.concatenate(faces)
-    same = np.arange(len(vertices))
-    for a, b in sorted(cKDTree(vertices).query_pairs(weld)):
-        same[b] = same[a]
-    return len(self_intersections(vertices, same[faces]))
+    vertices, faces, _ = combined(part_meshes(panels.result_parts(panels.field), resolution))
+    vertices, faces, _ = welded(vertices, faces, weld)
+    return len(self_intersections(vertices, faces))
 
 
 def run(spans, distance: float | None) -> dict:

@@ -12,11 +12,10 @@ import copy
 import tomllib
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
-from taichi_ndf.app.outputs import deformed_mesh
+from taichi_ndf.app.panels import combined, part_meshes
 from taichi_ndf.discretise import of_scene
 from taichi_ndf.io.mesh_check import self_intersections
 from taichi_ndf.scene.reader import parse_scene
@@ -57,13 +56,8 @@ def _solve(document: dict):
 
 def _crossings(panels, resolution=(24, 24)) -> int:
     """Intersecting triangle pairs of the panels' output meshes joined into one mesh."""
-    vertices, faces, count = [], [], 0
-    for part in panels.result_parts(panels.field):
-        mesh = deformed_mesh(part.model, part.field, resolution)
-        vertices.append(mesh.deformed)
-        faces.append(mesh.faces + count)
-        count += len(mesh.deformed)
-    return len(self_intersections(np.concatenate(vertices), np.concatenate(faces)))
+    vertices, faces, _ = combined(part_meshes(panels.result_parts(panels.field), resolution))
+    return len(self_intersections(vertices, faces))
 
 
 def _middle_z(scene, panels) -> list[float]:
