@@ -36,7 +36,6 @@ import numpy as np
 import torch
 
 from taichi_ndf.field.spline import SplineConfig
-from taichi_ndf.minimise.assembly import local_basis_at
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.outline import Outline
@@ -191,7 +190,7 @@ def trimmed_quadrature(surface, outline: Outline, config: SplineConfig,
 def unsupported(grid: GridLinearisation, xi: torch.Tensor) -> np.ndarray:
     """The coefficients (sorted) of `grid`'s field whose basis function is zero at all of ξ
     (N, 2): their support misses the quadrature points."""
-    index = local_basis_at(grid.operator, xi).index
+    index = grid.at_points(xi, 1.0).index  # the basis functions nonzero at each point
     return np.setdiff1d(np.arange(grid.field.config.num_coefficients),
                         torch.unique(index).cpu().numpy())
 
