@@ -69,6 +69,13 @@ class DivergenceGuard:
             self.fail(solver, energy, grad_norm)
         self._good = (solver.field, solver.field.get_flat().clone())
 
+    def on_level(self, solver) -> None:
+        """After a Newton grid level (before it is checkpointed): its closing Π, evaluated
+        after the last recorded iteration, must be finite."""
+        energy = solver.state.levels[-1].energy
+        if not math.isfinite(energy):
+            self.fail(solver, energy, float("nan"))
+
     @staticmethod
     def _blown_up(solver, energy: float, load_factor: float) -> bool:
         """Π far above anything seen at this load factor: a minimiser must not climb by
