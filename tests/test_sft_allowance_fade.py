@@ -11,7 +11,7 @@ from test_sft_sequential import STEP, run
 from inverse.sft.outline import border_vertices
 from inverse.sft.sequential import DataWeights
 from inverse.sft.settings import SplinePriorConfig
-from inverse.sft.silhouette import faded_allowance, silhouette_allowance
+from inverse.sft.silhouette import faded_allowance, silhouette_allowance, silhouette_distance
 from inverse.sft.synth import default_camera
 
 
@@ -43,7 +43,7 @@ def test_the_driver_fades_each_frames_allowance_by_the_previous_frames_motion():
         cv2.fillConvexPoly(image, triangle, 1)
     mask = cv2.erode(image, np.ones((7, 7), np.uint8)).astype(bool)
     border = border_vertices(template.faces, len(template.vertices))
-    full = silhouette_allowance(mask, pixels, border)
+    full = silhouette_allowance(silhouette_distance(mask), pixels, border)
     edge_px = float(np.mean(np.linalg.norm(
         pixels[template.faces] - pixels[np.roll(template.faces, 1, 1)], axis=2)))
     fade = 0.5

@@ -61,7 +61,8 @@ def test_allowance_is_frame_0_depth_inside_the_mask_of_visible_border_vertices()
     x0, y0 = np.floor(pixels.min(0)).astype(int)
     x1, y1 = np.ceil(pixels.max(0)).astype(int)
     mask[y0 - 5:y1 + 6, x0 - 5:x1 + 6] = True  # 5 px wider than the template on each side
-    allowance = outline_allowance(vertices, faces, camera, mask, tolerance=0.01)
+    allowance = outline_allowance(vertices, faces, camera, silhouette_distance(mask),
+                                  tolerance=0.01)
     border = border_vertices(faces, len(vertices))
     assert np.all(allowance[~border] == FREE)
     assert np.all((allowance[border] < -4) & (allowance[border] > -7.5))

@@ -33,7 +33,7 @@ def test_allowance_is_frame_0_distance_outside_the_mask_of_border_vertices():
     _, mask = _box_mask()
     pixels = np.array([[124.0, 60.0], [128.0, 50.0], [109.0, 60.0], [128.0, 70.0]])
     rows = np.array([True, True, True, False])
-    allowance = silhouette_allowance(mask, pixels, rows)
+    allowance = silhouette_allowance(silhouette_distance(mask), pixels, rows)
     assert allowance == pytest.approx([4.5, 8.5, 0.0, 0.0], abs=1e-6)
 
 
@@ -112,7 +112,7 @@ def test_the_driver_hands_every_frame_frame_0s_allowance_near_tracks_only_with_a
         cv2.fillConvexPoly(image, triangle, 1)
     mask = cv2.erode(image, np.ones((7, 7), np.uint8)).astype(bool)  # 3 px narrower
     border = border_vertices(template.faces, len(template.vertices))
-    expected = silhouette_allowance(mask, pixels, border)
+    expected = silhouette_allowance(silhouette_distance(mask), pixels, border)
     assert (expected[border] > 1).sum() > border.sum() / 2 and not expected[~border].any()
     _, _, fit, _ = run(DataWeights(2.0, 0.1, 1.0, 1.0), masks=[mask] * 3)
     assert all(f.silhouette_allowance is None for f in fit.frames)

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from inverse.sft.camera import Camera
-from inverse.sft.silhouette import bilinear_differentiable, silhouette_distance
+from inverse.sft.silhouette import bilinear_differentiable
 
 # No allowance: the outline term ignores the vertex.
 FREE = -np.inf
@@ -62,15 +62,16 @@ def visible_vertices(vertices: np.ndarray, faces: np.ndarray, which: np.ndarray,
 
 
 def outline_allowance(vertices: np.ndarray, faces: np.ndarray, camera: Camera,
-                      mask: np.ndarray, *, tolerance: float) -> np.ndarray:
+                      distance: torch.Tensor, *, tolerance: float) -> np.ndarray:
     """(n,) [px]: for each border vertex the camera sees in frame 0 (template `vertices` [m],
-    `mask` bool (h, w) of frame 0), the signed distance min(0, D₀(π(X_v))) it lies inside the
-    mask (D₀ `silhouette_distance`, negative inside); `FREE` for every other vertex."""
+    `distance` D₀ (h, w): frame 0's mask as its `silhouette_distance`, negative inside), the
+    signed distance min(0, D₀(π(X_v))) it lies inside the mask; `FREE` for every other
+    vertex."""
     allowance = np.full(len(vertices), FREE)
     border = border_vertices(faces, len(vertices))
     chosen = visible_vertices(vertices, faces, border, tolerance=tolerance)
     pixels = camera.project(torch.from_numpy(vertices[chosen]))
-    depth = bilinear_differentiable(silhouette_distance(mask), pixels).numpy()
+    depth = bilinear_differentiable(distance, pixels).numpy()
     allowance[chosen] = np.minimum(depth, 0.0)
     return allowance
 

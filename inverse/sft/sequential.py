@@ -164,26 +164,27 @@ def reconstruct_frames(template: Template, camera: Camera,
     weights = fit.weights
     rest = torch.from_numpy(template.vertices).double()
     mean_edge = mean_edge_length(template.vertices, template.faces)
+    # Frame 0's mask as a distance image: the allowances below and the cover term's.
+    first_distance = None
+    if masks is not None and weights.silhouette_weight > 0:
+        first_distance = silhouette_distance(masks[0])
     # How deep inside the mask each visible border vertex may lie (frame 0's outline).
     allowance = None
-    if masks is not None and weights.outline_weight > 0 and weights.silhouette_weight > 0:
-        allowance = outline_allowance(template.vertices, template.faces, camera, masks[0],
-                                      tolerance=mean_edge)
+    if first_distance is not None and weights.outline_weight > 0:
+        allowance = outline_allowance(template.vertices, template.faces, camera,
+                                      first_distance, tolerance=mean_edge)
     border = border_vertices(template.faces, len(template.vertices))
     # How far outside the mask each border vertex may lie unpenalised (frame 0's disagreement).
     tolerated = None
-    if masks is not None and weights.silhouette_allowance and weights.silhouette_weight > 0:
+    if first_distance is not None and weights.silhouette_allowance:
         tolerated = torch.from_numpy(silhouette_allowance(
-            masks[0], camera.project(rest).numpy(), border))
+            first_distance, camera.project(rest).numpy(), border))
         log.info("silhouette allowance: %d border vertices outside mask 0, up to %.2f px",
                  int((tolerated > 0).sum()), float(tolerated.max()))
     result = ReconstructionResult([template.vertices.copy()], [0.0], [0.0], [0], [{}])
     first_pixels = camera.project(template.vertices)  # frame 0's, for a fading allowance
     fade_px = (weights.allowance_fade or 0.0) * float(np.mean(np.linalg.norm(
         first_pixels[template.faces] - first_pixels[np.roll(template.faces, 1, 1)], axis=2)))
-    first_distance = None  # frame 0's mask, for the cover term's allowance (`inverse.sft.contour`)
-    if masks is not None and weights.silhouette_weight > 0:
-        first_distance = silhouette_distance(masks[0])
 
     def solve(step: Step, history: list[np.ndarray]) -> tuple[FittedFrame, float, float]:
         """Frame `step.value` fitted from `history`, the vertices of the (at most two) frames

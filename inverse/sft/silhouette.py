@@ -44,13 +44,15 @@ def silhouette_residual(distance: torch.Tensor, xy: torch.Tensor,
     return (d if allowance is None else d - allowance).clamp_min(0.0)
 
 
-def silhouette_allowance(mask: np.ndarray, xy: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """(n,) [px]: how far outside the silhouette of frame 0 (`mask` bool (h, w)) the points at
-    pixels xy (n, 2) of frame 0 lie, max(0, D₀) with D₀ `silhouette_distance`, at the points
-    selected by `rows` (bool (n,): the template's border vertices); 0 elsewhere. Frame 0 is the
-    template, right by construction: where its outline lies outside the mask, the mask and the
-    template disagree there, and the silhouette term tolerates that much (`least_squares`)."""
-    depth = bilinear_differentiable(silhouette_distance(mask), torch.from_numpy(
+def silhouette_allowance(distance: torch.Tensor, xy: np.ndarray, rows: np.ndarray
+                         ) -> np.ndarray:
+    """(n,) [px]: how far outside the silhouette of frame 0 (`distance` D₀ (h, w): frame 0's
+    mask as its `silhouette_distance`) the points at pixels xy (n, 2) of frame 0 lie,
+    max(0, D₀), at the points selected by `rows` (bool (n,): the template's border vertices);
+    0 elsewhere. Frame 0 is the template, right by construction: where its outline lies
+    outside the mask, the mask and the template disagree there, and the silhouette term
+    tolerates that much (`least_squares`)."""
+    depth = bilinear_differentiable(distance, torch.from_numpy(
         np.asarray(xy, dtype=np.float64))).numpy()
     return np.where(rows, np.maximum(depth, 0.0), 0.0)
 
