@@ -44,7 +44,8 @@ from scipy.spatial import cKDTree
 
 from inverse.sft.camera import Camera
 from inverse.sft.least_squares import COMPONENTS, MIN_DEPTH
-from inverse.sft.silhouette import bilinear_differentiable, silhouette_distance
+from inverse.sft.outline import border_edges
+from inverse.sft.silhouette import bilinear_differentiable
 from taichi_ndf import jets
 
 
@@ -66,9 +67,7 @@ class BorderCurve:
         """The border of a template (vertices [m] (n, 3), faces (F, 3), uvs (n, 2))."""
         if per_edge < 1:
             raise ValueError(f"per_edge must be >= 1, got {per_edge}")
-        pairs = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
-        edges, uses = np.unique(pairs, axis=0, return_counts=True)
-        edges = edges[uses == 1]
+        edges = border_edges(faces)
         t = (np.arange(per_edge) + 0.5) / per_edge
         ends = np.repeat(edges, per_edge, axis=0)
         t = np.tile(t, len(edges))[:, None]
@@ -77,11 +76,12 @@ class BorderCurve:
         return cls(torch.from_numpy(xi.astype(np.float64)),
                    torch.from_numpy(rest.astype(np.float64)), ends.astype(np.int64), per_edge)
 
-    def allowance(self, camera: Camera, mask: np.ndarray) -> torch.Tensor:
+    def allowance(self, camera: Camera, distance: torch.Tensor) -> torch.Tensor:
         """(K,) [px]: how far each point of the template (frame 0's shape) lies from the
-        outline of frame 0's `mask` (bool (h, w)), |D₀(π(X_k))|."""
+        outline of frame 0's mask (`distance` D₀ (h, w), its `silhouette_distance`),
+        |D₀(π(X_k))|."""
         pixels = camera.project(self.rest, min_depth=MIN_DEPTH)
-        return bilinear_differentiable(silhouette_distance(mask), pixels).abs()
+        return bilinear_differentiable(distance, pixels).abs()
 
 
 def outline_points(distance: torch.Tensor) -> np.ndarray:

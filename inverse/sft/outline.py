@@ -24,12 +24,17 @@ from inverse.sft.silhouette import bilinear_differentiable
 FREE = -np.inf
 
 
-def border_vertices(faces: np.ndarray, count: int) -> np.ndarray:
-    """Bool (count,): vertices on an edge that only one triangle of `faces` (F, 3) uses."""
+def border_edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2): the edges (vertex pairs, sorted) that only one triangle of `faces` (F, 3) uses."""
     pairs = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
     edges, uses = np.unique(pairs, axis=0, return_counts=True)
+    return edges[uses == 1]
+
+
+def border_vertices(faces: np.ndarray, count: int) -> np.ndarray:
+    """Bool (count,): vertices on an edge that only one triangle of `faces` (F, 3) uses."""
     border = np.zeros(count, dtype=bool)
-    border[edges[uses == 1].ravel()] = True
+    border[border_edges(faces).ravel()] = True
     return border
 
 

@@ -58,7 +58,6 @@ from inverse.sft.sequential import (
     FrameData,
 )
 from inverse.sft.settings import SplinePriorConfig
-from inverse.sft.silhouette import bilinear_differentiable
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import PinnedPoint
@@ -209,8 +208,7 @@ class SplinePriorReconstructor:
         points chosen near the border of the field's current shape (the frame's start)."""
         curve, cfg = self.border_curve, self.config
         if self.cover_allowance is None and frame.first_distance is not None:
-            pixels = frame.camera.project(curve.rest)
-            self.cover_allowance = bilinear_differentiable(frame.first_distance, pixels).abs()
+            self.cover_allowance = curve.allowance(frame.camera, frame.first_distance)
         start = curve.rest + self.operator.displacement(curve.xi).double()
         start_pixels = frame.camera.project(start).numpy()
         edge = mean_border_edge(curve, frame.camera.project(torch.from_numpy(self.vertices())
