@@ -40,11 +40,12 @@ import torch
 import taichi_ndf
 from inverse.material.trajectory_fit import TrajectoryFitConfig, fit_trajectory, observe
 from inverse.sft.hanging import hanging_across, hanging_model
-from inverse.sft.swing import SwingConfig, bending_length, swing_problem
+from inverse.sft.swing import SwingConfig, swing_problem
 from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.shell.fabrics import bending_length
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.solve.dynamics_adjoint import record
 from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundary

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import math
 
+from taichi_ndf.shell.fabrics import bending_length
+
 SPAN_PER_BENDING_LENGTH = 1.5  # longest coarse span / bending length
 MIN_SPANS = 7  # fewest coarse spans per side (the sheet's sag between the boundary layers)
 MAX_SPANS = 16  # most coarse spans per side (fine grid 32 × 32)
@@ -38,11 +40,6 @@ def spans_for_bending_length(size: tuple[float, float], bending_length: float
     wanted = [max(MIN_SPANS, math.ceil(float(s) / span - 1e-9)) for s in size]
     spans = tuple(min(n, MAX_SPANS) for n in wanted)
     return spans, spans != tuple(wanted)
-
-
-def bending_length(bending_stiffness: float, areal_density: float, gravity: float) -> float:
-    """c = (B / (ρ_A g))^(1/3) [m]."""
-    return (float(bending_stiffness) / (float(areal_density) * float(gravity))) ** (1.0 / 3.0)
 
 
 def finer(spans: tuple[int, int], other: tuple[int, int]) -> bool:
@@ -75,7 +72,8 @@ class GridChoice:
         they are not finer than it)."""
         if not self.chosen:
             return None
-        c = bending_length(bending_stiffness, self.config.areal_density, self.gravity)
+        c = bending_length(float(bending_stiffness), float(self.config.areal_density),
+                           float(self.gravity))
         spans = self._from(size, c, label)
         if only_finer is not None and not finer(only_finer, spans):
             return None

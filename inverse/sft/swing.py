@@ -208,8 +208,3 @@ def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:
     boundary = moved_boundary(stepper.model.boundary, stepper.path.initial_velocity())
     operator = DisplacementOperator(stepper.field, boundary)
     return operator.prescribed(xi, t=1.0, dtype=torch.float64)[:, jets.VALUE].numpy()
-
-
-def bending_length(bending: float, areal_density: float, gravity: float) -> float:
-    """c = (B / (ρ_A g))^(1/3) [m]."""
-    return (bending / (areal_density * gravity)) ** (1.0 / 3.0)
