@@ -76,11 +76,7 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
     unhalved steps only)."""
     _check_steps(stepper)
     config = stepper.config
-    zeros = torch.zeros_like(stepper.field.coefficients)
-    c = zeros.clone() if displacement is None else displacement.to(zeros).clone()
-    v = zeros.clone() if velocity is None else velocity.to(zeros).clone()
-    a = stepper.initial_acceleration(c, v) if config.integrator == "newmark" else zeros.clone()
-    first = Motion(0.0, c, v, a, _initial_boundary(stepper))
+    first = stepper.start(displacement, velocity).state  # the run's own step 0 (a path's too)
     step = StepMap.of(config, config.dt)
 
     def solve(at: Step, start: Motion) -> Motion:  # one time step to at.value [s], polished
@@ -98,17 +94,6 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
     times = [k * config.dt for k in range(1, config.steps + 1)]
     (steps,) = solve_over(Stages(solve, start=start), times)
     return [first, *steps]
-
-
-def _initial_boundary(stepper: TimeStepper) -> Motion | None:
-    """The boundary's state at t = 0 as the stepper starts it: None without a motion; a
-    path's `initial_boundary`; a scene motion's g(μ(0)) at rest."""
-    if hasattr(stepper, "initial_boundary"):
-        return stepper.initial_boundary()
-    if stepper.config.motion is None:
-        return None
-    g = stepper.offset_of(stepper._at(0.0))
-    return Motion(0.0, g, torch.zeros_like(g), torch.zeros_like(g))
 
 
 def _step_potential(stepper: TimeStepper, step: StepMap, start: Motion, time: float):
