@@ -125,8 +125,6 @@ class PathStepper(TimeStepper):
         set on the grid's one assembly, as `GridLinearisation.linearisation` sets a load
         factor's: the last time asked holds for every linearisation of it)."""
         linear = self._grid.linearisation(1.0)
-        if "path" not in self.__dict__:
-            return linear
         assembly = self._grid.assembly
         key = float(t)
         if key not in self._offsets:
