@@ -42,8 +42,7 @@ from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.guided import GuidedSearch
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
 from inverse.sft.photometric import photometric_evidence
-from inverse.sft.reconstruct import ReconstructionConfig
-from inverse.sft.spline_prior import SplinePriorConfig
+from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
 from inverse.sft.tracking_config import TrackerConfig

@@ -28,8 +28,7 @@ import taichi_ndf
 from inverse.sft.baseline import reconstruct_baseline
 from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
-from inverse.sft.reconstruct import ReconstructionConfig
-from inverse.sft.spline_prior import SplinePriorConfig
+from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
 
