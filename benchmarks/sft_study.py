@@ -12,7 +12,7 @@ degradations), track it (`inverse.sft.tracking`), reconstruct it with the baseli
 largest per-frame depth bias (mean over vertices of z − z_gt [mm]: a global depth drift shows
 here), and seconds per frame (wall, and process CPU summed over threads); then whether the prior
 beats the baseline on e3D, chamfer and normal error on every sequence. --field siren runs the
-older SIREN + Adam field (`inverse.sft.reconstruct`, initialised from the baseline's meshes)
+older SIREN + Adam field (`inverse.sft.siren_prior`, initialised from the baseline's meshes)
 instead of the spline; its per-frame time excludes the baseline it starts from. --cache keeps the
 rendered and tracked sequences (pickles) for reruns. --guided adds the prior with the guided
 search (`inverse.sft.guided`: lost texture points re-found near the reconstruction's

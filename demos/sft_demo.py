@@ -10,7 +10,7 @@ Kirchhoff–Love prior (w_phys = 0) and the same field with it; prints the metri
 
 ``--field spline`` (default): the B-spline field solved per frame by Gauss–Newton
 (``inverse.sft.spline_prior``, float64, as ``ndf-sft``). ``--field siren``: the older SIREN
-field trained with Adam (``inverse.sft.reconstruct``, initialised from the baseline).
+field trained with Adam (``inverse.sft.siren_prior``, initialised from the baseline).
 ``--quick``: 3 frames at 320x240 (and few Adam steps for the SIREN), a smoke test.
 """
 

@@ -6,10 +6,11 @@ their pixels and confidences (with `flow`, the dense-flow correspondences carrie
 t − 1's reconstruction added: `inverse.sft.flow`), the constant-velocity prediction
 x̂ = 2 x_{t−1} − x_{t−2} of the vertices for the motion term, with a mask the silhouette's
 distance image, and with the outline term the allowance of the border vertices that frame
-t − 1's reconstruction shows (`inverse.sft.outline`). A `FrameFit` then minimises its field's
-prior plus the one data term of `inverse.sft.least_squares` (`FrameData.data_term`) from its
-own last state, the previous frame (warm start): the spline field by Newton
-(`inverse.sft.spline_prior`) or the SIREN by Adam (`inverse.sft.reconstruct`). The frames run
+t − 1's reconstruction shows (`inverse.sft.outline`). A `FrameFit` (the one reconstructor,
+`inverse.sft.reconstruct.FrameReconstructor`) then minimises its field's prior plus the one
+data term of `inverse.sft.least_squares` (`FrameData.data_term`) from its own last state, the
+previous frame (warm start): the spline field by Newton (`inverse.sft.spline_prior`) or the
+SIREN by Adam (`inverse.sft.siren_prior`), each a `FrameField`. The frames run
 through the one continuation loop (`taichi_ndf.minimise.continuation.solve_over`, a frame per
 step), which calls the solve callbacks and reports progress per frame; the driver times each
 frame (wall and process CPU).

@@ -1,4 +1,5 @@
-"""Shape-from-template on a spline displacement field, frame by frame by Gauss–Newton.
+"""Shape-from-template on a spline displacement field, frame by frame by Gauss–Newton: the
+spline's part of the one reconstruction (`inverse.sft.reconstruct.FrameReconstructor`).
 
 Each frame's surface is x(ξ) = X(ξ) + u(ξ) on the template's UV domain (X the template itself,
 piecewise linear for data and output, its C² spline fit `MeshSurface` for the energy), with u a
@@ -14,10 +15,11 @@ E_data the least-squares data terms of `inverse.sft.least_squares` (robust repro
 tracked points, silhouette of the template vertices with masks, the outline of the visible
 border vertices against the mask (`inverse.sft.outline`), smooth motion towards the
 constant-velocity prediction), Π_int the Kirchhoff–Love internal energy of a fixed linear
-isotropic material over the template (membrane + bending; `sheet_quadrature`: exact
+isotropic material over the template (membrane + bending;
+`taichi_ndf.discretise.trimmed.sheet_quadrature`: exact
 Gauss–Legendre on the spline's knot spans, one point per triangle where the UV chart does not
 fill its rectangle) and E_ref = B / 2 the bending energy of the template bent to uniform
-curvature 1/√A, so Π_int / E_ref is dimensionless (as in `inverse.sft.reconstruct`).
+curvature 1/√A, so Π_int / E_ref is dimensionless (`inverse.sft.reconstruct`).
 
 Solver: the project's projected Newton over the spline coefficients
 (`taichi_ndf.minimise.newton.minimise` on an `Assembly` of the quadrature points, the
@@ -78,7 +80,7 @@ STACKED_POINTS = 1 << 17
 
 
 class SplineFrameField:
-    """The spline field's part of the frame fit (`inverse.sft.reconstruct.FrameField`): a
+    """The spline field's part of the frame fit (`inverse.sft.sequential.FrameField`): a
     `SplineField` over the template's UV rectangle, the prior on the fixed `sheet_quadrature`
     and projected Newton over the coefficients (`minimise` on the `GridLinearisation` of the
     quadrature and the frame's data points)."""

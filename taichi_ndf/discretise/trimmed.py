@@ -26,6 +26,10 @@ polygon panels": left free, the damped solve still reached the same Π, to 4e-12
 Newton iterations against 7). A coefficient whose support only grazes the outline keeps a
 small stiffness (the known ill-conditioning of trimmed splines: mass diagonal down to 2e-6 of
 the largest there); nothing stabilises it.
+
+A mesh's own UV chart that does not fill its rectangle (a shape-from-template template whose
+UVs were projected from a first frame) is the other trimmed domain: `sheet_quadrature` puts one
+point per mesh triangle there (and the span Gauss points where the chart is the rectangle).
 """
 
 from __future__ import annotations
