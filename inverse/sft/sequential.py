@@ -41,7 +41,6 @@ from inverse.sft.silhouette import (
     silhouette_distance,
 )
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
-from taichi_ndf.problem.operator import DisplacementOperator
 
 log = logging.getLogger(__name__)
 
@@ -148,12 +147,11 @@ class FrameField(Protocol):
     conditions (or None), the settings, the template's mean edge length [m], the prior's
     material and E_ref [J].
 
-    field: the displacement field; operator: its `DisplacementOperator` under the conditions;
+    field: the displacement field (under the conditions through its `DisplacementOperator`);
     dtype: of its evaluation points; slope: the distance image's slope its minimiser follows
     (`LeastSquaresData`: "image" for Newton, "interpolant" for Adam)."""
 
     field: Any
-    operator: DisplacementOperator
     dtype: torch.dtype
     slope: str
 
