@@ -12,7 +12,7 @@ degradations), track it (`inverse.sft.tracking`), reconstruct it with the baseli
 largest per-frame depth bias (mean over vertices of z − z_gt [mm]: a global depth drift shows
 here), and seconds per frame (wall, and process CPU summed over threads); then whether the prior
 beats the baseline on e3D, chamfer and normal error on every sequence. --field siren runs the
-older SIREN + Adam field (`inverse.sft.reconstruct`, initialised from the baseline's meshes)
+older SIREN + Adam field (`inverse.sft.siren_prior`, initialised from the baseline's meshes)
 instead of the spline; its per-frame time excludes the baseline it starts from. --cache keeps the
 rendered and tracked sequences (pickles) for reruns. --guided adds the prior with the guided
 search (`inverse.sft.guided`: lost texture points re-found near the reconstruction's
@@ -42,8 +42,7 @@ from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.guided import GuidedSearch
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
 from inverse.sft.photometric import photometric_evidence
-from inverse.sft.reconstruct import ReconstructionConfig
-from inverse.sft.spline_prior import SplinePriorConfig
+from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
 from inverse.sft.tracking_config import TrackerConfig

@@ -10,7 +10,7 @@ Kirchhoff–Love prior (w_phys = 0) and the same field with it; prints the metri
 
 ``--field spline`` (default): the B-spline field solved per frame by Gauss–Newton
 (``inverse.sft.spline_prior``, float64, as ``ndf-sft``). ``--field siren``: the older SIREN
-field trained with Adam (``inverse.sft.reconstruct``, initialised from the baseline).
+field trained with Adam (``inverse.sft.siren_prior``, initialised from the baseline).
 ``--quick``: 3 frames at 320x240 (and few Adam steps for the SIREN), a smoke test.
 """
 
@@ -28,8 +28,7 @@ import taichi_ndf
 from inverse.sft.baseline import reconstruct_baseline
 from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.metrics import PROTOCOL, evaluate_sequence
-from inverse.sft.reconstruct import ReconstructionConfig
-from inverse.sft.spline_prior import SplinePriorConfig
+from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 from inverse.sft.synth import SEQUENCES, SynthConfig, generate
 from inverse.sft.tracking import track_sequence
 

@@ -54,7 +54,7 @@ FIELD_CLASSES = frozenset({
     "ImplicitEquilibrium", "SplineEquilibrium",                  # inverse forward models
     "ImplicitConfig", "SplineModelConfig",
     "ReconstructionConfig", "SplinePriorConfig",                 # SfT settings naming a field
-    "FieldReconstructor", "SplinePriorReconstructor",            # SfT frame fits
+    "SirenFrameField", "SplineFrameField",                       # SfT frame fields
 })
 FIELD_NAMES = frozenset({"siren", "spline", "panels"})
 ENTRY_NAMES = frozenset({"SIREN", "SPLINE", "PANELS"})

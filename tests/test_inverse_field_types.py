@@ -14,9 +14,9 @@ from inverse.material.field_types import (
 from inverse.material.forward_model import forward_model
 from inverse.material.implicit import ImplicitEquilibrium
 from inverse.material.spline_equilibrium import SplineEquilibrium
-from inverse.sft.reconstruct import FieldReconstructor
 from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
-from inverse.sft.spline_prior import SplinePriorReconstructor
+from inverse.sft.siren_prior import SirenFrameField
+from inverse.sft.spline_prior import SplineFrameField
 from taichi_ndf.field import FieldConfig, SplineConfig
 from taichi_ndf.problem.field_types import FIELD_TYPES
 from taichi_ndf.problem.spline_grid import SplinePlan
@@ -32,8 +32,8 @@ def test_the_classes_are_looked_up_from_the_configuration_or_the_settings():
     siren = of_field_config(FieldConfig(width=8))
     spline = of_field_config(SplineConfig(spans=(2, 2)))
     assert (siren.equilibrium, spline.equilibrium) == (ImplicitEquilibrium, SplineEquilibrium)
-    assert of_frame_settings(SplinePriorConfig()).frame_fit is SplinePriorReconstructor
-    assert of_frame_settings(ReconstructionConfig()).frame_fit is FieldReconstructor
+    assert of_frame_settings(SplinePriorConfig()).frame_field is SplineFrameField
+    assert of_frame_settings(ReconstructionConfig()).frame_field is SirenFrameField
     assert siren.initial_guesses and not spline.initial_guesses
 
 

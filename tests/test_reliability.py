@@ -287,7 +287,7 @@ def test_7_sft_refuses_a_nan_physics_weight_before_work(tmp_path, capsys):
     line = one_line(capsys.readouterr().err)
     assert stop.value.code == 2 and "--physics-weight" in line and "finite" in line
     # The configuration refuses it too (for callers that do not parse a command line).
-    from inverse.sft.reconstruct import ReconstructionConfig
+    from inverse.sft.settings import ReconstructionConfig
 
     with pytest.raises(ValueError, match="physics_weight"):
         ReconstructionConfig(physics_weight=float("nan"))

@@ -12,6 +12,7 @@ from test_sft_reconstruct import bent_pair, exact_tracks
 
 import inverse.sft.spline_prior as spline_prior
 from inverse.sft.frame_fits import reconstruct_sequence
+from inverse.sft.reconstruct import FrameReconstructor
 from inverse.sft.sequential import reconstruct_frames
 from inverse.sft.settings import SplinePriorConfig
 from inverse.sft.synth import default_camera
@@ -41,7 +42,7 @@ def captured_frame(monkeypatch, config):
         return MINIMISE(linearisation, potential, start, newton)
 
     monkeypatch.setattr(spline_prior, "minimise", capture)
-    fit = spline_prior.SplinePriorReconstructor(template, config=config)
+    fit = FrameReconstructor(template, config=config)
     result = reconstruct_frames(template, camera, tracks, fit)
     return seen, fit, template, result
 
@@ -82,7 +83,7 @@ def test_inertia_value_is_the_sheets_mass_times_the_gap(monkeypatch):
     for c in (predicted, predicted + delta):
         extra = energy(lin, potential, c) - energy(lin, others, c)
         gap = float((c - predicted)[0].norm() ** 2)
-        expected = 0.5 * lam * fit.areal_density * area * gap / DT**2
+        expected = 0.5 * lam * fit.frame_field.areal_density * area * gap / DT**2
         assert extra == pytest.approx(expected, rel=1e-6, abs=1e-9)
     assert extra > 0
     plain, _, _, _ = captured_frame(monkeypatch, CONFIG)

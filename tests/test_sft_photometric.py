@@ -6,8 +6,7 @@ import pytest
 import torch
 
 from inverse.sft.photometric import PhotometricEvidence, normalised, photometric_evidence
-from inverse.sft.reconstruct import ReconstructionConfig
-from inverse.sft.settings import SplinePriorConfig
+from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 from inverse.sft.surface import surface_positions
 from inverse.sft.synth import SynthConfig, generate
 from taichi_ndf import jets

@@ -13,7 +13,7 @@ from inverse.sft.deformations import Pose, cylindrical_bend
 from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.inputs import Template
 from inverse.sft.metrics import relative_error
-from inverse.sft.reconstruct import ReconstructionConfig
+from inverse.sft.settings import ReconstructionConfig
 from inverse.sft.silhouette import silhouette_distance, silhouette_residual
 from inverse.sft.surface import surface_positions
 from inverse.sft.synth import SynthConfig, default_camera, flat_sheet, generate, write_sequence

@@ -13,7 +13,7 @@ from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.inputs import mean_edge_length
 from inverse.sft.outline import border_vertices
 from inverse.sft.sequential import DataWeights, FittedFrame, reconstruct_frames
-from inverse.sft.spline_prior import SplinePriorConfig
+from inverse.sft.settings import SplinePriorConfig
 from inverse.sft.surface import surface_positions
 from inverse.sft.synth import default_camera
 from taichi_ndf import progress

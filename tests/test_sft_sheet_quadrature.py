@@ -5,7 +5,8 @@ import numpy as np
 import torch
 
 from inverse.sft.inputs import Template
-from inverse.sft.spline_prior import SplinePriorConfig, SplinePriorReconstructor
+from inverse.sft.reconstruct import FrameReconstructor
+from inverse.sft.settings import SplinePriorConfig
 from inverse.sft.synth import flat_sheet
 
 
@@ -17,7 +18,7 @@ def sheet():
 
 def reconstructor(uvs, vertices, faces):
     template = Template(vertices=vertices, faces=faces, uvs=uvs)
-    return SplinePriorReconstructor(template, config=SplinePriorConfig())
+    return FrameReconstructor(template, config=SplinePriorConfig()).frame_field
 
 
 def chart_area(uvs, faces):

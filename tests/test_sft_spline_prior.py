@@ -16,8 +16,8 @@ from inverse.sft.frame_fits import reconstruct_sequence
 from inverse.sft.inputs import mesh_edges
 from inverse.sft.least_squares import LeastSquaresData, Reprojection, VertexTerms
 from inverse.sft.metrics import relative_error
+from inverse.sft.settings import SplinePriorConfig
 from inverse.sft.silhouette import silhouette_distance
-from inverse.sft.spline_prior import SplinePriorConfig
 from inverse.sft.synth import default_camera, flat_sheet
 from taichi_ndf import jets
 

@@ -9,7 +9,7 @@ Methods: ``prior`` (default) fits a displacement field per frame with the Kirchh
 ``no-prior`` the same field without it (w_phys = 0), ``baseline`` the per-frame baseline alone
 (``inverse.sft.baseline``). Fields: ``spline`` (default; Gauss–Newton over a B-spline,
 ``inverse.sft.spline_prior``, needs ``--precision f64``) or ``siren`` (a neural field trained
-with Adam, ``inverse.sft.reconstruct``, initialised per frame from the baseline unless
+with Adam, ``inverse.sft.siren_prior``, initialised per frame from the baseline unless
 ``--init previous``). Stages (each timed in ``result.json``): load inputs, tracking
 (``inverse.sft.tracking``), baseline (when the method or the SIREN's initialisation needs it),
 reconstruction, output. Writes ``DIR/meshes/000000.obj`` … (the

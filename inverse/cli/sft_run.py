@@ -27,8 +27,7 @@ from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Camera, InputError, Template, mean_edge_length
 from inverse.sft.material_from_video import estimate_material
 from inverse.sft.photometric import photometric_evidence
-from inverse.sft.reconstruct import ReconstructionConfig
-from inverse.sft.spline_prior import SplinePriorConfig
+from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 from inverse.sft.tracking import track_sequence
 from taichi_ndf.cli.common import machine_description, start
 from taichi_ndf.io import OutputDir, write_obj

@@ -21,9 +21,9 @@ from typing import Any
 from inverse.material.equilibrium import Equilibrium
 from inverse.material.implicit import ImplicitEquilibrium
 from inverse.material.spline_equilibrium import SplineEquilibrium
-from inverse.sft.reconstruct import FieldReconstructor
 from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
-from inverse.sft.spline_prior import SplinePriorReconstructor
+from inverse.sft.siren_prior import SirenFrameField
+from inverse.sft.spline_prior import SplineFrameField
 from taichi_ndf.problem.field_types import SIREN, SPLINE, FieldType
 
 
@@ -34,9 +34,10 @@ class InverseFieldType:
     field_type: its forward entry (`FieldType`: name, field and configuration classes).
     equilibrium: the material fits' forward model on this field, built from the field's
     configuration (`field_type.config`) by `Equilibrium.of_field`. frame_settings: the SfT
-    settings class that names this field; frame_fit: its per-frame fit
-    (`inverse.sft.sequential.FrameFit`, built as `frame_fit(template, pinned=, config=)`);
-    initial_guesses: whether the frame fit takes per-frame initial guesses (`initial=`);
+    settings class that names this field; frame_field: its part of the one per-frame fit
+    (`inverse.sft.sequential.FrameField`, which `inverse.sft.reconstruct.FrameReconstructor`
+    builds); initial_guesses: whether the frame fit takes per-frame initial guesses
+    (`initial=`, the field's `fit_to`);
     photometric: whether it takes the photometric term (`inverse.sft.photometric`);
     float64_only: whether the frame fit needs the runtime in float64 (`ndf-sft --precision
     f64`: the spline prior's Hessian blocks are central differences).
@@ -45,7 +46,7 @@ class InverseFieldType:
     field_type: FieldType
     equilibrium: type[Equilibrium]
     frame_settings: type
-    frame_fit: type
+    frame_field: type
     initial_guesses: bool
     photometric: bool
     float64_only: bool
@@ -53,9 +54,9 @@ class InverseFieldType:
 
 # Field types by name (the forward registry's names).
 INVERSE_FIELD_TYPES: dict[str, InverseFieldType] = {kind.field_type.name: kind for kind in (
-    InverseFieldType(SIREN, ImplicitEquilibrium, ReconstructionConfig, FieldReconstructor,
+    InverseFieldType(SIREN, ImplicitEquilibrium, ReconstructionConfig, SirenFrameField,
                      initial_guesses=True, photometric=False, float64_only=False),
-    InverseFieldType(SPLINE, SplineEquilibrium, SplinePriorConfig, SplinePriorReconstructor,
+    InverseFieldType(SPLINE, SplineEquilibrium, SplinePriorConfig, SplineFrameField,
                      initial_guesses=False, photometric=True, float64_only=True))}
 
 

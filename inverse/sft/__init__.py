@@ -7,7 +7,8 @@ Modules, in pipeline order (conventions and the evaluation protocol: ``docs/sft.
 ``sequential`` with ``least_squares`` and ``silhouette`` (the physics-regularised
 reconstruction frame by frame, with its one data term, for either field; ``frame_fits``:
 ``reconstruct_sequence``, the one entry, the field named by its settings), ``spline_prior`` (a
-spline field by Gauss–Newton, the default) and ``reconstruct`` (a SIREN field by Adam),
+spline field by Gauss–Newton, the default) and ``siren_prior`` (a SIREN field by Adam), both
+run by ``reconstruct`` (the one reconstructor),
 ``metrics`` (e3D, chamfer, normal
 and reprojection errors), ``chamfer`` (the field's protocol against point clouds); input
 checks before any work: ``input_checks`` (template, UVs, clouds against frame 0) and ``limits``

@@ -1,9 +1,9 @@
-"""Shape-from-template on either displacement field through one call: the field is the one
-its settings name (`SplinePriorConfig`: a B-spline field solved by Newton,
-`inverse.sft.spline_prior`; `ReconstructionConfig`: a SIREN trained by Adam,
-`inverse.sft.reconstruct`), looked up in the inverse registry
-(`inverse.material.field_types`, the one place in `inverse` that tells field types apart);
-both run on the one frame-by-frame driver
+"""Shape-from-template on either displacement field through one call: the one reconstructor
+(`inverse.sft.reconstruct.FrameReconstructor`) on the field its settings name
+(`SplinePriorConfig`: a B-spline field solved by Newton, `inverse.sft.spline_prior`;
+`ReconstructionConfig`: a SIREN trained by Adam, `inverse.sft.siren_prior`), looked up in the
+inverse registry (`inverse.material.field_types`, the one place in `inverse` that tells field
+types apart), run on the one frame-by-frame driver
 `inverse.sft.sequential.reconstruct_frames`."""
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from inverse.sft.flow import DenseFlow
 from inverse.sft.guided import GuidedSearch
 from inverse.sft.inputs import Template
 from inverse.sft.photometric import PhotometricEvidence
-from inverse.sft.reconstruct import ReconstructionConfig
+from inverse.sft.reconstruct import FrameReconstructor
 from inverse.sft.sequential import ReconstructionResult, reconstruct_frames
-from inverse.sft.spline_prior import SplinePriorConfig
+from inverse.sft.settings import ReconstructionConfig, SplinePriorConfig
 
 
 def reconstruct_sequence(template: Template, camera: Camera,
@@ -51,12 +51,6 @@ def reconstruct_sequence(template: Template, camera: Camera,
     if photometric is not None and not kind.photometric:
         raise ValueError(f"the photometric term is for the spline field, not the "
                          f"{kind.field_type.name} field")
-    if initial is None:
-        fit = kind.frame_fit(template, pinned=pinned, config=config)
-    elif kind.initial_guesses:
-        fit = kind.frame_fit(template, pinned=pinned, initial=initial, config=config)
-    else:
-        raise ValueError("initial guesses are for the SIREN field; the spline field starts "
-                         "each frame from the previous frame's solution")
+    fit = FrameReconstructor(template, pinned=pinned, initial=initial, config=config)
     return reconstruct_frames(template, camera, correspondences, fit, masks=masks, flow=flow,
                               guided=guided, photometric=photometric, callbacks=callbacks)

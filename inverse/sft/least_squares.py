@@ -1,6 +1,6 @@
 """The data terms of the SfT fit, for either field, as one objective term with Gauss–Newton
 Hessian blocks: Newton minimises them on the spline field (`inverse.sft.spline_prior`), Adam
-takes their value and gradient on the SIREN (`inverse.sft.reconstruct`).
+takes their value and gradient on the SIREN (`inverse.sft.siren_prior`).
 
 Every data term is a (robust) least-squares function of the displacement value u at its own
 points, so it enters the objective's term interface (`taichi_ndf.objective.Term`): its value

@@ -6,10 +6,11 @@ their pixels and confidences (with `flow`, the dense-flow correspondences carrie
 t − 1's reconstruction added: `inverse.sft.flow`), the constant-velocity prediction
 x̂ = 2 x_{t−1} − x_{t−2} of the vertices for the motion term, with a mask the silhouette's
 distance image, and with the outline term the allowance of the border vertices that frame
-t − 1's reconstruction shows (`inverse.sft.outline`). A `FrameFit` then minimises its field's
-prior plus the one data term of `inverse.sft.least_squares` (`FrameData.data_term`) from its
-own last state, the previous frame (warm start): the spline field by Newton
-(`inverse.sft.spline_prior`) or the SIREN by Adam (`inverse.sft.reconstruct`). The frames run
+t − 1's reconstruction shows (`inverse.sft.outline`). A `FrameFit` (the one reconstructor,
+`inverse.sft.reconstruct.FrameReconstructor`) then minimises its field's prior plus the one
+data term of `inverse.sft.least_squares` (`FrameData.data_term`) from its own last state, the
+previous frame (warm start): the spline field by Newton (`inverse.sft.spline_prior`) or the
+SIREN by Adam (`inverse.sft.siren_prior`), each a `FrameField`. The frames run
 through the one continuation loop (`taichi_ndf.minimise.continuation.solve_over`, a frame per
 step), which calls the solve callbacks and reports progress per frame; the driver times each
 frame (wall and process CPU).
@@ -125,6 +126,49 @@ class FrameFit(Protocol):
     weights: DataWeights
 
     def fit_frame(self, frame: FrameData) -> FittedFrame: ...
+
+
+@dataclass(frozen=True)
+class FrameSolve:
+    """A field's minimisation of one frame: u_jets (N, 6, 3) [m] at the rows the frame's
+    terms index (`FrameField.rows`) where its loss terms are reported; parts: the field's own
+    loss terms ("inertia", "energy" = Π_int / E_ref); iterations: Newton iterations or Adam
+    steps."""
+
+    u_jets: torch.Tensor
+    parts: dict[str, float]
+    iterations: int
+
+
+class FrameField(Protocol):
+    """One field type's part of the frame fit (`inverse.material.field_types` names the class
+    per settings class), built as `frame_field(surface, conditions, config, mean_edge=,
+    material=, energy_reference=)` on the template's surface (`MeshSurface`), the pinned
+    conditions (or None), the settings, the template's mean edge length [m], the prior's
+    material and E_ref [J].
+
+    field: the displacement field (under the conditions through its `DisplacementOperator`);
+    dtype: of its evaluation points; slope: the distance image's slope its minimiser follows
+    (`LeastSquaresData`: "image" for Newton, "interpolant" for Adam)."""
+
+    field: Any
+    dtype: torch.dtype
+    slope: str
+
+    def displacement(self, xi: torch.Tensor) -> torch.Tensor:
+        """u (N, 3) [m] at ξ (N, 2) of the current state (no tape kept for a solve)."""
+
+    def rows(self, blocks: Sequence[torch.Tensor]) -> list[torch.Tensor]:
+        """Start a frame on the data points `blocks` (each (n_k, 2) of ξ, in order): the row
+        of each block's points (int64 (n_k,)) in the u_jets the frame's terms see."""
+
+    def solve(self, terms: Sequence[Any]) -> FrameSolve:
+        """Minimise the prior plus `terms` (built on the rows `rows` gave) from the field's
+        current state, which it leaves at the solution."""
+
+    def fit_to(self, xi: torch.Tensor, target: torch.Tensor) -> None:
+        """Fit u at ξ (n, 2) to `target` (n, 3) [m] (a per-frame initial guess; a field
+        whose `InverseFieldType.initial_guesses` is false need not have it)."""
 
 
 @dataclass

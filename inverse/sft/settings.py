@@ -1,5 +1,5 @@
 """Settings of the shape-from-template tools: the spline prior's (`spline_prior`), the SIREN
-reconstruction's (`reconstruct`) and the material estimate's from a video
+reconstruction's (`siren_prior`) and the material estimate's from a video
 (`material_from_video`), frozen dataclasses checked on construction.
 
 Apart from their modules so that `ndf-sft --help` shows their defaults without importing torch
@@ -179,8 +179,17 @@ class ReconstructionConfig:
     (when one is given); seed: field initialisation and energy samples.
     """
 
-    # No photometric term on this fit (`inverse.sft.photometric`): weight 0, not a setting.
+    # No photometric term on this fit (`inverse.sft.photometric`): weight 0, not a setting;
+    # nor the spline prior's outline, cover and silhouette-allowance terms or its membrane
+    # factor: the one reconstruction (`inverse.sft.reconstruct`) reads them as these values.
     photometric_weight: ClassVar[float] = 0.0
+    outline_weight: ClassVar[float] = 0.0
+    silhouette_border_gap: ClassVar[float] = 0.0
+    silhouette_allowance: ClassVar[bool] = False
+    allowance_reach: ClassVar[float | None] = None
+    allowance_fade: ClassVar[float | None] = None
+    cover_weight: ClassVar[float] = 0.0
+    membrane_factor: ClassVar[float] = 1.0
 
     physics_weight: float = 1e-2
     material: str = "cloth"

@@ -1,4 +1,5 @@
-"""Shape-from-template on a spline displacement field, frame by frame by Gauss–Newton.
+"""Shape-from-template on a spline displacement field, frame by frame by Gauss–Newton: the
+spline's part of the one reconstruction (`inverse.sft.reconstruct.FrameReconstructor`).
 
 Each frame's surface is x(ξ) = X(ξ) + u(ξ) on the template's UV domain (X the template itself,
 piecewise linear for data and output, its C² spline fit `MeshSurface` for the energy), with u a
@@ -14,10 +15,11 @@ E_data the least-squares data terms of `inverse.sft.least_squares` (robust repro
 tracked points, silhouette of the template vertices with masks, the outline of the visible
 border vertices against the mask (`inverse.sft.outline`), smooth motion towards the
 constant-velocity prediction), Π_int the Kirchhoff–Love internal energy of a fixed linear
-isotropic material over the template (membrane + bending; `sheet_quadrature`: exact
+isotropic material over the template (membrane + bending;
+`taichi_ndf.discretise.trimmed.sheet_quadrature`: exact
 Gauss–Legendre on the spline's knot spans, one point per triangle where the UV chart does not
 fill its rectangle) and E_ref = B / 2 the bending energy of the template bent to uniform
-curvature 1/√A, so Π_int / E_ref is dimensionless (as in `inverse.sft.reconstruct`).
+curvature 1/√A, so Π_int / E_ref is dimensionless (`inverse.sft.reconstruct`).
 
 Solver: the project's projected Newton over the spline coefficients
 (`taichi_ndf.minimise.newton.minimise` on an `Assembly` of the quadrature points, the
@@ -44,23 +46,17 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
-from inverse.sft.contour import BorderCurve, CoverTerm, mean_border_edge, visible_points
-from inverse.sft.inputs import Template, mean_edge_length
 from inverse.sft.least_squares import LeastSquaresData
-from inverse.sft.sequential import (
-    DataWeights,
-    FittedFrame,
-    FrameData,
-)
+from inverse.sft.sequential import FrameSolve
 from inverse.sft.settings import SplinePriorConfig
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
-from taichi_ndf.boundary.constraints import PinnedPoint
+from taichi_ndf.discretise.trimmed import sheet_quadrature
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.minimise.linearisation import GridLinearisation
@@ -69,10 +65,10 @@ from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.objective.inertia import InertiaTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.operator import DisplacementOperator
-from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
+from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.problem.spline_grid import spans_for
 from taichi_ndf.shell.hessian import sample_hessians
-from taichi_ndf.shell.materials import preset
+from taichi_ndf.shell.materials import LinearIsotropic
 
 log = logging.getLogger(__name__)
 
@@ -83,61 +79,44 @@ JETS_SHAPE = (jets.CHANNELS, 3)
 STACKED_POINTS = 1 << 17
 
 
-class SplinePriorReconstructor:
-    """Holds the spline field, the template's quadrature and the per-frame solve (a
-    `inverse.sft.sequential.FrameFit`)."""
+class SplineFrameField:
+    """The spline field's part of the frame fit (`inverse.sft.sequential.FrameField`): a
+    `SplineField` over the template's UV rectangle, the prior on the fixed `sheet_quadrature`
+    and projected Newton over the coefficients (`minimise` on the `GridLinearisation` of the
+    quadrature and the frame's data points)."""
 
-    def __init__(self, template: Template, *, pinned: np.ndarray | None = None,
-                 config: SplinePriorConfig | None = None):
-        self.config = cfg = config or SplinePriorConfig()
-        self.weights = DataWeights(cfg.huber_px, cfg.temporal_weight, cfg.silhouette_weight,
-                                   cfg.outline_weight, cfg.silhouette_border_gap,
-                                   cfg.silhouette_allowance, cfg.allowance_reach,
-                                   cfg.allowance_fade)
-        self.surface = MeshSurface(template.vertices, template.faces, template.uvs,
-                                   name="template")
-        mean_edge = mean_edge_length(template.vertices, template.faces)
-        spans = spans_for(self.surface, cfg.span_edges * mean_edge)
+    dtype = DTYPE
+    slope = "image"  # Newton: the distance image's own slope
+
+    def __init__(self, surface: MeshSurface, conditions: BoundaryConditions | None,
+                 config: SplinePriorConfig, *, mean_edge: float, material: LinearIsotropic,
+                 energy_reference: float):
+        self.config = cfg = config
+        self.surface = surface
+        spans = spans_for(surface, cfg.span_edges * mean_edge)
         self.field = SplineField(SplineConfig(spans, degree=cfg.degree,
-                                              domain=self.surface.domain.bounds), dtype=DTYPE)
-        self.quadrature = sheet_quadrature(self.surface, self.field.config, template,
-                                           points=cfg.quadrature_points)
-        self.conditions = None
-        if pinned is not None and len(pinned):
-            points = [PinnedPoint(xi=tuple(float(c) for c in template.uvs[i])) for i in pinned]
-            self.conditions = BoundaryConditions(points, self.surface.domain)
-        self.operator = DisplacementOperator(self.field, self.conditions)
-        material = preset(cfg.material)
-        material = material.with_stiffness(
-            membrane_stiffness=cfg.membrane_factor * material.membrane_stiffness)
-        self.energy_reference = 0.5 * material.bending_stiffness
+                                              domain=surface.domain.bounds), dtype=DTYPE)
+        self.quadrature = sheet_quadrature(surface, self.field.config,
+                                           points=cfg.quadrature_points, dtype=DTYPE)
+        self.operator = DisplacementOperator(self.field, conditions)
         # The prior in the data's units: stiffnesses scaled by λ = w_phys / E_ref.
         self.shell = None
         if cfg.physics_weight > 0:
             self.shell = QuadratureShellTerm(
-                material.scaled(cfg.physics_weight / self.energy_reference), Loads())
+                material.scaled(cfg.physics_weight / energy_reference), Loads())
         # The inertia of a step Δt = frame_interval, in the prior's units (λ ρ_A / Δt²).
         self.areal_density = material.areal_density
         self.inertia_scale = None
         if cfg.frame_interval is not None and self.shell is not None:
-            self.inertia_scale = (cfg.physics_weight / self.energy_reference
-                                  / cfg.frame_interval**2)
-        self.vertex_xi = torch.from_numpy(template.uvs).to(DTYPE)
-        self.vertex_samples = self._samples_at(self.vertex_xi)
-        self.rest = torch.from_numpy(template.vertices).double()
-        self.length = math.sqrt(self.surface.domain.rectangle_area)
-        # the linearisation of each frame's points (`fit_frame`); the conditions' gauge held
-        self.grid = GridLinearisation(self.field, self.conditions, length=self.length)
+            self.inertia_scale = cfg.physics_weight / energy_reference / cfg.frame_interval**2
+        # the linearisation of each frame's points (`rows`); the conditions' gauge held
+        self.grid = GridLinearisation(self.field, conditions,
+                                      length=math.sqrt(surface.domain.rectangle_area))
+        self.linearisation = None
         self._previous = None  # the coefficients of the frame before the last
         self.newton = NewtonConfig(
             max_iterations=cfg.max_iterations, decrement_tolerance=cfg.tolerance,
             gradient_tolerance=1e-8, floor_tolerance=cfg.tolerance)
-        # The mask's outline covered by the border (`inverse.sft.contour`; w_cover > 0).
-        self.border_curve = self.border_samples = self.cover_allowance = None
-        if cfg.cover_weight > 0:
-            self.border_curve = BorderCurve.of(template.vertices, template.faces, template.uvs,
-                                               per_edge=cfg.cover_points)
-            self.border_samples = self._samples_at(self.border_curve.xi)
         log.info("spline prior: %d x %d spans, %d coefficients, %d quadrature points", *spans,
                  self.field.config.num_coefficients, len(self.quadrature))
 
@@ -147,99 +126,55 @@ class SplinePriorReconstructor:
         return SurfaceSamples(xi, self.surface.jets(xi).to(DTYPE),
                               torch.zeros(n, dtype=DTYPE), torch.zeros(n, 3, dtype=DTYPE))
 
-    def vertices(self, coefficients: torch.Tensor | None = None) -> np.ndarray:
-        """Surface at the template vertices [m], shape (n, 3), template order."""
-        if coefficients is not None:
-            self.field.coefficients.copy_(coefficients)
-        return (self.rest + self.operator.displacement(self.vertex_xi).double()).numpy()
+    def displacement(self, xi: torch.Tensor) -> torch.Tensor:
+        """u (N, 3) [m] at ξ (N, 2) of the current coefficients."""
+        return self.operator.displacement(xi)
 
-    def fit_frame(self, frame: FrameData) -> FittedFrame:
-        """One frame's vertices, final data-term values and Newton iterations; the solve
-        starts from the field's current coefficients (the last frame's)."""
-        cfg = self.config
-        samples = self.quadrature.joined(self._samples_at(frame.track_xi.to(DTYPE))).joined(
-            self.vertex_samples)
-        photo = frame.photometric
-        if photo is not None:
-            samples = samples.joined(self._samples_at(photo.xi.to(DTYPE)))
-        cover = self.border_curve is not None and frame.distance is not None
-        if cover:
-            samples = samples.joined(self.border_samples)
-        linearisation = self.grid.linearisation(1.0, samples)
-        assembly = linearisation.assembly
-        position = torch.empty_like(assembly.order)
-        position[assembly.order] = torch.arange(len(assembly.order))
-        n_q, n_t, n_v = len(self.quadrature), len(frame.track_xi), len(self.vertex_xi)
-        data = frame.data_term(position[n_q:n_q + n_t], position[n_q + n_t:n_q + n_t + n_v])
-        terms = (data,)
-        if photo is not None:
-            terms = (data, photo.term(frame.camera, position[n_q + n_t + n_v:]))
-        if cover:
-            terms = terms + (self._cover_term(frame, position[-len(self.border_curve.xi):]),)
+    def rows(self, blocks: Sequence[torch.Tensor]) -> list[torch.Tensor]:
+        """The frame's linearisation on the quadrature and the data points (zero weight) after
+        it; the rows of each block in its assembly's (reordered) samples."""
+        samples = self.quadrature
+        for xi in blocks:
+            samples = samples.joined(self._samples_at(xi))
+        self.linearisation = self.grid.linearisation(1.0, samples)
+        order = self.linearisation.assembly.order
+        position = torch.empty_like(order)
+        position[order] = torch.arange(len(order))
+        rows, first = [], len(self.quadrature)
+        for xi in blocks:
+            rows.append(position[first:first + len(xi)])
+            first += len(xi)
+        return rows
+
+    def solve(self, terms: Sequence[LeastSquaresData]) -> FrameSolve:
+        """Projected Newton from the last frame's coefficients (``extrapolate``: from
+        2 C_{t−1} − C_{t−2}), with the inertia towards that prediction where Δt is set."""
+        cfg, assembly = self.config, self.linearisation.assembly
+        terms = tuple(terms)
         # the constant-velocity prediction 2 C_{t−1} − C_{t−2} of the coefficients
         start = self.field.coefficients
         predicted = start if self._previous is None else 2.0 * start - self._previous
+        inertia = None
         if self.inertia_scale is not None:
-            terms = terms + (InertiaTerm(self.areal_density, self.inertia_scale,
-                                         assembly.displacement(predicted)),)
+            inertia = InertiaTerm(self.areal_density, self.inertia_scale,
+                                  assembly.displacement(predicted))
+            terms = terms + (inertia,)
         potential = (_DataOnly(terms) if self.shell is None
                      else Objective(self.shell, terms).potential(1.0))
         if cfg.extrapolate:
             start = predicted
         self._previous = self.field.coefficients.clone()
-        solution = minimise(linearisation, potential, start, self.newton)
+        solution = minimise(self.linearisation, potential, start, self.newton)
         self.field.coefficients.copy_(solution.parameters)
         u = assembly.displacement(solution.parameters)
-        parts = data.parts(u)
-        for term in terms[1:]:
-            if isinstance(term, InertiaTerm):  # ½ ρ_A/Δt² ‖u − û‖²_M / E_ref
-                parts["inertia"] = term.evaluate(assembly.samples, u, grad=False)[0] / (
-                    cfg.physics_weight)
-            else:
-                parts.update(term.parts(u))
+        parts = {}
+        if inertia is not None:  # ½ ρ_A/Δt² ‖u − û‖²_M / E_ref
+            parts["inertia"] = inertia.evaluate(assembly.samples, u, grad=False)[0] / (
+                cfg.physics_weight)
         if self.shell is not None:
             result = self.shell.result(assembly.samples, u)
             parts["energy"] = result.internal / (cfg.physics_weight)  # Π_int / E_ref
-        return FittedFrame(self.vertices(), parts, len(solution.history))
-
-
-    def _cover_term(self, frame: FrameData, rows: torch.Tensor) -> CoverTerm:
-        """The frame's cover term (`inverse.sft.contour`) at sample rows `rows`, its outline
-        points chosen near the border of the field's current shape (the frame's start)."""
-        curve, cfg = self.border_curve, self.config
-        if self.cover_allowance is None and frame.first_distance is not None:
-            self.cover_allowance = curve.allowance(frame.camera, frame.first_distance)
-        start = curve.rest + self.operator.displacement(curve.xi).double()
-        start_pixels = frame.camera.project(start).numpy()
-        edge = mean_border_edge(curve, frame.camera.project(torch.from_numpy(self.vertices())
-                                                            ).numpy())
-        return CoverTerm(frame.camera, rows, curve, frame.distance,
-                         visible=visible_points(curve, frame.outline_offset),
-                         allowance=self.cover_allowance, start=start_pixels,
-                         weight=cfg.cover_weight, reach=cfg.cover_reach * edge,
-                         slack=cfg.cover_slack * edge)
-
-
-def sheet_quadrature(surface: MeshSurface, config: SplineConfig, template: Template, *,
-                     points: int | None) -> SurfaceSamples:
-    """Samples of the prior's energy over the sheet itself.
-
-    A chart that fills its rectangle (synthetic sheets) gets Gauss–Legendre points on the knot
-    spans (exact for the spline). A chart that does not (UVs found by projecting a template into
-    its first frame: a tilted, perspective-distorted quadrilateral) would leave the spans cut by
-    its outline integrated only where their Gauss points fall inside, and a strip along the
-    outline where no energy acts: on φ-SfT's R1 the free edge, about one span from the
-    rectangle's side, let its vertices zigzag in depth by up to 0.4 m over 50 frames. There one
-    point per template triangle (its centroid in ξ, weight its ξ-area) covers the sheet up to
-    its outline.
-    """
-    if surface.domain.inside is None:
-        return GridLinearisation.quadrature(surface, config, points=points, dtype=DTYPE)
-    corners = template.uvs[template.faces]  # (F, 3, 2)
-    edge1, edge2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    area = 0.5 * np.abs(edge1[:, 0] * edge2[:, 1] - edge1[:, 1] * edge2[:, 0])
-    xi = torch.from_numpy(corners.mean(axis=1)).to(DTYPE)
-    return with_point_loads(surface, xi, torch.from_numpy(area).to(DTYPE), None)
+        return FrameSolve(u, parts, len(solution.history))
 
 
 class QuadratureShellTerm(ShellEnergyTerm):

@@ -26,6 +26,10 @@ polygon panels": left free, the damped solve still reached the same Π, to 4e-12
 Newton iterations against 7). A coefficient whose support only grazes the outline keeps a
 small stiffness (the known ill-conditioning of trimmed splines: mass diagonal down to 2e-6 of
 the largest there); nothing stabilises it.
+
+A mesh's own UV chart that does not fill its rectangle (a shape-from-template template whose
+UVs were projected from a first frame) is the other trimmed domain: `sheet_quadrature` puts one
+point per mesh triangle there (and the span Gauss points where the chart is the rectangle).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ import numpy as np
 import torch
 
 from taichi_ndf.field.spline import SplineConfig
+from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.outline import Outline
@@ -185,6 +190,29 @@ def trimmed_quadrature(surface, outline: Outline, config: SplineConfig,
     if loads is not None:
         loads.check_domain(surface.domain)
     return with_point_loads(surface, xi.to(dtype), weight.to(dtype), loads)
+
+
+def sheet_quadrature(surface: MeshSurface, config: SplineConfig, *, points: int | None,
+                     dtype: torch.dtype) -> SurfaceSamples:
+    """Samples of an energy over a mesh's own UV chart (`MeshSurface`: a shape-from-template
+    template; the prior of `inverse.sft.spline_prior`), float `dtype`.
+
+    A chart that fills its rectangle (synthetic sheets) gets Gauss–Legendre points on the knot
+    spans (exact for the spline). A chart that does not (UVs found by projecting a template into
+    its first frame: a tilted, perspective-distorted quadrilateral) would leave the spans cut by
+    its outline integrated only where their Gauss points fall inside, and a strip along the
+    outline where no energy acts: on φ-SfT's R1 the free edge, about one span from the
+    rectangle's side, let its vertices zigzag in depth by up to 0.4 m over 50 frames. There one
+    point per template triangle (its centroid in ξ, weight its ξ-area) covers the sheet up to
+    its outline.
+    """
+    if surface.domain.inside is None:
+        return GridLinearisation.quadrature(surface, config, points=points, dtype=dtype)
+    corners = surface.uv.numpy()[surface.faces.numpy()]  # (F, 3, 2)
+    edge1, edge2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    area = 0.5 * np.abs(edge1[:, 0] * edge2[:, 1] - edge1[:, 1] * edge2[:, 0])
+    xi = torch.from_numpy(corners.mean(axis=1)).to(dtype)
+    return with_point_loads(surface, xi, torch.from_numpy(area).to(dtype), None)
 
 
 def unsupported(grid: GridLinearisation, xi: torch.Tensor) -> np.ndarray:
