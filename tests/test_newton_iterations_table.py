@@ -1,0 +1,70 @@
+"""benchmarks/newton_iterations.py (issue 28): the counts per grid level and load step of a
+Newton history, on a history made by hand, and bad input refused with exit code 2."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "newton_iterations.py"
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("newton_iterations", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _record(level, load, energy, decrement, alpha, damping=0.0, projected=0):
+    return {"level": level, "spans": [2 ** (level + 1)] * 2, "load_factor": load,
+            "iteration": 0, "energy": energy, "decrement": decrement, "step_length": alpha,
+            "damping": damping, "projected_blocks": projected, "gradient_norm": 1.0,
+            "time_energy": 0.1, "time_hessian": 0.2, "time_assembly": 0.3, "time_solve": 0.4}
+
+
+HISTORY = [
+    _record(0, 1.0, 0.0, 1.0, 1.0, projected=5),
+    _record(0, 1.0, -1.0, 0.5, 0.5, damping=1e-6),
+    _record(0, 1.0, -1.999, 0.1, 2.0),
+    _record(0, 1.0, -1.9999, 1e-9, 0.0),   # λ²/2 ≤ 1e-8 |Π|: endgame, stops
+    _record(1, 1.0, -2.0, 1e-3, 1.0, projected=3),
+    _record(1, 1.0, -2.0004, 1e-12, 0.0),
+]
+
+
+def test_counts_per_level_and_load_step():
+    m = _module()
+    steps = m.groups(HISTORY)
+    assert list(steps) == [(0, (2, 2), 1.0), (1, (4, 4), 1.0)]
+    s = m.summary(steps[(0, (2, 2), 1.0)], 1e-8)
+    assert (s["iterations"], s["full"], s["shortened"], s["lengthened"], s["none"]) == (
+        4, 1, 1, 1, 1)
+    assert (s["projected"], s["damped"], s["endgame"]) == (1, 1, 1)
+    # Π within 1e-3 of the last (-1.9999) from the third record on, within 1e-5 only the last
+    assert s["until"] == [2, 3, 3]
+    assert abs(s["seconds"] - 4.0) < 1e-12
+    fine = m.summary(steps[(1, (4, 4), 1.0)], 1e-8)
+    assert fine["until"] == [0, 1, 1] and fine["endgame"] == 1
+
+
+def test_table_has_a_row_per_step_and_per_level():
+    rows = _module().table(HISTORY, 1e-8)
+    assert len(rows) == 2 + 2 + 2
+    assert rows[2].startswith("| 0 | 2 × 2 | 1 | 4 | 1 / 1 / 1 / 1 | 1 | 1 | 1 | 2 / 3 / 3 |")
+    assert rows[-1].startswith("| 1 | 4 × 4 | all 1 | 2 |")
+
+
+def test_bad_input_exit_2(tmp_path):
+    missing = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "none.json")],
+                             capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and len(missing.stderr.strip().splitlines()) == 1
+    siren = tmp_path / "result.json"
+    siren.write_text(json.dumps({"history": [{"iteration": 0, "energy": 1.0}]}))
+    no_newton = subprocess.run([sys.executable, str(SCRIPT), str(siren)],
+                               capture_output=True, text=True, timeout=60)
+    assert no_newton.returncode == 2 and "no Newton history" in no_newton.stderr
