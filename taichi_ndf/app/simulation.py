@@ -125,7 +125,8 @@ def simulate(scene: Scene, out: OutputDir, *, solver: SolverConfig | None = None
 
     trajectory = None
     if step_frames:
-        trajectory = _load_step_trajectory(out, config.load_steps, frames, solution.history)
+        trajectory = _load_step_trajectory(out, config.load_steps, frames, solution.history,
+                                           solution.document.get("load_steps", ()))
     if config.pseudo_time:  # the whole path from the one field, at any number of frames
         times = frame_times(config.pseudo_time_start, scene.output.frames)
         energy, states = [], []
@@ -260,11 +261,15 @@ def checkpoint_scene(path: str | os.PathLike, extra: dict) -> Scene:
 
 
 def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],
-                          frames: dict[int, DeformedMesh], history) -> dict:
+                          frames: dict[int, DeformedMesh], history, solved_steps=()) -> dict:
     """Every finished load step's state ("states", for trajectory.mp4) and its summary for
     result.json. Steps that finished before a resume are read back from their OBJ files; the
     energy of each step is the last monitor record at its load factor (the checkpoint keeps
-    the history)."""
+    the history), else — a step whose start already met Newton's test, so no iteration was
+    recorded — the solve's own record of it (`solved_steps`: the document's "load_steps",
+    each {"load_factor", "energy", ...})."""
+    recorded = {step["load_factor"]: step["energy"] for step in solved_steps
+                if isinstance(step, dict) and "energy" in step}
     states, factors, energy = [], [], []
     for index, load_factor in enumerate(load_steps):
         if index in frames:
@@ -277,8 +282,8 @@ def _load_step_trajectory(out: OutputDir, load_steps: tuple[float, ...],
                 continue
             states.append(read_mesh(path).vertices)
         factors.append(load_factor)
-        energy.append(next(h.energy for h in reversed(history)
-                           if h.load_factor == load_factor))
+        energy.append(next((h.energy for h in reversed(history)
+                            if h.load_factor == load_factor), recorded.get(load_factor)))
     return {"source": "load_steps", "load_factors": factors, "energy": energy,
             "states": states}
 
