@@ -225,15 +225,6 @@ def test_a_wrong_polygon_panel_or_seam_is_refused_in_one_line_naming_panel_and_e
     _refused(panels, seams, message)
 
 
-def test_polygon_panels_with_obstacles_are_refused_in_one_line():
-    document = _document(TRAPEZOIDS)
-    document["obstacles"] = [{"type": "sphere", "centre": [0.1, 0.1, -0.3], "radius": 0.2}]
-    with pytest.raises(SceneError) as err:
-        _parse(document)
-    assert str(err.value).startswith("obstacles: polygon panels (outline: a, b) are not "
-                                     "supported with obstacles yet")
-
-
 def test_held_outline_edges_are_the_bounding_box_sides_they_lie_on():
     u_shape = {"name": "u", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0.2, 0.2], [0.2, 0.1],
                                         [0.1, 0.1], [0.1, 0.2], [0, 0.2]],
