@@ -199,7 +199,15 @@ def _panel(t: Table, index: int, material, gravity, default_spans, read_material
     held = tuple(clamped) if start is not None else ()
     constraints = [] if start is not None else (
         [ClampedEdge(e) for e in clamped] + [HingedEdge(e) for e in hinged])
-    boundary = checked(lambda: BoundaryConditions(constraints, domain=surface.domain), t.path)
+    band = {}  # the band width ℓ of the clamps' and hinges' vanishing factors
+    if t.has("clamp_band"):
+        if start is not None:
+            raise SceneError(f"{t.key('clamp_band')}: panel {name!r} is cut flat (rest = "
+                             "\"flat\"): its clamped edges are held by their coefficients, "
+                             "with no band")
+        band["length"] = t.number("clamp_band", positive=True)
+    boundary = checked(lambda: BoundaryConditions(constraints, domain=surface.domain, **band),
+                       t.path)
     probes = tuple(Probe(p.string("name"), p.vector("xi", 2)) for p in t.tables("probes"))
     model = checked(lambda: ShellModel(surface, material, Loads(gravity=gravity), boundary,
                                        probes), t.path)
