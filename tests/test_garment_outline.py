@@ -256,3 +256,20 @@ def test_a_polygon_panels_output_grid_keeps_the_faces_inside_its_outline():
     area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
     # the staircase: faces with a vertex outside dropped (measured 0.835 of the area here)
     assert 0.8 * outline.area < area <= outline.area * (1 + 1e-12)
+
+
+def test_a_polygon_panels_output_grid_reaches_its_border():
+    """The outline is closed: the output grid keeps the faces whose vertices lie on its
+    border, so a rectangle outline exports the rectangle's whole grid (every vertex, the
+    edges' included) and two panels sewn along a shared edge both have vertices on it (the
+    welded output; before, border vertices fell either way and the sides' rows were lost)."""
+    from taichi_ndf.app.outputs import export_grid
+
+    rectangle = {"name": "a", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0, 0.2]]}
+    (patch,) = _parse(_document([rectangle])).field.patches
+    xi, faces, _ = export_grid(patch.model, (12, 8))
+    assert len(xi) == 13 * 9 and len(faces) == 2 * 12 * 8
+    for panel, x in ((TRAPEZOIDS[0], 0.0), (TRAPEZOIDS[1], 0.3)):
+        (patch,) = _parse(_document([panel])).field.patches
+        xi, _, _ = export_grid(patch.model, (16, 16))
+        assert np.isclose(xi[:, 0], x).sum() == 17  # the straight side, every row

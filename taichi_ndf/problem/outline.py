@@ -260,8 +260,9 @@ class Outline:
         return out
 
     def contains(self, xi: np.ndarray) -> np.ndarray:
-        """Whether each point ξ (N, 2) is inside (crossing number; boundary points either
-        way); bool (N,)."""
+        """Whether each point ξ (N, 2) is inside or on the border (crossing number; within
+        1e-12 of the outline's size of an edge counts as on it: the closed outline, so the
+        outputs' faces reach the border and a seam's two sides meet there); bool (N,)."""
         xi = np.asarray(xi, float)
         inside = np.zeros(len(xi), bool)
         for i in range(len(self.points)):
@@ -270,7 +271,9 @@ class Outline:
             with np.errstate(divide="ignore", invalid="ignore"):
                 x = ax + (xi[:, 1] - ay) * (bx - ax) / (by - ay)
             inside ^= up & (xi[:, 0] < x)
-        return inside
+        (x0, x1), (y0, y1) = self.bounds
+        near = np.linalg.norm(self.nearest_on_border(xi) - xi, axis=1)
+        return inside | (near <= 1e-12 * max(x1 - x0, y1 - y0))
 
 
 @dataclass(frozen=True)
