@@ -103,30 +103,19 @@ def quadrature_table() -> None:
 
 
 def document(panels, seams=(), spans=(8, 8)) -> dict:
+    """The garment document of `panels`, each with its clamps over the whole panel
+    (`clamp_band = 1`: φ one polynomial)."""
+    panels = [{**copy.deepcopy(p), "clamp_band": 1.0} for p in panels]
     return {"name": "outline", "material": dict(MATERIAL),
             "loads": {"gravity": [0.0, 0.0, -9.81]},
             "field": {"type": "spline", "spans": list(spans)},
             "training": {"method": "newton", "load_steps": [1.0]},
-            "panels": copy.deepcopy(list(panels)), "seams": copy.deepcopy(list(seams))}
-
-
-def smooth_clamps(scene):
-    """Each panel's clamps over the whole panel (ℓ = 1: φ one polynomial)."""
-    patches = []
-    for patch in scene.field.patches:
-        model = patch.model
-        boundary = BoundaryConditions([ClampedEdge(c.edge, length=1.0)
-                                       for c in model.boundary.constraints],
-                                      domain=model.surface.domain)
-        patches.append(dataclasses.replace(patch, model=dataclasses.replace(
-            model, boundary=boundary)))
-    return dataclasses.replace(scene, field=dataclasses.replace(scene.field,
-                                                                patches=tuple(patches)))
+            "panels": panels, "seams": copy.deepcopy(list(seams))}
 
 
 def solved(doc):
     """(Π, Newton iterations, all converged, seam gaps, CPU s, the discretisation)."""
-    scene = smooth_clamps(parse_scene(doc, base_dir=Path("."), path=Path("outline.toml")))
+    scene = parse_scene(doc, base_dir=Path("."), path=Path("outline.toml"))
     started = cpu()
     panels = of_scene(scene)
     panels.start(scene.solver, seed=0)
@@ -224,8 +213,8 @@ def trimming_table() -> None:
     for margin in ((0.0, 0.0), (0.013, 0.02)):
         values, flags = [], []
         for n in (4, 8, 16, 32):
-            scene = smooth_clamps(parse_scene(document([polygon], spans=(n, n)),
-                                              base_dir=Path("."), path=Path("outline.toml")))
+            scene = parse_scene(document([polygon], spans=(n, n)), base_dir=Path("."),
+                                path=Path("outline.toml"))
             if any(margin):
                 scene = widened(scene, *margin)
             started = cpu()

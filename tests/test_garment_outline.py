@@ -131,23 +131,6 @@ def _parse(document):
     return parse_scene(document, base_dir=Path("."), path=Path("garment.toml"))
 
 
-def smooth_clamps(scene):
-    """The garment scene with its panels' clamps over the whole panel (band ℓ = 1: φ one
-    polynomial; the default ℓ = 0.1 cuts off with a jump in u/φ's third derivative, which
-    the cantilevers here converge poorly under: Π changes by 18 % from 12 × 8 to 24 × 16
-    spans on the rectangle)."""
-    patches = []
-    for patch in scene.field.patches:
-        model = patch.model
-        boundary = BoundaryConditions([ClampedEdge(c.edge, length=1.0)
-                                       for c in model.boundary.constraints],
-                                      domain=model.surface.domain)
-        patches.append(dataclasses.replace(patch, model=dataclasses.replace(
-            model, boundary=boundary)))
-    return dataclasses.replace(scene, field=dataclasses.replace(scene.field,
-                                                                patches=tuple(patches)))
-
-
 def _solved(document, change=lambda scene: scene):
     scene = change(_parse(document))
     panels = of_scene(scene)
@@ -194,11 +177,35 @@ def test_two_trapezoids_seamed_along_their_slanted_edges_are_the_rectangle_they_
     and as one rectangle (16 × 8 spans). Measured (benchmarks/RESULTS.md "Garments: polygon
     panels"): Π 1.0e-5 relative apart, 4.8e-5 on half these grids, 1.7e-6 on twice."""
     seam = [{"name": "slant", "a": "a.e1", "b": "b.e3", "orientation": "reversed"}]
-    _, pair = _solved(_document(TRAPEZOIDS, seam, (8, 8)), smooth_clamps)
+    smooth = [{**p, "clamp_band": 1.0} for p in TRAPEZOIDS]  # the clamps' φ one polynomial
+    _, pair = _solved(_document(smooth, seam, (8, 8)))
     _, whole = _solved(_document([{"name": "w", "width": 0.3, "height": 0.2,
-                                   "clamped": ["xi2_max"]}], spans=(16, 8)), smooth_clamps)
+                                   "clamped": ["xi2_max"], "clamp_band": 1.0}], spans=(16, 8)))
     assert abs(pair.energy - whole.energy) <= 3e-5 * abs(whole.energy)
     assert pair.document["seam_gaps"]["slant"] < 1e-5
+
+
+def test_clamp_band_is_the_band_of_a_panels_clamps():
+    """`clamp_band` sets the band width ℓ of a panel's clamped (and hinged) edges: ℓ = 1
+    solves as the panel whose boundary is built with ClampedEdge(edge, length=1) (to the
+    last bit), and differently from the default band; a flat-cut panel has none to set."""
+    def with_band(scene):
+        (patch,) = scene.field.patches
+        model = patch.model
+        boundary = BoundaryConditions([ClampedEdge(c.edge, length=1.0)
+                                       for c in model.boundary.constraints],
+                                      domain=model.surface.domain)
+        patch = dataclasses.replace(patch, model=dataclasses.replace(model, boundary=boundary))
+        return dataclasses.replace(scene, field=dataclasses.replace(scene.field,
+                                                                    patches=(patch,)))
+    panel = {"name": "w", "width": 0.3, "height": 0.2, "clamped": ["xi2_max"]}
+    _, built = _solved(_document([panel]), with_band)
+    _, default = _solved(_document([panel]))
+    _, banded = _solved(_document([{**panel, "clamp_band": 1.0}]))
+    assert banded.energy == built.energy
+    assert abs(banded.energy - default.energy) > 1e-3 * abs(default.energy)
+    flat = {**panel, "rest": "flat", "wrap_radius": 0.15, "clamp_band": 1.0}
+    _refused([flat], [], "panels[0].clamp_band: panel 'w' is cut flat")
 
 
 def _refused(panels, seams, message):
@@ -225,15 +232,6 @@ def test_a_wrong_polygon_panel_or_seam_is_refused_in_one_line_naming_panel_and_e
     _refused(panels, seams, message)
 
 
-def test_polygon_panels_with_obstacles_are_refused_in_one_line():
-    document = _document(TRAPEZOIDS)
-    document["obstacles"] = [{"type": "sphere", "centre": [0.1, 0.1, -0.3], "radius": 0.2}]
-    with pytest.raises(SceneError) as err:
-        _parse(document)
-    assert str(err.value).startswith("obstacles: polygon panels (outline: a, b) are not "
-                                     "supported with obstacles yet")
-
-
 def test_held_outline_edges_are_the_bounding_box_sides_they_lie_on():
     u_shape = {"name": "u", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0.2, 0.2], [0.2, 0.1],
                                         [0.1, 0.1], [0.1, 0.2], [0, 0.2]],
@@ -258,3 +256,20 @@ def test_a_polygon_panels_output_grid_keeps_the_faces_inside_its_outline():
     area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
     # the staircase: faces with a vertex outside dropped (measured 0.835 of the area here)
     assert 0.8 * outline.area < area <= outline.area * (1 + 1e-12)
+
+
+def test_a_polygon_panels_output_grid_reaches_its_border():
+    """The outline is closed: the output grid keeps the faces whose vertices lie on its
+    border, so a rectangle outline exports the rectangle's whole grid (every vertex, the
+    edges' included) and two panels sewn along a shared edge both have vertices on it (the
+    welded output; before, border vertices fell either way and the sides' rows were lost)."""
+    from taichi_ndf.app.outputs import export_grid
+
+    rectangle = {"name": "a", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0, 0.2]]}
+    (patch,) = _parse(_document([rectangle])).field.patches
+    xi, faces, _ = export_grid(patch.model, (12, 8))
+    assert len(xi) == 13 * 9 and len(faces) == 2 * 12 * 8
+    for panel, x in ((TRAPEZOIDS[0], 0.0), (TRAPEZOIDS[1], 0.3)):
+        (patch,) = _parse(_document([panel])).field.patches
+        xi, _, _ = export_grid(patch.model, (16, 16))
+        assert np.isclose(xi[:, 0], x).sum() == 17  # the straight side, every row

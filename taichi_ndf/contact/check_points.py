@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 
+import numpy as np
 import torch
 
 from taichi_ndf.contact.barrier import ContactTerm
@@ -43,6 +44,31 @@ def check_grid(domain, resolution: int, dtype: torch.dtype
     weight = (ends[:, None] * ends[None, :]).reshape(-1)
     inside = domain.contains(xi)
     return xi[inside], weight[inside] * (domain.area / float(weight[inside].sum()))
+
+
+def outline_check_grid(outline, bounds, resolution: int, dtype: torch.dtype
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The check grid of a polygon panel (`taichi_ndf.problem.outline.Outline`) on its chart
+    `bounds` ((x0, x1), (y0, y1)) [m]: the resolution² points of `check_grid` over the chart,
+    each weighted by the area of its dual cell (the grid cell centred on it, within the chart)
+    inside the outline, so that the weights add up to the outline's area exactly; the points
+    whose cell meets the outline are kept, and those whose cell the border cuts are moved onto
+    the border's nearest point (ξ (G, 2), weights (G,)): the border carries a point per cell
+    it crosses, as a rectangle's edges carry the grid's points. On a rectangle outline these
+    are `check_grid`'s points and trapezoidal weights."""
+    (lo1, hi1), (lo2, hi2) = bounds
+    steps = ((hi1 - lo1) / (resolution - 1), (hi2 - lo2) / (resolution - 1))
+    s = np.linspace(0.0, 1.0, resolution)
+    g1, g2 = np.meshgrid(lo1 + (hi1 - lo1) * s, lo2 + (hi2 - lo2) * s, indexing="ij")
+    xi = np.stack((g1.reshape(-1), g2.reshape(-1)), axis=1)
+    cells = [((max(lo1, x - steps[0] / 2), min(hi1, x + steps[0] / 2)),
+              (max(lo2, y - steps[1] / 2), min(hi2, y + steps[1] / 2))) for x, y in xi]
+    weight = np.array([outline.area_in(cell) for cell in cells])
+    whole = np.array([(c[0][1] - c[0][0]) * (c[1][1] - c[1][0]) for c in cells])
+    keep = weight > 1e-12 * steps[0] * steps[1]
+    cut = keep & (weight < whole * (1 - 1e-12))
+    xi[cut] = outline.nearest_on_border(xi[cut])
+    return torch.from_numpy(xi[keep]).to(dtype), torch.from_numpy(weight[keep]).to(dtype)
 
 
 class ContactPoints:

@@ -14,6 +14,8 @@ from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig, minimise
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.multipatch import Gathered
+from taichi_ndf.problem.quadrature import span_points
+from taichi_ndf.problem.sampling import with_point_loads
 from taichi_ndf.problem.start_shape import StartShape
 
 
@@ -52,15 +54,17 @@ class _Result:
 def fitted_start(model: ShellModel, config: SplineConfig, shape: StartShape | Gathered, *,
                  load_factor: float = 1.0, dtype: torch.dtype | None = None) -> SplineField:
     """A spline field on `config`'s grid whose displacement is the least-squares fit (at the
-    Gauss points of every knot span, through the model's boundary conditions: held unknowns
-    stay as the boundary holds them) of `shape`'s start displacement; fitted in float64,
-    returned in `dtype` (None: the grid's default dtype). One Newton step solves the
-    quadratic fit; the rest are the minimiser's own check."""
+    Gauss points of every knot span of the chart, a polygon panel's outside its outline too:
+    the start shape is defined there and so every coefficient is fitted; through the model's
+    boundary conditions: held unknowns stay as the boundary holds them) of `shape`'s start
+    displacement; fitted in float64, returned in `dtype` (None: the grid's default dtype).
+    One Newton step solves the quadratic fit; the rest are the minimiser's own check."""
     field = SplineField(config, dtype=torch.float64)
     grid = GridLinearisation(field, model.boundary,
                              length=math.sqrt(model.surface.domain.rectangle_area))
-    samples = GridLinearisation.quadrature(model.surface, config, model.loads,
-                                           dtype=torch.float64)
+    xi, weight = span_points(config)  # the whole chart: a polygon panel's box too
+    samples = with_point_loads(model.surface, xi.to(torch.float64), weight.to(torch.float64),
+                               None)
     linear = grid.linearisation(load_factor, samples)
     s = linear.samples
     r = s.r_jets

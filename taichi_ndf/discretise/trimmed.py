@@ -43,65 +43,13 @@ from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.problem.loads import Loads
-from taichi_ndf.problem.outline import Outline
+from taichi_ndf.problem.outline import Outline, clip_to_box, cross, ear_clip, polygon_area
 from taichi_ndf.problem.quadrature import gauss_legendre, span_points
 from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.shell.hessian import COMPONENTS
 
 # A span whose covered area is within this fraction of its own is integrated as a whole span.
 FULL = 1e-9
-
-
-def _cross(o, a, b) -> float:
-    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-
-def ear_clip(points) -> list[tuple[int, int, int]]:
-    """Triangles (index triples, counter-clockwise) of a simple counter-clockwise polygon
-    (n − 2 of them; a collinear vertex is clipped as a zero-area ear)."""
-    points = [tuple(p) for p in points]
-    left = list(range(len(points)))
-    triangles = []
-    while len(left) > 3:
-        for k in range(len(left)):
-            i, j, m = left[k - 1], left[k], left[(k + 1) % len(left)]
-            a, b, c = points[i], points[j], points[m]
-            if _cross(a, b, c) < 0:  # a reflex vertex is no ear
-                continue
-            if any(_cross(a, b, points[q]) >= 0 and _cross(b, c, points[q]) >= 0
-                   and _cross(c, a, points[q]) >= 0 and points[q] not in (a, b, c)
-                   for q in left if q not in (i, j, m)):
-                continue
-            triangles.append((i, j, m))
-            del left[k]
-            break
-        else:
-            raise ValueError("ear clipping found no ear: the polygon is not simple and "
-                             "counter-clockwise")
-    triangles.append(tuple(left))
-    return triangles
-
-
-def clip_to_box(polygon: list, box) -> list:
-    """Sutherland–Hodgman: the part of `polygon` (points, in order) inside the rectangle
-    box = ((x0, x1), (y0, y1)), as points in order (fewer than 3: nothing inside)."""
-    for k, bound, keep in ((0, box[0][0], 1), (0, box[0][1], -1),
-                           (1, box[1][0], 1), (1, box[1][1], -1)):
-        if not polygon:
-            break
-        out = []
-        for index, p in enumerate(polygon):
-            q = polygon[index - 1]
-            p_in, q_in = keep * (p[k] - bound) >= 0, keep * (q[k] - bound) >= 0
-            if p_in != q_in:
-                t = (bound - q[k]) / (p[k] - q[k])
-                cut = [q[0] + t * (p[0] - q[0]), q[1] + t * (p[1] - q[1])]
-                cut[k] = bound
-                out.append(tuple(cut))
-            if p_in:
-                out.append(p)
-        polygon = out
-    return polygon
 
 
 def triangle_rule(points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +72,7 @@ def _pieces(outline: Outline, config: SplineConfig) -> dict[tuple[int, int], lis
     pieces: dict[tuple[int, int], list] = {}
     for tri in ear_clip(points):
         corners = [points[i] for i in tri]
-        if abs(_cross(*corners)) <= 1e-14 * h1 * h2:
+        if abs(cross(*corners)) <= 1e-14 * h1 * h2:
             continue
         xs, ys = [c[0] for c in corners], [c[1] for c in corners]
         i0 = max(0, min(n1 - 1, math.floor((min(xs) - lo1) / h1)))
@@ -138,10 +86,6 @@ def _pieces(outline: Outline, config: SplineConfig) -> dict[tuple[int, int], lis
                 if len(piece) >= 3:
                     pieces.setdefault((i, j), []).append(piece)
     return pieces
-
-
-def _area(piece) -> float:
-    return 0.5 * sum(_cross(piece[0], piece[k], piece[k + 1]) for k in range(1, len(piece) - 1))
 
 
 def trimmed_points(outline: Outline, config: SplineConfig
@@ -163,7 +107,7 @@ def trimmed_points(outline: Outline, config: SplineConfig
     uv, tw = triangle_rule(config.degree + 2)
     xi, weight = [], []
     for (i, j), pieces in sorted(_pieces(outline, config).items()):
-        areas = [_area(p) for p in pieces]
+        areas = [polygon_area(p) for p in pieces]
         if abs(sum(areas) - h1 * h2) <= FULL * h1 * h2:
             span = slice((i * n2 + j) * per_span, (i * n2 + j + 1) * per_span)
             xi.append(full_xi[span].numpy())
@@ -173,7 +117,7 @@ def trimmed_points(outline: Outline, config: SplineConfig
             a = np.asarray(piece[0])
             for k in range(1, len(piece) - 1):
                 b, c = np.asarray(piece[k]), np.asarray(piece[k + 1])
-                twice = _cross(a, b, c)
+                twice = cross(a, b, c)
                 if twice <= 1e-14 * h1 * h2:
                     continue
                 xi.append(a + uv[:, :1] * (b - a) + uv[:, 1:] * (c - a))

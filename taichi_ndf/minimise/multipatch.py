@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
-from taichi_ndf.contact.check_points import check_grid
+from taichi_ndf.contact.check_points import check_grid, outline_check_grid
 from taichi_ndf.geometry.domain import ParameterDomain
 from taichi_ndf.minimise.jacobian import ComponentJacobian
 from taichi_ndf.minimise.linear_solve import damped_solve
@@ -39,6 +39,7 @@ from taichi_ndf.minimise.linearisation import (
 )
 from taichi_ndf.minimise.pair_hessian import scattered
 from taichi_ndf.objective.couplings import PAIR_SIZE, Couplings
+from taichi_ndf.problem.outline import OutlinePlane
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
 
@@ -155,8 +156,11 @@ class JointSurface:
     def check_grid(self, resolution: int, dtype: torch.dtype
                    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Contact's check grid: resolution² points over each patch (its edges, the seams',
-        included), in the joint chart, with their weights (`contact.check_points.check_grid`)."""
-        parts = [check_grid(s.domain, resolution, dtype) for s in self.chart.surfaces]
+        included), in the joint chart, with their weights (`contact.check_points.check_grid`;
+        a polygon panel's points inside its outline and on its border, `outline_check_grid`)."""
+        parts = [check_grid(s.domain, resolution, dtype) if not isinstance(s, OutlinePlane)
+                 else outline_check_grid(s.outline, s.bounds, resolution, dtype)
+                 for s in self.chart.surfaces]
         return (torch.cat([xi + xi.new_tensor([shift, 0.0]) for (xi, _), shift in
                            zip(parts, self.chart.shifts, strict=True)]),
                 torch.cat([w for _, w in parts]))

@@ -89,7 +89,7 @@ class Patch:
     outline: a polygon panel's outline (None: the whole chart): the model's surface is then
     the outline's plane over a chart holding its bounding box (the garment reader's: that
     box; `config.domain` the chart) and the panel is integrated over the outline only
-    (`taichi_ndf.discretise.trimmed`); not with a start shape or held edges."""
+    (`taichi_ndf.discretise.trimmed`); its held edges are sides of that box."""
 
     name: str
     model: ShellModel
@@ -101,9 +101,6 @@ class Patch:
 
     def __post_init__(self):
         if self.outline is not None:
-            if self.start is not None or self.held:
-                raise ValueError(f"panel {self.name!r}: an outline panel is placed flat (no "
-                                 f"start shape, no held edges)")
             chart = self.model.surface.domain.bounds
             inside = all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi)
                          in zip(chart, self.outline.bounds, strict=True))

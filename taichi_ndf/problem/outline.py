@@ -16,6 +16,7 @@ masked to the outline.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -28,8 +29,62 @@ from taichi_ndf.geometry.domain import ParameterDomain
 Point = tuple[float, float]
 
 
-def _cross(o, a, b) -> float:
+def cross(o, a, b) -> float:
+    """(a − o) × (b − o): twice the signed area of the triangle o, a, b (> 0 counter-clockwise)."""
     return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def polygon_area(piece) -> float:
+    """The area of a convex polygon (points in counter-clockwise order) [m²]."""
+    return 0.5 * sum(cross(piece[0], piece[k], piece[k + 1]) for k in range(1, len(piece) - 1))
+
+
+def ear_clip(points) -> list[tuple[int, int, int]]:
+    """Triangles (index triples, counter-clockwise) of a simple counter-clockwise polygon
+    (n − 2 of them; a collinear vertex is clipped as a zero-area ear)."""
+    points = [tuple(p) for p in points]
+    left = list(range(len(points)))
+    triangles = []
+    while len(left) > 3:
+        for k in range(len(left)):
+            i, j, m = left[k - 1], left[k], left[(k + 1) % len(left)]
+            a, b, c = points[i], points[j], points[m]
+            if cross(a, b, c) < 0:  # a reflex vertex is no ear
+                continue
+            if any(cross(a, b, points[q]) >= 0 and cross(b, c, points[q]) >= 0
+                   and cross(c, a, points[q]) >= 0 and points[q] not in (a, b, c)
+                   for q in left if q not in (i, j, m)):
+                continue
+            triangles.append((i, j, m))
+            del left[k]
+            break
+        else:
+            raise ValueError("ear clipping found no ear: the polygon is not simple and "
+                             "counter-clockwise")
+    triangles.append(tuple(left))
+    return triangles
+
+
+def clip_to_box(polygon: list, box) -> list:
+    """Sutherland–Hodgman: the part of `polygon` (points, in order) inside the rectangle
+    box = ((x0, x1), (y0, y1)), as points in order (fewer than 3: nothing inside)."""
+    for k, bound, keep in ((0, box[0][0], 1), (0, box[0][1], -1),
+                           (1, box[1][0], 1), (1, box[1][1], -1)):
+        if not polygon:
+            break
+        out = []
+        for index, p in enumerate(polygon):
+            q = polygon[index - 1]
+            p_in, q_in = keep * (p[k] - bound) >= 0, keep * (q[k] - bound) >= 0
+            if p_in != q_in:
+                t = (bound - q[k]) / (p[k] - q[k])
+                cut = [q[0] + t * (p[0] - q[0]), q[1] + t * (p[1] - q[1])]
+                cut[k] = bound
+                out.append(tuple(cut))
+            if p_in:
+                out.append(p)
+        polygon = out
+    return polygon
 
 
 def _on_segment(p, a, b, tol: float) -> bool:
@@ -41,8 +96,8 @@ def _on_segment(p, a, b, tol: float) -> bool:
 def segments_meet(a, b, c, d, tol: float) -> bool:
     """Whether the closed segments ab and cd share a point (`tol` [m²] on the cross products,
     [m] on the boxes)."""
-    d1, d2 = _cross(c, d, a), _cross(c, d, b)
-    d3, d4 = _cross(a, b, c), _cross(a, b, d)
+    d1, d2 = cross(c, d, a), cross(c, d, b)
+    d3, d4 = cross(a, b, c), cross(a, b, d)
     if ((d1 > tol and d2 < -tol) or (d1 < -tol and d2 > tol)) and \
             ((d3 > tol and d4 < -tol) or (d3 < -tol and d4 > tol)):
         return True
@@ -101,7 +156,7 @@ class Outline:
                 c, d = self.edge_points(j)
                 if neighbours:  # meeting at their shared point only: not folding back
                     shared, other_i, other_j = (b, a, d) if j == i + 1 else (a, b, c)
-                    if abs(_cross(shared, other_i, other_j)) <= tol and (
+                    if abs(cross(shared, other_i, other_j)) <= tol and (
                             (other_i[0] - shared[0]) * (other_j[0] - shared[0])
                             + (other_i[1] - shared[1]) * (other_j[1] - shared[1]) > 0):
                         raise ValueError(f"outline: edges e{i} and e{j} overlap (the outline "
@@ -170,9 +225,44 @@ class Outline:
                 pass
         return tuple(found)
 
+    @functools.cached_property
+    def triangles(self) -> tuple[tuple[Point, Point, Point], ...]:
+        """The outline cut into triangles (`ear_clip`), as their corners."""
+        return tuple(tuple(self.points[i] for i in tri) for tri in ear_clip(self.points))
+
+    def area_in(self, box) -> float:
+        """The area [m²] of the outline's part inside the rectangle box = ((x0, x1), (y0, y1))
+        (its ear-clipped triangles clipped to the box)."""
+        area = 0.0
+        for corners in self.triangles:
+            if (max(c[0] for c in corners) <= box[0][0] or min(c[0] for c in corners) >= box[0][1]
+                    or max(c[1] for c in corners) <= box[1][0]
+                    or min(c[1] for c in corners) >= box[1][1]):
+                continue
+            piece = clip_to_box(corners, box)
+            if len(piece) >= 3:
+                area += polygon_area(piece)
+        return area
+
+    def nearest_on_border(self, xi: np.ndarray) -> np.ndarray:
+        """The point of the outline's border (its edges) nearest to each ξ (N, 2) [m]."""
+        xi = np.asarray(xi, float)
+        best = np.full(len(xi), np.inf)
+        out = xi.copy()
+        for i in range(len(self.points)):
+            a, b = (np.asarray(p, float) for p in self.edge_points(i))
+            d = b - a
+            t = np.clip((xi - a) @ d / float(d @ d), 0.0, 1.0)
+            foot = a + t[:, None] * d
+            dist = np.linalg.norm(xi - foot, axis=1)
+            closer = dist < best
+            best[closer], out[closer] = dist[closer], foot[closer]
+        return out
+
     def contains(self, xi: np.ndarray) -> np.ndarray:
-        """Whether each point ξ (N, 2) is inside (crossing number; boundary points either
-        way); bool (N,)."""
+        """Whether each point ξ (N, 2) is inside or on the border (crossing number; within
+        1e-12 of the outline's size of an edge counts as on it: the closed outline, so the
+        outputs' faces reach the border and a seam's two sides meet there); bool (N,)."""
         xi = np.asarray(xi, float)
         inside = np.zeros(len(xi), bool)
         for i in range(len(self.points)):
@@ -181,7 +271,9 @@ class Outline:
             with np.errstate(divide="ignore", invalid="ignore"):
                 x = ax + (xi[:, 1] - ay) * (bx - ax) / (by - ay)
             inside ^= up & (xi[:, 0] < x)
-        return inside
+        (x0, x1), (y0, y1) = self.bounds
+        near = np.linalg.norm(self.nearest_on_border(xi) - xi, axis=1)
+        return inside | (near <= 1e-12 * max(x1 - x0, y1 - y0))
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,9 @@
 
 A garment file is a scene file with `[[panels]]` instead of `[geometry]`: each panel a
 rectangle width × height [m] placed where it starts (flat, or wrapped around a cylinder), or a
-polygon `outline` [[x, y], …] [m] placed flat (its edges e0, e1, …; integrated over the outline
-only: `taichi_ndf.discretise.trimmed`), with its own edges held and its own spline grid;
+polygon `outline` [[x, y], …] [m] (its edges e0, e1, …; integrated over the outline only:
+`taichi_ndf.discretise.trimmed`) placed flat or cut flat and wrapped by its start, with its
+own edges held and its own spline grid;
 `[[seams]]` join `panel.edge` to `panel.edge`.
 Read into a `MultiPatchPlan` (`taichi_ndf.discretise.multipatch`). Errors are one line naming
 the panel and the edge (an unknown panel or edge, an edge in two seams, seam lengths differing
@@ -54,23 +55,22 @@ def is_garment(document: dict) -> bool:
 
 
 def _outline(t: Table, name: str):
-    """A polygon panel's outline and flat surface (origin and frame as a rectangle's)."""
-    for key in ("width", "height", "wrap_radius", "held_radius"):
+    """A polygon panel's outline, its flat surface (origin and frame as a rectangle's) and
+    start shape and held target (`_surface`'s, the outline's plane for the rectangle's: with
+    `rest = "flat"` and `wrap_radius` its pattern is wrapped from its ξ¹ = 0 line)."""
+    for key in ("width", "height"):
         if t.has(key):
             raise SceneError(f"{t.key(key)}: panel {name!r} has an outline: give its points, "
-                             f"not {key} (an outline panel is placed flat)")
-    if t.string("rest", "placed", choices=RESTS) != "placed":
-        raise SceneError(f"{t.key('rest')}: panel {name!r}: an outline panel is placed flat "
-                         "(rest = \"placed\")")
+                             f"not {key}")
+    if t.has("wrap_radius") and t.string("rest", "placed", choices=RESTS) != "flat":
+        raise SceneError(f"{t.key('wrap_radius')}: panel {name!r}: an outline panel is flat "
+                         "at rest: wrap it as its start (rest = \"flat\")")
     points = t._get("outline", None)
     outline = checked(lambda: Outline(tuple(tuple(p) for p in points)),
                       f"{t.key('outline')}: panel {name!r}")
-    placement = {"origin": t.vector("origin", 3, (0.0, 0.0, 0.0))}
-    if t.has("frame"):
-        frame = t._get("frame", None)
-        placement["frame"] = checked(lambda: tuple(tuple(float(v) for v in row)
-                                                   for row in frame), t.key("frame"))
-    return outline, checked(lambda: OutlinePlane(outline=outline, **placement), t.path)
+    (x0, x1), (y0, y1) = outline.bounds
+    return outline, *_surface(t, max(x1, 0.0) - min(x0, 0.0), y1 - y0,
+                              lambda **placement: OutlinePlane(outline=outline, **placement))
 
 
 def _box_sides(t: Table, name: str, outline: Outline, clamped: list, hinged: list):
@@ -92,12 +92,20 @@ def _box_sides(t: Table, name: str, outline: Outline, clamped: list, hinged: lis
     return sides
 
 
-def _surface(t: Table):
-    """The panel's rest surface and start shape: width along ξ¹, height along ξ²; flat, or a
-    cylinder sector of `wrap_radius` (ξ¹ its angle [rad], ξ² along its axis) — or, with
-    `rest = "flat"`, the flat pattern tangent to that cylinder along its ξ¹ = 0 edge (ξ¹ [m]
-    round it) wrapped onto it by its start shape (`_flat_cut`)."""
+def _rectangle(t: Table):
+    """A rectangle panel's rest surface, start shape and held target (`_surface`)."""
     width, height = t.number("width", positive=True), t.number("height", positive=True)
+    return _surface(t, width, height,
+                    lambda **placement: Plane(bounds=((0.0, width), (0.0, height)),
+                                              **placement))
+
+
+def _surface(t: Table, width: float, height: float, flat):
+    """The panel's rest surface and start shape: width along ξ¹, height along ξ²; flat
+    (`flat(origin=, frame=)`: the pattern placed), or a cylinder sector of `wrap_radius` (ξ¹
+    its angle [rad], ξ² along its axis) — or, with `rest = "flat"`, the flat pattern tangent
+    to that cylinder along its ξ¹ = 0 line (ξ¹ [m] round it) wrapped onto it by its start
+    shape (`_flat_cut`)."""
     rest = t.string("rest", "placed", choices=RESTS)
     placement = {"origin": t.vector("origin", 3, (0.0, 0.0, 0.0))}
     if t.has("frame"):
@@ -110,19 +118,19 @@ def _surface(t: Table):
             raise SceneError(f"{t.key('wrap_radius')}: a {width} m wide panel wraps more than "
                              f"a whole turn around radius {radius} m")
         if rest == "flat":
-            return _flat_cut(t, width, height, radius, placement)
+            return _flat_cut(t, width, height, radius, placement, flat)
     if t.has("held_radius"):
         raise SceneError(f"{t.key('held_radius')}: only a panel cut flat and wrapped (rest = "
                          f"\"flat\" with a wrap_radius) is held on a circle")
     if t.has("wrap_radius"):
         return checked(lambda: Cylinder(radius=radius, length=height, angle=width / radius,
                                         **placement), t.path), None, None
-    return checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), **placement),
-                   t.path), None, None
+    return checked(lambda: flat(**placement), t.path), None, None
 
 
-def _flat_cut(t: Table, width: float, height: float, radius: float, placement: dict):
-    """A flat-cut panel wrapped by its start: the rectangle tangent to the cylinder
+def _flat_cut(t: Table, width: float, height: float, radius: float, placement: dict, flat):
+    """A flat-cut panel wrapped by its start: the pattern (`flat(origin=, frame=)`: the
+    rectangle, or a polygon panel's outline plane) tangent to the cylinder
     origin + F (R cos θ, R sin θ, z) at θ = 0 (origin + R e_x, ξ¹ along e_y, ξ² along e_z,
     normal e_x outward) and the `wrap` start shape onto it (tangent along ξ¹ = 0, towards the
     axis), which puts ξ¹ = R θ where the placed sector has θ; with `held_radius`, the target
@@ -131,15 +139,14 @@ def _flat_cut(t: Table, width: float, height: float, radius: float, placement: d
                                        **placement), t.path)
     ex, ey, ez = surface.frame
     origin = tuple(o + radius * e for o, e in zip(surface.origin, ex, strict=True))
-    flat = checked(lambda: Plane(bounds=((0.0, width), (0.0, height)), origin=origin,
-                                 frame=(ey, ez, ex)), t.path)
+    pattern = checked(lambda: flat(origin=origin, frame=(ey, ez, ex)), t.path)
     start = StartShape("wrap", axis=0, at=0.0, radius=radius)
     target = None
     if t.has("held_radius"):
         held = t.number("held_radius", positive=True)
         target = checked(lambda: Gathered(start, surface.origin, ez, held / radius),
                          t.key("held_radius"))
-    return flat, start, target
+    return pattern, start, target
 
 
 def _edges(t: Table, key: str) -> list[str]:
@@ -175,10 +182,9 @@ def _panel(t: Table, index: int, material, gravity, default_spans, read_material
     material = _material(t, material, read_material)
     outline = None
     if t.has("outline"):
-        outline, surface = _outline(t, name)
-        start = target = None
+        outline, surface, start, target = _outline(t, name)
     else:
-        surface, start, target = _surface(t)
+        surface, start, target = _rectangle(t)
     clamped, hinged = _edges(t, "clamped"), _edges(t, "hinged")
     names = EDGES if outline is None else outline.edges
     for edge in clamped + hinged:
@@ -193,7 +199,15 @@ def _panel(t: Table, index: int, material, gravity, default_spans, read_material
     held = tuple(clamped) if start is not None else ()
     constraints = [] if start is not None else (
         [ClampedEdge(e) for e in clamped] + [HingedEdge(e) for e in hinged])
-    boundary = checked(lambda: BoundaryConditions(constraints, domain=surface.domain), t.path)
+    band = {}  # the band width ℓ of the clamps' and hinges' vanishing factors
+    if t.has("clamp_band"):
+        if start is not None:
+            raise SceneError(f"{t.key('clamp_band')}: panel {name!r} is cut flat (rest = "
+                             "\"flat\"): its clamped edges are held by their coefficients, "
+                             "with no band")
+        band["length"] = t.number("clamp_band", positive=True)
+    boundary = checked(lambda: BoundaryConditions(constraints, domain=surface.domain, **band),
+                       t.path)
     probes = tuple(Probe(p.string("name"), p.vector("xi", 2)) for p in t.tables("probes"))
     model = checked(lambda: ShellModel(surface, material, Loads(gravity=gravity), boundary,
                                        probes), t.path)
@@ -257,11 +271,6 @@ def parse_garment(top: Table, material, field: Table | None, *, read_material
     tables = top.tables("panels")
     patches = [_panel(t, i, material, gravity, spans, read_material)
                for i, t in enumerate(tables)]
-    polygons = [p.name for p in patches if p.outline is not None]
-    if polygons and top.has("obstacles"):
-        raise SceneError(f"obstacles: polygon panels (outline: {', '.join(polygons)}) are not "
-                         "supported with obstacles yet (the contact check grid covers each "
-                         "panel's bounding box)")
     names: dict[str, int] = {}
     for t, patch in zip(tables, patches, strict=True):
         if patch.name in names:
