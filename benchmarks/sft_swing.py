@@ -7,9 +7,11 @@ front of it (gravity (0, 9.81, 0), OpenCV axes), held at its top corners by hand
 from rest over `--duration` s: corner a by (1, 0, −4) cm × s(t), corner b by (−1, 1, 3) cm ×
 s(t), s(t) = ½ (1 − cos(2π t / duration)) (each corner out and back, opposite in depth: a
 swing and a twist). The truth is the project's dynamics (`PathStepper`, Newmark,
-`--truth-spans`, `--truth-substeps` steps per frame, cubic splines) from the planar rest state
-(equilibrium of the held sheet, found by 40 damped implicit-Euler steps of 0.05 s at
-α = 30 /s; planar, so independent of B); observed: a 17 × 17 vertex grid at `--fps` frames
+`--truth-spans`, `--truth-substeps` steps per frame, cubic splines) from its rest state: the
+static equilibrium of the held sheet (`dynamics_adjoint.rest_start`, Newton from 40 damped
+implicit-Euler steps of 0.05 s at α = 30 /s from the flat sheet: the planar hanging state is a
+saddle — held at two points the sheet buckles out of its plane — so the rest state is bent
+and depends on B); observed: a 17 × 17 vertex grid at `--fps` frames
 per second, plus Gaussian noise σ = `--noise` [m] per coordinate and seed. The fit
 (`swing_problem` + `fit_trajectory`): corners from the noisy corner vertices (smoothed), start
 from the smoothed frame 0, B alone (D, ν, ρ_A stated at the truth), on `--spans` with
@@ -47,7 +49,7 @@ from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.shell.fabrics import bending_length
 from taichi_ndf.shell.materials import LinearIsotropic
-from taichi_ndf.solve.dynamics_adjoint import record
+from taichi_ndf.solve.dynamics_adjoint import record, rest_start
 from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundary
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -76,9 +78,18 @@ def grid_mesh(n: int) -> tuple[np.ndarray, np.ndarray]:
     return xi, np.array(faces)
 
 
+CORNERS = np.array([[-SIZE / 2, -0.3, 1.0], [SIZE / 2, -0.3, 1.0]])  # [m] at rest
+
+
+def true_corners(t: np.ndarray, duration: float) -> np.ndarray:
+    """The truth's held corner positions (T, 2, 3) [m] at times t (T,) [s]."""
+    s = 0.5 * (1 - np.cos(2 * np.pi * np.asarray(t) / duration))
+    return CORNERS[None] + s[:, None, None] * MOVES[None]
+
+
 def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """The truth's vertex positions (F, n², 3) at the frames, faces, held vertices."""
-    corners = np.array([[-SIZE / 2, -0.3, 1.0], [SIZE / 2, -0.3, 1.0]])
+    corners = CORNERS
     gravity = np.array([0.0, G, 0.0])
     material = LinearIsotropic(D, bending, NU, RHO)
     model = hanging_model((SIZE, SIZE), material, corners, hanging_across(corners, gravity),
@@ -91,7 +102,8 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     settle = PathStepper(model, plan, DynamicsConfig(dt=0.05, duration=2.0,
                                                      integrator="implicit_euler",
                                                      mass_damping=30.0), still)
-    rest = record(settle)[-1].displacement
+    settled = record(settle)[-1].displacement
+    rest = rest_start(settle, settled, "bending_stiffness").displacement  # in equilibrium
     frames = int(round(args.duration * args.fps)) + 1
     dt = 1.0 / args.fps / args.truth_substeps
     steps = (frames - 1) * args.truth_substeps
@@ -110,8 +122,9 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     return positions, faces, (0, 16)
 
 
-def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0)):
-    problem = swing_problem(vertices, faces, held, 1.0 / fps, np.array(gravity), config)
+def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0), corners=None):
+    problem = swing_problem(vertices, faces, held, 1.0 / fps, np.array(gravity), config,
+                            corners=corners)
     result = fit_trajectory(problem.stepper_at, problem.data, start,
                             TrajectoryFitConfig(max_iterations=10, tolerance=1e-4),
                             initial=problem.start)
@@ -121,33 +134,51 @@ def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0)):
 def part_synthetic(args) -> None:
     b_true = RHO * G * args.bending_length ** 3
     c0 = cpu()
-    clean, faces, held = synthetic(b_true, args)
+    if args.truth_cache is not None and args.truth_cache.exists():  # the same truth, solved once
+        cached = np.load(args.truth_cache)
+        clean, faces, held = cached["clean"], cached["faces"], tuple(cached["held"])
+        print(f"truth read from {args.truth_cache} (its settings: {cached['settings']})")
+    else:
+        clean, faces, held = synthetic(b_true, args)
+        if args.truth_cache is not None:
+            settings = str({k: getattr(args, k) for k in (
+                "bending_length", "duration", "fps", "truth_spans", "truth_substeps",
+                "truth_integrator")})
+            np.savez(args.truth_cache, clean=clean, faces=faces, held=np.array(held),
+                     settings=settings)
     print(f"truth: {len(clean)} frames at {args.fps} fps, B = {b_true:.4e} N·m "
           f"(c = {100 * args.bending_length:.2f} cm), {args.truth_spans}² spans, "
           f"{args.truth_substeps} {args.truth_integrator} steps per frame: "
           f"{cpu() - c0:.0f} s CPU; corner "
           f"moves {MOVES.tolist()} m; sheet rms displacement from frame 0 at the last frame "
-          f"{1000 * np.sqrt(np.mean(np.sum((clean[-1] - clean[0]) ** 2, 1))):.1f} mm")
+          f"{1000 * np.sqrt(np.mean(np.sum((clean[-1] - clean[0]) ** 2, 1))):.1f} mm; frame 0 "
+          f"out of the corners' plane by up to {1000 * np.abs(clean[0, :, 2] - 1.0).max():.1f}"
+          f" mm")
     config = SwingConfig(spans=(args.spans,) * 2, substeps=args.substeps,
                          integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
-                         areal_density=RHO, size=(SIZE, SIZE))
+                         areal_density=RHO, size=(SIZE, SIZE), start=args.start_state)
+    corners = ((lambda t: true_corners(t, args.duration)) if args.true_corners else None)
+    print(f"start: {args.start_state}; corners: {'true' if args.true_corners else 'smoothed'}")
     print("| seed | σ [mm] | B ± s.e. [N·m] | B error | z | c [cm] | χ²/dof | rms misfit [mm] "
-          "| start fit [mm] | iterations | adjoint–tangent gap | CPU s | wall s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| start fit [mm] | start speed [mm/s] | iterations | converged "
+          "| adjoint–tangent gap | CPU s | wall s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:  # seed −1: the clean sequence (the model's and grid's own bias)
         rng = np.random.default_rng(max(seed, 0))
         noise = args.noise if seed >= 0 else 0.0
         noisy = clean + rng.normal(0.0, 1.0, clean.shape) * noise
         c0, t0 = cpu(), time.perf_counter()
-        problem, r = fit(noisy, faces, held, args.fps, config, args.start * b_true)
+        problem, r = fit(noisy, faces, held, args.fps, config, args.start * b_true,
+                         corners=corners)
         err = r.value / b_true - 1
         misfit = 1000 * np.sqrt(np.mean(r.residuals ** 2) * 3)
         print(f"| {seed if seed >= 0 else 'none'} | {1000 * noise:.1f} | "
               f"{r.value:.4e} ± {r.standard_error:.2e} | "
               f"{100 * err:+.2f} % | {abs(r.value - b_true) / r.standard_error:.2f} | "
               f"{100 * bending_length(r.value, RHO, G):.3f} | "
-              f"{r.goodness.reduced:.2f} | {misfit:.2f} | {1000 * problem.start_misfit:.2f} | "
-              f"{r.iterations} | "
+              f"{r.goodness.reduced:.2f} | {misfit:.2f} | "
+              f"{1000 * problem.start_misfit(r.value):.2f} | "
+              f"{1000 * problem.start_velocity:.1f} | {r.iterations} | {r.converged} | "
               f"{r.gradient_gap:.1e} | {cpu() - c0:.0f} | {time.perf_counter() - t0:.0f} |",
               flush=True)
 
@@ -172,7 +203,8 @@ def part_r1(args) -> None:
         for spans in args.r1_spans:
             config = SwingConfig(spans=(spans, spans), substeps=args.substeps,
                                  integrator=args.integrator, membrane_stiffness=D,
-                                 poisson_ratio=NU, areal_density=RHO, stride=args.stride)
+                                 poisson_ratio=NU, areal_density=RHO, stride=args.stride,
+                                 start=args.start_state)
             c0, t0 = cpu(), time.perf_counter()
             try:
                 problem, r = fit(frames, faces, (0, 992), fps, config,
@@ -196,7 +228,8 @@ def part_r1(args) -> None:
                   f"{robust:.2e}, rel {robust / r.value:.3f}), χ²/dof "
                   f"{r.goodness.reduced:.2f} (σ̂ {1000 * r.noise:.2f} mm), c = "
                   f"{100 * bending_length(r.value, RHO, G):.3f} cm, iterations {r.iterations}"
-                  f" converged {r.converged}, start fit {1000 * problem.start_misfit:.2f} mm, "
+                  f" converged {r.converged}, start fit {1000 * problem.start_misfit(r.value):.2f}"
+                  f" mm, data's speed at t = 0 {1000 * problem.start_velocity:.1f} mm/s, "
                   f"rms misfit {1000 * np.sqrt(np.mean(r.residuals ** 2) * 3):.2f} mm; "
                   f"{cpu() - c0:.0f} s CPU, {time.perf_counter() - t0:.0f} s wall, load "
                   f"{os.getloadavg()[0]:.1f}", flush=True)
@@ -221,6 +254,12 @@ def main() -> None:
     p.add_argument("--substeps", type=int, default=1)
     p.add_argument("--integrator", default="implicit_euler")
     p.add_argument("--start", type=float, default=1.5)
+    p.add_argument("--start-state", choices=("rest", "data"), default="rest",
+                   help="the run's start: the static equilibrium at rest, or frame 0's fit")
+    p.add_argument("--true-corners", action="store_true",
+                   help="synthetic: the held corners on their true paths, not the smoothed data")
+    p.add_argument("--truth-cache", type=Path, default=None,
+                   help="synthetic: an .npz to read the truth from (written when missing)")
     p.add_argument("--run", type=Path, default=None)
     p.add_argument("--data", type=Path, default=None)
     p.add_argument("--r1-fps", type=float, nargs="+", default=[30.0])

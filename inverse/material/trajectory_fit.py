@@ -37,7 +37,7 @@ from taichi_ndf import jets, progress
 from taichi_ndf.minimise.assembly import displacement_at
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.solve.dynamics import TimeStepper
-from taichi_ndf.solve.dynamics_adjoint import gradient, record, tangent
+from taichi_ndf.solve.dynamics_adjoint import Start, gradient, record, tangent
 from taichi_ndf.solve.handle_paths import boundary_displacement
 
 ESTIMATED = "estimated from the residuals (χ²/dof = 1 by construction: not a test)"
@@ -125,11 +125,13 @@ def observe(stepper: TimeStepper, xi: torch.Tensor, coefficients: torch.Tensor,
 
 def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryData,
                    start: float, config: TrajectoryFitConfig = TrajectoryFitConfig(), *,
-                   initial: tuple[torch.Tensor, torch.Tensor] | None = None
-                   ) -> TrajectoryFit:
+                   initial: tuple[torch.Tensor, torch.Tensor]
+                   | Callable[[TimeStepper], Start] | None = None) -> TrajectoryFit:
     """θ̂ by Gauss–Newton from `start` (module docstring); stepper_at(θ): the scene's stepper
     with the material's `config.parameter` set to θ; initial: the runs' start (C₀, V₀)
-    (coefficients (n, 3) [m], [m/s]; None: rest), given, not fitted. The adjoint's ∇J is
+    (coefficients (n, 3) [m], [m/s]; None: rest), given, not fitted; or a function of the
+    stepper at θ giving the `Start` (e.g. `rest_start`: the static equilibrium at θ), whose
+    derivative by θ enters the tangent and the adjoint. The adjoint's ∇J is
     computed at the first iteration (its gap to the tangent's is the check); later
     iterations step with the tangent's Σ r dr/dθ, the same number (to 1e-10, tested), at
     one solve per step less. One progress report per iteration (stage "trajectory fit",
@@ -139,11 +141,13 @@ def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryD
     with progress.stage(f"trajectory fit ({config.parameter})", config.max_iterations):
         for iteration in range(1, config.max_iterations + 1):
             stepper = stepper_at(theta)
-            states = record(stepper, *(initial or ()))
+            begin = initial(stepper) if callable(initial) else Start(*(initial or (None,)))
+            derivative = begin.derivative
+            states = record(stepper, begin.displacement, begin.velocity)
             if data.steps[-1] >= len(states):
                 raise ValueError(f"trajectory data: step {data.steps[-1]} is past the run's "
                                  f"last ({len(states) - 1})")
-            forward = tangent(stepper, states, config.parameter)
+            forward = tangent(stepper, states, config.parameter, derivative)
             weights, hessian, slope, residuals, columns = {}, 0.0, 0.0, [], []
             for i, k in enumerate(data.steps):
                 c = states[k].displacement.clone().requires_grad_(True)
@@ -157,7 +161,7 @@ def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryD
                 columns.append(dr.detach().reshape(-1))
             adjoint = slope
             if iteration == 1:  # away from the fit, where ∇J is not ~0
-                adjoint = gradient(stepper, states, config.parameter, weights)
+                adjoint = gradient(stepper, states, config.parameter, weights, derivative)
                 gap = abs(adjoint - slope) / max(abs(slope), 1e-300)
             if not hessian > 0:
                 raise ValueError(f"trajectory fit: the observed points do not move with "

@@ -12,9 +12,18 @@ vertices (e.g. `ndf-sft`'s meshes, camera coordinates), the frame interval Δt [
   corner coordinate smoothed in time by a cubic smoothing spline whose smoothing GCV chooses
   (`scipy.interpolate.make_smoothing_spline`: the reconstruction's corner noise would
   otherwise enter as accelerations of ~σ/Δt²), sampled at every time step;
-- the sheet starts at frame 0's shape and velocity: the spline field's least-squares fit
-  (free part J C, the handles' part g(0) taken off) to the vertices' positions and velocities
-  at t = 0 from the same smoothing of each vertex coordinate over the frames;
+- the start (`SwingConfig.start`): "rest" (default) — the sheet at rest in the static
+  equilibrium under gravity with its corners at frame 0's (`dynamics_adjoint.rest_start`:
+  Newton from the spline field's least-squares fit to frame 0, so the equilibrium whose basin
+  holds the observed shape; V₀ = 0), recomputed at every trial B with its derivative
+  dC₀/dB in the tangent and the adjoint. It is a state of the model itself, so it carries no
+  strain energy from the data's noise (a least-squares fit of noisy positions stores
+  membrane energy that the run turns into motion), and it holds for any capture whose first
+  frame shows the sheet still: a property of the recording that `start_velocity` measures
+  (the smoothed data's rms vertex speed at t = 0), not a setting fitted to one capture.
+  "data" — frame 0's shape and velocity: the field's least-squares fit (free part J C, the
+  handles' part g(0) taken off) to the vertices' positions and velocities at t = 0 from the
+  same smoothing of each vertex coordinate over the frames (an energetic, noisy start);
 - `substeps` time steps per frame (implicit Euler by default), gravity, the material
   LinearIsotropic(D, B, ν, ρ_A) with D, ν and ρ_A stated.
 Observed: every `stride`-th vertex (in each grid direction) of frames 1 … F − 1, as
@@ -46,6 +55,7 @@ from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.shell.materials import LinearIsotropic
+from taichi_ndf.solve.dynamics_adjoint import Start, rest_start
 from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundary
 
 
@@ -56,7 +66,7 @@ class SwingConfig:
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
     [kg/m²] (stated); band: the handles' band (fraction of the domain); stride ≥ 1: every
     stride-th vertex per grid direction observed; size: the flat sheet (W, H) [m] or None
-    (frame 0's grid-line lengths)."""
+    (frame 0's grid-line lengths); start: "rest" or "data" (module docstring)."""
 
     spans: tuple[int, int] = (8, 8)
     degree: int = 3
@@ -69,8 +79,11 @@ class SwingConfig:
     band: float = 0.1
     stride: int = 1
     size: tuple[float, float] | None = None
+    start: str = "rest"
 
     def __post_init__(self):
+        if self.start not in ("rest", "data"):
+            raise ValueError(f"start must be rest or data, got {self.start!r}")
         if len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans):
             raise ValueError(f"spans must be two integers >= 1, got {self.spans!r}")
         if self.degree not in (3, 4):
@@ -98,18 +111,30 @@ class SwingConfig:
 @dataclass
 class SwingProblem:
     """What `fit_trajectory` needs: stepper_at(B) (the run's stepper at bending stiffness B
-    [N·m], started by `record` at `start`), the observations, and the model's pieces for the
-    report: grid (the template's ξ), the flat reference model, the handles' path, frame
-    interval Δt [s], the start's coefficients (C₀, V₀) and the rms of the start fit [m]."""
+    [N·m]), start(stepper) (its `Start`, `fit_trajectory`'s initial), the observations, and
+    the model's pieces for the report: grid (the template's ξ), the flat reference model, the
+    handles' path, frame interval Δt [s], the observed points' ξ (P, 2), flat positions and
+    frame-0 positions (P, 3) [m], and start_velocity: the smoothed data's rms vertex speed at
+    t = 0 [m/s] (a rest start assumes it is at the noise's level)."""
 
     stepper_at: Callable[[float], PathStepper]
+    start: Callable[[PathStepper], Start]
     data: TrajectoryData
     grid: SheetGrid
     model: ShellModel
     path: HandlePath
     frame_interval: float
-    start: tuple[torch.Tensor, torch.Tensor]
-    start_misfit: float
+    xi: torch.Tensor
+    flat: np.ndarray
+    frame0: np.ndarray
+    start_velocity: float
+
+    def start_misfit(self, bending: float) -> float:
+        """rms distance [m] of the start's shape at B [N·m] to frame 0's observed points."""
+        stepper = self.stepper_at(bending)
+        c0 = self.start(stepper).displacement
+        fitted = observe(stepper, self.xi, c0, 0.0).numpy() + self.flat
+        return float(np.sqrt(np.mean(np.sum((fitted - self.frame0) ** 2, axis=1))))
 
 
 def smoothed(values: np.ndarray, times: np.ndarray) -> tuple[list, tuple]:
@@ -139,10 +164,13 @@ def _fit_free(stepper: PathStepper, xi: torch.Tensor, target: torch.Tensor) -> t
 def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
                   frame_interval: float, gravity: np.ndarray,
                   config: SwingConfig = SwingConfig(), *,
-                  newton: NewtonConfig | None = None) -> SwingProblem:
+                  newton: NewtonConfig | None = None,
+                  corners: Callable[[np.ndarray], np.ndarray] | None = None) -> SwingProblem:
     """The dynamic model of the sequence and its observations (module docstring); vertices
     (F, V, 3) [m], F ≥ 5; faces of the grid template; held: the two corner vertex indices;
-    frame_interval Δt [s] > 0; gravity (3,) [m/s²]. ValueError on bad input."""
+    frame_interval Δt [s] > 0; gravity (3,) [m/s²]; corners(t): the held corners' positions
+    (T, 2, 3) [m] at times t (T,) [s] where they are known otherwise (a synthetic check's
+    truth; None: the observed corner vertices, smoothed). ValueError on bad input."""
     vertices = np.asarray(vertices, dtype=np.float64)
     if vertices.ndim != 3 or vertices.shape[0] < 5 or vertices.shape[2] != 3:
         raise ValueError(f"vertices must be (F, V, 3) with F >= 5 frames (the smoothing), got "
@@ -160,11 +188,15 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     width, height = grid.size
     # each vertex coordinate smoothed over the frames: the start's shape and velocity
     smooth = smoothed(vertices, times)
-    corner_smooth = smoothed(vertices[:, list(held)], times)
-    corners = _evaluate(corner_smooth, times)
-    line = corners[0, 1] - corners[0, 0]
+    if corners is None:
+        corner_smooth = smoothed(vertices[:, list(held)], times)
+
+        def corners(t: np.ndarray) -> np.ndarray:
+            return _evaluate(corner_smooth, t)
+    first = corners(np.zeros(1))[0]
+    line = first[1] - first[0]
     e1 = line / np.linalg.norm(line)
-    reference = np.stack([corners[0, 0], corners[0, 0] + width * e1])
+    reference = np.stack([first[0], first[0] + width * e1])
     material = LinearIsotropic(config.membrane_stiffness, 1.0, config.poisson_ratio,
                                config.areal_density)
     across = hanging_across(reference, gravity)
@@ -174,7 +206,7 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     dt = frame_interval / config.substeps
     steps = config.substeps * (frames - 1)
     step_times = dt * np.arange(steps + 1)
-    path = HandlePath(tuple(step_times), _evaluate(corner_smooth, step_times) - reference)
+    path = HandlePath(tuple(step_times), corners(step_times) - reference)
     plan = SplinePlan(SplineConfig(spans=tuple(int(s) for s in config.spans),
                                    degree=config.degree, domain=((0.0, width), (0.0, height))))
     dynamics = DynamicsConfig(dt=dt, duration=steps * dt, integrator=config.integrator,
@@ -195,12 +227,17 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     gv = _boundary_velocity(stepper, xi)
     c0 = _fit_free(stepper, xi, torch.from_numpy(position0 - flat - g0))
     v0 = _fit_free(stepper, xi, torch.from_numpy(velocity0 - gv))
-    fitted = observe(stepper, xi, c0, 0.0).numpy() + flat
-    start_misfit = float(np.sqrt(np.mean(np.sum((fitted - vertices[0][pick]) ** 2, axis=1))))
+
+    def start(stepper: PathStepper) -> Start:
+        if config.start == "data":
+            return Start(c0, v0)
+        return rest_start(stepper, c0, "bending_stiffness")
+
+    speed = float(np.sqrt(np.mean(np.sum(velocity0 ** 2, axis=1))))
     observed = torch.from_numpy(vertices[1:, pick] - flat[None])
     data = TrajectoryData(xi, tuple(config.substeps * f for f in range(1, frames)), observed)
-    return SwingProblem(stepper_at, data, grid, model, path, frame_interval, (c0, v0),
-                        start_misfit)
+    return SwingProblem(stepper_at, start, data, grid, model, path, frame_interval, xi, flat,
+                        vertices[0][pick], speed)
 
 
 def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:

@@ -31,13 +31,23 @@ the boundary where it stands at that step's end (`stepper._at(t)`), and `record`
 boundary's states and polishes each step with its inertia target. Not covered:
 stiffness-proportional damping (K₀ depends on C and θ), contact, wind, a custom per-sample
 stiffness; these raise ValueError (`record` too: its polish has no barrier or drag).
+
+A start that depends on θ (`rest_start`: C₀ the static equilibrium at t = 0, V₀ = 0): its
+derivative (dC₀/dθ, dV₀/dθ) enters the tangent as its first state's and the adjoint as
+dJ/dθ += λ_Cᵀ dC₀/dθ + λ_Vᵀ dV₀/dθ with λ at t = 0 (implicit Euler; Newmark's A₀ would
+depend on C₀ too: refused). For C₀ = argmin Π(·; θ) at the boundary of t = 0,
+dC₀/dθ = −K₀⁻¹ ∂f/∂θ(C₀) (K₀ the exact static Hessian): the implicit-function derivative.
 """
 
 from __future__ import annotations
 
+import logging
+from dataclasses import dataclass
+
 import torch
 
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
+from taichi_ndf.minimise.minimisers import NewtonMinimiser, Phase, run_phases
 from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
 from taichi_ndf.objective.inertia import InertiaTerm
 from taichi_ndf.problem.dynamics import StepMap, combine
@@ -45,6 +55,18 @@ from taichi_ndf.problem.loads import Loads
 from taichi_ndf.shell.energy import ShellEnergy
 from taichi_ndf.shell.hessian import flat_blocks
 from taichi_ndf.solve.dynamics import DynamicsError, Motion, TimeStepper
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Start:
+    """A run's start at a parameter θ: C₀ (n, 3) [m], V₀ (n, 3) [m/s] (None: 0) and
+    derivative (dC₀/dθ, dV₀/dθ) (None: the start does not depend on θ)."""
+
+    displacement: torch.Tensor
+    velocity: torch.Tensor | None = None
+    derivative: tuple[torch.Tensor, torch.Tensor] | None = None
 
 
 def _check_steps(stepper: TimeStepper) -> None:
@@ -84,7 +106,8 @@ def record(stepper: TimeStepper, displacement: torch.Tensor | None = None,
         if not solution.converged:
             raise DynamicsError(f"dynamics adjoint: step {at.index + 1} did not converge "
                                 "(halved steps are not supported)")
-        x = _polish(stepper, step, start, end.displacement, at.value, polish)
+        potential, linear = _step_potential(stepper, step, start, at.value)
+        x = _polish(stepper, potential, linear, end.displacement, polish)
         velocity, acceleration = step.apply(x, start)
         return Motion(at.value, x, velocity, acceleration, end.boundary)
 
@@ -110,12 +133,12 @@ def _step_potential(stepper: TimeStepper, step: StepMap, start: Motion, time: fl
             linear)
 
 
-def _polish(stepper: TimeStepper, step: StepMap, start: Motion, x: torch.Tensor, time: float,
-            limit: int) -> torch.Tensor:
-    """x moved by plain Newton steps x − K⁻¹ g while ‖g‖ falls (at most `limit`). Newton's
-    line search on Π stops at Π's rounding floor, where x is known to about √ε only; the
-    adjoint's g(x) = 0 and central differences of whole runs need x to the rounding of g."""
-    potential, linear = _step_potential(stepper, step, start, time)
+def _polish(stepper: TimeStepper, potential, linear, x: torch.Tensor, limit: int
+            ) -> torch.Tensor:
+    """x moved by plain Newton steps x − K⁻¹ g of the potential on its linearisation while
+    ‖g‖ falls (at most `limit`). Newton's line search on Π stops at Π's rounding floor, where
+    x is known to about √ε only; the adjoint's g(x) = 0 and central differences of whole runs
+    need x to the rounding of g."""
 
     def residual(x):
         return linear.gradient(potential(stepper.samples, linear.displacement(x), True)
@@ -133,6 +156,32 @@ def _polish(stepper: TimeStepper, step: StepMap, start: Motion, x: torch.Tensor,
             break
         x, g = trial, g_trial
     return x
+
+
+def rest_start(stepper: TimeStepper, displacement: torch.Tensor, parameter: str, *,
+               polish: int = 4) -> Start:
+    """The start at rest: C₀ the static equilibrium of Π at t = 0 (the boundary there, the
+    loads at λ(0)) that Newton reaches from `displacement` (n, 3) (the local minimum whose
+    basin holds it, e.g. a fit to a video's first frame), polished as `record`'s steps;
+    V₀ = 0; derivative (dC₀/dθ = −K₀⁻¹ ∂f/∂θ(C₀), 0) for the stiffness `parameter`.
+    DynamicsError where Newton does not converge; a warning where K₀ is not positive definite
+    (a saddle, not a rest state)."""
+    _check(stepper, parameter)
+    load_factor = stepper.config.load_factor(0.0)
+    linear = stepper._at(0.0)
+    potential = stepper.objective.potential(load_factor)
+    (solution,) = run_phases([Phase(
+        NewtonMinimiser(stepper.newton, load_factor=load_factor, report=False),
+        lambda: (linear, potential), lambda: displacement)])
+    if not solution.converged:
+        raise DynamicsError("rest start: the static equilibrium at t = 0 did not converge")
+    x = _polish(stepper, potential, linear, solution.parameters, polish)
+    matrix = exact_hessian(linear, potential, x, fd_step=stepper.newton.fd_step)
+    solved = sensitivity(matrix, force_derivative(stepper, parameter, x, 0.0)[..., None],
+                         stepper.linear.fixed)
+    if not solved.definite:
+        log.warning("rest start: the equilibrium's Hessian is not positive definite (a saddle)")
+    return Start(x, torch.zeros_like(x), (solved.derivative[..., 0], torch.zeros_like(x)))
 
 
 def _mass_times(stepper: TimeStepper, coefficients: torch.Tensor) -> torch.Tensor:
@@ -171,11 +220,20 @@ def _step_hessian(stepper: TimeStepper, step: StepMap, end: Motion):
     return exact_hessian(linear, potential, end.displacement, fd_step=stepper.newton.fd_step)
 
 
+def _check_initial(stepper: TimeStepper, initial) -> None:
+    if initial is not None and stepper.config.integrator == "newmark":
+        raise ValueError("dynamics adjoint: a start that depends on the parameter is supported "
+                         "with implicit Euler only (Newmark's A₀ depends on C₀)")
+
+
 def gradient(stepper: TimeStepper, states: list[Motion], parameter: str,
-             weights: dict[int, torch.Tensor]) -> float:
+             weights: dict[int, torch.Tensor],
+             initial: tuple[torch.Tensor, torch.Tensor] | None = None) -> float:
     """dJ/dθ of a trajectory quantity J(C_0, …, C_N) over the states of `record`, weights
-    {k: ∂J/∂C_k (n, 3)} (module docstring); θ a stiffness name of the model's material."""
+    {k: ∂J/∂C_k (n, 3)} (module docstring); θ a stiffness name of the model's material;
+    initial: the start's (dC₀/dθ, dV₀/dθ) (`Start.derivative`; None: constant)."""
     _check(stepper, parameter)
+    _check_initial(stepper, initial)
     config = stepper.config
     zeros = torch.zeros_like(states[0].displacement)
     step = StepMap.of(config, config.dt)
@@ -197,6 +255,8 @@ def gradient(stepper: TimeStepper, states: list[Motion], parameter: str,
     if config.integrator == "newmark":
         total += float((lam_a * _initial_acceleration_derivative(
             stepper, parameter, states[0].displacement)).sum())
+    if initial is not None:
+        total += float((lam_c * initial[0]).sum() + (lam_v * initial[1]).sum())
     return total
 
 
@@ -214,18 +274,23 @@ def _initial_acceleration_derivative(stepper: TimeStepper, parameter: str,
     return solved[0]
 
 
-def tangent(stepper: TimeStepper, states: list[Motion], parameter: str) -> list[torch.Tensor]:
+def tangent(stepper: TimeStepper, states: list[Motion], parameter: str,
+            initial: tuple[torch.Tensor, torch.Tensor] | None = None) -> list[torch.Tensor]:
     """dC_k/dθ (n, 3) for every state of `record` (k = 0 … N), forwards: per step
     K dx = s M dx* − ∂f/∂θ(x), dV' and dA' by the scheme's maps (the tangent of the steps: all
-    the sensitivities a Gauss–Newton fit needs for one parameter; `gradient` is its adjoint)."""
+    the sensitivities a Gauss–Newton fit needs for one parameter; `gradient` is its adjoint);
+    initial: the start's (dC₀/dθ, dV₀/dθ) (None: constant)."""
     _check(stepper, parameter)
+    _check_initial(stepper, initial)
     config = stepper.config
     step = StepMap.of(config, config.dt)
     zeros = torch.zeros_like(states[0].displacement)
     d = (zeros, zeros, _initial_acceleration_derivative(stepper, parameter,
                                                          states[0].displacement)
          if config.integrator == "newmark" else zeros)
-    out = [zeros]
+    if initial is not None:
+        d = (initial[0], initial[1], zeros)
+    out = [d[0]]
     for end in states[1:]:
         moved = combine(step.target, d)
         rhs = force_derivative(stepper, parameter, end.displacement, end.time) \
