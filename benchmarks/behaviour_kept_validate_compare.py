@@ -4,8 +4,9 @@ before and after runs side by side.
 For every TAG whose before and after runs both finished (WORK/val/TAG_before, TAG_after with
 results.json): per row (case, quantity, load level) the value of each, the relative change
 |after − before| / |before| (or "identical"), the reference, each run's error against it [%],
-the target, whether each is within it, and the iterations (Newton steps or Adam iterations of
-the case); then the CPU (user + sys) and wall [s] of each whole command. A run that did not
+the target, whether each is within it, the Adam iterations and the Newton steps of the case;
+then each case's grids (spans per level) and the CPU (user + sys) and wall [s] of each whole
+command. A run that did not
 finish shows its exit code (152: stopped by the CPU cap).
 
     python benchmarks/behaviour_kept_validate_compare.py WORK [TAG_PREFIX]
@@ -25,9 +26,9 @@ def run(val: Path, name: str) -> dict | None:
         return None
     user, system, wall = (float(x) for x in words[:3])
     result = val / name / "results.json"
-    rows = json.loads(result.read_text())["rows"] if result.is_file() else None
+    document = json.loads(result.read_text()) if result.is_file() else {}
     return {"cpu": user + system, "wall": wall, "rc": words[words.index("rc") + 1],
-            "rows": rows}
+            "rows": document.get("rows"), "cases": document.get("cases", {})}
 
 
 def cell(row: dict | None, key: str, form: str = "{!r}") -> str:
@@ -40,9 +41,9 @@ def table(tag: str, before: dict, after: dict) -> None:
     if before["rows"] is None or after["rows"] is None:
         return
     print("| case | quantity | load | value before | value after | change (rel) | reference | "
-          "error before / after [%] | target [%] | within before / after | iterations "
-          "before / after |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "error before / after [%] | target [%] | within before / after | Adam iterations "
+          "before / after | Newton steps before / after |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     key = ("case", "quantity", "level")
     afters = {tuple(r[k] for k in key): r for r in after["rows"]}
     for b in before["rows"]:
@@ -56,10 +57,16 @@ def table(tag: str, before: dict, after: dict) -> None:
         print(f"| {b['case']} | {b['quantity']} | {b['level']:g} | {cell(b, 'computed')} | "
               f"{cell(a, 'computed')} | {change} | {b['reference']:.6g} | {error} | "
               f"{100 * b['tolerance']:g} | {cell(b, 'passed', '{}')} / {cell(a, 'passed', '{}')} | "
-              f"{b['iterations']} / {cell(a, 'iterations', '{}')} |")
+              f"{b['iterations']} / {cell(a, 'iterations', '{}')} | "
+              f"{b.get('newton_steps')} / {cell(a, 'newton_steps', '{}')} |")
     for a in afters.values():
         print(f"| {a['case']} | {a['quantity']} | {a['level']:g} | — | {a['computed']!r} | "
-              f"(after only) | {a['reference']:.6g} | | | | |")
+              f"(after only) | {a['reference']:.6g} | | | | | |")
+    for case in before["cases"]:
+        spans = [run["cases"].get(case, {}).get("solver", {}).get("spans")
+                 for run in (before, after)]
+        if spans != [None, None]:
+            print(f"{case}: spans before {spans[0]}, after {spans[1]}")
 
 
 def main(work: Path, prefix: str) -> None:
