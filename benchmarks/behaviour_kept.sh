@@ -7,7 +7,9 @@
 #   git archive 8b3c748 | tar -x -C WORK/before; git archive 8b3c5a5 | tar -x -C WORK/after
 #   WORK=/tmp/b26w PYTHON=.venv/bin/python benchmarks/behaviour_kept.sh spline 900 napkin bowl
 #
-# usage: behaviour_kept.sh FIELD CPU_CAP_SECONDS SCENE...   (TREES="after" runs one tree)
+# usage: behaviour_kept.sh FIELD CPU_CAP_SECONDS SCENE...   (TREES="after" runs one tree;
+# NICE=0 runs at the default priority instead of nice 10; SCENES=DIR takes SCENE.toml from DIR
+# instead of WORK/before/scenes, e.g. a variant of a scene)
 # A run over CPU_CAP_SECONDS of CPU is stopped by `ulimit -t` (compare what both reached in
 # WORK/out/SCENE_FIELD_TREE.log). --no-pictures is passed to the after tree only (the
 # before tree has no such flag; pictures change no number).
@@ -22,9 +24,9 @@ for s in "$@"; do
   rm -rf "$o" "$o.incomplete"
   echo "$s $field $tree start $(date -u +%H:%M:%S) load $(cut -d' ' -f1-3 /proc/loadavg)" >> "$WORK/log.txt"
   extra=""; [ "$tree" = after ] && extra="--no-pictures"
-  ( ulimit -t "$cap"; cd "$WORK/$tree" && OMP_NUM_THREADS=1 PYTHONPATH="$WORK/$tree" nice -n 10 \
+  ( ulimit -t "$cap"; cd "$WORK/$tree" && OMP_NUM_THREADS=1 PYTHONPATH="$WORK/$tree" nice -n "${NICE:-10}" \
       /usr/bin/time -f '%U %S %e %M' -o "$o.time" "$PYTHON" -m taichi_ndf.cli.sim \
-      "$WORK/before/scenes/$s.toml" --field "$field" --quick --precision f64 $extra -v \
+      "${SCENES:-$WORK/before/scenes}/$s.toml" --field "$field" --quick --precision f64 $extra -v \
       --out "$o" > "$o.log" 2>&1; echo "rc $?" >> "$o.time" )
   echo "$s $field $tree end $(date -u +%H:%M:%S) load $(cut -d' ' -f1-3 /proc/loadavg) time $(tr '\n' ' ' < "$o.time")" >> "$WORK/log.txt"
  done
