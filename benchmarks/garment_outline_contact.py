@@ -27,16 +27,13 @@ import sys
 import tomllib
 from pathlib import Path
 
-import numpy as np
-import torch
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' scenarios and checks
 
 from provenance import commit  # noqa: E402
 
 import taichi_ndf  # noqa: E402
-from taichi_ndf.discretise import of_scene  # noqa: E402
-from taichi_ndf.scene.reader import parse_scene  # noqa: E402
+from tests.test_contact_outline_panels import converged, smallest_outline_gap  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAPEZOIDS = ({"name": "a", "outline": [[0, 0], [0.15, 0], [0.12, 0.2], [0, 0.2]],
@@ -55,14 +52,7 @@ def cpu() -> float:
 def solve(document: dict):
     """(scene, panels, solution, CPU s) of a garment document, every load step converged."""
     started = cpu()
-    path = ROOT / "scenes" / "x.toml"
-    scene = parse_scene(copy.deepcopy(document), base_dir=path.parent, path=path)
-    panels = of_scene(scene)
-    panels.start(scene.solver, seed=0)
-    solution = panels.solve(scene.solver)
-    panels.check_solution(solution)
-    if not all(panels.converged):
-        raise RuntimeError(f"{document['name']}: Newton did not converge")
+    scene, panels, solution = converged(document)
     return scene, panels, solution, cpu() - started
 
 
@@ -149,24 +139,13 @@ def draped_table() -> None:
     print("\n3. the trapezoids draped over a sphere")
     scene, panels, solution, seconds = solve(trapezoids(BALL))
     config = scene.model.contact
-    smallest = []
-    for i, patch in enumerate(scene.field.patches):
-        outline = patch.outline
-        (x0, x1), (y0, y1) = outline.bounds
-        s = np.linspace(0.0, 1.0, 61)
-        grid = np.stack(np.meshgrid(x0 + (x1 - x0) * s, y0 + (y1 - y0) * s), -1).reshape(-1, 2)
-        edges = [np.asarray(a) + np.linspace(0.0, 1.0, 200)[:, None]
-                 * (np.asarray(b) - np.asarray(a))
-                 for a, b in map(outline.edge_points, range(len(outline.points)))]
-        xi = torch.from_numpy(np.concatenate([grid[outline.contains(grid)], *edges]))
-        x = patch.model.surface.jets(xi)[:, 0] + panels.displacement_of(i, xi)[:, 0]
-        smallest.append(float(config.term().gaps(x, 1.0)[0].min()))
+    smallest = smallest_outline_gap(scene, panels)
     print("| Π [J] | Newton it. | rounds | check points | smallest gap [m] | ĝ [m] | seam gap [m] "
           "| CPU [s] |")
     print("|---|---|---|---|---|---|---|---|")
     print(f"| {solution.energy:.10e} | {solution.iterations} | "
           f"{solution.contact_counts['newton_rounds']} | {solution.contact.count} | "
-          f"{min(smallest):.3e} | {config.activation:.3e} | "
+          f"{smallest:.3e} | {config.activation:.3e} | "
           f"{max(solution.document['seam_gaps'].values()):.1e} | {seconds:.1f} |")
 
 

@@ -31,7 +31,9 @@ def _skirt(name: str, spans, **panel) -> dict:
     return document
 
 
-def _solve(document: dict):
+def solve_garment(document: dict):
+    """(scene, panels, solution) of a garment document (a dict as a garment file reads),
+    solved by the multi-patch discretisation and checked."""
     path = ROOT / "scenes" / "x.toml"
     scene = parse_scene(copy.deepcopy(document), base_dir=path.parent, path=path)
     panels = of_scene(scene)
@@ -62,11 +64,11 @@ def test_an_obstacle_far_away_adds_nothing_to_a_flat_cut_gathered_skirt():
     round per load step, no check point."""
     document = _skirt("skirt_panels", (6, 4), held_radius=0.12)
     document["training"]["load_steps"] = [0.5, 1.0]
-    _, _, alone = _solve(document)
+    _, _, alone = solve_garment(document)
     document["obstacles"] = [{"type": "sphere", "name": "far", "centre": [5.0, 0.0, 0.0],
                               "radius": 0.1}]
     document["contact"] = {"check_resolution": 12}
-    _, panels, far = _solve(document)
+    _, panels, far = solve_garment(document)
     assert all(panels.converged)
     for a, b in zip(alone.document["load_steps"], far.document["load_steps"], strict=True):
         assert b["energy"] == pytest.approx(a["energy"], rel=1e-10)
@@ -81,7 +83,7 @@ def test_a_flat_cut_skirt_sags_onto_a_body_without_entering_it():
     its panels cut flat, 4 × 2 spans: every load step converges, the rounds added check
     points (the barrier acted), no point of a 61² grid per panel is inside h/2 + margin, some
     within the activation distance, the seams closed."""
-    scene, panels, solution = _solve(_skirt("skirt_body", (4, 2)))
+    scene, panels, solution = solve_garment(_skirt("skirt_body", (4, 2)))
     assert all(panels.converged)
     assert solution.contact.count > 0 and solution.contact_counts["newton_rounds"] > 3
     gap = _outside(scene, panels)
@@ -97,12 +99,12 @@ def test_flat_cut_panels_started_or_gathered_into_the_body_are_refused_naming_it
     document["training"]["load_steps"] = [1.0]
     with pytest.raises(ValueError, match="obstacle 'body' intersects panel '(front|back)' "
                                          "where its held edges are moved to"):
-        _solve(document)
+        solve_garment(document)
     document = _skirt("skirt_body", (4, 2))
     document["obstacles"][0]["radius"] = 0.155
     with pytest.raises(ValueError, match="obstacle 'body' intersects panel '(front|back)' "
                                          "where the panels start"):
-        _solve(document)
+        solve_garment(document)
 
 
 def test_the_shipped_tube_top_rests_on_the_torso_without_entering():
@@ -112,7 +114,7 @@ def test_the_shipped_tube_top_rests_on_the_torso_without_entering():
     (to the fit of its rows), the seams closed."""
     document = tomllib.loads((ROOT / "scenes" / "tube_top_body.toml").read_text())
     document["field"]["spans"] = [4, 6]
-    scene, panels, solution = _solve(document)
+    scene, panels, solution = solve_garment(document)
     assert [o.name for o in scene.model.contact.obstacles] == ["torso"]
     assert all(panels.converged)
     assert 0 < _outside(scene, panels) < scene.model.contact.activation

@@ -18,10 +18,9 @@ import pytest
 import torch
 
 from taichi_ndf.contact.check_points import check_grid, outline_check_grid
-from taichi_ndf.discretise import of_scene
 from taichi_ndf.geometry import Plane
 from taichi_ndf.problem.outline import Outline, OutlinePlane
-from taichi_ndf.scene.reader import parse_scene
+from tests.test_contact_flat_panels import solve_garment
 
 ROOT = Path(__file__).resolve().parents[1]
 MATERIAL = {"preset": "cotton_polyester"}
@@ -32,15 +31,31 @@ TRAPEZOIDS = ({"name": "a", "outline": [[0, 0], [0.15, 0], [0.12, 0.2], [0, 0.2]
 SLANT = [{"name": "slant", "a": "a.e1", "b": "b.e3", "orientation": "reversed"}]
 
 
-def _solve(document: dict):
-    path = ROOT / "scenes" / "x.toml"
-    scene = parse_scene(copy.deepcopy(document), base_dir=path.parent, path=path)
-    panels = of_scene(scene)
-    panels.start(scene.solver, seed=0)
-    solution = panels.solve(scene.solver)
-    panels.check_solution(solution)
+def converged(document: dict):
+    """`solve_garment`, every load step converged."""
+    scene, panels, solution = solve_garment(document)
     assert all(panels.converged)
     return scene, panels, solution
+
+
+def smallest_outline_gap(scene, panels) -> float:
+    """The smallest gap [m] beyond h/2 + margin between the obstacles and every panel's
+    outline, checked independently of the contact check points: a 61² grid over each
+    panel's bounds kept inside its outline, and 200 points along each of its edges."""
+    config = scene.model.contact
+    smallest = []
+    for i, patch in enumerate(scene.field.patches):
+        outline = patch.outline
+        (x0, x1), (y0, y1) = outline.bounds
+        s = np.linspace(0.0, 1.0, 61)
+        grid = np.stack(np.meshgrid(x0 + (x1 - x0) * s, y0 + (y1 - y0) * s), -1).reshape(-1, 2)
+        edges = [np.asarray(a) + t[:, None] * (np.asarray(b) - np.asarray(a))
+                 for a, b in map(outline.edge_points, range(len(outline.points)))
+                 for t in [np.linspace(0.0, 1.0, 200)]]
+        xi = torch.from_numpy(np.concatenate([grid[outline.contains(grid)], *edges]))
+        x = patch.model.surface.jets(xi)[:, 0] + panels.displacement_of(i, xi)[:, 0]
+        smallest.append(float(config.term().gaps(x, 1.0)[0].min()))
+    return min(smallest)
 
 
 def test_a_rectangle_outlines_check_grid_is_the_rectangles_and_a_polygons_covers_its_border():
@@ -119,8 +134,8 @@ def test_an_obstacle_far_away_adds_nothing_to_polygon_panels(case):
         far = copy.deepcopy(alone)
         far["obstacles"] = [FAR]
         far["contact"] = {"check_resolution": 12}
-    _, _, first = _solve(alone)
-    _, _, second = _solve(far)
+    _, _, first = converged(alone)
+    _, _, second = converged(far)
     for a, b in zip(first.document["load_steps"], second.document["load_steps"], strict=True):
         assert b["energy"] == pytest.approx(a["energy"], rel=1e-12)
         assert b["iterations"] == a["iterations"]
@@ -132,8 +147,8 @@ def test_a_polygon_that_is_its_rectangle_sags_onto_a_body_as_the_rectangle_panel
     sagging onto it; 4 × 2 spans) with its panels as polygons that are the rectangles: each
     load step's Π equals the rectangles' to 1e-10 relative, with contact acting (check
     points added, more than one round)."""
-    _, _, rectangles = _solve(_skirt(False, (4, 2)))
-    _, _, polygons = _solve(_skirt(True, (4, 2)))
+    _, _, rectangles = converged(_skirt(False, (4, 2)))
+    _, _, polygons = converged(_skirt(True, (4, 2)))
     assert polygons.contact.count == rectangles.contact.count > 0
     assert polygons.contact_counts["newton_rounds"] > 3
     for a, b in zip(rectangles.document["load_steps"], polygons.document["load_steps"],
@@ -148,22 +163,10 @@ def test_trapezoids_draped_over_a_sphere_stay_outside_it_along_their_slanted_edg
     grid inside it and 200 points along each edge) is within h/2 + margin of the sphere,
     some within the activation distance."""
     ball = {"type": "sphere", "name": "ball", "centre": [0.15, 0.1, -0.105], "radius": 0.1}
-    scene, panels, solution = _solve(_trapezoids(ball))
+    scene, panels, solution = converged(_trapezoids(ball))
     assert solution.contact.count > 0
     config = scene.model.contact
-    smallest = []
-    for i, patch in enumerate(scene.field.patches):
-        outline = patch.outline
-        (x0, x1), (y0, y1) = outline.bounds
-        s = np.linspace(0.0, 1.0, 61)
-        grid = np.stack(np.meshgrid(x0 + (x1 - x0) * s, y0 + (y1 - y0) * s), -1).reshape(-1, 2)
-        edges = [np.asarray(a) + t[:, None] * (np.asarray(b) - np.asarray(a))
-                 for a, b in map(outline.edge_points, range(len(outline.points)))
-                 for t in [np.linspace(0.0, 1.0, 200)]]
-        xi = torch.from_numpy(np.concatenate([grid[outline.contains(grid)], *edges]))
-        x = patch.model.surface.jets(xi)[:, 0] + panels.displacement_of(i, xi)[:, 0]
-        smallest.append(float(config.term().gaps(x, 1.0)[0].min()))
-    assert 0 < min(smallest) < config.activation
+    assert 0 < smallest_outline_gap(scene, panels) < config.activation
 
 
 def test_a_refusal_that_remains_names_the_panel_in_one_line(tmp_path):

@@ -8,7 +8,6 @@ in one line."""
 
 from __future__ import annotations
 
-import copy
 import tomllib
 from pathlib import Path
 
@@ -16,10 +15,10 @@ import pytest
 import torch
 
 from taichi_ndf.app.panels import combined, part_meshes
-from taichi_ndf.discretise import of_scene
 from taichi_ndf.io.mesh_check import self_intersections
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.scene.schema import SceneError
+from tests.test_contact_flat_panels import solve_garment
 
 ROOT = Path(__file__).resolve().parents[1]
 DROP = 0.05  # [m]: the upper panel's held edge above the lower panel
@@ -44,16 +43,6 @@ def _stack(self_contact: dict | None) -> dict:
     return document
 
 
-def _solve(document: dict):
-    path = ROOT / "scenes" / "x.toml"
-    scene = parse_scene(copy.deepcopy(document), base_dir=path.parent, path=path)
-    panels = of_scene(scene)
-    panels.start(scene.solver, seed=0)
-    solution = panels.solve(scene.solver)
-    panels.check_solution(solution)
-    return scene, panels, solution
-
-
 def _crossings(panels, resolution=(24, 24)) -> int:
     """Intersecting triangle pairs of the panels' output meshes joined into one mesh."""
     vertices, faces, _ = combined(part_meshes(panels.result_parts(panels.field), resolution))
@@ -72,11 +61,11 @@ def test_a_drooping_panel_crosses_the_held_one_without_self_contact_and_rests_on
     upper panel rests above the lower one, their middles about o + ĝ/2 apart (within a
     factor 1.5: the cantilever's bending carries part of its weight), and no triangle of the
     joined output meshes crosses another."""
-    plain, free, _ = _solve(_stack(None))
+    plain, free, _ = solve_garment(_stack(None))
     lower, upper = _middle_z(plain, free)
     assert upper < lower
     assert _crossings(free) > 0
-    scene, panels, solution = _solve(_stack({"distance": 0.005}))
+    scene, panels, solution = solve_garment(_stack({"distance": 0.005}))
     config = scene.model.contact.self_contact
     assert all(panels.converged)
     lower, upper = _middle_z(scene, panels)
@@ -102,9 +91,9 @@ def test_a_skirt_whose_panels_never_come_near_equals_the_run_without_self_contac
     1e-10 relative, the seams as closed (with neighbours by rest distance the two flat
     patterns' seam edges are 0.47 m apart and the sewn points would repel)."""
     document = _skirt()
-    _, _, alone = _solve(document)
+    _, _, alone = solve_garment(document)
     document["self_contact"] = {"distance": 0.005}
-    scene, panels, with_self = _solve(document)
+    scene, panels, with_self = solve_garment(document)
     assert scene.model.contact.self_contact is not None
     assert not scene.model.contact.obstacles
     assert all(panels.converged)
@@ -120,7 +109,7 @@ def test_a_seam_that_starts_wider_open_than_the_exclusion_allows_is_refused():
     document["self_contact"] = {"distance": 0.005}
     document["panels"][1]["wrap_radius"] = 0.2  # the back's sides start 0.1 m off the front's
     with pytest.raises(ValueError, match="self_contact: seam '(left|right)' starts"):
-        _solve(document)
+        solve_garment(document)
 
 
 @pytest.mark.parametrize("change, message", [
