@@ -20,11 +20,9 @@ CPU = user + sys of this process per solve (`resource.getrusage`), float64, one 
 
 from __future__ import annotations
 
-import copy
 import os
 import resource
 import sys
-import tomllib
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -33,14 +31,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' scena
 from provenance import commit  # noqa: E402
 
 import taichi_ndf  # noqa: E402
-from tests.test_contact_outline_panels import converged, smallest_outline_gap  # noqa: E402
+from tests.test_contact_outline_panels import (  # noqa: E402
+    FAR,
+    converged,
+    skirt,
+    smallest_outline_gap,
+    trapezoids,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
-TRAPEZOIDS = ({"name": "a", "outline": [[0, 0], [0.15, 0], [0.12, 0.2], [0, 0.2]],
-               "clamped": ["e2"]},
-              {"name": "b", "outline": [[0.15, 0], [0.3, 0], [0.3, 0.2], [0.12, 0.2]],
-               "clamped": ["e2"]})
-FAR = {"type": "sphere", "name": "far", "centre": [5.0, 0.0, 0.0], "radius": 0.1}
 BALL = {"type": "sphere", "name": "ball", "centre": [0.15, 0.1, -0.105], "radius": 0.1}
 
 
@@ -54,48 +53,6 @@ def solve(document: dict):
     started = cpu()
     scene, panels, solution = converged(document)
     return scene, panels, solution, cpu() - started
-
-
-def trapezoids(obstacle: dict | None) -> dict:
-    document = {"name": "trapezoids", "material": {"preset": "cotton_polyester"},
-                "loads": {"gravity": [0.0, 0.0, -9.81]},
-                "field": {"type": "spline", "spans": [6, 4]},
-                "training": {"method": "newton", "load_steps": [0.5, 1.0]},
-                "panels": copy.deepcopy(list(TRAPEZOIDS)),
-                "seams": [{"name": "slant", "a": "a.e1", "b": "b.e3",
-                           "orientation": "reversed"}]}
-    if obstacle is not None:
-        document["obstacles"] = [obstacle]
-        document["contact"] = {"check_resolution": 12}
-    return document
-
-
-def skirt(outline: bool, spans, body: dict | None = None, **panel) -> dict:
-    """scenes/skirt_body.toml's panels cut flat on `spans`, as rectangles or (outline) as
-    polygons that are those rectangles; body: its capsule (default) or another obstacle,
-    {} for none."""
-    document = tomllib.loads((ROOT / "scenes" / "skirt_body.toml").read_text())
-    document["field"]["spans"] = list(spans)
-    if body is not None:
-        document.pop("obstacles")
-        if body:
-            document["obstacles"] = [body]
-            document["contact"]["check_resolution"] = 12
-        else:
-            document.pop("contact")
-    for p in document["panels"]:
-        p.pop("probes", None)
-        p.update(rest="flat", **panel)
-        if outline:
-            width, height = p.pop("width"), p.pop("height")
-            p["outline"] = [[0.0, 0.0], [width, 0.0], [width, height], [0.0, height]]
-            p["clamped"] = ["e2"]
-    if outline:
-        document["seams"] = [{"name": "left", "a": "front.e1", "b": "back.e3",
-                              "orientation": "reversed"},
-                             {"name": "right", "a": "back.e1", "b": "front.e3",
-                              "orientation": "reversed"}]
-    return document
 
 
 def far_table() -> None:

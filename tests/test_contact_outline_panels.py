@@ -83,7 +83,7 @@ def test_a_rectangle_outlines_check_grid_is_the_rectangles_and_a_polygons_covers
     assert np.diff(along).max() < np.hypot(0.15 / 16, 0.2 / 16)  # within a grid cell's diagonal
 
 
-def _trapezoids(obstacle: dict | None) -> dict:
+def trapezoids(obstacle: dict | None) -> dict:
     document = {"name": "t", "material": dict(MATERIAL),
                 "loads": {"gravity": [0.0, 0.0, -9.81]},
                 "field": {"type": "spline", "spans": [6, 4]},
@@ -95,18 +95,26 @@ def _trapezoids(obstacle: dict | None) -> dict:
     return document
 
 
-def _skirt(outline: bool, spans, **panel) -> dict:
-    """scenes/skirt_body.toml's two panels cut flat (rest = "flat", probes dropped) on
-    `spans`, as the rectangles or (outline) as polygons that are those rectangles."""
+def skirt(outline: bool, spans, body: dict | None = None, **panel) -> dict:
+    """scenes/skirt_body.toml's panels cut flat on `spans`, as rectangles or (outline) as
+    polygons that are those rectangles; body: its capsule (default) or another obstacle,
+    {} for none."""
     document = tomllib.loads((ROOT / "scenes" / "skirt_body.toml").read_text())
     document["field"]["spans"] = list(spans)
+    if body is not None:
+        document.pop("obstacles")
+        if body:
+            document["obstacles"] = [body]
+            document["contact"]["check_resolution"] = 12
+        else:
+            document.pop("contact")
     for p in document["panels"]:
         p.pop("probes", None)
         p.update(rest="flat", **panel)
         if outline:
             width, height = p.pop("width"), p.pop("height")
             p["outline"] = [[0.0, 0.0], [width, 0.0], [width, height], [0.0, height]]
-            p["clamped"] = ["e2"]  # the top, y = height: xi2_max
+            p["clamped"] = ["e2"]
     if outline:
         document["seams"] = [{"name": "left", "a": "front.e1", "b": "back.e3",
                               "orientation": "reversed"},
@@ -125,15 +133,12 @@ def test_an_obstacle_far_away_adds_nothing_to_polygon_panels(case):
     0.12 m (6 × 4): with a sphere 5 m away each load step's Π equals the run without it to
     1e-12 relative, in as many Newton iterations, no check point added."""
     if case == "trapezoids":
-        alone, far = _trapezoids(None), _trapezoids(FAR)
+        alone, far = trapezoids(None), trapezoids(FAR)
     else:
-        alone = _skirt(True, (6, 4), held_radius=0.12)
-        alone.pop("obstacles")
-        alone.pop("contact")
-        alone["training"]["load_steps"] = [0.5, 1.0]
-        far = copy.deepcopy(alone)
-        far["obstacles"] = [FAR]
-        far["contact"] = {"check_resolution": 12}
+        alone, far = skirt(True, (6, 4), {}, held_radius=0.12), skirt(True, (6, 4), FAR,
+                                                                      held_radius=0.12)
+        for document in (alone, far):
+            document["training"]["load_steps"] = [0.5, 1.0]
     _, _, first = converged(alone)
     _, _, second = converged(far)
     for a, b in zip(first.document["load_steps"], second.document["load_steps"], strict=True):
@@ -147,8 +152,8 @@ def test_a_polygon_that_is_its_rectangle_sags_onto_a_body_as_the_rectangle_panel
     sagging onto it; 4 × 2 spans) with its panels as polygons that are the rectangles: each
     load step's Π equals the rectangles' to 1e-10 relative, with contact acting (check
     points added, more than one round)."""
-    _, _, rectangles = converged(_skirt(False, (4, 2)))
-    _, _, polygons = converged(_skirt(True, (4, 2)))
+    _, _, rectangles = converged(skirt(False, (4, 2)))
+    _, _, polygons = converged(skirt(True, (4, 2)))
     assert polygons.contact.count == rectangles.contact.count > 0
     assert polygons.contact_counts["newton_rounds"] > 3
     for a, b in zip(rectangles.document["load_steps"], polygons.document["load_steps"],
@@ -163,7 +168,7 @@ def test_trapezoids_draped_over_a_sphere_stay_outside_it_along_their_slanted_edg
     grid inside it and 200 points along each edge) is within h/2 + margin of the sphere,
     some within the activation distance."""
     ball = {"type": "sphere", "name": "ball", "centre": [0.15, 0.1, -0.105], "radius": 0.1}
-    scene, panels, solution = converged(_trapezoids(ball))
+    scene, panels, solution = converged(trapezoids(ball))
     assert solution.contact.count > 0
     config = scene.model.contact
     assert 0 < smallest_outline_gap(scene, panels) < config.activation
