@@ -21,19 +21,11 @@ from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.solve.dynamics_adjoint import gradient, record, rest_start, tangent
 from taichi_ndf.solve.handle_paths import HandlePath, PathStepper
+from tests.test_dynamics_adjoint_motion import SHEET as MOTION_SHEET
 
-SHEET = {
-    "name": "sheet",
-    "geometry": {"type": "plane", "bounds": [[0.0, 1.0], [0.0, 0.5]]},
-    "material": {"type": "linear", "young_modulus": 1.2e6, "poisson_ratio": 0.3,
-                 "thickness": 0.01, "areal_density": 1.0},
-    "boundary": {"length": 0.2, "constraint": [
-        {"type": "handle", "xi": [0.0, 0.0], "displacement": [0.0, 0.0, 0.0]},
-        {"type": "handle", "xi": [1.0, 0.0], "displacement": [0.0, 0.0, 0.0]}]},
-    "loads": {"gravity": [0.0, 9.81, 0.0]},
-    "field": {"type": "spline", "spans": [3, 2]},
-    "training": {"load_steps": [1.0]},
-}
+# test_dynamics_adjoint_motion's 1 m × 0.5 m sheet held at its two corner handles, hanging
+# along +y here
+SHEET = {**MOTION_SHEET, "loads": {"gravity": [0.0, 9.81, 0.0]}}
 # corner b starts 8 cm out of the plane (the rest state bends: it depends on B), then moves
 PATH = HandlePath((0.0, 0.05, 0.1, 0.15, 0.2),
                   np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.08]],
