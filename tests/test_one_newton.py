@@ -50,11 +50,13 @@ def _dense_of(sparse: SplineLinearisation) -> DenseLinearisation:
 
 def test_dense_and_sparse_linearisations_take_the_same_newton_steps():
     """The same iterations, step lengths (halved, full and doubled ones) and projections; Π
-    along the way equal to 1e-8 relative (the dense solve's least damping, 1e-14 of the
+    along the way equal to 1e-7 relative (the dense solve's least damping, 1e-14 of the
     Jacobi-scaled K, and the two factorisations' rounding, carried through 25 nonlinear steps:
     measured ≤ 1.6e-9 with the compiler's fast math, ≤ 6.7e-9 with IEEE arithmetic, the default
-    since 2026-12-03, whose decrements then differ by up to 3.2e-5 relative in the last steps),
-    the minimum to 1e-13."""
+    since 2026-12-03, whose decrements then differ by up to 3.2e-5 relative in the last steps;
+    on 2026-12-07 on another machine of the project's kind (an AMD EPYC: the dense
+    factorisation's rounding follows the CPU's BLAS kernels) 1.7e-8, its decrements 1.0e-4
+    apart — hence 1e-7 and 1e-3 here), the minimum to 1e-13 (measured there 4.4e-16)."""
     assembly, potential, length = _strip()
     sparse = SplineLinearisation(assembly, length=length)
     dense = _dense_of(sparse)
@@ -70,8 +72,8 @@ def test_dense_and_sparse_linearisations_take_the_same_newton_steps():
     assert {0.5, 1.0, 2.0} <= lengths and by_sparse.history[0].projected_blocks > 0
     for s, d in zip(by_sparse.history, by_dense.history, strict=True):
         assert (s.step_length, s.projected_blocks) == (d.step_length, d.projected_blocks)
-        assert d.energy == pytest.approx(s.energy, rel=1e-8, abs=1e-300)
-        assert d.decrement == pytest.approx(s.decrement, rel=1e-4, abs=1e-12 * abs(s.energy))
+        assert d.energy == pytest.approx(s.energy, rel=1e-7, abs=1e-300)
+        assert d.decrement == pytest.approx(s.decrement, rel=1e-3, abs=1e-12 * abs(s.energy))
     scale = float(by_sparse.parameters.abs().max())
     assert torch.allclose(by_dense.parameters.t(), by_sparse.parameters, rtol=0, atol=1e-9 * scale)
     assert by_dense.energy == pytest.approx(by_sparse.energy, rel=1e-13)
