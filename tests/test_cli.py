@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -14,8 +13,8 @@ import torch
 from taichi_ndf.cli import export, sim
 from taichi_ndf.minimise.checkpoint import load_checkpoint
 from taichi_ndf.minimise.state import State
+from tests.scripts import load_script
 
-ROOT = Path(__file__).resolve().parents[1]
 RUNTIME = ["--precision", "f64"]  # the test session's runtime (tests/conftest.py)
 
 # A small napkin: pinned corner, gravity, a 16-wide field, checkpoints every 5 iterations.
@@ -75,10 +74,7 @@ def interrupt_after_saving(monkeypatch, iteration: int | None = None) -> None:
 
 
 def load_demo(name: str):
-    spec = importlib.util.spec_from_file_location(f"demo_{name}", ROOT / "demos" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(f"demos/{name}.py", f"demo_{name}")
 
 
 def test_napkin_demo_quick_on_the_spline_path(tmp_path, capsys):

@@ -5,7 +5,6 @@ levels refused with exit code 2, and the per-level scene it writes being the sce
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import subprocess
@@ -13,16 +12,14 @@ import sys
 import tomllib
 from pathlib import Path
 
+from tests.scripts import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "fe_peer.py"
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("fe_peer", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["fe_peer"] = module  # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/fe_peer.py")
 
 
 def _run(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:

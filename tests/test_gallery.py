@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -14,15 +12,11 @@ from test_render_figure import fake_run
 
 import taichi_ndf.render.trajectory as trajectory
 from taichi_ndf.render.video import video_info
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests.scripts import load_script
 
 
 def gallery():
-    spec = importlib.util.spec_from_file_location("make_gallery", ROOT / "docs" / "make_gallery.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("docs/make_gallery.py")
 
 
 def test_pictures_energy_plot_video_and_overview_of_a_run(tmp_path, monkeypatch):

@@ -3,21 +3,19 @@ Newton history, on a history made by hand, and bad input refused with exit code 
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
+
+from tests.scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "newton_iterations.py"
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("newton_iterations", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/newton_iterations.py")
 
 
 def _record(level, load, energy, decrement, alpha, damping=0.0, projected=0):

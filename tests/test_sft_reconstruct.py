@@ -1,8 +1,6 @@
 """Physics-regularised shape-from-template: reconstruction, pins, silhouette term, CLI, demo."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,8 +17,8 @@ from inverse.sft.surface import surface_positions
 from inverse.sft.synth import SynthConfig, default_camera, flat_sheet, generate, write_sequence
 from inverse.sft.tracking import FrameCorrespondences
 from taichi_ndf.io import read_mesh
+from tests.scripts import load_script
 
-ROOT = Path(__file__).resolve().parents[1]
 SHEET = (0.28, 0.21)
 POSE = Pose(rotation=(0.3, -0.2, 0.0), translation=(0.0, 0.0, 0.45),
             rotation_change=(0.0, 0.0, 0.0), translation_change=(0.0, 0.0, 0.0))
@@ -151,9 +149,7 @@ def test_cli_refuses_a_missing_input(tmp_path, capsys):
 
 @pytest.mark.parametrize("field", ["spline", "siren"])
 def test_demo_quick(capsys, field):
-    spec = importlib.util.spec_from_file_location("sft_demo", ROOT / "demos" / "sft_demo.py")
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = load_script("demos/sft_demo.py")
     assert demo.main(["--quick", "--field", field, "--precision", "f64"]) == 0
     out = capsys.readouterr().out
     assert "field + KL prior" in out and "baseline" in out and f"{field} field" in out

@@ -1,22 +1,16 @@
 """The SfT study (benchmarks/sft_study.py) on one 30-frame sequence: the spline prior beats the
 per-frame baseline on e3D, chamfer and normal error (slow: minutes)."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.scripts import load_script
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("sequence, seed", [("fold", 0), ("corner", 0), ("wave", 1)])
 def test_prior_beats_the_baseline(sequence, seed):
     """wave seed 1: lost e3D while the silhouette term pulled the outline in (half a pixel)."""
-    spec = importlib.util.spec_from_file_location("sft_study", ROOT / "benchmarks" /
-                                                  "sft_study.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = load_script("benchmarks/sft_study.py")
     args = study.build_parser().parse_args(["--frames", "30"])
     rows = {r["method"]: r for r in study.study(sequence, seed, args)}
     for metric in study.COMPARED:
@@ -25,10 +19,7 @@ def test_prior_beats_the_baseline(sequence, seed):
 
 
 def test_verdict_judges_the_guided_prior_too():
-    spec = importlib.util.spec_from_file_location("sft_study", ROOT / "benchmarks" /
-                                                  "sft_study.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = load_script("benchmarks/sft_study.py")
     base = {"sequence": "fold", "seed": 0, "e3d": 2.0, "chamfer_x1e4": 2.0, "normal_deg": 2.0}
     rows = [dict(base, method="baseline"), dict(base, method="prior", e3d=1.0, chamfer_x1e4=1.0,
                                                 normal_deg=1.0),
@@ -43,10 +34,7 @@ def test_verdict_judges_the_guided_prior_too():
 def test_variant_replaces_the_named_prior_settings_and_refuses_bad_ones():
     from inverse.sft.spline_prior import SplinePriorConfig
 
-    spec = importlib.util.spec_from_file_location("sft_study", ROOT / "benchmarks" /
-                                                  "sft_study.py")
-    study = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(study)
+    study = load_script("benchmarks/sft_study.py")
     config = study.replaced(SplinePriorConfig(), ["silhouette_border_gap=3", "extrapolate=true"])
     assert config.silhouette_border_gap == 3.0 and config.extrapolate is True
     assert config.huber_px == SplinePriorConfig().huber_px

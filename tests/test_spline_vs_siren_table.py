@@ -3,20 +3,18 @@
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
+
+from tests.scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "spline_vs_siren.py"
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("spline_vs_siren", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/spline_vs_siren.py")
 
 
 def _record(**values):

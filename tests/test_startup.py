@@ -4,13 +4,13 @@ demo prints its corner sag from the result handed over before the outputs."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 
 from taichi_ndf.cli import sim
+from tests.scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNTIME = ["--precision", "f64"]  # the test session's runtime (tests/conftest.py)
@@ -63,9 +63,7 @@ def test_the_pictures_are_written_by_default(tmp_path, capsys, taichi_runtime):
 
 
 def test_the_napkin_demo_prints_its_sag_from_the_handed_over_result(monkeypatch, capsys):
-    spec = importlib.util.spec_from_file_location("demo_napkin", ROOT / "demos" / "napkin.py")
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = load_script("demos/napkin.py", "demo_napkin")
     result = {"energy": -1.6, "probes": {"free_corner": [-0.9, -0.9, -1.43]},
               "refinement": None}
 
