@@ -4,6 +4,7 @@ with the field their settings name, and both recover a tiny bent sequence."""
 
 import numpy as np
 import pytest
+import torch
 from test_sft_reconstruct import bent_pair, exact_tracks
 
 from inverse.sft.frame_fits import reconstruct_sequence
@@ -57,3 +58,31 @@ def test_initial_guesses_only_for_a_field_that_takes_them():
     with pytest.raises(ValueError, match="initial guesses are not for the spline field"):
         FrameReconstructor(template, initial=[template.vertices],
                            config=SETTINGS["spline"][0])
+
+
+def test_the_spline_field_keeps_the_samples_of_the_blocks_every_frame_passes(monkeypatch):
+    """The template's vertices (the same tensor every frame) are sampled once; a frame's own
+    points (a new tensor) are sampled anew; the rows are those of fresh samples."""
+    config, _ = SETTINGS["spline"]
+    camera = default_camera()
+    template, bent = bent_pair()
+    tracks = [exact_tracks(template, v, camera) for v in (template.vertices, bent)]
+    seen = Seen()
+    reconstruct_sequence(template, camera, tracks, config, callbacks=[seen])
+    (fit,) = seen.fits
+    field = fit.frame_field
+    sampled = []
+    original = field._samples_at
+    monkeypatch.setattr(field, "_samples_at", lambda xi: sampled.append(xi) or original(xi))
+    frame_points = fit.vertex_xi[:5].clone()
+    field.rows([frame_points, fit.vertex_xi])
+    kept = field.rows([frame_points.clone(), fit.vertex_xi])
+    kept_jets = field.linearisation.assembly.samples.r_jets
+    # the vertices kept from the sequence's last frame: only the frame's points sampled
+    assert len(sampled) == 2 and not any(xi is fit.vertex_xi for xi in sampled)
+    monkeypatch.setattr(field, "_last_blocks", {})
+    fresh = field.rows([frame_points, fit.vertex_xi])
+    assert len(sampled) == 4 and sampled[3] is fit.vertex_xi
+    for a, b in zip(kept, fresh, strict=True):
+        assert torch.equal(a, b)
+    assert torch.equal(kept_jets, field.linearisation.assembly.samples.r_jets)

@@ -114,6 +114,7 @@ class SplineFrameField:
                                       length=math.sqrt(surface.domain.rectangle_area))
         self.linearisation = None
         self._previous = None  # the coefficients of the frame before the last
+        self._last_blocks = {}  # id → (ξ, samples) of the last frame's blocks (`rows`)
         self.newton = NewtonConfig(
             max_iterations=cfg.max_iterations, decrement_tolerance=cfg.tolerance,
             gradient_tolerance=1e-8, floor_tolerance=cfg.tolerance)
@@ -133,9 +134,15 @@ class SplineFrameField:
     def rows(self, blocks: Sequence[torch.Tensor]) -> list[torch.Tensor]:
         """The frame's linearisation on the quadrature and the data points (zero weight) after
         it; the rows of each block in its assembly's (reordered) samples."""
-        samples = self.quadrature
+        samples, kept = self.quadrature, {}
         for xi in blocks:
-            samples = samples.joined(self._samples_at(xi))
+            # a block passed again (the same tensor: the template's vertices, the border
+            # curve; never changed in place) keeps its samples from the last frame
+            last = self._last_blocks.get(id(xi))
+            block = last[1] if last is not None and last[0] is xi else self._samples_at(xi)
+            kept[id(xi)] = (xi, block)
+            samples = samples.joined(block)
+        self._last_blocks = kept
         self.linearisation = self.grid.linearisation(1.0, samples)
         order = self.linearisation.assembly.order
         position = torch.empty_like(order)
