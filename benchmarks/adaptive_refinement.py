@@ -54,36 +54,59 @@ def cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+# napkin rows: label -> (first spans: None = --start; [field] grading; the solve: "uniform"
+# (`solve_spline`, --napkin-levels dyadic grids), "adaptive" (`solve_adaptive` with
+# --indicator), "features" (`solve_adaptive`, every grid graded by its own spans), or "single"
+# (one grid by load continuation from zero: what the projection warm start saves))
+NAPKIN_ROWS = {
+    "uniform": (None, "uniform", "uniform"),
+    "adaptive": (None, "uniform", "adaptive"),
+    "adaptive, features first": (None, "features", "adaptive"),
+    "uniform, features": (None, "features", "uniform"),
+    "features per level": (None, "uniform", "features"),
+    "uniform 8²": (8, "uniform", "uniform"),
+    "features 24² single": (24, "features", "single"),
+}
+
+
 def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
                 rows: tuple[str, ...] = ("uniform", "adaptive", "adaptive, features first",
                                          "uniform, features")) -> None:
     print(f"\nnapkin from {start} × {start} spans, Π∞ = {PI_INF} J\n")
     print("| refinement | grids | finest unknowns | Π [J] | Π − Π∞ | estimate ± bar (how) | "
-          "holds Π∞ | free corner u_z [m] | CPU [s] | wall [s] | load |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for label, grading, adaptive in (("uniform", "uniform", False),
-                                     ("adaptive", "uniform", True),
-                                     ("adaptive, features first", "features", True),
-                                     ("uniform, features", "features", False)):
-        if label not in rows:
-            continue
+          "holds Π∞ | bar / distance | free corner u_z [m] | finest grid: Newton its, s | "
+          "CPU [s] | wall [s] | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for label in rows:
+        first, grading, how = NAPKIN_ROWS[label]
+        n = first or start
         scene = load_scene(ROOT / "scenes" / "napkin.toml", field="spline",
-                           overrides={"field.spans": [start, start], "field.grading": grading})
+                           overrides={"field.spans": [n, n], "field.grading": grading})
         solver = dataclasses.replace(scene.solver, progress=False)
         cpu, wall = cpu_seconds(), time.perf_counter()
-        if adaptive:
+        if how in ("adaptive", "features"):
+            rule = INDICATOR[0] if how == "adaptive" else "features"
             run = solve_adaptive(scene.model, scene.field, solver,
-                                 AdaptiveConfig(tolerance, budget, INDICATOR[0]))
+                                 AdaptiveConfig(tolerance, budget, rule))
         else:
-            run = solve_spline(scene.model, dataclasses.replace(scene.field, levels=levels),
-                               dataclasses.replace(solver, max_levels=0))
+            run = solve_spline(scene.model, dataclasses.replace(
+                scene.field, levels=1 if how == "single" else levels),
+                dataclasses.replace(solver, max_levels=0))
         cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
-        estimate = richardson([lv.energy for lv in run.levels], order=4.0)
-        holds = abs(estimate.value - PI_INF) <= estimate.error
+        energies = [lv.energy for lv in run.levels]
+        if len(energies) >= 3:
+            estimate = richardson(energies[-3:], order=4.0)
+            distance = abs(estimate.value - PI_INF)
+            holds = "yes" if distance <= estimate.error else "**no**"
+            described, ratio = estimate.describe(), f"{estimate.error / distance:.3g}"
+        else:
+            described, holds, ratio = "—", "—", "—"
         grids = " / ".join(f"{lv.spans[0]}²" for lv in run.levels)
+        last = run.levels[-1]
         print(f"| {label} | {grids} | {unknowns(run.field.config)} | {run.energy:.6f} | "
-              f"{100 * (run.energy - PI_INF) / abs(PI_INF):+.2f} % | {estimate.describe()} | "
-              f"{'yes' if holds else '**no**'} | {run.probes['free_corner'][2]:.6f} | "
+              f"{100 * (run.energy - PI_INF) / abs(PI_INF):+.2f} % | {described} | {holds} | "
+              f"{ratio} | {run.probes['free_corner'][2]:.6f} | {last.iterations}, "
+              f"{last.seconds:.1f}{'' if last.converged else ' (not converged)'} | "
               f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
 
 
@@ -184,8 +207,9 @@ def main() -> None:
     parser.add_argument("--napkin-budget", type=int, default=3000)
     parser.add_argument("--napkin-tolerance", type=float, default=3e-3)
     parser.add_argument("--napkin-levels", type=int, default=3, help="uniform: grids")
-    parser.add_argument("--napkin-rows", default="uniform,adaptive,adaptive, features first,"
-                        "uniform, features", help="comma-separated row labels (of the four)")
+    parser.add_argument("--napkin-rows", default="uniform;uniform 8²;features per level;"
+                        "features 24² single", help="semicolon-separated row labels "
+                        "(NAPKIN_ROWS)")
     parser.add_argument("--tolerance", type=float, default=1e-3)
     parser.add_argument("--budget", type=int, default=20000)
     parser.add_argument("--indicator", default="density",
@@ -199,10 +223,7 @@ def main() -> None:
           f"load {os.getloadavg()[0]:.1f}")
     parts = args.parts.split(",")
     if "napkin" in parts:
-        labels = args.napkin_rows.split(",")
-        rows = tuple(a if not b.startswith(" ") else a + "," + b
-                     for a, b in zip(labels, labels[1:] + [""], strict=True)
-                     if not a.startswith(" "))
+        rows = tuple(args.napkin_rows.split(";"))
         napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance, args.napkin_levels,
                     rows)
     if "validation" in parts:
