@@ -36,6 +36,7 @@ import torch
 
 import taichi_ndf
 from taichi_ndf.minimise.refinement import richardson
+from taichi_ndf.objective import Objective
 from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.solve.adaptive import AdaptiveConfig, solve_adaptive, solve_on, unknowns
 from taichi_ndf.solve.spline_solver import solve_spline
@@ -108,6 +109,57 @@ def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
               f"{ratio} | {run.probes['free_corner'][2]:.6f} | {last.iterations}, "
               f"{last.seconds:.1f}{'' if last.converged else ' (not converged)'} | "
               f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
+
+
+def interior_rows(names, tolerance: float, budget: int, levels: int = 3) -> None:
+    """Shipped scenes with a pinned interior point / line from the grid rule's grid: uniform
+    dyadic refinement (`levels` grids) and the default `--tolerance` grids (each graded
+    towards the features by its own spans) within `budget`; the estimate of Π over the last
+    three grids against a finer solve: the next grid of the graded sequence (2 × the final
+    spans, graded by its own spans), warm-started from the final solution by projection;
+    and the SIREN's Π of benchmarks/spline_vs_siren.json."""
+    import json
+
+    from taichi_ndf.solve.adaptive import features_grid
+
+    table = json.loads((ROOT / "benchmarks" / "spline_vs_siren.json").read_text())
+    print(f"\nshipped scenes: uniform {levels} grids and --tolerance {tolerance:g} (budget "
+          f"{budget}), graded per level\n")
+    print("| scene | refinement | grids | finest unknowns | Π [J] | estimate ± bar (how) | "
+          "finer solve Π [J] (spans, its, CPU s) | distance | bar / distance | holds | "
+          "SIREN Π [J] | ≤ SIREN | CPU [s] | wall [s] | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for name in names:
+        siren = table[name]["siren"]["energy"]
+        for label in ("uniform", "features per level"):
+            scene = load_scene(ROOT / "scenes" / f"{name}.toml", field="spline")
+            solver = dataclasses.replace(scene.solver, progress=False)
+            cpu, wall = cpu_seconds(), time.perf_counter()
+            if label == "uniform":
+                run = solve_spline(scene.model, dataclasses.replace(scene.field, levels=levels),
+                                   dataclasses.replace(solver, max_levels=0))
+            else:
+                run = solve_adaptive(scene.model, scene.field, solver,
+                                     AdaptiveConfig(tolerance, budget, "features"))
+            cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
+            estimate = richardson([lv.energy for lv in run.levels][-3:], order=4.0)
+            fine_text, distance, ratio, holds = "—", "—", "—", "—"
+            if label != "uniform":
+                fine_config = features_grid(run.field.config.refined(), scene.model)
+                fine_cpu = cpu_seconds()
+                _, fine = solve_on(scene.model, run.field, fine_config, scene.field, solver,
+                                   Objective.of_model(scene.model), coarse_energy=run.energy)
+                fine_cpu = cpu_seconds() - fine_cpu
+                d = abs(estimate.value - fine.energy)
+                fine_text = (f"{fine.energy:.6f} ({fine_config.spans[0]}², "
+                             f"{len(fine.history)}, {fine_cpu:.0f})")
+                distance, ratio = f"{d:.2g}", f"{estimate.error / d:.3g}"
+                holds = "yes" if d <= estimate.error else "**no**"
+            grids = " / ".join(f"{lv.spans[0]}²" for lv in run.levels)
+            print(f"| {name} | {label} | {grids} | {unknowns(run.field.config)} | "
+                  f"{run.energy:.6f} | {estimate.describe()} | {fine_text} | {distance} | "
+                  f"{ratio} | {holds} | {siren:.6f} | {'yes' if run.energy <= siren else 'no'} "
+                  f"| {cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
 
 
 def validation_rows(cases, tolerance: float, budget: int) -> None:
@@ -214,6 +266,10 @@ def main() -> None:
     parser.add_argument("--budget", type=int, default=20000)
     parser.add_argument("--indicator", default="density",
                         help="the adaptive rows' indicator (none: dyadic, as uniform)")
+    parser.add_argument("--scenes", default="napkin_interior_point,napkin_interior_line",
+                        help="interior: the shipped scenes")
+    parser.add_argument("--scene-budget", type=int, default=6000,
+                        help="interior: the budget of unknowns")
     parser.add_argument("--cases", default="square_plate,cantilever_shear,scordelis_lo_roof")
     args = parser.parse_args()
     INDICATOR[0] = args.indicator
@@ -226,6 +282,8 @@ def main() -> None:
         rows = tuple(args.napkin_rows.split(";"))
         napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance, args.napkin_levels,
                     rows)
+    if "interior" in parts:
+        interior_rows(args.scenes.split(","), args.tolerance, args.scene_budget)
     if "validation" in parts:
         validation_rows(args.cases.split(","), args.tolerance, args.budget)
 
