@@ -204,6 +204,15 @@ def validation_rows(cases, tolerance: float, budget: int, fine: bool = True) -> 
                 print(f"| {name} | {row.quantity} | {row.level:g} | {label} | {grids} | "
                       f"{finest} | {row.computed:.7g} | {row.reference:.6g} | {error} | "
                       f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
+            if label == "uniform" and not fine:  # its grids' values and their estimate
+                order = 4.0  # 2(p − 1), cubic
+                for key, (_axis, values) in result.convergence.items():
+                    if not key.endswith(f"@ {result.rows[-1].level:g}") or len(values) < 3:
+                        continue
+                    estimate = richardson(list(values), order=order)
+                    coverage.append(f"| {name} (uniform) | {key} | "
+                                    f"{', '.join(f'{v:.7g}' for v in values)} | "
+                                    f"{estimate.describe()} | | | | | |")
             if label == "adaptive":
                 coverage += case_coverage(case, result, captured[-1], LINEARISATION, runner,
                                           fine)
