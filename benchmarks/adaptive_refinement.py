@@ -111,7 +111,8 @@ def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
               f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
 
 
-def interior_rows(names, tolerance: float, budget: int, levels: int = 3) -> None:
+def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: bool = True
+                  ) -> None:
     """Shipped scenes with a pinned interior point / line from the grid rule's grid: uniform
     dyadic refinement (`levels` grids) and the default `--tolerance` grids (each graded
     towards the features by its own spans) within `budget`; the estimate of Π over the last
@@ -144,7 +145,7 @@ def interior_rows(names, tolerance: float, budget: int, levels: int = 3) -> None
             cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
             estimate = richardson([lv.energy for lv in run.levels][-3:], order=4.0)
             fine_text, distance, ratio, holds = "—", "—", "—", "—"
-            if label != "uniform":
+            if label != "uniform" and fine:
                 fine_config = features_grid(run.field.config.refined(), scene.model)
                 fine_cpu = cpu_seconds()
                 _, fine = solve_on(scene.model, run.field, fine_config, scene.field, solver,
@@ -297,7 +298,8 @@ def main() -> None:
     parser.add_argument("--scene-budget", type=int, default=6000,
                         help="interior: the budget of unknowns")
     parser.add_argument("--no-fine", action="store_true",
-                        help="validation: no fine reference solve (too large for the machine)")
+                        help="validation, interior: no fine reference solve (too large for "
+                        "the machine)")
     parser.add_argument("--cases", default="square_plate,cantilever_shear,scordelis_lo_roof")
     args = parser.parse_args()
     INDICATOR[0] = args.indicator
@@ -311,7 +313,8 @@ def main() -> None:
         napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance, args.napkin_levels,
                     rows)
     if "interior" in parts:
-        interior_rows(args.scenes.split(","), args.tolerance, args.scene_budget)
+        interior_rows(args.scenes.split(","), args.tolerance, args.scene_budget,
+                      fine=not args.no_fine)
     if "validation" in parts:
         validation_rows(args.cases.split(","), args.tolerance, args.budget, not args.no_fine)
 
