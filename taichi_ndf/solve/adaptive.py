@@ -18,8 +18,8 @@ has GROWTH (2) times the spans per direction of the one before, its knots placed
 
     level 0: the plan's first grid (with "features" graded by its spans), by load
                  continuation (`solve_spline`);
-    level 1: its dyadic refinement (the same grading), each load step from level 0; with
-                 "features" (and features) a regraded grid as level k ≥ 2;
+    level 1: its dyadic refinement (the same grading), each load step from level 0; where
+                 the grids are graded by "features", regraded and solved as level k ≥ 2;
     level k ≥ 2: spans × 2, knots by the rule above (an indicator: of levels k−2 → k−1 at the
                  last load factor); each load step started from level k−1's solution at that
                  load factor projected onto the new grid (weighted least squares of the field
