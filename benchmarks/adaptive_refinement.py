@@ -2,23 +2,30 @@
 spline field + projected Newton, float64, one thread, side by side in one process.
 
 Parts (`--parts`):
-- napkin: scenes/napkin.toml (free pin at a corner) from n × n spans (`--start`): uniform
-  dyadic refinement (`solve_spline`, 3 levels) and the adaptive loop (`solve_adaptive`, from a
-  uniform and from a features-graded first grid) within `--napkin-budget` unknowns; Π against
-  Π∞ = −1.64998 J (benchmarks/RESULTS.md, "Graded knots"), the estimate and whether its bar
-  holds Π∞;
+- napkin: scenes/napkin.toml (free pin at a corner) from n × n spans (`--start`), the rows of
+  `NAPKIN_ROWS` named by `--napkin-rows`: uniform dyadic refinement (`solve_spline`, 3
+  levels, from n² or 8²), the adaptive loop (`solve_adaptive`: `--indicator`, from a uniform
+  or a features-graded first grid, or every grid graded towards the pin by its own spans) within
+  `--napkin-budget` unknowns, one features-graded 24² from zero (what the warm start saves);
+  Π against Π∞ = −1.64998 J (benchmarks/RESULTS.md, "Graded knots"), the estimate and
+  whether its bar holds Π∞;
+- interior: the shipped scenes `--scenes` (napkin_interior_point, napkin_interior_line) from
+  the grid rule's grid: uniform (3 grids) and `--tolerance` graded per level within
+  `--scene-budget`; the estimate against the next graded grid, and the SIREN's Π
+  (benchmarks/spline_vs_siren.json);
 - validation: the validation cases with `--tolerance` (the adaptive loop through the
   validation runner, from the grid rule's grid) beside `ndf-validate --field spline` (3
   uniform grids): each quantity against its published reference, and the adaptive
   estimate of the quantity at the last load (the guarded three-grid rule over the adaptive
   sequence) against a fine reference: the case solved on a uniform grid of 2 × the final
-  adaptive spans per direction, warm-started from the final adaptive solution.
+  adaptive spans per direction, warm-started from the final adaptive solution (`--no-fine`:
+  none; each quantity's values on the three grids of both rows and their estimates instead).
 
 CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
 average after it (the machine is shared).
 
-    python benchmarks/adaptive_refinement.py [--parts napkin,validation] [--start 6]
-        [--tolerance 1e-3] [--budget 20000] [--cases a,b]
+    python benchmarks/adaptive_refinement.py [--parts napkin,interior,validation] [--start 6]
+        [--tolerance 1e-3] [--budget 20000] [--cases a,b] [--indicator features] [--no-fine]
 """
 
 from __future__ import annotations
