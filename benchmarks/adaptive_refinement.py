@@ -2,23 +2,30 @@
 spline field + projected Newton, float64, one thread, side by side in one process.
 
 Parts (`--parts`):
-- napkin: scenes/napkin.toml (free pin at a corner) from n × n spans (`--start`): uniform
-  dyadic refinement (`solve_spline`, 3 levels) and the adaptive loop (`solve_adaptive`, from a
-  uniform and from a features-graded first grid) within `--napkin-budget` unknowns; Π against
-  Π∞ = −1.64998 J (benchmarks/RESULTS.md, "Graded knots"), the estimate and whether its bar
-  holds Π∞;
+- napkin: scenes/napkin.toml (free pin at a corner) from n × n spans (`--start`), the rows of
+  `NAPKIN_ROWS` named by `--napkin-rows`: uniform dyadic refinement (`solve_spline`, 3
+  levels, from n² or 8²), the adaptive loop (`solve_adaptive`: `--indicator`, from a uniform
+  or a features-graded first grid, or every grid graded towards the pin by its own spans) within
+  `--napkin-budget` unknowns, one features-graded 24² from zero (what the warm start saves);
+  Π against Π∞ = −1.64998 J (benchmarks/RESULTS.md, "Graded knots"), the estimate and
+  whether its bar holds Π∞;
+- interior: the shipped scenes `--scenes` (napkin_interior_point, napkin_interior_line) from
+  the grid rule's grid: uniform (3 grids) and `--tolerance` graded per level within
+  `--scene-budget`; the estimate against the next graded grid, and the SIREN's Π
+  (benchmarks/spline_vs_siren.json);
 - validation: the validation cases with `--tolerance` (the adaptive loop through the
   validation runner, from the grid rule's grid) beside `ndf-validate --field spline` (3
   uniform grids): each quantity against its published reference, and the adaptive
   estimate of the quantity at the last load (the guarded three-grid rule over the adaptive
   sequence) against a fine reference: the case solved on a uniform grid of 2 × the final
-  adaptive spans per direction, warm-started from the final adaptive solution.
+  adaptive spans per direction, warm-started from the final adaptive solution (`--no-fine`:
+  none; each quantity's values on the three grids of both rows and their estimates instead).
 
 CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
 average after it (the machine is shared).
 
-    python benchmarks/adaptive_refinement.py [--parts napkin,validation] [--start 6]
-        [--tolerance 1e-3] [--budget 20000] [--cases a,b]
+    python benchmarks/adaptive_refinement.py [--parts napkin,interior,validation] [--start 6]
+        [--tolerance 1e-3] [--budget 20000] [--cases a,b] [--indicator features] [--no-fine]
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ import torch
 
 import taichi_ndf
 from taichi_ndf.minimise.refinement import richardson
+from taichi_ndf.objective import Objective
 from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.solve.adaptive import AdaptiveConfig, solve_adaptive, solve_on, unknowns
 from taichi_ndf.solve.spline_solver import solve_spline
@@ -54,40 +62,115 @@ def cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+# napkin rows: label -> (first spans: None = --start; [field] grading; the solve: "uniform"
+# (`solve_spline`, --napkin-levels dyadic grids), "adaptive" (`solve_adaptive` with
+# --indicator), "features" (`solve_adaptive`, every grid graded by its own spans), or "single"
+# (one grid by load continuation from zero: what the projection warm start saves))
+NAPKIN_ROWS = {
+    "uniform": (None, "uniform", "uniform"),
+    "adaptive": (None, "uniform", "adaptive"),
+    "adaptive, features first": (None, "features", "adaptive"),
+    "uniform, features": (None, "features", "uniform"),
+    "features per level": (None, "uniform", "features"),
+    "uniform 8²": (8, "uniform", "uniform"),
+    "features 24² single": (24, "features", "single"),
+}
+
+
 def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
                 rows: tuple[str, ...] = ("uniform", "adaptive", "adaptive, features first",
                                          "uniform, features")) -> None:
     print(f"\nnapkin from {start} × {start} spans, Π∞ = {PI_INF} J\n")
     print("| refinement | grids | finest unknowns | Π [J] | Π − Π∞ | estimate ± bar (how) | "
-          "holds Π∞ | free corner u_z [m] | CPU [s] | wall [s] | load |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for label, grading, adaptive in (("uniform", "uniform", False),
-                                     ("adaptive", "uniform", True),
-                                     ("adaptive, features first", "features", True),
-                                     ("uniform, features", "features", False)):
-        if label not in rows:
-            continue
+          "holds Π∞ | bar / distance | free corner u_z [m] | finest grid: Newton its, s | "
+          "CPU [s] | wall [s] | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for label in rows:
+        first, grading, how = NAPKIN_ROWS[label]
+        n = first or start
         scene = load_scene(ROOT / "scenes" / "napkin.toml", field="spline",
-                           overrides={"field.spans": [start, start], "field.grading": grading})
+                           overrides={"field.spans": [n, n], "field.grading": grading})
         solver = dataclasses.replace(scene.solver, progress=False)
         cpu, wall = cpu_seconds(), time.perf_counter()
-        if adaptive:
+        if how in ("adaptive", "features"):
+            rule = INDICATOR[0] if how == "adaptive" else "features"
             run = solve_adaptive(scene.model, scene.field, solver,
-                                 AdaptiveConfig(tolerance, budget, INDICATOR[0]))
+                                 AdaptiveConfig(tolerance, budget, rule))
         else:
-            run = solve_spline(scene.model, dataclasses.replace(scene.field, levels=levels),
-                               dataclasses.replace(solver, max_levels=0))
+            run = solve_spline(scene.model, dataclasses.replace(
+                scene.field, levels=1 if how == "single" else levels),
+                dataclasses.replace(solver, max_levels=0))
         cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
-        estimate = richardson([lv.energy for lv in run.levels], order=4.0)
-        holds = abs(estimate.value - PI_INF) <= estimate.error
+        energies = [lv.energy for lv in run.levels]
+        if len(energies) >= 3:
+            estimate = richardson(energies[-3:], order=4.0)
+            distance = abs(estimate.value - PI_INF)
+            holds = "yes" if distance <= estimate.error else "**no**"
+            described, ratio = estimate.describe(), f"{estimate.error / distance:.3g}"
+        else:
+            described, holds, ratio = "—", "—", "—"
         grids = " / ".join(f"{lv.spans[0]}²" for lv in run.levels)
+        last = run.levels[-1]
         print(f"| {label} | {grids} | {unknowns(run.field.config)} | {run.energy:.6f} | "
-              f"{100 * (run.energy - PI_INF) / abs(PI_INF):+.2f} % | {estimate.describe()} | "
-              f"{'yes' if holds else '**no**'} | {run.probes['free_corner'][2]:.6f} | "
+              f"{100 * (run.energy - PI_INF) / abs(PI_INF):+.2f} % | {described} | {holds} | "
+              f"{ratio} | {run.probes['free_corner'][2]:.6f} | {last.iterations}, "
+              f"{last.seconds:.1f}{'' if last.converged else ' (not converged)'} | "
               f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
 
 
-def validation_rows(cases, tolerance: float, budget: int) -> None:
+def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: bool = True
+                  ) -> None:
+    """Shipped scenes with a pinned interior point / line from the grid rule's grid: uniform
+    dyadic refinement (`levels` grids) and the default `--tolerance` grids (each graded
+    towards the features by its own spans) within `budget`; the estimate of Π over the last
+    three grids against a finer solve: the next grid of the graded sequence (2 × the final
+    spans, graded by its own spans), warm-started from the final solution by projection;
+    and the SIREN's Π of benchmarks/spline_vs_siren.json."""
+    import json
+
+    from taichi_ndf.solve.adaptive import features_grid
+
+    table = json.loads((ROOT / "benchmarks" / "spline_vs_siren.json").read_text())
+    print(f"\nshipped scenes: uniform {levels} grids and --tolerance {tolerance:g} (budget "
+          f"{budget}), graded per level\n")
+    print("| scene | refinement | grids | finest unknowns | Π [J] | estimate ± bar (how) | "
+          "finer solve Π [J] (spans, its, CPU s) | distance | bar / distance | holds | "
+          "SIREN Π [J] | ≤ SIREN | CPU [s] | wall [s] | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for name in names:
+        siren = table[name]["siren"]["energy"]
+        for label in ("uniform", "features per level"):
+            scene = load_scene(ROOT / "scenes" / f"{name}.toml", field="spline")
+            solver = dataclasses.replace(scene.solver, progress=False)
+            cpu, wall = cpu_seconds(), time.perf_counter()
+            if label == "uniform":
+                run = solve_spline(scene.model, dataclasses.replace(scene.field, levels=levels),
+                                   dataclasses.replace(solver, max_levels=0))
+            else:
+                run = solve_adaptive(scene.model, scene.field, solver,
+                                     AdaptiveConfig(tolerance, budget, "features"))
+            cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
+            estimate = richardson([lv.energy for lv in run.levels][-3:], order=4.0)
+            fine_text, distance, ratio, holds = "—", "—", "—", "—"
+            if label != "uniform" and fine:
+                fine_config = features_grid(run.field.config.refined(), scene.model)
+                fine_cpu = cpu_seconds()
+                _, fine = solve_on(scene.model, run.field, fine_config, scene.field, solver,
+                                   Objective.of_model(scene.model), coarse_energy=run.energy)
+                fine_cpu = cpu_seconds() - fine_cpu
+                d = abs(estimate.value - fine.energy)
+                fine_text = (f"{fine.energy:.6f} ({fine_config.spans[0]}², "
+                             f"{len(fine.history)}, {fine_cpu:.0f})")
+                distance, ratio = f"{d:.2g}", f"{estimate.error / d:.3g}"
+                holds = "yes" if d <= estimate.error else "**no**"
+            grids = " / ".join(f"{lv.spans[0]}²" for lv in run.levels)
+            print(f"| {name} | {label} | {grids} | {unknowns(run.field.config)} | "
+                  f"{run.energy:.6f} | {estimate.describe()} | {fine_text} | {distance} | "
+                  f"{ratio} | {holds} | {siren:.6f} | {'yes' if run.energy <= siren else 'no'} "
+                  f"| {cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
+
+
+def validation_rows(cases, tolerance: float, budget: int, fine: bool = True) -> None:
     from taichi_ndf.discretise.adaptive import AdaptiveDiscretisation
     from taichi_ndf.validation import CASES, runner
     from taichi_ndf.validation.catalogue import LINEARISATION
@@ -129,8 +212,18 @@ def validation_rows(cases, tolerance: float, budget: int) -> None:
                 print(f"| {name} | {row.quantity} | {row.level:g} | {label} | {grids} | "
                       f"{finest} | {row.computed:.7g} | {row.reference:.6g} | {error} | "
                       f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
+            if label == "uniform" and not fine:  # its grids' values and their estimate
+                order = 4.0  # 2(p − 1), cubic
+                for key, (_axis, values) in result.convergence.items():
+                    if not key.endswith(f"@ {result.rows[-1].level:g}") or len(values) < 3:
+                        continue
+                    estimate = richardson(list(values), order=order)
+                    coverage.append(f"| {name} (uniform) | {key} | "
+                                    f"{', '.join(f'{v:.7g}' for v in values)} | "
+                                    f"{estimate.describe()} | | | | | |")
             if label == "adaptive":
-                coverage += case_coverage(case, result, captured[-1], LINEARISATION, runner)
+                coverage += case_coverage(case, result, captured[-1], LINEARISATION, runner,
+                                          fine)
         runner.discretisation = original
     print("\nestimate of the adaptive run (last load) against the fine reference (uniform, 2 × "
           "the final spans per direction, warm-started)\n")
@@ -141,9 +234,11 @@ def validation_rows(cases, tolerance: float, budget: int) -> None:
         print(row, flush=True)
 
 
-def case_coverage(case, result, discretisation, linearisation, runner) -> list[str]:
+def case_coverage(case, result, discretisation, linearisation, runner, fine: bool = True
+                  ) -> list[str]:
     """Rows: each quantity at the last load factor and Π, the adaptive estimate against a
-    solve on a uniform grid of 2 × the final spans per direction."""
+    solve on a uniform grid of 2 × the final spans per direction (fine: else the estimate
+    alone, with its published reference where the quantity has one)."""
     run, model = discretisation.run, discretisation.model
     unit = linearisation if case.linear else 1.0
     last = run.load_steps[-1]["load_factor"]
@@ -151,6 +246,20 @@ def case_coverage(case, result, discretisation, linearisation, runner) -> list[s
     fine_config = dataclasses.replace(run.field.config,
                                       spans=tuple(2 * n for n in run.field.config.spans),
                                       grading=(None, None))
+    if not fine:
+        rows = []
+        for q in case.quantities:
+            if abs(q.level - last) > 1e-12:
+                continue
+            values = [q.read({n: np.asarray(v) / unit for n, v in lv.probes.items()}, positions)
+                      for lv in run.levels]
+            estimate = richardson(values, order=2.0 * (run.field.config.degree - 1))
+            rows.append(f"| {case.name} | {q.name} | {', '.join(f'{v:.7g}' for v in values)} "
+                        f"| {estimate.describe()} | published {q.reference:.6g} (no fine solve) "
+                        f"| {abs(estimate.value - q.reference):.2g} | | "
+                        f"{'yes' if abs(estimate.value - q.reference) <= estimate.error else 'no'}"
+                        " | |")
+        return rows
     cpu = cpu_seconds()
     _, fine = solve_on(model, run.field, fine_config, discretisation.spec, run.config,
                        discretisation.objective or runner._objective(case, model),
@@ -184,12 +293,20 @@ def main() -> None:
     parser.add_argument("--napkin-budget", type=int, default=3000)
     parser.add_argument("--napkin-tolerance", type=float, default=3e-3)
     parser.add_argument("--napkin-levels", type=int, default=3, help="uniform: grids")
-    parser.add_argument("--napkin-rows", default="uniform,adaptive,adaptive, features first,"
-                        "uniform, features", help="comma-separated row labels (of the four)")
+    parser.add_argument("--napkin-rows", default="uniform;uniform 8²;features per level;"
+                        "features 24² single", help="semicolon-separated row labels "
+                        "(NAPKIN_ROWS)")
     parser.add_argument("--tolerance", type=float, default=1e-3)
     parser.add_argument("--budget", type=int, default=20000)
     parser.add_argument("--indicator", default="density",
                         help="the adaptive rows' indicator (none: dyadic, as uniform)")
+    parser.add_argument("--scenes", default="napkin_interior_point,napkin_interior_line",
+                        help="interior: the shipped scenes")
+    parser.add_argument("--scene-budget", type=int, default=6000,
+                        help="interior: the budget of unknowns")
+    parser.add_argument("--no-fine", action="store_true",
+                        help="validation, interior: no fine reference solve (too large for "
+                        "the machine)")
     parser.add_argument("--cases", default="square_plate,cantilever_shear,scordelis_lo_roof")
     args = parser.parse_args()
     INDICATOR[0] = args.indicator
@@ -199,14 +316,14 @@ def main() -> None:
           f"load {os.getloadavg()[0]:.1f}")
     parts = args.parts.split(",")
     if "napkin" in parts:
-        labels = args.napkin_rows.split(",")
-        rows = tuple(a if not b.startswith(" ") else a + "," + b
-                     for a, b in zip(labels, labels[1:] + [""], strict=True)
-                     if not a.startswith(" "))
+        rows = tuple(args.napkin_rows.split(";"))
         napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance, args.napkin_levels,
                     rows)
+    if "interior" in parts:
+        interior_rows(args.scenes.split(","), args.tolerance, args.scene_budget,
+                      fine=not args.no_fine)
     if "validation" in parts:
-        validation_rows(args.cases.split(","), args.tolerance, args.budget)
+        validation_rows(args.cases.split(","), args.tolerance, args.budget, not args.no_fine)
 
 
 if __name__ == "__main__":

@@ -170,15 +170,67 @@ def test_bad_requests_exit_2_in_one_line(tmp_path, capsys, extra, message):
 
 
 def test_without_an_indicator_the_grids_are_dyadic(tmp_path):
-    """--tolerance alone: 3² → 6² → 12² uniform; the tolerance met, or the budget."""
+    """--indicator none: 3² → 6² → 12² uniform; the tolerance met, or the budget."""
+    out = tmp_path / "run"
+    assert run_sim("scenes/napkin.toml", "--out", out, "--field", "spline", "--set",
+                   "field.spans=[3,3]", "--tolerance", "1e-3", "--max-unknowns", "700",
+                   "--indicator", "none", "--no-pictures") == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["refinement"]["spans"] == [[3, 3], [6, 6], [12, 12]]
+    assert result["refinement"]["adaptive"]["indicator"] == "none"
+    assert result["resolved"]["field"]["finest_grading"] == [None, None]
+
+
+def test_by_default_every_grid_is_graded_towards_the_pin_by_its_own_spans(tmp_path):
+    """--tolerance alone on the napkin (a pin at a corner): 3² → 6² → 12², each grid graded
+    towards the pin with the core one span of that grid (not of the first: the graded core
+    shrinks with the span), half its spans graded; the finest grid is the features grading
+    of 12² spans."""
+    from taichi_ndf.problem.spline_grid import graded_config
+    from taichi_ndf.scene.reader import load_scene
+
     out = tmp_path / "run"
     assert run_sim("scenes/napkin.toml", "--out", out, "--field", "spline", "--set",
                    "field.spans=[3,3]", "--tolerance", "1e-3", "--max-unknowns", "700",
                    "--no-pictures") == 0
     result = json.loads((out / "result.json").read_text())
-    assert result["refinement"]["spans"] == [[3, 3], [6, 6], [12, 12]]
-    assert result["refinement"]["adaptive"]["indicator"] == "none"
-    assert result["resolved"]["field"]["finest_grading"] == [None, None]
+    refinement = result["refinement"]
+    assert refinement["spans"] == [[3, 3], [6, 6], [12, 12]]
+    adaptive = refinement["adaptive"]
+    assert adaptive["indicator"] == "features" and adaptive["grids"] == "features"
+    assert [lv["grid"] for lv in adaptive["levels"]] == ["first", "features", "features"]
+    scene = load_scene(ROOT / "scenes" / "napkin.toml", field="spline",
+                       overrides={"field.spans": [12, 12]})
+    model = scene.model
+    expected = json.loads(json.dumps(graded_config(
+        scene.field.config, model.boundary, model.loads, model.surface.domain
+    ).to_dict()["grading"]))
+    finest = result["resolved"]["field"]["finest_grading"]
+    assert finest == expected
+    (lo, hi) = scene.field.config.domain[0]
+    assert finest[0]["core"] == pytest.approx((hi - lo) / 12)
+    energy = refinement["energy"]
+    assert energy["estimated_error"] >= abs(energy["values"][-1] - energy["values"][-2])
+
+
+def test_without_a_singular_feature_the_default_is_dyadic_to_the_bit():
+    """The square plate (edge supports, pressure: no pin, point load or interior line): the
+    default grid rule ("features") solves the same grids as "none" and gives the same Π and
+    probes on every level, bit for bit."""
+    from taichi_ndf.scene.reader import load_scene
+    from taichi_ndf.solve.adaptive import solve_adaptive
+
+    scene = load_scene(ROOT / "validation" / "scenes" / "square_plate.toml", field="spline",
+                       overrides={"field.spans": [2, 2]})
+    runs = [solve_adaptive(scene.model, scene.field, scene.solver,
+                           AdaptiveConfig(1e-3, max_unknowns=400, indicator=rule))
+            for rule in ("features", "none")]
+    assert runs[0].adaptive["grids"] == runs[1].adaptive["grids"] == "dyadic"
+    assert [lv.spans for lv in runs[0].levels] == [lv.spans for lv in runs[1].levels]
+    assert len(runs[0].levels) >= 3
+    for a, b in zip(runs[0].levels, runs[1].levels, strict=True):
+        assert a.energy == b.energy and a.probes == b.probes
+    assert torch.equal(runs[0].field.coefficients, runs[1].field.coefficients)
 
 
 def test_a_small_adaptive_run_end_to_end(tmp_path):
@@ -258,7 +310,7 @@ def test_the_adaptive_grids_are_a_pass_of_the_continuation_loop():
 
     scene = load_scene(ROOT / "scenes" / "napkin.toml", field="spline",
                        overrides={"field.spans": [3, 3]})
-    run = adaptive(of_scene(scene), AdaptiveConfig(1e-3, max_unknowns=700))
+    run = adaptive(of_scene(scene), AdaptiveConfig(1e-3, max_unknowns=700, indicator="none"))
     run.start(scene.solver, seed=0)
     seen = _Seen()
     solution = run.solve(scene.solver, callbacks=[seen])
@@ -267,3 +319,27 @@ def test_the_adaptive_grids_are_a_pass_of_the_continuation_loop():
     assert seen.calls == [("start", 0), *[("load_step", 0)] * steps, ("level", 1),
                           *[("load_step", 1)] * steps, ("level", 2), ("end", 2),
                           ("start", 2), *[("load_step", 2)] * steps, ("level", 3), ("end", 3)]
+
+
+def test_graded_levels_are_a_pass_of_the_continuation_loop_from_level_1():
+    """The default on the napkin (graded towards its pin, 3² → 6² → 12²): `solve_spline`
+    solves the first grid only; levels 1 and 2 (regraded, not nested) are the adaptive pass,
+    each load step projected from the level before; on_load_step once per load step and
+    level."""
+    from taichi_ndf.discretise import of_scene
+    from taichi_ndf.discretise.adaptive import adaptive
+    from taichi_ndf.scene.reader import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "napkin.toml", field="spline",
+                       overrides={"field.spans": [3, 3]})
+    run = adaptive(of_scene(scene), AdaptiveConfig(1e-3, max_unknowns=700))
+    run.start(scene.solver, seed=0)
+    seen, stepped = _Seen(), []
+    solution = run.solve(scene.solver, callbacks=[seen],
+                         on_load_step=lambda t, field: stepped.append(field.config.spans))
+    assert solution.settings["spans"] == [[3, 3], [6, 6], [12, 12]]
+    steps = len(scene.solver.load_steps)
+    assert seen.calls == [("start", 0), *[("load_step", 0)] * steps, ("level", 1), ("end", 1),
+                          ("start", 1), *[("load_step", 1)] * steps, ("level", 2),
+                          *[("load_step", 2)] * steps, ("level", 3), ("end", 3)]
+    assert stepped == [(3, 3)] * steps + [(6, 6)] * steps + [(12, 12)] * steps

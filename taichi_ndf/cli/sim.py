@@ -49,10 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "relative error of Π and of every probe is at most REL, or the budget "
                    "--max-unknowns is spent; the estimate is printed and in result.json "
                    "(docs/scenes.md)")
-    p.add_argument("--indicator", choices=("none", "density", "energy_norm"), default="none",
-                   help="--tolerance: place each new grid's knots by equidistributing this "
-                   "error indicator (density: the change of the strain energy density); none "
-                   "(default): dyadic refinement, the grid's grading kept")
+    p.add_argument("--indicator", choices=("features", "none", "density", "energy_norm"),
+                   default="features",
+                   help="--tolerance: how each grid's knots are placed: features (default): "
+                   "graded towards the scene's pins, point loads and interior lines by the "
+                   "grid's own spans, dyadic refinement where it has none; none: dyadic "
+                   "refinement, the grid's grading kept; density, energy_norm: equidistribute "
+                   "this error indicator (density: the change of the strain energy density)")
     p.add_argument("--max-unknowns", type=int, default=200_000, metavar="N",
                    help="--tolerance: the most unknowns of a grid (default 200000)")
     p.add_argument("--quick", action="store_true",

@@ -12,7 +12,6 @@ from typing import Any
 
 from taichi_ndf.discretise.protocol import OnLoadStep, Probes, Solution
 from taichi_ndf.discretise.spline import SplineDiscretisation
-from taichi_ndf.field import SplineField
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.problem.training import SolverConfig
@@ -76,11 +75,6 @@ class AdaptiveDiscretisation(SplineDiscretisation):
                        f"{unknowns(run.field.config)} unknowns): Π = {last.energy:.8g} J, "
                        f"{last.iterations} Newton iterations, {last.seconds:.1f} s")
             per_level.append({t: self._probes_of(run.field, c, t) for t, c in run.steps})
-            if on_load_step is not None and len(run.levels) <= 2:  # adaptive: solve_adaptive's
-                for t, coefficients in run.steps:
-                    field = SplineField(run.field.config)
-                    field.coefficients.copy_(coefficients)
-                    on_load_step(t, field)
 
         run: AdaptiveRun = solve_adaptive(
             self.model, self.spec, config, self.adaptive, objective=self.objective,

@@ -3,18 +3,27 @@ issue 33): refine → solve (warm start) → estimate, until the estimated error
 probe is at most the tolerance or the next grid would exceed a budget of unknowns.
 
 A tensor-product spline cannot refine one element, so the grids are r/h-adaptive: each grid
-has GROWTH (2) times the spans per direction of the one before and, with an indicator
-(`AdaptiveConfig.indicator`), its knots placed by equidistribution of it
-(`taichi_ndf.solve.error_indicator`: the change of the strain energy density between the last
-two solves, per knot span); without one (the default, "none": measured worse than uniform on
-4 of 5 cases) the next grid is the dyadic refinement (the projection is then exact).
+has GROWTH (2) times the spans per direction of the one before, its knots placed by
+`AdaptiveConfig.indicator`:
+- "features" (the default): every grid graded towards the model's known singular features
+  (pins, point loads, interior lines, the ends of segments and line loads:
+  `spline_grid.singular_features`) by the features grading of its OWN spans
+  (`spline_grid.graded_config`: core one span of that grid, half the spans graded), so the
+  graded core shrinks with the span as on a single graded grid; where the model has no such
+  feature, the dyadic refinement of the plan's grid ("none"), the same solves to the bit;
+- "none": the dyadic refinement (the plan's grading kept; the projection is then exact);
+- an error indicator (`taichi_ndf.solve.error_indicator`: the change of the strain energy
+  density between the last two solves, per knot span), equidistributed (measured worse than
+  uniform on 4 of 5 validation cases, benchmarks/RESULTS.md).
 
-    level 0: the plan's first grid, by load continuation (`solve_spline`);
-    level 1: its dyadic refinement (the same grading), each load step from level 0;
-    level k ≥ 2: spans × 2, knots by the indicator of levels k−2 → k−1 (at the last load
-                 factor) or dyadic; each load step started from level k−1's solution at that load
-                 factor projected onto the new grid (weighted least squares of the field at
-                 the new grid's Gauss points);
+    level 0: the plan's first grid (with "features" graded by its spans), by load
+                 continuation (`solve_spline`);
+    level 1: its dyadic refinement (the same grading), each load step from level 0; where
+                 the grids are graded by "features", regraded and solved as level k ≥ 2;
+    level k ≥ 2: spans × 2, knots by the rule above (an indicator: of levels k−2 → k−1 at the
+                 last load factor); each load step started from level k−1's solution at that
+                 load factor projected onto the new grid (weighted least squares of the field
+                 at the new grid's Gauss points; exact where the grids are nested);
     after each level from 2 on: the guarded three-grid rule (`minimise.refinement.richardson`,
                  the expected order 2(p − 1)) on Π and every probe component over the last
                  three levels; stop where every bar ≤ tolerance × |Π| (Π) and ≤ tolerance ×
@@ -57,13 +66,14 @@ from taichi_ndf.minimise.state import LevelSummary, NewtonRecord
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.seam import with_seam_points
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.problem.spline_grid import SplinePlan, graded_config, singular_features
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.error_indicator import INDICATORS, equidistributed, span_indicator
 from taichi_ndf.solve.spline_solver import SplineRun, newton_config, solve_spline
 
 log = logging.getLogger(__name__)
 
+GRID_RULES = ("features", "none", *INDICATORS)  # AdaptiveConfig.indicator
 GROWTH = 2  # spans per direction, next grid / this one (h halves, as the three-grid rule needs)
 CONTACT_REFUSED = ("--tolerance: obstacles are not supported on the adaptive path (the contact "
                    "check points and stiffness are per grid and load path)")
@@ -73,16 +83,17 @@ CONTACT_REFUSED = ("--tolerance: obstacles are not supported on the adaptive pat
 class AdaptiveConfig:
     """tolerance: the relative error wanted of Π and of every probe, in (0, 0.5);
     max_unknowns: the budget, the most unknowns (3 per read coefficient) of a grid;
-    indicator: the error indicator that places the next grid's knots
-    (`error_indicator.INDICATORS`), or "none" (the default): the next grid is the dyadic
-    refinement of this one (its grading kept; measured, benchmarks/RESULTS.md: the
-    equidistributed grids were worse than uniform ones on the square plate, the roof and
-    both cantilevers, better only on the napkin); order: the convergence
+    indicator: how the next grid's knots are placed (module docstring): "features" (the
+    default: every grid graded towards the model's known singular features by its own spans,
+    dyadic where it has none), "none" (the dyadic refinement of this grid, its grading kept)
+    or an error indicator of `error_indicator.INDICATORS`, equidistributed (measured,
+    benchmarks/RESULTS.md: worse than uniform grids on the square plate, the roof and both
+    cantilevers, better only on the napkin); order: the convergence
     order q of the equidistribution (`error_indicator.knot_density`), None: `density_order`."""
 
     tolerance: float
     max_unknowns: int = 200_000
-    indicator: str = "none"
+    indicator: str = "features"
     order: float | None = None
 
     def __post_init__(self):
@@ -93,9 +104,16 @@ class AdaptiveConfig:
         m = self.max_unknowns
         if isinstance(m, bool) or not isinstance(m, int) or m < 1:
             raise ValueError(f"--max-unknowns must be a positive integer, got {m!r}")
-        if self.indicator not in ("none", *INDICATORS):
-            raise ValueError(f"--indicator must be one of none, {', '.join(INDICATORS)}, got "
+        if self.indicator not in GRID_RULES:
+            raise ValueError(f"--indicator must be one of {', '.join(GRID_RULES)}, got "
                              f"{self.indicator!r}")
+
+
+def features_grid(config: SplineConfig, model: ShellModel) -> SplineConfig:
+    """`config`'s spans graded towards the model's known singular features by the features
+    grading of those spans (`spline_grid.graded_config`: core one span of this grid, whatever
+    grading `config` had); a direction without features uniform."""
+    return graded_config(config, model.boundary, model.loads, model.surface.domain)
 
 
 def unknowns(config: SplineConfig) -> int:
@@ -236,17 +254,29 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                    ) -> AdaptiveRun:
     """The adaptive loop (module docstring) from `plan.config` (the plan's levels ignored).
     callbacks and on_level as `solve_spline`'s (on_level after every level, adaptive ones
-    too); on_load_step(load factor, field): after each load step of each adaptive level."""
+    too); on_load_step(load factor, field): after each load step of each level (those of
+    `solve_spline`'s levels after the level's on_level)."""
     if model.contact is not None:
         raise ValueError(CONTACT_REFUSED)
     objective = objective or Objective.of_model(model)
+    graded = adaptive.indicator == "features" and any(
+        singular_features(model.boundary, model.loads, model.surface.domain))
+    if graded:
+        plan = dataclasses.replace(plan, config=features_grid(plan.config, model))
+    elif adaptive.indicator == "features":
+        log.info("--tolerance: no pin, point load or interior line to grade towards; the "
+                 "grids are dyadic refinements")
+    first_levels = 1 if graded else 2  # solved by `solve_spline` (load continuation)
     degree, order = plan.config.degree, 2.0 * (plan.config.degree - 1)
     if unknowns(plan.config.refined()) > adaptive.max_unknowns:
         raise ValueError(f"--max-unknowns {adaptive.max_unknowns}: the first two grids need "
                          f"{unknowns(plan.config.refined())} unknowns")
     snapshots: list[SplineField] = []
     record: dict = {"tolerance": adaptive.tolerance, "max_unknowns": adaptive.max_unknowns,
-                    "growth": GROWTH, "indicator": adaptive.indicator, "levels": []}
+                    "growth": GROWTH, "indicator": adaptive.indicator,
+                    "grids": "features" if graded else (
+                        "dyadic" if adaptive.indicator in ("none", "features")
+                        else "equidistributed"), "levels": []}
 
     def level_done(run: SplineRun) -> None:
         field = SplineField(run.field.config, dtype=run.field.coefficients.dtype)
@@ -257,11 +287,16 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
             run.field.config), "energy": last.energy, "iterations": last.iterations,
             "seconds": last.seconds, "converged": last.converged,
             "grid": "first" if len(snapshots) == 1 else (
-                "dyadic" if len(snapshots) == 2 else "equidistributed")})
+                "dyadic" if len(snapshots) == 2 and not graded else record["grids"])})
         if on_level is not None:
             on_level(run)
+        if on_load_step is not None and len(snapshots) <= first_levels:
+            for t, coefficients in run.steps:
+                at = SplineField(run.field.config, dtype=run.field.coefficients.dtype)
+                at.coefficients.copy_(coefficients)
+                on_load_step(t, at)
 
-    dyadic = solve_spline(model, dataclasses.replace(plan, levels=2),
+    dyadic = solve_spline(model, dataclasses.replace(plan, levels=first_levels),
                           dataclasses.replace(config, max_levels=0), objective=objective,
                           callbacks=callbacks, on_level=level_done)
     run = AdaptiveRun(dyadic.state, config, dyadic.wall_time, dyadic.steps, dyadic.load_steps,
@@ -299,11 +334,13 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                 outcome = "tolerance met"
                 stopped = f"--tolerance {adaptive.tolerance:g} met: {worst}"
                 return False
-        coarse, fine = snapshots[-2], snapshots[-1]
-        if adaptive.indicator == "none":
+        fine = snapshots[-1]
+        if graded:
+            next_config = features_grid(fine.config.refined(), model)
+        elif adaptive.indicator in ("none", "features"):
             next_config = fine.config.refined()
         else:
-            indicator = span_indicator(objective, samples_for(fine), fine, coarse,
+            indicator = span_indicator(objective, samples_for(fine), fine, snapshots[-2],
                                        model.boundary, t, kind=adaptive.indicator,
                                        length=length)
             q = adaptive.order or density_order([lv.energy for lv in run.levels], order)
