@@ -40,9 +40,9 @@ import numpy as np
 import torch
 
 import taichi_ndf
-from inverse.material.trajectory_fit import TrajectoryFitConfig, fit_trajectory, observe
+from inverse.material.trajectory_fit import TrajectoryFitConfig, observe
 from inverse.sft.hanging import hanging_across, hanging_model
-from inverse.sft.swing import SwingConfig, swing_problem
+from inverse.sft.swing import SPAN_RATIO, SwingConfig, fit_swing
 from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
@@ -123,12 +123,12 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
 
 
 def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0), corners=None):
-    problem = swing_problem(vertices, faces, held, 1.0 / fps, np.array(gravity), config,
-                            corners=corners)
-    result = fit_trajectory(problem.stepper_at, problem.data, start,
-                            TrajectoryFitConfig(max_iterations=10, tolerance=1e-4),
-                            initial=problem.start)
-    return problem, result
+    swing = fit_swing(vertices, faces, held, 1.0 / fps, np.array(gravity), config, start,
+                      TrajectoryFitConfig(max_iterations=10, tolerance=1e-4), corners=corners)
+    levels = "; ".join(f"{s[0]}×{s[1]}: {b:.4e} ± {e:.1e} ({i} it)"
+                       for s, b, e, i in swing.levels)
+    print(f"  grid levels: {levels}; resolved {swing.resolved}", flush=True)
+    return swing.problem, swing.fit
 
 
 def part_synthetic(args) -> None:
@@ -154,7 +154,8 @@ def part_synthetic(args) -> None:
           f"{1000 * np.sqrt(np.mean(np.sum((clean[-1] - clean[0]) ** 2, 1))):.1f} mm; frame 0 "
           f"out of the corners' plane by up to {1000 * np.abs(clean[0, :, 2] - 1.0).max():.1f}"
           f" mm")
-    config = SwingConfig(spans=(args.spans,) * 2, substeps=args.substeps,
+    config = SwingConfig(spans=(args.spans,) * 2 if args.spans else None,
+                         span_ratio=args.span_ratio, substeps=args.substeps,
                          integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
                          areal_density=RHO, size=(SIZE, SIZE), start=args.start_state)
     corners = ((lambda t: true_corners(t, args.duration)) if args.true_corners else None)
@@ -201,7 +202,8 @@ def part_r1(args) -> None:
           f"held 0 and 992, ρ_A {RHO} kg/m², D {D} N/m stated")
     for fps in args.r1_fps:
         for spans in args.r1_spans:
-            config = SwingConfig(spans=(spans, spans), substeps=args.substeps,
+            config = SwingConfig(spans=(spans, spans) if spans else None,
+                                 span_ratio=args.span_ratio, substeps=args.substeps,
                                  integrator=args.integrator, membrane_stiffness=D,
                                  poisson_ratio=NU, areal_density=RHO, stride=args.stride,
                                  start=args.start_state)
@@ -223,7 +225,8 @@ def part_r1(args) -> None:
                 np.savez(args.save / f"r1_fps{fps:g}_spans{spans}.npz", value=r.value,
                          residuals=r.residuals, sensitivity=r.sensitivity,
                          steps=np.array(problem.data.steps), se=r.standard_error)
-            print(f"fps {fps}, {spans}² spans: B = {r.value:.4e} ± {r.standard_error:.2e} N·m "
+            print(f"fps {fps}, spans {spans or 'auto'}: B = {r.value:.4e} ± "
+                  f"{r.standard_error:.2e} N·m "
                   f"(σ̂/√H, rel {r.standard_error / r.value:.3f}; cluster-robust per frame "
                   f"{robust:.2e}, rel {robust / r.value:.3f}), χ²/dof "
                   f"{r.goodness.reduced:.2f} (σ̂ {1000 * r.noise:.2f} mm), c = "
@@ -250,7 +253,11 @@ def main() -> None:
     p.add_argument("--truth-spans", type=int, default=12)
     p.add_argument("--truth-substeps", type=int, default=4)
     p.add_argument("--truth-integrator", default="newmark")
-    p.add_argument("--spans", type=int, default=8)
+    p.add_argument("--spans", type=int, default=0,
+                   help="synthetic: the fit's spans per direction; 0: from the estimate's "
+                        "bending length (SwingConfig.spans None, `fit_swing`)")
+    p.add_argument("--span-ratio", type=float, default=SPAN_RATIO,
+                   help="the longest span in bending lengths where the grid follows c")
     p.add_argument("--substeps", type=int, default=1)
     p.add_argument("--integrator", default="implicit_euler")
     p.add_argument("--start", type=float, default=1.5)
@@ -263,7 +270,8 @@ def main() -> None:
     p.add_argument("--run", type=Path, default=None)
     p.add_argument("--data", type=Path, default=None)
     p.add_argument("--r1-fps", type=float, nargs="+", default=[30.0])
-    p.add_argument("--r1-spans", type=int, nargs="+", default=[6])
+    p.add_argument("--r1-spans", type=int, nargs="+", default=[0],
+                   help="R1's spans per direction per row; 0: from the estimate's c")
     p.add_argument("--r1-frames", type=int, default=0)
     p.add_argument("--r1-start", type=float, default=0.02)
     p.add_argument("--stride", type=int, default=2)
