@@ -32,6 +32,12 @@ displacements from the flat reference; B fitted by `inverse.material.trajectory_
 estimated from the residuals (the s.e. is then σ̂/√H: it treats the residuals as independent,
 which a reconstruction's are not — the report states it). B scales with ρ_A; the bending
 length c = (B / (ρ_A g))^(1/3) does not.
+The grid (`fit_swing`, `SwingConfig.spans` None): a sheet held at two points buckles at the
+bending length's scale, so the swing's model error is set by span / c; the spans are chosen
+no longer than `span_ratio` × c of the current estimate (`resolving_spans`: from the start
+value first, then a warm-started refit on the finer grid whenever the estimate's c asks for
+one), whatever the sheet's size, the motion or the frame rate. SPAN_RATIO is measured
+(benchmarks/RESULTS.md, "Material from the swing: a grid that resolves the buckle").
 """
 
 from __future__ import annotations
