@@ -147,9 +147,10 @@ def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0), corner
                           TrajectoryFitConfig(max_iterations=10, tolerance=1e-4,
                                               error_tolerance=error_tolerance),
                           corners=corners)
-    levels = "; ".join(f"{s[0]}×{s[1]}: {b:.4e} ± {e:.1e} ({i} it)"
-                       for s, b, e, i in swing.levels)
-    print(f"  grid levels: {levels}; resolved {swing.resolved}", flush=True)
+    levels = "; ".join(f"{kind} {s[0]}×{s[1]}: {b:.4e} ± {e:.1e} ({i} it)"
+                       for s, b, e, i, kind in swing.levels)
+    print(f"  grid levels: {levels}; resolved {swing.resolved}, last check's |ΔB|/s.e. "
+          f"{swing.grid_change}", flush=True)
     return swing.problem, swing.fit
 
 
@@ -178,7 +179,7 @@ def part_synthetic(args) -> None:
           f" mm")
     config = SwingConfig(spans=(args.spans,) * 2 if args.spans else None,
                          span_ratio=args.span_ratio, max_spans=args.max_spans,
-                         substeps=args.substeps,
+                         grid_check=not args.no_grid_check, substeps=args.substeps,
                          integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
                          areal_density=RHO, size=(SIZE, SIZE), start=args.start_state)
     corners = ((lambda t: true_corners(t, args.duration)) if args.true_corners else None)
@@ -227,7 +228,7 @@ def part_r1(args) -> None:
         for spans in args.r1_spans:
             config = SwingConfig(spans=(spans, spans) if spans else None,
                                  span_ratio=args.span_ratio, max_spans=args.max_spans,
-                         substeps=args.substeps,
+                         grid_check=not args.no_grid_check, substeps=args.substeps,
                                  integrator=args.integrator, membrane_stiffness=D,
                                  poisson_ratio=NU, areal_density=RHO, stride=args.stride,
                                  start=args.start_state)
@@ -283,6 +284,8 @@ def main() -> None:
                         "bending length (SwingConfig.spans None, `fit_swing`)")
     p.add_argument("--max-spans", type=int, default=32,
                    help="the most spans per direction where the grid follows c")
+    p.add_argument("--no-grid-check", action="store_true",
+                   help="where the grid follows c: no check step on a finer grid")
     p.add_argument("--error-tolerance", type=float, default=0.1,
                    help="stop Gauss–Newton once a step is below this × the s.e. (0: off)")
     p.add_argument("--span-ratio", type=float, default=SPAN_RATIO,

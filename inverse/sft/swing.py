@@ -36,8 +36,11 @@ The grid (`fit_swing`, `SwingConfig.spans` None): a sheet held at two points buc
 bending length's scale, so the swing's model error is set by span / c; the spans are chosen
 no longer than `span_ratio` × c of the current estimate (`resolving_spans`: from the start
 value first, then a warm-started refit on the finer grid whenever the estimate's c asks for
-one), whatever the sheet's size, the motion or the frame rate. SPAN_RATIO is measured
-(benchmarks/RESULTS.md, "Material from the swing: a grid that resolves the buckle").
+one), whatever the sheet's size, the motion or the frame rate; then (`grid_check`) one
+Gauss–Newton step on a grid GROWTH × finer confirms it: where that step moves B by more than
+its s.e., the fit goes on on the finer grid. The check measures the grid's effect on the
+answer itself, so it holds where span_ratio does not (measured: benchmarks/RESULTS.md,
+"Material from the swing: a grid that resolves the buckle").
 """
 
 from __future__ import annotations
@@ -74,13 +77,15 @@ from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundar
 
 log = logging.getLogger(__name__)
 SPAN_RATIO = 1.0  # the longest span, in bending lengths c (RESULTS.md, issue 27, the buckle)
+GROWTH = 4 / 3  # the grid check's spans, per direction, over the fit's
 
 
 @dataclass(frozen=True)
 class SwingConfig:
     """spans: the spline grid (n1, n2) [spans along ξ¹ (the held edge), ξ²], or None: from
     the bending length of the current estimate (`resolving_spans`, `fit_swing`): no span
-    longer than span_ratio × c, at most max_spans per direction; degree 3 or 4;
+    longer than span_ratio × c, at most max_spans per direction; grid_check: there, confirm
+    the grid by one Gauss–Newton step on a finer one (`fit_swing`); degree 3 or 4;
     substeps ≥ 1 time steps per frame; integrator "implicit_euler" or "newmark";
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
     [kg/m²] (stated); band: the handles' band (fraction of the domain); stride ≥ 1: every
@@ -90,6 +95,7 @@ class SwingConfig:
     spans: tuple[int, int] | None = None
     span_ratio: float = SPAN_RATIO
     max_spans: int = 32
+    grid_check: bool = True
     degree: int = 3
     substeps: int = 1
     integrator: str = "implicit_euler"
@@ -290,14 +296,17 @@ def resolving_spans(size: tuple[float, float], length: float, ratio: float = SPA
 
 @dataclass
 class SwingFit:
-    """`fit_swing`'s answer: the last level's problem and fit; levels: per grid level
-    (spans, θ̂, s.e., iterations); resolved: the last grid's spans resolve the estimate's
-    bending length (False where that needs more than max_spans)."""
+    """`fit_swing`'s answer: the last fit's problem and fit; levels: per grid, in order,
+    (spans, θ̂, s.e., iterations, "fit" or "check"); resolved: the last fit's grid resolves the
+    estimate's bending length and, with `grid_check`, one Gauss–Newton step on the next finer
+    grid moved θ̂ by at most its s.e. (False where that needed more than max_spans);
+    grid_change: that last check's |Δθ| / s.e. (None: not checked)."""
 
     problem: SwingProblem
     fit: TrajectoryFit
-    levels: list[tuple[tuple[int, int], float, float, int]]
+    levels: list[tuple[tuple[int, int], float, float, int, str]]
     resolved: bool
+    grid_change: float | None = None
 
 
 def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
@@ -309,29 +318,46 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
     `start` [N·m]. With config.spans None the grid follows the estimate: the first fit on
     `resolving_spans` of the start's bending length, then, while the estimate's bending length
     needs finer spans than the last grid's, a refit on those, warm-started at the last
-    estimate (each level's grid never coarser than the one before). Given spans: one fit."""
+    estimate (each level's grid never coarser than the one before); with `grid_check`, then
+    one Gauss–Newton step from θ̂ on spans × GROWTH: where it moves θ̂ by more than its s.e.
+    the grid does not yet hold the answer, and the fit goes on there (warm-started at the
+    step's value). Given spans: one fit."""
     size = config.size or SheetGrid.from_template(np.asarray(vertices[0], dtype=np.float64),
                                                   faces, held).size
     g = float(np.linalg.norm(gravity))
+    fit_config = fit_config or TrajectoryFitConfig()
 
     def needed(value: float, limit: int | None = config.max_spans) -> tuple[int, int]:
         c = bending_length(value, config.areal_density, g)
         return resolving_spans(size, c, config.span_ratio, limit or 10**9)
 
-    spans, theta, levels = config.spans or needed(start), float(start), []
-    while True:
+    def run(spans: tuple[int, int], theta: float, fit_with: TrajectoryFitConfig):
         problem = swing_problem(vertices, faces, held, frame_interval, gravity,
                                 dataclasses.replace(config, spans=spans), newton=newton,
                                 corners=corners)
-        fit = fit_trajectory(problem.stepper_at, problem.data, theta,
-                             fit_config or TrajectoryFitConfig(),
-                             initial=problem.start)
-        levels.append((spans, fit.value, fit.standard_error, fit.iterations))
+        return problem, fit_trajectory(problem.stepper_at, problem.data, theta, fit_with,
+                                       initial=problem.start)
+
+    spans, theta, levels = config.spans or needed(start), float(start), []
+    while True:
+        problem, fit = run(spans, theta, fit_config)
+        levels.append((spans, fit.value, fit.standard_error, fit.iterations, "fit"))
         log.info("swing fit on %s spans: B = %.4e ± %.2e N·m, %d iterations", spans,
                  fit.value, fit.standard_error, fit.iterations)
+        if config.spans is not None:
+            return SwingFit(problem, fit, levels, True)
         finer = tuple(max(a, b) for a, b in zip(needed(fit.value), spans, strict=True))
-        if config.spans is not None or finer == spans:
-            resolved = config.spans is not None or all(
-                a <= b for a, b in zip(needed(fit.value, None), spans, strict=True))
-            return SwingFit(problem, fit, levels, resolved)
-        spans, theta = finer, fit.value
+        if finer != spans:
+            spans, theta = finer, fit.value
+            continue
+        resolved = all(a <= b for a, b in zip(needed(fit.value, None), spans, strict=True))
+        check = tuple(min(config.max_spans, math.ceil(GROWTH * s)) for s in spans)
+        if not config.grid_check or not resolved or check == spans:
+            return SwingFit(problem, fit, levels, resolved and not config.grid_check)
+        _, step = run(check, fit.value, dataclasses.replace(fit_config, max_iterations=1))
+        change = abs(step.value - fit.value) / fit.standard_error
+        levels.append((check, step.value, step.standard_error, 1, "check"))
+        log.info("swing fit: one step on %s spans moves B by %.2f s.e.", check, change)
+        if change <= 1.0:
+            return SwingFit(problem, fit, levels, True, change)
+        spans, theta = check, step.value
