@@ -39,7 +39,9 @@ value first, then a warm-started refit on the finer grid whenever the estimate's
 one), whatever the sheet's size, the motion or the frame rate; then (`grid_check`) one
 Gauss–Newton step on a grid GROWTH × finer confirms it: where that step moves B by more than
 its s.e., the fit goes on on the finer grid. The check measures the grid's effect on the
-answer itself, so it holds where span_ratio does not (measured: benchmarks/RESULTS.md,
+answer itself, so it does not depend on span_ratio being right (measured on the synthetic
+swing: spans ≈ c are not enough there — the folds the twisting corners drive still move
+the swing by 1.7 mm rms from 24² to 28² spans and B by 7 % —, benchmarks/RESULTS.md,
 "Material from the swing: a grid that resolves the buckle").
 """
 
@@ -285,9 +287,9 @@ def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:
 def resolving_spans(size: tuple[float, float], length: float, ratio: float = SPAN_RATIO,
                     limit: int = 32) -> tuple[int, int]:
     """The spans (n1, n2) of a sheet (W, H) [m] whose spans are at most ratio × `length` [m]
-    (the bending length c: the held sheet buckles at c's scale, so a grid resolves the swing
-    when its spans are a fixed fraction of c, whatever the sheet, the motion or the frame
-    rate), each at most `limit`."""
+    (the bending length c: the held sheet buckles at c's scale, so the grid scales with c
+    whatever the sheet or the frame rate — a first guess that `fit_swing`'s check confirms,
+    since the motion's folds may need finer), each at most `limit`."""
     if not (math.isfinite(length) and length > 0):
         return (limit, limit)
     return tuple(min(limit, max(1, math.ceil(side / (ratio * length) - 1e-9)))
