@@ -14,8 +14,11 @@ saddle — held at two points the sheet buckles out of its plane — so the rest
 and depends on B); observed: a 17 × 17 vertex grid at `--fps` frames
 per second, plus Gaussian noise σ = `--noise` [m] per coordinate and seed. The fit
 (`swing_problem` + `fit_trajectory`): corners from the noisy corner vertices (smoothed), start
-from the smoothed frame 0, B alone (D, ν, ρ_A stated at the truth), on `--spans` with
-`--substeps`, from `--start` × B_true.
+from the smoothed frame 0, B alone (D, ν, ρ_A stated at the truth), on `--spans` (0: the
+grid follows the estimate's bending length, `inverse.sft.swing.fit_swing`, `--span-ratio`,
+`--max-spans`) with `--substeps`, from `--start` × B_true, Gauss–Newton stopped at a step
+below 1e-4 B or `--error-tolerance` × the s.e.; one line per iteration. The truth's buckle
+goes to −z (towards the camera) on every grid (the rest problem is mirror-symmetric).
 
 R1 (`--part r1 --run DIR`): DIR/meshes/*.obj (the default `ndf-sft --capture` run), held
 vertices 0 and 992, gravity (0, 9.81, 0), ρ_A 0.197 kg/m², D 300 N/m (stated), at each
@@ -40,10 +43,10 @@ import numpy as np
 import torch
 
 import taichi_ndf
-from inverse.material.trajectory_fit import TrajectoryFitConfig, fit_trajectory, observe
+from inverse.material.trajectory_fit import TrajectoryFitConfig, observe
 from inverse.sft.hanging import hanging_across, hanging_model
-from inverse.sft.swing import SwingConfig, swing_problem
-from taichi_ndf import jets
+from inverse.sft.swing import SPAN_RATIO, SwingConfig, fit_swing
+from taichi_ndf import jets, progress
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.spline_grid import SplinePlan
@@ -103,6 +106,12 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
                                                      integrator="implicit_euler",
                                                      mass_damping=30.0), still)
     settled = record(settle)[-1].displacement
+    # the rest problem is symmetric about the corners' plane: which way the sheet buckles is
+    # round-off's choice (24² spans went +z, 12²–20² −z); the truth takes −z (to the camera) on
+    # every grid: the mirror image (z coefficients negated) is an equilibrium as well
+    middle = torch.tensor([[SIZE / 2, 0.0]], dtype=torch.float64)
+    if float(observe(settle, middle, settled)[0, 2]) > 0:
+        settled = settled * torch.tensor([1.0, 1.0, -1.0], dtype=settled.dtype)
     rest = rest_start(settle, settled, "bending_stiffness").displacement  # in equilibrium
     frames = int(round(args.duration * args.fps)) + 1
     dt = 1.0 / args.fps / args.truth_substeps
@@ -122,13 +131,27 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     return positions, faces, (0, 16)
 
 
-def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0), corners=None):
-    problem = swing_problem(vertices, faces, held, 1.0 / fps, np.array(gravity), config,
-                            corners=corners)
-    result = fit_trajectory(problem.stepper_at, problem.data, start,
-                            TrajectoryFitConfig(max_iterations=10, tolerance=1e-4),
-                            initial=problem.start)
-    return problem, result
+def gauss_newton_trace(report) -> None:
+    """One line per Gauss–Newton iteration of the trajectory fit: B, the relative step, CPU."""
+    if report.stage.startswith("trajectory fit") and not report.done and report.step > 0:
+        values = report.values
+        print(f"    iteration {report.step}: B → {values.get('bending_stiffness', 0):.5e}, "
+              f"|ΔB|/B {values.get('relative_step', 0):.1e}, process CPU {cpu():.0f} s",
+              flush=True)
+
+
+def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0), corners=None,
+        error_tolerance=None):
+    with progress.listening(gauss_newton_trace):
+        swing = fit_swing(vertices, faces, held, 1.0 / fps, np.array(gravity), config, start,
+                          TrajectoryFitConfig(max_iterations=10, tolerance=1e-4,
+                                              error_tolerance=error_tolerance),
+                          corners=corners)
+    levels = "; ".join(f"{kind} {s[0]}×{s[1]}: {b:.4e} ± {e:.1e} ({i} it)"
+                       for s, b, e, i, kind in swing.levels)
+    print(f"  grid levels: {levels}; resolved {swing.resolved}, last check's |ΔB|/s.e. "
+          f"{swing.grid_change}", flush=True)
+    return swing.problem, swing.fit
 
 
 def part_synthetic(args) -> None:
@@ -154,7 +177,9 @@ def part_synthetic(args) -> None:
           f"{1000 * np.sqrt(np.mean(np.sum((clean[-1] - clean[0]) ** 2, 1))):.1f} mm; frame 0 "
           f"out of the corners' plane by up to {1000 * np.abs(clean[0, :, 2] - 1.0).max():.1f}"
           f" mm")
-    config = SwingConfig(spans=(args.spans,) * 2, substeps=args.substeps,
+    config = SwingConfig(spans=(args.spans,) * 2 if args.spans else None,
+                         span_ratio=args.span_ratio, max_spans=args.max_spans,
+                         grid_check=not args.no_grid_check, substeps=args.substeps,
                          integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
                          areal_density=RHO, size=(SIZE, SIZE), start=args.start_state)
     corners = ((lambda t: true_corners(t, args.duration)) if args.true_corners else None)
@@ -169,7 +194,7 @@ def part_synthetic(args) -> None:
         noisy = clean + rng.normal(0.0, 1.0, clean.shape) * noise
         c0, t0 = cpu(), time.perf_counter()
         problem, r = fit(noisy, faces, held, args.fps, config, args.start * b_true,
-                         corners=corners)
+                         corners=corners, error_tolerance=args.error_tolerance)
         err = r.value / b_true - 1
         misfit = 1000 * np.sqrt(np.mean(r.residuals ** 2) * 3)
         print(f"| {seed if seed >= 0 else 'none'} | {1000 * noise:.1f} | "
@@ -201,14 +226,17 @@ def part_r1(args) -> None:
           f"held 0 and 992, ρ_A {RHO} kg/m², D {D} N/m stated")
     for fps in args.r1_fps:
         for spans in args.r1_spans:
-            config = SwingConfig(spans=(spans, spans), substeps=args.substeps,
+            config = SwingConfig(spans=(spans, spans) if spans else None,
+                                 span_ratio=args.span_ratio, max_spans=args.max_spans,
+                         grid_check=not args.no_grid_check, substeps=args.substeps,
                                  integrator=args.integrator, membrane_stiffness=D,
                                  poisson_ratio=NU, areal_density=RHO, stride=args.stride,
                                  start=args.start_state)
             c0, t0 = cpu(), time.perf_counter()
             try:
                 problem, r = fit(frames, faces, (0, 992), fps, config,
-                                 RHO * G * args.r1_start ** 3)
+                                 RHO * G * args.r1_start ** 3,
+                                 error_tolerance=args.error_tolerance)
             except Exception as err:  # noqa: BLE001  (a row that failed says why)
                 print(f"| {fps} | {spans}² | failed: {type(err).__name__}: {err} | "
                       f"{cpu() - c0:.0f} s CPU |", flush=True)
@@ -223,7 +251,8 @@ def part_r1(args) -> None:
                 np.savez(args.save / f"r1_fps{fps:g}_spans{spans}.npz", value=r.value,
                          residuals=r.residuals, sensitivity=r.sensitivity,
                          steps=np.array(problem.data.steps), se=r.standard_error)
-            print(f"fps {fps}, {spans}² spans: B = {r.value:.4e} ± {r.standard_error:.2e} N·m "
+            print(f"fps {fps}, spans {spans or 'auto'}: B = {r.value:.4e} ± "
+                  f"{r.standard_error:.2e} N·m "
                   f"(σ̂/√H, rel {r.standard_error / r.value:.3f}; cluster-robust per frame "
                   f"{robust:.2e}, rel {robust / r.value:.3f}), χ²/dof "
                   f"{r.goodness.reduced:.2f} (σ̂ {1000 * r.noise:.2f} mm), c = "
@@ -250,7 +279,17 @@ def main() -> None:
     p.add_argument("--truth-spans", type=int, default=12)
     p.add_argument("--truth-substeps", type=int, default=4)
     p.add_argument("--truth-integrator", default="newmark")
-    p.add_argument("--spans", type=int, default=8)
+    p.add_argument("--spans", type=int, default=0,
+                   help="synthetic: the fit's spans per direction; 0: from the estimate's "
+                        "bending length (SwingConfig.spans None, `fit_swing`)")
+    p.add_argument("--max-spans", type=int, default=32,
+                   help="the most spans per direction where the grid follows c")
+    p.add_argument("--no-grid-check", action="store_true",
+                   help="where the grid follows c: no check step on a finer grid")
+    p.add_argument("--error-tolerance", type=float, default=0.1,
+                   help="stop Gauss–Newton once a step is below this × the s.e. (0: off)")
+    p.add_argument("--span-ratio", type=float, default=SPAN_RATIO,
+                   help="the longest span in bending lengths where the grid follows c")
     p.add_argument("--substeps", type=int, default=1)
     p.add_argument("--integrator", default="implicit_euler")
     p.add_argument("--start", type=float, default=1.5)
@@ -263,12 +302,14 @@ def main() -> None:
     p.add_argument("--run", type=Path, default=None)
     p.add_argument("--data", type=Path, default=None)
     p.add_argument("--r1-fps", type=float, nargs="+", default=[30.0])
-    p.add_argument("--r1-spans", type=int, nargs="+", default=[6])
+    p.add_argument("--r1-spans", type=int, nargs="+", default=[0],
+                   help="R1's spans per direction per row; 0: from the estimate's c")
     p.add_argument("--r1-frames", type=int, default=0)
     p.add_argument("--r1-start", type=float, default=0.02)
     p.add_argument("--stride", type=int, default=2)
     p.add_argument("--save", type=Path, default=None, help="folder for the R1 fits' npz")
     args = p.parse_args()
+    args.error_tolerance = args.error_tolerance or None
     torch.set_num_threads(1)
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
     print(f"commit {commit()}; load average before {os.getloadavg()}; {vars(args)}")

@@ -6,6 +6,8 @@ bad input is refused."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -13,15 +15,18 @@ import torch
 import taichi_ndf
 from inverse.material.trajectory_fit import (
     TrajectoryData,
+    TrajectoryFit,
     TrajectoryFitConfig,
     fit_trajectory,
     observe,
 )
-from inverse.sft.swing import SwingConfig, swing_problem
+from inverse.sft import swing
+from inverse.sft.swing import SwingConfig, fit_swing, resolving_spans, swing_problem
 from taichi_ndf.solve.dynamics_adjoint import record
 
 SIZE, N, FRAMES, DT = 0.55, 5, 5, 1.0 / 30.0
 CONFIG = SwingConfig(spans=(3, 3), size=(SIZE, SIZE))
+FAKE = TrajectoryFit(1.0, 0.01, 3, True, np.zeros(3), np.ones(3), 1e-3, "stated", None, 0.0, 0.0)
 
 
 def rigid_sequence():
@@ -110,3 +115,65 @@ def test_bad_sequences_are_refused(problem, change, message):
         SwingConfig(substeps=0)
     with pytest.raises(ValueError, match="start must be rest or data"):
         SwingConfig(start="frame0")
+
+
+def test_the_grid_resolves_the_bending_length():
+    # spans no longer than ratio × c on each side, at most the limit; no length: the limit
+    assert resolving_spans((0.55, 0.55), 0.02, 1.0) == (28, 28)
+    assert resolving_spans((0.55, 0.275), 0.02, 2.0) == (14, 7)
+    assert resolving_spans((0.55, 0.55), 0.0, 1.0, limit=20) == (20, 20)
+    assert resolving_spans((0.55, 0.55), 1e-4, 1.0, limit=20) == (20, 20)
+    assert resolving_spans((0.1, 0.1), 1.0, 1.0) == (1, 1)
+    with pytest.raises(ValueError, match="span_ratio"):
+        SwingConfig(span_ratio=0.0)
+
+
+def test_the_grid_follows_the_estimate_and_is_checked_on_a_finer_one(monkeypatch):
+    # each fit stubbed by the estimate it would give on its grid (the real fit: the test above
+    # and benchmarks/sft_swing.py): B = ρ_A g c³ at the c stated per grid, s.e. 1 % of B
+    vertices, faces = rigid_sequence()
+    gravity, g = np.array([0.0, 9.81, 0.0]), 9.81
+    rho = SwingConfig().areal_density
+    b_on = {(3, 3): 0.11 / 5, (5, 5): 0.11 / 4.5, (4, 4): 0.11 / 4.5}  # a grid's estimate's c
+    b_on = {spans: rho * g * c ** 3 for spans, c in b_on.items()}
+    b_on[7, 7] = 1.05 * b_on[5, 5]  # one step on 7²: 5 s.e. from 5²'s
+    b_on[10, 10] = 1.005 * b_on[7, 7]  # on 10²: 0.5 s.e. from 7²'s
+    calls = []
+
+    def fit_on_grid(stepper_at, data, start, config, *, initial):
+        spans = tuple(stepper_at(1e-5).field.config.spans)
+        calls.append((spans, start, config.max_iterations))
+        return dataclasses.replace(FAKE, value=b_on[spans], standard_error=0.01 * b_on[spans])
+
+    monkeypatch.setattr(swing, "fit_trajectory", fit_on_grid)
+    config = SwingConfig(size=(SIZE, SIZE), span_ratio=5.0, grid_check=False)
+    start = rho * g * (0.11 / 2.5) ** 3  # c = 4.4 cm: 0.55 m / (5 c) → 3 spans
+    result = fit_swing(vertices, faces, (0, N - 1), DT, gravity, config, start)
+    # 3²'s estimate asks for 5², whose estimate asks for 5 (not 6): done there, resolved;
+    # each refit starts at the level before's estimate
+    assert [level[0] for level in result.levels] == [(3, 3), (5, 5)] and result.resolved
+    assert calls[0][1] == start and calls[1][1] == b_on[3, 3]
+    # an estimate that asks for more than max_spans: the last fit at the limit, not resolved
+    capped = fit_swing(vertices, faces, (0, N - 1), DT, gravity,
+                       dataclasses.replace(config, max_spans=4), start)
+    assert [level[0] for level in capped.levels] == [(3, 3), (4, 4)] and not capped.resolved
+    # spans given: one fit on them
+    assert [lv[0] for lv in fit_swing(vertices, faces, (0, N - 1), DT, gravity,
+                                      dataclasses.replace(config, spans=(4, 4)),
+                                      start).levels] == [(4, 4)]
+    # checked on a finer grid (× 4/3): one step on 7² moves B by 5 s.e. → the fit goes on on
+    # 7² (from that step's value); one step on 10² moves it by 0.5 s.e. → done, resolved
+    calls.clear()
+    checked = fit_swing(vertices, faces, (0, N - 1), DT, gravity,
+                        dataclasses.replace(config, grid_check=True), start)
+    assert [(lv[0], lv[4]) for lv in checked.levels] == [
+        ((3, 3), "fit"), ((5, 5), "fit"), ((7, 7), "check"), ((7, 7), "fit"),
+        ((10, 10), "check")]
+    assert checked.resolved and checked.grid_change == pytest.approx(0.5, rel=1e-6)
+    assert checked.fit.value == b_on[7, 7]
+    assert [c[2] for c in calls] == [15, 15, 1, 15, 1]  # the checks: one step each
+    assert calls[2][1] == b_on[5, 5] and calls[3][1] == b_on[7, 7]
+    # a check at max_spans is not possible: not resolved
+    unchecked = fit_swing(vertices, faces, (0, N - 1), DT, gravity,
+                          dataclasses.replace(config, grid_check=True, max_spans=5), start)
+    assert [lv[0] for lv in unchecked.levels] == [(3, 3), (5, 5)] and not unchecked.resolved

@@ -8,7 +8,12 @@ import torch
 
 import taichi_ndf
 from inverse.cli.fit_material import main
-from inverse.material.trajectory_fit import TrajectoryData, fit_trajectory, observe
+from inverse.material.trajectory_fit import (
+    TrajectoryData,
+    TrajectoryFitConfig,
+    fit_trajectory,
+    observe,
+)
 from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.solve.dynamics import TimeStepper
 from taichi_ndf.solve.dynamics_adjoint import record
@@ -107,6 +112,11 @@ def test_fit_recovers_bending_stiffness_with_an_error_bar(tmp_path):
     assert "not a test" in free.noise_source
     assert free.noise == pytest.approx(float((free.residuals**2).sum()
                                              / (len(free.residuals) - 1)) ** 0.5)
+    # stopped once a step is below a tenth of the s.e.: fewer runs, the same answer within it
+    early = fit_trajectory(_stepper_at(scene), data, 1.5 * B_TRUE,
+                           TrajectoryFitConfig(error_tolerance=0.1))
+    assert early.converged and early.iterations < fit.iterations
+    assert abs(early.value - fit.value) < 0.1 * fit.standard_error
 
 
 def test_trajectory_data_is_checked():

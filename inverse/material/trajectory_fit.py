@@ -9,7 +9,9 @@ J(θ) = ½ Σ r²; per iteration one run (`record`), the gradient ∇J = Σ r dr
 (`tangent`: dC_k/dθ, mapped to the points by the free part J alone: u = g(t) + J C, the
 boundary's part g(t) at the state's time — a scene's motion μ(t) or handles on paths,
 `solve.handle_paths` — does not depend on θ), and θ ← θ − ∇J/H (a step to θ ≤ 0 is cut
-to θ/2) until |Δθ| < `tolerance` |θ|.
+to θ/2) until |Δθ| < `tolerance` |θ| or, with `error_tolerance`, |Δθ| < error_tolerance × the
+s.e. σ/√H of that run (a step far below the estimate's own uncertainty changes nothing the
+fit can tell).
 At the last run: s.e.(θ) = σ/√H, the residuals, and the χ² test of
 `goodness.goodness_of_fit` (1 unknown). With σ unknown it is
 estimated from the residuals, σ̂² = Σ r²/(R − 1) for R residual entries: then χ²/dof = 1 by
@@ -78,17 +80,21 @@ class TrajectoryData:
 @dataclass(frozen=True)
 class TrajectoryFitConfig:
     """parameter: a stiffness name of the material; max_iterations ≥ 1 Gauss–Newton
-    iterations; tolerance > 0: stop when |Δθ| < tolerance |θ|."""
+    iterations; tolerance > 0: stop when |Δθ| < tolerance |θ|; error_tolerance > 0 or None:
+    also stop when |Δθ| < error_tolerance × s.e. (σ/√H at that run)."""
 
     parameter: str = "bending_stiffness"
     max_iterations: int = 15
     tolerance: float = 1e-8
+    error_tolerance: float | None = None
 
     def __post_init__(self):
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
         if not self.tolerance > 0:
             raise ValueError(f"tolerance must be > 0, got {self.tolerance}")
+        if self.error_tolerance is not None and not self.error_tolerance > 0:
+            raise ValueError(f"error_tolerance must be > 0 or None, got {self.error_tolerance}")
 
 
 @dataclass(frozen=True)
@@ -172,15 +178,24 @@ def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryD
             theta += step
             progress.report(iteration, **{config.parameter: theta,
                                           "relative_step": abs(step) / abs(theta)})
-            if abs(step) < config.tolerance * abs(theta):
+            if abs(step) < config.tolerance * abs(theta) or (
+                    config.error_tolerance is not None
+                    and abs(step) < config.error_tolerance * _noise(residuals, data.noise)
+                    / hessian**0.5):
                 converged = True
                 break
     r = torch.cat(residuals).numpy()
-    if data.noise is None:
-        noise, source = float(np.sqrt((r @ r) / max(len(r) - 1, 1))), ESTIMATED
-    else:
-        noise, source = float(data.noise), "stated"
+    noise = _noise(residuals, data.noise)
+    source = ESTIMATED if data.noise is None else "stated"
     return TrajectoryFit(theta, noise / hessian**0.5, iteration, converged, r,
                          torch.cat(columns).numpy(), noise, source,
                          goodness_of_fit(r, 1, noise, source), gap,
                          time.perf_counter() - began)
+
+
+def _noise(residuals: list[torch.Tensor], stated: float | None) -> float:
+    """σ [m]: stated, or σ̂ = √(Σ r² / (R − 1)) over the R residual entries."""
+    if stated is not None:
+        return float(stated)
+    r = torch.cat(residuals)
+    return float(torch.sqrt((r @ r) / max(len(r) - 1, 1)))

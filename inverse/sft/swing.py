@@ -32,11 +32,23 @@ displacements from the flat reference; B fitted by `inverse.material.trajectory_
 estimated from the residuals (the s.e. is then σ̂/√H: it treats the residuals as independent,
 which a reconstruction's are not — the report states it). B scales with ρ_A; the bending
 length c = (B / (ρ_A g))^(1/3) does not.
+The grid (`fit_swing`, `SwingConfig.spans` None): a sheet held at two points buckles at the
+bending length's scale, so the swing's model error is set by span / c; the spans are chosen
+no longer than `span_ratio` × c of the current estimate (`resolving_spans`: from the start
+value first, then a warm-started refit on the finer grid whenever the estimate's c asks for
+one), whatever the sheet's size, the motion or the frame rate; then (`grid_check`) one
+Gauss–Newton step on a grid GROWTH × finer confirms it: where that step moves B by more than
+its s.e., the fit goes on on the finer grid. The check measures the grid's effect on the
+answer itself, so it does not depend on span_ratio being right (measured on the synthetic
+swing: spans ≈ c are not enough there — the folds the twisting corners drive still move
+the swing by 1.7 mm rms from 24² to 28² spans and B by 7 % —, benchmarks/RESULTS.md,
+"Material from the swing: a grid that resolves the buckle").
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -45,7 +57,13 @@ import numpy as np
 import torch
 from scipy.interpolate import make_smoothing_spline
 
-from inverse.material.trajectory_fit import TrajectoryData, observe
+from inverse.material.trajectory_fit import (
+    TrajectoryData,
+    TrajectoryFit,
+    TrajectoryFitConfig,
+    fit_trajectory,
+    observe,
+)
 from inverse.sft.hanging import SheetGrid, hanging_across, hanging_model
 from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig
@@ -54,21 +72,32 @@ from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.shell.fabrics import bending_length
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.solve.dynamics_adjoint import Start, rest_start
 from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundary
 
+log = logging.getLogger(__name__)
+SPAN_RATIO = 1.0  # the longest span, in bending lengths c (RESULTS.md, issue 27, the buckle)
+GROWTH = 4 / 3  # the grid check's spans, per direction, over the fit's
+
 
 @dataclass(frozen=True)
 class SwingConfig:
-    """spans: the spline grid (n1, n2) [spans along ξ¹ (the held edge), ξ²]; degree 3 or 4;
+    """spans: the spline grid (n1, n2) [spans along ξ¹ (the held edge), ξ²], or None: from
+    the bending length of the current estimate (`resolving_spans`, `fit_swing`): no span
+    longer than span_ratio × c, at most max_spans per direction; grid_check: there, confirm
+    the grid by one Gauss–Newton step on a finer one (`fit_swing`); degree 3 or 4;
     substeps ≥ 1 time steps per frame; integrator "implicit_euler" or "newmark";
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
     [kg/m²] (stated); band: the handles' band (fraction of the domain); stride ≥ 1: every
     stride-th vertex per grid direction observed; size: the flat sheet (W, H) [m] or None
     (frame 0's grid-line lengths); start: "rest" or "data" (module docstring)."""
 
-    spans: tuple[int, int] = (8, 8)
+    spans: tuple[int, int] | None = None
+    span_ratio: float = SPAN_RATIO
+    max_spans: int = 32
+    grid_check: bool = True
     degree: int = 3
     substeps: int = 1
     integrator: str = "implicit_euler"
@@ -84,8 +113,13 @@ class SwingConfig:
     def __post_init__(self):
         if self.start not in ("rest", "data"):
             raise ValueError(f"start must be rest or data, got {self.start!r}")
-        if len(self.spans) != 2 or any(int(s) != s or s < 1 for s in self.spans):
-            raise ValueError(f"spans must be two integers >= 1, got {self.spans!r}")
+        if self.spans is not None and (len(self.spans) != 2 or any(
+                int(s) != s or s < 1 for s in self.spans)):
+            raise ValueError(f"spans must be None or two integers >= 1, got {self.spans!r}")
+        if not (math.isfinite(self.span_ratio) and self.span_ratio > 0):
+            raise ValueError(f"span_ratio must be finite and > 0, got {self.span_ratio!r}")
+        if int(self.max_spans) != self.max_spans or self.max_spans < 1:
+            raise ValueError(f"max_spans must be an integer >= 1, got {self.max_spans!r}")
         if self.degree not in (3, 4):
             raise ValueError(f"degree must be 3 or 4, got {self.degree!r}")
         if int(self.substeps) != self.substeps or self.substeps < 1:
@@ -171,6 +205,9 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     frame_interval Δt [s] > 0; gravity (3,) [m/s²]; corners(t): the held corners' positions
     (T, 2, 3) [m] at times t (T,) [s] where they are known otherwise (a synthetic check's
     truth; None: the observed corner vertices, smoothed). ValueError on bad input."""
+    if config.spans is None:
+        raise ValueError("swing problem: spans None (the grid from the estimate's bending "
+                         "length) is `fit_swing`'s; give spans here")
     vertices = np.asarray(vertices, dtype=np.float64)
     if vertices.ndim != 3 or vertices.shape[0] < 5 or vertices.shape[2] != 3:
         raise ValueError(f"vertices must be (F, V, 3) with F >= 5 frames (the smoothing), got "
@@ -245,3 +282,84 @@ def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:
     boundary = moved_boundary(stepper.model.boundary, stepper.path.initial_velocity())
     operator = DisplacementOperator(stepper.field, boundary)
     return operator.prescribed(xi, t=1.0, dtype=torch.float64)[:, jets.VALUE].numpy()
+
+
+def resolving_spans(size: tuple[float, float], length: float, ratio: float = SPAN_RATIO,
+                    limit: int = 32) -> tuple[int, int]:
+    """The spans (n1, n2) of a sheet (W, H) [m] whose spans are at most ratio × `length` [m]
+    (the bending length c: the held sheet buckles at c's scale, so the grid scales with c
+    whatever the sheet or the frame rate — a first guess that `fit_swing`'s check confirms,
+    since the motion's folds may need finer), each at most `limit`."""
+    if not (math.isfinite(length) and length > 0):
+        return (limit, limit)
+    return tuple(min(limit, max(1, math.ceil(side / (ratio * length) - 1e-9)))
+                 for side in size)
+
+
+@dataclass
+class SwingFit:
+    """`fit_swing`'s answer: the last fit's problem and fit; levels: per grid, in order,
+    (spans, θ̂, s.e., iterations, "fit" or "check"); resolved: the last fit's grid resolves the
+    estimate's bending length and, with `grid_check`, one Gauss–Newton step on the next finer
+    grid moved θ̂ by at most its s.e. (False where that needed more than max_spans);
+    grid_change: that last check's |Δθ| / s.e. (None: not checked)."""
+
+    problem: SwingProblem
+    fit: TrajectoryFit
+    levels: list[tuple[tuple[int, int], float, float, int, str]]
+    resolved: bool
+    grid_change: float | None = None
+
+
+def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
+              frame_interval: float, gravity: np.ndarray, config: SwingConfig, start: float,
+              fit_config: TrajectoryFitConfig | None = None, *,
+              newton: NewtonConfig | None = None,
+              corners: Callable[[np.ndarray], np.ndarray] | None = None) -> SwingFit:
+    """B [N·m] fitted to the sequence (`swing_problem`'s arguments) by `fit_trajectory` from
+    `start` [N·m]. With config.spans None the grid follows the estimate: the first fit on
+    `resolving_spans` of the start's bending length, then, while the estimate's bending length
+    needs finer spans than the last grid's, a refit on those, warm-started at the last
+    estimate (each level's grid never coarser than the one before); with `grid_check`, then
+    one Gauss–Newton step from θ̂ on spans × GROWTH: where it moves θ̂ by more than its s.e.
+    the grid does not yet hold the answer, and the fit goes on there (warm-started at the
+    step's value). Given spans: one fit."""
+    size = config.size or SheetGrid.from_template(np.asarray(vertices[0], dtype=np.float64),
+                                                  faces, held).size
+    g = float(np.linalg.norm(gravity))
+    fit_config = fit_config or TrajectoryFitConfig()
+
+    def needed(value: float, limit: int | None = config.max_spans) -> tuple[int, int]:
+        c = bending_length(value, config.areal_density, g)
+        return resolving_spans(size, c, config.span_ratio, limit or 10**9)
+
+    def run(spans: tuple[int, int], theta: float, fit_with: TrajectoryFitConfig):
+        problem = swing_problem(vertices, faces, held, frame_interval, gravity,
+                                dataclasses.replace(config, spans=spans), newton=newton,
+                                corners=corners)
+        return problem, fit_trajectory(problem.stepper_at, problem.data, theta, fit_with,
+                                       initial=problem.start)
+
+    spans, theta, levels = config.spans or needed(start), float(start), []
+    while True:
+        problem, fit = run(spans, theta, fit_config)
+        levels.append((spans, fit.value, fit.standard_error, fit.iterations, "fit"))
+        log.info("swing fit on %s spans: B = %.4e ± %.2e N·m, %d iterations", spans,
+                 fit.value, fit.standard_error, fit.iterations)
+        if config.spans is not None:
+            return SwingFit(problem, fit, levels, True)
+        finer = tuple(max(a, b) for a, b in zip(needed(fit.value), spans, strict=True))
+        if finer != spans:
+            spans, theta = finer, fit.value
+            continue
+        resolved = all(a <= b for a, b in zip(needed(fit.value, None), spans, strict=True))
+        check = tuple(min(config.max_spans, math.ceil(GROWTH * s)) for s in spans)
+        if not config.grid_check or not resolved or check == spans:
+            return SwingFit(problem, fit, levels, resolved and not config.grid_check)
+        _, step = run(check, fit.value, dataclasses.replace(fit_config, max_iterations=1))
+        change = abs(step.value - fit.value) / fit.standard_error
+        levels.append((check, step.value, step.standard_error, 1, "check"))
+        log.info("swing fit: one step on %s spans moves B by %.2f s.e.", check, change)
+        if change <= 1.0:
+            return SwingFit(problem, fit, levels, True, change)
+        spans, theta = check, step.value
