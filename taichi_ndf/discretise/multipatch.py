@@ -233,12 +233,13 @@ class MultiPatchDiscretisation:
         moves = held_moves(self.spec.patches, self._targets, linear, self._start)
         previous = steps[-1]["load_factor"] if steps else 0.0  # the contact rounds start there
 
-        def moved(t: float) -> torch.Tensor:  # c, its held rows towards their targets at t
+        def moved(t: float) -> torch.Tensor:  # c, its held rows moved on from previous to t
             if moves is None:
                 return c
             held, first, target = moves
             out = c.clone()
-            out.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (target - first)
+            step = min(max(t, 0.0), 1.0) - min(max(previous, 0.0), 1.0)
+            out.reshape(-1)[held] += step * (target - first)
             return out
 
         def next_value(_index, _result) -> float | None:  # the scene's next load step, cut
