@@ -39,7 +39,7 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.discretise.held_edges import HeldEdges, held_moves
-from taichi_ndf.discretise.panel_contact import check_outside, panel_contact, seams_at
+from taichi_ndf.discretise.panel_contact import inside, outside_step, panel_contact, seams_at
 from taichi_ndf.discretise.panel_energy import PanelEnergy, SewnFromStart
 from taichi_ndf.discretise.protocol import (
     OnLoadStep,
@@ -233,17 +233,29 @@ class MultiPatchDiscretisation:
         moves = held_moves(self.spec.patches, self._targets, linear, self._start)
         previous = steps[-1]["load_factor"] if steps else 0.0  # the contact rounds start there
 
+        def moved(t: float) -> torch.Tensor:  # c, its held rows moved on from previous to t
+            if moves is None:
+                return c
+            held, first, target = moves
+            out = c.clone()
+            step = min(max(t, 0.0), 1.0) - min(max(previous, 0.0), 1.0)
+            out.reshape(-1)[held] += step * (target - first)
+            return out
+
+        def next_value(_index, _result) -> float | None:  # the scene's next load step, cut
+            goal = next((s for s in config.load_steps if s > previous), None)  # where the
+            if goal is None or moves is None or contact is None:  # held rows' move would
+                return goal  # start the rounds inside an obstacle (`outside_step`)
+            before = max((s for s in config.load_steps if s < goal), default=0.0)
+            return outside_step(previous, goal, goal - before, lambda t: inside(
+                self.spec, contact[0], contact[1], moved(t), t,
+                "where its held edges are moved to"))
+
         def solve(step, _start):  # one load step's Newton (or contact rounds) from c
             nonlocal c, linear, previous
             t = step.value
             linear = self._joined(grids, t)
-            if moves is not None:  # the held rows moved towards their targets (no step)
-                held, first, target = moves
-                c = c.clone()
-                c.reshape(-1)[held] = first + min(max(t, 0.0), 1.0) * (target - first)
-                if contact is not None:  # the rounds start outside the obstacles
-                    check_outside(self.spec, contact[0], contact[1], c, t,
-                                  "where its held edges are moved to")
+            c = moved(t)  # the held rows moved towards their targets (no step)
             phase = Phase(NewtonMinimiser(newton, load_factor=t),
                           objective=lambda linear=linear: (linear, objective.potential(t)),
                           parameters=lambda c=c: c, hooks=Hooks(on_iteration=iterated),
@@ -283,8 +295,8 @@ class MultiPatchDiscretisation:
             state.iteration = len(history)
             call(callbacks, "on_resume_point", run)
 
-        solve_over(Stages(solve, after_step=stepped, interrupted=interrupted),
-                   config.load_steps, first_step=state.load_step, subject=run,
+        solve_over(Stages(solve, after_step=stepped, interrupted=interrupted), (),
+                   first_step=state.load_step, subject=run, next_value=next_value,
                    callbacks=(*callbacks, Hook("on_load_step", resume_point)))
         if contact is not None:  # the grids back on their Gauss and seam points (seam_gaps)
             for grid, points in zip(grids, self._points, strict=True):

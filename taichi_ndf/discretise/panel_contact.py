@@ -1,8 +1,9 @@
 """A garment's panels against obstacles (`MultiPatchDiscretisation` with `[[obstacles]]`): the
 run's `NewtonContact` over the panels' joint chart (`panel_contact`), the seams the contact
 rounds evaluate on each round's points (`seams_at`: sewn from where the panels start where
-some panel is cut flat) and the test that a state the load steps move the held edges to
-starts outside the obstacles (`check_outside`).
+some panel is cut flat), the test that a state the load steps move the held edges to
+starts outside the obstacles (`check_outside`, `inside`) and the load step cut until it does
+(`outside_step`).
 
 Flat-cut panels (`Patch.start`, `Patch.held`) go through the rounds as through the plain load
 steps: each round's linearisation is the chart's `join` of the patches' grids, the
@@ -10,7 +11,12 @@ steps: each round's linearisation is the chart's `join` of the patches' grids, t
 seams are `SewnFromStart` with the start displacement at the round's own points; a held
 target's move of the held rows (`held_moves`, a gathered waist) is set before the step's
 first round, and that state must be outside the obstacles (the rounds' step test starts
-from it): else ValueError naming the obstacle, the panel and the load factor.
+from it). Where it is not (the held rows moved onto their next target with the rest where the
+last load step left it: a panel pulled onto the body below a gathered band), the load step is
+cut: halved from the last solved load factor until its start is outside, at most MAX_CUTS
+times (each cut logged; the next step tries the scene's load step again), the smaller move
+leaving the rounds to carry the rest of the panel along; only a step whose smallest cut still
+starts inside is refused, ValueError naming the obstacle, the panel and the load factor.
 
 Self-contact (`[self_contact]` in a garment file): the rounds' self-contact term acts between
 the Gauss points of all panels (pairs within a panel and across panels, found in the joint
@@ -27,6 +33,8 @@ closer than ρ − (o + ĝ) (`check_seams_start_close`). The step bound
 from __future__ import annotations
 
 import dataclasses
+import logging
+from collections.abc import Callable
 
 import torch
 
@@ -39,6 +47,11 @@ from taichi_ndf.objective.seam import SeamTerm
 from taichi_ndf.problem.multipatch import MultiPatchPlan
 
 DTYPE = torch.float64
+# The most halvings of a load step whose held edges' move starts inside an obstacle
+# (`outside_step`): its smallest cut is 1/64 of the scene's load step.
+MAX_CUTS = 6
+
+log = logging.getLogger(__name__)
 
 
 class StartPositions:
@@ -135,23 +148,54 @@ def check_seams_start_close(plan: MultiPatchPlan, seams: list[SeamTerm],
 
 def check_outside(plan: MultiPatchPlan, contact: NewtonContact, chart: MultiPatchGrid,
                   coefficients: torch.Tensor, load_factor: float, when: str) -> None:
-    """ValueError naming the obstacle and the panel where a point of the contact's check grid
+    """ValueError (`inside`'s message) where the contact's check grid is inside an obstacle's
+    reach at the joint `coefficients` (Σ n_i, 3) and load factor t (`inside`)."""
+    message = inside(plan, contact, chart, coefficients, load_factor, when)
+    if message is not None:
+        raise ValueError(message)
+
+
+def inside(plan: MultiPatchPlan, contact: NewtonContact, chart: MultiPatchGrid,
+           coefficients: torch.Tensor, load_factor: float, when: str) -> str | None:
+    """The line naming the obstacle and the panel where a point of the contact's check grid
     (every panel's, edges included) is within h/2 + margin of an obstacle at the joint
-    `coefficients` (Σ n_i, 3) and load factor t; `when` says which state it is."""
+    `coefficients` (Σ n_i, 3) and load factor t; `when` says which state it is. None: every
+    point is outside."""
     points = contact.points
     xi = points.grid_xi.to(DTYPE)
     x = points.grid_r.to(DTYPE) + PointMap(chart, xi, load_factor)(coefficients)
     gaps = points.term.gaps(x, load_factor)[0]  # (N, obstacles)
     if not gaps.shape[1] or float(gaps.min()) > 0:
-        return
+        return None
     worst = int(gaps.min(dim=1).values.argmin())
     obstacle = int(gaps[worst].argmin())
     panel = plan.patches[int(chart.patch_of(xi[worst:worst + 1])[0])].name
     config = contact.config
     distance = float(gaps[worst, obstacle]) + config.offset
-    raise ValueError(f"obstacle {config.obstacles[obstacle].name!r} intersects panel {panel!r} "
-                     f"{when} (load factor {load_factor:g}: distance {distance:.4g} m, needs "
-                     f"more than h/2 + margin = {config.offset:.4g} m)")
+    return (f"obstacle {config.obstacles[obstacle].name!r} intersects panel {panel!r} "
+            f"{when} (load factor {load_factor:g}: distance {distance:.4g} m, needs "
+            f"more than h/2 + margin = {config.offset:.4g} m)")
+
+
+def outside_step(previous: float, goal: float, span: float,
+                 refused: Callable[[float], str | None], cuts: int = MAX_CUTS) -> float:
+    """The load factor of the next load step from `previous` (the last one solved) towards
+    `goal` (the next of the scene's load steps, `span` after the one before it): `goal`
+    where the state the step starts from is outside the obstacles (`refused(t)`: None, else
+    the line naming where it is inside), else the step from `previous` halved until it is,
+    each cut logged, down to span / 2^cuts; ValueError with `refused`'s line where the
+    smallest cut still starts inside. The steps are at least span / 2^cuts long, so a
+    scene's load step is reached in at most 2^cuts of them."""
+    smallest = span / 2 ** cuts
+    t = goal
+    while (message := refused(t)) is not None:
+        cut = previous + 0.5 * (t - previous)
+        if cut - previous < smallest * (1.0 - 1e-9):
+            raise ValueError(f"{message}; the load step cut {cuts} times, to "
+                             f"{smallest:.3g}, still starts inside")
+        log.info("load factor %g: %s; the load step cut to %g", t, message, cut)
+        t = cut
+    return t
 
 
 def seams_at(plan: MultiPatchPlan, seams: list[SeamTerm], start: torch.Tensor | None):
