@@ -4,7 +4,7 @@ import json
 import subprocess
 import sys
 
-from tests.test_cli import ROOT
+from tests.scripts import ROOT
 
 PROBE = """
 import json, sys
