@@ -43,7 +43,7 @@ from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.problem.loads import Loads
-from taichi_ndf.problem.outline import Outline, clip_to_box, cross, ear_clip, polygon_area
+from taichi_ndf.problem.outline import Outline, clip_to_box, cross, polygon_area
 from taichi_ndf.problem.quadrature import gauss_legendre, span_points
 from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.shell.hessian import COMPONENTS
@@ -68,10 +68,8 @@ def _pieces(outline: Outline, config: SplineConfig) -> dict[tuple[int, int], lis
     (lo1, _), (lo2, _) = config.domain
     h1, h2 = config.spacing
     n1, n2 = config.spans
-    points = outline.points
     pieces: dict[tuple[int, int], list] = {}
-    for tri in ear_clip(points):
-        corners = [points[i] for i in tri]
+    for corners in outline.triangles:
         if abs(cross(*corners)) <= 1e-14 * h1 * h2:
             continue
         xs, ys = [c[0] for c in corners], [c[1] for c in corners]
