@@ -22,10 +22,16 @@ Parts (`--parts`):
   adaptive spans per direction, warm-started from the final adaptive solution (`--no-fine`:
   none; each quantity's values on the three grids of both rows and their estimates instead).
 
+- coverage: issue 33's ten cases with an affordable finer reference, the adaptive rows only
+  with the default rule (`COVERAGE`: the napkin's "features per level" against Π∞, the
+  interior part on five scenes within 10 000 unknowns, the validation part on four cases
+  within 15 000; benchmarks/RESULTS.md, "Adaptive refinement: gauges, honest bars, coverage").
+
 CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
 average after it (the machine is shared).
 
-    python benchmarks/adaptive_refinement.py [--parts napkin,interior,validation] [--start 6]
+    python benchmarks/adaptive_refinement.py [--parts napkin,interior,validation,coverage]
+        [--start 6]
         [--tolerance 1e-3] [--budget 20000] [--cases a,b] [--indicator features] [--no-fine]
         [--no-uniform]
 """
@@ -56,6 +62,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from provenance import commit  # noqa: E402  (the commit each benchmark states)
 
 INDICATOR = ["density"]  # the adaptive rows' indicator (--indicator)
+COVERAGE = {"scenes": ("square_plate_quarter", "membrane_stretch", "napkin_interior_line",
+                       "pinched_cylinder_octant", "napkin_clamped_edges"),
+            "cases": ("cantilever_shear", "square_plate", "scordelis_lo_roof",
+                      "cantilever_moment")}
 PI_INF = -1.64998  # the napkin's Π∞ [J] (RESULTS.md, "Graded knots", both sequences)
 
 
@@ -123,15 +133,12 @@ def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
 def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: bool = True,
                   uniform: bool = True) -> None:
     """Shipped (or validation) scenes from the grid rule's grid: uniform dyadic refinement
-    (`levels` grids; `uniform`) and the default `--tolerance` grids (each graded towards the
-    features by its own spans, dyadic without features) within `budget`; the estimates of
-    result.json (`SplineRun.refinement`: Π and every probe component, the guarded rule over
-    the last three grids) against a finer solve: the next grid of the sequence (2 × the
-    final spans, graded by its own spans where the scene has features), each at the last
-    load step warm-started from the final solution by projection; and the SIREN's Π of
-    benchmarks/spline_vs_siren.json where it has the scene. A component that is the same on
-    every grid and the finer one (prescribed) or below 1e-6 of its point's size (zero by
-    symmetry) is not counted."""
+    (`levels` grids; `uniform`) and the default `--tolerance` grids within `budget`;
+    result.json's estimates (`SplineRun.refinement`: Π and every probe component) against a
+    finer solve: the next grid of the sequence (2 × the final spans, graded by its own spans
+    where the scene has features) at the last load step from the final solution projected;
+    the SIREN's Π of benchmarks/spline_vs_siren.json where it has the scene. A component the
+    same on every grid (prescribed) or below 1e-6 of its point's size is not counted."""
     import json
 
     from taichi_ndf.solve.adaptive import features_grid
@@ -178,10 +185,9 @@ def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: b
                 outcomes.append(outcome_line(name, run))
             grids = " / ".join(f"{lv.spans[0]}×{lv.spans[1]}" for lv in run.levels)
             below = "—" if siren is None else ("yes" if run.energy <= siren else "no")
-            siren_text = "—" if siren is None else f"{siren:.6f}"
             print(f"| {name} | {label} | {grids} | {unknowns(run.field.config)} | "
                   f"{run.energy:.6f} | {estimate.describe()} | {fine_text} | {distance} | "
-                  f"{ratio} | {holds} | {siren_text} | {below} "
+                  f"{ratio} | {holds} | {'—' if siren is None else f'{siren:.6f}'} | {below} "
                   f"| {cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
     print_coverage(coverage)
     print("\n" + "\n".join(outcomes))
@@ -229,9 +235,7 @@ def print_coverage(rows: list[str]) -> None:
     print("\nestimate of the adaptive run (last load) against the finer solve (per row)\n")
     print("| case | quantity | adaptive grids | last three values | estimate ± bar (how) | "
           "finer reference (spans) | distance | bar / distance | holds | CPU fine [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for row in rows:
-        print(row, flush=True)
+    print("|---|---|---|---|---|---|---|---|---|---|\n" + "\n".join(rows), flush=True)
 
 
 def validation_rows(cases, tolerance: float, budget: int, fine: bool = True,
@@ -375,6 +379,11 @@ def main() -> None:
     print(f"commit {commit()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
           f"load {os.getloadavg()[0]:.1f}")
     parts = args.parts.split(",")
+    if "coverage" in parts:
+        INDICATOR[0] = "features"
+        napkin_rows(6, 3000, 3e-3, rows=("features per level",))
+        interior_rows(COVERAGE["scenes"], 1e-3, 10_000, uniform=False)
+        validation_rows(COVERAGE["cases"], 1e-3, 15_000, uniform=False)
     if "napkin" in parts:
         rows = tuple(args.napkin_rows.split(";"))
         napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance, args.napkin_levels,
