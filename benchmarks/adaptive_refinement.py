@@ -9,9 +9,10 @@ Parts (`--parts`):
   `--napkin-budget` unknowns, one features-graded 24² from zero (what the warm start saves);
   Π against Π∞ = −1.64998 J (benchmarks/RESULTS.md, "Graded knots"), the estimate and
   whether its bar holds Π∞;
-- interior: the shipped scenes `--scenes` (napkin_interior_point, napkin_interior_line) from
-  the grid rule's grid: uniform (3 grids) and `--tolerance` graded per level within
-  `--scene-budget`; the estimate against the next graded grid, and the SIREN's Π
+- interior: the scenes `--scenes` (shipped or validation scenes; default
+  napkin_interior_point, napkin_interior_line) from the grid rule's grid: uniform (3 grids)
+  and `--tolerance` graded per level within `--scene-budget`; result.json's estimates (Π and
+  each probe component) against the next grid of the sequence, and the SIREN's Π
   (benchmarks/spline_vs_siren.json);
 - validation: the validation cases with `--tolerance` (the adaptive loop through the
   validation runner, from the grid rule's grid) beside `ndf-validate --field spline` (3
@@ -21,11 +22,18 @@ Parts (`--parts`):
   adaptive spans per direction, warm-started from the final adaptive solution (`--no-fine`:
   none; each quantity's values on the three grids of both rows and their estimates instead).
 
+- coverage: issue 33's ten cases with an affordable finer reference, the adaptive rows only
+  with the default rule (`COVERAGE`: the napkin's "features per level" against Π∞, the
+  interior part on five scenes within 10 000 unknowns, the validation part on four cases
+  within 15 000; benchmarks/RESULTS.md, "Adaptive refinement: gauges, honest bars, coverage").
+
 CPU: user + sys of this process (`resource.getrusage`) per solve; load: the 1-minute load
 average after it (the machine is shared).
 
-    python benchmarks/adaptive_refinement.py [--parts napkin,interior,validation] [--start 6]
+    python benchmarks/adaptive_refinement.py [--parts napkin,interior,validation,coverage]
+        [--start 6]
         [--tolerance 1e-3] [--budget 20000] [--cases a,b] [--indicator features] [--no-fine]
+        [--no-uniform]
 """
 
 from __future__ import annotations
@@ -54,6 +62,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from provenance import commit  # noqa: E402  (the commit each benchmark states)
 
 INDICATOR = ["density"]  # the adaptive rows' indicator (--indicator)
+COVERAGE = {"scenes": ("square_plate_quarter", "membrane_stretch", "napkin_interior_line",
+                       "pinched_cylinder_octant", "napkin_clamped_edges"),
+            "cases": ("cantilever_shear", "square_plate", "scordelis_lo_roof",
+                      "cantilever_moment")}
 PI_INF = -1.64998  # the napkin's Π∞ [J] (RESULTS.md, "Graded knots", both sequences)
 
 
@@ -118,29 +130,33 @@ def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
               f"{cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
 
 
-def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: bool = True
-                  ) -> None:
-    """Shipped scenes with a pinned interior point / line from the grid rule's grid: uniform
-    dyadic refinement (`levels` grids) and the default `--tolerance` grids (each graded
-    towards the features by its own spans) within `budget`; the estimate of Π over the last
-    three grids against a finer solve: the next grid of the graded sequence (2 × the final
-    spans, graded by its own spans), warm-started from the final solution by projection;
-    and the SIREN's Π of benchmarks/spline_vs_siren.json."""
+def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: bool = True,
+                  uniform: bool = True) -> None:
+    """Shipped (or validation) scenes from the grid rule's grid: uniform dyadic refinement
+    (`levels` grids; `uniform`) and the default `--tolerance` grids within `budget`;
+    result.json's estimates (`SplineRun.refinement`: Π and every probe component) against a
+    finer solve: the next grid of the sequence (2 × the final spans, graded by its own spans
+    where the scene has features) at the last load step from the final solution projected;
+    the SIREN's Π of benchmarks/spline_vs_siren.json where it has the scene. A component the
+    same on every grid (prescribed) or below 1e-6 of its point's size is not counted."""
     import json
 
     from taichi_ndf.solve.adaptive import features_grid
 
     table = json.loads((ROOT / "benchmarks" / "spline_vs_siren.json").read_text())
-    print(f"\nshipped scenes: uniform {levels} grids and --tolerance {tolerance:g} (budget "
-          f"{budget}), graded per level\n")
+    print(f"\nscenes: uniform {levels} grids and --tolerance {tolerance:g} (budget {budget}), "
+          "graded per level\n")
     print("| scene | refinement | grids | finest unknowns | Π [J] | estimate ± bar (how) | "
           "finer solve Π [J] (spans, its, CPU s) | distance | bar / distance | holds | "
           "SIREN Π [J] | ≤ SIREN | CPU [s] | wall [s] | load |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    coverage, outcomes = [], []
     for name in names:
-        siren = table[name]["siren"]["energy"]
-        for label in ("uniform", "features per level"):
-            scene = load_scene(ROOT / "scenes" / f"{name}.toml", field="spline")
+        path = ROOT / "scenes" / f"{name}.toml"
+        path = path if path.exists() else ROOT / "validation" / "scenes" / f"{name}.toml"
+        siren = table.get(name, {}).get("siren", {}).get("energy")
+        for label in ("uniform", "features per level")[0 if uniform else 1:]:
+            scene = load_scene(path, field="spline")
             solver = dataclasses.replace(scene.solver, progress=False)
             cpu, wall = cpu_seconds(), time.perf_counter()
             if label == "uniform":
@@ -150,6 +166,7 @@ def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: b
                 run = solve_adaptive(scene.model, scene.field, solver,
                                      AdaptiveConfig(tolerance, budget, "features"))
             cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
+            document = run.refinement(scene.field.config.degree)
             estimate = richardson([lv.energy for lv in run.levels][-3:], order=4.0)
             fine_text, distance, ratio, holds = "—", "—", "—", "—"
             if label != "uniform" and fine:
@@ -159,18 +176,70 @@ def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: b
                                    Objective.of_model(scene.model), coarse_energy=run.energy)
                 fine_cpu = cpu_seconds() - fine_cpu
                 d = abs(estimate.value - fine.energy)
-                fine_text = (f"{fine.energy:.6f} ({fine_config.spans[0]}², "
-                             f"{len(fine.history)}, {fine_cpu:.0f})")
-                distance, ratio = f"{d:.2g}", f"{estimate.error / d:.3g}"
+                fine_text = (f"{fine.energy:.6f} ({fine_config.spans[0]}×"
+                             f"{fine_config.spans[1]}, {len(fine.history)}, {fine_cpu:.0f})")
+                distance, ratio = f"{d:.2g}", f"{estimate.error / d:.3g}" if d else "inf"
                 holds = "yes" if d <= estimate.error else "**no**"
-            grids = " / ".join(f"{lv.spans[0]}²" for lv in run.levels)
+                coverage += estimate_rows(name, run, document, fine, fine_config, fine_cpu)
+            if label != "uniform":
+                outcomes.append(outcome_line(name, run))
+            grids = " / ".join(f"{lv.spans[0]}×{lv.spans[1]}" for lv in run.levels)
+            below = "—" if siren is None else ("yes" if run.energy <= siren else "no")
             print(f"| {name} | {label} | {grids} | {unknowns(run.field.config)} | "
                   f"{run.energy:.6f} | {estimate.describe()} | {fine_text} | {distance} | "
-                  f"{ratio} | {holds} | {siren:.6f} | {'yes' if run.energy <= siren else 'no'} "
+                  f"{ratio} | {holds} | {'—' if siren is None else f'{siren:.6f}'} | {below} "
                   f"| {cpu:.1f} | {wall:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
+    print_coverage(coverage)
+    print("\n" + "\n".join(outcomes))
 
 
-def validation_rows(cases, tolerance: float, budget: int, fine: bool = True) -> None:
+def outcome_line(name: str, run) -> str:
+    """Why the adaptive loop stopped, and its unknowns per grid (result.json's record)."""
+    a = run.adaptive
+    sizes = ", ".join(str(lv["unknowns"]) for lv in a["levels"])
+    return f"- {name}: {a['outcome']}; unknowns per grid {sizes}; {a['stopped'] or a.get('worst')}"
+
+
+def estimate_rows(name, run, document, fine, fine_config, fine_cpu) -> list[str]:
+    """Coverage rows of a scene: result.json's estimate of Π and of each counted probe
+    component (`interior_rows`) against the finer solve's."""
+    grids = " / ".join(f"{lv.spans[0]}×{lv.spans[1]}" for lv in run.levels)
+    spans = f"{fine_config.spans[0]}×{fine_config.spans[1]}"
+    entries = [("Π [J]", document["energy"], fine.energy)]
+    for probe, parts in document["probes"].items():
+        size = max(float(np.linalg.norm(v)) for v in [fine.probes[probe]] + [
+            lv.probes[probe] for lv in run.levels])
+        for c, part in enumerate(parts):
+            values = part["values"] + [float(fine.probes[probe][c])]
+            if (max(values) - min(values) <= 1e-12 * max(abs(v) for v in values)
+                    or max(abs(v) for v in values) <= 1e-6 * size):
+                continue  # prescribed, or zero by symmetry
+            entries.append((f"{probe}:{c}", part, float(fine.probes[probe][c])))
+    return [coverage_row(name, q, grids, e["values"], e["text"], e["extrapolated"],
+                         e["estimated_error"], reference, spans, fine_cpu)
+            for q, e, reference in entries]
+
+
+def coverage_row(case, quantity, grids, values, text, value, error, reference, spans,
+                 cpu) -> str:
+    distance = abs(value - reference)
+    ratio = error / distance if distance > 0 else float("inf")
+    return (f"| {case} | {quantity} | {grids} | {', '.join(f'{v:.10g}' for v in values[-3:])} "
+            f"| {text} | {reference:.10g} ({spans}) | {distance:.2g} | {ratio:.3g} | "
+            f"{'yes' if error >= distance else '**no**'} | {cpu:.1f} |")
+
+
+def print_coverage(rows: list[str]) -> None:
+    if not rows:
+        return
+    print("\nestimate of the adaptive run (last load) against the finer solve (per row)\n")
+    print("| case | quantity | adaptive grids | last three values | estimate ± bar (how) | "
+          "finer reference (spans) | distance | bar / distance | holds | CPU fine [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|\n" + "\n".join(rows), flush=True)
+
+
+def validation_rows(cases, tolerance: float, budget: int, fine: bool = True,
+                    uniform: bool = True) -> None:
     from taichi_ndf.discretise.adaptive import AdaptiveDiscretisation
     from taichi_ndf.validation import CASES, runner
     from taichi_ndf.validation.catalogue import LINEARISATION
@@ -189,10 +258,10 @@ def validation_rows(cases, tolerance: float, budget: int, fine: bool = True) -> 
     print("| case | quantity | load | refinement | grids | finest unknowns | value | "
           "reference | error | CPU [s] | wall [s] | load avg |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    coverage = []
+    coverage, outcomes = [], []
     for name in cases:
         case = CASES[name]
-        for label in ("uniform", "adaptive"):
+        for label in ("uniform", "adaptive")[0 if uniform else 1:]:
             captured: list = []
             runner.discretisation = original if label == "uniform" else adaptive_factory
             cpu, wall = cpu_seconds(), time.perf_counter()
@@ -222,16 +291,12 @@ def validation_rows(cases, tolerance: float, budget: int, fine: bool = True) -> 
                                     f"{', '.join(f'{v:.7g}' for v in values)} | "
                                     f"{estimate.describe()} | | | | | |")
             if label == "adaptive":
+                outcomes.append(outcome_line(name, captured[-1].run))
                 coverage += case_coverage(case, result, captured[-1], LINEARISATION, runner,
                                           fine)
         runner.discretisation = original
-    print("\nestimate of the adaptive run (last load) against the fine reference (uniform, 2 × "
-          "the final spans per direction, warm-started)\n")
-    print("| case | quantity | adaptive grids | estimate ± bar (how) | fine reference (spans) | "
-          "distance | bar / distance | holds | CPU fine [s] |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for row in coverage:
-        print(row, flush=True)
+    print_coverage(coverage)
+    print("\n" + "\n".join(outcomes))
 
 
 def case_coverage(case, result, discretisation, linearisation, runner, fine: bool = True
@@ -278,11 +343,8 @@ def case_coverage(case, result, discretisation, linearisation, runner, fine: boo
         quantities.append((q.name, per_level, q.read(fine_readings, positions)))
     for name, values, reference in quantities:
         estimate = richardson(values, order=2.0 * (run.field.config.degree - 1))
-        distance = abs(estimate.value - reference)
-        ratio = estimate.error / distance if distance > 0 else float("inf")
-        rows.append(f"| {case.name} | {name} | {grids} | {estimate.describe()} | "
-                    f"{reference:.7g} ({spans}) | {distance:.2g} | {ratio:.3g} | "
-                    f"{'yes' if estimate.error >= distance else '**no**'} | {cpu:.1f} |")
+        rows.append(coverage_row(case.name, name, grids, values, estimate.describe(),
+                                 estimate.value, estimate.error, reference, spans, cpu))
     return rows
 
 
@@ -308,6 +370,8 @@ def main() -> None:
                         help="validation, interior: no fine reference solve (too large for "
                         "the machine)")
     parser.add_argument("--cases", default="square_plate,cantilever_shear,scordelis_lo_roof")
+    parser.add_argument("--no-uniform", action="store_true",
+                        help="validation, interior: the adaptive rows only")
     args = parser.parse_args()
     INDICATOR[0] = args.indicator
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)
@@ -315,15 +379,21 @@ def main() -> None:
     print(f"commit {commit()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
           f"load {os.getloadavg()[0]:.1f}")
     parts = args.parts.split(",")
+    if "coverage" in parts:
+        INDICATOR[0] = "features"
+        napkin_rows(6, 3000, 3e-3, rows=("features per level",))
+        interior_rows(COVERAGE["scenes"], 1e-3, 10_000, uniform=False)
+        validation_rows(COVERAGE["cases"], 1e-3, 15_000, uniform=False)
     if "napkin" in parts:
         rows = tuple(args.napkin_rows.split(";"))
         napkin_rows(args.start, args.napkin_budget, args.napkin_tolerance, args.napkin_levels,
                     rows)
     if "interior" in parts:
         interior_rows(args.scenes.split(","), args.tolerance, args.scene_budget,
-                      fine=not args.no_fine)
+                      fine=not args.no_fine, uniform=not args.no_uniform)
     if "validation" in parts:
-        validation_rows(args.cases.split(","), args.tolerance, args.budget, not args.no_fine)
+        validation_rows(args.cases.split(","), args.tolerance, args.budget, not args.no_fine,
+                        not args.no_uniform)
 
 
 if __name__ == "__main__":

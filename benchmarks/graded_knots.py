@@ -31,6 +31,7 @@ from pathlib import Path
 import torch
 
 import taichi_ndf
+from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.problem.spline_grid import graded_config
 from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.solve.spline_solver import solve_spline
@@ -90,7 +91,8 @@ def validation_rows(cases, levels: int, gradings=GRADINGS) -> None:
 
     def graded_scene(case, scenes_dir=runner.SCENES_DIR, field=None):
         scene, model, plan = original(case, scenes_dir, field)
-        config = graded_config(plan.config, model.boundary, model.loads, model.surface.domain)
+        config = graded_config(plan.config, model.boundary, model.loads, model.surface.domain,
+                               gauges=gauge_points(model))
         return scene, model, dataclasses.replace(plan, config=config)
 
     print(f"\nvalidation cases, spline on {levels} grids (the grid rule's and its refinements)\n")

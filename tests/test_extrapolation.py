@@ -115,3 +115,49 @@ def test_components_that_do_not_fall_stay_unreliable_when_the_point_falls():
     for axis, bar in enumerate(bars):
         alone = richardson([u[axis] for u in corner], order=4.0)
         assert bar == alone and bar.basis == "unreliable"
+
+
+# Measured sequences (benchmarks/refinement_coverage_*.json, issue 35; their finer values):
+# cantilever_shear's tip deflection on 4×1 / 8×2 / 16×4 (observed order 5.29, the last change
+# 4.8e-6 of the value) and on 64×16; at its first load step (the last change 6e-9, at the
+# rounding level); bowl in silk's centre on 2² / 4² / 8² (order 5.0, the last change 2.3e-3
+# of the value) and on 32² (28 × that change away).
+CANTILEVER = ([6.698596586, 6.699848783, 6.699880784], 6.699891985)
+CANTILEVER_FIRST_LOAD = ([1.309746478, 1.30975294, 1.309752946], 1.309753429)
+BOWL_SILK = ([-0.2270182726, -0.2450067314, -0.2455683642], -0.2610352035)
+
+
+@pytest.mark.parametrize("values, reference", [CANTILEVER, CANTILEVER_FIRST_LOAD])
+def test_a_sequence_converged_to_the_rounding_level_gets_a_bar_of_its_size(values, reference):
+    """Changes that fall faster than the expected order to within a decade of the rounding
+    level: the bar is the changes still to come (the last one, at least the rounding level,
+    summed at order 0.5), not 3 × the range (344 × and 40 × the distance to the finer value):
+    it holds that value and is at most 10 × the distance."""
+    bar = richardson(values, order=4.0)
+    distance = abs(reference - bar.value)
+    assert bar.basis == "unreliable" and bar.bound == "floor"
+    assert bar.value == values[-1]
+    assert distance <= bar.error <= 10 * distance
+    assert "summed at order 0.5" in bar.describe()
+
+
+def test_a_fast_fall_far_above_the_rounding_level_keeps_the_range():
+    """Bowl in silk's coarse grids fall at order 5.0 by coincidence: 3 × the range, which
+    holds the 32² value (the last change alone misses it by 28 ×)."""
+    values, reference = BOWL_SILK
+    bar = richardson(values, order=4.0)
+    assert bar.bound == "range"
+    assert bar.error == pytest.approx(SAFETY_UNRELIABLE * abs(values[2] - values[0]))
+    assert abs(reference - bar.value) <= bar.error
+
+
+def test_a_point_converged_to_the_rounding_level_bounds_each_component():
+    """The point's changes (norms) fall to the floor: a component whose own order looks
+    reliable takes the point's floor bar, which bounds the vector's changes still to come."""
+    x = [0.1, 0.1 + 1e-5, 0.1 + 1.25e-5]  # its own changes fall at order 2: reliable alone
+    tip = [[a, 0.0, v] for a, v in zip(x, CANTILEVER[0], strict=True)]
+    assert richardson(x, order=4.0).basis == "observed"
+    bars = richardson_point(tip, order=4.0)
+    assert bars[0].bound == "floor" and bars[2].bound == "floor"
+    assert bars[0].error >= bars[2].error >= abs(CANTILEVER[1] - CANTILEVER[0][2])
+    assert bars[0].error <= 10 * abs(CANTILEVER[1] - CANTILEVER[0][2])

@@ -75,7 +75,8 @@ def test_features_of_the_shipped_scenes():
     assert f1 == pytest.approx((0.0, math.pi)) and f2 == (300.0,)
     hemisphere = load_scene(ROOT / "validation" / "scenes" / "pinched_hemisphere.toml",
                             field="spline")
-    # the pin on the hole's rim, λ = the domain's end (0.4 π, rounded up at 12 digits: kept in)
+    # the pin on the hole's rim, λ = the domain's end (0.4 π, rounded up at 12 digits: kept in),
+    # where no gauges are passed (it is one: tests/test_gauges.py)
     f1, f2 = features(hemisphere)
     assert f2 == (0.0, hemisphere.model.surface.domain.bounds[1][1])
     assert len(f1) == 5  # the four loads and the pin

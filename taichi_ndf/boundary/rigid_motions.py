@@ -93,49 +93,20 @@ class Finding:
                 f"stiffness along it")
 
 
-def free_motions(boundary, surface, *, point_slopes: bool = False
+def free_motions(boundary, surface, *, point_slopes: bool = False, leave_out=()
                  ) -> tuple[np.ndarray, np.ndarray, float]:
     """The twists left free by the boundary conditions: an orthonormal basis (6, k) of
     q = (t, L ω) (t [m], ω [rad] about the centre c; L the surface's size [m]), c (3,) and L.
     point_slopes: count the slope a pinned point or handle holds (rotation "held") as holding
-    (the constraints as stated; by default it does not: module docstring)."""
+    (the constraints as stated; by default it does not: module docstring). leave_out:
+    constraints of `boundary.constraints` not counted."""
     (lo1, hi1), (lo2, hi2) = surface.domain.bounds
-    grid = _grid_xi(surface.domain)
-    r = surface.jets(grid)
+    r = surface.jets(_grid_xi(surface.domain))
     area = torch.linalg.cross(r[:, jets.D1], r[:, jets.D2], dim=-1).norm(dim=-1)
     centre = ((r[:, 0] * area[:, None]).sum(0) / area.sum()).numpy()
     size = float(np.sqrt(float(area.mean()) * (hi1 - lo1) * (hi2 - lo2)))
-    frame = np.asarray(boundary.frame or IDENTITY_FRAME, dtype=np.float64)
-    rows = []
-    for con in boundary.constraints:
-        term = resolve(con, boundary.domain, surface, boundary.length,
-                       boundary.frame or IDENTITY_FRAME)
-        held = sorted(term.components)
-        across_held = [] if term.linear else held
-        if isinstance(con, SymmetryPlane):
-            across_held = [c for c in range(3) if c not in held]
-        for start, end in term.where:
-            xi = torch.tensor(points_along(_from_eta(boundary.domain, start),
-                                           _from_eta(boundary.domain, end)), dtype=torch.float64)
-            xi = xi[boundary.domain.contains(xi)]
-            if len(xi) == 0:
-                continue
-            rj = surface.jets(xi).numpy()
-            y = rj[:, 0] - centre
-            for c in held:
-                e = frame[c]
-                rows += [np.concatenate((e, np.cross(yk, e) / size)) for yk in y]
-            if start == end:    # a point: its slope along both coordinates, if counted
-                point = point_slopes and getattr(con, "rotation", "held") == "held"
-                tangents = [rj[:, jets.D1], rj[:, jets.D2]] if point else []
-            else:
-                d = np.subtract(end, start) * np.asarray(boundary.domain.lengths)
-                normal = np.array([-d[1], d[0]]) / np.linalg.norm(d)
-                tangents = [normal[0] * rj[:, jets.D1] + normal[1] * rj[:, jets.D2]]
-            for across in tangents:
-                for c in across_held:   # e · (ω × a) = ω · (a × e)
-                    e = frame[c]
-                    rows += [np.concatenate((np.zeros(3), np.cross(a, e))) for a in across]
+    rows = [row for con in boundary.constraints if not any(con is c for c in leave_out)
+            for row in constraint_rows(con, boundary, surface, centre, size, point_slopes)]
     if not rows:
         return np.eye(6), centre, size
     a = np.asarray(rows)
@@ -143,6 +114,40 @@ def free_motions(boundary, surface, *, point_slopes: bool = False
     _, s, vt = np.linalg.svd(a, full_matrices=True)
     s = np.concatenate((s, np.zeros(6 - len(s))))
     return vt[s <= MOTION_TOL * s.max()].T, centre, size
+
+
+def constraint_rows(con, boundary, surface, centre: np.ndarray, size: float,
+                    point_slopes: bool = False) -> list[np.ndarray]:
+    """The rows (6,) of one constraint on the twists q = (t, L ω) about `centre`: a held
+    component at the points of its set, and across a curve where its factor vanishes
+    quadratically; a point's slope with `point_slopes` (`free_motions`)."""
+    frame = np.asarray(boundary.frame or IDENTITY_FRAME, dtype=np.float64)
+    term = resolve(con, boundary.domain, surface, boundary.length, boundary.frame or IDENTITY_FRAME)
+    held = sorted(term.components)
+    across_held = [] if term.linear else held
+    if isinstance(con, SymmetryPlane):
+        across_held = [c for c in range(3) if c not in held]
+    rows = []
+    for start, end in term.where:
+        xi = torch.tensor(points_along(_from_eta(boundary.domain, start),
+                                       _from_eta(boundary.domain, end)), dtype=torch.float64)
+        xi = xi[boundary.domain.contains(xi)]
+        if len(xi) == 0:
+            continue
+        rj = surface.jets(xi).numpy()
+        y = rj[:, 0] - centre
+        rows += [np.concatenate((frame[c], np.cross(yk, frame[c]) / size))
+                 for c in held for yk in y]
+        if start == end:    # a point: its slope along both coordinates, if counted
+            point = point_slopes and getattr(con, "rotation", "held") == "held"
+            tangents = [rj[:, jets.D1], rj[:, jets.D2]] if point else []
+        else:
+            d = np.subtract(end, start) * np.asarray(boundary.domain.lengths)
+            normal = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+            tangents = [normal[0] * rj[:, jets.D1] + normal[1] * rj[:, jets.D2]]
+        rows += [np.concatenate((np.zeros(3), np.cross(a, frame[c])))  # e·(ω × a) = ω·(a × e)
+                 for across in tangents for c in across_held for a in across]
+    return rows
 
 
 def describe(q: np.ndarray, centre: np.ndarray, size: float) -> str:

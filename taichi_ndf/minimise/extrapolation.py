@@ -27,6 +27,24 @@ grids h, h/2, h/4 (changes d₁ = v₁ − v₀, d₂ = v₂ − v₁):
   75× the last change), so no multiple of the last change bounds the error; the range does.
   For a field (norms of its differences) Δ_M is bounded by d₁ + d₂.
 
+One case of an unreliable order has a tighter bound: the changes fall (same sign, |d₂| <
+|d₁|), the order is unreliable only because it is above the expected one or d₂ is at the
+rounding level, d₂ is within `NEAR_ROUNDING` (a decade) of the rounding level
+(|d₂| ≤ 10 × `ROUNDING` × max|v|), and the order of d₁ over max(|d₂|, the rounding level) is
+at most `ORDER_FAR` × the expected one (8). The sequence has then converged to the level where
+the solves themselves stop (Newton's tolerance, a slowly converging part too small to show on
+coarse grids), so what is left past v₂ is the changes still to come, of the size of d₂ or of
+the rounding level, whichever is larger: summed as a geometric series falling at the slowest
+order the rule ever trusts (`ORDER_MIN`), the error is max(|d₂|, `ROUNDING` max|v|) /
+(2^0.5 − 1) = 2.41 × that (v∞ = v₂; `bound` "floor"). Measured (benchmarks/RESULTS.md, issue
+33): cantilever_shear's tip, whose coarse grids fall at order 5.3–10 and whose finer ones at
+order ≈ 0.8 from 1e-6 of the value, held at 2.6–6.9 × the distance to its 64 × 16 value
+(the range bound: 40–344 ×). Where d₂ is larger, a fall faster than the expected order can be
+a coincidence of the coarse grids (bowl in silk's centre on 2² / 4² / 8²: order 5.0, and the
+32² value 28 × d₂ away), and where d₁ is more than 2⁸ × d₂ (or the rounding level) the
+near-zero last change is a cancellation, not a convergence (a slow order-0.7 term cancelled
+by an h⁴ term: tests/test_projected_newton.py): the range bound stays.
+
 A value whose grid's Newton solve did not converge (`converged`, where the caller knows it)
 is not that grid's discrete answer, so its changes say nothing of the order: where one of the
 values used (the last three, or two) did not converge, the order is unreliable whatever the
@@ -62,9 +80,13 @@ ORDER_SLACK = 0.05
 # about 1e-6 |Π| (spline_solver.newton_config), and in float64 at the default Newton tolerance
 # cantilever_shear's tip stops converging near 1e-7 relative (benchmarks/RESULTS.md).
 ROUNDING = 1e-6
+# A last change of at most NEAR_ROUNDING × ROUNDING × max|v|, falling faster than expected:
+# converged to the solves' floor (module docstring), the bound "floor".
+NEAR_ROUNDING = 10.0
 SAFETY_OBSERVED = 1.25  # Roache's Fs for three grids with a reliable observed order
 SAFETY_UNRELIABLE = 3.0  # Roache's Fs where the order cannot be trusted (times the range)
 ORDER_BASES = ("observed", "assumed", "unreliable")
+BOUNDS = ("range", "floor")  # an unreliable order's error bar (module docstring)
 
 
 @dataclass(frozen=True)
@@ -75,7 +97,8 @@ class Extrapolation:
     expected one) or "unreliable" (three or more grids whose order cannot be trusted: value
     = the finest value, error = 3 × the range of the last three values; `order` the observed
     one or None, `reason` why; module docstring). grids: how many values; warning: a
-    one-line caution or None."""
+    one-line caution or None; bound: an unreliable order's error bar, "range" (3 × the range)
+    or "floor" (the changes still to come past a sequence converged to the rounding level)."""
 
     value: float
     error: float
@@ -85,6 +108,7 @@ class Extrapolation:
     expected: float | None = None
     warning: str | None = None
     reason: str | None = None
+    bound: str = "range"
 
     @property
     def assumed(self) -> bool:
@@ -106,7 +130,7 @@ class Extrapolation:
                     "between them")
         if self.basis == "unreliable":
             return (f"order unreliable from {self.grids} grids ({self.reason}): finest value, "
-                    "error = 3 × the range of the last three")
+                    f"error = {BOUND_WORDS[self.bound]}")
         expected = "" if self.expected is None else f", expected {self.expected:g}"
         return f"observed order {self.order:.2f} from {self.grids} grids{expected}"
 
@@ -114,7 +138,12 @@ class Extrapolation:
         return {"extrapolated": self.value, "estimated_error": self.error, "order": self.order,
                 "order_basis": self.basis, "order_reason": self.reason, "grids": self.grids,
                 "expected_order": self.expected, "warning": self.warning,
+                "error_bound": self.bound if self.basis == "unreliable" else None,
                 "text": self.describe()}
+
+
+BOUND_WORDS = {"range": "3 × the range of the last three",
+               "floor": "the last change (at least the rounding level) summed at order 0.5"}
 
 
 @dataclass(frozen=True)
@@ -122,7 +151,7 @@ class OrderEstimate:
     """What the changes between successive grids say (`extrapolate_changes`): the order
     (observed, assumed, or the observed one that is not trusted; None where none can be
     computed), the correction v∞ − v_finest (0 where unreliable), the error bar, the basis,
-    why an order is unreliable, and a warning."""
+    why an order is unreliable, a warning, and an unreliable order's bound (`BOUNDS`)."""
 
     order: float | None
     correction: float
@@ -130,6 +159,7 @@ class OrderEstimate:
     basis: str
     reason: str | None = None
     warning: str | None = None
+    bound: str = "range"
 
 
 def _unreliable_reason(d1: float, d2: float, scale: float,
@@ -170,6 +200,14 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
     if unconverged is not None:
         reason = unconverged
     if reason is not None:
+        floor = ROUNDING * scale
+        if (unconverged is None and order is not None and d1 * d2 >= 0.0
+                and abs(d2) < abs(d1) and abs(d2) <= NEAR_ROUNDING * floor
+                and abs(d1) <= 2.0 ** (ORDER_FAR * order) * max(abs(d2), floor)):
+            reason = (f"{reason}; changes falling to within {NEAR_ROUNDING:g} × the rounding "
+                      "level")
+            return OrderEstimate(observed, 0.0, max(abs(d2), floor) / (2.0**ORDER_MIN - 1.0),
+                                 "unreliable", reason, None, "floor")
         spread = max(abs(d1), abs(d2), abs(d1 + d2))  # the range of the three values
         warning = (f"refinement order unreliable ({reason}): the finest value with 3 × the "
                    "range of the last three grids as its error bar; refine further for an "
@@ -214,7 +252,8 @@ def richardson(values: list[float], order: float | None = None,
     if estimate.warning is not None:
         log.warning("%s", estimate.warning)
     return Extrapolation(values[-1] + estimate.correction, estimate.error, estimate.order,
-                         estimate.basis, len(values), order, estimate.warning, estimate.reason)
+                         estimate.basis, len(values), order, estimate.warning, estimate.reason,
+                         estimate.bound)
 
 
 def richardson_point(values: list[list[float]], order: float | None = None,
@@ -228,8 +267,9 @@ def richardson_point(values: list[list[float]], order: float | None = None,
     round, the napkin's corner on 2²/4²/8² has norms falling at order 1.01 while x and y do not
     fall monotonically: benchmarks/RESULTS.md). So: the component's own `richardson` where
     both are reliable (or it is unreliable itself, or with two grids); where only the point's
-    order is unreliable, the component's finest value with 3 × its range, the point's reason.
-    Never narrower than `richardson` per component."""
+    order is unreliable, the component's finest value with 3 × its range, the point's reason
+    (with the point's bound "floor": the point's bar, the changes of the vector still to come
+    bound each component's). Never narrower than `richardson` per component."""
     u = np.asarray(values, dtype=float)
     own = [richardson(u[:, c].tolist(), order, converged) for c in range(u.shape[1])]
     if len(u) < 3:
@@ -244,11 +284,14 @@ def richardson_point(values: list[list[float]], order: float | None = None,
         if bar.basis != "observed":
             out.append(bar)
             continue
-        reason = f"the point's {point.reason}"
+        reason, v = f"the point's {point.reason}", last[:, c]
+        if point.bound == "floor":
+            out.append(Extrapolation(float(v[2]), max(point.error, bar.error), point.order,
+                                     "unreliable", len(u), order, None, reason, "floor"))
+            continue
         warning = (f"refinement order unreliable ({reason}): the finest value with 3 × the "
                    "range of the last three grids as its error bar; refine further")
         log.warning("%s", warning)
-        v = last[:, c]
         out.append(Extrapolation(float(v[2]), SAFETY_UNRELIABLE * float(v.max() - v.min()),
                                  point.order, "unreliable", len(u), order, warning, reason))
     return out

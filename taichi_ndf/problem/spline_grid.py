@@ -156,18 +156,23 @@ def grid_spans(surface, thickness: float, band: float | None = None, loads=None
     return spans_for(surface, auto_span_length(surface, thickness, band), loads)
 
 
-def singular_features(boundary, loads, domain) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def singular_features(boundary, loads, domain, gauges=()
+                      ) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Per direction, the coordinates ξ_d where the model has a known singular feature: point
     pins and handles (both coordinates), point loads (both), an interior line or line-load
     segment along a coordinate line ξ_d = c (c along d), the ends of an interior segment and
     of a line load's path (both coordinates); a line load along an edge, and its ends on an
-    edge, give none (a loaded edge is a boundary condition, not a singular point). Periodic
-    coordinates wrapped into the domain; oblique whole lines give nothing (a tensor-product
-    grading cannot follow them)."""
+    edge, give none (a loaded edge is a boundary condition, not a singular point). gauges:
+    pinned points that carry no reaction (`boundary.gauges.gauge_points`: they only remove
+    rigid motions under self-equilibrated loads), no feature. Periodic coordinates wrapped
+    into the domain; oblique whole lines give nothing (a tensor-product grading cannot follow
+    them)."""
     points: list[tuple[float, float]] = []
     lines: list[tuple[int, float]] = []
     for c in boundary.constraints:
         kind = type(c).__name__
+        if any(c is g for g in gauges):
+            continue
         if kind in ("PinnedPoint", "Handle"):
             points.append(tuple(c.xi))
         elif kind == "InteriorLine":
@@ -210,11 +215,12 @@ def _on_edge(xi, domain) -> bool:
 
 
 def graded_config(config: SplineConfig, boundary, loads, domain, *,
-                  share: float = GRADED_SHARE) -> SplineConfig:
+                  share: float = GRADED_SHARE, gauges=()) -> SplineConfig:
     """`config` with its knots graded towards the model's singular features
-    (`singular_features`; module docstring), a direction without features uniform. The
-    map stays with the refined grids (the core is one span of `config`, its coarsest)."""
-    features = singular_features(boundary, loads, domain)
+    (`singular_features`, its gauge points left out; module docstring), a direction without
+    features uniform. The map stays with the refined grids (the core is one span of
+    `config`, its coarsest)."""
+    features = singular_features(boundary, loads, domain, gauges)
     if not any(features):
         log.warning("grading = \"features\": the model has no pin, point load or interior "
                     "line along a coordinate to grade towards; the knots stay uniform")

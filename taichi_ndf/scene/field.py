@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.field import FieldConfig, SplineConfig
 from taichi_ndf.problem.field_types import DEFAULT, FIELD_TYPES
 from taichi_ndf.problem.model import ShellModel
@@ -97,7 +98,8 @@ def _spline(t: Table, model: ShellModel) -> tuple[SplinePlan, None]:
     config = SplineConfig(spans=spans, degree=degree, domain=domain.bounds,
                           periodic=domain.periodic, even_ends=even)
     if t.string("grading", DEFAULT_GRADING, choices=GRADINGS) == "features":
-        config = graded_config(config, model.boundary, model.loads, domain)
+        config = graded_config(config, model.boundary, model.loads, domain,
+                               gauges=gauge_points(model))
     points = t.integer("quadrature_points", degree + 1, minimum=1)
     return SplinePlan(config, levels=t.integer("levels", 1, minimum=1),
                       quadrature_points=points), None

@@ -6,8 +6,8 @@ A tensor-product spline cannot refine one element, so the grids are r/h-adaptive
 has GROWTH (2) times the spans per direction of the one before, its knots placed by
 `AdaptiveConfig.indicator`:
 - "features" (the default): every grid graded towards the model's known singular features
-  (pins, point loads, interior lines, the ends of segments and line loads:
-  `spline_grid.singular_features`) by the features grading of its OWN spans
+  (pins but gauges, `boundary.gauges`; point loads, interior lines, segment and line-load
+  ends: `spline_grid.singular_features`) by the features grading of its OWN spans
   (`spline_grid.graded_config`: core one span of that grid, half the spans graded), so the
   graded core shrinks with the span as on a single graded grid; where the model has no such
   feature, the dyadic refinement of the plan's grid ("none"), the same solves to the bit;
@@ -56,6 +56,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
 
+from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.minimise.callbacks import call
 from taichi_ndf.minimise.continuation import Hook, Stages, Step, solve_over
@@ -113,7 +114,8 @@ def features_grid(config: SplineConfig, model: ShellModel) -> SplineConfig:
     """`config`'s spans graded towards the model's known singular features by the features
     grading of those spans (`spline_grid.graded_config`: core one span of this grid, whatever
     grading `config` had); a direction without features uniform."""
-    return graded_config(config, model.boundary, model.loads, model.surface.domain)
+    return graded_config(config, model.boundary, model.loads, model.surface.domain,
+                         gauges=gauge_points(model))
 
 
 def unknowns(config: SplineConfig) -> int:
@@ -259,8 +261,8 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
     if model.contact is not None:
         raise ValueError(CONTACT_REFUSED)
     objective = objective or Objective.of_model(model)
-    graded = adaptive.indicator == "features" and any(
-        singular_features(model.boundary, model.loads, model.surface.domain))
+    graded = adaptive.indicator == "features" and any(singular_features(
+        model.boundary, model.loads, model.surface.domain, gauge_points(model)))
     if graded:
         plan = dataclasses.replace(plan, config=features_grid(plan.config, model))
     elif adaptive.indicator == "features":
