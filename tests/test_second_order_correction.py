@@ -155,6 +155,11 @@ def test_a_full_step_that_passes_is_taken_without_a_correction():
                                        halvings=30, longer_steps=4,
                                        correct=lambda s: asked.append(s) or 5 * s)
     assert (alpha, float(step), corrected, len(asked)) == (0.5, 1.0, False, 1)
+    # an infeasible corrected point (Π = inf: `feasible` rejects it, contact) is not taken
+    fenced = energy_at(lambda a: math.inf if a == 0.5 else -2 * a + 3 * a**4)
+    alpha, step, corrected = backtrack(fenced, 0.0, torch.tensor(1.0), 2.0, armijo=1e-4,
+                                       halvings=30, longer_steps=0, correct=correct)
+    assert (alpha, corrected) == (0.25, False)
     # an infeasible full step (Π = inf: contact) is not corrected
     asked.clear()
     walled = energy_at(lambda a: math.inf if a > 0.6 else -2 * a + a * a)
