@@ -4,9 +4,10 @@ Backtracking Armijo: α = 1, ½, ¼, … until Π(P + α d) ≤ Π(P) − c α �
 decrement), a trial that the caller's feasibility test rejects (contact: a step that could enter
 an obstacle) counting as a failure. Two rules around the full step:
 
-- **Second-order correction** (`second_order_step`), where the full step is feasible and fails
-  the test: the corrected full step d + s, s = −K⁻¹ r by the same K, tried on the same rule
-  (α = 1, the same λ²) before backtracking along d. r is the potential's residual of the
+- **Second-order correction** (`second_order_step`; `NewtonConfig.second_order_correction`,
+  off by default), where the full step is feasible and fails the test: the corrected full
+  step d + s, s = −K⁻¹ r by the same K, tried on the same rule (α = 1, the same λ²) before
+  backtracking along d. r is the potential's residual of the
   step's second-order stretch (`Objective.second_order_gradient`: the membrane stress of
   ε₂ = ½ ΔU_,α·ΔU_,β pulled back through dε/dU at P). A nearly inextensible sheet is a
   stiff constraint on a curved manifold: a straight Newton step stretches it at second order
