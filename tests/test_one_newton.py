@@ -48,8 +48,10 @@ def _dense_of(sparse: SplineLinearisation) -> DenseLinearisation:
     return dense
 
 
-def test_dense_and_sparse_linearisations_take_the_same_newton_steps():
-    """The same iterations, step lengths (halved, full and doubled ones) and projections; Π
+@pytest.mark.parametrize("correction", [False, True])
+def test_dense_and_sparse_linearisations_take_the_same_newton_steps(correction):
+    """The same iterations, step lengths (halved, full and doubled ones without the
+    second-order correction; corrected full steps with it) and projections; Π
     along the way equal to 1e-7 relative (the dense solve's least damping, 1e-14 of the
     Jacobi-scaled K, and the two factorisations' rounding, carried through 25 nonlinear steps:
     measured ≤ 1.6e-9 with the compiler's fast math, ≤ 6.7e-9 with IEEE arithmetic, the default
@@ -63,15 +65,17 @@ def test_dense_and_sparse_linearisations_take_the_same_newton_steps():
     start = torch.zeros(assembly.n_coefficients, 3, dtype=DT)
     assert torch.allclose(dense.displacement(start.t() + 0.01), sparse.displacement(start + 0.01),
                           rtol=1e-13, atol=1e-15)
-    config = NewtonConfig(decrement_tolerance=1e-14)
+    config = NewtonConfig(decrement_tolerance=1e-14, second_order_correction=correction)
     by_sparse = minimise(sparse, potential, start, config, load_factor=LOAD_FACTOR)
     by_dense = minimise(dense, potential, start.t(), config, load_factor=LOAD_FACTOR)
     assert by_sparse.converged and by_dense.converged
-    assert len(by_sparse.history) == len(by_dense.history) >= 10
+    assert len(by_sparse.history) == len(by_dense.history) >= 5
     lengths = {h.step_length for h in by_sparse.history}
-    assert {0.5, 1.0, 2.0} <= lengths and by_sparse.history[0].projected_blocks > 0
+    assert by_sparse.history[0].projected_blocks > 0
+    assert any(h.corrected for h in by_sparse.history) if correction else {0.5, 1.0, 2.0} <= lengths
     for s, d in zip(by_sparse.history, by_dense.history, strict=True):
-        assert (s.step_length, s.projected_blocks) == (d.step_length, d.projected_blocks)
+        assert (s.step_length, s.projected_blocks, s.corrected) == (
+            d.step_length, d.projected_blocks, d.corrected)
         assert d.energy == pytest.approx(s.energy, rel=1e-7, abs=1e-300)
         assert d.decrement == pytest.approx(s.decrement, rel=1e-3, abs=1e-12 * abs(s.energy))
     scale = float(by_sparse.parameters.abs().max())

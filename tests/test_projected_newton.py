@@ -13,7 +13,8 @@ from taichi_ndf.field.spline import SplineConfig, SplineField
 from taichi_ndf.geometry import Plane
 from taichi_ndf.minimise import assembly as assembly_module
 from taichi_ndf.minimise.assembly import Assembly, local_basis_at
-from taichi_ndf.minimise.newton import NewtonConfig, _longer_step
+from taichi_ndf.minimise.line_search import longer_step
+from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.refinement import richardson, solve_levels
 from taichi_ndf.objective import Objective, ShellEnergyTerm
 from taichi_ndf.problem.loads import Loads, PointLoad
@@ -263,16 +264,16 @@ def test_a_full_step_is_lengthened_only_where_the_quadratic_model_underestimates
         return at
 
     # Π falls as the model says (a quadratic with its minimum at α = 1): no extra trial.
-    assert _longer_step(along(lambda a: -2 * a + a * a), 0.0, -1.0, 2.0, 4) == 1.0
+    assert longer_step(along(lambda a: -2 * a + a * a), 0.0, -1.0, 2.0, 4) == 1.0
     assert calls == []
     # A direction without curvature (Π(α) = −2α, e.g. along a clamped negative eigenvalue):
     # doubled up to the cap.
-    assert _longer_step(along(lambda a: -2 * a), 0.0, -2.0, 2.0, 4) == 16.0
-    assert _longer_step(along(lambda a: -2 * a), 0.0, -2.0, 2.0, 2) == 4.0
+    assert longer_step(along(lambda a: -2 * a), 0.0, -2.0, 2.0, 4) == 16.0
+    assert longer_step(along(lambda a: -2 * a), 0.0, -2.0, 2.0, 2) == 4.0
     # Curvature a quarter of the model's (minimum at α = 4): the best power of two.
-    assert _longer_step(along(lambda a: -2 * a + a * a / 4), 0.0, -1.75, 2.0, 4) == 4.0
+    assert longer_step(along(lambda a: -2 * a + a * a / 4), 0.0, -1.75, 2.0, 4) == 4.0
     # A rejected (infeasible) longer trial keeps the step accepted so far.
-    assert _longer_step(lambda a: -2 * a if a < 4 else math.inf, 0.0, -2.0, 2.0, 4) == 2.0
+    assert longer_step(lambda a: -2 * a if a < 4 else math.inf, 0.0, -2.0, 2.0, 4) == 2.0
     with pytest.raises(ValueError, match="longer_steps"):
         NewtonConfig(longer_steps=-1)
 

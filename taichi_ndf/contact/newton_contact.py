@@ -139,6 +139,13 @@ class ContactPotential:
         return self.objective.with_terms(*self.terms).coupled_blocks(samples, u_jets,
                                                                      self.load_factor)
 
+    def second_order_gradient(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                              step_jets: torch.Tensor) -> torch.Tensor | None:
+        """The residual of Newton's second-order correction (`Objective.second_order_gradient`:
+        the shell's; zero at the check points, of shell weight 0; the contact terms have none).
+        The corrected point passes the line search's `feasible` like any other."""
+        return self.objective.second_order_gradient(samples, u_jets, step_jets)
+
 
 class NewtonContact:
     """The contact of one spline solve: the check points (kept over load steps and grid

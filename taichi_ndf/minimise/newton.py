@@ -23,17 +23,21 @@ g = Jᵀ ∂Π/∂U and K = Jᵀ H J exactly. Per iteration from P:
 4. d from (K + μ D) d = −g (`Linearisation.solve`: the dense Jacobi-scaled Cholesky or the
    sparse direct / multigrid solve, D the diagonal of K; μ = 0 unless the system is singular
    or a line search failed: then raised tenfold, from at least `retry_damping`);
-5. backtracking Armijo line search on Π: α = 1, ½, ¼, … until Π(P + α d) ≤ Π(P) + c α gᵀd
-   (and, with a `feasible` test, the trial is feasible: contact never steps into an obstacle);
-   a full step that lowered Π clearly more than the quadratic model predicts is doubled while
-   Π keeps falling (`_longer_step`: the model overestimates the curvature along d).
+5. backtracking Armijo line search on Π (`line_search.backtrack`): α = 1, ½, ¼, … until
+   Π(P + α d) ≤ Π(P) + c α gᵀd (and, with a `feasible` test, the trial is feasible: contact
+   never steps into an obstacle); with `second_order_correction`, a feasible full step that
+   fails is first tried with its second-order correction d + s by the same K
+   (`second_order_step`: a nearly inextensible sheet stretched at second order by the
+   straight step); a full step that lowered Π clearly more than the quadratic model predicts
+   is doubled while Π keeps falling (`longer_step`).
 Stops, without taking that step, when the Newton decrement λ² = −gᵀd satisfies
 λ²/2 ≤ decrement_tolerance × |Π| (λ²/2 estimates Π − Π* near the minimum), or, given the
 coarser grid's Π (`coarse_energy`), λ²/2 ≤ discretisation_fraction × |Π − Π_coarse| (that
 change estimates the discretisation error of Π; both are squared energy-norm errors: no
 polishing to the rounding floor), when ‖g‖ ≤ gradient_tolerance × ‖g₀‖ (g₀: at the start),
 or when the last step lowered Π by at most relative_decrease × |Π|. Each iteration is logged
-(Π, λ², α, μ, time: energy, Hessian, assembly, solve) and returned as a `NewtonIteration`.
+(Π, λ², α, whether the step was corrected, μ, time: energy — the line search's, its correction
+included —, Hessian, assembly, solve) and returned as a `NewtonIteration`.
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ from typing import Any, Protocol
 import torch
 
 from taichi_ndf import progress
+from taichi_ndf.minimise.line_search import backtrack, second_order_step
 from taichi_ndf.minimise.newton_state import NewtonIterate, NewtonIteration
 from taichi_ndf.minimise.point_blocks import PointBlocks, coupled_blocks
 from taichi_ndf.minimise.point_blocks import hessian_blocks as hessian_blocks
@@ -62,8 +67,6 @@ from taichi_ndf.shell.hessian import (
 
 log = logging.getLogger(__name__)
 
-# A full step that lowered Π by more than this × the quadratic model's ½λ² is tried longer.
-LONGER_STEP_RATIO = 1.25
 # The endgame's shifts of the exact K: μ = retry_damping × 10^k, k < this (`_shifted_step`).
 SHIFTS = 8
 
@@ -117,8 +120,18 @@ class NewtonConfig:
     retry_damping: least damping μ after a failed line search (decayed below it: 0).
     project: make the Newton matrix positive definite where it is not (off: plain Newton with
         damping, for convex problems).
-    longer_steps: most doublings of an accepted full step (`_longer_step`) when it lowered Π
-        by clearly more than the quadratic model predicts; 0: never.
+    longer_steps: most doublings of an accepted full step (`line_search.longer_step`) when it
+        lowered Π by clearly more than the quadratic model predicts; 0: never.
+    second_order_correction: where the full step is feasible and fails the sufficient-decrease
+        test, try it corrected for its second-order membrane stretch before backtracking
+        (`line_search.second_order_step`; the potential's `second_order_gradient`, without
+        one: nothing); False (default): plain backtracking. Off by default because it cuts
+        Newton's iterations but not, with the clamped projection, the CPU of the README's
+        demo: 321 → 207 iterations, 34 → 36 s CPU (its iterates sit on the inextensible
+        manifold, where the exact K is indefinite in compressed folds: projected at 24 of 43
+        iterations on 32² against 1 of 73); with hessian "strain" 210 iterations, 27 s; the
+        nonlinear cantilevers' CPU −18 % (benchmarks/RESULTS.md, "Newton on cloth drapes: the
+        second-order correction (issue 28)").
     discretisation_fraction: given the coarser grid's Π (`minimise`'s coarse_energy), also stop
         when λ²/2 ≤ this × |Π − Π_coarse|; 0: the exact-tolerance mode (1e-4 kept the
         validation's probes to 5 digits, 1e-3 moved one by 3e-4: benchmarks/RESULTS.md).
@@ -143,6 +156,7 @@ class NewtonConfig:
     project: bool = True
     hessian: str = "clamp"
     longer_steps: int = 4
+    second_order_correction: bool = False
 
     def __post_init__(self):
         if self.hessian not in PROJECTIONS:
@@ -217,23 +231,6 @@ def _shifted_step(linearisation: Linearisation, matrix: Any, gradient: torch.Ten
             return result
         mu *= 10
     return None
-
-
-def _longer_step(energy_at: Callable[[float], float], start: float, full: float,
-                 decrement: float, doublings: int) -> float:
-    """The step length from α = 1 (accepted, Π = `full`; Π = `start` at α = 0): doubled while Π
-    keeps falling, at most `doublings` times, when the full step lowered Π by more than
-    LONGER_STEP_RATIO × ½λ² — the model overestimates the curvature along d (a projected K, or
-    far from the minimum: a draped cloth's soft folds), so d is too short."""
-    alpha, best = 1.0, full
-    if not start - full > LONGER_STEP_RATIO * 0.5 * decrement:
-        return alpha
-    for _ in range(doublings):
-        trial = energy_at(2 * alpha)
-        if not (math.isfinite(trial) and trial < best):
-            break
-        alpha, best = 2 * alpha, trial
-    return alpha
 
 
 def minimise(linearisation: Linearisation, potential: Potential, start: torch.Tensor,
@@ -330,7 +327,7 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
             t_assembly += time.perf_counter() - started - psd_blocks.seconds
             t_hessian += psd_blocks.seconds
         blocks = couplings = None  # K holds what the solves need
-        alpha, small, shifted = 0.0, False, False
+        alpha, small, shifted, corrected = 0.0, False, False, False
         for _attempt in range(config.line_searches):
             started = time.perf_counter()
             if first_step is not None:
@@ -347,30 +344,23 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
                 damping = max(10 * damping, config.retry_damping)  # rotations: damp, again
                 continue
             started = time.perf_counter()
-            alpha = 1.0
-            for _ in range(config.halvings):
-                trial = _trial_energy(step, alpha)
-                if math.isfinite(trial) and (
-                        trial <= current.total - config.armijo * alpha * decrement):
-                    break
-                alpha *= 0.5
-            else:
-                alpha = 0.0
-            if alpha == 1.0 and config.longer_steps:
-                alpha = _longer_step(partial(_trial_energy, step), current.total, trial,
-                                     decrement, config.longer_steps)
+            correct = partial(second_order_step, linearisation, potential, matrix, c, u,
+                              damping) if config.second_order_correction else None
+            alpha, step, corrected = backtrack(
+                _trial_energy, current.total, step, decrement, armijo=config.armijo,
+                halvings=config.halvings, longer_steps=config.longer_steps, correct=correct)
             t_energy += time.perf_counter() - started
             if alpha > 0:
                 break
             damping = max(10 * damping, config.retry_damping)
         history.append(NewtonIteration(load_factor, iteration, current.total, decrement, alpha,
                                        damping, projected, norm, t_energy, t_hessian,
-                                       t_assembly, t_solve))
+                                       t_assembly, t_solve, corrected))
         log.log(logging.INFO if report else logging.DEBUG,
-                "Newton %2d at λ=%.3g: Π %.12g J, λ² %.3e, α %.3g, μ %.1e, %d projected, "
+                "Newton %2d at λ=%.3g: Π %.12g J, λ² %.3e, α %.3g%s, μ %.1e, %d projected, "
                 "time energy %.3f hessian %.3f assembly %.3f solve %.3f s", iteration,
-                load_factor, current.total, decrement, alpha, damping, projected, t_energy,
-                t_hessian, t_assembly, t_solve)
+                load_factor, current.total, decrement, alpha, " corrected" if corrected else "",
+                damping, projected, t_energy, t_hessian, t_assembly, t_solve)
         if report:
             progress.report(iteration + 1, **{"Π": current.total, "λ²": decrement})
         if on_iteration is not None:

@@ -20,8 +20,10 @@ import torch
 class NewtonIteration:
     """One Newton iteration: Π [J] before the step, the decrement λ² = −gᵀd [J], the accepted
     step length α (0: none; above 1: a lengthened full step), the damping μ, the blocks
-    projected (0 also when the exact K was definite and used; "strain": all), ‖g‖, and seconds
-    spent on energy + gradient, Hessian blocks, assembly and the linear solve."""
+    projected (0 also when the exact K was definite and used; "strain": all), ‖g‖, seconds
+    spent on energy + gradient, Hessian blocks, assembly and the linear solve, and whether the
+    step taken was the full step with its second-order correction (`minimise.line_search`;
+    absent from records written before it: False)."""
 
     load_factor: float
     iteration: int
@@ -35,6 +37,7 @@ class NewtonIteration:
     time_hessian: float
     time_assembly: float
     time_solve: float
+    corrected: bool = False
 
 
 @dataclass

@@ -110,6 +110,15 @@ class Objective:
             total = blocks if total is None else total.add_(blocks)
         return total
 
+    def second_order_gradient(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                              step_jets: torch.Tensor) -> torch.Tensor | None:
+        """The residual (N, 6, 3) of Newton's second-order correction of a step ΔU = step_jets
+        from U = u_jets: the sum of the terms' `second_order_gradient` (the shell's membrane
+        stretch; the loads are linear, the other terms have none); None where none has one."""
+        parts = [term.second_order_gradient(samples, u_jets, step_jets)
+                 for term in (self.shell, *self.extra) if hasattr(term, "second_order_gradient")]
+        return None if not parts else sum(parts[1:], parts[0])
+
     def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0) -> Couplings | None:
         """The Hessian entries between pairs of points of the terms that have them
@@ -161,6 +170,11 @@ class FixedLoadPotential:
         (`Objective.hessian_blocks`' psd: projected Newton's "strain" treatment)."""
         return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps,
                                              psd=True, rows=rows)
+
+    def second_order_gradient(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                              step_jets: torch.Tensor) -> torch.Tensor | None:
+        """The second-order correction's residual (`Objective.second_order_gradient`)."""
+        return self.objective.second_order_gradient(samples, u_jets, step_jets)
 
     def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor
                        ) -> Couplings | None:

@@ -12,7 +12,10 @@ from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
-from taichi_ndf.shell.strain_hessian import strain_energy_hessians
+from taichi_ndf.shell.strain_hessian import (
+    membrane_second_order_gradient,
+    strain_energy_hessians,
+)
 
 
 class ShellEnergyTerm:
@@ -57,6 +60,13 @@ class ShellEnergyTerm:
         samples' blocks only (n, 6, 3, 6, 3)."""
         return strain_energy_hessians(self.material, samples, u_jets, steps=steps,
                                       stiffness=self.stiffness, psd=psd, rows=rows)
+
+    def second_order_gradient(self, samples: SurfaceSamples, u_jets: torch.Tensor,
+                              step_jets: torch.Tensor) -> torch.Tensor:
+        """The residual of Newton's second-order correction (N, 6, 3): the membrane stress of
+        the step's second-order stretch pulled back at U (`membrane_second_order_gradient`)."""
+        return membrane_second_order_gradient(self.material, samples, u_jets, step_jets,
+                                              stiffness=self.stiffness)
 
 
 class EndMomentTerm:

@@ -32,6 +32,12 @@ law Hessian's negative eigenvalues clamped (a batched 6 × 6 `eigh`), the membra
 [½σ₁₂, σ₂₂]] clamped to S₊ (tension-field: compressive membrane stress dropped), and the
 bending stress part (moments × d²κ/dU², small in a thin shell) left out: no per-block screen
 or 18 × 18 eigen-decomposition.
+
+The membrane strains are quadratic in U, so a step ΔU changes them by exactly
+ε(U + ΔU) − ε(U) = (dε/dU) ΔU + ε₂, ε₂_αβ = ½ ΔU_,α·ΔU_,β (sym.): the second-order stretch that
+a straight Newton step puts into a nearly inextensible sheet. `membrane_second_order_gradient`
+pulls the stress it causes, Δσ = dE/dε(s + ε₂) − dE/dε(s), back through dε/dU at U — the
+residual of Newton's second-order correction (`taichi_ndf.minimise.line_search`).
 """
 
 # No `from __future__ import annotations`: this module defines Taichi kernels.
@@ -212,6 +218,46 @@ def _clamped(matrices: torch.Tensor) -> torch.Tensor:
     return out
 
 
+def _strain_vector(r: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """The six strains s (N, 6) = (ε₁₁, ε₁₂, ε₂₂, κ₁₁, κ₁₂, κ₂₂) at jets r, u (N, 6, 3)."""
+    eps, kappa, _ = strains(r, u)
+    return torch.stack((eps[:, 0, 0], eps[:, 0, 1], eps[:, 1, 1],
+                        kappa[:, 0, 0], kappa[:, 0, 1], kappa[:, 1, 1]), dim=1)
+
+
+def membrane_second_order_gradient(material: Material, samples: SurfaceSamples,
+                                   u_jets: torch.Tensor, step_jets: torch.Tensor, *,
+                                   stiffness: torch.Tensor | None = None) -> torch.Tensor:
+    """dE/dU (N, 6, 3) [J per unit of the jets] of the membrane stress that a step's
+    second-order membrane strain causes (module docstring): Σ_αβ Δσ_αβ dε_αβ/dU at U = u_jets,
+    Δσ = dE/dε(s + ε₂) − dE/dε(s) (bending strains unchanged), ε₂_αβ = ½ ΔU_,α·ΔU_,β of the
+    step ΔU = step_jets (N, 6, 3) [m]; zero at point-load samples (weight 0). stiffness:
+    per-sample stiffness (N, K) or None."""
+    r_all = samples.r_jets
+    out = torch.zeros_like(r_all)
+    active = torch.nonzero(samples.weight != 0).flatten()
+    if active.numel() == 0:
+        return out
+    r = r_all[active].contiguous()
+    u = u_jets.detach().to(r.dtype)[active]
+    du = step_jets.detach().to(r.dtype)[active]
+    strain = _strain_vector(r, u)
+    d1, d2 = du[:, jets.D1], du[:, jets.D2]
+    second = torch.zeros_like(strain)
+    second[:, 0], second[:, 1], second[:, 2] = (
+        0.5 * (d1 * d1).sum(1), 0.5 * (d1 * d2).sum(1), 0.5 * (d2 * d2).sum(1))
+    kernel_stiffness, params = law_inputs(material, len(samples), stiffness, r.dtype, r.device)
+    gradient = functools.partial(_strain_gradient, _law_kernel(material.law), r,
+                                 weight=samples.weight[active].contiguous(),
+                                 stiffness=kernel_stiffness[active].contiguous(), params=params)
+    stress = gradient((strain + second).contiguous()) - gradient(strain)
+    x = r + u
+    x1, x2 = x[:, jets.D1], x[:, jets.D2]  # dε₁₁/dx₁ = x₁, dε₁₂/dx_α = ½ x_β, dε₂₂/dx₂ = x₂
+    out[active, jets.D1] = stress[:, 0, None] * x1 + 0.5 * stress[:, 1, None] * x2
+    out[active, jets.D2] = 0.5 * stress[:, 1, None] * x1 + stress[:, 2, None] * x2
+    return out
+
+
 def _tangent_length(samples: SurfaceSamples, u_jets: torch.Tensor) -> float:
     """The RMS length [m] of the deformed tangents x_,1, x_,2 over the samples of weight ≠ 0
     (0 where none)."""
@@ -256,9 +302,7 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     r = r_all[active].contiguous()
     u = u_jets.detach().to(dtype)[active]
     x = r + u
-    eps, kappa, _ = strains(r, u)
-    strain = torch.stack((eps[:, 0, 0], eps[:, 0, 1], eps[:, 1, 1],
-                          kappa[:, 0, 0], kappa[:, 0, 1], kappa[:, 1, 1]), dim=1)
+    strain = _strain_vector(r, u)
     weight = samples.weight[active].contiguous()
     kstiff = kernel_stiffness[active].contiguous()
     kernel = _law_kernel(material.law)
