@@ -8,7 +8,8 @@ Each RUN is a finished `ndf-sim` output directory. Checked per run: mesh.obj (a 
 panels welded at their seams: vertices within 1 µm merged, and vertices on a panel's own
 edge within --seam-tolerance, by default SEAM_TOLERANCE = 0.1 mm, the seam gap issue 30
 accepts: a seam closed to its tolerance is joined there, one open wider is not, and its laps
-count; interior vertices are never merged above 1 µm), each panel's mesh_<panel>.obj,
+count; interior vertices are never merged above 1 µm), each panel's mesh_<panel>.obj (welded
+by the same rule: a seam between two edges of one panel, a sleeve's underarm),
 every trajectory frame (trajectory/step_*.obj), and with `--fine K` the run's checkpoint
 evaluated again at K × the output resolution (the same `deformed_mesh` that ndf-export
 calls): a crossing at one resolution and not the other is the output mesh's linear
@@ -149,7 +150,7 @@ def check_run(name: str, run: Path, fine: int, seam_tolerance: float = SEAM_TOLE
     rows.append(_row(name, "mesh.obj", f"{cells[0]} × {cells[1]}", found, cpu))
     for path in sorted(run.glob("mesh_*.obj")):
         mesh = read_mesh(path)
-        found, cpu = _check(mesh.vertices, mesh.faces, obstacles, None, None)
+        found, cpu = _check(mesh.vertices, mesh.faces, obstacles, None, None, seam_tolerance)
         rows.append(_row(name, path.name, f"{cells[0]} × {cells[1]}", found, cpu))
     frames = sorted((run / "trajectory").glob("step_*.obj")) \
         if (run / "trajectory").is_dir() else []
