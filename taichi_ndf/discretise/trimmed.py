@@ -19,6 +19,12 @@ two). Per span:
   4p − 4 ≤ 2p + 2 for p ≤ 3, and the gravity load, degree 2p);
 - a span outside the outline gets none.
 
+Graded knots (`SplineConfig.grading`; a garment's `[field] grading = "seam_corners"`): the
+spans are those between the knots mapped back to ξ (`span_knots`), a whole span gets the
+graded Gauss points of `span_points`, a cut span the same triangle rule in ξ; the field is a
+polynomial in η, not in ξ, so neither rule is then exact (polynomials to about 1e-9 relative,
+tests/test_garment_outline.py).
+
 Coefficients whose basis function is zero at every quadrature point (support outside the
 outline) have no stiffness: `TrimmedGrid` holds them at zero (added to the grid's held
 unknowns), so Newton's matrix has no zero rows (measured, benchmarks/RESULTS.md "Garments:
