@@ -268,3 +268,51 @@ def test_a_polygon_panels_output_grid_reaches_its_border():
         (patch,) = _parse(_document([panel])).field.patches
         xi, _, _ = export_grid(patch.model, (16, 16))
         assert np.isclose(xi[:, 0], x).sum() == 17  # the straight side, every row
+
+
+@pytest.mark.parametrize("points", [L_SHAPE, STAR])
+def test_the_trimmed_quadrature_on_graded_knots_integrates_over_the_outline(points):
+    """Graded knots (`[field] grading = "seam_corners"`): the outline's pieces are cut at the
+    graded spans, the whole spans get their graded Gauss points (`span_points`), so the
+    polynomials are integrated as on uniform knots, up to the mapped rule's 1e-9."""
+    from taichi_ndf.problem.spline_grid import graded_towards
+
+    outline = Outline(points)
+    (lo1, hi1), (lo2, hi2) = outline.bounds
+    config = graded_towards(SplineConfig(spans=(7, 5), domain=outline.bounds),
+                            ((lo1 + 0.3 * (hi1 - lo1),), (hi2,)))
+    assert config.graded
+    xi, weight = trimmed_points(outline, config)
+    x, y, w = xi[:, 0].numpy(), xi[:, 1].numpy(), weight.numpy()
+    assert (w > 0).all() and outline.contains(xi.numpy()).all()
+    assert abs(w.sum() - outline.area) <= 1e-8 * outline.area
+    for a, b in ((1, 0), (2, 3), (3, 5), (4, 4)):
+        exact = _boundary_integral(outline.points, a, b)
+        assert abs(float((w * x ** a * y ** b).sum()) - exact) <= 1e-8 * abs(exact), (a, b)
+    square = Outline(((lo1, lo2), (hi1, lo2), (hi1, hi2), (lo1, hi2)))
+    expected_xi, expected_weight = span_points(config)
+    xi, weight = trimmed_points(square, config)
+    assert torch.equal(xi, expected_xi) and torch.equal(weight, expected_weight)
+
+
+TSHIRT = Path(__file__).resolve().parents[1] / "benchmarks" / "garment_tshirt_sleeves.toml"
+
+
+def test_a_tshirts_seam_corners_are_its_armholes_corners_and_the_sleeve_points_sewn_to_them():
+    """`[field] grading = "seam_corners"`: the front's notch corners and the strap and side
+    seams' ends at the armhole (where the sewn path turns), on the sleeve the points sewn to
+    them (its straight inner end at 0.07 … 0.49) and its underarm corners; same spans."""
+    import tomllib
+
+    document = tomllib.loads(TSHIRT.read_text())
+    document["field"]["grading"] = "seam_corners"
+    plan = parse_scene(document, base_dir=TSHIRT.parent, path=TSHIRT).field
+    corners = dict(zip((p.name for p in plan.patches), plan.seam_corners(), strict=True))
+    assert corners["front"] == corners["back"] == ((0.0, 0.07, 0.401238898, 0.471238898),
+                                                   (0.26, 0.4))
+    assert corners["sleeve_right"] == ((0.0, 0.07, 0.21, 0.28, 0.35, 0.49, 0.56), (0.0,))
+    for patch in plan.patches:
+        assert patch.config.spans == (8, 6) and all(g is not None for g in patch.config.grading)
+    document["field"]["grading"] = "seams"
+    with pytest.raises(SceneError, match="grading"):
+        parse_scene(document, base_dir=TSHIRT.parent, path=TSHIRT)

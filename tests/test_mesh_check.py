@@ -228,3 +228,32 @@ def test_two_panels_welded_along_their_seam_are_one_mesh_without_self_intersecti
     assert np.array_equal(vertices[kept], joined)
     assert np.allclose(joined[joined_faces], vertices[both])
     assert len(self_intersections(joined, joined_faces)) == 0
+
+
+def test_a_seam_lapped_within_its_tolerance_is_joined_and_a_wider_lap_is_not():
+    """Two panels whose seam edges lie 50 µm apart, lapping by that much (a seam closed to
+    within its tolerance): welded at 1 µm the lapped faces cross; with seam_tolerance 0.1 mm
+    the edges' vertices are merged and the seam is one mesh; with 10 µm it stays open."""
+    left, faces = _sheet(5, size=1.0)
+    right = left + [1.0 - 5e-5, 0, 0]
+    vertices = np.concatenate((left, right))
+    both = np.concatenate((faces, faces + len(left)))
+    assert len(self_intersections(*welded(vertices, both, 1e-6)[:2])) > 0
+    joined, joined_faces, kept = welded(vertices, both, 1e-6, seam_tolerance=1e-4)
+    assert len(vertices) - len(kept) == 5
+    assert len(self_intersections(joined, joined_faces)) == 0
+    assert len(self_intersections(*welded(vertices, both, 1e-6, seam_tolerance=1e-5)[:2])) > 0
+
+
+def test_the_seam_tolerance_merges_no_interior_vertex_so_a_crossing_stays_found():
+    """A sheet tilted through another, every vertex within 55 µm of one of the other's: a
+    weld of all vertices at 0.1 mm makes them one sheet and hides the crossing; the seam
+    tolerance merges only the sheets' edge vertices, and the crossing is found."""
+    flat, faces = _sheet(7, size=1.0)
+    tilted = flat + np.stack((0 * flat[:, 0], 0 * flat[:, 0], (flat[:, 0] - 0.45) * 1e-4), axis=1)
+    vertices = np.concatenate((flat, tilted))
+    both = np.concatenate((faces, faces + len(flat)))
+    assert len(self_intersections(*welded(vertices, both, 1e-4)[:2])) == 0  # hidden
+    joined, joined_faces, kept = welded(vertices, both, 1e-6, seam_tolerance=1e-4)
+    assert len(vertices) - len(kept) == 4 * 6  # the edge vertices only
+    assert len(self_intersections(joined, joined_faces)) > 0

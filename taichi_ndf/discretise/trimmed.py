@@ -19,6 +19,12 @@ two). Per span:
   4p − 4 ≤ 2p + 2 for p ≤ 3, and the gravity load, degree 2p);
 - a span outside the outline gets none.
 
+Graded knots (`SplineConfig.grading`; a garment's `[field] grading = "seam_corners"`): the
+spans are those between the knots mapped back to ξ (`span_knots`), a whole span gets the
+graded Gauss points of `span_points`, a cut span the same triangle rule in ξ; the field is a
+polynomial in η, not in ξ, so neither rule is then exact (polynomials to about 1e-9 relative,
+tests/test_garment_outline.py).
+
 Coefficients whose basis function is zero at every quadrature point (support outside the
 outline) have no stiffness: `TrimmedGrid` holds them at zero (added to the grid's held
 unknowns), so Newton's matrix has no zero rows (measured, benchmarks/RESULTS.md "Garments:
@@ -63,23 +69,34 @@ def triangle_rule(points: int) -> tuple[np.ndarray, np.ndarray]:
     return uv, (ws * wt * s).ravel()
 
 
+def span_knots(config: SplineConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The knots (n + 1,) [units of ξ] of each direction of `config`'s domain: uniform, or
+    graded (the uniform knots in η mapped back to ξ, `SplineConfig.grading`)."""
+    knots = []
+    for (lo, _), n, h, graded in zip(config.domain, config.spans, config.spacing,
+                                     config.graded_maps(), strict=True):
+        eta = lo + h * torch.arange(n + 1, dtype=torch.float64)
+        knots.append((eta if graded is None else graded.inverse(eta)).numpy())
+    return knots[0], knots[1]
+
+
 def _pieces(outline: Outline, config: SplineConfig) -> dict[tuple[int, int], list]:
-    """The convex pieces (point lists) of the outline's triangles in each knot span (i, j)."""
-    (lo1, _), (lo2, _) = config.domain
-    h1, h2 = config.spacing
+    """The convex pieces (point lists) of the outline's triangles in each knot span (i, j)
+    (`span_knots`)."""
+    k1, k2 = span_knots(config)
     n1, n2 = config.spans
     pieces: dict[tuple[int, int], list] = {}
     for corners in outline.triangles:
-        if abs(cross(*corners)) <= 1e-14 * h1 * h2:
+        if abs(cross(*corners)) <= 1e-14 * (k1[-1] - k1[0]) * (k2[-1] - k2[0]):
             continue
         xs, ys = [c[0] for c in corners], [c[1] for c in corners]
-        i0 = max(0, min(n1 - 1, math.floor((min(xs) - lo1) / h1)))
-        i1 = max(0, min(n1 - 1, math.ceil((max(xs) - lo1) / h1) - 1))
-        j0 = max(0, min(n2 - 1, math.floor((min(ys) - lo2) / h2)))
-        j1 = max(0, min(n2 - 1, math.ceil((max(ys) - lo2) / h2) - 1))
+        i0 = max(0, min(n1 - 1, int(np.searchsorted(k1, min(xs), side="right")) - 1))
+        i1 = max(0, min(n1 - 1, int(np.searchsorted(k1, max(xs), side="left")) - 1))
+        j0 = max(0, min(n2 - 1, int(np.searchsorted(k2, min(ys), side="right")) - 1))
+        j1 = max(0, min(n2 - 1, int(np.searchsorted(k2, max(ys), side="left")) - 1))
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
-                box = ((lo1 + i * h1, lo1 + (i + 1) * h1), (lo2 + j * h2, lo2 + (j + 1) * h2))
+                box = ((k1[i], k1[i + 1]), (k2[j], k2[j + 1]))
                 piece = clip_to_box(corners, box)
                 if len(piece) >= 3:
                     pieces.setdefault((i, j), []).append(piece)
@@ -89,16 +106,17 @@ def _pieces(outline: Outline, config: SplineConfig) -> dict[tuple[int, int], lis
 def trimmed_points(outline: Outline, config: SplineConfig
                    ) -> tuple[torch.Tensor, torch.Tensor]:
     """Quadrature points ξ (N, 2) [m] and weights (N,) [m²] of the outline on the knot spans
-    of `config` (module docstring), float64, span by span (ξ¹ span major). Raises ValueError
-    for a grid whose domain does not hold the outline's bounding box, a periodic or graded
-    grid."""
+    of `config` (module docstring; graded knots: the spans between `span_knots`, a whole
+    span's points those of `span_points`), float64, span by span (ξ¹ span major). Raises
+    ValueError for a grid whose domain does not hold the outline's bounding box or is
+    periodic."""
     if not all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi)
                in zip(config.domain, outline.bounds, strict=True)):
         raise ValueError(f"the panel's grid {config.domain} does not hold its outline's "
                          f"bounding box {outline.bounds}")
-    if any(config.periodic) or config.graded:
-        raise ValueError("a trimmed panel needs an open grid of uniform knots")
-    h1, h2 = config.spacing
+    if any(config.periodic):
+        raise ValueError("a trimmed panel needs an open grid")
+    k1, k2 = span_knots(config)
     n1, n2 = config.spans
     full_xi, full_w = span_points(config)
     per_span = full_xi.shape[0] // (n1 * n2)
@@ -106,7 +124,8 @@ def trimmed_points(outline: Outline, config: SplineConfig
     xi, weight = [], []
     for (i, j), pieces in sorted(_pieces(outline, config).items()):
         areas = [polygon_area(p) for p in pieces]
-        if abs(sum(areas) - h1 * h2) <= FULL * h1 * h2:
+        span_area = (k1[i + 1] - k1[i]) * (k2[j + 1] - k2[j])
+        if abs(sum(areas) - span_area) <= FULL * span_area:
             span = slice((i * n2 + j) * per_span, (i * n2 + j + 1) * per_span)
             xi.append(full_xi[span].numpy())
             weight.append(full_w[span].numpy())
@@ -116,7 +135,7 @@ def trimmed_points(outline: Outline, config: SplineConfig
             for k in range(1, len(piece) - 1):
                 b, c = np.asarray(piece[k]), np.asarray(piece[k + 1])
                 twice = cross(a, b, c)
-                if twice <= 1e-14 * h1 * h2:
+                if twice <= 1e-14 * span_area:
                     continue
                 xi.append(a + uv[:, :1] * (b - a) + uv[:, 1:] * (c - a))
                 weight.append(tw * twice)

@@ -107,15 +107,35 @@ def crossings(vertices, faces, other_vertices, other_faces) -> np.ndarray:
     return np.concatenate(found)
 
 
-def welded(vertices, faces, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def boundary_vertices(faces, count: int) -> np.ndarray:
+    """Whether each of `count` vertices is on the mesh's boundary: an end of an edge that
+    only one face has (count,) bool."""
+    f = np.asarray(faces, dtype=np.int64)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    on = np.zeros(count, dtype=bool)
+    on[unique[counts == 1].ravel()] = True
+    return on
+
+
+def welded(vertices, faces, tolerance: float, *, seam_tolerance: float = 0.0
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The mesh with vertices closer than `tolerance` [m] merged into one (the first of each
-    group): panels' meshes joined along their seams. Returns (vertices, faces, the indices
-    of the vertices kept (the same selection for another array per vertex))."""
+    group): panels' meshes joined along their seams. seam_tolerance [m]: also the vertices
+    on the boundary of the mesh as given (`boundary_vertices`: the panels' own edges, before
+    any merge) closer than this merged — a sewn seam counts as joined where its two sides
+    are within its stated tolerance; interior vertices are merged at `tolerance` only, so a
+    crossing away from the panels' edges is never hidden. Returns (vertices, faces, the
+    indices of the vertices kept (the same selection for another array per vertex))."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
     v, f = _as_mesh(vertices, faces)
     pairs = cKDTree(v).query_pairs(tolerance, output_type="ndarray")
+    if seam_tolerance > tolerance:
+        edge = np.flatnonzero(boundary_vertices(f, len(v)))
+        near = cKDTree(v[edge]).query_pairs(seam_tolerance, output_type="ndarray")
+        pairs = np.concatenate((pairs.reshape(-1, 2), edge[near].reshape(-1, 2)))
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(v),) * 2)
     count, label = connected_components(graph, directed=False)
     first = np.full(count, len(v))

@@ -53,27 +53,9 @@ from taichi_ndf import jets
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.quadrature import gauss_legendre
 from taichi_ndf.problem.sampling import SurfaceSamples
-from taichi_ndf.problem.seams import LENGTH_TOLERANCE, EdgeSegment, SeamSpec
+from taichi_ndf.problem.seams import LENGTH_TOLERANCE, EdgeSegment, SeamSpec, segment_line
 
 _CHANNEL = (jets.D1, jets.D2)  # the jet channel of ∂/∂ξ¹, ∂/∂ξ²
-
-
-def segment_line(side, bounds) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """A seam side as a straight segment of ξ: its start (2,), end (2,) and unit outward
-    normal n (2,) in ξ, float64. side: an `EdgeSegment` of the parameter rectangle `bounds`
-    (n = ±e_across) or a polygon panel's `PolygonEdge` (its own `line`)."""
-    if not isinstance(side, EdgeSegment):
-        return tuple(torch.as_tensor(v, dtype=torch.float64) for v in side.line())
-    across, along = side.across, 1 - side.across
-    lo, hi = bounds[along]
-    start, end = side.span if side.span is not None else (lo, hi)
-    at = bounds[across][1] if side.outward > 0 else bounds[across][0]
-    ends = torch.empty(2, 2, dtype=torch.float64)
-    ends[:, across] = at
-    ends[:, along] = torch.tensor((start, end), dtype=torch.float64)
-    normal = torch.zeros(2, dtype=torch.float64)
-    normal[across] = side.outward
-    return ends[0], ends[1], normal
 
 
 def _segment_xi(side, s: torch.Tensor, bounds) -> tuple[torch.Tensor, torch.Tensor,

@@ -13,7 +13,8 @@ import numpy as np
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.outline import Outline, PolygonEdge
-from taichi_ndf.problem.seams import EDGES, SeamSpec
+from taichi_ndf.problem.seams import EDGES, SeamSpec, segment_line
+from taichi_ndf.problem.spline_grid import GRADED_SHARE, graded_towards
 from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, Material, OrthotropicStVK
 
@@ -170,6 +171,53 @@ class MultiPatchPlan:
         the larger membrane stiffness (the stronger tie)."""
         return max((self.patches[seam.a].model.material, self.patches[seam.b].model.material),
                    key=lambda m: m.small_strain_stiffness()[0])
+
+    def seam_corners(self) -> tuple[tuple[tuple[float, ...], tuple[float, ...]], ...]:
+        """Per patch, the coordinates (ξ¹ ones, ξ² ones; sorted) of its seam corners: the
+        ends of seam sides where the sewn path turns on either side of the seam — two seam
+        sides of one patch meeting there at an angle (a notch's corner, a side seam meeting
+        an armhole) — and the points sewn to such an end on the other side (a straight
+        sleeve end's points that meet an armhole's corners). There the two sides' traces
+        cannot both be smooth: one turns, the other must fold (`graded_at_seam_corners`)."""
+        ends: dict[int, list[tuple[tuple[float, float], tuple[float, float]]]] = {}
+        sides = []  # per seam: its A and B ends as (patch, (start, end))
+        for seam in self.seams:
+            pair = []
+            for patch, side in ((seam.a, seam.spec.a), (seam.b, seam.spec.b)):
+                bounds = self.patches[patch].model.surface.domain.bounds
+                start, end, _ = (v.tolist() for v in segment_line(side, bounds))
+                run = (end[0] - start[0], end[1] - start[1])
+                norm = math.hypot(*run)
+                ends.setdefault(patch, []).extend(
+                    ((tuple(start), (run[0] / norm, run[1] / norm)),
+                     (tuple(end), (run[0] / norm, run[1] / norm))))
+                pair.append((patch, (tuple(start), tuple(end))))
+            if seam.spec.orientation == "reversed":
+                pair[1] = (pair[1][0], pair[1][1][::-1])
+            sides.append(pair)
+
+        def turns(patch: int, point) -> bool:
+            runs = [run for at, run in ends[patch] if math.dist(at, point) <= 1e-9]
+            return any(abs(a[0] * b[1] - a[1] * b[0]) > 1e-6 for a in runs for b in runs)
+
+        found: list[tuple[set, set]] = [(set(), set()) for _ in self.patches]
+        for (pa, ends_a), (pb, ends_b) in sides:
+            for k in range(2):
+                if turns(pa, ends_a[k]) or turns(pb, ends_b[k]):
+                    for patch, point in ((pa, ends_a[k]), (pb, ends_b[k])):
+                        found[patch][0].add(round(point[0], 12))
+                        found[patch][1].add(round(point[1], 12))
+        return tuple((tuple(sorted(a)), tuple(sorted(b))) for a, b in found)
+
+    def graded_at_seam_corners(self, share: float = GRADED_SHARE) -> MultiPatchPlan:
+        """This plan with each patch's knots graded towards its `seam_corners` (the same
+        spans: `taichi_ndf.problem.spline_grid.graded_towards`; a patch without seam
+        corners keeps its grid)."""
+        patches = tuple(
+            patch if not any(corners) else dataclasses.replace(
+                patch, config=graded_towards(patch.config, corners, share=share))
+            for patch, corners in zip(self.patches, self.seam_corners(), strict=True))
+        return dataclasses.replace(self, patches=patches)
 
     def to_dict(self) -> dict:
         return {"type": "multipatch",

@@ -14,6 +14,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import torch
+
 EDGES = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")
 ORIENTATIONS = ("same", "reversed")
 BENDING = ("transmitted", "hinge")
@@ -111,3 +113,21 @@ def check_seams(seams: Sequence[SeamSpec]) -> None:
                 raise ValueError(f"seam {seam.name!r}: edge {side.edge!r} is already in seam "
                                  f"{owner[side.edge]!r}")
             owner[side.edge] = seam.name
+
+
+def segment_line(side, bounds) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A seam side as a straight segment of ξ: its start (2,), end (2,) and unit outward
+    normal n (2,) in ξ, float64. side: an `EdgeSegment` of the parameter rectangle `bounds`
+    (n = ±e_across) or a polygon panel's `PolygonEdge` (its own `line`)."""
+    if not isinstance(side, EdgeSegment):
+        return tuple(torch.as_tensor(v, dtype=torch.float64) for v in side.line())
+    across, along = side.across, 1 - side.across
+    lo, hi = bounds[along]
+    start, end = side.span if side.span is not None else (lo, hi)
+    at = bounds[across][1] if side.outward > 0 else bounds[across][0]
+    ends = torch.empty(2, 2, dtype=torch.float64)
+    ends[:, across] = at
+    ends[:, along] = torch.tensor((start, end), dtype=torch.float64)
+    normal = torch.zeros(2, dtype=torch.float64)
+    normal[across] = side.outward
+    return ends[0], ends[1], normal

@@ -227,6 +227,15 @@ def graded_config(config: SplineConfig, boundary, loads, domain, *,
     else:
         log.info("knots graded towards ξ¹ = %s, ξ² = %s", features[0] or "none",
                  features[1] or "none")
+    return graded_towards(config, features, share=share)
+
+
+def graded_towards(config: SplineConfig, features, *, share: float = GRADED_SHARE
+                   ) -> SplineConfig:
+    """`config` with its knots graded per direction towards `features` (a tuple of positions
+    in ξ per direction; empty: that direction uniform), by the law of
+    `taichi_ndf.field.grading` with the core one span of `config` and the graded part taking
+    `share` of the spans (module docstring)."""
     grading = []
     for d, ((lo, hi), found) in enumerate(zip(config.domain, features, strict=True)):
         if not found:
@@ -235,5 +244,5 @@ def graded_config(config: SplineConfig, boundary, loads, domain, *,
         core = (hi - lo) / config.spans[d]
         strength = strength_for(found, core, share, lo, hi, periodic=config.periodic[d],
                                 even=config.even_ends[d])
-        grading.append(Grading(found, core, strength))
+        grading.append(Grading(tuple(found), core, strength))
     return dataclasses.replace(config, grading=tuple(grading))

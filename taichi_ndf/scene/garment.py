@@ -5,7 +5,8 @@ rectangle width × height [m] placed where it starts (flat, or wrapped around a 
 polygon `outline` [[x, y], …] [m] (its edges e0, e1, …; integrated over the outline only:
 `taichi_ndf.discretise.trimmed`) placed flat or cut flat and wrapped by its start, with its
 own edges held and its own spline grid;
-`[[seams]]` join `panel.edge` to `panel.edge`.
+`[[seams]]` join `panel.edge` to `panel.edge`; `[field] grading = "seam_corners"` grades
+every panel's knots towards the points where its seams turn.
 Read into a `MultiPatchPlan` (`taichi_ndf.discretise.multipatch`). Errors are one line naming
 the panel and the edge (an unknown panel or edge, an edge in two seams, seam lengths differing
 by more than `LENGTH_TOLERANCE`; an outline's fewer than 3 points, zero-length edge, crossing
@@ -14,6 +15,7 @@ edges or clockwise order), raised before anything is solved.
 
 from __future__ import annotations
 
+import logging
 import math
 
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge
@@ -47,6 +49,11 @@ __all__ = ["LENGTH_TOLERANCE", "RESTS", "is_garment", "parse_garment"]
 
 # A panel's rest shape: its placement ("placed") or the flat pattern it is cut from ("flat").
 RESTS = ("placed", "flat")
+# [field] grading of a garment's panels: uniform knots, or the same spans graded towards the
+# seam corners (`MultiPatchPlan.graded_at_seam_corners`).
+GARMENT_GRADINGS = ("uniform", "seam_corners")
+
+log = logging.getLogger(__name__)
 
 
 def is_garment(document: dict) -> bool:
@@ -263,10 +270,11 @@ def parse_garment(top: Table, material, field: Table | None, *, read_material
     gravity = loads.vector("gravity", 3, (0.0, 0.0, 0.0)) if loads is not None else (0, 0, 0)
     if loads is not None:
         loads.close()
-    spans = (16, 8)
+    spans, grading = (16, 8), "uniform"
     if field is not None:
         field.string("type", "spline", choices=("spline",))
         spans = tuple(int(v) for v in field.vector("spans", 2, spans))
+        grading = field.string("grading", grading, choices=GARMENT_GRADINGS)
         field.close()
     tables = top.tables("panels")
     patches = [_panel(t, i, material, gravity, spans, read_material)
@@ -287,6 +295,11 @@ def parse_garment(top: Table, material, field: Table | None, *, read_material
         seams.append(seam)
     plan = checked(lambda: MultiPatchPlan(tuple(patches), tuple(seams), tuple(gravity)),
                    "panels")
+    if grading == "seam_corners":  # the same spans, graded towards where seams turn
+        plan = checked(plan.graded_at_seam_corners, "field.grading")
+        for patch, corners in zip(plan.patches, plan.seam_corners(), strict=True):
+            log.info("panel %r: knots graded towards ξ¹ = %s, ξ² = %s", patch.name,
+                     corners[0] or "none", corners[1] or "none")
     for t, seam in zip(top.tables("seams"), seams, strict=True):
         checked(lambda seam=seam: SeamTerm(seam.spec, patches[seam.a].model.surface,
                                            plan.seam_material(seam),
