@@ -7,15 +7,19 @@ along it:
 
 - the loads do no work on it (first order), and
 - their potential along it is neutral in every shape (`rigid_motions._invariant`: a
-  translation, a rotation about an axis along every force) or falls at second order (dead
-  self-equilibrated loads on a shell held at one point: it swings as the grid is refined).
+  translation, a rotation about an axis along every force), or it is held only by a point's
+  slope (free as `free_motions` counts, held as the constraints are stated) and the loads'
+  potential falls along it at second order (dead self-equilibrated loads on a shell held at
+  one point: it swings as the grid is refined, `rigid_motions`' "second_order" finding).
 
 Along such a motion each solve leaves the shell wherever its Newton iterations or the
 vanishing stiffness of a point's slope put it (measured: the Scordelis–Lo roof's axial
 translation, the pinched cylinder's, the pinched hemisphere's swing about its pin:
 benchmarks/RESULTS.md, issue 33), so a probe component it moves changes between grids by an
-amount no grid error sets. A motion the loads work on, or whose potential rises along it (a
-sheet hanging from a pin), is fixed by the loads and converges with the grid: not a gauge.
+amount no grid error sets. A motion the loads work on, whose potential rises along it, or
+that is neutral only at the reference (a tilt of a flat sheet on a pin: the hanging shape
+makes it stable), or free as stated and falling (a sheet on a free pin hangs), is fixed by
+the loads and converges with the grid: not a gauge.
 
 `ProbeGauge.relative` reads the probes relative to their best-fit gauge motion: the least-
 squares twist q of the gauge subspace to the probe displacements (P, 3) is subtracted (first
@@ -35,6 +39,8 @@ from taichi_ndf.boundary.rigid_motions import (
     WORK_TOL,
     _complement,
     _contact,
+    _invariant,
+    _load_curvatures,
     _load_points,
     _unresisted,
     _velocities,
@@ -50,17 +56,31 @@ def gauge_motions(model) -> tuple[np.ndarray, np.ndarray, float]:
     """The gauge motions of `model` (module docstring): an orthonormal basis (6, k) of
     twists q = (t, L ω) about the centre c, c (3,) [m] and L [m] (`free_motions`)."""
     basis, centre, size = free_motions(model.boundary, model.surface)
-    basis = _unresisted(_contact(model, centre), basis, size)
+    contact = getattr(model, "contact", None)
+    if contact is not None and contact.obstacles:
+        basis = _unresisted(_contact(model, centre), basis, size)
     if basis.shape[1] == 0:
         return basis, centre, size
+    stated, _, _ = free_motions(model.boundary, model.surface, point_slopes=True)
     x, forces = _load_points(model)
     y = x - centre
     total = sum(forces.values()) if forces else np.zeros_like(y)
     scale = max(float(np.linalg.norm(total, axis=1).sum()), 1e-300)
-    work = np.array([_work(total, q, y, size) for q in basis.T])
-    if np.linalg.norm(work) > WORK_TOL * scale:
-        basis = _complement(basis, (basis @ work)[:, None])
-    return basis, centre, size
+    tol = WORK_TOL * scale * size
+
+    def unworked(sub):  # the part of span(sub) the loads do no work on
+        work = np.array([_work(total, q, y, size) for q in sub.T])
+        if sub.shape[1] == 0 or np.linalg.norm(work) <= WORK_TOL * scale:
+            return sub
+        return _complement(sub, (sub @ work)[:, None])
+
+    kept = [q for value, q in _load_curvatures(total, unworked(basis), y, size)
+            if abs(value) <= tol and _invariant(total, q, size, scale)]
+    kept += [q for value, q in _load_curvatures(
+        total, unworked(_complement(basis, stated)), y, size) if value < -tol]
+    if not kept:
+        return np.zeros((6, 0)), centre, size
+    return _complement(np.stack(kept, axis=1), np.zeros((6, 0))), centre, size
 
 
 @dataclass(frozen=True)
