@@ -10,7 +10,10 @@ along it:
   translation, a rotation about an axis along every force), or it is held only by a point's
   slope (free as `free_motions` counts, held as the constraints are stated) and the loads'
   potential falls along it at second order (dead self-equilibrated loads on a shell held at
-  one point: it swings as the grid is refined, `rigid_motions`' "second_order" finding).
+  one point: it swings as the grid is refined, `rigid_motions`' "second_order" finding), or
+  it is held only by the slope of a gauge point (`gauges`: a pin with no reaction under the
+  loads, whose slope's stiffness vanishes as the grid is refined: the pinched hemisphere's
+  three rotations about its pin).
 
 Along such a motion each solve leaves the shell wherever its Newton iterations or the
 vanishing stiffness of a point's slope put it (measured: the Scordelis–Lo roof's axial
@@ -35,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.boundary.rigid_motions import (
     WORK_TOL,
     _complement,
@@ -78,9 +82,22 @@ def gauge_motions(model) -> tuple[np.ndarray, np.ndarray, float]:
             if abs(value) <= tol and _invariant(total, q, size, scale)]
     kept += [q for value, q in _load_curvatures(
         total, unworked(_complement(basis, stated)), y, size) if value < -tol]
+    for pin in gauge_points(model):  # what only a gauge pin's slope holds
+        without, _, _ = free_motions(model.boundary, model.surface, point_slopes=True,
+                                     leave_out=(pin,))
+        kept += list(unworked(_intersection(basis, without)).T)
     if not kept:
         return np.zeros((6, 0)), centre, size
     return _complement(np.stack(kept, axis=1), np.zeros((6, 0))), centre, size
+
+
+def _intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of span(a) ∩ span(b) (orthonormal columns a (6, i), b (6, j))."""
+    if a.shape[1] == 0 or b.shape[1] == 0:
+        return np.zeros((6, 0))
+    _, s, vt = np.linalg.svd(a - b @ (b.T @ a), full_matrices=True)
+    s = np.concatenate((s, np.zeros(a.shape[1] - len(s))))
+    return a @ vt[s <= 1e-6].T
 
 
 @dataclass(frozen=True)
