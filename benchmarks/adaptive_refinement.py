@@ -195,9 +195,9 @@ def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: b
 
 def outcome_line(name: str, run) -> str:
     """Why the adaptive loop stopped, and its unknowns per grid (result.json's record)."""
-    a = run.adaptive
-    sizes = ", ".join(str(lv["unknowns"]) for lv in a["levels"])
-    return f"- {name}: {a['outcome']}; unknowns per grid {sizes}; {a['stopped'] or a.get('worst')}"
+    a, sizes = run.adaptive, ", ".join(str(lv["unknowns"]) for lv in run.adaptive["levels"])
+    why = (a["stopped"] or a.get("worst")) + (f"; {a['gauge']['line']}" if "gauge" in a else "")
+    return f"- {name}: {a['outcome']}; unknowns per grid {sizes}; {why}"
 
 
 def estimate_rows(name, run, document, fine, fine_config, fine_cpu) -> list[str]:

@@ -85,6 +85,8 @@ class AdaptiveDiscretisation(SplineDiscretisation):
             outcome = refinement["adaptive"]
             report(f"adaptive refinement: {outcome['outcome']} (tolerance "
                    f"{outcome['tolerance']:g}; {outcome.get('worst', 'no estimate')})")
+            if "gauge" in outcome:
+                report(f"adaptive refinement: {outcome['gauge']['line']}")
         last = run.state.levels[-1].level
         convergence = {t: ([i for i, level in enumerate(per_level) if t in level],
                            [level[t] for level in per_level if t in level])

@@ -27,10 +27,12 @@ has GROWTH (2) times the spans per direction of the one before, its knots placed
     after each level from 2 on: the guarded three-grid rule (`minimise.refinement.richardson`,
                  the expected order 2(p − 1)) on Π and every probe component over the last
                  three levels; stop where every bar ≤ tolerance × |Π| (Π) and ≤ tolerance ×
-                 |u| of the probe (a probe's components), or where the next grid's unknowns
-                 would exceed `max_unknowns`. An estimate over a window with a level whose
-                 Newton solve did not converge never meets the tolerance (its bar is no
-                 discretisation error, however small: `tolerance_met`); the loop refines on.
+                 |u| of the probe (a probe's components; read relative to the model's
+                 gauge motions, free rigid motions nothing fixes: `solve.tolerance`), or
+                 where the next grid's unknowns would exceed `max_unknowns`. An estimate
+                 over a window with a level whose Newton solve did not converge never meets
+                 the tolerance (its bar is no discretisation error, however small:
+                 `tolerance_met`); the loop refines on.
 
 The spans double per level in η, so h halves as the rule assumes; the knots move between
 levels, so the observed order is that of the adaptive sequence (the rule sees the sequence's
@@ -56,6 +58,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
 
+from taichi_ndf.boundary.gauge_motions import probe_gauge
 from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.field import SplineConfig, SplineField
 from taichi_ndf.minimise.callbacks import call
@@ -71,6 +74,7 @@ from taichi_ndf.problem.spline_grid import SplinePlan, graded_config, singular_f
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.error_indicator import INDICATORS, equidistributed, span_indicator
 from taichi_ndf.solve.spline_solver import SplineRun, newton_config, solve_spline
+from taichi_ndf.solve.tolerance import gauge_relative, tolerance_met
 
 log = logging.getLogger(__name__)
 
@@ -177,49 +181,6 @@ def density_order(energies: list[float], expected: float) -> float:
     return expected
 
 
-def unconverged_window(converged: list[bool] | None) -> str | None:
-    """Why the estimate over the last three levels is no discretisation error: the levels
-    among them whose Newton solve did not converge, in words (None: all converged, or
-    unknown)."""
-    if converged is None:
-        return None
-    first = max(len(converged) - 3, 0)
-    failed = [i for i in range(first, len(converged)) if not converged[i]]
-    if not failed:
-        return None
-    return (f"grid level{'s' if len(failed) > 1 else ''} {', '.join(map(str, failed))} of "
-            f"{len(converged)} not converged (Newton stopped before its tolerance): the "
-            "estimate is not a discretisation error")
-
-
-def tolerance_met(document: dict, tolerance: float,
-                  converged: list[bool] | None = None) -> tuple[bool, str]:
-    """Whether every estimated error in a refinement document is within the tolerance
-    (module docstring), and the largest relative one in words. converged: per grid level,
-    whether its Newton solve converged (None: all did); where one of the last three did not,
-    the tolerance is not met whatever the bars (`richardson` marks such an estimate
-    unreliable; its bar can be small, e.g. 0 where Newton stopped at the same Π on every
-    grid), and the words say which level."""
-    if len(document["spans"]) < 3:
-        return False, "fewer than three grids"
-    unconverged = unconverged_window(converged)
-    if unconverged is not None:
-        return False, unconverged
-    worst, what = 0.0, ""
-    energy = document["energy"]
-    ratio = energy["estimated_error"] / max(abs(energy["extrapolated"]), 1e-300)
-    worst, what = ratio, "Π"
-    for name, parts in document["probes"].items():
-        scale = math.sqrt(sum(c["extrapolated"] ** 2 for c in parts))
-        for axis, c in enumerate(parts):
-            if c["estimated_error"] == 0.0:
-                continue
-            ratio = c["estimated_error"] / max(scale, 1e-300)
-            if ratio > worst:
-                worst, what = ratio, f"probe {name}:{axis}"
-    return worst <= tolerance, f"largest estimated relative error {worst:.3g} ({what})"
-
-
 def solve_on(model: ShellModel, start: SplineField, config: SplineConfig, plan: SplinePlan,
              solver: SolverConfig, objective: Objective, *, level: int = 0, step: int = -1,
              coarse_energy: float | None = None, on_iteration=None
@@ -279,6 +240,11 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                     "grids": "features" if graded else (
                         "dyadic" if adaptive.indicator in ("none", "features")
                         else "equidistributed"), "levels": []}
+    gauge = probe_gauge(model)
+    if gauge is not None:
+        record["gauge"] = {"motions": list(gauge.motions), "components": list(
+            gauge.components()), "line": gauge.line()}
+        log.warning("--tolerance: %s", gauge.line())
 
     def level_done(run: SplineRun) -> None:
         field = SplineField(run.field.config, dtype=run.field.coefficients.dtype)
@@ -327,8 +293,12 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
     def next_level(level: int) -> bool:  # the next grid, unless the tolerance or budget stops
         nonlocal outcome, stopped
         if len(run.levels) >= 3:
-            met, worst = tolerance_met(run.refinement(degree), adaptive.tolerance,
-                                       [lv.converged for lv in run.levels])
+            converged = [lv.converged for lv in run.levels]
+            document = run.refinement(degree)
+            if gauge is not None:
+                document = gauge_relative(document, gauge, order, converged)
+                record["gauge"]["probes"] = document["probes"]  # the relative estimates
+            met, worst = tolerance_met(document, adaptive.tolerance, converged)
             log.info("adaptive level %d: %s (tolerance %g)", len(run.levels) - 1, worst,
                      adaptive.tolerance)
             record["worst"] = worst
