@@ -6,7 +6,7 @@ removed) is a **gauge motion** of the model where the loads do not fix where the
 along it:
 
 - the loads do no work on it (first order), and
-- their potential along it is neutral in every shape (`rigid_motions._invariant`: a
+- their potential along it is neutral in every shape (`rigid_motions.neutral_in_every_shape`: a
   translation, a rotation about an axis along every force), or it is held only by a point's
   slope (free as `free_motions` counts, held as the constraints are stated) and the loads'
   potential falls along it at second order (dead self-equilibrated loads on a shell held at
@@ -41,16 +41,16 @@ import torch
 from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.boundary.rigid_motions import (
     WORK_TOL,
-    _complement,
-    _contact,
-    _invariant,
-    _load_curvatures,
-    _load_points,
-    _unresisted,
-    _velocities,
-    _work,
+    complement,
+    contact_points,
     describe,
     free_motions,
+    load_curvatures,
+    load_points,
+    neutral_in_every_shape,
+    rigid_work,
+    twist_velocities,
+    unresisted,
 )
 
 MOVES = 1e-6  # a probe component moves with a unit twist where its velocity is above this
@@ -62,33 +62,33 @@ def gauge_motions(model) -> tuple[np.ndarray, np.ndarray, float]:
     basis, centre, size = free_motions(model.boundary, model.surface)
     contact = getattr(model, "contact", None)
     if contact is not None and contact.obstacles:
-        basis = _unresisted(_contact(model, centre), basis, size)
+        basis = unresisted(contact_points(model, centre), basis, size)
     if basis.shape[1] == 0:
         return basis, centre, size
     stated, _, _ = free_motions(model.boundary, model.surface, point_slopes=True)
-    x, forces = _load_points(model)
+    x, forces = load_points(model)
     y = x - centre
     total = sum(forces.values()) if forces else np.zeros_like(y)
     scale = max(float(np.linalg.norm(total, axis=1).sum()), 1e-300)
     tol = WORK_TOL * scale * size
 
     def unworked(sub):  # the part of span(sub) the loads do no work on
-        work = np.array([_work(total, q, y, size) for q in sub.T])
+        work = np.array([rigid_work(total, q, y, size) for q in sub.T])
         if sub.shape[1] == 0 or np.linalg.norm(work) <= WORK_TOL * scale:
             return sub
-        return _complement(sub, (sub @ work)[:, None])
+        return complement(sub, (sub @ work)[:, None])
 
-    kept = [q for value, q in _load_curvatures(total, unworked(basis), y, size)
-            if abs(value) <= tol and _invariant(total, q, size, scale)]
-    kept += [q for value, q in _load_curvatures(
-        total, unworked(_complement(basis, stated)), y, size) if value < -tol]
+    kept = [q for value, q in load_curvatures(total, unworked(basis), y, size)
+            if abs(value) <= tol and neutral_in_every_shape(total, q, size, scale)]
+    kept += [q for value, q in load_curvatures(
+        total, unworked(complement(basis, stated)), y, size) if value < -tol]
     for pin in gauge_points(model):  # what only a gauge pin's slope holds
         without, _, _ = free_motions(model.boundary, model.surface, point_slopes=True,
                                      leave_out=(pin,))
         kept += list(unworked(_intersection(basis, without)).T)
     if not kept:
         return np.zeros((6, 0)), centre, size
-    return _complement(np.stack(kept, axis=1), np.zeros((6, 0))), centre, size
+    return complement(np.stack(kept, axis=1), np.zeros((6, 0))), centre, size
 
 
 def _intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -146,7 +146,7 @@ def probe_gauge(model) -> ProbeGauge | None:
         return None
     xi = torch.tensor([p.xi for p in model.probes], dtype=torch.float64)
     y = model.surface.jets(xi)[:, 0].numpy() - centre
-    velocities = np.stack([_velocities(q, y, size) for q in basis.T], axis=2)  # (P, 3, k)
+    velocities = np.stack([twist_velocities(q, y, size) for q in basis.T], axis=2)  # (P, 3, k)
     gauge = ProbeGauge(tuple(p.name for p in model.probes), velocities,
                        tuple(describe(q, centre, size) for q in basis.T))
     return gauge if gauge.components() else None

@@ -14,7 +14,7 @@ slope counts as holding, so V is never larger than the constraints allow). The i
 forces do no work on a rigid motion, so on every q ∈ V the point's reaction r balances the
 loads: r · (A q) = −W(q), A the point's rows on the twists (its held components and, with
 rotation "held", its slope: `rigid_motions.constraint_rows`), W(q) the loads' work
-(`rigid_motions._load_points`: gravity, body force, pressure, point and line loads). The
+(`rigid_motions.load_points`: gravity, body force, pressure, point and line loads). The
 point is a **gauge** where
 
 - the loads do no work on any q ∈ V (|W| ≤ `rigid_motions.WORK_TOL` × the loads' scale), and
@@ -39,10 +39,10 @@ import numpy as np
 from taichi_ndf.boundary.constraints import PinnedPoint
 from taichi_ndf.boundary.rigid_motions import (
     WORK_TOL,
-    _load_points,
-    _work,
     constraint_rows,
     free_motions,
+    load_points,
+    rigid_work,
 )
 
 log = logging.getLogger(__name__)
@@ -64,7 +64,7 @@ def gauge_points(model) -> tuple[PinnedPoint, ...]:
     pins = [c for c in boundary.constraints if isinstance(c, PinnedPoint)]
     if not pins:
         return ()
-    x, forces = _load_points(model)
+    x, forces = load_points(model)
     total = sum(forces.values()) if forces else np.zeros_like(x)
     scale = float(np.linalg.norm(total, axis=1).sum())
     gauges = []
@@ -73,7 +73,7 @@ def gauge_points(model) -> tuple[PinnedPoint, ...]:
                                            leave_out=(pin,))
         if basis.shape[1] == 0:
             continue  # the other constraints hold every rigid motion: the pin shares the load
-        work = np.array([_work(total, q, x - centre, size) for q in basis.T])
+        work = np.array([rigid_work(total, q, x - centre, size) for q in basis.T])
         if scale > 0 and np.linalg.norm(work) > WORK_TOL * scale:
             continue  # a load works on a motion only the pin holds: its reaction
         rows = np.asarray(constraint_rows(pin, boundary, surface, centre, size, True))

@@ -186,7 +186,7 @@ def _grid_xi(domain) -> torch.Tensor:
     return xi[domain.contains(xi)]
 
 
-def _load_points(model) -> tuple[np.ndarray, dict]:
+def load_points(model) -> tuple[np.ndarray, dict]:
     """The loads of `model` as forces at reference points: the points x (N, 3) [m] and the
     forces (N, 3) [N] of each kind of load (name -> forces)."""
     from taichi_ndf.problem.line_loads import quadrature
@@ -225,23 +225,23 @@ def _load_points(model) -> tuple[np.ndarray, dict]:
     return x, out
 
 
-def _velocities(q: np.ndarray, y: np.ndarray, size: float) -> np.ndarray:
+def twist_velocities(q: np.ndarray, y: np.ndarray, size: float) -> np.ndarray:
     """v (N, 3) [m] of twist q at points y = x − c (N, 3)."""
     return q[:3] + np.cross(q[3:] / size, y)
 
 
-def _work(forces: np.ndarray, q: np.ndarray, y: np.ndarray, size: float) -> float:
-    return float((forces * _velocities(q, y, size)).sum())
+def rigid_work(forces: np.ndarray, q: np.ndarray, y: np.ndarray, size: float) -> float:
+    return float((forces * twist_velocities(q, y, size)).sum())
 
 
 def _second_order(forces: np.ndarray, q: np.ndarray, y: np.ndarray, size: float) -> float:
     """d²Π_loads/ds² along the finite rigid motion exp(s q): the points' second derivative is
     ω × v, so the dead loads' potential −Σ F·u has −Σ F·(ω × v)."""
     omega = q[3:] / size
-    return -float((forces * np.cross(omega, _velocities(q, y, size))).sum())
+    return -float((forces * np.cross(omega, twist_velocities(q, y, size))).sum())
 
 
-def _contact(model, centre: np.ndarray):
+def contact_points(model, centre: np.ndarray):
     """Points y = x − c (M, 3) of the reference closest to an obstacle and the obstacles'
     outward normals there (M, 3); None without obstacles."""
     config = getattr(model, "contact", None)
@@ -266,20 +266,20 @@ def _resisted(contact, q: np.ndarray, size: float, one_sided: bool) -> float:
     if contact is None:
         return 0.0
     y, n = contact
-    v = _velocities(q, y, size)
+    v = twist_velocities(q, y, size)
     into = (n * v).sum(1)
     if one_sided:
         into = np.minimum(into, 0.0)
     return float((into**2).mean() / max((v**2).sum(1).mean(), 1e-300))
 
 
-def _unresisted(contact, basis: np.ndarray, size: float) -> np.ndarray:
+def unresisted(contact, basis: np.ndarray, size: float) -> np.ndarray:
     """The subspace (6, m) of `basis` that contact does not resist (generalised eigenvectors of
     the contact's (n·v)² against |v|² below CONTACT_RESISTS)."""
     if contact is None or basis.shape[1] == 0:
         return basis
     y, n = contact
-    columns = [_velocities(q, y, size) for q in basis.T]
+    columns = [twist_velocities(q, y, size) for q in basis.T]
     normal = np.stack([(n * v).sum(1) for v in columns], 1)           # (M, k)
     stiff = normal.T @ normal
     mass = np.array([[(a * b).sum() for b in columns] for a in columns])
@@ -298,35 +298,35 @@ def rigid_motion_findings(model, *, newton: bool = True) -> list[Finding]:
     if basis.shape[1] == 0:
         return []
     stated, _, _ = free_motions(model.boundary, model.surface, point_slopes=True)
-    x, forces = _load_points(model)
+    x, forces = load_points(model)
     y = x - centre
     total = sum(forces.values()) if forces else np.zeros_like(y)
     scale = float(np.linalg.norm(total, axis=1).sum())
-    contact = _contact(model, centre)
+    contact = contact_points(model, centre)
     findings = []
 
     def worked(sub, kinds):
         """The motion of span(sub) the loads do most work on, reported when contact does not
         hold it; the rest of span(sub)."""
-        work = np.array([_work(total, q, y, size) for q in sub.T])
+        work = np.array([rigid_work(total, q, y, size) for q in sub.T])
         if sub.shape[1] == 0 or scale == 0 or np.linalg.norm(work) <= WORK_TOL * scale:
             return sub
         q = sub @ work / np.linalg.norm(work)
         if _resisted(contact, q, size, one_sided=True) < CONTACT_RESISTS:
             acting = tuple(name for name, f in forces.items()
-                           if abs(_work(f, q, y, size)) > WORK_TOL * scale)
+                           if abs(rigid_work(f, q, y, size)) > WORK_TOL * scale)
             per = np.linalg.norm(q[3:]) / size or np.linalg.norm(q[:3])   # per rad or per m
             findings.append(Finding(describe(q, centre, size), kinds, acting,
                                     float(np.linalg.norm(work) / per)))
-        return _complement(sub, q)
+        return complement(sub, q)
 
     _, sv, vt = np.linalg.svd(basis[3:], full_matrices=True)   # span(basis) with ω = 0
     sv = np.concatenate((sv, np.zeros(basis.shape[1] - len(sv))))
     translations = basis @ vt[sv <= 1e-6].T
     worked(translations, "work")
-    held_by_points = _complement(basis, stated)       # what only a point's slope holds
-    rest = _unresisted(contact, worked(held_by_points, "work"), size)
-    for value, q in _load_curvatures(total, rest, y, size):
+    held_by_points = complement(basis, stated)       # what only a point's slope holds
+    rest = unresisted(contact, worked(held_by_points, "work"), size)
+    for value, q in load_curvatures(total, rest, y, size):
         if scale > 0 and value < -WORK_TOL * scale * size:
             acting = tuple(name for name, f in forces.items()
                            if _second_order(f, q, y, size) < -WORK_TOL * scale * size)
@@ -335,18 +335,18 @@ def rigid_motion_findings(model, *, newton: bool = True) -> list[Finding]:
     if not newton:
         return findings
     free_pin = getattr(model.boundary, "free_pin", None) is not None
-    work = np.array([_work(total, q, y, size) for q in basis.T])
+    work = np.array([rigid_work(total, q, y, size) for q in basis.T])
     if scale > 0 and np.linalg.norm(work) > WORK_TOL * scale:
-        basis = _complement(basis, (basis @ work)[:, None])
-    for value, q in _load_curvatures(total, _unresisted(contact, basis, size), y, size):
+        basis = complement(basis, (basis @ work)[:, None])
+    for value, q in load_curvatures(total, unresisted(contact, basis, size), y, size):
         rotation = np.linalg.norm(q[3:]) > 1e-6
         if (abs(value) <= WORK_TOL * max(scale, 1e-300) * size and not (free_pin and rotation)
-                and _invariant(total, q, size, scale)):
+                and neutral_in_every_shape(total, q, size, scale)):
             findings.append(Finding(describe(q, centre, size), "no_stiffness"))
     return findings
 
 
-def _load_curvatures(forces, sub: np.ndarray, y, size):
+def load_curvatures(forces, sub: np.ndarray, y, size):
     """(value, motion) pairs: the eigenvalues and eigenvectors of the loads' second-order
     potential over span(sub)."""
     k = sub.shape[1]
@@ -366,7 +366,7 @@ def _load_curvatures(forces, sub: np.ndarray, y, size):
     return [(float(v), sub @ w) for v, w in zip(values, vectors.T, strict=True)]
 
 
-def _invariant(forces: np.ndarray, q: np.ndarray, size: float, scale: float) -> bool:
+def neutral_in_every_shape(forces: np.ndarray, q: np.ndarray, size: float, scale: float) -> bool:
     """Whether the loads' potential stays the same along the motion in every shape of the
     shell: a translation they do no work on, or a rotation about an axis along every force
     (gravity and a rotation about the vertical); zero at the reference is not enough, since
@@ -378,7 +378,7 @@ def _invariant(forces: np.ndarray, q: np.ndarray, size: float, scale: float) -> 
     return float(np.linalg.norm(np.cross(forces, k), axis=1).sum()) <= WORK_TOL * max(scale, 1e-300)
 
 
-def _complement(basis: np.ndarray, other: np.ndarray) -> np.ndarray:
+def complement(basis: np.ndarray, other: np.ndarray) -> np.ndarray:
     """An orthonormal basis of the part of span(basis) orthogonal to span(other) (a vector
     or columns inside span(basis))."""
     other = np.asarray(other, dtype=np.float64).reshape(6, -1)
