@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.interpolate import BSpline
 
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
@@ -109,6 +110,22 @@ class HandlePath:
     def initial_velocity_derivative(self) -> np.ndarray:
         """d(initial_velocity)/dq (3H, p) [m/s per unit]."""
         return (self.basis[1] - self.basis[0]).reshape(3 * self.handles, -1) / self.times[1]
+
+
+def spline_basis(times: np.ndarray, handles: int, spans: int) -> np.ndarray:
+    """A `HandlePath.basis` (T, H, 3, p) at times (T,) [s]: each handle coordinate a cubic
+    B-spline in time with `spans` uniform spans over the times (clamped knots), p = 3 H
+    (spans + 3); unknown (handle × 3 + axis) × (spans + 3) + j is that coordinate's j-th
+    coefficient [m]."""
+    times = np.asarray(times, dtype=np.float64)
+    knots = np.concatenate([[times[0]] * 3, np.linspace(times[0], times[-1], spans + 1),
+                            [times[-1]] * 3])
+    design = BSpline.design_matrix(times, knots, 3).toarray()  # (T, spans + 3)
+    coordinates, count = 3 * handles, design.shape[1]
+    basis = np.zeros((len(times), coordinates, coordinates * count))
+    for a in range(coordinates):
+        basis[:, a, a * count:(a + 1) * count] = design
+    return basis.reshape(len(times), handles, 3, -1)
 
 
 def moved_boundary(boundary: BoundaryConditions, displacements: np.ndarray
