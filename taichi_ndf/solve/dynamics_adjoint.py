@@ -53,6 +53,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
@@ -225,11 +226,17 @@ def _pulled(stepper: TimeStepper, linear, blocks: torch.Tensor | None) -> torch.
     return torch.stack([linear.gradient(v) for v in pushed], dim=-1)
 
 
-def _mass_times(stepper: TimeStepper, coefficients: torch.Tensor) -> torch.Tensor:
+def _mass_times(stepper: TimeStepper, coefficients: torch.Tensor, mass=None) -> torch.Tensor:
     """M P (n, 3[, m]) for coefficients P (n, 3[, m]) (held unknowns 0; M does not depend on
-    the boundary)."""
+    the boundary); mass: M assembled (`_mass_matrix`), for many columns at once."""
     if coefficients.dim() == 3:
-        return torch.stack([_mass_times(stepper, c) for c in coefficients.unbind(-1)], dim=-1)
+        if mass is None:
+            return torch.stack([_mass_times(stepper, c) for c in coefficients.unbind(-1)], -1)
+        columns = coefficients.reshape(mass.shape[0], -1).numpy()
+        out = torch.from_numpy(np.asarray(mass @ columns)).reshape(coefficients.shape)
+        if stepper.linear.fixed is not None:
+            out.reshape(mass.shape[0], -1)[torch.from_numpy(stepper.linear.fixed)] = 0.0
+        return out
     linear = stepper.linear
     term = InertiaTerm(stepper.density, 1.0, stepper.offset_of(linear))
     _, gradient = term.evaluate(stepper.samples, linear.displacement(coefficients))
@@ -309,15 +316,19 @@ def gradient(stepper: TimeStepper, states: list[Motion], parameter: str,
     return total
 
 
+def _mass_matrix(stepper: TimeStepper):
+    """M (3n × 3n, sparse): the assembled mass matrix (the inertia's blocks at unit scale)."""
+    linear = stepper.linear
+    u = linear.displacement(torch.zeros_like(stepper.field.coefficients))
+    term = InertiaTerm(stepper.density, 1.0, u)
+    return linear.hessian(flat_blocks(term.hessian_blocks(stepper.samples, u)))
+
+
 def _initial_acceleration_derivative(stepper: TimeStepper, parameter: str,
                                      displacement: torch.Tensor) -> torch.Tensor:
     """dA₀/dθ = −M⁻¹ ∂f/∂θ(C₀) (n, 3)."""
     force = force_derivative(stepper, parameter, displacement, 0.0)
-    linear = stepper.linear
-    u = linear.displacement(displacement)
-    term = InertiaTerm(stepper.density, 1.0, u)
-    mass = linear.hessian(flat_blocks(term.hessian_blocks(stepper.samples, u)))
-    solved = linear.solve(mass, force, 0.0)
+    solved = stepper.linear.solve(_mass_matrix(stepper), force, 0.0)
     if solved is None:
         raise DynamicsError("the mass matrix could not be factorised")
     return solved[0]
@@ -349,10 +360,11 @@ def tangent(stepper: TimeStepper, states: list[Motion], parameter: str,
              _tensor(path.initial_velocity_derivative(), zeros),
              torch.zeros(3 * path.handles, p, dtype=zeros.dtype))
         mass_units = _pulled(stepper, stepper.linear, None)
+    mass = _mass_matrix(stepper) if p else None  # many columns: one assembled M
     out = [d[0]]
     for end in states[1:]:
         moved = combine(step.target, d)
-        rhs = -step.scale * _mass_times(stepper, moved)
+        rhs = -step.scale * _mass_times(stepper, moved, mass)
         rhs[..., 0] += force_derivative(stepper, parameter, end.displacement, end.time)
         if p:
             matrix, pulled = _step_hessian(stepper, step, end, path=True)
