@@ -175,7 +175,7 @@ def test_the_grid_follows_the_estimate_and_is_checked_on_a_finer_one(monkeypatch
     b_on[10, 10] = 1.005 * b_on[7, 7]  # on 10²: 0.5 s.e. from 7²'s
     calls = []
 
-    def fit_on_grid(stepper_at, data, start, config, *, initial):
+    def fit_on_grid(stepper_at, data, start, config, *, initial, path_start=None):
         spans = tuple(stepper_at(1e-5).field.config.spans)
         calls.append((spans, start, config.max_iterations))
         return dataclasses.replace(FAKE, value=b_on[spans], standard_error=0.01 * b_on[spans])
