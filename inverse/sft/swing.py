@@ -16,9 +16,10 @@ vertices (e.g. `ndf-sft`'s meshes, camera coordinates), the frame interval Δt [
   B-spline in time (`corner_spans` uniform spans over the sequence, clamped; None: one per
   frame interval), started at the least-squares fit to those smoothed tracks
   (`trajectory_fit`: the paths' columns of the tangent; the s.e. of B then the marginal one,
-  carrying the corners' uncertainty). Measured on the synthetic swing: smoothed from two
-  noisy vertices, the corners bias B by −12 to −15 % (benchmarks/RESULTS.md, "a grid that
-  resolves the buckle");
+  carrying the corners' uncertainty). Measured on the synthetic swing on the truth's own
+  grid (16², 2 mm noise, seeds 0/1): smoothed corners −27 / −19 % (z 34 / 32); fitted
+  (6 spans) +2.1 / +3.0 % (z 1.4 / 1.9), the corners 0.4 / 0.2 mm rms from the truth's
+  against 1.7 mm smoothed (benchmarks/RESULTS.md, "the corner paths as unknowns");
 - the start (`SwingConfig.start`): "rest" (default) — the sheet at rest in the static
   equilibrium under gravity with its corners at frame 0's (`dynamics_adjoint.rest_start`:
   Newton from the spline field's least-squares fit to frame 0, so the equilibrium whose basin
