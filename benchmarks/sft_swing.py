@@ -13,7 +13,8 @@ implicit-Euler steps of 0.05 s at α = 30 /s from the flat sheet: the planar han
 saddle — held at two points the sheet buckles out of its plane — so the rest state is bent
 and depends on B); observed: a 17 × 17 vertex grid at `--fps` frames
 per second, plus Gaussian noise σ = `--noise` [m] per coordinate and seed. The fit
-(`swing_problem` + `fit_trajectory`): corners from the noisy corner vertices (smoothed), start
+(`swing_problem` + `fit_trajectory`): corners from the noisy corner vertices (smoothed; with
+`--corners fitted` unknowns of the fit, a B-spline of `--corner-spans` spans), start
 from the smoothed frame 0, B alone (D, ν, ρ_A stated at the truth), on `--spans` (0: the
 grid follows the estimate's bending length, `inverse.sft.swing.fit_swing`, `--span-ratio`,
 `--max-spans`) with `--substeps`, from `--start` × B_true, Gauss–Newton stopped at a step
