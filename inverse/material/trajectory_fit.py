@@ -19,6 +19,16 @@ construction and the test says nothing (the noise source says so). The relative 
 the adjoint's ∇J and the tangent's Σ r dr/dθ at the start is returned as a check (4e-15 on
 benchmarks/dynamics_fit.py's strip).
 
+The held points' paths as unknowns too (`path_start`: q₀ (p,) of a `HandlePath.basis`, the
+stepper then `stepper_at(θ, q)`): the unknowns are (θ, q), the tangent gives every column
+(`dynamics_adjoint.tangent`), the observed points move by J dC/dq + U dd(t)/dq besides (the
+handles' part, `PathStepper.units`), and the step solves the normal equations N δ = −Aᵀ r of
+the Jacobian A (R, 1 + p) (the same step for p = 0). The s.e. of θ is then the marginal one,
+σ √(N⁻¹)_θθ: it carries the paths' uncertainty; `correlation` is θ's multiple correlation with
+q (√(1 − 1/(N_θθ (N⁻¹)_θθ)): 1 where q can mimic θ). The stop: |Δθ| < tolerance |θ| and
+the whole step inside the estimate's one-s.e. ellipsoid (√(δᵀ N δ)/σ < 1), or that size below
+error_tolerance (for p = 0: |Δθ|/s.e.).
+
 Not covered (ValueError from the adjoint, before any step): contact, wind,
 stiffness-proportional damping, a per-sample stiffness; states halved by a step that did not
 converge (DynamicsError from `record`).
@@ -102,7 +112,9 @@ class TrajectoryFit:
     """value: θ̂; standard_error: σ/√H [θ's unit]; iterations; converged (the step fell below
     the tolerance); residuals (F·P·3,) [m] and sensitivity dr/dθ (same shape) at the last run;
     noise σ [m] and its source; goodness: the χ² test; gradient_gap: relative gap of the
-    adjoint's and the tangent's ∇J at the start; time_s: wall seconds."""
+    adjoint's and the tangent's ∇J at the start; time_s: wall seconds; with path unknowns:
+    path_values q̂ (p,), path_errors their marginal s.e. (p,) and correlation (module
+    docstring; None without)."""
 
     value: float
     standard_error: float
@@ -115,6 +127,9 @@ class TrajectoryFit:
     goodness: GoodnessOfFit
     gradient_gap: float
     time_s: float
+    path_values: np.ndarray | None = None
+    path_errors: np.ndarray | None = None
+    correlation: float | None = None
 
 
 def observe(stepper: TimeStepper, xi: torch.Tensor, coefficients: torch.Tensor,
@@ -129,24 +144,28 @@ def observe(stepper: TimeStepper, xi: torch.Tensor, coefficients: torch.Tensor,
     return free + boundary_displacement(stepper, xi, time, coefficients.dtype)
 
 
-def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryData,
+def fit_trajectory(stepper_at: Callable[..., TimeStepper], data: TrajectoryData,
                    start: float, config: TrajectoryFitConfig = TrajectoryFitConfig(), *,
                    initial: tuple[torch.Tensor, torch.Tensor]
-                   | Callable[[TimeStepper], Start] | None = None) -> TrajectoryFit:
+                   | Callable[[TimeStepper], Start] | None = None,
+                   path_start: np.ndarray | None = None) -> TrajectoryFit:
     """θ̂ by Gauss–Newton from `start` (module docstring); stepper_at(θ): the scene's stepper
     with the material's `config.parameter` set to θ; initial: the runs' start (C₀, V₀)
     (coefficients (n, 3) [m], [m/s]; None: rest), given, not fitted; or a function of the
     stepper at θ giving the `Start` (e.g. `rest_start`: the static equilibrium at θ), whose
-    derivative by θ enters the tangent and the adjoint. The adjoint's ∇J is
+    derivative by θ enters the tangent and the adjoint; path_start: q₀ (p,) of the held
+    points' path unknowns, fitted with θ (then stepper_at(θ, q), its path's basis the
+    derivative by q). The adjoint's ∇J (θ's) is
     computed at the first iteration (its gap to the tangent's is the check); later
     iterations step with the tangent's Σ r dr/dθ, the same number (to 1e-10, tested), at
     one solve per step less. One progress report per iteration (stage "trajectory fit",
     values θ and |Δθ|/|θ|)."""
     began = time.perf_counter()
     theta, gap, converged = float(start), 0.0, False
+    q = None if path_start is None else np.asarray(path_start, dtype=np.float64).copy()
     with progress.stage(f"trajectory fit ({config.parameter})", config.max_iterations):
         for iteration in range(1, config.max_iterations + 1):
-            stepper = stepper_at(theta)
+            stepper = stepper_at(theta) if q is None else stepper_at(theta, q)
             begin = initial(stepper) if callable(initial) else Start(*(initial or (None,)))
             derivative = begin.derivative
             states = record(stepper, begin.displacement, begin.velocity)
@@ -154,48 +173,98 @@ def fit_trajectory(stepper_at: Callable[[float], TimeStepper], data: TrajectoryD
                 raise ValueError(f"trajectory data: step {data.steps[-1]} is past the run's "
                                  f"last ({len(states) - 1})")
             forward = tangent(stepper, states, config.parameter, derivative)
-            weights, hessian, slope, residuals, columns = {}, 0.0, 0.0, [], []
+            observed = _observation(stepper, data.xi)
+            weights, residuals, columns = {}, [], []
             for i, k in enumerate(data.steps):
                 c = states[k].displacement.clone().requires_grad_(True)
                 r = observe(stepper, data.xi, c, states[k].time) \
                     - data.displacements[i].to(c.dtype)
                 (weights[k],) = torch.autograd.grad((0.5 * r * r).sum(), c)
-                dr = observe(stepper, data.xi, forward[k])
-                hessian += float((dr * dr).sum())
-                slope += float((r.detach() * dr).sum())
                 residuals.append(r.detach().reshape(-1))
-                columns.append(dr.detach().reshape(-1))
-            adjoint = slope
+                columns.append(observed(forward[k], states[k].time))
+            a = torch.cat(columns).numpy()
+            normal, slope = a.T @ a, a.T @ torch.cat(residuals).numpy()
             if iteration == 1:  # away from the fit, where ∇J is not ~0
-                adjoint = gradient(stepper, states, config.parameter, weights, derivative)
-                gap = abs(adjoint - slope) / max(abs(slope), 1e-300)
-            if not hessian > 0:
+                own = None if derivative is None else tuple(
+                    v if v.dim() == 2 else v[..., 0] for v in derivative)
+                adjoint = gradient(stepper, states, config.parameter, weights, own)
+                gap = abs(adjoint - slope[0]) / max(abs(slope[0]), 1e-300)
+                slope[0] = adjoint
+            if not normal[0, 0] > 0:
                 raise ValueError(f"trajectory fit: the observed points do not move with "
-                                 f"{config.parameter} (H = {hessian:.3g})")
-            step = -adjoint / hessian
-            if theta + step <= 0:  # a stiffness stays positive: halve it instead
-                step = -0.5 * theta
-            theta += step
+                                 f"{config.parameter} (H = {normal[0, 0]:.3g})")
+            step = -_solved(normal, slope)
+            if theta + step[0] <= 0:  # a stiffness stays positive: halve it instead
+                step *= -0.5 * theta / step[0]
+            theta += float(step[0])
+            if q is not None:
+                q = q + step[1:]
             progress.report(iteration, **{config.parameter: theta,
-                                          "relative_step": abs(step) / abs(theta)})
-            if abs(step) < config.tolerance * abs(theta) or (
-                    config.error_tolerance is not None
-                    and abs(step) < config.error_tolerance * _noise(residuals, data.noise)
-                    / hessian**0.5):
+                                          "relative_step": abs(step[0]) / abs(theta)})
+            size = float(np.sqrt(max(step @ normal @ step, 0.0))) \
+                / _noise(residuals, data.noise, len(step))
+            if (abs(step[0]) < config.tolerance * abs(theta) and (q is None or size < 1.0)) \
+                    or (config.error_tolerance is not None and size < config.error_tolerance):
                 converged = True
                 break
     r = torch.cat(residuals).numpy()
-    noise = _noise(residuals, data.noise)
+    unknowns = normal.shape[0]
+    noise = _noise(residuals, data.noise, unknowns)
     source = ESTIMATED if data.noise is None else "stated"
-    return TrajectoryFit(theta, noise / hessian**0.5, iteration, converged, r,
-                         torch.cat(columns).numpy(), noise, source,
-                         goodness_of_fit(r, 1, noise, source), gap,
-                         time.perf_counter() - began)
+    inverse = _inverse(normal)
+    errors = noise * np.sqrt(np.maximum(np.diag(inverse), 0.0))
+    path = {}
+    if q is not None:
+        path = {"path_values": q, "path_errors": errors[1:], "correlation": float(np.sqrt(
+            max(0.0, 1.0 - 1.0 / (normal[0, 0] * inverse[0, 0]))))}
+    return TrajectoryFit(theta, float(errors[0]), iteration, converged, r, a[:, 0].copy(),
+                         noise, source, goodness_of_fit(r, unknowns, noise, source), gap,
+                         time.perf_counter() - began, **path)
 
 
-def _noise(residuals: list[torch.Tensor], stated: float | None) -> float:
-    """σ [m]: stated, or σ̂ = √(Σ r² / (R − 1)) over the R residual entries."""
+def _observation(stepper: TimeStepper, xi: torch.Tensor):
+    """dr(dC, t) (P·3, m): the observed points' move for coefficient columns dC (n, 3[, m])
+    at time t [s]: J dC (the free part, linear: one matrix for all), plus, with a path's
+    unknowns (columns 1…), the handles' part U dd(t)/dq (`PathStepper.units`)."""
+    zeros = torch.zeros_like(stepper.field.coefficients)
+    matrix = torch.autograd.functional.jacobian(lambda c: observe(stepper, xi, c), zeros)
+    matrix = matrix.reshape(3 * len(xi), zeros.numel())
+    path = getattr(stepper, "path", None)
+    units = None
+    if path is not None and path.unknowns:
+        units = stepper.units(xi.to(torch.float64), torch.float64)[:, jets.VALUE]
+
+    def moved(columns: torch.Tensor, t: float) -> torch.Tensor:
+        out = matrix @ columns.reshape(zeros.numel(), -1)
+        if units is not None:
+            handles = units @ torch.from_numpy(path.derivative_at(t))  # (P, 3, p)
+            out[:, 1:] += handles.reshape(3 * len(xi), -1)
+        return out.detach()
+
+    return moved
+
+
+def _scaled(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """N with a unit diagonal (θ [N·m] and q [m] differ by orders) and the scale."""
+    scale = 1.0 / np.sqrt(np.maximum(np.diag(normal), 1e-300))
+    return normal * scale[:, None] * scale[None, :], scale
+
+
+def _solved(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """N⁻¹ rhs (`_scaled`; least squares where N is singular)."""
+    scaled, scale = _scaled(normal)
+    return scale * np.linalg.lstsq(scaled, scale * rhs, rcond=1e-12)[0]
+
+
+def _inverse(normal: np.ndarray) -> np.ndarray:
+    """N⁻¹ (`_scaled`; a pseudo-inverse where N is singular)."""
+    scaled, scale = _scaled(normal)
+    return np.linalg.pinv(scaled, rcond=1e-12) * scale[:, None] * scale[None, :]
+
+
+def _noise(residuals: list[torch.Tensor], stated: float | None, unknowns: int = 1) -> float:
+    """σ [m]: stated, or σ̂ = √(Σ r² / (R − m)) over the R residual entries, m unknowns."""
     if stated is not None:
         return float(stated)
     r = torch.cat(residuals)
-    return float(torch.sqrt((r @ r) / max(len(r) - 1, 1)))
+    return float(torch.sqrt((r @ r) / max(len(r) - unknowns, 1)))

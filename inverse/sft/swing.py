@@ -11,7 +11,15 @@ vertices (e.g. `ndf-sft`'s meshes, camera coordinates), the frame interval Δt [
 - the handles follow the observed corner vertices (`solve.handle_paths.PathStepper`): each
   corner coordinate smoothed in time by a cubic smoothing spline whose smoothing GCV chooses
   (`scipy.interpolate.make_smoothing_spline`: the reconstruction's corner noise would
-  otherwise enter as accelerations of ~σ/Δt²), sampled at every time step;
+  otherwise enter as accelerations of ~σ/Δt²), sampled at every time step; or
+  (`SwingConfig.corners` "fitted") unknowns of the fit with B: each corner coordinate a cubic
+  B-spline in time (`corner_spans` uniform spans over the sequence, clamped; None: one per
+  frame interval), started at the least-squares fit to those smoothed tracks
+  (`trajectory_fit`: the paths' columns of the tangent; the s.e. of B then the marginal one,
+  carrying the corners' uncertainty). Measured on the synthetic swing on the truth's own
+  grid (16², 2 mm noise, seeds 0/1): smoothed corners −27 / −19 % (z 34 / 32); fitted
+  (6 spans) +2.1 / +3.0 % (z 1.4 / 1.9), the corners 0.4 / 0.2 mm rms from the truth's
+  against 1.7 mm smoothed (benchmarks/RESULTS.md, "the corner paths as unknowns");
 - the start (`SwingConfig.start`): "rest" (default) — the sheet at rest in the static
   equilibrium under gravity with its corners at frame 0's (`dynamics_adjoint.rest_start`:
   Newton from the spline field's least-squares fit to frame 0, so the equilibrium whose basin
@@ -75,7 +83,7 @@ from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.shell.fabrics import bending_length
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.solve.dynamics_adjoint import Start, rest_start
-from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundary
+from taichi_ndf.solve.handle_paths import HandlePath, PathStepper, moved_boundary, spline_basis
 
 log = logging.getLogger(__name__)
 SPAN_RATIO = 1.0  # the longest span, in bending lengths c (RESULTS.md, issue 27, the buckle)
@@ -92,7 +100,9 @@ class SwingConfig:
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
     [kg/m²] (stated); band: the handles' band (fraction of the domain); stride ≥ 1: every
     stride-th vertex per grid direction observed; size: the flat sheet (W, H) [m] or None
-    (frame 0's grid-line lengths); start: "rest" or "data" (module docstring)."""
+    (frame 0's grid-line lengths); start: "rest" or "data"; corners: "smoothed" or "fitted",
+    corner_spans ≥ 1 or None (one per frame interval): the fitted corners' B-spline (module
+    docstring)."""
 
     spans: tuple[int, int] | None = None
     span_ratio: float = SPAN_RATIO
@@ -109,10 +119,18 @@ class SwingConfig:
     stride: int = 1
     size: tuple[float, float] | None = None
     start: str = "rest"
+    corners: str = "smoothed"
+    corner_spans: int | None = None
 
     def __post_init__(self):
         if self.start not in ("rest", "data"):
             raise ValueError(f"start must be rest or data, got {self.start!r}")
+        if self.corners not in ("smoothed", "fitted"):
+            raise ValueError(f"corners must be smoothed or fitted, got {self.corners!r}")
+        if self.corner_spans is not None and (int(self.corner_spans) != self.corner_spans
+                                              or self.corner_spans < 1):
+            raise ValueError(f"corner_spans must be None or an integer >= 1, got "
+                             f"{self.corner_spans!r}")
         if self.spans is not None and (len(self.spans) != 2 or any(
                 int(s) != s or s < 1 for s in self.spans)):
             raise ValueError(f"spans must be None or two integers >= 1, got {self.spans!r}")
@@ -149,7 +167,8 @@ class SwingProblem:
     the model's pieces for the report: grid (the template's ξ), the flat reference model, the
     handles' path, frame interval Δt [s], the observed points' ξ (P, 2), flat positions and
     frame-0 positions (P, 3) [m], and start_velocity: the smoothed data's rms vertex speed at
-    t = 0 [m/s] (a rest start assumes it is at the noise's level)."""
+    t = 0 [m/s] (a rest start assumes it is at the noise's level); path_start: the fitted
+    corners' start q₀ (p,) [m] (then stepper_at(B, q)), None where they are smoothed."""
 
     stepper_at: Callable[[float], PathStepper]
     start: Callable[[PathStepper], Start]
@@ -162,6 +181,7 @@ class SwingProblem:
     flat: np.ndarray
     frame0: np.ndarray
     start_velocity: float
+    path_start: np.ndarray | None = None
 
     def start_misfit(self, bending: float) -> float:
         """rms distance [m] of the start's shape at B [N·m] to frame 0's observed points."""
@@ -244,15 +264,21 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     steps = config.substeps * (frames - 1)
     step_times = dt * np.arange(steps + 1)
     path = HandlePath(tuple(step_times), corners(step_times) - reference)
+    basis, path_start = None, None
+    if config.corners == "fitted":  # q₀: the B-spline's least-squares fit to the smoothing
+        basis = spline_basis(step_times, 2, config.corner_spans or frames - 1)
+        path_start = np.linalg.lstsq(basis.reshape(-1, basis.shape[-1]),
+                                     path.displacements.reshape(-1), rcond=None)[0]
     plan = SplinePlan(SplineConfig(spans=tuple(int(s) for s in config.spans),
                                    degree=config.degree, domain=((0.0, width), (0.0, height))))
     dynamics = DynamicsConfig(dt=dt, duration=steps * dt, integrator=config.integrator,
                               mass_damping=config.mass_damping)
     newton = newton or NewtonConfig()
 
-    def stepper_at(bending: float) -> PathStepper:
+    def stepper_at(bending: float, q: np.ndarray | None = None) -> PathStepper:
         with_b = model.with_material(material.with_stiffness(bending_stiffness=bending))
-        return PathStepper(with_b, plan, dynamics, path, newton=newton)
+        moved = path if q is None else HandlePath(path.times, basis @ q, basis)
+        return PathStepper(with_b, plan, dynamics, moved, newton=newton)
 
     stepper = stepper_at(1e-5)
     pick = grid.index[::config.stride, ::config.stride].ravel()
@@ -274,7 +300,8 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     observed = torch.from_numpy(vertices[1:, pick] - flat[None])
     data = TrajectoryData(xi, tuple(config.substeps * f for f in range(1, frames)), observed)
     return SwingProblem(stepper_at, start, data, grid, model, path, frame_interval, xi, flat,
-                        vertices[0][pick], speed)
+                        vertices[0][pick], speed, path_start)
+
 
 
 def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:
@@ -338,7 +365,7 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
                                 dataclasses.replace(config, spans=spans), newton=newton,
                                 corners=corners)
         return problem, fit_trajectory(problem.stepper_at, problem.data, theta, fit_with,
-                                       initial=problem.start)
+                                       initial=problem.start, path_start=problem.path_start)
 
     spans, theta, levels = config.spans or needed(start), float(start), []
     while True:

@@ -30,9 +30,19 @@ def exact_hessian(linearisation: SplineLinearisation, potential: Potential,
     `coefficients` (n, 3); the linearisation at the potential's load factor
     (`GridLinearisation.linearisation`; its FD length and held unknowns: K is over every
     unknown), fd_step as `NewtonConfig` (Newton's own blocks: `point_blocks`)."""
+    return exact_blocks(linearisation, potential, coefficients, fd_step=fd_step)[0]
+
+
+def exact_blocks(linearisation: SplineLinearisation, potential: Potential,
+                 coefficients: torch.Tensor, *, fd_step: float = 1e-5
+                 ) -> tuple[sp.csr_matrix, torch.Tensor]:
+    """`exact_hessian`'s K and the exact per-point blocks H (N, 18, 18) it is assembled from
+    (at the linearisation's samples: products H v with displacement jets v off the field's
+    span, e.g. a boundary's)."""
     u = linearisation.displacement(coefficients)
-    return linearisation.hessian(point_blocks(linearisation, potential, coefficients, u, fd_step),
-                                 coupled_blocks(potential, linearisation.samples, u))
+    blocks = point_blocks(linearisation, potential, coefficients, u, fd_step)
+    return (linearisation.hessian(blocks, coupled_blocks(potential, linearisation.samples, u)),
+            blocks)
 
 
 @dataclass(frozen=True)

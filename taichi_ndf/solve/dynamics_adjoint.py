@@ -37,6 +37,15 @@ derivative (dC₀/dθ, dV₀/dθ) enters the tangent as its first state's and th
 dJ/dθ += λ_Cᵀ dC₀/dθ + λ_Vᵀ dV₀/dθ with λ at t = 0 (implicit Euler; Newmark's A₀ would
 depend on C₀ too: refused). For C₀ = argmin Π(·; θ) at the boundary of t = 0,
 dC₀/dθ = −K₀⁻¹ ∂f/∂θ(C₀) (K₀ the exact static Hessian): the implicit-function derivative.
+
+Handle paths with unknowns q (`HandlePath.basis`, p columns): the boundary's part then
+depends on q, g_k = U d(t_k; q) (U = `PathStepper.units`: g per unit handle displacement), and
+the step's equation Jᵀ [s M (J x + g' − J x* − g*) + ∂Π/∂u(J x + g')] = 0, with g* the scheme's
+target of the boundary's (g, ġ, g̈) (each linear in q, stepped by the same maps), gives per
+step and column K dx = s M dx* − Jᵀ H U δd' + s Jᵀ M U δd* (H the step potential's exact
+per-point blocks, inertia included; δd = dd/dq); the rest start's dC₀/dq = −K₀⁻¹ Jᵀ H₀ U δd(0).
+`tangent` and `rest_start` then carry 1 + p columns (θ first); the observed positions move
+by J dC/dq + U δd(t) besides (`inverse.material.trajectory_fit`). The adjoint stays θ's.
 """
 
 from __future__ import annotations
@@ -44,11 +53,12 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from taichi_ndf.minimise.continuation import Stages, Step, solve_over
 from taichi_ndf.minimise.minimisers import NewtonMinimiser, Phase, run_phases
-from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
+from taichi_ndf.minimise.sensitivity import exact_blocks, exact_hessian, sensitivity
 from taichi_ndf.objective.inertia import InertiaTerm
 from taichi_ndf.problem.dynamics import StepMap, combine
 from taichi_ndf.problem.loads import Loads
@@ -163,7 +173,8 @@ def rest_start(stepper: TimeStepper, displacement: torch.Tensor, parameter: str,
     """The start at rest: C₀ the static equilibrium of Π at t = 0 (the boundary there, the
     loads at λ(0)) that Newton reaches from `displacement` (n, 3) (the local minimum whose
     basin holds it, e.g. a fit to a video's first frame), polished as `record`'s steps;
-    V₀ = 0; derivative (dC₀/dθ = −K₀⁻¹ ∂f/∂θ(C₀), 0) for the stiffness `parameter`.
+    V₀ = 0; derivative (dC₀/dθ = −K₀⁻¹ ∂f/∂θ(C₀), 0) for the stiffness `parameter`, with
+    a path's unknowns (n, 3, 1 + p) each: θ's column, then dC₀/dq (module docstring).
     DynamicsError where Newton does not converge; a warning where K₀ is not positive definite
     (a saddle, not a rest state)."""
     _check(stepper, parameter)
@@ -176,16 +187,56 @@ def rest_start(stepper: TimeStepper, displacement: torch.Tensor, parameter: str,
     if not solution.converged:
         raise DynamicsError("rest start: the static equilibrium at t = 0 did not converge")
     x = _polish(stepper, potential, linear, solution.parameters, polish)
-    matrix = exact_hessian(linear, potential, x, fd_step=stepper.newton.fd_step)
-    solved = sensitivity(matrix, force_derivative(stepper, parameter, x, 0.0)[..., None],
-                         stepper.linear.fixed)
+    matrix, blocks = exact_blocks(linear, potential, x, fd_step=stepper.newton.fd_step)
+    rhs = force_derivative(stepper, parameter, x, 0.0)[..., None]
+    path = getattr(stepper, "path", None)
+    if path is not None and path.unknowns:
+        moved = _pulled(stepper, linear, blocks) @ _tensor(path.derivative_at(0.0), x)
+        rhs = torch.cat([rhs, moved], dim=-1)
+    solved = sensitivity(matrix, rhs, stepper.linear.fixed)
     if not solved.definite:
         log.warning("rest start: the equilibrium's Hessian is not positive definite (a saddle)")
-    return Start(x, torch.zeros_like(x), (solved.derivative[..., 0], torch.zeros_like(x)))
+    derivative = solved.derivative if rhs.shape[-1] > 1 else solved.derivative[..., 0]
+    return Start(x, torch.zeros_like(x), (derivative, torch.zeros_like(derivative)))
 
 
-def _mass_times(stepper: TimeStepper, coefficients: torch.Tensor) -> torch.Tensor:
-    """M P (n, 3) for coefficients P (held unknowns 0; M does not depend on the boundary)."""
+def _padded(columns: torch.Tensor, m: int) -> torch.Tensor:
+    """(n, 3) or (n, 3, k) as (n, 3, m): the missing columns 0."""
+    columns = columns if columns.dim() == 3 else columns[..., None]
+    missing = columns.new_zeros(*columns.shape[:2], m - columns.shape[-1])
+    return torch.cat([columns, missing], dim=-1)
+
+
+def _tensor(array, like: torch.Tensor) -> torch.Tensor:
+    return torch.as_tensor(array, dtype=like.dtype)
+
+
+def _pulled(stepper: TimeStepper, linear, blocks: torch.Tensor | None) -> torch.Tensor:
+    """Jᵀ H U (n, 3, 3H): the force per unit displacement of each handle coordinate
+    (`PathStepper.units`) of the potential whose exact per-point blocks (N, 18, 18) at the
+    linearisation's samples are `blocks`; None: the unit mass's, Jᵀ M U."""
+    units = stepper.units(linear.samples.xi, linear.samples.r_jets.dtype)
+    n, columns = units.shape[0], units.shape[-1]
+    if blocks is None:
+        term = InertiaTerm(stepper.density, 1.0, torch.zeros_like(units[..., 0]))
+        pushed = [term.evaluate(linear.samples, units[..., k])[1] for k in range(columns)]
+    else:
+        hv = torch.einsum("nij,njk->nik", blocks, units.reshape(n, 18, columns))
+        pushed = list(hv.reshape(n, 6, 3, columns).unbind(-1))
+    return torch.stack([linear.gradient(v) for v in pushed], dim=-1)
+
+
+def _mass_times(stepper: TimeStepper, coefficients: torch.Tensor, mass=None) -> torch.Tensor:
+    """M P (n, 3[, m]) for coefficients P (n, 3[, m]) (held unknowns 0; M does not depend on
+    the boundary); mass: M assembled (`_mass_matrix`), for many columns at once."""
+    if coefficients.dim() == 3:
+        if mass is None:
+            return torch.stack([_mass_times(stepper, c) for c in coefficients.unbind(-1)], -1)
+        columns = coefficients.reshape(mass.shape[0], -1).numpy()
+        out = torch.from_numpy(np.asarray(mass @ columns)).reshape(coefficients.shape)
+        if stepper.linear.fixed is not None:
+            out.reshape(mass.shape[0], -1)[torch.from_numpy(stepper.linear.fixed)] = 0.0
+        return out
     linear = stepper.linear
     term = InertiaTerm(stepper.density, 1.0, stepper.offset_of(linear))
     _, gradient = term.evaluate(stepper.samples, linear.displacement(coefficients))
@@ -209,15 +260,20 @@ def force_derivative(stepper: TimeStepper, parameter: str, displacement: torch.T
     return linear.gradient(result.grad_u_jets)
 
 
-def _step_hessian(stepper: TimeStepper, step: StepMap, end: Motion):
+def _step_hessian(stepper: TimeStepper, step: StepMap, end: Motion, *, path: bool = False):
     """K: the exact Hessian (sparse) of the step's incremental potential at its end (the
-    boundary where it stands then)."""
+    boundary where it stands then); path: (K, Jᵀ H U (n, 3, 3H), `_pulled`)."""
     linear = stepper._at(end.time)
     u = linear.displacement(end.displacement)
     inertia = InertiaTerm(stepper.density, step.scale, u)  # K does not depend on x*
     potential = stepper.objective.with_terms(inertia).potential(
         stepper.config.load_factor(end.time))
-    return exact_hessian(linear, potential, end.displacement, fd_step=stepper.newton.fd_step)
+    if not path:
+        return exact_hessian(linear, potential, end.displacement,
+                             fd_step=stepper.newton.fd_step)
+    matrix, blocks = exact_blocks(linear, potential, end.displacement,
+                                  fd_step=stepper.newton.fd_step)
+    return matrix, _pulled(stepper, linear, blocks)
 
 
 def _check_initial(stepper: TimeStepper, initial) -> None:
@@ -260,15 +316,19 @@ def gradient(stepper: TimeStepper, states: list[Motion], parameter: str,
     return total
 
 
+def _mass_matrix(stepper: TimeStepper):
+    """M (3n × 3n, sparse): the assembled mass matrix (the inertia's blocks at unit scale)."""
+    linear = stepper.linear
+    u = linear.displacement(torch.zeros_like(stepper.field.coefficients))
+    term = InertiaTerm(stepper.density, 1.0, u)
+    return linear.hessian(flat_blocks(term.hessian_blocks(stepper.samples, u)))
+
+
 def _initial_acceleration_derivative(stepper: TimeStepper, parameter: str,
                                      displacement: torch.Tensor) -> torch.Tensor:
     """dA₀/dθ = −M⁻¹ ∂f/∂θ(C₀) (n, 3)."""
     force = force_derivative(stepper, parameter, displacement, 0.0)
-    linear = stepper.linear
-    u = linear.displacement(displacement)
-    term = InertiaTerm(stepper.density, 1.0, u)
-    mass = linear.hessian(flat_blocks(term.hessian_blocks(stepper.samples, u)))
-    solved = linear.solve(mass, force, 0.0)
+    solved = stepper.linear.solve(_mass_matrix(stepper), force, 0.0)
     if solved is None:
         raise DynamicsError("the mass matrix could not be factorised")
     return solved[0]
@@ -279,26 +339,44 @@ def tangent(stepper: TimeStepper, states: list[Motion], parameter: str,
     """dC_k/dθ (n, 3) for every state of `record` (k = 0 … N), forwards: per step
     K dx = s M dx* − ∂f/∂θ(x), dV' and dA' by the scheme's maps (the tangent of the steps: all
     the sensitivities a Gauss–Newton fit needs for one parameter; `gradient` is its adjoint);
-    initial: the start's (dC₀/dθ, dV₀/dθ) (None: constant)."""
+    initial: the start's (dC₀/dθ, dV₀/dθ) (None: constant). A path with p unknowns
+    (`HandlePath.basis`): (n, 3, 1 + p) per state, θ's column first (module docstring);
+    initial's then (n, 3, 1 + p) each."""
     _check(stepper, parameter)
     _check_initial(stepper, initial)
     config = stepper.config
     step = StepMap.of(config, config.dt)
-    zeros = torch.zeros_like(states[0].displacement)
-    d = (zeros, zeros, _initial_acceleration_derivative(stepper, parameter,
-                                                         states[0].displacement)
-         if config.integrator == "newmark" else zeros)
-    if initial is not None:
-        d = (initial[0], initial[1], zeros)
+    path = getattr(stepper, "path", None)
+    p = path.unknowns if path is not None else 0
+    zeros = torch.zeros(*states[0].displacement.shape, 1 + p, dtype=torch.float64)
+    d = (zeros, zeros, zeros.clone())
+    if config.integrator == "newmark":
+        d[2][..., 0] = _initial_acceleration_derivative(stepper, parameter,
+                                                        states[0].displacement)
+    if initial is not None:  # a start without q's columns does not move with q
+        d = tuple(_padded(v, 1 + p) for v in initial) + (zeros,)
+    if p:  # the boundary's (δd, δḋ, δd̈) (3H, p) by the scheme: the path's start, slope, 0
+        b = (_tensor(path.derivative_at(0.0), zeros),
+             _tensor(path.initial_velocity_derivative(), zeros),
+             torch.zeros(3 * path.handles, p, dtype=zeros.dtype))
+        mass_units = _pulled(stepper, stepper.linear, None)
+    mass = _mass_matrix(stepper) if p else None  # many columns: one assembled M
     out = [d[0]]
     for end in states[1:]:
         moved = combine(step.target, d)
-        rhs = force_derivative(stepper, parameter, end.displacement, end.time) \
-            - step.scale * _mass_times(stepper, moved)
-        dx = sensitivity(_step_hessian(stepper, step, end), rhs[..., None],
-                         stepper.linear.fixed).derivative[..., 0]
+        rhs = -step.scale * _mass_times(stepper, moved, mass)
+        rhs[..., 0] += force_derivative(stepper, parameter, end.displacement, end.time)
+        if p:
+            matrix, pulled = _step_hessian(stepper, step, end, path=True)
+            now = _tensor(path.derivative_at(end.time), zeros)
+            rhs[..., 1:] += pulled @ now - step.scale * (mass_units @ combine(step.target, b))
+            y = (now, *b)
+            b = (now, combine(step.velocity, y), combine(step.acceleration, y))
+        else:
+            matrix = _step_hessian(stepper, step, end)
+        dx = sensitivity(matrix, rhs, stepper.linear.fixed).derivative
         y = (dx, *d)
         d = (dx, combine(step.velocity, y),
              combine(step.acceleration, y))
         out.append(dx)
-    return out
+    return out if p else [o[..., 0] for o in out]

@@ -13,6 +13,15 @@ slope) is the boundary's initial velocity, so a path already moving at t = 0 sta
 jerk (`initial_boundary`). The model's handles must be at the reference (zero displacement):
 the path is the whole prescribed motion. The adjoint (`solve/dynamics_adjoint.py`) follows
 these steps: g does not depend on the material.
+
+The paths themselves may be unknowns (a video's held corners, reconstructed with an error):
+`HandlePath.basis` (T, H, 3, p) is the displacements' derivative by p path unknowns q (the
+displacements affine in q, e.g. a B-spline's coefficients per corner coordinate). g is linear
+in the handles' displacements (g = Σ_h b_h(ξ) d_h, the blend b_h of handle h:
+`inverse.material.handles`), so dg/dq at time t is `PathStepper.units` (dg per unit
+displacement of each handle coordinate, exact) times `HandlePath.derivative_at(t)`; the tangent
+(`dynamics_adjoint.tangent`) and the rest start (`dynamics_adjoint.rest_start`) then carry the
+columns of q beside the stiffness parameter's.
 """
 
 from __future__ import annotations
@@ -22,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.interpolate import BSpline
 
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
@@ -38,10 +48,12 @@ from taichi_ndf.solve.dynamics_trajectory import Checkpoint, Motion
 class HandlePath:
     """times: (T,) [s], T ≥ 2, from 0, increasing; displacements: (T, H, 3) [m] of the H
     handles from the reference at those times (the first may be non-zero: the start's shape
-    then carries it)."""
+    then carries it); basis: None, or (T, H, 3, p) [m per unit]: the displacements'
+    derivative by p path unknowns (module docstring)."""
 
     times: tuple[float, ...]
     displacements: np.ndarray
+    basis: np.ndarray | None = None
 
     def __post_init__(self):
         times = tuple(float(t) for t in self.times)
@@ -59,6 +71,13 @@ class HandlePath:
                              f"{len(times)}, got {values.shape}")
         if not np.isfinite(values).all():
             raise ValueError("handle path: displacements must be finite")
+        if self.basis is not None:
+            basis = np.asarray(self.basis, dtype=np.float64)
+            object.__setattr__(self, "basis", basis)
+            if basis.ndim != 4 or basis.shape[:3] != values.shape or not np.isfinite(
+                    basis).all():
+                raise ValueError(f"handle path: basis must be finite (T, H, 3, p) with (T, H, "
+                                 f"3) = {values.shape}, got {basis.shape}")
 
     @property
     def handles(self) -> int:
@@ -74,6 +93,39 @@ class HandlePath:
     def initial_velocity(self) -> np.ndarray:
         """(H, 3) [m/s]: the first segment's slope."""
         return (self.displacements[1] - self.displacements[0]) / self.times[1]
+
+    @property
+    def unknowns(self) -> int:
+        """p: the number of path unknowns (0 without a basis)."""
+        return 0 if self.basis is None else self.basis.shape[3]
+
+    def derivative_at(self, t: float) -> np.ndarray:
+        """d(displacements at t)/dq (3H, p) [m per unit], rows handle × 3 + axis: `at`'s
+        interpolation of the basis (linear in it)."""
+        times = np.asarray(self.times)
+        flat = self.basis.reshape(len(times), -1)
+        out = np.array([np.interp(t, times, column) for column in flat.T])
+        return out.reshape(3 * self.handles, self.unknowns)
+
+    def initial_velocity_derivative(self) -> np.ndarray:
+        """d(initial_velocity)/dq (3H, p) [m/s per unit]."""
+        return (self.basis[1] - self.basis[0]).reshape(3 * self.handles, -1) / self.times[1]
+
+
+def spline_basis(times: np.ndarray, handles: int, spans: int) -> np.ndarray:
+    """A `HandlePath.basis` (T, H, 3, p) at times (T,) [s]: each handle coordinate a cubic
+    B-spline in time with `spans` uniform spans over the times (clamped knots), p = 3 H
+    (spans + 3); unknown (handle × 3 + axis) × (spans + 3) + j is that coordinate's j-th
+    coefficient [m]."""
+    times = np.asarray(times, dtype=np.float64)
+    knots = np.concatenate([[times[0]] * 3, np.linspace(times[0], times[-1], spans + 1),
+                            [times[-1]] * 3])
+    design = BSpline.design_matrix(times, knots, 3).toarray()  # (T, spans + 3)
+    coordinates, count = 3 * handles, design.shape[1]
+    basis = np.zeros((len(times), coordinates, coordinates * count))
+    for a in range(coordinates):
+        basis[:, a, a * count:(a + 1) * count] = design
+    return basis.reshape(len(times), handles, 3, -1)
 
 
 def moved_boundary(boundary: BoundaryConditions, displacements: np.ndarray
@@ -119,6 +171,19 @@ class PathStepper(TimeStepper):
         """g(t): the boundary's displacement jets (P, 6, 3) [m] at ξ (P, 2), time t [s]."""
         boundary = moved_boundary(self.model.boundary, self.path.at(t))
         return DisplacementOperator(self.field, boundary).prescribed(xi, t=1.0, dtype=dtype)
+
+    def units(self, xi: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+        """dg/dd: the boundary's displacement jets (P, 6, 3, 3H) [m/m] at ξ (P, 2) per unit
+        displacement of each handle's world coordinate (column handle × 3 + axis): g of that
+        handle moved by e_axis, every other at the reference (g is linear in them)."""
+        columns = []
+        for column in range(3 * self.path.handles):
+            unit = np.zeros((self.path.handles, 3))
+            unit.flat[column] = 1.0
+            boundary = moved_boundary(self.model.boundary, unit)
+            columns.append(DisplacementOperator(self.field, boundary).prescribed(
+                xi, t=1.0, dtype=dtype))
+        return torch.stack(columns, dim=-1)
 
     def _at(self, t: float):
         """The linearisation at the Gauss points with the handles at path(t) (its offset g(t)
