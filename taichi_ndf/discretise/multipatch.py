@@ -275,6 +275,10 @@ class MultiPatchDiscretisation:
             nonlocal c, energy
             c, energy = solution.parameters, solution.energy
             self.converged.append(solution.converged)
+            if not solution.converged and step.value < config.load_steps[-1]:
+                log.warning("projected Newton did not converge at load factor %g of the panels "
+                            "(%d iterations, Π %.6g J); the next load step starts from there",
+                            step.value, len(solution.history), energy)
             steps.append({"load_factor": step.value, "energy": energy,
                           "iterations": len(solution.history),
                           "converged": solution.converged})
