@@ -56,9 +56,10 @@ from taichi_ndf.boundary.rigid_motions import (
 MOVES = 1e-6  # a probe component moves with a unit twist where its velocity is above this
 
 
-def gauge_motions(model) -> tuple[np.ndarray, np.ndarray, float]:
+def gauge_motions(model, gauges=None) -> tuple[np.ndarray, np.ndarray, float]:
     """The gauge motions of `model` (module docstring): an orthonormal basis (6, k) of
-    twists q = (t, L ω) about the centre c, c (3,) [m] and L [m] (`free_motions`)."""
+    twists q = (t, L ω) about the centre c, c (3,) [m] and L [m] (`free_motions`). gauges:
+    the model's gauge points (`gauge_points`, computed here where None)."""
     basis, centre, size = free_motions(model.boundary, model.surface)
     contact = getattr(model, "contact", None)
     if contact is not None and contact.obstacles:
@@ -82,7 +83,8 @@ def gauge_motions(model) -> tuple[np.ndarray, np.ndarray, float]:
             if abs(value) <= tol and neutral_in_every_shape(total, q, size, scale)]
     kept += [q for value, q in load_curvatures(
         total, unworked(complement(basis, stated)), y, size) if value < -tol]
-    for pin in gauge_points(model):  # what only a gauge pin's slope holds
+    gauges = gauge_points(model) if gauges is None else gauges
+    for pin in gauges:  # what only a gauge pin's slope holds
         without, _, _ = free_motions(model.boundary, model.surface, point_slopes=True,
                                      leave_out=(pin,))
         kept += list(unworked(_intersection(basis, without)).T)
@@ -136,12 +138,12 @@ class ProbeGauge:
                 "relative to their best-fit motion in that subspace")
 
 
-def probe_gauge(model) -> ProbeGauge | None:
+def probe_gauge(model, gauges=None) -> ProbeGauge | None:
     """The gauge motions at `model.probes` (`ProbeGauge`); None where there is no gauge
-    motion or it moves no probe component."""
+    motion or it moves no probe component. gauges: as `gauge_motions`'."""
     if not model.probes:
         return None
-    basis, centre, size = gauge_motions(model)
+    basis, centre, size = gauge_motions(model, gauges)
     if basis.shape[1] == 0:
         return None
     xi = torch.tensor([p.xi for p in model.probes], dtype=torch.float64)

@@ -114,12 +114,14 @@ class AdaptiveConfig:
                              f"{self.indicator!r}")
 
 
-def features_grid(config: SplineConfig, model: ShellModel) -> SplineConfig:
+def features_grid(config: SplineConfig, model: ShellModel, gauges=None) -> SplineConfig:
     """`config`'s spans graded towards the model's known singular features by the features
     grading of those spans (`spline_grid.graded_config`: core one span of this grid, whatever
-    grading `config` had); a direction without features uniform."""
+    grading `config` had); a direction without features uniform. gauges: the model's gauge
+    points (`gauge_points`, computed here where None)."""
+    gauges = gauge_points(model) if gauges is None else gauges
     return graded_config(config, model.boundary, model.loads, model.surface.domain,
-                         gauges=gauge_points(model))
+                         gauges=gauges)
 
 
 def unknowns(config: SplineConfig) -> int:
@@ -222,10 +224,11 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
     if model.contact is not None:
         raise ValueError(CONTACT_REFUSED)
     objective = objective or Objective.of_model(model)
+    gauges = gauge_points(model)  # once per solve: every graded grid and the probes' gauge
     graded = adaptive.indicator == "features" and any(singular_features(
-        model.boundary, model.loads, model.surface.domain, gauge_points(model)))
+        model.boundary, model.loads, model.surface.domain, gauges))
     if graded:
-        plan = dataclasses.replace(plan, config=features_grid(plan.config, model))
+        plan = dataclasses.replace(plan, config=features_grid(plan.config, model, gauges))
     elif adaptive.indicator == "features":
         log.info("--tolerance: no pin, point load or interior line to grade towards; the "
                  "grids are dyadic refinements")
@@ -240,7 +243,7 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                     "grids": "features" if graded else (
                         "dyadic" if adaptive.indicator in ("none", "features")
                         else "equidistributed"), "levels": []}
-    gauge = probe_gauge(model)
+    gauge = probe_gauge(model, gauges)
     if gauge is not None:
         record["gauge"] = {"motions": list(gauge.motions), "components": list(
             gauge.components()), "line": gauge.line()}
@@ -308,7 +311,7 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                 return False
         fine = snapshots[-1]
         if graded:
-            next_config = features_grid(fine.config.refined(), model)
+            next_config = features_grid(fine.config.refined(), model, gauges)
         elif adaptive.indicator in ("none", "features"):
             next_config = fine.config.refined()
         else:

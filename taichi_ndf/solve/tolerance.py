@@ -67,7 +67,6 @@ def tolerance_met(document: dict, tolerance: float,
     return worst <= tolerance, f"largest estimated relative error {worst:.3g} ({what})"
 
 
-
 def gauge_relative(document: dict, gauge: ProbeGauge, order: float,
                    converged: list[bool] | None = None) -> dict:
     """`document` with its probes read relative to their best-fit gauge motion on every
