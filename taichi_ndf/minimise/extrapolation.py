@@ -290,8 +290,9 @@ def richardson_point(values: list[list[float]], order: float | None = None,
       the vector's: |u_c∞ − u_c,finest| ≤ |u∞ − u_finest|. It bounds the finest value only,
       not a component's extrapolated one, so an observed component keeps its own bar.
       Measured (benchmarks/RESULTS.md, issue 33): the pinched hemisphere's points converge
-      at order ≈ 3.25 relative to the gauge, while a near-zero z component's changes fall at
-      order 4.06, just above the cap: 3 × its range, 2.7e-3 of |u|;
+      at order 3.19 relative to the gauge (u_r and Π at 3.25), while a near-zero z
+      component's changes fall at order 4.06, just above the cap: 3 × its range, 2.7e-3 of
+      |u|, where the point's bar is 4.3e-5;
     - the point's order unreliable: where a component's own is reliable, the component's
       finest value with 3 × its range, the point's reason (with the point's bound "floor":
       the point's bar, the changes of the vector still to come bound each component's, never
