@@ -18,7 +18,8 @@ distance |reference − value| (< 1: a miss; large: a bar far wider than needed)
 sample: "in" (the cases the rule was designed on, 2026-12-03), "out" (chosen afterwards,
 before their results were seen, to check the rule out of sample) or "out2" (chosen at 17:30
 UTC before their results and before the guarded rule of `richardson`, which was shaped on
-"in" and "out"). `--table` re-reads stored runs with the library's current rule; main's rule
+"in" and "out"; "out3", "out4": later checks, each chosen before its values were seen).
+`--table` re-reads stored runs with the library's current rule; main's rule
 on the same values: the same command with PYTHONPATH at an export of main's taichi_ndf.
 `default` windows are the grid rule's grids with `--refine` (3 levels): the bar
 `ndf-sim --field spline --refine` shows.
@@ -124,6 +125,13 @@ CASES = {
                                     overrides=(("loads.pressure", 5.0),)),
     "pinched_hemisphere_quarter": Case("validation/scenes/pinched_hemisphere_quarter.toml",
                                        (4, 4), 5, ("out_0:0", "in_90:1"), (0,), "out2"),
+    # Added 2026-12-07 10:31 UTC (issue 33, wip-adapt11), before any of its values was seen:
+    # every component of the quarter hemisphere's two probes, so that their bars are the
+    # point's (`richardson_point`: a component within its point's bar), on six levels so that
+    # three windows have a finer reference (128 × 128).
+    "pinched_hemisphere_quarter_xyz": Case(
+        "validation/scenes/pinched_hemisphere_quarter.toml", (4, 4), 6,
+        tuple(f"{p}:{c}" for p in ("out_0", "in_90") for c in range(3)), (0, 1, 2), "out4"),
     # Added 17:34 UTC in place of cantilever_moment, whose scene states no load (its end
     # moment is the validation runner's; every level reads 0, so it is not counted), before any
     # result of these two was seen, after the rule was written.
@@ -323,7 +331,7 @@ def table(results: list[dict]) -> str:
                 f"{row['reference_error']:.2g} | {'yes' if all(r['converged']) else 'no'} | "
                 f"{r['wall']:.0f} / {r['cpu']:.0f} |")
     lines.append("")
-    for sample in ("in", "out", "out2", "out3"):
+    for sample in ("in", "out", "out2", "out3", "out4"):
         rows = [row for r in results if r["sample"] == sample for row in r["rows"]
                 if not prescribed(row)]
         if rows:

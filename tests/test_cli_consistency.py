@@ -74,7 +74,7 @@ def test_one_precision_default_across_the_tools():
 
 
 def test_the_summary_gives_the_extrapolated_values_with_their_errors():
-    from taichi_ndf.minimise.refinement import richardson
+    from taichi_ndf.minimise.refinement import richardson, richardson_point
 
     def study(values):
         return {"values": values, **richardson(values, order=4.0).to_dict()}
@@ -101,6 +101,13 @@ def test_the_summary_gives_the_extrapolated_values_with_their_errors():
     assert "order unreliable" in lines[1] and "± 0.6" in lines[1]  # 3 × the range 0.2
     assert "warning: refinement order unreliable" in lines[2]
     assert lines[3].endswith("(order unreliable)")
+    # a component bounded by its point's bar (`richardson_point`): said on the probe's line
+    values = [[1e-3 * h**3, 2e-4 * h**3, 1e-3 * h**4.5] for h in (1.0, 0.5, 0.25)]
+    point = [{"values": [u[c] for u in values], **e.to_dict()}
+             for c, e in enumerate(richardson_point(values, order=4.0))]
+    lines = sim.summary_lines("napkin", {**three, "refinement": {**three["refinement"],
+                                                                 "probes": {"corner": point}}})
+    assert lines[3].endswith("(order unreliable; component 2 within the point's bar)")
 
 
 SCENE = """

@@ -17,6 +17,7 @@ from taichi_ndf.minimise.extrapolation import (
 from taichi_ndf.minimise.state import LevelSummary, State
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import SplineRun
+from taichi_ndf.solve.tolerance import tolerance_met
 
 # v_h = 1 + h²: an exact order-2 sequence on h = 1, 1/2, 1/4 (changes −0.75, −0.1875)
 POWER_LAW = [2.0, 1.25, 1.0625]
@@ -115,6 +116,11 @@ def test_components_that_do_not_fall_stay_unreliable_when_the_point_falls():
     for axis, bar in enumerate(bars):
         alone = richardson([u[axis] for u in corner], order=4.0)
         assert bar == alone and bar.basis == "unreliable"
+    # the 32² value (benchmarks/RESULTS.md): each own bar holds it; the point's bar (± 0.035,
+    # order 1.01 of |Δu|) would miss x and y (0.083, 0.080 away): components that turn are
+    # not bounded by the point's bar
+    corner_32 = [-0.902727, -0.912061, -1.4363]
+    assert all(abs(b.value - ref) <= b.error for b, ref in zip(bars, corner_32, strict=True))
 
 
 # Measured sequences (benchmarks/refinement_coverage_*.json, issue 35; their finer values):
@@ -161,3 +167,72 @@ def test_a_point_converged_to_the_rounding_level_bounds_each_component():
     assert bars[0].bound == "floor" and bars[2].bound == "floor"
     assert bars[0].error >= bars[2].error >= abs(CANTILEVER[1] - CANTILEVER[0][2])
     assert bars[0].error <= 10 * abs(CANTILEVER[1] - CANTILEVER[0][2])
+
+
+def test_a_component_falling_faster_than_its_point_is_bounded_by_the_points_bar():
+    """u_h = (1e-3 h³, 2e-4 h³, 1e-3 h^4.5) on h = 1, 1/2, 1/4 (limit 0): the point falls at
+    order ≈ 3.5, its near-zero z alone at 4.5, above the trusted 4.05: z's own bar is 3 × its
+    range (3e-3, 1 500 × its distance); |u_z − u_z∞| ≤ |u − u∞|, so the point's bar bounds
+    it: the finest value, ± the point's bar, which holds the limit. x and y keep their own."""
+    values = [[1e-3 * h**3, 2e-4 * h**3, 1e-3 * h**4.5] for h in (1.0, 0.5, 0.25)]
+    alone = [richardson([u[c] for u in values], order=4.0) for c in range(3)]
+    assert alone[2].bound == "range" and alone[2].error > 1000 * values[2][2]
+    bars = richardson_point(values, order=4.0)
+    assert bars[:2] == alone[:2]
+    z = bars[2]
+    assert z.basis == "unreliable" and z.bound == "point" and z.value == values[2][2]
+    assert values[2][2] <= z.error < alone[2].error / 100
+    assert "within the point's bar" in z.describe() and z.to_dict()["error_bound"] == "point"
+
+
+# The pinched hemisphere's four probes u [m] relative to its gauge (the three rotations about
+# its pin) on 76 × 20, 152 × 40, 304 × 80 graded (wip-adapt9's levels, benchmarks/RESULTS.md
+# "Adaptive refinement: the tolerance and free rigid motions"): the points fall at order
+# 3.15–3.19, the z of out_0 and in_90 at 4.06–4.07 (3 × range: 2.7e-3 of |u|); and its Π [J].
+HEMISPHERE = {
+    "out_0": [[9.31156659429767e-05, 1.9013269718432073e-07, 4.5782028119402324e-05],
+              [9.33637379744039e-05, 1.753487987627261e-07, 4.587114442662934e-05],
+              [9.339171641608688e-05, 1.6989331199701436e-07, 4.587646113892576e-05]],
+    "in_90": [[-1.9015644964270508e-07, -9.311630969409128e-05, -4.5781371151791315e-05],
+              [-1.7536555314632063e-07, -9.336440681768118e-05, -4.58705025164561e-05],
+              [-1.699140312081139e-07, -9.339239708565386e-05, -4.587583779028665e-05]],
+    "out_180": [[-9.340806090741955e-05, 6.950936781672666e-08, 4.5256780040532006e-05],
+                [-9.361178923145995e-05, 6.797247897328271e-08, 4.5403594078729345e-05],
+                [-9.363123854253491e-05, 6.600290310266032e-08, 4.542408425169568e-05]],
+    "in_270": [[-6.937527852619976e-08, 9.34095265140259e-05, -4.525590570802621e-05],
+               [-6.785744664118343e-08, 9.36132279738996e-05, -4.5402768012339275e-05],
+               [-6.589548382478086e-08, 9.363266274256573e-05, -4.54232905712971e-05]]}
+HEMISPHERE_ENERGY = [-0.3730495631321597, -0.3739531589084145, -0.3740480136877291]
+
+
+def test_the_pinched_hemisphere_meets_the_tolerance_on_its_measured_levels():
+    """The stopping test at 1e-3 on the hemisphere's gauge-relative levels: before, 2.7e-3 (the
+    z range bars); the z components now within their points' bars (4.3e-5 of |u|), the
+    largest bar a non-monotone near-zero component's own range (1e-4)."""
+    document = {"spans": [[76, 20], [152, 40], [304, 80]],
+                "energy": richardson(HEMISPHERE_ENERGY, order=4.0).to_dict(), "probes": {}}
+    for name, values in HEMISPHERE.items():
+        document["probes"][name] = [e.to_dict() for e in richardson_point(values, order=4.0)]
+    for name in ("out_0", "in_90"):
+        assert document["probes"][name][2]["error_bound"] == "point"
+    met, words = tolerance_met(document, 1e-3)
+    assert met, words
+    assert words == "largest estimated relative error 0.000101 (probe out_180:1)"
+
+
+def test_a_point_whose_order_is_unreliable_keeps_its_components_bit_for_bit():
+    """Where the point's order is unreliable (fly_bottom: order 0.37) or a level used did
+    not converge, nothing is bounded by the point's bar: each component exactly as before."""
+    bars = richardson_point(FLY_BOTTOM, order=4.0)
+    assert bars[0] == richardson([u[0] for u in FLY_BOTTOM], order=4.0)
+    for c in (1, 2):
+        v = [u[c] for u in FLY_BOTTOM]
+        assert bars[c].value == v[2] and bars[c].bound == "range"
+        assert bars[c].error == SAFETY_UNRELIABLE * (max(v) - min(v))
+    # a point at order 3 with z falling at 4.5, one level unconverged: own bars, no narrowing
+    values = [[1e-3 * h**3, 2e-4 * h**3, 1e-3 * h**4.5] for h in (1.0, 0.5, 0.25)]
+    flags = [True, False, True]
+    bars = richardson_point(values, order=4.0, converged=flags)
+    assert bars == [richardson([u[c] for u in values], order=4.0, converged=flags)
+                    for c in range(3)]
+    assert all(b.bound == "range" and "not converged" in b.reason for b in bars)

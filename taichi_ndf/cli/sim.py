@@ -205,8 +205,10 @@ def summary_lines(name: str, result: dict) -> list[str]:
             line += "; extrapolated (" + ", ".join(
                 f"{c['extrapolated']:.5g} ± {c['estimated_error']:.2g}" for c in parts) + ") m"
             bases = sorted({c.get("order_basis") for c in parts} & {"assumed", "unreliable"})
+            within = [str(a) for a, c in enumerate(parts) if c.get("error_bound") == "point"]
             if bases:
-                line += f" (order {' / '.join(bases)})"
+                line += f" (order {' / '.join(bases)}" + (
+                    f"; component {', '.join(within)} within the point's bar)" if within else ")")
         lines.append(line)
     return lines
 

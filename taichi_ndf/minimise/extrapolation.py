@@ -86,7 +86,9 @@ NEAR_ROUNDING = 10.0
 SAFETY_OBSERVED = 1.25  # Roache's Fs for three grids with a reliable observed order
 SAFETY_UNRELIABLE = 3.0  # Roache's Fs where the order cannot be trusted (times the range)
 ORDER_BASES = ("observed", "assumed", "unreliable")
-BOUNDS = ("range", "floor")  # an unreliable order's error bar (module docstring)
+# an unreliable order's error bar (module docstring; "point": a probe component's, bounded by
+# its point's, `richardson_point`)
+BOUNDS = ("range", "floor", "point")
 
 
 @dataclass(frozen=True)
@@ -97,8 +99,9 @@ class Extrapolation:
     expected one) or "unreliable" (three or more grids whose order cannot be trusted: value
     = the finest value, error = 3 × the range of the last three values; `order` the observed
     one or None, `reason` why; module docstring). grids: how many values; warning: a
-    one-line caution or None; bound: an unreliable order's error bar, "range" (3 × the range)
-    or "floor" (the changes still to come past a sequence converged to the rounding level)."""
+    one-line caution or None; bound: an unreliable order's error bar, "range" (3 × the range),
+    "floor" (the changes still to come past a sequence converged to the rounding level) or
+    "point" (a probe component's: its point's bar, narrower than its own; `richardson_point`)."""
 
     value: float
     error: float
@@ -143,7 +146,8 @@ class Extrapolation:
 
 
 BOUND_WORDS = {"range": "3 × the range of the last three",
-               "floor": "the last change (at least the rounding level) summed at order 0.5"}
+               "floor": "the last change (at least the rounding level) summed at order 0.5",
+               "point": "the point's bar, which bounds each component's distance"}
 
 
 @dataclass(frozen=True)
@@ -224,6 +228,19 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
                          None, warning)
 
 
+def _unconverged(converged: list[bool] | None, count: int) -> str | None:
+    """Which of the last three of `count` levels did not converge, in words (None: all
+    did, or unknown)."""
+    if converged is None:
+        return None
+    first = count - min(count, 3)
+    failed = [first + i for i, ok in enumerate(converged[first:]) if not ok]
+    if not failed:
+        return None
+    return (f"grid level{'s' if len(failed) > 1 else ''} {', '.join(map(str, failed))} of "
+            f"{count} not converged")
+
+
 def richardson(values: list[float], order: float | None = None,
                converged: list[bool] | None = None) -> Extrapolation:
     """Richardson extrapolation of values on grids refined by 2 each, with a GCI-style error
@@ -238,11 +255,7 @@ def richardson(values: list[float], order: float | None = None,
         raise ValueError(f"{len(converged)} convergence flags for {len(values)} values")
     last = values[-3:]
     changes = np.diff(last).tolist()
-    failed = [] if converged is None else [
-        len(values) - len(last) + i for i, ok in enumerate(converged[-3:]) if not ok]
-    unconverged = (None if not failed else
-                   f"grid level{'s' if len(failed) > 1 else ''} "
-                   f"{', '.join(map(str, failed))} of {len(values)} not converged")
+    unconverged = _unconverged(converged, len(values))
     estimate = extrapolate_changes(changes, order, scale=max(abs(v) for v in last),
                                    unconverged=unconverged)
     if estimate.basis == "assumed" and unconverged is not None:
@@ -261,24 +274,40 @@ def richardson_point(values: list[list[float]], order: float | None = None,
     """`richardson` for a point's displacement u (per grid a vector, (K, 3) in m), one
     Extrapolation per component: a component's observed order is trusted only where the
     point's is too, observed on the lengths of the vector changes |u_{i+1} − u_i| (as for a
-    field). A component's order depends on the axes, the point's does not (measured: the
-    flag's fly_bottom moves 0.131 m then 0.102 m, order 0.37, while its z component alone falls
-    at order 3.54, and that ± 1.1 mm bar missed the 120 × 80 value by 16 mm; and the other way
+    field; a level used that did not converge makes it unreliable, as for a component). A
+    component's order depends on the axes, the point's does not (measured: the flag's
+    fly_bottom moves 0.131 m then 0.102 m, order 0.37, while its z component alone falls at
+    order 3.54, and that ± 1.1 mm bar missed the 120 × 80 value by 16 mm; and the other way
     round, the napkin's corner on 2²/4²/8² has norms falling at order 1.01 while x and y do not
-    fall monotonically: benchmarks/RESULTS.md). So: the component's own `richardson` where
-    both are reliable (or it is unreliable itself, or with two grids); where only the point's
-    order is unreliable, the component's finest value with 3 × its range, the point's reason
-    (with the point's bound "floor": the point's bar, the changes of the vector still to come
-    bound each component's). Never narrower than `richardson` per component."""
+    fall monotonically: benchmarks/RESULTS.md). So:
+
+    - the point's order reliable: each component's own `richardson`, except that a component
+      whose own order is unreliable (its value the finest, its bar 3 × the range or the
+      floor) takes the smaller of its own bar and the point's (bound "point"). The point's
+      bar, 1.25 |d₂|/(2ᵖ − 1) on the norms, bounds the changes of the vector still to come
+      past the finest grid, |u∞ − u_finest| (the same assumption as any observed bar: the
+      changes go on falling at the observed order), and a component's distance is at most
+      the vector's: |u_c∞ − u_c,finest| ≤ |u∞ − u_finest|. It bounds the finest value only,
+      not a component's extrapolated one, so an observed component keeps its own bar.
+      Measured (benchmarks/RESULTS.md, issue 33): the pinched hemisphere's points converge
+      at order 3.19 relative to the gauge (u_r and Π at 3.25), while a near-zero z
+      component's changes fall at order 4.06, just above the cap: 3 × its range, 2.7e-3 of
+      |u|, where the point's bar is 4.3e-5;
+    - the point's order unreliable: where a component's own is reliable, the component's
+      finest value with 3 × its range, the point's reason (with the point's bound "floor":
+      the point's bar, the changes of the vector still to come bound each component's, never
+      narrower than the component's own); the component's own `richardson` otherwise.
+    With two grids each component's own `richardson`."""
     u = np.asarray(values, dtype=float)
     own = [richardson(u[:, c].tolist(), order, converged) for c in range(u.shape[1])]
     if len(u) < 3:
         return own
     last = u[-3:]
     norms = np.linalg.norm(np.diff(last, axis=0), axis=1).tolist()
-    point = extrapolate_changes(norms, order, scale=float(np.linalg.norm(last, axis=1).max()))
+    point = extrapolate_changes(norms, order, scale=float(np.linalg.norm(last, axis=1).max()),
+                                unconverged=_unconverged(converged, len(u)))
     if point.basis == "observed":
-        return own
+        return [_within_point(bar, point, last[:, c].tolist()) for c, bar in enumerate(own)]
     out = []
     for c, bar in enumerate(own):
         if bar.basis != "observed":
@@ -295,3 +324,24 @@ def richardson_point(values: list[list[float]], order: float | None = None,
         out.append(Extrapolation(float(v[2]), SAFETY_UNRELIABLE * float(v.max() - v.min()),
                                  point.order, "unreliable", len(u), order, warning, reason))
     return out
+
+
+def _within_point(bar: Extrapolation, point: OrderEstimate,
+                  last: list[float]) -> Extrapolation:
+    """A component's bar where its point's order is reliable (`richardson_point`; last: the
+    component's last three values): an unreliable component (value: the finest) whose
+    changes fall (same sign, the last smaller) and whose own bar is wider than the point's
+    takes the point's, with the reason said; any other unchanged. A component whose changes
+    do not fall keeps its own: the vector's changes then turn, and the norms' order is no
+    measure of them (the napkin's corner on 2²/4²/8², `richardson_point`: norms at order 1.01,
+    each component reversing, the 32² value 0.12 m from the 8² one, 3 × the point's bar)."""
+    d1, d2 = last[1] - last[0], last[2] - last[1]
+    falling = d1 * d2 > 0.0 and abs(d2) < abs(d1)
+    if bar.basis != "unreliable" or not falling or bar.error <= point.error:
+        return bar
+    reason = (f"{bar.reason}; within the point's bar (observed order {point.order:.2f} of "
+              "|Δu|)")
+    log.info("probe component: %s, bar %.2g instead of %s %.2g", reason, point.error,
+             BOUND_WORDS[bar.bound], bar.error)
+    return dataclasses.replace(bar, error=point.error, reason=reason, warning=None,
+                               bound="point")
