@@ -15,9 +15,11 @@ step's membrane stretch and its pull-back; then its solve by the same K). `--cla
 clamped projection's parts (the indefinite-block screen and the eigen-projection).
 
 Then the steps as `newton.minimise` takes them, and their ratio to the factorisation + solve:
-a definite K of PSD blocks (a step after a failed exact attempt: those parts only); a projected
-step with its failed exact attempt (exact blocks, assembly, factorisation) first; each with
-the correction (its residual, pull-back, solve and one more trial) where the full step fails.
+with "strain", a definite K of PSD blocks (a step after a failed exact attempt: those parts
+only); a projected step with its failed exact attempt (exact blocks, assembly, factorisation)
+first; each with the correction (its residual, pull-back, solve and one more trial) where the
+full step fails; with `--clamp` also the default's: the exact K definite, and a projected step
+(the failed exact attempt, then the exact blocks again, screened, projected, assembled).
 
     OMP_NUM_THREADS=1 python benchmarks/newton_step.py [--spans 32 144] [--repeats 3] [--clamp]
 """
@@ -131,15 +133,21 @@ def parts_at(model, field: SplineField, repeats: int, clamp: bool) -> dict:
     return out
 
 
-STEPS = {  # the parts of each step as `newton.minimise` takes it
-    "step, definite K of PSD blocks": (
-        "displacement", "energy + gradient", "pull-back", "blocks (PSD, strains)", "assembly",
-        "factorise + solve", "line-search trial"),
-    "the same + a failed exact attempt first": (
+COMMON = ("displacement", "energy + gradient", "pull-back", "assembly", "factorise + solve",
+          "line-search trial")
+# the parts of each step as `newton.minimise` takes it: cumulative within each group
+STEPS = ({
+    "strain: a definite K of PSD blocks": COMMON + ("blocks (PSD, strains)",),
+    "strain: the same + a failed exact attempt first": (
         "blocks (exact)", "assembly", "factorise + solve"),
-    "+ the correction where the full step fails": (
+    "strain: + the correction where the full step fails": (
         "correction: residual + pull-back", "correction: solve", "line-search trial"),
-}
+}, {
+    "clamp (the default): the exact K definite": COMMON + ("blocks (exact)",),
+    "clamp: + a failed exact attempt, then screened and projected blocks": (
+        "blocks (exact)", "screen", "projection (eigh of the indefinite blocks)", "assembly",
+        "factorise + solve"),
+})
 
 
 def main() -> None:
@@ -174,13 +182,14 @@ def main() -> None:
     print("|---|" + "---|" * len(rows))
     for name in names:
         print(f"| {name} | " + " | ".join(f"{p.get(name, math.nan):.1f}" for _, p in rows) + " |")
-    totals = [0.0] * len(rows)
-    for label, parts in STEPS.items():
-        cells = []
-        for i, (_, p) in enumerate(rows):
-            totals[i] += sum(p[k] for k in parts)
-            cells.append(f"{totals[i]:.1f} ({totals[i] / p['factorise + solve']:.1f}×)")
-        print(f"| {label} (× factorise + solve) | " + " | ".join(cells) + " |")
+    for group in STEPS if args.clamp else STEPS[:1]:
+        totals = [0.0] * len(rows)
+        for label, parts in group.items():
+            cells = []
+            for i, (_, p) in enumerate(rows):
+                totals[i] += sum(p[k] for k in parts)
+                cells.append(f"{totals[i]:.1f} ({totals[i] / p['factorise + solve']:.1f}×)")
+            print(f"| {label} (× factorise + solve) | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
