@@ -216,3 +216,33 @@ def test_friction_is_refused_on_the_siren_path(tmp_path, capsys):
     assert sim.main([str(path), "--out", str(tmp_path / "run"), "--quick", "--precision",
                      "f64"]) == 2
     assert "friction is solved on the spline" in capsys.readouterr().err
+
+
+def test_the_strain_treatment_reaches_the_contact_potential():
+    """`ContactPotential.psd_hessian_blocks`: projected Newton's "strain" treatment in a
+    contact round (before, Newton found no such method there and fell back to the clamped
+    projection): the shell's blocks through the strains plus the barrier's, every block
+    positive semi-definite at a state whose exact blocks are not."""
+    from taichi_ndf.contact.newton_contact import ContactPotential
+    from taichi_ndf.objective import Objective, ShellEnergyTerm
+    from taichi_ndf.shell.hessian import jet_steps
+    from tests.test_contact_barrier import displacement_near, surface_samples
+
+    samples = surface_samples()
+    term = ContactTerm([Sphere(centre=(0.0, 0.0, -0.3), radius=0.25)], offset=0.002,
+                       activation=0.01, stiffness=300.0)
+    u = displacement_near(term, samples)
+    u[:, 1:] += 0.05 * torch.randn(len(samples), 5, 3, dtype=F64,
+                                   generator=torch.Generator().manual_seed(6))
+    objective = Objective(ShellEnergyTerm(preset("cotton_polyester"), Loads()))
+    potential = ContactPotential(objective, (term,), 1.0)
+    steps = jet_steps(samples.r_jets, u, 0.6, 1e-5)
+    exact = potential.hessian_blocks(samples, u, steps=steps).reshape(-1, 18, 18)
+    psd = potential.psd_hessian_blocks(samples, u, steps=steps).reshape(-1, 18, 18)
+    barrier = term.hessian_blocks(samples, u, 1.0).reshape(-1, 18, 18)
+    assert float(barrier.abs().max()) > 0
+    shell = objective.hessian_blocks(samples, u, 1.0, steps=steps, psd=True)
+    scale = float(psd.abs().max())
+    assert torch.allclose(psd, barrier + shell.reshape(-1, 18, 18), rtol=0, atol=1e-12 * scale)
+    assert float(torch.linalg.eigvalsh(exact).min()) < -1e-6 * scale
+    assert float(torch.linalg.eigvalsh(psd).min()) >= -1e-12 * scale

@@ -97,3 +97,36 @@ def test_psd_blocks_are_positive_semi_definite_and_exact_without_stress(law):
     rest = potential.hessian_blocks(samples, zero, steps=steps)
     assert torch.allclose(potential.psd_hessian_blocks(samples, zero, steps=steps), rest,
                           rtol=0, atol=1e-12 * float(rest.abs().max()))
+
+
+def test_the_tangent_length_is_computed_once_per_state(monkeypatch):
+    """Blocks asked chunk by chunk of rows (as Newton's assembly asks) take their strain
+    steps from one RMS tangent length of all samples, computed once per state: once for all
+    chunks of one U, again after U changes in place or for another tensor; every chunk's
+    blocks are those rows of all points' blocks, bit for bit, and after the in-place change
+    those of a fresh copy of the new U."""
+    from taichi_ndf.shell import strain_hessian
+
+    samples, loads = _samples("cylinder")
+    potential = Objective(ShellEnergyTerm(MATERIALS["clyde"], loads)).potential(1.0)
+    u = 0.05 * torch.randn(len(samples), 6, 3, generator=torch.Generator().manual_seed(4),
+                           dtype=DT)
+    steps = jet_steps(samples.r_jets, u, 1.0, 1e-5)
+    calls = []
+    original = strain_hessian._tangent_length
+    monkeypatch.setattr(strain_hessian, "_tangent_length",
+                        lambda *args: calls.append(1) or original(*args))
+
+    def chunked(state):
+        return torch.cat([potential.hessian_blocks(samples, state, steps=steps,
+                                                   rows=slice(s, s + 5))
+                          for s in range(0, len(samples), 5)])
+
+    whole = potential.hessian_blocks(samples, u, steps=steps)
+    assert len(samples) > 10 and len(calls) == 1
+    assert torch.equal(chunked(u), whole) and len(calls) == 1
+    u.mul_(1.5)  # the same tensor, another state
+    assert torch.equal(chunked(u), potential.hessian_blocks(samples, u.clone(), steps=steps))
+    assert len(calls) == 3  # the chunks' once, the fresh copy's once
+    assert not torch.equal(chunked(u), whole)
+    assert len(calls) == 4  # the memo holds one state: the copy's replaced u's

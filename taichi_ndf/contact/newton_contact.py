@@ -58,6 +58,7 @@ from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.self_contact import SelfContactTerm
 from taichi_ndf.problem.sampling import SurfaceSamples
+from taichi_ndf.shell.hessian import JET_SIZE, project_psd
 
 log = logging.getLogger(__name__)
 
@@ -122,17 +123,28 @@ class ContactPotential:
                                                                  self.load_factor, grad=grad)
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
-                       steps: torch.Tensor) -> torch.Tensor:
-        """Per-point blocks (N, 6, 3, 6, 3), not projected (`Objective.hessian_blocks`)."""
+                       steps: torch.Tensor, psd: bool = False) -> torch.Tensor:
+        """Per-point blocks (N, 6, 3, 6, 3), not projected (`Objective.hessian_blocks`); psd:
+        positive semi-definite instead, the contact terms' clamped (`project_psd`) and the
+        objective's through the strains (`Objective.hessian_blocks`' psd)."""
         blocks = sum(term.hessian_blocks(samples, u_jets, self.load_factor, steps=steps)
                      for term in self.terms if hasattr(term, "hessian_blocks"))
+        if psd:
+            blocks = project_psd(blocks.reshape(blocks.shape[0], JET_SIZE, JET_SIZE),
+                                 overwrite=True)[0].reshape(blocks.shape)
         rows = (samples.weight > 0) | (samples.point_force != 0).any(dim=1)
         objective = self.objective
         if hasattr(objective.shell, "restricted"):  # a shell term of rows (`PanelEnergy`)
             objective = Objective(objective.shell.restricted(rows), objective.extra)
         blocks[rows] += objective.hessian_blocks(_subset(samples, rows), u_jets[rows],
-                                                 self.load_factor, steps=steps)
+                                                 self.load_factor, steps=steps, psd=psd)
         return blocks
+
+    def psd_hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
+                           steps: torch.Tensor) -> torch.Tensor:
+        """Positive semi-definite per-point blocks (projected Newton's "strain" treatment,
+        as `Objective`'s: `hessian_blocks`' psd)."""
+        return self.hessian_blocks(samples, u_jets, steps=steps, psd=True)
 
     def coupled_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor):
         """Hessian entries between pairs of points of all the terms (`Couplings` or None)."""

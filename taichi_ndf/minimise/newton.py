@@ -131,7 +131,11 @@ class NewtonConfig:
         manifold, where the exact K is indefinite in compressed folds: projected at 24 of 43
         iterations on 32² against 1 of 73); with hessian "strain" 210 iterations, 27 s; the
         nonlinear cantilevers' CPU −18 % (benchmarks/RESULTS.md, "Newton on cloth drapes: the
-        second-order correction (issue 28)").
+        second-order correction (issue 28)"). Re-validated with "strain" as a pair: the demo
+        −17 % CPU, every validation value kept, but tablecloth_box +27 % (+25 % with the
+        correction alone): its corrected path reaches a state from which projected Newton
+        creeps with doubled steps for ~20 iterations ("Newton defaults re-validated, and the
+        step against the factorisation (issue 28)").
     discretisation_fraction: given the coarser grid's Π (`minimise`'s coarse_energy), also stop
         when λ²/2 ≤ this × |Π − Π_coarse|; 0: the exact-tolerance mode (1e-4 kept the
         validation's probes to 5 digits, 1e-3 moved one by 3e-4: benchmarks/RESULTS.md).
@@ -139,7 +143,9 @@ class NewtonConfig:
         definite: "clamp" (default) sets its negative eigenvalues to 0, "abs" mirrors them
         (clamp took as many or fewer steps than abs and Levenberg–Marquardt on the napkin and
         the flag, benchmarks/RESULTS.md); "strain": all blocks positive semi-definite through
-        the strains (`psd_hessian_blocks`, `strain_hessian`: no screen, no eigh).
+        the strains (`psd_hessian_blocks`, `strain_hessian`: no screen, no eigh; a contact
+        round's too, `ContactPotential`). Alone no faster than clamp on the demo and the
+        contact scenes (the re-validation above).
     """
 
     max_iterations: int = 100
