@@ -19,6 +19,18 @@ two). Per span:
   4p − 4 ≤ 2p + 2 for p ≤ 3, and the gravity load, degree 2p);
 - a span outside the outline gets none.
 
+Curved edges (`taichi_ndf.problem.arcs`): each arc is cut at every knot line it crosses and
+into pieces of at most `ARC_ANGLE`, so each piece lies in one span (`_lenses`). The polygon
+that is ear-clipped and clipped as above has a piece's chord where it bulges outward and the
+two tangents at its ends where it is cut in (their meeting point T lies on the panel's side);
+each piece then adds its lens, the circular segment beyond the chord or the region between
+the tangents and the arc, integrated in the span the piece lies in by the fan from an apex
+that sees the arc (the chord's midpoint, or T): x = apex + s (c(t) − apex), Gauss–Legendre
+with p + 2 points in s (exact in s, as the triangle rule is) and `ARC_POINTS` in t along the
+arc (spectrally accurate: polynomials of degree ≤ 7 on a disc and a half disc to 1e-13,
+tests/test_curved_outline.py). All weights are positive (so Newton's projected point blocks
+stay those of an energy), and an outline without arcs gets the points it had.
+
 Graded knots (`SplineConfig.grading`; a garment's `[field] grading = "seam_corners"`): the
 spans are those between the knots mapped back to ξ (`span_knots`), a whole span gets the
 graded Gauss points of `span_points`, a cut span the same triangle rule in ξ; the field is a

@@ -178,6 +178,16 @@ class Arc:
         return found
 
 
+def snapped(point, cuts) -> tuple[float, float]:
+    """`point` with a coordinate within 1e-12 (relative) of a cut line's value set to it."""
+    out = [float(point[0]), float(point[1])]
+    for axis in range(2):
+        for value in cuts[axis]:
+            if abs(out[axis] - value) <= 1e-12 * max(1.0, abs(value)):
+                out[axis] = float(value)
+    return out[0], out[1]
+
+
 def fan_weights(apex: np.ndarray, arc: Arc, s_rule, t_rule) -> tuple[np.ndarray, np.ndarray]:
     """Quadrature points (M, 2) and weights (M,) of the region swept from `apex` to the arc,
     x(s, t) = apex + s (c(t) − apex), dA = s (c − apex) × dc/dt ds dt: Gauss–Legendre rules

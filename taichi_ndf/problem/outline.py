@@ -33,7 +33,7 @@ import torch
 
 from taichi_ndf.geometry import Plane
 from taichi_ndf.geometry.domain import ParameterDomain
-from taichi_ndf.problem.arcs import MAX_ANGLE, Arc, bulge_angle
+from taichi_ndf.problem.arcs import MAX_ANGLE, Arc, bulge_angle, snapped
 
 Point = tuple[float, float]
 
@@ -224,7 +224,7 @@ class Outline:
                 pieces.append((i, None))
                 continue
             ts = arc.splits(max_angle, cuts)
-            ends = ([self.points[i]] + [_snapped(p, cuts) for p in arc.at(np.array(ts[1:-1]))]
+            ends = ([self.points[i]] + [snapped(p, cuts) for p in arc.at(np.array(ts[1:-1]))]
                     + [self.points[(i + 1) % n]])
             for k in range(len(ts) - 1):
                 flat.append(ends[k])
@@ -355,16 +355,6 @@ class Outline:
         (x0, x1), (y0, y1) = self.bounds
         near = np.linalg.norm(self.nearest_on_border(xi) - xi, axis=1)
         return inside | (near <= 1e-12 * max(x1 - x0, y1 - y0))
-
-
-def _snapped(point, cuts) -> Point:
-    """`point` with a coordinate within 1e-12 (relative) of a cut line's value set to it."""
-    out = [float(point[0]), float(point[1])]
-    for axis in range(2):
-        for value in cuts[axis]:
-            if abs(out[axis] - value) <= 1e-12 * max(1.0, abs(value)):
-                out[axis] = float(value)
-    return out[0], out[1]
 
 
 @dataclass(frozen=True)
