@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -136,8 +137,8 @@ def test_two_panels_sewn_along_an_arc_are_the_rectangle_they_make():
     """The cantilever (0.3 × 0.2 m, clamped along its top, gravity across it) cut along an arc
     from (0.15, 0) to (0.15, 0.2) bulging 2 cm into the right half (bulge 0.2), the halves on
     8 × 8 spans sewn with the bending transmitted, against the rectangle on 16 × 8: Π within
-    1e-4 relative (the trapezoids' cut measured 1e-5, tests/test_garment_outline.py), the seam
-    closed to 10 µm."""
+    2e-5 relative (measured 3.1e-5, 6.1e-6, 9.5e-7 on 4, 8, 16 spans per half: converging; the
+    trapezoids' straight cut 1.0e-5 on 8 × 8), the seam closed to 10 µm (measured 0.05 nm)."""
     halves = [{"name": "a", "outline": [[0, 0], [0.15, 0, 0.2], [0.15, 0.2], [0, 0.2]],
                "clamped": ["e2"], "clamp_band": 1.0},
               {"name": "b", "outline": [[0.15, 0], [0.3, 0], [0.3, 0.2], [0.15, 0.2, -0.2]],
@@ -146,7 +147,7 @@ def test_two_panels_sewn_along_an_arc_are_the_rectangle_they_make():
     pair = _solved(_document(halves, seam, (8, 8)))
     whole = _solved(_document([{"name": "w", "width": 0.3, "height": 0.2,
                                 "clamped": ["xi2_max"], "clamp_band": 1.0}], spans=(16, 8)))
-    assert abs(pair.energy - whole.energy) <= 1e-4 * abs(whole.energy)
+    assert abs(pair.energy - whole.energy) <= 2e-5 * abs(whole.energy)
     assert pair.document["seam_gaps"]["curve"] < 1e-5
 
 
@@ -167,7 +168,7 @@ def test_a_wrong_curved_panel_is_refused_in_one_line_naming_panel_and_edge(chang
 
 
 def test_the_curved_tshirts_armholes_are_half_circles_sewn_to_the_sleeves_halves():
-    scene = load_scene(ROOT / "benchmarks" / "garment_tshirt_curved.toml")
+    scene = load_scene(ROOT / "scenes" / "tshirt_body.toml")
     plan = scene.field
     front = next(p for p in plan.patches if p.name == "front")
     assert abs(front.outline.area - (0.471238898 * 0.45 - math.pi * 0.07 ** 2)) < 1e-12
@@ -179,3 +180,22 @@ def test_the_curved_tshirts_armholes_are_half_circles_sewn_to_the_sleeves_halves
         assert seam.spec.bending == "hinge" and seam.spec.b.bulge == -1.0
         assert abs(Arc(seam.spec.b.start, seam.spec.b.end, -math.pi).length
                    - math.dist(seam.spec.a.start, seam.spec.a.end)) < 1e-8
+
+
+def test_the_curved_tshirt_converges_with_its_armholes_closed_on_a_coarse_grid():
+    """scenes/tshirt_body.toml on 6 × 4 spans per panel, load steps 0.5 and 1 (28 s CPU; the
+    band's move cuts them to 0.5, 0.75, 0.875, 1): every step converged, the armhole seams
+    closed to 0.1 mm (measured 63 µm; 33 µm on the scene's 8 × 6) and Π as measured at
+    wip-garment10 (0.07570778218360272 J)."""
+    document = tomllib.loads((ROOT / "scenes" / "tshirt_body.toml").read_text())
+    document["field"]["spans"] = [6, 4]
+    document["training"]["load_steps"] = [0.5, 1.0]
+    scene = parse_scene(document, base_dir=ROOT / "scenes", path=ROOT / "scenes" / "x.toml")
+    panels = of_scene(scene)
+    panels.start(scene.solver, seed=0)
+    solution = panels.solve(scene.solver)
+    panels.check_solution(solution)
+    assert all(panels.converged)
+    gaps = solution.document["seam_gaps"]
+    assert max(v for k, v in gaps.items() if k.startswith("armhole")) < 1e-4
+    assert solution.energy == pytest.approx(0.07570778218360272, rel=1e-9)
