@@ -127,12 +127,6 @@ class Arc:
                 kept[-1] = t if t in (0.0, 1.0) else kept[-1]
         return kept
 
-    def part(self, t0: float, t1: float) -> Arc:
-        """The piece of the arc between fractions t0 and t1."""
-        a, b = self.at(np.array([t0, t1]))
-        return Arc((float(a[0]), float(a[1])), (float(b[0]), float(b[1])),
-                   self.angle * (t1 - t0))
-
     def nearest(self, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The arc's point nearest to each ξ (N, 2) and its distance (N,)."""
         o = self.centre
