@@ -29,7 +29,7 @@ DYNAMIC = {"napkin_drop_sphere", "cloth_pendulum", "cloth_pendulum_self", "sheet
 # Scenes that need the spline field (seams, self-contact, a garment's panels): not the SIREN
 # smoke runs below (tests/test_seam.py, tests/test_self_contact_scene.py, tests/test_garment.py).
 SPLINE_ONLY = {"tube_seam", "napkin_fold", "skirt_panels", "skirt_four_panels", "skirt_body",
-               "gores_banner", "tube_top_body", "tshirt_body_sleeveless"}
+               "gores_banner", "tube_top_body", "tshirt_body_sleeveless", "tshirt_body"}
 STATIC = [p for p in SCENES if p.stem not in DYNAMIC | SPLINE_ONLY]
 FABRICS = ("canvas", "cotton", "silk")
 TEST_WIDTH = 16  # neurons per layer in these smoke tests: the scenes' physics, a cheap field

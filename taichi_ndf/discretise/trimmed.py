@@ -19,6 +19,18 @@ two). Per span:
   4p − 4 ≤ 2p + 2 for p ≤ 3, and the gravity load, degree 2p);
 - a span outside the outline gets none.
 
+Curved edges (`taichi_ndf.problem.arcs`): each arc is cut at every knot line it crosses and
+into pieces of at most `ARC_ANGLE`, so each piece lies in one span (`_lenses`). The polygon
+that is ear-clipped and clipped as above has a piece's chord where it bulges outward and the
+two tangents at its ends where it is cut in (their meeting point T lies on the panel's side);
+each piece then adds its lens, the circular segment beyond the chord or the region between
+the tangents and the arc, integrated in the span the piece lies in by the fan from an apex
+that sees the arc (the chord's midpoint, or T): x = apex + s (c(t) − apex), Gauss–Legendre
+with p + 2 points in s (exact in s, as the triangle rule is) and `ARC_POINTS` in t along the
+arc (spectrally accurate: polynomials of degree ≤ 7 on a disc and a half disc to 1e-13,
+tests/test_curved_outline.py). All weights are positive (so Newton's projected point blocks
+stay those of an energy), and an outline without arcs gets the points it had.
+
 Graded knots (`SplineConfig.grading`; a garment's `[field] grading = "seam_corners"`): the
 spans are those between the knots mapped back to ξ (`span_knots`), a whole span gets the
 graded Gauss points of `span_points`, a cut span the same triangle rule in ξ; the field is a
@@ -48,14 +60,19 @@ import torch
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.minimise.linearisation import GridLinearisation
+from taichi_ndf.problem.arcs import fan_weights
 from taichi_ndf.problem.loads import Loads
-from taichi_ndf.problem.outline import Outline, clip_to_box, cross, polygon_area
+from taichi_ndf.problem.outline import Outline, clip_to_box, cross, ear_clip, polygon_area
 from taichi_ndf.problem.quadrature import gauss_legendre, span_points
 from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.shell.hessian import COMPONENTS
 
 # A span whose covered area is within this fraction of its own is integrated as a whole span.
 FULL = 1e-9
+# Curved edges: the largest angle [rad] of an arc's pieces (`_lenses`), and the Gauss points
+# along each piece.
+ARC_ANGLE = math.pi / 4
+ARC_POINTS = 10
 
 
 def triangle_rule(points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -80,13 +97,15 @@ def span_knots(config: SplineConfig) -> tuple[np.ndarray, np.ndarray]:
     return knots[0], knots[1]
 
 
-def _pieces(outline: Outline, config: SplineConfig) -> dict[tuple[int, int], list]:
-    """The convex pieces (point lists) of the outline's triangles in each knot span (i, j)
-    (`span_knots`)."""
+def _pieces(outline: Outline, config: SplineConfig, max_angle: float
+            ) -> tuple[dict[tuple[int, int], list], dict[tuple[int, int], list]]:
+    """The convex pieces (point lists) of the outline's straight part in each knot span
+    (i, j) (`span_knots`), and per span the lenses its arcs add (`_lenses`)."""
     k1, k2 = span_knots(config)
     n1, n2 = config.spans
+    polygon, lenses = _lenses(outline, (k1.tolist(), k2.tolist()), max_angle)
     pieces: dict[tuple[int, int], list] = {}
-    for corners in outline.triangles:
+    for corners in (tuple(polygon[i] for i in tri) for tri in ear_clip(polygon)):
         if abs(cross(*corners)) <= 1e-14 * (k1[-1] - k1[0]) * (k2[-1] - k2[0]):
             continue
         xs, ys = [c[0] for c in corners], [c[1] for c in corners]
@@ -100,7 +119,39 @@ def _pieces(outline: Outline, config: SplineConfig) -> dict[tuple[int, int], lis
                 piece = clip_to_box(corners, box)
                 if len(piece) >= 3:
                     pieces.setdefault((i, j), []).append(piece)
-    return pieces
+    by_span: dict[tuple[int, int], list] = {}
+    for apex, arc in lenses:
+        mid = arc.at(np.array([0.5]))[0]
+        i = max(0, min(n1 - 1, int(np.searchsorted(k1, mid[0], side="right")) - 1))
+        j = max(0, min(n2 - 1, int(np.searchsorted(k2, mid[1], side="right")) - 1))
+        by_span.setdefault((i, j), []).append((apex, arc))
+    return pieces, by_span
+
+
+def _lenses(outline: Outline, cuts, max_angle: float) -> tuple[list, list]:
+    """The outline's straight part and what its arcs add. Each arc is cut at the knot lines
+    `cuts` and into pieces of at most `max_angle` (`Outline.flattened`), so each piece lies in
+    one span. A piece bulging outward (θ > 0) adds the circular segment beyond its chord, swept
+    from the chord's midpoint; one bulging inward (θ < 0) is replaced in the polygon by the two
+    tangents at its ends, which meet at T = o + R e(ψ_mid) / cos(θ/2) on the panel's side, and
+    adds the region between them and the arc, swept from T. Both regions are seen from their
+    apex, so their weights are positive. Returns the polygon (points) and the lenses (apex
+    (2,), arc piece)."""
+    flat, owners = outline.flattened(max_angle, cuts)
+    polygon, lenses = [], []
+    for point, (_, arc) in zip(flat, owners, strict=True):
+        polygon.append(point)
+        if arc is None:
+            continue
+        if arc.angle > 0:
+            lenses.append((0.5 * (np.asarray(arc.start) + np.asarray(arc.end)), arc))
+            continue
+        mid = arc.start_angle + 0.5 * arc.angle
+        tangent = arc.centre + arc.radius / math.cos(0.5 * arc.angle) * np.array(
+            [math.cos(mid), math.sin(mid)])
+        polygon.append((float(tangent[0]), float(tangent[1])))
+        lenses.append((tangent, arc))
+    return polygon, lenses
 
 
 def trimmed_points(outline: Outline, config: SplineConfig
@@ -121,15 +172,23 @@ def trimmed_points(outline: Outline, config: SplineConfig
     full_xi, full_w = span_points(config)
     per_span = full_xi.shape[0] // (n1 * n2)
     uv, tw = triangle_rule(config.degree + 2)
+    s_rule = tuple(t.numpy() for t in gauss_legendre(config.degree + 2))
+    t_rule = tuple(t.numpy() for t in gauss_legendre(ARC_POINTS))
     xi, weight = [], []
-    for (i, j), pieces in sorted(_pieces(outline, config).items()):
-        areas = [polygon_area(p) for p in pieces]
+    pieces_of, lenses_of = _pieces(outline, config, ARC_ANGLE)
+    for (i, j) in sorted(set(pieces_of) | set(lenses_of)):
+        pieces = pieces_of.get((i, j), [])
+        lenses = [fan_weights(apex, arc, s_rule, t_rule) for apex, arc in lenses_of.get((i, j), [])]
+        areas = [polygon_area(p) for p in pieces] + [float(w.sum()) for _, w in lenses]
         span_area = (k1[i + 1] - k1[i]) * (k2[j + 1] - k2[j])
         if abs(sum(areas) - span_area) <= FULL * span_area:
             span = slice((i * n2 + j) * per_span, (i * n2 + j + 1) * per_span)
             xi.append(full_xi[span].numpy())
             weight.append(full_w[span].numpy())
             continue
+        for lens_xi, lens_w in lenses:
+            xi.append(lens_xi)
+            weight.append(lens_w)
         for piece in pieces:
             a = np.asarray(piece[0])
             for k in range(1, len(piece) - 1):

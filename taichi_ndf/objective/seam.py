@@ -12,8 +12,11 @@ with weights w_g = ŵ_g |dr_A/ds| [m] (reference arclength along A):
                               d is the outward tangent across the edge per unit reference
                               length).
 
-A side is a straight segment of ξ (`segment_line`): part of an edge of the parameter rectangle
-(`EdgeSegment`) or an edge of a polygon panel's outline (`problem.outline.PolygonEdge`).
+A side is a path in ξ at constant speed (`segment_path`): part of an edge of the parameter
+rectangle (`EdgeSegment`) or an edge of a panel's outline (`problem.outline.PolygonEdge`: a
+segment, or an arc, `problem.arcs.Arc`), so s is the fraction of its arclength on both sides,
+and a straight edge sewn to an arc of the same length is sewn by arclength; the normal n and
+dξ/ds are taken at each point.
 
 (a) Positions: x_A = x_B (r + u, so a seam between edges apart at rest pulls them together:
 the sewing; over load steps λ ∈ [0, 1] the ties are to (1 − λ) times their rest values, so a
@@ -53,16 +56,9 @@ from taichi_ndf import jets
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.quadrature import gauss_legendre
 from taichi_ndf.problem.sampling import SurfaceSamples
-from taichi_ndf.problem.seams import LENGTH_TOLERANCE, EdgeSegment, SeamSpec, segment_line
+from taichi_ndf.problem.seams import LENGTH_TOLERANCE, EdgeSegment, SeamSpec, segment_path
 
 _CHANNEL = (jets.D1, jets.D2)  # the jet channel of ∂/∂ξ¹, ∂/∂ξ²
-
-
-def _segment_xi(side, s: torch.Tensor, bounds) -> tuple[torch.Tensor, torch.Tensor,
-                                                           torch.Tensor]:
-    """ξ (M, 2) at fractions s along the segment, dξ/ds (2,) and the outward normal (2,)."""
-    start, end, normal = segment_line(side, bounds)
-    return start + s[:, None] * (end - start), end - start, normal
 
 
 class SeamTerm:
@@ -95,9 +91,9 @@ class SeamTerm:
         parts = torch.arange(spec.segments, dtype=torch.float64)
         s = ((parts[:, None] + nodes) / spec.segments).reshape(-1)
         w = (weights / spec.segments).repeat(spec.segments)
-        xi_a, run_a, normal_a = _segment_xi(spec.a, s, surface.domain.bounds)
-        xi_b, run_b, normal_b = _segment_xi(spec.b, s if spec.orientation == "same" else 1 - s,
-                                            surface_b.domain.bounds)
+        xi_a, run_a, normal_a = segment_path(spec.a, surface.domain.bounds, s)
+        xi_b, run_b, normal_b = segment_path(spec.b, surface_b.domain.bounds,
+                                             s if spec.orientation == "same" else 1 - s)
         r_a = surface.jets(xi_a).to(torch.float64)
         r_b = surface_b.jets(xi_b).to(torch.float64)
         speed_a = _along(r_a, run_a).norm(dim=1)
@@ -117,7 +113,7 @@ class SeamTerm:
         self.r_jets = torch.cat((r_a, r_b)).to(dtype)
         self.weight = (w * speed_a).to(dtype)  # w_g [m]
         # c_A, c_B (M, 2): d = c₁ x_,1 + c₂ x_,2 = x_,n / |r_,n|, n the outward normal in ξ
-        self.scale = tuple((n[None, :] / _along(r, n).norm(dim=1)[:, None]).to(dtype)
+        self.scale = tuple((n / _along(r, n).norm(dim=1)[:, None]).to(dtype)
                            for n, r in ((normal_a, r_a), (normal_b, r_b)))
         self._rows_of: tuple[torch.Tensor, torch.Tensor] | None = None
 
@@ -229,8 +225,9 @@ class SeamTerm:
 
 
 def _along(r_jets: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
-    """r_,1 v₁ + r_,2 v₂ (M, 3): the derivative of the jets along ξ-direction v (2,)."""
-    return r_jets[:, _CHANNEL[0]] * direction[0] + r_jets[:, _CHANNEL[1]] * direction[1]
+    """r_,1 v₁ + r_,2 v₂ (M, 3): the derivative of the jets along ξ-directions v (M, 2)."""
+    return (r_jets[:, _CHANNEL[0]] * direction[:, :1]
+            + r_jets[:, _CHANNEL[1]] * direction[:, 1:])
 
 
 def _across(c: torch.Tensor, x_jets: torch.Tensor) -> torch.Tensor:

@@ -13,7 +13,7 @@ import numpy as np
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.outline import Outline, PolygonEdge
-from taichi_ndf.problem.seams import EDGES, SeamSpec, segment_line
+from taichi_ndf.problem.seams import EDGES, SeamSpec, segment_path
 from taichi_ndf.problem.spline_grid import GRADED_SHARE, graded_towards
 from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, Material, OrthotropicStVK
@@ -185,12 +185,11 @@ class MultiPatchPlan:
             pair = []
             for patch, side in ((seam.a, seam.spec.a), (seam.b, seam.spec.b)):
                 bounds = self.patches[patch].model.surface.domain.bounds
-                start, end, _ = (v.tolist() for v in segment_line(side, bounds))
-                run = (end[0] - start[0], end[1] - start[1])
-                norm = math.hypot(*run)
-                ends.setdefault(patch, []).extend(
-                    ((tuple(start), (run[0] / norm, run[1] / norm)),
-                     (tuple(end), (run[0] / norm, run[1] / norm))))
+                points, runs, _ = (v.tolist() for v in segment_path(side, bounds, [0.0, 1.0]))
+                start, end = points
+                unit = [(r[0] / math.hypot(*r), r[1] / math.hypot(*r)) for r in runs]
+                ends.setdefault(patch, []).extend(((tuple(start), unit[0]),
+                                                   (tuple(end), unit[1])))
                 pair.append((patch, (tuple(start), tuple(end))))
             if seam.spec.orientation == "reversed":
                 pair[1] = (pair[1][0], pair[1][1][::-1])

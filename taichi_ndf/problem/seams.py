@@ -115,12 +115,14 @@ def check_seams(seams: Sequence[SeamSpec]) -> None:
             owner[side.edge] = seam.name
 
 
-def segment_line(side, bounds) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """A seam side as a straight segment of ξ: its start (2,), end (2,) and unit outward
-    normal n (2,) in ξ, float64. side: an `EdgeSegment` of the parameter rectangle `bounds`
-    (n = ±e_across) or a polygon panel's `PolygonEdge` (its own `line`)."""
+def segment_path(side, bounds, s) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A seam side as a path in ξ at fractions s (M,) of its length: the points (M, 2), dξ/ds
+    (M, 2) and the unit outward normals n (M, 2), float64. side: an `EdgeSegment` of the
+    parameter rectangle `bounds` (a straight segment, n = ±e_across) or a polygon panel's
+    `PolygonEdge` (its own `path`: a segment or an arc, at constant speed)."""
+    s = torch.as_tensor(s, dtype=torch.float64)
     if not isinstance(side, EdgeSegment):
-        return tuple(torch.as_tensor(v, dtype=torch.float64) for v in side.line())
+        return tuple(torch.as_tensor(v, dtype=torch.float64) for v in side.path(s.numpy()))
     across, along = side.across, 1 - side.across
     lo, hi = bounds[along]
     start, end = side.span if side.span is not None else (lo, hi)
@@ -128,6 +130,7 @@ def segment_line(side, bounds) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor
     ends = torch.empty(2, 2, dtype=torch.float64)
     ends[:, across] = at
     ends[:, along] = torch.tensor((start, end), dtype=torch.float64)
-    normal = torch.zeros(2, dtype=torch.float64)
-    normal[across] = side.outward
-    return ends[0], ends[1], normal
+    normal = torch.zeros(len(s), 2, dtype=torch.float64)
+    normal[:, across] = side.outward
+    run = (ends[1] - ends[0]).expand(len(s), 2).clone()
+    return ends[0] + s[:, None] * run, run, normal

@@ -1,8 +1,9 @@
 """Garment files (TOML): panels sewn together (docs/scenes.md, "Garments").
 
 A garment file is a scene file with `[[panels]]` instead of `[geometry]`: each panel a
-rectangle width × height [m] placed where it starts (flat, or wrapped around a cylinder), or a
-polygon `outline` [[x, y], …] [m] (its edges e0, e1, …; integrated over the outline only:
+rectangle width × height [m] placed where it starts (flat, or wrapped around a cylinder), or an
+`outline` [[x, y], …] [m] (its edges e0, e1, …; a point [x, y, bulge] makes the edge from it a
+circular arc, `taichi_ndf.problem.arcs`; integrated over the outline only:
 `taichi_ndf.discretise.trimmed`) placed flat or cut flat and wrapped by its start, with its
 own edges held and its own spline grid;
 `[[seams]]` join `panel.edge` to `panel.edge`; `[field] grading = "seam_corners"` grades
@@ -73,7 +74,12 @@ def _outline(t: Table, name: str):
         raise SceneError(f"{t.key('wrap_radius')}: panel {name!r}: an outline panel is flat "
                          "at rest: wrap it as its start (rest = \"flat\")")
     points = t._get("outline", None)
-    outline = checked(lambda: Outline(tuple(tuple(p) for p in points)),
+    if not isinstance(points, list) or not all(isinstance(p, list) and len(p) in (2, 3)
+                                               for p in points):
+        raise SceneError(f"{t.key('outline')}: panel {name!r}: expected points [[x, y], …] or "
+                         f"[x, y, bulge] (the edge from that point an arc), got {points!r}")
+    outline = checked(lambda: Outline(tuple(tuple(p[:2]) for p in points),
+                                      tuple(p[2] if len(p) == 3 else 0.0 for p in points)),
                       f"{t.key('outline')}: panel {name!r}")
     (x0, x1), (y0, y1) = outline.bounds
     return outline, *_surface(t, max(x1, 0.0) - min(x0, 0.0), y1 - y0,
