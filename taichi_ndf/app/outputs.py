@@ -21,6 +21,7 @@ from taichi_ndf.io.output_dir import OutputDir
 from taichi_ndf.io.run_files import QUANTITIES, up_direction
 from taichi_ndf.objective import ShellEnergyTerm
 from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.outline_mesh import conforming_mesh
 from taichi_ndf.problem.pseudo_time import conditioning
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.render import save_png, write_video
@@ -70,7 +71,9 @@ def exports_on_template(model: ShellModel) -> bool:
 
 def export_grid(model: ShellModel, resolution: tuple[int, int]):
     """Surface coordinates, faces and UVs to export a model on: the template mesh's own
-    vertices for a mesh surface, else a regular grid (faces outside a masked chart dropped)."""
+    vertices for a mesh surface, else a regular grid: a panel's (an `OutlinePlane`) cut to its
+    outline, curved edges included (`conforming_mesh`), another masked chart's faces with a
+    vertex outside dropped."""
     surface = model.surface
     if exports_on_template(model):
         uv = np.asarray(surface.uv, dtype=np.float64)
@@ -78,6 +81,9 @@ def export_grid(model: ShellModel, resolution: tuple[int, int]):
     domain = surface.domain
     grid = grid_mesh(domain.bounds, resolution, periodic=domain.periodic)
     xi, faces, uv = grid.xi, grid.faces, grid.uv
+    outline = getattr(surface, "outline", None)
+    if outline is not None and not any(domain.periodic):
+        return conforming_mesh(outline, grid)
     if domain.inside is not None:
         inside = domain.contains(torch.from_numpy(xi)).numpy()
         faces = faces[inside[faces].all(axis=1)]
