@@ -117,3 +117,49 @@ def test_unmasked_chart_unchanged():
     grid = grid_mesh(((0.0, 2.0), (0.0, 1.0)), (5, 3))
     assert np.array_equal(xi, grid.xi) and np.array_equal(faces, grid.faces)
     assert np.array_equal(uv, grid.uv)
+
+
+def _fractions_on(outline: Outline, i: int, xi: np.ndarray) -> np.ndarray:
+    """The fractions of edge e_i's arclength of the points of ξ (N, 2) that lie on it."""
+    arc = outline.arcs[i]
+    a, b = (np.asarray(p, float) for p in outline.edge_points(i))
+    if arc is None:
+        d = b - a
+        t = (xi - a) @ d / float(d @ d)
+        off = np.abs((xi[:, 0] - a[0]) * d[1] - (xi[:, 1] - a[1]) * d[0]) / np.hypot(*d)
+        return np.sort(t[(off < 1e-12) & (t > -1e-12) & (t < 1 + 1e-12)])
+    rel = xi - arc.centre
+    on = np.abs(np.hypot(rel[:, 0], rel[:, 1]) - arc.radius) < 1e-12
+    turn = np.mod(np.arctan2(rel[:, 1], rel[:, 0]) - arc.start_angle, 2 * math.pi)
+    if arc.angle < 0:
+        turn = np.where(turn > 1e-12, turn - 2 * math.pi, 0.0)
+    t = turn / arc.angle
+    return np.sort(t[on & (t > -1e-12) & (t < 1 + 1e-12)])
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_seam_sides_sampled_alike(reverse):
+    """A seam's two sides, on panels with different grids (a straight side to a straight one,
+    an arc cut in to an arc bulging out; lengths not checked here), get border vertices at the
+    same fractions of their arclength (s ↔ 1 − s where reversed): the seam's vertices coincide
+    after sewing. Before: each side had only its own grid's crossings."""
+    from taichi_ndf.problem.outline_mesh import conforming_mesh, seam_fractions
+
+    body = Outline(((0, 0), (0.4, 0), (0.4, 0.5), (0, 0.5)), (0, -0.3, 0, 0))
+    sleeve = Outline(((0, 0), (0.5, 0.05), (0.45, 0.6), (0.05, 0.5)), (0, 0.2, 0, 0))
+    grids = [grid_mesh(o.bounds, r) for o, r in ((body, (13, 17)), (sleeve, (19, 11)))]
+    cuts = [(g.xi[:g.cells[0] + 1, 0], g.xi[::g.cells[0] + 1, 1]) for g in grids]
+    seams = ((0, 1, 1, 1, reverse), (0, 3, 1, 3, reverse))
+    border = seam_fractions([body, sleeve], cuts, seams)
+    meshes = [conforming_mesh(o, g, b) for o, g, b in zip((body, sleeve), grids, border,
+                                                           strict=True)]
+    for edge in (1, 3):
+        t_a = _fractions_on(body, edge, meshes[0][0])
+        t_b = _fractions_on(sleeve, edge, meshes[1][0])
+        if reverse:
+            t_b = np.sort(1.0 - t_b)
+        assert len(t_a) == len(t_b) > 13
+        assert np.abs(t_a - t_b).max() < 1e-9
+    for (xi, faces, _), outline in zip(meshes, (body, sleeve), strict=True):
+        assert _areas(xi, faces).min() > 0
+        assert abs(_areas(xi, faces).sum() - outline.area) <= _chord_area(outline) + 1e-12

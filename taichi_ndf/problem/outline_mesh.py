@@ -197,6 +197,24 @@ def conforming_mesh(outline: Outline, grid, fractions: dict[int, np.ndarray] | N
     return xi[used], remap[faces], uv[used]
 
 
+def seam_fractions(outlines, cuts, seams) -> list[dict[int, list[float]]]:
+    """Per panel, the extra fractions of arclength per edge number (`border_points`) that
+    sample each seam's two sides at the same parameters: a side's own (`edge_fractions` at its
+    panel's grid lines) given to the other side too (s there, or 1 − s for a reversed seam),
+    so after sewing the seam's vertices coincide to its gap (and an output check welds them).
+    outlines: per panel its `Outline` (None: a panel without one); cuts: per panel its grid
+    lines (xs, ys); seams: (panel a, edge a, panel b, edge b, reversed) each."""
+    extra: list[dict[int, list[float]]] = [{} for _ in outlines]
+    for a, edge_a, b, edge_b, reverse in seams:
+        if outlines[a] is None or outlines[b] is None:
+            continue
+        own_a = edge_fractions(outlines[a], edge_a, cuts[a])
+        own_b = edge_fractions(outlines[b], edge_b, cuts[b])
+        extra[a].setdefault(edge_a, []).extend(1.0 - t if reverse else t for t in own_b)
+        extra[b].setdefault(edge_b, []).extend(1.0 - t if reverse else t for t in own_a)
+    return extra
+
+
 def chord_error(outline: Outline) -> float:
     """The largest sagitta [m] of the border polygon's chords of an arc (pieces of at most
     `CHECK_ANGLE`): how far the mesh's border may lie inside an outward arc."""
