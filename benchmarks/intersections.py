@@ -11,7 +11,7 @@ accepts: a seam closed to its tolerance is joined there, one open wider is not, 
 count; interior vertices are never merged above 1 µm), each panel's mesh_<panel>.obj (welded
 by the same rule: a seam between two edges of one panel, a sleeve's underarm),
 every trajectory frame (trajectory/step_*.obj), and with `--fine K` the run's checkpoint
-evaluated again at K × the output resolution (the same `deformed_mesh` that ndf-export
+evaluated again at K × the output resolution (the same `part_meshes` that ndf-export
 calls): a crossing at one resolution and not the other is the output mesh's linear
 interpolation cutting a corner, not the surface. The obstacles are the run's own
 obstacles/*.obj (each `Obstacle.triangles`), whose faces lie inside a curved obstacle by up
@@ -159,12 +159,12 @@ def check_run(name: str, run: Path, fine: int, seam_tolerance: float = SEAM_TOLE
             read_mesh(frames[0]).vertices) else None
         rows.append(_frames_row(name, frames, obstacles, frame_rest, config))
     if fine > 1 and checkpoint is not None:  # (a dynamic run's checkpoint is not a field's)
-        from taichi_ndf.app.outputs import deformed_mesh
+        from taichi_ndf.app.panels import part_meshes
         from taichi_ndf.discretise import of_scene
 
         res = (fine * cells[0], fine * cells[1])
         parts = of_scene(scene).result_parts(checkpoint.field)
-        meshes = [deformed_mesh(p.model, p.field, res) for p in parts]
+        meshes = part_meshes(parts, res)
         offsets = np.cumsum([0] + [len(m.deformed) for m in meshes])
         vertices = np.concatenate([m.deformed for m in meshes])
         reference = np.concatenate([m.reference for m in meshes])

@@ -17,7 +17,8 @@ from taichi_ndf.discretise import of_scene
 from taichi_ndf.discretise.trimmed import TrimmedGrid, trimmed_points, unsupported
 from taichi_ndf.field import SplineField
 from taichi_ndf.field.spline import SplineConfig
-from taichi_ndf.problem.outline import Outline, OutlinePlane, ear_clip
+from taichi_ndf.problem.outline import Outline, OutlinePlane
+from taichi_ndf.problem.polygon import ear_clip
 from taichi_ndf.problem.quadrature import span_points
 from taichi_ndf.scene.reader import parse_scene
 from taichi_ndf.scene.schema import SceneError

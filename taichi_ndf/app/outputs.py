@@ -21,6 +21,7 @@ from taichi_ndf.io.output_dir import OutputDir
 from taichi_ndf.io.run_files import QUANTITIES, up_direction
 from taichi_ndf.objective import ShellEnergyTerm
 from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.outline_mesh import conforming_mesh
 from taichi_ndf.problem.pseudo_time import conditioning
 from taichi_ndf.problem.sampling import SurfaceSamples
 from taichi_ndf.render import save_png, write_video
@@ -68,9 +69,12 @@ def exports_on_template(model: ShellModel) -> bool:
     return hasattr(model.surface, "uv") and hasattr(model.surface, "faces")
 
 
-def export_grid(model: ShellModel, resolution: tuple[int, int]):
+def export_grid(model: ShellModel, resolution: tuple[int, int], border=None):
     """Surface coordinates, faces and UVs to export a model on: the template mesh's own
-    vertices for a mesh surface, else a regular grid (faces outside a masked chart dropped)."""
+    vertices for a mesh surface, else a regular grid: a panel's (an `OutlinePlane`) cut to its
+    outline, curved edges included (`conforming_mesh`), another masked chart's faces with a
+    vertex outside dropped. border: a panel's extra border points, fractions of arclength per
+    edge number (`problem.outline_mesh.seam_fractions`)."""
     surface = model.surface
     if exports_on_template(model):
         uv = np.asarray(surface.uv, dtype=np.float64)
@@ -78,6 +82,9 @@ def export_grid(model: ShellModel, resolution: tuple[int, int]):
     domain = surface.domain
     grid = grid_mesh(domain.bounds, resolution, periodic=domain.periodic)
     xi, faces, uv = grid.xi, grid.faces, grid.uv
+    outline = getattr(surface, "outline", None)
+    if outline is not None and not any(domain.periodic):
+        return conforming_mesh(outline, grid, border)
     if domain.inside is not None:
         inside = domain.contains(torch.from_numpy(xi)).numpy()
         faces = faces[inside[faces].all(axis=1)]
@@ -98,10 +105,12 @@ def _strain_norm(strain: torch.Tensor, r_jets: torch.Tensor) -> torch.Tensor:
 
 
 def deformed_mesh(model: ShellModel, field, resolution: tuple[int, int] = (64, 64), *,
-                  load_factor: float = 1.0, pseudo_time: bool = False) -> DeformedMesh:
-    """Evaluate the field (boundary conditions applied) on the export grid at a load factor;
-    with `pseudo_time` the field's pseudo-time input is that load factor too."""
-    xi_np, faces, uv = export_grid(model, resolution)
+                  load_factor: float = 1.0, pseudo_time: bool = False, border=None
+                  ) -> DeformedMesh:
+    """Evaluate the field (boundary conditions applied) on the export grid at a load factor
+    (`export_grid`, with a panel's extra `border` points); with `pseudo_time` the field's
+    pseudo-time input is that load factor too."""
+    xi_np, faces, uv = export_grid(model, resolution, border)
     dtype = field.parameters[0].dtype
     energy = ShellEnergyTerm(model.material, model.loads)
     parts = {k: [] for k in ("r", "u", "eps", "kappa", "psi")}

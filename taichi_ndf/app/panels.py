@@ -11,7 +11,9 @@ import torch
 
 from taichi_ndf import jets
 from taichi_ndf.app.outputs import DeformedMesh, deformed_mesh, write_mesh_files
-from taichi_ndf.io import OutputDir, write_obj, write_ply
+from taichi_ndf.discretise.protocol import ResultPart
+from taichi_ndf.io import OutputDir, grid_mesh, write_obj, write_ply
+from taichi_ndf.problem.outline_mesh import seam_fractions
 from taichi_ndf.render.figure import Obstacle, render_figure
 from taichi_ndf.render.image_file import save_png
 from taichi_ndf.render.legend import Legend
@@ -19,16 +21,24 @@ from taichi_ndf.render.legend import Legend
 
 def part_meshes(parts, resolution: tuple[int, int], load_factor: float = 1.0
                 ) -> list[DeformedMesh]:
-    """Each part's (`ResultPart`: model and field) deformed mesh on the export grid."""
-    return [deformed_mesh(p.model, p.field, resolution, load_factor=load_factor)
-            for p in parts]
+    """Each part's (`ResultPart`: model and field) deformed mesh on the export grid, the two
+    sides of each seam between outline edges sampled at the same fractions of their arclength
+    (`seam_fractions`: its vertices coincide to the seam's gap)."""
+    grids = [grid_mesh(p.model.surface.domain.bounds, resolution) for p in parts]
+    cuts = [(g.xi[:g.cells[0] + 1, 0], g.xi[::g.cells[0] + 1, 1]) for g in grids]
+    border = seam_fractions([getattr(p.model.surface, "outline", None) for p in parts], cuts,
+                            parts[0].seams if parts else ())
+    return [deformed_mesh(p.model, p.field, resolution, load_factor=load_factor, border=b)
+            for p, b in zip(parts, border, strict=True)]
 
 
 def panel_meshes(plan, field, resolution: tuple[int, int], load_factor: float = 1.0
                  ) -> list[DeformedMesh]:
-    """Each panel's deformed mesh on the export grid (`deformed_mesh` of its model)."""
-    return [deformed_mesh(patch.model, f, resolution, load_factor=load_factor)
-            for patch, f in zip(plan.patches, field.fields, strict=True)]
+    """Each panel's deformed mesh on the export grid (`part_meshes` of the plan's patches)."""
+    seams = plan.outline_seams()
+    return part_meshes([ResultPart(patch.name, patch.model, f, seams)
+                        for patch, f in zip(plan.patches, field.fields, strict=True)],
+                       resolution, load_factor)
 
 
 def combined(meshes: list[DeformedMesh]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -391,6 +391,8 @@ class MultiPatchDiscretisation:
         return HeldEdges(grids, load_factor, self.spec.patches)
 
     def result_parts(self, field: PanelFields) -> tuple[ResultPart, ...]:
-        """One part per panel, named by it, in the plan's order."""
-        return tuple(ResultPart(p.name, p.model, f)
+        """One part per panel, named by it, in the plan's order, with the seams between
+        outline edges (`MultiPatchPlan.outline_seams`)."""
+        seams = self.spec.outline_seams()
+        return tuple(ResultPart(p.name, p.model, f, seams)
                      for p, f in zip(self.spec.patches, field.fields, strict=True))

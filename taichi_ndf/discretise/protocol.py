@@ -41,11 +41,14 @@ class ResultPart:
     """One surface of a run's result: a model (its reference surface, boundary conditions and
     probes) with the field solved on it, whose deformed mesh the run writes.
     name: "" for a run's one surface (mesh.obj); a panel's name for one of several
-    (mesh_<name>.obj, probes named "<name>.<probe>")."""
+    (mesh_<name>.obj, probes named "<name>.<probe>"). seams: the seams between the parts'
+    outline edges, (part a, edge number a, part b, edge number b, reversed) each, whose two
+    sides the output meshes sample alike (`problem.outline_mesh.seam_fractions`)."""
 
     name: str
     model: Any
     field: Any
+    seams: tuple[tuple[int, int, int, int, bool], ...] = ()
 
 
 @dataclass

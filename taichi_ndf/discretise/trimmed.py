@@ -62,7 +62,8 @@ from taichi_ndf.geometry import MeshSurface
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.problem.arcs import fan_weights
 from taichi_ndf.problem.loads import Loads
-from taichi_ndf.problem.outline import Outline, clip_to_box, cross, ear_clip, polygon_area
+from taichi_ndf.problem.outline import Outline
+from taichi_ndf.problem.polygon import clip_to_box, cross, ear_clip, polygon_area
 from taichi_ndf.problem.quadrature import gauss_legendre, span_points
 from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.shell.hessian import COMPONENTS

@@ -225,6 +225,15 @@ class MultiPatchPlan:
                 "seams": [{"name": s.spec.name, "a": self.side_name(s.a, s.spec.a),
                            "b": self.side_name(s.b, s.spec.b)} for s in self.seams]}
 
+    def outline_seams(self) -> tuple[tuple[int, int, int, int, bool], ...]:
+        """The seams between two outline edges as (patch a, edge number a, patch b, edge
+        number b, reversed) (what the output meshes sample alike: `ResultPart.seams`)."""
+        return tuple((s.a, self.patches[s.a].outline.index(s.spec.a.edge.rpartition(".")[2]),
+                      s.b, self.patches[s.b].outline.index(s.spec.b.edge.rpartition(".")[2]),
+                      s.spec.orientation == "reversed")
+                     for s in self.seams
+                     if isinstance(s.spec.a, PolygonEdge) and isinstance(s.spec.b, PolygonEdge))
+
     def side_name(self, patch: int, side) -> str:
         """A seam side's "panel.edge" (a polygon edge's name holds its panel's already)."""
         if isinstance(side, PolygonEdge):
