@@ -102,7 +102,7 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     gravity = np.array([0.0, G, 0.0])
     material = LinearIsotropic(D, bending, NU, RHO)
     model = hanging_model((SIZE, SIZE), material, corners, hanging_across(corners, gravity),
-                          gravity)
+                          gravity, grip=args.grip)
     model = dataclasses.replace(model, boundary=moved_boundary(model.boundary,
                                                                np.zeros((2, 3))))
     plan = SplinePlan(SplineConfig(spans=(args.truth_spans,) * 2, degree=3,
@@ -172,7 +172,7 @@ def part_synthetic(args) -> None:
         if args.truth_cache is not None:
             settings = str({k: getattr(args, k) for k in (
                 "bending_length", "duration", "fps", "truth_spans", "truth_substeps",
-                "truth_integrator")})
+                "truth_integrator", "grip")})
             np.savez(args.truth_cache, clean=clean, faces=faces, held=np.array(held),
                      settings=settings)
     print(f"truth: {len(clean)} frames at {args.fps} fps, B = {b_true:.4e} N·m "
@@ -188,6 +188,7 @@ def part_synthetic(args) -> None:
                          grid_check=not args.no_grid_check, substeps=args.substeps,
                          integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
                          areal_density=RHO, size=(SIZE, SIZE), start=args.start_state,
+                         grip=args.grip,
                          corners=args.corners, corner_spans=args.corner_spans or None)
     corners = ((lambda t: true_corners(t, args.duration)) if args.true_corners else None)
     print(f"start: {args.start_state}; corners: "
@@ -328,6 +329,9 @@ def main() -> None:
                    help="the fitted corners' B-spline spans over the sequence (0: per frame)")
     p.add_argument("--true-corners", action="store_true",
                    help="synthetic: the held corners on their true paths, not the smoothed data")
+    p.add_argument("--grip", type=float, default=0.0,
+                   help="synthetic: each corner held over a patch of this radius [m] (truth "
+                        "and fit; 0: at its point)")
     p.add_argument("--truth-cache", type=Path, default=None,
                    help="synthetic: an .npz to read the truth from (written when missing)")
     p.add_argument("--run", type=Path, default=None)

@@ -98,7 +98,9 @@ class SwingConfig:
     the grid by one Gauss–Newton step on a finer one (`fit_swing`); degree 3 or 4;
     substeps ≥ 1 time steps per frame; integrator "implicit_euler" or "newmark";
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
-    [kg/m²] (stated); band: the handles' band (fraction of the domain); stride ≥ 1: every
+    [kg/m²] (stated); band: the handles' band (fraction of the domain); grip ≥ 0 [m]: each
+    corner held at its point (0) or over a patch of that radius (`hanging.hanging_model`);
+    stride ≥ 1: every
     stride-th vertex per grid direction observed; size: the flat sheet (W, H) [m] or None
     (frame 0's grid-line lengths); start: "rest" or "data"; corners: "smoothed" or "fitted",
     corner_spans ≥ 1 or None (one per frame interval): the fitted corners' B-spline (module
@@ -116,6 +118,7 @@ class SwingConfig:
     poisson_ratio: float = 0.25
     areal_density: float = 0.197
     band: float = 0.1
+    grip: float = 0.0
     stride: int = 1
     size: tuple[float, float] | None = None
     start: str = "rest"
@@ -149,6 +152,8 @@ class SwingConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(self.grip) and self.grip >= 0):
+            raise ValueError(f"grip must be finite and >= 0 [m], got {self.grip!r}")
         if not (math.isfinite(self.mass_damping) and self.mass_damping >= 0):
             raise ValueError(f"mass_damping must be finite and >= 0, got {self.mass_damping!r}")
         if not -1 < self.poisson_ratio < 0.5:
@@ -257,7 +262,8 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     material = LinearIsotropic(config.membrane_stiffness, 1.0, config.poisson_ratio,
                                config.areal_density)
     across = hanging_across(reference, gravity)
-    model = hanging_model(grid.size, material, reference, across, gravity, band=config.band)
+    model = hanging_model(grid.size, material, reference, across, gravity, band=config.band,
+                          grip=config.grip)
     model = dataclasses.replace(model, boundary=moved_boundary(model.boundary,
                                                                np.zeros((2, 3))))
     dt = frame_interval / config.substeps

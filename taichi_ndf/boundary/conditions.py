@@ -345,9 +345,10 @@ class BoundaryConditions:
             delta = self._wrap(eta - p)
             d1 = vanishing.affine(delta[:, 0], scale[0], 0.0)
             d2 = vanishing.affine(delta[:, 1], 0.0, scale[1])
-            return vanishing.quadratic_vanishing(
-                (vanishing.square(d1) + vanishing.square(d2)) / ell**2
-            )
+            level = vanishing.square(d1) + vanishing.square(d2)
+            if term.radius > 0:  # a held patch: the squared distance to its rim, 0 inside
+                level = vanishing.beyond(vanishing.sqrt(level), term.radius)
+            return vanishing.quadratic_vanishing(level / ell**2)
         if isinstance(con, InteriorLine):
             a, b = to_eta(self.domain, con.start), to_eta(self.domain, con.end)
             if con.extend:
