@@ -356,7 +356,9 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
     estimate (each level's grid never coarser than the one before); with `grid_check`, then
     one Gauss–Newton step from θ̂ on spans × GROWTH: where it moves θ̂ by more than its s.e.
     the grid does not yet hold the answer, and the fit goes on there (warm-started at the
-    step's value). Given spans: one fit."""
+    step's value). Fitted corners: every refit and the check start from the last fit's
+    corner paths q̂ (the check's step then measures the grid, not the corners' start).
+    Given spans: one fit."""
     size = config.size or SheetGrid.from_template(np.asarray(vertices[0], dtype=np.float64),
                                                   faces, held).size
     g = float(np.linalg.norm(gravity))
@@ -366,16 +368,20 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
         c = bending_length(value, config.areal_density, g)
         return resolving_spans(size, c, config.span_ratio, limit or 10**9)
 
-    def run(spans: tuple[int, int], theta: float, fit_with: TrajectoryFitConfig):
+    def run(spans: tuple[int, int], theta: float, fit_with: TrajectoryFitConfig,
+            path: np.ndarray | None):
         problem = swing_problem(vertices, faces, held, frame_interval, gravity,
                                 dataclasses.replace(config, spans=spans), newton=newton,
                                 corners=corners)
+        # fitted corners: the last grid's q̂ (the corners' spline does not depend on the grid)
+        path = problem.path_start if path is None or problem.path_start is None else path
         return problem, fit_trajectory(problem.stepper_at, problem.data, theta, fit_with,
-                                       initial=problem.start, path_start=problem.path_start)
+                                       initial=problem.start, path_start=path)
 
-    spans, theta, levels = config.spans or needed(start), float(start), []
+    spans, theta, levels, path = config.spans or needed(start), float(start), [], None
     while True:
-        problem, fit = run(spans, theta, fit_config)
+        problem, fit = run(spans, theta, fit_config, path)
+        path = fit.path_values
         levels.append((spans, fit.value, fit.standard_error, fit.iterations, "fit"))
         log.info("swing fit on %s spans: B = %.4e ± %.2e N·m, %d iterations", spans,
                  fit.value, fit.standard_error, fit.iterations)
@@ -389,10 +395,11 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
         check = tuple(min(config.max_spans, math.ceil(GROWTH * s)) for s in spans)
         if not config.grid_check or not resolved or check == spans:
             return SwingFit(problem, fit, levels, resolved and not config.grid_check)
-        _, step = run(check, fit.value, dataclasses.replace(fit_config, max_iterations=1))
+        _, step = run(check, fit.value, dataclasses.replace(fit_config, max_iterations=1),
+                      path)
         change = abs(step.value - fit.value) / fit.standard_error
         levels.append((check, step.value, step.standard_error, 1, "check"))
         log.info("swing fit: one step on %s spans moves B by %.2f s.e.", check, change)
         if change <= 1.0:
             return SwingFit(problem, fit, levels, True, change)
-        spans, theta = check, step.value
+        spans, theta, path = check, step.value, step.path_values
