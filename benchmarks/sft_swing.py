@@ -114,11 +114,13 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     settled = record(settle)[-1].displacement
     # the rest problem is symmetric about the corners' plane: which way the sheet buckles is
     # round-off's choice (24² spans went +z, 12²–20² −z); the truth takes −z (to the camera) on
-    # every grid: the mirror image (z coefficients negated) is an equilibrium as well
-    middle = torch.tensor([[SIZE / 2, 0.0]], dtype=torch.float64)
-    if float(observe(settle, middle, settled)[0, 2]) > 0:
-        settled = settled * torch.tensor([1.0, 1.0, -1.0], dtype=settled.dtype)
+    # every grid: the mirror image (z coefficients negated) is an equilibrium as well. Checked
+    # on the equilibrium itself (Newton from the settled state may cross to the other side:
+    # the 12² grip did)
     rest = rest_start(settle, settled, "bending_stiffness").displacement  # in equilibrium
+    middle = torch.tensor([[SIZE / 2, 0.0]], dtype=torch.float64)
+    if float(observe(settle, middle, rest)[0, 2]) > 0:
+        rest = rest * torch.tensor([1.0, 1.0, -1.0], dtype=rest.dtype)
     frames = int(round(args.duration * args.fps)) + 1
     dt = 1.0 / args.fps / args.truth_substeps
     steps = (frames - 1) * args.truth_substeps
