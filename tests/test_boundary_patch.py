@@ -1,6 +1,8 @@
 """A handle that holds a patch (`Handle.radius`): the whole disc moves with the handle, its
 slope held; the band starts at the rim; the composed jets are the field's derivatives."""
 
+from pathlib import Path
+
 import pytest
 import torch
 from test_boundary import autograd_jets, random_jets, smooth_raw
@@ -75,3 +77,23 @@ def test_patches_that_do_not_fit_are_refused(constraints, message):
 def test_a_bad_radius_is_refused(radius):
     with pytest.raises(ValueError, match="radius"):
         Handle((0.0, 0.0), (0.1, 0, 0), radius=radius)
+
+
+
+def test_a_scenes_handle_reads_its_radius(tmp_path):
+    from taichi_ndf.scene.reader import load_scene
+    from taichi_ndf.scene.schema import SceneError
+
+    scene = Path(__file__).resolve().parents[1] / "scenes" / "napkin_handles.toml"
+    handles = [c for c in load_scene(scene).model.boundary.constraints
+               if isinstance(c, Handle)]
+    assert [h.radius for h in handles] == [0.0, 0.0]
+    text = scene.read_text().replace('type = "handle"', 'type = "handle"\nradius = 0.03')
+    patched = tmp_path / "napkin_grips.toml"
+    patched.write_text(text)
+    handles = [c for c in load_scene(patched).model.boundary.constraints
+               if isinstance(c, Handle)]
+    assert [h.radius for h in handles] == [0.03, 0.03]
+    patched.write_text(text.replace("radius = 0.03", "radius = -0.03", 1))
+    with pytest.raises(SceneError, match="radius"):
+        load_scene(patched)
