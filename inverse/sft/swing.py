@@ -16,10 +16,9 @@ vertices (e.g. `ndf-sft`'s meshes, camera coordinates), the frame interval Δt [
   B-spline in time (`corner_spans` uniform spans over the sequence, clamped; None: one per
   frame interval), started at the least-squares fit to those smoothed tracks
   (`trajectory_fit`: the paths' columns of the tangent; the s.e. of B then the marginal one,
-  carrying the corners' uncertainty). Measured on the synthetic swing on the truth's own
-  grid (16², 2 mm noise, seeds 0/1): smoothed corners −27 / −19 % (z 34 / 32); fitted
-  (6 spans) +2.1 / +3.0 % (z 1.4 / 1.9), the corners 0.4 / 0.2 mm rms from the truth's
-  against 1.7 mm smoothed (benchmarks/RESULTS.md, "the corner paths as unknowns");
+  carrying the corners' uncertainty). Measured on the synthetic swing, the truth's own grid
+  (16², 2 mm noise, seeds 0/1): smoothed −27 / −19 % (z 34 / 32), fitted (6 spans) +2.1 /
+  +3.0 % (z 1.4 / 1.9) (benchmarks/RESULTS.md, "the corner paths as unknowns");
 - the start (`SwingConfig.start`): "rest" (default) — the sheet at rest in the static
   equilibrium under gravity with its corners at frame 0's (`dynamics_adjoint.rest_start`:
   Newton from the spline field's least-squares fit to frame 0, so the equilibrium whose basin
@@ -100,11 +99,10 @@ class SwingConfig:
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
     [kg/m²] (stated); band: the handles' band (fraction of the domain); grip ≥ 0 [m]: each
     corner held at its point (0) or over a patch of that radius (`hanging.hanging_model`);
-    stride ≥ 1: every
-    stride-th vertex per grid direction observed; size: the flat sheet (W, H) [m] or None
-    (frame 0's grid-line lengths); start: "rest" or "data"; corners: "smoothed" or "fitted",
-    corner_spans ≥ 1 or None (one per frame interval): the fitted corners' B-spline (module
-    docstring)."""
+    stride ≥ 1: every stride-th vertex per grid direction observed; size: the flat sheet
+    (W, H) [m] or None (frame 0's grid-line lengths); start: "rest" or "data"; corners:
+    "smoothed" or "fitted", corner_spans ≥ 1 or None (one per frame interval): the fitted
+    corners' B-spline (module docstring)."""
 
     spans: tuple[int, int] | None = None
     span_ratio: float = SPAN_RATIO
@@ -152,10 +150,9 @@ class SwingConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-        if not (math.isfinite(self.grip) and self.grip >= 0):
-            raise ValueError(f"grip must be finite and >= 0 [m], got {self.grip!r}")
-        if not (math.isfinite(self.mass_damping) and self.mass_damping >= 0):
-            raise ValueError(f"mass_damping must be finite and >= 0, got {self.mass_damping!r}")
+        for name in ("mass_damping", "grip"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not -1 < self.poisson_ratio < 0.5:
             raise ValueError(f"poisson_ratio must be in (-1, 0.5), got {self.poisson_ratio!r}")
         if int(self.stride) != self.stride or self.stride < 1:
@@ -309,7 +306,6 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
                         vertices[0][pick], speed, path_start)
 
 
-
 def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:
     """ġ(0) (P, 3) [m/s] at ξ: the path's first slope blended as the handles' displacement."""
     boundary = moved_boundary(stepper.model.boundary, stepper.path.initial_velocity())
@@ -373,7 +369,6 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
         problem = swing_problem(vertices, faces, held, frame_interval, gravity,
                                 dataclasses.replace(config, spans=spans), newton=newton,
                                 corners=corners)
-        # fitted corners: the last grid's q̂ (the corners' spline does not depend on the grid)
         path = problem.path_start if path is None or problem.path_start is None else path
         return problem, fit_trajectory(problem.stepper_at, problem.data, theta, fit_with,
                                        initial=problem.start, path_start=path)
