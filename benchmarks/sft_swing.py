@@ -6,12 +6,13 @@ Synthetic (`--part synthetic`): a W × H = 0.55 × 0.55 m sheet (ρ_A 0.197 kg/m
 front of it (gravity (0, 9.81, 0), OpenCV axes), held at its top corners by handles that move
 from rest over `--duration` s: corner a by (1, 0, −4) cm × s(t), corner b by (−1, 1, 3) cm ×
 s(t), s(t) = ½ (1 − cos(2π t / duration)) (each corner out and back, opposite in depth: a
-swing and a twist). The truth is the project's dynamics (`PathStepper`, Newmark,
-`--truth-spans`, `--truth-substeps` steps per frame, cubic splines) from its rest state: the
-static equilibrium of the held sheet (`dynamics_adjoint.rest_start`, Newton from 40 damped
-implicit-Euler steps of 0.05 s at α = 30 /s from the flat sheet: the planar hanging state is a
-saddle — held at two points the sheet buckles out of its plane — so the rest state is bent
-and depends on B); observed: a 17 × 17 vertex grid at `--fps` frames
+swing and a twist); each corner held at its point, or with `--grip` r over a patch of radius
+r (truth and fit). The truth is the project's dynamics (`PathStepper`, Newmark,
+`--truth-spans`, `--truth-substeps` steps per frame, splines of `--truth-degree`) from its
+rest state: the static equilibrium of the held sheet (`dynamics_adjoint.rest_start`, Newton
+from 40 damped implicit-Euler steps of 0.05 s at α = 30 /s from the flat sheet: the planar
+hanging state is a saddle — held at two points the sheet buckles out of its plane — so the
+rest state is bent and depends on B); observed: a 17 × 17 vertex grid at `--fps` frames
 per second, plus Gaussian noise σ = `--noise` [m] per coordinate and seed. The fit
 (`swing_problem` + `fit_trajectory`): corners from the noisy corner vertices (smoothed; with
 `--corners fitted` unknowns of the fit, a B-spline of `--corner-spans` spans), start
@@ -102,10 +103,10 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     gravity = np.array([0.0, G, 0.0])
     material = LinearIsotropic(D, bending, NU, RHO)
     model = hanging_model((SIZE, SIZE), material, corners, hanging_across(corners, gravity),
-                          gravity)
+                          gravity, grip=args.grip)
     model = dataclasses.replace(model, boundary=moved_boundary(model.boundary,
                                                                np.zeros((2, 3))))
-    plan = SplinePlan(SplineConfig(spans=(args.truth_spans,) * 2, degree=3,
+    plan = SplinePlan(SplineConfig(spans=(args.truth_spans,) * 2, degree=args.truth_degree,
                                    domain=((0.0, SIZE), (0.0, SIZE))))
     still = HandlePath((0.0, 1.0), np.zeros((2, 2, 3)))
     settle = PathStepper(model, plan, DynamicsConfig(dt=0.05, duration=2.0,
@@ -114,11 +115,13 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     settled = record(settle)[-1].displacement
     # the rest problem is symmetric about the corners' plane: which way the sheet buckles is
     # round-off's choice (24² spans went +z, 12²–20² −z); the truth takes −z (to the camera) on
-    # every grid: the mirror image (z coefficients negated) is an equilibrium as well
-    middle = torch.tensor([[SIZE / 2, 0.0]], dtype=torch.float64)
-    if float(observe(settle, middle, settled)[0, 2]) > 0:
-        settled = settled * torch.tensor([1.0, 1.0, -1.0], dtype=settled.dtype)
+    # every grid: the mirror image (z coefficients negated) is an equilibrium as well. Checked
+    # on the equilibrium itself (Newton from the settled state may cross to the other side:
+    # the 12² grip did)
     rest = rest_start(settle, settled, "bending_stiffness").displacement  # in equilibrium
+    middle = torch.tensor([[SIZE / 2, 0.0]], dtype=torch.float64)
+    if float(observe(settle, middle, rest)[0, 2]) > 0:
+        rest = rest * torch.tensor([1.0, 1.0, -1.0], dtype=rest.dtype)
     frames = int(round(args.duration * args.fps)) + 1
     dt = 1.0 / args.fps / args.truth_substeps
     steps = (frames - 1) * args.truth_substeps
@@ -172,7 +175,7 @@ def part_synthetic(args) -> None:
         if args.truth_cache is not None:
             settings = str({k: getattr(args, k) for k in (
                 "bending_length", "duration", "fps", "truth_spans", "truth_substeps",
-                "truth_integrator")})
+                "truth_integrator", "grip", "truth_degree")})
             np.savez(args.truth_cache, clean=clean, faces=faces, held=np.array(held),
                      settings=settings)
     print(f"truth: {len(clean)} frames at {args.fps} fps, B = {b_true:.4e} N·m "
@@ -188,6 +191,7 @@ def part_synthetic(args) -> None:
                          grid_check=not args.no_grid_check, substeps=args.substeps,
                          integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
                          areal_density=RHO, size=(SIZE, SIZE), start=args.start_state,
+                         grip=args.grip, degree=args.degree,
                          corners=args.corners, corner_spans=args.corner_spans or None)
     corners = ((lambda t: true_corners(t, args.duration)) if args.true_corners else None)
     print(f"start: {args.start_state}; corners: "
@@ -306,6 +310,10 @@ def main() -> None:
     p.add_argument("--truth-spans", type=int, default=12)
     p.add_argument("--truth-substeps", type=int, default=4)
     p.add_argument("--truth-integrator", default="newmark")
+    p.add_argument("--truth-degree", type=int, choices=(3, 4), default=3,
+                   help="synthetic: the truth's spline degree")
+    p.add_argument("--degree", type=int, choices=(3, 4), default=3,
+                   help="synthetic: the fit's spline degree")
     p.add_argument("--spans", type=int, default=0,
                    help="synthetic: the fit's spans per direction; 0: from the estimate's "
                         "bending length (SwingConfig.spans None, `fit_swing`)")
@@ -328,6 +336,9 @@ def main() -> None:
                    help="the fitted corners' B-spline spans over the sequence (0: per frame)")
     p.add_argument("--true-corners", action="store_true",
                    help="synthetic: the held corners on their true paths, not the smoothed data")
+    p.add_argument("--grip", type=float, default=0.0,
+                   help="synthetic: each corner held over a patch of this radius [m] (truth "
+                        "and fit; 0: at its point)")
     p.add_argument("--truth-cache", type=Path, default=None,
                    help="synthetic: an .npz to read the truth from (written when missing)")
     p.add_argument("--run", type=Path, default=None)

@@ -212,3 +212,34 @@ def test_the_grid_follows_the_estimate_and_is_checked_on_a_finer_one(monkeypatch
     unchecked = fit_swing(vertices, faces, (0, N - 1), DT, gravity,
                           dataclasses.replace(config, grid_check=True, max_spans=5), start)
     assert [lv[0] for lv in unchecked.levels] == [(3, 3), (5, 5)] and not unchecked.resolved
+
+
+def test_with_fitted_corners_the_refits_and_the_check_start_from_the_last_corners(monkeypatch):
+    # the corners' spline does not depend on the grid: a refit and the check's one step start
+    # from the last fit's q̂, so the check measures the grid, not the corners' start (before,
+    # every level restarted from the smoothed tracks' q₀)
+    vertices, faces = rigid_sequence()
+    gravity, g = np.array([0.0, 9.81, 0.0]), 9.81
+    rho = SwingConfig().areal_density
+    b_on = {(3, 3): rho * g * (0.11 / 2.5) ** 3}  # c asks for 3 spans at span_ratio 5
+    b_on[4, 4] = 1.05 * b_on[3, 3]  # the check on 4² moves B by 5 s.e.: a fit there
+    b_on[5, 5] = 1.001 * b_on[4, 4]
+    starts = []
+
+    def fit_on_grid(stepper_at, data, start, config, *, initial, path_start=None):
+        spans = tuple(stepper_at(1e-5).field.config.spans)
+        starts.append((spans, None if path_start is None else path_start.copy()))
+        return dataclasses.replace(FAKE, value=b_on[spans], standard_error=0.01 * b_on[spans],
+                                   path_values=np.full_like(path_start, spans[0]))
+
+    monkeypatch.setattr(swing, "fit_trajectory", fit_on_grid)
+    config = SwingConfig(size=(SIZE, SIZE), span_ratio=5.0, corners="fitted", corner_spans=2,
+                         max_spans=5)
+    start = rho * g * (0.11 / 2.5) ** 3
+    result = fit_swing(vertices, faces, (0, N - 1), DT, gravity, config, start)
+    assert [(lv[0], lv[4]) for lv in result.levels] == [
+        ((3, 3), "fit"), ((4, 4), "check"), ((4, 4), "fit"), ((5, 5), "check")]
+    first = starts[0][1]
+    assert first is not None and not np.all(first == 3.0)  # the smoothed tracks' q₀
+    assert [np.all(q == value) for (_, q), value in zip(starts[1:], (3.0, 4.0, 4.0),
+                                                          strict=True)] == [True] * 3

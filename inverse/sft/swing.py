@@ -16,10 +16,9 @@ vertices (e.g. `ndf-sft`'s meshes, camera coordinates), the frame interval Δt [
   B-spline in time (`corner_spans` uniform spans over the sequence, clamped; None: one per
   frame interval), started at the least-squares fit to those smoothed tracks
   (`trajectory_fit`: the paths' columns of the tangent; the s.e. of B then the marginal one,
-  carrying the corners' uncertainty). Measured on the synthetic swing on the truth's own
-  grid (16², 2 mm noise, seeds 0/1): smoothed corners −27 / −19 % (z 34 / 32); fitted
-  (6 spans) +2.1 / +3.0 % (z 1.4 / 1.9), the corners 0.4 / 0.2 mm rms from the truth's
-  against 1.7 mm smoothed (benchmarks/RESULTS.md, "the corner paths as unknowns");
+  carrying the corners' uncertainty). Measured on the synthetic swing, the truth's own grid
+  (16², 2 mm noise, seeds 0/1): smoothed −27 / −19 % (z 34 / 32), fitted (6 spans) +2.1 /
+  +3.0 % (z 1.4 / 1.9) (benchmarks/RESULTS.md, "the corner paths as unknowns");
 - the start (`SwingConfig.start`): "rest" (default) — the sheet at rest in the static
   equilibrium under gravity with its corners at frame 0's (`dynamics_adjoint.rest_start`:
   Newton from the spline field's least-squares fit to frame 0, so the equilibrium whose basin
@@ -98,11 +97,12 @@ class SwingConfig:
     the grid by one Gauss–Newton step on a finer one (`fit_swing`); degree 3 or 4;
     substeps ≥ 1 time steps per frame; integrator "implicit_euler" or "newmark";
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
-    [kg/m²] (stated); band: the handles' band (fraction of the domain); stride ≥ 1: every
-    stride-th vertex per grid direction observed; size: the flat sheet (W, H) [m] or None
-    (frame 0's grid-line lengths); start: "rest" or "data"; corners: "smoothed" or "fitted",
-    corner_spans ≥ 1 or None (one per frame interval): the fitted corners' B-spline (module
-    docstring)."""
+    [kg/m²] (stated); band: the handles' band (fraction of the domain); grip ≥ 0 [m]: each
+    corner held at its point (0) or over a patch of that radius (`hanging.hanging_model`);
+    stride ≥ 1: every stride-th vertex per grid direction observed; size: the flat sheet
+    (W, H) [m] or None (frame 0's grid-line lengths); start: "rest" or "data"; corners:
+    "smoothed" or "fitted", corner_spans ≥ 1 or None (one per frame interval): the fitted
+    corners' B-spline (module docstring)."""
 
     spans: tuple[int, int] | None = None
     span_ratio: float = SPAN_RATIO
@@ -116,6 +116,7 @@ class SwingConfig:
     poisson_ratio: float = 0.25
     areal_density: float = 0.197
     band: float = 0.1
+    grip: float = 0.0
     stride: int = 1
     size: tuple[float, float] | None = None
     start: str = "rest"
@@ -149,8 +150,9 @@ class SwingConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-        if not (math.isfinite(self.mass_damping) and self.mass_damping >= 0):
-            raise ValueError(f"mass_damping must be finite and >= 0, got {self.mass_damping!r}")
+        for name in ("mass_damping", "grip"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not -1 < self.poisson_ratio < 0.5:
             raise ValueError(f"poisson_ratio must be in (-1, 0.5), got {self.poisson_ratio!r}")
         if int(self.stride) != self.stride or self.stride < 1:
@@ -257,7 +259,8 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     material = LinearIsotropic(config.membrane_stiffness, 1.0, config.poisson_ratio,
                                config.areal_density)
     across = hanging_across(reference, gravity)
-    model = hanging_model(grid.size, material, reference, across, gravity, band=config.band)
+    model = hanging_model(grid.size, material, reference, across, gravity, band=config.band,
+                          grip=config.grip)
     model = dataclasses.replace(model, boundary=moved_boundary(model.boundary,
                                                                np.zeros((2, 3))))
     dt = frame_interval / config.substeps
@@ -301,7 +304,6 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     data = TrajectoryData(xi, tuple(config.substeps * f for f in range(1, frames)), observed)
     return SwingProblem(stepper_at, start, data, grid, model, path, frame_interval, xi, flat,
                         vertices[0][pick], speed, path_start)
-
 
 
 def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:
@@ -350,7 +352,9 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
     estimate (each level's grid never coarser than the one before); with `grid_check`, then
     one Gauss–Newton step from θ̂ on spans × GROWTH: where it moves θ̂ by more than its s.e.
     the grid does not yet hold the answer, and the fit goes on there (warm-started at the
-    step's value). Given spans: one fit."""
+    step's value). Fitted corners: every refit and the check start from the last fit's
+    corner paths q̂ (the check's step then measures the grid, not the corners' start).
+    Given spans: one fit."""
     size = config.size or SheetGrid.from_template(np.asarray(vertices[0], dtype=np.float64),
                                                   faces, held).size
     g = float(np.linalg.norm(gravity))
@@ -360,16 +364,19 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
         c = bending_length(value, config.areal_density, g)
         return resolving_spans(size, c, config.span_ratio, limit or 10**9)
 
-    def run(spans: tuple[int, int], theta: float, fit_with: TrajectoryFitConfig):
+    def run(spans: tuple[int, int], theta: float, fit_with: TrajectoryFitConfig,
+            path: np.ndarray | None):
         problem = swing_problem(vertices, faces, held, frame_interval, gravity,
                                 dataclasses.replace(config, spans=spans), newton=newton,
                                 corners=corners)
+        path = problem.path_start if path is None or problem.path_start is None else path
         return problem, fit_trajectory(problem.stepper_at, problem.data, theta, fit_with,
-                                       initial=problem.start, path_start=problem.path_start)
+                                       initial=problem.start, path_start=path)
 
-    spans, theta, levels = config.spans or needed(start), float(start), []
+    spans, theta, levels, path = config.spans or needed(start), float(start), [], None
     while True:
-        problem, fit = run(spans, theta, fit_config)
+        problem, fit = run(spans, theta, fit_config, path)
+        path = fit.path_values
         levels.append((spans, fit.value, fit.standard_error, fit.iterations, "fit"))
         log.info("swing fit on %s spans: B = %.4e ± %.2e N·m, %d iterations", spans,
                  fit.value, fit.standard_error, fit.iterations)
@@ -383,10 +390,11 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
         check = tuple(min(config.max_spans, math.ceil(GROWTH * s)) for s in spans)
         if not config.grid_check or not resolved or check == spans:
             return SwingFit(problem, fit, levels, resolved and not config.grid_check)
-        _, step = run(check, fit.value, dataclasses.replace(fit_config, max_iterations=1))
+        _, step = run(check, fit.value, dataclasses.replace(fit_config, max_iterations=1),
+                      path)
         change = abs(step.value - fit.value) / fit.standard_error
         levels.append((check, step.value, step.standard_error, 1, "check"))
         log.info("swing fit: one step on %s spans moves B by %.2f s.e.", check, change)
         if change <= 1.0:
             return SwingFit(problem, fit, levels, True, change)
-        spans, theta = check, step.value
+        spans, theta, path = check, step.value, step.path_values

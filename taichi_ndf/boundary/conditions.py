@@ -34,7 +34,9 @@ cylinder's angle get comparable bands). The default ℓ = 0.1 is chosen because
   one period of the first SIREN layer (ω₀ = 30 on inputs in [−1, 1]), so it is resolvable,
   while a smaller ℓ would make φ'' ~ 6/ℓ² amplify network noise in the bending strain;
 - a pinned point or handle also holds the slope, over a patch of radius ℓ; 0.1 keeps that
-  patch small. Pass `length` (globally or per constraint) to change it. Points and lines
+  patch small. A handle with a `radius` holds a whole patch (a grip): its level is the
+  squared distance to the patch's rim, so φ = 0 on the patch and the band starts at the rim.
+  Pass `length` (globally or per constraint) to change it. Points and lines
   take ℓ in (0, 0.5) (their distance wraps on periodic domains); edges take any ℓ > 0, and
   ℓ ≥ 1 makes an edge's φ one polynomial over the whole domain, which suits solutions that
   vary on the domain's scale: the cutoff at distance ℓ leaves u/φ with a jump in its third
@@ -345,9 +347,10 @@ class BoundaryConditions:
             delta = self._wrap(eta - p)
             d1 = vanishing.affine(delta[:, 0], scale[0], 0.0)
             d2 = vanishing.affine(delta[:, 1], 0.0, scale[1])
-            return vanishing.quadratic_vanishing(
-                (vanishing.square(d1) + vanishing.square(d2)) / ell**2
-            )
+            level = vanishing.square(d1) + vanishing.square(d2)
+            if term.radius > 0:  # a held patch: the squared distance to its rim, 0 inside
+                level = vanishing.beyond(vanishing.sqrt(level), term.radius)
+            return vanishing.quadratic_vanishing(level / ell**2)
         if isinstance(con, InteriorLine):
             a, b = to_eta(self.domain, con.start), to_eta(self.domain, con.end)
             if con.extend:

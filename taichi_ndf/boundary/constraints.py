@@ -132,18 +132,31 @@ class PinnedPoint:
 @dataclass(frozen=True)
 class Handle:
     """A point ξ moved by `displacement` [m] at t = 1 (linearly in t), slope held like a
-    pinned point: a grabbed or driven spot of the surface."""
+    pinned point: a grabbed or driven spot of the surface.
+
+    radius: 0 (default) holds the point alone; > 0 holds a patch — every point within
+    `radius` of ξ, a fraction of the domain extent measured like `length` in normalised
+    coordinates (a disc on a square domain) — translated rigidly by the displacement, its
+    tangent plane kept (a grip: fingers or a clip). The band of width `length` starts at
+    the patch's rim. A point's held slope is not a bounded condition on the bending energy
+    (`boundary.conditions`), so the field must resolve an ever sharper layer around it; a
+    patch's is (RESULTS.md, issue 27, "a grid-converged grip")."""
 
     xi: tuple[float, float]
     displacement: tuple[float, float, float]
     components: str = "xyz"
     length: float | None = None
+    radius: float = 0.0
 
     def __post_init__(self):
         _set(self, "xi", finite_vector("Handle: xi", self.xi, 2))
         _set(self, "displacement", finite_vector("Handle: displacement", self.displacement, 3, "m"))
         _set(self, "components", _check_components("Handle", self.components))
         _check_length("Handle", self.length)
+        if not (isinstance(self.radius, (int, float)) and math.isfinite(self.radius)
+                and 0 <= self.radius < 0.5):
+            raise ValueError(f"Handle: radius is a fraction of the domain extent in [0, 0.5), "
+                             f"got {self.radius!r}")
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,7 @@ class ResolvedConstraint:
     length: float
     where: tuple[Segment, ...]  # the constrained set in η, points as zero-length segments
     prescribes: frozenset[int]  # components (0, 1, 2) with a non-zero prescribed displacement
+    radius: float = 0.0  # the set is every point within radius (η) of `where` (a held patch)
 
     @property
     def linear(self) -> bool:
@@ -100,6 +101,10 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
             raise ValueError(f"{name} at ξ={con.xi} lies outside the parameter domain")
         p = to_eta(domain, con.xi)
         where = ((p, p),)
+        if isinstance(con, Handle) and ell + con.radius >= 0.5:
+            raise ValueError(
+                f"Handle: radius {con.radius} plus band length {ell} must be below 0.5 (the "
+                "distance is taken to the nearest periodic image)")
     elif isinstance(con, InteriorLine):
         where = (_resolve_line(con, domain, ell),)
     else:
@@ -126,7 +131,8 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
             for c in con.components
             if abs(displacement[COMPONENTS.index(c)]) > 1e-14 * size
         )
-    return ResolvedConstraint(constraint=con, length=ell, where=where, prescribes=prescribes)
+    return ResolvedConstraint(constraint=con, length=ell, where=where, prescribes=prescribes,
+                              radius=float(getattr(con, "radius", 0.0)))
 
 
 def _check_symmetry_plane(con: SymmetryPlane, domain: ParameterDomain,
@@ -211,7 +217,8 @@ def check_contradictions(terms: tuple[ResolvedConstraint, ...], domain: Paramete
             shared = first.components & second.components
             if not shared & (first.prescribes | second.prescribes):
                 continue
-            if _distance(domain, first.where, second.where) <= _TOUCH_TOL:
+            gap = _distance(domain, first.where, second.where) - first.radius - second.radius
+            if gap <= _TOUCH_TOL:
                 comps = "".join(COMPONENTS[c] for c in sorted(shared))
                 raise ValueError(
                     f"contradictory constraints on component(s) {comps!r}: "
@@ -239,7 +246,7 @@ def check_symmetry_planes(terms: tuple[ResolvedConstraint, ...],
             if (isinstance(con, (ClampedEdge, HingedEdge, RimRotation, SymmetryPlane))
                     and con.edge[:3] != edge[:3]):
                 continue
-            gap = _distance(domain, other.where, plane.where)
+            gap = _distance(domain, other.where, plane.where) - other.radius
             if gap < other.length - 1e-12:
                 comps = "".join(COMPONENTS[c] for c in sorted(shared))
                 raise ValueError(

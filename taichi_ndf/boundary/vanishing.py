@@ -3,10 +3,11 @@
 All functions work on scalar jets of shape (N, 6, 1) (channel order of `taichi_ndf.jets`).
 
 A constraint set is described by a *level*: s, a signed distance divided by the band width ℓ
-(edges, whole lines), or q ≥ 0, a squared distance divided by ℓ² (points, segments). The
-factor is a polynomial blend of the level that reaches exactly 1 with zero first and second
-derivatives at distance ℓ, so it is C² everywhere and leaves the field untouched outside the
-band (unlike a Gaussian mask 1 − exp(−d²/s), which damps it everywhere):
+(edges, whole lines), or q ≥ 0, a squared distance divided by ℓ² (points, segments, a
+held patch's rim). The factor is a polynomial blend of the level that reaches exactly 1 with
+zero first and second derivatives at distance ℓ, so it is C² everywhere (C¹ at a patch's
+rim) and leaves the field untouched outside the band (unlike a Gaussian mask
+1 − exp(−d²/s), which damps it everywhere):
 
     quadratic vanishing   φ = 1 − (1 − q)³                for q < 1, else 1     (φ ≈ 3 q)
     linear vanishing      φ = (15 s − 10 s³ + 3 s⁵) / 8   for |s| < 1, else sign(s)  (φ ≈ 15 s / 8)
@@ -55,6 +56,12 @@ def sqrt(a: torch.Tensor) -> torch.Tensor:
     v = a[:, jets.VALUE].clamp_min(floor)
     root = v.sqrt()
     return chain(root, 0.5 / root, -0.25 / (v * root), a)
+
+
+def beyond(a: torch.Tensor, r: float) -> torch.Tensor:
+    """Jet of max(a − r, 0)²: 0 for a ≤ r (C¹; its second derivatives jump at a = r)."""
+    s = (a[:, jets.VALUE] - r).clamp_min(0.0)
+    return chain(s * s, 2.0 * s, 2.0 * (s > 0).to(s.dtype), a)
 
 
 def reciprocal(a: torch.Tensor) -> torch.Tensor:

@@ -334,7 +334,8 @@ def _constraint(c: Table):
         return PinnedPoint(xi=c.vector("xi", 2),
                            rotation=c.string("rotation", "held", choices=PIN_ROTATIONS), **common)
     if kind == "handle":
-        return Handle(xi=c.vector("xi", 2), displacement=c.vector("displacement", 3), **common)
+        return Handle(xi=c.vector("xi", 2), displacement=c.vector("displacement", 3),
+                      radius=c.number("radius", 0.0, nonnegative=True), **common)
     if kind == "interior_line":
         return InteriorLine(start=c.vector("start", 2), end=c.vector("end", 2),
                             extend=c.boolean("extend", False), hinged=c.boolean("hinged", False),

@@ -1,0 +1,99 @@
+"""A handle that holds a patch (`Handle.radius`): the whole disc moves with the handle, its
+slope held; the band starts at the rim; the composed jets are the field's derivatives."""
+
+from pathlib import Path
+
+import pytest
+import torch
+from test_boundary import autograd_jets, random_jets, smooth_raw
+
+from taichi_ndf import jets
+from taichi_ndf.boundary import BoundaryConditions, Handle
+from taichi_ndf.geometry import ParameterDomain
+
+PLATE = ParameterDomain(((0.0, 2.0), (-1.0, 1.0)))  # η = (ξ¹/2, (ξ² + 1)/2)
+GRIP = Handle((0.0, -1.0), (0.1, -0.2, 0.3), radius=0.1)  # a corner's quarter disc
+OTHER = Handle((2.0, -1.0), (0.0, 0.05, 0.0), radius=0.1)
+
+
+def in_eta(points):
+    return torch.tensor(points, dtype=torch.float64) * torch.tensor([2.0, 2.0]) \
+        - torch.tensor([0.0, 1.0])
+
+
+def test_the_whole_patch_moves_with_the_handle_and_keeps_its_slope():
+    bc = BoundaryConditions([GRIP, OTHER], PLATE)
+    inside = in_eta([[0.0, 0.0], [0.05, 0.05], [0.099, 0.0], [0.0, 0.07], [0.06, 0.06]])
+    raw = random_jets(len(inside), seed=7)
+    u = bc.compose(inside, raw, t=0.6)
+    torch.testing.assert_close(u[:, jets.VALUE], 0.6 * torch.tensor(
+        [[0.1, -0.2, 0.3]], dtype=torch.float64).expand(len(inside), 3), rtol=0, atol=1e-15)
+    assert u[:, 1:].abs().max() < 1e-14  # translated: no slope, no curvature on the patch
+
+
+def test_the_band_starts_at_the_rim():
+    bc = BoundaryConditions([GRIP], PLATE, length=0.1)
+    # along the edge η² = 0 at η¹ = rim + s: φ = 1 − (1 − s²/ℓ²)³, 1 beyond rim + ℓ
+    s = torch.tensor([0.02, 0.05, 0.09, 0.11], dtype=torch.float64)
+    xi = in_eta(torch.stack((0.1 + s, torch.zeros_like(s)), 1).tolist())
+    phi = bc.vanishing_factor(xi)[:, jets.VALUE, 0]
+    expected = torch.where(s < 0.1, 1 - (1 - s**2 / 0.01) ** 3, torch.ones_like(s))
+    torch.testing.assert_close(phi, expected, rtol=1e-12, atol=1e-15)
+
+
+def test_composed_jets_are_the_derivatives_of_the_composed_field_around_the_patch():
+    bc = BoundaryConditions([GRIP, OTHER], PLATE)
+    xi = in_eta([[0.12, 0.03], [0.08, 0.1], [0.15, 0.15], [0.19, 0.01], [0.9, 0.12],
+                 [0.5, 0.5], [0.11, 0.0005]])
+
+    def u(q):
+        return bc.compose(q, smooth_raw(q), t=0.7)[:, jets.VALUE]
+
+    torch.testing.assert_close(bc.compose(xi, smooth_raw(xi), t=0.7), autograd_jets(u, xi),
+                               rtol=1e-9, atol=1e-10)
+
+
+def test_radius_zero_is_the_point_handle():
+    point = Handle((0.0, -1.0), (0.1, -0.2, 0.3))
+    xi = in_eta([[0.02, 0.01], [0.12, 0.03], [0.5, 0.5]])
+    raw = random_jets(len(xi), seed=3)
+    torch.testing.assert_close(
+        BoundaryConditions([Handle((0.0, -1.0), (0.1, -0.2, 0.3), radius=0.0)],
+                           PLATE).compose(xi, raw),
+        BoundaryConditions([point], PLATE).compose(xi, raw), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("constraints, message", [
+    ([Handle((0.0, -1.0), (0.1, 0, 0), radius=0.45)], "below 0.5"),
+    ([Handle((0.0, -1.0), (0.1, 0, 0), radius=0.3), Handle((1.0, -1.0), (0, 0.1, 0),
+                                                              radius=0.3)], "contradictory"),
+])
+def test_patches_that_do_not_fit_are_refused(constraints, message):
+    with pytest.raises(ValueError, match=message):
+        BoundaryConditions(constraints, PLATE)
+
+
+@pytest.mark.parametrize("radius", [-0.1, 0.5, float("nan")])
+def test_a_bad_radius_is_refused(radius):
+    with pytest.raises(ValueError, match="radius"):
+        Handle((0.0, 0.0), (0.1, 0, 0), radius=radius)
+
+
+
+def test_a_scenes_handle_reads_its_radius(tmp_path):
+    from taichi_ndf.scene.reader import load_scene
+    from taichi_ndf.scene.schema import SceneError
+
+    scene = Path(__file__).resolve().parents[1] / "scenes" / "napkin_handles.toml"
+    handles = [c for c in load_scene(scene).model.boundary.constraints
+               if isinstance(c, Handle)]
+    assert [h.radius for h in handles] == [0.0, 0.0]
+    text = scene.read_text().replace('type = "handle"', 'type = "handle"\nradius = 0.03')
+    patched = tmp_path / "napkin_grips.toml"
+    patched.write_text(text)
+    handles = [c for c in load_scene(patched).model.boundary.constraints
+               if isinstance(c, Handle)]
+    assert [h.radius for h in handles] == [0.03, 0.03]
+    patched.write_text(text.replace("radius = 0.03", "radius = -0.03", 1))
+    with pytest.raises(SceneError, match="radius"):
+        load_scene(patched)
