@@ -135,11 +135,11 @@ def hanging_model(size: tuple[float, float], material, corners: np.ndarray,
     grip: 0 holds each corner at its point; > 0 [m] holds the corner's patch of that radius
     along the held edge (`Handle.radius`: a quarter disc of the flat sheet, an ellipse of
     semi-axes grip and grip·H/W where H ≠ W), moved rigidly (translated, its plane kept).
-    Which describes a capture is the capture's (a pinch or a clip); measured on the synthetic
-    swing (benchmarks/RESULTS.md, "a grid-converged grip"), a 2 cm grip removes the point's
-    static singularity at the corners but does not make the moving sheet converge in the
-    grid (its folds do not) nor lower B's grid bias (−24 % at 24² against 28², the point's
-    −7 %), so the default stays the point (0)."""
+    Which describes a capture is the capture's (a pinch or a clip); measured on the
+    synthetic swing (benchmarks/RESULTS.md, "a held patch (grip) and the grid"), a 2 cm grip
+    removes the point's static singularity at the corners but does not make the moving sheet
+    converge in the grid (its folds do not) nor lower B's grid bias (−24 % at 24² against
+    28², the point's −7 %), so the default stays the point (0)."""
     corners = np.asarray(corners, dtype=np.float64)
     width, height = (float(s) for s in size)
     line = corners[1] - corners[0]

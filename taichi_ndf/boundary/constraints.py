@@ -140,7 +140,7 @@ class Handle:
     tangent plane kept (a grip: fingers or a clip). The band of width `length` starts at
     the patch's rim. A point's held slope is not a bounded condition on the bending energy
     (`boundary.conditions`), so the field must resolve an ever sharper layer around it; a
-    patch's is (RESULTS.md, issue 27, "a grid-converged grip")."""
+    patch's is (RESULTS.md, issue 27, "a held patch (grip) and the grid")."""
 
     xi: tuple[float, float]
     displacement: tuple[float, float, float]
