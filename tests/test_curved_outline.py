@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import math
 import tomllib
 from pathlib import Path
@@ -22,15 +21,13 @@ from taichi_ndf.problem.seams import SeamSpec
 from taichi_ndf.scene.reader import load_scene, parse_scene
 from taichi_ndf.scene.schema import SceneError
 from taichi_ndf.shell.materials import LinearIsotropic
+from tests.test_garment_outline import garment_document, parse_garment, solved_garment
 
 ROOT = Path(__file__).resolve().parents[1]
 R = 0.1
 QUARTER = math.tan(math.pi / 8)  # the bulge of a quarter circle
 DISC = Outline(((R, 0.0), (0.0, R), (-R, 0.0), (0.0, -R)), (QUARTER,) * 4)
 HALF_DISC = Outline(((-R, 0.0), (0.0, 0.0), (R, 0.0)), (0.0, 0.0, 1.0))  # y ≥ 0
-MATERIAL = {"type": "linear", "membrane_stiffness": 6400.0, "bending_stiffness": 0.1,
-            "poisson_ratio": 0.25, "areal_density": 0.144}
-
 
 def _moment(a: int, b: int, upper: float) -> float:
     """∫ x^a y^b over the disc of radius R (upper = 2π) or its half y ≥ 0 (upper = π): the
@@ -113,26 +110,6 @@ def test_a_seam_between_two_arcs_of_equal_length_ties_them_at_rest_by_arclength(
                  material)
 
 
-def _document(panels, seams=(), spans=(6, 4)) -> dict:
-    return {"name": "t", "material": dict(MATERIAL), "loads": {"gravity": [0.0, 0.0, -9.81]},
-            "field": {"type": "spline", "spans": list(spans)},
-            "training": {"method": "newton", "load_steps": [1.0]},
-            "panels": copy.deepcopy(list(panels)), "seams": copy.deepcopy(list(seams))}
-
-
-def _parse(document):
-    return parse_scene(document, base_dir=Path("."), path=Path("garment.toml"))
-
-
-def _solved(document):
-    scene = _parse(document)
-    panels = of_scene(scene)
-    panels.start(scene.solver, seed=0)
-    solution = panels.solve(scene.solver)
-    assert all(panels.converged)
-    return solution
-
-
 def test_two_panels_sewn_along_an_arc_are_the_rectangle_they_make():
     """The cantilever (0.3 × 0.2 m, clamped along its top, gravity across it) cut along an arc
     from (0.15, 0) to (0.15, 0.2) bulging 2 cm into the right half (bulge 0.2), the halves on
@@ -144,8 +121,8 @@ def test_two_panels_sewn_along_an_arc_are_the_rectangle_they_make():
               {"name": "b", "outline": [[0.15, 0], [0.3, 0], [0.3, 0.2], [0.15, 0.2, -0.2]],
                "clamped": ["e2"], "clamp_band": 1.0}]
     seam = [{"name": "curve", "a": "a.e1", "b": "b.e3", "orientation": "reversed"}]
-    pair = _solved(_document(halves, seam, (8, 8)))
-    whole = _solved(_document([{"name": "w", "width": 0.3, "height": 0.2,
+    _, pair = solved_garment(garment_document(halves, seam, (8, 8)))
+    _, whole = solved_garment(garment_document([{"name": "w", "width": 0.3, "height": 0.2,
                                 "clamped": ["xi2_max"], "clamp_band": 1.0}], spans=(16, 8)))
     assert abs(pair.energy - whole.energy) <= 2e-5 * abs(whole.energy)
     assert pair.document["seam_gaps"]["curve"] < 1e-5
@@ -163,7 +140,7 @@ def test_a_wrong_curved_panel_is_refused_in_one_line_naming_panel_and_edge(chang
     panel = {"name": "a", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0, 0.2]]}
     panel.update(change)
     with pytest.raises(SceneError) as err:
-        _parse(_document([panel]))
+        parse_garment(garment_document([panel]))
     assert message in str(err.value) and "\n" not in str(err.value)
 
 

@@ -116,19 +116,19 @@ def test_coefficients_without_support_in_the_outline_are_held_and_k_is_regular()
     assert grid.unsupported.tolist() == sorted(3 * c + k for c in expected for k in range(3))
 
 
-def _document(panels, seams=(), spans=(6, 4)) -> dict:
+def garment_document(panels, seams=(), spans=(6, 4)) -> dict:
     return {"name": "t", "material": dict(MATERIAL), "loads": {"gravity": [0.0, 0.0, -9.81]},
             "field": {"type": "spline", "spans": list(spans)},
             "training": {"method": "newton", "load_steps": [1.0]},
             "panels": copy.deepcopy(list(panels)), "seams": copy.deepcopy(list(seams))}
 
 
-def _parse(document):
+def parse_garment(document):
     return parse_scene(document, base_dir=Path("."), path=Path("garment.toml"))
 
 
-def _solved(document, change=lambda scene: scene):
-    scene = change(_parse(document))
+def solved_garment(document, change=lambda scene: scene):
+    scene = change(parse_garment(document))
     panels = of_scene(scene)
     panels.start(scene.solver, seed=0)
     solution = panels.solve(scene.solver)
@@ -140,7 +140,8 @@ def test_a_polygon_that_is_the_rectangle_solves_as_the_rectangle_panel():
     rectangle = {"name": "a", "width": 0.3, "height": 0.2, "clamped": ["xi2_max"]}
     polygon = {"name": "a", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0, 0.2]],
                "clamped": ["e2"]}
-    (one, first), (two, second) = (_solved(_document([p])) for p in (rectangle, polygon))
+    (one, first), (two, second) = (solved_garment(garment_document([p]))
+                                   for p in (rectangle, polygon))
     assert abs(second.energy - first.energy) <= 1e-12 * abs(first.energy)
     assert first.energy < 0
     assert two._linear.size == one._linear.size and two._linear.fixed is None
@@ -150,14 +151,14 @@ def test_a_seam_on_polygon_edges_is_the_seam_on_the_rectangles_edges():
     left = {"name": "a", "width": 0.15, "height": 0.2, "clamped": ["xi2_max"]}
     right = {"name": "b", "width": 0.15, "height": 0.2, "origin": [0.15, 0, 0],
              "clamped": ["xi2_max"]}
-    rectangles = _document([left, right], [{"a": "a.xi1_max", "b": "b.xi1_min"}], (3, 4))
+    rectangles = garment_document([left, right], [{"a": "a.xi1_max", "b": "b.xi1_min"}], (3, 4))
     left = {"name": "a", "outline": [[0, 0], [0.15, 0], [0.15, 0.2], [0, 0.2]],
             "clamped": ["e2"]}
     right = {"name": "b", "outline": [[0.15, 0], [0.3, 0], [0.3, 0.2], [0.15, 0.2]],
              "clamped": ["e2"]}
-    polygons = _document([left, right], [{"a": "a.e1", "b": "b.e3",
+    polygons = garment_document([left, right], [{"a": "a.e1", "b": "b.e3",
                                           "orientation": "reversed"}], (3, 4))
-    (_, first), (_, second) = _solved(rectangles), _solved(polygons)
+    (_, first), (_, second) = solved_garment(rectangles), solved_garment(polygons)
     assert abs(second.energy - first.energy) <= 1e-12 * abs(first.energy)
 
 
@@ -174,8 +175,8 @@ def test_two_trapezoids_seamed_along_their_slanted_edges_are_the_rectangle_they_
     panels"): Π 1.0e-5 relative apart, 4.8e-5 on half these grids, 1.7e-6 on twice."""
     seam = [{"name": "slant", "a": "a.e1", "b": "b.e3", "orientation": "reversed"}]
     smooth = [{**p, "clamp_band": 1.0} for p in TRAPEZOIDS]  # the clamps' φ one polynomial
-    _, pair = _solved(_document(smooth, seam, (8, 8)))
-    _, whole = _solved(_document([{"name": "w", "width": 0.3, "height": 0.2,
+    _, pair = solved_garment(garment_document(smooth, seam, (8, 8)))
+    _, whole = solved_garment(garment_document([{"name": "w", "width": 0.3, "height": 0.2,
                                    "clamped": ["xi2_max"], "clamp_band": 1.0}], spans=(16, 8)))
     assert abs(pair.energy - whole.energy) <= 3e-5 * abs(whole.energy)
     assert pair.document["seam_gaps"]["slant"] < 1e-5
@@ -195,9 +196,9 @@ def test_clamp_band_is_the_band_of_a_panels_clamps():
         return dataclasses.replace(scene, field=dataclasses.replace(scene.field,
                                                                     patches=(patch,)))
     panel = {"name": "w", "width": 0.3, "height": 0.2, "clamped": ["xi2_max"]}
-    _, built = _solved(_document([panel]), with_band)
-    _, default = _solved(_document([panel]))
-    _, banded = _solved(_document([{**panel, "clamp_band": 1.0}]))
+    _, built = solved_garment(garment_document([panel]), with_band)
+    _, default = solved_garment(garment_document([panel]))
+    _, banded = solved_garment(garment_document([{**panel, "clamp_band": 1.0}]))
     assert banded.energy == built.energy
     assert abs(banded.energy - default.energy) > 1e-3 * abs(default.energy)
     flat = {**panel, "rest": "flat", "wrap_radius": 0.15, "clamp_band": 1.0}
@@ -206,7 +207,7 @@ def test_clamp_band_is_the_band_of_a_panels_clamps():
 
 def _refused(panels, seams, message):
     with pytest.raises(SceneError) as err:
-        _parse(_document(panels, seams))
+        parse_garment(garment_document(panels, seams))
     assert message in str(err.value) and "\n" not in str(err.value)
 
 
@@ -232,7 +233,7 @@ def test_held_outline_edges_are_the_bounding_box_sides_they_lie_on():
     u_shape = {"name": "u", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0.2, 0.2], [0.2, 0.1],
                                         [0.1, 0.1], [0.1, 0.2], [0, 0.2]],
                "clamped": ["e0"], "hinged": ["e2", "e6"]}
-    (patch,) = _parse(_document([u_shape])).field.patches
+    (patch,) = parse_garment(garment_document([u_shape])).field.patches
     assert [(type(c).__name__, c.edge) for c in patch.model.boundary.constraints] == [
         ("ClampedEdge", "xi2_min"), ("HingedEdge", "xi2_max")]
     u_shape["hinged"] = ["e2"]  # e6 lies on the same side: the hinge would hold it too
@@ -243,7 +244,7 @@ def test_held_outline_edges_are_the_bounding_box_sides_they_lie_on():
 def test_a_polygon_panels_output_grid_keeps_the_faces_inside_its_outline():
     from taichi_ndf.app.outputs import export_grid
 
-    (patch,) = _parse(_document([TRAPEZOIDS[1]])).field.patches
+    (patch,) = parse_garment(garment_document([TRAPEZOIDS[1]])).field.patches
     xi, faces, _ = export_grid(patch.model, (16, 16))
     outline = patch.outline
     corners = xi[faces]  # (F, 3, 2)
@@ -262,11 +263,11 @@ def test_a_polygon_panels_output_grid_reaches_its_border():
     from taichi_ndf.app.outputs import export_grid
 
     rectangle = {"name": "a", "outline": [[0, 0], [0.3, 0], [0.3, 0.2], [0, 0.2]]}
-    (patch,) = _parse(_document([rectangle])).field.patches
+    (patch,) = parse_garment(garment_document([rectangle])).field.patches
     xi, faces, _ = export_grid(patch.model, (12, 8))
     assert len(xi) == 13 * 9 and len(faces) == 2 * 12 * 8
     for panel, x in ((TRAPEZOIDS[0], 0.0), (TRAPEZOIDS[1], 0.3)):
-        (patch,) = _parse(_document([panel])).field.patches
+        (patch,) = parse_garment(garment_document([panel])).field.patches
         xi, _, _ = export_grid(patch.model, (16, 16))
         assert np.isclose(xi[:, 0], x).sum() == 17  # the straight side, every row
 
