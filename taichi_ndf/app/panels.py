@@ -24,8 +24,7 @@ def part_meshes(parts, resolution: tuple[int, int], load_factor: float = 1.0
     """Each part's (`ResultPart`: model and field) deformed mesh on the export grid, the two
     sides of each seam between outline edges sampled at the same fractions of their arclength
     (`seam_fractions`: its vertices coincide to the seam's gap)."""
-    grids = [grid_mesh(p.model.surface.domain.bounds, resolution) for p in parts]
-    cuts = [(g.xi[:g.cells[0] + 1, 0], g.xi[::g.cells[0] + 1, 1]) for g in grids]
+    cuts = [grid_mesh(p.model.surface.domain.bounds, resolution).lines for p in parts]
     border = seam_fractions([getattr(p.model.surface, "outline", None) for p in parts], cuts,
                             parts[0].seams if parts else ())
     return [deformed_mesh(p.model, p.field, resolution, load_factor=load_factor, border=b)

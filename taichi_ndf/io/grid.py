@@ -33,6 +33,12 @@ class GridMesh:
     canonical: np.ndarray
     cells: tuple[int, int]
 
+    @property
+    def lines(self) -> tuple[np.ndarray, np.ndarray]:
+        """The grid lines: their ξ¹ values (n1 + 1,) and ξ² values (n2 + 1,)."""
+        n1 = self.cells[0]
+        return self.xi[:n1 + 1, 0], self.xi[::n1 + 1, 1]
+
 
 def grid_mesh(
     domain_bounds,

@@ -128,9 +128,10 @@ class Outline:
             raise ValueError("outline: the points run clockwise; list them counter-clockwise "
                              "(the panel on the left of each edge)")
 
-    @property
+    @functools.cached_property
     def arcs(self) -> tuple[Arc | None, ...]:
-        """Each edge's arc (None: straight)."""
+        """Each edge's arc (None: straight); made once (the checks, `contains`, `bounds` and
+        `nearest_on_border` all walk them)."""
         return tuple(Arc.of_bulge(*self.edge_points(i), b) for i, b in enumerate(self.bulges))
 
     def flattened(self, max_angle: float, cuts=((), ())

@@ -172,8 +172,7 @@ def conforming_mesh(outline: Outline, grid, fractions: dict[int, np.ndarray] | N
     grid's used ones in their order, then the border's), faces (F, 3), counter-clockwise (the
     whole cells' grid faces in the grid's order, then the cut cells': `cut_cells`) and UVs
     (V, 2) (the grid's; a border point's its ξ scaled to the grid's box)."""
-    n1, n2 = grid.cells
-    xs, ys = grid.xi[:n1 + 1, 0], grid.xi[::n1 + 1, 1]
+    xs, ys = grid.lines
     whole, _, triangles = cut_cells(outline, xs, ys, fractions)
     keep = np.concatenate([whole.ravel(), whole.ravel()])
     index = {(float(x), float(y)): k for k, (x, y) in enumerate(grid.xi)}
