@@ -90,3 +90,21 @@ def test_the_spline_run_reads_its_energy_at_the_a_priori_order_only_where_smooth
 def test_which_models_have_no_known_singular_feature(scene, smooth):
     model = load_scene(ROOT / scene, field="spline").model
     assert no_singular_feature(model, gauge_points(model)) is smooth
+
+
+@pytest.mark.parametrize("scene, smooth", [
+    ("validation/scenes/square_plate_quarter.toml", True),
+    ("validation/scenes/pinched_cylinder_octant.toml", False),  # a point load
+])
+def test_solve_spline_marks_its_run_smooth_by_the_models_features(scene, smooth):
+    """The run that result.json's refinement is read from carries the model's test."""
+    import dataclasses
+
+    from taichi_ndf.solve.spline_solver import solve_spline
+
+    loaded = load_scene(ROOT / scene, field="spline")
+    plan = dataclasses.replace(loaded.field, levels=1, config=dataclasses.replace(
+        loaded.field.config, spans=(4, 4)))
+    solver = dataclasses.replace(loaded.solver, max_levels=0, progress=False,
+                                 load_steps=(1.0,))
+    assert solve_spline(loaded.model, plan, solver).smooth is smooth

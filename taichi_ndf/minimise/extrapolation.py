@@ -48,13 +48,14 @@ by an h⁴ term: tests/test_projected_newton.py): the range bound stays.
 Measured for issue 33 (benchmarks/RESULTS.md, wip-adapt12; each case solved with Newton's
 defaults and to λ²/2 ≤ 1e-15 |Π| without the discretisation stopping test), the slow tails
 that set order 0.5 have two causes: the shear cantilever's tip (order 0.69) and its Π (1.88,
-then 0.41) are the grid's, the same to 10 digits solved tight: its point loads (the tip probe
-sits on one) are a singular feature; cantilever_moment's −U tail (order 6.2, then 1.25) is the
-Newton solve's, 3.6e-5 on 32 × 4 and 64 × 8 at the defaults, while solved tight it falls at
-order 6.1, then 8.9. A displacement's solve error goes with the energy norm of Newton's
-untaken step, √(λ²); Π's is λ²/2 ≤ `discretisation_fraction` × |Π − Π_coarse| (1e-4 of the
-change; `minimise.newton`), far below d₂ (cantilever_moment's Π: 5.2e-7 J apart both ways
-on 16 × 2, 1.3e-9 J on 64 × 8, where d₂ = 1.5e-4 J). So for **Π of a model with no known singular feature** (`smooth`: no pin but gauges,
+then 0.41) are the grid's (on 32 × 8 and 64 × 16 the same to 10 digits solved tight): its
+point loads (the tip probe sits on one) are a singular feature; cantilever_moment's −U tail
+(order 6.2, then 1.25) is the Newton solve's, 3.6e-5 on 32 × 4 and on 64 × 8 at the defaults,
+while solved tight it falls at order 6.1, then 8.9. A displacement's solve error goes with
+the energy norm of Newton's untaken step, √(λ²); Π's is λ²/2 ≤ `discretisation_fraction` ×
+|Π − Π_coarse| (1e-4 of the change; `minimise.newton`), far below d₂ (cantilever_moment's Π:
+5.2e-7 J apart both ways on 16 × 2, 1.3e-9 J on 64 × 8, where d₂ = 1.5e-4 J). So for **Π of
+a model with no known singular feature** (`smooth`: no pin but gauges,
 point load, interior line, line-load end, obstacle or extra term;
 `spline_grid.no_singular_feature`) whose changes fell at least at the a-priori order (the
 caller's expected order 2(p − 1): Π's error is the squared energy-norm error, h^(p−1) for
