@@ -55,13 +55,13 @@ while solved tight it falls at order 6.1, then 8.9. A displacement's solve error
 the energy norm of Newton's untaken step, √(λ²); Π's is λ²/2 ≤ `discretisation_fraction` ×
 |Π − Π_coarse| (1e-4 of the change; `minimise.newton`), far below d₂ (cantilever_moment's Π:
 5.2e-7 J apart both ways on 16 × 2, 1.3e-9 J on 64 × 8, where d₂ = 1.5e-4 J). So for **Π of
-a model with no known singular feature** (`smooth`: no pin but gauges,
-point load, interior line, line-load end, obstacle or extra term;
-`spline_grid.no_singular_feature`) whose changes fell at least at the a-priori order (the
-caller's expected order 2(p − 1): Π's error is the squared energy-norm error, h^(p−1) for
-degree-p splines on a smooth Kirchhoff–Love solution: J. Benzaken, J. A. Evans, S. McCormick
-and R. Tamstorf, "Weak boundary condition enforcement for linear Kirchhoff–Love shells:
-formulation, error analysis, and verification", arXiv:2007.01279, 2020), the changes to come
+a model with no known singular feature** (`smooth`: no pin but gauges, point load, interior
+line, line-load end, obstacle or extra term; `spline_grid.no_singular_feature`) whose changes
+fell at least at the a-priori order (the caller's expected order 2(p − 1): Π's error is the
+energy-norm error squared, whose rate is h^(p−1) for degree-p splines on a smooth
+Kirchhoff–Love solution: J. Benzaken, J. A. Evans, S. McCormick and R. Tamstorf, "Weak
+boundary condition enforcement for linear Kirchhoff–Love shells: formulation, error
+analysis, and verification", arXiv:2007.01279, 2020), the changes to come
 are summed at that order with Roache's factor of safety for an assumed order, Fs = 3: the
 error is 3 max(|d₂|, `ROUNDING` max|v|) / (2^p − 1) (bound "a priori"; cantilever_moment's Π
 falls at 5.70 then 3.48 solved tight, so 1.25 × the sum would miss its 128 × 16 value by 1 %).
