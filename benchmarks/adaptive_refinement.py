@@ -115,7 +115,7 @@ def napkin_rows(start: int, budget: int, tolerance: float, levels: int = 3,
         cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
         energies = [lv.energy for lv in run.levels]
         if len(energies) >= 3:
-            estimate = richardson(energies[-3:], order=4.0)
+            estimate = richardson(energies[-3:], order=4.0, smooth=run.smooth)
             distance = abs(estimate.value - PI_INF)
             holds = "yes" if distance <= estimate.error else "**no**"
             described, ratio = estimate.describe(), f"{estimate.error / distance:.3g}"
@@ -167,7 +167,8 @@ def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: b
                                      AdaptiveConfig(tolerance, budget, "features"))
             cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
             document = run.refinement(scene.field.config.degree)
-            estimate = richardson([lv.energy for lv in run.levels][-3:], order=4.0)
+            estimate = richardson([lv.energy for lv in run.levels][-3:], order=4.0,
+                                  smooth=run.smooth)
             fine_text, distance, ratio, holds = "—", "—", "—", "—"
             if label != "uniform" and fine:
                 fine_config = features_grid(run.field.config.refined(), scene.model)
@@ -341,8 +342,9 @@ def case_coverage(case, result, discretisation, linearisation, runner, fine: boo
         per_level = [q.read({n: np.asarray(v) / unit for n, v in lv.probes.items()}, positions)
                      for lv in run.levels]
         quantities.append((q.name, per_level, q.read(fine_readings, positions)))
-    for name, values, reference in quantities:
-        estimate = richardson(values, order=2.0 * (run.field.config.degree - 1))
+    for name, values, reference in quantities:  # Π as result.json's (a smooth model's)
+        estimate = richardson(values, order=2.0 * (run.field.config.degree - 1),
+                              smooth=run.smooth and name == "Π [J]")
         rows.append(coverage_row(case.name, name, grids, values, estimate.describe(),
                                  estimate.value, estimate.error, reference, spans, cpu))
     return rows

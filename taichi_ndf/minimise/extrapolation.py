@@ -45,6 +45,29 @@ a coincidence of the coarse grids (bowl in silk's centre on 2² / 4² / 8²: ord
 near-zero last change is a cancellation, not a convergence (a slow order-0.7 term cancelled
 by an h⁴ term: tests/test_projected_newton.py): the range bound stays.
 
+Measured for issue 33 (benchmarks/RESULTS.md, wip-adapt12; each case solved with Newton's
+defaults and to λ²/2 ≤ 1e-15 |Π| without the discretisation stopping test), the slow tails
+that set order 0.5 have two causes: the shear cantilever's tip (order 0.69) and its Π (1.88,
+then 0.41) are the grid's (on 32 × 8 and 64 × 16 the same to 10 digits solved tight): its
+point loads (the tip probe sits on one) are a singular feature; cantilever_moment's −U tail
+(order 6.2, then 1.25) is the Newton solve's, 3.6e-5 on 32 × 4 and on 64 × 8 at the defaults,
+while solved tight it falls at order 6.1, then 8.9. A displacement's solve error goes with
+the energy norm of Newton's untaken step, √(λ²); Π's is λ²/2 ≤ `discretisation_fraction` ×
+|Π − Π_coarse| (1e-4 of the change; `minimise.newton`), far below d₂ (cantilever_moment's Π:
+5.2e-7 J apart both ways on 16 × 2, 1.3e-9 J on 64 × 8, where d₂ = 1.5e-4 J). So for **Π of
+a model with no known singular feature** (`smooth`: no pin but gauges, point load, interior
+line, line-load end, obstacle or extra term; `spline_grid.no_singular_feature`) whose changes
+fell at least at the a-priori order (the caller's expected order 2(p − 1): Π's error is the
+energy-norm error squared, whose rate is h^(p−1) for degree-p splines on a smooth
+Kirchhoff–Love solution: J. Benzaken, J. A. Evans, S. McCormick and R. Tamstorf, "Weak
+boundary condition enforcement for linear Kirchhoff–Love shells: formulation, error
+analysis, and verification", arXiv:2007.01279, 2020), the changes to come
+are summed at that order with Roache's factor of safety for an assumed order, Fs = 3: the
+error is 3 max(|d₂|, `ROUNDING` max|v|) / (2^p − 1) (bound "a priori"; cantilever_moment's Π
+falls at 5.70 then 3.48 solved tight, so 1.25 × the sum would miss its 128 × 16 value by 1 %).
+Probes, models with a feature and changes slower than the a-priori order keep the order-0.5
+sum.
+
 A value whose grid's Newton solve did not converge (`converged`, where the caller knows it)
 is not that grid's discrete answer, so its changes say nothing of the order: where one of the
 values used (the last three, or two) did not converge, the order is unreliable whatever the
@@ -87,8 +110,8 @@ SAFETY_OBSERVED = 1.25  # Roache's Fs for three grids with a reliable observed o
 SAFETY_UNRELIABLE = 3.0  # Roache's Fs where the order cannot be trusted (times the range)
 ORDER_BASES = ("observed", "assumed", "unreliable")
 # an unreliable order's error bar (module docstring; "point": a probe component's, bounded by
-# its point's, `richardson_point`)
-BOUNDS = ("range", "floor", "point")
+# its point's, `richardson_point`; "a priori": Π of a smooth model past the floor)
+BOUNDS = ("range", "floor", "point", "a priori")
 
 
 @dataclass(frozen=True)
@@ -147,7 +170,9 @@ class Extrapolation:
 
 BOUND_WORDS = {"range": "3 × the range of the last three",
                "floor": "the last change (at least the rounding level) summed at order 0.5",
-               "point": "the point's bar, which bounds each component's distance"}
+               "point": "the point's bar, which bounds each component's distance",
+               "a priori": "3 × the last change (at least the rounding level) summed at the "
+                           "a-priori order (no singular feature)"}
 
 
 @dataclass(frozen=True)
@@ -184,14 +209,16 @@ def _unreliable_reason(d1: float, d2: float, scale: float,
 
 
 def extrapolate_changes(changes: list[float], order: float | None = None,
-                        scale: float = 0.0, unconverged: str | None = None) -> OrderEstimate:
+                        scale: float = 0.0, unconverged: str | None = None,
+                        smooth: bool = False) -> OrderEstimate:
     """The order, correction and error bar of the finest value from the changes between
     successive grids refined by 2 each (signed differences of a scalar, or norms of a field's
     differences; the last two are used; module docstring). order: the expected order, assumed
     with one change and the upper limit of a reliable observed one with two or more. scale:
     the size of the values (max |v|) that the rounding level is relative to (0: no rounding
     check). unconverged: with two or more changes, why the order is unreliable because a
-    value used did not converge (None: every one did)."""
+    value used did not converge (None: every one did). smooth: the values are Π of a model
+    with no known singular feature (the floor's changes to come at the a-priori `order`)."""
     if not changes:
         raise ValueError("richardson needs at least two values, got 1")
     last = changes[-1]
@@ -210,6 +237,11 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
                 and abs(d1) <= 2.0 ** (ORDER_FAR * order) * max(abs(d2), floor)):
             reason = (f"{reason}; changes falling to within {NEAR_ROUNDING:g} × the rounding "
                       "level")
+            if smooth and observed is not None and observed >= order:
+                return OrderEstimate(observed, 0.0, SAFETY_UNRELIABLE * max(abs(d2), floor)
+                                     / (2.0**order - 1.0), "unreliable",
+                                     f"{reason}; no singular feature: order {order:g} a priori",
+                                     None, "a priori")
             return OrderEstimate(observed, 0.0, max(abs(d2), floor) / (2.0**ORDER_MIN - 1.0),
                                  "unreliable", reason, None, "floor")
         spread = max(abs(d1), abs(d2), abs(d1 + d2))  # the range of the three values
@@ -242,13 +274,14 @@ def _unconverged(converged: list[bool] | None, count: int) -> str | None:
 
 
 def richardson(values: list[float], order: float | None = None,
-               converged: list[bool] | None = None) -> Extrapolation:
+               converged: list[bool] | None = None, smooth: bool = False) -> Extrapolation:
     """Richardson extrapolation of values on grids refined by 2 each, with a GCI-style error
     bar (module docstring). order: the expected convergence order, assumed with two values
     (required then) and the upper limit of a reliable observed order of the last three with
     three or more. converged: per value, whether its grid's solve converged (None: all did);
     three or more values of which one used did not: the order is unreliable. With two such
-    values the bar stays the change, and the warning says it."""
+    values the bar stays the change, and the warning says it. smooth: the values are Π of a
+    model with no known singular feature (module docstring; never a probe)."""
     if len(values) < 2:
         raise ValueError(f"richardson needs at least two values, got {len(values)}")
     if converged is not None and len(converged) != len(values):
@@ -257,7 +290,7 @@ def richardson(values: list[float], order: float | None = None,
     changes = np.diff(last).tolist()
     unconverged = _unconverged(converged, len(values))
     estimate = extrapolate_changes(changes, order, scale=max(abs(v) for v in last),
-                                   unconverged=unconverged)
+                                   unconverged=unconverged, smooth=smooth)
     if estimate.basis == "assumed" and unconverged is not None:
         estimate = dataclasses.replace(
             estimate, reason=unconverged,

@@ -200,6 +200,20 @@ def singular_features(boundary, loads, domain, gauges=()
     return tuple(out)
 
 
+def no_singular_feature(model, gauges=()) -> bool:
+    """Whether the model has no known singular feature: no `singular_features` (pins but the
+    gauges, handles, point loads, interior lines, line-load ends), no obstacles (contact
+    regions) and no further energy terms (seams join points; a term unknown here counts as a
+    feature). Such a model's Π converges at the a-priori order of the field's degree
+    (`minimise.extrapolation`, `richardson(..., smooth=True)`); corner singularities of the
+    boundary conditions are not known here, so the rule also asks the observed order to
+    reach the a-priori one."""
+    if model.contact is not None or model.terms:
+        return False
+    features = singular_features(model.boundary, model.loads, model.surface.domain, gauges)
+    return not any(features)
+
+
 def _segment(a, b, lines: list[tuple[int, float]], domain=None) -> None:
     """A segment along a coordinate line ξ_d = c adds (d, c); with `domain`, not along an
     edge."""

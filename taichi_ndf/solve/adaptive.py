@@ -271,7 +271,7 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                           dataclasses.replace(config, max_levels=0), objective=objective,
                           callbacks=callbacks, on_level=level_done)
     run = AdaptiveRun(dyadic.state, config, dyadic.wall_time, dyadic.steps, dyadic.load_steps,
-                      adaptive=record)
+                      smooth=dyadic.smooth, adaptive=record)
     t = config.load_steps[-1]
     dtype = run.field.coefficients.dtype
     length = math.sqrt(model.surface.domain.rectangle_area)

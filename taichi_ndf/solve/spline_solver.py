@@ -24,6 +24,7 @@ from typing import Any
 
 import torch
 
+from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.callbacks import call
@@ -38,7 +39,7 @@ from taichi_ndf.minimise.state import InsideLevel, LevelSummary, NewtonRecord, S
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.seam import with_seam_points
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.spline_grid import SplinePlan
+from taichi_ndf.problem.spline_grid import SplinePlan, no_singular_feature
 from taichi_ndf.problem.training import SolverConfig
 
 __all__ = ["LevelSummary", "NewtonRecord", "SplineRun", "newton_config", "solve_spline"]
@@ -60,6 +61,9 @@ class SplineRun:
     # per load step of the last level: load factor, Π [J], probes (displacement [m] by name)
     load_steps: list[dict] = dataclasses.field(default_factory=list)
     contact: NewtonContact | None = None  # with obstacles: the check points, κ, rounds
+    # the model has no known singular feature (`spline_grid.no_singular_feature`): Π's bar
+    # past a converged sequence at the a-priori order (`richardson(..., smooth=True)`)
+    smooth: bool = False
 
     @property
     def field(self) -> SplineField:
@@ -91,9 +95,9 @@ class SplineRun:
         order = 2.0 * (degree - 1)
         converged = [lv.converged for lv in self.levels]  # an unconverged level: no order
 
-        def extrapolate(values):
-            return {"values": values,
-                    **richardson(values, order=order, converged=converged).to_dict()}
+        def extrapolate(values):  # Π
+            return {"values": values, **richardson(values, order=order, converged=converged,
+                                                   smooth=self.smooth).to_dict()}
 
         def point(name):  # a probe's order is the point's (`richardson_point`)
             values = [lv.probes[name] for lv in self.levels]
@@ -179,7 +183,8 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         contact = NewtonContact(model.contact, model, grid.coefficients.dtype)
         if inside is not None:
             contact.restore(inside.contact)
-    run = SplineRun(state, config, contact=contact)
+    run = SplineRun(state, config, contact=contact,
+                    smooth=no_singular_feature(model, gauge_points(model)))
     if first + 1 > levels:
         raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "
                          "this run solves")
