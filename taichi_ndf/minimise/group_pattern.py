@@ -3,12 +3,16 @@
 The Gauss points of one knot span act on the same k coefficients (a group); the assembly
 (`taichi_ndf.minimise.assembly`) sums each group's points' stiffness J_qᵀ H_q J_q into one
 (3k)² block and scatters it into K's CSR data at positions found once per grid
-(`csr_pattern`), reused across Newton and load steps without sorting.
+(`csr_pattern`), reused across Newton and load steps without sorting. Points beyond a group's
+first m (contact's check points, SfT's data points: their number differs from span to span)
+are laid out in batches of one size per group (`batch_slots`), so that they are summed per
+group by the same batched products before the scatter, not point by point.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from taichi_ndf.shell.hessian import COMPONENTS
 
@@ -42,3 +46,19 @@ def csr_pattern(groups: np.ndarray, n_coefficients: int
         row_starts[:-1] - np.repeat(3 * start[:-1], COMPONENTS), lengths)
     return (scatter.ravel(), columns3[index].astype(np.int32),
             row_starts.astype(np.int32))
+
+
+def batch_slots(groups: torch.Tensor) -> tuple[torch.Tensor, np.ndarray, int]:
+    """Points of sorted group numbers (n,) laid out in batches of s = ⌈n / groups present⌉
+    slots, each batch within one group (a group's last batch short, its slots left empty):
+    the slot of each point (n,) (int64), the group of each batch (b,) and s. At most n + (s −
+    1) × groups present slots, < 2 n."""
+    present, counts = torch.unique_consecutive(groups, return_counts=True)
+    size = -(-len(groups) // len(present))
+    batches = -(-counts // size)  # per group
+    first_point = torch.cumsum(counts, 0) - counts
+    first_slot = (torch.cumsum(batches, 0) - batches) * size
+    rank = torch.arange(len(groups), device=groups.device) - torch.repeat_interleave(
+        first_point, counts)
+    slots = torch.repeat_interleave(first_slot, counts) + rank
+    return slots, torch.repeat_interleave(present, batches).cpu().numpy(), size
