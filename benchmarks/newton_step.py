@@ -71,6 +71,14 @@ def chunked(build, count: int):
     return run
 
 
+def blocks_by_rows(potential, samples, u, steps, psd: bool = False):
+    """The blocks of a slice of rows at U as Newton asks them chunk by chunk (`PointBlocks`):
+    the shell's strain-step scale (`tangent_length`) computed once, passed to every chunk."""
+    tangent = potential.tangent_length(samples, u)
+    own = potential.psd_hessian_blocks if psd else potential.hessian_blocks
+    return lambda rows: own(samples, u, steps=steps, rows=rows, tangent=tangent)
+
+
 def all_blocks(build, count: int) -> torch.Tensor:
     """The blocks (count, 18, 18) of all points, built chunk by chunk (`build(rows)`)."""
     return torch.cat([flat_blocks(build(slice(start, min(count, start + POINT_CHUNK))))
@@ -89,8 +97,7 @@ def parts_at(model, field: SplineField, repeats: int, clamp: bool) -> dict:
     u = assembly.displacement(c)
     result = potential(s, u, True)
     steps = jet_steps(s.r_jets, u, math.sqrt(surface.domain.rectangle_area), 1e-5)
-    psd = all_blocks(lambda rows: potential.psd_hessian_blocks(s, u, steps=steps, rows=rows),
-                     len(s))
+    psd = all_blocks(blocks_by_rows(potential, s, u, steps, psd=True), len(s))
     matrix = assembly.hessian(psd)
     rhs = -assembly.gradient(result.grad_u_jets).reshape(-1).numpy()
     fixed = gauge_unknowns(model.boundary, basis)
@@ -111,11 +118,10 @@ def parts_at(model, field: SplineField, repeats: int, clamp: bool) -> dict:
         "pull-back": cpu_ms(lambda: assembly.gradient(result.grad_u_jets), repeats),
         "line-search trial": cpu_ms(
             lambda: potential(s, assembly.displacement(c + step), False), repeats),
-        "blocks (exact)": cpu_ms(chunked(
-            lambda rows: potential.hessian_blocks(s, u, steps=steps, rows=rows), len(s)),
-            repeats),
-        "blocks (PSD, strains)": cpu_ms(chunked(
-            lambda rows: potential.psd_hessian_blocks(s, u, steps=steps, rows=rows), len(s)),
+        "blocks (exact)": cpu_ms(
+            lambda: chunked(blocks_by_rows(potential, s, u, steps), len(s))(), repeats),
+        "blocks (PSD, strains)": cpu_ms(
+            lambda: chunked(blocks_by_rows(potential, s, u, steps, psd=True), len(s))(),
             repeats),
         "assembly": cpu_ms(lambda: assembly.hessian(psd), repeats),
         "factorise + solve": cpu_ms(lambda: solver(matrix, rhs, 0.0, fixed), repeats),
@@ -123,8 +129,7 @@ def parts_at(model, field: SplineField, repeats: int, clamp: bool) -> dict:
         "correction: solve": cpu_ms(lambda: solver(matrix, -r, 0.0, fixed), repeats),
     }
     if clamp:
-        exact = all_blocks(lambda rows: potential.hessian_blocks(s, u, steps=steps, rows=rows),
-                           len(s))
+        exact = all_blocks(blocks_by_rows(potential, s, u, steps), len(s))
         bad = indefinite_blocks(exact)
         out["indefinite"] = int(bad.numel())
         out["screen"] = cpu_ms(lambda: indefinite_blocks(exact), repeats)

@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse as sp
 import torch
 
-from taichi_ndf.minimise.assembly import _csr_pattern
+from taichi_ndf.minimise.group_pattern import csr_pattern
 from taichi_ndf.minimise.jacobian import ComponentJacobian
 
 
@@ -22,7 +22,7 @@ def test_csr_pattern_scatters_group_sums_as_a_coordinate_matrix_does(periodic):
                        for i, j in spans])
     n, k = rows * cols, groups.shape[1]
     values = rng.standard_normal((3, 3, len(groups), k, k))
-    scatter, columns, row_starts = _csr_pattern(groups, n)
+    scatter, columns, row_starts = csr_pattern(groups, n)
     assert scatter.dtype == np.int32  # few entries: the positions in int32 (half the memory)
     data = np.zeros(len(columns))
     np.add.at(data, scatter, values.ravel())  # as `Assembly._point_hessian` sums them

@@ -1,9 +1,8 @@
 """The CPU savings of ndf-sft's per-frame fit and tracking (issue 27) give the same numbers bit
 for bit: the shell's central-difference blocks with the perturbed copies stacked into few
-evaluations (`sample_hessians(stacked_points=)`), the local stiffness of points whose blocks
-touch one channel only (`pair_hessian.point_stiffness`), the assembly's extra points scattered
-in the contraction's layout (`Assembly`), and the tracker's pairwise distances
-(`matching.pairwise_distances`)."""
+evaluations (`sample_hessians(stacked_points=)`), the assembly's extra points (K to rounding:
+`Assembly` sums them in batches per group, tests/test_assembly_extra_points.py), and the
+tracker's pairwise distances (`matching.pairwise_distances`)."""
 
 import numpy as np
 import pytest
@@ -15,7 +14,6 @@ from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.geometry import Cylinder
 from taichi_ndf.minimise.assembly import Assembly, LocalBasis
 from taichi_ndf.minimise.jacobian import ComponentJacobian
-from taichi_ndf.minimise.pair_hessian import contract, point_stiffness, weighted
 from taichi_ndf.objective import ShellEnergyTerm
 from taichi_ndf.problem.loads import Loads
 from taichi_ndf.problem.quadrature import span_quadrature
@@ -57,26 +55,9 @@ def test_stacked_shell_blocks_equal_one_copy_per_call_bit_for_bit(copies):
     assert torch.equal(got, expected)
 
 
-def test_point_stiffness_equals_the_full_contraction_bit_for_bit():
-    """Points whose blocks are the value–value 3 × 3 only (the SfT data terms) beside points
-    with full blocks (the shell's): the same Jᵀ H J as the contraction over all six channels."""
-    gen = torch.Generator().manual_seed(0)
-    n, k = 40, 16
-    jacobian = torch.randn(3, n, 6, k, generator=gen, dtype=DT)
-    blocks = torch.randn(n, 6, 3, 6, 3, generator=gen, dtype=DT)
-    value_only = torch.arange(n) % 3 != 0
-    mask = torch.zeros(6, 3, 6, 3, dtype=torch.bool)
-    mask[0, :, 0, :] = True
-    blocks[value_only] *= mask
-    expected = contract(jacobian, weighted(blocks, jacobian)).permute(0, 2, 1, 3, 4)
-    got = point_stiffness(jacobian, blocks)
-    assert got.shape == (n, 3, k, k, 3) and got.is_contiguous()
-    assert torch.equal(got, expected)
-
-
 def test_assembly_with_extra_points_sums_each_points_stiffness():
     """Groups of 2, 3 and 1 points on a 5-coefficient field (k = 2): the regular points (one
-    per group) and the extra ones (scattered at `_extra_scatter`) give K = Σ_q J_qᵀ H_q J_q."""
+    per group) and the extra ones (batched per group) give K = Σ_q J_qᵀ H_q J_q."""
     gen = torch.Generator().manual_seed(2)
     index = torch.tensor([[0, 1], [0, 1], [1, 2], [1, 2], [1, 2], [3, 4]])
     n, k = index.shape
@@ -101,7 +82,7 @@ def test_assembly_with_extra_points_sums_each_points_stiffness():
             for a in range(k):
                 jq[np.arange(6) * 3 + c, 3 * int(index[q, a]) + c] = basis[q, :, a].numpy()
         expected += jq.T @ blocks[q].numpy() @ jq
-    assert len(assembly._extra_scatter) == (n - 3) * 9 * k * k  # three groups, one regular each
+    assert assembly._extra.stop - assembly._extra.start == n - 3  # three groups, one regular each
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
     assert sp.issparse(assembly.hessian(blocks[assembly.order]))
 

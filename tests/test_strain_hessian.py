@@ -99,13 +99,16 @@ def test_psd_blocks_are_positive_semi_definite_and_exact_without_stress(law):
                           rtol=0, atol=1e-12 * float(rest.abs().max()))
 
 
-def test_the_tangent_length_is_computed_once_per_state(monkeypatch):
-    """Blocks asked chunk by chunk of rows (as Newton's assembly asks) take their strain
-    steps from one RMS tangent length of all samples, computed once per state: once for all
-    chunks of one U, again after U changes in place or for another tensor; every chunk's
-    blocks are those rows of all points' blocks, bit for bit, and after the in-place change
-    those of a fresh copy of the new U."""
-    from taichi_ndf.shell import strain_hessian
+def test_point_blocks_compute_the_tangent_length_once_per_state_for_every_chunk(monkeypatch):
+    """Blocks asked chunk by chunk of rows (as Newton's assembly asks, `PointBlocks`) take
+    their strain steps from one RMS tangent length of all samples, computed once per state
+    (`PointBlocks`, or by its caller for several at one state: `state_tangent`) and passed
+    down to every chunk (`tangent=`): every chunk's blocks are those rows of all points'
+    blocks, bit for bit, exact and psd; a new state computes it anew; a tangent length passed
+    is the one used."""
+    from taichi_ndf.minimise.point_blocks import PointBlocks, state_tangent
+    from taichi_ndf.objective import terms
+    from taichi_ndf.shell.hessian import flat_blocks
 
     samples, loads = _samples("cylinder")
     potential = Objective(ShellEnergyTerm(MATERIALS["clyde"], loads)).potential(1.0)
@@ -113,20 +116,37 @@ def test_the_tangent_length_is_computed_once_per_state(monkeypatch):
                            dtype=DT)
     steps = jet_steps(samples.r_jets, u, 1.0, 1e-5)
     calls = []
-    original = strain_hessian._tangent_length
-    monkeypatch.setattr(strain_hessian, "_tangent_length",
+    original = terms.tangent_length
+    monkeypatch.setattr(terms, "tangent_length",
                         lambda *args: calls.append(1) or original(*args))
 
-    def chunked(state):
-        return torch.cat([potential.hessian_blocks(samples, state, steps=steps,
-                                                   rows=slice(s, s + 5))
-                          for s in range(0, len(samples), 5)])
+    class Linearisation:  # what PointBlocks reads of one
+        def __init__(self):
+            self.samples = samples
 
-    whole = potential.hessian_blocks(samples, u, steps=steps)
-    assert len(samples) > 10 and len(calls) == 1
-    assert torch.equal(chunked(u), whole) and len(calls) == 1
-    u.mul_(1.5)  # the same tensor, another state
-    assert torch.equal(chunked(u), potential.hessian_blocks(samples, u.clone(), steps=steps))
-    assert len(calls) == 3  # the chunks' once, the fresh copy's once
-    assert not torch.equal(chunked(u), whole)
-    assert len(calls) == 4  # the memo holds one state: the copy's replaced u's
+        def fd_steps(self, u_jets, parameters, relative):
+            return steps
+
+    for state in (u, 1.5 * u):
+        for psd in (False, True):
+            whole = flat_blocks(potential.hessian_blocks(samples, state, steps=steps) if not psd
+                                else potential.psd_hessian_blocks(samples, state, steps=steps))
+            calls.clear()
+            blocks = PointBlocks(Linearisation(), potential, None, state, 1e-5, psd=psd)
+            chunked = torch.cat([blocks(slice(s, s + 5)) for s in range(0, len(samples), 5)])
+            assert len(samples) > 10 and len(calls) == 1
+            assert torch.equal(chunked, whole)
+            # a second PointBlocks at this state (Newton's projected K after its exact one)
+            # given the scale computes none
+            again = PointBlocks(Linearisation(), potential, None, state, 1e-5, psd=psd,
+                                tangent=state_tangent(potential, samples, state))
+            assert len(calls) == 2
+            assert torch.equal(again(slice(5, 10)), whole[5:10]) and len(calls) == 2
+    length = potential.tangent_length(samples, u)
+    first = slice(0, 5)
+    assert torch.equal(potential.hessian_blocks(samples, u, steps=steps, rows=first,
+                                                tangent=length),
+                       potential.hessian_blocks(samples, u, steps=steps)[first])
+    assert not torch.equal(potential.hessian_blocks(samples, u, steps=steps, rows=first,
+                                                    tangent=2 * length),
+                           potential.hessian_blocks(samples, u, steps=steps)[first])

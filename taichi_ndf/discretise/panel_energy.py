@@ -66,19 +66,29 @@ class PanelEnergy:
         result = self.result(samples, u_jets, load_factor, grad=grad)
         return result.total, result.grad_u_jets
 
+    def tangent_length(self, samples: SurfaceSamples, u_jets: torch.Tensor
+                       ) -> tuple[float, ...]:
+        """Each panel's `ShellEnergyTerm.tangent_length` on its rows: what
+        `hessian_blocks(tangent=)` takes."""
+        return tuple(term.tangent_length(_part(samples, own), u_jets[own])
+                     for term, own in zip(self.terms, self.rows, strict=True))
+
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float = 1.0, *, steps: torch.Tensor, psd: bool = False,
-                       rows: slice | None = None) -> torch.Tensor:
+                       rows: slice | None = None, tangent: tuple[float, ...] | None = None
+                       ) -> torch.Tensor:
         """Per-point blocks (N, 6, 3, 6, 3), or those of `rows` (a chunk, which may span
-        panels): each panel's `ShellEnergyTerm.hessian_blocks` on its part of the chunk."""
+        panels): each panel's `ShellEnergyTerm.hessian_blocks` on its part of the chunk, with
+        its `tangent_length` from `tangent` (computed per panel where None)."""
         start, stop, _ = (rows or slice(None)).indices(len(samples))
         blocks = []
-        for term, own in zip(self.terms, self.rows, strict=True):
+        for i, (term, own) in enumerate(zip(self.terms, self.rows, strict=True)):
             lo, hi = max(start, own.start), min(stop, own.stop)
             if lo < hi:
                 blocks.append(term.hessian_blocks(
                     _part(samples, own), u_jets[own], load_factor, steps=steps, psd=psd,
-                    rows=slice(lo - own.start, hi - own.start)))
+                    rows=slice(lo - own.start, hi - own.start),
+                    tangent=None if tangent is None else tangent[i]))
         return torch.cat(blocks)
 
 

@@ -39,9 +39,9 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
+from taichi_ndf.minimise.group_pattern import batch_slots, csr_pattern
 from taichi_ndf.minimise.jacobian import ComponentJacobian, component_jacobian
-from taichi_ndf.minimise.pair_hessian import contract as _contract
-from taichi_ndf.minimise.pair_hessian import coupled_hessian, point_stiffness, touched_channels
+from taichi_ndf.minimise.pair_hessian import coupled_hessian, touched_channels
 from taichi_ndf.minimise.pair_hessian import dofs as _dofs
 from taichi_ndf.minimise.pair_hessian import weighted as _weighted
 from taichi_ndf.objective.couplings import Couplings
@@ -103,37 +103,6 @@ def _pin_displacement(pin_jacobian: torch.Tensor, pin_coefficients: torch.Tensor
     return torch.einsum("cja,ac->jc", pin_jacobian[:, 0], pin_coefficients)[None]
 
 
-def _csr_pattern(groups: np.ndarray, n_coefficients: int
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """K's CSR pattern for groups of coefficients acting together (G, k): the position in K's
-    data of each entry [c, d, g, a, b] of the per-group sums (3, 3, G, k, k) (`_pair_sums`:
-    unknowns (3 groups[g, a] + c, 3 groups[g, b] + d)), the column of each datum (int32) and
-    the row starts (3n + 1, int32); positions int32 where K has < 2³¹ entries. Found on the
-    coefficient pairs (9× fewer keys than the unknown pairs): unknown row 3a + c holds the
-    columns 3b + d of the coefficients b coupled to a, in order, so it starts at
-    9 start[a] + 3 c count[a] (start, count: of coefficient row a)."""
-    count_groups, k = groups.shape
-    n = n_coefficients
-    keys = (groups[:, :, None] * n + groups[:, None, :]).ravel()
-    pairs, pair = np.unique(keys, return_inverse=True)
-    per_row = np.bincount(pairs // n, minlength=n)
-    start = np.concatenate(([0], np.cumsum(per_row)))
-    first = start[groups][:, :, None]  # (G, k, 1): start of coefficient row a
-    within = pair.reshape(count_groups, k, k) - first  # position of b in row a
-    comps, base, rows = np.arange(COMPONENTS), 9 * first + 3 * within, per_row[groups][..., None]
-    scatter = np.empty((COMPONENTS, COMPONENTS, *base.shape),
-                       np.int32 if 9 * len(pairs) < 2 ** 31 else np.int64)
-    for c, d in np.ndindex(COMPONENTS, COMPONENTS):
-        scatter[c, d] = base + (3 * c * rows + d)
-    lengths = np.repeat(3 * per_row, COMPONENTS)  # unknown rows: 3 columns per coefficient
-    row_starts = np.concatenate(([0], np.cumsum(lengths)))
-    columns3 = (3 * (pairs % n)[:, None] + comps).ravel()  # coefficient row a's at 3 start[a]
-    index = np.arange(row_starts[-1]) - np.repeat(
-        row_starts[:-1] - np.repeat(3 * start[:-1], COMPONENTS), lengths)
-    return (scatter.ravel(), columns3[index].astype(np.int32),
-            row_starts.astype(np.int32))
-
-
 class Assembly:
     """Π's coefficient-space gradient and Hessian on fixed samples (module docstring).
 
@@ -152,8 +121,9 @@ class Assembly:
                              "samples")
         # The points are reordered: the first m points of every group of points acting on the
         # same coefficients (m: the smallest group; the Gauss points of a span), group by group,
-        # are contracted in one GEMM per group; the others (point-load samples) follow and are
-        # contracted point by point.
+        # are contracted in one GEMM per group; the others (point-load samples, contact's check
+        # points, SfT's data points) follow, sorted by group, and are summed per group in
+        # batches of their own (`_extra_batches`).
         groups, group = torch.unique(basis.index, dim=0, return_inverse=True)
         counts = torch.bincount(group)
         order = torch.argsort(group, stable=True)
@@ -180,13 +150,10 @@ class Assembly:
         self._group_dofs = torch.from_numpy(group_dofs.ravel()).to(device)
         # K's point-local part is summed per group and component pair as (3, 3, G, k, k)
         # (`_pair_sums`): the unknowns of entry [c, d, g, a, b] are (dof[g, a, c],
-        # dof[g, b, d]); `_scatter` is its position in K's CSR data (`_csr_pattern`).
-        self._scatter, self._columns, self._row_starts = _csr_pattern(
+        # dof[g, b, d]); `_scatter` is its position in K's CSR data (`csr_pattern`).
+        self._scatter, self._columns, self._row_starts = csr_pattern(
             groups.cpu().numpy().astype(np.int64), self.n_coefficients)
-        self._groups, k = groups.shape
-        extra = self._scatter.reshape(COMPONENTS, COMPONENTS, self._groups, k, k)[
-            :, :, self._group[self._extra].cpu().numpy()]  # the extra points' [c, d, q, a, b]
-        self._extra_scatter = np.ascontiguousarray(extra.transpose(2, 0, 3, 4, 1)).ravel()
+        self._groups = groups.shape[0]
         self.offset = self.jacobian = self.pin_jacobian = self._operator = None
 
     def at_load(self, operator: DisplacementOperator, load_factor: float) -> Assembly:
@@ -225,16 +192,13 @@ class Assembly:
         return out.reshape(-1, COMPONENTS)
 
     def _group_sums(self, left: ComponentJacobian, blocks: torch.Tensor, right: torch.Tensor,
-                    groups: slice | None) -> torch.Tensor:
-        """Σ over the points q of each group of L_qᵀ H_q R_q, shape (g, 3k, 3k), for the points
-        of `groups` (a slice of groups; None: the extra points, one per point), Jacobians L
-        (3, n, cl, k), R (3, n, cr, k) (a tensor) on channel subsets and blocks (n, cl, 3, cr,
-        3) on the same channels, all at those points only."""
+                    m: int) -> torch.Tensor:
+        """Σ over the points q of each group of m consecutive points of L_qᵀ H_q R_q, shape
+        (g, 3k, 3k), Jacobians L (3, g m, cl, k), R (3, g m, cr, k) (a tensor) on channel
+        subsets and blocks (g m, cl, 3, cr, 3) on the same channels."""
         k, channels = left.shape[3], left.shape[2]
         width = k * COMPONENTS
-        if groups is None:
-            return _contract(left.dense(), _weighted(blocks, right)).reshape(-1, width, width)
-        count, m = groups.stop - groups.start, self._per_group
+        count = blocks.shape[0] // m
         summed = blocks.new_empty(count, k, COMPONENTS, width)
         step = max(1, CHUNK // m)
         for start in range(0, count, step):
@@ -248,23 +212,20 @@ class Assembly:
         return summed.reshape(count, width, width)
 
     def _pair_sums(self, data: np.ndarray, jacobian: ComponentJacobian, blocks: torch.Tensor,
-                   groups: slice | None) -> None:
-        """Adds to K's CSR data (float64) the point-local part of the points of `groups` (a
-        slice of groups; None: the extra points, point by point in order, at `_extra_scatter`):
-        R[c, d, g] = Σ_{q in group g} J_c,qᵀ H_q[:, c, :, d] J_d,q (symmetric blocks (n, ch, 3,
-        ch, 3) and J at those points) scattered per batch of groups in order: two batched GEMMs
-        per component pair, the group's points in the inner dimension; R[d, c] = R[c, d]ᵀ."""
-        channels, k, m = *jacobian.shape[2:], self._per_group
+                   groups: np.ndarray, m: int) -> None:
+        """Adds to K's CSR data (float64) the point-local part of points that come in batches
+        of m consecutive points, batch i acting on the coefficients of group `groups[i]`:
+        R[c, d, i] = Σ_{q in batch i} J_c,qᵀ H_q[:, c, :, d] J_d,q (symmetric blocks (n, ch,
+        3, ch, 3) and J at those points) scattered per run of batches in order: two batched
+        GEMMs per component pair, the batch's points in the inner dimension; R[d, c] =
+        R[c, d]ᵀ. Batches of one group add up (`np.add.at`)."""
+        channels, k = jacobian.shape[2:]
         scatter = self._scatter.reshape(COMPONENTS, COMPONENTS, self._groups, k, k)
-        if groups is None:
-            out = point_stiffness(jacobian.dense(), blocks)  # [q, c, a, b, d]
-            np.add.at(data, self._extra_scatter, out.double().cpu().numpy().ravel())
-            return
         step = max(1, CHUNK // m)
-        for start in range(groups.start, groups.stop, step):
-            g = slice(start, min(groups.stop, start + step))
-            p = slice((g.start - groups.start) * m, (g.stop - groups.start) * m)
-            out = blocks.new_empty(COMPONENTS, COMPONENTS, g.stop - g.start, k, k)
+        for start in range(0, len(groups), step):
+            g = groups[start:start + step]
+            p = slice(start * m, (start + len(g)) * m)
+            out = blocks.new_empty(COMPONENTS, COMPONENTS, len(g), k, k)
             for c in range(COMPONENTS):
                 left = jacobian.component(c)[p].reshape(-1, m * channels, k).transpose(1, 2)
                 for d in range(c, COMPONENTS):
@@ -273,7 +234,7 @@ class Assembly:
                     torch.bmm(left, weighted.reshape(-1, m * channels, k), out=out[c, d])
                     if d != c:
                         out[d, c] = out[c, d].transpose(1, 2)
-            flat = np.ascontiguousarray(scatter[:, :, g]).ravel()  # np.add.at: 5× a view's
+            flat = scatter[:, :, g].ravel()  # a copy, contiguous: np.add.at: 5× a view's
             np.add.at(data, flat, out.double().cpu().numpy().ravel())  # speed
 
     def hessian(self, blocks: torch.Tensor | Callable[[slice], torch.Tensor],
@@ -307,18 +268,40 @@ class Assembly:
             chunks[-1].append((self._extra, None))
         return chunks
 
-    def _add_points(self, data: np.ndarray, pin: list, points: slice, groups: slice | None,
-                    blocks: torch.Tensor) -> None:
-        """Adds the points' part of K: to its CSR data, and through a free pin to `pin`
-        ([Σ J_localᵀ H J_pin, the pin–pin block], None until some block reaches the pin's
-        channels). blocks (n, 18, 18) of the points `points` (those of `groups`, or the extra
-        points with groups None)."""
+    def _extra_batches(self, blocks: torch.Tensor):
+        """The extra points (beyond each group's first m; contact's check points, SfT's data
+        points) as batches of equal size s per group, for the grouped products of the regular
+        points: yields (rows (b s,) of the extra points, their blocks (b s, 18, 18) with zero
+        blocks where a group's last batch is short, the batches' groups (b,), s). blocks: the
+        extra points' (n, 18, 18). The points whose blocks touch the value channel only (the
+        data terms' and the contact barrier's) are batched apart from the others, so that
+        their products run on that channel alone."""
+        groups = self._group[self._extra]
+        shaped = blocks.reshape(-1, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
+        value_only = ~(shaped[:, 1:].flatten(1).ne(0).any(1)
+                       | shaped[:, :1, :, 1:].flatten(1).ne(0).any(1))
+        for kind in (value_only, ~value_only):
+            rows = torch.nonzero(kind).flatten()
+            if rows.numel() == 0:
+                continue
+            slots, ids, size = batch_slots(groups[rows])
+            padded = blocks.new_zeros(len(ids) * size, *blocks.shape[1:])
+            padded[slots] = blocks[rows]
+            index = rows.new_full((len(ids) * size,), int(rows[0]))  # short batches: any row,
+            index[slots] = rows  # with zero blocks
+            yield index, padded, ids, size
+
+    def _add_points(self, data: np.ndarray, pin: list, jacobian: ComponentJacobian,
+                    blocks: torch.Tensor, groups: np.ndarray, m: int) -> None:
+        """Adds the part of K of points that come in batches of m consecutive points, batch i
+        acting on the coefficients of group `groups[i]`: to K's CSR data, and through a free
+        pin to `pin` ([Σ J_localᵀ H J_pin, the pin–pin block], None until some block reaches
+        the pin's channels). jacobian: J at the points; blocks (n, 18, 18) there."""
         blocks = self._operator.blocks_to_frame(blocks).reshape(
             -1, jets.CHANNELS, COMPONENTS, jets.CHANNELS, COMPONENTS)
         # Only the channels some block touches enter (the shell energy's blocks have no value
         # channel: 5² of the 6² channel pairs, and no coupling through a free pin's value).
         used = touched_channels(blocks)
-        jacobian = self.jacobian.rows(points)
         if used.numel() < jets.CHANNELS:
             lo, hi = int(used[0]), int(used[-1]) + 1
             if hi - lo == used.numel():  # a range of channels: views, no copies
@@ -326,7 +309,7 @@ class Assembly:
             else:
                 blocks = blocks[:, used][:, :, :, used]
                 jacobian = jacobian.channels(used)
-        self._pair_sums(data, jacobian, blocks, groups)
+        self._pair_sums(data, jacobian, blocks, groups, m)
         if self.pin_jacobian is None:
             return
         # the pin's Jacobian lives on few channels (the value): only those enter
@@ -334,14 +317,14 @@ class Assembly:
         if ch.numel() == 0:
             return
         width = self.jacobian.shape[3] * COMPONENTS
-        pin_jac = self.pin_jacobian[:, points][:, :, used[ch]]
-        cross = self._group_sums(jacobian, blocks[:, :, :, ch], pin_jac, groups)
+        # the same at every point (an expanded view)
+        pin_jac = self.pin_jacobian[:, :1, used[ch]].expand(-1, blocks.shape[0], -1, -1)
+        cross = self._group_sums(jacobian, blocks[:, :, :, ch], pin_jac, m)
         pin_pin = self._group_sums(ComponentJacobian(list(pin_jac), (0, 1, 2)),
-                                   blocks[:, ch][:, :, :, ch], pin_jac, groups).sum(dim=0)
+                                   blocks[:, ch][:, :, :, ch], pin_jac, m).sum(dim=0)
         if pin[0] is None:
             pin[0], pin[1] = blocks.new_zeros(self.size, width), 0.0
-        group_dofs = self._group_dofs.reshape(self._groups, width)
-        rows = group_dofs[groups if groups is not None else self._group[self._extra]]
+        rows = self._group_dofs.reshape(self._groups, width)[torch.from_numpy(groups)]
         pin[0].index_add_(0, rows.reshape(-1), cross.reshape(-1, width))
         pin[1] = pin[1] + pin_pin
 
@@ -354,8 +337,14 @@ class Assembly:
             first = parts[0][0].start
             fetched = blocks_of(slice(first, parts[-1][0].stop))
             for points, groups in parts:
-                self._add_points(data, pin, points, groups,
-                                 fetched[points.start - first:points.stop - first])
+                here = fetched[points.start - first:points.stop - first]
+                if groups is not None:
+                    self._add_points(data, pin, self.jacobian.rows(points), here,
+                                     np.arange(groups.start, groups.stop), self._per_group)
+                    continue
+                for rows, padded, ids, size in self._extra_batches(here):
+                    self._add_points(data, pin, self.jacobian.rows(points.start + rows),
+                                     padded, ids, size)
             fetched = None
         dense, pin_pin = pin
         matrix = sp.csr_matrix((data, self._columns, self._row_starts),

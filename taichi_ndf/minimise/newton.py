@@ -55,7 +55,7 @@ import torch
 from taichi_ndf import progress
 from taichi_ndf.minimise.line_search import backtrack, second_order_step
 from taichi_ndf.minimise.newton_state import NewtonIterate, NewtonIteration
-from taichi_ndf.minimise.point_blocks import PointBlocks, coupled_blocks
+from taichi_ndf.minimise.point_blocks import PointBlocks, coupled_blocks, state_tangent
 from taichi_ndf.minimise.point_blocks import hessian_blocks as hessian_blocks
 from taichi_ndf.minimise.point_blocks import point_blocks as point_blocks
 from taichi_ndf.objective.couplings import Couplings
@@ -297,8 +297,10 @@ def minimise(linearisation: Linearisation, potential: Potential, start: torch.Te
         exact = config.project and damping == 0.0 and (endgame or not exact_failed)
         strain = config.project and config.hessian == "strain" and hasattr(
             potential, "psd_hessian_blocks")
-        # the blocks are built chunk by chunk inside the assemblies (`PointBlocks`)
-        blocks = partial(PointBlocks, linearisation, potential, c, u, config.fd_step)
+        # the blocks are built chunk by chunk inside the assemblies (`PointBlocks`), the
+        # shell's strain-step scale once for this state
+        blocks = partial(PointBlocks, linearisation, potential, c, u, config.fd_step,
+                         tangent=state_tangent(potential, samples, u))
         couplings = coupled_blocks(potential, samples, u)
         t_hessian = time.perf_counter() - started
         t_assembly, t_solve, first_step = 0.0, 0.0, None  # first: (step, μ) of a definite K

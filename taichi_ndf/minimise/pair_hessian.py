@@ -2,8 +2,7 @@
 
 For per-point blocks H (n, 6, 3, 6, 3) and per-component Jacobians J (3, n, 6, k) of the
 points' jets over the k coefficients acting at each (`taichi_ndf.minimise.assembly`):
-`weighted` is H J, `contract` Jᵀ (H J), the (n, k, 3, k, 3) local stiffness of each point
-(`point_stiffness`: the same, skipping the channels a point's block leaves zero).
+`weighted` is H J, `contract` Jᵀ (H J), the (n, k, 3, k, 3) local stiffness of each point.
 
 A term that joins two points (`taichi_ndf.objective.couplings`: a seam's stitches, self-
 contact) adds Σ_p A_pᵀ H_p A_p, A_p the Jacobian of both points' jets over the coefficients
@@ -35,25 +34,6 @@ def weighted(blocks: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
 def contract(jacobian: torch.Tensor, weighted_blocks: torch.Tensor) -> torch.Tensor:
     """M[q, a, c, b, d] = Σ_i J[c, q, i, a] T[q, i, c, b, d], shape (n, k, 3, k, 3)."""
     return torch.einsum("cqia,qicbd->qacbd", jacobian, weighted_blocks)
-
-
-def point_stiffness(jacobian: torch.Tensor, blocks: torch.Tensor) -> torch.Tensor:
-    """Each point's local stiffness Jᵀ H J as [q, c, a, b, d], shape (n, 3, k, k, 3) (`contract`
-    in its own memory layout), of J (3, n, ch, k) and blocks H (n, ch, 3, ch, 3). The points
-    whose blocks have entries in the first channel only (the data terms' value–value blocks
-    beside the shell's) are contracted on that channel alone: the same sums without their
-    exact zeros, so the same values."""
-    first_only = ~(blocks[:, 1:].flatten(1).ne(0).any(1) | blocks[:, :1, :, 1:].flatten(1).ne(0)
-                   .any(1))
-    if blocks.shape[1] == 1 or not bool(first_only.any()):
-        return contract(jacobian, weighted(blocks, jacobian)).permute(0, 2, 1, 3, 4).contiguous()
-    k = jacobian.shape[3]
-    out = blocks.new_empty(blocks.shape[0], COMPONENTS, k, k, COMPONENTS)
-    for rows, ch in ((~first_only, slice(None)), (first_only, slice(0, 1))):
-        if bool(rows.any()):
-            part, local = jacobian[:, rows][:, :, ch], blocks[rows][:, ch][:, :, :, ch]
-            out[rows] = contract(part, weighted(local, part)).permute(0, 2, 1, 3, 4)
-    return out
 
 
 def dofs(index: torch.Tensor) -> np.ndarray:

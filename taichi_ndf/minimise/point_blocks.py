@@ -39,24 +39,42 @@ def coupled_blocks(potential: Potential, samples, u_jets: torch.Tensor) -> Coupl
     return None if own is None else own(samples, u_jets)
 
 
+def state_tangent(potential: Potential, samples, u_jets: torch.Tensor):
+    """The shell's strain-step scale at U = u_jets (`potential.tangent_length`) where the
+    potential's blocks by rows take it (`tangent=`: `Objective.potential`'s), else None: for
+    a caller that builds several `PointBlocks` at one state (Newton's exact K, then its
+    projected one), computed once."""
+    own = getattr(potential, "hessian_blocks", None)
+    if own is None or "tangent" not in inspect.signature(own).parameters:
+        return None
+    return potential.tangent_length(samples, u_jets)
+
+
 class PointBlocks:
     """The per-point blocks (n, 18, 18) of a slice of points at U(P) = u_jets, built when
     asked (`Linearisation.hessian` asks chunk by chunk, so that the blocks of all points are
     never held): the exact (unprojected) ones with the FD steps `fd_step` × each channel's
     scale (`hessian_blocks`); psd: `psd_hessian_blocks`'; project: the exact ones projected
     (`project_psd` in that mode; `projected` counts the blocks it changed). A potential whose
-    blocks cannot be asked by rows gives all of them on the first ask (kept, then cut).
+    blocks cannot be asked by rows gives all of them on the first ask (kept, then cut); one
+    whose blocks take `tangent` (`Objective.potential`'s) gets the shell's strain-step scale
+    of all points (`state_tangent`) for every chunk: `tangent` where the caller has it for
+    this state, else computed here.
     `seconds`: the time spent building and projecting blocks."""
 
     def __init__(self, linearisation, potential: Potential,
                  parameters: torch.Tensor, u_jets: torch.Tensor, fd_step: float,
-                 psd: bool = False, project: str | None = None):
+                 psd: bool = False, project: str | None = None, tangent=None):
         self.samples, self.u_jets, self.project = linearisation.samples, u_jets, project
         self.steps = linearisation.fd_steps(u_jets, parameters, fd_step)
         own = potential.psd_hessian_blocks if psd else getattr(potential, "hessian_blocks",
                                                                 None)
         self._own = own if own is not None and "rows" in inspect.signature(
             own).parameters else None
+        if self._own is not None and "tangent" in inspect.signature(own).parameters:
+            # the shell's strain-step scale over all points, once per state, not per chunk
+            self._own = partial(own, tangent=state_tangent(potential, self.samples, u_jets)
+                                if tangent is None else tangent)
         self._all = None if self._own is not None else (
             own if psd else partial(hessian_blocks, potential))
         self.projected, self.seconds = 0, 0.0

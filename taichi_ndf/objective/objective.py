@@ -74,9 +74,20 @@ class Objective:
         form the Newton solvers take), with its per-point Hessian blocks."""
         return FixedLoadPotential(self, load_factor)
 
+    def tangent_length(self, samples: SurfaceSamples, u_jets: torch.Tensor):
+        """The shell term's scale of its strain steps at U = u_jets (its `tangent_length`), for
+        `hessian_blocks(tangent=)`: computed once per state by a caller that asks the blocks
+        chunk by chunk of rows (`taichi_ndf.minimise.point_blocks.PointBlocks`); None where
+        the shell term's blocks take none."""
+        own = getattr(self.shell, "hessian_blocks", None)
+        if own is None or "tangent" not in inspect.signature(own).parameters:
+            return None
+        return self.shell.tangent_length(samples, u_jets)
+
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor,
-                       psd: bool = False, rows: slice | None = None) -> torch.Tensor:
+                       psd: bool = False, rows: slice | None = None, tangent=None
+                       ) -> torch.Tensor:
         """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3), not projected: the sum of
         each term's own `hessian_blocks(samples, u_jets, load_factor, steps=steps)` where the
         term has one, else central differences of that term's gradient (`sample_hessians`,
@@ -87,15 +98,18 @@ class Objective:
         chunk by chunk), the same values as those rows of all points' blocks: a term whose
         `hessian_blocks` takes `rows` (the shell's, the stiffness damping, inertia, wind)
         given them, any other term's built at all points and cut (per-point data of their
-        own: the contact terms; their blocks are cheap)."""
+        own: the contact terms; their blocks are cheap). tangent: the shell's
+        `tangent_length` at these samples and U, passed to the shell term (None: it computes
+        its own)."""
         total, part = None, (lambda b: b) if rows is None else (lambda b: b[rows])
         for term in (self.shell, *self.extra):
             own = getattr(term, "hessian_blocks", None)
+            scale = {} if tangent is None or term is not self.shell else {"tangent": tangent}
             if own is not None and psd and term is self.shell:
                 blocks = own(samples, u_jets, load_factor, steps=steps, psd=True,
-                             **({} if rows is None else {"rows": rows}))
+                             **({} if rows is None else {"rows": rows}), **scale)
             elif own is not None and "rows" in inspect.signature(own).parameters:
-                blocks = own(samples, u_jets, load_factor, steps=steps, rows=rows)
+                blocks = own(samples, u_jets, load_factor, steps=steps, rows=rows, **scale)
             elif own is not None:
                 blocks = part(own(samples, u_jets, load_factor, steps=steps))
             elif hasattr(term, "coupled_hessian"):  # its Hessian is all in its couplings
@@ -157,19 +171,26 @@ class FixedLoadPotential:
                  ) -> EnergyResult:
         return self.objective.evaluate(samples, u_jets, self.load_factor, grad=grad)
 
+    def tangent_length(self, samples: SurfaceSamples, u_jets: torch.Tensor):
+        """The shell's strain-step scale at U = u_jets, for `hessian_blocks(tangent=)`
+        (`Objective.tangent_length`)."""
+        return self.objective.tangent_length(samples, u_jets)
+
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
-                       steps: torch.Tensor, rows: slice | None = None) -> torch.Tensor:
+                       steps: torch.Tensor, rows: slice | None = None, tangent=None
+                       ) -> torch.Tensor:
         """Per-point Hessian blocks (N, 6, 3, 6, 3), or those of `rows`
         (`Objective.hessian_blocks`)."""
         return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps,
-                                             rows=rows)
+                                             rows=rows, tangent=tangent)
 
     def psd_hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor, *,
-                           steps: torch.Tensor, rows: slice | None = None) -> torch.Tensor:
+                           steps: torch.Tensor, rows: slice | None = None, tangent=None
+                           ) -> torch.Tensor:
         """Positive semi-definite per-point blocks (N, 6, 3, 6, 3), or those of `rows`
         (`Objective.hessian_blocks`' psd: projected Newton's "strain" treatment)."""
         return self.objective.hessian_blocks(samples, u_jets, self.load_factor, steps=steps,
-                                             psd=True, rows=rows)
+                                             psd=True, rows=rows, tangent=tangent)
 
     def second_order_gradient(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                               step_jets: torch.Tensor) -> torch.Tensor | None:

@@ -15,6 +15,7 @@ from taichi_ndf.shell.energy import EnergyResult, ShellEnergy
 from taichi_ndf.shell.strain_hessian import (
     membrane_second_order_gradient,
     strain_energy_hessians,
+    tangent_length,
 )
 
 
@@ -50,16 +51,25 @@ class ShellEnergyTerm:
         result = self.result(samples, u_jets, load_factor, grad=grad)
         return result.total, result.grad_u_jets
 
+    def tangent_length(self, samples: SurfaceSamples, u_jets: torch.Tensor) -> float:
+        """The scale [m] of the strain steps at U = u_jets (`strain_hessian.tangent_length`):
+        what `hessian_blocks(tangent=)` takes, computed once per state by a caller that asks
+        the blocks chunk by chunk of rows."""
+        return tangent_length(samples, u_jets)
+
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor,
-                       psd: bool = False, rows: slice | None = None) -> torch.Tensor:
+                       psd: bool = False, rows: slice | None = None,
+                       tangent: float | None = None) -> torch.Tensor:
         """Per-point Hessian blocks d²Π/du_jets² (N, 6, 3, 6, 3) through the strains
         (`strain_energy_hessians`; the loads are linear in u: the load factor adds nothing).
         steps (6,): the jet channels' central-difference steps (`jet_steps`). psd: positive
         semi-definite by construction instead (`strain_energy_hessians`' psd). rows: those
-        samples' blocks only (n, 6, 3, 6, 3)."""
+        samples' blocks only (n, 6, 3, 6, 3). tangent: `tangent_length` at these samples and
+        U (computed here where None)."""
         return strain_energy_hessians(self.material, samples, u_jets, steps=steps,
-                                      stiffness=self.stiffness, psd=psd, rows=rows)
+                                      stiffness=self.stiffness, psd=psd, rows=rows,
+                                      tangent=tangent)
 
     def second_order_gradient(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                               step_jets: torch.Tensor) -> torch.Tensor:

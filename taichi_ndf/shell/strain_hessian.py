@@ -43,7 +43,6 @@ residual of Newton's second-order correction (`taichi_ndf.minimise.line_search`)
 # No `from __future__ import annotations`: this module defines Taichi kernels.
 
 import functools
-import weakref
 
 import torch
 
@@ -259,31 +258,9 @@ def membrane_second_order_gradient(material: Material, samples: SurfaceSamples,
     return out
 
 
-class _LastTangent:
-    """The last `_tangent_length` and what it was computed from (weak references and their
-    version counters): Newton asks the blocks chunk by chunk of points, each chunk's strain
-    steps from the same tangent length of all samples; computed once per state, not once per
-    chunk (at 144² spans, 41 chunks of 8 192 points, that was ~2.5 s of a 2.7 s build)."""
-
-    key: tuple = ()
-    versions: tuple = ()
-    length: float = 0.0
-
-    @classmethod
-    def of(cls, samples: SurfaceSamples, u_jets: torch.Tensor) -> float:
-        tensors = (samples.r_jets, samples.weight, u_jets)
-        versions = tuple(t._version for t in tensors)
-        if versions == cls.versions and all(
-                ref() is t for ref, t in zip(cls.key, tensors, strict=True)):
-            return cls.length
-        length = _tangent_length(samples, u_jets)
-        cls.key, cls.versions, cls.length = tuple(map(weakref.ref, tensors)), versions, length
-        return length
-
-
-def _tangent_length(samples: SurfaceSamples, u_jets: torch.Tensor) -> float:
+def tangent_length(samples: SurfaceSamples, u_jets: torch.Tensor) -> float:
     """The RMS length [m] of the deformed tangents x_,1, x_,2 over the samples of weight ≠ 0
-    (0 where none)."""
+    (0 where none): the scale of the membrane strain steps (`strain_energy_hessians`)."""
     active = torch.nonzero(samples.weight != 0).flatten()
     if active.numel() == 0:
         return 0.0
@@ -295,7 +272,8 @@ def _tangent_length(samples: SurfaceSamples, u_jets: torch.Tensor) -> float:
 
 def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: torch.Tensor,
                            *, steps: torch.Tensor, stiffness: torch.Tensor | None = None,
-                           psd: bool = False, rows: slice | None = None) -> torch.Tensor:
+                           psd: bool = False, rows: slice | None = None,
+                           tangent: float | None = None) -> torch.Tensor:
     """Per-point Hessian blocks d²E/dU² (N, 6, 3, 6, 3) of the strain energy (module
     docstring), symmetric; zero at point-load samples (weight 0).
 
@@ -304,9 +282,13 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     all the samples), δκ = the largest second-derivative step. stiffness: per-sample
     stiffness (N, K) or None. psd: the positive semi-definite blocks of the strain treatment
     instead (module docstring). rows: only the blocks of these samples (n, 6, 3, 6, 3) (a
-    chunk), the same as those rows of all samples' blocks.
+    chunk), the same as those rows of all samples' blocks. tangent: the RMS tangent length
+    [m] of all the samples (`tangent_length`), computed here where None; a caller that asks
+    chunk by chunk of rows at one U computes it once and passes it to every chunk (it costs
+    a pass over all samples: per chunk, O(N² / chunk)).
     """
-    tangent = _LastTangent.of(samples, u_jets)  # of all samples, also for a chunk of rows
+    if tangent is None:
+        tangent = tangent_length(samples, u_jets)  # of all samples, also for a chunk of rows
     if rows is not None:
         samples = SurfaceSamples(*(None if t is None else t[rows] for t in (
             samples.xi, samples.r_jets, samples.weight, samples.point_force,
