@@ -328,9 +328,11 @@ def resolving_spans(size: tuple[float, float], length: float, ratio: float = SPA
 @dataclass
 class SwingFit:
     """`fit_swing`'s answer: the last fit's problem and fit; levels: per grid, in order,
-    (spans, θ̂, s.e., iterations, "fit" or "check"); resolved: the last fit's grid resolves the
-    estimate's bending length and, with `grid_check`, one Gauss–Newton step on the next finer
-    grid moved θ̂ by at most its s.e. (False where that needed more than max_spans);
+    (spans, θ̂, s.e., iterations, "fit" or "check"); resolved: the last fit converged
+    (`TrajectoryFit.converged`: a fit stopped at its iteration cap holds no estimate, and its
+    s.e. no error bar), its grid resolves the estimate's bending length and, with
+    `grid_check`, one Gauss–Newton step on the next finer grid moved θ̂ by at most its s.e.
+    (False where that needed more than max_spans);
     grid_change: that last check's |Δθ| / s.e. (None: not checked)."""
 
     problem: SwingProblem
@@ -381,7 +383,7 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
         log.info("swing fit on %s spans: B = %.4e ± %.2e N·m, %d iterations", spans,
                  fit.value, fit.standard_error, fit.iterations)
         if config.spans is not None:
-            return SwingFit(problem, fit, levels, True)
+            return SwingFit(problem, fit, levels, fit.converged)
         finer = tuple(max(a, b) for a, b in zip(needed(fit.value), spans, strict=True))
         if finer != spans:
             spans, theta = finer, fit.value
@@ -389,12 +391,13 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
         resolved = all(a <= b for a, b in zip(needed(fit.value, None), spans, strict=True))
         check = tuple(min(config.max_spans, math.ceil(GROWTH * s)) for s in spans)
         if not config.grid_check or not resolved or check == spans:
-            return SwingFit(problem, fit, levels, resolved and not config.grid_check)
+            return SwingFit(problem, fit, levels,
+                            resolved and fit.converged and not config.grid_check)
         _, step = run(check, fit.value, dataclasses.replace(fit_config, max_iterations=1),
                       path)
         change = abs(step.value - fit.value) / fit.standard_error
         levels.append((check, step.value, step.standard_error, 1, "check"))
         log.info("swing fit: one step on %s spans moves B by %.2f s.e.", check, change)
         if change <= 1.0:
-            return SwingFit(problem, fit, levels, True, change)
+            return SwingFit(problem, fit, levels, fit.converged, change)
         spans, theta, path = check, step.value, step.path_values
