@@ -21,6 +21,11 @@ grid follows the estimate's bending length, `inverse.sft.swing.fit_swing`, `--sp
 `--max-spans`) with `--substeps`, from `--start` × B_true, Gauss–Newton stopped at a step
 below 1e-4 B or `--error-tolerance` × the s.e.; one line per iteration. The truth's buckle
 goes to −z (towards the camera) on every grid (the rest problem is mirror-symmetric).
+`--bias` (with `--spans`): instead of the fits, the fit grid's linearised bias against the
+truth — one Gauss–Newton step from B_true on the clean truth with the truth's corner paths,
+B alone: what a fit on that grid finds without noise, to first order — with its s.e. at
+`--noise` and its parts per frame and per row of observed points (where the grid's error
+meets ∂r/∂B).
 
 R1 (`--part r1 --run DIR`): DIR/meshes/*.obj (the default `ndf-sft --capture` run), held
 vertices 0 and 992, gravity (0, 9.81, 0), ρ_A 0.197 kg/m², D 300 N/m (stated), at each
@@ -28,6 +33,9 @@ vertices 0 and 992, gravity (0, 9.81, 0), ρ_A 0.197 kg/m², D 300 N/m (stated),
 frame against the reconstruction's rms distance to the Kinect cloud.
 
     OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part synthetic --seeds 0 1 2
+    OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part synthetic --bias --spans 28 \
+        --truth-spans 32 --truth-substeps 2 --truth-integrator implicit_euler --substeps 2 \
+        --duration 1.0 --truth-cache /tmp/truth_32.npz
     OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part r1 --run /tmp/r1 --data DATA
 """
 
@@ -45,9 +53,9 @@ import numpy as np
 import torch
 
 import taichi_ndf
-from inverse.material.trajectory_fit import TrajectoryFitConfig, observe
+from inverse.material.trajectory_fit import TrajectoryFitConfig, fit_trajectory, observe
 from inverse.sft.hanging import hanging_across, hanging_model
-from inverse.sft.swing import SPAN_RATIO, SwingConfig, fit_swing
+from inverse.sft.swing import SPAN_RATIO, SwingConfig, fit_swing, swing_problem
 from taichi_ndf import jets, progress
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
@@ -163,6 +171,70 @@ def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0), corner
     return swing.problem, swing.fit
 
 
+@dataclasses.dataclass(frozen=True)
+class LinearisedBias:
+    """One Gauss–Newton step from the true B on clean data (`linearised_bias`): residuals r
+    [m] and sensitivity s = dr/dB [m/(N·m)] at B_true, each (F − 1, P, 3) over the observed
+    frames and points, and the points' ξ (P, 2) [m]."""
+
+    residuals: np.ndarray
+    sensitivity: np.ndarray
+    xi: np.ndarray
+
+    @property
+    def h(self) -> float:
+        """Σ s² [m²/(N·m)²]: the s.e. at noise σ per coordinate is σ/√h."""
+        return float(np.sum(self.sensitivity ** 2))
+
+    @property
+    def parts(self) -> np.ndarray:
+        """−(r·s)/h per frame and point (F − 1, P) [N·m]: the step's parts."""
+        return -np.sum(self.residuals * self.sensitivity, axis=-1) / self.h
+
+    @property
+    def bias(self) -> float:
+        """The step ΔB = −Σ r s / Σ s² [N·m]: the bias of a fit on this grid, to first order."""
+        return float(self.parts.sum())
+
+    @property
+    def misfit(self) -> float:
+        """rms 3-D distance [m] of the model at B_true from the truth."""
+        return float(np.sqrt(np.mean(np.sum(self.residuals ** 2, axis=-1))))
+
+    def standard_error(self, noise: float) -> float:
+        """The s.e. [N·m] of B at noise σ [m] per coordinate."""
+        return noise / np.sqrt(self.h)
+
+
+def linearised_bias(clean, faces, held, fps, config, b_true, corners) -> LinearisedBias:
+    """The fit's own bias on `config`'s grid against a truth (F, V, 3) [m] at `fps`: the
+    swing model with the truth's corner paths corners(t) (T, 2, 3) [m] and B alone, one
+    Gauss–Newton step from b_true [N·m] on the clean frames (what a fit there would find, to
+    first order, with no noise)."""
+    problem = swing_problem(clean, faces, held, 1.0 / fps, np.array([0.0, G, 0.0]), config,
+                            corners=corners)
+    r = fit_trajectory(problem.stepper_at, problem.data, b_true,
+                       TrajectoryFitConfig(max_iterations=1), initial=problem.start)
+    shape = (len(problem.data.steps), len(problem.xi), 3)
+    return LinearisedBias(r.residuals.reshape(shape), r.sensitivity.reshape(shape),
+                          problem.xi.numpy())
+
+
+def print_bias(found: LinearisedBias, b_true: float, noise: float) -> None:
+    """The bias in % of B_true with its s.e. at `noise`, and where it comes from: per frame
+    and per row of observed points (ξ², row 0 the held edge)."""
+    rows = np.unique(found.xi[:, 1])
+    by_row = [found.parts[:, found.xi[:, 1] == y].sum() for y in rows]
+    print(f"linearised bias: {100 * found.bias / b_true:+.2f} % of B "
+          f"(s.e. at σ = {1000 * noise:.1f} mm: "
+          f"{100 * found.standard_error(noise) / b_true:.2f} %), rms misfit at B_true "
+          f"{1000 * found.misfit:.2f} mm")
+    print("  per frame [% of B]: " + ", ".join(
+        f"{100 * v / b_true:+.1f}" for v in found.parts.sum(1)))
+    print("  per row of observed points from the held edge [% of B]: " + ", ".join(
+        f"{100 * v / b_true:+.1f}" for v in by_row), flush=True)
+
+
 def part_synthetic(args) -> None:
     b_true = RHO * G * args.bending_length ** 3
     c0 = cpu()
@@ -193,6 +265,15 @@ def part_synthetic(args) -> None:
                          areal_density=RHO, size=(SIZE, SIZE), start=args.start_state,
                          grip=args.grip, degree=args.degree,
                          corners=args.corners, corner_spans=args.corner_spans or None)
+    if args.bias:
+        c0, t0 = cpu(), time.perf_counter()
+        found = linearised_bias(clean, faces, held, args.fps, config, b_true,
+                                lambda t: true_corners(t, args.duration))
+        print(f"the fit's grid {args.spans}² against the truth's {args.truth_spans}², true "
+              f"corners, clean data, one Gauss–Newton step from B_true: "
+              f"{cpu() - c0:.0f} s CPU, {time.perf_counter() - t0:.0f} s wall")
+        print_bias(found, b_true, args.noise)
+        return
     corners = ((lambda t: true_corners(t, args.duration)) if args.true_corners else None)
     print(f"start: {args.start_state}; corners: "
           f"{'true' if args.true_corners else args.corners} "
@@ -341,6 +422,11 @@ def main() -> None:
                         "and fit; 0: at its point)")
     p.add_argument("--truth-cache", type=Path, default=None,
                    help="synthetic: an .npz to read the truth from (written when missing)")
+    p.add_argument("--bias", action="store_true",
+                   help="synthetic: instead of the fits, the fit grid's (--spans) linearised "
+                        "bias: one Gauss–Newton step from B_true on the clean truth, true "
+                        "corners, B alone, with its s.e. at --noise and its parts per frame "
+                        "and row")
     p.add_argument("--run", type=Path, default=None)
     p.add_argument("--data", type=Path, default=None)
     p.add_argument("--r1-fps", type=float, nargs="+", default=[30.0])
@@ -351,6 +437,10 @@ def main() -> None:
     p.add_argument("--stride", type=int, default=2)
     p.add_argument("--save", type=Path, default=None, help="folder for the R1 fits' npz")
     args = p.parse_args()
+    if args.bias and (args.part != "synthetic" or args.spans < 1):
+        print("sft_swing.py: --bias needs --part synthetic and the fit's grid --spans N >= 1",
+              file=sys.stderr)
+        sys.exit(2)
     args.error_tolerance = args.error_tolerance or None
     torch.set_num_threads(1)
     taichi_ndf.init(arch="cpu", precision="f64", seed=0)

@@ -7,6 +7,9 @@ bad input is refused."""
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +25,7 @@ from inverse.material.trajectory_fit import (
 )
 from inverse.sft import swing
 from inverse.sft.swing import SwingConfig, fit_swing, resolving_spans, swing_problem
+from taichi_ndf import jets
 from taichi_ndf.solve.dynamics_adjoint import record
 
 SIZE, N, FRAMES, DT = 0.55, 5, 5, 1.0 / 30.0
@@ -274,3 +278,46 @@ def test_with_fitted_corners_the_refits_and_the_check_start_from_the_last_corner
     assert first is not None and not np.all(first == 3.0)  # the smoothed tracks' q₀
     assert [np.all(q == value) for (_, q), value in zip(starts[1:], (3.0, 4.0, 4.0),
                                                           strict=True)] == [True] * 3
+
+
+def test_the_benchmarks_linearised_bias_is_nil_on_the_models_own_run_and_one_step_off_it(
+        problem):
+    """benchmarks/sft_swing.py --bias: one Gauss–Newton step from the true B with the true
+    corners. On the model's own run at B the bias is nil; on its run at 1.1 B it is the step
+    to ≈ +10 % (first order: within 1 % of B); its parts per frame and point sum to it."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import sft_swing
+
+    _, p = problem
+    _, faces = rigid_sequence()
+    held = torch.tensor([[0.0, 0.0], [SIZE, 0.0]], dtype=torch.float64)
+    reference = p.model.surface.jets(held)[:, jets.VALUE].double().numpy()
+
+    def corners(t):  # the paths the model follows, as positions
+        return np.stack([reference + p.path.at(float(s)) for s in np.atleast_1d(t)])
+
+    grid = torch.from_numpy(p.grid.xi).double()
+    flat = p.model.surface.jets(grid)[:, jets.VALUE].double().numpy()
+    b_true = 2e-5
+    for factor, expected in ((1.0, 0.0), (1.1, 0.1)):
+        stepper = p.stepper_at(factor * b_true)
+        start = p.start(stepper)
+        states = record(stepper, start.displacement, start.velocity)
+        run = np.stack([flat + observe(stepper, grid, s.displacement, s.time).numpy()
+                        for s in states])
+        found = sft_swing.linearised_bias(run, faces, (0, N - 1), 1 / DT, CONFIG, b_true,
+                                          corners)
+        assert found.bias / b_true == pytest.approx(expected, abs=1e-2 if factor > 1 else 1e-8)
+        assert found.parts.shape == (FRAMES - 1, N * N)
+        assert found.parts.sum() == pytest.approx(found.bias, rel=1e-12)
+        assert found.standard_error(1e-3) == pytest.approx(1e-3 / np.sqrt(found.h))
+    assert found.misfit > 1e-5
+
+
+def test_the_benchmarks_bias_without_a_fit_grid_is_refused_in_one_line():
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "sft_swing.py"
+    done = subprocess.run([sys.executable, str(script), "--part", "synthetic", "--bias"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "sft_swing.py: --bias needs --part synthetic and the fit's grid --spans N >= 1"]
