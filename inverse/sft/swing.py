@@ -46,10 +46,8 @@ value first, then a warm-started refit on the finer grid whenever the estimate's
 one), whatever the sheet's size, the motion or the frame rate; then (`grid_check`) one
 Gauss–Newton step on a grid GROWTH × finer confirms it: where that step moves B by more than
 its s.e., the fit goes on on the finer grid. The check measures the grid's effect on the
-answer itself, so it does not depend on span_ratio being right (measured on the synthetic
-swing: spans ≈ c are not enough there — the folds the twisting corners drive still move
-the swing by 1.7 mm rms from 24² to 28² spans and B by 7 % —, benchmarks/RESULTS.md,
-"Material from the swing: a grid that resolves the buckle").
+answer itself, so it does not depend on span_ratio being right (the synthetic swing's B bias,
+one grid against the next: −13, −7.6, −5.2 % from 28² to 40²; RESULTS.md, wip-sftmat10).
 """
 
 from __future__ import annotations
@@ -328,9 +326,8 @@ def resolving_spans(size: tuple[float, float], length: float, ratio: float = SPA
 @dataclass
 class SwingFit:
     """`fit_swing`'s answer: the last fit's problem and fit; levels: per grid, in order,
-    (spans, θ̂, s.e., iterations, "fit" or "check"); resolved: the last fit converged
-    (`TrajectoryFit.converged`: a fit stopped at its iteration cap holds no estimate, and its
-    s.e. no error bar), its grid resolves the estimate's bending length and, with
+    (spans, θ̂, s.e., iterations, "fit" or "check"); resolved: the last fit converged (not
+    stopped at its cap), its grid resolves the estimate's bending length and, with
     `grid_check`, one Gauss–Newton step on the next finer grid moved θ̂ by at most its s.e.
     (False where that needed more than max_spans);
     grid_change: that last check's |Δθ| / s.e. (None: not checked)."""
