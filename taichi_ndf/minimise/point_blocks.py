@@ -40,14 +40,12 @@ def coupled_blocks(potential: Potential, samples, u_jets: torch.Tensor) -> Coupl
 
 
 def state_tangent(potential: Potential, samples, u_jets: torch.Tensor):
-    """The shell's strain-step scale at U = u_jets (`potential.tangent_length`) where the
-    potential's blocks by rows take it (`tangent=`: `Objective.potential`'s), else None: for
-    a caller that builds several `PointBlocks` at one state (Newton's exact K, then its
-    projected one), computed once."""
-    own = getattr(potential, "hessian_blocks", None)
-    if own is None or "tangent" not in inspect.signature(own).parameters:
-        return None
-    return potential.tangent_length(samples, u_jets)
+    """The shell's strain-step scale at U = u_jets where the potential has one
+    (`tangent_length`: `Objective.potential`'s, whose blocks then take `tangent=`), else
+    None: for a caller that builds several `PointBlocks` at one state (Newton's exact K, then
+    its projected one), computed once."""
+    length = getattr(potential, "tangent_length", None)
+    return None if length is None else length(samples, u_jets)
 
 
 class PointBlocks:
@@ -57,8 +55,8 @@ class PointBlocks:
     scale (`hessian_blocks`); psd: `psd_hessian_blocks`'; project: the exact ones projected
     (`project_psd` in that mode; `projected` counts the blocks it changed). A potential whose
     blocks cannot be asked by rows gives all of them on the first ask (kept, then cut); one
-    whose blocks take `tangent` (`Objective.potential`'s) gets the shell's strain-step scale
-    of all points (`state_tangent`) for every chunk: `tangent` where the caller has it for
+    with a `tangent_length` (`Objective.potential`'s) gets the shell's strain-step scale of
+    all points (`state_tangent`) for every chunk: `tangent` where the caller has it for
     this state, else computed here.
     `seconds`: the time spent building and projecting blocks."""
 
@@ -71,10 +69,12 @@ class PointBlocks:
                                                                 None)
         self._own = own if own is not None and "rows" in inspect.signature(
             own).parameters else None
-        if self._own is not None and "tangent" in inspect.signature(own).parameters:
+        if self._own is not None:
             # the shell's strain-step scale over all points, once per state, not per chunk
-            self._own = partial(own, tangent=state_tangent(potential, self.samples, u_jets)
-                                if tangent is None else tangent)
+            if tangent is None:
+                tangent = state_tangent(potential, self.samples, u_jets)
+            if tangent is not None:
+                self._own = partial(self._own, tangent=tangent)
         self._all = None if self._own is not None else (
             own if psd else partial(hessian_blocks, potential))
         self.projected, self.seconds = 0, 0.0

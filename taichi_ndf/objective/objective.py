@@ -78,11 +78,9 @@ class Objective:
         """The shell term's scale of its strain steps at U = u_jets (its `tangent_length`), for
         `hessian_blocks(tangent=)`: computed once per state by a caller that asks the blocks
         chunk by chunk of rows (`taichi_ndf.minimise.point_blocks.PointBlocks`); None where
-        the shell term's blocks take none."""
-        own = getattr(self.shell, "hessian_blocks", None)
-        if own is None or "tangent" not in inspect.signature(own).parameters:
-            return None
-        return self.shell.tangent_length(samples, u_jets)
+        the shell term has none (its blocks then take no `tangent`)."""
+        length = getattr(self.shell, "tangent_length", None)
+        return None if length is None else length(samples, u_jets)
 
     def hessian_blocks(self, samples: SurfaceSamples, u_jets: torch.Tensor,
                        load_factor: float | torch.Tensor = 1.0, *, steps: torch.Tensor,
