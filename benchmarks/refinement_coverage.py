@@ -43,7 +43,6 @@ from pathlib import Path
 import torch
 
 import taichi_ndf
-from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.minimise.refinement import richardson, richardson_point
 from taichi_ndf.problem.spline_grid import no_singular_feature
 from taichi_ndf.scene.reader import load_scene
@@ -224,7 +223,7 @@ def smooth(name: str) -> bool:
     case = CASES[name]
     model = load_scene(ROOT / case.scene, field="spline", material=case.material,
                        overrides=dict(case.overrides) or None).model
-    return no_singular_feature(model, gauge_points(model))
+    return no_singular_feature(model)
 
 
 def bar_row(values: list[float], first: int, spans: list, quantity: str,

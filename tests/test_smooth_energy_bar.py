@@ -13,7 +13,6 @@ from pathlib import Path
 
 import pytest
 
-from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.minimise.extrapolation import SAFETY_UNRELIABLE, richardson
 from taichi_ndf.minimise.state import LevelSummary, State
 from taichi_ndf.problem.spline_grid import no_singular_feature
@@ -89,7 +88,7 @@ def test_the_spline_run_reads_its_energy_at_the_a_priori_order_only_where_smooth
 ])
 def test_which_models_have_no_known_singular_feature(scene, smooth):
     model = load_scene(ROOT / scene, field="spline").model
-    assert no_singular_feature(model, gauge_points(model)) is smooth
+    assert no_singular_feature(model) is smooth
 
 
 @pytest.mark.parametrize("scene, smooth", [

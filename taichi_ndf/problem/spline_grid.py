@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.field.grading import Grading, strength_for
 
@@ -200,16 +201,17 @@ def singular_features(boundary, loads, domain, gauges=()
     return tuple(out)
 
 
-def no_singular_feature(model, gauges=()) -> bool:
+def no_singular_feature(model, gauges=None) -> bool:
     """Whether the model has no known singular feature: no `singular_features` (pins but the
-    gauges, handles, point loads, interior lines, line-load ends), no obstacles (contact
-    regions) and no further energy terms (seams join points; a term unknown here counts as a
-    feature). Such a model's Π converges at the a-priori order of the field's degree
-    (`minimise.extrapolation`, `richardson(..., smooth=True)`); corner singularities of the
-    boundary conditions are not known here, so the rule also asks the observed order to
-    reach the a-priori one."""
+    gauges — `gauge_points(model)` where None —, handles, point loads, interior lines,
+    line-load ends), no obstacles (contact regions) and no further energy terms (seams join
+    points; a term unknown here counts as a feature). Such a model's Π converges at the
+    a-priori order of the field's degree (`minimise.extrapolation`, `richardson(...,
+    smooth=True)`); corner singularities of the boundary conditions are not known here, so
+    the rule also asks the observed order to reach the a-priori one."""
     if model.contact is not None or model.terms:
         return False
+    gauges = gauge_points(model) if gauges is None else gauges
     features = singular_features(model.boundary, model.loads, model.surface.domain, gauges)
     return not any(features)
 

@@ -24,7 +24,6 @@ from typing import Any
 
 import torch
 
-from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.callbacks import call
@@ -184,7 +183,7 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         if inside is not None:
             contact.restore(inside.contact)
     run = SplineRun(state, config, contact=contact,
-                    smooth=no_singular_feature(model, gauge_points(model)))
+                    smooth=no_singular_feature(model))
     if first + 1 > levels:
         raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "
                          "this run solves")
