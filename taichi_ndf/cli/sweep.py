@@ -145,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
 
             run_local(specs(study, out, todo), args.workers, on_row)
     except KeyboardInterrupt:
+        # The rows' records on disk are the truth: Ctrl-C may land after a run's record was
+        # written and before the table kept it in memory.
+        table.load()
         table.write()
         print(f"ndf-sweep: interrupted; {len(table.rows)} of {total} runs finished (in "
               f"{out / 'results.csv'}); resume with: {resume}", file=sys.stderr)
