@@ -174,7 +174,8 @@ def interior_rows(names, tolerance: float, budget: int, levels: int = 3, fine: b
                 fine_config = features_grid(run.field.config.refined(), scene.model)
                 fine_cpu = cpu_seconds()
                 _, fine = solve_on(scene.model, run.field, fine_config, scene.field, solver,
-                                   Objective.of_model(scene.model), coarse_energy=run.energy)
+                                   Objective.of_model(scene.model), coarse_energy=run.energy,
+                                   smooth=run.smooth, gauge_moved=run.gauge_moved)
                 fine_cpu = cpu_seconds() - fine_cpu
                 d = abs(estimate.value - fine.energy)
                 fine_text = (f"{fine.energy:.6f} ({fine_config.spans[0]}×"
@@ -329,7 +330,8 @@ def case_coverage(case, result, discretisation, linearisation, runner, fine: boo
     cpu = cpu_seconds()
     _, fine = solve_on(model, run.field, fine_config, discretisation.spec, run.config,
                        discretisation.objective or runner._objective(case, model),
-                       coarse_energy=run.energy)
+                       coarse_energy=run.energy, smooth=run.smooth,
+                       gauge_moved=run.gauge_moved)
     cpu = cpu_seconds() - cpu
     fine_readings = {n: np.asarray(v, dtype=np.float64) / unit for n, v in fine.probes.items()}
     grids = " / ".join(f"{lv.spans[0]}×{lv.spans[1]}" for lv in run.levels)
@@ -342,12 +344,42 @@ def case_coverage(case, result, discretisation, linearisation, runner, fine: boo
         per_level = [q.read({n: np.asarray(v) / unit for n, v in lv.probes.items()}, positions)
                      for lv in run.levels]
         quantities.append((q.name, per_level, q.read(fine_readings, positions)))
-    for name, values, reference in quantities:  # Π as result.json's (a smooth model's)
+    errors = [None] + [read_errors(q, run, positions, unit) for q in case.quantities
+                       if abs(q.level - last) <= 1e-12]
+    for (name, values, reference), solve_errors in zip(quantities, errors, strict=True):
+        # as result.json's: Π of a smooth model, and a probe's with its solve errors
+        # (`GridLevels`' probe stop), at the a-priori order past the floor
         estimate = richardson(values, order=2.0 * (run.field.config.degree - 1),
-                              smooth=run.smooth and name == "Π [J]")
+                              smooth=run.smooth and (name == "Π [J]" or solve_errors is not None),
+                              solve_errors=solve_errors)
         rows.append(coverage_row(case.name, name, grids, values, estimate.describe(),
                                  estimate.value, estimate.error, reference, spans, cpu))
     return rows
+
+
+def read_errors(quantity, run, positions, unit: float) -> list[float] | None:
+    """A quantity's solve error per level from its probes' (`LevelSummary.probe_errors`,
+    per component): the sum over probe components of the read's change when that component
+    alone moves by its solve error (None: a level without them, or a read that a component
+    a gauge motion moves changes: `SplineRun.gauge_moved`, no solve error of its own)."""
+    out = []
+    for lv in run.levels:
+        if lv.probe_errors is None:
+            return None
+        probes = {n: np.asarray(v, dtype=np.float64) / unit for n, v in lv.probes.items()}
+        base, total = quantity.read(probes, positions), 0.0
+        for name, error in lv.probe_errors.items():
+            for c, e in enumerate(error):
+                gauge = f"{name}:{c}" in run.gauge_moved  # does the read depend on it?
+                moved = {n: v.copy() for n, v in probes.items()}
+                moved[name][c] += 1e-6 * max(float(np.linalg.norm(probes[name])), 1e-300) \
+                    if gauge else e / unit
+                change = abs(quantity.read(moved, positions) - base)
+                if gauge and change > 0.0:
+                    return None
+                total += 0.0 if gauge else change
+        out.append(total)
+    return out
 
 
 def main() -> None:

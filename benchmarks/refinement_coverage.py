@@ -18,7 +18,7 @@ distance |reference − value| (< 1: a miss; large: a bar far wider than needed)
 sample: "in" (the cases the rule was designed on, 2026-12-03), "out" (chosen afterwards,
 before their results were seen, to check the rule out of sample) or "out2" (chosen at 17:30
 UTC before their results and before the guarded rule of `richardson`, which was shaped on
-"in" and "out"; "out3", "out4", "out5": later checks, each chosen before its values were seen).
+"in" and "out"; "out3" … "out6": later checks, each chosen before its values were seen).
 `--table` re-reads stored runs with the library's current rule; main's rule
 on the same values: the same command with PYTHONPATH at an export of main's taichi_ndf.
 `default` windows are the grid rule's grids with `--refine` (3 levels): the bar
@@ -43,6 +43,7 @@ from pathlib import Path
 import torch
 
 import taichi_ndf
+from taichi_ndf.boundary.gauge_motions import probe_gauge
 from taichi_ndf.minimise.refinement import richardson, richardson_point
 from taichi_ndf.problem.spline_grid import no_singular_feature
 from taichi_ndf.scene.reader import load_scene
@@ -148,6 +149,18 @@ CASES = {
     "square_plate_quarter_nu": Case("validation/scenes/square_plate_quarter.toml", (4, 4), 6,
                                     ("energy", "centre:2"), (0, 1, 2), "out5",
                                     overrides=(("material.poisson_ratio", 0.3),)),
+    # Added 2026-12-07 16:22 UTC (issue 33, wip-adapt14), before any of their values was seen
+    # and before the probe stop (`GridLevels`' probe solve error, a probe's bar at the
+    # a-priori order) was written: its fresh check, smooth models at another radius and
+    # Poisson ratio than any case before (the roof on 5 levels: windows 0 and 1 against
+    # 64 × 80, every component of its probe; the quarter plate on 6: windows 0–2 against
+    # 128 × 128).
+    "scordelis_lo_roof_r50": Case("validation/scenes/scordelis_lo_roof.toml", (4, 5), 5,
+                                  ("energy", *(f"free_edge_mid:{c}" for c in range(3))),
+                                  (0, 1), "out6", overrides=(("geometry.radius", 50.0),)),
+    "square_plate_quarter_nu45": Case("validation/scenes/square_plate_quarter.toml", (4, 4), 6,
+                                      ("energy", "centre:2"), (0, 1, 2), "out6",
+                                      overrides=(("material.poisson_ratio", 0.45),)),
     # Added 17:34 UTC in place of cantilever_moment, whose scene states no load (its end
     # moment is the validation runner's; every level reads 0, so it is not counted), before any
     # result of these two was seen, after the rule was written.
@@ -220,29 +233,49 @@ def covers(bar, reference: float) -> bool:
 def smooth(name: str) -> bool:
     """Whether the case's model has no known singular feature (its Π is read as result.json
     reads it, `SplineRun.smooth`; no solve)."""
+    return no_singular_feature(case_model(name))
+
+
+@functools.cache
+def gauge_moved(name: str) -> tuple[str, ...]:
+    """The probe components a gauge motion moves (`SplineRun.gauge_moved`: no solve error of
+    theirs is read)."""
+    gauge = probe_gauge(case_model(name))
+    return () if gauge is None else gauge.components()
+
+
+def case_model(name: str):
     case = CASES[name]
-    model = load_scene(ROOT / case.scene, field="spline", material=case.material,
-                       overrides=dict(case.overrides) or None).model
-    return no_singular_feature(model)
+    return load_scene(ROOT / case.scene, field="spline", material=case.material,
+                      overrides=dict(case.overrides) or None).model
 
 
 def bar_row(values: list[float], first: int, spans: list, quantity: str,
             converged: list[bool], point: list[list[float]] | None = None,
-            smooth_energy: bool = False) -> dict:
+            smooth_energy: bool = False, errors: list[list[float]] | None = None) -> dict:
     """The bars of the window starting at grid `first` against the finest value; converged:
     per grid, whether its solve converged (`richardson` calls the order of a window with an
-    unconverged grid unreliable); smooth_energy: the quantity is Π of a model with no known
-    singular feature (`richardson(..., smooth=True)`)."""
+    unconverged grid unreliable); smooth_energy: the model has no known singular feature
+    (Π: `richardson(..., smooth=True)`; a probe where its solve errors were stored, errors:
+    per grid, the probe's per component, `LevelSummary.probe_errors`, as result.json's)."""
     reference = values[-1]
     smooth_pi = smooth_energy and quantity == "energy"
-    ref_bar = richardson(values[-3:], order=ORDER, converged=converged[-3:], smooth=smooth_pi)
-    three = richardson(values[first:first + 3], order=ORDER,
-                       converged=converged[first:first + 3], smooth=smooth_pi)
+    c = None if quantity == "energy" else int(quantity.split(":")[1])
+    probe = (smooth_energy and errors is not None and quantity != "energy"
+             and all(math.isfinite(e[c]) for e in errors))
+    own = [e[c] for e in errors] if probe else None
+
+    def scalar(lo, hi):
+        return richardson(values[lo:hi], order=ORDER, converged=converged[lo:hi],
+                          smooth=smooth_pi or probe, solve_errors=own and own[lo:hi])
+
+    ref_bar, three = scalar(len(values) - 3, len(values)), scalar(first, first + 3)
     if point is not None:  # all three components stored: the point's order, as ndf-sim's
-        c = int(quantity.split(":")[1])
-        ref_bar = richardson_point(point[-3:], ORDER, converged[-3:])[c]
-        three = richardson_point(point[first:first + 3], ORDER,
-                                 converged[first:first + 3])[c]
+        measured = smooth_energy and errors is not None
+        ref_bar = richardson_point(point[-3:], ORDER, converged[-3:],
+                                   errors[-3:] if measured else None)[c]
+        three = richardson_point(point[first:first + 3], ORDER, converged[first:first + 3],
+                                 errors[first:first + 3] if measured else None)[c]
     two = richardson(values[first + 1:first + 3], order=ORDER,
                      converged=converged[first + 1:first + 3])
     old_error = abs(two.value - values[first + 2])  # the replaced two-grid rule
@@ -275,11 +308,21 @@ def bar_rows(result: dict) -> tuple[list[dict], list[dict]]:
         return [list(u) for u in zip(*(values[f"{name}:{c}"] for c in range(3)), strict=True)]
 
     flat = smooth(result["case"])
-    rows = [dict(bar_row(values[q], first, spans, q, ok, point(q), flat),
+    stored = result.get("probe_errors")  # per grid, by probe (runs since wip-adapt14)
+
+    def errors(q):  # a probe's solve errors per grid, where every grid stored them (NaN: a
+        name = q.split(":")[0]  # component a gauge motion moves, as result.json's)
+        if q == "energy" or not stored or any(e is None or name not in e for e in stored):
+            return None
+        moved = [f"{name}:{c}" in gauge_moved(result["case"]) for c in range(3)]
+        return [[math.nan if m else x for m, x in zip(moved, e[name], strict=True)]
+                for e in stored]
+
+    rows = [dict(bar_row(values[q], first, spans, q, ok, point(q), flat, errors(q)),
                  default=(first == case.default))
             for q in case.quantities for first in case.windows]
     defaults = ([] if case.default is None else
-                [bar_row(values[q], case.default, spans, q, ok, point(q), flat)
+                [bar_row(values[q], case.default, spans, q, ok, point(q), flat, errors(q))
                  for q in case.quantities])
     return rows, defaults
 
@@ -309,6 +352,9 @@ def run_case(name: str) -> dict:
               "load_factor": steps[-1]["load_factor"],
               "all_values": {q: [read(s, q) for s in steps] for q in case.quantities},
               "converged": [lv.converged for lv in run.levels],
+              # the last load step's probe solve errors per grid (`GridLevels`' probe stop)
+              "probe_errors": [lv.probe_errors for lv in run.levels]
+              if case.load_step in (-1, len(solver.load_steps) - 1) else None,
               "iterations": [lv.iterations for lv in run.levels],
               "seconds": [lv.seconds for lv in run.levels], "wall": wall, "cpu": cpu}
     result["rows"], result["default_rows"] = bar_rows(result)
@@ -361,7 +407,7 @@ def table(results: list[dict]) -> str:
                 f"{row['reference_error']:.2g} | {'yes' if all(r['converged']) else 'no'} | "
                 f"{r['wall']:.0f} / {r['cpu']:.0f} |")
     lines.append("")
-    for sample in ("in", "out", "out2", "out3", "out4", "out5"):
+    for sample in ("in", "out", "out2", "out3", "out4", "out5", "out6"):
         rows = [row for r in results if r["sample"] == sample for row in r["rows"]
                 if not prescribed(row)]
         if rows:

@@ -64,7 +64,8 @@ def test_changes_slower_than_the_a_priori_order_keep_the_order_half_floor():
 
 def test_the_spline_run_reads_its_energy_at_the_a_priori_order_only_where_smooth():
     """`SplineRun.refinement` (result.json, the console, energy.png): Π's bar by the run's
-    `smooth`; a probe's never (its solve error goes with √λ², not λ²/2)."""
+    `smooth`; a probe's not without its solve errors (they go with √λ², not λ²/2:
+    tests/test_probe_solve_error.py)."""
     values = SMOOTH["square_plate_quarter 8² / 16² / 32², 64²"][0]
     levels = [LevelSummary(i, (8 * 2**i, 8 * 2**i), v, {"centre": [0.0, 0.0, -v / 1e3]}, 5,
                            1.0, True) for i, v in enumerate(values)]

@@ -65,8 +65,12 @@ analysis, and verification", arXiv:2007.01279, 2020), the changes to come
 are summed at that order with Roache's factor of safety for an assumed order, Fs = 3: the
 error is 3 max(|d₂|, `ROUNDING` max|v|) / (2^p − 1) (bound "a priori"; cantilever_moment's Π
 falls at 5.70 then 3.48 solved tight, so 1.25 × the sum would miss its 128 × 16 value by 1 %).
-Probes, models with a feature and changes slower than the a-priori order keep the order-0.5
-sum.
+A **probe component of such a model** takes it only with its solve errors e (`solve_errors`:
+`minimise.refinement.GridLevels`' probe stop; none where a gauge motion moves it): the bar is
+3 max(|d₂| + e₁ + e₂, `ROUNDING` max|v|)/(2^p − 1) + e₂ (the last two values'). Without them
+a probe's solve error can exceed d₂ (cantilever_moment's −U at Newton's defaults, 3.6e-5 on
+64 × 8 against d₂ = 8.1e-5: benchmarks/RESULTS.md, wip-adapt13). Models with a feature,
+probes without solve errors and slower changes keep the order-0.5 sum.
 
 A value whose grid's Newton solve did not converge (`converged`, where the caller knows it)
 is not that grid's discrete answer, so its changes say nothing of the order: where one of the
@@ -110,7 +114,8 @@ SAFETY_OBSERVED = 1.25  # Roache's Fs for three grids with a reliable observed o
 SAFETY_UNRELIABLE = 3.0  # Roache's Fs where the order cannot be trusted (times the range)
 ORDER_BASES = ("observed", "assumed", "unreliable")
 # an unreliable order's error bar (module docstring; "point": a probe component's, bounded by
-# its point's, `richardson_point`; "a priori": Π of a smooth model past the floor)
+# its point's, `richardson_point`; "a priori": Π, or a probe with its solve errors, of a
+# smooth model past the floor)
 BOUNDS = ("range", "floor", "point", "a priori")
 
 
@@ -171,8 +176,8 @@ class Extrapolation:
 BOUND_WORDS = {"range": "3 × the range of the last three",
                "floor": "the last change (at least the rounding level) summed at order 0.5",
                "point": "the point's bar, which bounds each component's distance",
-               "a priori": "3 × the last change (at least the rounding level) summed at the "
-                           "a-priori order (no singular feature)"}
+               "a priori": "3 × the last change (at least the rounding level; a probe's with "
+                           "its solve errors) summed at the a-priori order (no singular feature)"}
 
 
 @dataclass(frozen=True)
@@ -210,7 +215,8 @@ def _unreliable_reason(d1: float, d2: float, scale: float,
 
 def extrapolate_changes(changes: list[float], order: float | None = None,
                         scale: float = 0.0, unconverged: str | None = None,
-                        smooth: bool = False) -> OrderEstimate:
+                        smooth: bool = False,
+                        solve_errors: tuple[float, float] = (0.0, 0.0)) -> OrderEstimate:
     """The order, correction and error bar of the finest value from the changes between
     successive grids refined by 2 each (signed differences of a scalar, or norms of a field's
     differences; the last two are used; module docstring). order: the expected order, assumed
@@ -218,7 +224,8 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
     the size of the values (max |v|) that the rounding level is relative to (0: no rounding
     check). unconverged: with two or more changes, why the order is unreliable because a
     value used did not converge (None: every one did). smooth: the values are Π of a model
-    with no known singular feature (the floor's changes to come at the a-priori `order`)."""
+    with no known singular feature, or a probe of one with solve_errors (e₁, e₂) of the last
+    two values (the floor's changes to come at the a-priori `order`; module docstring)."""
     if not changes:
         raise ValueError("richardson needs at least two values, got 1")
     last = changes[-1]
@@ -238,8 +245,10 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
             reason = (f"{reason}; changes falling to within {NEAR_ROUNDING:g} × the rounding "
                       "level")
             if smooth and observed is not None and observed >= order:
-                return OrderEstimate(observed, 0.0, SAFETY_UNRELIABLE * max(abs(d2), floor)
-                                     / (2.0**order - 1.0), "unreliable",
+                # each value within its e of its grid's: d₂ within |d₂| + e₁ + e₂, v₂ e₂ off
+                return OrderEstimate(observed, 0.0, SAFETY_UNRELIABLE * max(
+                                     abs(d2) + sum(solve_errors), floor) / (2.0**order - 1.0)
+                                     + solve_errors[1], "unreliable",
                                      f"{reason}; no singular feature: order {order:g} a priori",
                                      None, "a priori")
             return OrderEstimate(observed, 0.0, max(abs(d2), floor) / (2.0**ORDER_MIN - 1.0),
@@ -274,23 +283,28 @@ def _unconverged(converged: list[bool] | None, count: int) -> str | None:
 
 
 def richardson(values: list[float], order: float | None = None,
-               converged: list[bool] | None = None, smooth: bool = False) -> Extrapolation:
+               converged: list[bool] | None = None, smooth: bool = False,
+               solve_errors: list[float] | None = None) -> Extrapolation:
     """Richardson extrapolation of values on grids refined by 2 each, with a GCI-style error
     bar (module docstring). order: the expected convergence order, assumed with two values
     (required then) and the upper limit of a reliable observed order of the last three with
     three or more. converged: per value, whether its grid's solve converged (None: all did);
     three or more values of which one used did not: the order is unreliable. With two such
     values the bar stays the change, and the warning says it. smooth: the values are Π of a
-    model with no known singular feature (module docstring; never a probe)."""
+    model with no known singular feature, or a probe of one with solve_errors, per value
+    (`GridLevels`' probe stop; module docstring)."""
     if len(values) < 2:
         raise ValueError(f"richardson needs at least two values, got {len(values)}")
     if converged is not None and len(converged) != len(values):
         raise ValueError(f"{len(converged)} convergence flags for {len(values)} values")
+    if solve_errors is not None and len(solve_errors) != len(values):
+        raise ValueError(f"{len(solve_errors)} solve errors for {len(values)} values")
     last = values[-3:]
     changes = np.diff(last).tolist()
     unconverged = _unconverged(converged, len(values))
+    errors = (0.0, 0.0) if solve_errors is None else tuple(abs(float(e)) for e in solve_errors[-2:])
     estimate = extrapolate_changes(changes, order, scale=max(abs(v) for v in last),
-                                   unconverged=unconverged, smooth=smooth)
+                                   unconverged=unconverged, smooth=smooth, solve_errors=errors)
     if estimate.basis == "assumed" and unconverged is not None:
         estimate = dataclasses.replace(
             estimate, reason=unconverged,
@@ -303,7 +317,8 @@ def richardson(values: list[float], order: float | None = None,
 
 
 def richardson_point(values: list[list[float]], order: float | None = None,
-                     converged: list[bool] | None = None) -> list[Extrapolation]:
+                     converged: list[bool] | None = None,
+                     solve_errors: list[list[float]] | None = None) -> list[Extrapolation]:
     """`richardson` for a point's displacement u (per grid a vector, (K, 3) in m), one
     Extrapolation per component: a component's observed order is trusted only where the
     point's is too, observed on the lengths of the vector changes |u_{i+1} − u_i| (as for a
@@ -330,9 +345,14 @@ def richardson_point(values: list[list[float]], order: float | None = None,
       finest value with 3 × its range, the point's reason (with the point's bound "floor":
       the point's bar, the changes of the vector still to come bound each component's, never
       narrower than the component's own); the component's own `richardson` otherwise.
-    With two grids each component's own `richardson`."""
+    With two grids each component's own `richardson`. solve_errors (K, 3): each component's
+    solve error per grid (None: not measured, NaN: not for that component): its own bar at
+    the a-priori order past the floor (`richardson(..., smooth=True, solve_errors=)`)."""
     u = np.asarray(values, dtype=float)
-    own = [richardson(u[:, c].tolist(), order, converged) for c in range(u.shape[1])]
+    errors = [None] * u.shape[1] if solve_errors is None else [  # per component, if all finite
+        e.tolist() if np.isfinite(e).all() else None for e in np.abs(np.asarray(solve_errors)).T]
+    own = [richardson(u[:, c].tolist(), order, converged, smooth=e is not None, solve_errors=e)
+           for c, e in enumerate(errors)]
     if len(u) < 3:
         return own
     last = u[-3:]

@@ -6,12 +6,30 @@ coarser level's solution prolonged exactly (`SplineField.refined`), so a finer l
 where the coarser one ended and takes few Newton steps. It reads Π and every probe per level
 and load factor.
 
+The probe stop (`probe_stop_at`: the load factor whose probes are read; `solve_spline` sets
+it, the last one, on a model with no known singular feature, `spline_grid.no_singular_feature`):
+that load step goes on past Newton's own stop while a probe moved over the last step by more
+than `PROBE_FRACTION` of the rounding level of its displacement (`ROUNDING` × |u|: 1e-8 |u|),
+until a step the line search shortens at Newton's rounding floor, at most `PROBE_STEPS` more
+steps, and records each probe component's change over the last step taken, as the full step
+would have made it (the change / α: U is affine in the coefficients), as its solve error
+(`LevelSolution.probe_errors`). A bar at the a-priori order needs a probe's solve error below
+its grid changes: Newton's default stop (`NewtonConfig.discretisation_fraction`, a test on Π)
+leaves cantilever_moment's −U 3.6e-5 from the tight solve on 64 × 8, 45 % of its last grid
+change, while its changes, solved tight, fall at order 8.9 (benchmarks/RESULTS.md,
+wip-adapt12, wip-adapt13); a target relative to a probe's own last change would not be below
+the next one. What is left after a Newton step in its quadratic range is far below the step
+(measured against tight solves: benchmarks/RESULTS.md, wip-adapt14), and after a shortened
+step at most the untaken part of the full one. A probe component a gauge motion moves
+(`gauge_moved`) is not read: no solve settles it.
+
 `richardson` (`taichi_ndf.minimise.extrapolation`, imported from here too) extrapolates a
 quantity from its values on the last grids and bounds the error of the result.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable
@@ -45,12 +63,17 @@ from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: im
     held_unknowns,
 )
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
-from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration
+from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration, minimise
 from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.sampling import SurfaceSamples
 
 log = logging.getLogger(__name__)
+
+# The probe stop (module docstring): a probe's change over a Newton step at most this
+# fraction of the rounding level of its displacement, within this many steps past Newton's.
+PROBE_FRACTION = 1e-2
+PROBE_STEPS = 5
 
 
 @dataclass
@@ -59,7 +82,8 @@ class LevelSolution:
 
     spans: knot spans of the grid; energy: Π [J]; probes: displacement (3,) [m] by name;
     coefficients (n, 3); seconds: wall time of this level and load step (setup + Newton);
-    history: its Newton iterations."""
+    history: its Newton iterations; probe_errors: each probe's solve error per component (3,)
+    [m] by name, from the probe stop (module docstring; None: not measured)."""
 
     spans: tuple[int, int]
     load_factor: float
@@ -69,6 +93,7 @@ class LevelSolution:
     converged: bool
     seconds: float
     history: list[NewtonIteration] = field(default_factory=list)
+    probe_errors: dict[str, np.ndarray] | None = None
 
 
 class GridLevels:
@@ -84,7 +109,10 @@ class GridLevels:
     `SplineDiscretisation.linearise`), None: on `boundary` with `length` and `linear`.
     Resumed inside the first level: coarse_grid, the grid below it (its prolongation);
     resume, (step index, `NewtonIterate`): that step's Newton goes on from the iterate.
-    on_iterate(step, iterate): after each Newton step that a load step goes on from."""
+    on_iterate(step, iterate): after each Newton step that a load step goes on from.
+    probe_stop_at: the load factor of the probe stop (module docstring; None: Newton's own
+    stop everywhere); gauge_moved: the probe components ("name:axis") a gauge motion moves,
+    which it does not read (`ProbeGauge.components`)."""
 
     def __init__(self, field_, boundary: BoundaryConditions,
                  samples_for: Callable[[object], SurfaceSamples], objective: Objective, *,
@@ -96,7 +124,11 @@ class GridLevels:
                  | None = None, first_level: int = 0, first_coarse: float | None = None,
                  linearise: Callable[[object], GridLinearisation] | None = None,
                  coarse_grid=None, resume: tuple[int, NewtonIterate] | None = None,
-                 on_iterate: Callable[[Step, NewtonIterate], None] | None = None):
+                 on_iterate: Callable[[Step, NewtonIterate], None] | None = None,
+                 probe_stop_at: float | None = None, gauge_moved: tuple[str, ...] = ()):
+        self.probe_stop_at = probe_stop_at
+        self.read = {name: np.array([f"{name}:{axis}" not in gauge_moved for axis in range(3)])
+                     for name in probes or {}}  # the components the probe stop reads
         self.grid, self.boundary, self.samples_for = field_, boundary, samples_for
         self.resume = {} if resume is None else {(first_level, resume[0]): resume[1]}
         self.on_iterate = on_iterate
@@ -153,7 +185,8 @@ class GridLevels:
     def solve(self, step: Step, start: tuple[torch.Tensor, float, float, float | None]
               ) -> LevelSolution:
         """Projected Newton at the step's load factor from `start` (`NewtonMinimiser`, or
-        `ContactMinimiser`'s rounds with obstacles); the solution, Π, the probes' readings."""
+        `ContactMinimiser`'s rounds with obstacles), then the probe stop where it is on; the
+        solution, Π, the probes' readings."""
         coefficients, start_load_factor, started, coarse_energy = start
         grid, t, newton = self.grid, step.load_factor, self.newton
         nx, ny = grid.config.spans
@@ -173,19 +206,65 @@ class GridLevels:
         phase.parameters = lambda: coefficients
         phase.hooks, phase.stage = Hooks(on_iteration=self.iterated, on_iterate=iterate), stage
         solution = run_phases([phase])[0]
+        errors = None
+        if self.probes and self.contact is None and self.probe_stop_at is not None and abs(
+                t - self.probe_stop_at) <= 1e-12:
+            solution, errors = self._probe_stop(solution, t)
         coefficients = solution.parameters
-        readings = {}
-        if self.probes:  # (a free pin's composition needs a point)
-            u = displacement_at(self.builder.operator, self.probe_xi, coefficients,
-                                t)[:, jets.VALUE]
-            readings = {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
+        readings = self._readings(coefficients, t)
         seconds = time.perf_counter() - started + self._setup
         self._setup = 0.0
         log.info("level %d (%d × %d spans), load %.4g: Π %.10g J in %d Newton steps, "
                  "%.2f s", shown, *grid.config.spans, t, solution.energy,
                  len(solution.history), seconds)
         return LevelSolution(grid.config.spans, t, solution.energy, readings, coefficients,
-                             solution.converged, seconds, solution.history)
+                             solution.converged, seconds, solution.history, errors)
+
+    def _readings(self, coefficients: torch.Tensor, t: float) -> dict[str, np.ndarray]:
+        """Each probe's displacement (3,) [m] at the coefficients, by name."""
+        if not self.probes:  # (a free pin's composition needs a point)
+            return {}
+        u = displacement_at(self.builder.operator, self.probe_xi, coefficients,
+                            t)[:, jets.VALUE]
+        return {name: u[i].double().cpu().numpy() for i, name in enumerate(self.probes)}
+
+    def _probe_stop(self, solution, t: float):
+        """Newton steps past its own stop until each probe's full-step change is at most
+        `PROBE_FRACTION` × `ROUNDING` × |u| (its components a gauge motion moves left out),
+        or a step shortened at Newton's rounding floor (its `floor_tolerance`), at most
+        `PROBE_STEPS` (module docstring); the solution (its history with the extra steps)
+        and each probe's full-step change (3,) [m] over the last step taken as its solve
+        error (None: no step taken)."""
+        newton = self.newton or NewtonConfig()
+        more = dataclasses.replace(newton, decrement_tolerance=0.0, gradient_tolerance=0.0,
+                                   relative_decrease=0.0, discretisation_fraction=0.0)
+        linear, potential = self.builder.linearisation(t), self.objective.potential(t)
+        c, history = solution.parameters, list(solution.history)
+        before, errors = self._readings(c, t), None
+        for _ in range(PROBE_STEPS):
+            step = minimise(linear, potential, c, dataclasses.replace(
+                more, max_iterations=len(history) + 1), load_factor=t,
+                on_iteration=self.iterated, report=False, resume=NewtonIterate(
+                    c, len(history), 0.0, False, None, None, history))
+            history, alpha = step.history, step.history[-1].step_length
+            if alpha == 0.0:  # no step lowered Π: the last step's change stands
+                break
+            c = step.parameters
+            after = self._readings(c, t)
+            errors = {name: np.abs(after[name] - before[name]) / alpha for name in before}
+            before = after
+            last = history[-1]
+            floor = 0.5 * abs(last.decrement) <= newton.floor_tolerance * abs(last.energy)
+            if (alpha < 1.0 and floor) or all(
+                    np.linalg.norm(errors[name] * read) <= PROBE_FRACTION * ROUNDING
+                    * np.linalg.norm(after[name] * read) for name, read in self.read.items()):
+                break
+        log.info("probe stop at load %.4g: %d Newton steps past Newton's stop, solve errors %s",
+                 t, len(history) - len(solution.history), errors and {
+                     name: float(np.linalg.norm(e)) for name, e in errors.items()})
+        energy = potential(linear.samples, linear.displacement(c), False).total
+        return dataclasses.replace(solution, parameters=c, energy=energy,
+                                   history=history), errors
 
 
 def solve_levels(field_, boundary: BoundaryConditions,

@@ -61,7 +61,9 @@ class NewtonRecord(NewtonIteration):
 @dataclass
 class LevelSummary:
     """The final load step on one grid: Π [J], probes (displacement [m] by name), Newton
-    iterations and seconds over all its load steps, whether every load step converged."""
+    iterations and seconds over all its load steps, whether every load step converged, and
+    the probes' solve errors per component [m] by name (`LevelSolution.probe_errors`; None:
+    not measured)."""
 
     level: int
     spans: tuple[int, int]
@@ -70,6 +72,7 @@ class LevelSummary:
     iterations: int
     seconds: float
     converged: bool
+    probe_errors: dict[str, list[float]] | None = None
 
 
 @dataclass
@@ -128,13 +131,18 @@ def _solution_dict(solution: LevelSolution, history: bool = True) -> dict:
     values = asdict(solution)
     values["coefficients"] = solution.coefficients
     values["probes"] = {k: v.tolist() for k, v in solution.probes.items()}
+    values["probe_errors"] = None if solution.probe_errors is None else {
+        k: v.tolist() for k, v in solution.probe_errors.items()}
     values["history"] = values["history"] if history else []
     return values
 
 
 def _solution(values: dict) -> LevelSolution:
+    errors = values.get("probe_errors")
     return LevelSolution(**{**values, "spans": tuple(values["spans"]),
                             "probes": {k: np.array(v) for k, v in values["probes"].items()},
+                            "probe_errors": None if errors is None else {
+                                k: np.array(v) for k, v in errors.items()},
                             "history": [NewtonIteration(**h) for h in values["history"]]})
 
 

@@ -73,7 +73,7 @@ from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan, graded_config, singular_features
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.error_indicator import INDICATORS, equidistributed, span_indicator
-from taichi_ndf.solve.spline_solver import SplineRun, newton_config, solve_spline
+from taichi_ndf.solve.spline_solver import SplineRun, newton_config, probe_errors, solve_spline
 from taichi_ndf.solve.tolerance import gauge_relative, tolerance_met
 
 log = logging.getLogger(__name__)
@@ -185,12 +185,15 @@ def density_order(energies: list[float], expected: float) -> float:
 
 def solve_on(model: ShellModel, start: SplineField, config: SplineConfig, plan: SplinePlan,
              solver: SolverConfig, objective: Objective, *, level: int = 0, step: int = -1,
-             coarse_energy: float | None = None, on_iteration=None
+             coarse_energy: float | None = None, on_iteration=None, smooth: bool = False,
+             gauge_moved: tuple[str, ...] = ()
              ) -> tuple[SplineField, LevelSolution]:
     """One grid `config` solved at the load step `step` (index into the load steps; −1: the
     last) from `start`'s solution there projected onto it (`project`, at its Gauss points):
     the field (its coefficients: the start) and the solution. coarse_energy: the previous
-    grid's Π at that load factor (Newton's discretisation stopping test)."""
+    grid's Π at that load factor (Newton's discretisation stopping test). smooth: the model
+    has no known singular feature (`SplineRun.smooth`): the probe stop at the last load
+    factor (`GridLevels`), not reading `gauge_moved` (`SplineRun.gauge_moved`)."""
     dtype = start.coefficients.dtype
     field = SplineField(config, dtype=dtype)
     points = GridLinearisation.quadrature(model.surface, config, None,
@@ -205,7 +208,8 @@ def solve_on(model: ShellModel, start: SplineField, config: SplineConfig, plan: 
         probes={p.name: p.xi for p in model.probes},
         length=math.sqrt(model.surface.domain.rectangle_area),
         linear=LinearSolverConfig(kind=solver.linear_solver), on_iteration=on_iteration,
-        first_level=level, first_coarse=coarse_energy)
+        first_level=level, first_coarse=coarse_energy,
+        probe_stop_at=solver.load_steps[-1] if smooth else None, gauge_moved=gauge_moved)
     grids.enter_level(level)
     index = step % len(solver.load_steps)
     at = Step(level, index, solver.load_steps[index])
@@ -271,7 +275,7 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
                           dataclasses.replace(config, max_levels=0), objective=objective,
                           callbacks=callbacks, on_level=level_done)
     run = AdaptiveRun(dyadic.state, config, dyadic.wall_time, dyadic.steps, dyadic.load_steps,
-                      smooth=dyadic.smooth, adaptive=record)
+                      smooth=dyadic.smooth, gauge_moved=dyadic.gauge_moved, adaptive=record)
     t = config.load_steps[-1]
     dtype = run.field.coefficients.dtype
     length = math.sqrt(model.surface.domain.rectangle_area)
@@ -338,7 +342,8 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
         return solve_on(model, start, grid["config"], plan, config, objective,
                         level=step.level, step=step.index,
                         coarse_energy=run.load_steps[step.index]["energy"],
-                        on_iteration=iterated)
+                        on_iteration=iterated, smooth=run.smooth,
+                        gauge_moved=run.gauge_moved)
 
     def stepped(step: Step, result: tuple[SplineField, LevelSolution]) -> None:
         if on_load_step is not None:
@@ -354,7 +359,7 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
         run.state.levels.append(LevelSummary(
             level, last.spans, last.energy, {k: v.tolist() for k, v in last.probes.items()},
             sum(len(s.history) for s in solutions), time.perf_counter() - grid["started"],
-            all(s.converged for s in solutions)))
+            all(s.converged for s in solutions), probe_errors(last)))
         run.steps = [(s.load_factor, s.coefficients) for s in solutions]
         run.load_steps = [{"load_factor": s.load_factor, "energy": s.energy,
                            "probes": {k: v.tolist() for k, v in s.probes.items()},

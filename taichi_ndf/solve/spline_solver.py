@@ -24,6 +24,8 @@ from typing import Any
 
 import torch
 
+from taichi_ndf.boundary.gauge_motions import probe_gauge
+from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.contact.newton_contact import NewtonContact
 from taichi_ndf.field import SplineField
 from taichi_ndf.minimise.callbacks import call
@@ -61,8 +63,12 @@ class SplineRun:
     load_steps: list[dict] = dataclasses.field(default_factory=list)
     contact: NewtonContact | None = None  # with obstacles: the check points, κ, rounds
     # the model has no known singular feature (`spline_grid.no_singular_feature`): Π's bar
-    # past a converged sequence at the a-priori order (`richardson(..., smooth=True)`)
+    # past a converged sequence at the a-priori order (`richardson(..., smooth=True)`), and a
+    # probe's too where every level measured its solve error (`GridLevels`' probe stop)
     smooth: bool = False
+    # the probe components ("name:axis") a gauge motion moves (`ProbeGauge.components`): no
+    # solve settles them, so no solve error of theirs is read
+    gauge_moved: tuple[str, ...] = ()
 
     @property
     def field(self) -> SplineField:
@@ -100,12 +106,25 @@ class SplineRun:
 
         def point(name):  # a probe's order is the point's (`richardson_point`)
             values = [lv.probes[name] for lv in self.levels]
+            errors = [lv.probe_errors and lv.probe_errors.get(name) for lv in self.levels]
+            measured = self.smooth and all(e is not None for e in errors)
+            if measured:  # not measured (NaN): a component a gauge motion moves
+                moved = [f"{name}:{axis}" in self.gauge_moved for axis in range(3)]
+                errors = [[math.nan if m else x for m, x in zip(moved, e, strict=True)]
+                          for e in errors]
             return [{"values": [v[c] for v in values], **e.to_dict()} for c, e in enumerate(
-                richardson_point(values, order=order, converged=converged))]
+                richardson_point(values, order=order, converged=converged,
+                                 solve_errors=errors if measured else None))]
 
         probes = {name: point(name) for name in self.levels[-1].probes}
         return {"spans": [list(lv.spans) for lv in self.levels],
                 "energy": extrapolate([lv.energy for lv in self.levels]), "probes": probes}
+
+
+def probe_errors(solution: LevelSolution) -> dict[str, list[float]] | None:
+    """A level's last load step's probe solve errors as plain values (None: not measured)."""
+    errors = solution.probe_errors
+    return None if errors is None else {k: v.tolist() for k, v in errors.items()}
 
 
 def newton_config(config: SolverConfig, dtype: torch.dtype) -> NewtonConfig:
@@ -182,8 +201,11 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         contact = NewtonContact(model.contact, model, grid.coefficients.dtype)
         if inside is not None:
             contact.restore(inside.contact)
-    run = SplineRun(state, config, contact=contact,
-                    smooth=no_singular_feature(model))
+    gauges = gauge_points(model)  # once per solve
+    smooth = no_singular_feature(model, gauges)
+    gauge = probe_gauge(model, gauges) if smooth else None
+    run = SplineRun(state, config, contact=contact, smooth=smooth,
+                    gauge_moved=() if gauge is None else gauge.components())
     if first + 1 > levels:
         raise ValueError(f"the checkpoint holds {first + 1} levels, more than the {levels} "
                          "this run solves")
@@ -222,7 +244,7 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                                {k: v.tolist() for k, v in last.probes.items()},
                                sum(len(s.history) for s in solutions),
                                sum(s.seconds for s in solutions),
-                               all(s.converged for s in solutions))
+                               all(s.converged for s in solutions), probe_errors(last))
         state.levels.append(summary)
         state.field = field_
         state.load_step = len(config.load_steps)
@@ -253,7 +275,9 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                        first_coarse=state.levels[first - 1].energy if first else None,
                        linearise=linearise, coarse_grid=coarse_grid,
                        resume=None if inside is None or inside.iterate is None else (
-                           inside.step, inside.iterate), on_iterate=iterate_kept)
+                           inside.step, inside.iterate), on_iterate=iterate_kept,
+                       probe_stop_at=load_steps[-1] if run.smooth else None,
+                       gauge_moved=run.gauge_moved)
     callbacks = tuple(callbacks)
     if on_level is not None:  # after the callbacks
         callbacks = (*callbacks, Hook("on_level", lambda: on_level(run)))
