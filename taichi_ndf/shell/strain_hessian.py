@@ -57,6 +57,10 @@ from taichi_ndf.shell.materials import Material
 mat3 = ti.math.mat3
 STRAINS = 6  # ε₁₁, ε₁₂, ε₂₂, κ₁₁, κ₁₂, κ₂₂
 CHUNK = 4096  # points per batched product Jᵀ (S J): its temporaries are the chunk's
+# Rows (copies × points) per launch of the law gradient in `_law_hessian` (a 40 MB bound on
+# its stacked copies of r, s and dE/ds: the 25 shifted copies of a Clyde law at 331 776 points
+# at once would take 2 GB).
+STACKED_ROWS = 1 << 17
 BENDING_CHANNELS = (jets.D11, jets.D12, jets.D22)
 # Laws whose Ψ is a quadratic form in the strains (law_terms.py: linear isotropic, orthotropic
 # StVK): their law gradient is affine in s.
@@ -84,7 +88,14 @@ def _law_kernel(law: str):
 
 
 def _strain_gradient(kernel, r, strain, *, weight, stiffness, params) -> torch.Tensor:
-    """dE/ds (N, 6) at strains s (N, 6) (Taichi reverse mode)."""
+    """dE/ds (c N, 6) at strains s (c N, 6) (Taichi reverse mode): s may hold c copies of the
+    N points' strains, stacked (r (N, 6, 3), weight (N,), stiffness (N, K) are then repeated):
+    one launch of the kernel and its gradient for all of them, each row the same number as
+    alone (every point's energy is its own)."""
+    copies = strain.shape[0] // r.shape[0]
+    if copies != 1:
+        r, weight, stiffness = (r.repeat(copies, 1, 1), weight.repeat(copies),
+                                stiffness.repeat(copies, 1))
     s = strain.contiguous().requires_grad_(True)
     energy = torch.zeros(s.shape[0], dtype=s.dtype, device=s.device, requires_grad=True)
     s.grad = torch.zeros_like(s)
@@ -165,30 +176,49 @@ def _strain_derivatives(x: ti.types.ndarray(), stress: ti.types.ndarray(),
                        0.5 * stress[i, 1] * eye - m2.transpose() @ f @ m1 - gx)
 
 
-def _law_hessian(gradient, strain: torch.Tensor, stress: torch.Tensor, delta_e: float,
-                 delta_k: float, quadratic: bool) -> torch.Tensor:
-    """d²E/ds² (N, 6, 6), symmetrised, from the law gradient dE/ds (`gradient(s)`, = stress at
-    the strains s (N, 6)) with steps δε (membrane) and δκ (bending): a quadratic law's
-    gradient is affine in s, so one-sided differences are exact (6 evaluations); otherwise
-    central differences at δ and δ/2, Richardson-extrapolated (truncation ~δ⁴, 24)."""
-    out = strain.new_empty(strain.shape[0], STRAINS, STRAINS)
+def _law_hessian(gradient, strain: torch.Tensor, delta_e: float, delta_k: float,
+                 quadratic: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """dE/ds (N, 6) and d²E/ds² (N, 6, 6), symmetrised, from the law gradient dE/ds
+    (`gradient(s)` at strains s (c N, 6): c copies of the N points' strains, stacked) at the
+    strains s (N, 6) with steps δε (membrane) and δκ (bending): a quadratic law's gradient is
+    affine in s, so one-sided differences are exact (6 evaluations); otherwise central
+    differences at δ and δ/2, Richardson-extrapolated (truncation ~δ⁴, 24). All the shifted
+    strains go to one `gradient` call (one kernel launch, not 7 or 25: at 1 024 points the
+    launches were most of the time), in launches of at most `STACKED_ROWS` rows (or one copy)."""
+    count = strain.shape[0]
+    # per copy of the strains: the strain it shifts and its shifts in order (a central
+    # difference's minus side steps +h, then −2h from there, as the two evaluations did)
+    shifts: list[tuple[int, tuple[float, ...]]] = [(0, ())]  # the first: unshifted
+    for j in range(STRAINS):
+        delta = delta_e if j < 3 else delta_k
+        if quadratic:
+            shifts.append((j, (delta,)))
+        else:
+            for h in (0.5 * delta, delta):
+                shifts += [(j, (h,)), (j, (h, -2 * h))]
+    copies, values = max(1, STACKED_ROWS // max(count, 1)), []
+    for first in range(0, len(shifts), copies):
+        part = shifts[first:first + copies]
+        shifted = strain.repeat(len(part), 1)
+        for i, (j, steps) in enumerate(part):
+            for h in steps:
+                shifted[i * count:(i + 1) * count, j] += h
+        values += gradient(shifted).split(count)
+    values = iter(values)
+    stress = next(values)
+    out = strain.new_empty(count, STRAINS, STRAINS)
     for j in range(STRAINS):
         delta = delta_e if j < 3 else delta_k
 
-        def central(h, j=j):
-            shifted = strain.clone()
-            shifted[:, j] += h
-            plus = gradient(shifted)
-            shifted[:, j] -= 2 * h
-            return (plus - gradient(shifted)) / (2 * h)
+        def central(h):
+            return (next(values) - next(values)) / (2 * h)
 
         if quadratic:
-            shifted = strain.clone()
-            shifted[:, j] += delta
-            out[:, :, j] = (gradient(shifted) - stress) / delta
+            out[:, :, j] = (next(values) - stress) / delta
         else:
-            out[:, :, j] = (4 * central(0.5 * delta) - central(delta)) / 3
-    return 0.5 * (out + out.transpose(1, 2))
+            half = central(0.5 * delta)
+            out[:, :, j] = (4 * half - central(delta)) / 3
+    return stress, 0.5 * (out + out.transpose(1, 2))
 
 
 def _clamped(matrices: torch.Tensor) -> torch.Tensor:
@@ -311,13 +341,12 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     weight = samples.weight[active].contiguous()
     kstiff = kernel_stiffness[active].contiguous()
     kernel = _law_kernel(material.law)
-    stress = _strain_gradient(kernel, r, strain, weight=weight, stiffness=kstiff, params=params)
     delta_e = float(steps[jets.D1:jets.D2 + 1].max()) * tangent
     delta_k = float(steps[jets.D11:].max())
     gradient = functools.partial(_strain_gradient, kernel, r, weight=weight, stiffness=kstiff,
                                  params=params)
-    stiffness_s = _law_hessian(gradient, strain, stress, delta_e, delta_k,
-                               material.law in QUADRATIC_LAWS)
+    stress, stiffness_s = _law_hessian(gradient, strain, delta_e, delta_k,
+                                       material.law in QUADRATIC_LAWS)
     if psd:
         stiffness_s = _clamped(stiffness_s)
     # J first; then the stress part is added to the Gauss–Newton part Jᵀ (d²E/ds²) J in place.
