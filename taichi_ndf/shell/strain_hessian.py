@@ -10,9 +10,10 @@ a Gauss–Newton part and a stress part. The kinematic derivatives are exact (be
 the Taichi-autodiff gradient of a kernel that evaluates the law on given strains (the same
 `LAW_TERMS` and `strain_energy_density` as the energy kernel), and d²E/ds² (6 × 6) differences
 of that gradient (`_law_hessian`): one-sided, exact up to rounding, for the quadratic laws
-(`QUADRATIC_LAWS`: 7 launches of a kernel without geometry derivatives), central at two steps
-and Richardson-extrapolated for the Clyde law (25; truncation ~step⁴) — in place of the 36
-full energy gradients of `sample_hessians`. The external
+(`QUADRATIC_LAWS`: 7 evaluations of a kernel without geometry derivatives), central at two
+steps and Richardson-extrapolated for the Clyde law (25; truncation ~step⁴), the shifted
+strains stacked into one launch — in place of the 36 full energy gradients of
+`sample_hessians`. The external
 loads are linear in U (the pressure follows the reference normal) and add nothing.
 
 Kinematics (x = r + u, x_α its tangents, x_αβ second derivatives, m = x₁ × x₂, ℓ = |m|,
