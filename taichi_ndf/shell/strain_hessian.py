@@ -58,10 +58,10 @@ from taichi_ndf.shell.materials import Material
 mat3 = ti.math.mat3
 STRAINS = 6  # ε₁₁, ε₁₂, ε₂₂, κ₁₁, κ₁₂, κ₂₂
 CHUNK = 4096  # points per batched product Jᵀ (S J): its temporaries are the chunk's
-# Rows (copies × points) per launch of the law gradient in `_law_hessian` (a 40 MB bound on
-# its stacked copies of r, s and dE/ds: the 25 shifted copies of a Clyde law at 331 776 points
-# at once would take 2 GB).
-STACKED_ROWS = 1 << 17
+# Rows (copies × points) per launch of the law gradient in `_law_hessian`: bounds its stacked
+# strains and dE/ds (3 MB each; the 25 shifted copies of a Clyde law at 331 776 points at once
+# would take 400 MB each). A chunk of 8 192 points (`POINT_CHUNK`) of a quadratic law: one launch.
+STACKED_ROWS = 1 << 16
 BENDING_CHANNELS = (jets.D11, jets.D12, jets.D22)
 # Laws whose Ψ is a quadratic form in the strains (law_terms.py: linear isotropic, orthotropic
 # StVK): their law gradient is affine in s.
@@ -70,33 +70,31 @@ QUADRATIC_LAWS = frozenset({"linear_isotropic", "orthotropic"})
 
 @functools.cache
 def _law_kernel(law: str):
-    """E_i = w_i √a_i Ψ(s_i) of one constitutive law at given strains s (N, 6) (compiled on
-    first use); its reverse-mode gradient is dE_i/ds_i."""
+    """E_i = w_q √a_q Ψ(s_i) of one constitutive law at given strains s (c N, 6), c copies
+    of the N points' strains stacked (row i at point q = i mod N) (compiled on first use);
+    its reverse-mode gradient is dE_i/ds_i."""
     law_terms = LAW_TERMS[law]
 
     @ti.kernel
     def energy_of_strains(r: ti.types.ndarray(), strain: ti.types.ndarray(),
                           weight: ti.types.ndarray(), stiffness: ti.types.ndarray(),
                           params: ti.types.ndarray(), energy: ti.types.ndarray()):
-        for i in range(r.shape[0]):
-            a1, a2, a3, metric, _, area_element = reference_geometry(r, i)
+        for i in range(strain.shape[0]):
+            q = i % r.shape[0]
+            a1, a2, a3, metric, _, area_element = reference_geometry(r, q)
             eps = mat2([[strain[i, 0], strain[i, 1]], [strain[i, 1], strain[i, 2]]])
             kappa = mat2([[strain[i, 3], strain[i, 4]], [strain[i, 4], strain[i, 5]]])
             t = law_terms(eps, kappa, a1, a2, a3, metric, params)
-            energy[i] = weight[i] * area_element * strain_energy_density(t, stiffness, i)
+            energy[i] = weight[q] * area_element * strain_energy_density(t, stiffness, q)
 
     return energy_of_strains
 
 
 def _strain_gradient(kernel, r, strain, *, weight, stiffness, params) -> torch.Tensor:
     """dE/ds (c N, 6) at strains s (c N, 6) (Taichi reverse mode): s may hold c copies of the
-    N points' strains, stacked (r (N, 6, 3), weight (N,), stiffness (N, K) are then repeated):
+    N points' strains, stacked, at the N points of r (N, 6, 3), weight (N,), stiffness (N, K):
     one launch of the kernel and its gradient for all of them, each row the same number as
     alone (every point's energy is its own)."""
-    copies = strain.shape[0] // r.shape[0]
-    if copies != 1:
-        r, weight, stiffness = (r.repeat(copies, 1, 1), weight.repeat(copies),
-                                stiffness.repeat(copies, 1))
     s = strain.contiguous().requires_grad_(True)
     energy = torch.zeros(s.shape[0], dtype=s.dtype, device=s.device, requires_grad=True)
     s.grad = torch.zeros_like(s)
