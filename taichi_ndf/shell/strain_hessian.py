@@ -58,10 +58,12 @@ from taichi_ndf.shell.materials import Material
 mat3 = ti.math.mat3
 STRAINS = 6  # ε₁₁, ε₁₂, ε₂₂, κ₁₁, κ₁₂, κ₂₂
 CHUNK = 4096  # points per batched product Jᵀ (S J): its temporaries are the chunk's
-# Rows (copies × points) per launch of the law gradient in `_law_hessian`: bounds its stacked
-# strains and dE/ds (3 MB each; the 25 shifted copies of a Clyde law at 331 776 points at once
-# would take 400 MB each). A chunk of 8 192 points (`POINT_CHUNK`) of a quadratic law: one launch.
-STACKED_ROWS = 1 << 16
+# Rows (copies × points) per launch of the law gradient in `_law_hessian`: the stacked strains
+# and dE/ds no larger than one chunk's (8 192 points, `POINT_CHUNK`): larger ones raised the
+# demo's peak RSS by 110-130 MB (heap retention of glibc's allocator, not live memory: a
+# blocks test peaked as before with MALLOC_MMAP_THRESHOLD_ fixed). Few points (a coarse grid,
+# a contact round's Gauss points) in one launch or a few; a chunk of 8 192, one per copy.
+STACKED_ROWS = 1 << 13
 BENDING_CHANNELS = (jets.D11, jets.D12, jets.D22)
 # Laws whose Ψ is a quadratic form in the strains (law_terms.py: linear isotropic, orthotropic
 # StVK): their law gradient is affine in s.
