@@ -60,7 +60,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.interpolate import make_smoothing_spline
 
 from inverse.material.trajectory_fit import (
     TrajectoryData,
@@ -70,6 +69,7 @@ from inverse.material.trajectory_fit import (
     observe,
 )
 from inverse.sft.hanging import SheetGrid, hanging_across, hanging_model
+from inverse.sft.held_motion import evaluate_smoothed, smoothed
 from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.minimise.newton import NewtonConfig
@@ -191,20 +191,6 @@ class SwingProblem:
         return float(np.sqrt(np.mean(np.sum((fitted - self.frame0) ** 2, axis=1))))
 
 
-def smoothed(values: np.ndarray, times: np.ndarray) -> tuple[list, tuple]:
-    """Each entry of values (F, …) smoothed over times (F,) [s] by a cubic smoothing spline
-    whose smoothing GCV chooses: (splines, the entries' shape), read by `_evaluate`."""
-    flat = values.reshape(len(times), -1)
-    splines = [make_smoothing_spline(times, flat[:, j]) for j in range(flat.shape[1])]
-    return splines, values.shape[1:]
-
-
-def _evaluate(smooth, t: np.ndarray, nu: int = 0) -> np.ndarray:
-    splines, shape = smooth
-    out = np.stack([s(t, nu) if nu else s(t) for s in splines], axis=-1)
-    return out.reshape(*np.shape(t), *shape)
-
-
 def _fit_free(stepper: PathStepper, xi: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Coefficients C (n, 3) minimising Σ |J C − target|² at ξ (P, 2), target (P, 3) [m]
     (J: the free part, linear; least squares of minimum norm)."""
@@ -249,7 +235,7 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
         corner_smooth = smoothed(vertices[:, list(held)], times)
 
         def corners(t: np.ndarray) -> np.ndarray:
-            return _evaluate(corner_smooth, t)
+            return evaluate_smoothed(corner_smooth, t)
     first = corners(np.zeros(1))[0]
     line = first[1] - first[0]
     e1 = line / np.linalg.norm(line)
@@ -285,8 +271,8 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     pick = grid.index[::config.stride, ::config.stride].ravel()
     xi = torch.from_numpy(grid.xi[pick]).double()
     flat = model.surface.jets(xi)[:, jets.VALUE].double().numpy()
-    position0 = _evaluate(smooth, np.array(0.0))[pick]
-    velocity0 = _evaluate(smooth, np.array(0.0), nu=1)[pick]
+    position0 = evaluate_smoothed(smooth, np.array(0.0))[pick]
+    velocity0 = evaluate_smoothed(smooth, np.array(0.0), nu=1)[pick]
     g0 = stepper.boundary_at(xi, 0.0, torch.float64)[:, jets.VALUE].numpy()
     gv = _boundary_velocity(stepper, xi)
     c0 = _fit_free(stepper, xi, torch.from_numpy(position0 - flat - g0))
