@@ -1,31 +1,32 @@
 """Bending stiffness from a sheet's swing (issue 27 item 3, `inverse.sft.swing`): a synthetic
 check with a known material, then φ-SfT's R1.
 
-Synthetic (`--part synthetic`): a W × H = 0.55 × 0.55 m sheet (ρ_A 0.197 kg/m², D 300 N/m,
-ν 0.25, B from `--bending-length` c: B = ρ_A g c³) hanging in the camera's x-y plane 1 m in
+Synthetic (`--part synthetic`): a W × H = 0.55 × 0.55 m sheet (ρ_A 0.197 kg/m², D 300 N/m, ν
+0.25, B from `--bending-length` c: B = ρ_A g c³) hanging in the camera's x-y plane 1 m in
 front of it (gravity (0, 9.81, 0), OpenCV axes), held at its top corners by handles that move
 from rest over `--duration` s: corner a by (1, 0, −4) cm × s(t), corner b by (−1, 1, 3) cm ×
 s(t), s(t) = ½ (1 − cos(2π t / duration)) (each corner out and back, opposite in depth: a
-swing and a twist); each corner held at its point, or with `--grip` r over a patch of radius
-r (truth and fit). The truth is the project's dynamics (`PathStepper`, Newmark,
-`--truth-spans`, `--truth-substeps` steps per frame, splines of `--truth-degree`) from its
-rest state: the static equilibrium of the held sheet (`dynamics_adjoint.rest_start`, Newton
-from 40 damped implicit-Euler steps of 0.05 s at α = 30 /s from the flat sheet: the planar
-hanging state is a saddle — held at two points the sheet buckles out of its plane — so the
-rest state is bent and depends on B); observed: a 17 × 17 vertex grid at `--fps` frames
+swing and a twist); each corner held at its point, or with `--grip` r over a patch of radius r
+(truth and fit); with `--turn-degrees` θ the held edge also turns about its corner line, from
+rest to θ over `--duration` (`true_turn`; the fit's turn `--turn`: none, read off the rows in
+the handles' band, or the truth's). The truth is the project's dynamics (`PathStepper`,
+Newmark, `--truth-spans`, `--truth-substeps` steps per frame, splines of `--truth-degree`)
+from its rest state: the static equilibrium of the held sheet (`dynamics_adjoint.rest_start`,
+Newton from 40 damped implicit-Euler steps of 0.05 s at α = 30 /s from the flat sheet: the
+planar hanging state is a saddle — held at two points the sheet buckles out of its plane — so
+the rest state is bent and depends on B); observed: a 17 × 17 vertex grid at `--fps` frames
 per second, plus Gaussian noise σ = `--noise` [m] per coordinate and seed. The fit
 (`swing_problem` + `fit_trajectory`): corners from the noisy corner vertices (smoothed; with
-`--corners fitted` unknowns of the fit, a B-spline of `--corner-spans` spans), start
-from the smoothed frame 0, B alone (D, ν, ρ_A stated at the truth), on `--spans` (0: the
-grid follows the estimate's bending length, `inverse.sft.swing.fit_swing`, `--span-ratio`,
-`--max-spans`) with `--substeps`, from `--start` × B_true, Gauss–Newton stopped at a step
-below 1e-4 B or `--error-tolerance` × the s.e.; one line per iteration. The truth's buckle
-goes to −z (towards the camera) on every grid (the rest problem is mirror-symmetric).
-`--bias` (with `--spans`): instead of the fits, the fit grid's linearised bias against the
-truth — one Gauss–Newton step from B_true on the clean truth with the truth's corner paths,
-B alone: what a fit on that grid finds without noise, to first order — with its s.e. at
-`--noise` and its parts per frame and per row of observed points (where the grid's error
-meets ∂r/∂B).
+`--corners fitted` unknowns of the fit, a B-spline of `--corner-spans` spans), start from the
+smoothed frame 0, B alone (D, ν, ρ_A stated at the truth), on `--spans` (0: the grid follows
+the estimate's bending length, `inverse.sft.swing.fit_swing`, `--span-ratio`, `--max-spans`)
+with `--substeps`, from `--start` × B_true, Gauss–Newton stopped at a step below 1e-4 B or
+`--error-tolerance` × the s.e.; one line per iteration. The truth's buckle goes to −z (towards
+the camera) on every grid (the rest problem is mirror-symmetric). `--bias` (with `--spans`):
+instead of the fits, the fit grid's linearised bias against the truth — one Gauss–Newton step
+from B_true on the clean truth with the truth's corner paths, B alone: what a fit on that grid
+finds without noise, to first order — with its s.e. at `--noise` and its parts per frame and
+per row of observed points (where the grid's error meets ∂r/∂B).
 
 R1 (`--part r1 --run DIR`): DIR/meshes/*.obj (the default `ndf-sft --capture` run), held
 vertices 0 and 992, gravity (0, 9.81, 0), ρ_A 0.197 kg/m², D 300 N/m (stated), at each
@@ -43,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
 import resource
 import sys
@@ -99,6 +101,13 @@ def grid_mesh(n: int) -> tuple[np.ndarray, np.ndarray]:
 CORNERS = np.array([[-SIZE / 2, -0.3, 1.0], [SIZE / 2, -0.3, 1.0]])  # [m] at rest
 
 
+def true_turn(t: np.ndarray, args) -> np.ndarray:
+    """The truth's turn of the held edge about its corner line (T,) [rad] at times t (T,) [s]:
+    from rest to `--turn-degrees` over `--duration`, ½ (1 − cos(π t / duration))."""
+    ramp = 0.5 * (1 - np.cos(np.pi * np.asarray(t, dtype=np.float64) / args.duration))
+    return np.radians(args.turn_degrees) * ramp
+
+
 def true_corners(t: np.ndarray, duration: float) -> np.ndarray:
     """The truth's held corner positions (T, 2, 3) [m] at times t (T,) [s]."""
     s = 0.5 * (1 - np.cos(2 * np.pi * np.asarray(t) / duration))
@@ -135,7 +144,9 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
     steps = (frames - 1) * args.truth_substeps
     times = dt * np.arange(steps + 1)
     s = 0.5 * (1 - np.cos(2 * np.pi * times / args.duration))
-    path = HandlePath(tuple(times), s[:, None, None] * MOVES[None])
+    axis = (CORNERS[1] - CORNERS[0]) / np.linalg.norm(CORNERS[1] - CORNERS[0])
+    path = HandlePath(tuple(times), s[:, None, None] * MOVES[None],
+                      turns=true_turn(times, args)[:, None] * axis[None])
     truth = PathStepper(model, plan, DynamicsConfig(dt=dt, duration=steps * dt,
                                                     integrator=args.truth_integrator), path)
     states = record(truth, rest)
@@ -158,12 +169,12 @@ def gauss_newton_trace(report) -> None:
 
 
 def fit(vertices, faces, held, fps, config, start, gravity=(0.0, G, 0.0), corners=None,
-        error_tolerance=None):
+        error_tolerance=None, turn=None):
     with progress.listening(gauss_newton_trace):
         swing = fit_swing(vertices, faces, held, 1.0 / fps, np.array(gravity), config, start,
                           TrajectoryFitConfig(max_iterations=10, tolerance=1e-4,
                                               error_tolerance=error_tolerance),
-                          corners=corners)
+                          corners=corners, turn=turn)
     levels = "; ".join(f"{kind} {s[0]}×{s[1]}: {b:.4e} ± {e:.1e} ({i} it)"
                        for s, b, e, i, kind in swing.levels)
     print(f"  grid levels: {levels}; resolved {swing.resolved}, last check's |ΔB|/s.e. "
@@ -206,13 +217,14 @@ class LinearisedBias:
         return noise / np.sqrt(self.h)
 
 
-def linearised_bias(clean, faces, held, fps, config, b_true, corners) -> LinearisedBias:
+def linearised_bias(clean, faces, held, fps, config, b_true, corners,
+                    turn=None) -> LinearisedBias:
     """The fit's own bias on `config`'s grid against a truth (F, V, 3) [m] at `fps`: the
-    swing model with the truth's corner paths corners(t) (T, 2, 3) [m] and B alone, one
-    Gauss–Newton step from b_true [N·m] on the clean frames (what a fit there would find, to
-    first order, with no noise)."""
+    swing model with the truth's corner paths corners(t) (T, 2, 3) [m] (and its turn(t) (T,)
+    [rad] where given, else config.turn's) and B alone, one Gauss–Newton step from b_true
+    [N·m] on the clean frames (what a fit there would find, to first order, with no noise)."""
     problem = swing_problem(clean, faces, held, 1.0 / fps, np.array([0.0, G, 0.0]), config,
-                            corners=corners)
+                            corners=corners, turn=turn)
     r = fit_trajectory(problem.stepper_at, problem.data, b_true,
                        TrajectoryFitConfig(max_iterations=1), initial=problem.start)
     shape = (len(problem.data.steps), len(problem.xi), 3)
@@ -247,13 +259,14 @@ def part_synthetic(args) -> None:
         if args.truth_cache is not None:
             settings = str({k: getattr(args, k) for k in (
                 "bending_length", "duration", "fps", "truth_spans", "truth_substeps",
-                "truth_integrator", "grip", "truth_degree")})
+                "truth_integrator", "grip", "truth_degree", "turn_degrees")})
             np.savez(args.truth_cache, clean=clean, faces=faces, held=np.array(held),
                      settings=settings)
     print(f"truth: {len(clean)} frames at {args.fps} fps, B = {b_true:.4e} N·m "
           f"(c = {100 * args.bending_length:.2f} cm), {args.truth_spans}² spans, "
           f"{args.truth_substeps} {args.truth_integrator} steps per frame: "
-          f"{cpu() - c0:.0f} s CPU; corner "
+          f"{cpu() - c0:.0f} s CPU; the held edge turning by {args.turn_degrees}° about its "
+          f"corner line; corner "
           f"moves {MOVES.tolist()} m; sheet rms displacement from frame 0 at the last frame "
           f"{1000 * np.sqrt(np.mean(np.sum((clean[-1] - clean[0]) ** 2, 1))):.1f} mm; frame 0 "
           f"out of the corners' plane by up to {1000 * np.abs(clean[0, :, 2] - 1.0).max():.1f}"
@@ -264,18 +277,20 @@ def part_synthetic(args) -> None:
                          integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
                          areal_density=RHO, size=(SIZE, SIZE), start=args.start_state,
                          grip=args.grip, degree=args.degree,
-                         corners=args.corners, corner_spans=args.corner_spans or None)
+                         corners=args.corners, corner_spans=args.corner_spans or None,
+                         turn="read" if args.turn == "read" else "none")
+    turn = (lambda t: true_turn(t, args)) if args.turn == "true" else None
     if args.bias:
         c0, t0 = cpu(), time.perf_counter()
         found = linearised_bias(clean, faces, held, args.fps, config, b_true,
-                                lambda t: true_corners(t, args.duration))
+                                lambda t: true_corners(t, args.duration), turn)
         print(f"the fit's grid {args.spans}² against the truth's {args.truth_spans}², true "
-              f"corners, clean data, one Gauss–Newton step from B_true: "
+              f"corners, turn {args.turn}, clean data, one Gauss–Newton step from B_true: "
               f"{cpu() - c0:.0f} s CPU, {time.perf_counter() - t0:.0f} s wall")
         print_bias(found, b_true, args.noise)
         return
     corners = ((lambda t: true_corners(t, args.duration)) if args.true_corners else None)
-    print(f"start: {args.start_state}; corners: "
+    print(f"start: {args.start_state}; turn: {args.turn}; corners: "
           f"{'true' if args.true_corners else args.corners} "
           f"(spans {args.corner_spans or 'per frame'})")
     print("| seed | σ [mm] | B ± s.e. [N·m] | B error | z | c [cm] | χ²/dof | rms misfit [mm] "
@@ -289,7 +304,7 @@ def part_synthetic(args) -> None:
         noisy = clean + rng.normal(0.0, 1.0, clean.shape) * noise
         c0, t0 = cpu(), time.perf_counter()
         problem, r = fit(noisy, faces, held, args.fps, config, args.start * b_true,
-                         corners=corners, error_tolerance=args.error_tolerance)
+                         corners=corners, error_tolerance=args.error_tolerance, turn=turn)
         err = r.value / b_true - 1
         misfit = 1000 * np.sqrt(np.mean(r.residuals ** 2) * 3)
         print(f"| {seed if seed >= 0 else 'none'} | {1000 * noise:.1f} | "
@@ -343,7 +358,8 @@ def part_r1(args) -> None:
                          grid_check=not args.no_grid_check, substeps=args.substeps,
                                  integrator=args.integrator, membrane_stiffness=D,
                                  poisson_ratio=NU, areal_density=RHO, stride=args.stride,
-                                 start=args.start_state)
+                                 start=args.start_state,
+                                 turn="read" if args.turn == "read" else "none")
             c0, t0 = cpu(), time.perf_counter()
             try:
                 problem, r = fit(frames, faces, (0, 992), fps, config,
@@ -420,6 +436,12 @@ def main() -> None:
     p.add_argument("--grip", type=float, default=0.0,
                    help="synthetic: each corner held over a patch of this radius [m] (truth "
                         "and fit; 0: at its point)")
+    p.add_argument("--turn-degrees", type=float, default=0.0,
+                   help="synthetic: the truth's held edge turns about its corner line by this "
+                        "angle [deg] over --duration (true_turn; 0: no turn)")
+    p.add_argument("--turn", choices=("none", "read", "true"), default="none",
+                   help="the fit's turn of the held edge: none, read off the rows in the "
+                        "handles' band (SwingConfig.turn), or the truth's (synthetic)")
     p.add_argument("--truth-cache", type=Path, default=None,
                    help="synthetic: an .npz to read the truth from (written when missing)")
     p.add_argument("--bias", action="store_true",
@@ -440,6 +462,10 @@ def main() -> None:
     if args.bias and (args.part != "synthetic" or args.spans < 1):
         print("sft_swing.py: --bias needs --part synthetic and the fit's grid --spans N >= 1",
               file=sys.stderr)
+        sys.exit(2)
+    if not math.isfinite(args.turn_degrees) or (args.turn == "true" and args.part != "synthetic"):
+        print("sft_swing.py: --turn-degrees must be finite, and --turn true needs --part "
+              "synthetic (a truth's turn)", file=sys.stderr)
         sys.exit(2)
     args.error_tolerance = args.error_tolerance or None
     torch.set_num_threads(1)

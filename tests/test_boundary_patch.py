@@ -97,3 +97,42 @@ def test_a_scenes_handle_reads_its_radius(tmp_path):
     patched.write_text(text.replace("radius = 0.03", "radius = -0.03", 1))
     with pytest.raises(SceneError, match="radius"):
         load_scene(patched)
+
+
+def test_a_turning_grip_turns_its_patch_rigidly_about_its_point_and_composes_smoothly():
+    """`Handle.turn`: on the patch, x = r_h + t d + R(t·turn)(r − r_h) exactly (position,
+    slope and curvature: a rigid turn about the handle's point), the composed jets around the
+    patch are the composed field's derivatives, and no turn is the translated patch."""
+    from taichi_ndf.boundary.segments import rotations
+    from taichi_ndf.geometry.analytic import Plane
+
+    surface = Plane(bounds=((0.0, 2.0), (-1.0, 1.0)))
+    turn = (0.3, 0.0, 0.1)  # about the edge's direction, tilted
+    grip = Handle((0.0, -1.0), (0.1, -0.2, 0.3), radius=0.1, turn=turn)
+    bc = BoundaryConditions([grip, OTHER], PLATE, surface=surface)
+    inside = in_eta([[0.0, 0.0], [0.05, 0.05], [0.099, 0.0], [0.0, 0.07], [0.06, 0.06]])
+    u = bc.compose(inside, random_jets(len(inside), seed=7), t=0.6)
+    r = surface.jets(inside)
+    held = torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
+    angle = torch.tensor([0.6 * (0.3**2 + 0.1**2) ** 0.5], dtype=torch.float64)
+    m = rotations(turn, angle)[0] - torch.eye(3, dtype=torch.float64)
+    expected = r @ m.T
+    expected[:, jets.VALUE] += 0.6 * torch.tensor([0.1, -0.2, 0.3],
+                                                  dtype=torch.float64) - m @ held
+    torch.testing.assert_close(u, expected, rtol=0, atol=1e-14)
+    assert float(expected[:, 2].abs().max()) > 0.01  # the slope across the edge does turn
+    xi = in_eta([[0.12, 0.03], [0.08, 0.1], [0.15, 0.15], [0.19, 0.01], [0.9, 0.12]])
+
+    def composed(q):
+        return bc.compose(q, smooth_raw(q), t=0.7)[:, jets.VALUE]
+
+    torch.testing.assert_close(bc.compose(xi, smooth_raw(xi), t=0.7), autograd_jets(composed, xi),
+                               rtol=1e-9, atol=1e-10)
+    still = BoundaryConditions([GRIP, OTHER], PLATE, surface=surface)
+    plain = BoundaryConditions([GRIP, OTHER], PLATE)
+    torch.testing.assert_close(still.compose(xi, smooth_raw(xi), t=0.7),
+                               plain.compose(xi, smooth_raw(xi), t=0.7), rtol=0, atol=0)
+    with pytest.raises(ValueError, match="turn needs the reference surface"):
+        BoundaryConditions([grip], PLATE)
+    with pytest.raises(ValueError, match="Handle: turn"):
+        Handle((0.0, -1.0), (0.0, 0.0, 0.0), turn=(float("nan"), 0.0, 0.0))

@@ -321,3 +321,57 @@ def test_the_benchmarks_bias_without_a_fit_grid_is_refused_in_one_line():
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [
         "sft_swing.py: --bias needs --part synthetic and the fit's grid --spans N >= 1"]
+    for bad in (["--part", "r1", "--turn", "true"], ["--part", "synthetic",
+                                                   "--turn-degrees", "nan"]):
+        done = subprocess.run([sys.executable, str(script), *bad], capture_output=True,
+                              text=True, timeout=120)
+        assert done.returncode == 2 and done.stderr.strip().splitlines() == [
+            "sft_swing.py: --turn-degrees must be finite, and --turn true needs --part "
+            "synthetic (a truth's turn)"]
+
+
+def edge_turned_sequence(rate: float):
+    """rigid_sequence's flat frame 0 turned about its held edge (row 0, the line y = −0.3,
+    z = 1 along x) by `rate` rad per frame: the rows below it swing towards +z."""
+    vertices, faces = rigid_sequence()
+    offset = vertices[0] - np.array([0.0, -0.3, 1.0])
+    frames = []
+    for f in range(FRAMES):
+        a = rate * f
+        turn = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)],
+                         [0.0, np.sin(a), np.cos(a)]])
+        frames.append(offset @ turn.T + np.array([0.0, -0.3, 1.0]))
+    return np.stack(frames), faces
+
+
+def test_the_held_edge_turns_by_the_angle_read_off_its_band_and_b_comes_back():
+    """SwingConfig.turn "read": a sheet turned about its held edge by 0.03 rad per frame reads
+    that angle (smoothed: a line is kept); the handles turn the held slope with it (the
+    boundary's slope across the edge at corner a is (R(θ) − I) a₂); a sheet turned about
+    another axis (rigid_sequence: the corner line turns with it) reads no turn; and the fit
+    recovers B from the turning model's own motion. Without a turn the path has none."""
+    vertices, faces = edge_turned_sequence(0.03)
+    gravity = np.array([0.0, 9.81, 0.0])
+    p = swing_problem(vertices, faces, (0, N - 1), DT, gravity,
+                      dataclasses.replace(CONFIG, turn="read"))
+    for f in range(FRAMES):
+        assert p.path.turn_at(f * DT) == pytest.approx([0.03 * f, 0.0, 0.0], abs=1e-6)
+    stepper = p.stepper_at(2e-5)
+    corner = torch.tensor([[0.0, 0.0]], dtype=torch.float64)
+    slope = stepper.boundary_at(corner, 3 * DT, torch.float64)[0, jets.D2].numpy()
+    assert slope == pytest.approx([0.0, np.cos(0.09) - 1, np.sin(0.09)], abs=1e-9)
+    assert swing_problem(vertices, faces, (0, N - 1), DT, gravity, CONFIG).path.turns is None
+    rigid = swing_problem(*rigid_sequence(), (0, N - 1), DT, gravity,
+                          dataclasses.replace(CONFIG, turn="read"))
+    assert np.abs(rigid.path.turns).max() < 1e-4  # the smoothed corners: 1e-4 m off
+    b_true = 2e-5
+    start = p.start(stepper)
+    states = record(stepper, start.displacement, start.velocity)
+    clean = torch.stack([observe(stepper, p.data.xi, states[k].displacement, states[k].time)
+                         for k in p.data.steps])
+    fit = fit_trajectory(p.stepper_at, TrajectoryData(p.data.xi, p.data.steps, clean, 1e-4),
+                         2 * b_true, TrajectoryFitConfig(max_iterations=12, tolerance=1e-9),
+                         initial=p.start)
+    assert fit.value == pytest.approx(b_true, rel=1e-5) and fit.gradient_gap < 1e-8
+    with pytest.raises(ValueError, match="turn must be none or read"):
+        SwingConfig(turn="fitted")

@@ -19,6 +19,10 @@ vertices (e.g. `ndf-sft`'s meshes, camera coordinates), the frame interval Δt [
   carrying the corners' uncertainty). Measured on the synthetic swing, the truth's own grid
   (16², 2 mm noise, seeds 0/1): smoothed −27 / −19 % (z 34 / 32), fitted (6 spans) +2.1 /
   +3.0 % (z 1.4 / 1.9) (benchmarks/RESULTS.md, "the corner paths as unknowns");
+- the turn (`SwingConfig.turn` "read"): the held edge also turns about the corner line (the
+  handles' spots turning with it, `HandlePath.turns`) by the angle of the vertex rows in the
+  handles' band from the corner line (`held_motion.edge_turn`), smoothed as the corners, zero
+  at frame 0 (a grip that the hands turn; "none", the default: the slope stays the reference's);
 - the start (`SwingConfig.start`): "rest" (default) — the sheet at rest in the static
   equilibrium under gravity with its corners at frame 0's (`dynamics_adjoint.rest_start`:
   Newton from the spline field's least-squares fit to frame 0, so the equilibrium whose basin
@@ -60,7 +64,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.interpolate import make_smoothing_spline
 
 from inverse.material.trajectory_fit import (
     TrajectoryData,
@@ -70,12 +73,12 @@ from inverse.material.trajectory_fit import (
     observe,
 )
 from inverse.sft.hanging import SheetGrid, hanging_across, hanging_model
+from inverse.sft.held_motion import edge_turn, evaluate_smoothed, smoothed
 from taichi_ndf import jets
 from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.model import ShellModel
-from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.shell.fabrics import bending_length
 from taichi_ndf.shell.materials import LinearIsotropic
@@ -100,7 +103,9 @@ class SwingConfig:
     stride ≥ 1: every stride-th vertex per grid direction observed; size: the flat sheet
     (W, H) [m] or None (frame 0's grid-line lengths); start: "rest" or "data"; corners:
     "smoothed" or "fitted", corner_spans ≥ 1 or None (one per frame interval): the fitted
-    corners' B-spline (module docstring)."""
+    corners' B-spline (module docstring); turn: "none" (the held slope stays the reference's)
+    or "read" (the held edge turns about the corner line by the angle read off the rows in
+    the handles' band, module docstring)."""
 
     spans: tuple[int, int] | None = None
     span_ratio: float = SPAN_RATIO
@@ -120,12 +125,15 @@ class SwingConfig:
     start: str = "rest"
     corners: str = "smoothed"
     corner_spans: int | None = None
+    turn: str = "none"
 
     def __post_init__(self):
         if self.start not in ("rest", "data"):
             raise ValueError(f"start must be rest or data, got {self.start!r}")
         if self.corners not in ("smoothed", "fitted"):
             raise ValueError(f"corners must be smoothed or fitted, got {self.corners!r}")
+        if self.turn not in ("none", "read"):
+            raise ValueError(f"turn must be none or read, got {self.turn!r}")
         if self.corner_spans is not None and (int(self.corner_spans) != self.corner_spans
                                               or self.corner_spans < 1):
             raise ValueError(f"corner_spans must be None or an integer >= 1, got "
@@ -191,20 +199,6 @@ class SwingProblem:
         return float(np.sqrt(np.mean(np.sum((fitted - self.frame0) ** 2, axis=1))))
 
 
-def smoothed(values: np.ndarray, times: np.ndarray) -> tuple[list, tuple]:
-    """Each entry of values (F, …) smoothed over times (F,) [s] by a cubic smoothing spline
-    whose smoothing GCV chooses: (splines, the entries' shape), read by `_evaluate`."""
-    flat = values.reshape(len(times), -1)
-    splines = [make_smoothing_spline(times, flat[:, j]) for j in range(flat.shape[1])]
-    return splines, values.shape[1:]
-
-
-def _evaluate(smooth, t: np.ndarray, nu: int = 0) -> np.ndarray:
-    splines, shape = smooth
-    out = np.stack([s(t, nu) if nu else s(t) for s in splines], axis=-1)
-    return out.reshape(*np.shape(t), *shape)
-
-
 def _fit_free(stepper: PathStepper, xi: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Coefficients C (n, 3) minimising Σ |J C − target|² at ξ (P, 2), target (P, 3) [m]
     (J: the free part, linear; least squares of minimum norm)."""
@@ -219,12 +213,15 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
                   frame_interval: float, gravity: np.ndarray,
                   config: SwingConfig = SwingConfig(), *,
                   newton: NewtonConfig | None = None,
-                  corners: Callable[[np.ndarray], np.ndarray] | None = None) -> SwingProblem:
+                  corners: Callable[[np.ndarray], np.ndarray] | None = None,
+                  turn: Callable[[np.ndarray], np.ndarray] | None = None) -> SwingProblem:
     """The dynamic model of the sequence and its observations (module docstring); vertices
     (F, V, 3) [m], F ≥ 5; faces of the grid template; held: the two corner vertex indices;
     frame_interval Δt [s] > 0; gravity (3,) [m/s²]; corners(t): the held corners' positions
     (T, 2, 3) [m] at times t (T,) [s] where they are known otherwise (a synthetic check's
-    truth; None: the observed corner vertices, smoothed). ValueError on bad input."""
+    truth; None: the observed corner vertices, smoothed); turn(t): the held edge's turn
+    (T,) [rad] about the corner line where known otherwise (None: config.turn's).
+    ValueError on bad input."""
     if config.spans is None:
         raise ValueError("swing problem: spans None (the grid from the estimate's bending "
                          "length) is `fit_swing`'s; give spans here")
@@ -249,7 +246,7 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
         corner_smooth = smoothed(vertices[:, list(held)], times)
 
         def corners(t: np.ndarray) -> np.ndarray:
-            return _evaluate(corner_smooth, t)
+            return evaluate_smoothed(corner_smooth, t)
     first = corners(np.zeros(1))[0]
     line = first[1] - first[0]
     e1 = line / np.linalg.norm(line)
@@ -264,7 +261,14 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     dt = frame_interval / config.substeps
     steps = config.substeps * (frames - 1)
     step_times = dt * np.arange(steps + 1)
-    path = HandlePath(tuple(step_times), corners(step_times) - reference)
+    if turn is None and config.turn == "read":
+        rows = grid.index[:, 1:max(2, 1 + int(config.band * (grid.shape[1] - 1)))].ravel()
+        angle = smoothed(edge_turn(vertices, corners(times), rows, e1, across), times)
+
+        def turn(t: np.ndarray) -> np.ndarray:
+            return evaluate_smoothed(angle, t) - evaluate_smoothed(angle, np.zeros(1))
+    turns = None if turn is None else turn(step_times)[:, None] * e1[None]
+    path = HandlePath(tuple(step_times), corners(step_times) - reference, turns=turns)
     basis, path_start = None, None
     if config.corners == "fitted":  # q₀: the B-spline's least-squares fit to the smoothing
         basis = spline_basis(step_times, 2, config.corner_spans or frames - 1)
@@ -278,17 +282,17 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
 
     def stepper_at(bending: float, q: np.ndarray | None = None) -> PathStepper:
         with_b = model.with_material(material.with_stiffness(bending_stiffness=bending))
-        moved = path if q is None else HandlePath(path.times, basis @ q, basis)
+        moved = path if q is None else HandlePath(path.times, basis @ q, basis, path.turns)
         return PathStepper(with_b, plan, dynamics, moved, newton=newton)
 
     stepper = stepper_at(1e-5)
     pick = grid.index[::config.stride, ::config.stride].ravel()
     xi = torch.from_numpy(grid.xi[pick]).double()
     flat = model.surface.jets(xi)[:, jets.VALUE].double().numpy()
-    position0 = _evaluate(smooth, np.array(0.0))[pick]
-    velocity0 = _evaluate(smooth, np.array(0.0), nu=1)[pick]
+    position0 = evaluate_smoothed(smooth, np.array(0.0))[pick]
+    velocity0 = evaluate_smoothed(smooth, np.array(0.0), nu=1)[pick]
     g0 = stepper.boundary_at(xi, 0.0, torch.float64)[:, jets.VALUE].numpy()
-    gv = _boundary_velocity(stepper, xi)
+    gv = stepper.boundary_velocity(xi, torch.float64)[:, jets.VALUE].numpy()
     c0 = _fit_free(stepper, xi, torch.from_numpy(position0 - flat - g0))
     v0 = _fit_free(stepper, xi, torch.from_numpy(velocity0 - gv))
 
@@ -302,13 +306,6 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
     data = TrajectoryData(xi, tuple(config.substeps * f for f in range(1, frames)), observed)
     return SwingProblem(stepper_at, start, data, grid, model, path, frame_interval, xi, flat,
                         vertices[0][pick], speed, path_start)
-
-
-def _boundary_velocity(stepper: PathStepper, xi: torch.Tensor) -> np.ndarray:
-    """ġ(0) (P, 3) [m/s] at ξ: the path's first slope blended as the handles' displacement."""
-    boundary = moved_boundary(stepper.model.boundary, stepper.path.initial_velocity())
-    operator = DisplacementOperator(stepper.field, boundary)
-    return operator.prescribed(xi, t=1.0, dtype=torch.float64)[:, jets.VALUE].numpy()
 
 
 def resolving_spans(size: tuple[float, float], length: float, ratio: float = SPAN_RATIO,
@@ -343,7 +340,8 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
               frame_interval: float, gravity: np.ndarray, config: SwingConfig, start: float,
               fit_config: TrajectoryFitConfig | None = None, *,
               newton: NewtonConfig | None = None,
-              corners: Callable[[np.ndarray], np.ndarray] | None = None) -> SwingFit:
+              corners: Callable[[np.ndarray], np.ndarray] | None = None,
+              turn: Callable[[np.ndarray], np.ndarray] | None = None) -> SwingFit:
     """B [N·m] fitted to the sequence (`swing_problem`'s arguments) by `fit_trajectory` from
     `start` [N·m]. With config.spans None the grid follows the estimate: the first fit on
     `resolving_spans` of the start's bending length, then, while the estimate's bending length
@@ -367,7 +365,7 @@ def fit_swing(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int],
             path: np.ndarray | None):
         problem = swing_problem(vertices, faces, held, frame_interval, gravity,
                                 dataclasses.replace(config, spans=spans), newton=newton,
-                                corners=corners)
+                                corners=corners, turn=turn)
         path = problem.path_start if path is None or problem.path_start is None else path
         return problem, fit_trajectory(problem.stepper_at, problem.data, theta, fit_with,
                                        initial=problem.start, path_start=path)

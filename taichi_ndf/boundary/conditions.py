@@ -85,7 +85,8 @@ class BoundaryConditions:
         act on one component (their factors multiply).
     domain: the reference surface's parameter domain; periodic coordinates need no condition
         (the field is periodic by construction) and have no edges.
-    surface: the reference surface; needed by `RimRotation` (positions r on the rim) and
+    surface: the reference surface; needed by `RimRotation` (positions r on the rim), a
+        turning `Handle` (r on its patch) and
         `SymmetryPlane` (the edge must lie in the plane and cross it at right angles).
     length: default band width ℓ of the vanishing factors, a fraction of the domain extent,
         positive; below 0.5 for points and lines (see the module docstring for the choice of

@@ -140,13 +140,19 @@ class Handle:
     tangent plane kept (a grip: fingers or a clip). The band of width `length` starts at
     the patch's rim. A point's held slope is not a bounded condition on the bending energy
     (`boundary.conditions`), so the field must resolve an ever sharper layer around it; a
-    patch's is (RESULTS.md, issue 27, "a held patch (grip) and the grid")."""
+    patch's is (RESULTS.md, issue 27, "a held patch (grip) and the grid").
+
+    turn: a rotation vector [rad] (world components; zero, the default: no turn): the held
+    spot (or patch) also turns by the angle t·|turn| about the axis along `turn` through its
+    reference point r_h, its displacement t·displacement + (R(t·turn) − I)(r − r_h) — the
+    held slope turned with it (a hand that turns what it holds). Needs the surface."""
 
     xi: tuple[float, float]
     displacement: tuple[float, float, float]
     components: str = "xyz"
     length: float | None = None
     radius: float = 0.0
+    turn: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         _set(self, "xi", finite_vector("Handle: xi", self.xi, 2))
@@ -157,6 +163,7 @@ class Handle:
                 and 0 <= self.radius < 0.5):
             raise ValueError(f"Handle: radius is a fraction of the domain extent in [0, 0.5), "
                              f"got {self.radius!r}")
+        _set(self, "turn", finite_vector("Handle: turn", self.turn, 3, "rad"))
 
 
 @dataclass(frozen=True)

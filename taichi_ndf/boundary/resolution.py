@@ -116,13 +116,7 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
         if surface is None:
             raise ValueError("RimRotation needs the reference surface: pass surface=...")
         if con.angle != 0.0:
-            axis = frame @ (np.asarray(con.axis) / np.linalg.norm(con.axis))
-            # The row c of R − I vanishes for every angle only if the axis is along c.
-            prescribes = frozenset(
-                COMPONENTS.index(c)
-                for c in con.components
-                if abs(abs(axis[COMPONENTS.index(c)]) - 1.0) > 1e-14
-            )
+            prescribes = _turned(con.axis, con.components, frame)
     elif isinstance(con, (ClampedEdge, HingedEdge, Handle)):
         displacement = frame @ np.asarray(con.displacement, dtype=np.float64)
         size = float(np.abs(displacement).max())
@@ -131,8 +125,20 @@ def resolve(con: Constraint, domain: ParameterDomain, surface: ReferenceSurface 
             for c in con.components
             if abs(displacement[COMPONENTS.index(c)]) > 1e-14 * size
         )
+        if any(getattr(con, "turn", ())):
+            if surface is None:
+                raise ValueError("Handle: a turn needs the reference surface: pass surface=...")
+            prescribes = prescribes | _turned(con.turn, con.components, frame)
     return ResolvedConstraint(constraint=con, length=ell, where=where, prescribes=prescribes,
                               radius=float(getattr(con, "radius", 0.0)))
+
+
+def _turned(axis, components: str, frame: np.ndarray) -> frozenset[int]:
+    """The components (of `components`, along the frame's axes) that a rotation about `axis`
+    (3,) moves: the row c of R − I vanishes for every angle only if the axis is along c."""
+    axis = frame @ (np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis))
+    return frozenset(COMPONENTS.index(c) for c in components
+                     if abs(abs(axis[COMPONENTS.index(c)]) - 1.0) > 1e-14)
 
 
 def _check_symmetry_plane(con: SymmetryPlane, domain: ParameterDomain,

@@ -14,6 +14,13 @@ jerk (`initial_boundary`). The model's handles must be at the reference (zero di
 the path is the whole prescribed motion. The adjoint (`solve/dynamics_adjoint.py`) follows
 these steps: g does not depend on the material.
 
+The held spots may also turn (`HandlePath.turns`: a rotation vector per time, shared by every
+handle — a held edge that the hands turn about the line through its corners): each handle's
+spot (or patch) then turns about its reference point as it translates (`Handle.turn`), its
+held slope with it. g stays the sum of the translations' part (linear in them) and the turn's,
+so `units` (the turn at zero) is still dg per unit displacement; the boundary's initial
+velocity is the first segment's slope of both (`boundary_velocity`).
+
 The paths themselves may be unknowns (a video's held corners, reconstructed with an error):
 `HandlePath.basis` (T, H, 3, p) is the displacements' derivative by p path unknowns q (the
 displacements affine in q, e.g. a B-spline's coefficients per corner coordinate). g is linear
@@ -49,11 +56,14 @@ class HandlePath:
     """times: (T,) [s], T ≥ 2, from 0, increasing; displacements: (T, H, 3) [m] of the H
     handles from the reference at those times (the first may be non-zero: the start's shape
     then carries it); basis: None, or (T, H, 3, p) [m per unit]: the displacements'
-    derivative by p path unknowns (module docstring)."""
+    derivative by p path unknowns (module docstring); turns: None (no turn), or (T, 3) [rad]:
+    the held spots' rotation vector at those times, shared by every handle (interpolated
+    linearly as the displacements; `Handle.turn`)."""
 
     times: tuple[float, ...]
     displacements: np.ndarray
     basis: np.ndarray | None = None
+    turns: np.ndarray | None = None
 
     def __post_init__(self):
         times = tuple(float(t) for t in self.times)
@@ -78,6 +88,12 @@ class HandlePath:
                     basis).all():
                 raise ValueError(f"handle path: basis must be finite (T, H, 3, p) with (T, H, "
                                  f"3) = {values.shape}, got {basis.shape}")
+        if self.turns is not None:
+            turns = np.asarray(self.turns, dtype=np.float64)
+            object.__setattr__(self, "turns", turns)
+            if turns.shape != (len(times), 3) or not np.isfinite(turns).all():
+                raise ValueError(f"handle path: turns must be finite (T, 3) [rad] with T = "
+                                 f"{len(times)}, got {turns.shape}")
 
     @property
     def handles(self) -> int:
@@ -89,6 +105,12 @@ class HandlePath:
         flat = self.displacements.reshape(len(times), -1)
         out = np.array([np.interp(t, times, column) for column in flat.T])
         return out.reshape(self.handles, 3)
+
+    def turn_at(self, t: float) -> np.ndarray:
+        """The held spots' rotation vector (3,) [rad] at time t [s] (zero without turns)."""
+        if self.turns is None:
+            return np.zeros(3)
+        return np.array([np.interp(t, self.times, column) for column in self.turns.T])
 
     def initial_velocity(self) -> np.ndarray:
         """(H, 3) [m/s]: the first segment's slope."""
@@ -128,17 +150,19 @@ def spline_basis(times: np.ndarray, handles: int, spans: int) -> np.ndarray:
     return basis.reshape(len(times), handles, 3, -1)
 
 
-def moved_boundary(boundary: BoundaryConditions, displacements: np.ndarray
-                   ) -> BoundaryConditions:
-    """The same conditions with the handles (in order) moved by `displacements` (H, 3) [m]."""
+def moved_boundary(boundary: BoundaryConditions, displacements: np.ndarray,
+                   turn: np.ndarray | None = None) -> BoundaryConditions:
+    """The same conditions with the handles (in order) moved by `displacements` (H, 3) [m],
+    each turned by the rotation vector `turn` (3,) [rad] (None: zero; `Handle.turn`)."""
     handles = [i for i, c in enumerate(boundary.constraints) if isinstance(c, Handle)]
     if len(handles) != len(displacements):
         raise ValueError(f"handle path: {len(displacements)} handles' displacements for "
                          f"{len(handles)} handles of the boundary")
     constraints = list(boundary.constraints)
+    turn = (0.0, 0.0, 0.0) if turn is None else tuple(float(v) for v in turn)
     for i, d in zip(handles, displacements, strict=True):
         constraints[i] = dataclasses.replace(constraints[i],
-                                             displacement=tuple(float(v) for v in d))
+                                             displacement=tuple(float(v) for v in d), turn=turn)
     return BoundaryConditions(constraints, boundary.domain, surface=boundary.surface,
                               length=boundary.length, frame=boundary.frame)
 
@@ -159,9 +183,10 @@ class PathStepper(TimeStepper):
                if hasattr(c, "displacement") and not isinstance(c, Handle)) \
                 or any(hasattr(c, "angle") for c in boundary.constraints):
             raise ValueError("handle path: only handles may prescribe displacements")
-        if any(np.any(c.displacement) for c in boundary.constraints if isinstance(c, Handle)):
+        if any(np.any(c.displacement) or any(c.turn) for c in boundary.constraints
+               if isinstance(c, Handle)):
             raise ValueError("handle path: the model's handles must be at the reference "
-                             "(zero displacement); the path is their motion")
+                             "(zero displacement and turn); the path is their motion")
         moved_boundary(boundary, np.zeros((path.handles, 3)))  # the count checked
         self.path = path
         self._offsets: dict[float, torch.Tensor] = {}
@@ -169,8 +194,21 @@ class PathStepper(TimeStepper):
 
     def boundary_at(self, xi: torch.Tensor, t: float, dtype: torch.dtype) -> torch.Tensor:
         """g(t): the boundary's displacement jets (P, 6, 3) [m] at ξ (P, 2), time t [s]."""
-        boundary = moved_boundary(self.model.boundary, self.path.at(t))
+        boundary = moved_boundary(self.model.boundary, self.path.at(t), self.path.turn_at(t))
         return DisplacementOperator(self.field, boundary).prescribed(xi, t=1.0, dtype=dtype)
+
+    def boundary_velocity(self, xi: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+        """ġ(0): the boundary's velocity jets (P, 6, 3) [m/s] at ξ (P, 2), the path's first
+        segment's slope: the translations' (linear in them) plus the turn's secant."""
+        velocity = moved_boundary(self.model.boundary, self.path.initial_velocity())
+        gv = DisplacementOperator(self.field, velocity).prescribed(xi, t=1.0, dtype=dtype)
+        if self.path.turns is None:
+            return gv
+        still = np.zeros((self.path.handles, 3))
+        turned = [DisplacementOperator(self.field, moved_boundary(
+            self.model.boundary, still, turn)).prescribed(xi, t=1.0, dtype=dtype)
+            for turn in self.path.turns[:2]]
+        return gv + (turned[1] - turned[0]) / self.path.times[1]
 
     def units(self, xi: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
         """dg/dd: the boundary's displacement jets (P, 6, 3, 3H) [m/m] at ξ (P, 2) per unit
@@ -203,9 +241,7 @@ class PathStepper(TimeStepper):
     def initial_boundary(self) -> Motion:
         """(g, ġ, g̈) at t = 0 at the Gauss points: the path's start, its first slope, 0."""
         g = self.offset_of(self._at(0.0))
-        xi = self._grid.assembly.samples.xi
-        velocity = moved_boundary(self.model.boundary, self.path.initial_velocity())
-        gv = DisplacementOperator(self.field, velocity).prescribed(xi, t=1.0, dtype=g.dtype)
+        gv = self.boundary_velocity(self._grid.assembly.samples.xi, g.dtype)
         return Motion(0.0, g, gv, torch.zeros_like(g))
 
     def start(self, displacement=None, velocity=None) -> Checkpoint:
