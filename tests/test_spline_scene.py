@@ -153,13 +153,14 @@ def test_sim_solves_a_spline_scene_on_refined_grids_and_resumes_and_exports(tmp_
     assert result["probes"]["tip"] == result["levels"][-1]["probes"]["tip"]
     assert result["trajectory"]["load_factors"] == [0.5, 1.0]
 
-    # --resume of a finished run re-solves its finest grid: one converged Newton step.
+    # --resume of a finished run re-solves its finest grid: one converged Newton step, and
+    # the strip (no singular feature) the probe stop's one more (`GridLevels._probe_stop`).
     assert sim.main([str(write(tmp_path)), "--out", str(out), "--refine", "3", "--resume",
                      *RUNTIME]) == 0
     resumed = json.loads((out / "result.json").read_text())
     assert resumed["levels"][:2] == result["levels"][:2]
     assert resumed["energy"] == pytest.approx(result["energy"], rel=1e-10)
-    assert resumed["history"][:-1] == history and len(resumed["history"]) == len(history) + 1
+    assert resumed["history"][:-2] == history and len(resumed["history"]) == len(history) + 2
 
     # The checkpoint holds the finest spline field: ndf-export reproduces the run's mesh.
     mesh = tmp_path / "same.obj"

@@ -21,7 +21,9 @@ wip-adapt12, wip-adapt13); a target relative to a probe's own last change would 
 the next one. What is left after a Newton step in its quadratic range is far below the step
 (measured against tight solves: benchmarks/RESULTS.md, wip-adapt14), and after a shortened
 step at most the untaken part of the full one. A probe component a gauge motion moves
-(`gauge_moved`) is not read: no solve settles it.
+(`gauge_moved`) is not read: no solve settles it. A load step whose Newton did not converge
+or ended at a non-finite Π is left as it ended (the divergence is reported), and one where
+Newton takes no step (a zero gradient: an unloaded step) records no solve error.
 
 `richardson` (`taichi_ndf.minimise.extrapolation`, imported from here too) extrapolates a
 quantity from its values on the last grids and bounds the error of the result.
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -208,7 +211,8 @@ class GridLevels:
         solution = run_phases([phase])[0]
         errors = None
         if self.probes and self.contact is None and self.probe_stop_at is not None and abs(
-                t - self.probe_stop_at) <= 1e-12:
+                t - self.probe_stop_at) <= 1e-12 and solution.converged and math.isfinite(
+                solution.energy):  # (a diverged step is reported as it ended)
             solution, errors = self._probe_stop(solution, t)
         coefficients = solution.parameters
         readings = self._readings(coefficients, t)
@@ -246,6 +250,8 @@ class GridLevels:
                 more, max_iterations=len(history) + 1), load_factor=t,
                 on_iteration=self.iterated, report=False, resume=NewtonIterate(
                     c, len(history), 0.0, False, None, None, history))
+            if len(step.history) <= len(history):  # no step taken (e.g. a zero gradient)
+                break
             history, alpha = step.history, step.history[-1].step_length
             if alpha == 0.0:  # no step lowered Π: the last step's change stands
                 break
