@@ -243,7 +243,7 @@ class GridLevels:
         more = dataclasses.replace(newton, decrement_tolerance=0.0, gradient_tolerance=0.0,
                                    relative_decrease=0.0, discretisation_fraction=0.0)
         linear, potential = self.builder.linearisation(t), self.objective.potential(t)
-        c, history = solution.parameters, list(solution.history)
+        c, energy, history = solution.parameters, solution.energy, list(solution.history)
         before, errors = self._readings(c, t), None
         for _ in range(PROBE_STEPS):
             step = minimise(linear, potential, c, dataclasses.replace(
@@ -255,7 +255,7 @@ class GridLevels:
             history, alpha = step.history, step.history[-1].step_length
             if alpha == 0.0:  # no step lowered Π: the last step's change stands
                 break
-            c = step.parameters
+            c, energy = step.parameters, step.energy
             after = self._readings(c, t)
             errors = {name: np.abs(after[name] - before[name]) / alpha for name in before}
             before = after
@@ -268,7 +268,6 @@ class GridLevels:
         log.info("probe stop at load %.4g: %d Newton steps past Newton's stop, solve errors %s",
                  t, len(history) - len(solution.history), errors and {
                      name: float(np.linalg.norm(e)) for name, e in errors.items()})
-        energy = potential(linear.samples, linear.displacement(c), False).total
         return dataclasses.replace(solution, parameters=c, energy=energy,
                                    history=history), errors
 
