@@ -98,6 +98,11 @@ class LevelSolution:
     history: list[NewtonIteration] = field(default_factory=list)
     probe_errors: dict[str, np.ndarray] | None = None
 
+    def probe_error_lists(self) -> dict[str, list[float]] | None:
+        """`probe_errors` as plain values (result.json, checkpoints; None: not measured)."""
+        errors = self.probe_errors
+        return None if errors is None else {k: v.tolist() for k, v in errors.items()}
+
 
 class GridLevels:
     """The stages of a coarse-to-fine projected-Newton solve (`taichi_ndf.minimise.continuation`):

@@ -131,8 +131,7 @@ def _solution_dict(solution: LevelSolution, history: bool = True) -> dict:
     values = asdict(solution)
     values["coefficients"] = solution.coefficients
     values["probes"] = {k: v.tolist() for k, v in solution.probes.items()}
-    values["probe_errors"] = None if solution.probe_errors is None else {
-        k: v.tolist() for k, v in solution.probe_errors.items()}
+    values["probe_errors"] = solution.probe_error_lists()
     values["history"] = values["history"] if history else []
     return values
 

@@ -73,7 +73,7 @@ from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.spline_grid import SplinePlan, graded_config, singular_features
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.error_indicator import INDICATORS, equidistributed, span_indicator
-from taichi_ndf.solve.spline_solver import SplineRun, newton_config, probe_errors, solve_spline
+from taichi_ndf.solve.spline_solver import SplineRun, newton_config, solve_spline
 from taichi_ndf.solve.tolerance import gauge_relative, tolerance_met
 
 log = logging.getLogger(__name__)
@@ -359,7 +359,7 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
         run.state.levels.append(LevelSummary(
             level, last.spans, last.energy, {k: v.tolist() for k, v in last.probes.items()},
             sum(len(s.history) for s in solutions), time.perf_counter() - grid["started"],
-            all(s.converged for s in solutions), probe_errors(last)))
+            all(s.converged for s in solutions), last.probe_error_lists()))
         run.steps = [(s.load_factor, s.coefficients) for s in solutions]
         run.load_steps = [{"load_factor": s.load_factor, "energy": s.energy,
                            "probes": {k: v.tolist() for k, v in s.probes.items()},

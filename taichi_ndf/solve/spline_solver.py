@@ -121,12 +121,6 @@ class SplineRun:
                 "energy": extrapolate([lv.energy for lv in self.levels]), "probes": probes}
 
 
-def probe_errors(solution: LevelSolution) -> dict[str, list[float]] | None:
-    """A level's last load step's probe solve errors as plain values (None: not measured)."""
-    errors = solution.probe_errors
-    return None if errors is None else {k: v.tolist() for k, v in errors.items()}
-
-
 def newton_config(config: SolverConfig, dtype: torch.dtype) -> NewtonConfig:
     """Projected-Newton settings of a run: the FD step and the stopping tolerances suit the
     precision (float32: Π is summed over thousands of points, so its rounding floor is about
@@ -244,7 +238,7 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
                                {k: v.tolist() for k, v in last.probes.items()},
                                sum(len(s.history) for s in solutions),
                                sum(s.seconds for s in solutions),
-                               all(s.converged for s in solutions), probe_errors(last))
+                               all(s.converged for s in solutions), last.probe_error_lists())
         state.levels.append(summary)
         state.field = field_
         state.load_step = len(config.load_steps)
