@@ -101,16 +101,12 @@ class HandlePath:
 
     def at(self, t: float) -> np.ndarray:
         """(H, 3) [m] at time t [s] (linear between the times, held after the last)."""
-        times = np.asarray(self.times)
-        flat = self.displacements.reshape(len(times), -1)
-        out = np.array([np.interp(t, times, column) for column in flat.T])
-        return out.reshape(self.handles, 3)
+        return _interpolated(self.times, self.displacements, t)
 
     def turn_at(self, t: float) -> np.ndarray:
-        """The held spots' rotation vector (3,) [rad] at time t [s] (zero without turns)."""
-        if self.turns is None:
-            return np.zeros(3)
-        return np.array([np.interp(t, self.times, column) for column in self.turns.T])
+        """The held spots' rotation vector (3,) [rad] at time t [s] (zero without turns;
+        interpolated as `at`)."""
+        return np.zeros(3) if self.turns is None else _interpolated(self.times, self.turns, t)
 
     def initial_velocity(self) -> np.ndarray:
         """(H, 3) [m/s]: the first segment's slope."""
@@ -132,6 +128,13 @@ class HandlePath:
     def initial_velocity_derivative(self) -> np.ndarray:
         """d(initial_velocity)/dq (3H, p) [m/s per unit]."""
         return (self.basis[1] - self.basis[0]).reshape(3 * self.handles, -1) / self.times[1]
+
+
+def _interpolated(times: tuple[float, ...], values: np.ndarray, t: float) -> np.ndarray:
+    """values (T, …) at time t [s]: linear between the times, held before the first and
+    after the last."""
+    flat = values.reshape(len(times), -1)
+    return np.array([np.interp(t, times, column) for column in flat.T]).reshape(values.shape[1:])
 
 
 def spline_basis(times: np.ndarray, handles: int, spans: int) -> np.ndarray:
