@@ -5,6 +5,7 @@ of `Patch`es and the `PatchSeam`s between them, solved by
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from dataclasses import dataclass
 
@@ -19,6 +20,7 @@ from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.shell.materials import ClydeFabric, LinearIsotropic, Material, OrthotropicStVK
 
 COMPONENTS = 3
+log = logging.getLogger(__name__)
 
 
 def grain_turned(material: Material, grain: float) -> Material:
@@ -211,12 +213,14 @@ class MultiPatchPlan:
     def graded_at_seam_corners(self, share: float = GRADED_SHARE) -> MultiPatchPlan:
         """This plan with each patch's knots graded towards its `seam_corners` (the same
         spans: `taichi_ndf.problem.spline_grid.graded_towards`; a patch without seam
-        corners keeps its grid)."""
-        patches = tuple(
-            patch if not any(corners) else dataclasses.replace(
-                patch, config=graded_towards(patch.config, corners, share=share))
-            for patch, corners in zip(self.patches, self.seam_corners(), strict=True))
-        return dataclasses.replace(self, patches=patches)
+        corners keeps its grid); each patch's grading is logged."""
+        patches = []
+        for patch, corners in zip(self.patches, self.seam_corners(), strict=True):
+            log.info("panel %r: knots graded towards ξ¹ = %s, ξ² = %s", patch.name,
+                     corners[0] or "none", corners[1] or "none")
+            patches.append(patch if not any(corners) else dataclasses.replace(
+                patch, config=graded_towards(patch.config, corners, share=share)))
+        return dataclasses.replace(self, patches=tuple(patches))
 
     def to_dict(self) -> dict:
         return {"type": "multipatch",

@@ -16,7 +16,6 @@ edges or clockwise order), raised before anything is solved.
 
 from __future__ import annotations
 
-import logging
 import math
 
 from taichi_ndf.boundary import BoundaryConditions, ClampedEdge, HingedEdge
@@ -53,8 +52,6 @@ RESTS = ("placed", "flat")
 # [field] grading of a garment's panels: uniform knots, or the same spans graded towards the
 # seam corners (`MultiPatchPlan.graded_at_seam_corners`).
 GARMENT_GRADINGS = ("uniform", "seam_corners")
-
-log = logging.getLogger(__name__)
 
 
 def is_garment(document: dict) -> bool:
@@ -303,9 +300,6 @@ def parse_garment(top: Table, material, field: Table | None, *, read_material
                    "panels")
     if grading == "seam_corners":  # the same spans, graded towards where seams turn
         plan = checked(plan.graded_at_seam_corners, "field.grading")
-        for patch, corners in zip(plan.patches, plan.seam_corners(), strict=True):
-            log.info("panel %r: knots graded towards ξ¹ = %s, ξ² = %s", patch.name,
-                     corners[0] or "none", corners[1] or "none")
     for t, seam in zip(top.tables("seams"), seams, strict=True):
         checked(lambda seam=seam: SeamTerm(seam.spec, patches[seam.a].model.surface,
                                            plan.seam_material(seam),
