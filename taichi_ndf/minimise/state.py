@@ -74,6 +74,25 @@ class LevelSummary:
     converged: bool
     probe_errors: dict[str, list[float]] | None = None
 
+    @classmethod
+    def of(cls, level: int, solutions: list[LevelSolution], seconds: float) -> LevelSummary:
+        """A level's summary from its load steps' solutions (the last at the final load)."""
+        last = solutions[-1]
+        return cls(level, last.spans, last.energy, _probe_lists(last),
+                   sum(len(s.history) for s in solutions), seconds,
+                   all(s.converged for s in solutions), last.probe_error_lists())
+
+
+def load_step_records(solutions: list[LevelSolution]) -> list[dict]:
+    """Per load step of a level: its load factor, Π [J], probes [m] and whether Newton
+    converged, as plain values (result.json's `load_steps`)."""
+    return [{"load_factor": s.load_factor, "energy": s.energy, "probes": _probe_lists(s),
+             "converged": s.converged} for s in solutions]
+
+
+def _probe_lists(solution: LevelSolution) -> dict[str, list[float]]:
+    return {k: v.tolist() for k, v in solution.probes.items()}
+
 
 @dataclass
 class InsideLevel:

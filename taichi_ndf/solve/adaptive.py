@@ -66,7 +66,7 @@ from taichi_ndf.minimise.continuation import Hook, Stages, Step, solve_over
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, extrapolate_changes
-from taichi_ndf.minimise.state import LevelSummary, NewtonRecord
+from taichi_ndf.minimise.state import LevelSummary, NewtonRecord, load_step_records
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.seam import with_seam_points
 from taichi_ndf.problem.model import ShellModel
@@ -355,15 +355,10 @@ def solve_adaptive(model: ShellModel, plan: SplinePlan, config: SolverConfig,
         field, solutions = results[-1][0], [solution for _, solution in results]
         field.coefficients.copy_(solutions[-1].coefficients)
         run.state.field = field
-        last = solutions[-1]
-        run.state.levels.append(LevelSummary(
-            level, last.spans, last.energy, {k: v.tolist() for k, v in last.probes.items()},
-            sum(len(s.history) for s in solutions), time.perf_counter() - grid["started"],
-            all(s.converged for s in solutions), last.probe_error_lists()))
+        run.state.levels.append(LevelSummary.of(level, solutions,
+                                                time.perf_counter() - grid["started"]))
         run.steps = [(s.load_factor, s.coefficients) for s in solutions]
-        run.load_steps = [{"load_factor": s.load_factor, "energy": s.energy,
-                           "probes": {k: v.tolist() for k, v in s.probes.items()},
-                           "converged": s.converged} for s in solutions]
+        run.load_steps = load_step_records(solutions)
         run.wall_time = time.perf_counter() - started
 
     solve_over(Stages(solve, after_step=stepped, after_level=finished), config.load_steps,

@@ -36,7 +36,13 @@ from taichi_ndf.minimise.linearisation import GridLinearisation
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.minimise.newton_state import NewtonIterate
 from taichi_ndf.minimise.refinement import GridLevels, LevelSolution, richardson, richardson_point
-from taichi_ndf.minimise.state import InsideLevel, LevelSummary, NewtonRecord, State
+from taichi_ndf.minimise.state import (
+    InsideLevel,
+    LevelSummary,
+    NewtonRecord,
+    State,
+    load_step_records,
+)
 from taichi_ndf.objective import Objective
 from taichi_ndf.objective.seam import with_seam_points
 from taichi_ndf.problem.model import ShellModel
@@ -233,25 +239,18 @@ def solve_spline(model: ShellModel, plan: SplinePlan, config: SolverConfig, *,
         nonlocal coarser
         field_ = grids.grid
         field_.coefficients.copy_(solutions[-1].coefficients)
-        last = solutions[-1]
-        summary = LevelSummary(level, last.spans, last.energy,
-                               {k: v.tolist() for k, v in last.probes.items()},
-                               sum(len(s.history) for s in solutions),
-                               sum(s.seconds for s in solutions),
-                               all(s.converged for s in solutions), last.probe_error_lists())
+        summary = LevelSummary.of(level, solutions, sum(s.seconds for s in solutions))
         state.levels.append(summary)
         state.field = field_
         state.load_step = len(config.load_steps)
         run.steps = [(s.load_factor, s.coefficients) for s in solutions]
-        run.load_steps = [{"load_factor": s.load_factor, "energy": s.energy,
-                           "probes": {k: v.tolist() for k, v in s.probes.items()},
-                           "converged": s.converged} for s in solutions]
+        run.load_steps = load_step_records(solutions)
         run.wall_time = time.perf_counter() - started
         coarser = solutions
         done.clear()
         state.inside = within(level + 1) if level + 1 < levels else None
         log.info("level %d (%d × %d spans): Π %.10g J, %d Newton iterations, %.2f s%s", level,
-                 *last.spans, last.energy, summary.iterations, summary.seconds,
+                 *summary.spans, summary.energy, summary.iterations, summary.seconds,
                  "" if summary.converged else " (not converged)")
 
     def ended() -> None:
