@@ -266,7 +266,8 @@ def case_model(name: str):
 def bar_row(values: list[float], first: int, spans: list, quantity: str,
             converged: list[bool], point: list[list[float]] | None = None,
             smooth_energy: bool = False, errors: list[list[float]] | None = None) -> dict:
-    """The bars of the window starting at grid `first` against the finest value; converged:
+    """The bars of the window starting at grid `first` against the finest value (read as
+    result.json reads a run's levels: from every grid up to the window's finest); converged:
     per grid, whether its solve converged (`richardson` calls the order of a window with an
     unconverged grid unreliable); smooth_energy: the model has no known singular feature
     (Π: `richardson(..., smooth=True)`; a probe where its solve errors were stored, errors:
@@ -278,17 +279,16 @@ def bar_row(values: list[float], first: int, spans: list, quantity: str,
              and all(math.isfinite(e[c]) for e in errors))
     own = [e[c] for e in errors] if probe else None
 
-    def scalar(lo, hi):
-        return richardson(values[lo:hi], order=ORDER, converged=converged[lo:hi],
-                          smooth=smooth_pi or probe, solve_errors=own and own[lo:hi])
+    def scalar(lo, hi):  # every grid up to hi, as result.json reads its levels
+        return richardson(values[:hi], order=ORDER, converged=converged[:hi],
+                          smooth=smooth_pi or probe, solve_errors=own and own[:hi])
 
     ref_bar, three = scalar(len(values) - 3, len(values)), scalar(first, first + 3)
     if point is not None:  # all three components stored: the point's order, as ndf-sim's
         measured = smooth_energy and errors is not None
-        ref_bar = richardson_point(point[-3:], ORDER, converged[-3:],
-                                   errors[-3:] if measured else None)[c]
-        three = richardson_point(point[first:first + 3], ORDER, converged[first:first + 3],
-                                 errors[first:first + 3] if measured else None)[c]
+        ref_bar = richardson_point(point, ORDER, converged, errors if measured else None)[c]
+        three = richardson_point(point[:first + 3], ORDER, converged[:first + 3],
+                                 errors[:first + 3] if measured else None)[c]
     two = richardson(values[first + 1:first + 3], order=ORDER,
                      converged=converged[first + 1:first + 3])
     old_error = abs(two.value - values[first + 2])  # the replaced two-grid rule

@@ -115,8 +115,9 @@ SAFETY_UNRELIABLE = 3.0  # Roache's Fs where the order cannot be trusted (times 
 ORDER_BASES = ("observed", "assumed", "unreliable")
 # an unreliable order's error bar (module docstring; "point": a probe component's, bounded by
 # its point's, `richardson_point`; "a priori": Π, or a probe with its solve errors, of a
-# smooth model past the floor)
-BOUNDS = ("range", "floor", "point", "a priori")
+# smooth model past the floor; "fast": one falling faster than the a-priori order on the
+# last two ratios)
+BOUNDS = ("range", "floor", "point", "a priori", "fast")
 
 
 @dataclass(frozen=True)
@@ -177,7 +178,10 @@ BOUND_WORDS = {"range": "3 × the range of the last three",
                "floor": "the last change (at least the rounding level) summed at order 0.5",
                "point": "the point's bar, which bounds each component's distance",
                "a priori": "3 × the last change (at least the rounding level; a probe's with "
-                           "its solve errors) summed at the a-priori order (no singular feature)"}
+                           "its solve errors) summed at the a-priori order (no singular feature)",
+               "fast": "1.25 × the last change (at least the rounding level; a probe's with its "
+                       "solve errors) summed at the smaller of the last two observed orders, "
+                       "both above the a-priori one (no singular feature)"}
 
 
 @dataclass(frozen=True)
@@ -213,10 +217,33 @@ def _unreliable_reason(d1: float, d2: float, scale: float,
     return observed, None
 
 
+def _fast_order(changes: list[float], errors: list[float], order: float,
+                floor: float) -> float | None:
+    """The order that the last three changes d₀, d₁, d₂ (values with solve errors `errors`,
+    one per value) show for certain, where both of their ratios show at least the a-priori
+    `order` (None otherwise: fewer than three changes, a change at the rounding level `floor`,
+    changes not falling with one sign). Each value lies within its e of its grid's answer,
+    so a change d_k between values k and k + 1 is that grid pair's within e_k + e_{k+1}; the
+    ratio taken is the smaller of (|d₀| − e₀ − e₁)/(|d₁| + e₁ + e₂) and (|d₁| − e₁ − e₂)/(|d₂|
+    + e₂ + e₃), the slowest the grids' own changes can fall (module docstring)."""
+    if len(changes) < 3:
+        return None
+    d = changes[-3:]
+    e = list(errors[-4:]) if len(errors) >= 4 else [0.0] * 4
+    if not (d[0] * d[1] > 0.0 and d[1] * d[2] > 0.0 and min(map(abs, d)) > floor):
+        return None
+    ratios = [(abs(d[k]) - e[k] - e[k + 1]) / (abs(d[k + 1]) + e[k + 1] + e[k + 2])
+              for k in (0, 1)]
+    if min(ratios) <= 1.0:
+        return None
+    fast = math.log2(min(ratios))
+    return fast if fast >= order else None
+
+
 def extrapolate_changes(changes: list[float], order: float | None = None,
                         scale: float = 0.0, unconverged: str | None = None,
                         smooth: bool = False,
-                        solve_errors: tuple[float, float] = (0.0, 0.0)) -> OrderEstimate:
+                        solve_errors: list[float] | None = None) -> OrderEstimate:
     """The order, correction and error bar of the finest value from the changes between
     successive grids refined by 2 each (signed differences of a scalar, or norms of a field's
     differences; the last two are used; module docstring). order: the expected order, assumed
@@ -224,8 +251,10 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
     the size of the values (max |v|) that the rounding level is relative to (0: no rounding
     check). unconverged: with two or more changes, why the order is unreliable because a
     value used did not converge (None: every one did). smooth: the values are Π of a model
-    with no known singular feature, or a probe of one with solve_errors (e₁, e₂) of the last
-    two values (the floor's changes to come at the a-priori `order`; module docstring)."""
+    with no known singular feature, or a probe of one with solve_errors, one per value behind
+    the changes (None: zero; the floor's changes to come at the a-priori `order`, and with
+    three changes falling faster than it on both ratios at the slower observed order, bound
+    "fast"; module docstring). Three changes are given only where all four values converged."""
     if not changes:
         raise ValueError("richardson needs at least two values, got 1")
     last = changes[-1]
@@ -234,11 +263,24 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
             raise ValueError("two values need an assumed order")
         return OrderEstimate(order, last / (2.0**order - 1.0), abs(last), "assumed")
     d1, d2 = changes[-2:]
+    errors = [0.0] * (len(changes) + 1) if solve_errors is None else list(solve_errors)
     observed, reason = _unreliable_reason(d1, d2, scale, order)
     if unconverged is not None:
         reason = unconverged
     if reason is not None:
         floor = ROUNDING * scale
+        fast = (None if not smooth or unconverged is not None or order is None
+                or observed is None or observed <= order + ORDER_SLACK
+                else _fast_order(changes, errors, order, floor))
+        if fast is not None:
+            # Roache's GCI of an order observed from three grids (Fs 1.25) on the finest value
+            # at the slower of the last two orders; the last change within its solve errors
+            return OrderEstimate(observed, 0.0, SAFETY_OBSERVED * max(
+                                 abs(d2) + errors[-2] + errors[-1], floor) / (2.0**fast - 1.0)
+                                 + errors[-1], "unreliable",
+                                 f"{reason}; no singular feature: observed order ≥ {fast:.2f} "
+                                 f"on the last two ratios, above the a-priori {order:g}",
+                                 None, "fast")
         if (unconverged is None and order is not None and d1 * d2 >= 0.0
                 and abs(d2) < abs(d1) and abs(d2) <= NEAR_ROUNDING * floor
                 and abs(d1) <= 2.0 ** (ORDER_FAR * order) * max(abs(d2), floor)):
@@ -247,8 +289,8 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
             if smooth and observed is not None and observed >= order:
                 # each value within its e of its grid's: d₂ within |d₂| + e₁ + e₂, v₂ e₂ off
                 return OrderEstimate(observed, 0.0, SAFETY_UNRELIABLE * max(
-                                     abs(d2) + sum(solve_errors), floor) / (2.0**order - 1.0)
-                                     + solve_errors[1], "unreliable",
+                                     abs(d2) + errors[-2] + errors[-1], floor)
+                                     / (2.0**order - 1.0) + errors[-1], "unreliable",
                                      f"{reason}; no singular feature: order {order:g} a priori",
                                      None, "a priori")
             return OrderEstimate(observed, 0.0, max(abs(d2), floor) / (2.0**ORDER_MIN - 1.0),
@@ -300,9 +342,12 @@ def richardson(values: list[float], order: float | None = None,
     if solve_errors is not None and len(solve_errors) != len(values):
         raise ValueError(f"{len(solve_errors)} solve errors for {len(values)} values")
     last = values[-3:]
-    changes = np.diff(last).tolist()
+    # a fourth value (the "fast" bound's third change) only where it converged too
+    used = values[-4:] if converged is None or all(converged[-4:]) else last
+    changes = np.diff(used).tolist()
     unconverged = _unconverged(converged, len(values))
-    errors = (0.0, 0.0) if solve_errors is None else tuple(abs(float(e)) for e in solve_errors[-2:])
+    errors = (None if solve_errors is None
+              else [abs(float(e)) for e in solve_errors[len(values) - len(used):]])
     estimate = extrapolate_changes(changes, order, scale=max(abs(v) for v in last),
                                    unconverged=unconverged, smooth=smooth, solve_errors=errors)
     if estimate.basis == "assumed" and unconverged is not None:
