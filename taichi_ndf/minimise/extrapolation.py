@@ -72,6 +72,22 @@ a probe's solve error can exceed d₂ (cantilever_moment's −U at Newton's defa
 64 × 8 against d₂ = 8.1e-5: benchmarks/RESULTS.md, wip-adapt13). Models with a feature,
 probes without solve errors and slower changes keep the order-0.5 sum.
 
+Such a quantity (Π of a smooth model, or a probe of one with its solve errors e) whose changes
+fall **faster than the a-priori order on both of the last two ratios** (bound "fast") has its
+order observed from three grids, not assumed, so Roache's GCI for an observed order applies:
+the error of the finest value is 1.25 max(|d₂| + e₂ + e₃, `ROUNDING` max|v|)/(2^p − 1) + e₃
+(v∞ = v₃, the finest), p the smaller of the two orders, each taken within the solve errors:
+log₂ of the smaller of (|d₀| − e₀ − e₁)/(|d₁| + e₁ + e₂) and (|d₁| − e₁ − e₂)/(|d₂| + e₂ + e₃)
+(d₀, d₁, d₂ the last three changes of four values v₀ … v₃ with errors e₀ … e₃). It needs
+four values that all converged, the three changes of one sign, each above the rounding level,
+and both ratios at least 2^(a-priori order): one fast ratio alone may be a coincidence of the
+coarse grids (the bowl in silk above). It replaces the "a priori" and "range" bars there
+(always narrower than the a-priori one: 1.25/(2^p − 1) ≤ 3/(2^p_apriori − 1)). Measured
+(benchmarks/RESULTS.md, wip-adapt15): cantilever_moment's −U solved to precision falls at
+order 5.5 then 6.1 on 8×1 … 64×8; the stored studies' quarter plates' Π and w (order ≈ 4.06 on
+both ratios) hold their 128² values at 1.21 × the distance where the a-priori bar was 3.05 ×,
+the thick roof's Π at 1.09 × (the range bar: 7 100 ×).
+
 A value whose grid's Newton solve did not converge (`converged`, where the caller knows it)
 is not that grid's discrete answer, so its changes say nothing of the order: where one of the
 values used (the last three, or two) did not converge, the order is unreliable whatever the
@@ -129,8 +145,10 @@ class Extrapolation:
     = the finest value, error = 3 × the range of the last three values; `order` the observed
     one or None, `reason` why; module docstring). grids: how many values; warning: a
     one-line caution or None; bound: an unreliable order's error bar, "range" (3 × the range),
-    "floor" (the changes still to come past a sequence converged to the rounding level) or
-    "point" (a probe component's: its point's bar, narrower than its own; `richardson_point`)."""
+    "floor" (the changes still to come past a sequence converged to the rounding level),
+    "point" (a probe component's: its point's bar, narrower than its own; `richardson_point`),
+    "a priori" or "fast" (a smooth model's quantity: the changes to come at the a-priori
+    order, or at the slower of two observed orders above it; module docstring)."""
 
     value: float
     error: float
