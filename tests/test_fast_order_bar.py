@@ -9,6 +9,7 @@ studies (benchmarks/refinement_coverage_out5.json, out6.json), each with its fin
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 
@@ -81,3 +82,22 @@ def test_the_fast_bound_needs_a_smooth_model_and_four_converged_values():
                       converged=[False, True, True, True]).bound != "fast"
     assert richardson(MOMENT, order=4.0, smooth=True, solve_errors=MOMENT_ERRORS,
                       converged=[True] * 4).bound == "fast"
+
+
+def test_the_coverage_benchmark_reads_a_window_as_result_json_does():
+    """`benchmarks/refinement_coverage.py`'s `bar_row` reads a window from every grid up to its
+    finest (as `SplineRun.refinement` reads a run's levels), so a window whose grids are
+    preceded by a coarser one shows the fast bound (the quarter plate at h = 2, out5: Π on
+    8² / 16² / 32² after 4², against 64²)."""
+    import importlib.util
+    import sys
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "refinement_coverage.py"
+    spec = importlib.util.spec_from_file_location("refinement_coverage", path)
+    coverage = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = coverage  # its dataclasses look their module up
+    spec.loader.exec_module(coverage)
+    values = [*THICK, -31.9050121555]
+    spans = [[4 * 2**i] * 2 for i in range(len(values))]
+    row = coverage.bar_row(values, 1, spans, "energy", [True] * len(values), smooth_energy=True)
+    assert row["three"]["error_bound"] == "fast" and row["three_covers"]
