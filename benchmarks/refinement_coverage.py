@@ -18,7 +18,7 @@ distance |reference − value| (< 1: a miss; large: a bar far wider than needed)
 sample: "in" (the cases the rule was designed on, 2026-12-03), "out" (chosen afterwards,
 before their results were seen, to check the rule out of sample) or "out2" (chosen at 17:30
 UTC before their results and before the guarded rule of `richardson`, which was shaped on
-"in" and "out"; "out3" … "out6": later checks, each chosen before its values were seen).
+"in" and "out"; "out3" … "out7": later checks, each chosen before its values were seen).
 `--table` re-reads stored runs with the library's current rule; main's rule
 on the same values: the same command with PYTHONPATH at an export of main's taichi_ndf.
 `default` windows are the grid rule's grids with `--refine` (3 levels): the bar
@@ -161,6 +161,19 @@ CASES = {
     "square_plate_quarter_nu45": Case("validation/scenes/square_plate_quarter.toml", (4, 4), 6,
                                       ("energy", "centre:2"), (0, 1, 2), "out6",
                                       overrides=(("material.poisson_ratio", 0.45),)),
+    # Added 2026-12-07 19:33 UTC (issue 33, wip-adapt15), before any of their values was seen
+    # and before the observed-order bar above the a-priori order was written: its fresh
+    # check, smooth models at another Poisson ratio and radius than any case before (the full
+    # square plate, whose w_centre the coverage table misses, at ν = 0.2 on 6 levels: windows
+    # 0–2 against 64 × 64; the roof at R = 35 on 5 levels: windows 0 and 1 against 64 × 80,
+    # every component of its probe). cantilever_moment cannot be one: its moment is the
+    # validation runner's, not a scene load.
+    "square_plate_nu20": Case("validation/scenes/square_plate.toml", (2, 2), 6,
+                              ("energy", "centre:2"), (0, 1, 2), "out7",
+                              overrides=(("material.poisson_ratio", 0.2),)),
+    "scordelis_lo_roof_r35": Case("validation/scenes/scordelis_lo_roof.toml", (4, 5), 5,
+                                  ("energy", *(f"free_edge_mid:{c}" for c in range(3))),
+                                  (0, 1), "out7", overrides=(("geometry.radius", 35.0),)),
     # Added 17:34 UTC in place of cantilever_moment, whose scene states no load (its end
     # moment is the validation runner's; every level reads 0, so it is not counted), before any
     # result of these two was seen, after the rule was written.
@@ -253,7 +266,8 @@ def case_model(name: str):
 def bar_row(values: list[float], first: int, spans: list, quantity: str,
             converged: list[bool], point: list[list[float]] | None = None,
             smooth_energy: bool = False, errors: list[list[float]] | None = None) -> dict:
-    """The bars of the window starting at grid `first` against the finest value; converged:
+    """The bars of the window starting at grid `first` against the finest value (read as
+    result.json reads a run's levels: from every grid up to the window's finest); converged:
     per grid, whether its solve converged (`richardson` calls the order of a window with an
     unconverged grid unreliable); smooth_energy: the model has no known singular feature
     (Π: `richardson(..., smooth=True)`; a probe where its solve errors were stored, errors:
@@ -265,17 +279,16 @@ def bar_row(values: list[float], first: int, spans: list, quantity: str,
              and all(math.isfinite(e[c]) for e in errors))
     own = [e[c] for e in errors] if probe else None
 
-    def scalar(lo, hi):
-        return richardson(values[lo:hi], order=ORDER, converged=converged[lo:hi],
-                          smooth=smooth_pi or probe, solve_errors=own and own[lo:hi])
+    def scalar(lo, hi):  # every grid up to hi, as result.json reads its levels
+        return richardson(values[:hi], order=ORDER, converged=converged[:hi],
+                          smooth=smooth_pi or probe, solve_errors=own and own[:hi])
 
     ref_bar, three = scalar(len(values) - 3, len(values)), scalar(first, first + 3)
     if point is not None:  # all three components stored: the point's order, as ndf-sim's
         measured = smooth_energy and errors is not None
-        ref_bar = richardson_point(point[-3:], ORDER, converged[-3:],
-                                   errors[-3:] if measured else None)[c]
-        three = richardson_point(point[first:first + 3], ORDER, converged[first:first + 3],
-                                 errors[first:first + 3] if measured else None)[c]
+        ref_bar = richardson_point(point, ORDER, converged, errors if measured else None)[c]
+        three = richardson_point(point[:first + 3], ORDER, converged[:first + 3],
+                                 errors[:first + 3] if measured else None)[c]
     two = richardson(values[first + 1:first + 3], order=ORDER,
                      converged=converged[first + 1:first + 3])
     old_error = abs(two.value - values[first + 2])  # the replaced two-grid rule
@@ -407,7 +420,7 @@ def table(results: list[dict]) -> str:
                 f"{row['reference_error']:.2g} | {'yes' if all(r['converged']) else 'no'} | "
                 f"{r['wall']:.0f} / {r['cpu']:.0f} |")
     lines.append("")
-    for sample in ("in", "out", "out2", "out3", "out4", "out5", "out6"):
+    for sample in ("in", "out", "out2", "out3", "out4", "out5", "out6", "out7"):
         rows = [row for r in results if r["sample"] == sample for row in r["rows"]
                 if not prescribed(row)]
         if rows:

@@ -8,12 +8,8 @@ from __future__ import annotations
 
 import pytest
 
-from taichi_ndf.minimise.extrapolation import (
-    SAFETY_OBSERVED,
-    SAFETY_UNRELIABLE,
-    richardson,
-    richardson_point,
-)
+from taichi_ndf.minimise.extrapolation import SAFETY_OBSERVED, SAFETY_UNRELIABLE, richardson
+from taichi_ndf.minimise.point_extrapolation import richardson_point
 from taichi_ndf.minimise.state import LevelSummary, State
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.solve.spline_solver import SplineRun

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from taichi_ndf.boundary.gauge_motions import gauge_motions, probe_gauge
-from taichi_ndf.minimise.extrapolation import richardson, richardson_point
+from taichi_ndf.minimise.extrapolation import richardson
+from taichi_ndf.minimise.point_extrapolation import richardson_point
 from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.solve.adaptive import AdaptiveConfig, solve_adaptive
 from taichi_ndf.solve.tolerance import gauge_relative, tolerance_met

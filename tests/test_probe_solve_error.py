@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taichi_ndf.minimise.extrapolation import SAFETY_UNRELIABLE, richardson, richardson_point
+from taichi_ndf.minimise.extrapolation import SAFETY_UNRELIABLE, richardson
+from taichi_ndf.minimise.point_extrapolation import richardson_point
 from taichi_ndf.minimise.state import LevelSummary, State
 from taichi_ndf.problem.training import SolverConfig
 from taichi_ndf.scene.reader import load_scene

@@ -72,6 +72,22 @@ a probe's solve error can exceed d₂ (cantilever_moment's −U at Newton's defa
 64 × 8 against d₂ = 8.1e-5: benchmarks/RESULTS.md, wip-adapt13). Models with a feature,
 probes without solve errors and slower changes keep the order-0.5 sum.
 
+Such a quantity (Π of a smooth model, or a probe of one with its solve errors e) whose changes
+fall **faster than the a-priori order on both of the last two ratios** (bound "fast") has its
+order observed from three grids, not assumed, so Roache's GCI for an observed order applies:
+the error of the finest value is 1.25 max(|d₂| + e₂ + e₃, `ROUNDING` max|v|)/(2^p − 1) + e₃
+(v∞ = v₃, the finest), p the smaller of the two orders, each taken within the solve errors:
+log₂ of the smaller of (|d₀| − e₀ − e₁)/(|d₁| + e₁ + e₂) and (|d₁| − e₁ − e₂)/(|d₂| + e₂ + e₃)
+(d₀, d₁, d₂ the last three changes of four values v₀ … v₃ with errors e₀ … e₃). It needs
+four values that all converged, the three changes of one sign, each above the rounding level,
+and both ratios at least 2^(a-priori order): one fast ratio alone may be a coincidence of the
+coarse grids (the bowl in silk above). It replaces the "a priori" and "range" bars there
+(always narrower than the a-priori one: 1.25/(2^p − 1) ≤ 3/(2^p_apriori − 1)). Measured
+(benchmarks/RESULTS.md, wip-adapt15): cantilever_moment's −U solved to precision falls at
+order 5.5 then 6.1 on 8×1 … 64×8; the stored studies' quarter plates' Π and w (order ≈ 4.06 on
+both ratios) hold their 128² values at 1.21 × the distance where the a-priori bar was 3.05 ×,
+the thick roof's Π at 1.09 × (the range bar: 7 100 ×).
+
 A value whose grid's Newton solve did not converge (`converged`, where the caller knows it)
 is not that grid's discrete answer, so its changes say nothing of the order: where one of the
 values used (the last three, or two) did not converge, the order is unreliable whatever the
@@ -115,8 +131,9 @@ SAFETY_UNRELIABLE = 3.0  # Roache's Fs where the order cannot be trusted (times 
 ORDER_BASES = ("observed", "assumed", "unreliable")
 # an unreliable order's error bar (module docstring; "point": a probe component's, bounded by
 # its point's, `richardson_point`; "a priori": Π, or a probe with its solve errors, of a
-# smooth model past the floor)
-BOUNDS = ("range", "floor", "point", "a priori")
+# smooth model past the floor; "fast": one falling faster than the a-priori order on the
+# last two ratios)
+BOUNDS = ("range", "floor", "point", "a priori", "fast")
 
 
 @dataclass(frozen=True)
@@ -128,8 +145,10 @@ class Extrapolation:
     = the finest value, error = 3 × the range of the last three values; `order` the observed
     one or None, `reason` why; module docstring). grids: how many values; warning: a
     one-line caution or None; bound: an unreliable order's error bar, "range" (3 × the range),
-    "floor" (the changes still to come past a sequence converged to the rounding level) or
-    "point" (a probe component's: its point's bar, narrower than its own; `richardson_point`)."""
+    "floor" (the changes still to come past a sequence converged to the rounding level),
+    "point" (a probe component's: its point's bar, narrower than its own; `richardson_point`),
+    "a priori" or "fast" (a smooth model's quantity: the changes to come at the a-priori
+    order, or at the slower of two observed orders above it; module docstring)."""
 
     value: float
     error: float
@@ -177,7 +196,10 @@ BOUND_WORDS = {"range": "3 × the range of the last three",
                "floor": "the last change (at least the rounding level) summed at order 0.5",
                "point": "the point's bar, which bounds each component's distance",
                "a priori": "3 × the last change (at least the rounding level; a probe's with "
-                           "its solve errors) summed at the a-priori order (no singular feature)"}
+                           "its solve errors) summed at the a-priori order (no singular feature)",
+               "fast": "1.25 × the last change (at least the rounding level; a probe's with its "
+                       "solve errors) summed at the smaller of the last two observed orders, "
+                       "both above the a-priori one (no singular feature)"}
 
 
 @dataclass(frozen=True)
@@ -213,10 +235,33 @@ def _unreliable_reason(d1: float, d2: float, scale: float,
     return observed, None
 
 
+def _fast_order(changes: list[float], errors: list[float], order: float,
+                floor: float) -> float | None:
+    """The order that the last three changes d₀, d₁, d₂ (values with solve errors `errors`,
+    one per value) show for certain, where both of their ratios show at least the a-priori
+    `order` (None otherwise: fewer than three changes, a change at the rounding level `floor`,
+    changes not falling with one sign). Each value lies within its e of its grid's answer,
+    so a change d_k between values k and k + 1 is that grid pair's within e_k + e_{k+1}; the
+    ratio taken is the smaller of (|d₀| − e₀ − e₁)/(|d₁| + e₁ + e₂) and (|d₁| − e₁ − e₂)/(|d₂|
+    + e₂ + e₃), the slowest the grids' own changes can fall (module docstring)."""
+    if len(changes) < 3:
+        return None
+    d = changes[-3:]
+    e = list(errors[-4:]) if len(errors) >= 4 else [0.0] * 4
+    if not (d[0] * d[1] > 0.0 and d[1] * d[2] > 0.0 and min(map(abs, d)) > floor):
+        return None
+    ratios = [(abs(d[k]) - e[k] - e[k + 1]) / (abs(d[k + 1]) + e[k + 1] + e[k + 2])
+              for k in (0, 1)]
+    if min(ratios) <= 1.0:
+        return None
+    fast = math.log2(min(ratios))
+    return fast if fast >= order else None
+
+
 def extrapolate_changes(changes: list[float], order: float | None = None,
                         scale: float = 0.0, unconverged: str | None = None,
                         smooth: bool = False,
-                        solve_errors: tuple[float, float] = (0.0, 0.0)) -> OrderEstimate:
+                        solve_errors: list[float] | None = None) -> OrderEstimate:
     """The order, correction and error bar of the finest value from the changes between
     successive grids refined by 2 each (signed differences of a scalar, or norms of a field's
     differences; the last two are used; module docstring). order: the expected order, assumed
@@ -224,8 +269,10 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
     the size of the values (max |v|) that the rounding level is relative to (0: no rounding
     check). unconverged: with two or more changes, why the order is unreliable because a
     value used did not converge (None: every one did). smooth: the values are Π of a model
-    with no known singular feature, or a probe of one with solve_errors (e₁, e₂) of the last
-    two values (the floor's changes to come at the a-priori `order`; module docstring)."""
+    with no known singular feature, or a probe of one with solve_errors, one per value behind
+    the changes (None: zero; the floor's changes to come at the a-priori `order`, and with
+    three changes falling faster than it on both ratios at the slower observed order, bound
+    "fast"; module docstring). Three changes are given only where all four values converged."""
     if not changes:
         raise ValueError("richardson needs at least two values, got 1")
     last = changes[-1]
@@ -234,11 +281,24 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
             raise ValueError("two values need an assumed order")
         return OrderEstimate(order, last / (2.0**order - 1.0), abs(last), "assumed")
     d1, d2 = changes[-2:]
+    errors = [0.0] * (len(changes) + 1) if solve_errors is None else list(solve_errors)
     observed, reason = _unreliable_reason(d1, d2, scale, order)
     if unconverged is not None:
         reason = unconverged
     if reason is not None:
         floor = ROUNDING * scale
+        fast = (None if not smooth or unconverged is not None or order is None
+                or observed is None or observed <= order + ORDER_SLACK
+                else _fast_order(changes, errors, order, floor))
+        if fast is not None:
+            # Roache's GCI of an order observed from three grids (Fs 1.25) on the finest value
+            # at the slower of the last two orders; the last change within its solve errors
+            return OrderEstimate(observed, 0.0, SAFETY_OBSERVED * max(
+                                 abs(d2) + errors[-2] + errors[-1], floor) / (2.0**fast - 1.0)
+                                 + errors[-1], "unreliable",
+                                 f"{reason}; no singular feature: observed order ≥ {fast:.2f} "
+                                 f"on the last two ratios, above the a-priori {order:g}",
+                                 None, "fast")
         if (unconverged is None and order is not None and d1 * d2 >= 0.0
                 and abs(d2) < abs(d1) and abs(d2) <= NEAR_ROUNDING * floor
                 and abs(d1) <= 2.0 ** (ORDER_FAR * order) * max(abs(d2), floor)):
@@ -247,8 +307,8 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
             if smooth and observed is not None and observed >= order:
                 # each value within its e of its grid's: d₂ within |d₂| + e₁ + e₂, v₂ e₂ off
                 return OrderEstimate(observed, 0.0, SAFETY_UNRELIABLE * max(
-                                     abs(d2) + sum(solve_errors), floor) / (2.0**order - 1.0)
-                                     + solve_errors[1], "unreliable",
+                                     abs(d2) + errors[-2] + errors[-1], floor)
+                                     / (2.0**order - 1.0) + errors[-1], "unreliable",
                                      f"{reason}; no singular feature: order {order:g} a priori",
                                      None, "a priori")
             return OrderEstimate(observed, 0.0, max(abs(d2), floor) / (2.0**ORDER_MIN - 1.0),
@@ -269,7 +329,7 @@ def extrapolate_changes(changes: list[float], order: float | None = None,
                          None, warning)
 
 
-def _unconverged(converged: list[bool] | None, count: int) -> str | None:
+def unconverged_reason(converged: list[bool] | None, count: int) -> str | None:
     """Which of the last three of `count` levels did not converge, in words (None: all
     did, or unknown)."""
     if converged is None:
@@ -300,9 +360,12 @@ def richardson(values: list[float], order: float | None = None,
     if solve_errors is not None and len(solve_errors) != len(values):
         raise ValueError(f"{len(solve_errors)} solve errors for {len(values)} values")
     last = values[-3:]
-    changes = np.diff(last).tolist()
-    unconverged = _unconverged(converged, len(values))
-    errors = (0.0, 0.0) if solve_errors is None else tuple(abs(float(e)) for e in solve_errors[-2:])
+    # a fourth value (the "fast" bound's third change) only where it converged too
+    used = values[-4:] if converged is None or all(converged[-4:]) else last
+    changes = np.diff(used).tolist()
+    unconverged = unconverged_reason(converged, len(values))
+    errors = (None if solve_errors is None
+              else [abs(float(e)) for e in solve_errors[len(values) - len(used):]])
     estimate = extrapolate_changes(changes, order, scale=max(abs(v) for v in last),
                                    unconverged=unconverged, smooth=smooth, solve_errors=errors)
     if estimate.basis == "assumed" and unconverged is not None:
@@ -314,87 +377,3 @@ def richardson(values: list[float], order: float | None = None,
     return Extrapolation(values[-1] + estimate.correction, estimate.error, estimate.order,
                          estimate.basis, len(values), order, estimate.warning, estimate.reason,
                          estimate.bound)
-
-
-def richardson_point(values: list[list[float]], order: float | None = None,
-                     converged: list[bool] | None = None,
-                     solve_errors: list[list[float]] | None = None) -> list[Extrapolation]:
-    """`richardson` for a point's displacement u (per grid a vector, (K, 3) in m), one
-    Extrapolation per component: a component's observed order is trusted only where the
-    point's is too, observed on the lengths of the vector changes |u_{i+1} − u_i| (as for a
-    field; a level used that did not converge makes it unreliable, as for a component). A
-    component's order depends on the axes, the point's does not (measured: the flag's
-    fly_bottom moves 0.131 m then 0.102 m, order 0.37, while its z component alone falls at
-    order 3.54, and that ± 1.1 mm bar missed the 120 × 80 value by 16 mm; and the other way
-    round, the napkin's corner on 2²/4²/8² has norms falling at order 1.01 while x and y do not
-    fall monotonically: benchmarks/RESULTS.md). So:
-
-    - the point's order reliable: each component's own `richardson`, except that a component
-      whose own order is unreliable (its value the finest, its bar 3 × the range or the
-      floor) takes the smaller of its own bar and the point's (bound "point"). The point's
-      bar, 1.25 |d₂|/(2ᵖ − 1) on the norms, bounds the changes of the vector still to come
-      past the finest grid, |u∞ − u_finest| (the same assumption as any observed bar: the
-      changes go on falling at the observed order), and a component's distance is at most
-      the vector's: |u_c∞ − u_c,finest| ≤ |u∞ − u_finest|. It bounds the finest value only,
-      not a component's extrapolated one, so an observed component keeps its own bar.
-      Measured (benchmarks/RESULTS.md, issue 33): the pinched hemisphere's points converge
-      at order 3.19 relative to the gauge (u_r and Π at 3.25), while a near-zero z
-      component's changes fall at order 4.06, just above the cap: 3 × its range, 2.7e-3 of
-      |u|, where the point's bar is 4.3e-5;
-    - the point's order unreliable: where a component's own is reliable, the component's
-      finest value with 3 × its range, the point's reason (with the point's bound "floor":
-      the point's bar, the changes of the vector still to come bound each component's, never
-      narrower than the component's own); the component's own `richardson` otherwise.
-    With two grids each component's own `richardson`. solve_errors (K, 3): each component's
-    solve error per grid (None: not measured, NaN: not for that component): its own bar at
-    the a-priori order past the floor (`richardson(..., smooth=True, solve_errors=)`)."""
-    u = np.asarray(values, dtype=float)
-    errors = [None] * u.shape[1] if solve_errors is None else [  # per component, if all finite
-        e.tolist() if np.isfinite(e).all() else None for e in np.abs(np.asarray(solve_errors)).T]
-    own = [richardson(u[:, c].tolist(), order, converged, smooth=e is not None, solve_errors=e)
-           for c, e in enumerate(errors)]
-    if len(u) < 3:
-        return own
-    last = u[-3:]
-    norms = np.linalg.norm(np.diff(last, axis=0), axis=1).tolist()
-    point = extrapolate_changes(norms, order, scale=float(np.linalg.norm(last, axis=1).max()),
-                                unconverged=_unconverged(converged, len(u)))
-    if point.basis == "observed":
-        return [_within_point(bar, point, last[:, c].tolist()) for c, bar in enumerate(own)]
-    out = []
-    for c, bar in enumerate(own):
-        if bar.basis != "observed":
-            out.append(bar)
-            continue
-        reason, v = f"the point's {point.reason}", last[:, c]
-        if point.bound == "floor":
-            out.append(Extrapolation(float(v[2]), max(point.error, bar.error), point.order,
-                                     "unreliable", len(u), order, None, reason, "floor"))
-            continue
-        warning = (f"refinement order unreliable ({reason}): the finest value with 3 × the "
-                   "range of the last three grids as its error bar; refine further")
-        log.warning("%s", warning)
-        out.append(Extrapolation(float(v[2]), SAFETY_UNRELIABLE * float(v.max() - v.min()),
-                                 point.order, "unreliable", len(u), order, warning, reason))
-    return out
-
-
-def _within_point(bar: Extrapolation, point: OrderEstimate,
-                  last: list[float]) -> Extrapolation:
-    """A component's bar where its point's order is reliable (`richardson_point`; last: the
-    component's last three values): an unreliable component (value: the finest) whose
-    changes fall (same sign, the last smaller) and whose own bar is wider than the point's
-    takes the point's, with the reason said; any other unchanged. A component whose changes
-    do not fall keeps its own: the vector's changes then turn, and the norms' order is no
-    measure of them (the napkin's corner on 2²/4²/8², `richardson_point`: norms at order 1.01,
-    each component reversing, the 32² value 0.12 m from the 8² one, 3 × the point's bar)."""
-    d1, d2 = last[1] - last[0], last[2] - last[1]
-    falling = d1 * d2 > 0.0 and abs(d2) < abs(d1)
-    if bar.basis != "unreliable" or not falling or bar.error <= point.error:
-        return bar
-    reason = (f"{bar.reason}; within the point's bar (observed order {point.order:.2f} of "
-              "|Δu|)")
-    log.info("probe component: %s, bar %.2g instead of %s %.2g", reason, point.error,
-             BOUND_WORDS[bar.bound], bar.error)
-    return dataclasses.replace(bar, error=point.error, reason=reason, warning=None,
-                               bound="point")

@@ -58,7 +58,6 @@ from taichi_ndf.minimise.extrapolation import (  # noqa: F401 (imported from her
     OrderEstimate,
     extrapolate_changes,
     richardson,
-    richardson_point,
 )
 from taichi_ndf.minimise.linear_solve import LinearSolverConfig
 from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: imported from here)
@@ -68,6 +67,7 @@ from taichi_ndf.minimise.linearisation import (  # noqa: F401 (held_unknowns: im
 from taichi_ndf.minimise.minimisers import Hooks, NewtonMinimiser, Phase, run_phases
 from taichi_ndf.minimise.newton import NewtonConfig, NewtonIteration, minimise
 from taichi_ndf.minimise.newton_state import NewtonIterate
+from taichi_ndf.minimise.point_extrapolation import richardson_point  # noqa: F401 (imported from here)
 from taichi_ndf.objective import Objective
 from taichi_ndf.problem.sampling import SurfaceSamples
 

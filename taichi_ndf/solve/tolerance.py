@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 
 from taichi_ndf.boundary.gauge_motions import ProbeGauge
-from taichi_ndf.minimise.extrapolation import richardson_point
+from taichi_ndf.minimise.point_extrapolation import richardson_point
 
 
 def unconverged_window(converged: list[bool] | None) -> str | None:
