@@ -77,7 +77,8 @@ def test_apply_of_a_component_jacobian_equals_the_one_bmm_form_bit_for_bit():
 def test_a_jacobian_equal_in_the_three_components_is_stored_once():
     """The strip clamped in all components (`test_one_newton._strip`): J is one array for the
     three components, and U, g and K equal those of the same assembly with J written out per
-    component (and int64 unknown numbers), bit for bit."""
+    component (and int64 unknown numbers) to rounding (one product per span or point over all
+    components against one per component: the BLAS may sum in another order)."""
     from test_one_newton import _strip
 
     assembly, _, _ = _strip()
@@ -97,5 +98,7 @@ def test_a_jacobian_equal_in_the_three_components_is_stored_once():
     assembly.point_dofs = assembly.point_dofs.long()
     per_component = (assembly.displacement(coefficients), assembly.gradient(grad_u),
                      assembly.hessian(blocks))
-    assert torch.equal(once[0], per_component[0]) and torch.equal(once[1], per_component[1])
-    assert np.array_equal(once[2].toarray(), per_component[2].toarray())
+    for a, b in zip(once[:2], per_component[:2], strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-14, atol=1e-14 * float(b.abs().max()))
+    k_once, k_per = once[2].toarray(), per_component[2].toarray()
+    np.testing.assert_allclose(k_once, k_per, rtol=1e-14, atol=1e-14 * np.abs(k_per).max())

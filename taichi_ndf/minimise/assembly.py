@@ -39,11 +39,17 @@ import torch
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions
 from taichi_ndf.boundary.constraints import COMPONENTS as COMPONENTS_XYZ
-from taichi_ndf.minimise.group_pattern import batch_slots, csr_pattern
+from taichi_ndf.minimise.group_pattern import MIRRORED, batch_slots, csr_pattern, pair_scatter
 from taichi_ndf.minimise.jacobian import ComponentJacobian, component_jacobian
 from taichi_ndf.minimise.pair_hessian import coupled_hessian, touched_channels
 from taichi_ndf.minimise.pair_hessian import dofs as _dofs
 from taichi_ndf.minimise.pair_hessian import weighted as _weighted
+from taichi_ndf.minimise.span_products import (
+    pair_entries,
+    pair_sums,
+    span_displacement,
+    span_pullback,
+)
 from taichi_ndf.objective.couplings import Couplings
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.sampling import SurfaceSamples
@@ -154,6 +160,9 @@ class Assembly:
         self._scatter, self._columns, self._row_starts = csr_pattern(
             groups.cpu().numpy().astype(np.int64), self.n_coefficients)
         self._groups = groups.shape[0]
+        self._group_index = groups
+        self._upper, self._lower = pair_scatter(self._scatter, self._groups, groups.shape[1])
+        self._scatter = None  # held as _upper and _lower
         self.offset = self.jacobian = self.pin_jacobian = self._operator = None
 
     def at_load(self, operator: DisplacementOperator, load_factor: float) -> Assembly:
@@ -174,7 +183,11 @@ class Assembly:
 
     def displacement(self, coefficients: torch.Tensor) -> torch.Tensor:
         """Displacement jets U (N, 6, 3) [m] of coefficients (n, 3)."""
-        u = self.jacobian.apply(coefficients[self.basis.index])
+        u = span_displacement(self.jacobian, coefficients[self._group_index],
+                              self._per_group)
+        if self._extra.stop > self._extra.start:
+            rows = self._extra
+            u[rows] = self.jacobian.rows(rows).apply(coefficients[self.basis.index[rows]])
         if self.pin_jacobian is not None:
             u = u + _pin_displacement(self.pin_jacobian, coefficients[self.basis.pin_index])
         return self.offset + self._operator.to_world(u)
@@ -182,9 +195,13 @@ class Assembly:
     def gradient(self, grad_u_jets: torch.Tensor) -> torch.Tensor:
         """dΠ/dC (n, 3) from dΠ/dU (N, 6, 3)."""
         grad_u_jets = self._operator.to_frame(grad_u_jets)
-        local = self.jacobian.apply_transpose(grad_u_jets)
-        out = local.new_zeros(self.size)
-        out.index_add_(0, self.point_dofs, local.reshape(-1))
+        out = grad_u_jets.new_zeros(self.size)
+        spans = span_pullback(self.jacobian, grad_u_jets, self._groups, self._per_group)
+        out.index_add_(0, self._group_dofs, spans.reshape(-1))
+        if self._extra.stop > self._extra.start:
+            rows, k = self._extra, self.jacobian.shape[3]
+            local = self.jacobian.rows(rows).apply_transpose(grad_u_jets[rows])
+            out.index_add_(0, self.point_dofs[rows.start * COMPONENTS * k:], local.reshape(-1))
         if self.pin_jacobian is not None:
             # the pin's Jacobian is the same at every point: sum the gradient first
             pin = torch.einsum("cja,jc->ac", self.pin_jacobian[:, 0], grad_u_jets.sum(0))
@@ -212,30 +229,20 @@ class Assembly:
         return summed.reshape(count, width, width)
 
     def _pair_sums(self, data: np.ndarray, jacobian: ComponentJacobian, blocks: torch.Tensor,
-                   groups: np.ndarray, m: int) -> None:
+                   used: torch.Tensor, groups: np.ndarray, m: int) -> None:
         """Adds to K's CSR data (float64) the point-local part of points that come in batches
-        of m consecutive points, batch i acting on the coefficients of group `groups[i]`:
-        R[c, d, i] = Σ_{q in batch i} J_c,qᵀ H_q[:, c, :, d] J_d,q (symmetric blocks (n, ch,
-        3, ch, 3) and J at those points) scattered per run of batches in order: two batched
-        GEMMs per component pair, the batch's points in the inner dimension; R[d, c] =
-        R[c, d]ᵀ. Batches of one group add up (`np.add.at`)."""
-        channels, k = jacobian.shape[2:]
-        scatter = self._scatter.reshape(COMPONENTS, COMPONENTS, self._groups, k, k)
-        step = max(1, CHUNK // m)
+        of m consecutive points, batch i acting on the coefficients of group `groups[i]`
+        (`span_products.pair_sums`: blocks (n, 6, 3, 6, 3) on the channels `used`, J at those
+        points on them), scattered per run of batches in order; the pairs d < c as the
+        transposes of c < d. Batches of one group add up (`np.add.at`)."""
+        step, entries = max(1, CHUNK // m), pair_entries(used.cpu()).to(blocks.device)
+        flat = blocks.reshape(blocks.shape[0], -1)
         for start in range(0, len(groups), step):
             g = groups[start:start + step]
             p = slice(start * m, (start + len(g)) * m)
-            out = blocks.new_empty(COMPONENTS, COMPONENTS, len(g), k, k)
-            for c in range(COMPONENTS):
-                left = jacobian.component(c)[p].reshape(-1, m * channels, k).transpose(1, 2)
-                for d in range(c, COMPONENTS):
-                    weighted = torch.bmm(blocks[p, :, c, :, d].contiguous(),
-                                         jacobian.component(d)[p])
-                    torch.bmm(left, weighted.reshape(-1, m * channels, k), out=out[c, d])
-                    if d != c:
-                        out[d, c] = out[c, d].transpose(1, 2)
-            flat = scatter[:, :, g].ravel()  # a copy, contiguous: np.add.at: 5× a view's
-            np.add.at(data, flat, out.double().cpu().numpy().ravel())  # speed
+            out = pair_sums(jacobian.rows(p), flat[p], entries, m).double().cpu().numpy()
+            np.add.at(data, self._upper[g].ravel(), out.ravel())  # copies, contiguous: np.add.at
+            np.add.at(data, self._lower[g].ravel(), out[:, :, MIRRORED].ravel())  # 5× a view's
 
     def hessian(self, blocks: torch.Tensor | Callable[[slice], torch.Tensor],
                 couplings: Couplings | None = None, *, chunk: int | None = None
@@ -302,6 +309,7 @@ class Assembly:
         # Only the channels some block touches enter (the shell energy's blocks have no value
         # channel: 5² of the 6² channel pairs, and no coupling through a free pin's value).
         used = touched_channels(blocks)
+        full = blocks
         if used.numel() < jets.CHANNELS:
             lo, hi = int(used[0]), int(used[-1]) + 1
             if hi - lo == used.numel():  # a range of channels: views, no copies
@@ -309,7 +317,7 @@ class Assembly:
             else:
                 blocks = blocks[:, used][:, :, :, used]
                 jacobian = jacobian.channels(used)
-        self._pair_sums(data, jacobian, blocks, groups, m)
+        self._pair_sums(data, jacobian, full, used, groups, m)
         if self.pin_jacobian is None:
             return
         # the pin's Jacobian lives on few channels (the value): only those enter

@@ -62,3 +62,23 @@ def batch_slots(groups: torch.Tensor) -> tuple[torch.Tensor, np.ndarray, int]:
         first_point, counts)
     slots = torch.repeat_interleave(first_slot, counts) + rank
     return slots, torch.repeat_interleave(present, batches).cpu().numpy(), size
+
+
+# The component pairs (c, d), c ≤ d, whose per-group sums the assembly computes; the others
+# are their transposes (K is symmetric).
+PAIRS = tuple((c, d) for c in range(COMPONENTS) for d in range(c, COMPONENTS))
+MIRRORED = tuple(i for i, (c, d) in enumerate(PAIRS) if c != d)
+
+
+def pair_scatter(scatter: np.ndarray, groups: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """`csr_pattern`'s positions (3, 3, G, k, k) laid out for per-group sums R (G, k, 6, k) of
+    the pairs `PAIRS` (R[g, a, p, b]: unknowns (3 groups[g, a] + c, 3 groups[g, b] + d) for
+    p = (c, d)): the positions of R (G, k, 6, k), and of R's `MIRRORED` pairs as their
+    transposes (G, k, 3, k): R[g, a, p, b] at unknowns (3 groups[g, b] + d, 3 groups[g, a]
+    + c)."""
+    full = scatter.reshape(COMPONENTS, COMPONENTS, groups, k, k)
+    upper = np.stack([full[c, d] for c, d in PAIRS], axis=2)  # (G, k, 6, k)
+    lower = np.stack([full[d, c].transpose(0, 2, 1) for c, d in (PAIRS[i] for i in MIRRORED)],
+                     axis=2)
+    return upper, lower
+
