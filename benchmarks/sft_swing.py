@@ -29,8 +29,10 @@ finds without noise, to first order — with its s.e. at `--noise` and its parts
 per row of observed points (where the grid's error meets ∂r/∂B).
 
 R1 (`--part r1 --run DIR`): DIR/meshes/*.obj (the default `ndf-sft --capture` run), held
-vertices 0 and 992, gravity (0, 9.81, 0), ρ_A 0.197 kg/m², D 300 N/m (stated), at each
-`--r1-fps`; per row B ± s.e., c, χ²/dof (σ estimated: 1 by construction), the rms misfit per
+vertices 0 and 992, gravity (0, 9.81, 0) or, with `--r1-gravity` PITCH ROLL [deg], image-down
+made ⊥ frame 0's corner line and turned by them (`gravity_direction.tilted_gravity`; R1's
+vertical is not stated), ρ_A 0.197 kg/m², D 300 N/m (stated), at each `--r1-fps`; per row
+B ± s.e., c, χ²/dof (σ estimated: 1 by construction), the rms misfit per
 frame against the reconstruction's rms distance to the Kinect cloud.
 
     OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part synthetic --seeds 0 1 2
@@ -56,6 +58,7 @@ import torch
 
 import taichi_ndf
 from inverse.material.trajectory_fit import TrajectoryFitConfig, fit_trajectory, observe
+from inverse.sft.gravity_direction import tilted_gravity
 from inverse.sft.hanging import hanging_across, hanging_model
 from inverse.sft.swing import SPAN_RATIO, SwingConfig, fit_swing, swing_problem
 from taichi_ndf import jets, progress
@@ -349,8 +352,11 @@ def part_r1(args) -> None:
         errors = [float(np.sqrt(np.mean(cKDTree(c.reshape(-1, 3)).query(v)[0] ** 2)))
                   for c, v in zip(clouds, vertices, strict=True)]
     frames = vertices[: args.r1_frames] if args.r1_frames else vertices
+    gravity = (np.array([0.0, G, 0.0]) if args.r1_gravity is None else
+               tilted_gravity(vertices[0, [0, 992]], *args.r1_gravity, magnitude=G))
     print(f"R1: {len(frames)} of {len(vertices)} frames of {vertices.shape[1]} vertices, "
-          f"held 0 and 992, ρ_A {RHO} kg/m², D {D} N/m stated")
+          f"held 0 and 992, gravity {np.round(gravity, 4)} m/s² (pitch, roll "
+          f"{args.r1_gravity} deg), ρ_A {RHO} kg/m², D {D} N/m stated")
     for fps in args.r1_fps:
         for spans in args.r1_spans:
             config = SwingConfig(spans=(spans, spans) if spans else None,
@@ -363,7 +369,7 @@ def part_r1(args) -> None:
             c0, t0 = cpu(), time.perf_counter()
             try:
                 problem, r = fit(frames, faces, (0, 992), fps, config,
-                                 RHO * G * args.r1_start ** 3,
+                                 RHO * G * args.r1_start ** 3, gravity=gravity,
                                  error_tolerance=args.error_tolerance)
             except Exception as err:  # noqa: BLE001  (a row that failed says why)
                 print(f"| {fps} | {spans}² | failed: {type(err).__name__}: {err} | "
@@ -456,6 +462,11 @@ def main() -> None:
                    help="R1's spans per direction per row; 0: from the estimate's c")
     p.add_argument("--r1-frames", type=int, default=0)
     p.add_argument("--r1-start", type=float, default=0.02)
+    p.add_argument("--r1-gravity", type=float, nargs=2, default=None,
+                   metavar=("PITCH", "ROLL"),
+                   help="R1: gravity turned from image-down by PITCH about frame 0's corner "
+                        "line and ROLL towards corner b [deg] (tilted_gravity; default: "
+                        "(0, 9.81, 0) as given)")
     p.add_argument("--stride", type=int, default=2)
     p.add_argument("--save", type=Path, default=None, help="folder for the R1 fits' npz")
     args = p.parse_args()
@@ -466,6 +477,11 @@ def main() -> None:
     if not math.isfinite(args.turn_degrees) or (args.turn == "true" and args.part != "synthetic"):
         print("sft_swing.py: --turn-degrees must be finite, and --turn true needs --part "
               "synthetic (a truth's turn)", file=sys.stderr)
+        sys.exit(2)
+    if args.r1_gravity is not None and not all(math.isfinite(a) and abs(a) < 90
+                                               for a in args.r1_gravity):
+        print("sft_swing.py: --r1-gravity PITCH ROLL must be finite angles in (-90, 90) "
+              "degrees", file=sys.stderr)
         sys.exit(2)
     args.error_tolerance = args.error_tolerance or None
     torch.set_num_threads(1)
