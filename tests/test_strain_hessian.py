@@ -150,3 +150,64 @@ def test_point_blocks_compute_the_tangent_length_once_per_state_for_every_chunk(
     assert not torch.equal(potential.hessian_blocks(samples, u, steps=steps, rows=first,
                                                     tangent=2 * length),
                            potential.hessian_blocks(samples, u, steps=steps)[first])
+
+
+@pytest.mark.parametrize("law", ["linear_isotropic", "orthotropic", "clyde"])
+def test_law_hessian_takes_one_launch_and_the_numbers_of_one_launch_per_shift(law):
+    """`_law_hessian` evaluates the law gradient at all its shifted strains in one call
+    (stacked copies: one kernel launch and its gradient, not 7, or 25 for the Clyde law), and
+    gets bit for bit the stress and the differences of one evaluation per shift (the former
+    code: +h, then −2h from there for a central difference); past `STACKED_ROWS` rows the
+    copies go in several launches, with the same numbers."""
+    import functools
+
+    from taichi_ndf.shell import strain_hessian as sh
+    from taichi_ndf.shell.energy import law_inputs
+
+    samples, _ = _samples("cylinder")
+    material = MATERIALS[law]
+    r = samples.r_jets.contiguous()
+    u = 0.05 * torch.randn(len(samples), 6, 3, generator=torch.Generator().manual_seed(5),
+                           dtype=DT)
+    strain = sh._strain_vector(r, u)
+    stiffness, params = law_inputs(material, len(samples), None, DT, r.device)
+    gradient = functools.partial(sh._strain_gradient, sh._law_kernel(material.law), r,
+                                 weight=samples.weight.contiguous(),
+                                 stiffness=stiffness.contiguous(), params=params)
+    calls = []
+
+    def counted(s):
+        calls.append(s.shape[0])
+        return gradient(s)
+
+    quadratic = law in sh.QUADRATIC_LAWS
+    delta_e, delta_k = 1e-6, 1e-4
+    stress, hessian = sh._law_hessian(counted, strain, delta_e, delta_k, quadratic)
+    assert calls == [len(samples) * (7 if quadratic else 25)]
+    # the former evaluation, one gradient call per shifted strain
+    expected_stress = gradient(strain)
+    out = strain.new_empty(len(samples), 6, 6)
+    for j in range(6):
+        delta = delta_e if j < 3 else delta_k
+
+        def central(h, j=j):
+            shifted = strain.clone()
+            shifted[:, j] += h
+            plus = gradient(shifted)
+            shifted[:, j] -= 2 * h
+            return (plus - gradient(shifted)) / (2 * h)
+
+        if quadratic:
+            shifted = strain.clone()
+            shifted[:, j] += delta
+            out[:, :, j] = (gradient(shifted) - expected_stress) / delta
+        else:
+            out[:, :, j] = (4 * central(0.5 * delta) - central(delta)) / 3
+    assert torch.equal(stress, expected_stress)
+    assert torch.equal(hessian, 0.5 * (out + out.transpose(1, 2)))
+    calls.clear()
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sh, "STACKED_ROWS", 2 * len(samples))
+        again = sh._law_hessian(counted, strain, delta_e, delta_k, quadratic)
+    assert calls == [2 * len(samples)] * (3 if quadratic else 12) + [len(samples)]
+    assert torch.equal(again[0], stress) and torch.equal(again[1], hessian)
