@@ -10,10 +10,9 @@ a Gauss–Newton part and a stress part. The kinematic derivatives are exact (be
 the Taichi-autodiff gradient of a kernel that evaluates the law on given strains (the same
 `LAW_TERMS` and `strain_energy_density` as the energy kernel), and d²E/ds² (6 × 6) differences
 of that gradient (`_law_hessian`): one-sided, exact up to rounding, for the quadratic laws
-(`QUADRATIC_LAWS`: 7 evaluations of a kernel without geometry derivatives), central at two
-steps and Richardson-extrapolated for the Clyde law (25; truncation ~step⁴), the shifted
-strains stacked into one launch — in place of the 36 full energy gradients of
-`sample_hessians`. The external
+(`QUADRATIC_LAWS`: 7 launches of a kernel without geometry derivatives), central at two steps
+and Richardson-extrapolated for the Clyde law (25; truncation ~step⁴) — in place of the 36
+full energy gradients of `sample_hessians`. The external
 loads are linear in U (the pressure follows the reference normal) and add nothing.
 
 Kinematics (x = r + u, x_α its tangents, x_αβ second derivatives, m = x₁ × x₂, ℓ = |m|,
@@ -58,12 +57,6 @@ from taichi_ndf.shell.materials import Material
 mat3 = ti.math.mat3
 STRAINS = 6  # ε₁₁, ε₁₂, ε₂₂, κ₁₁, κ₁₂, κ₂₂
 CHUNK = 4096  # points per batched product Jᵀ (S J): its temporaries are the chunk's
-# Rows (copies × points) per launch of the law gradient in `_law_hessian`: the stacked strains
-# and dE/ds no larger than one chunk's (8 192 points, `POINT_CHUNK`): larger ones raised the
-# demo's peak RSS by 110-130 MB (heap retention of glibc's allocator, not live memory: a
-# blocks test peaked as before with MALLOC_MMAP_THRESHOLD_ fixed). Few points (a coarse grid,
-# a contact round's Gauss points) in one launch or a few; a chunk of 8 192, one per copy.
-STACKED_ROWS = 1 << 13
 BENDING_CHANNELS = (jets.D11, jets.D12, jets.D22)
 # Laws whose Ψ is a quadratic form in the strains (law_terms.py: linear isotropic, orthotropic
 # StVK): their law gradient is affine in s.
@@ -72,31 +65,26 @@ QUADRATIC_LAWS = frozenset({"linear_isotropic", "orthotropic"})
 
 @functools.cache
 def _law_kernel(law: str):
-    """E_i = w_q √a_q Ψ(s_i) of one constitutive law at given strains s (c N, 6), c copies
-    of the N points' strains stacked (row i at point q = i mod N) (compiled on first use);
-    its reverse-mode gradient is dE_i/ds_i."""
+    """E_i = w_i √a_i Ψ(s_i) of one constitutive law at given strains s (N, 6) (compiled on
+    first use); its reverse-mode gradient is dE_i/ds_i."""
     law_terms = LAW_TERMS[law]
 
     @ti.kernel
     def energy_of_strains(r: ti.types.ndarray(), strain: ti.types.ndarray(),
                           weight: ti.types.ndarray(), stiffness: ti.types.ndarray(),
                           params: ti.types.ndarray(), energy: ti.types.ndarray()):
-        for i in range(strain.shape[0]):
-            q = i % r.shape[0]
-            a1, a2, a3, metric, _, area_element = reference_geometry(r, q)
+        for i in range(r.shape[0]):
+            a1, a2, a3, metric, _, area_element = reference_geometry(r, i)
             eps = mat2([[strain[i, 0], strain[i, 1]], [strain[i, 1], strain[i, 2]]])
             kappa = mat2([[strain[i, 3], strain[i, 4]], [strain[i, 4], strain[i, 5]]])
             t = law_terms(eps, kappa, a1, a2, a3, metric, params)
-            energy[i] = weight[q] * area_element * strain_energy_density(t, stiffness, q)
+            energy[i] = weight[i] * area_element * strain_energy_density(t, stiffness, i)
 
     return energy_of_strains
 
 
 def _strain_gradient(kernel, r, strain, *, weight, stiffness, params) -> torch.Tensor:
-    """dE/ds (c N, 6) at strains s (c N, 6) (Taichi reverse mode): s may hold c copies of the
-    N points' strains, stacked, at the N points of r (N, 6, 3), weight (N,), stiffness (N, K):
-    one launch of the kernel and its gradient for all of them, each row the same number as
-    alone (every point's energy is its own)."""
+    """dE/ds (N, 6) at strains s (N, 6) (Taichi reverse mode)."""
     s = strain.contiguous().requires_grad_(True)
     energy = torch.zeros(s.shape[0], dtype=s.dtype, device=s.device, requires_grad=True)
     s.grad = torch.zeros_like(s)
@@ -177,49 +165,30 @@ def _strain_derivatives(x: ti.types.ndarray(), stress: ti.types.ndarray(),
                        0.5 * stress[i, 1] * eye - m2.transpose() @ f @ m1 - gx)
 
 
-def _law_hessian(gradient, strain: torch.Tensor, delta_e: float, delta_k: float,
-                 quadratic: bool) -> tuple[torch.Tensor, torch.Tensor]:
-    """dE/ds (N, 6) and d²E/ds² (N, 6, 6), symmetrised, from the law gradient dE/ds
-    (`gradient(s)` at strains s (c N, 6): c copies of the N points' strains, stacked) at the
-    strains s (N, 6) with steps δε (membrane) and δκ (bending): a quadratic law's gradient is
-    affine in s, so one-sided differences are exact (6 evaluations); otherwise central
-    differences at δ and δ/2, Richardson-extrapolated (truncation ~δ⁴, 24). All the shifted
-    strains go to one `gradient` call (one kernel launch, not 7 or 25: at 1 024 points the
-    launches were most of the time), in launches of at most `STACKED_ROWS` rows (or one copy)."""
-    count = strain.shape[0]
-    # per copy of the strains: the strain it shifts and its shifts in order (a central
-    # difference's minus side steps +h, then −2h from there, as the two evaluations did)
-    shifts: list[tuple[int, tuple[float, ...]]] = [(0, ())]  # the first: unshifted
-    for j in range(STRAINS):
-        delta = delta_e if j < 3 else delta_k
-        if quadratic:
-            shifts.append((j, (delta,)))
-        else:
-            for h in (0.5 * delta, delta):
-                shifts += [(j, (h,)), (j, (h, -2 * h))]
-    copies, values = max(1, STACKED_ROWS // max(count, 1)), []
-    for first in range(0, len(shifts), copies):
-        part = shifts[first:first + copies]
-        shifted = strain.repeat(len(part), 1)
-        for i, (j, steps) in enumerate(part):
-            for h in steps:
-                shifted[i * count:(i + 1) * count, j] += h
-        values += gradient(shifted).split(count)
-    values = iter(values)
-    stress = next(values)
-    out = strain.new_empty(count, STRAINS, STRAINS)
+def _law_hessian(gradient, strain: torch.Tensor, stress: torch.Tensor, delta_e: float,
+                 delta_k: float, quadratic: bool) -> torch.Tensor:
+    """d²E/ds² (N, 6, 6), symmetrised, from the law gradient dE/ds (`gradient(s)`, = stress at
+    the strains s (N, 6)) with steps δε (membrane) and δκ (bending): a quadratic law's
+    gradient is affine in s, so one-sided differences are exact (6 evaluations); otherwise
+    central differences at δ and δ/2, Richardson-extrapolated (truncation ~δ⁴, 24)."""
+    out = strain.new_empty(strain.shape[0], STRAINS, STRAINS)
     for j in range(STRAINS):
         delta = delta_e if j < 3 else delta_k
 
-        def central(h):
-            return (next(values) - next(values)) / (2 * h)
+        def central(h, j=j):
+            shifted = strain.clone()
+            shifted[:, j] += h
+            plus = gradient(shifted)
+            shifted[:, j] -= 2 * h
+            return (plus - gradient(shifted)) / (2 * h)
 
         if quadratic:
-            out[:, :, j] = (next(values) - stress) / delta
+            shifted = strain.clone()
+            shifted[:, j] += delta
+            out[:, :, j] = (gradient(shifted) - stress) / delta
         else:
-            half = central(0.5 * delta)
-            out[:, :, j] = (4 * half - central(delta)) / 3
-    return stress, 0.5 * (out + out.transpose(1, 2))
+            out[:, :, j] = (4 * central(0.5 * delta) - central(delta)) / 3
+    return 0.5 * (out + out.transpose(1, 2))
 
 
 def _clamped(matrices: torch.Tensor) -> torch.Tensor:
@@ -342,12 +311,13 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     weight = samples.weight[active].contiguous()
     kstiff = kernel_stiffness[active].contiguous()
     kernel = _law_kernel(material.law)
+    stress = _strain_gradient(kernel, r, strain, weight=weight, stiffness=kstiff, params=params)
     delta_e = float(steps[jets.D1:jets.D2 + 1].max()) * tangent
     delta_k = float(steps[jets.D11:].max())
     gradient = functools.partial(_strain_gradient, kernel, r, weight=weight, stiffness=kstiff,
                                  params=params)
-    stress, stiffness_s = _law_hessian(gradient, strain, delta_e, delta_k,
-                                       material.law in QUADRATIC_LAWS)
+    stiffness_s = _law_hessian(gradient, strain, stress, delta_e, delta_k,
+                               material.law in QUADRATIC_LAWS)
     if psd:
         stiffness_s = _clamped(stiffness_s)
     # J first; then the stress part is added to the Gauss–Newton part Jᵀ (d²E/ds²) J in place.
