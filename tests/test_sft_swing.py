@@ -138,6 +138,24 @@ def test_the_corners_as_unknowns_recover_the_models_own_motion_and_b(problem):
         SwingConfig(corner_spans=0)
 
 
+def test_graded_knots_put_the_same_unknowns_towards_the_held_edge(problem):
+    """knots "graded": the stepper's field has the uniform grid's unknowns, its ξ² knots
+    graded towards the held edge ξ² = 0 (dη/dξ², the spans per metre, there 1.5 × the far
+    edge's), ξ¹ uniform; other knots are refused."""
+    vertices, uniform = problem
+    _, faces = rigid_sequence()
+    graded = swing_problem(vertices, faces, (0, N - 1), DT, np.array([0.0, 9.81, 0.0]),
+                           dataclasses.replace(CONFIG, knots="graded"))
+    field = graded.stepper_at(1e-5).field
+    assert field.coefficients.shape == uniform.stepper_at(1e-5).field.coefficients.shape
+    across, down = field.config.graded_maps()
+    assert across is None and uniform.stepper_at(1e-5).field.config.grading == (None, None)
+    slope = down.jets(torch.tensor([0.0, SIZE], dtype=torch.float64))[1]
+    assert float(slope[0]) > 1.5 * float(slope[1])
+    with pytest.raises(ValueError, match="knots must be one of"):
+        SwingConfig(knots="fine")
+
+
 @pytest.mark.parametrize(("change", "message"), [
     (lambda v: v[:4], "F >= 5"),
     (lambda v: np.where(np.isnan(v), 0, v) * np.nan, "finite"),
