@@ -123,7 +123,7 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
                           gravity, grip=args.grip)
     model = dataclasses.replace(model, boundary=moved_boundary(model.boundary,
                                                                np.zeros((2, 3))))
-    plan = SplinePlan(swing_spline((SIZE, SIZE), (args.truth_spans,) * 2, args.truth_degree,
+    plan = SplinePlan(swing_spline(model, (args.truth_spans,) * 2, args.truth_degree,
                                    args.truth_knots))
     still = HandlePath((0.0, 1.0), np.zeros((2, 2, 3)))
     settle = PathStepper(model, plan, DynamicsConfig(dt=0.05, duration=2.0,
@@ -412,9 +412,9 @@ def main() -> None:
     p.add_argument("--degree", type=int, choices=(3, 4), default=3,
                    help="synthetic: the fit's spline degree")
     p.add_argument("--knots", choices=KNOTS, default="uniform",
-                   help="synthetic: the fit's knots, uniform or graded towards the held edge")
+                   help="synthetic: the fit's knots, uniform or graded towards the held points")
     p.add_argument("--truth-knots", choices=KNOTS, default="uniform",
-                   help="synthetic: the truth's knots, uniform or graded towards the held edge")
+                   help="synthetic: the truth's knots, uniform or graded towards the held points")
     p.add_argument("--spans", type=int, default=0,
                    help="synthetic: the fit's spans per direction; 0: from the estimate's "
                         "bending length (SwingConfig.spans None, `fit_swing`)")

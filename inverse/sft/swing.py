@@ -96,7 +96,7 @@ class SwingConfig:
     the bending length of the current estimate (`resolving_spans`, `fit_swing`): no span
     longer than span_ratio × c, at most max_spans per direction; grid_check: there, confirm
     the grid by one Gauss–Newton step on a finer one (`fit_swing`); degree 3 or 4; knots:
-    "uniform" or "graded" towards the held edge (`swing_knots`);
+    "uniform" or "graded" towards the held points (`swing_knots`);
     substeps ≥ 1 time steps per frame; integrator "implicit_euler" or "newmark";
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
     [kg/m²] (stated); band: the handles' band (fraction of the domain); grip ≥ 0 [m]: each
@@ -277,7 +277,7 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
         basis = spline_basis(step_times, 2, config.corner_spans or frames - 1)
         path_start = np.linalg.lstsq(basis.reshape(-1, basis.shape[-1]),
                                      path.displacements.reshape(-1), rcond=None)[0]
-    plan = SplinePlan(swing_spline((width, height), config.spans, config.degree, config.knots))
+    plan = SplinePlan(swing_spline(model, config.spans, config.degree, config.knots))
     dynamics = DynamicsConfig(dt=dt, duration=steps * dt, integrator=config.integrator,
                               mass_damping=config.mass_damping)
     newton = newton or NewtonConfig()

@@ -1,23 +1,25 @@
 """The swing's spline grid (`inverse.sft.swing`): n1 × n2 spans of degree 3 or 4 on the flat
-sheet [0, W] × [0, H] (ξ² = 0 the held edge), with uniform knots or knots graded towards the
-held edge.
+sheet, with uniform knots or knots graded towards the held points.
 
-Why the held edge. A sheet held at two points of its top edge sags between them and buckles
-out of its plane in a band along that edge, about a bending length c deep: there its bending
-energy lives, and there a coarse grid bends too little — the model is then stiffer than the
-sheet, and B fitted with it reads low (benchmarks/RESULTS.md, wip-sftmat10/11: the upper band's
-bending energy 7–16 % short on 32², in step with B's bias). "graded" puts the same unknowns
-where that band is: the ξ² knots graded towards ξ² = 0 by the law of `taichi_ndf.field.grading`
-as `problem.spline_grid.graded_towards` applies it to singular features (core one span of the
-grid, the graded part half of the spans); ξ¹ stays uniform (the band runs the whole edge).
-Measured on the synthetic swing's rest state (RESULTS.md, wip-sftmat12): B's static bias
-against a degree-4 64² reference on 32² spans, degree 4, −9.3 % uniform, −1.2 % graded.
+Why the held points. A sheet held at two points of its top edge sags between them and buckles
+out of its plane in a band along that edge; at each held point the field must resolve an ever
+sharper layer (a point's held slope is not a bounded condition on the bending energy,
+`boundary.constraints.Handle`) and the membrane's point singularity. On a uniform grid the
+model bends too little there and is stiffer than the sheet, so B fitted with it reads low
+(benchmarks/RESULTS.md, wip-sftmat10/11: the upper band's bending energy 7–16 % short on 32²,
+in step with B's bias). "graded" puts the same unknowns towards the model's singular features
+— the handles' points, both coordinates — by the project's rule for them
+(`problem.spline_grid.graded_config`: the law of `taichi_ndf.field.grading`, core one span,
+half the spans graded), nothing tuned to the swing. Measured on the synthetic swing's rest
+state (RESULTS.md, wip-sftmat12): B's static bias against a degree-4 64² uniform reference on
+32² spans, degree 3, −20.7 % uniform, −0.3 % graded.
 """
 
 from __future__ import annotations
 
 from taichi_ndf.field.spline import SplineConfig
-from taichi_ndf.problem.spline_grid import graded_towards
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.problem.spline_grid import graded_config
 
 KNOTS = ("uniform", "graded")  # SwingConfig.knots
 
@@ -28,12 +30,15 @@ def check_knots(knots: str) -> None:
         raise ValueError(f"knots must be one of {KNOTS}, got {knots!r}")
 
 
-def swing_spline(size: tuple[float, float], spans: tuple[int, int], degree: int,
+def swing_spline(model: ShellModel, spans: tuple[int, int], degree: int,
                  knots: str = "uniform") -> SplineConfig:
-    """The spline field of the flat sheet (W, H) [m] on spans (n1, n2) of `degree`, its knots
-    uniform or graded towards the held edge ξ² = 0 (module docstring)."""
+    """The spline field of the model's flat sheet (its surface's domain [m]) on spans
+    (n1, n2) of `degree`, its knots uniform or graded towards the model's held points
+    (module docstring)."""
     check_knots(knots)
-    width, height = (float(s) for s in size)
+    domain = model.surface.domain
     config = SplineConfig(spans=tuple(int(s) for s in spans), degree=degree,
-                          domain=((0.0, width), (0.0, height)))
-    return config if knots == "uniform" else graded_towards(config, ((), (0.0,)))
+                          domain=tuple(tuple(float(b) for b in bounds) for bounds in domain.bounds))
+    if knots == "uniform":
+        return config
+    return graded_config(config, model.boundary, model.loads, domain)
