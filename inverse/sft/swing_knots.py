@@ -12,7 +12,10 @@ in step with B's bias). "graded" puts the same unknowns towards the model's sing
 (`problem.spline_grid.graded_config`: the law of `taichi_ndf.field.grading`, core one span,
 half the spans graded), nothing tuned to the swing. Measured on the synthetic swing's rest
 state (RESULTS.md, wip-sftmat12): B's static bias against a degree-4 64² uniform reference on
-32² spans, degree 3, −20.7 % uniform, −0.3 % graded.
+32² spans, degree 3, −20.7 % uniform, −0.3 % graded (degree 4: −9.3 %, +0.5 %), the same
+unknowns at 1.5–2.2 × the CPU per solve. What the grading leaves is slow: the graded grids'
+B still rises by ≈ 0.5–0.9 % per grid step from 32² to 48² (an observed order ≈ 1, the held
+point's layer), so a point hold's B is defined by its grid only to about that.
 """
 
 from __future__ import annotations
