@@ -61,8 +61,8 @@ from inverse.material.trajectory_fit import TrajectoryFitConfig, fit_trajectory,
 from inverse.sft.gravity_direction import tilted_gravity
 from inverse.sft.hanging import hanging_across, hanging_model
 from inverse.sft.swing import SPAN_RATIO, SwingConfig, fit_swing, swing_problem
+from inverse.sft.swing_knots import KNOTS, swing_spline
 from taichi_ndf import jets, progress
-from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.shell.fabrics import bending_length
@@ -126,8 +126,8 @@ def synthetic(bending: float, args) -> tuple[np.ndarray, np.ndarray, tuple[int, 
                           gravity, grip=args.grip)
     model = dataclasses.replace(model, boundary=moved_boundary(model.boundary,
                                                                np.zeros((2, 3))))
-    plan = SplinePlan(SplineConfig(spans=(args.truth_spans,) * 2, degree=args.truth_degree,
-                                   domain=((0.0, SIZE), (0.0, SIZE))))
+    plan = SplinePlan(swing_spline(model, (args.truth_spans,) * 2, args.truth_degree,
+                                   args.truth_knots))
     still = HandlePath((0.0, 1.0), np.zeros((2, 2, 3)))
     settle = PathStepper(model, plan, DynamicsConfig(dt=0.05, duration=2.0,
                                                      integrator="implicit_euler",
@@ -262,7 +262,7 @@ def part_synthetic(args) -> None:
         if args.truth_cache is not None:
             settings = str({k: getattr(args, k) for k in (
                 "bending_length", "duration", "fps", "truth_spans", "truth_substeps",
-                "truth_integrator", "grip", "truth_degree", "turn_degrees")})
+                "truth_integrator", "grip", "truth_degree", "turn_degrees", "truth_knots")})
             np.savez(args.truth_cache, clean=clean, faces=faces, held=np.array(held),
                      settings=settings)
     print(f"truth: {len(clean)} frames at {args.fps} fps, B = {b_true:.4e} N·m "
@@ -279,7 +279,7 @@ def part_synthetic(args) -> None:
                          grid_check=not args.no_grid_check, substeps=args.substeps,
                          integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
                          areal_density=RHO, size=(SIZE, SIZE), start=args.start_state,
-                         grip=args.grip, degree=args.degree,
+                         grip=args.grip, degree=args.degree, knots=args.knots,
                          corners=args.corners, corner_spans=args.corner_spans or None,
                          turn="read" if args.turn == "read" else "none")
     turn = (lambda t: true_turn(t, args)) if args.turn == "true" else None
@@ -417,6 +417,10 @@ def main() -> None:
                    help="synthetic: the truth's spline degree")
     p.add_argument("--degree", type=int, choices=(3, 4), default=3,
                    help="synthetic: the fit's spline degree")
+    p.add_argument("--knots", choices=KNOTS, default="uniform",
+                   help="synthetic: the fit's knots, uniform or graded towards the held points")
+    p.add_argument("--truth-knots", choices=KNOTS, default="uniform",
+                   help="synthetic: the truth's knots, uniform or graded towards the held points")
     p.add_argument("--spans", type=int, default=0,
                    help="synthetic: the fit's spans per direction; 0: from the estimate's "
                         "bending length (SwingConfig.spans None, `fit_swing`)")

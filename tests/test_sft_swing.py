@@ -138,6 +138,26 @@ def test_the_corners_as_unknowns_recover_the_models_own_motion_and_b(problem):
         SwingConfig(corner_spans=0)
 
 
+def test_graded_knots_put_the_same_unknowns_towards_the_held_points(problem):
+    """knots "graded": the stepper's field has the uniform grid's unknowns, its knots graded
+    towards the held points ξ = (0, 0) and (W, 0) (dη/dξ, the spans per metre, larger there
+    than between them along ξ¹ and falling away from them along ξ²); other knots refused."""
+    vertices, uniform = problem
+    _, faces = rigid_sequence()
+    graded = swing_problem(vertices, faces, (0, N - 1), DT, np.array([0.0, 9.81, 0.0]),
+                           dataclasses.replace(CONFIG, knots="graded"))
+    field = graded.stepper_at(1e-5).field
+    assert field.coefficients.shape == uniform.stepper_at(1e-5).field.coefficients.shape
+    assert uniform.stepper_at(1e-5).field.config.grading == (None, None)
+    along, down = field.config.graded_maps()
+    at = torch.tensor([0.0, SIZE / 2, SIZE], dtype=torch.float64)
+    along, down = along.jets(at)[1], down.jets(at)[1]
+    assert min(float(along[0]), float(along[2])) > 1.05 * float(along[1])  # 3 spans: mild
+    assert float(down[0]) > 1.05 * float(down[1]) > 1.05 * float(down[2])
+    with pytest.raises(ValueError, match="knots must be one of"):
+        SwingConfig(knots="fine")
+
+
 @pytest.mark.parametrize(("change", "message"), [
     (lambda v: v[:4], "F >= 5"),
     (lambda v: np.where(np.isnan(v), 0, v) * np.nan, "finite"),

@@ -50,8 +50,8 @@ value first, then a warm-started refit on the finer grid whenever the estimate's
 one), whatever the sheet's size, the motion or the frame rate; then (`grid_check`) one
 Gauss–Newton step on a grid GROWTH × finer confirms it: where that step moves B by more than
 its s.e., the fit goes on on the finer grid. The check measures the grid's effect on the
-answer itself, so it does not depend on span_ratio being right (the synthetic swing's B bias,
-one grid against the next: −13, −7.6, −5.2 % from 28² to 40²; RESULTS.md, wip-sftmat10).
+answer itself, so it does not depend on span_ratio being right. The knots (`swing_knots`):
+uniform, or "graded" towards the held points (the rest's B bias, 32², degree 3: −21 → −0.3 %).
 """
 
 from __future__ import annotations
@@ -74,8 +74,8 @@ from inverse.material.trajectory_fit import (
 )
 from inverse.sft.hanging import SheetGrid, hanging_across, hanging_model
 from inverse.sft.held_motion import edge_turn, evaluate_smoothed, smoothed
+from inverse.sft.swing_knots import check_knots, swing_spline
 from taichi_ndf import jets
-from taichi_ndf.field.spline import SplineConfig
 from taichi_ndf.minimise.newton import NewtonConfig
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.model import ShellModel
@@ -95,7 +95,8 @@ class SwingConfig:
     """spans: the spline grid (n1, n2) [spans along ξ¹ (the held edge), ξ²], or None: from
     the bending length of the current estimate (`resolving_spans`, `fit_swing`): no span
     longer than span_ratio × c, at most max_spans per direction; grid_check: there, confirm
-    the grid by one Gauss–Newton step on a finer one (`fit_swing`); degree 3 or 4;
+    the grid by one Gauss–Newton step on a finer one (`fit_swing`); degree 3 or 4; knots:
+    "uniform" or "graded" towards the held points (`swing_knots`);
     substeps ≥ 1 time steps per frame; integrator "implicit_euler" or "newmark";
     mass_damping α [1/s] ≥ 0; membrane_stiffness D [N/m], poisson_ratio ν, areal_density ρ_A
     [kg/m²] (stated); band: the handles' band (fraction of the domain); grip ≥ 0 [m]: each
@@ -112,6 +113,7 @@ class SwingConfig:
     max_spans: int = 32
     grid_check: bool = True
     degree: int = 3
+    knots: str = "uniform"
     substeps: int = 1
     integrator: str = "implicit_euler"
     mass_damping: float = 0.0
@@ -147,6 +149,7 @@ class SwingConfig:
             raise ValueError(f"max_spans must be an integer >= 1, got {self.max_spans!r}")
         if self.degree not in (3, 4):
             raise ValueError(f"degree must be 3 or 4, got {self.degree!r}")
+        check_knots(self.knots)
         if int(self.substeps) != self.substeps or self.substeps < 1:
             raise ValueError(f"substeps must be an integer >= 1, got {self.substeps!r}")
         if self.integrator not in ("implicit_euler", "newmark"):
@@ -274,8 +277,7 @@ def swing_problem(vertices: np.ndarray, faces: np.ndarray, held: tuple[int, int]
         basis = spline_basis(step_times, 2, config.corner_spans or frames - 1)
         path_start = np.linalg.lstsq(basis.reshape(-1, basis.shape[-1]),
                                      path.displacements.reshape(-1), rcond=None)[0]
-    plan = SplinePlan(SplineConfig(spans=tuple(int(s) for s in config.spans),
-                                   degree=config.degree, domain=((0.0, width), (0.0, height))))
+    plan = SplinePlan(swing_spline(model, config.spans, config.degree, config.knots))
     dynamics = DynamicsConfig(dt=dt, duration=steps * dt, integrator=config.integrator,
                               mass_damping=config.mass_damping)
     newton = newton or NewtonConfig()
