@@ -165,24 +165,6 @@ class BoundaryConditions:
         the factors' ramps of that width."""
         return min((term.length for term in self._terms), default=None)
 
-    @property
-    def band_ends(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """Per direction, the coordinates ξ_d [units of ξ] where an edge's vanishing factor
-        ends inside the domain (its band ℓ < 1, at ℓ of the extent from the edge): the factor
-        is C² there and u/φ jumps in its third derivative, so a spline converges at its full
-        order only if that line is a knot line (`field.knot_lines`)."""
-        ends: list[set[float]] = [set(), set()]
-        for term in self._terms:
-            con = term.constraint
-            if not isinstance(con, (ClampedEdge, HingedEdge, RimRotation, SymmetryPlane)):
-                continue
-            k = 0 if con.edge.startswith("xi1") else 1
-            if term.length < 1:
-                lo, hi = self.domain.bounds[k]
-                fraction = term.length if con.edge.endswith("min") else 1 - term.length
-                ends[k].add(round(lo + fraction * (hi - lo), 12))
-        return tuple(tuple(sorted(e)) for e in ends)
-
     # ---- composition -------------------------------------------------------------------
 
     def evaluation_points(self, xi: torch.Tensor) -> torch.Tensor:

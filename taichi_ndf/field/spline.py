@@ -16,9 +16,8 @@ Graded knots (`SplineConfig.grading`, `field/grading.py`): per direction a C² m
 N(ξ) = S(h₁(ξ¹), h₂(ξ²)), so its knots are uniform in η and graded in ξ. Its basis jets are the
 uniform ones by the chain rule, per point a linear map of the jets (N_ξ = S_η h′,
 N_ξξ = S_ηη h′² + S_η h″, N_ξ¹ξ² = S_η¹η² h₁′ h₂′), so `jets`, `backward` (the transpose) and
-`local_basis` stay exact; refinement is in η and unchanged (the map stays). The map is either
-graded towards features (`Grading`) or sends given breakpoints onto knots (`KnotLines`,
-`field/knot_lines.py`: a kink of the data on a knot line of every level).
+`local_basis` stay exact; refinement is in η and unchanged (the map stays). Or knot lines
+(`KnotLines`, `field/knot_lines.py`): a map that sends given breakpoints onto knots.
 """
 
 from __future__ import annotations

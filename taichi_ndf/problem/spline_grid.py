@@ -24,7 +24,7 @@ uniform for the smooth far field). The unknowns are those of the uniform grid.
 
 Knot lines on the band ends (`[field] band_end_knots`, on by default, `band_end_config`): an
 edge's vanishing factor that ends inside the domain (band ℓ < 1,
-`BoundaryConditions.band_ends`) leaves u/φ with a third-derivative jump along a coordinate
+`band_ends`) leaves u/φ with a third-derivative jump along a coordinate
 line; the knots of a uniform direction are moved onto those lines by the map of
 `taichi_ndf.field.knot_lines` (each onto a distinct knot of the coarsest grid, so dyadic
 refinement keeps it a knot line). The full square plate's band ends at 45 and 55 m: on
@@ -275,14 +275,34 @@ def graded_towards(config: SplineConfig, features, *, share: float = GRADED_SHAR
     return dataclasses.replace(config, grading=tuple(grading))
 
 
+EDGE_CONSTRAINTS = ("ClampedEdge", "HingedEdge", "RimRotation", "SymmetryPlane")
+
+
+def band_ends(boundary) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Per direction, the coordinates ξ_d [units of ξ] where an edge's vanishing factor ends
+    inside the domain (its band ℓ < 1, at ℓ of the extent from the edge,
+    `BoundaryConditions`): the factor is C² there and u/φ jumps in its third derivative, so
+    a spline converges at its full order only if that line is a knot line."""
+    ends: list[set[float]] = [set(), set()]
+    for c in boundary.constraints:
+        ell = boundary.length if c.length is None else float(c.length)
+        if type(c).__name__ not in EDGE_CONSTRAINTS or ell >= 1:
+            continue
+        k = 0 if c.edge.startswith("xi1") else 1
+        lo, hi = boundary.domain.bounds[k]
+        fraction = ell if c.edge.endswith("min") else 1 - ell
+        ends[k].add(round(lo + fraction * (hi - lo), 12))
+    return tuple(tuple(sorted(e)) for e in ends)
+
+
 def band_end_config(config: SplineConfig, boundary) -> SplineConfig:
     """`config` with the knots of each uniform open direction moved onto the band ends of
-    `boundary` (`BoundaryConditions.band_ends`, module docstring), each onto a distinct knot
+    `boundary` (`band_ends`, module docstring), each onto a distinct knot
     of `config` (`knot_lines_for`); a direction graded already, periodic, without band ends,
     with its band ends on knots already, or with too few knots for them (then logged) stays
     as it is."""
     grading = list(config.grading)
-    for d, ends in enumerate(boundary.band_ends):
+    for d, ends in enumerate(band_ends(boundary)):
         if not ends or config.grading[d] is not None or config.periodic[d]:
             continue
         lo, hi = config.domain[d]
