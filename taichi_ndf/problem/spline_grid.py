@@ -46,7 +46,7 @@ from taichi_ndf import jets
 from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.field.grading import Grading, strength_for
-from taichi_ndf.field.knot_lines import knot_lines_for
+from taichi_ndf.field.knot_lines import KnotLines, knot_lines_for
 
 log = logging.getLogger(__name__)
 
@@ -245,8 +245,8 @@ def graded_config(config: SplineConfig, boundary, loads, domain, *,
                   share: float = GRADED_SHARE, gauges=()) -> SplineConfig:
     """`config` with its knots graded towards the model's singular features
     (`singular_features`, its gauge points left out; module docstring), a direction without
-    features as it is. The map stays with the refined grids (the core is one span of
-    `config`, its coarsest)."""
+    features uniform (its knot lines on band ends kept). The map stays with the refined grids
+    (the core is one span of `config`, its coarsest)."""
     features = singular_features(boundary, loads, domain, gauges)
     if not any(features):
         log.warning("grading = \"features\": the model has no pin, point load or interior "
@@ -260,13 +260,14 @@ def graded_config(config: SplineConfig, boundary, loads, domain, *,
 def graded_towards(config: SplineConfig, features, *, share: float = GRADED_SHARE
                    ) -> SplineConfig:
     """`config` with its knots graded per direction towards `features` (a tuple of positions
-    in ξ per direction; empty: that direction as it is in `config`), by the law of
+    in ξ per direction; empty: that direction uniform, its knot lines kept), by the law of
     `taichi_ndf.field.grading` with the core one span of `config` and the graded part taking
     `share` of the spans (module docstring)."""
     grading = []
     for d, ((lo, hi), found) in enumerate(zip(config.domain, features, strict=True)):
-        if not found:  # as it was (uniform, or knot lines on band ends)
-            grading.append(config.grading[d])
+        if not found:  # uniform, but the band ends' knot lines stay (`band_end_config`)
+            kept = config.grading[d]
+            grading.append(kept if isinstance(kept, KnotLines) else None)
             continue
         core = (hi - lo) / config.spans[d]
         strength = strength_for(found, core, share, lo, hi, periodic=config.periodic[d],
