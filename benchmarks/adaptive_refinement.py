@@ -19,7 +19,8 @@ Parts (`--parts`):
   uniform grids): each quantity against its published reference, and the adaptive
   estimate of the quantity at the last load (the guarded three-grid rule over the adaptive
   sequence) against a fine reference: the case solved on a uniform grid of 2 × the final
-  adaptive spans per direction, warm-started from the final adaptive solution (`--no-fine`:
+  adaptive spans per direction (the band ends' knot lines kept), warm-started from the final
+  adaptive solution (`--no-fine`:
   none; each quantity's values on the three grids of both rows and their estimates instead).
 
 - coverage: issue 33's ten cases with an affordable finer reference, the adaptive rows only
