@@ -19,7 +19,8 @@ Parts (`--parts`):
   uniform grids): each quantity against its published reference, and the adaptive
   estimate of the quantity at the last load (the guarded three-grid rule over the adaptive
   sequence) against a fine reference: the case solved on a uniform grid of 2 × the final
-  adaptive spans per direction, warm-started from the final adaptive solution (`--no-fine`:
+  adaptive spans per direction (the band ends' knot lines kept), warm-started from the final
+  adaptive solution (`--no-fine`:
   none; each quantity's values on the three grids of both rows and their estimates instead).
 
 - coverage: issue 33's ten cases with an affordable finer reference, the adaptive rows only
@@ -50,6 +51,7 @@ import numpy as np
 import torch
 
 import taichi_ndf
+from taichi_ndf.field.knot_lines import KnotLines
 from taichi_ndf.minimise.refinement import richardson
 from taichi_ndf.objective import Objective
 from taichi_ndf.scene.reader import load_scene
@@ -305,14 +307,16 @@ def case_coverage(case, result, discretisation, linearisation, runner, fine: boo
                   ) -> list[str]:
     """Rows: each quantity at the last load factor and Π, the adaptive estimate against a
     solve on a uniform grid of 2 × the final spans per direction (fine: else the estimate
-    alone, with its published reference where the quantity has one)."""
+    alone, with its published reference where the quantity has one); the uniform grid keeps
+    the band ends' knot lines (`spline_grid.band_end_config`)."""
     run, model = discretisation.run, discretisation.model
     unit = linearisation if case.linear else 1.0
     last = run.load_steps[-1]["load_factor"]
     positions = runner._reference_positions(model, run.field.coefficients.dtype)
-    fine_config = dataclasses.replace(run.field.config,
-                                      spans=tuple(2 * n for n in run.field.config.spans),
-                                      grading=(None, None))
+    fine_config = dataclasses.replace(  # uniform, but the band ends' knot lines stay: without
+        run.field.config, spans=tuple(2 * n for n in run.field.config.spans),  # them the finer
+        grading=tuple(g if isinstance(g, KnotLines) else None  # solve is the less accurate one
+                      for g in run.field.config.grading))
     if not fine:
         rows = []
         for q in case.quantities:

@@ -16,7 +16,8 @@ Graded knots (`SplineConfig.grading`, `field/grading.py`): per direction a C² m
 N(ξ) = S(h₁(ξ¹), h₂(ξ²)), so its knots are uniform in η and graded in ξ. Its basis jets are the
 uniform ones by the chain rule, per point a linear map of the jets (N_ξ = S_η h′,
 N_ξξ = S_ηη h′² + S_η h″, N_ξ¹ξ² = S_η¹η² h₁′ h₂′), so `jets`, `backward` (the transpose) and
-`local_basis` stay exact; refinement is in η and unchanged (the map stays).
+`local_basis` stay exact; refinement is in η and unchanged (the map stays). Or knot lines
+(`KnotLines`, `field/knot_lines.py`): a map that sends given breakpoints onto knots.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from taichi_ndf.field.config import (
     config_to_dict,
 )
 from taichi_ndf.field.grading import GradedMap, Grading
+from taichi_ndf.field.knot_lines import KnotLineMap, KnotLines
 from taichi_ndf.field.parameters import FieldParameters, resolve_dtype_device
 from taichi_ndf.jets import CHANNELS
 
@@ -61,7 +63,8 @@ class SplineConfig:
         (unlike folded coordinates, `taichi_ndf.boundary.fold`, it keeps the grid's
         resolution at the edge). Needs an open direction with at least p spans.
     grading: per direction a `Grading` (or its dict) or None (uniform knots): the knots
-        graded towards its features (module docstring); kept by `refined`.
+        graded towards its features (module docstring); or `KnotLines` (or its dict): given
+        breakpoints sent onto knots (an open direction only); kept by `refined`.
     """
 
     spans: tuple[int, int]
@@ -70,7 +73,7 @@ class SplineConfig:
     domain: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 1.0), (0.0, 1.0))
     periodic: tuple[bool, bool] = (False, False)
     even_ends: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
-    grading: tuple[Grading | None, Grading | None] = (None, None)
+    grading: tuple[Grading | KnotLines | None, Grading | KnotLines | None] = (None, None)
 
     def __post_init__(self):
         spans = tuple(self.spans) if isinstance(self.spans, (tuple, list)) else None
@@ -91,12 +94,18 @@ class SplineConfig:
         grading = self.grading
         if not isinstance(grading, (tuple, list)) or len(grading) != 2:
             raise ValueError(f"grading must be two entries (a Grading or None), got {grading!r}")
-        grading = tuple(Grading.of(g) for g in grading)
+        grading = tuple(KnotLines.of(g) if isinstance(g, (KnotLines, dict)) and (
+            isinstance(g, KnotLines) or "breaks" in g) else Grading.of(g) for g in grading)
         for d, g in enumerate(grading):
             lo, hi = self.domain[d]
             if g is not None and not all(lo <= f <= hi for f in g.features):
                 raise ValueError(f"grading[{d}]: features {g.features} outside the domain "
                                  f"[{lo}, {hi}] of ξ{d + 1}")
+            if isinstance(g, KnotLines):
+                if self.periodic[d]:
+                    raise ValueError(f"grading[{d}]: knot lines need an open direction, "
+                                     f"ξ{d + 1} is periodic")
+                KnotLineMap(g, lo, hi)  # ValueError unless inside and monotone
         object.__setattr__(self, "grading", grading)
 
     @property
@@ -104,9 +113,10 @@ class SplineConfig:
         """Whether the knots are graded along either direction."""
         return any(g is not None for g in self.grading)
 
-    def graded_maps(self) -> tuple[GradedMap | None, GradedMap | None]:
+    def graded_maps(self) -> tuple[GradedMap | KnotLineMap | None, GradedMap | KnotLineMap | None]:
         """The map η = h(ξ) per direction (None: uniform)."""
-        return tuple(None if g is None else GradedMap(g, lo, hi, periodic=periodic, even=even)
+        return tuple(None if g is None else KnotLineMap(g, lo, hi) if isinstance(g, KnotLines)
+                     else GradedMap(g, lo, hi, periodic=periodic, even=even)
                      for g, (lo, hi), periodic, even in zip(
                          self.grading, self.domain, self.periodic, self.even_ends, strict=True))
 

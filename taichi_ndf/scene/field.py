@@ -17,6 +17,7 @@ from taichi_ndf.problem.spline_grid import (
     GRADINGS,
     SplinePlan,
     auto_span_length,
+    band_end_config,
     graded_config,
     spans_for,
 )
@@ -59,12 +60,14 @@ def _siren(t: Table, model: ShellModel) -> tuple[FieldConfig, str | None]:
 
 
 DEFAULT_GRADING = "uniform"  # [field] grading of a spline field (benchmarks/RESULTS.md)
+DEFAULT_BAND_END_KNOTS = True  # [field] band_end_knots (benchmarks/RESULTS.md, issue 33)
 
 
 def _spline(t: Table, model: ShellModel) -> tuple[SplinePlan, None]:
     """A spline field's grids (the grid rule's spans where [field] gives none), their knots
     uniform or graded towards the model's singular features (`grading`,
-    `spline_grid.graded_config`)."""
+    `spline_grid.graded_config`), with knot lines on the edges' band ends (`band_end_knots`,
+    `spline_grid.band_end_config`)."""
     degree = t.integer("degree", 3)
     if degree not in (3, 4):
         raise SceneError(f"{t.key('degree')}: must be 3 (cubic) or 4 (quartic), got {degree}")
@@ -100,6 +103,8 @@ def _spline(t: Table, model: ShellModel) -> tuple[SplinePlan, None]:
     if t.string("grading", DEFAULT_GRADING, choices=GRADINGS) == "features":
         config = graded_config(config, model.boundary, model.loads, domain,
                                gauges=gauge_points(model))
+    if t.boolean("band_end_knots", DEFAULT_BAND_END_KNOTS):
+        config = band_end_config(config, model.boundary)
     points = t.integer("quadrature_points", degree + 1, minimum=1)
     return SplinePlan(config, levels=t.integer("levels", 1, minimum=1),
                       quadrature_points=points), None
