@@ -233,19 +233,26 @@ class GradedMap:
     def inverse(self, eta: torch.Tensor) -> torch.Tensor:
         """ξ = g(η) = h⁻¹(η) (N,) float64, by safeguarded Newton to rounding."""
         y, shift = self._wrap(eta.to(torch.float64))
-        lo_b = torch.full_like(y, self.lo - self.step)
-        hi_b = torch.full_like(y, self.hi + self.step)
-        x = y.clone()
-        for _ in range(100):
-            h, dh, _ = self.jets(x)
-            r = h - y
-            lo_b = torch.where(r < 0, x, lo_b)
-            hi_b = torch.where(r > 0, x, hi_b)
-            step = x - r / dh
-            bad = (step <= lo_b) | (step >= hi_b)
-            new = torch.where(bad, (lo_b + hi_b) / 2, step)
-            if bool((new - x).abs().max() <= 1e-15 * max(1.0, abs(self.hi) + abs(self.lo))):
-                x = new
-                break
-            x = new
-        return x + shift
+        return monotone_inverse(self.jets, y, self.lo, self.hi, self.step) + shift
+
+
+def monotone_inverse(jets, y: torch.Tensor, lo: float, hi: float, margin: float
+                     ) -> torch.Tensor:
+    """ξ (N,) float64 with h(ξ) = y for an increasing map h of [lo, hi] (`jets`: ξ ↦ (h, h′,
+    h″)), by Newton safeguarded by a bracket that starts `margin` past the ends (a step
+    leaving it bisects), to rounding (|Δξ| ≤ 1e-15 max(1, |lo| + |hi|)). Serves
+    `GradedMap` and `field.knot_lines.KnotLineMap`."""
+    lo_b, hi_b = torch.full_like(y, lo - margin), torch.full_like(y, hi + margin)
+    x = y.clone()
+    for _ in range(100):
+        h, dh, _ = jets(x)
+        r = h - y
+        lo_b = torch.where(r < 0, x, lo_b)
+        hi_b = torch.where(r > 0, x, hi_b)
+        step = x - r / dh
+        new = torch.where((step <= lo_b) | (step >= hi_b), (lo_b + hi_b) / 2, step)
+        done = bool((new - x).abs().max() <= 1e-15 * max(1.0, abs(hi) + abs(lo)))
+        x = new
+        if done:
+            break
+    return x

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import torch
 
+from taichi_ndf.field.grading import monotone_inverse
+
 _MONOTONE_SAMPLES = 4001  # points per direction at which h′ > 0 is checked
 
 
@@ -113,22 +115,8 @@ class KnotLineMap:
 
     def inverse(self, eta: torch.Tensor) -> torch.Tensor:
         """ξ = h⁻¹(η) (N,) float64, by safeguarded Newton to rounding."""
-        y = eta.to(torch.float64)
-        span = self.hi - self.lo
-        lo_b, hi_b = torch.full_like(y, self.lo - span), torch.full_like(y, self.hi + span)
-        x = y.clone()
-        for _ in range(100):
-            h, dh, _ = self.jets(x)
-            r = h - y
-            lo_b = torch.where(r < 0, x, lo_b)
-            hi_b = torch.where(r > 0, x, hi_b)
-            step = x - r / dh
-            new = torch.where((step <= lo_b) | (step >= hi_b), (lo_b + hi_b) / 2, step)
-            done = bool((new - x).abs().max() <= 1e-15 * max(1.0, abs(self.hi) + abs(self.lo)))
-            x = new
-            if done:
-                break
-        return x
+        return monotone_inverse(self.jets, eta.to(torch.float64), self.lo, self.hi,
+                                self.hi - self.lo)
 
 
 def _natural_second_derivatives(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
