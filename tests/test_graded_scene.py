@@ -14,7 +14,6 @@ import pytest
 
 from taichi_ndf.cli import sim
 from taichi_ndf.field.grading import Grading
-from taichi_ndf.field.knot_lines import KnotLines
 from taichi_ndf.problem.spline_grid import graded_config, singular_features
 from taichi_ndf.scene.reader import load_scene
 from taichi_ndf.scene.schema import SceneError
@@ -108,8 +107,7 @@ force = [0.0, 0.0, -1.0]"""
 def test_the_key_grades_the_spans_and_keeps_the_unknowns(tmp_path):
     uniform = load_scene(plate(tmp_path)).field
     graded = load_scene(plate(tmp_path, 'grading = "features"', name="g.toml")).field
-    # uniform: only the band ends' knot lines (tests/test_knot_lines.py); graded: the features
-    assert all(isinstance(g, KnotLines) for g in uniform.config.grading)
+    assert not uniform.config.graded
     assert all(isinstance(g, Grading) for g in graded.config.grading)
     assert graded.config.spans == uniform.config.spans
     assert graded.config.num_coefficients == uniform.config.num_coefficients

@@ -57,7 +57,7 @@ def test_too_few_knots_and_bad_lines_are_refused():
 
 
 def test_the_plates_band_ends_are_knot_lines_on_every_level():
-    scene = load_scene(PLATE, field="spline")
+    scene = load_scene(PLATE, field="spline", overrides={"field.band_end_knots": True})
     assert band_ends(scene.model.boundary) == ((45.0, 55.0), (45.0, 55.0))
     config = scene.field.config
     assert SplineConfig.from_dict(config.to_dict()) == config  # a checkpoint keeps them
@@ -66,7 +66,7 @@ def test_the_plates_band_ends_are_knot_lines_on_every_level():
             for end in (45.0, 55.0):
                 assert np.abs(knots - end).min() < 1e-9
         config = config.refined()
-    off = load_scene(PLATE, field="spline", overrides={"field.band_end_knots": False})
+    off = load_scene(PLATE, field="spline")  # the default: uniform knots
     assert off.field.config.grading == (None, None)
     assert all(np.abs(k - 45.0).min() > 1 for k in span_knots(off.field.config))
 
@@ -74,7 +74,7 @@ def test_the_plates_band_ends_are_knot_lines_on_every_level():
 @pytest.mark.slow
 def test_the_plates_energy_converges_at_the_full_order():
     """Π on 8², 16², 32²: the order of its changes ≥ 3.5 (measured 3.79; 0.71 without)."""
-    scene = load_scene(PLATE, field="spline")
+    scene = load_scene(PLATE, field="spline", overrides={"field.band_end_knots": True})
     plan = dataclasses.replace(scene.field, levels=3)
     solver = dataclasses.replace(scene.solver, max_levels=0)
     energy: list[float] = []

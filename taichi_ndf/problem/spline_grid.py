@@ -22,15 +22,18 @@ loads along a coordinate and their ends), by the law of `taichi_ndf.field.gradin
 (1 + A)⁻¹ of it) and the graded part taking GRADED_SHARE of the spans (the other half stays
 uniform for the smooth far field). The unknowns are those of the uniform grid.
 
-Knot lines on the band ends (`[field] band_end_knots`, on by default, `band_end_config`): an
+Knot lines on the band ends (`[field] band_end_knots`, opt-in, `band_end_config`): an
 edge's vanishing factor that ends inside the domain (band ℓ < 1,
 `band_ends`) leaves u/φ with a third-derivative jump along a coordinate
 line; the knots of a uniform direction are moved onto those lines by the map of
 `taichi_ndf.field.knot_lines` (each onto a distinct knot of the coarsest grid, so dyadic
 refinement keeps it a knot line). The full square plate's band ends at 45 and 55 m: on
 8² … 128², the centre deflection's changes fall at orders 3.06, 3.95, 4.16 with the rule
-against −5.53, 3.19, 1.32 without (benchmarks/RESULTS.md, issue 33). A direction graded
-towards features keeps its grading (one map per direction); a periodic one has no edges.
+against −5.53, 3.19, 1.32 without (benchmarks/RESULTS.md, issue 33). Not the default: the
+moved knot (up to half a span) costs accuracy on coarse grids — the hinged strip on a
+foundation (tests/test_foundation.py, 16 spans) 1.2 → 1.7 % largest error, napkin_fold's Π
++32 % on its 32 × 8 (a different fold). A direction graded towards features keeps its grading
+(one map per direction); a periodic one has no edges.
 """
 
 from __future__ import annotations

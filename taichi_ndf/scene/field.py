@@ -60,7 +60,8 @@ def _siren(t: Table, model: ShellModel) -> tuple[FieldConfig, str | None]:
 
 
 DEFAULT_GRADING = "uniform"  # [field] grading of a spline field (benchmarks/RESULTS.md)
-DEFAULT_BAND_END_KNOTS = True  # [field] band_end_knots (benchmarks/RESULTS.md, issue 33)
+DEFAULT_BAND_END_KNOTS = False  # [field] band_end_knots: opt-in (benchmarks/RESULTS.md, issue 33:
+# the full order asymptotically, but the moved knot costs accuracy on coarse grids)
 
 
 def _spline(t: Table, model: ShellModel) -> tuple[SplinePlan, None]:
