@@ -98,6 +98,10 @@ class LevelSolution:
     history: list[NewtonIteration] = field(default_factory=list)
     probe_errors: dict[str, np.ndarray] | None = None
 
+    def probe_lists(self) -> dict[str, list[float]]:
+        """`probes` as plain values (result.json, checkpoints)."""
+        return {k: v.tolist() for k, v in self.probes.items()}
+
     def probe_error_lists(self) -> dict[str, list[float]] | None:
         """`probe_errors` as plain values (result.json, checkpoints; None: not measured)."""
         errors = self.probe_errors

@@ -78,7 +78,7 @@ class LevelSummary:
     def of(cls, level: int, solutions: list[LevelSolution], seconds: float) -> LevelSummary:
         """A level's summary from its load steps' solutions (the last at the final load)."""
         last = solutions[-1]
-        return cls(level, last.spans, last.energy, _probe_lists(last),
+        return cls(level, last.spans, last.energy, last.probe_lists(),
                    sum(len(s.history) for s in solutions), seconds,
                    all(s.converged for s in solutions), last.probe_error_lists())
 
@@ -86,12 +86,8 @@ class LevelSummary:
 def load_step_records(solutions: list[LevelSolution]) -> list[dict]:
     """Per load step of a level: its load factor, Π [J], probes [m] and whether Newton
     converged, as plain values (result.json's `load_steps`)."""
-    return [{"load_factor": s.load_factor, "energy": s.energy, "probes": _probe_lists(s),
+    return [{"load_factor": s.load_factor, "energy": s.energy, "probes": s.probe_lists(),
              "converged": s.converged} for s in solutions]
-
-
-def _probe_lists(solution: LevelSolution) -> dict[str, list[float]]:
-    return {k: v.tolist() for k, v in solution.probes.items()}
 
 
 @dataclass
@@ -149,7 +145,7 @@ def _solution_dict(solution: LevelSolution, history: bool = True) -> dict:
     """A `LevelSolution` as plain values (history: its iterations, else none)."""
     values = asdict(solution)
     values["coefficients"] = solution.coefficients
-    values["probes"] = {k: v.tolist() for k, v in solution.probes.items()}
+    values["probes"] = solution.probe_lists()
     values["probe_errors"] = solution.probe_error_lists()
     values["history"] = values["history"] if history else []
     return values
