@@ -279,11 +279,11 @@ def bar_row(values: list[float], first: int, spans: list, quantity: str,
              and all(math.isfinite(e[c]) for e in errors))
     own = [e[c] for e in errors] if probe else None
 
-    def scalar(lo, hi):  # every grid up to hi, as result.json reads its levels
+    def scalar(hi):  # every grid up to hi, as result.json reads its levels
         return richardson(values[:hi], order=ORDER, converged=converged[:hi],
                           smooth=smooth_pi or probe, solve_errors=own and own[:hi])
 
-    ref_bar, three = scalar(len(values) - 3, len(values)), scalar(first, first + 3)
+    ref_bar, three = scalar(len(values)), scalar(first + 3)
     if point is not None:  # all three components stored: the point's order, as ndf-sim's
         measured = smooth_energy and errors is not None
         ref_bar = richardson_point(point, ORDER, converged, errors if measured else None)[c]
