@@ -94,8 +94,8 @@ class SplineConfig:
         grading = self.grading
         if not isinstance(grading, (tuple, list)) or len(grading) != 2:
             raise ValueError(f"grading must be two entries (a Grading or None), got {grading!r}")
-        grading = tuple(KnotLines.of(g) if isinstance(g, (KnotLines, dict)) and (
-            isinstance(g, KnotLines) or "breaks" in g) else Grading.of(g) for g in grading)
+        grading = tuple(KnotLines.of(g) if isinstance(g, KnotLines) or (
+            isinstance(g, dict) and "breaks" in g) else Grading.of(g) for g in grading)
         for d, g in enumerate(grading):
             lo, hi = self.domain[d]
             if g is not None and not all(lo <= f <= hi for f in g.features):
