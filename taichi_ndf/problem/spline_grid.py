@@ -46,6 +46,15 @@ from dataclasses import dataclass
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.boundary.constraints import (
+    ClampedEdge,
+    Handle,
+    HingedEdge,
+    InteriorLine,
+    PinnedPoint,
+    RimRotation,
+    SymmetryPlane,
+)
 from taichi_ndf.boundary.gauges import gauge_points
 from taichi_ndf.field import SplineConfig
 from taichi_ndf.field.grading import Grading, strength_for
@@ -185,12 +194,11 @@ def singular_features(boundary, loads, domain, gauges=()
     points: list[tuple[float, float]] = []
     lines: list[tuple[int, float]] = []
     for c in boundary.constraints:
-        kind = type(c).__name__
         if any(c is g for g in gauges):
             continue
-        if kind in ("PinnedPoint", "Handle"):
+        if isinstance(c, PinnedPoint | Handle):
             points.append(tuple(c.xi))
-        elif kind == "InteriorLine":
+        elif isinstance(c, InteriorLine):
             _segment(c.start, c.end, lines)
             if not c.extend:
                 points += [tuple(c.start), tuple(c.end)]
@@ -279,7 +287,7 @@ def graded_towards(config: SplineConfig, features, *, share: float = GRADED_SHAR
     return dataclasses.replace(config, grading=tuple(grading))
 
 
-EDGE_CONSTRAINTS = ("ClampedEdge", "HingedEdge", "RimRotation", "SymmetryPlane")
+EDGE_CONSTRAINTS = (ClampedEdge, HingedEdge, RimRotation, SymmetryPlane)
 
 
 def band_ends(boundary) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -289,8 +297,10 @@ def band_ends(boundary) -> tuple[tuple[float, ...], tuple[float, ...]]:
     a spline converges at its full order only if that line is a knot line."""
     ends: list[set[float]] = [set(), set()]
     for c in boundary.constraints:
+        if not isinstance(c, EDGE_CONSTRAINTS):
+            continue
         ell = boundary.length if c.length is None else float(c.length)
-        if type(c).__name__ not in EDGE_CONSTRAINTS or ell >= 1:
+        if ell >= 1:
             continue
         k = 0 if c.edge.startswith("xi1") else 1
         lo, hi = boundary.domain.bounds[k]
