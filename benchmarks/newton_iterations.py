@@ -10,6 +10,11 @@ seconds of its parts) and tabulates, for every (level, load step):
 - the Newton phases: iterations on a projected K (projected blocks > 0: the exact K was not
   definite), damped (μ > 0), in the endgame (λ²/2 ≤ `--floor` × |Π|: below the rounding floor);
 - iterations until Π was within 1e-3, 1e-4 and 1e-5 (relative) of the load step's last Π;
+- the model's share: the median, over the iterations that took a step, of λ²/2 / (Π − Π_last),
+  the fall of Π the iteration's quadratic model predicts for its full step against what was
+  still to fall to the load step's last Π (about 1 in Newton's quadratic range, where λ²/2
+  estimates Π − Π*; well below 1 in a linearly converging tail, where each step's model sees
+  only a share of the way; Π_last is Newton's stop, not Π*, so the last iterations read high);
 - Π at the first and the last iteration, and the seconds of the Newton parts (wall clock, as
   recorded: energy, Hessian blocks, assembly, solve).
 
@@ -22,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections import OrderedDict
 from pathlib import Path
@@ -29,7 +35,8 @@ from pathlib import Path
 NEAR = (1e-3, 1e-4, 1e-5)  # relative distances to the step's last Π counted in the table
 
 HEADER = ("| level | spans | load | iterations | α = 1 / < 1 / > 1 / 0 | projected | damped | "
-          "endgame | to 1e-3 / 1e-4 / 1e-5 of last Π | Π first → last [J] | Newton s |")
+          "endgame | to 1e-3 / 1e-4 / 1e-5 of last Π | model's share | Π first → last [J] | "
+          "Newton s |")
 
 
 def groups(history: list[dict]) -> OrderedDict:
@@ -51,6 +58,18 @@ def iterations_until(records: list[dict], relative: float) -> int:
     return len(records)
 
 
+def model_share(records: list[dict]) -> float:
+    """The median of λ²/2 / (Π − Π_last) over the records that took a step (α > 0) with a
+    positive decrement and Π above the last record's (module docstring); nan where none."""
+    last = records[-1]["energy"]
+    shares = sorted(0.5 * r["decrement"] / (r["energy"] - last) for r in records
+                    if r["step_length"] > 0 and r["decrement"] > 0 and r["energy"] > last)
+    if not shares:
+        return math.nan
+    middle = len(shares) // 2
+    return shares[middle] if len(shares) % 2 else 0.5 * (shares[middle - 1] + shares[middle])
+
+
 def summary(records: list[dict], floor: float) -> dict:
     """The counts of one load step on one level (module docstring)."""
     alphas = [r["step_length"] for r in records]
@@ -64,6 +83,7 @@ def summary(records: list[dict], floor: float) -> dict:
         "damped": sum(r["damping"] > 0 for r in records),
         "endgame": sum(0.5 * abs(r["decrement"]) <= floor * abs(r["energy"]) for r in records),
         "until": [iterations_until(records, near) for near in NEAR],
+        "share": model_share(records),
         "first": records[0]["energy"],
         "last": records[-1]["energy"],
         "seconds": sum(r["time_energy"] + r["time_hessian"] + r["time_assembly"]
@@ -82,7 +102,7 @@ def table(history: list[dict], floor: float) -> list[str]:
             f"| {level} | {spans[0]} × {spans[1]} | {load:g} | {s['iterations']} | "
             f"{s['full']} / {s['shortened']} / {s['lengthened']} / {s['none']} | "
             f"{s['projected']} | {s['damped']} | {s['endgame']} | "
-            f"{' / '.join(str(n) for n in s['until'])} | "
+            f"{' / '.join(str(n) for n in s['until'])} | {s['share']:.3g} | "
             f"{s['first']:.8g} → {s['last']:.10g} | {s['seconds']:.2f} |")
     for (level, spans), steps in per_level.items():
         total = {k: sum(s[k] for s in steps) for k in (
@@ -92,7 +112,7 @@ def table(history: list[dict], floor: float) -> list[str]:
             f"| {level} | {spans[0]} × {spans[1]} | all {len(steps)} | {total['iterations']} | "
             f"{total['full']} / {total['shortened']} / {total['lengthened']} / "
             f"{total['none']} | {total['projected']} | {total['damped']} | "
-            f"{total['endgame']} | | | {total['seconds']:.2f} |")
+            f"{total['endgame']} | | | | {total['seconds']:.2f} |")
     return rows
 
 

@@ -1,9 +1,11 @@
 """benchmarks/newton_iterations.py (issue 28): the counts per grid level and load step of a
-Newton history, on a history made by hand, and bad input refused with exit code 2."""
+Newton history and its model's share of the remaining fall, on histories made by hand, and
+bad input refused with exit code 2."""
 
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -50,10 +52,25 @@ def test_counts_per_level_and_load_step():
     assert fine["until"] == [0, 1, 1] and fine["endgame"] == 1
 
 
+def test_the_models_share_of_the_remaining_fall():
+    """λ²/2 / (Π − Π_last) over the steps taken: the median of 0.5/1.9999, 0.25/0.9999 and
+    0.05/0.0009 on level 0; 5e-4/4e-4 on level 1; a linear tail whose every model sees a
+    tenth of the remaining fall reads 0.1; no step taken reads nan."""
+    m = _module()
+    steps = m.groups(HISTORY)
+    assert abs(m.model_share(steps[(0, (2, 2), 1.0)]) - 0.25 / 0.9999) < 1e-12
+    assert abs(m.model_share(steps[(1, (4, 4), 1.0)]) - 1.25) < 1e-9
+    tail = [_record(0, 1.0, -1.0 + 0.8 ** k, 0.2 * 0.8 ** k, 1.0) for k in range(40)]
+    tail.append(_record(0, 1.0, -1.0, 1e-20, 0.0))
+    assert abs(m.model_share(tail) - 0.1) < 1e-12
+    assert math.isnan(m.model_share([_record(0, 1.0, -1.0, 1e-20, 0.0)]))
+
+
 def test_table_has_a_row_per_step_and_per_level():
     rows = _module().table(HISTORY, 1e-8)
     assert len(rows) == 2 + 2 + 2
-    assert rows[2].startswith("| 0 | 2 × 2 | 1 | 4 | 1 / 1 / 1 / 1 | 1 | 1 | 1 | 2 / 3 / 3 |")
+    assert rows[2].startswith("| 0 | 2 × 2 | 1 | 4 | 1 / 1 / 1 / 1 | 1 | 1 | 1 | 2 / 3 / 3 | "
+                              "0.25 |")
     assert rows[-1].startswith("| 1 | 4 × 4 | all 1 | 2 |")
 
 
