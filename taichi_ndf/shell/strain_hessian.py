@@ -10,11 +10,12 @@ a Gauss–Newton part and a stress part. The kinematic derivatives are exact (be
 the Taichi-autodiff gradient of a kernel that evaluates the law on given strains (the same
 `LAW_TERMS` and `strain_energy_density` as the energy kernel), and d²E/ds² (6 × 6) differences
 of that gradient: for the quadratic laws (`QUADRATIC_LAWS`), whose gradient is affine in s,
-one-sided differences at s = 0 with unit steps (`_quadratic_law_hessian`: exact up to rounding
-and the same at every state, so computed once per sample set, chunk of rows and material and
-kept while the sample set lives: Newton's later iterates launch the law kernel once, for dE/ds);
-for the Clyde law central differences at two steps, Richardson-extrapolated (`_law_hessian`:
-25 launches; truncation ~step⁴) — in place of the 36 full energy gradients of
+one-sided differences with unit steps (`_affine_law_hessian`, exact up to rounding); with the
+material's own stiffness at s = 0, the same at every state, so computed once per sample set,
+chunk of rows and material and kept while the sample set lives (`_quadratic_law_hessian`:
+Newton's later iterates launch the law kernel once, for dE/ds), with a per-sample stiffness at
+the state; for the Clyde law central differences at two steps, Richardson-extrapolated
+(`_law_hessian`: 25 launches; truncation ~step⁴) — in place of the 36 full energy gradients of
 `sample_hessians`. The external
 loads are linear in U (the pressure follows the reference normal) and add nothing.
 
@@ -193,35 +194,33 @@ def _law_hessian(gradient, strain: torch.Tensor, delta_e: float, delta_k: float
     return 0.5 * (out + out.transpose(1, 2))
 
 
-def _law_hessian_at_rest(gradient, count: int, dtype, device) -> torch.Tensor:
-    """A quadratic law's d²E/ds² (N, 6, 6), symmetrised, from its gradient dE/ds
-    (`gradient(s)` at strains s (N, 6)): the gradient is affine in s, D s + dE/ds(0), so the
-    differences at s = 0 with unit steps (a unit membrane strain, a curvature of 1/m) are D up
-    to rounding, whatever the state (7 evaluations)."""
-    rest = torch.zeros(count, STRAINS, dtype=dtype, device=device)
-    at_rest = gradient(rest)
-    out = rest.new_empty(count, STRAINS, STRAINS)
+def _affine_law_hessian(gradient, strain: torch.Tensor, stress: torch.Tensor) -> torch.Tensor:
+    """A quadratic law's d²E/ds² (N, 6, 6), symmetrised, from its gradient dE/ds (`gradient(s)`
+    at strains s (N, 6); stress: its value at `strain`): the gradient is affine in s, so
+    one-sided differences with unit steps (a unit membrane strain, a curvature of 1/m) are exact
+    up to rounding (6 evaluations)."""
+    out = strain.new_empty(strain.shape[0], STRAINS, STRAINS)
     for j in range(STRAINS):
-        shifted = rest.clone()
-        shifted[:, j] = 1.0
-        out[:, :, j] = gradient(shifted) - at_rest
+        shifted = strain.clone()
+        shifted[:, j] += 1.0
+        out[:, :, j] = gradient(shifted) - stress
     return 0.5 * (out + out.transpose(1, 2))
 
 
 def _quadratic_law_hessian(material: Material, samples: SurfaceSamples, rows: slice | None,
                            gradient, count: int) -> torch.Tensor:
     """A quadratic law's d²E/ds² (count, 6, 6) at the `count` points of weight ≠ 0 among
-    `rows` of `samples` (`gradient`: its law gradient at those points, `_law_hessian_at_rest`):
-    computed on the first ask for this sample set (its r_jets),
-    material, rows and weights, then kept with the sample set (`_QUADRATIC_LAW_HESSIANS`) and
-    returned as it is. Only for the material's own stiffness (a per-sample stiffness is
-    computed every time)."""
+    `rows` of `samples` (`gradient`: its law gradient at those points): differences at rest,
+    s = 0 (`_affine_law_hessian`: the same numbers whatever the state), computed on the first
+    ask for this sample set (its r_jets), material, rows and weights, then kept with the
+    sample set (`_QUADRATIC_LAW_HESSIANS`) and returned as it is. Only for the material's own
+    stiffness (a per-sample stiffness: at the state, every time)."""
     kept = _QUADRATIC_LAW_HESSIANS.setdefault(samples.r_jets, {})
     key = (material, None if rows is None else (rows.start, rows.stop))
     weights, hessian = kept.get(key, (None, None))
     if weights is not samples.weight:
-        hessian = _law_hessian_at_rest(gradient, count, samples.r_jets.dtype,
-                                       samples.r_jets.device)
+        rest = samples.r_jets.new_zeros(count, STRAINS)
+        hessian = _affine_law_hessian(gradient, rest, gradient(rest))
         kept[key] = (samples.weight, hessian)
     return hessian
 
@@ -356,8 +355,8 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
         stiffness_s = _law_hessian(gradient, strain, delta_e, delta_k)
     elif stiffness is None:  # the material's own stiffness: the same at every state
         stiffness_s = _quadratic_law_hessian(material, whole, rows, gradient, strain.shape[0])
-    else:
-        stiffness_s = _law_hessian_at_rest(gradient, strain.shape[0], dtype, device)
+    else:  # a per-sample stiffness: at this state
+        stiffness_s = _affine_law_hessian(gradient, strain, stress)
     if psd:
         stiffness_s = _clamped(stiffness_s)
     # J first; then the stress part is added to the Gauss–Newton part Jᵀ (d²E/ds²) J in place.
