@@ -226,3 +226,26 @@ def test_a_quadratic_laws_hessian_is_computed_once_per_sample_set_and_rows(law, 
     calls.clear()
     stiffer.hessian_blocks(heavier, u, steps=steps, rows=chunks[1])
     assert len(calls) == 8
+
+
+def test_one_kept_law_hessian_per_sample_set_and_rows_whatever_the_materials_asked():
+    """A material fit asks the blocks of one sample set at many materials: the kept law
+    Hessians of that sample set stay one per chunk of rows (the last material's), not one per
+    material seen; the blocks at each material are the ones computed afresh for it."""
+    from taichi_ndf.shell import strain_hessian
+
+    samples, loads = _samples("plane")
+    material = MATERIALS["orthotropic"]
+    n = len(samples)
+    u = 0.05 * torch.randn(n, 6, 3, generator=torch.Generator().manual_seed(3), dtype=DT)
+    steps = jet_steps(samples.r_jets, u, 1.0, 1e-5)
+    rows = slice(0, n // 2)
+    materials = [dataclasses.replace(material, a11=(1 + 0.1 * k) * material.a11)
+                 for k in range(5)]
+    for m in materials:
+        got = ShellEnergyTerm(m, loads).hessian_blocks(samples, u, steps=steps, rows=rows)
+    kept = strain_hessian._QUADRATIC_LAW_HESSIANS[samples.r_jets]
+    assert len(kept) == 1
+    strain_hessian._QUADRATIC_LAW_HESSIANS.pop(samples.r_jets)
+    assert torch.equal(got, ShellEnergyTerm(materials[-1], loads).hessian_blocks(
+        samples, u, steps=steps, rows=rows))

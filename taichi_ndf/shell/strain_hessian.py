@@ -12,8 +12,9 @@ the Taichi-autodiff gradient of a kernel that evaluates the law on given strains
 of that gradient: for the quadratic laws (`QUADRATIC_LAWS`), whose gradient is affine in s,
 one-sided differences with unit steps (`_affine_law_hessian`, exact up to rounding); with the
 material's own stiffness at s = 0, the same at every state, so computed once per sample set,
-chunk of rows and material and kept while the sample set lives (`_quadratic_law_hessian`:
-Newton's later iterates launch the law kernel once, for dE/ds), with a per-sample stiffness at
+chunk of rows and material and kept while the sample set lives, for the last material asked
+(`_quadratic_law_hessian`: Newton's later iterates launch the law kernel once, for dE/ds),
+with a per-sample stiffness at
 the state; for the Clyde law central differences at two steps, Richardson-extrapolated
 (`_law_hessian`: 25 launches; truncation ~step⁴) — in place of the 36 full energy gradients of
 `sample_hessians`. The external
@@ -67,7 +68,8 @@ BENDING_CHANNELS = (jets.D11, jets.D12, jets.D22)
 # StVK): their law gradient is affine in s.
 QUADRATIC_LAWS = frozenset({"linear_isotropic", "orthotropic"})
 # Their law Hessians d²E/ds² per sample set (held weakly by its reference jets r_jets: the entry
-# goes with them): {(material, rows): (the samples' weights, (n, 6, 6))} (`_quadratic_law_hessian`).
+# goes with them): {rows: (material, the samples' weights, (n, 6, 6))}, the last material asked
+# for each chunk of rows only (`_quadratic_law_hessian`).
 _QUADRATIC_LAW_HESSIANS = WeakIdKeyDictionary()
 
 
@@ -212,16 +214,18 @@ def _quadratic_law_hessian(material: Material, samples: SurfaceSamples, rows: sl
     """A quadratic law's d²E/ds² (count, 6, 6) at the `count` points of weight ≠ 0 among
     `rows` of `samples` (`gradient`: its law gradient at those points): differences at rest,
     s = 0 (`_affine_law_hessian`: the same numbers whatever the state), computed on the first
-    ask for this sample set (its r_jets), material, rows and weights, then kept with the
-    sample set (`_QUADRATIC_LAW_HESSIANS`) and returned as it is. Only for the material's own
-    stiffness (a per-sample stiffness: at the state, every time)."""
+    ask for this sample set (its r_jets), rows, weights and material, then kept with the
+    sample set (`_QUADRATIC_LAW_HESSIANS`) and returned as it is. One material per sample set
+    and rows: another material's ask replaces it (a material fit's many materials are not
+    accumulated; Newton's iterates ask with one). Only for the material's own stiffness (a
+    per-sample stiffness: at the state, every time)."""
     kept = _QUADRATIC_LAW_HESSIANS.setdefault(samples.r_jets, {})
-    key = (material, None if rows is None else (rows.start, rows.stop))
-    weights, hessian = kept.get(key, (None, None))
-    if weights is not samples.weight:
+    key = None if rows is None else (rows.start, rows.stop)
+    held, weights, hessian = kept.get(key, (None, None, None))
+    if weights is not samples.weight or held != material:
         rest = samples.r_jets.new_zeros(count, STRAINS)
         hessian = _affine_law_hessian(gradient, rest, gradient(rest))
-        kept[key] = (samples.weight, hessian)
+        kept[key] = (material, samples.weight, hessian)
     return hessian
 
 
