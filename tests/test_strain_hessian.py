@@ -3,6 +3,8 @@
 (`sample_hessians`), float64, for every material law, on a flat and a curved surface, with
 per-sample stiffness and with zero-weight point-load samples."""
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -58,9 +60,9 @@ def test_strain_hessian_matches_central_differences_of_the_gradient(law, surface
 def test_strain_hessian_is_exact_to_1e_8_against_extrapolated_differences(law, surface_name):
     """Against central differences of the full gradient at steps 2e-4 and 1e-4 of each
     channel's scale, Richardson-extrapolated (truncation ~step⁴: the reference itself is good
-    to ~1e-10): the blocks agree to ≤ 1e-8 relative in float64 (the quadratic laws' one-sided
-    law differences are exact; the Clyde law's central ones extrapolated: before, 2.9e-8 on
-    the cylinder)."""
+    to ~1e-10): the blocks agree to ≤ 1e-8 relative in float64 (the quadratic laws' law
+    Hessian, differences at rest with unit steps, is exact to rounding; the Clyde law's central
+    differences extrapolated: before, 2.9e-8 on the cylinder)."""
     samples, loads = _samples(surface_name)
     material = MATERIALS[law]
     u = 0.05 * torch.randn(len(samples), 6, 3, generator=torch.Generator().manual_seed(1),
@@ -150,3 +152,100 @@ def test_point_blocks_compute_the_tangent_length_once_per_state_for_every_chunk(
     assert not torch.equal(potential.hessian_blocks(samples, u, steps=steps, rows=first,
                                                     tangent=2 * length),
                            potential.hessian_blocks(samples, u, steps=steps)[first])
+
+
+@pytest.mark.parametrize("law", ["linear_isotropic", "orthotropic"])
+def test_a_quadratic_laws_hessian_is_computed_once_per_sample_set_and_rows(law, monkeypatch):
+    """A quadratic law's d²E/ds² does not depend on the strains: it is computed on the first
+    ask for a sample set, chunk of rows, weights and material (differences at rest, 7 law
+    gradients besides dE/ds) and kept, so a later state's blocks take one law gradient (dE/ds).
+    Every chunk's blocks at every state are the exact blocks of its own points, point by
+    point: the one-sided law differences at that state (each point's 6 × 6 written out, a
+    moderate step: exact for an affine gradient up to ~1e-9), through J = ds/dU and the stress
+    part as before; new
+    weights (the same r_jets) or another material are not served the kept ones."""
+    from taichi_ndf.shell import strain_hessian
+    from taichi_ndf.shell.energy import law_inputs
+
+    samples, loads = _samples("cylinder")
+    material = MATERIALS[law]
+    term = ShellEnergyTerm(material, loads)
+    calls = []
+    original = strain_hessian._strain_gradient
+    monkeypatch.setattr(strain_hessian, "_strain_gradient",
+                        lambda *a, **k: calls.append(1) or original(*a, **k))
+
+    def per_point(samples, u, rows):
+        """The blocks of `rows` with each point's law Hessian by one-sided differences at its
+        own strains (step 1e-3), point by point."""
+        r, w = samples.r_jets[rows], samples.weight[rows]
+        stiffness, params = law_inputs(material, len(w), None, DT, "cpu")
+        strain = strain_hessian._strain_vector(r, u[rows])
+        out = torch.zeros(len(w), 6, 3, 6, 3, dtype=DT)
+        for q in range(len(w)):
+            if w[q] == 0:
+                continue
+            def grad(s, q=q):
+                return original(strain_hessian._law_kernel(material.law), r[q:q + 1].contiguous(),
+                                s[None], weight=w[q:q + 1].contiguous(),
+                                stiffness=stiffness[q:q + 1].contiguous(), params=params)[0]
+            stress = grad(strain[q])
+            hessian = torch.stack([(grad(strain[q] + 1e-3 * e) - stress) / 1e-3
+                                   for e in torch.eye(6, dtype=DT)], dim=1)
+            hessian = 0.5 * (hessian + hessian.T)
+            x = (r[q] + u[rows][q])[None].contiguous()
+            jac = x.new_zeros(1, 6, 6, 3)
+            strain_hessian._strain_derivatives(x, stress[None].contiguous(), jac, jac, False)
+            flat = jac.reshape(6, 18)
+            block = (flat.T @ hessian @ flat).reshape(1, 6, 3, 6, 3)
+            strain_hessian._strain_derivatives(x, stress[None].contiguous(), jac, block, True)
+            out[q] = block[0]
+        return out
+
+    n = len(samples)
+    chunks = (slice(0, n // 2), slice(n // 2, n))
+    for k, scale in enumerate((0.05, 0.08)):
+        u = scale * torch.randn(n, 6, 3, generator=torch.Generator().manual_seed(5), dtype=DT)
+        steps = jet_steps(samples.r_jets, u, 1.0, 1e-5)
+        for rows in chunks:
+            calls.clear()
+            got = term.hessian_blocks(samples, u, steps=steps, rows=rows)
+            assert len(calls) == (8 if k == 0 else 1)  # dE/ds, and 7 at rest on the first ask
+            expected = per_point(samples, u, rows)
+            assert float((got - expected).abs().max() / expected.abs().max()) <= 1e-9
+    heavier = type(samples)(samples.xi, samples.r_jets, 2 * samples.weight,
+                            samples.point_force, samples.barrier_weight)
+    calls.clear()
+    got = term.hessian_blocks(heavier, u, steps=steps, rows=chunks[1])
+    assert len(calls) == 8
+    expected = per_point(heavier, u, chunks[1])
+    assert float((got - expected).abs().max() / expected.abs().max()) <= 1e-9
+    field = material.stiffness_names[-1]  # the bending stiffness (linear) or G12 (orthotropic)
+    stiffer = ShellEnergyTerm(dataclasses.replace(
+        material, **{field: 2 * getattr(material, field)}), loads)
+    calls.clear()
+    stiffer.hessian_blocks(heavier, u, steps=steps, rows=chunks[1])
+    assert len(calls) == 8
+
+
+def test_one_kept_law_hessian_per_sample_set_and_rows_whatever_the_materials_asked():
+    """A material fit asks the blocks of one sample set at many materials: the kept law
+    Hessians of that sample set stay one per chunk of rows (the last material's), not one per
+    material seen; the blocks at each material are the ones computed afresh for it."""
+    from taichi_ndf.shell import strain_hessian
+
+    samples, loads = _samples("plane")
+    material = MATERIALS["orthotropic"]
+    n = len(samples)
+    u = 0.05 * torch.randn(n, 6, 3, generator=torch.Generator().manual_seed(3), dtype=DT)
+    steps = jet_steps(samples.r_jets, u, 1.0, 1e-5)
+    rows = slice(0, n // 2)
+    materials = [dataclasses.replace(material, a11=(1 + 0.1 * k) * material.a11)
+                 for k in range(5)]
+    for m in materials:
+        got = ShellEnergyTerm(m, loads).hessian_blocks(samples, u, steps=steps, rows=rows)
+    kept = strain_hessian._QUADRATIC_LAW_HESSIANS[samples.r_jets]
+    assert len(kept) == 1
+    strain_hessian._QUADRATIC_LAW_HESSIANS.pop(samples.r_jets)
+    assert torch.equal(got, ShellEnergyTerm(materials[-1], loads).hessian_blocks(
+        samples, u, steps=steps, rows=rows))

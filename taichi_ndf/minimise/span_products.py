@@ -79,11 +79,14 @@ def pair_sums(jacobian: ComponentJacobian, blocks: torch.Tensor, entries: torch.
     """R[s, a, p, b] = Σ_{q in span s} J_c,qᵀ H_q[:, c, :, d] J_d,q for the pairs p = (c, d) of
     `PAIRS` (c ≤ d; the others are their transposes): J (3, G m, ch, k) on the channels the
     blocks touch, blocks (G m, 18 · 18) flat, `entries` the pairs' blocks on those channels in
-    them (`pair_entries`); (G, k, 6, k). T = H J for all pairs in one batched GEMM per point,
-    then Jᵀ T in one per span (the span's points in the inner dimension), each per stored
-    array of J."""
+    them (`pair_entries`, gathered per point); (G, k, 6, k). T = H J for all pairs in one
+    batched GEMM per point, then Jᵀ T in one per span (the span's points in the inner
+    dimension), each per stored array of J."""
     (_, n, channels, k), count = jacobian.shape, blocks.shape[0] // m
-    gathered = torch.index_select(blocks, 1, entries).reshape(n, channels, len(PAIRS), channels)
+    # the same copy as index_select along dim 1 (whose CPU path copies element by element):
+    # 49.7 against 52.1 ms of the napkin's 32² assembly (benchmarks/RESULTS.md, wip-speed36)
+    gathered = torch.gather(blocks, 1, entries.expand(n, -1)).reshape(
+        n, channels, len(PAIRS), channels)
     weighted = gathered.new_empty(n, channels, len(PAIRS), k)  # [q, j, p, b]
     out = gathered.new_empty(count, k, len(PAIRS), k)  # [s, a, p, b]
     arrays = by_array(jacobian)

@@ -9,10 +9,15 @@ every law reads the reference geometry, which U does not change). So
 a Gauss–Newton part and a stress part. The kinematic derivatives are exact (below); dE/ds is
 the Taichi-autodiff gradient of a kernel that evaluates the law on given strains (the same
 `LAW_TERMS` and `strain_energy_density` as the energy kernel), and d²E/ds² (6 × 6) differences
-of that gradient (`_law_hessian`): one-sided, exact up to rounding, for the quadratic laws
-(`QUADRATIC_LAWS`: 7 launches of a kernel without geometry derivatives), central at two steps
-and Richardson-extrapolated for the Clyde law (25; truncation ~step⁴) — in place of the 36
-full energy gradients of `sample_hessians`. The external
+of that gradient: for the quadratic laws (`QUADRATIC_LAWS`), whose gradient is affine in s,
+one-sided differences with unit steps (`_affine_law_hessian`, exact up to rounding); with the
+material's own stiffness at s = 0, the same at every state, so computed once per sample set,
+chunk of rows and material and kept while the sample set lives, for the last material asked
+(`_quadratic_law_hessian`: Newton's later iterates launch the law kernel once, for dE/ds),
+with a per-sample stiffness at
+the state; for the Clyde law central differences at two steps, Richardson-extrapolated
+(`_law_hessian`: 25 launches; truncation ~step⁴) — in place of the 36 full energy gradients of
+`sample_hessians`. The external
 loads are linear in U (the pressure follows the reference normal) and add nothing.
 
 Kinematics (x = r + u, x_α its tangents, x_αβ second derivatives, m = x₁ × x₂, ℓ = |m|,
@@ -45,6 +50,7 @@ residual of Newton's second-order correction (`taichi_ndf.minimise.line_search`)
 import functools
 
 import torch
+from torch.utils.weak import WeakIdKeyDictionary
 
 from taichi_ndf import jets
 from taichi_ndf.problem.sampling import SurfaceSamples
@@ -61,6 +67,10 @@ BENDING_CHANNELS = (jets.D11, jets.D12, jets.D22)
 # Laws whose Ψ is a quadratic form in the strains (law_terms.py: linear isotropic, orthotropic
 # StVK): their law gradient is affine in s.
 QUADRATIC_LAWS = frozenset({"linear_isotropic", "orthotropic"})
+# Their law Hessians d²E/ds² per sample set (held weakly by its reference jets r_jets: the entry
+# goes with them): {rows: (material, the samples' weights, (n, 6, 6))}, the last material asked
+# for each chunk of rows only (`_quadratic_law_hessian`).
+_QUADRATIC_LAW_HESSIANS = WeakIdKeyDictionary()
 
 
 @functools.cache
@@ -165,12 +175,12 @@ def _strain_derivatives(x: ti.types.ndarray(), stress: ti.types.ndarray(),
                        0.5 * stress[i, 1] * eye - m2.transpose() @ f @ m1 - gx)
 
 
-def _law_hessian(gradient, strain: torch.Tensor, stress: torch.Tensor, delta_e: float,
-                 delta_k: float, quadratic: bool) -> torch.Tensor:
-    """d²E/ds² (N, 6, 6), symmetrised, from the law gradient dE/ds (`gradient(s)`, = stress at
-    the strains s (N, 6)) with steps δε (membrane) and δκ (bending): a quadratic law's
-    gradient is affine in s, so one-sided differences are exact (6 evaluations); otherwise
-    central differences at δ and δ/2, Richardson-extrapolated (truncation ~δ⁴, 24)."""
+def _law_hessian(gradient, strain: torch.Tensor, delta_e: float, delta_k: float
+                 ) -> torch.Tensor:
+    """d²E/ds² (N, 6, 6), symmetrised, of a law that is not quadratic (the Clyde law) from its
+    gradient dE/ds (`gradient(s)` at strains s (N, 6)) with steps δε (membrane) and δκ
+    (bending): central differences at δ and δ/2, Richardson-extrapolated (truncation ~δ⁴, 24
+    evaluations)."""
     out = strain.new_empty(strain.shape[0], STRAINS, STRAINS)
     for j in range(STRAINS):
         delta = delta_e if j < 3 else delta_k
@@ -182,13 +192,41 @@ def _law_hessian(gradient, strain: torch.Tensor, stress: torch.Tensor, delta_e: 
             shifted[:, j] -= 2 * h
             return (plus - gradient(shifted)) / (2 * h)
 
-        if quadratic:
-            shifted = strain.clone()
-            shifted[:, j] += delta
-            out[:, :, j] = (gradient(shifted) - stress) / delta
-        else:
-            out[:, :, j] = (4 * central(0.5 * delta) - central(delta)) / 3
+        out[:, :, j] = (4 * central(0.5 * delta) - central(delta)) / 3
     return 0.5 * (out + out.transpose(1, 2))
+
+
+def _affine_law_hessian(gradient, strain: torch.Tensor, stress: torch.Tensor) -> torch.Tensor:
+    """A quadratic law's d²E/ds² (N, 6, 6), symmetrised, from its gradient dE/ds (`gradient(s)`
+    at strains s (N, 6); stress: its value at `strain`): the gradient is affine in s, so
+    one-sided differences with unit steps (a unit membrane strain, a curvature of 1/m) are exact
+    up to rounding (6 evaluations)."""
+    out = strain.new_empty(strain.shape[0], STRAINS, STRAINS)
+    for j in range(STRAINS):
+        shifted = strain.clone()
+        shifted[:, j] += 1.0
+        out[:, :, j] = gradient(shifted) - stress
+    return 0.5 * (out + out.transpose(1, 2))
+
+
+def _quadratic_law_hessian(material: Material, samples: SurfaceSamples, rows: slice | None,
+                           gradient, count: int) -> torch.Tensor:
+    """A quadratic law's d²E/ds² (count, 6, 6) at the `count` points of weight ≠ 0 among
+    `rows` of `samples` (`gradient`: its law gradient at those points): differences at rest,
+    s = 0 (`_affine_law_hessian`: the same numbers whatever the state), computed on the first
+    ask for this sample set (its r_jets), rows, weights and material, then kept with the
+    sample set (`_QUADRATIC_LAW_HESSIANS`) and returned as it is. One material per sample set
+    and rows: another material's ask replaces it (a material fit's many materials are not
+    accumulated; Newton's iterates ask with one). Only for the material's own stiffness (a
+    per-sample stiffness: at the state, every time)."""
+    kept = _QUADRATIC_LAW_HESSIANS.setdefault(samples.r_jets, {})
+    key = None if rows is None else (rows.start, rows.stop)
+    held, weights, hessian = kept.get(key, (None, None, None))
+    if weights is not samples.weight or held != material:
+        rest = samples.r_jets.new_zeros(count, STRAINS)
+        hessian = _affine_law_hessian(gradient, rest, gradient(rest))
+        kept[key] = (material, samples.weight, hessian)
+    return hessian
 
 
 def _clamped(matrices: torch.Tensor) -> torch.Tensor:
@@ -289,6 +327,7 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     """
     if tangent is None:
         tangent = tangent_length(samples, u_jets)  # of all samples, also for a chunk of rows
+    whole = samples
     if rows is not None:
         samples = SurfaceSamples(*(None if t is None else t[rows] for t in (
             samples.xi, samples.r_jets, samples.weight, samples.point_force,
@@ -312,12 +351,16 @@ def strain_energy_hessians(material: Material, samples: SurfaceSamples, u_jets: 
     kstiff = kernel_stiffness[active].contiguous()
     kernel = _law_kernel(material.law)
     stress = _strain_gradient(kernel, r, strain, weight=weight, stiffness=kstiff, params=params)
-    delta_e = float(steps[jets.D1:jets.D2 + 1].max()) * tangent
-    delta_k = float(steps[jets.D11:].max())
     gradient = functools.partial(_strain_gradient, kernel, r, weight=weight, stiffness=kstiff,
                                  params=params)
-    stiffness_s = _law_hessian(gradient, strain, stress, delta_e, delta_k,
-                               material.law in QUADRATIC_LAWS)
+    if material.law not in QUADRATIC_LAWS:
+        delta_e = float(steps[jets.D1:jets.D2 + 1].max()) * tangent
+        delta_k = float(steps[jets.D11:].max())
+        stiffness_s = _law_hessian(gradient, strain, delta_e, delta_k)
+    elif stiffness is None:  # the material's own stiffness: the same at every state
+        stiffness_s = _quadratic_law_hessian(material, whole, rows, gradient, strain.shape[0])
+    else:  # a per-sample stiffness: at this state
+        stiffness_s = _affine_law_hessian(gradient, strain, stress)
     if psd:
         stiffness_s = _clamped(stiffness_s)
     # J first; then the stress part is added to the Gauss–Newton part Jᵀ (d²E/ds²) J in place.
