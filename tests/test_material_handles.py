@@ -75,7 +75,13 @@ def test_fitted_corners_remove_the_bias_of_wrong_corners():
     corners in frames 1 and 2 are reconstructed 1.5 mm too deep (along the camera's axis, as
     `ndf-sft`'s corner errors lie mostly along the rays, benchmarks/RESULTS.md) and every
     other vertex exact. Held where reconstructed ("held"), each frame's equilibrium is forced
-    through the wrong corners and B comes out far off (measured +27.7 %); fitted ("fitted":
+    through the wrong corners and B comes out far off: +27.7 % until 2026-12-07, −13.3 % since
+    the quadratic law's Hessian is formed at rest (wip-speed36, K the same to rounding). Forced
+    through wrong corners the fit is sensitive to K's rounding: each version reaches its own
+    estimate from every start tried (1.4, 1.5, 1.7 × B and the other version's estimate), with
+    residual sums 3.14e-4 (+27.7 %) and 3.27e-4 m² (−13.3 %), both stable and converged; so
+    from the observed shape the two find different equilibria at one material. Only the size
+    of the bias is asserted (> 10 %, both measured); fitted ("fitted":
     frames 1 and 2's corners 6 unknowns each, frame 0's held: they are the given ones) B is
     within 2 % (measured +0.47 % ± 0.55 %) and within 2 standard errors of the truth, and the
     fitted corners are within 0.2 mm of the true ones (measured 0.05 mm)."""
@@ -100,7 +106,7 @@ def test_fitted_corners_remove_the_bias_of_wrong_corners():
         results[corners] = newton_estimate(observations, unknowns, newton,
                                            start=[1.5 * true_b, 120.0])
     held_b = results["held"].estimate.values[0]
-    assert abs(held_b / true_b - 1) > 0.15
+    assert abs(held_b / true_b - 1) > 0.10
     fitted = results["fitted"]
     b, se = fitted.estimate.values[0], fitted.estimate.standard_errors[0]
     assert abs(b / true_b - 1) < 0.02
