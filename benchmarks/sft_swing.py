@@ -35,17 +35,32 @@ vertical is not stated), ρ_A 0.197 kg/m², D 300 N/m (stated), at each `--r1-fp
 B ± s.e., c, χ²/dof (σ estimated: 1 by construction), the rms misfit per
 frame against the reconstruction's rms distance to the Kinect cloud.
 
+R1 jointly (`--part r1 --r1-joint P R S C`, `inverse.sft.swing_capture`): gravity's pitch and
+roll [deg], the time scale s and the bending length c [m] fitted together from that start on
+the first `--r1-spans` grid (given, ≥ 1) at the first `--r1-fps`, data or rest start
+(`--start-state`); a table of each unknown with its s.e. (residuals as independent, and robust
+over blocks of ⌈L⌉ frames, L the residual's correlation length over frames), the misfit rms;
+then the profile of c (`--r1-profile` lengths [m]: the misfit re-fitted over p, r, s at each
+fixed c, at most `--profile-evaluations` residual evaluations each) and the one-sided 95 %
+upper bound on c with n_eff = (F − 1) / L, placed among the measured fabrics (Feng et al.
+2022's 5th–95th percentile 1.1–3.3 cm). With `--joint-synthetic P R S C` the sequence is
+first replaced by the model's own swing at that point (R1's corners and start), plus Gaussian
+noise `--noise` [m] (seed 0): a synthetic check with a known answer under R1's conditions.
+
     OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part synthetic --seeds 0 1 2
     OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part synthetic --bias --spans 28 \
         --truth-spans 32 --truth-substeps 2 --truth-integrator implicit_euler --substeps 2 \
         --duration 1.0 --truth-cache /tmp/truth_32.npz
     OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part r1 --run /tmp/r1 --data DATA
+    OMP_NUM_THREADS=1 python benchmarks/sft_swing.py --part r1 --run /tmp/r1 --r1-spans 8 \
+        --substeps 2 --start-state data --r1-joint 9 0 0.3 0.02
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 import math
 import os
 import resource
@@ -61,11 +76,21 @@ from inverse.material.trajectory_fit import TrajectoryFitConfig, fit_trajectory,
 from inverse.sft.gravity_direction import tilted_gravity
 from inverse.sft.hanging import hanging_across, hanging_model
 from inverse.sft.swing import SPAN_RATIO, SwingConfig, fit_swing, swing_problem
+from inverse.sft.swing_capture import (
+    CaptureFitConfig,
+    CaptureProblem,
+    SwingCapture,
+    fit_capture,
+    likelihood_ratio,
+    model_sequence,
+    profile_lengths,
+    upper_bound,
+)
 from inverse.sft.swing_knots import KNOTS, swing_spline
 from taichi_ndf import jets, progress
 from taichi_ndf.problem.dynamics import DynamicsConfig
 from taichi_ndf.problem.spline_grid import SplinePlan
-from taichi_ndf.shell.fabrics import bending_length
+from taichi_ndf.shell.fabrics import FENG_2022_PERCENTILES, bending_length
 from taichi_ndf.shell.materials import LinearIsotropic
 from taichi_ndf.solve.dynamics_adjoint import record, rest_start
 from taichi_ndf.solve.handle_paths import (
@@ -352,6 +377,9 @@ def part_r1(args) -> None:
         errors = [float(np.sqrt(np.mean(cKDTree(c.reshape(-1, 3)).query(v)[0] ** 2)))
                   for c, v in zip(clouds, vertices, strict=True)]
     frames = vertices[: args.r1_frames] if args.r1_frames else vertices
+    if args.r1_joint is not None:
+        part_r1_joint(args, frames, faces)
+        return
     gravity = (np.array([0.0, G, 0.0]) if args.r1_gravity is None else
                tilted_gravity(vertices[0, [0, 992]], *args.r1_gravity, magnitude=G))
     print(f"R1: {len(frames)} of {len(vertices)} frames of {vertices.shape[1]} vertices, "
@@ -400,6 +428,89 @@ def part_r1(args) -> None:
                     for f, m in zip(range(1, len(frames)), per_frame, strict=True)]
             print("  per-frame rms misfit [mm] (reconstruction's rms distance to the cloud): "
                   + ", ".join(rows[::3]), flush=True)
+
+
+def print_capture(fit, truth=None) -> None:
+    """One row per free unknown of a `CaptureFit`: value, s.e. (independent, blocks)."""
+    print("| unknown | estimate | s.e. (residuals independent) | s.e. (blocks of ⌈L⌉ frames) "
+          "| truth |")
+    print("|---|---|---|---|---|")
+    units = {"pitch": ("p [deg]", 1.0), "roll": ("r [deg]", 1.0), "time_scale": ("s", 1.0),
+             "bending_length": ("c [cm]", 100.0)}
+    for name in fit.free:
+        value, se, robust = fit.value_error(name)
+        label, k = units[name]
+        known = "—" if truth is None else f"{k * getattr(truth, name):.4g}"
+        print(f"| {label} | {k * value:.4g} | {k * se:.2g} | {k * robust:.2g} | {known} |")
+    if "bending_length" in fit.free:
+        print(f"| ln c | {math.log(fit.point.bending_length):.3f} | "
+              f"{fit.errors['bending_length']:.2g} | {fit.robust['bending_length']:.2g} | "
+              + ("—" if truth is None else f"{math.log(truth.bending_length):.3f}") + " |")
+    print(f"misfit rms {1000 * fit.rms:.2f} mm over {fit.residuals.shape[0]} frames; residual "
+          f"correlation length L = {fit.correlation_length:.1f} frames, n_eff = "
+          f"{fit.effective_frames:.1f}; at a bound: {fit.at_bound or 'none'}; "
+          f"{fit.evaluations} runs; stopped: {fit.message}", flush=True)
+
+
+def part_r1_joint(args, vertices, faces) -> None:
+    """`--r1-joint` (module docstring)."""
+    logging.basicConfig(format="    %(message)s")
+    logging.getLogger("inverse.sft.swing_capture").setLevel(logging.INFO)
+    config = SwingConfig(spans=(args.r1_spans[0],) * 2, substeps=args.substeps,
+                         integrator=args.integrator, membrane_stiffness=D, poisson_ratio=NU,
+                         areal_density=RHO, stride=args.stride, start=args.start_state)
+    start = SwingCapture(*args.r1_joint)
+    truth = None
+    problem = CaptureProblem(vertices, faces, (0, 992), 1.0 / args.r1_fps[0], config)
+    if args.joint_synthetic is not None:
+        c0, t0 = cpu(), time.perf_counter()
+        truth = SwingCapture(*args.joint_synthetic)
+        clean = model_sequence(problem, truth, G)
+        noisy = clean + np.random.default_rng(0).normal(0.0, args.noise, clean.shape)
+        problem = dataclasses.replace(problem, vertices=noisy)
+        print(f"synthetic: the model's own swing at {truth} on R1's corners and start, noise "
+              f"{1000 * args.noise:.1f} mm (seed 0); rms from R1's reconstruction "
+              f"{1000 * np.sqrt(np.mean(np.sum((clean - vertices) ** 2, -1))):.1f} mm; "
+              f"{cpu() - c0:.0f} s CPU, {time.perf_counter() - t0:.0f} s wall", flush=True)
+    print(f"joint fit: {config.spans} spans, {config.substeps} steps per frame, start "
+          f"{config.start}, stride {config.stride}, {1 / problem.frame_interval:g} fps stated, "
+          f"from {start}")
+    settings = CaptureFitConfig(max_evaluations=args.joint_evaluations, gravity=G)
+    c0, t0 = cpu(), time.perf_counter()
+    joint = fit_capture(problem, start, settings)
+    print_capture(joint, truth)
+    print(f"  {cpu() - c0:.0f} s CPU, {time.perf_counter() - t0:.0f} s wall, load "
+          f"{os.getloadavg()[0]:.1f}", flush=True)
+    if not args.r1_profile:
+        return
+    print("| c [cm] | p [deg] | r [deg] | s | rms misfit [mm] | − joint's [mm] "
+          "| n_eff ln(SSE/SSE_joint) | runs | CPU s | wall s | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    fits, point = [], joint.point
+    settings = dataclasses.replace(settings, max_evaluations=args.profile_evaluations)
+    for length in sorted(args.r1_profile):
+        c0, t0 = cpu(), time.perf_counter()
+        (fit,) = profile_lengths(problem, point, [length], settings)
+        fits.append(fit)
+        point = fit.point
+        print(f"| {100 * length:g} | {fit.point.pitch:.3f} | {fit.point.roll:.3f} | "
+              f"{fit.point.time_scale:.4f} | {1000 * fit.rms:.3f} | "
+              f"{1000 * (fit.rms - joint.rms):+.3f} | "
+              f"{likelihood_ratio(fit.rms, min(joint.rms, fit.rms), joint.effective_frames):.3f} | "
+              f"{fit.evaluations} | {cpu() - c0:.0f} | {time.perf_counter() - t0:.0f} | "
+              f"{os.getloadavg()[0]:.1f} |", flush=True)
+    lengths = [f.point.bending_length for f in fits]
+    best = min([joint.rms] + [f.rms for f in fits])
+    bound = upper_bound(lengths, [f.rms for f in fits], best, joint.effective_frames)
+    low, _, high = FENG_2022_PERCENTILES["bending_length"]
+    print(f"one-sided 95 % upper bound on c: n_eff ln(SSE(c)/SSE_min) ≥ 2.706 with n_eff = "
+          f"(F − 1)/L = {joint.effective_frames:.2f} (L = {joint.correlation_length:.1f} "
+          f"frames, each frame one unit), SSE_min at the best rms {1000 * best:.3f} mm: "
+          + ("none within the profile (c up to "
+             f"{100 * max(lengths):g} cm not excluded)" if bound is None else
+             f"c < {100 * bound:.2f} cm")
+          + f"; measured fabrics (Feng et al. 2022, 90 %): {100 * low:.1f}–{100 * high:.1f} cm",
+          flush=True)
 
 
 def main() -> None:
@@ -471,6 +582,21 @@ def main() -> None:
                    help="R1: gravity turned from image-down by PITCH about frame 0's corner "
                         "line and ROLL towards corner b [deg] (tilted_gravity; default: "
                         "(0, 9.81, 0) as given)")
+    p.add_argument("--r1-joint", type=float, nargs=4, default=None,
+                   metavar=("PITCH", "ROLL", "SCALE", "LENGTH"),
+                   help="R1: fit gravity's pitch and roll [deg], the time scale and the "
+                        "bending length [m] together from these (inverse.sft.swing_capture)")
+    p.add_argument("--joint-synthetic", type=float, nargs=4, default=None,
+                   metavar=("PITCH", "ROLL", "SCALE", "LENGTH"),
+                   help="with --r1-joint: fit the model's own swing at this point (R1's "
+                        "corners and start) plus --noise instead of R1")
+    p.add_argument("--joint-evaluations", type=int, default=10,
+                   help="--r1-joint: the joint fit's residual evaluations at most")
+    p.add_argument("--r1-profile", type=float, nargs="*",
+                   default=[0.005, 0.01, 0.02, 0.04, 0.08],
+                   help="--r1-joint: bending lengths [m] of the profile (none: no profile)")
+    p.add_argument("--profile-evaluations", type=int, default=4,
+                   help="--r1-joint: residual evaluations per profile point at most")
     p.add_argument("--stride", type=int, default=2)
     p.add_argument("--save", type=Path, default=None, help="folder for the R1 fits' npz")
     args = p.parse_args()
@@ -486,6 +612,24 @@ def main() -> None:
                                                for a in args.r1_gravity):
         print("sft_swing.py: --r1-gravity PITCH ROLL must be finite angles in (-90, 90) "
               "degrees", file=sys.stderr)
+        sys.exit(2)
+    for name in ("r1_joint", "joint_synthetic"):
+        point = getattr(args, name)
+        try:
+            if point is not None:
+                SwingCapture(*point)
+        except ValueError as err:
+            print(f"sft_swing.py: --{name.replace('_', '-')}: {err}", file=sys.stderr)
+            sys.exit(2)
+    if args.r1_joint is not None and (args.part != "r1" or args.r1_spans[0] < 1
+                                      or min(args.r1_profile, default=1.0) <= 0
+                                      or args.joint_evaluations < 1
+                                      or args.profile_evaluations < 1):
+        print("sft_swing.py: --r1-joint needs --part r1, --r1-spans N >= 1, profile lengths "
+              "> 0 [m] and evaluations >= 1", file=sys.stderr)
+        sys.exit(2)
+    if args.joint_synthetic is not None and args.r1_joint is None:
+        print("sft_swing.py: --joint-synthetic needs --r1-joint", file=sys.stderr)
         sys.exit(2)
     args.error_tolerance = args.error_tolerance or None
     torch.set_num_threads(1)

@@ -211,7 +211,7 @@ def fit_trajectory(stepper_at: Callable[..., TimeStepper], data: TrajectoryData,
     unknowns = normal.shape[0]
     noise = _noise(residuals, data.noise, unknowns)
     source = ESTIMATED if data.noise is None else "stated"
-    inverse = _inverse(normal)
+    inverse = normal_inverse(normal)
     errors = noise * np.sqrt(np.maximum(np.diag(inverse), 0.0))
     path = {}
     if q is not None:
@@ -256,7 +256,7 @@ def _solved(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     return scale * np.linalg.lstsq(scaled, scale * rhs, rcond=1e-12)[0]
 
 
-def _inverse(normal: np.ndarray) -> np.ndarray:
+def normal_inverse(normal: np.ndarray) -> np.ndarray:
     """N⁻¹ (`_scaled`; a pseudo-inverse where N is singular)."""
     scaled, scale = _scaled(normal)
     return np.linalg.pinv(scaled, rcond=1e-12) * scale[:, None] * scale[None, :]

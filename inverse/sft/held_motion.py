@@ -2,20 +2,39 @@
 (`inverse.sft.swing`): per-frame values (the held corners' positions, each vertex coordinate)
 smoothed by a cubic smoothing spline whose smoothing GCV chooses
 (`scipy.interpolate.make_smoothing_spline`: a reconstruction's noise would otherwise enter
-the run as accelerations of ~σ/Δt²)."""
+the run as accelerations of ~σ/Δt²). The last few smoothings are kept (`smoothed`, keyed by
+the values' and times' bytes): a sequence's problem rebuilt at other settings (a grid level,
+gravity, a time scale as mass: `swing_capture`) smooths the same data once — R1's 1024
+vertices took 57 s CPU of a 59 s build (GCV per coordinate, 3072 splines)."""
 
 from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
 
 import numpy as np
 from scipy.interpolate import make_smoothing_spline
 
+KEPT = 4  # smoothings kept (`smoothed`)
+_kept: OrderedDict[bytes, tuple[list, tuple]] = OrderedDict()
+
 
 def smoothed(values: np.ndarray, times: np.ndarray) -> tuple[list, tuple]:
     """Each entry of values (F, …) smoothed over times (F,) [s] by a cubic smoothing spline
-    whose smoothing GCV chooses: (splines, the entries' shape), read by `evaluate_smoothed`."""
+    whose smoothing GCV chooses: (splines, the entries' shape), read by `evaluate_smoothed`;
+    the same values and times again: the kept answer (module docstring; not to be changed)."""
+    values, times = np.asarray(values, dtype=np.float64), np.asarray(times, dtype=np.float64)
+    key = hashlib.sha256(repr((values.shape, times.shape)).encode() + values.tobytes()
+                         + times.tobytes()).digest()
+    if key in _kept:
+        _kept.move_to_end(key)
+        return _kept[key]
     flat = values.reshape(len(times), -1)
     splines = [make_smoothing_spline(times, flat[:, j]) for j in range(flat.shape[1])]
-    return splines, values.shape[1:]
+    _kept[key] = (splines, values.shape[1:])
+    while len(_kept) > KEPT:
+        _kept.popitem(last=False)
+    return _kept[key]
 
 
 def evaluate_smoothed(smooth, t: np.ndarray, nu: int = 0) -> np.ndarray:
