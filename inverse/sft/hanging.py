@@ -141,9 +141,13 @@ def hanging_model(size: tuple[float, float], material, corners: np.ndarray,
     converge in the grid nor lowered B's grid bias (−24 % at 24² against 28², the point's
     −7 %) — with the rim integrated by the spans' Gauss points, first order and erratic. With
     the rim integrated exactly (`discretise.held_patches`) and knots graded towards the
-    corners, the rest's B converges at an observed order ≈ 4 (2 cm: steps −7.9, −1.5, −0.4,
-    −0.1 % from 16² to 48², wip-sftmat13), where the point's drifts at order ≈ 1. The
-    default stays the point (0)."""
+    corners, the rest converges in the grid (2 cm: B's steps −9.0, −3.4, −0.5 % from 16² to
+    40², the observed rest's 0.40, 0.070, 0.014 mm rms; dP/dB by central differences),
+    where the point's B drifts at order ≈ 1. But a grip's sensitivities are not usable yet:
+    modes of the coefficients by the patches' rims sit at K's rounding level, so
+    `rest_start`'s dC₀/dB (graded 32²: 46 % rms off a central difference) and the dynamics'
+    tangent (growing ≈ 4.5 × per frame while the model's own difference stays bounded) are
+    rounding (RESULTS.md, wip-sftmat13). The default stays the point (0)."""
     corners = np.asarray(corners, dtype=np.float64)
     width, height = (float(s) for s in size)
     line = corners[1] - corners[0]
