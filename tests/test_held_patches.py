@@ -73,3 +73,34 @@ def test_a_stepper_with_grips_integrates_outside_them():
     assert float(weight.sum()) == pytest.approx(W * W - math.pi * 0.03**2 / 2, rel=1e-13)
     centre = torch.tensor([[0.0, 0.0], [W, 0.0]], dtype=xi.dtype)
     assert float(torch.cdist(xi, centre).min()) > 0.03
+
+
+def test_the_stiffness_force_with_grips_is_the_gradients_slope_in_b():
+    """∂f/∂B (`dynamics_adjoint.force_derivative`, the rest start's and the tangent's right-hand
+    side) is dΠ's slope in B at fixed coefficients: the stepper's points are the assembly's
+    order, which a trimmed quadrature's are not as made (they were paired with displacements
+    in another order: 71 % off on the swing's graded 32² grip)."""
+    from taichi_ndf.solve.dynamics_adjoint import force_derivative
+
+    surface = Plane(bounds=((0.0, W), (0.0, W)))
+    material = LinearIsotropic(300.0, 1.5e-5, 0.25, 0.197)
+    plan = SplinePlan(SplineConfig(spans=(12, 12), degree=3, domain=((0.0, W), (0.0, W))))
+    torch.manual_seed(0)
+
+    def stepper(bending):
+        model = ShellModel(surface, material.with_stiffness(bending_stiffness=bending),
+                           Loads(gravity=(0.0, 9.81, 0.0)), _grips(0.03, surface))
+        return PathStepper(model, plan, DynamicsConfig(dt=0.05, duration=0.1),
+                           HandlePath((0.0, 1.0), np.zeros((2, 2, 3))))
+
+    first, second = stepper(1.5e-5), stepper(3.0e-5)
+    c = 1e-3 * torch.randn(first.field.coefficients.shape, dtype=torch.float64)
+
+    def gradient(s):
+        linear = s._at(0.0)
+        result = s.objective.potential(1.0)(linear.samples, linear.displacement(c), True)
+        return linear.gradient(result.grad_u_jets)
+
+    slope = (gradient(second) - gradient(first)) / 1.5e-5
+    found = force_derivative(first, "bending_stiffness", c, 0.0)
+    assert torch.allclose(found, slope, rtol=1e-7, atol=1e-9 * float(slope.abs().max()))

@@ -143,11 +143,11 @@ def hanging_model(size: tuple[float, float], material, corners: np.ndarray,
     the rim integrated exactly (`discretise.held_patches`) and knots graded towards the
     corners, the rest converges in the grid (2 cm: B's steps −9.0, −3.4, −0.5 % from 16² to
     40², the observed rest's 0.40, 0.070, 0.014 mm rms; dP/dB by central differences),
-    where the point's B drifts at order ≈ 1. But a grip's sensitivities are not usable yet:
-    modes of the coefficients by the patches' rims sit at K's rounding level, so
-    `rest_start`'s dC₀/dB (graded 32²: 46 % rms off a central difference) and the dynamics'
-    tangent (growing ≈ 4.5 × per frame while the model's own difference stays bounded) are
-    rounding (RESULTS.md, wip-sftmat13). The default stays the point (0)."""
+    where the point's B drifts at order ≈ 1. (Until wip-sftmat13 a grip's sensitivities were
+    wrong — the stepper's points, a trimmed quadrature's, paired with displacements in the
+    assembly's other order: `rest_start`'s dP/dB 46 % rms off a central difference on graded
+    32², the dynamics' tangent growing ≈ 4.5 × per frame; `solve.dynamics.TimeStepper` now
+    takes the assembly's order.) The default stays the point (0)."""
     corners = np.asarray(corners, dtype=np.float64)
     width, height = (float(s) for s in size)
     line = corners[1] - corners[0]

@@ -18,9 +18,8 @@ B still rises by ≈ 0.5–0.9 % per grid step from 32² to 48² (an observed or
 point's layer), so a point hold's B is defined by its grid only to about that. A held patch
 (`SwingConfig.grip`, its rim integrated exactly: `taichi_ndf.discretise.held_patches`) is the
 bounded condition: graded, its rest converges in the grid (2 cm grip: B's steps −9.0, −3.4,
-−0.5 % from 16² to 40², dP/dB by central differences), but its own sensitivities are
-rounding-dominated, so a fit with a grip is not usable yet (`inverse.sft.hanging.
-hanging_model`; RESULTS.md wip-sftmat13).
+−0.5 % from 16² to 40², dP/dB by central differences; `inverse.sft.hanging.hanging_model`,
+RESULTS.md wip-sftmat13).
 """
 
 from __future__ import annotations

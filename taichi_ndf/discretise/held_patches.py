@@ -9,9 +9,10 @@ Tensor Gauss points on the knot spans that the rim cuts integrate that jump at f
 erratically with where the rim cuts each span: measured on the swing's rest (benchmarks/
 RESULTS.md, wip-sftmat13) the total energy of uniform 40² moved by 5 % between 4² and 8²
 points per span, and B's static bias from grid to grid by −14 % then −0.9 % (read with
-`rest_start`'s dP/dB, which on a grip is rounding-dominated — 46 % rms off a central
-difference on graded 32², K's modes by the rims at its rounding level — so these two B
-figures are indicative only; the energy's are not affected).
+`rest_start`'s dP/dB while the dynamics' stepper paired these points, not in the assembly's
+order, with displacements in that order — 46 % rms off a central difference on graded 32²,
+fixed in `solve.dynamics.TimeStepper` — so these two B figures are indicative only; the
+energy's are not affected).
 
 `held_patch_points` integrates over the domain minus the quarter discs of the handles that
 sit at its corners, by the trimmed quadrature of a panel's outline
