@@ -3,13 +3,21 @@ slope held; the band starts at the rim; the composed jets are the field's deriva
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from test_boundary import autograd_jets, random_jets, smooth_raw
 
 from taichi_ndf import jets
 from taichi_ndf.boundary import BoundaryConditions, Handle
-from taichi_ndf.geometry import ParameterDomain
+from taichi_ndf.field.spline import SplineConfig, SplineField
+from taichi_ndf.geometry import ParameterDomain, Plane
+from taichi_ndf.minimise.linearisation import GridLinearisation
+from taichi_ndf.minimise.sensitivity import exact_hessian, sensitivity
+from taichi_ndf.objective.objective import Objective
+from taichi_ndf.problem.loads import Loads
+from taichi_ndf.problem.model import ShellModel
+from taichi_ndf.shell.materials import LinearIsotropic
 
 PLATE = ParameterDomain(((0.0, 2.0), (-1.0, 1.0)))  # η = (ξ¹/2, (ξ² + 1)/2)
 GRIP = Handle((0.0, -1.0), (0.1, -0.2, 0.3), radius=0.1)  # a corner's quarter disc
@@ -136,3 +144,39 @@ def test_a_turning_grip_turns_its_patch_rigidly_about_its_point_and_composes_smo
         BoundaryConditions([grip], PLATE)
     with pytest.raises(ValueError, match="Handle: turn"):
         Handle((0.0, -1.0), (0.0, 0.0, 0.0), turn=(float("nan"), 0.0, 0.0))
+
+
+def test_coefficients_wholly_inside_a_grip_are_held_so_the_equilibriums_k_is_regular():
+    # A 2 × 2 m plate on 8² cubic spans, held at two corners by patches of radius 0.2: φ is 0
+    # on a patch, so the coefficients whose support's quadrature points all lie in it move
+    # nothing; their K rows are zero (the swing's "K is singular" at rest, wip-sftmat12)
+    # unless held. Held: exactly those; K over the free unknowns factorises.
+    surface = Plane(bounds=((0.0, 2.0), (-1.0, 1.0)))
+    grips = [Handle((0.0, -1.0), (0.0, 0.0, 0.0), radius=0.2),
+             Handle((2.0, -1.0), (0.0, 0.0, 0.0), radius=0.2)]
+    model = ShellModel(surface, LinearIsotropic(300.0, 1e-4, 0.25, 0.2),
+                       Loads(gravity=(0.0, 9.81, 0.0)),
+                       BoundaryConditions(grips, surface.domain, surface=surface))
+    config = SplineConfig(spans=(8, 8), degree=3, domain=((0.0, 2.0), (-1.0, 1.0)))
+    grid = GridLinearisation(SplineField(config), model.boundary)
+    samples = GridLinearisation.quadrature(model.surface, config, model.loads,
+                                           dtype=torch.float64)
+    linear = grid.linearisation(1.0, samples)
+    xi, index = linear.assembly.samples.xi, linear.assembly.basis.index
+    eta = (xi - torch.tensor([0.0, -1.0], dtype=xi.dtype)) / 2.0
+    inside = torch.minimum(eta.norm(dim=1), (eta - torch.tensor([1.0, 0.0])).norm(dim=1)) <= 0.2
+    read_outside = torch.zeros(config.num_coefficients, dtype=torch.bool)
+    read_outside[index[~inside].unique()] = True
+    wholly_inside = torch.nonzero(~read_outside).flatten().numpy()
+    assert wholly_inside.size >= 2  # the fixture shows it
+    expected = (wholly_inside[:, None] * 3 + np.arange(3)).reshape(-1)
+    np.testing.assert_array_equal(linear.fixed, expected)
+    potential = Objective.of_model(model).potential(1.0)
+    coefficients = torch.zeros(config.num_coefficients, 3, dtype=torch.float64)
+    matrix = exact_hessian(linear, potential, coefficients)
+    rhs = torch.ones(config.num_coefficients, 3, 1, dtype=torch.float64)
+    with pytest.raises(RuntimeError, match="singular"):  # every unknown free
+        sensitivity(matrix, rhs)
+    solved = sensitivity(matrix, rhs, linear.fixed)
+    assert torch.isfinite(solved.derivative).all()
+    assert (solved.derivative.reshape(-1, 1)[expected] == 0).all()

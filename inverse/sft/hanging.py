@@ -137,9 +137,17 @@ def hanging_model(size: tuple[float, float], material, corners: np.ndarray,
     semi-axes grip and grip·H/W where H ≠ W), moved rigidly (translated, its plane kept).
     Which describes a capture is the capture's (a pinch or a clip); measured on the
     synthetic swing (benchmarks/RESULTS.md, "a held patch (grip) and the grid"), a 2 cm grip
-    removes the point's static singularity at the corners but does not make the moving sheet
-    converge in the grid (its folds do not) nor lower B's grid bias (−24 % at 24² against
-    28², the point's −7 %), so the default stays the point (0)."""
+    removed the point's static singularity at the corners but neither made the moving sheet
+    converge in the grid nor lowered B's grid bias (−24 % at 24² against 28², the point's
+    −7 %) — with the rim integrated by the spans' Gauss points, first order and erratic. With
+    the rim integrated exactly (`discretise.held_patches`) and knots graded towards the
+    corners, the rest converges in the grid (2 cm: B's steps −9.0, −3.4, −0.5 % from 16² to
+    40², the observed rest's 0.40, 0.070, 0.014 mm rms; dP/dB by central differences),
+    where the point's B drifts at order ≈ 1. (Until wip-sftmat13 a grip's sensitivities were
+    wrong — the stepper's points, a trimmed quadrature's, paired with displacements in the
+    assembly's other order: `rest_start`'s dP/dB 46 % rms off a central difference on graded
+    32², the dynamics' tangent growing ≈ 4.5 × per frame; `solve.dynamics.TimeStepper` now
+    takes the assembly's order.) The default stays the point (0)."""
     corners = np.asarray(corners, dtype=np.float64)
     width, height = (float(s) for s in size)
     line = corners[1] - corners[0]

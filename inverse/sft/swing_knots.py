@@ -15,7 +15,11 @@ state (RESULTS.md, wip-sftmat12): B's static bias against a degree-4 64² unifor
 32² spans, degree 3, −20.7 % uniform, −0.3 % graded (degree 4: −9.3 %, +0.5 %), the same
 unknowns at 1.5–2.2 × the CPU per solve. What the grading leaves is slow: the graded grids'
 B still rises by ≈ 0.5–0.9 % per grid step from 32² to 48² (an observed order ≈ 1, the held
-point's layer), so a point hold's B is defined by its grid only to about that.
+point's layer), so a point hold's B is defined by its grid only to about that. A held patch
+(`SwingConfig.grip`, its rim integrated exactly: `taichi_ndf.discretise.held_patches`) is the
+bounded condition: graded, its rest converges in the grid (2 cm grip: B's steps −9.0, −3.4,
+−0.5 % from 16² to 40², dP/dB by central differences; `inverse.sft.hanging.hanging_model`,
+RESULTS.md wip-sftmat13).
 """
 
 from __future__ import annotations

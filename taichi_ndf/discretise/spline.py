@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 import torch
 
 from taichi_ndf import jets
+from taichi_ndf.discretise.held_patches import held_patch_points
 from taichi_ndf.discretise.protocol import (
     OnLoadStep,
     Probes,
@@ -32,7 +33,7 @@ from taichi_ndf.problem.field_types import SPLINE, FieldType
 from taichi_ndf.problem.model import ShellModel
 from taichi_ndf.problem.operator import DisplacementOperator
 from taichi_ndf.problem.run_size import contact_check_points
-from taichi_ndf.problem.sampling import SurfaceSamples
+from taichi_ndf.problem.sampling import SurfaceSamples, with_point_loads
 from taichi_ndf.problem.spline_grid import SplinePlan
 from taichi_ndf.problem.start_shape import StartShape
 from taichi_ndf.problem.training import SolverConfig
@@ -202,11 +203,19 @@ class SplineDiscretisation:
         return SplineField(self.spec.config, dtype=self.dtype)
 
     def evaluation_points(self) -> SurfaceSamples:
+        """The grid's Gauss points per knot span, or where handles hold patches at the domain's
+        corners the domain outside them (`held_patches`: the rims integrated exactly)."""
         field = self.field
-        return with_seam_points(GridLinearisation.quadrature(
-            self.model.surface, field.config, self.model.loads,
-            points=self.spec.quadrature_points, dtype=field.coefficients.dtype),
-            self.model.terms)
+        dtype = field.coefficients.dtype
+        trimmed = held_patch_points(self.model.boundary, field.config)
+        if trimmed is None:
+            samples = GridLinearisation.quadrature(
+                self.model.surface, field.config, self.model.loads,
+                points=self.spec.quadrature_points, dtype=dtype)
+        else:
+            samples = with_point_loads(self.model.surface, trimmed[0].to(dtype),
+                                       trimmed[1].to(dtype), self.model.loads)
+        return with_seam_points(samples, self.model.terms)
 
     def displacement(self, xi: torch.Tensor, load_factor: float) -> torch.Tensor:
         field = self.field

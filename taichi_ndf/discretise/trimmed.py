@@ -162,8 +162,9 @@ def trimmed_points(outline: Outline, config: SplineConfig
     span's points those of `span_points`), float64, span by span (ξ¹ span major). Raises
     ValueError for a grid whose domain does not hold the outline's bounding box or is
     periodic."""
-    if not all(lo <= b_lo and b_hi <= hi for (lo, hi), (b_lo, b_hi)
-               in zip(config.domain, outline.bounds, strict=True)):
+    if not all(lo - 1e-12 * (hi - lo) <= b_lo and b_hi <= hi + 1e-12 * (hi - lo)
+               for (lo, hi), (b_lo, b_hi) in zip(config.domain, outline.bounds, strict=True)):
+        # (to rounding: an arc that meets a side of the box, e.g. a held patch's rim)
         raise ValueError(f"the panel's grid {config.domain} does not hold its outline's "
                          f"bounding box {outline.bounds}")
     if any(config.periodic):

@@ -7,7 +7,8 @@ matrix (3p × 3p, unknowns component × p + parameter) and the damped solve a Ch
 factorisation of the Jacobi-scaled K + μ I (`damped_step`).
 
 `SplineLinearisation`: a local-support field's coefficients C (n, 3) on an `Assembly` (sparse
-J, K in CSR, unknowns coefficient × 3 + component), with held unknowns (gauge freedoms), the
+J, K in CSR, unknowns coefficient × 3 + component), with held unknowns (gauge freedoms,
+coefficients no point reads: `held_unknowns`), the
 sparse direct or multigrid solve (`linear_solve`) and the spline's FD step rule (`jet_steps`).
 `GridLinearisation` is the one place that builds it: span quadrature → local basis →
 `Assembly` → `SplineLinearisation` on one grid, with its held unknowns, linear solver and FD
@@ -48,6 +49,11 @@ from taichi_ndf.shell.hessian import COMPONENTS, JET_SIZE, jet_steps
 # nearly collinear features and zero-energy motions (rigid modes) would otherwise take steps
 # made of rounding noise.
 EIGEN_CUTOFF = 1e-14
+# An unknown whose every read (|J| per jet channel) is at most this × the channel's largest
+# is held (`unread_unknowns`): K's entries go with |J|², and below √(k ε) — k = 147, the
+# unknowns one cubic coefficient's row couples, (2p + 1)² × 3, over which the factorisation
+# accumulates rounding — its pivot is rounding noise (float64: 1.8e-7).
+READ_FLOOR = float(np.sqrt(147 * np.finfo(np.float64).eps))
 
 
 def parameter_gradient(jacobian: torch.Tensor, grad_u_jets: torch.Tensor) -> torch.Tensor:
@@ -220,17 +226,44 @@ class SplineLinearisation:
         return torch.from_numpy(step).to(gradient).reshape(gradient.shape), damping
 
 
-def held_unknowns(grid, boundary: BoundaryConditions | None, basis: LocalBasis
-                  ) -> np.ndarray | None:
-    """Unknowns held at zero: the gauge of a free pin (`gauge_unknowns`) and the coefficients
+def held_unknowns(grid, boundary: BoundaryConditions | None, basis: LocalBasis,
+                  assembly: Assembly | None = None) -> np.ndarray | None:
+    """Unknowns held at zero: the gauge of a free pin (`gauge_unknowns`), the coefficients
     a mirrored spline never reads (`SplineField.aliased_coefficients`), which no point
-    couples. grid: the `SplineField`; boundary None: no gauge."""
+    couples, and with an `assembly` (its J built) the unknowns its points do not read
+    (`unread_unknowns`: a held patch's). grid: the `SplineField`; boundary None: no gauge."""
     held = [None if boundary is None else gauge_unknowns(boundary, basis)]
     aliased = grid.aliased_coefficients.numpy()
     if aliased.size:
         held.append((aliased[:, None] * COMPONENTS + np.arange(COMPONENTS)).reshape(-1))
-    held = [h for h in held if h is not None]
-    return np.concatenate(held) if held else None
+    if assembly is not None:
+        held.append(unread_unknowns(assembly))
+    held = [h for h in held if h is not None and h.size]
+    return np.unique(np.concatenate(held)) if held else None
+
+
+def unread_unknowns(assembly: Assembly) -> np.ndarray:
+    """The unknowns (coefficient × 3 + component, sorted) that the assembly's points read only
+    at rounding's scale: in every jet channel the largest |J| over the points at or below
+    `READ_FLOOR` × that channel's largest over all unknowns. The vanishing factor of a held
+    patch (`Handle.radius`) is 0 on the patch, so a coefficient whose support lies in it
+    (or reaches past its rim only where φ·N is ~1e-8 of its peak) moves nothing, and K's row
+    of it is zero or rounding: singular for the sensitivity solve (`minimise.sensitivity`)
+    and for the dynamics' adjoint. A free pin's coefficients are read at every point."""
+    index = assembly.basis.index.reshape(-1)
+    held = []
+    for c in range(COMPONENTS):
+        magnitude = assembly.jacobian.component(c).abs()  # (N, ch, k)
+        reach = magnitude.new_zeros(magnitude.shape[1], assembly.n_coefficients)
+        for channel in range(magnitude.shape[1]):
+            reach[channel].scatter_reduce_(0, index, magnitude[:, channel].reshape(-1), "amax")
+        largest = reach.amax(dim=1, keepdim=True)
+        relative = torch.where(largest > 0, reach / largest.clamp_min(1e-300), 0.0)
+        unread = relative.amax(dim=0) <= READ_FLOOR
+        if assembly.basis.pin_index is not None:
+            unread[assembly.basis.pin_index] = False
+        held.append(torch.nonzero(unread).flatten().cpu().numpy() * COMPONENTS + c)
+    return np.sort(np.concatenate(held)).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -286,8 +319,9 @@ class GridLinearisation:
         self.assembly = None
         basis = local_basis_at(self.operator, samples.xi)
         self.assembly = Assembly(samples, basis, self.field.config.num_coefficients)
-        if not self._fixed_known:
-            self._fixed = held_unknowns(self.field, self.boundary, basis)
+        if not self._fixed_known:  # J does not depend on the load factor
+            self.assembly.at_load(self.operator, 1.0)
+            self._fixed = held_unknowns(self.field, self.boundary, basis, self.assembly)
             self._fixed_known = True
         return self.assembly
 

@@ -85,6 +85,7 @@ class TimeStepper:
         # One assembly at the Gauss points; its boundary offset g(μ) follows `_at` (μ(t)).
         self._grid = self.discretisation.linearise(self.field)
         self.linear = self._grid.linearisation(1.0, self.samples)
+        self.samples = self.linear.samples  # the assembly's order, as linear.displacement's
         moves = float(self.offset_of(self.linear).abs().max()) > 0
         if moves != (config.motion is not None):
             raise ValueError("dynamics: the boundary prescribes displacements (handles, rim "
